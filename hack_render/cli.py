@@ -1,0 +1,59 @@
+"""The `hack-render` command line: one command, several subcommands.
+
+Each layer contributes its own Typer sub-app or commands; this module only wires them
+together and turns user errors (:class:`hack_render.errors.HackError`) into a clear
+message and exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from hack_render.errors import HackError
+
+app = typer.Typer(
+    name="hack-render",
+    help=(
+        "Render, fit and animate the HACK head-and-neck model.\n\n"
+        "Start with `hack-render mesh -o out/head.obj` (a posed mesh of the built-in "
+        "default model) and `hack-render COMMAND --help` for each command."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+# --- sub-apps and commands: one line each, owned by the module named -----------------
+from hack_render.geometry import cli as _geometry_cli  # noqa: E402
+
+_geometry_cli.register(app)
+# --- end of sub-apps --------------------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: runs the app, mapping HackError to exit code 2."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except HackError as err:
+        typer.secho(f"error: {err}", err=True, fg=typer.colors.RED)
+        sys.exit(2)
+    except typer.Abort:
+        typer.secho("aborted", err=True)
+        sys.exit(130)
+    except SystemExit:
+        raise
+    except Exception as err:  # click usage errors carry their own exit code
+        import click
+
+        if isinstance(err, click.exceptions.ClickException):
+            err.show()
+            sys.exit(2)
+        if isinstance(err, click.exceptions.Exit):
+            sys.exit(err.exit_code)
+        raise
+
+
+if __name__ == "__main__":
+    main()
