@@ -1,0 +1,52 @@
+"""The HACK geometry layer G(beta, psi, theta, eta, tau): torch and numpy only."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+
+from hack_render.errors import HackError
+from hack_render.geometry.model import HackModel, HackOutput, PersonalizedHack
+from hack_render.geometry.skeleton import (
+    JOINT_NAMES,
+    adjacent_similarity_penalty,
+    clamp_to_limits,
+    distribute_head_rotation,
+    rotation_limit_penalty,
+    rotation_limits,
+)
+
+DEFAULT_MODEL_NAME = "hack_default.npz"
+
+__all__ = [
+    "HackModel", "HackOutput", "PersonalizedHack", "JOINT_NAMES", "load_default_model",
+    "default_model_path", "load_model", "distribute_head_rotation", "rotation_limit_penalty",
+    "adjacent_similarity_penalty", "clamp_to_limits", "rotation_limits",
+]
+
+
+def default_model_path() -> Path:
+    """Path of the built-in default model shipped as package data."""
+    path = Path(str(resources.files("hack_render") / "data" / DEFAULT_MODEL_NAME))
+    if not path.is_file():
+        raise HackError(f"the built-in default model {path} is missing; rebuild it with "
+                        "`hack-render model build --ict ../shared/data/ict-facekit "
+                        f"-o {path}` or reinstall hack-render.")
+    return path
+
+
+@lru_cache(maxsize=4)
+def _load_cached(path: str) -> HackModel:
+    return HackModel.from_file(path)
+
+
+def load_model(path: str | Path | None = None) -> HackModel:
+    """Load a model file (default: the built-in model). The result is cached per path; call
+    ``.to(...)`` / ``.double()`` on a copy (``copy.deepcopy``) if you need another dtype."""
+    return _load_cached(str(Path(path) if path is not None else default_model_path()))
+
+
+def load_default_model() -> HackModel:
+    """The built-in default HACK model (ICT-FaceKit based, see README)."""
+    return load_model(None)

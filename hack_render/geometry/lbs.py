@@ -1,0 +1,92 @@
+"""Linear blend skinning over the HACK kinematic chain, as small pure functions.
+
+Nodes: 0 is the root (thorax; it carries ``global_orient`` and sits at the c7-t1 joint),
+nodes 1..8 are the joints c7-t1 ... o-c1. Rest-pose joint frames are aligned with the
+model axes (as in SMPL), so a joint's local X/Y/Z are the model's X/Y/Z at rest.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from hack_render.geometry.rotations import axis_angle_to_matrix
+
+
+def chain_parents(parents: tuple[int, ...]) -> tuple[int, ...]:
+    """Parents of the 9-node chain (root + joints) from the joints' parents (-1 = root)."""
+    return (-1,) + tuple(p + 1 for p in parents)
+
+
+def pose_feature(rot_mats: torch.Tensor) -> torch.Tensor:
+    """SMPL-style pose feature ``(R_k - I)`` flattened. rot_mats: (B, K, 3, 3) -> (B, 9K)."""
+    eye = torch.eye(3, dtype=rot_mats.dtype, device=rot_mats.device)
+    return (rot_mats - eye).flatten(1)
+
+
+def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
+                     parents: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Forward kinematics.
+
+    Args:
+        rot_mats: (B, K, 3, 3) local rotations, node order with parents before children.
+        joints: (B, K, 3) rest positions of the nodes.
+        parents: parent index per node, -1 for the root.
+
+    Returns:
+        posed_joints: (B, K, 3) world positions of the nodes after posing.
+        rel: (B, K, 4, 4) transforms that map a rest-pose point to its posed position when
+            it moves rigidly with node k (the quantity blended by LBS).
+    """
+    B, K = joints.shape[:2]
+    rel_joints = joints.clone()
+    par = torch.tensor([p if p >= 0 else 0 for p in parents], device=joints.device)
+    has_parent = torch.tensor([p >= 0 for p in parents], device=joints.device)
+    rel_joints = joints - torch.where(has_parent[None, :, None], joints[:, par], torch.zeros_like(joints))
+    local = torch.zeros(B, K, 4, 4, dtype=joints.dtype, device=joints.device)
+    local[..., :3, :3] = rot_mats
+    local[..., :3, 3] = rel_joints
+    local[..., 3, 3] = 1
+    world = [local[:, 0]]
+    for k in range(1, K):
+        world.append(world[parents[k]] @ local[:, k])
+    world_t = torch.stack(world, dim=1)
+    posed_joints = world_t[..., :3, 3]
+    # Remove the rest-pose joint location: rel = world @ [I, -j_rest; 0, 1].
+    rel = world_t.clone()
+    rel[..., :3, 3] = posed_joints - (world_t[..., :3, :3] @ joints.unsqueeze(-1)).squeeze(-1)
+    return posed_joints, rel
+
+
+def skin(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+    """Blend node transforms per vertex and apply them.
+
+    Args:
+        vertices: (B, N, 3) rest-pose vertices (with all corrective blendshapes).
+        weights: (N, K) skinning weights, rows summing to 1.
+        rel: (B, K, 4, 4) from :func:`rigid_transforms`.
+
+    Returns:
+        (B, N, 3) posed vertices. The blend ``T = W @ rel`` is one (N, K) x (K, 12) product.
+    """
+    B, K = rel.shape[:2]
+    # T[b, n] = sum_k W[n, k] rel[b, k]: contraction over k, rows 0..2 of the 4x4 only.
+    t = torch.matmul(weights, rel[..., :3, :].reshape(B, K, 12)).reshape(B, -1, 3, 4)
+    return (t[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + t[..., 3]
+
+
+def skin_reference(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+    """Slow per-vertex LBS, for tests: a Python loop over vertices and nodes."""
+    out = torch.zeros_like(vertices)
+    for b in range(vertices.shape[0]):
+        for n in range(vertices.shape[1]):
+            acc = torch.zeros(4, 4, dtype=vertices.dtype)
+            for k in range(weights.shape[1]):
+                acc = acc + weights[n, k] * rel[b, k]
+            p = torch.cat([vertices[b, n], vertices.new_ones(1)])
+            out[b, n] = (acc @ p)[:3]
+    return out
+
+
+def local_rotations(theta: torch.Tensor, global_orient: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices of the chain: (B, 3) root and (B, 8, 3) joints -> (B, 9, 3, 3)."""
+    return axis_angle_to_matrix(torch.cat([global_orient.unsqueeze(1), theta], dim=1))

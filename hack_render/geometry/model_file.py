@@ -1,0 +1,255 @@
+"""The HACK model file: one ``.npz`` with a format version and named arrays, validated on load.
+
+Layout (N vertices, F triangles, T texture coordinates, S shape components, E expression
+shapes, K = 8 joints; "opt" groups are all-or-none):
+
+====================== ===================== ==========================================
+key                    shape, dtype          meaning
+====================== ===================== ==========================================
+format_version         (), int               :data:`FORMAT_VERSION`
+meta_json              (), str               provenance per component, units, licence
+template_vertices      (N, 3) f32            mean rest template T_bar, metres, Y up, +Z face
+faces / uv_faces       (F, 3) i32            triangles; their texture-coordinate indices
+uvs                    (T, 2) f32            texture coordinates (UDIM-like tiles in u)
+face_material          (F,) i16              index into material_names
+material_names         (n,) str              ICT material names
+vertex_uv              (N, 2) f32            one UV per vertex (first use), for UV lookups
+vertex_group / group_names (N,) i16 / str     ICT geometry groups
+vertex_region / region_names (N,) i16 / str   skin regions (face, scalp, neck, chest, ...)
+landmark_indices       (68,) i32             Multi-PIE 68 landmark vertices
+shape_components       (S, N, 3) f32 q       orthonormal PCA basis (as vectors in R^3N)
+shape_std              (S,) f32              std of each component, metres; beta ~ N(0, I)
+expression_basis       (E, N, 3) f32 q       generic expression deltas, metres
+expression_names       (E,) str
+au_names / au_matrix   (A,) str / (A, E) f32 FACS action unit -> expression weights
+joint_names            (K,) str
+joint_parents          (K,) i32              -1 = root (thorax)
+joint_regressor        (K, N) f32            J = regressor @ (T_bar + B_S), rows sum to 1
+skinning_weights       (N, K+1) f32          column 0 = root, then joints; rows sum to 1
+rotation_limits_deg    (K, 3, 2) f32         Euler (x, y, z) (min, max) per joint
+opt pose_basis         (9K, N, 3) f32 q      generic pose blendshapes P (SMPL-style)
+opt expr_pca_*         see below             personalised expressions E_beta = M_E(beta)
+opt pose_pca_*         see below             personalised pose blendshapes P_beta = M_P(beta)
+opt larynx_*           see below             larynx basis L (Eq. 4)
+====================== ===================== ==========================================
+
+Personalised group ``X`` in {expr, pose} (D = E or 9K deltas): ``X_pca_vertices`` (M,) i32,
+``X_pca_mean`` (D, M, 3), ``X_pca_components`` (C, D, M, 3) q, and an MLP of three linear
+layers ``X_mlp_w0`` (H, S_in), ``X_mlp_b0`` (H,), ``X_mlp_w1`` (H, H), ``X_mlp_b1``,
+``X_mlp_w2`` (C, H), ``X_mlp_b2`` (C,) with ReLU between them. The personal basis is the
+generic one plus, on the M vertices, ``mean + sum_c w_c(beta) components_c``.
+
+Larynx: ``larynx_maps`` (L, 3, H, W) metres, ``larynx_uv_bounds`` (4,), ``larynx_vertices``
+(M,) i32, ``larynx_coef_matrix`` (L, S'), ``larynx_coef_offset`` (L,),
+``larynx_v_per_metre`` (). See :mod:`hack_render.geometry.larynx`.
+
+"q" arrays may be stored quantised as ``key__q`` (int16) with ``key__scale`` (f32, one per
+leading index, value = q * scale); the loader restores float32 transparently.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+FORMAT_VERSION = 1
+QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
+               "expr_pca_components", "pose_pca_components")
+_FIX = "Rebuild the file with `hack-render model build`, or pass a valid HACK model file."
+
+REQUIRED: dict[str, tuple[str, str]] = {
+    # key: (shape spec, dtype kind) -- symbols resolved against the template's sizes
+    "template_vertices": ("N,3", "f"),
+    "faces": ("F,3", "i"),
+    "uvs": ("T,2", "f"),
+    "uv_faces": ("F,3", "i"),
+    "face_material": ("F", "i"),
+    "material_names": ("*", "U"),
+    "vertex_uv": ("N,2", "f"),
+    "vertex_group": ("N", "i"),
+    "group_names": ("*", "U"),
+    "vertex_region": ("N", "i"),
+    "region_names": ("*", "U"),
+    "landmark_indices": ("68", "i"),
+    "shape_components": ("S,N,3", "f"),
+    "shape_std": ("S", "f"),
+    "expression_basis": ("E,N,3", "f"),
+    "expression_names": ("E", "U"),
+    "au_names": ("A", "U"),
+    "au_matrix": ("A,E", "f"),
+    "joint_names": ("K", "U"),
+    "joint_parents": ("K", "i"),
+    "joint_regressor": ("K,N", "f"),
+    "skinning_weights": ("N,K1", "f"),
+    "rotation_limits_deg": ("K,3,2", "f"),
+}
+OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
+    "pose": {"pose_basis": ("P,N,3", "f")},
+    "expr_personal": {
+        "expr_pca_vertices": ("Me", "i"), "expr_pca_mean": ("E,Me,3", "f"),
+        "expr_pca_components": ("Ce,E,Me,3", "f"),
+        "expr_mlp_w0": ("He,Ie", "f"), "expr_mlp_b0": ("He", "f"),
+        "expr_mlp_w1": ("He,He", "f"), "expr_mlp_b1": ("He", "f"),
+        "expr_mlp_w2": ("Ce,He", "f"), "expr_mlp_b2": ("Ce", "f"),
+    },
+    "pose_personal": {
+        "pose_pca_vertices": ("Mp", "i"), "pose_pca_mean": ("P,Mp,3", "f"),
+        "pose_pca_components": ("Cp,P,Mp,3", "f"),
+        "pose_mlp_w0": ("Hp,Ip", "f"), "pose_mlp_b0": ("Hp", "f"),
+        "pose_mlp_w1": ("Hp,Hp", "f"), "pose_mlp_b1": ("Hp", "f"),
+        "pose_mlp_w2": ("Cp,Hp", "f"), "pose_mlp_b2": ("Cp", "f"),
+    },
+    "larynx": {
+        "larynx_maps": ("L,3,Hl,Wl", "f"), "larynx_uv_bounds": ("4", "f"),
+        "larynx_vertices": ("Ml", "i"), "larynx_coef_matrix": ("L,Sl", "f"),
+        "larynx_coef_offset": ("L", "f"), "larynx_v_per_metre": ("", "f"),
+    },
+}
+
+
+def _resolve(spec: str, arr: np.ndarray, sizes: dict[str, int], key: str, path: str) -> None:
+    dims = [d for d in spec.split(",") if d] if spec else []
+    if spec == "*":
+        if arr.ndim != 1:
+            raise HackError(f"{path}: key '{key}' expected a 1-D array, found shape {arr.shape}. {_FIX}")
+        return
+    if arr.ndim != len(dims):
+        raise HackError(f"{path}: key '{key}' expected shape ({spec}), found {arr.shape}. {_FIX}")
+    for d, n in zip(dims, arr.shape):
+        if d.isdigit():
+            want = int(d)
+        elif d == "K1":
+            want = sizes.setdefault("K", n - 1) + 1
+        else:
+            want = sizes.setdefault(d, n)
+        if n != want:
+            raise HackError(f"{path}: key '{key}' expected shape ({spec}) with {d}={want} "
+                            f"(from earlier keys), found {arr.shape}. {_FIX}")
+
+
+def quantise(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """int16 quantisation with one scale per leading index; returns (q, scale)."""
+    flat = arr.reshape(arr.shape[0], -1).astype(np.float64)
+    scale = np.abs(flat).max(axis=1) / 32767.0
+    scale[scale == 0] = 1.0
+    q = np.round(flat / scale[:, None]).astype(np.int16).reshape(arr.shape)
+    return q, scale.astype(np.float32)
+
+
+def dequantise(q: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    return (q.astype(np.float32).reshape(q.shape[0], -1) * scale[:, None]).reshape(q.shape)
+
+
+def save_model_file(path: str | Path, arrays: dict[str, Any], meta: dict[str, Any],
+                    quantise_keys: tuple[str, ...] = QUANTISABLE) -> dict[str, float]:
+    """Validate and write a model file atomically.
+
+    Returns:
+        the maximum absolute quantisation error (metres) per quantised key.
+    """
+    path = Path(path)
+    arrays = {k: np.asarray(v) for k, v in arrays.items()}
+    validate_arrays(arrays, str(path))
+    out: dict[str, np.ndarray] = {"format_version": np.asarray(FORMAT_VERSION),
+                                  "meta_json": np.asarray(json.dumps(meta, indent=1))}
+    errors: dict[str, float] = {}
+    for k, v in arrays.items():
+        if k in quantise_keys and v.size:
+            q, s = quantise(v)
+            out[f"{k}__q"], out[f"{k}__scale"] = q, s
+            errors[k] = float(np.abs(dequantise(q, s) - v).max())
+        else:
+            out[k] = v
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.npz")
+    np.savez_compressed(tmp, **out)
+    os.replace(tmp, path)
+    return errors
+
+
+def load_model_file(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Read and validate a model file; returns (arrays, meta). Raises HackError on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"{path}: model file not found. Pass an existing .npz, or omit it to use "
+                        "the built-in default model.")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            raw = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise HackError(f"{path}: not a readable .npz model file ({exc}); it may be truncated "
+                        f"or corrupt. {_FIX}") from exc
+    if "format_version" not in raw:
+        raise HackError(f"{path}: missing key 'format_version'; this is not a HACK model file. {_FIX}")
+    version = int(raw.pop("format_version"))
+    if version != FORMAT_VERSION:
+        raise HackError(f"{path}: format_version {version} is not supported (expected "
+                        f"{FORMAT_VERSION}). {_FIX}")
+    meta = json.loads(str(raw.pop("meta_json"))) if "meta_json" in raw else {}
+    arrays: dict[str, np.ndarray] = {}
+    for k, v in raw.items():
+        if k.endswith("__q"):
+            base = k[:-3]
+            if f"{base}__scale" not in raw:
+                raise HackError(f"{path}: key '{base}__q' has no '{base}__scale'. {_FIX}")
+            arrays[base] = dequantise(v, raw[f"{base}__scale"])
+        elif not k.endswith("__scale"):
+            arrays[k] = v
+    validate_arrays(arrays, str(path))
+    return arrays, meta
+
+
+def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[str, int]:
+    """Check keys, shapes, dtypes and finiteness; returns the resolved sizes (N, F, S, ...)."""
+    sizes: dict[str, int] = {}
+    for key, (spec, kind) in REQUIRED.items():
+        if key not in arrays:
+            raise HackError(f"{path}: missing required key '{key}' (shape ({spec})). {_FIX}")
+        _check(key, arrays[key], spec, kind, sizes, path)
+    for group, keys in OPTIONAL_GROUPS.items():
+        present = [k for k in keys if k in arrays]
+        if present and len(present) != len(keys):
+            missing = sorted(set(keys) - set(present))
+            raise HackError(f"{path}: optional group '{group}' is incomplete: has {present}, "
+                            f"missing {missing}. {_FIX}")
+        for key in present:
+            _check(key, arrays[key], *keys[key], sizes, path)
+    known = set(REQUIRED) | {k for g in OPTIONAL_GROUPS.values() for k in g}
+    unknown = sorted(set(arrays) - known)
+    if unknown:
+        raise HackError(f"{path}: unknown keys {unknown}. {_FIX}")
+    n = sizes["N"]
+    for key in ("faces", "landmark_indices"):
+        if arrays[key].min() < 0 or arrays[key].max() >= n:
+            raise HackError(f"{path}: key '{key}' indexes outside 0..{n - 1}. {_FIX}")
+    if arrays["uv_faces"].max() >= sizes["T"]:
+        raise HackError(f"{path}: key 'uv_faces' indexes outside 0..{sizes['T'] - 1}. {_FIX}")
+    w = arrays["skinning_weights"]
+    if w.min() < -1e-6 or np.abs(w.sum(1) - 1).max() > 1e-4:
+        raise HackError(f"{path}: key 'skinning_weights' must be non-negative with rows summing "
+                        f"to 1; found min {w.min():.3g}, worst row sum error "
+                        f"{np.abs(w.sum(1) - 1).max():.3g}. {_FIX}")
+    if np.abs(arrays["joint_regressor"].sum(1) - 1).max() > 1e-4:
+        raise HackError(f"{path}: key 'joint_regressor' rows must sum to 1 (translation "
+                        f"equivariance). {_FIX}")
+    return sizes
+
+
+def _check(key, arr, spec, kind, sizes, path):
+    if kind == "f" and arr.dtype.kind != "f":
+        raise HackError(f"{path}: key '{key}' expected a float array, found dtype {arr.dtype}. {_FIX}")
+    if kind == "i" and arr.dtype.kind not in "iu":
+        raise HackError(f"{path}: key '{key}' expected an integer array, found dtype {arr.dtype}. {_FIX}")
+    if kind == "U" and arr.dtype.kind != "U":
+        raise HackError(f"{path}: key '{key}' expected an array of strings, found dtype {arr.dtype}. {_FIX}")
+    _resolve(spec, arr, sizes, key, path)
+    if kind == "f" and not np.isfinite(arr).all():
+        bad = int((~np.isfinite(arr)).sum())
+        raise HackError(f"{path}: key '{key}' has {bad} non-finite values (NaN or inf). {_FIX}")
