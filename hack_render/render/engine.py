@@ -1,0 +1,138 @@
+"""Choosing and activating a Mitsuba variant (the engine adapter's entry point).
+
+Order of preference: ``cuda_ad_rgb`` when a CUDA GPU works, else ``llvm_ad_rgb`` (CPU,
+JIT-compiled through LLVM), else ``scalar_rgb`` with a warning (no inverse rendering, and
+the skin material falls back to Mitsuba's ``principled``). ``HACK_RENDER_VARIANT`` or the
+CLI's ``--variant`` override the choice. Every other module in this package calls
+:func:`ensure_variant` before touching ``mitsuba``.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+
+from hack_render.errors import HackError
+
+ENV_VAR = "HACK_RENDER_VARIANT"
+PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
+#: Oldest LLVM that Dr.Jit's kernels compile with: 14 and 15 abort with
+#: "Cannot select: fminimum" on Mitsuba 3.6+ kernels.
+MIN_LLVM = (16, 0, 0)
+LLVM_FIX = (
+    "Install a current LLVM with `apt-get install libllvm19` (Debian/Ubuntu; "
+    "`dnf install llvm-libs` on Fedora, `brew install llvm` on macOS), or point "
+    "DRJIT_LIBLLVM_PATH at an existing libLLVM.so of version 16 or newer."
+)
+
+
+@dataclass(frozen=True)
+class Backends:
+    """What this machine offers: Mitsuba's compiled variants and Dr.Jit's JIT backends."""
+
+    variants: tuple[str, ...]
+    cuda: bool
+    llvm: bool
+    llvm_version: tuple[int, int, int]
+
+
+class VariantWarning(UserWarning):
+    """Rendering falls back to a slower or less capable Mitsuba variant."""
+
+
+def probe_backends() -> Backends:
+    """Ask Mitsuba and Dr.Jit what is available here (cheap; compiles nothing)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    llvm = bool(dr.has_backend(dr.JitBackend.LLVM))
+    version = tuple(dr.detail.llvm_version()) if llvm else (0, 0, 0)
+    return Backends(tuple(mi.variants()), bool(dr.has_backend(dr.JitBackend.CUDA)), llvm,
+                    version)  # type: ignore[arg-type]
+
+
+def _usable(variant: str, b: Backends) -> str | None:
+    """None if ``variant`` can run on ``b``, else the reason it cannot."""
+    if variant not in b.variants:
+        return f"this Mitsuba build has no variant {variant!r} (it has {', '.join(b.variants)})"
+    if variant.startswith("cuda") and not b.cuda:
+        return "no working CUDA GPU/driver was found"
+    if variant.startswith("llvm"):
+        if not b.llvm:
+            return "Dr.Jit could not load LLVM (libLLVM.so)"
+        if b.llvm_version < MIN_LLVM:
+            found = ".".join(map(str, b.llvm_version))
+            return f"LLVM {found} is too old (need 16 or newer; 19 is tested)"
+    return None
+
+
+def choose_variant(requested: str | None = None, backends: Backends | None = None) -> str:
+    """Pick the Mitsuba variant to use.
+
+    Args:
+        requested: an explicit variant (CLI ``--variant``); else ``$HACK_RENDER_VARIANT``;
+            else the first usable one of :data:`PREFERENCE`.
+        backends: what is available (tests pass a made-up one); probed when None.
+
+    Returns:
+        The variant name. Warns (:class:`VariantWarning`) when falling back to
+        ``scalar_rgb``, naming the LLVM package to install.
+
+    Raises:
+        HackError: if an explicitly requested variant cannot run here.
+    """
+    b = backends or probe_backends()
+    requested = requested or os.environ.get(ENV_VAR) or None
+    if requested:
+        why = _usable(requested, b)
+        if why:
+            fix = LLVM_FIX if requested.startswith("llvm") else (
+                f"Pick one of {', '.join(v for v in PREFERENCE if not _usable(v, b))} "
+                f"with --variant or {ENV_VAR}, or unset it to choose automatically.")
+            raise HackError(f"Mitsuba variant {requested!r}: expected a variant that runs "
+                            f"here, found that {why}. {fix}")
+        return requested
+    for variant in PREFERENCE[:2]:
+        if not _usable(variant, b):
+            return variant
+    if "scalar_rgb" not in b.variants:
+        raise HackError("Mitsuba: expected one of the variants cuda_ad_rgb, llvm_ad_rgb or "
+                        f"scalar_rgb, found only {', '.join(b.variants)}. Reinstall mitsuba "
+                        "from PyPI (`pip install mitsuba`).")
+    warnings.warn(
+        f"Rendering with scalar_rgb: {_usable('llvm_ad_rgb', b)}. Scalar rendering is slow, "
+        f"inverse rendering (fitting) is unavailable and skin uses Mitsuba's principled "
+        f"BSDF instead of the hack_skin plugin. {LLVM_FIX}", VariantWarning, stacklevel=2)
+    return "scalar_rgb"
+
+
+def ensure_variant(requested: str | None = None) -> str:
+    """Activate a variant once per process (see :func:`choose_variant`) and return it.
+
+    A later call with a different explicit ``requested`` switches variants; a call
+    without one keeps whatever is active.
+    """
+    import mitsuba as mi
+
+    current = mi.variant()
+    if current is not None and (requested is None or requested == current):
+        if requested is None and os.environ.get(ENV_VAR) not in (None, "", current):
+            requested = os.environ[ENV_VAR]
+        else:
+            return current
+    variant = choose_variant(requested)
+    if variant != current:
+        mi.set_variant(variant)
+        from hack_render.render import skin_bsdf  # registers plugins for this variant
+
+        skin_bsdf.register()
+    return variant
+
+
+def is_jit(variant: str | None = None) -> bool:
+    """True for the JIT (differentiable, vectorised) variants."""
+    import mitsuba as mi
+
+    v = variant or mi.variant() or ""
+    return v.startswith(("cuda", "llvm"))

@@ -1,0 +1,174 @@
+"""Image files: linear float32 EXR with named channels, sRGB PNG with an explicit tone map.
+
+No Mitsuba here: OpenEXR writes and reads EXR, colour-science encodes sRGB, imageio
+writes PNG. Every writer goes through a temporary name in the target folder and renames,
+so an interrupted run never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+TONE_MAPS = ("clip", "reinhard", "aces")
+
+
+def check_writable(path: str | Path) -> Path:
+    """Create ``path``'s folder if needed and check that files can be written there.
+
+    Raises:
+        HackError: naming the folder and the fix, before any rendering is done.
+    """
+    path = Path(path)
+    folder = path.parent if path.suffix else path
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise HackError(f"{folder}: expected a folder the output can be written to, found "
+                        f"it cannot be created ({err.strerror}). Choose another output "
+                        "path with -o.") from err
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise HackError(f"{folder}: expected a writable output folder, found it is not "
+                        "writable. Choose another output path with -o or fix its "
+                        "permissions.")
+    return path
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix); rename it over ``path`` on success."""
+    path = Path(path)
+    check_writable(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        tmp_path.replace(path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_exr(path: str | Path, channels: dict[str, np.ndarray],
+              metadata: dict[str, str] | None = None) -> Path:
+    """Write named float32 channels to an EXR (ZIP compressed, scanline).
+
+    Args:
+        channels: name -> (H, W) array, e.g. ``{"R": r, "G": g, "B": b, "depth.Z": z}``.
+            All the same (H, W); converted to float32.
+        metadata: extra string attributes for the header (e.g. camera matrices as text).
+    """
+    import OpenEXR
+
+    shapes = {k: np.shape(v) for k, v in channels.items()}
+    if not channels or len(set(shapes.values())) != 1 or len(next(iter(shapes.values()))) != 2:
+        raise HackError(f"EXR channels: expected equal (H, W) arrays, found shapes {shapes}.")
+    data = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (metadata or {}).items():
+        header[k] = str(v)
+    with atomic_path(path) as tmp:
+        OpenEXR.File(header, data).write(str(tmp))
+    return Path(path)
+
+
+def read_exr(path: str | Path) -> dict[str, np.ndarray]:
+    """Read every channel of an EXR as name -> (H, W) float32."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"{path}: EXR file not found. Check the path.")
+    try:
+        f = OpenEXR.File(str(path), separate_channels=True)
+    except Exception as err:  # OpenEXR raises plain RuntimeError/IOError
+        raise HackError(f"{path}: expected a readable OpenEXR file, found an error "
+                        f"({err}). Re-export it as .exr.") from err
+    return {k: np.asarray(c.pixels, dtype=np.float32) for k, c in f.channels().items()}
+
+
+def rgb_channels(image: np.ndarray, prefix: str = "") -> dict[str, np.ndarray]:
+    """(H, W, 3) -> {"R", "G", "B"} (with an optional layer prefix such as ``"albedo."``)."""
+    return {f"{prefix}{c}": image[..., i] for i, c in enumerate("RGB")}
+
+
+def tone_map(linear: np.ndarray, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
+    """Linear Rec.709 radiance -> display-referred linear values in [0, 1].
+
+    Args:
+        linear: (..., 3) scene-referred linear RGB.
+        exposure: stops; the image is multiplied by 2**exposure first.
+        operator: ``clip`` (plain clamp), ``reinhard`` (x / (1 + x) on each channel) or
+            ``aces`` (Narkowicz's fit of the ACES filmic curve), the default.
+    """
+    if operator not in TONE_MAPS:
+        raise HackError(f"tone map: expected one of {', '.join(TONE_MAPS)}, found "
+                        f"{operator!r}.")
+    x = np.maximum(np.asarray(linear, dtype=np.float64), 0.0) * 2.0 ** exposure
+    if operator == "reinhard":
+        x = x / (1.0 + x)
+    elif operator == "aces":
+        x = (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
+    return np.clip(x, 0.0, 1.0)
+
+
+def to_srgb8(linear: np.ndarray, exposure: float = 0.0, operator: str = "aces") -> np.ndarray:
+    """Tone map, then encode with the sRGB transfer function (colour-science): uint8."""
+    import colour
+
+    display = tone_map(linear, exposure, operator)
+    encoded = colour.cctf_encoding(display, function="sRGB")
+    return np.round(np.clip(encoded, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def write_png(path: str | Path, linear: np.ndarray, exposure: float = 0.0,
+              operator: str = "aces") -> Path:
+    """Write a linear (H, W, 3) image as an sRGB PNG through :func:`to_srgb8`."""
+    import imageio.v3 as iio
+
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, to_srgb8(linear, exposure, operator), extension=".png")
+    return Path(path)
+
+
+def read_hdr_image(path: str | Path) -> np.ndarray:
+    """Read a lat-long environment map (.exr or Radiance .hdr) as (H, W, 3) float32 linear.
+
+    Raises:
+        HackError: missing or unreadable file, wrong format or shape, non-finite values.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"{path}: environment map not found. Pass an existing lat-long "
+                        ".exr or .hdr file.")
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        ch = read_exr(path)
+        if not all(c in ch for c in "RGB"):
+            raise HackError(f"{path}: expected R, G, B channels, found {sorted(ch)}.")
+        img = np.stack([ch["R"], ch["G"], ch["B"]], axis=-1)
+    elif suffix == ".hdr":
+        import imageio.v3 as iio
+
+        try:
+            img = np.asarray(iio.imread(path), dtype=np.float32)[..., :3]
+        except Exception as err:
+            raise HackError(f"{path}: expected a readable Radiance .hdr file, found an "
+                            f"error ({err}).") from err
+    else:
+        raise HackError(f"{path}: expected an environment map in .exr or .hdr format, "
+                        f"found {suffix or 'no suffix'}. Convert it to EXR.")
+    if img.ndim != 3 or img.shape[0] < 2 or img.shape[1] != 2 * img.shape[0]:
+        raise HackError(f"{path}: expected a lat-long map twice as wide as high, found "
+                        f"shape {img.shape}.")
+    if not np.all(np.isfinite(img)):
+        raise HackError(f"{path}: expected finite radiance values, found NaN or Inf.")
+    return img.astype(np.float32)

@@ -1,0 +1,154 @@
+"""Materials of the head parts, as Mitsuba plugin dictionaries, and the skin maps.
+
+- skin: ``hack_skin`` (see ``skin_bsdf.py``) driven by the appearance maps; in the
+  ``scalar_rgb`` fallback, Mitsuba's ``principled`` with the same maps, ``specular`` 0.35
+  (its F0 = 0.08 * 0.35 = 0.028) and a ``normalmap`` wrapper.
+- mouth (gums, tongue), teeth, sclera, lacrimal film: ``roughplastic`` (a diffuse base
+  under a GGX dielectric coat), wet and glossy where the tissue is.
+- iris: ``principled`` over per-vertex colours (pupil, iris with radial striations in
+  the iris colour, dark limbal ring); its glossy clearcoat is the cornea's gloss, because the outer shell is opened over the cornea (``parts.py``).
+- lacrimal film: two-sided (a thin shell). eyelashes: dark brown, slightly glossy,
+  two-sided and 50 % opaque (ICT's lash cards expect an alpha texture).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.render.parts import LIMBUS_RADIUS, PUPIL_RADIUS, radial_eye_distance
+
+DEFAULT_IRIS_RGB = (0.16, 0.09, 0.04)  # a brown iris, linear Rec.709
+SCLERA_RGB = (0.70, 0.64, 0.60)
+
+
+@dataclass(frozen=True)
+class SkinMaps:
+    """Skin texture atlas (numpy, float32), covering u in [0, 2] as [0, 1] x 2 tiles.
+
+    Attributes (H rows, 2H columns, row 0 is v = 1):
+        diffuse: (H, 2H, 3) linear Rec.709 albedo. specular: (H, 2H, 1) intensity in [0, 1].
+        roughness: (H, 2H, 1) perceptual roughness. normal: (H, 2H, 3) unit tangent-space
+        normals (OpenGL, +Y along +v), or None for the interpolated mesh normal.
+    """
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    normal: np.ndarray | None = None
+
+    def __post_init__(self):
+        h = self.diffuse.shape[0]
+        want = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
+        for key, c in want.items():
+            a = getattr(self, key)
+            if a is None and key == "normal":
+                continue
+            if a.shape != (h, 2 * h, c):
+                raise HackError(f"skin map {key!r}: expected shape ({h}, {2 * h}, {c}) (H, 2H, "
+                                f"C), found {a.shape}.")
+            if not np.all(np.isfinite(a)):
+                raise HackError(f"skin map {key!r}: expected finite values, found NaN/Inf.")
+
+    @staticmethod
+    def constant(height: int = 16, albedo=(0.46, 0.29, 0.22), specular: float = 0.6,
+                 roughness: float = 0.5) -> "SkinMaps":
+        """Uniform maps (a stand-in where no appearance model is given)."""
+        shape = (height, 2 * height)
+        return SkinMaps(np.broadcast_to(np.float32(albedo), shape + (3,)).copy(),
+                        np.full(shape + (1,), specular, np.float32),
+                        np.full(shape + (1,), roughness, np.float32), None)
+
+    @staticmethod
+    def from_appearance(maps, index: int = 0) -> "SkinMaps":
+        """From ``AppearanceModel.maps(alpha)`` output (batched torch tensors): item ``index``."""
+        def get(name):
+            x = getattr(maps, name, None)
+            if x is None:
+                return None
+            x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+            return np.ascontiguousarray(x[index] if x.ndim == 4 else x, dtype=np.float32)
+
+        return SkinMaps(get("diffuse"), get("specular"), get("roughness"), get("normal"))
+
+
+def bitmap(data: np.ndarray, raw: bool = True) -> dict:
+    """A ``bitmap`` texture dict from an (H, W, C) float array (bilinear, clamped at edges)."""
+    import mitsuba as mi
+
+    return {"type": "bitmap", "data": mi.TensorXf(np.ascontiguousarray(data, np.float32)),
+            "raw": raw, "filter_type": "bilinear", "wrap_mode": "clamp"}
+
+
+def skin_bsdf(maps: SkinMaps, jit: bool) -> dict:
+    """The skin BSDF dict: ``hack_skin`` in JIT variants, ``principled`` in scalar ones."""
+    if jit:
+        d = {"type": "hack_skin", "albedo": bitmap(maps.diffuse),
+             "specular": bitmap(maps.specular), "roughness": bitmap(maps.roughness)}
+        if maps.normal is not None:
+            d["normalmap"] = bitmap(maps.normal)
+        return d
+    base = {"type": "principled", "base_color": bitmap(maps.diffuse),
+            "roughness": bitmap(maps.roughness), "specular": 0.35}
+    if maps.normal is None:
+        return base
+    return {"type": "normalmap", "normalmap": bitmap(0.5 * maps.normal + 0.5), "bsdf": base}
+
+
+def _plastic(rgb, alpha: float, ior: float = 1.4) -> dict:
+    return {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, "int_ior": ior,
+            "diffuse_reflectance": {"type": "rgb", "value": list(map(float, rgb))}}
+
+
+def fixed_bsdfs() -> dict[str, dict]:
+    """BSDF dicts of the non-skin parts, keyed by part name (iris: see :func:`iris_bsdf`)."""
+    return {
+        "mouth": _plastic((0.42, 0.12, 0.11), 0.2),
+        "teeth": _plastic((0.78, 0.72, 0.60), 0.15, 1.5),
+        "sclera": _plastic(SCLERA_RGB, 0.05, 1.376),
+        # thin shells, seen from either side
+        "lacrimal": {"type": "twosided", "bsdf": _plastic((0.62, 0.45, 0.42), 0.03, 1.336)},
+        # lash cards without their alpha texture: half-transparent, so they read as
+        # lashes rather than as a painted line
+        "eyelashes": {"type": "mask", "opacity": {"type": "uniform", "value": 0.5},
+                      "bsdf": {"type": "twosided",
+                               "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}},
+    }
+
+
+def iris_bsdf() -> dict:
+    """Iris with a glossy corneal coat over per-vertex colours (attribute ``vertex_color``)."""
+    # principled, not roughplastic: roughplastic needs Texture::mean(), which
+    # mesh_attribute textures do not implement. The clearcoat is the corneal gloss.
+    return {"type": "principled", "roughness": 0.6, "specular": 0.3, "clearcoat": 1.0,
+            "clearcoat_gloss": 0.97,
+            "base_color": {"type": "mesh_attribute", "name": "vertex_color"}}
+
+
+def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB) -> np.ndarray:
+    """Colours (n, 3) of inner-eye vertices (n, 3) from their distance to the optical axis.
+
+    Pupil (r < 1.7 mm) near black; iris in ``iris_rgb`` with 40 radial striations and a
+    lighter collarette; a dark limbal ring towards r = 5.8 mm; sclera colour beyond.
+    """
+    rgb = np.asarray(iris_rgb, dtype=np.float64)
+    if rgb.shape != (3,) or np.any(rgb < 0) or np.any(rgb > 1):
+        raise HackError(f"iris colour: expected 3 linear RGB values in [0, 1], found "
+                        f"{tuple(np.ravel(iris_rgb))}.")
+    r, _ = radial_eye_distance(points, axes)
+    centres = np.stack([c for c, _ in axes])
+    ax = np.stack([a for _, a in axes])
+    k = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)
+    d = points - centres[k]
+    up = np.cross(ax[k], np.cross([0.0, 1.0, 0.0], ax[k]))
+    side = np.cross(ax[k], up)
+    angle = np.arctan2(np.einsum("ij,ij->i", d, side), np.einsum("ij,ij->i", d, up))
+    t = np.clip((r - PUPIL_RADIUS) / (LIMBUS_RADIUS - PUPIL_RADIUS), 0.0, 1.0)
+    striation = 0.8 + 0.2 * np.cos(40.0 * angle) * np.cos(13.0 * angle + 9.0 * t)
+    collarette = 1.0 + 0.5 * np.exp(-0.5 * ((t - 0.3) / 0.08) ** 2)
+    limbal = 1.0 - 0.7 * np.clip((t - 0.8) / 0.2, 0.0, 1.0)
+    iris = rgb[None] * (striation * collarette * limbal)[:, None]
+    out = np.where((r < LIMBUS_RADIUS)[:, None], iris, np.asarray(SCLERA_RGB)[None])
+    return np.where((r < PUPIL_RADIUS)[:, None], 0.01, out).astype(np.float32)

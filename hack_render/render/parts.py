@@ -1,0 +1,169 @@
+"""Splitting the head mesh into render parts (one Mitsuba mesh per material region).
+
+Pure numpy. The model's mesh indexes UVs separately from vertices; Mitsuba needs one
+UV per vertex, so each part splits vertices at UV seams and keeps a gather index into
+the model's vertex array, so that per-frame updates are one ``vertices[gather]``.
+Normals are computed on the whole mesh before gathering, so seams stay smooth.
+
+Region ids (segmentation AOV): see :data:`REGIONS`. ICT's helper shells (``M_EyeBlend``,
+``M_EyeOcclusion``) are not rendered: they are blending and ambient-occlusion layers meant
+for alpha compositing with textures we do not ship, and drawn opaque they cover the eyes.
+The outer eye shell (``M_Sclera*``) is opened over the cornea so that the inner eye
+(``M_Iris*``, a sphere with the iris at its front) shows through; the corneal gloss is
+given to the iris material (see ``materials.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+#: Segmentation labels, index = region id (0 is background).
+REGIONS: tuple[str, ...] = ("background", "face", "back_head", "mouth", "teeth", "sclera",
+                            "iris", "lacrimal", "eyelashes")
+
+#: Part name -> (ICT materials, region, u offset subtracted, u scale applied after).
+PART_SPECS: dict[str, tuple[tuple[str, ...], str, float, float]] = {
+    "skin_face": (("M_Face",), "face", 0.0, 0.5),  # skin atlas: (u / 2, v)
+    "skin_back": (("M_BackHead",), "back_head", 0.0, 0.5),
+    "mouth": (("M_GumsTongue",), "mouth", 2.0, 1.0),
+    "teeth": (("M_Teeth",), "teeth", 3.0, 1.0),
+    "sclera": (("M_ScleraLeft", "M_ScleraRight"), "sclera", 0.0, 1.0),
+    "iris": (("M_IrisLeft", "M_IrisRight"), "iris", 0.0, 1.0),
+    "lacrimal": (("M_LacrimalFluid",), "lacrimal", 4.0, 0.5),
+    "eyelashes": (("M_EyeLashes",), "eyelashes", 6.0, 1.0),
+}
+HIDDEN_MATERIALS = ("M_EyeBlend", "M_EyeOcclusion")
+#: Radius of the visible iris / cornea (limbus), metres (adult mean 11.7 mm diameter).
+LIMBUS_RADIUS = 0.0058
+PUPIL_RADIUS = 0.0017
+
+
+@dataclass(frozen=True)
+class Topology:
+    """What the renderer needs of a head model besides its vertices.
+
+    Attributes: faces (F, 3), uvs (T, 2) OpenGL convention (v up), uv_faces (F, 3),
+    face_material (F,), material_names (M,).
+    """
+
+    faces: np.ndarray
+    uvs: np.ndarray
+    uv_faces: np.ndarray
+    face_material: np.ndarray
+    material_names: tuple[str, ...]
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.faces.max()) + 1
+
+    @staticmethod
+    def from_model(model) -> "Topology":
+        """From the geometry model (``faces``, ``uvs``, ``uv_faces``, ``face_material``,
+        ``material_names``) or an ``ObjMesh`` (``materials``); torch tensors accepted."""
+        def arr(x):
+            return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+        names = getattr(model, "material_names", None) or getattr(model, "materials", None)
+        if names is None:
+            raise HackError("head model: expected 'material_names' (or 'materials'), found "
+                            "neither. Pass the geometry model or an ObjMesh.")
+        return Topology(arr(model.faces).astype(np.int64), arr(model.uvs).astype(np.float64),
+                        arr(model.uv_faces).astype(np.int64),
+                        arr(model.face_material).astype(np.int64), tuple(names))
+
+
+@dataclass(frozen=True)
+class Part:
+    """One render mesh.
+
+    Attributes:
+        name: key of :data:`PART_SPECS`. region: index into :data:`REGIONS`.
+        gather: (n,) model-vertex index of each part vertex.
+        faces: (f, 3) indices into the part's vertices.
+        texcoords: (n, 2) Mitsuba texture coordinates (v flipped: 1 - v).
+        model_uv: (n, 2) the model's own (UDIM-style, v up) texture coordinates.
+    """
+
+    name: str
+    region: int
+    gather: np.ndarray
+    faces: np.ndarray
+    texcoords: np.ndarray
+    model_uv: np.ndarray
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals. vertices (N, 3), faces (F, 3) -> (N, 3)."""
+    v = vertices[faces]
+    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0, length, 1.0)
+
+
+def _eye_axes(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(centre, forward axis) of each eyeball from a least-squares sphere fit of its vertices."""
+    v = vertices[np.unique(faces)]
+    out = []
+    for side in (v[v[:, 0] > 0], v[v[:, 0] <= 0]):
+        if len(side) < 4:
+            continue
+        A = np.c_[2 * side, np.ones(len(side))]
+        sol = np.linalg.lstsq(A, (side ** 2).sum(1), rcond=None)[0]
+        centre = sol[:3]
+        front = side[np.argmax(side[:, 2])]
+        axis = (front - centre) / np.linalg.norm(front - centre)
+        out.append((centre, axis))
+    return out
+
+
+def radial_eye_distance(points: np.ndarray, axes) -> tuple[np.ndarray, np.ndarray]:
+    """For points (n, 3): distance from the nearest eye's optical axis, and the offset along
+    it from the eye centre (positive in front). Both (n,), metres."""
+    centres = np.stack([c for c, _ in axes])
+    nearest = np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)
+    axis = np.stack([a for _, a in axes])[nearest]
+    d = points - centres[nearest]
+    z = np.einsum("ij,ij->i", d, axis)
+    r = np.linalg.norm(d - z[:, None] * axis, axis=1)
+    return r, z
+
+
+def split_parts(topo: Topology, vertices: np.ndarray) -> tuple[list[Part], list]:
+    """Build the render parts from the topology and rest vertices (N, 3) metres.
+
+    Parts whose materials are absent are skipped (a model without eyes still renders).
+    Returns the parts and the eye axes [(centre (3,), forward axis (3,)), ...].
+    """
+    names = topo.material_names
+    missing_skin = [m for m in ("M_Face", "M_BackHead") if m not in names]
+    if len(missing_skin) == 2:
+        raise HackError(f"head model: expected ICT materials M_Face/M_BackHead, found "
+                        f"{', '.join(names)}. Use the HACK default model or its OBJ.")
+    sclera_ids = [names.index(m) for m in ("M_ScleraLeft", "M_ScleraRight") if m in names]
+    axes = _eye_axes(vertices, topo.faces[np.isin(topo.face_material, sclera_ids)]) \
+        if sclera_ids else []
+    parts = []
+    for pname, (mats, region, u_off, u_scale) in PART_SPECS.items():
+        ids = [names.index(m) for m in mats if m in names]
+        sel = np.isin(topo.face_material, ids)
+        if pname == "sclera" and axes:
+            # open the shell over the cornea: drop faces whose centroid lies inside the limbus
+            r, z = radial_eye_distance(vertices[topo.faces].mean(1), axes)
+            sel &= (r > LIMBUS_RADIUS) | (z < 0)
+        if not sel.any():
+            continue
+        f, tf = topo.faces[sel], topo.uv_faces[sel]
+        pairs = np.stack([f.ravel(), tf.ravel()], axis=1)
+        uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        uv = topo.uvs[uniq[:, 1]]
+        tc = np.stack([(uv[:, 0] - u_off) * u_scale, 1.0 - uv[:, 1]], axis=1)
+        parts.append(Part(pname, REGIONS.index(region), uniq[:, 0],
+                          inverse.reshape(-1, 3).astype(np.int64), tc, uv))
+    return parts, axes

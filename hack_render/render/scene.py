@@ -1,0 +1,279 @@
+"""A head scene built once, then changed through ``mi.traverse`` parameters.
+
+:class:`HeadScene` assembles the render parts (``parts.py``), their materials
+(``materials.py``), a light rig and a camera into one Mitsuba scene. Per-frame changes
+(vertices, skin maps, camera pose, light rotation) write into the traversed parameters
+and call ``params.update()``: the scene is never reloaded, the BVH is refit/rebuilt by
+Mitsuba, and since resolution, spp and the scene's structure stay fixed, Dr.Jit reuses
+the kernels it compiled for the first frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.render.engine import ensure_variant, is_jit
+from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
+from scenes.cameras import Camera
+from scenes.lights import LightRig
+
+MAX_SIDE = 8192
+MAX_PIXELS = 8192 * 8192
+MAX_SPP = 1 << 16
+#: Samples per render pass (one kernel launch); more spp are split into equal passes.
+SAMPLES_PER_PASS = 1 << 24
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Image size, samples per pixel, path depth and seed, validated on creation."""
+
+    width: int = 512
+    height: int = 512
+    spp: int = 64
+    max_depth: int = 8
+    seed: int = 0
+
+    def __post_init__(self):
+        validate_size(self.width, self.height, self.spp)
+        if not 1 <= self.max_depth <= 64:
+            raise HackError(f"max depth: expected 1..64 bounces, found {self.max_depth}.")
+        if not 0 <= self.seed < 2 ** 31:
+            raise HackError(f"seed: expected 0 <= seed < 2^31, found {self.seed}.")
+
+    @property
+    def passes(self) -> tuple[int, int]:
+        """(number of passes, spp per pass) covering at least ``spp`` samples."""
+        n = max(1, math.ceil(self.width * self.height * self.spp / SAMPLES_PER_PASS))
+        n = min(n, self.spp)
+        return n, math.ceil(self.spp / n)
+
+
+def validate_size(width: int, height: int, spp: int) -> None:
+    """Refuse zero, negative or absurd resolutions and sample counts (before allocating)."""
+    for name, v in (("width", width), ("height", height)):
+        if not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SIDE:
+            raise HackError(f"image {name}: expected an integer in 1..{MAX_SIDE} pixels, found "
+                            f"{v!r}. Pass e.g. --resolution 512.")
+    if width * height > MAX_PIXELS:
+        raise HackError(f"image size: expected at most {MAX_PIXELS} pixels, found "
+                        f"{width}x{height}. Render a smaller image.")
+    if not isinstance(spp, (int, np.integer)) or not 1 <= spp <= MAX_SPP:
+        raise HackError(f"samples per pixel: expected an integer in 1..{MAX_SPP}, found "
+                        f"{spp!r}. 16-64 spp is plenty for previews, 256+ for finals.")
+
+
+def _np(x) -> np.ndarray:
+    x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+    return x.astype(np.float64)
+
+
+class HeadScene:
+    """The head, its materials, lights and camera as one Mitsuba scene.
+
+    Args:
+        topology: faces, UVs and materials of the model (``Topology.from_model``).
+        vertices: (N, 3) rest/initial vertices, metres (numpy or torch).
+        maps: skin maps; constant stand-ins when None.
+        lights: a light rig (``scenes.lights.preset``).
+        camera: the camera (``scenes.cameras``); later cameras must keep its size.
+        settings: resolution, spp, depth, seed (resolution must match the camera).
+        iris_rgb: linear RGB of the iris.
+        variant: Mitsuba variant; chosen automatically when None.
+    """
+
+    def __init__(self, topology: Topology, vertices, lights: LightRig, camera: Camera,
+                 settings: RenderSettings | None = None, maps=None,
+                 iris_rgb=None, variant: str | None = None):
+        settings = settings or RenderSettings(camera.width, camera.height)
+        if (camera.width, camera.height) != (settings.width, settings.height):
+            raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
+                            f"{settings.height} (the settings), found {camera.width}x"
+                            f"{camera.height}.")
+        self.variant = ensure_variant(variant)
+        import mitsuba as mi
+
+        from hack_render.render import emitters, materials
+
+        self.settings, self.camera, self.lights = settings, camera, lights
+        self.topology = topology
+        v = _np(vertices).reshape(-1, 3)
+        if v.shape[0] != topology.num_vertices:
+            raise HackError(f"vertices: expected ({topology.num_vertices}, 3) for this "
+                            f"topology, found {v.shape}.")
+        self.parts, self.eye_axes = split_parts(topology, v)
+        maps = maps if maps is not None else materials.SkinMaps.constant()
+        env = self._env_image(lights)
+        jit = is_jit(self.variant)
+
+        skin = mi.load_dict(materials.skin_bsdf(maps, jit))
+        fixed = materials.fixed_bsdfs()
+        normals = vertex_normals(v, topology.faces)
+        scene: dict = {"type": "scene",
+                       "integrator": {"type": "path", "max_depth": settings.max_depth},
+                       "sensor": emitters.sensor_dict(camera, settings.passes[1])}
+        for part in self.parts:
+            if part.name.startswith("skin"):
+                bsdf = skin
+            elif part.name == "iris":
+                bsdf = mi.load_dict(materials.iris_bsdf())
+            else:
+                bsdf = mi.load_dict(fixed[part.name])
+            mesh = self._mesh(part, v, normals, bsdf)
+            if part.name == "iris":
+                colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
+                                                       iris_rgb or materials.DEFAULT_IRIS_RGB)
+                mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
+            scene[part.name] = mesh
+        scene.update(emitters.emitter_dicts(lights, env))
+        self.scene = mi.load_dict(scene)
+        self.params = mi.traverse(self.scene)
+        self._skin_key = self._find_skin_key()
+        self._shape_regions = self._shape_region_table()
+
+    # --- construction helpers ------------------------------------------------------
+    @staticmethod
+    def _env_image(rig: LightRig) -> np.ndarray | None:
+        from hack_render.render.image_io import read_hdr_image
+
+        if rig.env_map is not None:
+            return np.asarray(rig.env_map, dtype=np.float32)
+        if rig.env_file is not None:
+            return read_hdr_image(rig.env_file)
+        return None
+
+    @staticmethod
+    def _mesh(part, v, normals, bsdf):
+        import mitsuba as mi
+
+        mesh = mi.Mesh(part.name, len(part.gather), len(part.faces),
+                       has_vertex_normals=True, has_vertex_texcoords=True)
+        p = mi.traverse(mesh)
+        p["vertex_positions"] = mi.Float(v[part.gather].ravel().astype(np.float32))
+        p["vertex_normals"] = mi.Float(normals[part.gather].ravel().astype(np.float32))
+        p["vertex_texcoords"] = mi.Float(part.texcoords.ravel().astype(np.float32))
+        p["faces"] = mi.UInt32(part.faces.ravel().astype(np.uint32))
+        p.update()
+        mesh.set_bsdf(bsdf)
+        mesh.set_id(part.name)
+        return mesh
+
+    def _find_skin_key(self) -> str | None:
+        for key in self.params.keys():
+            if key.endswith(".albedo.data") or key.endswith(".base_color.data"):
+                return key.rsplit(".", 2)[0]
+        return None
+
+    def _shape_region_table(self) -> dict[int, tuple[int, float, float]]:
+        """Shape registry id -> (region, u offset, u scale) for the AOV pass."""
+        import drjit as dr
+        import mitsuba as mi
+
+        by_name = {p.name: p for p in self.parts}
+        table = {}
+        for shape in self.scene.shapes():
+            sid = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+            part = by_name.get(shape.id())
+            if part is not None:
+                _, _, u_off, u_scale = PART_SPECS[part.name]
+                table[sid] = (part.region, u_off, u_scale)
+        return table
+
+    # --- per-frame updates ---------------------------------------------------------
+    def set_vertices(self, vertices) -> None:
+        """New vertex positions (N, 3) metres, same topology; normals are recomputed."""
+        import mitsuba as mi
+
+        v = _np(vertices).reshape(-1, 3)
+        if v.shape[0] != self.topology.num_vertices or not np.all(np.isfinite(v)):
+            raise HackError(f"vertices: expected finite ({self.topology.num_vertices}, 3), "
+                            f"found {v.shape} (finite: {bool(np.all(np.isfinite(v)))}).")
+        n = vertex_normals(v, self.topology.faces)
+        for part in self.parts:
+            self.params[f"{part.name}.vertex_positions"] = mi.Float(
+                v[part.gather].ravel().astype(np.float32))
+            self.params[f"{part.name}.vertex_normals"] = mi.Float(
+                n[part.gather].ravel().astype(np.float32))
+        self.params.update()
+
+    def set_maps(self, maps) -> None:
+        """New skin maps (same resolution as the first ones keeps kernels cached)."""
+        import mitsuba as mi
+
+        if self._skin_key is None:
+            return
+        k = self._skin_key
+        jit = is_jit(self.variant)
+        self.params[f"{k}.{'albedo' if jit else 'base_color'}.data"] = mi.TensorXf(maps.diffuse)
+        self.params[f"{k}.roughness.data"] = mi.TensorXf(maps.roughness)
+        if jit:
+            self.params[f"{k}.specular.data"] = mi.TensorXf(maps.specular)
+            if maps.normal is not None and f"{k}.normalmap.data" in self.params:
+                self.params[f"{k}.normalmap.data"] = mi.TensorXf(maps.normal)
+        self.params.update()
+
+    def set_camera(self, camera: Camera) -> None:
+        """Move the camera (and change its focal length); the image size must stay."""
+        import mitsuba as mi
+
+        from hack_render.render.emitters import camera_to_world, check_intrinsics
+
+        if (camera.width, camera.height) != (self.settings.width, self.settings.height):
+            raise HackError(f"camera {camera.name!r}: expected size {self.settings.width}x"
+                            f"{self.settings.height}, found {camera.width}x{camera.height}. "
+                            "Build a new HeadScene for another resolution.")
+        check_intrinsics(camera)
+        self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(camera).tolist())
+        self.params["sensor.x_fov"] = camera.fov_x_deg
+        self.params.update()
+        self.camera = camera
+
+    def set_light_rotation(self, degrees: float) -> None:
+        """Rotate the whole rig (environment and area lights) about +Y."""
+        import mitsuba as mi
+
+        from hack_render.render.emitters import area_light_transform, rotation_y
+
+        if "environment.to_world" in self.params:
+            self.params["environment.to_world"] = mi.Transform4f(rotation_y(degrees).tolist())
+        for i, light in enumerate(self.lights.area):
+            key = f"light_{i}.to_world"
+            if key in self.params:
+                self.params[key] = mi.Transform4f(area_light_transform(light, degrees).tolist())
+        self.params.update()
+
+    # --- rendering -------------------------------------------------------------------
+    def render(self, seed: int | None = None, progress: bool = False) -> np.ndarray:
+        """Render the image: (H, W, 4) float32 linear Rec.709 RGB + alpha (coverage).
+
+        Samples are split into equal passes of at most ``SAMPLES_PER_PASS`` samples with
+        seeds derived from ``seed`` (default: the settings' seed), then averaged.
+        """
+        import mitsuba as mi
+
+        n, _ = self.settings.passes
+        base = self.settings.seed if seed is None else int(seed)
+        acc = None
+        steps = range(n)
+        if progress and n > 1:
+            from tqdm import tqdm
+
+            steps = tqdm(steps, desc="render passes", unit="pass")
+        for i in steps:
+            img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31)))
+            acc = img if acc is None else acc + img
+        return (acc / n).astype(np.float32)
+
+    def aovs(self) -> dict[str, np.ndarray]:
+        """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
+        from hack_render.render.aov import gbuffer
+
+        return gbuffer(self)
+
+    @property
+    def region_names(self) -> tuple[str, ...]:
+        return REGIONS

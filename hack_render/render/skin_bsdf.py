@@ -1,0 +1,204 @@
+"""The ``hack_skin`` BSDF: Lambert diffuse + GGX specular with skin Fresnel, map driven.
+
+A Python ``mi.BSDF`` plugin (JIT variants trace it into the same kernels as the C++
+plugins). Per shading point it reads four textures, all differentiable through
+``mi.traverse`` (keys ``<bsdf>.albedo.data``, ``.specular.data``, ``.roughness.data``,
+``.normalmap.data``):
+
+- ``albedo``: diffuse reflectance rho, linear Rec.709 RGB.
+- ``specular``: intensity s in [0, 1] scaling the specular lobe (0 turns it off).
+- ``roughness``: perceptual roughness r; GGX alpha = max(r^2, 1e-3).
+- ``normalmap`` (optional): unit tangent-space normals, OpenGL convention (+X along +u,
+  +Y along +v), stored as raw vectors in [-1, 1] (not [0, 1]-encoded).
+
+The model (with F(c) Schlick's Fresnel for F0 = ``f0``, 0.028 for skin, n = 1.4)::
+
+    f(wi, wo) = rho/pi * (1 - s F(cos_i)) (1 - s F(cos_o))        (diffuse lobe)
+              + s F(wi.h) D(h) G(wi, wo) / (4 cos_i cos_o)        (GGX specular lobe)
+
+Both lobes are symmetric in (wi, wo), so the BSDF is reciprocal; the diffuse lobe with
+s = 0 is exactly Lambertian (white furnace = rho); the (1 - sF) factors take the energy
+the specular lobe reflects away from the diffuse lobe, keeping the total below 1.
+Normal mapping builds a perturbed frame from the interpolated normal and the UV tangent
+(``dp_du``); directions below either the interpolated or the perturbed surface get zero,
+which avoids light leaks the way Mitsuba's ``normalmap`` plugin does.
+"""
+
+from __future__ import annotations
+
+NAME = "hack_skin"
+#: Normal-incidence reflectance of skin (index of refraction about 1.4).
+SKIN_F0 = 0.028
+MIN_ALPHA = 1e-3
+
+_registered: set[str] = set()
+
+
+def register() -> None:
+    """Register ``hack_skin`` for the active variant (JIT variants only; idempotent)."""
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant in _registered or not variant.startswith(("llvm", "cuda")):
+        return
+    cls = _make_class()
+    mi.register_bsdf(NAME, lambda props: cls(props))
+    _registered.add(variant)
+
+
+def _make_class():
+    """Define the plugin class against the active variant's ``mi.BSDF``."""
+    import drjit as dr
+    import mitsuba as mi
+
+    def schlick(f0, c):
+        c = dr.clip(c, 0.0, 1.0)
+        return f0 + (1.0 - f0) * dr.square(dr.square(1.0 - c)) * (1.0 - c)
+
+    class SkinBSDF(mi.BSDF):
+        """See the module docstring. Properties: albedo, specular, roughness (textures),
+        normalmap (texture, optional), f0 (float, default 0.028)."""
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.albedo = props["albedo"]
+            self.specular = props["specular"]
+            self.roughness = props["roughness"]
+            self.normalmap = props["normalmap"] if props.has_property("normalmap") else None
+            self.f0 = float(props["f0"]) if props.has_property("f0") else SKIN_F0
+            sv = mi.BSDFFlags.SpatiallyVarying | mi.BSDFFlags.FrontSide
+            diffuse = mi.BSDFFlags.DiffuseReflection | sv
+            glossy = mi.BSDFFlags.GlossyReflection | sv
+            self.m_components = [diffuse, glossy]
+            self.m_flags = diffuse | glossy
+
+        # --- shading frame ---------------------------------------------------------
+        def _frame(self, si, active):
+            """Perturbed shading frame (world space) from the tangent-space normal map."""
+            n = si.sh_frame.n
+            if self.normalmap is None:
+                return mi.Frame3f(n)
+            c = self.normalmap.eval(si, active)
+            t = si.dp_du - n * dr.dot(n, si.dp_du)
+            ok = dr.squared_norm(t) > 1e-20
+            t = dr.normalize(t)
+            b = dr.cross(n, t)
+            # Mitsuba's texture v runs opposite to OpenGL's (we pass v' = 1 - v), so the
+            # OpenGL +v tangent is -dp_dv; mirrored UV islands flip the bitangent.
+            b = b * dr.select(dr.dot(b, si.dp_dv) > 0.0, -1.0, 1.0)
+            nw = dr.normalize(t * c[0] + b * c[1] + n * c[2])
+            nw = dr.select(ok & (dr.squared_norm(nw) > 0), nw, n)
+            return mi.Frame3f(nw)
+
+        def _params(self, si, active):
+            s = dr.clip(self.specular.eval_1(si, active), 0.0, 1.0)
+            r = self.roughness.eval_1(si, active)
+            alpha = dr.maximum(dr.square(r), MIN_ALPHA)
+            return s, alpha
+
+        def _lobe_prob(self, si, s, cos_i, active):
+            """Probability of sampling the specular lobe, from the lobes' albedos."""
+            rho = dr.mean(self.albedo.eval(si, active))
+            ws = s * schlick(self.f0, cos_i)
+            wd = (1.0 - ws) * rho
+            p = ws / dr.maximum(ws + wd, 1e-8)
+            return dr.select(ws > 0.0, dr.clip(p, 0.15, 0.9), 0.0)
+
+        def _local(self, si, frame, wo):
+            """(wi, wo) in the perturbed frame, and whether both lie above both surfaces."""
+            wi_p = frame.to_local(si.to_world(si.wi))
+            wo_p = frame.to_local(si.to_world(wo))
+            ok = ((mi.Frame3f.cos_theta(si.wi) > 0.0) & (mi.Frame3f.cos_theta(wo) > 0.0)
+                  & (mi.Frame3f.cos_theta(wi_p) > 0.0) & (mi.Frame3f.cos_theta(wo_p) > 0.0))
+            return wi_p, wo_p, ok
+
+        def _eval_pdf(self, ctx, si, wo, active):
+            frame = self._frame(si, active)
+            wi, wo_p, ok = self._local(si, frame, wo)
+            active = active & ok
+            s, alpha = self._params(si, active)
+            cos_i = mi.Frame3f.cos_theta(wi)
+            cos_o = mi.Frame3f.cos_theta(wo_p)
+            has_d = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0)
+            has_s = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1)
+
+            value = mi.Color3f(0.0)
+            if has_d:
+                rho = self.albedo.eval(si, active)
+                att = (1.0 - s * schlick(self.f0, cos_i)) * (1.0 - s * schlick(self.f0, cos_o))
+                value += rho * (att * cos_o * dr.inv_pi)
+            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
+            h = dr.normalize(wi + wo_p)
+            pdf_s = distr.pdf(wi, h) / dr.maximum(4.0 * dr.dot(wo_p, h), 1e-8)
+            if has_s:
+                d = distr.eval(h)
+                g = distr.G(wi, wo_p, h)
+                spec = s * schlick(self.f0, dr.dot(wi, h)) * d * g / dr.maximum(4.0 * cos_i, 1e-8)
+                value += mi.Color3f(spec)
+            p_s = self._lobe_prob(si, s, cos_i, active)
+            if not has_d:
+                p_s = dr.select(p_s > 0.0, 1.0, 0.0)
+            if not has_s:
+                p_s = 0.0
+            pdf = p_s * pdf_s + (1.0 - p_s) * mi.warp.square_to_cosine_hemisphere_pdf(wo_p)
+            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+
+        # --- BSDF interface ----------------------------------------------------------
+        def eval(self, ctx, si, wo, active=True):
+            return self._eval_pdf(ctx, si, wo, active)[0]
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self._eval_pdf(ctx, si, wo, active)[1]
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self._eval_pdf(ctx, si, wo, active)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            frame = self._frame(si, active)
+            wi = frame.to_local(si.to_world(si.wi))
+            s, alpha = self._params(si, active)
+            has_d = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0)
+            has_s = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1)
+            p_s = self._lobe_prob(si, s, mi.Frame3f.cos_theta(wi), active)
+            if not has_d:
+                p_s = dr.select(p_s > 0.0, 1.0, 0.0)
+            if not has_s:
+                p_s = mi.Float(0.0)
+            pick_s = sample1 < p_s
+            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
+            m, _ = distr.sample(wi, sample2)
+            wo_s = mi.reflect(wi, m)
+            wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
+            wo_p = dr.select(pick_s, wo_s, wo_d)
+
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = si.to_local(frame.to_world(wo_p))
+            bs.eta = 1.0
+            bs.sampled_component = dr.select(pick_s, mi.UInt32(1), mi.UInt32(0))
+            bs.sampled_type = dr.select(pick_s, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                        mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
+            value, pdf = self._eval_pdf(ctx, si, bs.wo, active)
+            bs.pdf = pdf
+            ok = active & (pdf > 0.0)
+            weight = dr.select(ok, value / dr.maximum(pdf, 1e-20), 0.0)
+            return bs, weight
+
+        def eval_diffuse_reflectance(self, si, active=True):
+            return self.albedo.eval(si, active)
+
+        def traverse(self, callback):
+            flags = mi.ParamFlags.Differentiable
+            callback.put("albedo", self.albedo, flags)
+            callback.put("specular", self.specular, flags)
+            callback.put("roughness", self.roughness, flags)
+            if self.normalmap is not None:
+                callback.put("normalmap", self.normalmap, flags)
+
+        def parameters_changed(self, keys):
+            pass  # textures are evaluated at render time; nothing is cached here
+
+        def to_string(self):
+            return f"SkinBSDF[f0={self.f0}, normalmap={self.normalmap is not None}]"
+
+    return SkinBSDF
+
