@@ -1,0 +1,144 @@
+"""`hack-render mesh` and `hack-render model build|info`."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from enum import Enum
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from hack_render.errors import HackError
+
+
+class LimitPolicy(str, Enum):
+    warn = "warn"
+    clamp = "clamp"
+    error = "error"
+
+
+model_app = typer.Typer(help="Build and inspect HACK model files.", no_args_is_help=True)
+
+
+def _floats(text: Optional[str], name: str) -> Optional[list[float]]:
+    if text is None:
+        return None
+    try:
+        return [float(x) for x in text.replace(" ", "").split(",") if x]
+    except ValueError as exc:
+        raise HackError(f"--{name}: expected comma-separated numbers like '0.5,-1', found {text!r}.") from exc
+
+
+def gather_params(params_file: Optional[Path], beta: Optional[str], expression: Optional[str],
+                  head_rotation: Optional[str], eta: Optional[float], tau: Optional[float]) -> dict:
+    """Parameters from a file, overridden by command-line flags (shared by several commands)."""
+    from hack_render.geometry.params import check_params, load_params
+
+    params = load_params(params_file) if params_file else {}
+    flags = {"beta": _floats(beta, "beta"), "expression": expression,
+             "head_rotation_deg": _floats(head_rotation, "head-rotation"), "eta": eta, "tau": tau}
+    params.update({k: v for k, v in flags.items() if v is not None})
+    return check_params(params, "command-line parameters")
+
+
+def apply_limit_policy(theta, policy: LimitPolicy):
+    """Warn about, clamp, or refuse joint rotations beyond the anatomical limits."""
+    from hack_render.geometry.skeleton import clamp_to_limits, outside_limits
+
+    bad = outside_limits(theta[0])
+    if not bad:
+        return theta
+    text = "; ".join(f"{name} {axis}={deg:.1f} deg (limits {lo:.1f}..{hi:.1f})"
+                     for _, name, axis, deg, lo, hi in bad)
+    if policy is LimitPolicy.error:
+        raise HackError(f"rotations outside the anatomical limits: {text}. Use --limits clamp or warn.")
+    if policy is LimitPolicy.clamp:
+        return clamp_to_limits(theta)
+    warnings.warn(f"rotations outside the anatomical limits: {text} (use --limits clamp to clamp)")
+    typer.secho(f"warning: rotations outside the anatomical limits: {text}", err=True, fg="yellow")
+    return theta
+
+
+def mesh(
+    output: Path = typer.Option(Path("out/hack_mesh.obj"), "-o", "--output",
+                                help="Output mesh; .obj or .ply (both with UVs). A second format "
+                                     "is written beside it with --both."),
+    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
+                                          "(keys: beta, psi, expression, head_rotation_deg, theta, "
+                                          "global_orient, transl, eta, tau)."),
+    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
+    expression: Optional[str] = typer.Option(None, "--expr", help="FACS AUs and/or shape names, "
+                                             "e.g. 'AU12=0.7,jawOpen=0.3'."),
+    head_rotation: Optional[str] = typer.Option(None, "--head-rotation", help="Whole-head "
+                                                "'flexion,axial,lateral' in degrees, shared over the 8 "
+                                                "cervical joints by their ranges, e.g. '15,40,0'."),
+    eta: Optional[float] = typer.Option(None, help="Larynx size."),
+    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
+    limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Joint rotations beyond the "
+                                       "anatomical limits: warn, clamp or error."),
+    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: built-in)."),
+    both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
+) -> None:
+    """Write a posed HACK mesh (OBJ/PLY with UVs) for the given parameters.
+
+    Example: hack-render mesh -o out/smile.obj --expr AU12=0.8 --head-rotation 10,30,0
+    """
+    import torch
+
+    from hack_render.geometry import load_model
+    from hack_render.geometry.obj_io import write_mesh
+    from hack_render.geometry.params import model_inputs
+
+    model = load_model(model_path)
+    p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    kw = model_inputs(model, p)
+    kw["theta"] = apply_limit_policy(kw["theta"], limits)
+    with torch.no_grad():
+        out = model(**kw)
+    verts = out.vertices[0].numpy()
+    targets = [output] + ([output.with_suffix(".ply" if output.suffix.lower() == ".obj" else ".obj")] if both else [])
+    for target in targets:
+        write_mesh(target, verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())
+        typer.echo(f"wrote {target.resolve()}")
+
+
+@model_app.command("build")
+def build(
+    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder: the shared layout "
+                             "(ict_facekit.npz, generic_neutral_mesh.obj, vertex_indices.json) or "
+                             "the original FaceXModel/ folder of OBJs."),
+    output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
+) -> None:
+    """Build the default HACK model from ICT-FaceKit (shape PCA, AU table, skeleton, weights)."""
+    from hack_render.build.ict_default import build_default_model
+    from hack_render.geometry.model_file import save_model_file
+
+    arrays, meta = build_default_model(ict)
+    errors = save_model_file(output, arrays, meta)
+    typer.echo(f"wrote {output.resolve()} ({output.stat().st_size / 1e6:.1f} MB)")
+    for key, err in errors.items():
+        typer.echo(f"  {key}: int16 storage, max abs error {err:.3g} (unit vectors / metres)")
+
+
+@model_app.command("info")
+def info(model_path: Optional[Path] = typer.Argument(None, help="Model file (default: built-in).")) -> None:
+    """Print a model's sizes, joints, action units, expression names and provenance."""
+    from hack_render.geometry import load_model
+
+    m = load_model(model_path)
+    typer.echo(f"vertices {m.num_vertices}, triangles {len(m.faces)}, shape components {m.num_shape}, "
+               f"expressions {m.num_expressions}, joints {', '.join(m.joint_names)}")
+    typer.echo(f"action units: {', '.join(m.au_names)}")
+    typer.echo(f"expression shapes: {', '.join(m.expression_names)}")
+    typer.echo("components: pose blendshapes " + ("yes" if m.has_pose_basis else "no")
+               + ", personalised expressions " + ("yes" if m.expr_personal is not None else "no")
+               + ", personalised pose " + ("yes" if m.pose_personal is not None else "no")
+               + ", larynx " + ("yes" if m.has_larynx else "no"))
+    typer.echo(json.dumps(m.meta.get("provenance", {}), indent=1))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("mesh")(mesh)
+    app.add_typer(model_app, name="model")
