@@ -1,0 +1,303 @@
+"""`hack-render render` and `hack-render turntable`."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+
+from hack_render.errors import HackError
+
+_AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        parts = [int(x) for x in text.lower().replace("x", ",").split(",") if x.strip()]
+    except ValueError as err:
+        raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
+    if len(parts) not in (1, 2):
+        raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
+    return (parts[0], parts[-1])
+
+
+def _floats(text: Optional[str], name: str, n: Optional[int] = None) -> Optional[list[float]]:
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError as err:
+        raise HackError(f"--{name}: expected comma-separated numbers, found {text!r}.") from err
+    if n is not None and len(vals) != n:
+        raise HackError(f"--{name}: expected {n} numbers, found {len(vals)} in {text!r}.")
+    return vals
+
+
+def _aov_list(text: Optional[str]) -> list[str]:
+    if not text:
+        return []
+    names = list(_AOVS) if text.strip() == "all" else [s.strip() for s in text.split(",") if s.strip()]
+    bad = [n for n in names if n not in _AOVS]
+    if bad:
+        raise HackError(f"--aov: expected names from {', '.join(_AOVS)} or 'all', found {bad}.")
+    return names
+
+
+def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str]) -> dict:
+    """EXR channel dict: R, G, B, A then the requested AOV layers."""
+    from hack_render.render.image_io import rgb_channels
+
+    ch = rgb_channels(image[..., :3])
+    ch["A"] = image[..., 3]
+    layout = {"depth": ("Z",), "normal": ("X", "Y", "Z"), "albedo": ("R", "G", "B"),
+              "uv": ("U", "V"), "segmentation": ("I",)}
+    for name in names:
+        a = aovs[name]
+        a = a[..., None] if a.ndim == 2 else a
+        for k, c in enumerate(layout[name]):
+            ch[f"{name}.{c}"] = a[..., k].astype(np.float32)
+    return ch
+
+
+def _model_vertices(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
+    import torch
+
+    from hack_render.geometry import load_model
+    from hack_render.geometry.cli import apply_limit_policy, gather_params
+    from hack_render.geometry.params import model_inputs
+    from hack_render.render.parts import Topology
+
+    model = load_model(model_path)
+    p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
+    kw = model_inputs(model, p)
+    kw["theta"] = apply_limit_policy(kw["theta"], limits)
+    with torch.no_grad():
+        out = model(**kw)
+    return model, kw, Topology.from_model(model), out.vertices[0].numpy()
+
+
+def render(
+    output: Path = typer.Option(Path("out/render.png"), "-o", "--output",
+                                help="Image to write: .png (sRGB, tone mapped) or .exr (linear "
+                                     "float32 with optional AOV channels)."),
+    exr: Optional[Path] = typer.Option(None, "--exr", help="Also write a linear EXR here."),
+    aov: Optional[str] = typer.Option(None, "--aov", help="AOV channels for the EXR: "
+                                      "depth,normal,albedo,uv,segmentation or 'all'."),
+    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
+                                          "(the format of `hack-render mesh`)."),
+    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated."),
+    expression: Optional[str] = typer.Option(None, "--expr", help="e.g. 'AU12=0.7,jawOpen=0.3'."),
+    head_rotation: Optional[str] = typer.Option(None, "--head-rotation",
+                                                help="'flexion,axial,lateral' degrees."),
+    eta: Optional[float] = typer.Option(None, help="Larynx size."),
+    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
+    limits: str = typer.Option("warn", help="Joint limits: warn, clamp or error."),
+    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: built-in)."),
+    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients, comma-separated."),
+    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed",
+                                                  help="Random appearance from this seed."),
+    textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
+                                            "roughness[/normal].exr skin maps."),
+    lighting: str = typer.Option("studio", help="studio, light_stage, overcast_sun, window, "
+                                 "or env:PATH.exr/.hdr (a lat-long HDR map)."),
+    env_rotation: float = typer.Option(0.0, help="Rotate the lighting about +Y, degrees."),
+    exposure: float = typer.Option(0.0, help="Lighting exposure, stops."),
+    camera: str = typer.Option("portrait", help="portrait, three_quarter, profile or ring."),
+    focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="Focal length (36 mm "
+                                             "sensor width); default 85 (ring: 50)."),
+    views: int = typer.Option(8, help="Number of cameras of the ring preset."),
+    resolution: str = typer.Option("512", help="'W' or 'WxH' pixels."),
+    spp: int = typer.Option(64, help="Samples per pixel."),
+    seed: int = typer.Option(0, help="Sampler seed."),
+    max_depth: int = typer.Option(8, help="Maximum path length."),
+    iris_color: Optional[str] = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
+    tonemap: str = typer.Option("aces", help="PNG tone map: aces, reinhard or clip."),
+    variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: "
+                                          "$HACK_RENDER_VARIANT or automatic)."),
+) -> None:
+    """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
+
+    Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 64
+    """
+    from hack_render.geometry.cli import LimitPolicy
+    from hack_render.render.image_io import check_writable, tone_map, write_exr, write_png
+    from hack_render.render.scene import RenderSettings
+    from scenes import cameras as cams
+    from scenes import lights
+
+    # every cheap check before anything heavy is loaded or allocated
+    w, h = _resolution(resolution)
+    settings = RenderSettings(w, h, spp, max_depth, seed)
+    aov_names = _aov_list(aov)
+    for path in [output] + ([exr] if exr else []):
+        if path.suffix.lower() not in (".png", ".exr"):
+            raise HackError(f"{path}: expected a .png or .exr output, found "
+                            f"{path.suffix or 'no suffix'}.")
+        check_writable(path)
+    tone_map(np.zeros(3), 0.0, tonemap)
+    rig = lights.preset(lighting, env_rotation, exposure)
+    views_ = cams.preset(camera, w, h, focal_mm, n=views)
+    iris = _floats(iris_color, "iris-color", 3)
+    try:
+        policy = LimitPolicy(limits)
+    except ValueError as err:
+        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+
+    _, _, topo, verts = _model_vertices(params, beta, expression, head_rotation, eta, tau,
+                                        policy, model_path)
+    from hack_render.render.scene import HeadScene
+    from hack_render.render.skin_maps import skin_maps
+
+    maps = skin_maps(_floats(alpha, "alpha"), appearance_seed, textures)
+    head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
+    outputs = []
+    for cam in views_:
+        head.set_camera(cam)
+        t0 = time.perf_counter()
+        image = head.render(progress=True)
+        dt = time.perf_counter() - t0
+        suffix = "" if len(views_) == 1 else f"_{cam.name}"
+        for path in [output] + ([exr] if exr else []):
+            target = path.with_name(f"{path.stem}{suffix}{path.suffix}")
+            if target.suffix.lower() == ".png":
+                write_png(target, image[..., :3], operator=tonemap)
+            else:
+                aovs = head.aovs() if aov_names else {}
+                meta = {"hack_camera": __import__("json").dumps(cam.to_dict()),
+                        "hack_regions": ",".join(head.region_names),
+                        "hack_variant": head.variant}
+                write_exr(target, exr_channels(image, aovs, aov_names), meta)
+            outputs.append(target)
+        typer.echo(f"{cam.name}: {w}x{h}, {spp} spp, {dt:.1f} s ({head.variant})")
+    cam_json = output.with_name(f"{output.stem}.cameras.json")
+    cams.save_cameras(cam_json, views_)
+    for target in outputs + [cam_json]:
+        typer.echo(f"wrote {target.resolve()}")
+
+
+def turntable(
+    output: Path = typer.Option(Path("out/turntable"), "-o", "--output",
+                                help="Output folder: turntable.mp4, turntable.gif, frames/."),
+    frames: int = typer.Option(48, help="Number of frames in the loop (no duplicated end frame)."),
+    mode: str = typer.Option("orbit", help="orbit (camera circles) or subject (head turns)."),
+    look_around: bool = typer.Option(False, "--look-around", help="Animate the neck: a "
+                                     "look-around shared over the 8 joints within their limits."),
+    swallow: bool = typer.Option(False, "--swallow", help="Animate a swallow (larynx tau curve)."),
+    formats: str = typer.Option("mp4,gif", help="Any of mp4, gif, frames (PNG frames are "
+                                "always kept in <out>/frames for --resume)."),
+    fps: int = typer.Option(24, help="Frames per second."),
+    resume: bool = typer.Option(False, "--resume", help="Skip frames already in <out>/frames."),
+    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file."),
+    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated."),
+    expression: Optional[str] = typer.Option(None, "--expr", help="e.g. 'AU12=0.7'."),
+    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file."),
+    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients."),
+    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed"),
+    textures: Optional[Path] = typer.Option(None, help="Skin map folder."),
+    lighting: str = typer.Option("studio", help="Lighting preset or env:PATH."),
+    env_rotation: float = typer.Option(0.0, help="Lighting rotation about +Y, degrees."),
+    exposure: float = typer.Option(0.0, help="Lighting exposure, stops."),
+    focal_mm: float = typer.Option(85.0, "--focal-mm", help="Focal length, mm."),
+    pitch: float = typer.Option(5.0, help="Camera elevation, degrees."),
+    resolution: str = typer.Option("256", help="'W' or 'WxH' (even, for MP4)."),
+    spp: int = typer.Option(32, help="Samples per pixel."),
+    seed: int = typer.Option(0, help="Sampler seed (frame i uses seed + i)."),
+    tonemap: str = typer.Option("aces", help="aces, reinhard or clip."),
+    variant: Optional[str] = typer.Option(None, help="Mitsuba variant."),
+) -> None:
+    """Render a seamless looping turntable of the head to MP4 (H.264) / GIF / PNG frames.
+
+    Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
+    """
+    import imageio.v3 as iio
+    import torch
+    from tqdm import tqdm
+
+    from hack_render.geometry.cli import gather_params
+    from hack_render.geometry.params import model_inputs
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render import turntable as tt
+    from hack_render.render.image_io import atomic_path, check_writable, to_srgb8
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from hack_render.render.video import write_gif, write_mp4
+    from scenes import cameras as cams
+    from scenes import lights
+
+    spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
+    w, h = _resolution(resolution)
+    settings = RenderSettings(w, h, spp, 8, seed)
+    fmt = [f.strip() for f in formats.split(",") if f.strip()]
+    bad = [f for f in fmt if f not in tt.FORMATS]
+    if bad or not fmt:
+        raise HackError(f"--formats: expected some of {', '.join(tt.FORMATS)}, found {formats!r}.")
+    if "mp4" in fmt and (w % 2 or h % 2):
+        raise HackError(f"--resolution: expected even width and height for MP4 (yuv420p), "
+                        f"found {w}x{h}.")
+    check_writable(output / "frames" / "x.png")
+    tone_map_check = to_srgb8(np.zeros((1, 1, 3)), 0.0, tonemap)  # noqa: F841 - validates
+    rig = lights.preset(lighting, env_rotation, exposure)
+
+    from hack_render.geometry import load_model
+    from hack_render.render.parts import Topology
+
+    model = load_model(model_path)
+    base = model_inputs(model, gather_params(params, beta, expression, None, None, None))
+    topo = Topology.from_model(model)
+
+    def vertices_at(i: int) -> np.ndarray:
+        kw = dict(base)
+        t = spec.phase(i)
+        if look_around:
+            ang = torch.deg2rad(torch.tensor(tt.head_angles_deg(t), dtype=base["theta"].dtype))
+            kw["theta"] = base["theta"] + distribute_head_rotation(ang)[None]
+        if swallow:
+            kw["tau"] = torch.tensor([tt.swallow_tau(t)], dtype=base["theta"].dtype)
+        with torch.no_grad():
+            v = model(**kw).vertices[0].double().numpy()
+        if mode == "subject":
+            v = tt.rotate_about_y(v, spec.yaw_deg(i), cams.DEFAULT_TARGET)
+        return v
+
+    def camera_at(i: int):
+        yaw = spec.yaw_deg(i) if mode == "orbit" else 0.0
+        return cams.orbit(w, h, focal_mm, yaw, pitch, name=f"frame_{i:04d}")
+
+    todo = tt.pending_frames(output, frames, resume)
+    if todo:
+        head = HeadScene(topo, vertices_at(todo[0]), rig, camera_at(todo[0]), settings,
+                         skin_maps(_floats(alpha, "alpha"), appearance_seed, textures),
+                         None, variant)
+        times = []
+        for i in tqdm(todo, desc="turntable", unit="frame"):
+            t0 = time.perf_counter()
+            if i != todo[0] or look_around or swallow or mode == "subject":
+                head.set_vertices(vertices_at(i))
+            head.set_camera(camera_at(i))
+            img = head.render(seed=seed + i)
+            with atomic_path(tt.frame_path(output, i)) as tmp:
+                iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
+            times.append(time.perf_counter() - t0)
+        if len(times) > 1:
+            typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
+                       f"{np.mean(times[1:]):.2f} s ({head.variant})")
+    else:
+        typer.echo(f"all {frames} frames already in {output / 'frames'} (--resume)")
+    seq = [iio.imread(tt.frame_path(output, i)) for i in range(frames)]
+    written = []
+    if "mp4" in fmt:
+        written.append(write_mp4(output / "turntable.mp4", seq, fps))
+    if "gif" in fmt:
+        written.append(write_gif(output / "turntable.gif", seq, fps))
+    cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)])
+    for p in written + [output / "cameras.json"]:
+        typer.echo(f"wrote {p.resolve()}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add `render` and `turntable` to the main app."""
+    app.command("render")(render)
+    app.command("turntable")(turntable)

@@ -1,0 +1,76 @@
+"""Where skin maps come from: the appearance model (alpha or a seed), a texture folder,
+or constant stand-ins. Returns :class:`~hack_render.render.materials.SkinMaps`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.render.materials import SkinMaps
+
+TEXTURE_FILES = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
+
+
+def read_texture_folder(folder: str | Path) -> SkinMaps:
+    """Read ``diffuse.exr`` (RGB, linear), ``specular.exr``, ``roughness.exr`` (one channel,
+    e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
+    from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1."""
+    from hack_render.render.image_io import read_exr
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise HackError(f"--textures {folder}: expected a folder with diffuse.exr, "
+                        "specular.exr, roughness.exr (and optionally normal.exr), found no "
+                        "such folder.")
+    maps: dict[str, np.ndarray | None] = {}
+    for name, c in TEXTURE_FILES.items():
+        path = folder / f"{name}.exr"
+        if not path.is_file():
+            if name == "normal":
+                maps[name] = None
+                continue
+            raise HackError(f"--textures {folder}: expected {path.name}, found it missing. "
+                            "Write the skin maps there as EXR (see docs/render.md).")
+        ch = read_exr(path)
+        keys = ["R", "G", "B"] if c == 3 else [k for k in ("Y", "R", "A") if k in ch][:1]
+        if not keys or not all(k in ch for k in keys):
+            raise HackError(f"{path}: expected channels {'R, G, B' if c == 3 else 'Y or R'}, "
+                            f"found {sorted(ch)}.")
+        maps[name] = np.stack([ch[k] for k in keys], axis=-1)
+    return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"])
+
+
+def appearance_maps(alpha: list[float] | None, seed: int | None) -> SkinMaps:
+    """Maps from the appearance model for coefficients ``alpha`` or a random draw ``seed``."""
+    import torch
+
+    try:
+        import appearance
+        model = appearance.load_default_model()
+    except (ImportError, AttributeError, OSError) as err:
+        raise HackError("--alpha/--appearance-seed: expected the appearance model "
+                        f"(package 'appearance'), found it unavailable ({err}). Use "
+                        "--textures DIR or omit these options for uniform skin.") from err
+    n = int(getattr(model, "num_components", 0) or len(alpha or []))
+    if alpha is None:
+        g = torch.Generator().manual_seed(int(seed or 0))
+        a = torch.randn(1, n, generator=g)
+    else:
+        if n and len(alpha) > n:
+            raise HackError(f"--alpha: expected at most {n} values, found {len(alpha)}.")
+        a = torch.zeros(1, max(n, len(alpha)))
+        a[0, :len(alpha)] = torch.tensor(alpha)
+    with torch.no_grad():
+        return SkinMaps.from_appearance(model.maps(a))
+
+
+def skin_maps(alpha: list[float] | None = None, seed: int | None = None,
+              textures: str | Path | None = None) -> SkinMaps:
+    """Pick the source: a texture folder, the appearance model, or constant maps."""
+    if textures is not None:
+        return read_texture_folder(textures)
+    if alpha is not None or seed is not None:
+        return appearance_maps(alpha, seed)
+    return SkinMaps.constant()

@@ -1,0 +1,83 @@
+"""Turntables: N frames of a looping animation, resumable, as MP4 / GIF / PNG frames.
+
+The loop is seamless: frame i of N is at phase t = i / N, so frame N would repeat
+frame 0 and is never rendered. Motion options (any combination):
+
+- ``orbit``: the camera circles the head under fixed lights; ``subject``: the head
+  turns about the vertical axis through the framing target under fixed lights and camera.
+- ``look_around``: a neck animation, whole-head angles (flexion, axial, lateral) on
+  periodic curves, shared over the 8 cervical joints within their limits by
+  ``distribute_head_rotation``.
+- ``swallow``: the larynx rises and returns (a smooth tau bump in the middle of the loop).
+
+Frames are written as PNG (sRGB, tone mapped) under ``<out>/frames``; ``resume`` skips
+frames already there (each was written atomically, so an existing file is complete).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+FORMATS = ("mp4", "gif", "frames")
+
+
+@dataclass(frozen=True)
+class TurntableSpec:
+    """What to animate. frames: N; mode: ``orbit`` or ``subject``; degrees per loop."""
+
+    frames: int = 48
+    mode: str = "orbit"
+    degrees: float = 360.0
+    look_around: bool = False
+    swallow: bool = False
+    fps: int = 24
+
+    def __post_init__(self):
+        if not 2 <= self.frames <= 10000:
+            raise HackError(f"--frames: expected 2..10000, found {self.frames}.")
+        if self.mode not in ("orbit", "subject"):
+            raise HackError(f"--mode: expected 'orbit' or 'subject', found {self.mode!r}.")
+        if not 1 <= self.fps <= 120:
+            raise HackError(f"--fps: expected 1..120, found {self.fps}.")
+
+    def phase(self, i: int) -> float:
+        return i / self.frames
+
+    def yaw_deg(self, i: int) -> float:
+        return self.degrees * self.phase(i)
+
+
+def head_angles_deg(t: float) -> tuple[float, float, float]:
+    """Look-around whole-head angles at loop phase t in [0, 1): (flexion, axial, lateral)."""
+    w = 2.0 * math.pi * t
+    return (10.0 * math.sin(2.0 * w), 45.0 * math.sin(w), 8.0 * math.sin(w + math.pi / 2) *
+            math.sin(w))
+
+
+def swallow_tau(t: float, height: float = 0.015) -> float:
+    """Larynx slide (metres, up) at phase t: a smooth periodic bump peaking at t = 0.5."""
+    return height * math.sin(math.pi * t) ** 8
+
+
+def frame_path(folder: Path, i: int) -> Path:
+    return folder / "frames" / f"frame_{i:04d}.png"
+
+
+def rotate_about_y(vertices: np.ndarray, degrees: float, centre) -> np.ndarray:
+    """Rotate (N, 3) points about the vertical axis through ``centre``."""
+    a = math.radians(degrees)
+    c, s = math.cos(a), math.sin(a)
+    R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    centre = np.asarray(centre, dtype=np.float64)
+    return (vertices - centre) @ R.T + centre
+
+
+def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
+    """Frames still to render (all of them unless ``resume``)."""
+    return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
