@@ -66,12 +66,16 @@ def skin(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> to
         rel: (B, K, 4, 4) from :func:`rigid_transforms`.
 
     Returns:
-        (B, N, 3) posed vertices. The blend ``T = W @ rel`` is one (N, K) x (K, 12) product.
+        (B, N, 3) posed vertices. The blend is one (N, K) x (K, 12) product. It blends
+        ``rel - I`` and adds the vertex back, which equals ``(W @ rel) v`` when rows sum to
+        1 and is exact at the rest pose even when stored weights sum to 1 only to float32
+        precision.
     """
     B, K = rel.shape[:2]
-    # T[b, n] = sum_k W[n, k] rel[b, k]: contraction over k, rows 0..2 of the 4x4 only.
-    t = torch.matmul(weights, rel[..., :3, :].reshape(B, K, 12)).reshape(B, -1, 3, 4)
-    return (t[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + t[..., 3]
+    eye = torch.eye(4, dtype=rel.dtype, device=rel.device)[:3]
+    # D[b, n] = sum_k W[n, k] (rel[b, k] - I): contraction over k, rows 0..2 of the 4x4 only.
+    d = torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).reshape(B, -1, 3, 4)
+    return vertices + (d[..., :3] @ vertices.unsqueeze(-1)).squeeze(-1) + d[..., 3]
 
 
 def skin_reference(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:

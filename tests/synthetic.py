@@ -1,0 +1,69 @@
+"""A small synthetic HACK model with every optional component, for fast exact tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hack_render.geometry.skeleton import JOINT_NAMES, PARENTS, rotation_limits_deg
+
+
+def synthetic_arrays(seed: int = 0, nx: int = 6, ny: int = 12) -> dict[str, np.ndarray]:
+    """A cylinder-like 'neck' grid of nx * ny vertices along Y with random components."""
+    rng = np.random.default_rng(seed)
+    ang = np.linspace(0, 2 * np.pi, nx, endpoint=False)
+    ys = np.linspace(-0.15, 0.0, ny)
+    v = np.array([[0.05 * np.sin(a), y, 0.05 * np.cos(a)] for y in ys for a in ang])
+    n = len(v)
+    uv = np.array([[a / (2 * np.pi), (y + 0.15) / 0.15] for y in ys for a in ang])
+    faces = []
+    for j in range(ny - 1):
+        for i in range(nx):
+            a, b = j * nx + i, j * nx + (i + 1) % nx
+            c, d = a + nx, b + nx
+            faces += [[a, b, d], [a, d, c]]
+    faces = np.array(faces, dtype=np.int32)
+    s, e, k, c, m, h = 5, 4, 8, 3, n // 2, 16
+    comps = np.linalg.qr(rng.standard_normal((3 * n, s)))[0].T.reshape(s, n, 3)
+    joints_y = np.linspace(-0.13, -0.01, k)
+    reg = np.zeros((k, n))
+    for jj, y in enumerate(joints_y):
+        ring = np.argsort(np.abs(v[:, 1] - y))[: 2 * nx]
+        reg[jj, ring] = 1.0 / len(ring)
+    w = rng.random((n, k + 1)) ** 4
+    w /= w.sum(1, keepdims=True)
+    sub = np.sort(rng.choice(n, m, replace=False)).astype(np.int32)
+    arrays = {
+        "template_vertices": v.astype(np.float32), "faces": faces, "uvs": uv.astype(np.float32),
+        "uv_faces": faces.copy(), "face_material": np.zeros(len(faces), np.int16),
+        "material_names": np.array(["M_Face"]), "vertex_uv": uv.astype(np.float32),
+        "vertex_group": np.zeros(n, np.int16), "group_names": np.array(["face"]),
+        "vertex_region": np.zeros(n, np.int16), "region_names": np.array(["neck"]),
+        "landmark_indices": rng.choice(n, 68).astype(np.int32),
+        "shape_components": comps.astype(np.float32),
+        "shape_std": np.linspace(0.02, 0.005, s).astype(np.float32),
+        "expression_basis": (0.005 * rng.standard_normal((e, n, 3))).astype(np.float32),
+        "expression_names": np.array([f"shape{i}" for i in range(e)]),
+        "au_names": np.array(["AU1", "AU2"]),
+        "au_matrix": np.array([[1, 1, 0, 0], [0, 0, 1, 0]], np.float32),
+        "joint_names": np.array(JOINT_NAMES), "joint_parents": np.array(PARENTS, np.int32),
+        "joint_regressor": reg.astype(np.float32), "skinning_weights": w.astype(np.float32),
+        "rotation_limits_deg": rotation_limits_deg().numpy().astype(np.float32),
+        "pose_basis": (0.002 * rng.standard_normal((9 * k, n, 3))).astype(np.float32),
+        "larynx_maps": (0.003 * rng.standard_normal((2, 3, 16, 16))).astype(np.float32),
+        "larynx_uv_bounds": np.array([0.0, 0.2, 1.0, 0.9], np.float32),
+        "larynx_vertices": sub, "larynx_coef_matrix": rng.standard_normal((2, s)).astype(np.float32),
+        "larynx_coef_offset": np.array([1.0, 0.5], np.float32),
+        "larynx_v_per_metre": np.asarray(5.0, np.float32),
+    }
+    for prefix, d in (("expr", e), ("pose", 9 * k)):
+        arrays.update({
+            f"{prefix}_pca_vertices": sub, f"{prefix}_pca_mean": (0.001 * rng.standard_normal((d, m, 3))).astype(np.float32),
+            f"{prefix}_pca_components": (0.001 * rng.standard_normal((c, d, m, 3))).astype(np.float32),
+            f"{prefix}_mlp_w0": (0.5 * rng.standard_normal((h, s))).astype(np.float32),
+            f"{prefix}_mlp_b0": (0.1 * rng.standard_normal(h)).astype(np.float32),
+            f"{prefix}_mlp_w1": (0.3 * rng.standard_normal((h, h))).astype(np.float32),
+            f"{prefix}_mlp_b1": (0.1 * rng.standard_normal(h)).astype(np.float32),
+            f"{prefix}_mlp_w2": (0.3 * rng.standard_normal((c, h))).astype(np.float32),
+            f"{prefix}_mlp_b2": (0.1 * rng.standard_normal(c)).astype(np.float32),
+        })
+    return arrays
