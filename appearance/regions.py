@@ -1,0 +1,110 @@
+"""Region labels of the skin atlas, derived from the template geometry in UV space.
+
+Each valid texel of the atlas (see :mod:`appearance.uv`) gets one label from
+:data:`REGIONS`, decided from its template surface point (centimetres) relative to the
+68 Multi-PIE landmark vertices of ICT-FaceKit (DATA.md): lips inside the outer lip
+contour, eyelids in ellipses around the eye contours, brows along the brow polylines,
+the nose between the bridge and the alae, and so on. The sockets (mouth and eye socket
+vertex groups) are labelled from the vertex ranges. The labels are geometric
+approximations (e.g. the hairline is a smooth curve, the ears a box around the pinna of
+the template) meant for regional statistics in the generator and for segmentation masks;
+they are not hand-painted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.path import Path as MplPath
+
+from appearance.uv import UVLayout, rasterize_layout
+
+#: label id -> name; 0 is "outside the skin islands".
+REGIONS = ("none", "forehead", "brows", "eyelids", "nose", "cheeks", "lips", "upper_lip",
+           "chin", "jaw", "ears", "scalp", "neck", "sockets")
+REGION_ID = {n: i for i, n in enumerate(REGIONS)}
+
+#: Multi-PIE 68 landmark vertex indices of the ICT-FaceKit template (DATA.md).
+LANDMARK_VERTICES = np.array([
+    1225, 1888, 1052, 367, 1719, 1722, 2199, 1447, 966, 3661, 4390, 3927, 3924, 2608, 3272,
+    4088, 3443, 268, 493, 1914, 2044, 1401, 3615, 4240, 4114, 2734, 2509, 978, 4527, 4942,
+    4857, 1140, 2075, 1147, 4269, 3360, 1507, 1542, 1537, 1528, 1518, 1511, 3742, 3751,
+    3756, 3721, 3725, 3732, 5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518, 5957,
+    5841, 5702, 5711, 5533, 6216, 6207, 6470, 5517, 5966])
+SOCKET_VERTICES = (11248, 14061)  # mouth socket and eye sockets, inclusive (DATA.md)
+
+
+def _inside(poly_xy: np.ndarray, pts: np.ndarray, radius: float = 0.0) -> np.ndarray:
+    return MplPath(poly_xy).contains_points(pts, radius=radius)
+
+
+def _seg_dist(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance from (N, 2) points to a 2-D polyline (M, 2)."""
+    d = np.full(len(pts), np.inf)
+    for a, b in zip(poly[:-1], poly[1:]):
+        ab = b - a
+        t = np.clip(((pts - a) @ ab) / max(ab @ ab, 1e-12), 0, 1)
+        d = np.minimum(d, np.linalg.norm(pts - (a + t[:, None] * ab), axis=1))
+    return d
+
+
+def region_labels(layout: UVLayout | int) -> np.ndarray:
+    """(H, 2H) uint8 region label per texel (0 outside the skin), see :data:`REGIONS`.
+
+    Args:
+        layout: a :class:`UVLayout` or an atlas height H.
+    """
+    from appearance.uv import _template
+
+    lay = rasterize_layout(layout) if isinstance(layout, (int, np.integer)) else layout
+    lm = _template().vertices[LANDMARK_VERTICES]
+    lab = np.zeros(lay.mask.shape, np.uint8)
+    p = lay.position[lay.mask].astype(np.float64)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    xy = p[:, :2]
+    face = lay.tile[lay.mask] == 0
+    vert = lay.vertex[lay.mask]
+    out = np.zeros(len(p), np.uint8)
+
+    def put(name, sel):
+        free = out == 0
+        out[free & sel] = REGION_ID[name]
+
+    front = face & (z > 2.0)
+    put("sockets", (vert >= SOCKET_VERTICES[0]) & (vert <= SOCKET_VERTICES[1]))
+    put("lips", front & _inside(lm[48:60, :2], xy, radius=-0.12) & (z > lm[48, 2] - 1.5))
+    for eye in (lm[36:42], lm[42:48]):
+        c = eye[:, :2].mean(0)
+        half_w = 0.5 * np.ptp(eye[:, 0]) * 1.35
+        dy = y - c[1]
+        ry = np.where(dy > 0, 1.25, 0.85)
+        put("eyelids", front & (((x - c[0]) / half_w) ** 2 + (dy / ry) ** 2 < 1.0))
+    brow_d = np.minimum(_seg_dist(xy - [0, 0.2], lm[17:22, :2]),
+                        _seg_dist(xy - [0, 0.2], lm[22:27, :2]))
+    put("brows", front & (brow_d < 0.55))
+    y_top, y_base = lm[27, 1], lm[33, 1] - 0.25
+    alar = np.abs(lm[[31, 35], 0]).max() + 0.55
+    t = np.clip((y_top - y) / max(y_top - y_base, 1e-6), 0, 1)
+    put("nose", front & (y <= y_top + 0.3) & (y >= y_base) & (np.abs(x) < 0.8 + t ** 2 * (alar - 0.8)))
+    mouth_w = np.abs(lm[[48, 54], 0]).max() + 0.6
+    put("upper_lip", front & (y < y_base + 0.1) & (y > lm[51, 1]) & (np.abs(x) < mouth_w))
+    put("chin", front & (y <= lm[57, 1]) & (y > lm[8, 1] - 0.8) & (np.abs(x) < 2.6))
+    # The jaw line (landmarks 0-16) separates the face from the neck, a bit below the contour.
+    jaw = lm[3:14]
+    jaw_y = np.interp(x, jaw[:, 0], jaw[:, 1]) - 0.8
+    put("neck", face & (y < jaw_y) & (np.abs(x) < np.abs(jaw[0, 0])))
+    put("neck", face & (y < lm[8, 1] - 1.2))
+    # Hairline: about 5.5 cm above the brows in the middle, lower at the temples.
+    brow_y = lm[17:27, 1].max()
+    hair_y = brow_y + 5.6 - 0.07 * x ** 2
+    put("scalp", face & (y > hair_y))
+    put("forehead", face & (y > brow_y - 0.2) & (np.abs(x) < np.abs(lm[0, 0]) + 0.3))
+    put("cheeks", face & (y > lm[57, 1] - 0.3))
+    put("jaw", face)
+    back = ~face
+    put("ears", back & (y > -1.5) & (y < 5.5) & (z > -3.5) & (z < 1.0) & (np.abs(x) > 7.0))
+    # Back of the head: hair down to the nape (about ear-lobe height at the back).
+    nape_y = -1.0 + 0.25 * np.clip(z + 2.0, 0, None) ** 2
+    put("scalp", back & (y > nape_y))
+    put("neck", back)
+    lab[lay.mask] = out
+    return lab
