@@ -64,8 +64,8 @@ def _make_class():
             self.albedo = props["albedo"]
             self.specular = props["specular"]
             self.roughness = props["roughness"]
-            self.normalmap = props["normalmap"] if props.has_property("normalmap") else None
-            self.f0 = float(props["f0"]) if props.has_property("f0") else SKIN_F0
+            self.normalmap = props["normalmap"] if "normalmap" in props else None
+            self.f0 = float(props["f0"]) if "f0" in props else SKIN_F0
             sv = mi.BSDFFlags.SpatiallyVarying | mi.BSDFFlags.FrontSide
             diffuse = mi.BSDFFlags.DiffuseReflection | sv
             glossy = mi.BSDFFlags.GlossyReflection | sv
