@@ -159,7 +159,7 @@ def overcast_sun() -> LightRig:
 def window() -> LightRig:
     """A large window to the subject's right (world -X), and a warm dim room."""
     return LightRig("window", area=(
-        AreaLight((-1.6, 0.35, 0.6), (0.0, 0.0, 0.05), (1.0, 1.4), (6.0, 6.4, 7.0)),
+        AreaLight((-1.6, 0.35, 0.6), (0.0, 0.0, 0.05), (1.0, 1.4), (15.0, 16.0, 17.5)),
     ), env_constant=(0.06, 0.05, 0.04))
 
 

@@ -1,0 +1,123 @@
+"""`hack-render render` / `turntable`: outputs, channels, video, resume, bad input (exit 2)."""
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hack_render.cli import main
+from hack_render.render.image_io import read_exr
+
+FAST = ["--resolution", "32", "--spp", "2"]
+
+
+def run(args):
+    try:
+        main(args)
+    except SystemExit as exit_:
+        return exit_.code
+    return 0
+
+
+def test_01_render_png_and_exr_with_all_aovs(tmp_path):
+    png, exr = tmp_path / "head.png", tmp_path / "head.exr"
+    assert run(["render", "-o", str(png), "--exr", str(exr), "--aov", "all", "--resolution",
+                "40x32", "--spp", "4"]) == 0
+    import imageio.v3 as iio
+
+    img = iio.imread(png)
+    assert img.shape == (32, 40, 3) and img.dtype == np.uint8 and img.max() > 50
+    ch = read_exr(exr)
+    expected = {"R", "G", "B", "A", "depth.Z", "normal.X", "normal.Y", "normal.Z", "albedo.R",
+                "albedo.G", "albedo.B", "uv.U", "uv.V", "segmentation.I"}
+    assert set(ch) == expected
+    assert all(c.shape == (32, 40) and c.dtype == np.float32 for c in ch.values())
+    assert ch["depth.Z"].max() > 0.3 and set(np.unique(ch["segmentation.I"])) >= {0.0, 1.0}
+    cams = (tmp_path / "head.cameras.json").read_text()
+    assert '"K"' in cams and '"R"' in cams and '"t"' in cams
+    assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]  # no temporaries left
+
+
+def test_02_ring_of_cameras_writes_one_image_per_view(tmp_path):
+    assert run(["render", "-o", str(tmp_path / "v.png"), "--camera", "ring", "--views", "3",
+                *FAST]) == 0
+    assert sorted(p.name for p in tmp_path.glob("v_*.png")) == [
+        "v_ring_000.png", "v_ring_001.png", "v_ring_002.png"]
+
+
+def test_03_turntable_mp4_has_n_frames_and_resume_skips_done_frames(tmp_path):
+    from hack_render.render.video import count_mp4_frames
+
+    out = tmp_path / "tt"
+    args = ["turntable", "-o", str(out), "--frames", "8", "--resolution", "32", "--spp", "2",
+            "--look-around", "--swallow", "--formats", "mp4,gif"]
+    assert run(args) == 0
+    n, size, pix_fmt = count_mp4_frames(out / "turntable.mp4")
+    assert (n, size) == (8, (32, 32)) and pix_fmt.startswith("yuv420p")
+    import imageio.v3 as iio
+
+    assert iio.imread(out / "turntable.gif", index=None).shape[0] == 8
+    frames = sorted((out / "frames").glob("frame_*.png"))
+    assert len(frames) == 8
+    # the loop is seamless: the last frame differs from the first (no duplicate end frame)
+    assert not np.array_equal(iio.imread(frames[0]), iio.imread(frames[-1]))
+    frames[3].unlink()
+    stamps = {p: p.stat().st_mtime_ns for p in frames if p.exists()}
+    time.sleep(0.01)
+    assert run(args + ["--resume"]) == 0
+    assert frames[3].exists()
+    assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--resolution", "0"], "image width"),
+    (["--resolution", "100000x100000"], "image width"),
+    (["--spp", "0"], "samples per pixel"),
+    (["--spp", "100000000"], "samples per pixel"),
+    (["--lighting", "disco"], "lighting preset"),
+    (["--camera", "fisheye"], "camera preset"),
+    (["--lighting", "env:/nonexistent/sky.exr"], "expected an existing"),
+    (["--aov", "depth,colour"], "--aov"),
+])
+def test_04_bad_input_exits_2_with_a_message(tmp_path, capsys, args, message):
+    out = tmp_path / "x.png"
+    t0 = time.perf_counter()
+    assert run(["render", "-o", str(out), *FAST, *args]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() and not any(tmp_path.iterdir())
+    assert time.perf_counter() - t0 < 5.0  # refused before loading or rendering anything
+
+
+def test_05_unreadable_env_map_exits_2(tmp_path, capsys):
+    bad = tmp_path / "sky.exr"
+    bad.write_bytes(b"not an exr at all")
+    assert run(["render", "-o", str(tmp_path / "x.png"), "--lighting", f"env:{bad}", *FAST]) == 2
+    assert "OpenEXR" in capsys.readouterr().err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_06_unwritable_output_exits_2(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a folder should be")
+    assert run(["render", "-o", str(blocker / "sub" / "x.png"), *FAST]) == 2
+    assert "-o" in capsys.readouterr().err
+
+
+def test_07_user_env_map_with_rotation_and_exposure(tmp_path):
+    from hack_render.render.image_io import rgb_channels, write_exr
+
+    env = tmp_path / "env.exr"
+    sky = np.zeros((16, 32, 3), np.float32)
+    sky[:8] = 1.0  # bright upper hemisphere, dark ground
+    write_exr(env, rgb_channels(sky))
+    outs = []
+    for exposure in ("0", "1"):
+        exr = tmp_path / f"e{exposure}.exr"
+        assert run(["render", "-o", str(exr), "--lighting", f"env:{env}", "--env-rotation",
+                    "45", "--exposure", exposure, "--resolution", "24", "--spp", "8"]) == 0
+        outs.append(read_exr(exr))
+    face = outs[0]["A"] > 0.99
+    ratio = outs[1]["R"][face].mean() / outs[0]["R"][face].mean()
+    assert ratio == pytest.approx(2.0, rel=0.15)  # one stop doubles the light
