@@ -1,0 +1,51 @@
+"""Building the default model from ICT-FaceKit reproduces the shipped file (slow: ~15 s)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hack_render.errors import HackError
+
+ICT = Path(__file__).resolve().parents[2] / "shared" / "data" / "ict-facekit"
+
+
+def test_load_ict_refuses_bad_folders(tmp_path):
+    from hack_render.build.ict_default import load_ict
+
+    with pytest.raises(HackError, match="not a folder"):
+        load_ict(tmp_path / "missing")
+    with pytest.raises(HackError, match="generic_neutral_mesh.obj"):
+        load_ict(tmp_path)
+
+
+def test_shape_pca_is_orthonormal_and_preserves_covariance():
+    from hack_render.build.ict_default import shape_pca
+
+    rng = np.random.default_rng(0)
+    modes = rng.standard_normal((6, 40, 3)) * np.linspace(3, 1, 6)[:, None, None]
+    comps, std = shape_pca(modes)
+    flat = comps.reshape(len(comps), -1)
+    np.testing.assert_allclose(flat @ flat.T, np.eye(len(comps)), atol=1e-10)
+    d = modes.reshape(6, -1)
+    cov_in = d.T @ d
+    cov_out = (flat.T * std**2) @ flat
+    np.testing.assert_allclose(cov_out, cov_in, atol=1e-8)
+
+
+@pytest.mark.slow
+def test_build_from_ict_matches_shipped_model(tmp_path):
+    if not ICT.is_dir():
+        pytest.fail(f"ICT-FaceKit data not found at {ICT}; the shared data folder must sit beside the repo")
+    from hack_render.build.ict_default import build_default_model
+    from hack_render.geometry import default_model_path
+    from hack_render.geometry.model_file import load_model_file, save_model_file
+
+    arrays, meta = build_default_model(ICT)
+    save_model_file(tmp_path / "m.npz", arrays, meta)
+    built, _ = load_model_file(tmp_path / "m.npz")
+    shipped, _ = load_model_file(default_model_path())
+    for key in ("template_vertices", "joint_regressor", "skinning_weights", "expression_basis"):
+        np.testing.assert_allclose(built[key], shipped[key], atol=1e-6, err_msg=key)
