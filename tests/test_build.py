@@ -49,3 +49,34 @@ def test_build_from_ict_matches_shipped_model(tmp_path):
     shipped, _ = load_model_file(default_model_path())
     for key in ("template_vertices", "joint_regressor", "skinning_weights", "expression_basis"):
         np.testing.assert_allclose(built[key], shipped[key], atol=1e-6, err_msg=key)
+
+
+def test_load_ict_reads_original_facexmodel_folder(tmp_path):
+    """The original ICT-FaceKit layout: one OBJ per identity mode and per expression."""
+    import json
+
+    from hack_render.build.ict_default import load_ict
+
+    root = tmp_path / "ICT-FaceKit" / "FaceXModel"
+    root.mkdir(parents=True)
+    base = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+
+    def write(name, verts):
+        lines = [f"v {x} {y} {z}" for x, y, z in verts] + ["vt 0 0", "vt 1 0", "vt 0 1", "vt 1 1",
+                                                          "usemtl M_Face", "f 1/1 2/2 4/4 3/3"]
+        (root / name).write_text("\n".join(lines) + "\n")
+
+    write("generic_neutral_mesh.obj", base)
+    rng = np.random.default_rng(1)
+    ids = [rng.standard_normal((4, 3)) for _ in range(2)]
+    exps = {"jawOpen": rng.standard_normal((4, 3)), "eyeBlink_L": rng.standard_normal((4, 3))}
+    for i, d in enumerate(ids):
+        write(f"identity{i:03d}.obj", base + d)
+    for name, d in exps.items():
+        write(f"{name}.obj", base + d)
+    (root / "vertex_indices.json").write_text(json.dumps({"expressions": list(exps), "idx_to_landmark_verts": [0]}))
+    ict = load_ict(root.parent)  # the repository root is accepted too
+    np.testing.assert_allclose(ict["identity"], np.stack(ids), atol=1e-5)
+    np.testing.assert_allclose(ict["expressions"], np.stack(list(exps.values())), atol=1e-5)
+    assert ict["expression_names"] == list(exps)
+    assert len(ict["mesh"].faces) == 2  # the quad, fan-triangulated
