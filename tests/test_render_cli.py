@@ -121,3 +121,33 @@ def test_07_user_env_map_with_rotation_and_exposure(tmp_path):
     face = outs[0]["A"] > 0.99
     ratio = outs[1]["R"][face].mean() / outs[0]["R"][face].mean()
     assert ratio == pytest.approx(2.0, rel=0.15)  # one stop doubles the light
+
+
+def test_08_texture_folder_drives_the_skin_albedo(tmp_path, capsys):
+    """Brighter diffuse maps in a --textures folder give a brighter face (albedo AOV exact)."""
+    from hack_render.render.image_io import write_exr
+
+    h = 16
+    means = []
+    for level in (0.2, 0.6):
+        folder = tmp_path / f"tex{level}"
+        write_exr(folder / "diffuse.exr", {c: np.full((h, 2 * h), level) for c in "RGB"})
+        write_exr(folder / "specular.exr", {"Y": np.full((h, 2 * h), 0.5)})
+        write_exr(folder / "roughness.exr", {"Y": np.full((h, 2 * h), 0.4)})
+        exr = tmp_path / f"t{level}.exr"
+        assert run(["render", "-o", str(exr), "--textures", str(folder), "--aov", "albedo,segmentation",
+                    *FAST]) == 0
+        ch = read_exr(exr)
+        face = ch["segmentation.I"] == 1
+        np.testing.assert_allclose(ch["albedo.R"][face], level, atol=1e-4)
+        means.append(ch["R"][face].mean())
+    assert means[1] > 2.0 * means[0]
+    assert run(["render", "-o", str(tmp_path / "x.png"), "--textures", str(tmp_path / "none"),
+                *FAST]) == 2
+    assert "diffuse.exr" in capsys.readouterr().err
+
+
+def test_09_procedural_appearance_seed_renders(tmp_path):
+    pytest.importorskip("appearance.generator")
+    assert run(["render", "-o", str(tmp_path / "a.png"), "--appearance-seed", "2", *FAST]) == 0
+    assert (tmp_path / "a.png").stat().st_size > 0

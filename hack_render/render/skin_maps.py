@@ -42,26 +42,28 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"])
 
 
-def appearance_maps(alpha: list[float] | None, seed: int | None) -> SkinMaps:
-    """Maps from the appearance model for coefficients ``alpha`` or a random draw ``seed``."""
+def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 512) -> SkinMaps:
+    """Maps from the appearance layer: a procedural subject for ``seed``
+    (``appearance.generator.generate_subject``), or the PCA model's ``maps(alpha)``."""
+    if alpha is None:
+        try:
+            from appearance.generator import generate_subject
+        except ImportError as err:
+            raise HackError(f"--appearance-seed: expected the appearance package, found it "
+                            f"unavailable ({err}). Use --textures DIR.") from err
+        if seed is None or seed < 0:
+            raise HackError(f"--appearance-seed: expected a non-negative integer, found {seed}.")
+        return SkinMaps.from_appearance(generate_subject(int(seed), height=height))
     import torch
 
     try:
         import appearance
         model = appearance.load_default_model()
     except (ImportError, AttributeError, OSError) as err:
-        raise HackError("--alpha/--appearance-seed: expected the appearance model "
-                        f"(package 'appearance'), found it unavailable ({err}). Use "
-                        "--textures DIR or omit these options for uniform skin.") from err
-    n = int(getattr(model, "num_components", 0) or len(alpha or []))
-    if alpha is None:
-        g = torch.Generator().manual_seed(int(seed or 0))
-        a = torch.randn(1, n, generator=g)
-    else:
-        if n and len(alpha) > n:
-            raise HackError(f"--alpha: expected at most {n} values, found {len(alpha)}.")
-        a = torch.zeros(1, max(n, len(alpha)))
-        a[0, :len(alpha)] = torch.tensor(alpha)
+        raise HackError("--alpha: expected the appearance PCA model (appearance."
+                        f"load_default_model), found it unavailable ({err}). Use "
+                        "--appearance-seed N or --textures DIR.") from err
+    a = torch.tensor([alpha], dtype=torch.float32)
     with torch.no_grad():
         return SkinMaps.from_appearance(model.maps(a))
 
