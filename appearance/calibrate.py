@@ -76,24 +76,32 @@ def summary(rgb: np.ndarray) -> dict:
             "max_abs_error": round(float(dev.max()), 4), "n": int(len(rgb))}
 
 
-def _residuals(x, seeds_u):
+def _residuals(x, seeds_u, tg, ita_hi):
     cal = _unpack(x)
     c = draw_chromophores(seeds_u, cal.population)
     rgb = skin_albedo(c["c_m"], c["c_h"], c["b_m"], cal.optics)
     q = np.percentile(rgb, [1, 50, 99], axis=0)
-    r = np.concatenate([q[0] - TARGETS["p01"], q[1] - TARGETS["p50"], q[2] - TARGETS["p99"]])
+    r = np.concatenate([q[0] - tg["p01"], q[1] - tg["p50"], q[2] - tg["p99"]])
     ita = ita_degrees(rgb)
     # hinge penalties (0.002 per degree) pushing the ITA range past the measured span
-    span = [max(0.0, ita.min() - ITA_SPAN[0]), max(0.0, ITA_SPAN[1] + 1.0 - ita.max())]
+    span = [max(0.0, ita.min() - ITA_SPAN[0]), max(0.0, ita_hi + 1.0 - ita.max())]
     return np.append(r, 0.002 * np.asarray(span))
 
 
-def fit(n_subjects: int = 1000) -> tuple[Calibration, dict]:
-    """Fit the 7 free constants on subjects 0..n-1; returns the calibration and a report."""
+def fit(n_subjects: int = 1000, targets: dict | None = None, ita_hi: float = ITA_SPAN[1],
+        x0=None) -> tuple[Calibration, dict]:
+    """Fit the 7 free constants on subjects 0..n-1; returns the calibration and a report.
+
+    Args:
+        targets: percentile targets for the base albedo (default :data:`TARGETS`);
+            :func:`main` shifts them to absorb the generator's systematic offsets.
+    """
     seeds_u = np.stack([subject_uniforms(s) for s in range(n_subjects)])
-    x0 = np.array([0.0, 0.0, 0.0, 0.01, 0.45, 0.01, 0.3])
+    x0 = np.array([0.0, 0.0, 0.0, 0.01, 0.45, 0.01, 0.3]) if x0 is None else x0
     t0 = time.perf_counter()
-    res = least_squares(_residuals, x0, bounds=(_LO, _HI), diff_step=1e-3, args=(seeds_u,))
+    tg = targets or TARGETS
+    res = least_squares(_residuals, x0, bounds=(_LO, _HI), diff_step=1e-3,
+                        args=(seeds_u, tg, ita_hi))
     cal = _unpack(res.x)
     rgb = population_albedo(cal, np.arange(n_subjects))
     rep = {"constants": dict(zip(_NAMES, [float(v) for v in
@@ -102,6 +110,7 @@ def fit(n_subjects: int = 1000) -> tuple[Calibration, dict]:
            "targets": {k: v.tolist() for k, v in TARGETS.items()},
            "tolerance": TOLERANCE, "ita_required": [-40.0, 55.0]}
     rep["subgroup_reachability"] = _reachability(cal)
+    rep["x"] = res.x.tolist()
     return cal, rep
 
 
@@ -143,14 +152,34 @@ def main(argv=None) -> dict:
     ap.add_argument("--subjects", type=int, default=1000, help="fit population size (>= 300)")
     ap.add_argument("--verify", type=int, default=300, help="subjects generated as maps")
     ap.add_argument("--height", type=int, default=64, help="atlas height for verification")
+    ap.add_argument("--iterations", type=int, default=4, help="target-shift iterations")
     ap.add_argument("--dry-run", action="store_true", help="do not write calibration.json")
     a = ap.parse_args(argv)
     if a.subjects < 300:
         ap.error("--subjects must be >= 300")
-    cal, rep = fit(a.subjects)
-    if a.verify:
-        rep["verify_generated_maps"] = verify(cal, a.verify, a.height)
-        rep["verify_generated_maps"]["height"] = a.height
+    # Fit the base albedo, generate maps, and shift the base targets by the generator's
+    # measured offset (fixed-point iteration T_i+1 = T_i + (T - V_i)), so that the
+    # *generated maps* meet the measured targets, not only the base chromophores.
+    tg = {k: v.copy() for k, v in TARGETS.items()}
+    ita_hi, x0, history = ITA_SPAN[1], None, []
+    for it in range(max(1, a.iterations)):
+        cal, rep = fit(a.subjects, tg, ita_hi, x0)
+        x0 = np.asarray(rep.pop("x"))
+        if not a.verify:
+            break
+        v = verify(cal, a.verify, a.height)
+        v["height"] = a.height
+        history.append({"iteration": it, "base_targets": {k: t.round(4).tolist()
+                                                          for k, t in tg.items()}, "verify": v})
+        print(f"iteration {it}: generated-map max error {v['max_abs_error']:.4f}, "
+              f"ITA {v['ita_min']:.1f} .. {v['ita_max']:.1f}")
+        rep["verify_generated_maps"] = v
+        if v["max_abs_error"] <= 0.01 and v["ita_max"] >= 55 and v["ita_min"] <= -40:
+            break
+        for k in tg:
+            tg[k] = tg[k] + (TARGETS[k] - np.asarray(v[k]))
+        ita_hi += max(0.0, 56.0 - v["ita_max"])
+    rep["iterations"] = history
     cal = Calibration(cal.optics, cal.population, rep)
     print(json.dumps(rep, indent=1))
     ok = [rep["fit_population"]["max_abs_error"] <= TOLERANCE]
