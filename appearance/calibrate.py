@@ -182,10 +182,13 @@ def main(argv=None) -> dict:
     rep["iterations"] = history
     cal = Calibration(cal.optics, cal.population, rep)
     print(json.dumps(rep, indent=1))
-    ok = [rep["fit_population"]["max_abs_error"] <= TOLERANCE]
+    # The criterion is on what users get: the generated maps (the base fit is only a
+    # means, its targets are shifted by the generator's offsets).
     if a.verify:
         v = rep["verify_generated_maps"]
-        ok.append(v["max_abs_error"] <= TOLERANCE and v["ita_min"] <= -40 and v["ita_max"] >= 55)
+        ok = [v["max_abs_error"] <= TOLERANCE and v["ita_min"] <= -40 and v["ita_max"] >= 55]
+    else:
+        ok = [rep["fit_population"]["max_abs_error"] <= TOLERANCE]
     print("calibration targets met:", all(ok))
     if not a.dry_run:
         write_calibration(cal)

@@ -113,6 +113,21 @@ def write_png(path, image: np.ndarray, bits: int = 8, srgb: bool = True) -> None
         img = img[..., 0]
     top = 255 if bits == 8 else 65535
     q = np.round(img * top).astype(np.uint8 if bits == 8 else np.uint16)
+    if bits == 16 and q.ndim == 3:
+        # Pillow (imageio's PNG plugin here) has no 16-bit RGB mode; pypng does.
+        try:
+            import png as pypng
+        except ImportError as exc:
+            raise HackError(f"{path}: 16-bit {q.shape[2]}-channel PNG needs the pypng package "
+                            f"(not installed). Use EXR, or bits=8.") from exc
+
+        def write(tmp):
+            with open(tmp, "wb") as fh:
+                pypng.Writer(q.shape[1], q.shape[0], greyscale=False, alpha=q.shape[2] == 4,
+                             bitdepth=16).write(fh, q.reshape(q.shape[0], -1).tolist())
+
+        _atomic(Path(path), write)
+        return
     _atomic(Path(path), lambda tmp: iio.imwrite(tmp, q, extension=".png"))
 
 
@@ -176,9 +191,21 @@ def write_map(path: Path, name: str, img: np.ndarray, half: bool = False) -> Non
     if path.suffix.lower() == ".exr":
         write_exr(path, img, half=half)
     elif name == "normal":
-        write_png(path, (np.asarray(img) + 1.0) * 0.5, bits=16, srgb=False)
+        write_png(path, (np.asarray(img) + 1.0) * 0.5, bits=_png_bits(img), srgb=False)
     else:
-        write_png(path, img, bits=16, srgb=(name == "diffuse"))
+        write_png(path, img, bits=_png_bits(img), srgb=(name == "diffuse"))
+
+
+def _png_bits(img) -> int:
+    """16 bits for 1-channel maps (and RGB when pypng is installed), else 8."""
+    if np.asarray(img).ndim == 2 or np.asarray(img).shape[-1] == 1:
+        return 16
+    try:
+        import png  # noqa: F401
+
+        return 16
+    except ImportError:
+        return 8
 
 
 def read_texture_set(folder) -> dict[str, np.ndarray]:
@@ -215,7 +242,7 @@ def read_texture_set(folder) -> dict[str, np.ndarray]:
 
 
 def write_texture_set(folder, maps: dict[str, np.ndarray], fmt: str = "exr") -> list[Path]:
-    """Write maps to ``folder`` as ``name.exr`` (float32) or ``name.png`` (16-bit).
+    """Write maps to ``folder`` as ``name.exr`` (float32) or ``name.png`` (16/8-bit).
 
     All maps are validated before the first file is written; each file is written
     atomically. Returns the written paths.
