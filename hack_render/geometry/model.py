@@ -144,6 +144,10 @@ class HackModel(nn.Module):
             self.register_buffer("larynx_coef_matrix", f32("larynx_coef_matrix"))
             self.register_buffer("larynx_coef_offset", f32("larynx_coef_offset"))
             self.larynx_v_per_metre = float(arrays["larynx_v_per_metre"])
+            # The maps' chart: its own (format 2) or the atlas UVs of the larynx vertices.
+            chart = (f32("larynx_vertex_uv") if "larynx_vertex_uv" in arrays
+                     else self.vertex_uv[self.larynx_vertices])
+            self.register_buffer("larynx_uv", chart)
 
     # ----------------------------------------------------------------------------- loading
     @classmethod
@@ -282,7 +286,7 @@ class HackModel(nn.Module):
         return rest
 
     def _larynx_sample(self, combined, eta, tau):
-        return _larynx.sample_displacement(combined, self.vertex_uv[self.larynx_vertices],
+        return _larynx.sample_displacement(combined, self.larynx_uv,
                                            self.larynx_uv_bounds, eta, tau, self.larynx_v_per_metre)
 
     def _pose(self, rest, joints, rot, transl) -> HackOutput:

@@ -41,7 +41,10 @@ generic one plus, on the M vertices, ``mean + sum_c w_c(beta) components_c``.
 
 Larynx: ``larynx_maps`` (L, 3, H, W) metres, ``larynx_uv_bounds`` (4,), ``larynx_vertices``
 (M,) i32, ``larynx_coef_matrix`` (L, S'), ``larynx_coef_offset`` (L,),
-``larynx_v_per_metre`` (). See :mod:`hack_render.geometry.larynx`.
+``larynx_v_per_metre`` (). See :mod:`hack_render.geometry.larynx`. Format 2 adds the
+optional ``larynx_vertex_uv`` (M, 2): the larynx vertices' coordinates in the maps' own
+chart (e.g. template x, y in metres, so a v shift is a vertical slide of the same size on
+every vertex); without it the atlas ``vertex_uv`` is used. Files of format 1 still load.
 
 "q" arrays may be stored quantised as ``key__q`` (int16) with ``key__scale`` (f32, one per
 leading index, value = q * scale); the loader restores float32 transparently.
@@ -59,7 +62,8 @@ import numpy as np
 
 from hack_render.errors import HackError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
 _FIX = "Rebuild the file with `hack-render model build`, or pass a valid HACK model file."
@@ -111,6 +115,7 @@ OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
         "larynx_vertices": ("Ml", "i"), "larynx_coef_matrix": ("L,Sl", "f"),
         "larynx_coef_offset": ("L", "f"), "larynx_v_per_metre": ("", "f"),
     },
+    "larynx_chart": {"larynx_vertex_uv": ("Ml,2", "f")},
 }
 
 
@@ -189,9 +194,9 @@ def load_model_file(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
     if "format_version" not in raw:
         raise HackError(f"{path}: missing key 'format_version'; this is not a HACK model file. {_FIX}")
     version = int(raw.pop("format_version"))
-    if version != FORMAT_VERSION:
-        raise HackError(f"{path}: format_version {version} is not supported (expected "
-                        f"{FORMAT_VERSION}). {_FIX}")
+    if version not in SUPPORTED_VERSIONS:
+        raise HackError(f"{path}: format_version {version} is not supported (expected one of "
+                        f"{SUPPORTED_VERSIONS}). {_FIX}")
     meta = json.loads(str(raw.pop("meta_json"))) if "meta_json" in raw else {}
     arrays: dict[str, np.ndarray] = {}
     for k, v in raw.items():
@@ -225,6 +230,9 @@ def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[
     unknown = sorted(set(arrays) - known)
     if unknown:
         raise HackError(f"{path}: unknown keys {unknown}. {_FIX}")
+    if "larynx_vertex_uv" in arrays and "larynx_maps" not in arrays:
+        raise HackError(f"{path}: key 'larynx_vertex_uv' needs the 'larynx' group (larynx_maps, "
+                        f"...). {_FIX}")
     n = sizes["N"]
     for key in ("faces", "landmark_indices"):
         if arrays[key].min() < 0 or arrays[key].max() >= n:
