@@ -14,7 +14,8 @@ DIR holds one folder per subject (layout in :mod:`appearance.texture_io`). The b
 3. eigendecomposes the weighted centred Gram (blocks weighted to equal total variance)
    and forms the components X^T U / sqrt(lambda) chunk by chunk.
 
-Peak memory is O(S^2 + chunk * S) plus one subject, independent of resolution; the
+Peak memory is O(S^2 + chunk * S) plus one subject, independent of resolution (chunks
+are sized to ~128 MB of float64, :func:`chunk_for`); the
 disk holds X (S x D float32; 500 subjects at 1024 x 2048 atlases take ~10 GB).
 The report (JSON + PNG) gives explained variance against k and held-out errors against
 k: RMSE of linear RGB, mean CIEDE2000 of the diffuse map, mean angular error of normals.
@@ -90,9 +91,19 @@ def _block_of_channel() -> np.ndarray:
     return b
 
 
-def accumulate_gram(x: np.ndarray, chunk_texels: int = 65536) -> GramStore:
-    """Per-block uncentred Gram matrices of ``x`` (S, D), reading it in column chunks."""
+def chunk_for(n_subjects: int, budget_mb: float = 128.0) -> int:
+    """Texels per column chunk so one float64 chunk of all subjects fits ``budget_mb``."""
+    return max(256, int(budget_mb * 2 ** 20 / (n_subjects * N_CHANNELS * 8)))
+
+
+def accumulate_gram(x: np.ndarray, chunk_texels: int | None = None) -> GramStore:
+    """Per-block uncentred Gram matrices of ``x`` (S, D), reading it in column chunks.
+
+    Args:
+        chunk_texels: texels per chunk (default: :func:`chunk_for`, ~128 MB per chunk).
+    """
     s = x.shape[0]
+    chunk_texels = chunk_texels or chunk_for(s)
     blocks = _block_of_channel()
     gram = np.zeros((len(BLOCKS), s, s))
     store = GramStore(x, gram, [blocks == i for i in range(len(BLOCKS))], chunk_texels)
@@ -256,7 +267,7 @@ def k_grid(kmax: int) -> list[int]:
 def build_model(root, out, height: int = 256, n_components: int | None = None,
                 basis_dtype: str = "float32", holdout: float = 0.1, seed: int = 0,
                 metadata: dict | None = None, workdir=None, progress: bool = True,
-                chunk_texels: int = 65536) -> dict:
+                chunk_texels: int | None = None) -> dict:
     """Build a model file from the subject folders in ``root``; returns the report.
 
     Args:

@@ -144,6 +144,7 @@ def write_calibration(cal: Calibration, path=CALIBRATION_FILE) -> None:
     fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), suffix=".tmp")
     with os.fdopen(fd, "w") as fh:
         json.dump(cal.to_json(), fh, indent=1)
+    os.chmod(tmp, 0o644)
     os.replace(tmp, path)
 
 

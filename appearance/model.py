@@ -293,6 +293,7 @@ def save_model(path, *, height: int, mask: np.ndarray, mean: np.ndarray, basis: 
     os.close(fd)
     try:
         np.savez_compressed(tmp, **arrays)
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
