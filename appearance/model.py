@@ -144,9 +144,9 @@ class AppearanceModel:
         alpha = self._check_alpha(alpha)
         k = alpha.shape[1]
         basis = self.basis[:k]
+        mean = self.mean
         if alpha.dtype != basis.dtype or alpha.device != basis.device:
-            basis = basis.to(alpha)
-        mean = self.mean.to(alpha)
+            basis, mean = basis.to(alpha), mean.to(alpha)
         # (B, k) x (k, N*7): one matrix product reads the basis once.
         flat = torch.addmm(mean.unsqueeze(0), alpha, basis) if k else mean.expand(len(alpha), -1)
         return flat.view(len(alpha), self.n_valid, N_CHANNELS)
@@ -162,11 +162,16 @@ class AppearanceModel:
         """
         c = self.compact(alpha)
         b, h = c.shape[0], self.height
-        img = c.index_select(1, self.gather.to(c.device)).view(b, h, 2 * h, N_CHANNELS)
-        diffuse = img[..., BLOCKS["diffuse"]].clamp(0.0, 1.0)
-        specular = img[..., BLOCKS["specular"]].clamp(0.0, 1.0)
-        rough = img[..., BLOCKS["roughness"]].clamp(*ROUGHNESS_RANGE)
-        normal = slopes_to_normals(img[..., BLOCKS["normal"]])
+        # Work on the N valid texels (fewer than H * 2H), then one gather dilates all maps:
+        # one clamp over the 5 bounded channels, normals from slopes, one concatenation.
+        lo = c.new_tensor([0.0, 0.0, 0.0, 0.0, ROUGHNESS_RANGE[0]])
+        hi = c.new_tensor([1.0, 1.0, 1.0, 1.0, ROUGHNESS_RANGE[1]])
+        bounded = torch.clamp(c[..., :5], min=lo, max=hi)
+        slopes = c[..., BLOCKS["normal"]]
+        inv = torch.rsqrt(1.0 + (slopes * slopes).sum(-1, keepdim=True))
+        packed = torch.cat([bounded, slopes * inv, inv], -1)  # (B, N, 8)
+        img = packed.index_select(1, self.gather.to(c.device)).view(b, h, 2 * h, 8)
+        diffuse, specular, rough, normal = img[..., :3], img[..., 3:4], img[..., 4:5], img[..., 5:]
         return AppearanceMaps(diffuse, specular, rough, normal, self.mask.to(c.device))
 
     def sample_alpha(self, n: int, n_components: int | None = None, seed: int | None = None
