@@ -43,8 +43,9 @@ def main() -> None:
             psi = torch.rand(b, model.num_expressions, generator=gen)
             theta = distribute_head_rotation(0.3 * torch.randn(b, 3, generator=gen))
             coeffs = torch.randn(b, basis.shape[0], generator=gen)
-            t_floor = best_time(lambda: coeffs @ basis, args.repeats)
-            t_fwd = best_time(lambda: model(beta=beta, psi=psi, theta=theta), args.repeats)
+            t_floor = best_time(lambda c=coeffs: c @ basis, args.repeats)
+            t_fwd = best_time(lambda b_=beta, p_=psi, t_=theta: model(beta=b_, psi=p_, theta=t_),
+                              args.repeats)
             rows.append((b, t_fwd, t_floor))
             print(f"B={b:3d}: forward {t_fwd * 1e3:8.2f} ms, matmul floor {t_floor * 1e3:8.2f} ms, "
                   f"ratio {t_fwd / t_floor:5.2f}x (target at B=1: <= 2.0x)")

@@ -199,7 +199,6 @@ def test_facs_control(default):
 
 def test_joints_inside_neck_for_random_identities(default):
     """200 identities: joints ordered bottom to top, plausibly spaced, inside the neck."""
-    from hack_render.build.skeleton_fit import midline_profiles
 
     gen = torch.Generator().manual_seed(6)
     beta = torch.randn(200, default.num_shape, generator=gen)

@@ -20,7 +20,12 @@ from pathlib import Path
 import numpy as np
 from scipy import sparse
 
-from hack_render.build.skeleton_fit import DEPTH_FRACTION, affine_regressor, midline_profiles, place_joints
+from hack_render.build.skeleton_fit import (
+    DEPTH_FRACTION,
+    affine_regressor,
+    midline_profiles,
+    place_joints,
+)
 from hack_render.errors import HackError
 from hack_render.geometry.obj_io import read_obj
 from hack_render.geometry.skeleton import JOINT_NAMES, PARENTS, rotation_limits_deg
@@ -60,12 +65,15 @@ AU_TABLE: dict[str, tuple[str, ...]] = {
     "AU62": ("eyeLookIn_L", "eyeLookOut_R"),  # eyes turn right
     "AU63": ("eyeLookUp_L", "eyeLookUp_R"), "AU64": ("eyeLookDown_L", "eyeLookDown_R"),
 }
-# Window of the neck coordinate s over which each joint's cumulative influence ramps from 0
-# to 1 (see skinning_weights): 65 % wide, evenly staggered, so each joint has its own band
-# and a joint's rotation is spread over most of the neck's length.
+# Window of the neck coordinate s over which each joint's cumulative influence C_k ramps
+# from 0 to 1 (see skinning_weights). The lower joints get successively higher bands; c1-c2
+# and o-c1 both sit at the level of the skull base, above all neck skin, so the whole neck
+# follows them progressively (c1-c2 turns up to 40 degrees: its twist must be spread over
+# the neck's full length).
 HEAD_MARGIN_M = 0.035  # skin this far above the head cut is rigid with the skull
-LATERAL_M, CHEST_P = 0.075, -1.0  # shoulders: |x| beyond this; chest: a segment below c7-t1
-RAMP_WINDOWS = tuple((0.35 * k / 7, 0.35 * k / 7 + 0.65) for k in range(8))
+LATERAL_M, CHEST_P = 0.11, -1.0  # shoulders: |x| beyond this; chest: a segment below c7-t1
+RAMP_WINDOWS = ((0.0, 0.45), (0.0, 0.55), (0.0, 0.65), (0.0, 0.75), (0.0, 0.85), (0.0, 0.95),
+                (0.0, 1.0), (0.0, 1.0))
 REGIONS = ("face", "scalp_and_ears", "neck", "chest_and_shoulders", "mouth_interior",
            "eye_socket", "eye", "teeth", "gums_and_tongue", "eyelashes", "eye_helper")
 
@@ -154,14 +162,11 @@ def skinning_weights(v: np.ndarray, faces: np.ndarray, joints: np.ndarray,
       o-c1.
     * Chest and shoulders (more than one segment below c7-t1 along the spine, or lateral
       beyond the neck) stay with the root.
-    * In between, a harmonic coordinate s (Laplace's equation on the skin mesh, s = 0 on the
-      chest, 1 on the head, edges weighted by inverse length) measures how far up the neck a
-      vertex is. The share of joint k's rotation that a vertex follows,
-      C_k = sum_{j >= k} w_j, ramps linearly from 0 to 1 over the window RAMP_WINDOWS[k]
-      of s; the windows' ends are non-decreasing in k, so w_k = C_k - C_{k+1} >= 0, and
-      every lower joint has its own band. Wide windows spread a joint's
-      rotation over the neck skin (c1-c2 turns 40 degrees: a narrow band would tear), as the
-      skin of a real neck twists along its length.
+    * In between, a neck coordinate s (0 on the chest, 1 on the head) minimises the shear
+      of a neck twist (:func:`twist_coordinate`). The share of joint k's rotation that a
+      vertex follows, C_k = sum_{j >= k} w_j, ramps linearly from 0 to 1 over the window
+      RAMP_WINDOWS[k] of s; the windows' ends are non-decreasing in k, so
+      w_k = C_k - C_{k+1} >= 0.
     * A few rounds of Laplacian smoothing soften the ramps' ends.
     """
     n = len(v)
@@ -176,7 +181,7 @@ def skinning_weights(v: np.ndarray, faces: np.ndarray, joints: np.ndarray,
     p = _project_param(v[:, 1:], nodes[:, 1:]) - 1.0  # 0 at c7-t1, 7 at o-c1
     lateral = (np.abs(v[:, 0]) > LATERAL_M) & (v[:, 1] < joints[-1, 1] - 0.06)
     chest = skin & ~head & ((p < CHEST_P) | lateral)
-    s = distance_coordinate(faces, v, one=head, zero=chest)
+    s = twist_coordinate(faces, v, one=head, zero=chest, axis_z=joints[6, 2])
     lo, hi = np.asarray(RAMP_WINDOWS).T
     cum = np.clip((s[:, None] - lo) / (hi - lo), 0, 1)  # (N, 8): C_k
     cum = np.concatenate([np.ones((n, 1)), cum, np.zeros((n, 1))], 1)
@@ -192,41 +197,46 @@ def skinning_weights(v: np.ndarray, faces: np.ndarray, joints: np.ndarray,
     return w, head, chest
 
 
-def distance_coordinate(faces: np.ndarray, v: np.ndarray, one: np.ndarray,
-                        zero: np.ndarray) -> np.ndarray:
-    """s = d0 / (d0 + d1), with d0, d1 the shortest edge-path distances to the ``zero`` and
-    ``one`` sets: 0 on ``zero``, 1 on ``one``, and linear in distance along the shortest path
-    between them, so its gradient is bounded by the local neck length."""
-    from scipy.sparse.csgraph import dijkstra
-
+def cotangent_weights(faces: np.ndarray, v: np.ndarray) -> sparse.csr_matrix:
+    """Symmetric cotangent edge weights (n, n) of a triangle mesh, negatives clamped to a
+    small positive value so the Laplacian stays an M-matrix (maximum principle holds)."""
     n = len(v)
-    adj = averaging_operator(faces, n).tocoo()
-    graph = sparse.csr_matrix((np.linalg.norm(v[adj.row] - v[adj.col], axis=1), (adj.row, adj.col)),
-                              shape=(n, n))
-    d0 = dijkstra(graph, indices=np.flatnonzero(zero), min_only=True)
-    d1 = dijkstra(graph, indices=np.flatnonzero(one), min_only=True)
-    with np.errstate(invalid="ignore"):  # unreachable vertices: inf / inf
-        s = d0 / np.maximum(d0 + d1, 1e-12)
-    s[one] = 1.0
-    s[zero] = 0.0
-    return np.where(np.isfinite(s), s, 1.0)
+    rows, cols, vals = [], [], []
+    for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        # the angle at corner c is opposite edge (a, b)
+        e1, e2 = v[faces[:, a]] - v[faces[:, c]], v[faces[:, b]] - v[faces[:, c]]
+        cot = (e1 * e2).sum(1) / np.maximum(np.linalg.norm(np.cross(e1, e2), axis=1), 1e-12)
+        rows += [faces[:, a], faces[:, b]]
+        cols += [faces[:, b], faces[:, a]]
+        vals += [0.5 * cot, 0.5 * cot]
+    w = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n, n)).tocsr()
+    w.data = np.maximum(w.data, 1e-3)
+    return w
 
 
-def harmonic_coordinate(faces: np.ndarray, v: np.ndarray, one: np.ndarray,
-                        zero: np.ndarray) -> np.ndarray:
-    """Solve the (inverse-edge-length weighted) graph Laplace equation with s = 1 on ``one``
-    and 0 on ``zero`` (boolean masks over vertices)."""
+def twist_coordinate(faces: np.ndarray, v: np.ndarray, one: np.ndarray, zero: np.ndarray,
+                     axis_z: float) -> np.ndarray:
+    """The ramp s (0 on ``zero``, 1 on ``one``) that minimises the shear of a neck twist.
+
+    A twist of angle a applied with weight s(x) displaces skin by a * r * s, r the distance
+    from the (vertical) twist axis, so the shear energy is a^2 int r^2 |grad s|^2 dA.
+    Its minimiser solves the r^2-weighted Laplace equation, discretised with cotangent
+    weights times r^2 at the edge midpoints.
+    """
     from scipy.sparse.linalg import spsolve
 
     n = len(v)
-    lap = sparse.eye(n) - averaging_operator(faces, n, v)
+    w = cotangent_weights(faces, v).tocoo()
+    mid = 0.5 * (v[w.row] + v[w.col])
+    r2 = mid[:, 0] ** 2 + (mid[:, 2] - axis_z) ** 2
+    w = sparse.csr_matrix((w.data * (r2 + 1e-4), (w.row, w.col)), shape=(n, n))
+    lap = sparse.diags(np.asarray(w.sum(1)).ravel()) - w
     fixed = one | zero
-    free = ~fixed
+    free = ~fixed & (np.asarray(w.sum(1)).ravel() > 0)
     s = np.where(one, 1.0, 0.0)
     rhs = -lap[free][:, fixed] @ s[fixed]
     s[free] = spsolve(lap[free][:, free].tocsc(), rhs)
-    # Vertices not connected to either boundary (none in ICT) get the head's value.
-    s[free & ~np.isfinite(s)] = 1.0
     return np.clip(s, 0, 1)
 
 

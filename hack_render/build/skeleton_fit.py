@@ -63,7 +63,7 @@ def place_joints(template: np.ndarray, skin_idx: np.ndarray, chin_idx: int) -> d
     neck = (ys < y_chin - 0.01) & (ys > skin[:, 1].min() + 0.02) & np.isfinite(front)
     y_notch = ys[neck][np.argmin(front[neck])]
     y_c7 = y_notch + 0.015
-    f = lambda arr, y: float(np.interp(y, ys[np.isfinite(arr)], arr[np.isfinite(arr)]))  # noqa: E731
+    f = lambda arr, y: float(np.interp(y, ys[np.isfinite(arr)], arr[np.isfinite(arr)]))
     z_c7 = f(front, y_c7) - DEPTH_FRACTION * (f(front, y_c7) - f(back, y_c7))
     # Ear lobe: lowest vertex of the lateral ear region (|x| beyond the skull, near z = 0).
     lateral = skin[(np.abs(skin[:, 0]) > 0.07) & (np.abs(skin[:, 2]) < 0.03)

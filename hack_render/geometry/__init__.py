@@ -20,9 +20,18 @@ from hack_render.geometry.skeleton import (
 DEFAULT_MODEL_NAME = "hack_default.npz"
 
 __all__ = [
-    "HackModel", "HackOutput", "PersonalizedHack", "JOINT_NAMES", "load_default_model",
-    "default_model_path", "load_model", "distribute_head_rotation", "rotation_limit_penalty",
-    "adjacent_similarity_penalty", "clamp_to_limits", "rotation_limits",
+    "JOINT_NAMES",
+    "HackModel",
+    "HackOutput",
+    "PersonalizedHack",
+    "adjacent_similarity_penalty",
+    "clamp_to_limits",
+    "default_model_path",
+    "distribute_head_rotation",
+    "load_default_model",
+    "load_model",
+    "rotation_limit_penalty",
+    "rotation_limits",
 ]
 
 

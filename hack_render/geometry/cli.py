@@ -6,7 +6,6 @@ import json
 import warnings
 from enum import Enum
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -22,7 +21,7 @@ class LimitPolicy(str, Enum):
 model_app = typer.Typer(help="Build and inspect HACK model files.", no_args_is_help=True)
 
 
-def _floats(text: Optional[str], name: str) -> Optional[list[float]]:
+def _floats(text: str | None, name: str) -> list[float] | None:
     if text is None:
         return None
     try:
@@ -31,8 +30,8 @@ def _floats(text: Optional[str], name: str) -> Optional[list[float]]:
         raise HackError(f"--{name}: expected comma-separated numbers like '0.5,-1', found {text!r}.") from exc
 
 
-def gather_params(params_file: Optional[Path], beta: Optional[str], expression: Optional[str],
-                  head_rotation: Optional[str], eta: Optional[float], tau: Optional[float]) -> dict:
+def gather_params(params_file: Path | None, beta: str | None, expression: str | None,
+                  head_rotation: str | None, eta: float | None, tau: float | None) -> dict:
     """Parameters from a file, overridden by command-line flags (shared by several commands)."""
     from hack_render.geometry.params import check_params, load_params
 
@@ -65,20 +64,20 @@ def mesh(
     output: Path = typer.Option(Path("out/hack_mesh.obj"), "-o", "--output",
                                 help="Output mesh; .obj or .ply (both with UVs). A second format "
                                      "is written beside it with --both."),
-    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
+    params: Path | None = typer.Option(None, "--params", help="JSON/YAML parameter file "
                                           "(keys: beta, psi, expression, head_rotation_deg, theta, "
                                           "global_orient, transl, eta, tau)."),
-    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
-    expression: Optional[str] = typer.Option(None, "--expr", help="FACS AUs and/or shape names, "
+    beta: str | None = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
+    expression: str | None = typer.Option(None, "--expr", help="FACS AUs and/or shape names, "
                                              "e.g. 'AU12=0.7,jawOpen=0.3'."),
-    head_rotation: Optional[str] = typer.Option(None, "--head-rotation", help="Whole-head "
+    head_rotation: str | None = typer.Option(None, "--head-rotation", help="Whole-head "
                                                 "'flexion,axial,lateral' in degrees, shared over the 8 "
                                                 "cervical joints by their ranges, e.g. '15,40,0'."),
-    eta: Optional[float] = typer.Option(None, help="Larynx size."),
-    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
+    eta: float | None = typer.Option(None, help="Larynx size."),
+    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres."),
     limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Joint rotations beyond the "
                                        "anatomical limits: warn, clamp or error."),
-    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: built-in)."),
+    model_path: Path | None = typer.Option(None, "--model", help="Model file (default: built-in)."),
     both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
 ) -> None:
     """Write a posed HACK mesh (OBJ/PLY with UVs) for the given parameters.
@@ -123,7 +122,7 @@ def build(
 
 
 @model_app.command("info")
-def info(model_path: Optional[Path] = typer.Argument(None, help="Model file (default: built-in).")) -> None:
+def info(model_path: Path | None = typer.Argument(None, help="Model file (default: built-in).")) -> None:
     """Print a model's sizes, joints, action units, expression names and provenance."""
     from hack_render.geometry import load_model
 

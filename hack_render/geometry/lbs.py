@@ -39,7 +39,7 @@ def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
     """
     B, K = joints.shape[:2]
     rel_joints = joints.clone()
-    par = torch.tensor([p if p >= 0 else 0 for p in parents], device=joints.device)
+    par = torch.tensor([max(p, 0) for p in parents], device=joints.device)
     has_parent = torch.tensor([p >= 0 for p in parents], device=joints.device)
     rel_joints = joints - torch.where(has_parent[None, :, None], joints[:, par], torch.zeros_like(joints))
     local = torch.zeros(B, K, 4, 4, dtype=joints.dtype, device=joints.device)

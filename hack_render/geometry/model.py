@@ -21,7 +21,13 @@ from torch import nn
 
 from hack_render.errors import HackError
 from hack_render.geometry import larynx as _larynx
-from hack_render.geometry.lbs import chain_parents, local_rotations, pose_feature, rigid_transforms, skin
+from hack_render.geometry.lbs import (
+    chain_parents,
+    local_rotations,
+    pose_feature,
+    rigid_transforms,
+    skin,
+)
 from hack_render.geometry.model_file import load_model_file
 
 
@@ -68,7 +74,7 @@ class _PersonalBasis(nn.Module):
 
     def __init__(self, arrays: dict[str, np.ndarray], prefix: str):
         super().__init__()
-        t = lambda k: torch.as_tensor(arrays[f"{prefix}_{k}"])  # noqa: E731
+        t = lambda k: torch.as_tensor(arrays[f"{prefix}_{k}"])
         self.register_buffer("vertices", t("pca_vertices").long())
         mean, comps = t("pca_mean").float(), t("pca_components").float()
         self.register_buffer("mean", mean.reshape(mean.shape[0], -1))  # (D, 3M)
@@ -93,8 +99,8 @@ class HackModel(nn.Module):
     def __init__(self, arrays: dict[str, np.ndarray], meta: dict[str, Any] | None = None):
         super().__init__()
         self.meta = dict(meta or {})
-        f32 = lambda k: torch.as_tensor(np.asarray(arrays[k], dtype=np.float32))  # noqa: E731
-        i64 = lambda k: torch.as_tensor(np.asarray(arrays[k], dtype=np.int64))  # noqa: E731
+        f32 = lambda k: torch.as_tensor(np.asarray(arrays[k], dtype=np.float32))
+        i64 = lambda k: torch.as_tensor(np.asarray(arrays[k], dtype=np.int64))
         self.register_buffer("template", f32("template_vertices"))
         n = self.template.shape[0]
         self.num_vertices = n
@@ -151,7 +157,7 @@ class HackModel(nn.Module):
 
     # ----------------------------------------------------------------------------- loading
     @classmethod
-    def from_file(cls, path: str | Path) -> "HackModel":
+    def from_file(cls, path: str | Path) -> HackModel:
         """Load and validate a model file (see :mod:`hack_render.geometry.model_file`)."""
         arrays, meta = load_model_file(path)
         model = cls(arrays, meta)
@@ -299,7 +305,7 @@ class HackModel(nn.Module):
                           rest_vertices=rest)
 
     # ------------------------------------------------------------------------ personalise
-    def personalize(self, beta) -> "PersonalizedHack":
+    def personalize(self, beta) -> PersonalizedHack:
         """Precompute everything that depends on beta alone, for one identity.
 
         Returns a module whose forward takes (psi, theta, global_orient, transl, eta, tau)

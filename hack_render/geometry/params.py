@@ -46,7 +46,7 @@ def load_params(path: str | Path) -> dict[str, Any]:
             data = yaml.safe_load(text)
         else:
             data = json.loads(text)
-    except Exception as exc:  # noqa: BLE001 - parser errors differ per format
+    except Exception as exc:
         raise HackError(f"--params {path}: not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {exc}") from exc
     return check_params(data or {}, str(path))
 
