@@ -58,3 +58,23 @@ def test_theta_beyond_limits_policy(tmp_path):
     assert res.returncode == 2 and "c1-c2 y=68.8" in res.stderr
     res = _cli("mesh", "-o", str(tmp_path / "b.obj"), "--params", str(p), "--limits", "clamp")
     assert res.returncode == 0
+
+
+def test_every_command_has_working_help():
+    """`--help` teaches on every command and sub-command (and never crashes)."""
+    import typer.main
+
+    from hack_render.cli import app, main
+
+    def walk(cmd, path):
+        yield path
+        for name, sub in getattr(cmd, "commands", {}).items():
+            yield from walk(sub, path + [name])
+
+    paths = list(walk(typer.main.get_command(app), []))
+    assert len(paths) >= 8
+    for path in paths:
+        try:
+            main(path + ["--help"])
+        except SystemExit as exit_:
+            assert exit_.code in (0, None), path

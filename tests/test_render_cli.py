@@ -151,3 +151,18 @@ def test_09_procedural_appearance_seed_renders(tmp_path):
     pytest.importorskip("appearance.generator")
     assert run(["render", "-o", str(tmp_path / "a.png"), "--appearance-seed", "2", *FAST]) == 0
     assert (tmp_path / "a.png").stat().st_size > 0
+
+
+def test_20_alpha_drives_the_appearance_model(tmp_path):
+    """--alpha renders the PCA appearance model: opposite alphas give different skin albedo."""
+    exrs = []
+    for name, alpha in (("a", "2,0,0"), ("b", "-2,0,0")):
+        exr = tmp_path / f"{name}.exr"
+        assert run(["render", "-o", str(tmp_path / f"{name}.png"), "--exr", str(exr), "--aov",
+                    "albedo,segmentation", *FAST, "--alpha", alpha]) == 0
+        exrs.append(read_exr(exr))
+    skin = exrs[0]["segmentation.I"] == 1.0
+    assert skin.sum() > 20
+    diff = np.abs(exrs[0]["albedo.R"][skin] - exrs[1]["albedo.R"][skin]).mean()
+    assert diff > 0.01, diff
+    assert run(["render", "-o", str(tmp_path / "c.png"), *FAST, "--alpha", ",".join(["0.1"] * 500)]) == 2

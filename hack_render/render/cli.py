@@ -100,7 +100,7 @@ def render(
     appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed",
                                                   help="Random appearance from this seed."),
     textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
-                                            "roughness[/normal].exr skin maps."),
+                                            "roughness(, normal).exr skin maps."),
     lighting: str = typer.Option("studio", help="studio, light_stage, overcast_sun, window, "
                                  "or env:PATH.exr/.hdr (a lat-long HDR map)."),
     env_rotation: float = typer.Option(0.0, help="Rotate the lighting about +Y, degrees."),

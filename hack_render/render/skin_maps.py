@@ -56,14 +56,10 @@ def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 5
         return SkinMaps.from_appearance(generate_subject(int(seed), height=height))
     import torch
 
-    try:
-        import appearance
-        model = appearance.load_default_model()
-    except (ImportError, AttributeError, OSError) as err:
-        raise HackError("--alpha: expected the appearance PCA model (appearance."
-                        f"load_default_model), found it unavailable ({err}). Use "
-                        "--appearance-seed N or --textures DIR.") from err
-    a = torch.tensor([alpha], dtype=torch.float32)
+    from appearance import AppearanceModel
+
+    model = AppearanceModel.load()  # the shipped default; HackError if unusable
+    a = torch.tensor([alpha], dtype=torch.float32)  # k <= n_components, checked by maps()
     with torch.no_grad():
         return SkinMaps.from_appearance(model.maps(a))
 
