@@ -1,0 +1,202 @@
+"""The torch <-> Dr.Jit bridge: differentiable renders of a :class:`HeadScene` from torch.
+
+:class:`DiffRenderer` wraps a built :class:`~hack_render.render.scene.HeadScene` and renders
+it from torch tensors with ``dr.wrap(source="torch", target="drjit")``, so a torch loss on
+the image back-propagates (through Dr.Jit's reverse-mode AD) into:
+
+- ``vertices`` (N, 3) metres: every render part's positions, and its normals (computed
+  here in torch from the positions, so shading normals carry gradients too);
+- skin maps ``albedo`` (H, 2H, 3), ``specular`` / ``roughness`` (H, 2H, 1), ``normal``
+  (H, 2H, 3) (the ``hack_skin`` textures);
+- ``light_rotation_deg`` (1,): rotation of the whole rig (environment and area lights)
+  about +Y, degrees;
+- ``focal_px`` (1,): the focal length in pixels (through the sensor's field of view);
+- ``env`` (h, 2h, 3): the texels of the environment map (its rig must have one of this
+  size: build the scene with ``LightRig(env_map=...)``).
+
+Inputs that are None keep the scene's current value. Visibility: the default integrator
+is Mitsuba's ``prb`` (max depth 2: direct lighting from the environment and area lights,
+with shadows), which differentiates shading but not silhouettes or shadow boundaries;
+``direct_projective`` also differentiates silhouettes (about 50x slower on a CPU, see
+docs/fit.md). The image is linear RGBA (H, W, 4); alpha is coverage.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+from hack_render.render.engine import is_jit
+
+INTEGRATORS = ("prb", "direct_projective", "prb_projective")
+
+
+def vertex_normals_torch(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """Area-weighted unit vertex normals, differentiable. vertices (N, 3), faces (F, 3) long."""
+    v = vertices[faces]
+    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=1)
+    n = torch.zeros_like(vertices).index_add_(0, faces.reshape(-1), fn.repeat_interleave(3, 0))
+    length = torch.linalg.vector_norm(n, dim=1, keepdim=True)
+    # isolated vertices (zero normal) stay zero instead of dividing by zero
+    return n / torch.where(length > 0, length, torch.ones_like(length))
+
+
+def fov_from_focal(focal_px: torch.Tensor, width: int) -> torch.Tensor:
+    """Horizontal field of view (degrees) of a focal length in pixels (tensor in, tensor out)."""
+    return torch.rad2deg(2.0 * torch.atan(0.5 * width / focal_px))
+
+
+class DiffRenderer:
+    """Differentiable renders of a head scene from torch tensors (see the module docstring).
+
+    Args:
+        head: a built :class:`HeadScene` in a JIT variant (``llvm_ad_rgb``/``cuda_ad_rgb``).
+        integrator: one of :data:`INTEGRATORS`.
+        max_depth: path depth of the integrator (2 = direct lighting only).
+        spp: samples per pixel of the primal and of the adjoint pass (default: the scene's).
+    """
+
+    def __init__(self, head, integrator: str = "prb", max_depth: int = 2, spp: int | None = None):
+        import mitsuba as mi
+
+        if not is_jit(head.variant):
+            raise HackError(f"differentiable rendering: expected a JIT variant (llvm_ad_rgb or "
+                            f"cuda_ad_rgb), found {head.variant!r}. Install LLVM 16+ "
+                            "(`apt-get install libllvm19`) or unset HACK_RENDER_VARIANT.")
+        if integrator not in INTEGRATORS:
+            raise HackError(f"integrator: expected one of {', '.join(INTEGRATORS)}, found "
+                            f"{integrator!r}.")
+        self.head = head
+        self.integrator_name = integrator
+        d = {"type": integrator, "max_depth": int(max_depth)}
+        if integrator == "direct_projective":
+            d = {"type": integrator}
+        self.integrator = mi.load_dict(d)
+        self.spp = int(spp or head.settings.spp)
+        self.width, self.height = head.settings.width, head.settings.height
+        self._faces = torch.as_tensor(head.topology.faces, dtype=torch.long)
+        self._gather = {p.name: torch.as_tensor(p.gather, dtype=torch.long) for p in head.parts}
+        self._light_base = self._light_bases()
+        self._fn = self._make_render_fn()
+
+    # --- scene structure ---------------------------------------------------------------
+    def _light_bases(self) -> dict[str, np.ndarray]:
+        """Unrotated ``to_world`` (4, 4) of each area light of the rig."""
+        from hack_render.render.emitters import area_light_transform
+
+        return {f"light_{i}": area_light_transform(light, 0.0)
+                for i, light in enumerate(self.head.lights.area)
+                if f"light_{i}.to_world" in self.head.params}
+
+    @property
+    def skin_key(self) -> str:
+        return self.head._skin_key
+
+    @property
+    def env_shape(self) -> tuple[int, int, int] | None:
+        """(h, 2h, 3) of the scene's environment map texels, or None without one."""
+        p = self.head.params
+        if "environment.data" not in p:
+            return None
+        h, w, c = p["environment.data"].shape
+        return (h, w - 2, c)
+
+    def _make_render_fn(self):
+        import drjit as dr
+        import mitsuba as mi
+
+        head, params = self.head, self.head.params
+        skin = self.skin_key
+        light_base = {k: mi.Matrix4f(v.tolist()) for k, v in self._light_base.items()}
+        has_env_rot = "environment.to_world" in params
+
+        @dr.wrap(source="torch", target="drjit")
+        def render(inputs, seed, seed_grad, spp):
+            for name, x in inputs.items():
+                if name.startswith("pos:"):
+                    params[f"{name[4:]}.vertex_positions"] = x.array
+                elif name.startswith("nrm:"):
+                    params[f"{name[4:]}.vertex_normals"] = x.array
+                elif name.startswith("map:"):
+                    params[f"{skin}.{name[4:]}.data"] = x
+                elif name == "env":
+                    params["environment.data"] = x
+                elif name == "fov":
+                    params["sensor.x_fov"] = x.array
+                elif name == "rot":
+                    r = dr.deg2rad(x.array)
+                    c, s = dr.cos(r), dr.sin(r)
+                    m = mi.Matrix4f(c, 0, s, 0, 0, 1, 0, 0, -s, 0, c, 0, 0, 0, 0, 1)
+                    if has_env_rot:
+                        params["environment.to_world"] = mi.Transform4f(m)
+                    for key, base in light_base.items():
+                        params[f"{key}.to_world"] = mi.Transform4f(m @ base)
+            params.update()
+            return mi.render(head.scene, params, integrator=self.integrator, seed=seed,
+                             seed_grad=seed_grad, spp=spp)
+
+        return render
+
+    # --- the differentiable render -----------------------------------------------------
+    def inputs(self, vertices=None, albedo=None, specular=None, roughness=None, normal=None,
+               light_rotation_deg=None, focal_px=None, env=None) -> dict[str, torch.Tensor]:
+        """Translate model-level tensors into the flat per-parameter tensors Mitsuba wants."""
+        out: dict[str, torch.Tensor] = {}
+        if vertices is not None:
+            v = vertices.reshape(-1, 3)
+            if v.shape[0] != self.head.topology.num_vertices:
+                raise HackError(f"vertices: expected ({self.head.topology.num_vertices}, 3), "
+                                f"found {tuple(vertices.shape)}.")
+            v = v.float()
+            n = vertex_normals_torch(v, self._faces)
+            for name, g in self._gather.items():
+                out[f"pos:{name}"] = v[g].reshape(-1)
+                out[f"nrm:{name}"] = n[g].reshape(-1)
+        for key, x in (("albedo", albedo), ("specular", specular), ("roughness", roughness),
+                       ("normalmap", normal)):
+            if x is None:
+                continue
+            full = f"{self.skin_key}.{key}.data"
+            if full not in self.head.params:
+                raise HackError(f"skin map {key!r}: this scene's skin material has none (build "
+                                "the HeadScene with maps that include it).")
+            want = tuple(self.head.params[full].shape)
+            if tuple(x.shape) != want:
+                raise HackError(f"skin map {key!r}: expected shape {want} (the scene's), found "
+                                f"{tuple(x.shape)}. Keep the map size fixed while fitting.")
+            out[f"map:{key}"] = x.float().contiguous()
+        if env is not None:
+            shape = self.env_shape
+            if shape is None or tuple(env.shape) != shape:
+                raise HackError(f"env: expected texels of shape {shape} (the rig's environment "
+                                f"map), found {tuple(env.shape)}.")
+            e = env.float()
+            out["env"] = torch.cat([e[:, -1:], e, e[:, :1]], dim=1).contiguous()
+        if focal_px is not None:
+            out["fov"] = fov_from_focal(focal_px.reshape(1).float(), self.width)
+        if light_rotation_deg is not None:
+            out["rot"] = light_rotation_deg.reshape(1).float()
+        return out
+
+    def render(self, seed: int = 0, spp: int | None = None, seed_grad: int | None = None,
+               **tensors) -> torch.Tensor:
+        """Render (H, W, 4) linear RGBA as a torch tensor; gradients flow to ``tensors``.
+
+        Keyword arguments: see :meth:`inputs` (vertices, albedo, specular, roughness,
+        normal, light_rotation_deg, focal_px, env). ``seed`` picks the primal sample
+        pattern; ``seed_grad`` the adjoint pass's (default: a different one, which keeps
+        loss gradients unbiased; pass ``seed_grad=seed`` to differentiate exactly the
+        deterministic function that the primal pass evaluates, as the gradient tests do).
+        """
+        inputs = self.inputs(**tensors)
+        seed = int(seed) % (2 ** 31)
+        sg = (seed * 65599 + 1) % (2 ** 31) if seed_grad is None else int(seed_grad) % (2 ** 31)
+        return self._fn(inputs, seed, sg, int(spp or self.spp))
+
+    def set_focal(self, focal_px: float) -> None:
+        """Non-differentiable focal change (pixels), e.g. before rendering a final image."""
+        self.head.params["sensor.x_fov"] = math.degrees(2.0 * math.atan(0.5 * self.width / focal_px))
+        self.head.params.update()
