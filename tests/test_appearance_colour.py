@@ -48,7 +48,9 @@ def test_skin_albedo_physical_and_monotone():
     rgb = skin_albedo(cm, 0.02, 0.7)
     assert np.all((rgb > 0) & (rgb < 1))
     assert np.all(np.diff(rgb, axis=0) < 0)  # more melanin, darker in every channel
-    refl = skin_reflectance(0.05, np.array([0.005, 0.2]), 0.7)
+    from appearance.population import load_calibration
+
+    refl = skin_reflectance(0.05, np.array([0.005, 0.2]), 0.7, load_calibration().optics)
     i560 = np.argmin(np.abs(WAVELENGTHS - 560))
     i660 = np.argmin(np.abs(WAVELENGTHS - 660))
     # blood absorbs green far more than red: relative loss larger at 560 nm
