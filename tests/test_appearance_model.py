@@ -149,3 +149,14 @@ def test_builder_rejects_inconsistent_subjects(population, tmp_path):
     with pytest.raises(HackError, match="s001.*roughness"):
         build_model(root, tmp_path / "x.npz", height=H, progress=False)
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_appearance_package_never_imports_mitsuba():
+    import subprocess
+    import sys
+
+    code = ("import sys, appearance, appearance.cli, appearance.builder, appearance.generator, "
+            "appearance.detail, appearance.calibrate, appearance.build_default; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit')]; "
+            "sys.exit(1 if bad else 0)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
