@@ -136,3 +136,13 @@ def is_jit(variant: str | None = None) -> bool:
 
     v = variant or mi.variant() or ""
     return v.startswith(("cuda", "llvm"))
+
+
+def set_thread_count(n: int) -> None:
+    """Limit Dr.Jit's CPU thread pool to ``n`` threads (e.g. one per Ray worker, so that
+    several worker processes on one machine do not oversubscribe its cores)."""
+    import drjit as dr
+
+    if n < 1:
+        raise HackError(f"thread count: expected >= 1, found {n}.")
+    dr.set_thread_count(int(n))

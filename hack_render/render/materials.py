@@ -97,6 +97,10 @@ def skin_bsdf(maps: SkinMaps, jit: bool) -> dict:
     return {"type": "normalmap", "normalmap": bitmap(0.5 * maps.normal + 0.5), "bsdf": base}
 
 
+#: Opacity of the lash cards (no alpha texture is shipped; see fixed_bsdfs).
+EYELASH_OPACITY = 0.5
+
+
 def _plastic(rgb, alpha: float, ior: float = 1.4) -> dict:
     return {"type": "roughplastic", "distribution": "ggx", "alpha": alpha, "int_ior": ior,
             "diffuse_reflectance": {"type": "rgb", "value": list(map(float, rgb))}}
@@ -112,7 +116,7 @@ def fixed_bsdfs() -> dict[str, dict]:
         "lacrimal": {"type": "twosided", "bsdf": _plastic((0.62, 0.45, 0.42), 0.03, 1.336)},
         # lash cards without their alpha texture: half-transparent, so they read as
         # lashes rather than as a painted line
-        "eyelashes": {"type": "mask", "opacity": {"type": "uniform", "value": 0.5},
+        "eyelashes": {"type": "mask", "opacity": {"type": "uniform", "value": EYELASH_OPACITY},
                       "bsdf": {"type": "twosided",
                                "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}},
     }

@@ -37,9 +37,14 @@ class RenderSettings:
     spp: int = 64
     max_depth: int = 8
     seed: int = 0
+    #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
+    pixel_filter: str = "gaussian"
 
     def __post_init__(self):
         validate_size(self.width, self.height, self.spp)
+        if self.pixel_filter not in ("gaussian", "box"):
+            raise HackError(f"pixel filter: expected 'gaussian' or 'box', found "
+                            f"{self.pixel_filter!r}.")
         if not 1 <= self.max_depth <= 64:
             raise HackError(f"max depth: expected 1..64 bounces, found {self.max_depth}.")
         if not 0 <= self.seed < 2 ** 31:
@@ -115,7 +120,8 @@ class HeadScene:
         normals = vertex_normals(v, topology.faces)
         scene: dict = {"type": "scene",
                        "integrator": {"type": "path", "max_depth": settings.max_depth},
-                       "sensor": emitters.sensor_dict(camera, settings.passes[1])}
+                       "sensor": emitters.sensor_dict(camera, settings.passes[1],
+                                                      pixel_filter=settings.pixel_filter)}
         for part in self.parts:
             if part.name.startswith("skin"):
                 bsdf = skin
@@ -273,6 +279,18 @@ class HeadScene:
         from hack_render.render.aov import gbuffer
 
         return gbuffer(self)
+
+    def region_hits(self, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict:
+        """Region ids and model UVs at one sub-pixel point: see :func:`aov.region_hits`."""
+        from hack_render.render.aov import region_hits
+
+        return region_hits(self, offset, see_through)
+
+    def visibility(self, points, tolerance: float = 2e-3, see_through=("eyelashes",)):
+        """Line-of-sight visibility of world points: see :func:`aov.point_visibility`."""
+        from hack_render.render.aov import point_visibility
+
+        return point_visibility(self, points, tolerance, see_through)
 
     @property
     def region_names(self) -> tuple[str, ...]:

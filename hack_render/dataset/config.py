@@ -1,0 +1,207 @@
+"""Dataset configuration: defaults, a YAML file's overrides, validation naming the key.
+
+A config is a nested mapping (see :data:`DEFAULTS` and docs/dataset.md). A YAML file
+overrides any subset of it; unknown keys, wrong types, impossible ranges and unknown
+presets are refused by :func:`load_config` / :func:`check_config` before anything is
+rendered, with a message that names the key (``camera.yaw_deg``) and the fix.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from hack_render.errors import HackError
+
+#: Every key, with its default. Ranges are [min, max] (uniform unless said otherwise).
+DEFAULTS: dict[str, Any] = {
+    "render": {
+        "resolution": 256,        # pixels, square
+        "spp": 32,                # samples per pixel
+        "max_depth": 8,
+        "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
+        "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
+        "variant": None,          # Mitsuba variant (None: automatic)
+    },
+    "identity": {
+        "components": 20,         # beta ~ N(0, I) in the first k shape components
+        "truncation": 2.5,        # |beta_k| <= truncation (resampled beyond)
+    },
+    "expression": {
+        "aus": "all",             # action units to draw from ("all" or a list of names)
+        "max_active": 3,          # 0..max_active AUs active at once (uniform count)
+        "p_neutral": 0.1,         # probability of a neutral face
+        "intensity": [0.2, 1.0],  # weight of each active AU
+    },
+    "neck": {
+        # whole-head (flexion X, axial Y, lateral Z) ~ N(0, std), truncated at 2 std,
+        # shared over the 8 joints by their ranges (distribute_head_rotation)
+        "head_std_deg": [15.0, 30.0, 10.0],
+        "joint_noise_deg": 1.5,   # independent per-joint, per-axis noise (std)
+    },
+    "larynx": {
+        "eta": [0.6, 1.4],        # larynx size
+        "tau_rest": [-0.003, 0.003],  # vertical slide at rest, metres
+        "p_swallow": 0.3,         # probability that the sample is mid-swallow
+        "swallow_height": 0.015,  # peak slide of a swallow, metres (phase ~ U(0, 1))
+    },
+    "appearance": {
+        "source": "seed",         # seed (procedural subjects), alpha (PCA model), constant
+        "subjects": 100000,       # seed: subject ids drawn from [0, subjects)
+        "components": 20,         # alpha: first k components, alpha ~ N(0, I)
+        "truncation": 2.5,        # alpha: |alpha_k| <= truncation
+        "height": 256,            # skin map height H (maps are H x 2H)
+    },
+    "lighting": {
+        "presets": ["studio", "light_stage", "overcast_sun", "window"],  # or env:PATH.exr
+        "rotation_deg": [-180.0, 180.0],
+        "exposure": [-0.5, 0.5],  # stops
+    },
+    "camera": {
+        "views": 1,               # cameras per sample (a multi-view group of one scene)
+        "yaw_deg": [-60.0, 60.0],
+        "pitch_deg": [-10.0, 20.0],
+        "distance_scale": [0.9, 1.25],  # x the distance that frames the head and neck
+        "focal_mm": [50.0, 105.0],      # on a 36 mm sensor
+    },
+}
+
+
+def _fail(key: str, expected: str, found) -> None:
+    raise HackError(f"config key '{key}': expected {expected}, found {found!r}.")
+
+
+def _merge(base: dict, override: dict, prefix: str = "") -> dict:
+    out = copy.deepcopy(base)
+    for k, v in override.items():
+        key = f"{prefix}{k}"
+        if k not in base:
+            raise HackError(f"config key '{key}': unknown key; known keys here: "
+                            f"{', '.join(base)}. Check its spelling (docs/dataset.md).")
+        if isinstance(base[k], dict):
+            if not isinstance(v, dict):
+                _fail(key, "a mapping", v)
+            out[k] = _merge(base[k], v, f"{key}.")
+        else:
+            out[k] = v
+    return out
+
+
+def _number(cfg, section, name, lo=-math.inf, hi=math.inf, integer=False):
+    key = f"{section}.{name}"
+    v = cfg[section][name]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
+        _fail(key, "an integer" if integer else "a number", v)
+    if not (lo <= v <= hi) or not math.isfinite(v):
+        _fail(key, f"a value in [{lo}, {hi}]", v)
+
+
+def _range(cfg, section, name, lo=-math.inf, hi=math.inf):
+    key = f"{section}.{name}"
+    v = cfg[section][name]
+    if (not isinstance(v, (list, tuple)) or len(v) != 2
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+        _fail(key, "[min, max], two numbers", v)
+    a, b = float(v[0]), float(v[1])
+    if not (math.isfinite(a) and math.isfinite(b)):
+        _fail(key, "finite numbers", v)
+    if a > b:
+        _fail(key, "[min, max] with min <= max (an impossible range otherwise)", v)
+    if a < lo or b > hi:
+        _fail(key, f"a range inside [{lo}, {hi}]", v)
+    cfg[section][name] = [a, b]
+
+
+def check_config(cfg: dict) -> dict:
+    """Validate a full config (defaults merged); returns it with ranges as float lists."""
+    from hack_render.render.image_io import TONE_MAPS
+    from hack_render.render.scene import MAX_SIDE, MAX_SPP
+    from scenes import lights
+
+    _number(cfg, "render", "resolution", 8, MAX_SIDE, integer=True)
+    _number(cfg, "render", "spp", 1, MAX_SPP, integer=True)
+    _number(cfg, "render", "max_depth", 1, 64, integer=True)
+    _number(cfg, "render", "soft_mask_samples", 0, 16, integer=True)
+    if cfg["render"]["tonemap"] not in TONE_MAPS:
+        _fail("render.tonemap", f"one of {', '.join(TONE_MAPS)}", cfg["render"]["tonemap"])
+    var = cfg["render"]["variant"]
+    if var is not None and not isinstance(var, str):
+        _fail("render.variant", "a Mitsuba variant name or null", var)
+    _number(cfg, "identity", "components", 0, 10000, integer=True)
+    _number(cfg, "identity", "truncation", 0.1, 10.0)
+    aus = cfg["expression"]["aus"]
+    if aus != "all" and (not isinstance(aus, list) or not all(isinstance(a, str) for a in aus)):
+        _fail("expression.aus", "'all' or a list of action-unit names", aus)
+    _number(cfg, "expression", "max_active", 0, 64, integer=True)
+    _number(cfg, "expression", "p_neutral", 0.0, 1.0)
+    _range(cfg, "expression", "intensity", -2.0, 2.0)
+    hs = cfg["neck"]["head_std_deg"]
+    if (not isinstance(hs, (list, tuple)) or len(hs) != 3
+            or not all(isinstance(x, (int, float)) and 0 <= x <= 180 for x in hs)):
+        _fail("neck.head_std_deg", "3 standard deviations in [0, 180] degrees "
+              "(flexion, axial, lateral)", hs)
+    cfg["neck"]["head_std_deg"] = [float(x) for x in hs]
+    _number(cfg, "neck", "joint_noise_deg", 0.0, 45.0)
+    _range(cfg, "larynx", "eta", 0.0, 10.0)
+    _range(cfg, "larynx", "tau_rest", -0.05, 0.05)
+    _number(cfg, "larynx", "p_swallow", 0.0, 1.0)
+    _number(cfg, "larynx", "swallow_height", 0.0, 0.05)
+    src = cfg["appearance"]["source"]
+    if src not in ("seed", "alpha", "constant"):
+        _fail("appearance.source", "seed, alpha or constant", src)
+    _number(cfg, "appearance", "subjects", 1, 2 ** 31 - 1, integer=True)
+    _number(cfg, "appearance", "components", 0, 10000, integer=True)
+    _number(cfg, "appearance", "truncation", 0.1, 10.0)
+    _number(cfg, "appearance", "height", 16, 4096, integer=True)
+    presets = cfg["lighting"]["presets"]
+    if isinstance(presets, str):
+        presets = cfg["lighting"]["presets"] = [presets]
+    if not isinstance(presets, list) or not presets:
+        _fail("lighting.presets", "a non-empty list of lighting presets", presets)
+    for name in presets:
+        try:
+            lights.preset(name, 0.0, 0.0)
+        except HackError as err:
+            raise HackError(f"config key 'lighting.presets': {err}") from err
+    _range(cfg, "lighting", "rotation_deg", -3600.0, 3600.0)
+    _range(cfg, "lighting", "exposure", -20.0, 20.0)
+    _number(cfg, "camera", "views", 1, 1024, integer=True)
+    _range(cfg, "camera", "yaw_deg", -360.0, 360.0)
+    _range(cfg, "camera", "pitch_deg", -89.0, 89.0)
+    _range(cfg, "camera", "distance_scale", 0.05, 100.0)
+    _range(cfg, "camera", "focal_mm", 1.0, 2000.0)
+    return cfg
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
+    """Defaults, then a YAML/JSON file's values, then ``overrides``; validated.
+
+    Raises:
+        HackError: unreadable file, unknown key, bad value (the message names the key).
+    """
+    cfg = copy.deepcopy(DEFAULTS)
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise HackError(f"--config {path}: file not found.")
+        try:
+            import yaml
+
+            data = yaml.safe_load(path.read_text()) or {}
+        except Exception as err:  # noqa: BLE001 - any parser error
+            raise HackError(f"--config {path}: not valid YAML ({err}).") from err
+        if not isinstance(data, dict):
+            raise HackError(f"--config {path}: expected a mapping of sections, found "
+                            f"{type(data).__name__}.")
+        cfg = _merge(cfg, data)
+    if overrides:
+        cfg = _merge(cfg, overrides)
+    return check_config(cfg)
+
+
+def canonical(cfg: dict) -> str:
+    """The config as canonical JSON (sorted keys): equal strings mean equal datasets."""
+    return json.dumps(cfg, sort_keys=True)

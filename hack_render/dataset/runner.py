@@ -1,0 +1,291 @@
+"""Running a dataset job: checks, shards, resumption, executors, manifests.
+
+Layout of an output folder ``DIR``::
+
+    DIR/config.json                      the resolved config, seed and label table
+    DIR/samples/0000012/sample.json      the sample's record (written last: complete)
+    DIR/samples/0000012/params.json      geometry parameters (``hack-render render --params``)
+    DIR/samples/0000012/view_00/...      per-view images and labels (docs/dataset.md)
+    DIR/manifest/shard-000-of-004.jsonl  one record per line, sorted by index
+
+Shard ``K/M`` (0 <= K < M) owns the samples with ``index % M == K``. A job array (Slurm,
+Kubernetes) runs one shard per task into the same ``DIR``; shards share nothing but
+``config.json``, which every shard writes with the same content (a shard refuses a
+``DIR`` made with another config or seed).
+
+Executors: ``serial`` renders in this process; ``ray`` runs one
+:class:`~hack_render.dataset.worker.SampleRenderer` per Ray actor and hands samples to
+them with Ray's own ``ActorPool`` (a local Ray instance by default, or a cluster
+address). Both write the same files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from hack_render.errors import HackError
+
+EXECUTORS = ("serial", "ray")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One shard of a dataset: ``n`` samples of ``cfg`` with ``seed`` into ``out``."""
+
+    out: Path
+    n: int
+    seed: int
+    cfg: dict
+    shard: tuple[int, int] = (0, 1)
+    resume: bool = False
+
+    def indices(self) -> list[int]:
+        k, m = self.shard
+        return list(range(k, self.n, m))
+
+    @property
+    def manifest_path(self) -> Path:
+        k, m = self.shard
+        return self.out / "manifest" / f"shard-{k:03d}-of-{m:03d}.jsonl"
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    """'K/M' -> (K, M) with 0 <= K < M."""
+    if text is None:
+        return (0, 1)
+    try:
+        k, m = (int(x) for x in text.split("/"))
+    except ValueError as err:
+        raise HackError(f"--shard: expected K/M (e.g. 3/16, K counted from 0), found "
+                        f"{text!r}.") from err
+    if not (m >= 1 and 0 <= k < m):
+        raise HackError(f"--shard: expected 0 <= K < M in K/M, found {text!r}. With a Slurm "
+                        "array use --array=0-(M-1) and --shard $SLURM_ARRAY_TASK_ID/M.")
+    return (k, m)
+
+
+def check_job(job: Job) -> None:
+    """Everything that can be checked before rendering: N, seed, model-dependent config
+    values, the output folder, an existing folder's config. Raises HackError."""
+    from hack_render.geometry import load_default_model
+    from hack_render.render.image_io import check_writable
+
+    if isinstance(job.n, bool) or not isinstance(job.n, int) or job.n < 0:
+        raise HackError(f"--n: expected a non-negative number of samples, found {job.n!r}.")
+    if not 0 <= job.seed < 2 ** 63:
+        raise HackError(f"--seed: expected 0 <= seed < 2^63, found {job.seed}.")
+    model = load_default_model()
+    aus = job.cfg["expression"]["aus"]
+    if aus != "all":
+        bad = [a for a in aus if a not in model.au_names]
+        if bad:
+            raise HackError(f"config key 'expression.aus': unknown action units {bad}; the "
+                            f"model has {', '.join(model.au_names)}.")
+    if job.cfg["identity"]["components"] > model.num_shape:
+        raise HackError(f"config key 'identity.components': expected <= {model.num_shape} "
+                        f"(the model's shape components), found "
+                        f"{job.cfg['identity']['components']}.")
+    app = job.cfg["appearance"]
+    if app["source"] == "alpha":
+        try:
+            from appearance.model import AppearanceModel
+
+            k = AppearanceModel.load().n_components
+        except (ImportError, OSError) as err:
+            raise HackError(f"config key 'appearance.source': 'alpha' needs the appearance "
+                            f"PCA model, found it unavailable ({err}). Use 'seed'.") from err
+        if app["components"] > k:
+            raise HackError(f"config key 'appearance.components': expected <= {k} (the "
+                            f"appearance model's components), found {app['components']}.")
+    if app["source"] in ("seed", "alpha"):
+        from appearance.uv import template_path
+
+        template_path()  # the skin atlas needs the template (raises with the fix)
+    try:
+        check_writable(job.out / "samples" / "x")
+        check_writable(job.out / "manifest" / "x")
+    except HackError as err:
+        raise HackError(f"-o/--output {job.out}: {err}") from err
+    info = run_info(job)
+    path = job.out / "config.json"
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError):
+            old = None
+        if old is not None and old != info:
+            diff = [k for k in info if old.get(k) != info[k]]
+            raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
+                            f"the same config and seed, found a dataset that differs in "
+                            f"{diff}. Choose another folder.")
+
+
+def run_info(job: Job) -> dict:
+    """What ``config.json`` records: config, seed and the label table."""
+    from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
+
+    return {"format": "hack-render-dataset", "version": 1, "seed": job.seed, "config": job.cfg,
+            "labels": [{"id": i, "name": n, "description": LABEL_DESCRIPTIONS[n]}
+                       for i, n in enumerate(LABELS)]}
+
+
+def read_record(out: Path, index: int) -> dict | None:
+    """A sample's record if the sample is complete (record and every listed file of the
+    recorded size), else None."""
+    from hack_render.dataset.worker import SAMPLE_RECORD, sample_dir
+
+    path = sample_dir(out, index) / SAMPLE_RECORD
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    for rel, size in rec.get("files", {}).items():
+        p = out / rel
+        if not p.is_file() or p.stat().st_size != size:
+            return None
+    return rec
+
+
+def _clean_temporaries(folder: Path, pattern: str = ".*") -> None:
+    """Remove temporary files a killed run left behind (``atomic_path``: ``.<stem>.*``)."""
+    for p in folder.rglob(pattern):
+        if p.is_file():
+            p.unlink()
+
+
+def prepare(job: Job) -> list[int]:
+    """Check the job, write ``config.json`` and return the sample indices to render."""
+    from hack_render.dataset.worker import _write_json, sample_dir
+
+    check_job(job)
+    _write_json(job.out / "config.json", run_info(job))
+    (job.out / "manifest").mkdir(parents=True, exist_ok=True)
+    todo = job.indices()
+    _clean_temporaries(job.out / "manifest", f".{job.manifest_path.stem}.*")
+    if job.resume:
+        for i in todo:
+            if sample_dir(job.out, i).is_dir():
+                _clean_temporaries(sample_dir(job.out, i))
+        todo = [i for i in todo if read_record(job.out, i) is None]
+    return todo
+
+
+def write_manifest(job: Job) -> Path:
+    """Write the shard's manifest from its complete samples' records, sorted by index."""
+    from hack_render.render.image_io import atomic_path
+
+    lines = []
+    for i in job.indices():
+        rec = read_record(job.out, i)
+        if rec is not None:
+            lines.append(json.dumps(rec, sort_keys=True))
+    with atomic_path(job.manifest_path) as tmp:
+        tmp.write_text("".join(line + "\n" for line in lines))
+    return job.manifest_path
+
+
+def _append_manifest(job: Job, rec: dict) -> None:
+    """Progress log while running (rewritten, sorted, by :func:`write_manifest`)."""
+    with open(job.manifest_path, "a") as f:
+        f.write(json.dumps(rec, sort_keys=True) + "\n")
+
+
+def run_serial(job: Job, todo: list[int], progress: bool = True) -> int:
+    from tqdm import tqdm
+
+    from hack_render.dataset.worker import SampleRenderer
+
+    if not todo:
+        return 0
+    renderer = SampleRenderer(job.cfg, job.out, job.seed)
+    for i in tqdm(todo, desc="dataset", unit="sample", disable=not progress):
+        _append_manifest(job, renderer.render(i))
+    return len(todo)
+
+
+def run_ray(job: Job, todo: list[int], address: str | None = None,
+            workers: int | None = None, progress: bool = True) -> int:
+    """Render ``todo`` on Ray actors (one renderer and one CPU each) through ActorPool."""
+    try:
+        import ray
+        from ray.util import ActorPool
+    except ImportError as err:
+        raise HackError("--executor ray: expected Ray, found it not installed. Install the "
+                        "extra: pip install 'hack-render[ray]'.") from err
+    from tqdm import tqdm
+
+    if not todo:
+        return 0
+    started = False
+    if not ray.is_initialized():
+        kw = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
+        ray.init(include_dashboard=False, log_to_driver=False, **kw)
+        started = True
+    try:
+        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        actors = [_RayRenderer.remote(job.cfg, str(job.out), job.seed) for _ in range(n)]
+        pool = ActorPool(actors)
+        results = pool.map_unordered(lambda a, i: a.render.remote(i), todo)
+        for rec in tqdm(results, total=len(todo), desc=f"dataset (ray x{n})", unit="sample",
+                        disable=not progress):
+            _append_manifest(job, rec)
+    finally:
+        if started:
+            ray.shutdown()
+    return len(todo)
+
+
+class _LazyRayActor:
+    """The Ray actor class, defined on first use so that Ray stays an optional import."""
+
+    _cls = None
+
+    def remote(self, *args):
+        if _LazyRayActor._cls is None:
+            import ray
+
+            @ray.remote(num_cpus=1)
+            class RayRenderer:
+                def __init__(self, cfg, out, seed):
+                    from hack_render.dataset.worker import SampleRenderer
+                    from hack_render.render.engine import set_thread_count
+
+                    set_thread_count(1)  # one core per actor: no oversubscription
+                    self.renderer = SampleRenderer(cfg, out, seed)
+
+                def render(self, index):
+                    return self.renderer.render(index)
+
+            _LazyRayActor._cls = RayRenderer
+        return _LazyRayActor._cls.remote(*args)
+
+
+_RayRenderer = _LazyRayActor()
+
+
+def run(job: Job, executor: str = "serial", address: str | None = None,
+        workers: int | None = None, progress: bool = True) -> dict:
+    """Prepare, render the pending samples, write the manifest. Returns a summary."""
+    if executor not in EXECUTORS:
+        raise HackError(f"--executor: expected one of {', '.join(EXECUTORS)}, found "
+                        f"{executor!r}.")
+    if workers is not None and workers < 1:
+        raise HackError(f"--workers: expected >= 1, found {workers}.")
+    if executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError as err:
+            raise HackError("--executor ray: expected Ray, found it not installed. Install "
+                            "the extra: pip install 'hack-render[ray]'.") from err
+    todo = prepare(job)
+    total = len(job.indices())
+    if executor == "ray":
+        done = run_ray(job, todo, address, workers, progress)
+    else:
+        done = run_serial(job, todo, progress)
+    manifest = write_manifest(job)
+    return {"rendered": done, "skipped": total - len(todo), "total": total,
+            "manifest": str(manifest)}
