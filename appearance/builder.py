@@ -57,7 +57,7 @@ def encode_subject(maps: dict[str, np.ndarray], height: int, valid: np.ndarray,
     """One subject's maps -> (N * 7,) float32 vector over the valid texels ``valid``."""
     h = height
     out = np.empty((len(valid), N_CHANNELS), np.float32)
-    flat = lambda a: a.reshape(-1, a.shape[-1])[valid]  # noqa: E731
+    flat = lambda a: a.reshape(-1, a.shape[-1])[valid]
     out[:, BLOCKS["diffuse"]] = flat(resample(maps["diffuse"], h))
     out[:, BLOCKS["specular"]] = flat(resample(maps["specular"], h))
     if "roughness" in maps:
@@ -249,7 +249,7 @@ def heldout_errors(store: GramStore, train: np.ndarray, test: np.ndarray, ks: li
     return {"k": ks, "rmse_linear_rgb": np.sqrt(sse / (cnt * 3)).round(5).tolist(),
             "mean_ciede2000": (de / cnt).round(4).tolist(),
             "mean_normal_angle_deg": (ang / cnt).round(4).tolist(),
-            "n_train": int(len(train)), "n_test": int(len(test))}
+            "n_train": len(train), "n_test": len(test)}
 
 
 def _unit(slopes):

@@ -22,14 +22,18 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import asdict
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from appearance.colour_space import ita_degrees
-from appearance.population import (CALIBRATION_FILE, Calibration, PopulationConstants,
-                                   draw_chromophores, subject_uniforms)
+from appearance.population import (
+    CALIBRATION_FILE,
+    Calibration,
+    PopulationConstants,
+    draw_chromophores,
+    subject_uniforms,
+)
 from appearance.skin_optics import OpticsConstants, skin_albedo
 
 #: Measured targets (DATA.md, Textures): linear sRGB diffuse albedo, D65, CIE 1931 2 deg.
@@ -73,7 +77,7 @@ def summary(rgb: np.ndarray) -> dict:
     return {"p01": q[0].round(4).tolist(), "p50": q[1].round(4).tolist(),
             "p99": q[2].round(4).tolist(), "ita_min": round(float(ita.min()), 2),
             "ita_max": round(float(ita.max()), 2),
-            "max_abs_error": round(float(dev.max()), 4), "n": int(len(rgb))}
+            "max_abs_error": round(float(dev.max()), 4), "n": len(rgb)}
 
 
 def _residuals(x, seeds_u, tg, ita_hi):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -20,7 +19,7 @@ def build(
                                 "(diffuse, specular, normal[, roughness] .exr/.png)"),
     out: Path = typer.Option(..., "-o", "--out", help="model file to write (.npz)"),
     height: int = typer.Option(256, help="model atlas height H (maps are H x 2H)"),
-    components: Optional[int] = typer.Option(None, help="components kept (default all)"),
+    components: int | None = typer.Option(None, help="components kept (default all)"),
     basis_dtype: str = typer.Option("float32", help="float32 | float16 | int8"),
     holdout: float = typer.Option(0.1, help="held-out fraction for the report"),
     seed: int = typer.Option(0, help="seed of the 90/10 split"),
@@ -39,11 +38,11 @@ def build(
 @app.command()
 def sample(
     out: Path = typer.Option(..., "-o", "--out", help="output folder for the texture set"),
-    model: Optional[Path] = typer.Option(None, help="model file (default: shipped model)"),
-    alpha: Optional[List[float]] = typer.Option(None, "--alpha", help="coefficients, repeat "
+    model: Path | None = typer.Option(None, help="model file (default: shipped model)"),
+    alpha: list[float] | None = typer.Option(None, "--alpha", help="coefficients, repeat "
                                                 "the option: --alpha 1 --alpha -0.5"),
-    seed: Optional[int] = typer.Option(None, help="draw alpha ~ N(0, I) with this seed"),
-    components: Optional[int] = typer.Option(None, help="use the first k components"),
+    seed: int | None = typer.Option(None, help="draw alpha ~ N(0, I) with this seed"),
+    components: int | None = typer.Option(None, help="use the first k components"),
     fmt: str = typer.Option("exr", "--format", help="exr | png"),
     detail: int = typer.Option(0, help="also write normal_detail at this atlas height "
                                "(pore layer), 0 = no"),
@@ -84,7 +83,7 @@ def sample(
 
 @app.command()
 def report(model: Path = typer.Argument(..., help="model file (.npz)"),
-           out: Optional[Path] = typer.Option(None, "-o", "--out", help="PNG to write")):
+           out: Path | None = typer.Option(None, "-o", "--out", help="PNG to write")):
     """Re-plot a model's explained-variance and held-out error curves."""
     from appearance.builder import plot_report
     from appearance.model import load_model_arrays

@@ -28,8 +28,13 @@ import numpy as np
 from scipy import ndimage
 
 from appearance.noise import fbm3
-from appearance.population import (Calibration, albedo_lut, draw_chromophores,
-                                   load_calibration, subject_uniforms)
+from appearance.population import (
+    Calibration,
+    albedo_lut,
+    draw_chromophores,
+    load_calibration,
+    subject_uniforms,
+)
 from appearance.regions import REGION_ID, REGIONS, region_labels
 from appearance.uv import UVLayout, rasterize_layout
 

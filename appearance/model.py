@@ -130,7 +130,7 @@ class AppearanceModel:
     def dtype(self) -> torch.dtype:
         return self.basis.dtype
 
-    def to(self, device=None, dtype=None) -> "AppearanceModel":
+    def to(self, device=None, dtype=None) -> AppearanceModel:
         """Move the buffers (in place) to ``device`` / ``dtype``; returns self."""
         self.mean = self.mean.to(device=device, dtype=dtype)
         self.basis = self.basis.to(device=device, dtype=dtype)
@@ -205,7 +205,7 @@ class AppearanceModel:
 
     # -- file IO ----------------------------------------------------------------------
     @staticmethod
-    def load(path: str | os.PathLike | None = None) -> "AppearanceModel":
+    def load(path: str | os.PathLike | None = None) -> AppearanceModel:
         """Load and validate a model file (default: the shipped procedural model)."""
         return AppearanceModel(**load_model_arrays(path or DEFAULT_MODEL))
 

@@ -50,7 +50,7 @@ class Calibration:
                 "fit": self.fit}
 
     @staticmethod
-    def from_json(d: dict) -> "Calibration":
+    def from_json(d: dict) -> Calibration:
         try:
             return Calibration(OpticsConstants(**d["optics"]),
                                PopulationConstants(**d["population"]), d.get("fit", {}))

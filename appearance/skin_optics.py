@@ -142,7 +142,7 @@ class AlbedoLUT:
 
     @staticmethod
     def build(const: OpticsConstants, n_m: int = 48, n_h: int = 40, n_b: int = 6,
-              cm_max: float = 0.6, ch_max: float = 0.4) -> "AlbedoLUT":
+              cm_max: float = 0.6, ch_max: float = 0.4) -> AlbedoLUT:
         sm = np.linspace(0.0, np.sqrt(cm_max), n_m)
         sh = np.linspace(0.0, np.sqrt(ch_max), n_h)
         bm = np.linspace(0.4, 0.9, n_b)

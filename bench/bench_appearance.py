@@ -96,7 +96,7 @@ def main() -> None:
     print(json.dumps(out["maps_vs_matmul"], indent=1))
     if not a.skip_build:
         with tempfile.TemporaryDirectory() as wd:
-            r = subprocess.run([sys.executable, __file__, "--child", str(a.build_subjects),
+            r = subprocess.run([sys.executable, __file__, "--child", str(a.build_subjects),  # noqa: PLW1510
                                 str(a.build_height), wd], capture_output=True, text=True)
             if r.returncode:
                 print(r.stderr[-3000:])

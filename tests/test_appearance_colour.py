@@ -4,10 +4,19 @@ import colour
 import numpy as np
 import pytest
 
-from appearance.colour_space import (delta_e2000, ita_degrees, spectra_to_linear_srgb,
-                                     srgb_decode, srgb_encode)
-from appearance.skin_optics import (WAVELENGTHS, haemoglobin_absorption, skin_albedo,
-                                    skin_reflectance)
+from appearance.colour_space import (
+    delta_e2000,
+    ita_degrees,
+    spectra_to_linear_srgb,
+    srgb_decode,
+    srgb_encode,
+)
+from appearance.skin_optics import (
+    WAVELENGTHS,
+    haemoglobin_absorption,
+    skin_albedo,
+    skin_reflectance,
+)
 
 # X-Rite ColorChecker published sRGB (8-bit, D65) of the two skin patches.
 PUBLISHED_SRGB = {"dark skin": (115, 82, 68), "light skin": (194, 150, 130)}

@@ -3,8 +3,14 @@
 import numpy as np
 import pytest
 
-from appearance.texture_io import (read_exr, read_png, read_texture_set, write_exr,
-                                   write_png, write_texture_set)
+from appearance.texture_io import (
+    read_exr,
+    read_png,
+    read_texture_set,
+    write_exr,
+    write_png,
+    write_texture_set,
+)
 from hack_render.errors import HackError
 
 
