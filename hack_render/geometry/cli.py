@@ -60,6 +60,25 @@ def apply_limit_policy(theta, policy: LimitPolicy):
     return theta
 
 
+def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
+    """Load a model and pose it from a parameter file and flags (shared by mesh and render).
+
+    Returns (model, forward keyword arguments, posed vertices (N, 3) numpy).
+    """
+    import torch
+
+    from hack_render.geometry import load_model
+    from hack_render.geometry.params import model_inputs
+
+    model = load_model(model_path)
+    p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
+    kw = model_inputs(model, p)
+    kw["theta"] = apply_limit_policy(kw["theta"], limits)
+    with torch.no_grad():
+        out = model(**kw)
+    return model, kw, out.vertices[0].numpy()
+
+
 def mesh(
     output: Path = typer.Option(Path("out/hack_mesh.obj"), "-o", "--output",
                                 help="Output mesh; .obj or .ply (both with UVs). A second format "
@@ -84,19 +103,9 @@ def mesh(
 
     Example: hack-render mesh -o out/smile.obj --expr AU12=0.8 --head-rotation 10,30,0
     """
-    import torch
-
-    from hack_render.geometry import load_model
     from hack_render.geometry.obj_io import write_mesh
-    from hack_render.geometry.params import model_inputs
 
-    model = load_model(model_path)
-    p = gather_params(params, beta, expression, head_rotation, eta, tau)
-    kw = model_inputs(model, p)
-    kw["theta"] = apply_limit_policy(kw["theta"], limits)
-    with torch.no_grad():
-        out = model(**kw)
-    verts = out.vertices[0].numpy()
+    model, _, verts = posed_model(params, beta, expression, head_rotation, eta, tau, limits, model_path)
     targets = [output] + ([output.with_suffix(".ply" if output.suffix.lower() == ".obj" else ".obj")] if both else [])
     for target in targets:
         write_mesh(target, verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())

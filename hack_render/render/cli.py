@@ -63,20 +63,12 @@ def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str
 
 
 def _model_vertices(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
-    import torch
-
-    from hack_render.geometry import load_model
-    from hack_render.geometry.cli import apply_limit_policy, gather_params
-    from hack_render.geometry.params import model_inputs
+    from hack_render.geometry.cli import posed_model
     from hack_render.render.parts import Topology
 
-    model = load_model(model_path)
-    p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
-    kw = model_inputs(model, p)
-    kw["theta"] = apply_limit_policy(kw["theta"], limits)
-    with torch.no_grad():
-        out = model(**kw)
-    return model, kw, Topology.from_model(model), out.vertices[0].numpy()
+    model, kw, verts = posed_model(params_file, beta, expression, head_rotation, eta, tau,
+                                   limits, model_path)
+    return model, kw, Topology.from_model(model), verts
 
 
 def render(
