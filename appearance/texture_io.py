@@ -133,20 +133,21 @@ def write_png(path, image: np.ndarray, bits: int = 8, srgb: bool = True) -> None
 
 
 def read_png(path, srgb: bool = True) -> np.ndarray:
-    """Read an 8/16-bit PNG as (H, W, C) float32 in [0, 1], sRGB-decoded if ``srgb``."""
-    import imageio.v3 as iio
+    """Read a PNG (1 to 16 bits per channel) as (H, W, C) float32 in [0, 1], sRGB-decoded if ``srgb``.
+
+    pypng reads every PNG flavour (palette, grey, alpha, interlaced) at its true bit depth;
+    Pillow would silently reduce 16-bit RGB to 8 bits.
+    """
+    import png as pypng
 
     path = Path(path)
     try:
-        q = iio.imread(path, extension=".png")
+        width, height, rows, info = pypng.Reader(filename=str(path)).asDirect()
+        q = np.vstack([np.asarray(r, np.uint32) for r in rows]).reshape(height, width, info["planes"])
     except Exception as exc:
         raise HackError(f"{path}: expected a readable PNG image, found an unreadable file "
                         f"({exc}). Re-export it as PNG.") from exc
-    if q.dtype not in (np.uint8, np.uint16):
-        raise HackError(f"{path}: expected an 8 or 16-bit PNG, found dtype {q.dtype}.")
-    img = q.astype(np.float64) / (255.0 if q.dtype == np.uint8 else 65535.0)
-    if img.ndim == 2:
-        img = img[..., None]
+    img = q.astype(np.float64) / (2.0 ** info["bitdepth"] - 1)  # 1..16-bit
     if srgb:
         img = srgb_decode(img)
     return img.astype(np.float32)
