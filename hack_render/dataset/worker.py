@@ -172,12 +172,15 @@ class SampleRenderer:
         k = r["soft_mask_samples"]
         masks = lab.soft_masks(head, k, self.atlas) if k else \
             np.eye(len(lab.LABELS), dtype=np.float32)[seg]
+        # the matte is geometric coverage: the film's alpha is 1 on every pixel once an
+        # environment light is visible behind the subject
+        alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)
         meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
         ch = rgb_channels(img[..., :3])
-        ch["A"] = img[..., 3]
+        ch["A"] = alpha
         write_exr(vdir / "rgb.exr", ch, meta)
         _write_png(vdir / "rgb.png", to_srgb8(img[..., :3], 0.0, r["tonemap"]))
-        _write_png(vdir / "alpha.png", np.round(np.clip(img[..., 3], 0, 1) * 255).astype(np.uint8))
+        _write_png(vdir / "alpha.png", np.round(alpha * 255).astype(np.uint8))
         write_exr(vdir / "depth.exr", {"Z": aov["depth"]}, meta)
         write_exr(vdir / "normal.exr", {c: aov["normal"][..., i] for i, c in enumerate("XYZ")}, meta)
         write_exr(vdir / "uv.exr", {"U": aov["uv"][..., 0], "V": aov["uv"][..., 1]}, meta)

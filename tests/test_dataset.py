@@ -1,0 +1,347 @@
+"""Dataset: sampling purity, config errors, labels, files, shards, kill + resume, Ray."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hack_render.dataset import labels as lab
+from hack_render.dataset.config import DEFAULTS, load_config
+from hack_render.dataset.runner import Job, parse_shard, run
+from hack_render.dataset.sampling import degrees_within_limits, sample_spec
+from hack_render.errors import HackError
+
+TINY = {"render": {"resolution": 32, "spp": 2, "soft_mask_samples": 2},
+        "appearance": {"height": 32}, "lighting": {"presets": ["studio", "light_stage"]}}
+
+
+def tree(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (relative path -> bytes)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def au_names():
+    from hack_render.geometry import load_default_model
+
+    return load_default_model().au_names
+
+
+# --- sampling -------------------------------------------------------------------------
+def test_sample_is_pure_function_of_seed_and_index(au_names):
+    cfg = load_config()
+    a = [sample_spec(cfg, 7, i, au_names) for i in (5, 2, 9)]
+    b = [sample_spec(cfg, 7, i, au_names) for i in (9, 2, 5)][::-1]
+    assert json.dumps(a) == json.dumps(b)
+    assert sample_spec(cfg, 7, 5, au_names) != sample_spec(cfg, 8, 5, au_names)
+    assert sample_spec(cfg, 7, 5, au_names) != sample_spec(cfg, 7, 6, au_names)
+
+
+def test_changing_one_section_leaves_the_others(au_names):
+    a = sample_spec(load_config(), 1, 3, au_names)
+    b = sample_spec(load_config(overrides={"camera": {"yaw_deg": [10, 20]}}), 1, 3, au_names)
+    assert a["cameras"] != b["cameras"] and 10 <= b["cameras"][0]["yaw_deg"] <= 20
+    for k in ("beta", "expression", "theta", "eta", "tau", "appearance", "lighting"):
+        assert a[k] == b[k], k
+
+
+def test_sampled_values_respect_the_config(au_names):
+    cfg = load_config(overrides={"identity": {"components": 12, "truncation": 1.0},
+                                 "expression": {"max_active": 2, "p_neutral": 0.0},
+                                 "neck": {"head_std_deg": [40, 80, 30], "joint_noise_deg": 5},
+                                 "larynx": {"p_swallow": 1.0},
+                                 "camera": {"views": 3}})
+    for i in range(40):
+        s = sample_spec(cfg, 0, i, au_names)
+        assert len(s["beta"]) == 12 and max(abs(x) for x in s["beta"]) <= 1.0
+        assert 1 <= len(s["expression"]) <= 2
+        assert all(a in au_names and 0.2 <= w <= 1.0 for a, w in s["expression"].items())
+        # wide head rotations plus noise still end inside every joint's limits
+        assert degrees_within_limits(s["theta"])
+        assert s["swallow_phase"] is not None and 0 <= s["swallow_phase"] < 1
+        assert len(s["cameras"]) == 3
+    # the neck actually moves: the head rotations are not all clamped to zero
+    spread = np.std([sample_spec(cfg, 0, i, au_names)["head_rotation_deg"] for i in range(40)], 0)
+    assert (spread > 5).all()
+
+
+# --- config errors ----------------------------------------------------------------------
+@pytest.mark.parametrize("override,key", [
+    ({"camera": {"yaw_deg": [30, 10]}}, "camera.yaw_deg"),
+    ({"lighting": {"presets": ["studio", "disco"]}}, "lighting.presets"),
+    ({"render": {"spp": 0}}, "render.spp"),
+    ({"render": {"resolution": "big"}}, "render.resolution"),
+    ({"larynx": {"p_swallow": 1.5}}, "larynx.p_swallow"),
+    ({"camera": {"fov": 3}}, "camera.fov"),
+    ({"neck": {"head_std_deg": [1, 2]}}, "neck.head_std_deg"),
+])
+def test_bad_config_names_the_key(override, key):
+    with pytest.raises(HackError, match=key.replace(".", r"\.")):
+        load_config(overrides=override)
+
+
+def test_config_file_errors(tmp_path):
+    bad = tmp_path / "d.yaml"
+    bad.write_text("camera:\n  focal_mm: [100, 50]\n")
+    with pytest.raises(HackError, match="camera.focal_mm"):
+        load_config(bad)
+    bad.write_text("expression: {aus: [AU12, AU99]}\n")
+    with pytest.raises(HackError, match="expression.aus"):
+        run(Job(tmp_path / "o", 1, 0, load_config(bad)), progress=False)
+    assert not (tmp_path / "o" / "samples").exists() or not any((tmp_path / "o" / "samples").iterdir())
+
+
+def test_bad_job_values_fail_before_rendering(tmp_path):
+    cfg = load_config(overrides=TINY)
+    with pytest.raises(HackError, match="--n"):
+        run(Job(tmp_path / "a", -1, 0, cfg), progress=False)
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(HackError, match="output"):
+        run(Job(blocker / "sub", 1, 0, cfg), progress=False)
+    for text in ("3/2", "a/b", "1/0", "-1/4"):
+        with pytest.raises(HackError, match="--shard"):
+            parse_shard(text)
+    assert parse_shard("2/5") == (2, 5)
+
+
+def test_cli_bad_values_exit_2(tmp_path):
+    cmd = [sys.executable, "-m", "hack_render.cli", "dataset", "--n", "-3", "-o", str(tmp_path)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 2 and "--n" in r.stderr
+
+
+# --- labels -------------------------------------------------------------------------------
+def test_label_table_covers_the_issue():
+    for name in ("background", "face_skin", "neck_skin", "scalp", "lips", "eyes", "eyebrows",
+                 "teeth", "gums_tongue", "eyelashes"):
+        assert name in lab.LABELS
+    assert set(lab.LABEL_DESCRIPTIONS) == set(lab.LABELS)
+
+
+def test_label_atlas_places_regions_where_the_template_has_them():
+    """UV lookups of known template vertices land on the expected labels."""
+    from hack_render.geometry import load_default_model
+    from hack_render.render.parts import REGIONS
+
+    m = load_default_model()
+    atlas = lab.skin_label_atlas()
+    uv = m.vertex_uv.numpy()
+    lm = m.landmark_indices.numpy()
+    region = np.full((1, 1), REGIONS.index("face"))
+
+    def label_of(v):
+        return lab.LABELS[int(lab.to_labels(region, uv[v][None, None], atlas)[0, 0])]
+
+    # upper-lip outer contour landmark (51) and brow landmarks (17-26, Multi-PIE)
+    assert label_of(lm[51]) == "lips"
+    assert sum(label_of(v) == "eyebrows" for v in lm[17:27]) >= 7
+    # nose tip (30) is face skin
+    assert label_of(lm[30]) == "face_skin"
+    # front-of-neck vertices below the C4-C5 level are neck skin (the submental
+    # area above it counts as face skin in the appearance atlas)
+    t = m.template.numpy()
+    c45_y = m.joints_template[m.joint_names.index("c4-c5"), 1].item()
+    neck = np.flatnonzero((m.vertex_region.numpy() == m.region_names.index("neck"))
+                          & (np.abs(t[:, 0]) < 0.01) & (t[:, 2] > 0.02) & (t[:, 1] < c45_y))
+    back_region = np.full((1, 1), REGIONS.index("back_head"))
+    labels = [lab.LABELS[int(lab.to_labels(back_region if uv[v, 0] >= 1 else region,
+                                           uv[v][None, None], atlas)[0, 0])] for v in neck]
+    assert len(labels) >= 5 and labels.count("neck_skin") >= 0.9 * len(labels)
+
+
+def test_larynx_peak_follows_tau_and_sits_at_c4_c5():
+    import torch
+
+    from hack_render.geometry import load_default_model
+
+    m = load_default_model()
+    with torch.no_grad():
+        out = m()
+    k, p = lab.larynx_peak(m, out, 0.0)
+    c45 = out.joints[0, m.joint_names.index("c4-c5")].numpy()
+    assert abs(p[1] - c45[1]) <= lab.LARYNX_WINDOW[0] + 1e-9
+    assert p[2] > out.joints[0, :, 2].max().item()  # in front of the spine
+    # the most anterior vertex of its window
+    cand = lab.larynx_candidates(m)
+    rest = out.rest_vertices[0].numpy()
+    win = cand[np.abs(rest[cand, 1] - c45[1]) < lab.LARYNX_WINDOW[0]]
+    assert rest[k, 2] == rest[win, 2].max()
+    if m.has_larynx:
+        with torch.no_grad():
+            out2 = m(tau=torch.tensor([0.01]))
+        _, p2 = lab.larynx_peak(m, out2, 0.01)
+        assert p2[1] > p[1]
+
+
+# --- rendering: files, labels, determinism -------------------------------------------------
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds") / "full"
+    cfg = load_config(overrides=dict(TINY, camera={"views": 2}))
+    summary = run(Job(out, 3, 11, cfg), progress=False)
+    return out, cfg, summary
+
+
+def test_sample_files_and_labels(rendered):
+    import imageio.v3 as iio
+
+    from hack_render.render.image_io import read_exr
+
+    out, cfg, summary = rendered
+    assert summary == {"rendered": 3, "skipped": 0, "total": 3,
+                       "manifest": str(out / "manifest" / "shard-000-of-001.jsonl")}
+    lines = (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0, 1, 2]
+    v = out / "samples" / "0000001" / "view_01"
+    rgb = read_exr(v / "rgb.exr")
+    depth = read_exr(v / "depth.exr")["Z"]
+    seg = iio.imread(v / "segmentation.png")
+    masks = read_exr(v / "masks.exr")
+    normal = read_exr(v / "normal.exr")
+    hit = seg > 0
+    assert hit.any() and (~hit).any()
+    # depth: positive planar z on the subject, 0 (the documented background) elsewhere
+    assert (depth[hit] > 0.2).all() and (depth[~hit] == 0).all()
+    # camera-space normals (OpenCV) of visible surfaces face the camera: z < 0 mostly
+    nz = normal["Z"][hit]
+    assert np.mean(nz < 0) > 0.95
+    # soft masks: a partition of unity whose argmax matches the hard labels mostly
+    stack = np.stack([masks[f"mask.{n}"] for n in lab.LABELS], -1)
+    assert np.allclose(stack.sum(-1), 1.0, atol=1e-5)
+    assert np.mean(stack.argmax(-1) == seg) > 0.85
+    # the alpha matte is the coverage of the subject: 1 - background mask, in EXR and PNG
+    assert np.allclose(rgb["A"], 1.0 - stack[..., 0], atol=1e-6)
+    assert rgb["A"][stack[..., 0] == 1].max() == 0 and rgb["A"][stack[..., 0] == 0].min() == 1
+    alpha8 = iio.imread(v / "alpha.png")
+    assert np.abs(alpha8 / 255.0 - rgb["A"]).max() <= 0.5 / 255 + 1e-6
+    # landmarks: projections of the 3D points with K, R, t; the face is seen
+    cam = json.loads((v / "camera.json").read_text())
+    K, R, t = (np.array(cam[k]) for k in ("K", "R", "t"))
+    lm = json.loads((v / "landmarks.json").read_text())
+    p3 = np.array(lm["face68"]["points_3d"])
+    x = (p3 @ R.T + t) @ K.T
+    assert np.allclose(x[:, :2] / x[:, 2:], lm["face68"]["points_2d"], atol=1e-6)
+    assert sum(lm["face68"]["visible"]) >= 20
+    assert len(lm["joints8"]["points_2d"]) == 8 and not any(lm["joints8"]["visible"])
+    assert len(lm["larynx_peak"]["points_2d"]) == 1
+    rec = json.loads((out / "samples" / "0000001" / "sample.json").read_text())
+    assert [w["name"] for w in rec["views"]] == ["view_00", "view_01"]
+    params = json.loads((out / "samples" / "0000001" / "params.json").read_text())
+    assert np.allclose(params["theta"], rec["theta"])
+
+
+def test_shards_and_order_give_the_same_files(rendered, tmp_path):
+    out, cfg, _ = rendered
+    sharded = tmp_path / "sharded"
+    for k in (1, 0):  # the second shard first
+        run(Job(sharded, 3, 11, cfg, (k, 2)), progress=False)
+    a, b = tree(out), tree(sharded)
+    samples = {k: v for k, v in a.items() if k.startswith("samples/")}
+    assert samples == {k: v for k, v in b.items() if k.startswith("samples/")}
+    m0 = (sharded / "manifest" / "shard-000-of-002.jsonl").read_text().splitlines()
+    m1 = (sharded / "manifest" / "shard-001-of-002.jsonl").read_text().splitlines()
+    full = (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines()
+    assert sorted(m0 + m1, key=lambda s: json.loads(s)["index"]) == full
+
+
+def test_other_config_in_same_folder_is_refused(rendered):
+    out, cfg, _ = rendered
+    other = load_config(overrides=dict(TINY, camera={"views": 1}))
+    with pytest.raises(HackError, match="differs"):
+        run(Job(out, 3, 11, other, resume=True), progress=False)
+    with pytest.raises(HackError, match="seed"):
+        run(Job(out, 3, 12, cfg, resume=True), progress=False)
+
+
+def test_kill_midway_then_resume_gives_the_uninterrupted_files(rendered, tmp_path):
+    """SIGKILL a CLI run after its first complete sample, damage one more sample as a kill
+    between two file writes would, resume: the folder equals the uninterrupted run's."""
+    import yaml
+
+    out, cfg, _ = rendered
+    cfg_file = tmp_path / "cfg.yaml"
+    cfg_file.write_text(yaml.safe_dump(cfg))
+    target = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "hack_render.cli", "dataset", "--n", "3", "-o", str(target),
+           "--seed", "11", "--config", str(cfg_file)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    first = target / "samples" / "0000000" / "sample.json"
+    deadline = time.time() + 300
+    while not first.is_file() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert first.is_file()
+    assert not (target / "samples" / "0000002" / "sample.json").is_file()
+    # a partial sample: files without its record, one of them truncated, a stray temporary
+    partial = target / "samples" / "0000002" / "view_00"
+    partial.mkdir(parents=True, exist_ok=True)
+    (partial / "rgb.png").write_bytes(b"\x89PNG truncated")
+    (partial / ".depth.x1y2.exr").write_bytes(b"half")
+    # a complete sample with a damaged file is redone too
+    if (target / "samples" / "0000001" / "sample.json").is_file():
+        (target / "samples" / "0000001" / "view_00" / "depth.exr").write_bytes(b"bad")
+    summary = run(Job(target, 3, 11, cfg, resume=True), progress=False)
+    assert summary["skipped"] >= 1 and summary["rendered"] >= 1
+    assert tree(target) == tree(out)
+    again = run(Job(target, 3, 11, cfg, resume=True), progress=False)
+    assert again["rendered"] == 0 and again["skipped"] == 3
+
+
+def test_preview_contact_sheet(rendered, tmp_path):
+    import imageio.v3 as iio
+
+    from hack_render.dataset.preview import contact_sheet
+
+    out, _, _ = rendered
+    path = contact_sheet(out, tmp_path / "sheet.png", count=4, columns=2)
+    img = iio.imread(path)
+    assert img.shape == (64, 64, 3)
+    # landmark dots (pure green) are drawn on the tiles
+    assert np.any((img[..., 1] > 200) & (img[..., 0] < 80) & (img[..., 2] < 100))
+    with pytest.raises(HackError, match="complete samples"):
+        contact_sheet(tmp_path / "empty")
+
+
+# --- Ray -----------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_ray_two_workers_match_serial(rendered, tmp_path):
+    pytest.importorskip("ray")
+    out, cfg, _ = rendered
+    target = tmp_path / "ray"
+    summary = run(Job(target, 3, 11, cfg), executor="ray", workers=2, progress=False)
+    assert summary["rendered"] == 3
+    a = {k: v for k, v in tree(out).items() if k != "preview.png"}
+    assert tree(target) == a
+
+
+def test_ray_missing_is_a_clear_error(tmp_path, monkeypatch):
+    import builtins
+
+    real = builtins.__import__
+
+    def no_ray(name, *a, **k):
+        if name == "ray" or name.startswith("ray."):
+            raise ImportError("No module named 'ray'")
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    with pytest.raises(HackError, match=r"hack-render\[ray\]"):
+        run(Job(tmp_path, 1, 0, load_config(overrides=TINY)), executor="ray", progress=False)
+
+
+def test_defaults_are_valid():
+    assert load_config() == load_config(overrides={})
+    assert set(DEFAULTS) == {"render", "identity", "expression", "neck", "larynx",
+                             "appearance", "lighting", "camera"}
