@@ -1,0 +1,177 @@
+"""The v2 default model: the v1 ICT-FaceKit model plus every learned HACK component.
+
+``build_full_model(ict)`` calls :func:`hack_render.build.ict_default.build_default_model`
+and adds, in order: the larynx basis with the larynx-removed template and shape space
+(:mod:`larynx_learn`), personalised expressions and M_E (:mod:`expression_learn`), and pose
+blendshapes, skinning weights and M_P learned from simulated sequences (:mod:`pose_data`,
+:mod:`pose_learn`). Each component's provenance is written into the metadata with an honest
+label: "captured", "derived" (computed from captured data) or "simulated".
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hack_render.build.mesh_ops import ring
+from hack_render.build.pca import compactness, generalisation
+from hack_render.build.personal import learn_personal_space, personal_arrays
+from hack_render.build.pose_data import action_thetas, pose_sequence, twist_area_ratio
+from hack_render.build.pose_learn import PoseTrainer, Sequence
+
+SKIN_LAST = 11247
+
+
+def shape_curves(arrays: dict, num_train: int = 500, num_test: int = 50, seed: int = 11) -> dict:
+    """Compactness of the shape space and held-out RMSE (mm per skin vertex) of sampled
+    identities against the number of components."""
+    rng = np.random.default_rng(seed)
+    std = arrays["shape_std"].astype(np.float64)
+    sub = np.arange(0, SKIN_LAST + 1, 3)
+    dirs = arrays["shape_components"][:, sub].reshape(len(std), -1).astype(np.float64) * std[:, None]
+    x = rng.standard_normal((num_train + num_test, len(std))) @ dirs
+    gen = generalisation(x[:num_train], x[num_train:], [1, 2, 5, 10, 20, 30, 50, 70, 100])
+    return {"explained_variance": (np.cumsum(std**2) / (std**2).sum()).tolist(),
+            "generalisation": gen, "note": "identities sampled from ICT-FaceKit's 100 modes; "
+            "RMSE over every third skin vertex"}
+
+
+def pose_subset(arrays: dict) -> np.ndarray:
+    """Skin vertices the neck joints move (neither fully root nor fully o-c1), plus one ring."""
+    w = arrays["skinning_weights"]
+    n = len(w)
+    moving = (np.arange(n) <= SKIN_LAST) & (w[:, 0] < 0.999) & (w[:, -1] < 0.999)
+    return np.flatnonzero(ring(arrays["faces"], moving, 1) & (np.arange(n) <= SKIN_LAST)).astype(np.int32)
+
+
+def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr: float = 3e-2,
+               seed: int = 12, progress: bool = True) -> dict:
+    """Simulate DQS sequences for ``num_identities`` identities, fit P_beta and W with
+    :class:`PoseTrainer`, then PCA + M_P. Returns model arrays and a report."""
+    from hack_render.geometry.model import HackModel
+
+    rng = np.random.default_rng(seed)
+    model = HackModel(arrays).double()
+    sub = pose_subset(arrays)
+    m = len(sub)
+    remap = -np.ones(len(arrays["template_vertices"]), np.int64)
+    remap[sub] = np.arange(m)
+    faces = remap[arrays["faces"][(remap[arrays["faces"]] >= 0).all(1)]]
+    betas = rng.standard_normal((num_identities, model.num_shape))
+    w0 = torch.as_tensor(arrays["skinning_weights"], dtype=torch.float64)
+    rests, joints, seqs = [], [], []
+    acts = action_thetas()
+    with torch.no_grad():
+        for i, b in enumerate(tqdm(betas, desc="simulating DQS sequences", disable=not progress)):
+            out = model(beta=torch.as_tensor(b[None]))
+            rest, j = out.rest_vertices[0], out.rest_joints[0]
+            rests.append(rest[sub].numpy())
+            joints.append(j.numpy())
+            for _, th in acts:
+                posed = pose_sequence(rest, j, w0, model.parents, th, "dqs")[:, sub]
+                seqs.append(Sequence(i, posed.numpy(), th.numpy()))
+    trainer = PoseTrainer(np.stack(rests), np.stack(joints), faces, arrays["skinning_weights"][sub],
+                          model.parents)
+    t0 = time.time()
+    fit = trainer.fit(seqs, iterations=iterations, lr=lr, progress=progress)
+    train_s = time.time() - t0
+    # LBS without pose blendshapes vs the learned model, per vertex (mm), on the training data.
+    with torch.no_grad():
+        errs = {"lbs_initial_weights": [], "learned": []}
+        wl = torch.as_tensor(fit.weights)
+        for s in seqs:
+            th = torch.as_tensor(s.theta)
+            zero = torch.zeros(72, m, 3, dtype=torch.float64)
+            for key, p, w in (("lbs_initial_weights", zero, trainer.w_init),
+                              ("learned", torch.as_tensor(fit.pose_blendshapes[s.identity]), wl)):
+                v, _ = trainer.predict(s.identity, th, p, w)
+                errs[key].append(np.linalg.norm(v.numpy() - s.targets, axis=-1).mean())
+    space = learn_personal_space(betas, fit.pose_blendshapes.astype(np.float32),
+                                 num_components=num_identities - 1, val_fraction=0.0,
+                                 epochs=3000, seed=seed, progress=progress, desc="M_P")
+    n = len(arrays["template_vertices"])
+    generic = np.zeros((72, n, 3), np.float32)
+    generic[:, sub] = space.pca.mean.reshape(72, m, 3)
+    space.pca.mean = np.zeros_like(space.pca.mean)  # the mean lives in the generic pose_basis
+    out = personal_arrays("pose", space, sub, (72, m))
+    out["pose_basis"] = generic
+    weights = arrays["skinning_weights"].astype(np.float64).copy()
+    weights[sub] = fit.weights
+    weights /= weights.sum(1, keepdims=True)
+    out["skinning_weights"] = weights.astype(np.float32)
+    flat = fit.pose_blendshapes.reshape(num_identities, -1)
+    ring_idx = sub[np.abs(rests[0][:, 1] - joints[0][3, 1]) < 0.004]
+    report = {
+        "identities": num_identities, "frames": int(sum(len(s.theta) for s in seqs)),
+        "subset_vertices": int(m), "iterations": iterations, "train_seconds": train_s,
+        "fit_error_mm": {k: float(np.mean(v) * 1e3) for k, v in errs.items()},
+        "final_terms": fit.history[-1],
+        "twist_area_ratio_c4c5_75deg": twist_area_ratio(torch.as_tensor(np.asarray(model.template.double())
+                                                                           ), model.rest_joints(torch.zeros(1, 1, dtype=torch.float64))[0],
+                                                          w0, model.parents, ring_idx),
+        "curves": {"explained_variance": compactness(space.pca).tolist(),
+                   "reconstruction": generalisation(flat, flat, list(range(1, num_identities)))},
+    }
+    return {"arrays": out, "report": report}
+
+
+def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
+                     num_pose_identities: int = 12, pose_iterations: int = 300,
+                     expression_epochs: int = 3000, progress: bool = True) -> tuple[dict, dict]:
+    """Arrays and metadata of the v2 default model (see module docstring)."""
+    from hack_render.build.expression_learn import learn_expressions
+    from hack_render.build.ict_default import build_default_model
+    from hack_render.build.larynx_learn import learn_larynx
+
+    torch.set_num_threads(1)
+    timings = {}
+    t = time.time()
+    arrays, meta = build_default_model(ict_path)
+    timings["v1"] = time.time() - t
+    curves = {"shape": shape_curves(arrays)}
+    t = time.time()
+    lar = learn_larynx(arrays, progress=progress)
+    arrays.update(lar.arrays)
+    arrays["template_vertices"] = lar.template
+    arrays["shape_components"] = lar.shape_components
+    timings["larynx"] = time.time() - t
+    t = time.time()
+    ex = learn_expressions(arrays, lar.template, lar.shape_components,
+                           num_identities=num_expression_identities, epochs=expression_epochs,
+                           progress=progress)
+    arrays.update(ex.arrays)
+    timings["expressions"] = time.time() - t
+    t = time.time()
+    po = learn_pose(arrays, num_identities=num_pose_identities, iterations=pose_iterations,
+                    progress=progress)
+    arrays.update(po["arrays"])
+    timings["pose"] = time.time() - t
+    curves["larynx"] = lar.report.pop("curves")
+    curves["expression"] = ex.report.pop("curves")
+    curves["pose"] = po["report"].pop("curves")
+    prov = meta["provenance"]
+    prov.update({
+        "template": prov["template"] + "; larynx removed (derived: bi-harmonic fill of the "
+                    "front neck between the chin-neck angle and the notch)",
+        "shape_space": prov["shape_space"] + "; larynx removed by the same linear operator "
+                       f"(components orthonormal to {lar.report['shape_component_change_max']:.3f})",
+        "larynx": "simulated + derived: Gamma = ICT identity (+ a simulated thyroid prominence at "
+                  "C4-C5, 5-10 mm male / 1-3 mm female, sex drawn from neck width) - its "
+                  "larynx-removed neck; UV-space PCA; c(beta) by ridge regression",
+        "personalised_expressions": f"derived: deformation transfer (Sumner & Popovic 2004) of the "
+                                    f"53 ICT shapes onto {num_expression_identities} sampled "
+                                    "identities; PCA (50) + M_E MLP",
+        "pose_blendshapes": f"simulated: fitted (Eq. 8-12) to dual-quaternion-skinned range-of-"
+                            f"motion sequences of {num_pose_identities} sampled identities; "
+                            "generic = mean, personal = PCA + M_P MLP",
+        "skinning_weights": prov["skinning_weights"] + "; neck rows refined by the pose learner "
+                            "(simulated data)",
+    })
+    meta["model_version"] = 2
+    meta["learn"] = {"larynx": lar.report, "expressions": ex.report, "pose": po["report"],
+                     "timings_s": timings, "curves": curves}
+    return arrays, meta
