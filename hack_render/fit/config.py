@@ -1,0 +1,189 @@
+"""Fit configuration: stages, iterations, weights and learning rates, with defaults.
+
+A config file (TOML or YAML) overrides any subset of :class:`FitConfig`'s fields by
+section, e.g.::
+
+    [camera]
+    iterations = 150
+    [photometric]
+    resolutions = [64, 128]
+    iterations = [40, 30]
+    [texel]
+    enabled = true
+
+Unknown sections or keys are errors (a misspelt key must not be silently ignored).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hack_render.errors import HackError
+
+
+@dataclass
+class LandmarkConfig:
+    """Stage 1: landmark detection and the landmark loss."""
+
+    detector_upsample: int = 1       # dlib pyramid upsampling (finds faces >= ~40 px)
+    min_face_px: int = 64            # refuse faces smaller than this (box side, pixels)
+    max_side_px: int = 8000          # larger photos are downscaled to working_side_px
+    working_side_px: int = 2048
+    jaw_weight: float = 0.5          # weight of the 17 jawline (contour) landmarks
+    contour_every: int = 10          # re-match jawline contour vertices every k iterations
+    huber_px: float = 0.01           # robust loss knee, as a fraction of the face size
+
+
+@dataclass
+class CameraConfig:
+    """Stage 2: focal length, camera translation and head rotation from landmarks."""
+
+    iterations: int = 150
+    lr: float = 0.03
+    focal_mm_prior: float = 50.0     # 36 mm sensor width equivalent
+    focal_log_sigma: float = 0.35    # prior std of log focal length
+    fit_focal: bool = True
+
+
+@dataclass
+class ShapeConfig:
+    """Stage 3: beta, psi, theta (with priors, E_rot, E_sim) from landmarks."""
+
+    iterations: int = 150
+    lr: float = 0.02
+    n_beta: int = 40
+    w_beta: float = 0.02             # Gaussian prior, beta ~ N(0, I)
+    w_psi: float = 0.02              # Gaussian prior on expression weights
+    w_rot: float = 1.0               # E_rot (paper Eq. 9)
+    w_sim: float = 0.1               # E_sim (paper Eq. 10, normalised by joint ranges)
+    w_dtheta: float = 0.5            # residual joint rotations beyond the anatomical share
+    w_global: float = 1.0            # torso (global) rotation prior
+
+
+@dataclass
+class PhotometricConfig:
+    """Stage 4: photometric refinement through Mitsuba, coarse to fine."""
+
+    enabled: bool = True
+    resolutions: list = field(default_factory=lambda: [64, 128])
+    iterations: list = field(default_factory=lambda: [40, 30])
+    spp: int = 4
+    integrator: str = "prb"
+    lighting: str = "sh"             # "sh" (order-2 spherical harmonics) or "env" (texels)
+    env_height: int = 16
+    n_alpha: int = 20
+    lr_alpha: float = 0.05
+    lr_light: float = 0.05
+    lr_geometry: float = 0.005
+    w_alpha: float = 1e-3
+    w_landmarks: float = 0.1         # keeps the landmark term during refinement
+    charbonnier_eps: float = 0.01    # robust loss scale (linear RGB)
+    refine_geometry: bool = True     # beta, psi, theta, eta, tau refinement
+    mask_erode_px: int = 1
+
+
+@dataclass
+class TexelConfig:
+    """Stage 5 (optional): per-texel albedo refinement beyond the PCA."""
+
+    enabled: bool = False
+    iterations: int = 30
+    lr: float = 0.01
+    w_smooth: float = 1.0
+    w_symmetry: float = 0.5
+    w_magnitude: float = 0.1
+
+
+@dataclass
+class FitConfig:
+    """Everything the fitter reads; see the section classes for the fields."""
+
+    landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    shape: ShapeConfig = field(default_factory=ShapeConfig)
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
+    texel: TexelConfig = field(default_factory=TexelConfig)
+    per_view_expression: bool = False
+    seed: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def validate(self) -> "FitConfig":
+        p = self.photometric
+        if len(p.resolutions) != len(p.iterations):
+            raise HackError(f"config photometric: expected as many iterations as resolutions, "
+                            f"found {len(p.iterations)} and {len(p.resolutions)}.")
+        if any(not 16 <= int(r) <= 1024 for r in p.resolutions):
+            raise HackError(f"config photometric.resolutions: expected 16..1024 px, found "
+                            f"{p.resolutions}.")
+        if p.lighting not in ("sh", "env"):
+            raise HackError(f"config photometric.lighting: expected 'sh' or 'env', found "
+                            f"{p.lighting!r}.")
+        if not 1 <= p.spp <= 1024:
+            raise HackError(f"config photometric.spp: expected 1..1024, found {p.spp}.")
+        for name in ("camera", "shape", "texel"):
+            if getattr(self, name).iterations < 0:
+                raise HackError(f"config {name}.iterations: expected >= 0.")
+        return self
+
+
+def _merge(obj, data: dict, where: str):
+    if not isinstance(data, dict):
+        raise HackError(f"{where}: expected a table/mapping, found {type(data).__name__}.")
+    names = {f.name: f for f in dataclasses.fields(obj)}
+    for key, value in data.items():
+        if key not in names:
+            raise HackError(f"{where}: unknown key {key!r}; known keys: {', '.join(names)}.")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            _merge(current, value, f"{where}.{key}")
+            continue
+        if isinstance(current, bool) and not isinstance(value, bool):
+            raise HackError(f"{where}.{key}: expected true/false, found {value!r}.")
+        if isinstance(current, (int, float)) and not isinstance(current, bool):
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise HackError(f"{where}.{key}: expected a number, found {value!r}.")
+            value = type(current)(value) if isinstance(current, float) else value
+        if isinstance(current, list) and not isinstance(value, list):
+            raise HackError(f"{where}.{key}: expected a list, found {value!r}.")
+        setattr(obj, key, value)
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> FitConfig:
+    """Defaults, then a TOML/YAML/JSON file's sections, then ``overrides`` (same shape)."""
+    cfg = FitConfig()
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise HackError(f"--config {path}: file not found.")
+        text = path.read_text()
+        try:
+            if path.suffix.lower() == ".toml":
+                import tomllib
+
+                data = tomllib.loads(text)
+            elif path.suffix.lower() in (".yaml", ".yml"):
+                import yaml
+
+                data = yaml.safe_load(text) or {}
+            else:
+                data = json.loads(text)
+        except Exception as err:  # noqa: BLE001 - parser errors differ per format
+            raise HackError(f"--config {path}: not valid {path.suffix.lstrip('.').upper()}: "
+                            f"{err}") from err
+        _merge(cfg, data, str(path))
+    if overrides:
+        _merge(cfg, overrides, "overrides")
+    return cfg.validate()
+
+
+def tiny_overrides() -> dict:
+    """Settings for tests and CI: tiny resolution, few samples and iterations."""
+    return {"camera": {"iterations": 60}, "shape": {"iterations": 60, "n_beta": 20},
+            "photometric": {"resolutions": [32], "iterations": [6], "spp": 2, "n_alpha": 8},
+            "texel": {"iterations": 3}}

@@ -1,0 +1,308 @@
+"""The staged fitter: photos -> HACK parameters, appearance, lighting and cameras.
+
+Stages (each with its own iterations, weights and learning rates, see ``config.py``):
+
+1. landmarks: 68 points per photo (dlib or a user file); jawline points are contours.
+2. camera: focal length, camera translation and the head's rotation from landmarks; the
+   head's rotation is shared over the 8 cervical joints by the anatomical prior
+   (:func:`~hack_render.geometry.skeleton.distribute_head_rotation`).
+3. shape: beta, psi and a residual theta from landmarks, with Gaussian priors on beta
+   and psi, E_rot (Eq. 9) and E_sim (Eq. 10).
+4. photometric: renders through Mitsuba (``hack_render.render.bridge``) at low resolution
+   and spp, coarse to fine; skin-masked robust (Charbonnier) loss over alpha, lighting
+   and refinements of beta, psi, theta, eta, tau.
+5. texel (optional): per-texel albedo refinement with smoothness and symmetry terms.
+
+Multi-view: views share beta, alpha, eta and tau; each has its own camera, head rotation,
+neck pose and lighting; expression shared unless ``per_view_expression``.
+
+Camera model: OpenCV pinhole with square pixels and the principal point at the photo's
+centre; the camera looks along world -Z at the face (R0 = diag(1, -1, -1)); its
+translation, focal length and the head's pose are fitted. For rendering, each view uses a
+virtual camera rotated to look at the face, and the photo is resampled into it through
+the exact homography K' Rv K^-1 (so the crop needs no off-centre principal point).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+from hack_render.fit.config import FitConfig
+from hack_render.fit.landmarks import Detection, JawContour, landmark_weights
+from hack_render.fit.lighting import Lighting
+from hack_render.fit.photo import Photo
+from hack_render.fit.stages import StageReport, run_stage
+from hack_render.geometry.skeleton import (adjacent_similarity_penalty, distribute_head_rotation,
+                                           rotation_limit_penalty)
+
+R0 = torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+SENSOR_MM = 36.0
+
+
+@dataclass
+class View:
+    """One photo and its own parameters (torch leaves)."""
+
+    photo: Photo
+    detection: Detection
+    log_focal: torch.Tensor
+    transl: torch.Tensor          # camera t (3,), metres: x_cam = R0 X + t
+    head_angles: torch.Tensor     # (3,) whole-head Euler angles, radians
+    dtheta: torch.Tensor          # (8, 3) residual per-joint axis-angle
+    global_orient: torch.Tensor   # (3,) torso rotation
+    psi: torch.Tensor | None      # (1, E) when expressions are per view
+    lighting: Lighting | None = None
+    renderer: object = None       # DiffRenderer of the current photometric level
+    level: dict = field(default_factory=dict)
+
+    @property
+    def focal(self) -> torch.Tensor:
+        return torch.exp(self.log_focal)
+
+
+@dataclass
+class FitResult:
+    """Everything a fit produced (see :func:`fit`)."""
+
+    model: object
+    appearance: object
+    config: FitConfig
+    views: list
+    beta: torch.Tensor
+    psi: torch.Tensor
+    alpha: torch.Tensor
+    eta: torch.Tensor
+    tau: torch.Tensor
+    albedo_delta: torch.Tensor | None
+    reports: list
+    timings: dict
+    failures: list
+
+
+class Fitter:
+    """Holds the model, appearance model and parameters; runs the stages in order."""
+
+    def __init__(self, photos: list[Photo], detections: list[Detection], config: FitConfig,
+                 model=None, appearance=None, progress: bool = True):
+        from hack_render.geometry import load_default_model
+
+        if len(photos) != len(detections) or not photos:
+            raise HackError("fit: expected one detection per photo and at least one photo.")
+        torch.manual_seed(config.seed)
+        self.cfg, self.progress = config, progress
+        self.model = model if model is not None else load_default_model()
+        self.appearance = appearance if appearance is not None else _load_appearance()
+        m = self.model
+        self.n_expr = m.num_expressions
+        self.beta = torch.zeros(1, min(config.shape.n_beta, m.num_shape), requires_grad=True)
+        self.psi = torch.zeros(1, self.n_expr, requires_grad=True)
+        self.eta = torch.zeros(1, requires_grad=True)
+        self.tau = torch.zeros(1, requires_grad=True)
+        n_alpha = min(config.photometric.n_alpha, self.appearance.n_components) \
+            if self.appearance is not None else 0
+        self.alpha = torch.zeros(1, n_alpha, requires_grad=True)
+        self.const_albedo = torch.tensor([0.46, 0.29, 0.22], requires_grad=True)
+        self.albedo_delta: torch.Tensor | None = None
+        self.jaw = JawContour(m.template.numpy(), m.landmark_indices.numpy())
+        self.lmk_idx = m.landmark_indices.clone()
+        self.lmk_w = landmark_weights(config.landmarks.jaw_weight)
+        self.faces = m.faces
+        self.views = [self._init_view(p, d) for p, d in zip(photos, detections)]
+        self.reports: list[StageReport] = []
+        self.timings: dict[str, float] = {}
+
+    # --- parameters -----------------------------------------------------------------
+    def _init_view(self, photo: Photo, det: Detection) -> View:
+        w, h = photo.width, photo.height
+        f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(w, h)
+        with torch.no_grad():
+            lm = self.model().landmarks[0]
+        iod_model = float(torch.linalg.vector_norm(lm[36] - lm[45]))
+        z = f0 * iod_model / max(det.interocular, 1e-3)
+        c_px = det.points.mean(0)
+        c3 = (R0 @ lm.mean(0)).numpy()
+        cam = np.array([(c_px[0] - w / 2) * z / f0, (c_px[1] - h / 2) * z / f0, z])
+        t = torch.tensor(cam - c3, dtype=torch.float32, requires_grad=True)
+        psi = torch.zeros(1, self.n_expr, requires_grad=True) if self.cfg.per_view_expression \
+            else None
+        return View(photo, det, torch.tensor([math.log(f0)], requires_grad=True), t,
+                    torch.zeros(3, requires_grad=True), torch.zeros(8, 3, requires_grad=True),
+                    torch.zeros(3, requires_grad=True), psi)
+
+    def view_psi(self, v: View) -> torch.Tensor:
+        return v.psi if v.psi is not None else self.psi
+
+    def theta(self, v: View) -> torch.Tensor:
+        """(1, 8, 3) neck pose: the head rotation's anatomical share plus the residual."""
+        return (distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta)[None]
+
+    def forward(self, v: View):
+        return self.model(beta=self.beta, psi=self.view_psi(v), theta=self.theta(v),
+                          global_orient=v.global_orient[None], eta=self.eta,
+                          tau=self.tau)
+
+    # --- projection and landmark loss -------------------------------------------------
+    def project(self, v: View, X: torch.Tensor) -> torch.Tensor:
+        """World points (..., 3) -> photo pixels (..., 2) (continuous coordinates)."""
+        cam = X @ R0.T + v.transl
+        f = v.focal
+        uv = f * cam[..., :2] / cam[..., 2:3].clamp_min(1e-4)
+        return uv + torch.tensor([v.photo.width / 2.0, v.photo.height / 2.0])
+
+    def camera_centre(self, v: View) -> np.ndarray:
+        return (-R0.T @ v.transl.detach()).numpy()
+
+    def model_landmarks(self, v: View, verts: torch.Tensor, it: int) -> torch.Tensor:
+        """(68, 3) landmark vertices with the jawline re-matched to the contour."""
+        if it % max(1, self.cfg.landmarks.contour_every) == 0:
+            from hack_render.render.bridge import vertex_normals_torch
+
+            with torch.no_grad():
+                vv = verts.detach()
+                n = vertex_normals_torch(vv, self.faces).numpy()
+                tgt = v.detection.points
+                self.jaw.match(vv.numpy(), n, self.camera_centre(v),
+                               lambda p: self.project(v, torch.as_tensor(p)).numpy(), tgt)
+                v.level["jaw"] = self.jaw.current.copy()
+        idx = self.lmk_idx.clone()
+        if "jaw" in v.level:
+            idx[:17] = torch.as_tensor(v.level["jaw"])
+        return verts[idx]
+
+    def landmark_loss(self, v: View, verts: torch.Tensor, it: int) -> torch.Tensor:
+        pred = self.project(v, self.model_landmarks(v, verts, it))
+        tgt = torch.as_tensor(v.detection.points, dtype=pred.dtype)
+        # residuals in units of the robust knee (a fraction of the face size), so the
+        # term is O(1) at a typical misfit and the priors' weights read naturally
+        r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size
+                                                             * self.cfg.landmarks.huber_px)
+        rob = torch.where(r < 1.0, 0.5 * r ** 2, r - 0.5)
+        return (self.lmk_w * rob).sum() / self.lmk_w.sum()
+
+    def focal_prior(self, v: View) -> torch.Tensor:
+        f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(v.photo.width, v.photo.height)
+        return ((v.log_focal - math.log(f0)) / self.cfg.camera.focal_log_sigma).pow(2).sum()
+
+    def pose_priors(self, v: View) -> dict[str, torch.Tensor]:
+        s = self.cfg.shape
+        th = self.theta(v)
+        return {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
+                "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
+                "dtheta": s.w_dtheta * (v.dtheta ** 2).sum(),
+                "global": s.w_global * (v.global_orient ** 2).sum()}
+
+    # --- stages 2 and 3 -----------------------------------------------------------------
+    def fit_camera(self) -> StageReport:
+        c = self.cfg.camera
+        groups = []
+        for v in self.views:
+            groups += [{"params": [v.transl], "lr": c.lr * 0.1},
+                       {"params": [v.head_angles], "lr": c.lr}]
+            if c.fit_focal:
+                groups.append({"params": [v.log_focal], "lr": c.lr})
+        # the rigid stage first fits translation and rotation at the prior focal length;
+        # it scales the landmark term so Adam's steps are in sensible units
+
+        def loss(it):
+            total, terms = 0.0, {"landmarks": 0.0, "focal_prior": 0.0}
+            for v in self.views:
+                verts = self.forward(v).vertices[0]
+                lm = self.landmark_loss(v, verts, it)
+                fp = 0.01 * self.focal_prior(v)
+                rot = rotation_limit_penalty(self.theta(v)).sum()
+                total = total + lm + fp + rot
+                terms["landmarks"] += float(lm.detach())
+                terms["focal_prior"] += float(fp)
+            return total, terms
+
+        return self._run("camera", groups, loss, c.iterations)
+
+    def fit_shape(self) -> StageReport:
+        s = self.cfg.shape
+        groups = [{"params": [self.beta], "lr": s.lr}, {"params": [self.psi], "lr": s.lr}]
+        for v in self.views:
+            groups += [{"params": [v.dtheta, v.head_angles, v.global_orient], "lr": s.lr * 0.5},
+                       {"params": [v.transl], "lr": s.lr * 0.05},
+                       {"params": [v.log_focal], "lr": s.lr * 0.5}]
+            if v.psi is not None:
+                groups.append({"params": [v.psi], "lr": s.lr})
+
+        def loss(it):
+            total, terms = 0.0, {}
+            for v in self.views:
+                verts = self.forward(v).vertices[0]
+                parts = {"landmarks": self.landmark_loss(v, verts, it),
+                         "focal_prior": 0.01 * self.focal_prior(v), **self.pose_priors(v)}
+                parts["psi_prior"] = s.w_psi * (self.view_psi(v) ** 2).sum()
+                for k, x in parts.items():
+                    total = total + x
+                    terms[k] = terms.get(k, 0.0) + float(x)
+            bp = s.w_beta * (self.beta ** 2).sum()
+            terms["beta_prior"] = float(bp)
+            return total + bp, terms
+
+        return self._run("shape", groups, loss, s.iterations, after_step=self._project_psi)
+
+    def _project_psi(self):
+        with torch.no_grad():
+            self.psi.clamp_(0.0, 1.0)
+            for v in self.views:
+                if v.psi is not None:
+                    v.psi.clamp_(0.0, 1.0)
+            self.eta.clamp_(-3.0, 3.0)
+            self.tau.clamp_(-0.02, 0.02)
+
+    def _run(self, name, groups, loss, iterations, after_step=None) -> StageReport:
+        t0 = time.perf_counter()
+        rep = run_stage(name, groups, loss, iterations, self.progress, after_step)
+        self.reports.append(rep)
+        self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
+        return rep
+
+    # --- stage 4 and 5: photometric ----------------------------------------------------
+    def maps(self):
+        """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal."""
+        if self.appearance is None:
+            h = 16
+            d = self.const_albedo.clamp(0, 1).expand(h, 2 * h, 3)
+            return {"albedo": d, "specular": torch.full((h, 2 * h, 1), 0.6),
+                    "roughness": torch.full((h, 2 * h, 1), 0.5), "normal": None}
+        m = self.appearance.maps(self.alpha)
+        d = m.diffuse[0]
+        if self.albedo_delta is not None:
+            d = (d + self.albedo_delta).clamp(0.0, 1.0)
+        return {"albedo": d, "specular": m.specular[0], "roughness": m.roughness[0],
+                "normal": m.normal[0]}
+
+    def photometric(self, texel: bool = False) -> list[StageReport]:
+        from hack_render.fit import photometric as ph
+
+        return ph.run(self, texel)
+
+    def run(self) -> FitResult:
+        self.fit_camera()
+        self.fit_shape()
+        if self.cfg.photometric.enabled:
+            self.photometric(texel=False)
+            if self.cfg.texel.enabled and self.appearance is not None:
+                self.photometric(texel=True)
+        return FitResult(self.model, self.appearance, self.cfg, self.views, self.beta,
+                         self.psi, self.alpha, self.eta, self.tau, self.albedo_delta,
+                         self.reports, self.timings,
+                         [r.failure for r in self.reports if r.failure])
+
+
+def _load_appearance():
+    """The appearance PCA model, or None (constant albedo) when it is unavailable."""
+    try:
+        from appearance.model import AppearanceModel
+
+        return AppearanceModel.load()
+    except (ImportError, OSError, HackError):
+        return None

@@ -1,0 +1,186 @@
+"""Reading photos for fitting: every odd input is converted, resized or refused clearly.
+
+Handled: unreadable or truncated files (refused), grayscale and palette (to RGB), CMYK
+(to RGB), 16-bit and float images (scaled to [0, 1]), RGBA / LA (alpha composited over
+mid grey), EXIF orientation (applied), huge images (> ``max_side`` px: downscaled, with a
+warning). Faces that are too small are refused later, by the detector stage.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+
+class PhotoWarning(UserWarning):
+    """A photo was converted or resized on the way in."""
+
+
+@dataclass
+class Photo:
+    """An RGB photo.
+
+    Attributes:
+        rgb: (H, W, 3) float32 sRGB-encoded values in [0, 1].
+        name: label (file stem). scale: working size / original size (1 unless resized).
+        notes: what was converted on the way in.
+    """
+
+    rgb: np.ndarray
+    name: str = "photo"
+    scale: float = 1.0
+    notes: list = field(default_factory=list)
+
+    @property
+    def height(self) -> int:
+        return self.rgb.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.rgb.shape[1]
+
+    def linear(self) -> np.ndarray:
+        """(H, W, 3) float32 linear Rec.709 (the inverse sRGB transfer function)."""
+        import colour
+
+        return np.asarray(colour.cctf_decoding(self.rgb, function="sRGB"), np.float32)
+
+    def uint8(self) -> np.ndarray:
+        return np.clip(np.round(self.rgb * 255.0), 0, 255).astype(np.uint8)
+
+
+def _to_float_rgb(arr: np.ndarray, mode: str, notes: list) -> np.ndarray:
+    """Any PIL-decoded array to (H, W, 3) float in [0, 1]."""
+    a = np.asarray(arr)
+    if a.dtype == np.uint8:
+        x = a.astype(np.float32) / 255.0
+    elif a.dtype in (np.uint16, np.int32, np.int64) or mode.startswith("I"):
+        notes.append(f"{mode} {a.dtype} scaled from 16 bits to [0, 1]")
+        x = a.astype(np.float32) / 65535.0
+    elif a.dtype == bool:
+        x = a.astype(np.float32)
+    else:
+        x = a.astype(np.float32)
+        hi = float(np.nanmax(x)) if x.size else 1.0
+        if hi > 1.0:
+            x = x / hi
+    x = np.nan_to_num(np.clip(x, 0.0, 1.0))
+    if x.ndim == 2:
+        x = np.repeat(x[..., None], 3, axis=2)
+    elif x.shape[2] == 2:  # LA
+        x = x[..., :1] * x[..., 1:2] + 0.5 * (1 - x[..., 1:2])
+        x = np.repeat(x, 3, axis=2)
+    elif x.shape[2] == 4:
+        notes.append("alpha channel composited over mid grey")
+        x = x[..., :3] * x[..., 3:4] + 0.5 * (1.0 - x[..., 3:4])
+    return np.ascontiguousarray(x[..., :3], dtype=np.float32)
+
+
+def load_photo(path: str | Path, max_side: int = 8000, working_side: int = 2048) -> Photo:
+    """Read a photo file into an sRGB float :class:`Photo`, handling odd formats.
+
+    Raises:
+        HackError: the file is missing, unreadable, truncated or has no pixels.
+    """
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"photo {path}: file not found.")
+    notes: list[str] = []
+    # Pillow's decompression-bomb guard would refuse huge photos before we could resize
+    # them; we guard by pixel count ourselves (after reading the header only).
+    old = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+            if w * h > 400e6:
+                raise HackError(f"photo {path}: expected at most 400 megapixels, found {w}x{h}. "
+                                "Downscale it first.")
+            if w < 1 or h < 1:
+                raise HackError(f"photo {path}: the image has no pixels ({w}x{h}).")
+            im.load()
+            orient = im.getexif().get(0x0112, 1)
+            im = ImageOps.exif_transpose(im)
+            if orient not in (1, None):
+                notes.append(f"EXIF orientation {orient} applied")
+            mode = im.mode
+            if mode == "CMYK":
+                notes.append("CMYK converted to RGB")
+                im = im.convert("RGB")
+            elif mode in ("P", "PA"):
+                notes.append("palette image converted to RGB(A)")
+                im = im.convert("RGBA" if "transparency" in im.info or mode == "PA" else "RGB")
+            elif mode in ("L", "1"):
+                notes.append("grayscale converted to RGB")
+            elif mode not in ("RGB", "RGBA", "LA", "I", "I;16", "I;16B", "I;16L", "F"):
+                notes.append(f"{mode} converted to RGB")
+                im = im.convert("RGB")
+            arr = np.asarray(im)
+            mode = im.mode
+    except HackError:
+        raise
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as err:
+        what = "truncated or corrupt" if "truncated" in str(err).lower() or isinstance(
+            err, (OSError, SyntaxError)) else "not a readable image"
+        raise HackError(f"photo {path}: {what} ({err}). Re-export it as PNG or JPEG.") from err
+    finally:
+        Image.MAX_IMAGE_PIXELS = old
+    if arr.dtype != np.uint8 and path.suffix.lower() == ".png" and arr.ndim == 3:
+        pass  # Pillow already gave a wide array for 16-bit RGB
+    rgb = _to_float_rgb(arr, mode, notes)
+    if rgb.ndim == 3 and rgb.shape[2] == 3 and path.suffix.lower() in (".png", ".tif", ".tiff"):
+        rgb16 = _maybe_16bit_rgb(path)
+        if rgb16 is not None:
+            rgb = rgb16
+            notes.append("16-bit RGB scaled to [0, 1]")
+    photo = Photo(rgb, path.stem, 1.0, notes)
+    photo = limit_size(photo, max_side, working_side)
+    for n in photo.notes:
+        warnings.warn(f"photo {path.name}: {n}", PhotoWarning, stacklevel=2)
+    return photo
+
+
+def _maybe_16bit_rgb(path: Path) -> np.ndarray | None:
+    """Pillow reads 16-bit RGB PNGs as 8 bits; imageio keeps the 16 bits (None otherwise)."""
+    try:
+        import imageio.v3 as iio
+
+        a = iio.imread(path)
+    except Exception:  # noqa: BLE001 - Pillow already read it; this is a refinement
+        return None
+    if a.dtype != np.uint16 or a.ndim != 3 or a.shape[2] not in (3, 4):
+        return None
+    x = a.astype(np.float32) / 65535.0
+    if x.shape[2] == 4:
+        x = x[..., :3] * x[..., 3:4] + 0.5 * (1.0 - x[..., 3:4])
+    return np.ascontiguousarray(x, np.float32)
+
+
+def limit_size(photo: Photo, max_side: int = 8000, working_side: int = 2048) -> Photo:
+    """Downscale photos with a side above ``max_side`` to ``working_side`` (anti-aliased)."""
+    h, w = photo.rgb.shape[:2]
+    if max(h, w) <= max_side:
+        return photo
+    from skimage.transform import resize
+
+    s = working_side / max(h, w)
+    rgb = resize(photo.rgb, (max(1, round(h * s)), max(1, round(w * s))), anti_aliasing=True,
+                 preserve_range=True).astype(np.float32)
+    notes = photo.notes + [f"{w}x{h} px is above {max_side} px: downscaled to "
+                           f"{rgb.shape[1]}x{rgb.shape[0]}"]
+    return Photo(rgb, photo.name, photo.scale * s, notes)
+
+
+def from_array(rgb: np.ndarray, name: str = "photo") -> Photo:
+    """A :class:`Photo` from an in-memory uint8/float RGB(A)/gray array."""
+    a = np.asarray(rgb)
+    mode = "L" if a.ndim == 2 else ("RGBA" if a.shape[2] == 4 else "RGB")
+    notes: list[str] = []
+    return limit_size(Photo(_to_float_rgb(a, mode, notes), name, 1.0, notes))

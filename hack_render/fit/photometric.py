@@ -1,0 +1,265 @@
+"""Stage 4 (and 5): photometric refinement through Mitsuba, coarse to fine.
+
+Per view and resolution level: a virtual camera looking at the face (the fitted camera
+rotated by Rv; same centre), the photo resampled into it through the homography
+K' Rv K^-1 after an anti-aliasing blur, a skin mask (the landmark face polygon without
+eyes and mouth opening, intersected with the rendered face region, eroded), and a
+:class:`~hack_render.render.bridge.DiffRenderer` over a scene lit only by the learnable
+environment. The loss is a Charbonnier (robust L1) over the masked linear-RGB pixels
+plus the landmark term and the priors. Stage 5 adds a per-texel albedo delta with
+smoothness (neighbour differences), symmetry (mirror-vertex pairs in UV) and magnitude
+penalties.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from hack_render.fit.lighting import Lighting
+
+FACE_OUTLINE = list(range(0, 17)) + list(range(26, 16, -1))
+HOLES = (list(range(36, 42)), list(range(42, 48)), list(range(60, 68)))
+
+
+def rotation_to_axis(d: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation taking the unit vector ``d`` onto +Z (Rodrigues)."""
+    d = d / np.linalg.norm(d)
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(d, z)
+    s, c = np.linalg.norm(v), float(d @ z)
+    if s < 1e-12:
+        return np.eye(3)
+    k = v / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def virtual_camera(fitter, view, res: int):
+    """(Camera, H) for a view at ``res`` px: H maps virtual pixels to photo pixels."""
+    from scenes.cameras import Camera
+
+    from hack_render.fit.fitter import R0
+
+    ph, det = view.photo, view.detection
+    f = float(view.focal)
+    K = np.array([[f, 0, ph.width / 2], [0, f, ph.height / 2], [0, 0, 1.0]])
+    pts = det.points
+    centre = 0.5 * (pts.min(0) + pts.max(0))
+    centre[1] -= 0.12 * det.size  # include the forehead
+    side = 2.0 * det.size
+    Rv = rotation_to_axis(np.linalg.inv(K) @ np.r_[centre, 1.0])
+    fv = f * res / side
+    Kv = np.array([[fv, 0, res / 2], [0, fv, res / 2], [0, 0, 1.0]])
+    R = Rv @ R0.numpy().astype(np.float64)
+    t = Rv @ view.transl.detach().numpy().astype(np.float64)
+    H = K @ Rv.T @ np.linalg.inv(Kv)
+    return Camera(Kv, R, t, res, res, f"{ph.name}_{res}"), H, side / res
+
+
+def warp_photo(img: np.ndarray, H: np.ndarray, res: int, scale: float) -> np.ndarray:
+    """Resample the photo (h, w, C) into the virtual view (res, res, C), pre-blurred."""
+    from scipy.ndimage import gaussian_filter
+    from skimage.transform import ProjectiveTransform, warp
+
+    sigma = max(0.0, 0.5 * scale - 0.3)
+    src = gaussian_filter(img, sigma=(sigma, sigma, 0)) if sigma > 0 else img
+    # skimage coordinates have pixel centres at integers; ours at +0.5
+    T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
+    Ti = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
+    return warp(src, ProjectiveTransform(Ti @ H @ T), output_shape=(res, res), order=1,
+                mode="edge").astype(np.float32)
+
+
+def face_mask(points_v: np.ndarray, res: int) -> np.ndarray:
+    """Skin polygon from 68 landmarks in virtual pixels: face outline minus eyes, mouth."""
+    from skimage.draw import polygon
+
+    m = np.zeros((res, res), bool)
+    out = points_v[FACE_OUTLINE]
+    rr, cc = polygon(out[:, 1] - 0.5, out[:, 0] - 0.5, (res, res))
+    m[rr, cc] = True
+    for hole in HOLES:
+        p = points_v[hole]
+        c = p.mean(0)
+        p = c + 1.3 * (p - c)
+        rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, (res, res))
+        m[rr, cc] = False
+    return m
+
+
+def setup_level(fitter, view, res: int) -> None:
+    """Build the view's scene, renderer, target and masks for one resolution."""
+    from hack_render.render.bridge import DiffRenderer
+    from hack_render.render.materials import SkinMaps
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from scenes.lights import LightRig
+
+    cfg = fitter.cfg.photometric
+    cam, H, scale = virtual_camera(fitter, view, res)
+    target = warp_photo(view.photo.linear(), H, res, scale)
+    Hi = np.linalg.inv(H)
+    p = np.c_[view.detection.points, np.ones(68)] @ Hi.T
+    pts_v = p[:, :2] / p[:, 2:3]
+    if view.lighting is None:
+        view.lighting = Lighting(cfg.lighting, cfg.env_height)
+    with torch.no_grad():
+        verts = fitter.forward(view).vertices[0]
+        maps = {k: (x.detach().numpy() if x is not None else None)
+                for k, x in fitter.maps().items()}
+        env = view.lighting.env_map().numpy()
+    sm = SkinMaps(maps["albedo"], maps["specular"], maps["roughness"], maps["normal"])
+    rig = LightRig(name="fit", env_map=env.astype(np.float32))
+    head = HeadScene(Topology.from_model(fitter.model), verts.numpy(), rig, cam,
+                     RenderSettings(res, res, cfg.spp, 8, fitter.cfg.seed), sm)
+    view.renderer = DiffRenderer(head, cfg.integrator, max_depth=2, spp=cfg.spp)
+    view.level = {"res": res, "camera": cam, "H": H, "target": torch.from_numpy(target),
+                  "photo_mask": face_mask(pts_v, res), "points_v": pts_v,
+                  "jaw": view.level.get("jaw")}
+    if view.level["jaw"] is None:
+        view.level.pop("jaw")
+    update_mask(view)
+
+
+def update_mask(view) -> None:
+    """Skin mask = photo face polygon AND rendered face region, eroded."""
+    from scipy.ndimage import binary_erosion
+
+    seg = view.renderer.head.aovs()["segmentation"]
+    m = view.level["photo_mask"] & (seg == 1)
+    k = view.level.get("erode", 1)
+    if k > 0:
+        m = binary_erosion(m, iterations=k)
+    view.level["mask"] = torch.from_numpy(m)
+
+
+def render_view(fitter, view, maps, verts, seed: int) -> torch.Tensor:
+    return view.renderer.render(seed=seed, vertices=verts, albedo=maps["albedo"],
+                                specular=maps["specular"], roughness=maps["roughness"],
+                                normal=maps["normal"], env=view.lighting.env_map())
+
+
+def charbonnier(diff: torch.Tensor, eps: float) -> torch.Tensor:
+    return torch.sqrt(diff * diff + eps * eps) - eps
+
+
+def match_exposure(fitter, view) -> None:
+    """Scale the lighting so the first render's masked mean matches the photo's."""
+    with torch.no_grad():
+        maps = fitter.maps()
+        verts = fitter.forward(view).vertices[0]
+        img = render_view(fitter, view, maps, verts, 0)[..., :3]
+        m = view.level["mask"]
+        if int(m.sum()) < 4:
+            return
+        ratio = (view.level["target"][m].mean(0) / img[m].mean(0).clamp_min(1e-4)).numpy()
+        view.lighting.scale_(np.clip(ratio, 1e-3, 1e3))
+
+
+def symmetry_pairs(model) -> tuple[torch.Tensor, torch.Tensor]:
+    """Grid coordinates (P, 2) of mirror-vertex pairs (x -> -x) of the face, in [-1, 1]."""
+    from scipy.spatial import cKDTree
+
+    v = model.template.numpy()[:9409]
+    uv = model.vertex_uv.numpy()[:9409]
+    right = np.flatnonzero(v[:, 0] > 0.004)
+    d, j = cKDTree(v).query(v[right] * np.array([-1.0, 1.0, 1.0]))
+    ok = d < 0.002
+    a, b = uv[right[ok]], uv[j[ok]]
+
+    def grid(u):
+        return torch.tensor(np.c_[u[:, 0] - 1.0, 1.0 - 2.0 * u[:, 1]], dtype=torch.float32)
+
+    return grid(a), grid(b)
+
+
+def texel_regularisers(delta: torch.Tensor, pairs) -> dict[str, torch.Tensor]:
+    smooth = ((delta[1:] - delta[:-1]) ** 2).mean() + ((delta[:, 1:] - delta[:, :-1]) ** 2).mean()
+    img = delta.permute(2, 0, 1)[None]
+    sa = torch.nn.functional.grid_sample(img, pairs[0][None, None], align_corners=False)
+    sb = torch.nn.functional.grid_sample(img, pairs[1][None, None], align_corners=False)
+    return {"smooth": smooth, "symmetry": ((sa - sb) ** 2).mean(),
+            "magnitude": (delta ** 2).mean()}
+
+
+def run(fitter, texel: bool = False):
+    """Run the photometric stage (or, with ``texel``, the per-texel albedo stage)."""
+    cfg, tcfg = fitter.cfg.photometric, fitter.cfg.texel
+    reports = []
+    levels = list(zip(cfg.resolutions, cfg.iterations))
+    if texel:
+        levels = [(cfg.resolutions[-1], tcfg.iterations)]
+        h = fitter.appearance.height
+        fitter.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
+        pairs = symmetry_pairs(fitter.model)
+    for res, iters in levels:
+        for v in fitter.views:
+            if v.level.get("res") != res or v.renderer is None:
+                setup_level(fitter, v, int(res))
+                if not texel and res == levels[0][0]:
+                    match_exposure(fitter, v)
+        groups = _groups(fitter, texel)
+
+        def loss(it, res=res):
+            maps = fitter.maps()
+            total, terms = 0.0, {}
+            for v in fitter.views:
+                if it and it % 10 == 0:
+                    update_mask(v)
+                out = fitter.forward(v)
+                verts = out.vertices[0]
+                img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it)[..., :3]
+                m = v.level["mask"]
+                n = m.sum().clamp_min(1)
+                ph = charbonnier(img - v.level["target"], cfg.charbonnier_eps)
+                parts = {"photo": (ph * m[..., None]).sum() / (3 * n),
+                         "landmarks": cfg.w_landmarks * fitter.landmark_loss(v, verts, it),
+                         "light_smooth": 1e-3 * v.lighting.smoothness()}
+                if cfg.refine_geometry:
+                    parts.update(fitter.pose_priors(v))
+                    parts["psi_prior"] = fitter.cfg.shape.w_psi * (fitter.view_psi(v) ** 2).sum()
+                for k, x in parts.items():
+                    total = total + x
+                    terms[k] = terms.get(k, 0.0) + float(x)
+            extra = {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
+            if cfg.refine_geometry:
+                extra["beta_prior"] = fitter.cfg.shape.w_beta * (fitter.beta ** 2).sum()
+                extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
+            if texel:
+                for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
+                    w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,
+                         "magnitude": tcfg.w_magnitude}[k]
+                    extra[f"texel_{k}"] = w * x
+            for k, x in extra.items():
+                total = total + x
+                terms[k] = float(x)
+            return total, terms
+
+        name = f"texel@{res}" if texel else f"photometric@{res}"
+        reports.append(fitter._run(name, groups, loss, int(iters),
+                                   after_step=fitter._project_psi))
+    return reports
+
+
+def _groups(fitter, texel: bool) -> list[dict]:
+    cfg = fitter.cfg.photometric
+    if texel:
+        return [{"params": [fitter.albedo_delta], "lr": fitter.cfg.texel.lr}]
+    groups = [{"params": [v.lighting.coeffs if v.lighting.mode == "sh" else v.lighting.log_texels],
+               "lr": cfg.lr_light} for v in fitter.views]
+    if fitter.appearance is not None and fitter.alpha.shape[1]:
+        groups.append({"params": [fitter.alpha], "lr": cfg.lr_alpha})
+    elif fitter.appearance is None:
+        groups.append({"params": [fitter.const_albedo], "lr": cfg.lr_alpha * 0.2})
+    if cfg.refine_geometry:
+        lr = cfg.lr_geometry
+        groups += [{"params": [fitter.beta, fitter.psi, fitter.eta], "lr": lr},
+                   {"params": [fitter.tau], "lr": lr * 0.01}]
+        for v in fitter.views:
+            # the camera (translation, focal) stays as the landmark stages left it: the
+            # level's scene camera is built from it; the head moves instead
+            groups.append({"params": [v.dtheta, v.head_angles], "lr": lr * 0.2})
+            if v.psi is not None:
+                groups.append({"params": [v.psi], "lr": lr})
+    return groups
