@@ -1,7 +1,12 @@
 """Benchmarks of the appearance model (ratios measured in one run; not a test).
 
     python bench/bench_appearance.py [--model PATH] [--batch 1] [--build-subjects 300]
-                                     [--build-height 128] [--skip-build]
+                                     [--build-height 128] [--skip-build] [--skip-maps]
+                                     [--gen-height H] [--components K] [--workdir DIR]
+
+    # the issue's scale check: 500 subjects at 1024 x 2048 within this machine's 24 GB
+    python bench/bench_appearance.py --skip-maps --build-subjects 500 --build-height 1024 \
+        --gen-height 128 --components 50 --workdir /tmp/app-scale
 
 1. maps(alpha) at the model's resolution against one matrix product that reads the same
    basis bytes (alpha @ basis, same dtype, same process, same thread count): the ratio is
@@ -21,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -52,31 +58,58 @@ def bench_maps(model_path, batch: int) -> dict:
             "threads": torch.get_num_threads()}
 
 
-def _build_child(n: int, height: int, workdir: str) -> None:
-    """Child process: generate n subjects, build, print timings and peak RSS as JSON."""
-    from appearance.builder import build_model
+def _generate_child(n: int, height: int, gen_height: int, workdir: str) -> None:
+    """Child process: write n procedural subjects at ``height`` (skipping finished ones).
+
+    With ``gen_height < height`` subjects are generated at ``gen_height`` and upsampled
+    (bilinear), which keeps a scale test of the builder affordable; the maps then carry no
+    detail finer than ``gen_height`` (the builder's memory and time do not depend on it).
+    """
+    from appearance.builder import resample
     from appearance.generator import generate_subject
-    from appearance.texture_io import write_texture_set
+    from appearance.texture_io import write_exr
 
     torch.set_num_threads(1)
     root = Path(workdir) / "pop"
     t0 = time.perf_counter()
     for s in range(n):
-        ts = generate_subject(s, height)
-        write_texture_set(root / f"s{s:05d}", {"diffuse": ts.diffuse, "specular": ts.specular,
-                                               "roughness": ts.roughness, "normal": ts.normal})
-    t_gen = time.perf_counter() - t0
-    rss_gen = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        folder = root / f"s{s:05d}"
+        if (folder / "normal.exr").is_file():
+            continue
+        ts = generate_subject(s, gen_height)
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in ("diffuse", "specular", "roughness", "normal"):  # normal last: "done"
+            img = resample(getattr(ts, name), height)
+            if name == "normal":
+                img = img / np.linalg.norm(img, axis=-1, keepdims=True)
+            write_exr(folder / f"{name}.exr", img, half=True)
+    print(json.dumps({"generate_s": round(time.perf_counter() - t0, 1)}))
+
+
+def _build_child(n: int, height: int, components: int, workdir: str) -> None:
+    """Child process: build from the generated subjects; its peak RSS is the build's own."""
+    from appearance.builder import build_model
+
+    torch.set_num_threads(1)
     t1 = time.perf_counter()
-    rep = build_model(root, Path(workdir) / "m.npz", height=height, progress=False)
-    t_build = time.perf_counter() - t1
-    print(json.dumps({"subjects": n, "height": height, "generate_s": round(t_gen, 1),
-                      "build_s": round(t_build, 1),
-                      "peak_rss_mb_after_generation": round(rss_gen, 1),
+    rep = build_model(Path(workdir) / "pop", Path(workdir) / "m.npz", height=height,
+                      n_components=components or None, progress=False,
+                      workdir=Path(workdir) / "work")
+    print(json.dumps({"subjects": n, "height": height, "components": rep.get("n_components"),
+                      "build_s": round(time.perf_counter() - t1, 1),
                       "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
                                            / 1024, 1),
-                      "heldout_last": {k: v[-1] for k, v in rep["heldout"].items()
+                      "heldout_last": {k: v[-1] for k, v in rep.get("heldout", {}).items()
                                        if isinstance(v, list)}}))
+
+
+def _run_child(*args) -> dict:
+    r = subprocess.run([sys.executable, __file__, *map(str, args)], capture_output=True,  # noqa: PLW1510
+                       text=True)
+    if r.returncode:
+        print(r.stderr[-3000:])
+        raise SystemExit(r.returncode)
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -86,22 +119,32 @@ def main() -> None:
     ap.add_argument("--build-subjects", type=int, default=300)
     ap.add_argument("--build-height", type=int, default=128)
     ap.add_argument("--skip-build", action="store_true")
-    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--gen-height", type=int, default=None,
+                    help="generate subjects at this height and upsample (scale tests)")
+    ap.add_argument("--components", type=int, default=0, help="components kept (0 = all)")
+    ap.add_argument("--workdir", default=None, help="keep subjects here (resumable)")
+    ap.add_argument("--skip-maps", action="store_true")
+    ap.add_argument("--child-gen", nargs=4, help=argparse.SUPPRESS)
+    ap.add_argument("--child-build", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args()
-    if a.child:
-        _build_child(int(a.child[0]), int(a.child[1]), a.child[2])
+    if a.child_gen:
+        _generate_child(int(a.child_gen[0]), int(a.child_gen[1]), int(a.child_gen[2]), a.child_gen[3])
+        return
+    if a.child_build:
+        _build_child(int(a.child_build[0]), int(a.child_build[1]), int(a.child_build[2]), a.child_build[3])
         return
     torch.set_num_threads(1)
-    out = {"maps_vs_matmul": [bench_maps(a.model, b) for b in sorted({1, a.batch, 4})]}
-    print(json.dumps(out["maps_vs_matmul"], indent=1))
+    out = {}
+    if not a.skip_maps:
+        out["maps_vs_matmul"] = [bench_maps(a.model, b) for b in sorted({1, a.batch, 4})]
+        print(json.dumps(out["maps_vs_matmul"], indent=1))
     if not a.skip_build:
-        with tempfile.TemporaryDirectory() as wd:
-            r = subprocess.run([sys.executable, __file__, "--child", str(a.build_subjects),  # noqa: PLW1510
-                                str(a.build_height), wd], capture_output=True, text=True)
-            if r.returncode:
-                print(r.stderr[-3000:])
-                raise SystemExit(r.returncode)
-            out["build"] = json.loads(r.stdout.strip().splitlines()[-1])
+        with tempfile.TemporaryDirectory() as tmp:
+            wd = a.workdir or tmp
+            gen = _run_child("--child-gen", a.build_subjects, a.build_height,
+                             a.gen_height or a.build_height, wd)
+            out["build"] = {**gen, **_run_child("--child-build", a.build_subjects,
+                                                a.build_height, a.components, wd)}
             print(json.dumps(out["build"], indent=1))
 
 
