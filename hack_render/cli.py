@@ -31,6 +31,7 @@ from hack_render.geometry import cli as _geometry_cli  # noqa: E402
 _geometry_cli.register(app)
 from appearance import cli as _appearance_cli; app.add_typer(_appearance_cli.app, name="appearance")  # noqa: E402,E702
 from hack_render.render import cli as _render_cli; _render_cli.register(app)  # noqa: E402,E702
+from hack_render.fit import cli as _fit_cli; _fit_cli.register(app)  # noqa: E402,E702
 from hack_render.build import cli as _build_cli; _build_cli.register(app)  # noqa: E402,E702
 from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)  # noqa: E402,E702
 # --- end of sub-apps --------------------------------------------------------------------

@@ -1,0 +1,113 @@
+"""`hack-render fit PHOTO [PHOTO ...] -o OUTDIR`."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from hack_render.errors import HackError
+
+
+def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
+               progress: bool = True):
+    """Library entry point of the command: read, detect, fit, write. Returns (result, paths)."""
+    import torch
+
+    from hack_render.fit.config import FitConfig
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import detect_landmarks, read_landmark_file
+    from hack_render.fit.outputs import write_all
+    from hack_render.fit.photo import load_photo
+    from hack_render.render.image_io import check_writable
+
+    cfg = config or FitConfig()
+    if landmarks and len(landmarks) != len(photos):
+        raise HackError(f"--landmarks: expected one file per photo ({len(photos)}), found "
+                        f"{len(landmarks)}.")
+    check_writable(outdir / "params.json")
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    t0 = time.perf_counter()
+    lc = cfg.landmarks
+    imgs = [load_photo(p, lc.max_side_px, lc.working_side_px) for p in photos]
+    dets = []
+    for i, ph in enumerate(imgs):
+        if landmarks:
+            d = read_landmark_file(landmarks[i])
+            d.points = d.points * ph.scale
+        else:
+            d = detect_landmarks(ph.uint8(), lc.detector_upsample, lc.min_face_px, photos[i].name)
+        dets.append(d)
+    t_detect = time.perf_counter() - t0
+    fitter = Fitter(imgs, dets, cfg, progress=progress)
+    fitter.timings["landmarks"] = t_detect
+    result = fitter.run()
+    paths = write_all(result, fitter, outdir)
+    return result, paths
+
+
+def fit(
+    photos: List[Path] = typer.Argument(..., help="One or more photos of one person."),
+    output: Path = typer.Option(Path("out/fit"), "-o", "--output", help="Output folder."),
+    config: Optional[Path] = typer.Option(None, "--config", help="TOML/YAML/JSON config "
+                                          "overriding the defaults (see docs/fit.md)."),
+    landmarks: Optional[List[Path]] = typer.Option(None, "--landmarks", help="68-point "
+                                                   "landmark file per photo (.pts/.txt/.json/"
+                                                   ".npy) instead of dlib."),
+    resolution: Optional[str] = typer.Option(None, "--resolution", help="Photometric "
+                                             "resolutions, coarse to fine, e.g. '64,128'."),
+    iterations: Optional[str] = typer.Option(None, "--iterations", help="Photometric "
+                                             "iterations per resolution, e.g. '40,30'."),
+    spp: Optional[int] = typer.Option(None, help="Samples per pixel of the photometric stage."),
+    no_photometric: bool = typer.Option(False, "--no-photometric", help="Landmark stages only."),
+    texel: bool = typer.Option(False, "--texel", help="Per-texel albedo refinement (stage 5)."),
+    per_view_expression: bool = typer.Option(False, "--per-view-expression",
+                                             help="Multi-view: one expression per photo."),
+    lighting: Optional[str] = typer.Option(None, help="sh (spherical harmonics) or env."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Fit HACK geometry, appearance, lighting and cameras to photos by inverse rendering.
+
+    Example: hack-render fit face.jpg -o out/fit && hack-render render --params out/fit/params.json
+    """
+    from hack_render.fit.config import load_config
+
+    over: dict = {"photometric": {}, "texel": {}}
+
+    def ints(text, name):
+        try:
+            return [int(x) for x in text.split(",") if x.strip()]
+        except ValueError as err:
+            raise HackError(f"--{name}: expected comma-separated integers, found {text!r}.") from err
+
+    if resolution:
+        over["photometric"]["resolutions"] = ints(resolution, "resolution")
+        if not iterations:
+            over["photometric"]["iterations"] = [30] * len(over["photometric"]["resolutions"])
+    if iterations:
+        over["photometric"]["iterations"] = ints(iterations, "iterations")
+    if spp is not None:
+        over["photometric"]["spp"] = spp
+    if lighting:
+        over["photometric"]["lighting"] = lighting
+    if no_photometric:
+        over["photometric"]["enabled"] = False
+    if texel:
+        over["texel"]["enabled"] = True
+    if per_view_expression:
+        over["per_view_expression"] = True
+    cfg = load_config(config, over)
+    result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet)
+    for f in result.failures:
+        typer.secho(f"warning: {f}", err=True, fg=typer.colors.YELLOW)
+    total = sum(result.timings.values())
+    stages = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings.items())
+    typer.echo(f"fit {len(photos)} photo(s) in {total:.1f} s ({stages})")
+    typer.echo(f"wrote {len(paths)} files to {output.resolve()}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add `fit` to the main app."""
+    app.command("fit")(fit)

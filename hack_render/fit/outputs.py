@@ -1,0 +1,207 @@
+"""Writing a fit: parameters (JSON + npz), meshes (OBJ + PLY), texture maps (EXR + PNG),
+an overlay sheet, loss curves (PNG + JSON), timings and a report. Every file is written
+under a temporary name and renamed."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hack_render.fit.fitter import R0, FitResult
+
+
+def _atomic_bytes(path: Path, write) -> Path:
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    write(tmp)
+    tmp.replace(path)
+    return path
+
+
+def view_params(res: FitResult, i: int) -> dict:
+    """Parameter mapping of view ``i`` in the format of `hack-render render --params`."""
+    from hack_render.geometry.skeleton import distribute_head_rotation
+
+    v = res.views[i]
+    with torch.no_grad():
+        theta = distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta
+        psi = (v.psi if v.psi is not None else res.psi)[0]
+    return {"beta": res.beta[0].detach().tolist(), "psi": psi.detach().tolist(),
+            "theta": theta.detach().tolist(), "global_orient": v.global_orient.detach().tolist(),
+            "transl": [0.0, 0.0, 0.0], "eta": float(res.eta), "tau": float(res.tau)}
+
+
+def camera_dict(v) -> dict:
+    f = float(v.focal)
+    K = [[f, 0.0, v.photo.width / 2], [0.0, f, v.photo.height / 2], [0.0, 0.0, 1.0]]
+    return {"name": v.photo.name, "width": v.photo.width, "height": v.photo.height, "K": K,
+            "R": R0.tolist(), "t": v.transl.detach().tolist(),
+            "convention": "OpenCV: x_cam = R @ X_world + t; x right, y down, z forward"}
+
+
+def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
+    """Write everything; returns the paths written."""
+    from hack_render.geometry.obj_io import write_mesh
+    from hack_render.geometry.params import save_params
+
+    outdir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for i, v in enumerate(res.views):
+        name = "params.json" if i == 0 else f"params_view{i}.json"
+        written.append(save_params(outdir / name, view_params(res, i)))
+    arrays = {"beta": res.beta.detach().numpy(), "psi": res.psi.detach().numpy(),
+              "alpha": res.alpha.detach().numpy(), "eta": res.eta.detach().numpy(),
+              "tau": res.tau.detach().numpy()}
+    for i, v in enumerate(res.views):
+        p = view_params(res, i)
+        arrays[f"view{i}_theta"] = np.asarray(p["theta"], np.float32)
+        arrays[f"view{i}_psi"] = np.asarray(p["psi"], np.float32)
+        arrays[f"view{i}_global_orient"] = np.asarray(p["global_orient"], np.float32)
+        cam = camera_dict(v)
+        arrays[f"view{i}_K"] = np.asarray(cam["K"])
+        arrays[f"view{i}_R"] = np.asarray(cam["R"])
+        arrays[f"view{i}_t"] = np.asarray(cam["t"])
+        arrays[f"view{i}_landmarks_detected"] = v.detection.points
+        if v.lighting is not None:
+            arrays[f"view{i}_env_map"] = v.lighting.env_map().detach().numpy()
+            if v.lighting.mode == "sh":
+                arrays[f"view{i}_sh"] = v.lighting.coeffs.detach().numpy()
+    written.append(_atomic_bytes(outdir / "params.npz", lambda t: np.savez(t, **arrays)))
+    cams = [camera_dict(v) for v in res.views]
+    written.append(_atomic_bytes(outdir / "cameras.json",
+                                 lambda t: t.write_text(json.dumps({"cameras": cams}, indent=1))))
+    m = res.model
+    for i, v in enumerate(res.views):
+        with torch.no_grad():
+            verts = fitter.forward(v).vertices[0].numpy()
+        stem = "mesh" if i == 0 else f"mesh_view{i}"
+        for ext in (".obj", ".ply"):
+            written.append(write_mesh(outdir / f"{stem}{ext}", verts, m.faces.numpy(),
+                                      m.uvs.numpy(), m.uv_faces.numpy()))
+    written += write_textures(fitter, outdir / "textures")
+    written += write_overlays(fitter, outdir)
+    written += write_losses(res, outdir)
+    report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),
+              "failures": res.failures, "config": res.config.to_dict(),
+              "stages": [{"name": r.name, "iterations": r.iterations, "seconds": r.seconds,
+                          "best_loss": r.best_loss, "failure": r.failure,
+                          "mean_iteration_s": float(np.mean(r.per_iteration_s))
+                          if r.per_iteration_s else None} for r in res.reports],
+              "views": [{"photo": v.photo.name, "notes": v.photo.notes,
+                         "faces_found": v.detection.n_faces,
+                         "landmark_source": v.detection.source} for v in res.views]}
+    report.update(extra or {})
+    written.append(_atomic_bytes(outdir / "fit_report.json",
+                                 lambda t: t.write_text(json.dumps(report, indent=1))))
+    written.append(_atomic_bytes(outdir / "timings.json", lambda t: t.write_text(
+        json.dumps({"stages_s": res.timings, "total_s": report["total_s"]}, indent=1))))
+    return written
+
+
+def write_textures(fitter, folder: Path) -> list[Path]:
+    """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise)."""
+    from appearance.texture_io import write_exr, write_png
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with torch.no_grad():
+        maps = {k: (x.detach().numpy() if x is not None else None)
+                for k, x in fitter.maps().items()}
+    out = []
+    for name, key in (("diffuse", "albedo"), ("specular", "specular"),
+                      ("roughness", "roughness"), ("normal", "normal")):
+        img = maps[key]
+        if img is None:
+            continue
+        img = np.ascontiguousarray(img, np.float32)
+        write_exr(folder / f"{name}.exr", img if img.shape[2] > 1 else img[..., 0])
+        out.append(folder / f"{name}.exr")
+        png = img if name != "normal" else 0.5 * img + 0.5
+        write_png(folder / f"{name}.png", png if png.shape[2] > 1 else png[..., 0],
+                  srgb=(name == "diffuse"))
+        out.append(folder / f"{name}.png")
+    return out
+
+
+def _final_render(fitter, v):
+    """A clean render of the view at its last level: more spp, the fitted maps."""
+    from hack_render.fit.photometric import render_view
+
+    with torch.no_grad():
+        img = render_view(fitter, v, fitter.maps(), fitter.forward(v).vertices[0], 12345)
+    return img.numpy()
+
+
+def write_overlays(fitter, outdir: Path) -> list[Path]:
+    """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
+    render over photo, error map."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hack_render.fit.photometric import setup_level
+    from hack_render.render.image_io import to_srgb8
+
+    out = []
+    for i, v in enumerate(fitter.views):
+        if v.renderer is None:  # photometric stage off: build a level for the sheet
+            setup_level(fitter, v, int(fitter.cfg.photometric.resolutions[-1]))
+        lv = v.level
+        img = _final_render(fitter, v)
+        target = lv["target"].numpy()
+        photo8 = to_srgb8(target, 0.0, "clip")
+        rend8 = to_srgb8(img[..., :3], 0.0, "clip")
+        a = img[..., 3:4]
+        over = (a * rend8 + (1 - a) * photo8).astype(np.uint8)
+        err = np.abs(img[..., :3] - target).mean(-1) * lv["mask"].numpy()
+        H = np.linalg.inv(lv["H"])
+        with torch.no_grad():
+            verts = fitter.forward(v).vertices[0]
+            fit_px = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()
+        def to_v(p):
+            q = np.c_[p, np.ones(len(p))] @ H.T
+            return q[:, :2] / q[:, 2:3]
+        det_v, fit_v = to_v(v.detection.points), to_v(fit_px)
+        fig, ax = plt.subplots(1, 5, figsize=(15, 3.4))
+        panels = [(photo8, "photo"), (photo8, "landmarks: detected (g) / fitted (r)"),
+                  (rend8, "render"), (over, "render over photo"), (err, "|error| (skin mask)")]
+        for k, (im, title) in enumerate(panels):
+            ax[k].imshow(im, cmap="magma" if im.ndim == 2 else None,
+                         extent=(0, im.shape[1], im.shape[0], 0))
+            ax[k].set_title(title, fontsize=8)
+            ax[k].axis("off")
+        ax[1].scatter(det_v[:, 0], det_v[:, 1], s=4, c="lime")
+        ax[1].scatter(fit_v[:, 0], fit_v[:, 1], s=4, c="red")
+        fig.tight_layout()
+        path = outdir / ("overlay.png" if i == 0 else f"overlay_view{i}.png")
+        _atomic_bytes(path, lambda t: fig.savefig(t, dpi=100))
+        plt.close(fig)
+        out.append(path)
+    return out
+
+
+def write_losses(res: FitResult, outdir: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = {r.name: r.history for r in res.reports}
+    p_json = _atomic_bytes(outdir / "losses.json",
+                           lambda t: t.write_text(json.dumps(data, indent=1)))
+    n = max(1, len(data))
+    fig, ax = plt.subplots(1, n, figsize=(4 * n, 3))
+    ax = np.atleast_1d(ax)
+    for k, (name, hist) in enumerate(data.items()):
+        for term, vals in hist.items():
+            if vals and max(vals) > 0:
+                ax[k].semilogy(vals, label=term, lw=1.5 if term == "total" else 0.8)
+        ax[k].set_title(name, fontsize=9)
+        ax[k].set_xlabel("iteration")
+        ax[k].legend(fontsize=6)
+    fig.tight_layout()
+    p_png = _atomic_bytes(outdir / "losses.png", lambda t: fig.savefig(t, dpi=90))
+    plt.close(fig)
+    return [p_json, p_png]
