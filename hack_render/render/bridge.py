@@ -187,9 +187,8 @@ class DiffRenderer:
 
         Keyword arguments: see :meth:`inputs` (vertices, albedo, specular, roughness,
         normal, light_rotation_deg, focal_px, env). ``seed`` picks the primal sample
-        pattern; ``seed_grad`` the adjoint pass's (default: a different one, which keeps
-        loss gradients unbiased; pass ``seed_grad=seed`` to differentiate exactly the
-        deterministic function that the primal pass evaluates, as the gradient tests do).
+        pattern; ``seed_grad`` the adjoint pass's (default: derived from ``seed``; Mitsuba
+        requires it to differ from ``seed`` so that loss gradients stay unbiased).
         """
         inputs = self.inputs(**tensors)
         seed = int(seed) % (2 ** 31)
