@@ -1,0 +1,145 @@
+"""Bad input for `hack-render fit`: each odd photo is converted, resized or refused clearly;
+NaNs in a stage are caught with the stage's name and the best parameters kept."""
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from hack_render.errors import HackError
+from hack_render.fit.photo import PhotoWarning, load_photo
+
+
+@pytest.fixture(scope="module")
+def astro():
+    from skimage import data
+
+    return data.astronaut()
+
+
+def test_01_unreadable_and_truncated_are_refused(tmp_path, astro):
+    bad = tmp_path / "notes.jpg"
+    bad.write_text("not an image")
+    with pytest.raises(HackError, match="notes.jpg"):
+        load_photo(bad)
+    full = tmp_path / "full.jpg"
+    Image.fromarray(astro).save(full, quality=90)
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(full.read_bytes()[: full.stat().st_size // 3])
+    with pytest.raises(HackError, match="truncated or corrupt"):
+        load_photo(cut)
+    with pytest.raises(HackError, match="not found"):
+        load_photo(tmp_path / "missing.png")
+
+
+@pytest.mark.parametrize("mode", ["L", "CMYK", "RGBA", "I;16"])
+def test_02_modes_become_rgb(tmp_path, astro, mode):
+    img = Image.fromarray(astro)
+    if mode == "I;16":
+        g = (np.asarray(img.convert("L"), np.uint16) * 257)
+        img = Image.fromarray(g)
+        path = tmp_path / "g16.png"
+    else:
+        img = img.convert(mode)
+        path = tmp_path / f"x_{mode}.{'jpg' if mode == 'CMYK' else 'png'}"
+    img.save(path)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        ph = load_photo(path)
+    assert ph.rgb.shape == (512, 512, 3) and ph.rgb.dtype == np.float32
+    assert 0.0 <= ph.rgb.min() and ph.rgb.max() <= 1.0
+    assert ph.notes and any(issubclass(x.category, PhotoWarning) for x in w)
+    # the content survives: correlation with the original's luminance
+    lum = astro.mean(-1)
+    assert np.corrcoef(lum.ravel(), ph.rgb.mean(-1).ravel())[0, 1] > 0.95
+
+
+def test_03_sixteen_bit_rgb_keeps_precision(tmp_path, astro):
+    import imageio.v3 as iio
+
+    a16 = astro.astype(np.uint16) * 257 + 100
+    iio.imwrite(tmp_path / "rgb16.tif", a16)  # (Pillow cannot write 16-bit RGB PNG)
+    ph = load_photo(tmp_path / "rgb16.tif")
+    np.testing.assert_allclose(ph.rgb, a16 / 65535.0, atol=1e-6)
+
+
+def test_04_exif_rotation_is_applied(tmp_path, astro):
+    img = Image.fromarray(astro[:, :300])  # 512 x 300, portrait
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 270 on display
+    img.save(tmp_path / "rot.jpg", exif=exif)
+    ph = load_photo(tmp_path / "rot.jpg")
+    assert ph.rgb.shape[:2] == (300, 512)
+    assert any("EXIF" in n for n in ph.notes)
+
+
+def test_05_huge_is_downscaled(tmp_path):
+    big = np.zeros((10, 8200, 3), np.uint8)
+    Image.fromarray(big).save(tmp_path / "wide.png")
+    ph = load_photo(tmp_path / "wide.png", max_side=8000, working_side=2048)
+    assert ph.width == 2048 and ph.scale == pytest.approx(2048 / 8200)
+
+
+def test_06_no_face_tiny_face_and_several_faces(astro):
+    from hack_render.fit.landmarks import FaceWarning, detect_landmarks
+
+    with pytest.raises(HackError, match="no face found"):
+        detect_landmarks(np.full((200, 200, 3), 128, np.uint8))
+    with pytest.raises(HackError, match="expected at least 200 px"):
+        detect_landmarks(astro, min_face_px=200)
+    two = np.concatenate([astro, astro[:, ::-1]], axis=1)
+    with pytest.warns(FaceWarning, match="faces found"):
+        det = detect_landmarks(two)
+    assert det.n_faces >= 2 and det.interocular > 30
+
+
+def test_07_cli_no_face_exit_code_2(tmp_path):
+    import subprocess
+    import sys
+
+    Image.fromarray(np.full((120, 120, 3), 90, np.uint8)).save(tmp_path / "wall.png")
+    r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit", str(tmp_path / "wall.png"),
+                        "-o", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "no face found" in r.stderr
+
+
+def test_08_nan_in_a_stage_keeps_best_parameters():
+    from hack_render.fit.stages import FitWarning, run_stage
+
+    x = torch.tensor([3.0], requires_grad=True)
+
+    def loss(it):
+        if it == 5:
+            return x.sum() * float("nan"), {}
+        return ((x - 1.0) ** 2).sum(), {}
+
+    with pytest.warns(FitWarning, match="stage 'demo': non-finite loss at iteration 5"):
+        rep = run_stage("demo", [{"params": [x], "lr": 0.1}], loss, 20, progress=False)
+    assert rep.iterations == 5 and "demo" in rep.failure
+    assert torch.isfinite(x).all() and float(x) < 3.0
+    assert float(x) == pytest.approx(3.0 - 0.1 * 4, abs=0.05)  # the best (last good) iterate
+
+
+def test_09_landmark_file_formats(tmp_path):
+    from hack_render.fit.landmarks import read_landmark_file, write_landmark_file
+
+    pts = np.random.default_rng(0).random((68, 2)) * 100
+    write_landmark_file(tmp_path / "a.pts", pts)
+    np.testing.assert_allclose(read_landmark_file(tmp_path / "a.pts").points, pts, atol=1e-3)
+    np.savetxt(tmp_path / "a.txt", pts)
+    np.testing.assert_allclose(read_landmark_file(tmp_path / "a.txt").points, pts)
+    np.savetxt(tmp_path / "bad.txt", pts[:10])
+    with pytest.raises(HackError, match="68"):
+        read_landmark_file(tmp_path / "bad.txt")
+
+
+def test_10_config_rejects_unknown_keys(tmp_path):
+    from hack_render.fit.config import load_config
+
+    (tmp_path / "c.toml").write_text("[photometric]\nspp = 8\nresolution = [64]\n")
+    with pytest.raises(HackError, match="unknown key 'resolution'"):
+        load_config(tmp_path / "c.toml")
+    (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
+    assert load_config(tmp_path / "d.yaml").photometric.spp == 8
