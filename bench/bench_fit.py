@@ -151,7 +151,7 @@ def astronaut(res: int, cfg_over: dict) -> dict:
     return {"total_s": total, "stages_s": res_.timings,
             "photometric_iteration_s": {r.name: float(np.mean(r.per_iteration_s))
                                         for r in res_.reports if r.per_iteration_s},
-            "focal_px": float(v.focal)}
+            "focal_px": float(v.focal.detach())}
 
 
 def overhead(res: int, spp: int, reps: int = 5) -> dict:

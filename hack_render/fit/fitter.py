@@ -218,7 +218,7 @@ class Fitter:
                 rot = rotation_limit_penalty(self.theta(v)).sum()
                 total = total + lm + fp + rot
                 terms["landmarks"] += float(lm.detach())
-                terms["focal_prior"] += float(fp)
+                terms["focal_prior"] += float(fp.detach())
             return total, terms
 
         return self._run("camera", groups, loss, c.iterations)
@@ -242,9 +242,9 @@ class Fitter:
                 parts["psi_prior"] = s.w_psi * (self.view_psi(v) ** 2).sum()
                 for k, x in parts.items():
                     total = total + x
-                    terms[k] = terms.get(k, 0.0) + float(x)
+                    terms[k] = terms.get(k, 0.0) + float(x.detach())
             bp = s.w_beta * (self.beta ** 2).sum()
-            terms["beta_prior"] = float(bp)
+            terms["beta_prior"] = float(bp.detach())
             return total + bp, terms
 
         return self._run("shape", groups, loss, s.iterations, after_step=self._project_psi)

@@ -34,7 +34,7 @@ def view_params(res: FitResult, i: int) -> dict:
 
 
 def camera_dict(v) -> dict:
-    f = float(v.focal)
+    f = float(v.focal.detach())
     K = [[f, 0.0, v.photo.width / 2], [0.0, f, v.photo.height / 2], [0.0, 0.0, 1.0]]
     return {"name": v.photo.name, "width": v.photo.width, "height": v.photo.height, "K": K,
             "R": R0.tolist(), "t": v.transl.detach().tolist(),

@@ -42,7 +42,7 @@ def virtual_camera(fitter, view, res: int):
     from hack_render.fit.fitter import R0
 
     ph, det = view.photo, view.detection
-    f = float(view.focal)
+    f = float(view.focal.detach())
     K = np.array([[f, 0, ph.width / 2], [0, f, ph.height / 2], [0, 0, 1.0]])
     pts = det.points
     centre = 0.5 * (pts.min(0) + pts.max(0))
@@ -221,7 +221,7 @@ def run(fitter, texel: bool = False):
                     parts["psi_prior"] = fitter.cfg.shape.w_psi * (fitter.view_psi(v) ** 2).sum()
                 for k, x in parts.items():
                     total = total + x
-                    terms[k] = terms.get(k, 0.0) + float(x)
+                    terms[k] = terms.get(k, 0.0) + float(x.detach())
             extra = {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
             if cfg.refine_geometry:
                 extra["beta_prior"] = fitter.cfg.shape.w_beta * (fitter.beta ** 2).sum()
@@ -233,7 +233,7 @@ def run(fitter, texel: bool = False):
                     extra[f"texel_{k}"] = w * x
             for k, x in extra.items():
                 total = total + x
-                terms[k] = float(x)
+                terms[k] = float(x.detach())
             return total, terms
 
         name = f"texel@{res}" if texel else f"photometric@{res}"
