@@ -152,6 +152,7 @@ def _random_sequences(trainer, p, w, rng, n=4, frames=30):
     return out
 
 
+@pytest.mark.slow
 def test_07_pose_recovery_known_weights_recovers_the_corrective_on_held_out_poses():
     """Sequences from a known W*, P*: with W = W* known, the fitted P reproduces P*'s
     correctives on held-out poses within 10 % (P itself is identifiable only along the pose
