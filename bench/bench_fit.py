@@ -35,8 +35,17 @@ def similarity_error(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.linalg.norm(s * xc @ R.T - yc, axis=1).mean())
 
 
-def synthetic(n: int, res: int, cfg_over: dict) -> dict:
+def _medians(rows: list) -> dict:
+    ok = [r for r in rows if "error" not in r]
+    return {k: float(np.median([r[k] for r in ok])) for k in
+            ("vertex_mm", "nme", "albedo_de2000", "psnr_db", "joint_deg", "seconds")} if ok else {}
+
+
+def synthetic(n: int, res: int, cfg_over: dict, out_path=None) -> dict:
+    """Fit ``n`` synthetic subjects; with ``out_path`` the JSON is rewritten after every
+    subject (and subjects already in it are skipped), so an interrupted run resumes."""
     import colour
+    from pathlib import Path
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import R0, Fitter
@@ -50,19 +59,32 @@ def synthetic(n: int, res: int, cfg_over: dict) -> dict:
     from scenes.cameras import Camera
     from scenes.lights import preset
 
+    from appearance.model import AppearanceModel
+
     model = load_default_model()
+    app = AppearanceModel.load()
     rows = []
+    if out_path is not None and Path(out_path).is_file():
+        rows = json.loads(Path(out_path).read_text()).get("subjects", [])
+    done = {r["subject"] for r in rows}
+
+    def save():
+        if out_path is not None:
+            tmp = Path(str(out_path) + ".tmp")
+            tmp.write_text(json.dumps({"config": cfg_over, "res": res, "subjects": rows,
+                                       "n_ok": sum("error" not in r for r in rows),
+                                       "median": _medians(rows)}, indent=1))
+            tmp.replace(out_path)
+
     for k in range(n):
+        if k in done:
+            continue
         g = torch.Generator().manual_seed(100 + k)
         beta = 0.8 * torch.randn(1, 20, generator=g)
         ang = torch.deg2rad(torch.tensor([10.0, 30.0, 8.0]) * (2 * torch.rand(3, generator=g) - 1))
         theta = distribute_head_rotation(ang)[None]
-        fitter0 = None
         with torch.no_grad():
             out = model(beta=beta, theta=theta)
-        from appearance.model import AppearanceModel
-
-        app = AppearanceModel.load()
         alpha = torch.randn(1, 20, generator=g)
         with torch.no_grad():
             tmaps = app.maps(alpha)
@@ -79,6 +101,7 @@ def synthetic(n: int, res: int, cfg_over: dict) -> dict:
             det = detect_landmarks(photo.uint8(), name=photo.name)
         except Exception as err:  # noqa: BLE001 - reported, not hidden
             rows.append({"subject": k, "error": str(err)})
+            save()
             continue
         t0 = time.perf_counter()
         with warnings.catch_warnings():
@@ -118,12 +141,9 @@ def synthetic(n: int, res: int, cfg_over: dict) -> dict:
         rows.append({"subject": k, "vertex_mm": 1000 * verr, "nme": float(nme),
                      "albedo_de2000": float(np.median(de)), "psnr_db": float(psnr),
                      "joint_deg": jerr, "seconds": dt})
-        print(json.dumps(rows[-1]))
-        del fitter0
-    ok = [r for r in rows if "error" not in r]
-    med = {k: float(np.median([r[k] for r in ok])) for k in
-           ("vertex_mm", "nme", "albedo_de2000", "psnr_db", "joint_deg", "seconds")} if ok else {}
-    return {"subjects": rows, "median": med}
+        print(json.dumps(rows[-1]), flush=True)
+        save()
+    return {"subjects": rows, "median": _medians(rows)}
 
 
 def astronaut(res: int, cfg_over: dict) -> dict:
@@ -155,17 +175,19 @@ def astronaut(res: int, cfg_over: dict) -> dict:
 
 
 def overhead(res: int, spp: int, reps: int = 5) -> dict:
-    """Bridge (torch model + maps -> render -> backward to torch) vs bare mi.render +
-    dr.backward of the same scene with the same parameters enabled."""
-    import drjit as dr
-    import mitsuba as mi
+    """Photometric iteration through the bridge (torch model + appearance maps + SH light
+    -> render -> loss -> backward into torch) vs pure-Mitsuba iterations of the same scene
+    (same DiffRenderer: integrator, resolution, spp), see DiffRenderer.bare_iteration:
+    ``bare_step`` writes the parameters the bridge feeds (vertex positions, skin maps,
+    env texels) as an optimiser step does, so the geometry is rebuilt as in the fit;
+    ``bare_render`` renders the unchanged scene (no rebuild; a lower bound)."""
+    from skimage import data
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
-    from hack_render.fit.photometric import setup_level
-    from skimage import data
+    from hack_render.fit.photometric import render_view, setup_level
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():
@@ -175,37 +197,33 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
     v = fitter.views[0]
     setup_level(fitter, v, res)
     r = v.renderer
-    from hack_render.fit.photometric import render_view
+    target = v.level["target"]
+    leaves = [fitter.alpha, fitter.beta, fitter.psi, v.dtheta, v.head_angles,
+              v.lighting.coeffs if v.lighting.mode == "sh" else v.lighting.log_texels]
 
     def bridge_iter(i):
+        for p in leaves:
+            p.grad = None
         maps = fitter.maps()
         verts = fitter.forward(v).vertices[0]
         img = render_view(fitter, v, maps, verts, i)
-        (img[..., :3] - v.level["target"]).abs().mean().backward()
+        (img[..., :3] - target).abs().mean().backward()
 
-    params = r.head.params
-    keys = [k for k in params.keys() if k.endswith("vertex_positions") or k.endswith(".data")
-            and (k.startswith("skin_face") or k.startswith("environment"))]
-
-    def bare_iter(i):
-        for k in keys:
-            dr.enable_grad(params[k])
-        params.update()
-        img = mi.render(r.head.scene, params, integrator=r.integrator, seed=i, spp=spp)
-        loss = dr.mean(dr.abs(img[..., :3] - mi.TensorXf(v.level["target"].numpy())), axis=None)
-        dr.backward(loss)
-
-    for fn in (bridge_iter, bare_iter):
+    fns = {"bridge": bridge_iter,
+           "bare_step": lambda i: r.bare_iteration(target.numpy(), i, write=True),
+           "bare_render": lambda i: r.bare_iteration(target.numpy(), i, write=False)}
+    for fn in fns.values():
         fn(0)  # compile
-    out = {}
-    for name, fn in (("bridge", bridge_iter), ("bare", bare_iter)):
-        ts = []
-        for i in range(reps):
+    ts = {k: [] for k in fns}
+    for i in range(reps):  # interleaved, so load changes on the shared machine hit all
+        for name, fn in fns.items():
             t0 = time.perf_counter()
             fn(i + 1)
-            ts.append(time.perf_counter() - t0)
-        out[name] = float(np.median(ts))
-    out["ratio"] = out["bridge"] / out["bare"]
+            ts[name].append(time.perf_counter() - t0)
+    out = {k: float(np.median(x)) for k, x in ts.items()}
+    out["ratio_vs_bare_step"] = out["bridge"] / out["bare_step"]
+    out["ratio_vs_bare_render"] = out["bridge"] / out["bare_render"]
+    out.update(res=res, spp=spp, reps=reps, integrator=r.integrator_name)
     return out
 
 
@@ -217,6 +235,9 @@ def main():
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--iterations", type=str, default="40,30")
+    ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
+    ap.add_argument("--out", type=str, default=None,
+                    help="synthetic: JSON written after every subject; resumes from it")
     args = ap.parse_args()
     torch.set_num_threads(1)
     its = [int(x) for x in args.iterations.split(",")]
@@ -224,13 +245,13 @@ def main():
                            "spp": args.spp}}
     out = {"config": cfg}
     if args.overhead:
-        out["overhead"] = overhead(args.res, args.spp)
+        out["overhead"] = overhead(args.res, args.spp, args.reps)
         print(json.dumps(out["overhead"]))
     if args.astronaut:
         out["astronaut"] = astronaut(args.res, cfg)
         print(json.dumps(out["astronaut"]))
     if args.subjects:
-        out["synthetic"] = synthetic(args.subjects, args.res, cfg)
+        out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

@@ -1,11 +1,11 @@
 """End-to-end fits: a synthetic round trip (render known parameters, fit from the image and
 its landmarks, parameters and vertices move toward the truth) and the astronaut photo
-through the `hack-render fit` command at tiny settings."""
+through the `hack-render fit` command at tiny settings. Time is measured in
+bench/bench_fit.py, never asserted here."""
 
 import json
 import subprocess
 import sys
-import time
 import warnings
 
 import numpy as np
@@ -106,11 +106,9 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     iio.imwrite(tmp_path / "astronaut.png", data.astronaut())
     (tmp_path / "tiny.toml").write_text(TINY)
     out = tmp_path / "fit"
-    t0 = time.perf_counter()
     r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit",
                         str(tmp_path / "astronaut.png"), "-o", str(out), "--config",
                         str(tmp_path / "tiny.toml"), "--quiet"], capture_output=True, text=True)
-    elapsed = time.perf_counter() - t0
     assert r.returncode == 0, r.stderr[-2000:]
     assert "2 faces found; fitting the largest" in r.stderr
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",
@@ -136,7 +134,6 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     det = npz["view0_landmarks_detected"]
     nme = np.linalg.norm(px[17:] - det[17:], axis=1).mean() / np.linalg.norm(det[36] - det[45])
     assert nme < 0.05
-    assert elapsed < 120.0, f"astronaut tiny fit took {elapsed:.0f} s"
     # the fit re-renders through `hack-render render --params`
     r2 = subprocess.run([sys.executable, "-m", "hack_render.cli", "render", "--params",
                          str(out / "params.json"), "-o", str(tmp_path / "re.png"),

@@ -266,8 +266,9 @@ class Fitter:
         return rep
 
     # --- stage 4 and 5: photometric ----------------------------------------------------
-    def maps(self):
-        """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal."""
+    def maps(self, with_delta: bool = True):
+        """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal
+        (``with_delta``: the per-texel albedo refinement added, when there is one)."""
         if self.appearance is None:
             h = 16
             d = self.const_albedo.clamp(0, 1).expand(h, 2 * h, 3)
@@ -275,7 +276,7 @@ class Fitter:
                     "roughness": torch.full((h, 2 * h, 1), 0.5), "normal": None}
         m = self.appearance.maps(self.alpha)
         d = m.diffuse[0]
-        if self.albedo_delta is not None:
+        if with_delta and self.albedo_delta is not None:
             d = (d + self.albedo_delta).clamp(0.0, 1.0)
         return {"albedo": d, "specular": m.specular[0], "roughness": m.roughness[0],
                 "normal": m.normal[0]}

@@ -134,10 +134,11 @@ def update_mask(view) -> None:
     view.level["mask"] = torch.from_numpy(m)
 
 
-def render_view(fitter, view, maps, verts, seed: int) -> torch.Tensor:
+def render_view(fitter, view, maps, verts, seed: int, light_grad: bool = True) -> torch.Tensor:
+    env = view.lighting.env_map()
     return view.renderer.render(seed=seed, vertices=verts, albedo=maps["albedo"],
                                 specular=maps["specular"], roughness=maps["roughness"],
-                                normal=maps["normal"], env=view.lighting.env_map())
+                                normal=maps["normal"], env=env if light_grad else env.detach())
 
 
 def charbonnier(diff: torch.Tensor, eps: float) -> torch.Tensor:
@@ -200,30 +201,48 @@ def run(fitter, texel: bool = False):
                 if not texel and res == levels[0][0]:
                     match_exposure(fitter, v)
         groups = _groups(fitter, texel)
+        # Geometry is frozen in the texel stage and when refine_geometry is off: evaluate it
+        # once per level (no model forward/backward per iteration; the bridge then uploads
+        # the unchanged vertices once instead of rebuilding the scene every iteration), and
+        # drop the terms that are constant then (landmarks, pose priors, mask refresh).
+        refine = cfg.refine_geometry and not texel
+        fixed = {}
+        if not refine:
+            with torch.no_grad():
+                fixed = {id(v): fitter.forward(v).vertices[0] for v in fitter.views}
+        pca = None
+        if texel:
+            with torch.no_grad():
+                pca = {k: (x.detach() if x is not None else None)
+                       for k, x in fitter.maps(with_delta=False).items()}
 
         def loss(it, res=res):
-            maps = fitter.maps()
+            if pca is not None:
+                maps = dict(pca, albedo=(pca["albedo"] + fitter.albedo_delta).clamp(0.0, 1.0))
+            else:
+                maps = fitter.maps()
             total, terms = 0.0, {}
             for v in fitter.views:
-                if it and it % 10 == 0:
+                if refine and it and it % 10 == 0:
                     update_mask(v)
-                out = fitter.forward(v)
-                verts = out.vertices[0]
-                img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it)[..., :3]
+                verts = fitter.forward(v).vertices[0] if refine else fixed[id(v)]
+                img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it,
+                                  light_grad=not texel)[..., :3]
                 m = v.level["mask"]
                 n = m.sum().clamp_min(1)
                 ph = charbonnier(img - v.level["target"], cfg.charbonnier_eps)
-                parts = {"photo": (ph * m[..., None]).sum() / (3 * n),
-                         "landmarks": cfg.w_landmarks * fitter.landmark_loss(v, verts, it),
-                         "light_smooth": 1e-3 * v.lighting.smoothness()}
-                if cfg.refine_geometry:
+                parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
+                if not texel:
+                    parts["light_smooth"] = 1e-3 * v.lighting.smoothness()
+                if refine:
+                    parts["landmarks"] = cfg.w_landmarks * fitter.landmark_loss(v, verts, it)
                     parts.update(fitter.pose_priors(v))
                     parts["psi_prior"] = fitter.cfg.shape.w_psi * (fitter.view_psi(v) ** 2).sum()
                 for k, x in parts.items():
                     total = total + x
                     terms[k] = terms.get(k, 0.0) + float(x.detach())
-            extra = {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
-            if cfg.refine_geometry:
+            extra = {} if texel else {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
+            if refine:
                 extra["beta_prior"] = fitter.cfg.shape.w_beta * (fitter.beta ** 2).sum()
                 extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
             if texel:

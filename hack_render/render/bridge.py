@@ -81,6 +81,7 @@ class DiffRenderer:
         self._gather = {p.name: torch.as_tensor(p.gather, dtype=torch.long) for p in head.parts}
         self._light_base = self._light_bases()
         self._fn = self._make_render_fn()
+        self._last: dict[str, torch.Tensor] = {}  # constant inputs already in the scene
 
     # --- scene structure ---------------------------------------------------------------
     def _light_bases(self) -> dict[str, np.ndarray]:
@@ -190,12 +191,74 @@ class DiffRenderer:
         pattern; ``seed_grad`` the adjoint pass's (default: derived from ``seed``; Mitsuba
         requires it to differ from ``seed`` so that loss gradients stay unbiased).
         """
-        inputs = self.inputs(**tensors)
+        inputs = self._drop_unchanged(self.inputs(**tensors))
         seed = int(seed) % (2 ** 31)
         sg = (seed * 65599 + 1) % (2 ** 31) if seed_grad is None else int(seed_grad) % (2 ** 31)
         return self._fn(inputs, seed, sg, int(spp or self.spp))
+
+    def _drop_unchanged(self, inputs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Leave out inputs that need no gradient and equal what the scene already holds.
+
+        Writing a parameter makes Mitsuba refresh its owner (new vertex positions rebuild
+        the ray-tracing acceleration structure, about as long as the render itself at
+        128 px), so geometry that is frozen in a stage (texel refinement, or photometric
+        fits without geometry refinement) is uploaded once instead of every iteration.
+        """
+        out = {}
+        for name, x in inputs.items():
+            if x.requires_grad:
+                self._last.pop(name, None)
+                out[name] = x
+                continue
+            prev = self._last.get(name)
+            if prev is not None and prev.shape == x.shape and torch.equal(prev, x):
+                continue
+            self._last[name] = x.detach().clone()
+            out[name] = x
+        return out
+
+    def bare_iteration(self, target: np.ndarray, seed: int, write: bool = True) -> float:
+        """One pure-Mitsuba iteration of this scene, the reference for overhead benchmarks.
+
+        With ``write`` the differentiable parameters the bridge feeds (every part's vertex
+        positions, the skin maps, the environment texels) are written back first, as a
+        Mitsuba optimiser step does (``params.update(opt)``: the geometry is rebuilt,
+        Mitsuba recomputes the vertex normals); then ``mi.render`` at this renderer's
+        integrator and spp, an L1 loss against ``target`` (H, W, 3), ``dr.backward`` and
+        an evaluation of the gradients (which Dr.Jit would otherwise leave unevaluated).
+        Without ``write`` the scene is rendered as it is (no geometry rebuild). Returns
+        the loss.
+        """
+        import drjit as dr
+        import mitsuba as mi
+
+        params = self.head.params
+        keys = [k for k in params.keys()
+                if k.endswith(".vertex_positions") or k == "environment.data"
+                or k.startswith(f"{self.skin_key}.") and k.endswith(".data")]
+        if write:
+            one = dr.opaque(mi.Float, 1.0)  # opaque: x * 1 is a new value, not folded away
+            for k in keys:
+                x = dr.detach(params[k])
+                params[k] = type(x)(x.array * one, x.shape) if isinstance(x, mi.TensorXf) \
+                    else x * one
+        for k in keys:
+            if not dr.grad_enabled(params[k]):
+                dr.enable_grad(params[k])  # (a new AD id: the next update() rebuilds)
+        params.update()
+        img = mi.render(self.head.scene, params, integrator=self.integrator, seed=int(seed),
+                        spp=self.spp)
+        loss = dr.mean(dr.abs(img[..., :3] - mi.TensorXf(np.asarray(target, np.float32))),
+                       axis=None)
+        dr.backward(loss)
+        grads = [dr.grad(params[k]) for k in keys]
+        dr.eval(grads)
+        for k in keys:
+            dr.clear_grad(params[k])
+        return float(loss.array[0])
 
     def set_focal(self, focal_px: float) -> None:
         """Non-differentiable focal change (pixels), e.g. before rendering a final image."""
         self.head.params["sensor.x_fov"] = math.degrees(2.0 * math.atan(0.5 * self.width / focal_px))
         self.head.params.update()
+        self._last.pop("fov", None)
