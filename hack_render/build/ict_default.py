@@ -71,7 +71,8 @@ AU_TABLE: dict[str, tuple[str, ...]] = {
 # follows them progressively (c1-c2 turns up to 40 degrees: its twist must be spread over
 # the neck's full length).
 HEAD_MARGIN_M = 0.035  # skin this far above the head cut is rigid with the skull
-LATERAL_M, CHEST_P = 0.11, -1.0  # shoulders: |x| beyond this; chest: a segment below c7-t1
+LATERAL_M = 0.11  # shoulders: skin beyond this |x| (below the jaw) stays with the root
+CHEST_DROP_M = 0.05  # chest: skin this far below the c7-t1 joint stays with the root
 RAMP_WINDOWS = ((0.0, 0.45), (0.0, 0.55), (0.0, 0.65), (0.0, 0.75), (0.0, 0.85), (0.0, 0.95),
                 (0.0, 1.0), (0.0, 1.0))
 REGIONS = ("face", "scalp_and_ears", "neck", "chest_and_shoulders", "mouth_interior",
@@ -154,14 +155,17 @@ def averaging_operator(faces: np.ndarray, n: int, v: np.ndarray | None = None) -
 
 
 def skinning_weights(v: np.ndarray, faces: np.ndarray, joints: np.ndarray,
-                     chin_neck: np.ndarray, back_head: np.ndarray, smooth_iters: int = 5):
+                     chin_neck: np.ndarray, back_head: np.ndarray, ear_lobe_z: float,
+                     smooth_iters: int = 5):
     """Weights (N, 9) over root + 8 joints, and the head-rigid and chest masks.
 
     * Non-skin parts (mouth, eyes, teeth, gums, lashes) and skin above the head cut (a
       plane along X through the chin-neck angle and the occipital base) move rigidly with
-      o-c1.
-    * Chest and shoulders (more than one segment below c7-t1 along the spine, or lateral
-      beyond the neck) stay with the root.
+      o-c1; behind the ear lobe the rigid part starts higher, HEAD_MARGIN_M above the cut
+      (ramped in over 3 cm of depth), so the nuchal skin below the skull can twist while
+      the face, jaw and chin stay rigid.
+    * Chest and shoulders (more than CHEST_DROP_M below c7-t1, or lateral beyond
+      LATERAL_M) stay with the root.
     * In between, a neck coordinate s (0 on the chest, 1 on the head) minimises the shear
       of a neck twist (:func:`twist_coordinate`). The share of joint k's rotation that a
       vertex follows, C_k = sum_{j >= k} w_j, ramps linearly from 0 to 1 over the window
@@ -175,12 +179,14 @@ def skinning_weights(v: np.ndarray, faces: np.ndarray, joints: np.ndarray,
     normal = np.array([0.0, d[2], -d[1]]) / np.hypot(d[1], d[2])
     if normal[1] < 0:
         normal = -normal
-    head = ((v - chin_neck) @ normal > HEAD_MARGIN_M) | ~skin
-    nodes = np.vstack([joints[0] - (joints[1] - joints[0]) * 2.0, joints,
-                       joints[-1] + (joints[-1] - joints[-2]) * 2.0])
-    p = _project_param(v[:, 1:], nodes[:, 1:]) - 1.0  # 0 at c7-t1, 7 at o-c1
+    margin = HEAD_MARGIN_M * np.clip((ear_lobe_z - v[:, 2]) / 0.03, 0, 1)
+    head = ((v - chin_neck) @ normal > margin) | ~skin
     lateral = (np.abs(v[:, 0]) > LATERAL_M) & (v[:, 1] < joints[-1, 1] - 0.06)
-    chest = skin & ~head & ((p < CHEST_P) | lateral)
+    chest = skin & ~head & ((v[:, 1] < joints[0, 1] - CHEST_DROP_M) | lateral)
+    if not chest.any() or not (head & skin).any():
+        raise HackError("skinning weights: the chest or head region is empty on this template "
+                        f"(chest {int(chest.sum())}, head skin {int((head & skin).sum())} vertices); "
+                        "the template must reach below the neck and above the jaw.")
     s = twist_coordinate(faces, v, one=head, zero=chest, axis_z=joints[6, 2])
     lo, hi = np.asarray(RAMP_WINDOWS).T
     cum = np.clip((s[:, None] - lo) / (hi - lo), 0, 1)  # (N, 8): C_k
@@ -240,20 +246,6 @@ def twist_coordinate(faces: np.ndarray, v: np.ndarray, one: np.ndarray, zero: np
     return np.clip(s, 0, 1)
 
 
-def _project_param(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Continuous index along a 2-D polyline of the closest point, for each point."""
-    best_d = np.full(len(points), np.inf)
-    best_t = np.zeros(len(points))
-    for i in range(len(poly) - 1):
-        a, b = poly[i], poly[i + 1]
-        ab = b - a
-        t = np.clip(((points - a) @ ab) / (ab @ ab), 0, 1)
-        dist = np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
-        better = dist < best_d
-        best_d[better], best_t[better] = dist[better], i + t[better]
-    return best_t
-
-
 def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     """Arrays and metadata of the default model, from an ICT-FaceKit folder."""
     ict = load_ict(ict_path)
@@ -273,7 +265,8 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
     chin_neck = np.array([0.0, y_cn, np.interp(y_cn, ys, np.nan_to_num(front, nan=-1))])
     y_ob = joints[-1, 1] - 0.03  # occipital base, below the o-c1 level at the back
     back_head = np.array([0.0, y_ob, np.interp(y_ob, ys, np.nan_to_num(back, nan=1))])
-    weights, head_mask, chest_mask = skinning_weights(v, mesh.faces, joints, chin_neck, back_head)
+    weights, head_mask, chest_mask = skinning_weights(v, mesh.faces, joints, chin_neck, back_head,
+                                                      float(placed["ear_lobe"][2]))
 
     group = np.zeros(n, dtype=np.int16)
     for gi, (_, lo, hi) in enumerate(GROUPS):
