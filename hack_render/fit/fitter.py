@@ -258,9 +258,9 @@ class Fitter:
             self.eta.clamp_(-3.0, 3.0)
             self.tau.clamp_(-0.02, 0.02)
 
-    def _run(self, name, groups, loss, iterations, after_step=None) -> StageReport:
+    def _run(self, name, groups, loss, iterations, after_step=None, keep="best") -> StageReport:
         t0 = time.perf_counter()
-        rep = run_stage(name, groups, loss, iterations, self.progress, after_step)
+        rep = run_stage(name, groups, loss, iterations, self.progress, after_step, keep)
         self.reports.append(rep)
         self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
         return rep

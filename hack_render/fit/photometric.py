@@ -257,7 +257,8 @@ def run(fitter, texel: bool = False):
 
         name = f"texel@{res}" if texel else f"photometric@{res}"
         reports.append(fitter._run(name, groups, loss, int(iters),
-                                   after_step=fitter._project_psi))
+                                   after_step=fitter._project_psi,
+                                   keep="last" if texel else "best"))
     return reports
 
 

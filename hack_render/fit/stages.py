@@ -34,13 +34,18 @@ class StageReport:
 
 
 def run_stage(name: str, groups: list[dict], loss_fn: Callable[[int], tuple[torch.Tensor, dict]],
-              iterations: int, progress: bool = True, after_step: Callable[[], None] | None = None
-              ) -> StageReport:
+              iterations: int, progress: bool = True, after_step: Callable[[], None] | None = None,
+              keep: str = "best") -> StageReport:
     """Minimise ``loss_fn`` over the parameter groups (torch.optim.Adam param groups).
 
     Args:
         loss_fn: iteration -> (total loss, {term name: float}).
         after_step: called after each step (projections such as clamping psi to [0, 1]).
+        keep: ``"best"`` restores the parameters of the lowest loss seen; ``"last"`` keeps
+            the final iterate (for losses whose per-iteration noise exceeds the progress,
+            e.g. per-texel albedo rendered with a new sample pattern each iteration, where
+            the minimum over iterations selects a lucky sample pattern, usually the
+            first). A non-finite loss or gradient restores the best parameters either way.
     """
     from tqdm import tqdm
 
@@ -81,7 +86,7 @@ def run_stage(name: str, groups: list[dict], loss_fn: Callable[[int], tuple[torc
         report.per_iteration_s.append(time.perf_counter() - ti)
         bar.set_postfix(loss=f"{value:.4g}")
     bar.close()
-    if report.failure is not None or report.iterations:
+    if report.failure is not None or (report.iterations and keep == "best"):
         # keep the best iterate (for noisy photometric losses this is the best estimate)
         with torch.no_grad():
             for p, b in zip(params, best):
