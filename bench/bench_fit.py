@@ -164,11 +164,19 @@ def astronaut(res: int, cfg_over: dict) -> dict:
             warnings.simplefilter("ignore")
             res_, _ = fit_photos([p], Path(d) / "out", load_config(None, cfg_over))
         total = time.perf_counter() - t0
-    fitter_views = res_.views
-    v = fitter_views[0]
-    from hack_render.fit.fitter import Fitter  # noqa: F401 - for the projection helper
-
+    fitter = res_.fitter
+    v = fitter.views[0]
+    with torch.no_grad():
+        verts = fitter.forward(v).vertices[0]
+        # it=1: the jaw stays matched to the contour as the last stage left it
+        pred = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()
+    det = v.detection.points
+    err = np.linalg.norm(pred - det, axis=1) / np.linalg.norm(det[36] - det[45])
+    groups = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36),
+              "eyes": slice(36, 48), "mouth": slice(48, 68)}
     return {"total_s": total, "stages_s": res_.timings,
+            "landmark_nme": float(err.mean()), "landmark_nme_inner": float(err[17:].mean()),
+            "landmark_nme_groups": {k: float(err[s].mean()) for k, s in groups.items()},
             "photometric_iteration_s": {r.name: float(np.mean(r.per_iteration_s))
                                         for r in res_.reports if r.per_iteration_s},
             "focal_px": float(v.focal.detach())}
@@ -235,6 +243,8 @@ def main():
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--iterations", type=str, default="40,30")
+    ap.add_argument("--tiny", action="store_true",
+                    help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
     ap.add_argument("--out", type=str, default=None,
                     help="synthetic: JSON written after every subject; resumes from it")
@@ -248,6 +258,10 @@ def main():
         out["overhead"] = overhead(args.res, args.spp, args.reps)
         print(json.dumps(out["overhead"]))
     if args.astronaut:
+        if args.tiny:
+            from hack_render.fit.config import tiny_overrides
+
+            cfg = out["config"] = tiny_overrides()
         out["astronaut"] = astronaut(args.res, cfg)
         print(json.dumps(out["astronaut"]))
     if args.subjects:

@@ -14,18 +14,6 @@ import torch
 
 pytest.importorskip("mitsuba")
 
-TINY = """
-[camera]
-iterations = 40
-[shape]
-iterations = 40
-n_beta = 20
-[photometric]
-resolutions = [24]
-iterations = [4]
-spp = 2
-n_alpha = 6
-"""
 
 
 def synthetic_target(model, res=96):
@@ -104,11 +92,13 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     from hack_render.geometry.params import load_params
 
     iio.imwrite(tmp_path / "astronaut.png", data.astronaut())
-    (tmp_path / "tiny.toml").write_text(TINY)
+    from hack_render.fit.config import tiny_overrides
+
+    (tmp_path / "tiny.json").write_text(json.dumps(tiny_overrides()))
     out = tmp_path / "fit"
     r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit",
                         str(tmp_path / "astronaut.png"), "-o", str(out), "--config",
-                        str(tmp_path / "tiny.toml"), "--quiet"], capture_output=True, text=True)
+                        str(tmp_path / "tiny.json"), "--quiet"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "2 faces found; fitting the largest" in r.stderr
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",

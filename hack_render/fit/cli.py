@@ -44,6 +44,7 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     fitter = Fitter(imgs, dets, cfg, progress=progress)
     fitter.timings["landmarks"] = t_detect
     result = fitter.run()
+    result.fitter = fitter  # for callers that evaluate the fit (bench/bench_fit.py)
     paths = write_all(result, fitter, outdir)
     return result, paths
 

@@ -187,7 +187,8 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
 
 
 def tiny_overrides() -> dict:
-    """Settings for tests and CI: tiny resolution, few samples and iterations."""
-    return {"camera": {"iterations": 60}, "shape": {"iterations": 60, "n_beta": 20},
-            "photometric": {"resolutions": [32], "iterations": [6], "spp": 2, "n_alpha": 8},
+    """Settings for tests and CI (tests/test_fit_e2e.py; timed by
+    ``bench/bench_fit.py --astronaut --tiny``): tiny resolution, few samples and iterations."""
+    return {"camera": {"iterations": 40}, "shape": {"iterations": 40, "n_beta": 20},
+            "photometric": {"resolutions": [24], "iterations": [4], "spp": 2, "n_alpha": 6},
             "texel": {"iterations": 3}}
