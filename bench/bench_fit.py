@@ -22,17 +22,7 @@ import warnings
 import numpy as np
 import torch
 
-
-def similarity_error(x: np.ndarray, y: np.ndarray) -> float:
-    """Mean distance after the best similarity transform of x onto y (Umeyama)."""
-    mx, my = x.mean(0), y.mean(0)
-    xc, yc = x - mx, y - my
-    U, S, Vt = np.linalg.svd(yc.T @ xc)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.diag([1, 1, d])
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (xc ** 2).sum()
-    return float(np.linalg.norm(s * xc @ R.T - yc, axis=1).mean())
+from hack_render.fit.metrics import similarity_error
 
 
 def _medians(rows: list) -> dict:

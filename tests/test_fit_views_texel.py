@@ -1,17 +1,13 @@
 """Multi-view fitting (shared beta across views, own camera and pose per view) and the
 per-texel albedo refinement (stage 5) on synthetic subjects with known truth."""
 
-import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 pytest.importorskip("mitsuba")
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 
 def _landmark_view(model, beta, yaw_deg, res=256):
@@ -36,10 +32,9 @@ def _landmark_view(model, beta, yaw_deg, res=256):
 
 
 def test_01_two_views_recover_shared_shape_better_than_either_alone():
-    from bench_fit import similarity_error
-
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
+    from hack_render.fit.metrics import similarity_error
     from hack_render.geometry import load_default_model
 
     torch.set_num_threads(1)
@@ -158,3 +153,19 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     free = {k: float(x) for k, x in ph.texel_regularisers(f.albedo_delta.detach(), pairs).items()}
     assert reg["smooth"] < 0.5 * free["smooth"], (reg, free)
     assert reg["symmetry"] < 0.5 * free["symmetry"], (reg, free)
+
+
+def test_03_similarity_error_ignores_similarity_only():
+    from hack_render.fit.metrics import similarity_error
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))  # a rotation, not a reflection
+    y = 1.7 * x @ q.T + np.array([0.1, -2.0, 3.0])
+    assert similarity_error(x, y) < 1e-9
+    bent = y.copy()
+    bent[:, 2] += 0.05 * y[:, 0] ** 2  # a non-rigid change stays measurable
+    assert similarity_error(x, bent) > 1e-3
+    mirrored = x * np.array([-1.0, 1.0, 1.0])  # a reflection is not a similarity
+    assert similarity_error(x, mirrored) > 0.1
