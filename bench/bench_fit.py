@@ -1,4 +1,4 @@
-"""Fitting accuracy and time (figures for docs/fit.md; not a test).
+"""Fitting accuracy and time (figures for the README; not a test).
 
     python bench/bench_fit.py --subjects 2 --res 256          # synthetic recovery
     python bench/bench_fit.py --astronaut --res 256           # real photo NME + time

@@ -5,7 +5,7 @@ Layout of an output folder ``DIR``::
     DIR/config.json                      the resolved config, seed and label table
     DIR/samples/0000012/sample.json      the sample's record (written last: complete)
     DIR/samples/0000012/params.json      geometry parameters (``hack-render render --params``)
-    DIR/samples/0000012/view_00/...      per-view images and labels (docs/dataset.md)
+    DIR/samples/0000012/view_00/...      per-view images and labels (the README (Datasets))
     DIR/manifest/shard-000-of-004.jsonl  one record per line, sorted by index
 
 Shard ``K/M`` (0 <= K < M) owns the samples with ``index % M == K``. A job array (Slurm,

@@ -53,7 +53,7 @@ def fit(
     photos: List[Path] = typer.Argument(..., help="One or more photos of one person."),
     output: Path = typer.Option(Path("out/fit"), "-o", "--output", help="Output folder."),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML/YAML/JSON config "
-                                          "overriding the defaults (see docs/fit.md)."),
+                                          "overriding the defaults (see the README, Fitting photos)."),
     landmarks: Optional[List[Path]] = typer.Option(None, "--landmarks", help="68-point "
                                                    "landmark file per photo (.pts/.txt/.json/"
                                                    ".npy) instead of dlib."),
