@@ -90,13 +90,16 @@ def test_04_parameter_updates_reuse_compiled_kernels(head_model):
     head.set_camera(cameras.orbit(32, 32, 85.0, 10.0))
     head.set_light_rotation(15.0)
     head.render(seed=1)  # second parameter set
+    head.set_vertices(v * 1.005)
+    head.set_light_rotation(45.0)
+    head.render(seed=3)  # a third set: any once-only kernel is compiled by now
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history_clear()
     try:
         head.set_vertices(v * 0.99)
         head.set_camera(cameras.orbit(32, 32, 85.0, 20.0))
         head.set_light_rotation(30.0)
-        img = head.render(seed=2)  # third parameter set
+        img = head.render(seed=2)  # a further parameter set: everything reused
         history = dr.kernel_history()
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
