@@ -20,7 +20,7 @@ from tqdm import tqdm
 from hack_render.build.mesh_ops import ring
 from hack_render.build.pca import compactness, generalisation
 from hack_render.build.personal import learn_personal_space, personal_arrays
-from hack_render.build.pose_data import action_thetas, pose_sequence, twist_area_ratio
+from hack_render.build.pose_data import action_thetas, pose_sequence, single_joint_sweeps, twist_area_ratio
 from hack_render.build.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247
@@ -49,9 +49,16 @@ def pose_subset(arrays: dict) -> np.ndarray:
 
 
 def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr: float = 3e-2,
-               seed: int = 12, progress: bool = True) -> dict:
-    """Simulate DQS sequences for ``num_identities`` identities, fit P_beta and W with
-    :class:`PoseTrainer`, then PCA + M_P. Returns model arrays and a report."""
+               seed: int = 12, learn_weights: bool = False, progress: bool = True) -> dict:
+    """Simulate DQS sequences for ``num_identities`` identities (the Sec. 4.2 actions plus
+    every joint alone to its limits), fit P_beta (and W if ``learn_weights``) with
+    :class:`PoseTrainer`, then PCA + M_P. Returns model arrays and a report.
+
+    W is not learned by default: on the simulated data, learned weights lean on the pose
+    correctives (jointly they are not identifiable to first order) and stretched the skin
+    more than the procedural weights at single-joint extremes (c1-c2 twist alone: 2.0 vs
+    0.53 edge stretch without correctives).
+    """
     from hack_render.geometry.model import HackModel
 
     rng = np.random.default_rng(seed)
@@ -64,7 +71,7 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     betas = rng.standard_normal((num_identities, model.num_shape))
     w0 = torch.as_tensor(arrays["skinning_weights"], dtype=torch.float64)
     rests, joints, seqs = [], [], []
-    acts = action_thetas()
+    acts = action_thetas() + single_joint_sweeps()
     with torch.no_grad():
         for i, b in enumerate(tqdm(betas, desc="simulating DQS sequences", disable=not progress)):
             out = model(beta=torch.as_tensor(b[None]))
@@ -77,7 +84,7 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     trainer = PoseTrainer(np.stack(rests), np.stack(joints), faces, arrays["skinning_weights"][sub],
                           model.parents)
     t0 = time.time()
-    fit = trainer.fit(seqs, iterations=iterations, lr=lr, progress=progress)
+    fit = trainer.fit(seqs, iterations=iterations, lr=lr, learn_weights=learn_weights, progress=progress)
     train_s = time.time() - t0
     # LBS without pose blendshapes vs the learned model, per vertex (mm), on the training data.
     with torch.no_grad():
@@ -102,12 +109,14 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     weights = arrays["skinning_weights"].astype(np.float64).copy()
     weights[sub] = fit.weights
     weights /= weights.sum(1, keepdims=True)
-    out["skinning_weights"] = weights.astype(np.float32)
+    if learn_weights:
+        out["skinning_weights"] = weights.astype(np.float32)
     flat = fit.pose_blendshapes.reshape(num_identities, -1)
     ring_idx = sub[np.abs(rests[0][:, 1] - joints[0][3, 1]) < 0.004]
     report = {
         "identities": num_identities, "frames": int(sum(len(s.theta) for s in seqs)),
         "subset_vertices": int(m), "iterations": iterations, "train_seconds": train_s,
+        "learned_weights": learn_weights,
         "fit_error_mm": {k: float(np.mean(v) * 1e3) for k, v in errs.items()},
         "final_terms": fit.history[-1],
         "twist_area_ratio_c4c5_75deg": twist_area_ratio(torch.as_tensor(np.asarray(model.template.double())
@@ -121,7 +130,8 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
 
 def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
                      num_pose_identities: int = 12, pose_iterations: int = 300,
-                     expression_epochs: int = 3000, progress: bool = True) -> tuple[dict, dict]:
+                     expression_epochs: int = 3000, learn_weights: bool = False,
+                     progress: bool = True) -> tuple[dict, dict]:
     """Arrays and metadata of the v2 default model (see module docstring)."""
     from hack_render.build.expression_learn import learn_expressions
     from hack_render.build.ict_default import build_default_model
@@ -147,7 +157,7 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
     timings["expressions"] = time.time() - t
     t = time.time()
     po = learn_pose(arrays, num_identities=num_pose_identities, iterations=pose_iterations,
-                    progress=progress)
+                    learn_weights=learn_weights, progress=progress)
     arrays.update(po["arrays"])
     timings["pose"] = time.time() - t
     curves["larynx"] = lar.report.pop("curves")
@@ -166,11 +176,12 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
                                     f"53 ICT shapes onto {num_expression_identities} sampled "
                                     "identities; PCA (50) + M_E MLP",
         "pose_blendshapes": f"simulated: fitted (Eq. 8-12) to dual-quaternion-skinned range-of-"
-                            f"motion sequences of {num_pose_identities} sampled identities; "
+                            f"motion sequences (Sec. 4.2 actions + each joint alone to its limits) of "
+                            f"{num_pose_identities} sampled identities; "
                             "generic = mean, personal = PCA + M_P MLP",
-        "skinning_weights": prov["skinning_weights"] + "; neck rows refined by the pose learner "
-                            "(simulated data)",
     })
+    if po["report"]["learned_weights"]:
+        prov["skinning_weights"] += "; neck rows refined by the pose learner (simulated data)"
     meta["model_version"] = 2
     meta["learn"] = {"larynx": lar.report, "expressions": ex.report, "pose": po["report"],
                      "timings_s": timings, "curves": curves}

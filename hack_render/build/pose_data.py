@@ -60,6 +60,25 @@ def action_thetas(actions=ACTIONS) -> list[tuple[str, torch.Tensor]]:
     return out
 
 
+def single_joint_sweeps(frames: int = 8) -> list[tuple[str, torch.Tensor]]:
+    """Per joint, axis and side, theta (F, 8, 3) easing that one angle to its anatomical
+    limit and back: the range of motion of each segment alone, which the whole-head actions
+    never reach (they share a rotation over all joints)."""
+    from hack_render.geometry.rotations import euler_to_axis_angle
+    from hack_render.geometry.skeleton import JOINT_NAMES, rotation_limits
+
+    lim = rotation_limits(torch.float64)
+    s = torch.tensor([math.sin(math.pi * i / (frames - 1)) ** 2 for i in range(frames)], dtype=torch.float64)
+    out = []
+    for j, name in enumerate(JOINT_NAMES):
+        for a, axis in enumerate("xyz"):
+            for side in range(2):
+                e = torch.zeros(frames, 8, 3, dtype=torch.float64)
+                e[:, j, a] = lim[j, a, side] * s
+                out.append((f"{name}_{axis}{'-+'[side]}", euler_to_axis_angle(e)))
+    return out
+
+
 def pose_sequence(rest: torch.Tensor, joints: torch.Tensor, weights: torch.Tensor,
                   parents: tuple[int, ...], theta: torch.Tensor, deformer: str = "dqs") -> torch.Tensor:
     """Posed vertices (F, N, 3) of one rest mesh (N, 3) with rest joints (K, 3)."""
