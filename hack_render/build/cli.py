@@ -21,7 +21,7 @@ def build_v2(
     output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
     expression_identities: int = typer.Option(300, help="Identities for deformation transfer."),
     pose_identities: int = typer.Option(12, help="Identities with simulated pose sequences."),
-    pose_iterations: int = typer.Option(100, help="Adam iterations of the pose learner."),
+    pose_iterations: int = typer.Option(30, help="Adam iterations of the pose learner (after its closed-form start)."),
     expression_epochs: int = typer.Option(2000, help="Epochs of the M_E MLP."),
 ) -> None:
     """Build the v2 model: v1 + larynx, personalised expressions, pose blendshapes (minutes)."""

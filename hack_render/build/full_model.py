@@ -19,8 +19,9 @@ from tqdm import tqdm
 
 from hack_render.build.mesh_ops import ring
 from hack_render.build.pca import compactness, generalisation
-from hack_render.build.personal import learn_personal_space, personal_arrays
-from hack_render.build.pose_data import action_thetas, pose_sequence, single_joint_sweeps, twist_area_ratio
+from hack_render.build.personal import learn_personal_space, mlp_forward, personal_arrays
+from hack_render.build.pose_data import (ArapNeck, action_thetas, pose_sequence, single_joint_sweeps,
+                                         twist_area_ratio)
 from hack_render.build.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247
@@ -48,11 +49,18 @@ def pose_subset(arrays: dict) -> np.ndarray:
     return np.flatnonzero(ring(arrays["faces"], moving, 1) & (np.arange(n) <= SKIN_LAST)).astype(np.int32)
 
 
-def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr: float = 3e-2,
-               seed: int = 12, learn_weights: bool = False, progress: bool = True) -> dict:
-    """Simulate DQS sequences for ``num_identities`` identities (the Sec. 4.2 actions plus
-    every joint alone to its limits), fit P_beta (and W if ``learn_weights``) with
-    :class:`PoseTrainer`, then PCA + M_P. Returns model arrays and a report.
+def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 30, lr: float = 1e-3,
+               seed: int = 12, learn_weights: bool = False, progress: bool = True,
+               deformer: str = "arap") -> dict:
+    """Simulate sequences for ``num_identities`` identities (the Sec. 4.2 actions plus every
+    joint alone to its limits; ``deformer`` "arap" = DQS then ARAP of the neck skin with the
+    face, head and chest rigid, see :mod:`pose_data`), fit P_beta (and W if
+    ``learn_weights``) with :class:`PoseTrainer` (closed-form unposed least squares, then
+    ``iterations`` of Adam on Eq. 12 at ``lr`` centimetres: small, because Adam's first
+    steps move every coordinate by about ``lr`` and would undo the closed-form start), then
+    PCA + M_P. Identity 0 is the template (beta = 0), and M_P's output bias is shifted so
+    that it reproduces that identity exactly: the default model's pose correctives are the
+    ones learned for its own mesh. Returns model arrays and a report.
 
     W is not learned by default: on the simulated data, learned weights lean on the pose
     correctives (jointly they are not identifiable to first order) and stretched the skin
@@ -69,22 +77,43 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     remap[sub] = np.arange(m)
     faces = remap[arrays["faces"][(remap[arrays["faces"]] >= 0).all(1)]]
     betas = rng.standard_normal((num_identities, model.num_shape))
+    betas[0] = 0.0  # the template itself (see the docstring)
     w0 = torch.as_tensor(arrays["skinning_weights"], dtype=torch.float64)
     rests, joints, seqs = [], [], []
     acts = action_thetas() + single_joint_sweeps()
+    faces_all = np.asarray(arrays["faces"])
+    skin_faces = faces_all[(faces_all <= SKIN_LAST).all(1)]
+    n_all = len(arrays["template_vertices"])
+    moving = np.zeros(n_all, bool)
+    moving[sub] = True
+    moving &= (w0[:, 0] < 0.999).numpy() & (w0[:, -1] < 0.999).numpy()
+    t0 = time.time()
     with torch.no_grad():
-        for i, b in enumerate(tqdm(betas, desc="simulating DQS sequences", disable=not progress)):
+        for i, b in enumerate(tqdm(betas, desc=f"simulating {deformer.upper()} sequences", disable=not progress)):
             out = model(beta=torch.as_tensor(b[None]))
             rest, j = out.rest_vertices[0], out.rest_joints[0]
             rests.append(rest[sub].numpy())
             joints.append(j.numpy())
+            arap = ArapNeck(rest.numpy(), skin_faces, ~moving) if deformer == "arap" else None
+            # The eased actions go out and back, so about half their frames repeat: pose each
+            # distinct theta once (in chunks), then cut the result back into sequences.
+            every = torch.cat([th for _, th in acts])
+            uniq, inverse = np.unique(np.round(every.numpy().reshape(len(every), -1), 12), axis=0,
+                                      return_inverse=True)
+            uniq = torch.as_tensor(uniq).view(-1, 8, 3)
+            posed = torch.cat([pose_sequence(rest, j, w0, model.parents, uniq[k:k + 96], deformer, arap)[:, sub]
+                               for k in range(0, len(uniq), 96)])[torch.as_tensor(inverse.ravel())]
+            start = 0
             for _, th in acts:
-                posed = pose_sequence(rest, j, w0, model.parents, th, "dqs")[:, sub]
-                seqs.append(Sequence(i, posed.numpy(), th.numpy()))
+                seqs.append(Sequence(i, posed[start:start + len(th)].numpy(), th.numpy()))
+                start += len(th)
+    simulate_s = time.time() - t0
     trainer = PoseTrainer(np.stack(rests), np.stack(joints), faces, arrays["skinning_weights"][sub],
                           model.parents)
     t0 = time.time()
-    fit = trainer.fit(seqs, iterations=iterations, lr=lr, learn_weights=learn_weights, progress=progress)
+    init = trainer.unposed_least_squares(seqs)
+    fit = trainer.fit(seqs, iterations=iterations, lr=lr, learn_weights=learn_weights, progress=progress,
+                      pose_init=init)
     train_s = time.time() - t0
     # LBS without pose blendshapes vs the learned model, per vertex (mm), on the training data.
     with torch.no_grad():
@@ -103,6 +132,10 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     n = len(arrays["template_vertices"])
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = space.pca.mean.reshape(72, m, 3)
+    # Anchor M_P at the template (identity 0, beta = 0): shift its output bias so it
+    # predicts that identity's PCA weights exactly.
+    w_template = space.pca.project(fit.pose_blendshapes[:1].reshape(1, -1).astype(np.float64))[0]
+    space.mlp["b2"] = (space.mlp["b2"] + w_template - mlp_forward(space.mlp, betas[:1])[0]).astype(np.float32)
     space.pca.mean = np.zeros_like(space.pca.mean)  # the mean lives in the generic pose_basis
     out = personal_arrays("pose", space, sub, (72, m))
     out["pose_basis"] = generic
@@ -116,6 +149,7 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
     report = {
         "identities": num_identities, "frames": int(sum(len(s.theta) for s in seqs)),
         "subset_vertices": int(m), "iterations": iterations, "train_seconds": train_s,
+        "simulate_seconds": simulate_s, "deformer": deformer,
         "learned_weights": learn_weights,
         "fit_error_mm": {k: float(np.mean(v) * 1e3) for k, v in errs.items()},
         "final_terms": fit.history[-1],
@@ -129,7 +163,7 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 300, lr
 
 
 def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
-                     num_pose_identities: int = 12, pose_iterations: int = 300,
+                     num_pose_identities: int = 12, pose_iterations: int = 30,
                      expression_epochs: int = 3000, learn_weights: bool = False,
                      progress: bool = True) -> tuple[dict, dict]:
     """Arrays and metadata of the v2 default model (see module docstring)."""
@@ -175,8 +209,9 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
         "personalised_expressions": f"derived: deformation transfer (Sumner & Popovic 2004) of the "
                                     f"53 ICT shapes onto {num_expression_identities} sampled "
                                     "identities; PCA (50) + M_E MLP",
-        "pose_blendshapes": f"simulated: fitted (Eq. 8-12) to dual-quaternion-skinned range-of-"
-                            f"motion sequences (Sec. 4.2 actions + each joint alone to its limits) of "
+        "pose_blendshapes": f"simulated: fitted (Eq. 8-12) to range-of-motion sequences posed "
+                            f"by dual-quaternion skinning then ARAP of the neck skin (face, head "
+                            f"and chest rigid) ( Sec. 4.2 actions + each joint alone to its limits) of "
                             f"{num_pose_identities} sampled identities; "
                             "generic = mean, personal = PCA + M_P MLP",
     })

@@ -155,6 +155,38 @@ class PoseTrainer:
         posed_nodes, rel = rigid_transforms(rot, nodes, chain_parents(self.parents))
         return skin(rest, weights, rel), posed_nodes[:, 1:]
 
+    def unposed_least_squares(self, sequences: list[Sequence], ridge: float = 1e-6) -> np.ndarray:
+        """Closed-form pose blendshapes for the initial weights and the given theta: each
+        frame's residual (target - LBS of the rest mesh) is unposed by the inverse of every
+        vertex's blended rotation, then P_i = argmin sum_f |feat_f P - r_f|^2 + ridge |P|^2
+        per identity (one 72 x 72 solve). Exact when the blended rotations are rigid; a
+        starting point (``fit(pose_init=...)``) otherwise.
+
+        Returns:
+            (I, 72, M, 3) metres.
+        """
+        n_id, m = self.rest.shape[:2]
+        gram = torch.zeros(n_id, 72, 72, dtype=self.rest.dtype)
+        rhs = torch.zeros(n_id, 72, m * 3, dtype=self.rest.dtype)
+        zero = torch.zeros(72, m, 3, dtype=self.rest.dtype)
+        par = chain_parents(self.parents)
+        with torch.no_grad():
+            for s in sequences:
+                th = torch.as_tensor(s.theta, dtype=self.rest.dtype)
+                f = th.shape[0]
+                rot = local_rotations(th, th.new_zeros(f, 3))
+                feat = pose_feature(rot[:, 1:])
+                v, _ = self.predict(s.identity, th, zero, self.w_init)
+                j = self.joints[s.identity].expand(f, -1, -1)
+                _, rel = rigid_transforms(rot, torch.cat([j[:, :1], j], 1), par)
+                a = torch.einsum("mk,fkij->fmij", self.w_init, rel[..., :3, :3])  # (F, M, 3, 3)
+                r = torch.linalg.solve(a, (torch.as_tensor(s.targets, dtype=v.dtype) - v)[..., None])[..., 0]
+                gram[s.identity] += feat.T @ feat
+                rhs[s.identity] += feat.T @ r.reshape(f, -1)
+            eye = torch.eye(72, dtype=gram.dtype)
+            p = torch.linalg.solve(gram + ridge * eye, rhs)
+        return p.reshape(n_id, 72, m, 3).numpy()
+
     def fit(self, sequences: list[Sequence], iterations: int = 1000, lr: float = 1e-3,
             optimise_theta: bool = False, pose_init: np.ndarray | None = None,
             learn_pose: bool = True, learn_weights: bool = True,
