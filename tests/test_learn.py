@@ -219,6 +219,70 @@ def test_10_dqs_keeps_neck_area_under_twist_where_lbs_loses_it():
     assert r["lbs"] < r["dqs"] - 0.02
 
 
+def _cylinder_twist(degrees=40.0):
+    """A synthetic neck tube with a sharp skinning band at one joint and a twist there."""
+    from hack_render.build.pose_data import pose_sequence
+
+    a = synthetic_arrays(0, nx=16, ny=14)
+    v = torch.as_tensor(a["template_vertices"], dtype=torch.float64)
+    j = torch.as_tensor(a["joint_regressor"], dtype=torch.float64) @ v
+    y = v[:, 1].numpy()
+    t = np.clip((y - j[5, 1].item()) / 0.012 + 0.5, 0, 1)  # a 12 mm blend band at joint 5
+    w = np.zeros((len(y), 9))
+    w[:, 0], w[:, 8] = 1 - t, t
+    w = torch.as_tensor(w)
+    theta = torch.zeros(2, 8, 3, dtype=torch.float64)
+    theta[1, 5, 1] = np.deg2rad(degrees)
+    fixed = (y < y.min() + 0.02) | (y > y.max() - 0.02)
+    return a, v, j, w, theta, fixed, pose_sequence
+
+
+def _max_stretch(p, v, faces):
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    l0 = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+    return np.abs(np.linalg.norm(p[:, e[:, 0]] - p[:, e[:, 1]], axis=-1) / l0 - 1).max(1)
+
+
+def test_10b_arap_spreads_a_twist_keeps_fixed_vertices_and_rest():
+    from hack_render.build.pose_data import ArapNeck
+
+    a, v, j, w, theta, fixed, pose_sequence = _cylinder_twist()
+    # Only the band is skinned to both nodes; fix the tube's ends to the skeleton.
+    arap = ArapNeck(v.numpy(), a["faces"], fixed)
+    lbs = pose_sequence(v, j, w, PARENTS, theta, "lbs").numpy()
+    dqs = pose_sequence(v, j, w, PARENTS, theta, "dqs").numpy()
+    out = pose_sequence(v, j, w, PARENTS, theta, "arap", arap).numpy()
+    np.testing.assert_allclose(out[0], v.numpy(), atol=1e-12)  # rest pose: rest mesh
+    np.testing.assert_array_equal(out[1][fixed], dqs[1][fixed])  # fixed where DQS put them
+    s_lbs, s_arap = _max_stretch(lbs, v.numpy(), a["faces"])[1], _max_stretch(out, v.numpy(), a["faces"])[1]
+    assert s_arap < 0.5 * s_lbs, (s_lbs, s_arap)
+    with pytest.raises(HackError):
+        ArapNeck(v.numpy(), a["faces"], np.ones(len(v), bool))
+    with pytest.raises(HackError):
+        pose_sequence(v, j, w, PARENTS, theta, "arap")
+
+
+def test_10c_closed_form_pose_blendshapes_reproduce_known_correctives():
+    """Sequences from known P* with W known: the unposed least-squares start alone
+    reproduces P*'s correctives on held-out poses (its error comes only from LBS's
+    non-rigid blended rotations)."""
+    from hack_render.build.pose_learn import PoseTrainer
+
+    a, v, j, w0, ws, p, rng = _pose_setup()
+    tr = PoseTrainer(v[None], j[None], a["faces"], ws, PARENTS)
+    fit = tr.unposed_least_squares(_random_sequences(tr, p, ws, rng, n=6))
+    held = _random_sequences(tr, p, ws, rng, n=2)
+    num = den = 0.0
+    with torch.no_grad():
+        for s in held:
+            th = torch.as_tensor(s.theta)
+            got = tr.predict(0, th, torch.as_tensor(fit[0]), torch.as_tensor(ws))[0].numpy()
+            nop = tr.predict(0, th, torch.zeros(72, len(v), 3, dtype=torch.float64), torch.as_tensor(ws))[0].numpy()
+            num += ((got - s.targets) ** 2).sum()
+            den += ((nop - s.targets) ** 2).sum()
+    assert np.sqrt(num / den) < 0.01  # measured 1.5e-4
+
+
 # -------------------------------------------------------------------- 5 joint regressor
 def test_11_joint_regressor_recovers_joints_of_held_out_meshes():
     from hack_render.build.joint_regressor import joint_errors, train_joint_regressor
