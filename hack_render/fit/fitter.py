@@ -102,7 +102,8 @@ class Fitter:
         self.n_expr = m.num_expressions
         self.beta = torch.zeros(1, min(config.shape.n_beta, m.num_shape), requires_grad=True)
         self.psi = torch.zeros(1, self.n_expr, requires_grad=True)
-        self.eta = torch.zeros(1, requires_grad=True)
+        # eta starts at the identity's mean larynx (1) when the model carries one.
+        self.eta = torch.full((1,), 1.0 if getattr(m, "has_larynx", False) else 0.0, requires_grad=True)
         self.tau = torch.zeros(1, requires_grad=True)
         n_alpha = min(config.photometric.n_alpha, self.appearance.n_components) \
             if self.appearance is not None else 0

@@ -1,6 +1,7 @@
 """HACK parameter files (JSON or YAML), shared by `mesh`, `render`, `turntable` and `fit`.
 
-A parameter file is a mapping with any of these keys (all optional; missing = zero)::
+A parameter file is a mapping with any of these keys (all optional; missing = zero, except
+``eta``, which is 1, the identity's mean larynx, for a model that carries a larynx)::
 
     beta: [0.5, -1.0]              # identity, in standard deviations (N(0, 1) units)
     psi: [...]                     # 53 expression weights, or instead / in addition:
@@ -11,7 +12,7 @@ A parameter file is a mapping with any of these keys (all optional; missing = ze
                                    # head rotation's share when both are given)
     global_orient: [x, y, z]       # root axis-angle, radians
     transl: [x, y, z]              # metres
-    eta: 1.0                       # larynx size
+    eta: 1.0                       # larynx size (0 = none, 1 = the identity's mean larynx)
     tau: 0.0                       # larynx vertical slide, metres
 
 Unknown keys are errors (a misspelt key must not be silently ignored).
@@ -148,4 +149,6 @@ def model_inputs(model, params: dict[str, Any]) -> dict[str, torch.Tensor]:
     for key in ("eta", "tau"):
         if key in params:
             kw[key] = torch.tensor([params[key]], dtype=dtype)
+    if "eta" not in kw and getattr(model, "has_larynx", False):
+        kw["eta"] = torch.ones(1, dtype=dtype)  # the identity's mean larynx, not none
     return kw
