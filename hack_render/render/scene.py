@@ -136,7 +136,12 @@ class HeadScene:
                 mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
             scene[part.name] = mesh
         scene.update(emitters.emitter_dicts(lights, env))
-        self.scene = mi.load_dict(scene)
+        # optimize=False: Mitsuba's optimisation pass (merging equivalent objects) lists
+        # shapes and emitters in an order that varies from load to load (two area lights
+        # swapped in ~1 load in 7 under CPU load), and the order decides which light a
+        # random number selects; without it the scene keeps this dict's order, so a render
+        # is a function of its inputs alone. parallel=False: nothing depends on threads.
+        self.scene = mi.load_dict(scene, parallel=False, optimize=False)
         self.params = mi.traverse(self.scene)
         self._skin_key = self._find_skin_key()
         self._shape_regions = self._shape_region_table()
