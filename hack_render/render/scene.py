@@ -245,16 +245,24 @@ class HeadScene:
 
     def set_light_rotation(self, degrees: float) -> None:
         """Rotate the whole rig (environment and area lights) about +Y."""
+        import drjit as dr
         import mitsuba as mi
 
         from hack_render.render.emitters import area_light_transform, rotation_y
 
+        def opaque(m: np.ndarray):
+            # a transform built from Python numbers is a set of literals that Dr.Jit bakes
+            # into the kernel: every new angle recompiled the whole path tracer (~0.5 s)
+            t = mi.Transform4f(m.tolist())
+            dr.make_opaque(t)
+            return t
+
         if "environment.to_world" in self.params:
-            self.params["environment.to_world"] = mi.Transform4f(rotation_y(degrees).tolist())
+            self.params["environment.to_world"] = opaque(rotation_y(degrees))
         for i, light in enumerate(self.lights.area):
             key = f"light_{i}.to_world"
             if key in self.params:
-                self.params[key] = mi.Transform4f(area_light_transform(light, degrees).tolist())
+                self.params[key] = opaque(area_light_transform(light, degrees))
         self.params.update()
 
     # --- rendering -------------------------------------------------------------------
