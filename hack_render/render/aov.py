@@ -35,8 +35,8 @@ def gbuffer(head) -> dict[str, np.ndarray]:
     si = head.scene.ray_intersect(ray)
     valid = si.is_valid()
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
-    shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
-    dr.eval(si.p, si.sh_frame.n, si.uv, albedo, shape_id, valid)
+    region, u_model, v_model = _region_uv_jit(head, si, valid)
+    dr.eval(si.p, si.sh_frame.n, albedo, region, u_model, v_model, valid)
 
     def arr(v, c):
         return np.asarray(v, dtype=np.float64).reshape(c, h, w).transpose(1, 2, 0) \
@@ -46,15 +46,8 @@ def gbuffer(head) -> dict[str, np.ndarray]:
     p = arr(si.p, 3)
     cam_p = p @ cam.R.T + cam.t
     n_cam = arr(si.sh_frame.n, 3) @ cam.R.T
-    uv = arr(si.uv, 2)
-    ids = np.asarray(shape_id, dtype=np.int64).reshape(h, w)
-    region = np.zeros((h, w), np.int32)
-    u_model = uv[..., 0].copy()
-    for sid, (reg, u_off, u_scale) in head._shape_regions.items():
-        m = hit & (ids == sid)
-        region[m] = reg
-        u_model[m] = uv[..., 0][m] / u_scale + u_off
-    uv_model = np.stack([u_model, 1.0 - uv[..., 1]], axis=-1)
+    region = np.asarray(region).astype(np.int32).reshape(h, w)
+    uv_model = np.stack([arr(u_model, 1), arr(v_model, 1)], axis=-1)
     zero = ~hit
     out = {
         "depth": np.where(zero, 0.0, cam_p[..., 2]),
@@ -69,21 +62,139 @@ def gbuffer(head) -> dict[str, np.ndarray]:
 def _hit_region_uv(head, si, valid, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
     """Region id (H, W) and model UV (H, W, 2) of a pixel grid of intersections (0 if none)."""
     import drjit as dr
+
+    region, u, v = _region_uv_jit(head, si, valid)
+    dr.eval(region, u, v)
+    uv = np.stack([np.asarray(u, np.float64), np.asarray(v, np.float64)], -1)
+    return np.asarray(region).astype(np.int32).reshape(h, w), uv.reshape(h, w, 2)
+
+
+def _region_luts(head):
+    """Shape registry id -> (region, u offset, u scale) as Dr.Jit lookup arrays (cached)."""
     import mitsuba as mi
 
-    shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
-    dr.eval(si.uv, shape_id, valid)
-    hit = np.asarray(valid, dtype=bool).reshape(h, w)
-    uv = np.asarray(si.uv, dtype=np.float64).reshape(2, h, w).transpose(1, 2, 0)
-    ids = np.asarray(shape_id, dtype=np.int64).reshape(h, w)
-    region = np.zeros((h, w), np.int32)
-    u_model = np.zeros((h, w))
-    for sid, (reg, u_off, u_scale) in head._shape_regions.items():
-        m = hit & (ids == sid)
-        region[m] = reg
-        u_model[m] = uv[..., 0][m] / u_scale + u_off
-    v_model = np.where(hit, 1.0 - uv[..., 1], 0.0)
-    return region, np.stack([u_model, v_model], axis=-1)
+    luts = getattr(head, "_aov_region_luts", None)
+    if luts is None:
+        size = max(head._shape_regions, default=0) + 1
+        region = np.zeros(size, np.uint32)
+        u_off = np.zeros(size, np.float32)
+        u_scale = np.ones(size, np.float32)
+        for sid, (reg, off, scale) in head._shape_regions.items():
+            region[sid], u_off[sid], u_scale[sid] = reg, off, scale
+        luts = (mi.UInt32(region), mi.Float(u_off), mi.Float(u_scale), size)
+        head._aov_region_luts = luts
+    return luts
+
+
+def _region_uv_jit(head, si, active):
+    """Region id and model UV of intersections, as Dr.Jit arrays (0 where not ``active``)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    lut_region, lut_off, lut_scale, size = _region_luts(head)
+    sid = dr.reinterpret_array(mi.UInt32, si.shape)
+    ok = active & si.is_valid() & (sid < size)
+    region = dr.gather(mi.UInt32, lut_region, sid, ok)
+    u = dr.select(ok, si.uv.x / dr.gather(mi.Float, lut_scale, sid, ok)
+                  + dr.gather(mi.Float, lut_off, sid, ok), 0.0)
+    v = dr.select(ok, 1.0 - si.uv.y, 0.0)
+    return region, u, v
+
+
+def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions=(),
+               see_through=("eyelashes",)) -> dict[str, np.ndarray]:
+    """Labels of k x k sub-pixel rays per pixel and the pixel-centre G-buffer, one batch.
+
+    A label is ``region_labels[region]`` of the surface a ray meets (``parts.REGIONS``
+    ids), except in ``uv_regions``, where it is the texel of ``uv_label_map`` (Hm, 2 Hm)
+    at the hit's model UV (u in [0, 2] across, v up; row 0 is v = 1). Rays whose first
+    surface is in a ``see_through`` region are continued once; ``label_behind`` is the
+    label of the surface behind. Sub-pixel point s = b k + a is ((a + 0.5) / k,
+    (b + 0.5) / k); the pixel centre is one of them for odd k and an extra ray otherwise.
+
+    Returns:
+        ``label``, ``label_behind``: (H, W, k^2) uint8 (k = 0: (H, W, 0)); ``centre_label``
+        (H, W) uint8; and :func:`gbuffer`'s arrays for the pixel centres (``depth``,
+        ``normal``, ``albedo``, ``uv``, ``segmentation``), computed from the same rays.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    from hack_render.render.parts import REGIONS
+
+    cam = head.camera
+    w, h, kk = cam.width, cam.height, k * k
+    n = w * h
+    odd = k % 2 == 1
+    c = kk // 2  # the sub-pixel point at the centre (odd k)
+    m = kk - 1 if odd else kk  # other points per pixel
+    sensor = head.scene.sensors()[0]
+    lut = mi.UInt32(np.asarray(region_labels, np.uint32))
+    is_uv = mi.Bool(np.isin(np.arange(len(REGIONS)), [REGIONS.index(r) for r in uv_regions]))
+    hm = uv_label_map.shape[0]
+    texels = mi.UInt32(np.asarray(uv_label_map, np.uint32).ravel())
+
+    def labels_of(si_, active):
+        region, u, v = _region_uv_jit(head, si_, active)
+        j = dr.clip(mi.Int32(dr.floor(u * hm)), 0, 2 * hm - 1)
+        i = dr.clip(mi.Int32(dr.floor((1.0 - v) * hm)), 0, hm - 1)
+        texel = dr.gather(mi.UInt32, texels, mi.UInt32(i * (2 * hm) + j))
+        uv_hit = dr.gather(mi.Bool, is_uv, region)
+        return dr.select(uv_hit, texel, dr.gather(mi.UInt32, lut, region)), region, u, v
+
+    def trace(pix, ox, oy):
+        x = mi.Float(pix % w) + ox
+        y = mi.Float(pix // w) + oy
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+        si = head.scene.ray_intersect(ray)
+        label, region, u, v = labels_of(si, mi.Bool(True))
+        through = mi.Bool(False)
+        for name in see_through:
+            if name in REGIONS:
+                through |= region == REGIONS.index(name)
+        si2 = head.scene.ray_intersect(si.spawn_ray(ray.d), through)
+        return ray, si, label, dr.select(through, labels_of(si2, through)[0], 0), region, u, v
+
+    # the pixel centres (also the middle sub-pixel point for odd k), then the other points
+    ray, si, label_c, label2_c, region, u, v = trace(dr.arange(mi.UInt32, n), mi.Float(0.5), mi.Float(0.5))
+    valid = si.is_valid()
+    albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
+    outs = [label_c, label2_c, si.p, si.sh_frame.n, albedo, region, u, v, valid]
+    if m:
+        j = dr.arange(mi.UInt32, n * m)
+        pix = j // m
+        sub = j - pix * m
+        if odd:
+            sub += dr.select(sub >= c, 1, 0)
+        _, _, label_o, label2_o, _, _, _ = trace(pix, (mi.Float(sub % k) + 0.5) / k,
+                                                  (mi.Float(sub // k) + 0.5) / k)
+        outs += [label_o, label2_o]
+    dr.eval(outs)
+
+    def img(a, c=1, dtype=np.float64):
+        x = np.asarray(a, dtype=dtype)
+        return x.reshape(c, h, w).transpose(1, 2, 0) if c > 1 else x.reshape(h, w)
+
+    hit = img(valid, dtype=bool)
+    zero = ~hit[..., None]
+    cam_p = img(si.p, 3) @ cam.R.T + cam.t
+    out = {
+        "depth": np.where(hit, cam_p[..., 2], 0.0).astype(np.float32),
+        "normal": np.where(zero, 0.0, img(si.sh_frame.n, 3) @ cam.R.T).astype(np.float32),
+        "albedo": np.where(zero, 0.0, img(albedo, 3)).astype(np.float32),
+        "uv": np.where(zero, 0.0, np.stack([img(u), img(v)], -1)).astype(np.float32),
+        "segmentation": img(region, dtype=np.int64).astype(np.int32),
+        "centre_label": np.asarray(label_c).astype(np.uint8).reshape(h, w),
+    }
+    for key, a_c, a_o in (("label", label_c, outs[-2] if m else None),
+                          ("label_behind", label2_c, outs[-1] if m else None)):
+        others = np.asarray(a_o).astype(np.uint8).reshape(h, w, m) if m else \
+            np.zeros((h, w, 0), np.uint8)
+        if odd:  # put the centre back at its place in the k x k order
+            cen = np.asarray(a_c).astype(np.uint8).reshape(h, w, 1)
+            others = np.concatenate([others[..., :c], cen, others[..., c:]], -1)
+        out[key] = others
+    return out
 
 
 def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str, np.ndarray]:
@@ -161,8 +272,9 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     for _ in range(4):  # at most a few see-through layers in front of a point
         si = head.scene.ray_intersect(ray)
         shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
-        dr.eval(si.t, shape_id)
-        t = np.where(np.asarray(si.is_valid(), bool), np.asarray(si.t, np.float64), np.inf)
+        valid = si.is_valid()
+        dr.eval(si.t, shape_id, valid)  # one kernel
+        t = np.where(np.asarray(valid, bool), np.asarray(si.t, np.float64), np.inf)
         ids = np.asarray(shape_id, np.int64)
         hit_before = alive & (travelled + t < dist - tolerance)
         passes = hit_before & np.isin(ids, through_ids)
