@@ -240,6 +240,32 @@ def test_sample_files_and_labels(rendered):
     assert np.allclose(params["theta"], rec["theta"])
 
 
+@pytest.mark.parametrize("k", [0, 2, 3])
+def test_one_batch_labels_match_the_per_pass_reference(tmp_path, k):
+    """label_images (one ray batch, labels looked up in Dr.Jit) gives exactly the G-buffer,
+    segmentation and soft masks of the reference: a pixel-centre pass plus one pass per
+    sub-pixel point, labels in numpy."""
+    from hack_render.dataset.worker import SampleRenderer
+
+    cfg = load_config(overrides=dict(TINY, render={"resolution": 48, "spp": 1}))
+    r = SampleRenderer(cfg, tmp_path, 5)
+    r.render(0)
+    head = r.scene(r.spec(0)["lighting"]["preset"])
+    aov, seg, masks = lab.label_images(head, k, r.atlas)
+    ref_aov = head.aovs()
+    ref_seg = lab.to_labels(ref_aov["segmentation"], ref_aov["uv"], r.atlas)
+    ref_masks = lab.soft_masks(head, k, r.atlas) if k else \
+        np.eye(len(lab.LABELS), dtype=np.float32)[ref_seg]
+    for key in ref_aov:
+        assert np.array_equal(aov[key], ref_aov[key]), key
+    assert np.array_equal(seg, ref_seg)
+    assert np.array_equal(masks, ref_masks), np.argwhere(masks != ref_masks)[:5]
+    assert np.allclose(masks.sum(-1), 1.0, atol=1e-6)
+    if k:  # the lash layer (rays continued behind the cards) is exercised
+        lash = masks[..., lab.LABEL_ID["eyelashes"]]
+        assert ((lash > 0) & (lash < 1)).any()
+
+
 def test_scene_keeps_the_rig_order_of_lights(tmp_path):
     """Which light a random number selects depends on the scene's emitter order. Mitsuba's
     load-time optimisation listed them in an order that changed from load to load (the

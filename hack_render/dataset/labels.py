@@ -103,13 +103,62 @@ def to_labels(region: np.ndarray, uv: np.ndarray, atlas: np.ndarray | None = Non
     return out
 
 
+def render_region_labels() -> np.ndarray:
+    """Dataset label of each render region (``parts.REGIONS``); skin regions use the atlas."""
+    from hack_render.render.parts import REGIONS
+
+    return np.array([0 if n in SKIN_RENDER_REGIONS else LABEL_ID[_RENDER_TO_LABEL[n]]
+                     for n in REGIONS], np.uint8)
+
+
+def label_images(head, k: int, atlas: np.ndarray | None = None):
+    """G-buffer, segmentation and soft masks of a head scene's current view, one ray batch.
+
+    Returns:
+        (aov, seg, masks): ``aov`` the pixel-centre G-buffer (``render.aov.gbuffer``'s
+        keys), ``seg`` (H, W) uint8 labels at the pixel centres, ``masks`` (H, W, L)
+        float32 coverage over k x k sub-pixel rays (one-hot ``seg`` for k = 0).
+    """
+    atlas = skin_label_atlas() if atlas is None else atlas
+    out = head.label_pass(k, render_region_labels(), atlas, SKIN_RENDER_REGIONS,
+                          see_through=("eyelashes",))
+    seg = out.pop("centre_label")
+    front, behind = out.pop("label"), out.pop("label_behind")
+    if k == 0:
+        return out, seg, np.eye(len(LABELS), dtype=np.float32)[seg]
+    return out, seg, coverage(front, behind)
+
+
+def coverage(front: np.ndarray, behind: np.ndarray) -> np.ndarray:
+    """(H, W, L) float32 label coverage from per-ray labels (H, W, n) of the front surface
+    and of the surface behind lash hits: a lash ray counts EYELASH_OPACITY for the lashes
+    and the rest for what is behind. Sums to 1 over L."""
+    from hack_render.render.materials import EYELASH_OPACITY
+
+    h, w, n = front.shape
+    n_lab = len(LABELS)
+    front = front.reshape(-1).astype(np.int64)
+    base = np.repeat(np.arange(h * w, dtype=np.int64) * n_lab, n)
+    lash = front == LABEL_ID["eyelashes"]
+    # bincount is the fast scatter-add (np.add.at is several times slower)
+    acc = np.bincount(base + front, np.where(lash, EYELASH_OPACITY, 1.0), h * w * n_lab)
+    if lash.any():
+        acc += np.bincount(base[lash] + behind.reshape(-1)[lash], minlength=h * w * n_lab) \
+            * (1.0 - EYELASH_OPACITY)
+    return (acc / n).reshape(h, w, n_lab).astype(np.float32)
+
+
 def subpixel_offsets(k: int) -> list[tuple[float, float]]:
     """k x k stratified sub-pixel points; for odd k the pixel centre is one of them."""
     return [((a + 0.5) / k, (b + 0.5) / k) for b in range(k) for a in range(k)]
 
 
 def soft_masks(head, k: int, atlas: np.ndarray | None = None) -> np.ndarray:
-    """(H, W, L) float32 coverage of each label over k x k sub-pixel rays; sums to 1."""
+    """(H, W, L) float32 coverage of each label over k x k sub-pixel rays; sums to 1.
+
+    The slow reference of :func:`label_images` (one ray pass per sub-pixel point, labels
+    in numpy); the dataset uses :func:`label_images`.
+    """
     from hack_render.render.materials import EYELASH_OPACITY
 
     h, w = head.camera.height, head.camera.width
