@@ -164,8 +164,15 @@ class SampleRenderer:
         larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
                                                 self.larynx_candidates)
         head = self.scene(spec["lighting"]["preset"])
-        # one params.update() (in set_camera) for all changes: each update that touches a
-        # shape rebuilds the acceleration structure
+        # Back to the canonical (rest) mesh first: the ray-tracing acceleration structure
+        # built for a sample depends slightly on the one it replaces, and a ray grazing a
+        # shared triangle edge could then hit the other triangle, so a pixel or two of a
+        # sample depended on which sample the process rendered before (found by rendering
+        # the same samples in two orders). The extra rebuild makes every sample's start
+        # state the same.
+        head.set_vertices(self.rest)
+        # then one params.update() (in set_camera) for all of the sample's changes: each
+        # update that touches a shape rebuilds the acceleration structure
         head.set_vertices(verts, update=False)
         head.set_maps(self.skin_maps(spec["appearance"]), update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
