@@ -8,14 +8,16 @@
     by sample (so that other load on the machine hits both sides alike). Printed twice:
     the whole pipeline, and the pipeline without the inputs both sides share (geometry
     forward and skin maps, timed separately). Target <= 1.3x.
-(b) Ray: samples/minute of ``--executor ray`` with 2 workers vs the serial executor on
-    the same samples, each including its start-up (fresh output folders).
+(b) Ray: samples/minute of ``--executor ray`` with 2 actors (one Dr.Jit thread each) vs
+    the serial executor (Dr.Jit on every core, and on one thread for reference) on the
+    same samples, fresh output folders: total time including start-up, and the steady
+    state from each worker's first finished sample to the last.
 (c) Peak memory: this process's peak RSS; each Ray worker's peak RSS (VmHWM).
 (a) first renders samples until every lighting preset has been seen (kernel compilation,
 excluded); (b) includes start-up on both sides.
 
 Usage: python bench/bench_dataset.py [--n 8] [--seed 0] [--size 256] [--spp 32] [--appearance alpha]
-       [--ray-n 8] [--no-ray]
+       [--ray-n 16] [--no-ray]
 """
 
 from __future__ import annotations
@@ -131,14 +133,45 @@ def labels_benchmark(cfg: dict, n: int, out: Path, seed: int) -> None:
           f"(per-sample median {statistics.median(per):.2f}x; target <= 1.3x)")
 
 
-def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
-    from hack_render.dataset.runner import Job, run
+def _timed_run(job, executor: str, **kw) -> tuple[float, float]:
+    """(total seconds incl. start-up, steady-state samples/min): the steady state runs
+    from each worker's first finished sample (start-up, kernel loading) to the last."""
+    from hack_render.dataset import runner
 
-    t0 = time.perf_counter()
-    run(Job(root / "serial", n, 0, cfg), "serial", progress=False)
-    ts = time.perf_counter() - t0
+    stamps: list[float] = []
+    append = runner._append_manifest
+
+    def stamped(job_, rec):
+        stamps.append(time.perf_counter())
+        append(job_, rec)
+
+    runner._append_manifest = stamped
+    try:
+        t0 = time.perf_counter()
+        runner.run(job, executor, progress=False, **kw)
+        total = time.perf_counter() - t0
+    finally:
+        runner._append_manifest = append
+    skip = kw.get("workers") or 1
+    steady = (len(stamps) - skip) / (stamps[-1] - stamps[skip - 1]) * 60
+    return total, steady
+
+
+def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
+    """Serial (Dr.Jit on every core, then on one) vs Ray with 2 single-thread actors."""
     import threading
 
+    from hack_render.dataset.runner import Job
+    from hack_render.render.engine import ensure_variant, set_thread_count
+
+    import drjit as dr
+
+    ensure_variant(cfg["render"]["variant"])
+    cores = dr.thread_count()
+    ts, ss = _timed_run(Job(root / "serial", n, 0, cfg), "serial")
+    set_thread_count(1)
+    ts1, ss1 = _timed_run(Job(root / "serial1", n, 0, cfg), "serial")
+    set_thread_count(cores)
     peaks: list[float] = []
     stop = threading.Event()
 
@@ -151,16 +184,21 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
 
     th = threading.Thread(target=watch, daemon=True)
     th.start()
-    t0 = time.perf_counter()
-    run(Job(root / "ray", n, 0, cfg), "ray", workers=2, progress=False)
-    tr = time.perf_counter() - t0
+    tr, sr = _timed_run(Job(root / "ray", n, 0, cfg), "ray", workers=2)
     stop.set()
     th.join()
-    same = all((root / "serial" / p.relative_to(root / "ray")).read_bytes() == p.read_bytes()
-               for p in (root / "ray" / "samples").rglob("*") if p.is_file())
-    print(f"(b) {n} samples incl. start-up: serial {ts:.1f} s ({60 * n / ts:.1f} samples/min), "
-          f"ray x2 {tr:.1f} s ({60 * n / tr:.1f} samples/min): speed-up {ts / tr:.2f}x; "
-          f"files identical: {same}")
+    differ = [str(p.relative_to(root)) for d in ("ray", "serial1")
+              for p in sorted((root / d / "samples").rglob("*")) if p.is_file()
+              and (root / "serial" / p.relative_to(root / d)).read_bytes() != p.read_bytes()]
+    same = "yes" if not differ else f"no, {len(differ)} files differ: {', '.join(differ[:6])}"
+    print(f"(b) {n} samples, {cores} cores; total incl. start-up / steady state (after each "
+          "worker's first sample):")
+    print(f"    serial, {cores} Dr.Jit threads: {ts:5.1f} s / {ss:5.1f} samples/min")
+    print(f"    serial, 1 Dr.Jit thread:  {ts1:5.1f} s / {ss1:5.1f} samples/min "
+          f"(Dr.Jit's own threading gives {ss / ss1:.2f}x)")
+    print(f"    ray, 2 actors x 1 thread:  {tr:5.1f} s / {sr:5.1f} samples/min")
+    print(f"    ray speed-up over serial: {ts / tr:.2f}x incl. start-up, {sr / ss:.2f}x steady "
+          f"state; files identical to serial: {same}")
     if peaks:
         print(f"    ray worker peak RSS: {', '.join(f'{p:.0f}' for p in peaks)} MiB")
 
@@ -172,13 +210,15 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--spp", type=int, default=32)
     ap.add_argument("--appearance", default="alpha", choices=("seed", "alpha", "constant"))
-    ap.add_argument("--ray-n", type=int, default=8)
+    ap.add_argument("--ray-n", type=int, default=16)
     ap.add_argument("--no-ray", action="store_true")
+    ap.add_argument("--no-labels", action="store_true", help="skip (a)")
     a = ap.parse_args()
     cfg = config(a.size, a.spp, a.appearance)
     with tempfile.TemporaryDirectory() as tmp:
-        labels_benchmark(cfg, a.n, Path(tmp) / "a", a.seed)
-        print(f"(c) peak RSS of this process after (a): {peak_rss_mib():.0f} MiB")
+        if not a.no_labels:
+            labels_benchmark(cfg, a.n, Path(tmp) / "a", a.seed)
+            print(f"(c) peak RSS of this process after (a): {peak_rss_mib():.0f} MiB")
         if not a.no_ray:
             try:
                 import ray  # noqa: F401
