@@ -14,10 +14,13 @@
     state from each worker's first finished sample to the last.
 (c) Peak memory: this process's peak RSS; each Ray worker's peak RSS (VmHWM).
 (a) first renders samples until every lighting preset has been seen (kernel compilation,
-excluded); (b) includes start-up on both sides.
+excluded); the pipeline writes its files on a background thread as the serial executor
+does (``--inline-writes``: in the rendering thread), and each timed sample ends only when
+all of its files are on disk, so no write leaks into the bare side's time. (b) includes
+start-up on both sides.
 
 Usage: python bench/bench_dataset.py [--n 8] [--seed 0] [--size 256] [--spp 32] [--appearance alpha]
-       [--ray-n 16] [--no-ray]
+       [--ray-n 16] [--no-ray] [--inline-writes]
 """
 
 from __future__ import annotations
@@ -98,11 +101,14 @@ def _bare_rgb(r, spec: dict, cfg: dict) -> tuple[float, float]:
     return shared, time.perf_counter() - t0
 
 
-def labels_benchmark(cfg: dict, n: int, out: Path, seed: int) -> None:
+def labels_benchmark(cfg: dict, n: int, out: Path, seed: int,
+                     background_writes: bool = True) -> None:
     """Interleaved: for each sample, the whole pipeline, then the same scene's bare RGB."""
     from hack_render.dataset.worker import SampleRenderer
 
-    r = SampleRenderer(cfg, out, seed)
+    # as the serial executor: files written on a background thread; render() returns
+    # once every file of the sample is on disk, so the timed part includes all writes
+    r = SampleRenderer(cfg, out, seed, background_writes=background_writes)
     r.build_scenes()
     presets, i = set(), 0
     # warm-up: every preset's kernels compiled (both sides share them), excluded
@@ -213,11 +219,13 @@ def main() -> None:
     ap.add_argument("--ray-n", type=int, default=16)
     ap.add_argument("--no-ray", action="store_true")
     ap.add_argument("--no-labels", action="store_true", help="skip (a)")
+    ap.add_argument("--inline-writes", action="store_true",
+                    help="(a): write files in the rendering thread (no background writer)")
     a = ap.parse_args()
     cfg = config(a.size, a.spp, a.appearance)
     with tempfile.TemporaryDirectory() as tmp:
         if not a.no_labels:
-            labels_benchmark(cfg, a.n, Path(tmp) / "a", a.seed)
+            labels_benchmark(cfg, a.n, Path(tmp) / "a", a.seed, not a.inline_writes)
             print(f"(c) peak RSS of this process after (a): {peak_rss_mib():.0f} MiB")
         if not a.no_ray:
             try:

@@ -14,8 +14,14 @@ another light (whole noisy pixels differed, max |d| ~0.8). ``HeadScene`` now loa
 ``optimize=False``; 30/30 rounds at 32 px and 4 + 6 rounds at 128 px (32 and 3 spp, two
 Dr.Jit threads) were then byte-identical under ``--load 2``. ``--permute`` then found a
 second, rarer cause: the acceleration structure built for a sample depended slightly on
-the previous sample's (1-2 pixels of ~1 sample in 8 at 128 px); the worker now rebuilds
-from the rest mesh before each sample.
+the previous sample's (1-2 pixels of ~1 sample in 8 at 128 px). First worked around by
+rebuilding from the rest mesh before each sample; the cause was then found to be not the
+acceleration structure (ray hits were identical in every order) but Mitsuba's
+``Scene.parameters_changed`` handing the environment emitter the scene bounds from
+*before* the update, so the environment's bounding sphere (which places its sampled
+points and so the shadow rays' directions) was the previous sample's; the worker now
+calls ``HeadScene.sync_environment`` after each update (no rebuild, ~50 ms less per
+sample).
 
 Every round prints which files differ (and, for EXR files, by how much). The exit code
 is 1 if any round differed.

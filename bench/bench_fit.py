@@ -3,6 +3,14 @@
     python bench/bench_fit.py --subjects 2 --res 256          # synthetic recovery
     python bench/bench_fit.py --astronaut --res 256           # real photo NME + time
     python bench/bench_fit.py --overhead --res 128            # bridge vs bare mi.render
+    python bench/bench_fit.py --subjects 20 --detector-only   # dlib vs the true landmarks
+    python bench/bench_fit.py ... --embedding vertices        # fit the model's vertices
+
+Landmarks: fits use the calibrated dlib embedding (hack_render/data/
+landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
+dlib's NME against the true landmark vertices (detector_nme) and against the true
+embedding points (detector_nme_embedding); fits report the fitted-vs-true NME of both
+(nme: landmark vertices, nme_embedding: embedding points).
 
 Synthetic: subjects from random beta (N(0, 0.8^2), 20 comps), head rotation, appearance
 alpha and a frontal camera with random distance; rendered with the path tracer (64 spp,
@@ -27,10 +35,50 @@ from hack_render.fit.metrics import similarity_error
 
 def _medians(rows: list) -> dict:
     ok = [r for r in rows if "error" not in r]
-    keys = ("vertex_mm", "nme", "albedo_de2000", "psnr_db", "joint_deg", "seconds",
-            "detector_nme", "detector_nme_inner")
+    keys = ("vertex_mm", "nme", "nme_embedding", "albedo_de2000", "psnr_db", "joint_deg",
+            "seconds", "detector_nme", "detector_nme_inner", "detector_nme_contour",
+            "detector_nme_embedding", "detector_nme_embedding_inner",
+            "detector_nme_embedding_contour")
     return {k: float(np.median([r[k] for r in ok if k in r])) for k in keys
             if any(k in r for r in ok)}
+
+
+def render_subject(k: int, res: int, model, app) -> dict:
+    """Synthetic subject k of the benchmark (torch generator seeded 100 + k): random
+    beta, head rotation, appearance alpha, a frontal camera at a random focal length,
+    rendered with the path tracer (64 spp, light_stage). Returns its parameters, the
+    model output, the true skin maps, the camera and the sRGB photo."""
+    import colour
+
+    from hack_render.fit.fitter import R0
+    from hack_render.fit.photo import Photo
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render.materials import SkinMaps
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from scenes.cameras import Camera
+    from scenes.lights import preset
+
+    g = torch.Generator().manual_seed(100 + k)
+    beta = 0.8 * torch.randn(1, 20, generator=g)
+    ang = torch.deg2rad(torch.tensor([10.0, 30.0, 8.0]) * (2 * torch.rand(3, generator=g) - 1))
+    theta = distribute_head_rotation(ang)[None]
+    with torch.no_grad():
+        out = model(beta=beta, theta=theta)
+    alpha = torch.randn(1, 20, generator=g)
+    with torch.no_grad():
+        tmaps = app.maps(alpha)
+    f = 50.0 / 36.0 * res * (1.8 + 0.6 * float(torch.rand(1, generator=g)))
+    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
+    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res)
+    head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
+                     preset("light_stage"), cam, RenderSettings(res, res, 64, 4, 0),
+                     SkinMaps.from_appearance(tmaps))
+    img = head.render()[..., :3]
+    srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
+    photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
+    return {"beta": beta, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
+            "cam": cam, "photo": photo}
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False) -> dict:
@@ -40,16 +88,9 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     from pathlib import Path
 
     from hack_render.fit.config import load_config
-    from hack_render.fit.fitter import R0, Fitter
+    from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
-    from hack_render.fit.photo import Photo
     from hack_render.geometry import load_default_model
-    from hack_render.geometry.skeleton import distribute_head_rotation
-    from hack_render.render.materials import SkinMaps
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from scenes.cameras import Camera
-    from scenes.lights import preset
 
     from appearance.model import AppearanceModel
 
@@ -68,27 +109,19 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
                                        "median": _medians(rows)}, indent=1))
             tmp.replace(out_path)
 
+    from hack_render.fit.landmark_embedding import (CalibrationSet, LandmarkEmbedding,
+                                                    evaluate, load_default)
+
+    emb = load_default(model)
+    li = model.landmark_indices.numpy()
+    vert_emb = LandmarkEmbedding.from_vertices(li, model.faces.numpy())
+    template = model.template.numpy().astype(np.float64)
     for k in range(n):
         if k in done:
             continue
-        g = torch.Generator().manual_seed(100 + k)
-        beta = 0.8 * torch.randn(1, 20, generator=g)
-        ang = torch.deg2rad(torch.tensor([10.0, 30.0, 8.0]) * (2 * torch.rand(3, generator=g) - 1))
-        theta = distribute_head_rotation(ang)[None]
-        with torch.no_grad():
-            out = model(beta=beta, theta=theta)
-        alpha = torch.randn(1, 20, generator=g)
-        with torch.no_grad():
-            tmaps = app.maps(alpha)
-        f = 50.0 / 36.0 * res * (1.8 + 0.6 * float(torch.rand(1, generator=g)))
-        K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
-        cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res)
-        head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
-                         preset("light_stage"), cam, RenderSettings(res, res, 64, 4, 0),
-                         SkinMaps.from_appearance(tmaps))
-        img = head.render()[..., :3]
-        srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
-        photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
+        subj = render_subject(k, res, model, app)
+        beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
+                                                                 "tmaps", "cam", "photo"))
         try:
             det = detect_landmarks(photo.uint8(), name=photo.name)
         except Exception as err:  # noqa: BLE001 - reported, not hidden
@@ -96,12 +129,25 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             save()
             continue
         # the detector's own error against the true landmarks (a floor for the fit's
-        # landmark error, which is fitted to the detector's points)
-        lm_true = cam.project(out.landmarks[0].numpy().astype(np.float64))
+        # landmark error, which is fitted to the detector's points): against the model's
+        # landmark vertices and against the calibrated embedding's points; "_contour":
+        # the jawline matched to the true mesh's occluding contour, as the fitter does
+        V = out.vertices[0].numpy().astype(np.float64)
+        lm_true = cam.project(V[li])
         iod = np.linalg.norm(lm_true[36] - lm_true[45])
-        det_err = np.linalg.norm(det.points - lm_true, axis=1) / iod
-        det_nme = {"detector_nme": float(det_err.mean()),
-                   "detector_nme_inner": float(det_err[17:].mean())}
+        one = CalibrationSet(V[None], cam.K[None], cam.R[None], cam.t[None],
+                             det.points[None], np.array([k]))
+        ev = evaluate(one, emb if emb is not None else vert_emb, li, template,
+                      model.faces.numpy())
+        names = {"vertices": "detector_nme", "vertices_inner": "detector_nme_inner",
+                 "vertices_contour": "detector_nme_contour"}
+        if emb is not None:
+            names.update(embedding="detector_nme_embedding",
+                         embedding_inner="detector_nme_embedding_inner",
+                         embedding_contour="detector_nme_embedding_contour")
+        det_nme = {b: ev[a][0] for a, b in names.items()}
+        if emb is not None:
+            emb_true = cam.project(emb.points_np(V))
         if detector_only:
             rows.append({"subject": k, **det_nme})
             print(json.dumps(rows[-1]), flush=True)
@@ -123,6 +169,11 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         with torch.no_grad():
             lm_fit = fitter.project(v, fo.landmarks[0]).numpy()
         nme = np.linalg.norm(lm_fit - lm_true, axis=1).mean() / iod
+        extra = {}
+        if emb is not None:  # the same, for the embedding's points (fit vs truth)
+            with torch.no_grad():
+                ef = fitter.project(v, emb.points(fo.vertices[0])).numpy()
+            extra["nme_embedding"] = float(np.linalg.norm(ef - emb_true, axis=1).mean() / iod)
         mask = app.mask_np[:, : app.height]
         lab = lambda x: colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.clip(x, 1e-6, 1),  # noqa: E731
                                                                apply_cctf_decoding=False))
@@ -142,7 +193,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         jerr = float(torch.rad2deg((axis_angle_to_euler(th_fit) - axis_angle_to_euler(theta)).abs()).mean())
         rows.append({"subject": k, "vertex_mm": 1000 * verr, "nme": float(nme),
                      "albedo_de2000": float(np.median(de)), "psnr_db": float(psnr),
-                     "joint_deg": jerr, "seconds": dt, **det_nme})
+                     "joint_deg": jerr, "seconds": dt, **extra, **det_nme})
         print(json.dumps(rows[-1]), flush=True)
         save()
     return {"subjects": rows, "median": _medians(rows)}
@@ -250,6 +301,10 @@ def main():
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
+    ap.add_argument("--embedding", type=str, default=None,
+                    help="config landmarks.embedding for the fits: dlib (default: the "
+                         "calibrated embedding), vertices (the model's landmark vertices, "
+                         "the former behaviour) or an embedding file")
     ap.add_argument("--out", type=str, default=None,
                     help="synthetic: JSON written after every subject; resumes from it")
     args = ap.parse_args()
@@ -257,6 +312,8 @@ def main():
     its = [int(x) for x in args.iterations.split(",")]
     cfg = {"photometric": {"resolutions": [args.res // 2, args.res], "iterations": its,
                            "spp": args.spp}}
+    if args.embedding:
+        cfg["landmarks"] = {"embedding": args.embedding}
     out = {"config": cfg}
     if args.overhead:
         out["overhead"] = overhead(args.res, args.spp, args.reps)
@@ -266,6 +323,8 @@ def main():
             from hack_render.fit.config import tiny_overrides
 
             cfg = out["config"] = tiny_overrides()
+            if args.embedding:
+                cfg["landmarks"] = {"embedding": args.embedding}
         out["astronaut"] = astronaut(args.res, cfg)
         print(json.dumps(out["astronaut"]))
     if args.subjects:

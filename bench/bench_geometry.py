@@ -1,8 +1,11 @@
 """Geometry forward cost against a physical floor, measured in one run (issue 2, Sec. 6).
 
-Floor: one matrix product that reads the same blendshape bytes once ((1, K) @ (K, 3N) over
-the model's contiguous float32 basis). Reports forward / floor at B = 1 and B = 64, and the
-speed-up of the personalised forward over the general one for a fixed identity.
+Floor: one matrix product that reads the same blendshape bytes once: (B, K) @ (K, 3N) over a
+contiguous float32 buffer as large as every basis the general forward reads (the shape,
+expression and pose blendshapes, and, when the model carries them, the personalised
+expression and pose PCA components and the larynx maps). Reports forward / floor at B = 1
+and B = 64, and the speed-up of the personalised forward over the general one for a fixed
+identity.
 
     python bench/bench_geometry.py [--repeats 30]
 """
@@ -27,15 +30,30 @@ def best_time(fn, repeats: int) -> float:
     return min(times)
 
 
+def floor_basis(model) -> torch.Tensor:
+    """A (K, 3N) float32 buffer with as many bytes as every basis the general forward reads."""
+    parts = [model.blend_basis.flatten()]
+    for pb in (model.expr_personal, model.pose_personal):
+        if pb is not None:
+            parts += [pb.components.flatten(), pb.mean.flatten()]
+    if model.has_larynx:
+        parts.append(model.larynx_maps.flatten())
+    flat = torch.cat(parts)
+    width = model.blend_basis.shape[1]
+    rows = -(-flat.numel() // width)
+    return torch.nn.functional.pad(flat, (0, rows * width - flat.numel())).view(rows, width).contiguous()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=30)
     args = ap.parse_args()
     model = load_default_model()
-    basis = model.blend_basis
+    basis = floor_basis(model)
     gen = torch.Generator().manual_seed(0)
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, basis {tuple(basis.shape)} "
-          f"float32 = {basis.numel() * 4 / 1e6:.1f} MB")
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, bases read by the forward: "
+          f"{basis.numel() * 4 / 1e6:.1f} MB float32 (blend basis {tuple(model.blend_basis.shape)}"
+          f"{', personalised PCA, larynx maps' if basis.shape[0] > model.blend_basis.shape[0] else ''})")
     rows = []
     with torch.no_grad():
         for b in (1, 64):

@@ -242,13 +242,14 @@ def _deformation(model, theta):
     return flips, stretch
 
 
-# Known exceptions, measured and explained in the README: c1-c2's 40 degree axial twist
-# alone, and o-c1's flexion, with the face rigid and the chest pinned (pure LBS).
-_BOUNDS = {(6, 1): 0.55, (7, 0): 0.33}
+# With pure LBS (no pose blendshapes) c1-c2's 40 degree axial twist alone stretches the
+# side of the short ICT neck by 53 % and o-c1's flexion by 31 % (README); the shipped model's
+# pose correctives, learned from ARAP-deformed sequences, bring every limit under 30 %.
 
 
 @pytest.mark.parametrize("joint", range(8))
 def test_joint_limits_flip_nothing_and_stretch_little(default, joint):
+    assert default.has_pose_basis and default.pose_personal is not None
     lim = torch.deg2rad(default.rotation_limits_deg)
     for axis in range(3):
         for side in range(2):
@@ -256,8 +257,7 @@ def test_joint_limits_flip_nothing_and_stretch_little(default, joint):
             e[joint, axis] = lim[joint, axis, side]
             flips, stretch = _deformation(default, R.euler_to_axis_angle(e))
             assert flips == 0, (joint, axis, side)
-            bound = _BOUNDS.get((joint, axis), 0.30)
-            assert stretch <= bound, (joint, axis, side, stretch)
+            assert stretch <= 0.30, (joint, axis, side, stretch)
 
 
 def test_face_is_rigid_with_the_skull(default):

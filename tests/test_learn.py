@@ -352,8 +352,6 @@ def _larynx_peak(m, eta, tau):
     return (w[:, None] * base).sum(0) / w.sum(), mag.max()
 
 
-# Opt-in until the v2 model (hack-render model build-v2) is shipped as package data.
-@pytest.mark.slow
 def test_13_shipped_larynx_slides_vertically_by_tau(shipped):
     c0, _ = _larynx_peak(shipped, 1.0, 0.0)
     for tau in (0.01, -0.01):
@@ -362,8 +360,6 @@ def test_13_shipped_larynx_slides_vertically_by_tau(shipped):
         assert abs(c[0] - c0[0]) < 0.001
 
 
-# Opt-in until the v2 model (hack-render model build-v2) is shipped as package data.
-@pytest.mark.slow
 def test_14_shipped_larynx_eta_scales_protrusion_and_zero_gives_template(shipped):
     _, h1 = _larynx_peak(shipped, 1.0, 0.0)
     _, h2 = _larynx_peak(shipped, 2.0, 0.0)
@@ -374,8 +370,6 @@ def test_14_shipped_larynx_eta_scales_protrusion_and_zero_gives_template(shipped
     torch.testing.assert_close(out, shipped.template, atol=1e-7, rtol=0)
 
 
-# Opt-in until the v2 model (hack-render model build-v2) is shipped as package data.
-@pytest.mark.slow
 def test_15_shipped_model_has_provenance_and_report(shipped, tmp_path):
     from hack_render.build.report import write_report
 

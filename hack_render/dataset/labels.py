@@ -191,21 +191,33 @@ def larynx_candidates(model) -> np.ndarray:
     return np.flatnonzero(neck & front & (np.abs(t[:, 0]) < LARYNX_WINDOW[1]))
 
 
-def larynx_peak(model, out, tau: float, candidates: np.ndarray | None = None) -> tuple[int, np.ndarray]:
+def larynx_peak(model, out, tau: float, candidates: np.ndarray | None = None,
+                beta=None) -> tuple[int, np.ndarray]:
     """The larynx-peak landmark of one posed sample: (vertex index, posed position (3,)).
 
-    Definition: among the midline neck-front skin vertices (|x| < 1.2 cm), those whose
-    rest-pose height lies within 1.5 cm of the C4-C5 joint (the laryngeal prominence's
-    level, ANATOMY.md), raised by ``tau`` when the model has a larynx basis (the
-    prominence slides with it); the most anterior one (largest z) in the sample's rest
-    shape (``rest_vertices``: identity, expression, larynx size and slide, before the
-    neck pose) is the peak, and its posed position is the landmark.
+    Definition. With a larynx basis (the shipped v2 model): the larynx-region vertex that
+    the mean-size larynx of this identity, slid by ``tau``, displaces most,
+    ``argmax_j |L(beta, 1, tau)_j|``. It follows ``tau`` (the prominence slides under the
+    skin) and does not depend on ``eta`` (which scales the larynx's size, not its place),
+    so the label exists even for a flat neck (eta = 0). Without a larynx basis: among the
+    midline neck-front skin vertices (|x| < 1.2 cm) whose rest-pose height lies within
+    1.5 cm of the C4-C5 joint (the laryngeal prominence's level, ANATOMY.md), the most
+    anterior one (largest z) in the sample's rest shape. The landmark is that vertex's
+    posed position. ``beta``: the sample's (1, S) identity (zeros when omitted).
     """
+    if model.has_larynx:
+        import torch
+
+        dt = model.template.dtype
+        b = None if beta is None else torch.as_tensor(beta, dtype=dt).reshape(1, -1)
+        with torch.no_grad():
+            d = model.larynx_displacement(b, tau=torch.tensor([float(tau)], dtype=dt))[0]
+        k = int(model.larynx_vertices[int(torch.linalg.norm(d, dim=1).argmax())])
+        return k, out.vertices[0, k].detach().numpy().astype(np.float64)
     cand = larynx_candidates(model) if candidates is None else candidates
     rest = out.rest_vertices[0].detach().numpy()
     c45 = out.rest_joints[0, model.joint_names.index("c4-c5")].detach().numpy()
-    level = c45[1] + (tau if model.has_larynx else 0.0)
-    sel = cand[np.abs(rest[cand, 1] - level) < LARYNX_WINDOW[0]]
+    sel = cand[np.abs(rest[cand, 1] - c45[1]) < LARYNX_WINDOW[0]]
     if not len(sel):
         sel = cand
     k = int(sel[np.argmax(rest[sel, 2])])

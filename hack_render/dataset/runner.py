@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -200,9 +201,26 @@ def run_serial(job: Job, todo: list[int], progress: bool = True) -> int:
 
     if not todo:
         return 0
-    renderer = SampleRenderer(job.cfg, job.out, job.seed)
-    for i in tqdm(todo, desc="dataset", unit="sample", disable=not progress):
-        _append_manifest(job, renderer.render(i))
+    # files are written on a background thread while the next sample renders; records
+    # are logged in order as their samples complete
+    renderer = SampleRenderer(job.cfg, job.out, job.seed, background_writes=True)
+    pending: deque = deque()
+    try:
+        for i in tqdm(todo, desc="dataset", unit="sample", disable=not progress):
+            pending.append(renderer.submit(i))
+            while pending and pending[0].done():
+                _append_manifest(job, pending.popleft().result())
+    except BaseException:
+        # interrupted (Ctrl-C) or failed: finish the queued writes, so that every sample
+        # whose files were queued is complete on disk, then stop
+        renderer.close()
+        for f in pending:
+            if f.exception() is None:
+                _append_manifest(job, f.result())
+        raise
+    renderer.close()
+    for f in pending:
+        _append_manifest(job, f.result())  # raises a failed write's error
     return len(todo)
 
 

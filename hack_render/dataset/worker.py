@@ -4,9 +4,15 @@ A :class:`SampleRenderer` lives in one process (the serial loop or one Ray actor
 loads the model once and keeps one :class:`~hack_render.render.scene.HeadScene` per
 lighting preset, built from the same canonical state (the rest mesh, a fixed camera,
 flat skin maps) and then changed per sample through ``set_vertices``, ``set_maps``,
-``set_camera`` and ``set_light_rotation``: every sample is then rendered from a scene
-whose content depends on that sample alone, and the box pixel filter makes the pixels
-bit-identical whichever process renders it and whatever it rendered before.
+``set_camera`` and ``set_light_rotation`` (then ``sync_environment``, so that the
+environment emitter sees the sample's own bounds): every sample is then rendered from a
+scene whose content depends on that sample alone, and the box pixel filter makes the
+pixels bit-identical whichever process renders it and whatever it rendered before.
+
+Files are encoded and written by a :class:`FileWriter`, in the caller's thread or, for
+the serial executor, on one background thread while the next sample renders; either way
+each file is written under a temporary name and renamed, and ``sample.json`` (the
+completion mark) only after all of the sample's other files are on disk.
 
 Exposure scales every emitter of the rig by 2**exposure; light transport is linear in
 the emitted radiance, so it is applied to the rendered radiance (identical in
@@ -17,6 +23,8 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import deque
+from concurrent.futures import Future, wait
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +69,10 @@ def _write_png(path: Path, array: np.ndarray) -> None:
 class SampleRenderer:
     """Renders samples of one dataset config into ``out``; reusable across samples."""
 
-    def __init__(self, cfg: dict, out: str | Path, seed: int):
+    #: Samples whose files may still be queued when the next sample starts (memory bound).
+    max_pending = 2
+
+    def __init__(self, cfg: dict, out: str | Path, seed: int, background_writes: bool = False):
         from hack_render.geometry import load_default_model
         from hack_render.render.parts import Topology
 
@@ -76,6 +87,9 @@ class SampleRenderer:
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
+        #: encodes and writes the files; with ``background_writes`` on one thread of its
+        #: own, so that a sample's files are written while the next one renders
+        self.writer = FileWriter(background_writes)
 
     # --- parts ----------------------------------------------------------------------
     def spec(self, index: int) -> dict:
@@ -146,13 +160,23 @@ class SampleRenderer:
 
     # --- one sample -----------------------------------------------------------------
     def render(self, index: int) -> dict:
-        """Render sample ``index`` and write its files; returns its manifest record.
+        """Render sample ``index`` and write its files; returns its manifest record once
+        every file, ``sample.json`` last, is on disk (see :meth:`submit`)."""
+        return self.submit(index).result()
 
-        The folder is emptied first (a partial sample from an interrupted run is redone);
-        ``sample.json``, written last, marks the sample complete.
+    def submit(self, index: int) -> Future:
+        """Render sample ``index`` and queue its file writes; returns a future of its
+        manifest record.
+
+        The folder is emptied first (a partial sample from an interrupted run is redone).
+        Files are encoded and written by :attr:`writer` in the order they are queued
+        (in the background when it has a thread, while this thread renders on), each
+        under a temporary name then renamed; ``sample.json``, queued last and written only
+        if every other file of the sample was, marks the sample complete.
         """
         import torch
 
+        self.writer.wait_below(self.max_pending)
         spec = self.spec(index)
         folder = sample_dir(self.out, index)
         if folder.exists():
@@ -162,58 +186,127 @@ class SampleRenderer:
             out = self.model(**model_kwargs(self.model, spec))
         verts = out.vertices[0].numpy().astype(np.float64)
         larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
-                                                self.larynx_candidates)
+                                                self.larynx_candidates, spec["beta"] or None)
         head = self.scene(spec["lighting"]["preset"])
-        # Back to the canonical (rest) mesh first: the ray-tracing acceleration structure
-        # built for a sample depends slightly on the one it replaces, and a ray grazing a
-        # shared triangle edge could then hit the other triangle, so a pixel or two of a
-        # sample depended on which sample the process rendered before (found by rendering
-        # the same samples in two orders). The extra rebuild makes every sample's start
-        # state the same.
-        head.set_vertices(self.rest)
-        # then one params.update() (in set_camera) for all of the sample's changes: each
-        # update that touches a shape rebuilds the acceleration structure
+        # one params.update() (in set_camera) for all of the sample's changes: each update
+        # that touches a shape rebuilds the acceleration structure
         head.set_vertices(verts, update=False)
         head.set_maps(self.skin_maps(spec["appearance"]), update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
-        _write_json(folder / "params.json", params_file(self.model, spec))
+        writes = [self.writer.submit(_write_json, folder / "params.json",
+                                     params_file(self.model, spec))]
         views = []
         for v, view in enumerate(spec["cameras"]):
             cam = camera_of(view, self.cfg["render"]["resolution"], f"view_{v:02d}")
-            views.append(self._render_view(head, cam, spec, v, folder, out, larynx))
+            views.append(self._render_view(head, cam, spec, v, folder, out, larynx, writes))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
-        files = sorted(p for p in folder.rglob("*") if p.is_file())
-        spec["files"] = {str(p.relative_to(self.out)): p.stat().st_size for p in files}
-        _write_json(folder / SAMPLE_RECORD, spec)
-        return spec
+        return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
-    def _render_view(self, head, cam, spec, v, folder, out, larynx) -> dict:
+    def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
         from hack_render.render.image_io import rgb_channels, to_srgb8, write_exr
 
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"
+        vdir.mkdir()
+        put = self.writer.submit
         head.set_camera(cam)
+        # Mitsuba gives the environment emitter the bounds of the geometry *before* an
+        # update (its bounding sphere places the sampled environment points, so shadow-ray
+        # directions moved in the last bit): without this a pixel or two of ~1 sample in 8
+        # depended on the sample rendered before (found by rendering samples in two orders)
+        head.sync_environment()
+        # labels first: their files are written while the path tracer runs
+        aov, seg, masks = lab.label_images(head, r["soft_mask_samples"], self.atlas)
+        meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
+        writes += [
+            put(write_exr, vdir / "depth.exr", {"Z": aov["depth"]}, meta),
+            put(write_exr, vdir / "normal.exr",
+                {c: aov["normal"][..., i] for i, c in enumerate("XYZ")}, meta),
+            put(write_exr, vdir / "uv.exr", {"U": aov["uv"][..., 0], "V": aov["uv"][..., 1]},
+                meta),
+            put(write_exr, vdir / "albedo.exr", rgb_channels(aov["albedo"]), meta),
+            put(_write_png, vdir / "segmentation.png", seg.astype(np.uint8)),
+            put(write_exr, vdir / "masks.exr",
+                {f"mask.{n}": masks[..., i] for i, n in enumerate(lab.LABELS)})]
+        lm = lab.landmark_record(head, cam, out.landmarks[0].numpy(), out.joints[0].numpy(),
+                                 larynx)
+        writes += [put(_write_json, vdir / "landmarks.json", lm),
+                   put(_write_json, vdir / "camera.json", cam.to_dict())]
         img = head.render(seed=spec["render_seed"] + v)
         img[..., :3] *= np.float32(2.0 ** spec["lighting"]["exposure"])
-        aov, seg, masks = lab.label_images(head, r["soft_mask_samples"], self.atlas)
         # the matte is geometric coverage: the film's alpha is 1 on every pixel once an
         # environment light is visible behind the subject
         alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)
-        meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
         ch = rgb_channels(img[..., :3])
         ch["A"] = alpha
-        write_exr(vdir / "rgb.exr", ch, meta)
-        _write_png(vdir / "rgb.png", to_srgb8(img[..., :3], 0.0, r["tonemap"]))
-        _write_png(vdir / "alpha.png", np.round(alpha * 255).astype(np.uint8))
-        write_exr(vdir / "depth.exr", {"Z": aov["depth"]}, meta)
-        write_exr(vdir / "normal.exr", {c: aov["normal"][..., i] for i, c in enumerate("XYZ")}, meta)
-        write_exr(vdir / "uv.exr", {"U": aov["uv"][..., 0], "V": aov["uv"][..., 1]}, meta)
-        write_exr(vdir / "albedo.exr", rgb_channels(aov["albedo"]), meta)
-        _write_png(vdir / "segmentation.png", seg.astype(np.uint8))
-        write_exr(vdir / "masks.exr", {f"mask.{n}": masks[..., i] for i, n in enumerate(lab.LABELS)})
-        lm = lab.landmark_record(head, cam, out.landmarks[0].numpy(), out.joints[0].numpy(),
-                                 larynx)
-        _write_json(vdir / "landmarks.json", lm)
-        _write_json(vdir / "camera.json", cam.to_dict())
+        writes += [put(write_exr, vdir / "rgb.exr", ch, meta),
+                   put(_write_rgb_png, vdir / "rgb.png", img[..., :3], r["tonemap"]),
+                   put(_write_png, vdir / "alpha.png", np.round(alpha * 255).astype(np.uint8))]
         return {"name": cam.name, "camera": cam.to_dict(), "sampled": spec["cameras"][v]}
+
+    def close(self) -> None:
+        """Wait for every queued write (errors stay with their samples' futures) and stop
+        the writer thread."""
+        self.writer.close()
+
+
+def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
+    from hack_render.render.image_io import to_srgb8
+
+    _write_png(path, to_srgb8(linear, 0.0, tonemap))
+
+
+def _write_record(out: Path, folder: Path, spec: dict, writes: list) -> dict:
+    """Write ``sample.json`` (every file with its size) after the sample's other files;
+    raises, writing nothing, if any of them failed. Runs on the writer thread, after
+    ``writes`` (queued earlier, so already finished)."""
+    for w in writes:
+        w.result()
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    spec["files"] = {str(p.relative_to(out)): p.stat().st_size for p in files}
+    _write_json(folder / SAMPLE_RECORD, spec)
+    return spec
+
+
+class FileWriter:
+    """Runs file writes in the order they are submitted: on one background thread
+    (``background=True``), or at once in the caller's thread. Returns futures; a failed
+    write's exception is raised by its future."""
+
+    def __init__(self, background: bool = False):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-writer") \
+            if background else None
+        self._records: deque[Future] = deque()
+
+    @property
+    def background(self) -> bool:
+        return self._pool is not None
+
+    def submit(self, fn, *args) -> Future:
+        if self._pool is not None:
+            fut = self._pool.submit(fn, *args)
+        else:
+            fut = Future()
+            try:
+                fut.set_result(fn(*args))
+            except Exception as err:  # noqa: BLE001 - kept in the future, as a thread would
+                fut.set_exception(err)
+        if fn is _write_record:
+            self._records.append(fut)
+        return fut
+
+    def wait_below(self, n: int) -> None:
+        """Block until fewer than ``n`` samples' records are still pending (memory bound)."""
+        while self._records and (self._records[0].done() or len(self._records) >= n):
+            f = self._records.popleft()
+            if not f.done():
+                wait([f])
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        self._records.clear()

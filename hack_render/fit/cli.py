@@ -109,6 +109,46 @@ def fit(
     typer.echo(f"wrote {len(paths)} files to {output.resolve()}")
 
 
+def calibrate_landmarks(
+    output: Path = typer.Option(..., "-o", "--output", help="Embedding file to write (.npz), "
+                                "e.g. hack_render/data/landmark_embedding_dlib.npz."),
+    subjects: int = typer.Option(60, "--subjects", min=1, help="Synthetic subjects to render "
+                                 "(the detector's misses are left out and reported)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
+                             "(default 5150; bench/bench_fit.py's subjects are disjoint)."),
+    resolution: Optional[int] = typer.Option(None, "--res", help="Render size in pixels (default 320)."),
+    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
+    radius: float = typer.Option(0.025, "--radius", help="Search radius around each model "
+                                 "landmark vertex, metres on the rest mesh."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Calibrate the 68-landmark embedding (triangle + barycentrics per landmark) to dlib.
+
+    Renders synthetic subjects of the default model with known geometry and cameras (the
+    dataset sampler), runs dlib on each and picks, per landmark (18-68; the jawline stays
+    contour-matched), the skin point whose projections are nearest to dlib's points.
+    The fitter uses hack_render/data/landmark_embedding_dlib.npz by default.
+
+    Example: hack-render calibrate-landmarks -o emb.npz --subjects 60
+    """
+    import json
+    import sys
+
+    from hack_render.fit import landmark_embedding as le
+
+    seed = le.CALIBRATION_SEED if seed is None else seed
+    cmd = "hack-render calibrate-landmarks " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 \
+        else ""
+    emb, report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
+                           progress=not quiet)
+    typer.echo(json.dumps({"used": emb.meta["subjects_used"],
+                           "left_out": len(emb.meta["left_out"]),
+                           "calibrated": int(emb.calibrated.sum()),
+                           "nme_median": emb.meta["calibration_nme_median"]}))
+    typer.echo(f"wrote {Path(output).resolve()}")
+
+
 def register(app: typer.Typer) -> None:
-    """Add `fit` to the main app."""
+    """Add `fit` and `calibrate-landmarks` to the main app."""
     app.command("fit")(fit)
+    app.command("calibrate-landmarks")(calibrate_landmarks)

@@ -36,6 +36,14 @@ class LandmarkConfig:
     jaw_weight: float = 0.5          # weight of the 17 jawline (contour) landmarks
     contour_every: int = 10          # re-match jawline contour vertices every k iterations
     huber_px: float = 0.01           # robust loss knee, as a fraction of the face size
+    # which surface points the 68 detected points are fitted to: "dlib" (the embedding
+    # calibrated to dlib, hack_render/data/landmark_embedding_dlib.npz; the model's
+    # landmark vertices, with a warning, if it is missing), "vertices" (ICT's 68 landmark
+    # vertices), or the path of an embedding file (hack-render calibrate-landmarks)
+    embedding: str = "dlib"
+    # --landmarks files follow "detector" (dlib's convention: the embedding above) or
+    # "vertices" (they mark the model's own landmark vertices)
+    files_follow: str = "detector"
 
 
 @dataclass
@@ -118,6 +126,13 @@ class FitConfig:
         return dataclasses.asdict(self)
 
     def validate(self) -> "FitConfig":
+        lm = self.landmarks
+        if lm.files_follow not in ("detector", "vertices"):
+            raise HackError(f"config landmarks.files_follow: expected 'detector' or 'vertices', "
+                            f"found {lm.files_follow!r}.")
+        if not isinstance(lm.embedding, str) or not lm.embedding:
+            raise HackError(f"config landmarks.embedding: expected 'dlib', 'vertices' or an "
+                            f"embedding file path, found {lm.embedding!r}.")
         p = self.photometric
         if len(p.resolutions) != len(p.iterations):
             raise HackError(f"config photometric: expected as many iterations as resolutions, "

@@ -59,6 +59,7 @@ class View:
     psi: torch.Tensor | None      # (1, E) when expressions are per view
     lighting: Lighting | None = None
     renderer: object = None       # DiffRenderer of the current photometric level
+    embedded: bool = False        # landmarks are the embedding's points (else vertices)
     level: dict = field(default_factory=dict)
 
     @property
@@ -112,6 +113,7 @@ class Fitter:
         self.albedo_delta: torch.Tensor | None = None
         self.jaw = JawContour(m.template.numpy(), m.landmark_indices.numpy())
         self.lmk_idx = m.landmark_indices.clone()
+        self.embedding = _landmark_embedding(config.landmarks.embedding, m)
         self.lmk_w = landmark_weights(config.landmarks.jaw_weight)
         self.faces = m.faces
         self.views = [self._init_view(p, d) for p, d in zip(photos, detections)]
@@ -132,9 +134,15 @@ class Fitter:
         t = torch.tensor(cam - c3, dtype=torch.float32, requires_grad=True)
         psi = torch.zeros(1, self.n_expr, requires_grad=True) if self.cfg.per_view_expression \
             else None
+        # dlib's points, and landmark files in dlib's convention, go through the embedding;
+        # files marked as the model's vertices and any other source (e.g. projections of
+        # the true landmark vertices, source "truth") through the landmark vertices
+        embedded = self.embedding is not None and (
+            det.source == "dlib"
+            or (det.source == "file" and self.cfg.landmarks.files_follow == "detector"))
         return View(photo, det, torch.tensor([math.log(f0)], requires_grad=True), t,
                     torch.zeros(3, requires_grad=True), torch.zeros(8, 3, requires_grad=True),
-                    torch.zeros(3, requires_grad=True), psi)
+                    torch.zeros(3, requires_grad=True), psi, embedded=embedded)
 
     def view_psi(self, v: View) -> torch.Tensor:
         return v.psi if v.psi is not None else self.psi
@@ -160,7 +168,9 @@ class Fitter:
         return (-R0.T @ v.transl.detach()).numpy()
 
     def model_landmarks(self, v: View, verts: torch.Tensor, it: int) -> torch.Tensor:
-        """(68, 3) landmark vertices with the jawline re-matched to the contour."""
+        """(68, 3) landmark points with the jawline re-matched to the contour: the
+        calibrated embedding's surface points (barycentric interpolation, differentiable)
+        when the view uses it, else the model's landmark vertices."""
         if it % max(1, self.cfg.landmarks.contour_every) == 0:
             from hack_render.render.bridge import vertex_normals_torch
 
@@ -171,6 +181,14 @@ class Fitter:
                 self.jaw.match(vv.numpy(), n, self.camera_centre(v),
                                lambda p: self.project(v, torch.as_tensor(p)).numpy(), tgt)
                 v.level["jaw"] = self.jaw.current.copy()
+        if v.embedded:
+            pts = self.embedding.points(verts)
+            if "jaw" in v.level:  # contour points; a fixed jaw point (the chin) stays embedded
+                fixed = torch.tensor([len(c) == 1 for c in self.jaw.candidates])[:, None]
+                pts = torch.cat([torch.where(fixed, pts[:17],
+                                             verts[torch.as_tensor(v.level["jaw"])]),
+                                 pts[17:]])
+            return pts
         idx = self.lmk_idx.clone()
         if "jaw" in v.level:
             idx[:17] = torch.as_tensor(v.level["jaw"])
@@ -298,6 +316,19 @@ class Fitter:
                          self.psi, self.alpha, self.eta, self.tau, self.albedo_delta,
                          self.reports, self.timings,
                          [r.failure for r in self.reports if r.failure])
+
+
+def _landmark_embedding(name: str, model):
+    """The landmark embedding of ``landmarks.embedding`` ("dlib", "vertices" or a path), or
+    None for the model's vertices. The shipped "dlib" file falls back to the vertices with
+    a warning when it is missing or does not fit the model; a named file must load."""
+    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
+
+    if name == "vertices":
+        return None
+    if name == "dlib":
+        return load_default(model)
+    return LandmarkEmbedding.load(name, model)
 
 
 def _load_appearance():

@@ -91,7 +91,12 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                           if r.per_iteration_s else None} for r in res.reports],
               "views": [{"photo": v.photo.name, "notes": v.photo.notes,
                          "faces_found": v.detection.n_faces,
-                         "landmark_source": v.detection.source} for v in res.views]}
+                         "landmark_source": v.detection.source,
+                         "landmark_points": "embedding" if getattr(v, "embedded", False)
+                         else "vertices"} for v in res.views],
+              "landmark_embedding": (fitter.embedding.meta.get("provenance")
+                                     if getattr(fitter, "embedding", None) is not None
+                                     else None)}
     report.update(extra or {})
     written.append(_atomic_bytes(outdir / "fit_report.json",
                                  lambda t: t.write_text(json.dumps(report, indent=1))))

@@ -291,6 +291,24 @@ class HackModel(nn.Module):
             rest = rest.index_add(1, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
         return rest
 
+    def larynx_displacement(self, beta: torch.Tensor | None = None, eta: torch.Tensor | None = None,
+                            tau: torch.Tensor | None = None) -> torch.Tensor:
+        """L(beta, eta, tau) at the larynx-region vertices (``larynx_vertices``): (B, M, 3)
+        metres. Missing inputs: beta = 0, eta = 1 (the identity's mean larynx), tau = 0."""
+        if not self.has_larynx:
+            raise HackError("larynx_displacement: this model carries no larynx basis "
+                            "(build one with `hack-render model build-v2`).")
+        ref = next(t for t in (beta, eta, tau, self.template[None, :1, 0]) if t is not None)
+        B = ref.shape[0]
+        dd = dict(dtype=self.template.dtype, device=self.template.device)
+        beta = torch.zeros(B, self.num_shape, **dd) if beta is None else beta
+        beta = torch.nn.functional.pad(beta, (0, self.num_shape - beta.shape[1]))
+        eta = torch.ones(B, **dd) if eta is None else eta
+        tau = torch.zeros(B, **dd) if tau is None else tau
+        combined = _larynx.combine_maps(_larynx.larynx_coefficients(
+            beta, self.larynx_coef_matrix, self.larynx_coef_offset), self.larynx_maps)
+        return self._larynx_sample(combined, eta, tau)
+
     def _larynx_sample(self, combined, eta, tau):
         return _larynx.sample_displacement(combined, self.larynx_uv,
                                            self.larynx_uv_bounds, eta, tau, self.larynx_v_per_metre)

