@@ -117,35 +117,21 @@ def label_images(head, k: int, atlas: np.ndarray | None = None):
     Returns:
         (aov, seg, masks): ``aov`` the pixel-centre G-buffer (``render.aov.gbuffer``'s
         keys), ``seg`` (H, W) uint8 labels at the pixel centres, ``masks`` (H, W, L)
-        float32 coverage over k x k sub-pixel rays (one-hot ``seg`` for k = 0).
+        float32 coverage over k x k sub-pixel rays (one-hot ``seg`` for k = 0); a ray that
+        meets the lash cards counts EYELASH_OPACITY for the lashes and the rest for what is
+        behind them.
     """
-    atlas = skin_label_atlas() if atlas is None else atlas
-    out = head.label_pass(k, render_region_labels(), atlas, SKIN_RENDER_REGIONS,
-                          see_through=("eyelashes",))
-    seg = out.pop("centre_label")
-    front, behind = out.pop("label"), out.pop("label_behind")
-    if k == 0:
-        return out, seg, np.eye(len(LABELS), dtype=np.float32)[seg]
-    return out, seg, coverage(front, behind)
-
-
-def coverage(front: np.ndarray, behind: np.ndarray) -> np.ndarray:
-    """(H, W, L) float32 label coverage from per-ray labels (H, W, n) of the front surface
-    and of the surface behind lash hits: a lash ray counts EYELASH_OPACITY for the lashes
-    and the rest for what is behind. Sums to 1 over L."""
     from hack_render.render.materials import EYELASH_OPACITY
 
-    h, w, n = front.shape
-    n_lab = len(LABELS)
-    front = front.reshape(-1).astype(np.int64)
-    base = np.repeat(np.arange(h * w, dtype=np.int64) * n_lab, n)
-    lash = front == LABEL_ID["eyelashes"]
-    # bincount is the fast scatter-add (np.add.at is several times slower)
-    acc = np.bincount(base + front, np.where(lash, EYELASH_OPACITY, 1.0), h * w * n_lab)
-    if lash.any():
-        acc += np.bincount(base[lash] + behind.reshape(-1)[lash], minlength=h * w * n_lab) \
-            * (1.0 - EYELASH_OPACITY)
-    return (acc / n).reshape(h, w, n_lab).astype(np.float32)
+    atlas = skin_label_atlas() if atlas is None else atlas
+    out = head.label_pass(k, render_region_labels(), atlas, SKIN_RENDER_REGIONS,
+                          see_through=("eyelashes",), num_labels=len(LABELS),
+                          see_through_opacity=EYELASH_OPACITY)
+    seg = out.pop("centre_label")
+    masks = out.pop("coverage")
+    if k == 0:
+        return out, seg, np.eye(len(LABELS), dtype=np.float32)[seg]
+    return out, seg, masks
 
 
 def subpixel_offsets(k: int) -> list[tuple[float, float]]:

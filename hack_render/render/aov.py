@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hack_render.errors import HackError
+
 AOV_NAMES = ("depth", "normal", "albedo", "uv", "segmentation")
 
 
@@ -102,20 +104,26 @@ def _region_uv_jit(head, si, active):
 
 
 def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions=(),
-               see_through=("eyelashes",)) -> dict[str, np.ndarray]:
-    """Labels of k x k sub-pixel rays per pixel and the pixel-centre G-buffer, one batch.
+               see_through=("eyelashes",), num_labels: int | None = None,
+               see_through_opacity: float = 0.5) -> dict[str, np.ndarray]:
+    """Label coverage of k x k sub-pixel rays per pixel and the pixel-centre G-buffer, in
+    one ray batch and one kernel.
 
-    A label is ``region_labels[region]`` of the surface a ray meets (``parts.REGIONS``
+    A ray's label is ``region_labels[region]`` of the surface it meets (``parts.REGIONS``
     ids), except in ``uv_regions``, where it is the texel of ``uv_label_map`` (Hm, 2 Hm)
-    at the hit's model UV (u in [0, 2] across, v up; row 0 is v = 1). Rays whose first
-    surface is in a ``see_through`` region are continued once; ``label_behind`` is the
-    label of the surface behind. Sub-pixel point s = b k + a is ((a + 0.5) / k,
-    (b + 0.5) / k); the pixel centre is one of them for odd k and an extra ray otherwise.
+    at the hit's model UV (u in [0, 2] across, v up; row 0 is v = 1). A ray whose first
+    surface is in a ``see_through`` region is continued once: it counts
+    ``see_through_opacity`` for its own label and the rest for the label behind. Sub-pixel
+    point s = b k + a is ((a + 0.5) / k, (b + 0.5) / k); the pixel centre is one of them
+    for odd k and an extra ray (not counted in the coverage) otherwise. Coverage is
+    accumulated in the kernel (scatter-add of 1 and the opacity per ray: exact sums), and
+    the centre rays scatter the G-buffer, so nothing per ray leaves the kernel.
 
     Returns:
-        ``label``, ``label_behind``: (H, W, k^2) uint8 (k = 0: (H, W, 0)); ``centre_label``
-        (H, W) uint8; and :func:`gbuffer`'s arrays for the pixel centres (``depth``,
-        ``normal``, ``albedo``, ``uv``, ``segmentation``), computed from the same rays.
+        ``coverage`` (H, W, L) float32, L = ``num_labels`` (default: max label + 1), summing
+        to 1 over L (k = 0: (H, W, 0)); ``centre_label`` (H, W) uint8; and
+        :func:`gbuffer`'s arrays for the pixel centres (``depth``, ``normal``, ``albedo``,
+        ``uv``, ``segmentation``).
     """
     import drjit as dr
     import mitsuba as mi
@@ -128,11 +136,17 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     odd = k % 2 == 1
     c = kk // 2  # the sub-pixel point at the centre (odd k)
     m = kk - 1 if odd else kk  # other points per pixel
+    lut_np = np.asarray(region_labels, np.uint32)
+    lab_max = int(max(lut_np.max(initial=0), np.max(uv_label_map, initial=0)))
+    L = lab_max + 1 if num_labels is None else int(num_labels)
+    if lab_max >= L:
+        raise HackError(f"label_pass: num_labels {L} is below the largest label {lab_max}.")
     sensor = head.scene.sensors()[0]
-    lut = mi.UInt32(np.asarray(region_labels, np.uint32))
+    lut = mi.UInt32(lut_np)
     is_uv = mi.Bool(np.isin(np.arange(len(REGIONS)), [REGIONS.index(r) for r in uv_regions]))
     hm = uv_label_map.shape[0]
     texels = mi.UInt32(np.asarray(uv_label_map, np.uint32).ravel())
+    see = [REGIONS.index(name) for name in see_through if name in REGIONS]
 
     def labels_of(si_, active):
         region, u, v = _region_uv_jit(head, si_, active)
@@ -142,61 +156,74 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
         uv_hit = dr.gather(mi.Bool, is_uv, region)
         return dr.select(uv_hit, texel, dr.gather(mi.UInt32, lut, region)), region, u, v
 
-    def trace(pix, ox, oy):
-        x = mi.Float(pix % w) + ox
-        y = mi.Float(pix // w) + oy
-        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
-        # coherent: camera rays, a pixel's sub-pixel rays side by side (Embree's coherent
-        # traversal; ~15 % faster here, same hits)
-        si = head.scene.ray_intersect(ray, mi.RayFlags.All, True)
-        label, region, u, v = labels_of(si, mi.Bool(True))
-        through = mi.Bool(False)
-        for name in see_through:
-            if name in REGIONS:
-                through |= region == REGIONS.index(name)
-        si2 = head.scene.ray_intersect(si.spawn_ray(ray.d), through)
-        return ray, si, label, dr.select(through, labels_of(si2, through)[0], 0), region, u, v
-
-    # the pixel centres (also the middle sub-pixel point for odd k), then the other points
-    ray, si, label_c, label2_c, region, u, v = trace(dr.arange(mi.UInt32, n), mi.Float(0.5), mi.Float(0.5))
+    # rays 0 .. n-1: the pixel centres (also the middle sub-pixel point for odd k); then
+    # the other m points of every pixel
+    j = dr.arange(mi.UInt32, n * (1 + m))
+    centre = j < n
+    rest = dr.select(centre, 0, j - n)
+    pix = dr.select(centre, j, rest // max(m, 1))
+    sub = rest - (pix * m if m else 0)
+    if odd:
+        sub += dr.select(sub >= c, 1, 0)
+    ox = dr.select(centre, 0.5, (mi.Float(sub % max(k, 1)) + 0.5) / max(k, 1))
+    oy = dr.select(centre, 0.5, (mi.Float(sub // max(k, 1)) + 0.5) / max(k, 1))
+    x = mi.Float(pix % w) + ox
+    y = mi.Float(pix // w) + oy
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+    # coherent: camera rays, a pixel's sub-pixel rays side by side (Embree's coherent
+    # traversal; ~15 % faster here, same hits)
+    si = head.scene.ray_intersect(ray, mi.RayFlags.All, True)
+    label, region, u, v = labels_of(si, mi.Bool(True))
+    through = mi.Bool(False)
+    for r_ in see:
+        through |= region == r_
+    si2 = head.scene.ray_intersect(si.spawn_ray(ray.d), through)
+    behind = dr.select(through, labels_of(si2, through)[0], 0)
     valid = si.is_valid()
-    albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
-    outs = [label_c, label2_c, si.p, si.sh_frame.n, albedo, region, u, v, valid]
-    if m:
-        j = dr.arange(mi.UInt32, n * m)
-        pix = j // m
-        sub = j - pix * m
-        if odd:
-            sub += dr.select(sub >= c, 1, 0)
-        _, _, label_o, label2_o, _, _, _ = trace(pix, (mi.Float(sub % k) + 0.5) / k,
-                                                  (mi.Float(sub // k) + 0.5) / k)
-        outs += [label_o, label2_o]
+    albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid & centre)
+
+    # the centre rays' G-buffer and labels, scattered to per-pixel arrays
+    def to_pixels(value, dtype):
+        target = dr.zeros(dtype, n)
+        dr.scatter(target, value, pix, centre)
+        return target
+
+    def to_pixels3(value):
+        return [to_pixels(value[i], mi.Float) for i in range(3)]
+
+    outs = {"p": to_pixels3(si.p), "n": to_pixels3(si.sh_frame.n),
+            "albedo": to_pixels3(albedo), "region": to_pixels(region, mi.UInt32),
+            "u": to_pixels(u, mi.Float), "v": to_pixels(v, mi.Float),
+            "valid": to_pixels(valid, mi.Bool), "label": to_pixels(label, mi.UInt32)}
+    if kk:
+        counted = ~centre | odd  # the even-k centre ray is not a sub-pixel point
+        alpha = dr.select(through, see_through_opacity, 1.0)
+        cov = dr.zeros(mi.Float, n * L)
+        dr.scatter_reduce(dr.ReduceOp.Add, cov, alpha, pix * L + label, counted)
+        dr.scatter_reduce(dr.ReduceOp.Add, cov, 1.0 - see_through_opacity, pix * L + behind,
+                          counted & through)
+        outs["coverage"] = cov
     dr.eval(outs)
 
     def img(a, c=1, dtype=np.float64):
-        x = np.asarray(a, dtype=dtype)
-        return x.reshape(c, h, w).transpose(1, 2, 0) if c > 1 else x.reshape(h, w)
+        if c > 1:
+            return np.stack([np.asarray(x, dtype=dtype).reshape(h, w) for x in a], -1)
+        return np.asarray(a, dtype=dtype).reshape(h, w)
 
-    hit = img(valid, dtype=bool)
+    hit = img(outs["valid"], dtype=bool)
     zero = ~hit[..., None]
-    cam_p = img(si.p, 3) @ cam.R.T + cam.t
-    out = {
+    cam_p = img(outs["p"], 3) @ cam.R.T + cam.t
+    result = {
         "depth": np.where(hit, cam_p[..., 2], 0.0).astype(np.float32),
-        "normal": np.where(zero, 0.0, img(si.sh_frame.n, 3) @ cam.R.T).astype(np.float32),
-        "albedo": np.where(zero, 0.0, img(albedo, 3)).astype(np.float32),
-        "uv": np.where(zero, 0.0, np.stack([img(u), img(v)], -1)).astype(np.float32),
-        "segmentation": img(region, dtype=np.int64).astype(np.int32),
-        "centre_label": np.asarray(label_c).astype(np.uint8).reshape(h, w),
+        "normal": np.where(zero, 0.0, img(outs["n"], 3) @ cam.R.T).astype(np.float32),
+        "albedo": np.where(zero, 0.0, img(outs["albedo"], 3)).astype(np.float32),
+        "uv": np.where(zero, 0.0, np.stack([img(outs["u"]), img(outs["v"])], -1)).astype(np.float32),
+        "segmentation": img(outs["region"], dtype=np.int64).astype(np.int32),
+        "centre_label": np.asarray(outs["label"]).astype(np.uint8).reshape(h, w),
+        "coverage": (np.asarray(outs["coverage"], np.float32).reshape(h, w, L) / np.float32(kk)
+                     if kk else np.zeros((h, w, 0), np.float32)),
     }
-    for key, a_c, a_o in (("label", label_c, outs[-2] if m else None),
-                          ("label_behind", label2_c, outs[-1] if m else None)):
-        others = np.asarray(a_o).astype(np.uint8).reshape(h, w, m) if m else \
-            np.zeros((h, w, 0), np.uint8)
-        if odd:  # put the centre back at its place in the k x k order
-            cen = np.asarray(a_c).astype(np.uint8).reshape(h, w, 1)
-            others = np.concatenate([others[..., :c], cen, others[..., c:]], -1)
-        out[key] = others
-    return out
+    return result
 
 
 def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str, np.ndarray]:
@@ -266,24 +293,30 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     d = d / np.maximum(dist, 1e-12)[:, None]
     ray = mi.Ray3f(mi.Point3f(*[np.full(len(p), c, np.float32) for c in o]),
                    mi.Vector3f(*[d[:, k].astype(np.float32) for k in range(3)]))
-    blocked = np.zeros(len(p), bool)
-    alive = np.ones(len(p), bool)
-    through_regions = [REGIONS.index(n) for n in see_through if n in REGIONS]
-    through_ids = [sid for sid, (reg, _, _) in head._shape_regions.items() if reg in through_regions]
-    travelled = np.zeros(len(p))
-    for _ in range(4):  # at most a few see-through layers in front of a point
-        si = head.scene.ray_intersect(ray)
-        shape_id = dr.reinterpret_array(mi.UInt32, si.shape)
-        valid = si.is_valid()
-        dr.eval(si.t, shape_id, valid)  # one kernel
-        t = np.where(np.asarray(valid, bool), np.asarray(si.t, np.float64), np.inf)
-        ids = np.asarray(shape_id, np.int64)
-        hit_before = alive & (travelled + t < dist - tolerance)
-        passes = hit_before & np.isin(ids, through_ids)
+    lut_region, _, _, size = _region_luts(head)
+    see = np.zeros(len(REGIONS), bool)
+    see[[REGIONS.index(n) for n in see_through if n in REGIONS]] = True
+    see = mi.Bool(see)
+    limit = mi.Float((dist - tolerance).astype(np.float32))
+    blocked = mi.Bool(False)
+    alive = mi.Bool(True)
+    travelled = mi.Float(0.0)
+    # At most a few see-through layers in front of a point, unrolled into one kernel, on
+    # the camera-to-point line: each layer starts 10 um past the last hit. Preliminary
+    # intersections (Embree's distance and shape only): no surface interaction is needed,
+    # and tracing one is a virtual call over every shape, which cost more than the rays.
+    step = 1e-5
+    for _ in range(4):
+        pi = head.scene.ray_intersect_preliminary(ray, False, alive)
+        sid = dr.reinterpret_array(mi.UInt32, pi.shape)
+        valid = alive & pi.is_valid()
+        ok = valid & (sid < size)
+        region = dr.gather(mi.UInt32, lut_region, sid, ok)
+        hit_before = valid & (travelled + pi.t < limit)
+        passes = hit_before & ok & dr.gather(mi.Bool, see, region, ok)
         blocked |= hit_before & ~passes
         alive = passes
-        if not alive.any():
-            break
-        travelled = travelled + np.where(alive, t, 0.0)
-        ray = si.spawn_ray(ray.d)
-    return in_image, in_image & ~blocked
+        travelled += dr.select(alive, pi.t + step, 0.0)
+        ray = mi.Ray3f(ray(pi.t + step), ray.d)
+    dr.eval(blocked)
+    return in_image, in_image & ~np.asarray(blocked, bool)

@@ -324,12 +324,14 @@ class HeadScene:
         return region_hits(self, offset, see_through)
 
     def label_pass(self, k: int, region_labels, uv_label_map, uv_regions=(),
-                   see_through=("eyelashes",)) -> dict:
-        """Labels of k x k sub-pixel rays and the pixel-centre G-buffer in one batch: see
-        :func:`aov.label_pass`."""
+                   see_through=("eyelashes",), num_labels: int | None = None,
+                   see_through_opacity: float = 0.5) -> dict:
+        """Label coverage of k x k sub-pixel rays and the pixel-centre G-buffer in one
+        batch: see :func:`aov.label_pass`."""
         from hack_render.render.aov import label_pass
 
-        return label_pass(self, k, region_labels, uv_label_map, uv_regions, see_through)
+        return label_pass(self, k, region_labels, uv_label_map, uv_regions, see_through,
+                          num_labels, see_through_opacity)
 
     def visibility(self, points, tolerance: float = 2e-3, see_through=("eyelashes",)):
         """Line-of-sight visibility of world points: see :func:`aov.point_visibility`."""
