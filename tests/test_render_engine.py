@@ -58,3 +58,24 @@ def test_06_this_machine_gets_a_jit_variant():
     if not (b.llvm or b.cuda):
         pytest.skip("no JIT backend on this machine")
     assert choose_variant(backends=b) in ("cuda_ad_rgb", "llvm_ad_rgb")
+
+
+def test_atomic_outputs_are_ordinary_readable_files(tmp_path, monkeypatch):
+    """Files written through a temporary name get the permissions the umask gives any new
+    file (mkstemp alone would leave them 0600, unreadable to a user's group), and an
+    interrupted write leaves neither the file nor the temporary."""
+    import hack_render.render.image_io as io
+
+    assert io._UMASK == io._read_umask()  # read at import
+    for umask, mode in ((0o022, 0o644), (0o027, 0o640)):
+        monkeypatch.setattr(io, "_UMASK", umask)
+        with io.atomic_path(tmp_path / f"{mode:o}.json") as tmp:
+            tmp.write_text("{}")
+        assert (tmp_path / f"{mode:o}.json").stat().st_mode & 0o777 == mode
+    try:
+        with io.atomic_path(tmp_path / "b.json") as tmp:
+            tmp.write_text("partial")
+            raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["640.json", "644.json"]

@@ -41,6 +41,17 @@ def check_writable(path: str | Path) -> Path:
     return path
 
 
+def _read_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# read once, at import: os.umask can only be read by setting it, which would race with
+# files created meanwhile by other threads (the dataset's writer thread)
+_UMASK = _read_umask()
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix); rename it over ``path`` on success."""
@@ -51,6 +62,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # mkstemp creates 0600; an output is an ordinary file, readable as the umask allows
+        os.chmod(tmp_path, 0o666 & ~_UMASK)
         tmp_path.replace(path)
     finally:
         if tmp_path.exists():
