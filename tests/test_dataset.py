@@ -575,8 +575,9 @@ def test_preview_contact_sheet(rendered, tmp_path):
 
 
 # --- Ray -----------------------------------------------------------------------------------
-@pytest.mark.slow
 def test_ray_two_workers_match_serial(rendered, tmp_path):
+    """Ray (the test extra installs it) in local mode with 2 actors: the same files as the
+    serial run."""
     pytest.importorskip("ray")
     out, cfg, _ = rendered
     target = tmp_path / "ray"
