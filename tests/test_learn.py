@@ -386,3 +386,29 @@ def test_15_shipped_model_has_provenance_and_report(shipped, tmp_path):
     assert png.stat().st_size > 10_000
     abl = shipped.meta["learn"]["expressions"]["ablation_mm"]
     assert abl["personalised_subset"] < abl["generic_subset"]
+
+
+def test_15_larynx_displacement_is_the_forward_passes_larynx_term(shipped):
+    """``larynx_displacement(beta, eta, tau)`` is exactly what the forward adds at the larynx
+    vertices (defaults: beta 0, eta 1, tau 0), and a model without a larynx says so."""
+    import copy
+
+    from hack_render.errors import HackError
+
+    g = torch.Generator().manual_seed(7)
+    beta = torch.randn(2, 12, generator=g)
+    eta, tau = torch.tensor([0.7, 1.6]), torch.tensor([0.004, -0.009])
+    idx = shipped.larynx_vertices
+    with torch.no_grad():
+        with_l = shipped(beta=beta, eta=eta, tau=tau).rest_vertices[:, idx]
+        without = shipped(beta=beta, eta=torch.zeros(2), tau=tau).rest_vertices[:, idx]
+        d = shipped.larynx_displacement(beta, eta, tau)
+        d0 = shipped.larynx_displacement()
+        ref0 = shipped(eta=torch.ones(1)).rest_vertices[:, idx] - shipped.template[idx]
+    torch.testing.assert_close(d, with_l - without, atol=1e-6, rtol=0)
+    torch.testing.assert_close(d0, ref0, atol=1e-6, rtol=0)
+    assert d.abs().max() > 1e-3  # a real larynx, not zeros
+    flat = copy.copy(shipped)
+    flat.has_larynx = False
+    with pytest.raises(HackError, match="no larynx"):
+        flat.larynx_displacement()
