@@ -5,6 +5,7 @@
     python bench/bench_fit.py --overhead --res 128            # bridge vs bare mi.render
     python bench/bench_fit.py --subjects 20 --detector-only   # dlib vs the true landmarks
     python bench/bench_fit.py ... --embedding vertices        # fit the model's vertices
+    python bench/bench_fit.py --subjects 5 --oracle-landmarks # fit to the true points
 
 Landmarks: fits use the calibrated dlib embedding (hack_render/data/
 landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
@@ -84,7 +85,8 @@ def render_subject(k: int, res: int, model, app) -> dict:
             "cam": cam, "photo": photo}
 
 
-def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False) -> dict:
+def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
+              oracle_landmarks=False) -> dict:
     """Fit ``n`` synthetic subjects; with ``out_path`` the JSON is rewritten after every
     subject (and subjects already in it are skipped), so an interrupted run resumes."""
     import colour
@@ -151,6 +153,11 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         det_nme = {b: ev[a][0] for a, b in names.items()}
         if emb is not None:
             emb_true = cam.project(emb.points_np(V))
+        if oracle_landmarks:  # diagnostic: the fit from the true points, not dlib's
+            import dataclasses
+
+            # the true landmark vertices, fitted through the vertices (source "truth")
+            det = dataclasses.replace(det, points=lm_true.astype(np.float64), source="truth")
         if detector_only:
             rows.append({"subject": k, **det_nme})
             print(json.dumps(rows[-1]), flush=True)
@@ -308,6 +315,9 @@ def main():
     ap.add_argument("--iterations", type=str, default="40,30")
     ap.add_argument("--detector-only", action="store_true",
                     help="synthetic: render and detect only (the detector's landmark NME)")
+    ap.add_argument("--oracle-landmarks", action="store_true",
+                    help="synthetic, diagnostic: fit to the true projected landmark points "
+                         "instead of dlib's (what the fit reaches without detector noise)")
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
@@ -339,7 +349,7 @@ def main():
         print(json.dumps(out["astronaut"]))
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
-                                     args.detector_only)
+                                     args.detector_only, args.oracle_landmarks)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 
