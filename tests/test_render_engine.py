@@ -72,10 +72,8 @@ def test_atomic_outputs_are_ordinary_readable_files(tmp_path, monkeypatch):
         with io.atomic_path(tmp_path / f"{mode:o}.json") as tmp:
             tmp.write_text("{}")
         assert (tmp_path / f"{mode:o}.json").stat().st_mode & 0o777 == mode
-    try:
+    with pytest.raises(KeyboardInterrupt):
         with io.atomic_path(tmp_path / "b.json") as tmp:
             tmp.write_text("partial")
             raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["640.json", "644.json"]
