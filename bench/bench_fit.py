@@ -6,6 +6,9 @@
     python bench/bench_fit.py --subjects 20 --detector-only   # dlib vs the true landmarks
     python bench/bench_fit.py ... --embedding vertices        # fit the model's vertices
     python bench/bench_fit.py --subjects 5 --oracle-landmarks # fit to the true points
+    python bench/bench_fit.py --subjects 10 --out a.json & \
+      python bench/bench_fit.py --subjects 20 --first 10 --out b.json; wait
+    python bench/bench_fit.py --merge a.json b.json --out all.json   # one table
 
 Landmarks: fits use the calibrated dlib embedding (hack_render/data/
 landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
@@ -86,9 +89,10 @@ def render_subject(k: int, res: int, model, app) -> dict:
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
-              oracle_landmarks=False) -> dict:
-    """Fit ``n`` synthetic subjects; with ``out_path`` the JSON is rewritten after every
-    subject (and subjects already in it are skipped), so an interrupted run resumes."""
+              oracle_landmarks=False, first: int = 0) -> dict:
+    """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
+    rewritten after every subject (and subjects already in it are skipped), so an
+    interrupted run resumes."""
     import colour
     from pathlib import Path
 
@@ -121,7 +125,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     li = model.landmark_indices.numpy()
     vert_emb = LandmarkEmbedding.from_vertices(li, model.faces.numpy())
     template = model.template.numpy().astype(np.float64)
-    for k in range(n):
+    for k in range(first, n):
         if k in done:
             continue
         subj = render_subject(k, res, model, app)
@@ -327,7 +331,26 @@ def main():
                          "the former behaviour) or an embedding file")
     ap.add_argument("--out", type=str, default=None,
                     help="synthetic: JSON written after every subject; resumes from it")
+    ap.add_argument("--first", type=int, default=0,
+                    help="synthetic: first subject (split a run over processes, then "
+                         "--merge their JSON files)")
+    ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                    help="merge synthetic JSON files (from --first splits) into --out, "
+                         "recomputing the medians; nothing is fitted")
     args = ap.parse_args()
+    if args.merge:
+        from pathlib import Path
+
+        parts = [json.loads(Path(p).read_text()) for p in args.merge]
+        rows = sorted({r["subject"]: r for p in parts for r in p["subjects"]}.values(),
+                      key=lambda r: r["subject"])
+        merged = {"config": parts[0]["config"], "res": parts[0]["res"], "subjects": rows,
+                  "n_ok": sum("error" not in r for r in rows), "median": _medians(rows)}
+        text = json.dumps(merged, indent=1)
+        if args.out:
+            Path(args.out).write_text(text)
+        print(json.dumps(merged["median"]))
+        return
     torch.set_num_threads(1)
     its = [int(x) for x in args.iterations.split(",")]
     cfg = {"photometric": {"resolutions": [args.res // 2, args.res], "iterations": its,
@@ -349,7 +372,7 @@ def main():
         print(json.dumps(out["astronaut"]))
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
-                                     args.detector_only, args.oracle_landmarks)
+                                     args.detector_only, args.oracle_landmarks, args.first)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 
