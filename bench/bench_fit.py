@@ -9,6 +9,7 @@
     python bench/bench_fit.py --subjects 10 --out a.json & \
       python bench/bench_fit.py --subjects 20 --first 10 --out b.json; wait
     python bench/bench_fit.py --merge a.json b.json --out all.json   # one table
+    python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
 
 Landmarks: fits use the calibrated dlib embedding (hack_render/data/
 landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
@@ -331,6 +332,9 @@ def main():
                          "the former behaviour) or an embedding file")
     ap.add_argument("--out", type=str, default=None,
                     help="synthetic: JSON written after every subject; resumes from it")
+    ap.add_argument("--set", type=str, default=None, metavar="JSON",
+                    help='config overrides by section, e.g. \'{"shape": {"w_psi": 0.02}, '
+                         '"photometric": {"enabled": false}}\' (the ablations in the README)')
     ap.add_argument("--first", type=int, default=0,
                     help="synthetic: first subject (split a run over processes, then "
                          "--merge their JSON files)")
@@ -357,6 +361,12 @@ def main():
                            "spp": args.spp}}
     if args.embedding:
         cfg["landmarks"] = {"embedding": args.embedding}
+    if args.set:
+        for sec, val in json.loads(args.set).items():
+            if isinstance(val, dict):
+                cfg.setdefault(sec, {}).update(val)
+            else:
+                cfg[sec] = val
     out = {"config": cfg}
     if args.overhead:
         out["overhead"] = overhead(args.res, args.spp, args.reps)

@@ -116,9 +116,13 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     from hack_render.geometry import load_default_model
     from hack_render.geometry.params import model_inputs
 
+    from hack_render.fit.landmark_embedding import load_default
+
     model = load_default_model()
+    emb = load_default(model)  # what dlib's points are fitted to (README: embedding)
     with torch.no_grad():
-        lm3 = model(**model_inputs(model, p)).landmarks[0].numpy()
+        out_ = model(**model_inputs(model, p))
+        lm3 = (emb.points(out_.vertices[0]) if emb is not None else out_.landmarks[0]).numpy()
     cam = lm3 @ R0.numpy().T + t
     px = (cam[:, :2] / cam[:, 2:3]) * K[0, 0] + K[:2, 2]
     det = npz["view0_landmarks_detected"]
