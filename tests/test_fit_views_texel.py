@@ -47,7 +47,7 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
     # scatter (with those the prior, not the views, decides the shape)
     cfg = load_config(None, {"camera": {"iterations": 80},
                              "shape": {"iterations": 100, "n_beta": 20, "w_beta": 0.02,
-                                       "w_psi": 0.02}})
+                                       "w_psi": 0.02, "psi_prior": "l2"}})
 
     def fit(vs):
         with warnings.catch_warnings():

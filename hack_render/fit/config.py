@@ -70,13 +70,21 @@ class ShapeConfig:
     iterations: int = 150
     lr: float = 0.02
     n_beta: int = 40
-    # Gaussian priors, beta ~ N(0, I) and psi; relative to the landmark term, whose unit
-    # is 1 % of the face size. With w_psi 0.02 the 53 expressions explained the landmarks
-    # instead of the identity (fitted |beta| 0.5 for a true 3-5 on neutral synthetic
-    # faces); w_psi 2 keeps psi for what identity cannot explain (a smile still costs
-    # less than its landmark misfit), and w_beta 0.05 damps dlib's scatter (README)
+    # priors on beta (Gaussian, N(0, I)) and psi, relative to the landmark term, whose
+    # unit is 1 % of the face size. With a weak psi prior (L2, 0.02) the 53 expressions
+    # explained the landmarks instead of the identity (fitted |beta| 0.5 for a true 3-5
+    # on neutral synthetic faces); w_beta 0.05 damps dlib's scatter (0.02: 2.66 mm,
+    # 0.1: 2.40 mm on the 8 subjects below, README)
     w_beta: float = 0.05
-    w_psi: float = 2.0
+    w_psi: float = 0.3
+    # "l1": w_psi * sum(psi) (psi is in [0, 1]): sparse, a smile's two or three strong
+    # units cost less than the many weak ones that would mimic an identity; "l2":
+    # w_psi * sum(psi^2), which prefers exactly those many weak ones. Landmark stages on
+    # 8 synthetic subjects: l2 w_psi 2 2.36 mm, l1 0.2-0.4 2.36-2.37 mm (0.1: 2.71);
+    # on the smiling astronaut landmark NME 3.3 % (l2 2) vs 2.3 % (l1 0.3), README
+    psi_prior: str = "l1"
+    lr_head: float = 0.002           # head and torso rotation (radians)
+    lr_joints: float = 0.0004        # residual per-joint rotations (radians)
     w_rot: float = 1.0               # E_rot (paper Eq. 9)
     w_sim: float = 0.1               # E_sim (paper Eq. 10, normalised by joint ranges)
     w_dtheta: float = 0.5            # residual joint rotations beyond the anatomical share
@@ -160,6 +168,9 @@ class FitConfig:
                             f"{p.lighting!r}.")
         if not 1 <= p.spp <= 1024:
             raise HackError(f"config photometric.spp: expected 1..1024, found {p.spp}.")
+        if self.shape.psi_prior not in ("l1", "l2"):
+            raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
+                            f"{self.shape.psi_prior!r}.")
         for name in ("camera", "shape", "texel"):
             if getattr(self, name).iterations < 0:
                 raise HackError(f"config {name}.iterations: expected >= 0.")

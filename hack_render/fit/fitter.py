@@ -242,31 +242,52 @@ class Fitter:
 
         return self._run("camera", groups, loss, c.iterations)
 
+    def psi_prior(self, v: View) -> torch.Tensor:
+        """w_psi times the expression prior: sum(psi) ("l1", psi is in [0, 1], so this is
+        the L1 norm: a sparse prior, a few strong FACS units cost less than many weak
+        ones) or sum(psi^2) ("l2")."""
+        s = self.cfg.shape
+        psi = self.view_psi(v)
+        return s.w_psi * (psi.sum() if s.psi_prior == "l1" else (psi ** 2).sum())
+
+    def shape_terms(self, v: View, verts: torch.Tensor, it: int) -> dict[str, torch.Tensor]:
+        """One view's part of the shape objective: landmarks, focal prior, pose priors
+        and the expression prior (the photometric stage keeps it, scaled)."""
+        return {"landmarks": self.landmark_loss(v, verts, it),
+                "focal_prior": 0.01 * self.focal_prior(v), **self.pose_priors(v),
+                "psi_prior": self.psi_prior(v)}
+
+    def beta_prior(self) -> torch.Tensor:
+        return self.cfg.shape.w_beta * (self.beta ** 2).sum()
+
+    def shape_objective(self, it: int, verts: dict | None = None) -> tuple[torch.Tensor, dict]:
+        """Sum of :meth:`shape_terms` over the views plus the identity prior, and its
+        terms as floats; ``verts`` maps id(view) to already evaluated vertices."""
+        total, terms = 0.0, {}
+        for v in self.views:
+            vv = verts[id(v)] if verts is not None else self.forward(v).vertices[0]
+            for k, x in self.shape_terms(v, vv, it).items():
+                total = total + x
+                terms[k] = terms.get(k, 0.0) + float(x.detach())
+        bp = self.beta_prior()
+        terms["beta_prior"] = float(bp.detach())
+        return total + bp, terms
+
     def fit_shape(self) -> StageReport:
         s = self.cfg.shape
         groups = [{"params": [self.beta], "lr": s.lr}, {"params": [self.psi], "lr": s.lr}]
         for v in self.views:
-            groups += [{"params": [v.dtheta, v.head_angles, v.global_orient], "lr": s.lr * 0.5},
+            # the joints' residuals take small steps: Adam's first steps move every
+            # coordinate by about its lr, and 8 joints' residuals add up (at 0.5 x lr the
+            # first step turned the head by ~5 degrees and the landmark loss rose 20-fold)
+            groups += [{"params": [v.dtheta], "lr": s.lr_joints},
+                       {"params": [v.head_angles, v.global_orient], "lr": s.lr_head},
                        {"params": [v.transl], "lr": s.lr * 0.05},
                        {"params": [v.log_focal], "lr": s.lr * 0.5}]
             if v.psi is not None:
                 groups.append({"params": [v.psi], "lr": s.lr})
-
-        def loss(it):
-            total, terms = 0.0, {}
-            for v in self.views:
-                verts = self.forward(v).vertices[0]
-                parts = {"landmarks": self.landmark_loss(v, verts, it),
-                         "focal_prior": 0.01 * self.focal_prior(v), **self.pose_priors(v)}
-                parts["psi_prior"] = s.w_psi * (self.view_psi(v) ** 2).sum()
-                for k, x in parts.items():
-                    total = total + x
-                    terms[k] = terms.get(k, 0.0) + float(x.detach())
-            bp = s.w_beta * (self.beta ** 2).sum()
-            terms["beta_prior"] = float(bp.detach())
-            return total + bp, terms
-
-        return self._run("shape", groups, loss, s.iterations, after_step=self._project_psi)
+        return self._run("shape", groups, self.shape_objective, s.iterations,
+                         after_step=self._project_psi)
 
     def _project_psi(self):
         with torch.no_grad():

@@ -239,16 +239,15 @@ def run(fitter, texel: bool = False):
                     # whole by w_landmarks: the priors keep their balance with the landmarks
                     # (an unscaled prior against the scaled landmarks would pull beta and
                     # psi toward zero while the photo term's gradients are small)
-                    wl = cfg.w_landmarks
-                    parts["landmarks"] = wl * fitter.landmark_loss(v, verts, it)
-                    parts.update({k: wl * x for k, x in fitter.pose_priors(v).items()})
-                    parts["psi_prior"] = wl * fitter.cfg.shape.w_psi * (fitter.view_psi(v) ** 2).sum()
+                    parts.update({k: cfg.w_landmarks * x
+                                  for k, x in fitter.shape_terms(v, verts, it).items()
+                                  if k != "focal_prior"})
                 for k, x in parts.items():
                     total = total + x
                     terms[k] = terms.get(k, 0.0) + float(x.detach())
             extra = {} if texel else {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
             if refine:
-                extra["beta_prior"] = cfg.w_landmarks * fitter.cfg.shape.w_beta * (fitter.beta ** 2).sum()
+                extra["beta_prior"] = cfg.w_landmarks * fitter.beta_prior()
                 extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
             if texel:
                 for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
