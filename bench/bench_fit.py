@@ -10,6 +10,7 @@
       python bench/bench_fit.py --subjects 20 --first 10 --out b.json; wait
     python bench/bench_fit.py --merge a.json b.json --out all.json   # one table
     python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
+    python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
 
 Landmarks: fits use the calibrated dlib embedding (hack_render/data/
 landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
@@ -18,7 +19,8 @@ embedding points (detector_nme_embedding); fits report the fitted-vs-true NME of
 (nme: landmark vertices, nme_embedding: embedding points).
 
 Synthetic: subjects from random beta (N(0, 0.8^2), 20 comps), head rotation, appearance
-alpha and a frontal camera with random distance; rendered with the path tracer (64 spp,
+alpha and a frontal camera with random focal length (--expressions: plus 3 random FACS
+units at 0.3-0.8); rendered with the path tracer (64 spp,
 light_stage) at --res; fitted from the image (dlib landmarks) and reported as medians:
 face vertex error after similarity alignment (mm), landmark NME vs the true landmarks
 (inter-ocular), albedo CIEDE2000 over the face tile, re-render PSNR over the skin mask,
@@ -42,7 +44,7 @@ from hack_render.fit.metrics import similarity_error
 
 def _medians(rows: list) -> dict:
     ok = [r for r in rows if "error" not in r]
-    keys = ("vertex_mm", "nme", "nme_embedding", "albedo_de2000", "psnr_db", "psnr_db_64spp",
+    keys = ("vertex_mm", "nme", "nme_embedding", "psi_mae", "albedo_de2000", "psnr_db", "psnr_db_64spp",
             "joint_deg",
             "seconds", "detector_nme", "detector_nme_inner", "detector_nme_contour",
             "detector_nme_embedding", "detector_nme_embedding_inner",
@@ -51,10 +53,12 @@ def _medians(rows: list) -> dict:
             if any(k in r for r in ok)}
 
 
-def render_subject(k: int, res: int, model, app) -> dict:
+def render_subject(k: int, res: int, model, app, expressions: bool = False) -> dict:
     """Synthetic subject k of the benchmark (torch generator seeded 100 + k): random
     beta, head rotation, appearance alpha, a frontal camera at a random focal length,
-    rendered with the path tracer (64 spp, light_stage). Returns its parameters, the
+    rendered with the path tracer (64 spp, light_stage). ``expressions``: also 3 random
+    FACS units of the 53 at weights U(0.3, 0.8) (a second generator, seeded 1000 + k, so
+    the other parameters are those of the neutral subject k). Returns its parameters, the
     model output, the true skin maps, the camera and the sRGB photo."""
     import colour
 
@@ -71,8 +75,13 @@ def render_subject(k: int, res: int, model, app) -> dict:
     beta = 0.8 * torch.randn(1, 20, generator=g)
     ang = torch.deg2rad(torch.tensor([10.0, 30.0, 8.0]) * (2 * torch.rand(3, generator=g) - 1))
     theta = distribute_head_rotation(ang)[None]
+    psi = torch.zeros(1, model.num_expressions)
+    if expressions:
+        ge = torch.Generator().manual_seed(1000 + k)
+        units = torch.randperm(model.num_expressions, generator=ge)[:3]
+        psi[0, units] = 0.3 + 0.5 * torch.rand(3, generator=ge)
     with torch.no_grad():
-        out = model(beta=beta, theta=theta)
+        out = model(beta=beta, psi=psi, theta=theta)
     alpha = torch.randn(1, 20, generator=g)
     with torch.no_grad():
         tmaps = app.maps(alpha)
@@ -85,12 +94,12 @@ def render_subject(k: int, res: int, model, app) -> dict:
     img = head.render()[..., :3]
     srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
     photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
-    return {"beta": beta, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
+    return {"beta": beta, "psi": psi, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
             "cam": cam, "photo": photo}
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
-              oracle_landmarks=False, first: int = 0) -> dict:
+              oracle_landmarks=False, first: int = 0, expressions: bool = False) -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
     interrupted run resumes."""
@@ -114,7 +123,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     def save():
         if out_path is not None:
             tmp = Path(str(out_path) + ".tmp")
-            tmp.write_text(json.dumps({"config": cfg_over, "res": res, "subjects": rows,
+            tmp.write_text(json.dumps({"config": cfg_over, "res": res,
+                                       "expressions": expressions, "subjects": rows,
                                        "n_ok": sum("error" not in r for r in rows),
                                        "median": _medians(rows)}, indent=1))
             tmp.replace(out_path)
@@ -129,7 +139,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     for k in range(first, n):
         if k in done:
             continue
-        subj = render_subject(k, res, model, app)
+        subj = render_subject(k, res, model, app, expressions)
         beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
                                                                  "tmaps", "cam", "photo"))
         try:
@@ -189,14 +199,18 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             with torch.no_grad():
                 ef = fitter.project(v, emb.points(fo.vertices[0])).numpy()
             extra["nme_embedding"] = float(np.linalg.norm(ef - emb_true, axis=1).mean() / iod)
+        if expressions:  # mean absolute error of the 53 expression weights
+            extra["psi_mae"] = float((fitter.psi.detach() - subj["psi"]).abs().mean())
         mask = app.mask_np[:, : app.height]
         lab = lambda x: colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.clip(x, 1e-6, 1),  # noqa: E731
                                                                apply_cctf_decoding=False))
         de = colour.delta_E(lab(fit_maps["albedo"].numpy()[:, : app.height][mask]),
                             lab(tmaps.diffuse[0].numpy()[:, : app.height][mask]),
                             method="CIE 2000")
-        from hack_render.fit.photometric import render_view
+        from hack_render.fit.photometric import render_view, setup_level
 
+        if v.renderer is None:  # photometric stage off: a level (and lighting) to render
+            setup_level(fitter, v, res)
         with torch.no_grad():
             rimg = render_view(fitter, v, fit_maps, fo.vertices[0], 999)[..., :3].numpy()
             # the same re-render at the target's 64 spp: the fit without the 4-spp noise
@@ -323,6 +337,9 @@ def main():
     ap.add_argument("--oracle-landmarks", action="store_true",
                     help="synthetic, diagnostic: fit to the true projected landmark points "
                          "instead of dlib's (what the fit reaches without detector noise)")
+    ap.add_argument("--expressions", action="store_true",
+                    help="synthetic: subjects also wear 3 random FACS units at 0.3-0.8 "
+                         "(reports psi_mae, the mean absolute expression weight error)")
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
@@ -382,7 +399,8 @@ def main():
         print(json.dumps(out["astronaut"]))
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
-                                     args.detector_only, args.oracle_landmarks, args.first)
+                                     args.detector_only, args.oracle_landmarks, args.first,
+                                     args.expressions)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

@@ -67,3 +67,28 @@ def synthetic_arrays(seed: int = 0, nx: int = 6, ny: int = 12) -> dict[str, np.n
             f"{prefix}_mlp_b2": (0.1 * rng.standard_normal(c)).astype(np.float32),
         })
     return arrays
+
+
+def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: int = 256,
+                  name: str = "view"):
+    """A photo-less view for the landmark stages: the true landmark vertices of
+    ``model(beta, psi)`` with the head turned by ``angles_deg`` (pitch, yaw, roll, shared
+    over the joints by the anatomical prior), projected by a frontal camera (110 mm
+    equivalent, 1 m) onto a blank ``res`` px photo. Returns (Photo, Detection)."""
+    import torch
+    from scenes.cameras import Camera
+
+    from hack_render.fit.fitter import R0
+    from hack_render.fit.landmarks import Detection
+    from hack_render.fit.photo import Photo
+    from hack_render.geometry.skeleton import distribute_head_rotation
+
+    ang = torch.deg2rad(torch.tensor([float(a) for a in angles_deg]))
+    with torch.no_grad():
+        out = model(beta=beta, psi=psi, theta=distribute_head_rotation(ang)[None])
+    f = 50.0 / 36.0 * res * 2.2
+    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
+    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res, "v")
+    lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
+    photo = Photo(np.full((res, res, 3), 0.5, np.float32), name)
+    return photo, Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")

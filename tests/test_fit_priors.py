@@ -11,27 +11,6 @@ import torch
 pytest.importorskip("mitsuba")
 
 
-def _view(model, psi, res=256):
-    """Projected true landmark vertices of the mean identity with expression ``psi``,
-    head turned (pitch 5, yaw 25, roll 3 degrees), on a blank photo."""
-    from scenes.cameras import Camera
-
-    from hack_render.fit.fitter import R0
-    from hack_render.fit.landmarks import Detection
-    from hack_render.fit.photo import Photo
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
-    ang = torch.deg2rad(torch.tensor([5.0, 25.0, 3.0]))
-    with torch.no_grad():
-        out = model(psi=psi, theta=distribute_head_rotation(ang)[None])
-    f = 50.0 / 36.0 * res * 2.2
-    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
-    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res, "v")
-    lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
-    photo = Photo(np.full((res, res, 3), 0.5, np.float32), "smile")
-    return photo, Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")
-
-
 def _fit(model, view, shape):
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
@@ -56,7 +35,10 @@ def smile():
     units = [names.index("mouthSmile_L"), names.index("mouthSmile_R")]
     psi = torch.zeros(1, model.num_expressions)
     psi[0, units] = 0.8
-    return model, units, _view(model, psi)
+    from synthetic import landmark_view
+
+    return model, units, landmark_view(model, psi=psi, angles_deg=(5.0, 25.0, 3.0),
+                                       name="smile")
 
 
 def _mouth_nme(f, view):

@@ -10,25 +10,11 @@ import torch
 pytest.importorskip("mitsuba")
 
 
-def _landmark_view(model, beta, yaw_deg, res=256):
-    """A view of identity ``beta`` with the head turned by ``yaw_deg``: a blank photo of
-    the right size and the true projected landmarks (the landmark stages read only these)."""
-    from scenes.cameras import Camera
+def _landmark_view(model, beta, yaw_deg):
+    from synthetic import landmark_view
 
-    from hack_render.fit.fitter import R0
-    from hack_render.fit.landmarks import Detection
-    from hack_render.fit.photo import Photo
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
-    ang = torch.deg2rad(torch.tensor([5.0, yaw_deg, 0.0]))
-    with torch.no_grad():
-        out = model(beta=beta, theta=distribute_head_rotation(ang)[None])
-    f = 50.0 / 36.0 * res * 2.2
-    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
-    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res, "v")
-    lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
-    photo = Photo(np.full((res, res, 3), 0.5, np.float32), f"yaw{yaw_deg:+.0f}")
-    return photo, Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")
+    return landmark_view(model, beta=beta, angles_deg=(5.0, yaw_deg, 0.0),
+                         name=f"yaw{yaw_deg:+.0f}")
 
 
 def test_01_two_views_recover_shared_shape_better_than_either_alone():
