@@ -306,7 +306,16 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
         img = render_view(fitter, v, maps, verts, i)
         (img[..., :3] - target).abs().mean().backward()
 
-    fns = {"bridge": bridge_iter,
+    def model_iter(i):  # the torch parts alone: HACK model forward + backward
+        for p in leaves:
+            p.grad = None
+        fitter.forward(v).vertices[0].sum().backward()
+
+    def maps_iter(i):  # appearance maps forward + backward
+        fitter.alpha.grad = None
+        sum(x.sum() for x in fitter.maps().values() if x is not None).backward()
+
+    fns = {"bridge": bridge_iter, "model_fwd_bwd": model_iter, "maps_fwd_bwd": maps_iter,
            "bare_step": lambda i: r.bare_iteration(target.numpy(), i, write=True),
            "bare_render": lambda i: r.bare_iteration(target.numpy(), i, write=False)}
     for fn in fns.values():
