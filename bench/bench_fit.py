@@ -352,6 +352,9 @@ def main():
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
+    ap.add_argument("--torch-threads", type=int, default=1,
+                    help="torch's threads (1: two synthetic runs share the 2 cores; "
+                         "`hack-render fit` itself uses up to 2)")
     ap.add_argument("--embedding", type=str, default=None,
                     help="config landmarks.embedding for the fits: dlib (default: the "
                          "calibrated embedding), vertices (the model's landmark vertices, "
@@ -381,7 +384,7 @@ def main():
             Path(args.out).write_text(text)
         print(json.dumps(merged["median"]))
         return
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.torch_threads)
     its = [int(x) for x in args.iterations.split(",")]
     cfg = {"photometric": {"resolutions": [args.res // 2, args.res], "iterations": its,
                            "spp": args.spp}}
