@@ -388,7 +388,7 @@ def test_15_shipped_model_has_provenance_and_report(shipped, tmp_path):
     assert abl["personalised_subset"] < abl["generic_subset"]
 
 
-def test_15_larynx_displacement_is_the_forward_passes_larynx_term(shipped):
+def test_16_larynx_displacement_is_the_forward_passes_larynx_term(shipped):
     """``larynx_displacement(beta, eta, tau)`` is exactly what the forward adds at the larynx
     vertices (defaults: beta 0, eta 1, tau 0), and a model without a larynx says so."""
     import copy

@@ -73,15 +73,14 @@ class ShapeConfig:
     # priors on beta (Gaussian, N(0, I)) and psi, relative to the landmark term, whose
     # unit is 1 % of the face size. With a weak psi prior (L2, 0.02) the 53 expressions
     # explained the landmarks instead of the identity (fitted |beta| 0.5 for a true 3-5
-    # on neutral synthetic faces); w_beta 0.05 damps dlib's scatter (0.02: 2.66 mm,
-    # 0.1: 2.40 mm on the 8 subjects below, README)
+    # on neutral synthetic faces); w_beta 0.05 damps dlib's scatter
     w_beta: float = 0.05
     w_psi: float = 0.3
     # "l1": w_psi * sum(psi) (psi is in [0, 1]): sparse, a smile's two or three strong
     # units cost less than the many weak ones that would mimic an identity; "l2":
     # w_psi * sum(psi^2), which prefers exactly those many weak ones. Landmark stages on
-    # 8 synthetic subjects: l2 w_psi 2 2.36 mm, l1 0.2-0.4 2.36-2.37 mm (0.1: 2.71);
-    # on the smiling astronaut landmark NME 3.3 % (l2 2) vs 2.3 % (l1 0.3), README
+    # 8 synthetic subjects, l1 w_psi 0.1 / 0.2 / 0.3: 2.71 / 2.37 / 2.34 mm; whole fit of
+    # the smiling astronaut, landmark NME 3.83 % (l2, w_psi 2) vs 2.89 % (l1 0.3), README
     psi_prior: str = "l1"
     lr_head: float = 0.002           # head and torso rotation (radians)
     lr_joints: float = 0.0004        # residual per-joint rotations (radians)

@@ -260,13 +260,12 @@ class Fitter:
     def beta_prior(self) -> torch.Tensor:
         return self.cfg.shape.w_beta * (self.beta ** 2).sum()
 
-    def shape_objective(self, it: int, verts: dict | None = None) -> tuple[torch.Tensor, dict]:
+    def shape_objective(self, it: int) -> tuple[torch.Tensor, dict]:
         """Sum of :meth:`shape_terms` over the views plus the identity prior, and its
-        terms as floats; ``verts`` maps id(view) to already evaluated vertices."""
+        terms as floats (the shape stage's loss)."""
         total, terms = 0.0, {}
         for v in self.views:
-            vv = verts[id(v)] if verts is not None else self.forward(v).vertices[0]
-            for k, x in self.shape_terms(v, vv, it).items():
+            for k, x in self.shape_terms(v, self.forward(v).vertices[0], it).items():
                 total = total + x
                 terms[k] = terms.get(k, 0.0) + float(x.detach())
         bp = self.beta_prior()

@@ -240,8 +240,7 @@ def run(fitter, texel: bool = False):
                     # (an unscaled prior against the scaled landmarks would pull beta and
                     # psi toward zero while the photo term's gradients are small)
                     parts.update({k: cfg.w_landmarks * x
-                                  for k, x in fitter.shape_terms(v, verts, it).items()
-                                  if k != "focal_prior"})
+                                  for k, x in fitter.shape_terms(v, verts, it).items()})
                 for k, x in parts.items():
                     total = total + x
                     terms[k] = terms.get(k, 0.0) + float(x.detach())
