@@ -174,6 +174,47 @@ class AppearanceModel:
         diffuse, specular, rough, normal = img[..., :3], img[..., 3:4], img[..., 4:5], img[..., 5:]
         return AppearanceMaps(diffuse, specular, rough, normal, self.mask.to(c.device))
 
+    def downsampled(self, height: int, n_components: int | None = None) -> AppearanceModel:
+        """This model at a coarser atlas, ``height`` = :attr:`height` / 2^k: a mip level.
+
+        The mean and the first ``n_components`` basis vectors (default: all) are box-
+        filtered over f x f texel blocks (f = height ratio) of the dilated atlas, in the
+        linear channels (diffuse, specular, roughness, normal slopes), so the coarse
+        model's maps for any alpha equal the box-filtered fine maps of the linear
+        channels; the clamp and the slope-to-normal step then act per coarse texel. A
+        coarse texel is valid when any of its fine texels is. Blocks never straddle the
+        two tiles (the tile width, H, is a multiple of f). For renders whose pixels
+        cover several texels (the fitter's coarse photometric levels).
+        """
+        h = self.height
+        f = h // int(height) if height > 0 else 0
+        if height <= 0 or h % height or f & (f - 1):
+            raise HackError(f"downsampled: expected a height of {h} / 2^k, found {height}.")
+        k = self.n_components if n_components is None else int(n_components)
+        if not 0 <= k <= self.n_components:
+            raise HackError(f"n_components: expected 0..{self.n_components}, found {k}.")
+        if f == 1 and k == self.n_components:
+            return self
+        mask = self.mask_np.reshape(height, f, 2 * height, f).any(axis=(1, 3))
+        valid = torch.from_numpy(np.flatnonzero(mask))
+
+        def pool(flat: torch.Tensor) -> np.ndarray:  # (M, N*7) -> (M, N'*7)
+            m = flat.shape[0]
+            img = flat.view(m, self.n_valid, N_CHANNELS)[:, self.gather]
+            img = img.view(m, h, 2 * h, N_CHANNELS).permute(0, 3, 1, 2)
+            img = torch.nn.functional.avg_pool2d(img, f) if f > 1 else img
+            img = img.permute(0, 2, 3, 1).reshape(m, -1, N_CHANNELS)[:, valid]
+            return img.reshape(m, -1).numpy()
+
+        with torch.no_grad():
+            mean = pool(self.mean.float()[None])[0]
+            basis = pool(self.basis[:k].float())  # already scaled by stddev
+        out = AppearanceModel(height, mask, mean, basis, np.ones(k, np.float32),
+                              self.explained_variance_ratio[:k],
+                              dict(self.metadata, downsampled_from=h), self.report)
+        out.stddev_np = self.stddev_np[:k].copy()
+        return out.to(self.device, self.dtype)
+
     def sample_alpha(self, n: int, n_components: int | None = None, seed: int | None = None
                      ) -> torch.Tensor:
         """(n, k) alpha ~ N(0, I) from a seeded generator (k defaults to all components)."""

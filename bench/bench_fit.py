@@ -207,16 +207,17 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         de = colour.delta_E(lab(fit_maps["albedo"].numpy()[:, : app.height][mask]),
                             lab(tmaps.diffuse[0].numpy()[:, : app.height][mask]),
                             method="CIE 2000")
-        from hack_render.fit.photometric import render_view, setup_level
+        from hack_render.fit.photometric import level_maps, render_view, setup_level
 
         if v.renderer is None:  # photometric stage off: a level (and lighting) to render
             setup_level(fitter, v, res)
         with torch.no_grad():
-            rimg = render_view(fitter, v, fit_maps, fo.vertices[0], 999)[..., :3].numpy()
+            lmaps = level_maps(fitter, v)  # the atlas size of the level's scene
+            rimg = render_view(fitter, v, lmaps, fo.vertices[0], 999)[..., :3].numpy()
             # the same re-render at the target's 64 spp: the fit without the 4-spp noise
             rimg64 = v.renderer.render(seed=999, spp=64, vertices=fo.vertices[0],
-                                       albedo=fit_maps["albedo"], specular=fit_maps["specular"],
-                                       roughness=fit_maps["roughness"], normal=fit_maps["normal"],
+                                       albedo=lmaps["albedo"], specular=lmaps["specular"],
+                                       roughness=lmaps["roughness"], normal=lmaps["normal"],
                                        env=v.lighting.env_map())[..., :3].numpy()
         m = v.level["mask"].numpy()
         mse = float(((rimg - v.level["target"].numpy())[m] ** 2).mean())
@@ -284,7 +285,7 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
-    from hack_render.fit.photometric import render_view, setup_level
+    from hack_render.fit.photometric import level_maps, render_view, setup_level
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():
@@ -301,7 +302,7 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
     def bridge_iter(i):
         for p in leaves:
             p.grad = None
-        maps = fitter.maps()
+        maps = level_maps(fitter, v)  # the atlas size the photometric stage renders with
         verts = fitter.forward(v).vertices[0]
         img = render_view(fitter, v, maps, verts, i)
         (img[..., :3] - target).abs().mean().backward()
@@ -311,9 +312,9 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
             p.grad = None
         fitter.forward(v).vertices[0].sum().backward()
 
-    def maps_iter(i):  # appearance maps forward + backward
+    def maps_iter(i):  # appearance maps forward + backward, at the level's atlas size
         fitter.alpha.grad = None
-        sum(x.sum() for x in fitter.maps().values() if x is not None).backward()
+        sum(x.sum() for x in level_maps(fitter, v).values() if x is not None).backward()
 
     fns = {"bridge": bridge_iter, "model_fwd_bwd": model_iter, "maps_fwd_bwd": maps_iter,
            "bare_step": lambda i: r.bare_iteration(target.numpy(), i, write=True),

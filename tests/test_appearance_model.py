@@ -160,3 +160,27 @@ def test_appearance_package_never_imports_mitsuba():
             "bad = [m for m in sys.modules if m.split('.')[0] in ('mitsuba', 'drjit')]; "
             "sys.exit(1 if bad else 0)")
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_downsampled_is_the_box_filtered_atlas(built):
+    """The coarse model's linear channels equal the f x f box filter of the fine model's
+    dilated atlas for any alpha (the basis is filtered, not the maps), its mask marks the
+    blocks with any valid texel, and its nonlinear maps follow from those channels."""
+    out, _ = built
+    m = AppearanceModel.load(out).to(dtype=torch.float64)
+    c = m.downsampled(H // 4, n_components=5)
+    assert (c.height, c.n_components) == (H // 4, 5)
+    np.testing.assert_array_equal(c.mask_np, m.mask_np.reshape(H // 4, 4, H // 2, 4).any((1, 3)))
+    alpha = torch.randn(2, 5, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    fine = m.compact(alpha)[:, m.gather].view(2, H, 2 * H, 7)
+    box = torch.nn.functional.avg_pool2d(fine.permute(0, 3, 1, 2), 4).permute(0, 2, 3, 1)
+    coarse = c.compact(alpha)[:, c.gather].view(2, H // 4, H // 2, 7)
+    valid = torch.from_numpy(c.mask_np)
+    torch.testing.assert_close(coarse[:, valid], box[:, valid])
+    maps = c.maps(alpha)
+    assert maps.diffuse.shape == (2, H // 4, H // 2, 3)
+    torch.testing.assert_close(maps.diffuse[:, valid], box[:, valid][..., :3].clamp(0, 1))
+    assert m.downsampled(H) is m
+    for bad in (H // 3, 0, 2 * H):
+        with pytest.raises(HackError, match="downsampled"):
+            m.downsampled(bad)

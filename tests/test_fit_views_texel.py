@@ -104,11 +104,14 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
         f.fit_shape()
         f.photometric(texel=False)
     v = f.views[0]
+    # the texel stage renders the full atlas (the photometric stage a coarser mip): the
+    # before/after losses below are both taken on the texel stage's scene
+    ph.setup_level(f, v, int(cfg.photometric.resolutions[-1]), full_maps=True)
 
     def photo_loss():
         """Masked Charbonnier at 16 spp over two fixed sample patterns (not the stage's)."""
         with torch.no_grad():
-            maps, verts = f.maps(), f.forward(v).vertices[0]
+            maps, verts = ph.level_maps(f, v), f.forward(v).vertices[0]
             m = v.level["mask"]
             out = 0.0
             for seed in (11, 12):

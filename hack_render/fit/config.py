@@ -91,6 +91,21 @@ class ShapeConfig:
 
 
 @dataclass
+class SilhouetteConfig:
+    """The silhouette term (``silhouette.py``) of the shape stage (and, scaled with the
+    shape objective, of the photometric stage): model contour vs the photo's person mask."""
+
+    # "auto": a mask file (--mask) when given, else a mask segmented from a plain
+    # background (none, and no term, on a cluttered one); "off": no silhouette term
+    mode: str = "auto"
+    weight: float = 1.0              # contour points on the mask's border
+    w_inside: float = 1.0            # skin vertices projected outside the mask
+    scalp: bool = False              # also fit the scalp's outline (bald or skin-only masks)
+    contour_every: int = 10          # re-select the model's outer contour every k iterations
+    max_spread: float = 0.06         # border colour spread (sRGB) above which "not plain"
+
+
+@dataclass
 class PhotometricConfig:
     """Stage 4: photometric refinement through Mitsuba, coarse to fine."""
 
@@ -114,6 +129,10 @@ class PhotometricConfig:
     charbonnier_eps: float = 0.01    # robust loss scale (linear RGB)
     refine_geometry: bool = True     # beta, psi, theta, eta, tau refinement
     mask_erode_px: int = 1
+    # render each level with the coarsest mip of the skin maps that still has a texel per
+    # pixel (photometric.level_map_height: 128 rows at 128 px); the torch maps' forward and
+    # backward cost falls with the texel count (README, the bridge's overhead)
+    coarse_maps: bool = True
 
 
 @dataclass
@@ -139,6 +158,7 @@ class FitConfig:
     landmarks: LandmarkConfig = field(default_factory=LandmarkConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     shape: ShapeConfig = field(default_factory=ShapeConfig)
+    silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     texel: TexelConfig = field(default_factory=TexelConfig)
     per_view_expression: bool = False
@@ -167,6 +187,9 @@ class FitConfig:
                             f"{p.lighting!r}.")
         if not 1 <= p.spp <= 1024:
             raise HackError(f"config photometric.spp: expected 1..1024, found {p.spp}.")
+        if self.silhouette.mode not in ("auto", "off"):
+            raise HackError(f"config silhouette.mode: expected 'auto' or 'off', found "
+                            f"{self.silhouette.mode!r}.")
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")

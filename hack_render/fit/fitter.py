@@ -59,6 +59,8 @@ class View:
     psi: torch.Tensor | None      # (1, E) when expressions are per view
     lighting: Lighting | None = None
     renderer: object = None       # DiffRenderer of the current photometric level
+    silhouette: object = None     # PhotoSilhouette (person mask), or None: no silhouette term
+    silhouette_note: str = ""     # where the mask came from, or why there is none
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     level: dict = field(default_factory=dict)
 
@@ -90,7 +92,7 @@ class Fitter:
     """Holds the model, appearance model and parameters; runs the stages in order."""
 
     def __init__(self, photos: list[Photo], detections: list[Detection], config: FitConfig,
-                 model=None, appearance=None, progress: bool = True):
+                 model=None, appearance=None, progress: bool = True, masks: list | None = None):
         from hack_render.geometry import load_default_model
 
         if len(photos) != len(detections) or not photos:
@@ -116,12 +118,22 @@ class Fitter:
         self.embedding = _landmark_embedding(config.landmarks.embedding, m)
         self.lmk_w = landmark_weights(config.landmarks.jaw_weight)
         self.faces = m.faces
-        self.views = [self._init_view(p, d) for p, d in zip(photos, detections)]
+        if masks is not None and len(masks) != len(photos):
+            raise HackError(f"fit: expected one mask per photo ({len(photos)}), found "
+                            f"{len(masks)}.")
+        self.silhouette = None
+        if config.silhouette.mode != "off":
+            from hack_render.fit.silhouette import ModelSilhouette
+
+            self.silhouette = ModelSilhouette(m, scalp=config.silhouette.scalp)
+        self.views = [self._init_view(p, d, None if masks is None else masks[i])
+                      for i, (p, d) in enumerate(zip(photos, detections))]
         self.reports: list[StageReport] = []
         self.timings: dict[str, float] = {}
+        self._coarse_appearance: dict = {}  # (height, n_alpha) -> downsampled model
 
     # --- parameters -----------------------------------------------------------------
-    def _init_view(self, photo: Photo, det: Detection) -> View:
+    def _init_view(self, photo: Photo, det: Detection, mask=None) -> View:
         w, h = photo.width, photo.height
         f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(w, h)
         with torch.no_grad():
@@ -140,9 +152,31 @@ class Fitter:
         embedded = self.embedding is not None and (
             det.source == "dlib"
             or (det.source == "file" and self.cfg.landmarks.files_follow == "detector"))
-        return View(photo, det, torch.tensor([math.log(f0)], requires_grad=True), t,
+        view = View(photo, det, torch.tensor([math.log(f0)], requires_grad=True), t,
                     torch.zeros(3, requires_grad=True), torch.zeros(8, 3, requires_grad=True),
                     torch.zeros(3, requires_grad=True), psi, embedded=embedded)
+        self._init_silhouette(view, mask)
+        return view
+
+    def _init_silhouette(self, view: View, mask) -> None:
+        """The view's person mask: the given one, else a plain background's (or none)."""
+        from hack_render.fit.silhouette import PhotoSilhouette, segment_plain_background
+
+        if self.silhouette is None:
+            view.silhouette_note = "off (config silhouette.mode)"
+            return
+        if mask is not None:
+            view.silhouette = PhotoSilhouette.from_mask(mask, "file")
+            view.silhouette_note = "mask file"
+            return
+        m, why = segment_plain_background(view.photo.rgb, view.detection.points,
+                                          max_spread=self.cfg.silhouette.max_spread)
+        if m is None:
+            view.silhouette_note = f"none: {why}"
+            return
+        view.silhouette = PhotoSilhouette.from_mask(m, "plain background")
+        view.silhouette_note = (f"segmented from a plain background "
+                                f"({100 * m.mean():.0f} % of the photo)")
 
     def view_psi(self, v: View) -> torch.Tensor:
         return v.psi if v.psi is not None else self.psi
@@ -208,6 +242,37 @@ class Fitter:
         f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(v.photo.width, v.photo.height)
         return ((v.log_focal - math.log(f0)) / self.cfg.camera.focal_log_sigma).pow(2).sum()
 
+    def silhouette_loss(self, v: View, verts: torch.Tensor, it: int) -> torch.Tensor:
+        """The silhouette term (``silhouette.py``): skin vertices outside the person mask
+        (one-sided) plus the model's outer contour points off the mask's border, robust,
+        in the landmark term's units; the contour set is re-selected every
+        ``silhouette.contour_every`` iterations."""
+        from hack_render.fit.silhouette import huber
+
+        sc, sil = self.cfg.silhouette, v.silhouette
+        if it % max(1, sc.contour_every) == 0 or "sil_contour" not in v.level:
+            from hack_render.render.bridge import vertex_normals_torch
+
+            with torch.no_grad():
+                vv = verts.detach()
+                n = vertex_normals_torch(vv, self.faces).numpy()
+                idx = self.silhouette.select_contour(
+                    vv.numpy(), n, self.camera_centre(v),
+                    lambda p: self.project(v, torch.as_tensor(p)).numpy(),
+                    sil.shape, max(v.detection.size / 60.0, 0.5))
+            v.level["sil_contour"] = torch.as_tensor(idx, dtype=torch.long)
+        knee = v.detection.size * self.cfg.landmarks.huber_px
+        c = v.level["sil_contour"]
+        n_c = max(len(c), 1)
+        d, ok = sil.distance(self.project(v, verts.index_select(0, self.silhouette.inside)))
+        inside = (huber(torch.relu(d) / knee) * ok).sum() / n_c
+        if len(c):
+            d, ok = sil.distance(self.project(v, verts.index_select(0, c)))
+            contour = (huber(d / knee) * ok).sum() / n_c
+        else:
+            contour = inside * 0.0
+        return sc.w_inside * inside + sc.weight * contour
+
     def pose_priors(self, v: View) -> dict[str, torch.Tensor]:
         s = self.cfg.shape
         th = self.theta(v)
@@ -253,9 +318,12 @@ class Fitter:
     def shape_terms(self, v: View, verts: torch.Tensor, it: int) -> dict[str, torch.Tensor]:
         """One view's part of the shape objective: landmarks, focal prior, pose priors
         and the expression prior (the photometric stage keeps it, scaled)."""
-        return {"landmarks": self.landmark_loss(v, verts, it),
-                "focal_prior": 0.01 * self.focal_prior(v), **self.pose_priors(v),
-                "psi_prior": self.psi_prior(v)}
+        terms = {"landmarks": self.landmark_loss(v, verts, it),
+                 "focal_prior": 0.01 * self.focal_prior(v), **self.pose_priors(v),
+                 "psi_prior": self.psi_prior(v)}
+        if v.silhouette is not None:
+            terms["silhouette"] = self.silhouette_loss(v, verts, it)
+        return terms
 
     def beta_prior(self) -> torch.Tensor:
         return self.cfg.shape.w_beta * (self.beta ** 2).sum()
@@ -305,15 +373,27 @@ class Fitter:
         return rep
 
     # --- stage 4 and 5: photometric ----------------------------------------------------
-    def maps(self, with_delta: bool = True):
+    def maps(self, with_delta: bool = True, height: int | None = None):
         """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal
-        (``with_delta``: the per-texel albedo refinement added, when there is one)."""
+        (``with_delta``: the per-texel albedo refinement added, when there is one).
+        ``height``: a coarser atlas (the appearance model's height / 2^k, see
+        :meth:`~appearance.model.AppearanceModel.downsampled`) for coarse photometric
+        levels; None: the model's own."""
         if self.appearance is None:
             h = 16
             d = self.const_albedo.clamp(0, 1).expand(h, 2 * h, 3)
             return {"albedo": d, "specular": torch.full((h, 2 * h, 1), 0.6),
                     "roughness": torch.full((h, 2 * h, 1), 0.5), "normal": None}
-        m = self.appearance.maps(self.alpha)
+        app = self.appearance
+        if height is not None and height != app.height:
+            if with_delta and self.albedo_delta is not None:
+                raise HackError("maps: the per-texel albedo refinement is at the full atlas "
+                                f"({app.height} px), not at {height} px.")
+            key = (int(height), self.alpha.shape[1])
+            if key not in self._coarse_appearance:
+                self._coarse_appearance[key] = app.downsampled(*key)
+            app = self._coarse_appearance[key]
+        m = app.maps(self.alpha)
         d = m.diffuse[0]
         if with_delta and self.albedo_delta is not None:
             d = (d + self.albedo_delta).clamp(0.0, 1.0)

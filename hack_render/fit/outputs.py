@@ -131,10 +131,11 @@ def write_textures(fitter, folder: Path) -> list[Path]:
 
 def _final_render(fitter, v):
     """A clean render of the view at its last level: more spp, the fitted maps."""
-    from hack_render.fit.photometric import render_view
+    from hack_render.fit.photometric import level_maps, render_view
 
     with torch.no_grad():
-        img = render_view(fitter, v, fitter.maps(), fitter.forward(v).vertices[0], 12345)
+        img = render_view(fitter, v, level_maps(fitter, v), fitter.forward(v).vertices[0],
+                          12345)
     return img.numpy()
 
 

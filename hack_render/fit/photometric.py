@@ -88,8 +88,29 @@ def face_mask(points_v: np.ndarray, res: int) -> np.ndarray:
     return m
 
 
-def setup_level(fitter, view, res: int) -> None:
-    """Build the view's scene, renderer, target and masks for one resolution."""
+def level_map_height(fitter, res: int) -> int | None:
+    """Atlas height for a level of ``res`` px: with ``photometric.coarse_maps``, the
+    coarsest mip of the appearance model (its height / 2^k, at least 32) with at least
+    ``res`` rows, so a texel never spans more than a pixel of the face (the face takes
+    about half of the level's width, the face tile's whole height); None: full size."""
+    app = fitter.appearance
+    if app is None or not fitter.cfg.photometric.coarse_maps:
+        return None
+    h = app.height
+    while h % 2 == 0 and h // 2 >= max(int(res), 32):
+        h //= 2
+    return None if h == app.height else h
+
+
+def level_maps(fitter, view, with_delta: bool = True) -> dict:
+    """The skin maps at the atlas size of the view's current level (see
+    :func:`level_map_height`)."""
+    return fitter.maps(with_delta, height=view.level.get("map_height"))
+
+
+def setup_level(fitter, view, res: int, full_maps: bool = False) -> None:
+    """Build the view's scene, renderer, target and masks for one resolution
+    (``full_maps``: the appearance model's own atlas size, e.g. for per-texel work)."""
     from hack_render.render.bridge import DiffRenderer
     from hack_render.render.materials import SkinMaps
     from hack_render.render.parts import Topology
@@ -104,10 +125,11 @@ def setup_level(fitter, view, res: int) -> None:
     pts_v = p[:, :2] / p[:, 2:3]
     if view.lighting is None:
         view.lighting = Lighting(cfg.lighting, cfg.env_height)
+    map_height = None if full_maps else level_map_height(fitter, res)
     with torch.no_grad():
         verts = fitter.forward(view).vertices[0]
         maps = {k: (x.detach().numpy() if x is not None else None)
-                for k, x in fitter.maps().items()}
+                for k, x in fitter.maps(height=map_height).items()}
         env = view.lighting.env_map().numpy()
     sm = SkinMaps(maps["albedo"], maps["specular"], maps["roughness"], maps["normal"])
     rig = LightRig(name="fit", env_map=env.astype(np.float32))
@@ -116,7 +138,7 @@ def setup_level(fitter, view, res: int) -> None:
     view.renderer = DiffRenderer(head, cfg.integrator, max_depth=2, spp=cfg.spp)
     view.level = {"res": res, "camera": cam, "H": H, "target": torch.from_numpy(target),
                   "photo_mask": face_mask(pts_v, res), "points_v": pts_v,
-                  "jaw": view.level.get("jaw")}
+                  "jaw": view.level.get("jaw"), "map_height": map_height}
     if view.level["jaw"] is None:
         view.level.pop("jaw")
     update_mask(view)
@@ -148,7 +170,7 @@ def charbonnier(diff: torch.Tensor, eps: float) -> torch.Tensor:
 def match_exposure(fitter, view) -> None:
     """Scale the lighting so the first render's masked mean matches the photo's."""
     with torch.no_grad():
-        maps = fitter.maps()
+        maps = level_maps(fitter, view)
         verts = fitter.forward(view).vertices[0]
         img = render_view(fitter, view, maps, verts, 0)[..., :3]
         m = view.level["mask"]
@@ -196,8 +218,10 @@ def run(fitter, texel: bool = False):
         pairs = symmetry_pairs(fitter.model)
     for res, iters in levels:
         for v in fitter.views:
-            if v.level.get("res") != res or v.renderer is None:
-                setup_level(fitter, v, int(res))
+            want = None if texel else level_map_height(fitter, int(res))
+            if (v.level.get("res") != res or v.renderer is None
+                    or v.level.get("map_height") != want):
+                setup_level(fitter, v, int(res), full_maps=texel)
                 if not texel and res == levels[0][0]:
                     match_exposure(fitter, v)
         groups = _groups(fitter, texel)
@@ -214,13 +238,13 @@ def run(fitter, texel: bool = False):
         if texel:
             with torch.no_grad():
                 pca = {k: (x.detach() if x is not None else None)
-                       for k, x in fitter.maps(with_delta=False).items()}
+                       for k, x in fitter.maps(with_delta=False).items()}  # full atlas
 
         def loss(it, res=res):
             if pca is not None:
                 maps = dict(pca, albedo=(pca["albedo"] + fitter.albedo_delta).clamp(0.0, 1.0))
-            else:
-                maps = fitter.maps()
+            else:  # the views of a level share its atlas size
+                maps = level_maps(fitter, fitter.views[0])
             total, terms = 0.0, {}
             for v in fitter.views:
                 if refine and it and it % 10 == 0:

@@ -35,10 +35,16 @@ INTEGRATORS = ("prb", "direct_projective", "prb_projective")
 
 
 def vertex_normals_torch(vertices: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
-    """Area-weighted unit vertex normals, differentiable. vertices (N, 3), faces (F, 3) long."""
-    v = vertices[faces]
-    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=1)
-    n = torch.zeros_like(vertices).index_add_(0, faces.reshape(-1), fn.repeat_interleave(3, 0))
+    """Area-weighted unit vertex normals, differentiable. vertices (N, 3), faces (F, 3) long.
+
+    Gathers with ``index_select`` (its backward is a scatter-add; fancy indexing's is an
+    accumulating ``index_put_``, which sorts the indices first: ~1.6x slower forward and
+    backward on the CPU for the 26k-vertex head)."""
+    flat = faces.reshape(-1)
+    v = vertices.index_select(0, flat).view(-1, 3, 3)
+    fn = torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n = torch.zeros_like(vertices).index_add_(0, flat,
+                                              fn.unsqueeze(1).expand(-1, 3, 3).reshape(-1, 3))
     length = torch.linalg.vector_norm(n, dim=1, keepdim=True)
     # isolated vertices (zero normal) stay zero instead of dividing by zero
     return n / torch.where(length > 0, length, torch.ones_like(length))
@@ -154,8 +160,8 @@ class DiffRenderer:
             v = v.float()
             n = vertex_normals_torch(v, self._faces)
             for name, g in self._gather.items():
-                out[f"pos:{name}"] = v[g].reshape(-1)
-                out[f"nrm:{name}"] = n[g].reshape(-1)
+                out[f"pos:{name}"] = v.index_select(0, g).reshape(-1)
+                out[f"nrm:{name}"] = n.index_select(0, g).reshape(-1)
         for key, x in (("albedo", albedo), ("specular", specular), ("roughness", roughness),
                        ("normalmap", normal)):
             if x is None:

@@ -1,0 +1,232 @@
+"""Silhouette term: the head's outline in the photo against the model's occluding contour.
+
+``prb`` renders give shading gradients but none at silhouettes (README, the bridge), so
+the outline is fitted in torch, beside the landmarks, without rendering:
+
+- **Photo side** (:func:`segment_plain_background`, or a user mask file): a person mask
+  and its signed distance map (:class:`PhotoSilhouette`, photo pixels, positive outside).
+  The automatic mask is made only when the photo's background is plain (a studio
+  backdrop, a synthetic render): the border's colour is uniform, the foreground is the
+  connected region of other colours around the face, and it holds the landmarks. A
+  cluttered background yields no mask (and no silhouette term), never a wrong one.
+- **Model side** (:class:`ModelSilhouette`): (a) *inside*: every skin vertex projects
+  inside the mask (a one-sided penalty on the positive distance; hair and clothes in the
+  mask cost nothing); (b) *contour*: the skin vertices on the model's outer occluding
+  contour (grazing normal, and on the border of the model's own projected footprint; re-
+  selected every few iterations like the jawline points) lie on the mask's border. The
+  contour set leaves out the scalp (hair) and the chest and the mesh's lower edge
+  (clothes, and the cut of the bust), whose outline in a photo is not the skin's.
+
+Both are sampled from the distance map bilinearly (``grid_sample``), so they are
+differentiable in the vertices, and robust (Huber, in units of the landmark term's knee).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+
+#: regions (HackModel.region_names) whose vertices must project inside the mask
+INSIDE_REGIONS = ("face", "scalp_and_ears", "neck", "chest_and_shoulders")
+#: regions whose outer contour is matched to the mask's border (scalp: see ``scalp``)
+CONTOUR_REGIONS = ("face", "neck")
+
+
+@dataclass
+class PhotoSilhouette:
+    """A person mask of a photo and its signed distance (photo pixels, > 0 outside).
+
+    ``sdf`` (1, 1, h, w) is at a working scale ``scale`` (working px per photo px);
+    :meth:`distance` takes photo pixel coordinates (pixel centres at +0.5)."""
+
+    mask: np.ndarray
+    sdf: torch.Tensor
+    scale: float
+    source: str
+
+    @classmethod
+    def from_mask(cls, mask: np.ndarray, source: str, max_side: int = 512) -> PhotoSilhouette:
+        from scipy.ndimage import distance_transform_edt, zoom
+
+        mask = np.asarray(mask, bool)
+        if mask.ndim != 2 or not mask.any() or mask.all():
+            raise HackError(f"silhouette mask ({source}): expected a 2-D mask with both "
+                            f"person and background pixels, found shape {mask.shape} with "
+                            f"{int(mask.sum())} person pixels.")
+        h, w = mask.shape
+        scale = min(1.0, max_side / max(h, w))
+        m = mask if scale == 1.0 else zoom(mask.astype(np.float32), scale, order=1) > 0.5
+        # distance from pixel centres to the border (between the last inside and the
+        # first outside pixel: half a pixel from either)
+        out = distance_transform_edt(~m) - 0.5
+        inside = distance_transform_edt(m) - 0.5
+        sdf = np.where(m, -inside, out).astype(np.float32)
+        return cls(mask, torch.from_numpy(sdf)[None, None], scale, source)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.mask.shape
+
+    def distance(self, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Signed distance (photo pixels, > 0 outside) at photo pixels uv (N, 2),
+        bilinear, differentiable in uv, and (N,) bool: inside the photo. Outside the
+        photo nothing is known (the person may go on past the frame): callers drop
+        those points."""
+        h, w = self.sdf.shape[-2:]
+        s = self.scale
+        x = uv[:, 0] * s
+        y = uv[:, 1] * s
+        grid = torch.stack([2.0 * x / w - 1.0, 2.0 * y / h - 1.0], -1).to(self.sdf.dtype)
+        d = torch.nn.functional.grid_sample(self.sdf, grid[None, None], mode="bilinear",
+                                            padding_mode="border", align_corners=False)[0, 0, 0]
+        valid = (x >= 0) & (x <= w) & (y >= 0) & (y <= h)
+        return d / s, valid.detach()
+
+
+def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: float = 0.03,
+                             max_spread: float = 0.06, max_side: int = 512
+                             ) -> tuple[np.ndarray | None, str]:
+    """Person mask of a photo on a plain background, or (None, why) when it is not.
+
+    Args:
+        rgb: (h, w, 3) sRGB-encoded values in [0, 1].
+        points: (68, 2) detected landmarks (photo pixels): the face is foreground.
+        border_frac: width of the border band whose colour is the background's.
+        max_spread: the band's colour spread (95th percentile distance to its median,
+            sRGB units) above which the background counts as cluttered.
+    Returns:
+        ((h, w) bool mask, "") or (None, the reason no mask was made).
+    """
+    from scipy import ndimage
+
+    img = np.asarray(rgb, np.float32)[..., :3]
+    h, w = img.shape[:2]
+    step = max(1, int(np.ceil(max(h, w) / max_side)))
+    small = img[::step, ::step]
+    sh, sw = small.shape[:2]
+    b = max(2, int(round(border_frac * max(sh, sw))))
+    band = np.concatenate([small[:b].reshape(-1, 3), small[-b:].reshape(-1, 3),
+                           small[:, :b].reshape(-1, 3), small[:, -b:].reshape(-1, 3)])
+    bg = np.median(band, axis=0)
+    spread = float(np.percentile(np.linalg.norm(band - bg, axis=1), 95))
+    if spread > max_spread:
+        return None, (f"the background is not plain (border colour spread {spread:.3f} > "
+                      f"{max_spread})")
+    dist = np.linalg.norm(small - bg, axis=-1)
+    fg = dist > max(3.0 * spread, 0.08)
+    fg = ndimage.binary_opening(fg, iterations=1)
+    lab, n = ndimage.label(fg)
+    pts = np.clip((np.asarray(points) / step).astype(int), 0, [sw - 1, sh - 1])
+    ids = lab[pts[27:, 1], pts[27:, 0]]
+    ids = ids[ids > 0]
+    if n == 0 or len(ids) == 0:
+        return None, "no foreground region holds the face"
+    keep = np.bincount(ids).argmax()
+    fg = ndimage.binary_fill_holes(lab == keep)
+    # the inner points (nose, eyes, mouth) lie inside; jaw and brow points of a turned
+    # head often sit on, or past, the outline
+    inside = fg[pts[27:, 1], pts[27:, 0]].mean()
+    if inside < 0.95:
+        return None, (f"the foreground holds only {100 * inside:.0f} % of the nose, eye "
+                      "and mouth landmarks")
+    if step > 1:
+        fg = np.repeat(np.repeat(fg, step, 0), step, 1)[:h, :w]
+    return fg, ""
+
+
+def load_mask(path, shape: tuple[int, int]) -> np.ndarray:
+    """A user's person mask (PNG/JPEG/..., nonzero = person) of the photo's size."""
+    import imageio.v3 as iio
+
+    try:
+        m = np.asarray(iio.imread(path))
+    except Exception as err:  # noqa: BLE001 - every reader error becomes one message
+        raise HackError(f"--mask {path}: cannot read it as an image ({err}).") from err
+    if m.ndim == 3:
+        m = m[..., :3].max(-1) if m.shape[2] >= 3 else m[..., 0]
+    if m.shape != tuple(shape):
+        raise HackError(f"--mask {path}: expected the photo's size {shape[1]} x {shape[0]} "
+                        f"px, found {m.shape[1]} x {m.shape[0]} px.")
+    return m > (m.max() / 2 if m.max() > 0 else 0)
+
+
+class ModelSilhouette:
+    """The model's side of the silhouette term (see the module docstring).
+
+    Args:
+        model: a HackModel (regions, faces, rest vertices).
+        scalp: also match the scalp's contour (bald heads, shaved, or a mask of the skin
+            alone); off by default, hair is not skin.
+        grazing: |cos| between normal and view below which a vertex is on the contour.
+    """
+
+    def __init__(self, model, scalp: bool = False, grazing: float = 0.3):
+        regions = model.vertex_region.numpy()
+        names = list(model.region_names)
+        ids = lambda rs: [names.index(r) for r in rs if r in names]  # noqa: E731
+        # every 3rd skin vertex (~3,700, spaced ~4 mm on the face, under a pixel of a
+        # 256 px portrait): the inside test needs coverage, not every vertex
+        self.inside = torch.as_tensor(
+            np.flatnonzero(np.isin(regions, ids(INSIDE_REGIONS)))[::3])
+        contour_regions = CONTOUR_REGIONS + (("scalp_and_ears",) if scalp else ())
+        cand = np.isin(regions, ids(contour_regions))
+        # ears stay candidates without the scalp: scalp_and_ears below the brows
+        if not scalp and "scalp_and_ears" in names:
+            t = model.template.numpy()
+            brow = t[model.landmark_indices.numpy()[17:27], 1].min()
+            cand |= (regions == names.index("scalp_and_ears")) & (t[:, 1] < brow)
+        # the bust's cut: leave out vertices within 3 cm of the mesh's lower open edge
+        edge = _boundary_vertices(model.faces.numpy(), model.num_vertices)
+        t = model.template.numpy()
+        low = edge[np.isin(regions[edge], ids(("neck", "chest_and_shoulders")))]
+        if len(low):
+            from scipy.spatial import cKDTree
+
+            d, _ = cKDTree(t[low]).query(t)
+            cand &= d > 0.03
+        self.footprint = np.flatnonzero(np.isin(regions, ids(INSIDE_REGIONS)))
+        self.candidates = np.flatnonzero(cand)
+        if len(self.candidates) == 0 or len(self.inside) == 0:
+            raise HackError("silhouette: the model has no face/neck regions to fit.")
+        self.grazing = float(grazing)
+
+    def select_contour(self, verts: np.ndarray, normals: np.ndarray, centre: np.ndarray,
+                       project, shape: tuple[int, int], px: float) -> np.ndarray:
+        """Candidate vertices on the model's *outer* occluding contour: grazing normal,
+        and within ~2 splat radii of the border of the footprint of the projected skin
+        vertices (so contours hidden behind the face, e.g. the far cheek's, are left
+        out). ``px``: the footprint's working pixel size in photo pixels."""
+        from scipy import ndimage
+
+        c = self.candidates
+        view = verts[c] - centre
+        view /= np.linalg.norm(view, axis=1, keepdims=True)
+        cos = np.abs(np.einsum("ij,ij->i", normals[c], view))
+        c = c[cos < self.grazing]
+        if len(c) == 0:
+            return c
+        uv_all = project(verts[self.footprint]) / px
+        h, w = int(np.ceil(shape[0] / px)) + 2, int(np.ceil(shape[1] / px)) + 2
+        ij = np.round(uv_all - 0.5).astype(int) + 1
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        foot = np.zeros((h, w), bool)
+        foot[ij[ok, 1], ij[ok, 0]] = True
+        foot = ndimage.binary_fill_holes(ndimage.binary_closing(foot, iterations=2))
+        depth = ndimage.distance_transform_edt(foot)
+        q = np.clip(np.round(project(verts[c]) / px - 0.5).astype(int) + 1, 0, [w - 1, h - 1])
+        return c[depth[q[:, 1], q[:, 0]] <= 2.5]
+
+
+def _boundary_vertices(faces: np.ndarray, n: int) -> np.ndarray:
+    """Vertices on edges used by one face only (the mesh's open borders)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    return np.unique(uniq[count == 1])
+
+
+def huber(r: torch.Tensor) -> torch.Tensor:
+    return torch.where(r.abs() < 1.0, 0.5 * r ** 2, r.abs() - 0.5)
