@@ -278,14 +278,16 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
     (same DiffRenderer: integrator, resolution, spp), see DiffRenderer.bare_iteration:
     ``bare_step`` writes the parameters the bridge feeds (vertex positions, skin maps,
     env texels) as an optimiser step does, so the geometry is rebuilt as in the fit;
-    ``bare_render`` renders the unchanged scene (no rebuild; a lower bound)."""
+    ``bare_render`` renders the unchanged scene (no rebuild; a lower bound). ``bridge``
+    is the render path alone (maps, model, render, an L1 loss); ``stage_*`` the
+    photometric stage's whole objective (photo term, landmarks, silhouette, priors)."""
     from skimage import data
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
-    from hack_render.fit.photometric import level_maps, render_view, setup_level
+    from hack_render.fit.photometric import level_maps, level_objective, render_view, setup_level
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():
@@ -316,7 +318,19 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
         fitter.alpha.grad = None
         sum(x.sum() for x in level_maps(fitter, v).values() if x is not None).backward()
 
+    _, stage_loss = level_objective(fitter)  # the photometric stage's own objective
+
+    def stage_iter(i):  # one iteration of the stage: its whole loss + backward
+        for p in leaves:
+            p.grad = None
+        stage_loss(i)[0].backward()
+
+    # the stage refreshes the skin mask, the jawline and the silhouette contour every 10
+    # iterations: "stage_step" times the other 9 (it = 10 k + 1), "stage_refresh" the
+    # 10th (it = 10 k); "stage_amortised" = (9 stage_step + stage_refresh) / 10
     fns = {"bridge": bridge_iter, "model_fwd_bwd": model_iter, "maps_fwd_bwd": maps_iter,
+           "stage_step": lambda i: stage_iter(10 * i + 1),
+           "stage_refresh": lambda i: stage_iter(10 * i + 10),
            "bare_step": lambda i: r.bare_iteration(target.numpy(), i, write=True),
            "bare_render": lambda i: r.bare_iteration(target.numpy(), i, write=False)}
     for fn in fns.values():
@@ -328,7 +342,9 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
             fn(i + 1)
             ts[name].append(time.perf_counter() - t0)
     out = {k: float(np.median(x)) for k, x in ts.items()}
+    out["stage_amortised"] = (9 * out["stage_step"] + out["stage_refresh"]) / 10
     out["ratio_vs_bare_step"] = out["bridge"] / out["bare_step"]
+    out["stage_ratio_vs_bare_step"] = out["stage_amortised"] / out["bare_step"]
     out["ratio_vs_bare_render"] = out["bridge"] / out["bare_render"]
     out.update(res=res, spp=spp, reps=reps, integrator=r.integrator_name)
     return out

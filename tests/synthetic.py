@@ -70,11 +70,13 @@ def synthetic_arrays(seed: int = 0, nx: int = 6, ny: int = 12) -> dict[str, np.n
 
 
 def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: int = 256,
-                  name: str = "view"):
+                  name: str = "view", mask: bool = False):
     """A photo-less view for the landmark stages: the true landmark vertices of
     ``model(beta, psi)`` with the head turned by ``angles_deg`` (pitch, yaw, roll, shared
     over the joints by the anatomical prior), projected by a frontal camera (110 mm
-    equivalent, 1 m) onto a blank ``res`` px photo. Returns (Photo, Detection)."""
+    equivalent, 1 m) onto a blank ``res`` px photo. Returns (Photo, Detection), and with
+    ``mask`` also the true person mask: the skin triangles (face, scalp, neck, chest)
+    rasterised at pixel centres."""
     import torch
     from scenes.cameras import Camera
 
@@ -91,4 +93,18 @@ def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: i
     cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res, "v")
     lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
     photo = Photo(np.full((res, res, 3), 0.5, np.float32), name)
-    return photo, Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")
+    det = Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")
+    if not mask:
+        return photo, det
+    from skimage.draw import polygon
+
+    skin = [i for i, r in enumerate(model.region_names)
+            if r in ("face", "scalp_and_ears", "neck", "chest_and_shoulders")]
+    faces = model.faces.numpy()
+    keep = np.isin(model.vertex_region.numpy()[faces], skin).all(1)
+    uv = cam.project(out.vertices[0].numpy().astype(np.float64))
+    m = np.zeros((res, res), bool)
+    for tri in uv[faces[keep]]:
+        rr, cc = polygon(tri[:, 1] - 0.5, tri[:, 0] - 0.5, (res, res))
+        m[rr, cc] = True
+    return photo, det, m

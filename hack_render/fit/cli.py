@@ -12,7 +12,7 @@ from hack_render.errors import HackError
 
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
-               progress: bool = True):
+               progress: bool = True, masks: list[Path] | None = None):
     """Library entry point of the command: read, detect, fit, write. Returns (result, paths)."""
     import torch
 
@@ -27,6 +27,9 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     if landmarks and len(landmarks) != len(photos):
         raise HackError(f"--landmarks: expected one file per photo ({len(photos)}), found "
                         f"{len(landmarks)}.")
+    if masks and len(masks) != len(photos):
+        raise HackError(f"--mask: expected one mask per photo ({len(photos)}), found "
+                        f"{len(masks)}.")
     check_writable(outdir / "params.json")
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
@@ -41,7 +44,14 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
             d = detect_landmarks(ph.uint8(), lc.detector_upsample, lc.min_face_px, photos[i].name)
         dets.append(d)
     t_detect = time.perf_counter() - t0
-    fitter = Fitter(imgs, dets, cfg, progress=progress)
+    person = None
+    if masks:
+        from hack_render.fit.silhouette import load_mask
+
+        person = [load_mask(p, (ph.height, ph.width),
+                            (round(ph.height / ph.scale), round(ph.width / ph.scale)))
+                  for p, ph in zip(masks, imgs)]
+    fitter = Fitter(imgs, dets, cfg, progress=progress, masks=person)
     fitter.timings["landmarks"] = t_detect
     result = fitter.run()
     result.fitter = fitter  # for callers that evaluate the fit (bench/bench_fit.py)
@@ -67,6 +77,12 @@ def fit(
     per_view_expression: bool = typer.Option(False, "--per-view-expression",
                                              help="Multi-view: one expression per photo."),
     lighting: Optional[str] = typer.Option(None, help="sh (spherical harmonics) or env."),
+    mask: Optional[List[Path]] = typer.Option(None, "--mask", help="Person mask per photo "
+                                              "(image of the photo's size, nonzero = person: "
+                                              "head, hair, neck, clothes) for the silhouette "
+                                              "term; default: segmented when the background "
+                                              "is plain, else no silhouette term."),
+    no_silhouette: bool = typer.Option(False, "--no-silhouette", help="No silhouette term."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Fit HACK geometry, appearance, lighting and cameras to photos by inverse rendering.
@@ -99,8 +115,11 @@ def fit(
         over["texel"]["enabled"] = True
     if per_view_expression:
         over["per_view_expression"] = True
+    if no_silhouette:
+        over["silhouette"] = {"mode": "off"}
     cfg = load_config(config, over)
-    result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet)
+    result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
+                               masks=mask or None)
     for f in result.failures:
         typer.secho(f"warning: {f}", err=True, fg=typer.colors.YELLOW)
     total = sum(result.timings.values())

@@ -102,7 +102,9 @@ class SilhouetteConfig:
     w_inside: float = 1.0            # skin vertices projected outside the mask
     scalp: bool = False              # also fit the scalp's outline (bald or skin-only masks)
     contour_every: int = 10          # re-select the model's outer contour every k iterations
-    max_spread: float = 0.06         # border colour spread (sRGB) above which "not plain"
+    # a border pixel within this colour distance (sRGB) of the border median is background;
+    # under 60 % of the border so: a cluttered background, no automatic mask
+    max_spread: float = 0.06
 
 
 @dataclass

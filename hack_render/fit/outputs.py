@@ -93,7 +93,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "faces_found": v.detection.n_faces,
                          "landmark_source": v.detection.source,
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
-                         else "vertices"} for v in res.views],
+                         else "vertices", "silhouette": v.silhouette_note}
+                        for v in res.views],
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None
                                      else None)}

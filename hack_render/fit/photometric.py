@@ -206,6 +206,73 @@ def texel_regularisers(delta: torch.Tensor, pairs) -> dict[str, torch.Tensor]:
             "magnitude": (delta ** 2).mean()}
 
 
+def level_objective(fitter, texel: bool = False, pairs=None):
+    """(Adam parameter groups, loss) of one photometric level (``texel``: of the per-texel
+    albedo stage, with the symmetry ``pairs``) over the views' current scenes (set up by
+    :func:`setup_level`): ``loss(it)`` -> (total, {term: float}), the objective the stage
+    minimises (``bench/bench_fit.py --overhead`` times it as the stage's iteration)."""
+    cfg, tcfg = fitter.cfg.photometric, fitter.cfg.texel
+    groups = _groups(fitter, texel)
+    # Geometry is frozen in the texel stage and when refine_geometry is off: evaluate it
+    # once per level (no model forward/backward per iteration; the bridge then uploads
+    # the unchanged vertices once instead of rebuilding the scene every iteration), and
+    # drop the terms that are constant then (landmarks, pose priors, mask refresh).
+    refine = cfg.refine_geometry and not texel
+    fixed = {}
+    if not refine:
+        with torch.no_grad():
+            fixed = {id(v): fitter.forward(v).vertices[0] for v in fitter.views}
+    pca = None
+    if texel:
+        with torch.no_grad():
+            pca = {k: (x.detach() if x is not None else None)
+                   for k, x in fitter.maps(with_delta=False).items()}  # full atlas
+
+    def loss(it):
+        if pca is not None:
+            maps = dict(pca, albedo=(pca["albedo"] + fitter.albedo_delta).clamp(0.0, 1.0))
+        else:  # the views of a level share its atlas size
+            maps = level_maps(fitter, fitter.views[0])
+        total, terms = 0.0, {}
+        for v in fitter.views:
+            if refine and it and it % 10 == 0:
+                update_mask(v)
+            verts = fitter.forward(v).vertices[0] if refine else fixed[id(v)]
+            img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it,
+                              light_grad=not texel)[..., :3]
+            m = v.level["mask"]
+            n = m.sum().clamp_min(1)
+            ph = charbonnier(img - v.level["target"], cfg.charbonnier_eps)
+            parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
+            if not texel:
+                parts["light_smooth"] = 1e-3 * v.lighting.smoothness()
+            if refine:
+                # the shape stage's objective (landmarks and its priors), scaled as a
+                # whole by w_landmarks: the priors keep their balance with the landmarks
+                # (an unscaled prior against the scaled landmarks would pull beta and
+                # psi toward zero while the photo term's gradients are small)
+                parts.update({k: cfg.w_landmarks * x
+                              for k, x in fitter.shape_terms(v, verts, it).items()})
+            for k, x in parts.items():
+                total = total + x
+                terms[k] = terms.get(k, 0.0) + float(x.detach())
+        extra = {} if texel else {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
+        if refine:
+            extra["beta_prior"] = cfg.w_landmarks * fitter.beta_prior()
+            extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
+        if texel:
+            for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
+                w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,
+                     "magnitude": tcfg.w_magnitude}[k]
+                extra[f"texel_{k}"] = w * x
+        for k, x in extra.items():
+            total = total + x
+            terms[k] = float(x.detach())
+        return total, terms
+
+    return groups, loss
+
+
 def run(fitter, texel: bool = False):
     """Run the photometric stage (or, with ``texel``, the per-texel albedo stage)."""
     cfg, tcfg = fitter.cfg.photometric, fitter.cfg.texel
@@ -215,7 +282,7 @@ def run(fitter, texel: bool = False):
         levels = [(cfg.resolutions[-1], tcfg.iterations)]
         h = fitter.appearance.height
         fitter.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
-        pairs = symmetry_pairs(fitter.model)
+    pairs = symmetry_pairs(fitter.model) if texel else None
     for res, iters in levels:
         for v in fitter.views:
             want = None if texel else level_map_height(fitter, int(res))
@@ -224,64 +291,7 @@ def run(fitter, texel: bool = False):
                 setup_level(fitter, v, int(res), full_maps=texel)
                 if not texel and res == levels[0][0]:
                     match_exposure(fitter, v)
-        groups = _groups(fitter, texel)
-        # Geometry is frozen in the texel stage and when refine_geometry is off: evaluate it
-        # once per level (no model forward/backward per iteration; the bridge then uploads
-        # the unchanged vertices once instead of rebuilding the scene every iteration), and
-        # drop the terms that are constant then (landmarks, pose priors, mask refresh).
-        refine = cfg.refine_geometry and not texel
-        fixed = {}
-        if not refine:
-            with torch.no_grad():
-                fixed = {id(v): fitter.forward(v).vertices[0] for v in fitter.views}
-        pca = None
-        if texel:
-            with torch.no_grad():
-                pca = {k: (x.detach() if x is not None else None)
-                       for k, x in fitter.maps(with_delta=False).items()}  # full atlas
-
-        def loss(it, res=res):
-            if pca is not None:
-                maps = dict(pca, albedo=(pca["albedo"] + fitter.albedo_delta).clamp(0.0, 1.0))
-            else:  # the views of a level share its atlas size
-                maps = level_maps(fitter, fitter.views[0])
-            total, terms = 0.0, {}
-            for v in fitter.views:
-                if refine and it and it % 10 == 0:
-                    update_mask(v)
-                verts = fitter.forward(v).vertices[0] if refine else fixed[id(v)]
-                img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it,
-                                  light_grad=not texel)[..., :3]
-                m = v.level["mask"]
-                n = m.sum().clamp_min(1)
-                ph = charbonnier(img - v.level["target"], cfg.charbonnier_eps)
-                parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
-                if not texel:
-                    parts["light_smooth"] = 1e-3 * v.lighting.smoothness()
-                if refine:
-                    # the shape stage's objective (landmarks and its priors), scaled as a
-                    # whole by w_landmarks: the priors keep their balance with the landmarks
-                    # (an unscaled prior against the scaled landmarks would pull beta and
-                    # psi toward zero while the photo term's gradients are small)
-                    parts.update({k: cfg.w_landmarks * x
-                                  for k, x in fitter.shape_terms(v, verts, it).items()})
-                for k, x in parts.items():
-                    total = total + x
-                    terms[k] = terms.get(k, 0.0) + float(x.detach())
-            extra = {} if texel else {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
-            if refine:
-                extra["beta_prior"] = cfg.w_landmarks * fitter.beta_prior()
-                extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
-            if texel:
-                for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
-                    w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,
-                         "magnitude": tcfg.w_magnitude}[k]
-                    extra[f"texel_{k}"] = w * x
-            for k, x in extra.items():
-                total = total + x
-                terms[k] = float(x.detach())
-            return total, terms
-
+        groups, loss = level_objective(fitter, texel, pairs)
         name = f"texel@{res}" if texel else f"photometric@{res}"
         reports.append(fitter._run(name, groups, loss, int(iters),
                                    after_step=fitter._project_psi,
