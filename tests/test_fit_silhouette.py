@@ -119,14 +119,15 @@ def test_04_outer_contour_and_recovery(subject):
     without = _fit(model, (photo, det), mask, "off")
     v = with_sil.views[0]
     assert v.silhouette_note == "mask file" and without.views[0].silhouette is None
-    c = v.level["sil_contour"]
-    # the outer contour: dozens of points, on the face/neck outline, none of them inside
-    # the face (the far cheek's contour, hidden behind the nose-side, is left out)
-    assert len(c) > 40
+    pairs, t = v.level["sil_contour"]
+    # the outer contour: points on mesh edges (zero crossings of n.v), on the face/neck
+    # outline; contours hidden inside the footprint (the jaw's over the neck) left out
+    assert len(t) > 40 and bool(((t >= 0) & (t <= 1)).all())
     with torch.no_grad():
         out = with_sil.forward(v)
-        d, ok = v.silhouette.distance(with_sil.project(v, out.vertices[0][c]))
-    assert float(d[ok].abs().median()) < 2.0
+        pts = with_sil.silhouette.points(out.vertices[0], pairs, t)
+        d, ok = v.silhouette.distance(with_sil.project(v, pts))
+    assert float(d[ok].abs().median()) < 1.0
     with torch.no_grad():
         true = model(beta=beta).vertices[0][:9409].numpy()
     err = {}

@@ -256,18 +256,19 @@ class Fitter:
             with torch.no_grad():
                 vv = verts.detach()
                 n = vertex_normals_torch(vv, self.faces).numpy()
-                idx = self.silhouette.select_contour(
-                    vv.numpy(), n, self.camera_centre(v),
-                    lambda p: self.project(v, torch.as_tensor(p)).numpy(),
+                pairs, t = self.silhouette.select_contour(
+                    vv.numpy().astype(np.float64), n.astype(np.float64), self.camera_centre(v),
+                    lambda p: self.project(v, torch.as_tensor(p, dtype=vv.dtype)).numpy(),
                     sil.shape, max(v.detection.size / 60.0, 0.5))
-            v.level["sil_contour"] = torch.as_tensor(idx, dtype=torch.long)
+            v.level["sil_contour"] = (torch.as_tensor(pairs, dtype=torch.long),
+                                      torch.as_tensor(t, dtype=verts.dtype))
         knee = v.detection.size * self.cfg.landmarks.huber_px
-        c = v.level["sil_contour"]
-        n_c = max(len(c), 1)
+        pairs, t = v.level["sil_contour"]
+        n_c = max(len(t), 1)
         d, ok = sil.distance(self.project(v, verts.index_select(0, self.silhouette.inside)))
         inside = (huber(torch.relu(d) / knee) * ok).sum() / n_c
-        if len(c):
-            d, ok = sil.distance(self.project(v, verts.index_select(0, c)))
+        if len(t):
+            d, ok = sil.distance(self.project(v, self.silhouette.points(verts, pairs, t)))
             contour = (huber(d / knee) * ok).sum() / n_c
         else:
             contour = inside * 0.0

@@ -130,7 +130,20 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
     if n == 0 or len(ids) == 0:
         return None, "no foreground region holds the face"
     keep = np.bincount(ids).argmax()
-    fg = ndimage.binary_fill_holes(lab == keep)
+    fg = lab == keep
+    # the border at half the contrast (pixels half covered by the person): a threshold
+    # near the background's own noise would count faint anti-aliased edge pixels in and
+    # move the outline outward (~0.7 px at 256 px on the synthetic renders)
+    core = ndimage.binary_erosion(fg, iterations=2)
+    if core.any():
+        half = 0.5 * float(np.median(dist[core]))
+        if half > max(3.0 * spread, 0.08):
+            lab, n = ndimage.label(ndimage.binary_opening(dist > half, iterations=1))
+            ids = lab[pts[27:, 1], pts[27:, 0]]
+            ids = ids[ids > 0]
+            if len(ids):
+                fg = lab == np.bincount(ids).argmax()
+    fg = ndimage.binary_fill_holes(fg)
     # the inner points (nose, eyes, mouth) lie inside; jaw and brow points of a turned
     # head often sit on, or past, the outline
     inside = fg[pts[27:, 1], pts[27:, 0]].mean()
@@ -175,10 +188,9 @@ class ModelSilhouette:
         model: a HackModel (regions, faces, rest vertices).
         scalp: also match the scalp's contour (bald heads, shaved, or a mask of the skin
             alone); off by default, hair is not skin.
-        grazing: |cos| between normal and view below which a vertex is on the contour.
     """
 
-    def __init__(self, model, scalp: bool = False, grazing: float = 0.3):
+    def __init__(self, model, scalp: bool = False):
         regions = model.vertex_region.numpy()
         names = list(model.region_names)
         ids = lambda rs: [names.index(r) for r in rs if r in names]  # noqa: E731
@@ -202,27 +214,39 @@ class ModelSilhouette:
 
             d, _ = cKDTree(t[low]).query(t)
             cand &= d > 0.03
-        self.footprint = np.flatnonzero(np.isin(regions, ids(INSIDE_REGIONS)))
+        # the footprint: every vertex (eyes and mouth fill the skin's holes)
+        self.footprint = np.arange(model.num_vertices)
         self.candidates = np.flatnonzero(cand)
         if len(self.candidates) == 0 or len(self.inside) == 0:
             raise HackError("silhouette: the model has no face/neck regions to fit.")
-        self.grazing = float(grazing)
+        f = model.faces.numpy()
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        e = np.unique(e, axis=0)
+        self.edges = e[cand[e[:, 0]] & cand[e[:, 1]]]  # (E, 2) edges between candidates
 
     def select_contour(self, verts: np.ndarray, normals: np.ndarray, centre: np.ndarray,
-                       project, shape: tuple[int, int], px: float) -> np.ndarray:
-        """Candidate vertices on the model's *outer* occluding contour: grazing normal,
-        and within ~2 splat radii of the border of the footprint of the projected skin
-        vertices (so contours hidden behind the face, e.g. the far cheek's, are left
-        out). ``px``: the footprint's working pixel size in photo pixels."""
+                       project, shape: tuple[int, int], px: float) -> tuple[np.ndarray, np.ndarray]:
+        """The model's *outer* occluding contour as points on mesh edges: (E, 2) vertex
+        pairs and (E,) weights t, the point being v_a + t (v_b - v_a).
+
+        The occluding contour of the smooth (vertex-normal) surface crosses an edge where
+        n.(v - c) changes sign between its ends; t is that zero crossing (linear along
+        the edge). Kept are the crossings within ~2 splat radii of the border of the
+        footprint of the projected vertices, so contours hidden behind the head
+        (the far cheek's, the jaw's over the neck) are left out. ``px``: the footprint's
+        working pixel size in photo pixels. A vertex band of grazing normals instead
+        (|n.v| < 0.3) sat ~2 px inside the outline on the neck at 256 px."""
         from scipy import ndimage
 
-        c = self.candidates
-        view = verts[c] - centre
-        view /= np.linalg.norm(view, axis=1, keepdims=True)
-        cos = np.abs(np.einsum("ij,ij->i", normals[c], view))
-        c = c[cos < self.grazing]
-        if len(c) == 0:
-            return c
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        view = verts - centre
+        sv = np.einsum("ij,ij->i", normals, view) / np.linalg.norm(view, axis=1)
+        cross = np.sign(sv[a]) != np.sign(sv[b])
+        a, b = a[cross], b[cross]
+        if len(a) == 0:
+            return np.zeros((0, 2), np.int64), np.zeros(0)
+        t = sv[a] / (sv[a] - sv[b])
+        pts = verts[a] + t[:, None] * (verts[b] - verts[a])
         uv_all = project(verts[self.footprint]) / px
         h, w = int(np.ceil(shape[0] / px)) + 2, int(np.ceil(shape[1] / px)) + 2
         ij = np.round(uv_all - 0.5).astype(int) + 1
@@ -231,8 +255,14 @@ class ModelSilhouette:
         foot[ij[ok, 1], ij[ok, 0]] = True
         foot = ndimage.binary_fill_holes(ndimage.binary_closing(foot, iterations=2))
         depth = ndimage.distance_transform_edt(foot)
-        q = np.clip(np.round(project(verts[c]) / px - 0.5).astype(int) + 1, 0, [w - 1, h - 1])
-        return c[depth[q[:, 1], q[:, 0]] <= 2.5]
+        q = np.clip(np.round(project(pts) / px - 0.5).astype(int) + 1, 0, [w - 1, h - 1])
+        keep = depth[q[:, 1], q[:, 0]] <= 2.5
+        return np.stack([a[keep], b[keep]], 1), t[keep]
+
+    def points(self, verts: torch.Tensor, pairs: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """(E, 3) contour points v_a + t (v_b - v_a) (differentiable in the vertices)."""
+        va, vb = verts.index_select(0, pairs[:, 0]), verts.index_select(0, pairs[:, 1])
+        return va + t[:, None] * (vb - va)
 
 
 def _boundary_vertices(faces: np.ndarray, n: int) -> np.ndarray:
