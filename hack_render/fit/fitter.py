@@ -6,8 +6,10 @@ Stages (each with its own iterations, weights and learning rates, see ``config.p
 2. camera: focal length, camera translation and the head's rotation from landmarks; the
    head's rotation is shared over the 8 cervical joints by the anatomical prior
    (:func:`~hack_render.geometry.skeleton.distribute_head_rotation`).
-3. shape: beta, psi and a residual theta from landmarks, with Gaussian priors on beta
-   and psi, E_rot (Eq. 9) and E_sim (Eq. 10).
+3. shape: beta, psi and a residual theta from landmarks, with a Gaussian prior on beta,
+   a sparse prior on psi, E_rot (Eq. 9) and E_sim (Eq. 10); plus the silhouette term
+   (``silhouette.py``: the model's outer contour against the person mask) when the view
+   has a mask (a file, or a plain background segmented).
 4. photometric: renders through Mitsuba (``hack_render.render.bridge``) at low resolution
    and spp, coarse to fine; skin-masked robust (Charbonnier) loss over alpha, lighting
    and refinements of beta, psi, theta, eta, tau.
