@@ -144,3 +144,30 @@ def test_05_one_mask_per_photo(tmp_path):
     with pytest.raises(HackError, match="one mask per photo"):
         fit_photos([tmp_path / "a.png", tmp_path / "b.png"], tmp_path / "out",
                    masks=[tmp_path / "m.png"])
+
+
+def test_06_cli_takes_a_mask_file(tmp_path, subject):
+    """`hack-render fit PHOTO --landmarks F --mask M`: the fit uses the mask (the report
+    says so) and runs to its outputs."""
+    import json
+    import subprocess
+    import sys
+
+    import imageio.v3 as iio
+
+    model, beta, (photo, det, mask) = subject
+    iio.imwrite(tmp_path / "p.png", photo.uint8())
+    np.save(tmp_path / "p.npy", det.points)
+    iio.imwrite(tmp_path / "m.png", (mask * 255).astype(np.uint8))
+    (tmp_path / "c.json").write_text(json.dumps(
+        {"camera": {"iterations": 10}, "shape": {"iterations": 10, "n_beta": 10},
+         "photometric": {"enabled": False}, "landmarks": {"files_follow": "vertices"}}))
+    r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit", str(tmp_path / "p.png"),
+                        "--landmarks", str(tmp_path / "p.npy"), "--mask", str(tmp_path / "m.png"),
+                        "--config", str(tmp_path / "c.json"), "-o", str(tmp_path / "out"),
+                        "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rep = json.loads((tmp_path / "out" / "fit_report.json").read_text())
+    assert rep["views"][0]["silhouette"] == "mask file"
+    stages = {s["name"]: s for s in rep["stages"]}
+    assert stages["shape"]["iterations"] == 10

@@ -128,6 +128,8 @@ class PhotometricConfig:
     # landmarks put it (the photo term's gradients are small), 0.001 let the photo term
     # refine it: landmark NME 2.43 % -> 1.93 %, vertex error 2.30 -> 2.23 mm (README)
     w_landmarks: float = 0.001
+    # the silhouette term's scale in this stage (the shape stage's weights times this)
+    w_silhouette: float = 0.001
     charbonnier_eps: float = 0.01    # robust loss scale (linear RGB)
     refine_geometry: bool = True     # beta, psi, theta, eta, tau refinement
     mask_erode_px: int = 1

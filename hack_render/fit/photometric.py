@@ -251,8 +251,8 @@ def level_objective(fitter, texel: bool = False, pairs=None):
                 # whole by w_landmarks: the priors keep their balance with the landmarks
                 # (an unscaled prior against the scaled landmarks would pull beta and
                 # psi toward zero while the photo term's gradients are small)
-                parts.update({k: cfg.w_landmarks * x
-                              for k, x in fitter.shape_terms(v, verts, it).items()})
+                parts.update({k: (cfg.w_silhouette if k == "silhouette" else cfg.w_landmarks)
+                              * x for k, x in fitter.shape_terms(v, verts, it).items()})
             for k, x in parts.items():
                 total = total + x
                 terms[k] = terms.get(k, 0.0) + float(x.detach())
