@@ -139,6 +139,14 @@ class HackModel(nn.Module):
             blocks.append(f32("pose_basis").reshape(-1, 3 * n))
         # One contiguous (S + E [+ 9K], 3N) basis: the whole blendshape sum is one matmul.
         self.register_buffer("blend_basis", torch.cat(blocks, 0).contiguous())
+        if self.has_pose_basis:
+            # the pose correctives move the neck only (~1.4k of ~27k vertices in the default
+            # model): forward reads them on those vertices' columns, not the zeros elsewhere
+            pose = blocks[2].view(-1, n, 3)
+            cols = torch.nonzero(pose.abs().amax(dim=(0, 2)) > 0).flatten()
+            self.register_buffer("pose_columns", cols)
+            self.register_buffer("pose_basis_columns",
+                                 pose[:, cols].reshape(pose.shape[0], -1).contiguous())
         reg = f32("joint_regressor")  # (K, N)
         self.register_buffer("joint_regressor", reg)
         self.register_buffer("joints_template", reg @ self.template)  # (K, 3)
@@ -277,14 +285,17 @@ class HackModel(nn.Module):
         rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
         feat = pose_feature(rot[:, 1:])  # (B, 72): joints only, not the global rotation
         beta_full = torch.nn.functional.pad(beta, (0, self.num_shape - beta.shape[1]))
-        S, nb = self.num_shape, beta.shape[1]
-        coeffs = [p["psi"]] + ([feat] if self.has_pose_basis else [])
-        # beta's rows and the expression/pose rows of the one basis: the shape rows past
-        # the given betas (zero coefficients) are not read
-        blend = torch.cat(coeffs, 1) @ self.blend_basis[S:]
+        S, E, nb = self.num_shape, self.num_expressions, beta.shape[1]
+        # beta's rows and the expression rows of the one basis (the shape rows past the
+        # given betas, zero coefficients, are not read), then the pose rows on the
+        # vertices they move
+        blend = p["psi"] @ self.blend_basis[S:S + E]
         if nb:
             blend = torch.addmm(blend, beta, self.blend_basis[:nb])
         rest = self.template + blend.view(B, -1, 3)
+        if self.has_pose_basis:
+            rest = rest.index_add(1, self.pose_columns,
+                                  (feat @ self.pose_basis_columns).view(B, -1, 3))
         rest = self._personal_and_larynx(rest, beta_full, p["psi"], feat, p["eta"], p["tau"])
         joints = self.rest_joints(beta_full)
         return self._pose(rest, joints, rot, p["transl"])
