@@ -37,6 +37,9 @@ class LandmarkConfig:
     # (3.4 % NME against the truth vs 2.7 % for points 18-68), and on 8 synthetic subjects
     # (landmark stages only) 0.2 gave 2.32 mm vertex error, 0.5 2.58 mm, 1.0 2.87 mm
     jaw_weight: float = 0.2
+    # weight of the 10 brow landmarks (dlib's brows are its least certain inner points:
+    # 3.8 % NME against the calibrated embedding's truth, README)
+    brow_weight: float = 1.0
     contour_every: int = 10          # re-match jawline contour vertices every k iterations
     huber_px: float = 0.01           # robust loss knee, as a fraction of the face size
     # which surface points the 68 detected points are fitted to: "dlib" (the embedding

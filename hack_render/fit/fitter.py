@@ -118,7 +118,7 @@ class Fitter:
         self.jaw = JawContour(m.template.numpy(), m.landmark_indices.numpy())
         self.lmk_idx = m.landmark_indices.clone()
         self.embedding = _landmark_embedding(config.landmarks.embedding, m)
-        self.lmk_w = landmark_weights(config.landmarks.jaw_weight)
+        self.lmk_w = landmark_weights(config.landmarks.jaw_weight, config.landmarks.brow_weight)
         self.faces = m.faces
         if masks is not None and len(masks) != len(photos):
             raise HackError(f"fit: expected one mask per photo ({len(photos)}), found "

@@ -214,8 +214,9 @@ class JawContour:
         return self.current
 
 
-def landmark_weights(jaw_weight: float) -> torch.Tensor:
-    """(68,) per-landmark weights: jaw contours down-weighted."""
+def landmark_weights(jaw_weight: float, brow_weight: float = 1.0) -> torch.Tensor:
+    """(68,) per-landmark weights: jaw contours (and optionally the brows) down-weighted."""
     w = torch.ones(68)
     w[list(GROUPS["jaw"])] = jaw_weight
+    w[list(GROUPS["brows"])] = brow_weight
     return w
