@@ -165,7 +165,7 @@ def test_06_cli_takes_a_mask_file(tmp_path, subject):
     r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit", str(tmp_path / "p.png"),
                         "--landmarks", str(tmp_path / "p.npy"), "--mask", str(tmp_path / "m.png"),
                         "--config", str(tmp_path / "c.json"), "-o", str(tmp_path / "out"),
-                        "--quiet"], capture_output=True, text=True)
+                        "--quiet"], check=False, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     rep = json.loads((tmp_path / "out" / "fit_report.json").read_text())
     assert rep["views"][0]["silhouette"] == "mask file"
