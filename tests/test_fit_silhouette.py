@@ -84,8 +84,9 @@ def test_03_mask_file_checked(tmp_path):
 
 @pytest.fixture(scope="module")
 def subject():
-    from hack_render.geometry import load_default_model
     from synthetic import landmark_view
+
+    from hack_render.geometry import load_default_model
 
     torch.set_num_threads(1)
     model = load_default_model()
@@ -155,7 +156,7 @@ def test_06_cli_takes_a_mask_file(tmp_path, subject):
 
     import imageio.v3 as iio
 
-    model, beta, (photo, det, mask) = subject
+    _, _, (photo, det, mask) = subject
     iio.imwrite(tmp_path / "p.png", photo.uint8())
     np.save(tmp_path / "p.npy", det.points)
     iio.imwrite(tmp_path / "m.png", (mask * 255).astype(np.uint8))

@@ -108,7 +108,7 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
     step = max(1, int(np.ceil(max(h, w) / max_side)))
     small = img[::step, ::step]
     sh, sw = small.shape[:2]
-    b = max(2, int(round(border_frac * max(sh, sw))))
+    b = max(2, round(border_frac * max(sh, sw)))
     band = np.concatenate([small[:b].reshape(-1, 3), small[-b:].reshape(-1, 3),
                            small[:, :b].reshape(-1, 3), small[:, -b:].reshape(-1, 3)])
     # the person may cross the border (a bust cut by the frame): the background is the
@@ -164,7 +164,7 @@ def load_mask(path, shape: tuple[int, int], original: tuple[int, int] | None = N
 
     try:
         m = np.asarray(iio.imread(path))
-    except Exception as err:  # noqa: BLE001 - every reader error becomes one message
+    except Exception as err:  # every reader error becomes one message
         raise HackError(f"--mask {path}: cannot read it as an image ({err}).") from err
     if m.ndim == 3:
         m = m[..., :3].max(-1) if m.shape[2] >= 3 else m[..., 0]
@@ -193,7 +193,7 @@ class ModelSilhouette:
     def __init__(self, model, scalp: bool = False):
         regions = model.vertex_region.numpy()
         names = list(model.region_names)
-        ids = lambda rs: [names.index(r) for r in rs if r in names]  # noqa: E731
+        ids = lambda rs: [names.index(r) for r in rs if r in names]
         # every 3rd skin vertex (~3,700, spaced ~4 mm on the face, under a pixel of a
         # 256 px portrait): the inside test needs coverage, not every vertex
         self.inside = torch.as_tensor(
