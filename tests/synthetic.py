@@ -78,12 +78,12 @@ def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: i
     ``mask`` also the true person mask: the skin triangles (face, scalp, neck, chest)
     rasterised at pixel centres."""
     import torch
-    from scenes.cameras import Camera
 
     from hack_render.fit.fitter import R0
     from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.geometry.skeleton import distribute_head_rotation
+    from scenes.cameras import Camera
 
     ang = torch.deg2rad(torch.tensor([float(a) for a in angles_deg]))
     with torch.no_grad():
