@@ -214,8 +214,6 @@ class ModelSilhouette:
 
             d, _ = cKDTree(t[low]).query(t)
             cand &= d > 0.03
-        # the footprint: every vertex (eyes and mouth fill the skin's holes)
-        self.footprint = np.arange(model.num_vertices)
         self.candidates = np.flatnonzero(cand)
         if len(self.candidates) == 0 or len(self.inside) == 0:
             raise HackError("silhouette: the model has no face/neck regions to fit.")
@@ -247,7 +245,7 @@ class ModelSilhouette:
             return np.zeros((0, 2), np.int64), np.zeros(0)
         t = sv[a] / (sv[a] - sv[b])
         pts = verts[a] + t[:, None] * (verts[b] - verts[a])
-        uv_all = project(verts[self.footprint]) / px
+        uv_all = project(verts) / px  # every vertex: eyes and mouth fill the skin's holes
         h, w = int(np.ceil(shape[0] / px)) + 2, int(np.ceil(shape[1] / px)) + 2
         ij = np.round(uv_all - 0.5).astype(int) + 1
         ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
