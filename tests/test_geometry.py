@@ -88,6 +88,31 @@ def test_gradcheck_every_parameter(synth64, name):
     assert torch.autograd.gradcheck(f, (x,), eps=1e-6, atol=1e-6)
 
 
+def test_sparse_expression_weights_exact(synth64):
+    """Fitted psi is mostly exact zeros: the forward reads only the used basis rows, the
+    backward the whole basis (model.sparse_rows_product). Values and gradients in beta
+    and psi (zero rows included) match the dense expression and finite differences."""
+    from hack_render.geometry.model import sparse_rows_product
+
+    gen = torch.Generator().manual_seed(5)
+    p = _random_params(synth64, 2, gen)
+    psi = p.pop("psi")
+    psi[:, 1::2] = 0.0
+    psi[0, 0] = 0.0  # a row used by one batch item only
+    beta = p.pop("beta")
+    assert torch.autograd.gradcheck(lambda b, e: synth64(beta=b, psi=e, **p).vertices,
+                                    (beta.clone().requires_grad_(True), psi.clone().requires_grad_(True)),
+                                    eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(lambda e: synth64(beta=beta, psi=e, **p).vertices,
+                                    (torch.zeros_like(psi, requires_grad=True),), eps=1e-6, atol=1e-6)
+    pb = synth64.expr_personal
+    w = pb.mlp(beta)
+    C, D, K = pb.components.shape
+    dense = torch.bmm(psi.unsqueeze(1), (w @ pb.components.reshape(C, -1)).view(2, D, K) + pb.mean)
+    torch.testing.assert_close(sparse_rows_product(psi, pb.mean, w, pb.components), dense[:, 0],
+                               atol=1e-14, rtol=0)
+
+
 def test_lbs_matches_slow_reference():
     gen = torch.Generator().manual_seed(3)
     b, k, n = 2, 9, 30

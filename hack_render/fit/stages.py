@@ -72,7 +72,7 @@ def run_stage(name: str, groups: list[dict], loss_fn: Callable[[int], tuple[torc
                               f"best parameters so far (loss {report.best_loss:.4g}).")
             warnings.warn(report.failure, FitWarning, stacklevel=2)
             break
-        value = float(loss)
+        value = float(loss.detach())
         if value < report.best_loss:
             report.best_loss = value
             best = [p.detach().clone() for p in params]

@@ -69,6 +69,59 @@ class _MLP(nn.Module):
         return x @ self.w2.T + self.b2
 
 
+class _SparseRowsProduct(torch.autograd.Function):
+    """coeffs @ (mean + sum_c w_c comps_c); see :func:`sparse_rows_product`."""
+
+    @staticmethod
+    def forward(ctx, coeffs, mean, w, comps):
+        nz = torch.nonzero(coeffs.ne(0).any(0)).flatten().tolist()
+        # read only the rows some coefficient uses: mean's rows, and each used row's
+        # components in place (comps[:, d] is a strided (C, K) matrix; no gathered copy)
+        out = coeffs[:, nz] @ mean[nz]
+        if comps is not None:
+            for d in nz:
+                out = out + coeffs[:, d:d + 1] * (w @ comps[:, d])
+        ctx.save_for_backward(coeffs, mean, w, comps)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        coeffs, mean, w, comps = ctx.saved_tensors
+        need_c, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[2]
+        grad_c = g @ mean.T if need_c else None
+        grad_w = None
+        if comps is not None and (need_c or need_w):
+            C, D, K = comps.shape
+            G = (comps.reshape(C * D, K) @ g.T).view(C, D, -1)  # the one full read
+            if need_c:
+                grad_c = grad_c + torch.einsum("bc,cdb->bd", w, G)
+            if need_w:
+                grad_w = torch.einsum("bd,cdb->bc", coeffs, G)
+        return grad_c, None, grad_w, None
+
+
+def sparse_rows_product(coeffs: torch.Tensor, mean: torch.Tensor, w: torch.Tensor | None = None,
+                        comps: torch.Tensor | None = None) -> torch.Tensor:
+    """``coeffs @ (mean + sum_c w[:, c] comps[c])`` per batch row, (B, K), exact and
+    differentiable in ``coeffs`` (B, D) and ``w`` (B, C) (not in the buffers ``mean``
+    (D, K) and ``comps`` (C, D, K)).
+
+    The forward reads only the basis rows d where some ``coeffs[:, d]`` is nonzero: the
+    fitted expression weights are clamped to [0, 1] under an L1 prior, so most are exactly
+    zero. The backward reads the whole basis once and gets both gradients from that one
+    pass (``G = comps @ g``: d/dcoeffs = w G + mean g, d/dw = coeffs G), where autograd
+    of the dense expression read the components once forward and once backward."""
+    if bool(coeffs.ne(0).all()):  # every row used: plain autograd (as fast, no saved state)
+        if comps is None:
+            return coeffs @ mean
+        C, D, K = comps.shape
+        basis = (w @ comps.reshape(C, D * K)).view(w.shape[0], D, K) + mean
+        return torch.bmm(coeffs.unsqueeze(1), basis).squeeze(1)
+    if comps is None:
+        return _SparseRowsProduct.apply(coeffs, mean, None, None)
+    return _SparseRowsProduct.apply(coeffs, mean, w, comps)
+
+
 class _PersonalBasis(nn.Module):
     """Personalised deltas on M vertices: mean + sum_c w_c(beta) components_c (D deltas)."""
 
@@ -83,13 +136,8 @@ class _PersonalBasis(nn.Module):
 
     def apply(self, coeffs: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
         """Personal part of coeffs @ basis. coeffs: (B, D), beta: (B, S) -> (B, M, 3)."""
-        w = self.mlp(beta)
-        C, D, K = self.components.shape
-        # the bases for these betas, (B, D, 3M), then each row's coefficients: the
-        # components are read once forward and once backward (an einsum over both
-        # contractions at once took ~20 % longer here)
-        basis = (w @ self.components.view(C, D * K)).view(-1, D, K) + self.mean
-        return torch.bmm(coeffs.unsqueeze(1), basis).reshape(coeffs.shape[0], -1, 3)
+        out = sparse_rows_product(coeffs, self.mean, self.mlp(beta), self.components)
+        return out.reshape(coeffs.shape[0], -1, 3)
 
     def basis(self, beta: torch.Tensor) -> torch.Tensor:
         """The personal deltas themselves for one identity. beta: (1, S) -> (D, M, 3)."""
@@ -289,7 +337,7 @@ class HackModel(nn.Module):
         # beta's rows and the expression rows of the one basis (the shape rows past the
         # given betas, zero coefficients, are not read), then the pose rows on the
         # vertices they move
-        blend = p["psi"] @ self.blend_basis[S:S + E]
+        blend = sparse_rows_product(p["psi"], self.blend_basis[S:S + E])
         if nb:
             blend = torch.addmm(blend, beta, self.blend_basis[:nb])
         rest = self.template + blend.view(B, -1, 3)
