@@ -272,7 +272,7 @@ def astronaut(res: int, cfg_over: dict) -> dict:
             "focal_px": float(v.focal.detach())}
 
 
-def overhead(res: int, spp: int, reps: int = 5) -> dict:
+def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -> dict:
     """Photometric iteration through the bridge (torch model + appearance maps + SH light
     -> render -> loss -> backward into torch) vs pure-Mitsuba iterations of the same scene
     (same DiffRenderer: integrator, resolution, spp), see DiffRenderer.bare_iteration:
@@ -293,12 +293,16 @@ def overhead(res: int, spp: int, reps: int = 5) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         det = detect_landmarks(ph.uint8())
-    fitter = Fitter([ph], [det], load_config(None, {"photometric": {"spp": spp}}), progress=False)
+    over = json.loads(json.dumps(overrides or {}))
+    over.setdefault("photometric", {})["spp"] = spp
+    fitter = Fitter([ph], [det], load_config(None, over), progress=False)
     v = fitter.views[0]
     # the state the photometric stage starts from: the landmark stages' fitted camera,
     # pose, beta and (sparse, clamped) psi
     fitter.fit_camera()
     fitter.fit_shape()
+    # the torch threads the photometric stage runs with (photometric.torch_threads)
+    torch.set_num_threads(fitter.cfg.photometric.torch_threads)
     setup_level(fitter, v, res)
     r = v.renderer
     target = v.level["target"]
@@ -427,7 +431,7 @@ def main():
                 cfg[sec] = val
     out = {"config": cfg}
     if args.overhead:
-        out["overhead"] = overhead(args.res, args.spp, args.reps)
+        out["overhead"] = overhead(args.res, args.spp, args.reps, cfg)
         print(json.dumps(out["overhead"]))
     if args.astronaut:
         if args.tiny:

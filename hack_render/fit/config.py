@@ -140,6 +140,10 @@ class PhotometricConfig:
     # pixel (photometric.level_map_height: 128 rows at 128 px); the torch maps' forward and
     # backward cost falls with the texel count (README, the bridge's overhead)
     coarse_maps: bool = True
+    # torch's intra-op threads during this stage. Its OpenMP workers spin-wait after each
+    # parallel op and take cores from Mitsuba's render threads: at 128 px an iteration
+    # took 0.27-0.29 s with 2 torch threads vs 0.23-0.25 s with 1 (2-core CPU, README)
+    torch_threads: int = 1
 
 
 @dataclass
@@ -192,6 +196,9 @@ class FitConfig:
         if p.lighting not in ("sh", "env"):
             raise HackError(f"config photometric.lighting: expected 'sh' or 'env', found "
                             f"{p.lighting!r}.")
+        if p.torch_threads < 1:
+            raise HackError(f"config photometric.torch_threads: expected >= 1, found "
+                            f"{p.torch_threads}.")
         if not 1 <= p.spp <= 1024:
             raise HackError(f"config photometric.spp: expected 1..1024, found {p.spp}.")
         if self.silhouette.mode not in ("auto", "off"):

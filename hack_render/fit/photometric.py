@@ -283,6 +283,17 @@ def run(fitter, texel: bool = False):
         h = fitter.appearance.height
         fitter.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
     pairs = symmetry_pairs(fitter.model) if texel else None
+    threads = torch.get_num_threads()
+    torch.set_num_threads(cfg.torch_threads)
+    try:
+        _run_levels(fitter, texel, levels, pairs, reports)
+    finally:
+        torch.set_num_threads(threads)
+    return reports
+
+
+def _run_levels(fitter, texel, levels, pairs, reports) -> None:
+    cfg = fitter.cfg.photometric
     for res, iters in levels:
         for v in fitter.views:
             want = None if texel else level_map_height(fitter, int(res))
@@ -296,7 +307,6 @@ def run(fitter, texel: bool = False):
         reports.append(fitter._run(name, groups, loss, int(iters),
                                    after_step=fitter._project_psi,
                                    keep="last" if texel else "best"))
-    return reports
 
 
 def _groups(fitter, texel: bool) -> list[dict]:

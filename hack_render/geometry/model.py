@@ -69,6 +69,16 @@ class _MLP(nn.Module):
         return x @ self.w2.T + self.b2
 
 
+def _add_rows(rest: torch.Tensor, index: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    """rest (B, N, 3) with delta (B, M, 3) added at vertices ``index`` (M,), out of place.
+    One identity (B = 1) adds along dim 0 of the (N, 3) view: index_add on dim 1 takes a
+    slower path (forward + backward 1.4-2.3x on the CPU)."""
+    if rest.shape[0] == 1:
+        n = rest.shape[1]
+        return rest.reshape(n, 3).index_add(0, index, delta.reshape(-1, 3)).view(1, n, 3)
+    return rest.index_add(1, index, delta)
+
+
 class _SparseRowsProduct(torch.autograd.Function):
     """coeffs @ (mean + sum_c w_c comps_c); see :func:`sparse_rows_product`."""
 
@@ -342,7 +352,7 @@ class HackModel(nn.Module):
             blend = torch.addmm(blend, beta, self.blend_basis[:nb])
         rest = self.template + blend.view(B, -1, 3)
         if self.has_pose_basis:
-            rest = rest.index_add(1, self.pose_columns,
+            rest = _add_rows(rest, self.pose_columns,
                                   (feat @ self.pose_basis_columns).view(B, -1, 3))
         rest = self._personal_and_larynx(rest, beta_full, p["psi"], feat, p["eta"], p["tau"])
         joints = self.rest_joints(beta_full)
@@ -350,14 +360,14 @@ class HackModel(nn.Module):
 
     def _personal_and_larynx(self, rest, beta, psi, feat, eta, tau):
         if self.expr_personal is not None:
-            rest = rest.index_add(1, self.expr_personal.vertices, self.expr_personal.apply(psi, beta))
+            rest = _add_rows(rest, self.expr_personal.vertices, self.expr_personal.apply(psi, beta))
         if self.pose_personal is not None:
-            rest = rest.index_add(1, self.pose_personal.vertices, self.pose_personal.apply(feat, beta))
+            rest = _add_rows(rest, self.pose_personal.vertices, self.pose_personal.apply(feat, beta))
         if self.has_larynx:
             combined = _larynx.combine_maps(
                 _larynx.larynx_coefficients(beta, self.larynx_coef_matrix, self.larynx_coef_offset),
                 self.larynx_maps)
-            rest = rest.index_add(1, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
+            rest = _add_rows(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
         return rest
 
     def larynx_displacement(self, beta: torch.Tensor | None = None, eta: torch.Tensor | None = None,
@@ -445,7 +455,7 @@ class PersonalizedHack(nn.Module):
         coeffs = [p["psi"]] + ([pose_feature(rot[:, 1:])] if self.uses_pose else [])
         rest = self.v_shaped + (torch.cat(coeffs, 1) @ self.basis).view(B, -1, 3)
         if m.has_larynx:
-            rest = rest.index_add(1, m.larynx_vertices,
+            rest = _add_rows(rest, m.larynx_vertices,
                                   m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
                                                    p["eta"], p["tau"]))
         return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
