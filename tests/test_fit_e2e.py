@@ -60,7 +60,7 @@ def test_01_synthetic_round_trip_moves_toward_truth():
     cfg = load_config(None, {"camera": {"iterations": 80}, "shape": {"iterations": 80,
                                                                      "n_beta": 20},
                              "photometric": {"resolutions": [32], "iterations": [5], "spp": 2,
-                                             "n_alpha": 4}})
+                                             "n_alpha": 4, "torch_threads": 2}})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fitter = Fitter([photo], [det], cfg, model=model, progress=False)
@@ -76,6 +76,7 @@ def test_01_synthetic_round_trip_moves_toward_truth():
         e0 = face_error()
         fitter.run()
     e1 = face_error()
+    assert torch.get_num_threads() == 1  # the stage's own thread count is undone after it
     ang = torch.rad2deg(v.head_angles.detach() - truth["angles"]).abs()
     with torch.no_grad():
         pred = fitter.project(v, fitter.forward(v).landmarks[0]).numpy()

@@ -141,5 +141,8 @@ def test_10_config_rejects_unknown_keys(tmp_path):
     (tmp_path / "c.toml").write_text("[photometric]\nspp = 8\nresolution = [64]\n")
     with pytest.raises(HackError, match="unknown key 'resolution'"):
         load_config(tmp_path / "c.toml")
+    (tmp_path / "t.toml").write_text("[photometric]\ntorch_threads = 0\n")
+    with pytest.raises(HackError, match="torch_threads"):
+        load_config(tmp_path / "t.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
