@@ -99,7 +99,8 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False) -> d
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
-              oracle_landmarks=False, first: int = 0, expressions: bool = False) -> dict:
+              oracle_landmarks=False, first: int = 0, expressions: bool = False,
+              known_focal: bool = False) -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
     interrupted run resumes."""
@@ -124,7 +125,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         if out_path is not None:
             tmp = Path(str(out_path) + ".tmp")
             tmp.write_text(json.dumps({"config": cfg_over, "res": res,
-                                       "expressions": expressions, "subjects": rows,
+                                       "expressions": expressions, "known_focal": known_focal, "subjects": rows,
                                        "n_ok": sum("error" not in r for r in rows),
                                        "median": _medians(rows)}, indent=1))
             tmp.replace(out_path)
@@ -142,6 +143,9 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         subj = render_subject(k, res, model, app, expressions)
         beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
                                                                  "tmaps", "cam", "photo"))
+        if known_focal:  # as a camera's EXIF FocalLengthIn35mmFilm would give it
+            photo.focal_mm = float(cam.K[0, 0]) / max(photo.width, photo.height) * 36.0
+            photo.focal_source = "exif (bench: the render's true focal length)"
         try:
             det = detect_landmarks(photo.uint8(), name=photo.name)
         except Exception as err:  # noqa: BLE001 - reported, not hidden
@@ -384,6 +388,9 @@ def main():
                          "(reports psi_mae, the mean absolute expression weight error)")
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
+    ap.add_argument("--known-focal", action="store_true",
+                    help="synthetic: give each photo its true focal length, as a camera's "
+                         "EXIF FocalLengthIn35mmFilm would (default: fit from the image alone)")
     ap.add_argument("--reps", type=int, default=7, help="overhead: timed iterations each")
     ap.add_argument("--torch-threads", type=int, default=1,
                     help="torch's threads (1: two synthetic runs share the 2 cores; "
@@ -445,7 +452,7 @@ def main():
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
-                                     args.expressions)
+                                     args.expressions, args.known_focal)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

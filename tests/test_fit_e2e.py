@@ -110,6 +110,10 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     assert len(p["beta"]) == 20 and np.asarray(p["theta"]).shape == (8, 3)
     npz = np.load(out / "params.npz")
     K, t = npz["view0_K"], npz["view0_t"]
+    report = json.loads((out / "fit_report.json").read_text())
+    focal = report["views"][0]["focal"]  # a PNG without EXIF: the 85 mm prior
+    assert focal["source"] == "prior" and focal["prior_mm"] == pytest.approx(85.0)
+    assert focal["fitted_mm"] == pytest.approx(K[0, 0] / 512 * 36, rel=1e-4)
     losses = json.loads((out / "losses.json").read_text())
     assert losses["shape"]["landmarks"][-1] < losses["camera"]["landmarks"][0]
     # the fitted landmarks agree with the detector (normalised mean error)

@@ -146,3 +146,43 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         load_config(tmp_path / "t.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
+
+
+def test_11_exif_focal_length_sets_the_focal_prior(tmp_path, astro):
+    """EXIF FocalLengthIn35mmFilm becomes the photo's focal length and the centre of the
+    fitter's focal prior (36 mm across the long side); --focal-mm replaces it; zero
+    ("unknown" in the standard) and out-of-range values are ignored or refused."""
+    import math
+
+    from hack_render.fit.cli import fit_photos
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import detect_landmarks
+
+    def save(name, focal):
+        exif = Image.Exif()
+        exif.get_ifd(0x8769)[0xA405] = focal
+        Image.fromarray(astro).save(tmp_path / name, exif=exif)
+        return load_photo(tmp_path / name)
+
+    photo = save("f50.jpg", 50)
+    assert photo.focal_mm == 50.0 and photo.focal_source == "exif"
+    assert save("f0.jpg", 0).focal_mm is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        det = detect_landmarks(photo.uint8())
+        fitter = Fitter([photo], [det], load_config(None, {}), progress=False)
+        plain = Fitter([photo], [det], load_config(None, {"camera": {"use_photo_focal": False}}),
+                       progress=False)
+    f0, sigma, source = fitter.focal_prior_px(photo)
+    assert f0 == pytest.approx(50.0 / 36.0 * 512) and sigma == 0.05 and source == "exif"
+    assert math.exp(float(fitter.views[0].log_focal)) == pytest.approx(f0, rel=1e-5)
+    assert plain.focal_prior_px(photo)[0] == pytest.approx(85.0 / 36.0 * 512)
+    # the prior pulls toward its own centre: zero at it, positive away from it
+    v = fitter.views[0]
+    assert float(fitter.focal_prior(v)) == pytest.approx(0.0, abs=1e-8)
+    with torch.no_grad():
+        v.log_focal.fill_(math.log(85.0 / 36.0 * 512))
+    assert float(fitter.focal_prior(v)) == pytest.approx((math.log(85 / 50) / 0.05) ** 2, rel=1e-4)
+    with pytest.raises(HackError, match="--focal-mm"):
+        fit_photos([tmp_path / "f50.jpg"], tmp_path / "out", focal_mm=1.0)

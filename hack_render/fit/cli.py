@@ -12,8 +12,10 @@ from hack_render.errors import HackError
 
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
-               progress: bool = True, masks: list[Path] | None = None):
-    """Library entry point of the command: read, detect, fit, write. Returns (result, paths)."""
+               progress: bool = True, masks: list[Path] | None = None,
+               focal_mm: float | None = None):
+    """Library entry point of the command: read, detect, fit, write. Returns (result, paths).
+    ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
     import torch
 
     from hack_render.fit.config import FitConfig
@@ -30,11 +32,17 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     if masks and len(masks) != len(photos):
         raise HackError(f"--mask: expected one mask per photo ({len(photos)}), found "
                         f"{len(masks)}.")
+    if focal_mm is not None and not 5.0 <= float(focal_mm) <= 2000.0:
+        raise HackError(f"--focal-mm: expected a 35 mm-equivalent focal length of 5..2000 mm, "
+                        f"found {focal_mm}.")
     check_writable(outdir / "params.json")
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
     lc = cfg.landmarks
     imgs = [load_photo(p, lc.max_side_px, lc.working_side_px) for p in photos]
+    if focal_mm is not None:
+        for ph in imgs:
+            ph.focal_mm, ph.focal_source = float(focal_mm), "--focal-mm"
     dets = []
     for i, ph in enumerate(imgs):
         if landmarks:
@@ -83,6 +91,13 @@ def fit(
                                               "term; default: segmented when the background "
                                               "is plain, else no silhouette term."),
     no_silhouette: bool = typer.Option(False, "--no-silhouette", help="No silhouette term."),
+    focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="35 mm-equivalent "
+                                             "focal length of the photos (36 mm across the "
+                                             "long side; uncropped photos). Default: EXIF's "
+                                             "FocalLengthIn35mmFilm when the photo has it, "
+                                             "else a prior centred on 85 mm. A single view "
+                                             "barely constrains the focal length, and a wrong "
+                                             "one distorts the fitted shape."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Fit HACK geometry, appearance, lighting and cameras to photos by inverse rendering.
@@ -119,7 +134,7 @@ def fit(
         over["silhouette"] = {"mode": "off"}
     cfg = load_config(config, over)
     result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
-                               masks=mask or None)
+                               masks=mask or None, focal_mm=focal_mm)
     for f in result.failures:
         typer.secho(f"warning: {f}", err=True, fg=typer.colors.YELLOW)
     total = sum(result.timings.values())

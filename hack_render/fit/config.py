@@ -63,6 +63,12 @@ class CameraConfig:
     # 50 mm the synthetic subjects' shapes absorbed the wrong perspective, README)
     focal_mm_prior: float = 85.0
     focal_log_sigma: float = 0.35    # prior std of log focal length
+    # a photo's own focal length (EXIF FocalLengthIn35mmFilm, or --focal-mm) replaces the
+    # prior centre above, with this std of log focal length (0.05: ~5 %, a zoom lens's
+    # rounding); use_photo_focal false ignores it. Synthetic subjects 0-7, landmark
+    # stages: 1.74 mm with the 85 mm prior, 1.64 mm at the true focal (README)
+    use_photo_focal: bool = True
+    photo_focal_log_sigma: float = 0.05
     fit_focal: bool = True
 
 
@@ -186,6 +192,10 @@ class FitConfig:
         if not isinstance(lm.embedding, str) or not lm.embedding:
             raise HackError(f"config landmarks.embedding: expected 'dlib', 'vertices' or an "
                             f"embedding file path, found {lm.embedding!r}.")
+        c = self.camera
+        for key in ("focal_log_sigma", "photo_focal_log_sigma", "focal_mm_prior"):
+            if not float(getattr(c, key)) > 0:
+                raise HackError(f"config camera.{key}: expected > 0, found {getattr(c, key)}.")
         p = self.photometric
         if len(p.resolutions) != len(p.iterations):
             raise HackError(f"config photometric: expected as many iterations as resolutions, "

@@ -137,7 +137,7 @@ class Fitter:
     # --- parameters -----------------------------------------------------------------
     def _init_view(self, photo: Photo, det: Detection, mask=None) -> View:
         w, h = photo.width, photo.height
-        f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(w, h)
+        f0 = self.focal_prior_px(photo)[0]
         with torch.no_grad():
             lm = self.model().landmarks[0]
         iod_model = float(torch.linalg.vector_norm(lm[36] - lm[45]))
@@ -240,9 +240,20 @@ class Fitter:
         rob = torch.where(r < 1.0, 0.5 * r ** 2, r - 0.5)
         return (self.lmk_w * rob).sum() / self.lmk_w.sum()
 
+    def focal_prior_px(self, photo: Photo) -> tuple[float, float, str]:
+        """(centre in pixels, std of log focal, source) of a photo's focal-length prior:
+        the photo's own 35 mm-equivalent focal (EXIF or --focal-mm) when it has one and
+        ``camera.use_photo_focal``, else ``camera.focal_mm_prior``; 36 mm spans the long
+        side."""
+        c = self.cfg.camera
+        side = max(photo.width, photo.height) / SENSOR_MM
+        if c.use_photo_focal and photo.focal_mm:
+            return photo.focal_mm * side, c.photo_focal_log_sigma, photo.focal_source or "photo"
+        return c.focal_mm_prior * side, c.focal_log_sigma, "prior"
+
     def focal_prior(self, v: View) -> torch.Tensor:
-        f0 = self.cfg.camera.focal_mm_prior / SENSOR_MM * max(v.photo.width, v.photo.height)
-        return ((v.log_focal - math.log(f0)) / self.cfg.camera.focal_log_sigma).pow(2).sum()
+        f0, sigma, _ = self.focal_prior_px(v.photo)
+        return ((v.log_focal - math.log(f0)) / sigma).pow(2).sum()
 
     def silhouette_loss(self, v: View, verts: torch.Tensor, it: int) -> torch.Tensor:
         """The silhouette term (``silhouette.py``): skin vertices outside the person mask

@@ -41,6 +41,17 @@ def camera_dict(v) -> dict:
             "convention": "OpenCV: x_cam = R @ X_world + t; x right, y down, z forward"}
 
 
+def _focal_entry(fitter, v) -> dict:
+    """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
+    prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
+    from hack_render.fit.fitter import SENSOR_MM
+
+    mm = SENSOR_MM / max(v.photo.width, v.photo.height)
+    f0, sigma, source = fitter.focal_prior_px(v.photo)
+    return {"fitted_mm": float(v.focal.detach()) * mm, "prior_mm": f0 * mm,
+            "prior_log_sigma": sigma, "source": source}
+
+
 def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
     """Write everything; returns the paths written."""
     from hack_render.geometry.obj_io import write_mesh
@@ -93,7 +104,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "faces_found": v.detection.n_faces,
                          "landmark_source": v.detection.source,
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
-                         else "vertices", "silhouette": v.silhouette_note}
+                         else "vertices", "silhouette": v.silhouette_note,
+                         "focal": _focal_entry(fitter, v)}
                         for v in res.views],
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None

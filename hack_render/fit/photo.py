@@ -3,7 +3,9 @@
 Handled: unreadable or truncated files (refused), grayscale and palette (to RGB), CMYK
 (to RGB), 16-bit and float images (scaled to [0, 1]), RGBA / LA (alpha composited over
 mid grey), EXIF orientation (applied), huge images (> ``max_side`` px: downscaled, with a
-warning). Faces that are too small are refused later, by the detector stage.
+warning). Faces that are too small are refused later, by the detector stage. The EXIF
+35 mm-equivalent focal length (tag 0xA405), when a camera wrote one, is kept
+(``Photo.focal_mm``): the fitter then centres its focal prior on it.
 """
 
 from __future__ import annotations
@@ -29,12 +31,17 @@ class Photo:
         rgb: (H, W, 3) float32 sRGB-encoded values in [0, 1].
         name: label (file stem). scale: working size / original size (1 unless resized).
         notes: what was converted on the way in.
+        focal_mm: the 35 mm-equivalent focal length (36 mm across the long side) when
+            known: from EXIF (tag 0xA405, FocalLengthIn35mmFilm) or given by the user;
+            ``focal_source`` says which ("exif", "--focal-mm", ...); None: unknown.
     """
 
     rgb: np.ndarray
     name: str = "photo"
     scale: float = 1.0
     notes: list = field(default_factory=list)
+    focal_mm: float | None = None
+    focal_source: str = ""
 
     @property
     def height(self) -> int:
@@ -93,6 +100,7 @@ def load_photo(path: str | Path, max_side: int = 8000, working_side: int = 2048)
     if not path.is_file():
         raise HackError(f"photo {path}: file not found.")
     notes: list[str] = []
+    focal_mm = None
     # Pillow's decompression-bomb guard would refuse huge photos before we could resize
     # them; we guard by pixel count ourselves (after reading the header only).
     old = Image.MAX_IMAGE_PIXELS
@@ -106,7 +114,9 @@ def load_photo(path: str | Path, max_side: int = 8000, working_side: int = 2048)
             if w < 1 or h < 1:
                 raise HackError(f"photo {path}: the image has no pixels ({w}x{h}).")
             im.load()
-            orient = im.getexif().get(0x0112, 1)
+            exif = im.getexif()
+            orient = exif.get(0x0112, 1)
+            focal_mm = exif_focal_35mm(exif)
             im = ImageOps.exif_transpose(im)
             if orient not in (1, None):
                 notes.append(f"EXIF orientation {orient} applied")
@@ -142,9 +152,24 @@ def load_photo(path: str | Path, max_side: int = 8000, working_side: int = 2048)
             notes.append("16-bit RGB scaled to [0, 1]")
     photo = Photo(rgb, path.stem, 1.0, notes)
     photo = limit_size(photo, max_side, working_side)
+    if focal_mm is not None:  # relative to the frame, so resizing keeps it
+        photo.focal_mm, photo.focal_source = focal_mm, "exif"
     for n in photo.notes:
         warnings.warn(f"photo {path.name}: {n}", PhotoWarning, stacklevel=2)
     return photo
+
+
+def exif_focal_35mm(exif) -> float | None:
+    """FocalLengthIn35mmFilm (0xA405, in the Exif sub-IFD 0x8769) of a PIL ``Image.Exif``,
+    in mm, or None when absent, zero ("unknown" in the standard) or implausible."""
+    try:
+        value = exif.get_ifd(0x8769).get(0xA405)
+        if value is None:
+            value = exif.get(0xA405)
+        f = float(value) if value is not None else 0.0
+    except (TypeError, ValueError, KeyError, AttributeError):
+        return None
+    return f if 5.0 <= f <= 2000.0 else None
 
 
 def _maybe_16bit_rgb(path: Path) -> np.ndarray | None:
@@ -175,7 +200,7 @@ def limit_size(photo: Photo, max_side: int = 8000, working_side: int = 2048) -> 
                  preserve_range=True).astype(np.float32)
     notes = photo.notes + [f"{w}x{h} px is above {max_side} px: downscaled to "
                            f"{rgb.shape[1]}x{rgb.shape[0]}"]
-    return Photo(rgb, photo.name, photo.scale * s, notes)
+    return Photo(rgb, photo.name, photo.scale * s, notes, photo.focal_mm, photo.focal_source)
 
 
 def from_array(rgb: np.ndarray, name: str = "photo") -> Photo:
