@@ -293,7 +293,6 @@ def run(fitter, texel: bool = False):
 
 
 def _run_levels(fitter, texel, levels, pairs, reports) -> None:
-    cfg = fitter.cfg.photometric
     for res, iters in levels:
         for v in fitter.views:
             want = None if texel else level_map_height(fitter, int(res))
