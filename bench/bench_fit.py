@@ -2,6 +2,7 @@
 
     python bench/bench_fit.py --subjects 2 --res 256          # synthetic recovery
     python bench/bench_fit.py --astronaut --res 256           # real photo NME + time
+    python bench/bench_fit.py --astronaut --portrait grace_hopper --res 256  # another portrait
     python bench/bench_fit.py --overhead --res 128            # bridge vs bare mi.render
     python bench/bench_fit.py --subjects 20 --detector-only   # dlib vs the true landmarks
     python bench/bench_fit.py ... --embedding vertices        # fit the model's vertices
@@ -240,19 +241,42 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     return {"subjects": rows, "median": _medians(rows)}
 
 
-def astronaut(res: int, cfg_over: dict) -> dict:
-    import tempfile
+#: openly licensed portraits that installed packages ship: scikit-image's astronaut (NASA,
+#: public domain) and matplotlib's sample Grace Hopper (US Navy photograph, public domain)
+PORTRAITS = ("astronaut", "grace_hopper")
+
+
+def portrait_file(name: str, folder) -> "Path":
+    """Write portrait ``name`` (see :data:`PORTRAITS`) into ``folder``; its path."""
     from pathlib import Path
 
-    import imageio.v3 as iio
-    from skimage import data
+    if name == "astronaut":
+        import imageio.v3 as iio
+        from skimage import data
+
+        p = Path(folder) / "astronaut.png"
+        iio.imwrite(p, data.astronaut())
+        return p
+    if name == "grace_hopper":
+        from matplotlib import cbook
+
+        p = Path(folder) / "grace_hopper.jpg"  # the file as shipped (bytes, EXIF and all)
+        p.write_bytes(Path(cbook.get_sample_data("grace_hopper.jpg", asfileobj=False)).read_bytes())
+        return p
+    raise ValueError(f"portrait: expected one of {', '.join(PORTRAITS)}, found {name!r}")
+
+
+def astronaut(res: int, cfg_over: dict, name: str = "astronaut") -> dict:
+    """Fit a real portrait (``name``: see :data:`PORTRAITS`) with `hack-render fit`'s
+    library entry point; its time, stage times and landmark NME against the detector."""
+    import tempfile
+    from pathlib import Path
 
     from hack_render.fit.cli import fit_photos
     from hack_render.fit.config import load_config
 
     with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "astronaut.png"
-        iio.imwrite(p, data.astronaut())
+        p = portrait_file(name, d)
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -273,7 +297,8 @@ def astronaut(res: int, cfg_over: dict) -> dict:
             "landmark_nme_groups": {k: float(err[s].mean()) for k, s in groups.items()},
             "photometric_iteration_s": {r.name: float(np.mean(r.per_iteration_s))
                                         for r in res_.reports if r.per_iteration_s},
-            "focal_px": float(v.focal.detach())}
+            "focal_px": float(v.focal.detach()), "photo": name,
+            "silhouette": v.silhouette_note, "size_px": [v.photo.width, v.photo.height]}
 
 
 def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -> dict:
@@ -373,7 +398,8 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--subjects", type=int, default=0)
-    ap.add_argument("--astronaut", action="store_true")
+    ap.add_argument("--astronaut", action="store_true",
+                    help="fit a real portrait (--portrait; default the astronaut)")
     ap.add_argument("--overhead", action="store_true")
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=4)
@@ -388,6 +414,8 @@ def main():
                          "(reports psi_mae, the mean absolute expression weight error)")
     ap.add_argument("--tiny", action="store_true",
                     help="astronaut: the CI settings of tests/test_fit_e2e.py (tiny_overrides)")
+    ap.add_argument("--portrait", choices=PORTRAITS, default="astronaut",
+                    help="the real photo --astronaut fits (default: astronaut)")
     ap.add_argument("--known-focal", action="store_true",
                     help="synthetic: give each photo its true focal length, as a camera's "
                          "EXIF FocalLengthIn35mmFilm would (default: fit from the image alone)")
@@ -447,8 +475,8 @@ def main():
             cfg = out["config"] = tiny_overrides()
             if args.embedding:
                 cfg["landmarks"] = {"embedding": args.embedding}
-        out["astronaut"] = astronaut(args.res, cfg)
-        print(json.dumps(out["astronaut"]))
+        out[args.portrait] = astronaut(args.res, cfg, args.portrait)
+        print(json.dumps(out[args.portrait]))
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
