@@ -445,7 +445,9 @@ def main():
         parts = [json.loads(Path(p).read_text()) for p in args.merge]
         rows = sorted({r["subject"]: r for p in parts for r in p["subjects"]}.values(),
                       key=lambda r: r["subject"])
-        merged = {"config": parts[0]["config"], "res": parts[0]["res"], "subjects": rows,
+        merged = {"config": parts[0]["config"], "res": parts[0]["res"],
+                  "expressions": parts[0].get("expressions", False),
+                  "known_focal": parts[0].get("known_focal", False), "subjects": rows,
                   "n_ok": sum("error" not in r for r in rows), "median": _medians(rows)}
         text = json.dumps(merged, indent=1)
         if args.out:
