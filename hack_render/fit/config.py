@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from hack_render.errors import HackError
 
 
@@ -40,6 +42,13 @@ class LandmarkConfig:
     # weight of the 10 brow landmarks (dlib's brows are its least certain inner points:
     # 3.8 % NME against the calibrated embedding's truth, README)
     brow_weight: float = 1.0
+    # 68 per-landmark multipliers on top of the two weights above (None: all 1), e.g.
+    # inverse variances of the detector's scatter (README, Synthetic recovery)
+    point_weights: list | None = None
+    # also weigh each point by the embedding file's inverse variance of the detector's
+    # scatter (landmark_embedding.detector_weights; dlib's points through the embedding
+    # only). Synthetic subjects 0-7, landmark stages: 1.66 mm against 1.74 mm unweighted
+    calibrated_weights: bool = True
     contour_every: int = 10          # re-match jawline contour vertices every k iterations
     huber_px: float = 0.01           # robust loss knee, as a fraction of the face size
     # which surface points the 68 detected points are fitted to: "dlib" (the embedding
@@ -186,6 +195,12 @@ class FitConfig:
 
     def validate(self) -> "FitConfig":
         lm = self.landmarks
+        if lm.point_weights is not None:
+            w = np.asarray(lm.point_weights, dtype=float)
+            if w.shape != (68,) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+                raise HackError("config landmarks.point_weights: expected 68 finite weights "
+                                f">= 0 with a positive sum, found shape {w.shape}, min "
+                                f"{w.min() if w.size else 'n/a'}.")
         if lm.files_follow not in ("detector", "vertices"):
             raise HackError(f"config landmarks.files_follow: expected 'detector' or 'vertices', "
                             f"found {lm.files_follow!r}.")

@@ -119,6 +119,9 @@ class Fitter:
         self.lmk_idx = m.landmark_indices.clone()
         self.embedding = _landmark_embedding(config.landmarks.embedding, m)
         self.lmk_w = landmark_weights(config.landmarks.jaw_weight, config.landmarks.brow_weight)
+        if config.landmarks.point_weights is not None:
+            self.lmk_w = self.lmk_w * torch.tensor(config.landmarks.point_weights,
+                                                   dtype=torch.float32)
         self.faces = m.faces
         if masks is not None and len(masks) != len(photos):
             raise HackError(f"fit: expected one mask per photo ({len(photos)}), found "
@@ -238,7 +241,18 @@ class Fitter:
         r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size
                                                              * self.cfg.landmarks.huber_px)
         rob = torch.where(r < 1.0, 0.5 * r ** 2, r - 0.5)
-        return (self.lmk_w * rob).sum() / self.lmk_w.sum()
+        w = self.view_landmark_weights(v)
+        return (w * rob).sum() / w.sum()
+
+    def view_landmark_weights(self, v: View) -> torch.Tensor:
+        """(68,) the landmark loss's weights for a view: the configured ones, times the
+        embedding's detector weights when the view's points go through the embedding
+        (``landmarks.calibrated_weights``)."""
+        emb = self.embedding
+        if (v.embedded and self.cfg.landmarks.calibrated_weights and emb is not None
+                and emb.weights is not None):
+            return self.lmk_w * torch.as_tensor(emb.weights, dtype=self.lmk_w.dtype)
+        return self.lmk_w
 
     def focal_prior_px(self, photo: Photo) -> tuple[float, float, str]:
         """(centre in pixels, std of log focal, source) of a photo's focal-length prior:

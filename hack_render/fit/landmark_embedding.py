@@ -71,13 +71,16 @@ def embedded_points(vertices: torch.Tensor, vertex_ids: torch.Tensor,
 class LandmarkEmbedding:
     """68 surface points: ``face_ids`` (68,) into the model's faces, ``vertex_ids``
     (68, 3) the triangles' corners (what the interpolation uses), ``bary`` (68, 3)
-    barycentric coordinates (non-negative, summing to 1), ``calibrated`` (68,) bool."""
+    barycentric coordinates (non-negative, summing to 1), ``calibrated`` (68,) bool,
+    ``weights`` (68,) the landmark loss's per-point weights for this detector (inverse
+    variances of its scatter, :func:`detector_weights`) or None."""
 
     face_ids: np.ndarray
     vertex_ids: np.ndarray
     bary: np.ndarray
     calibrated: np.ndarray
     meta: dict = field(default_factory=dict)
+    weights: np.ndarray | None = None
 
     @classmethod
     def from_vertices(cls, landmark_indices, faces, meta: dict | None = None
@@ -123,6 +126,11 @@ class LandmarkEmbedding:
         if self.vertex_ids.min() < 0 or (num_vertices is not None
                                          and self.vertex_ids.max() >= num_vertices):
             raise HackError(f"{where}: vertex ids outside [0, {num_vertices}).")
+        if self.weights is not None:
+            w = np.asarray(self.weights, dtype=np.float64)
+            if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+                raise HackError(f"{where}: expected 68 finite weights >= 0 with a positive "
+                                f"sum, found shape {w.shape}.")
         if faces is not None:
             f = np.asarray(faces)
             if self.face_ids.min() < 0 or self.face_ids.max() >= len(f):
@@ -140,7 +148,9 @@ class LandmarkEmbedding:
                             vertex_ids=self.vertex_ids.astype(np.int64),
                             bary=self.bary.astype(np.float64),
                             calibrated=self.calibrated.astype(bool),
-                            meta=np.array(json.dumps(self.meta, sort_keys=True)))
+                            meta=np.array(json.dumps(self.meta, sort_keys=True)),
+                            **({} if self.weights is None else
+                               {"weights": np.asarray(self.weights, np.float64)}))
         tmp.replace(path)
         return path
 
@@ -153,7 +163,8 @@ class LandmarkEmbedding:
             with np.load(path, allow_pickle=False) as z:
                 emb = cls(z["face_ids"].astype(np.int64), z["vertex_ids"].astype(np.int64),
                           z["bary"].astype(np.float64), z["calibrated"].astype(bool),
-                          json.loads(str(z["meta"])))
+                          json.loads(str(z["meta"])),
+                          z["weights"].astype(np.float64) if "weights" in z.files else None)
         except (KeyError, ValueError, OSError) as err:
             raise HackError(f"landmark embedding {path}: not a landmark embedding file "
                             f"({err}).") from err
@@ -409,6 +420,31 @@ def evaluate(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
     return out
 
 
+def detector_weights(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
+                     clip: tuple[float, float] = (0.25, 4.0)) -> np.ndarray:
+    """(68,) landmark-loss weights for the detector: for the calibrated points, the
+    inverse variance of its scatter about the embedding (per point, the median over the
+    subjects of |r - median r|, r the detected minus the embedded point's projection in
+    inter-ocular units), normalised to mean 1 over those points and clipped to ``clip``
+    (then normalised again); 1 for the others (the jawline contours keep their own
+    weight). Maximum likelihood under independent Gaussian scatter: a point the detector
+    places less reliably pulls less."""
+    res = []
+    for s in range(len(data.indices)):
+        V = data.vertices[s].astype(np.float64)
+        lv = data.project(s, V[li])
+        iod = max(float(np.linalg.norm(lv[36] - lv[45])), 1e-9)
+        res.append((data.points[s] - data.project(s, emb.points_np(V))) / iod)
+    r = np.asarray(res)  # (S, 68, 2)
+    spread = np.median(np.linalg.norm(r - np.median(r, 0), axis=2), 0)
+    cal = np.flatnonzero(emb.calibrated)
+    w = np.ones(68)
+    inv = 1.0 / np.maximum(spread[cal], 1e-6) ** 2
+    inv = np.clip(inv / inv.mean(), *clip)
+    w[cal] = inv / inv.mean()
+    return w
+
+
 def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
           resolution: int | None = None, spp: int | None = None, radius: float = 0.025,
           command: str = "", progress: bool = True) -> tuple[LandmarkEmbedding, dict]:
@@ -426,6 +462,7 @@ def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
     emb, report = calibrate(data, model, radius=radius, progress=progress)
     li = model.landmark_indices.numpy()
     ev = evaluate(data, emb, li, model.template.numpy().astype(np.float64), model.faces.numpy())
+    emb.weights = detector_weights(data, emb, li)
     res = (resolution or CALIBRATION_DATASET["render"]["resolution"])
     emb.meta = {
         "provenance": (f"derived: calibrated on {len(data.indices)} synthetic renders of the "
@@ -443,6 +480,8 @@ def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
         "model": dict(getattr(model, "meta", {}) or {}).get("name", "default"),
         "num_vertices": int(model.num_vertices),
         "calibration_nme_median": {k: float(np.median(v)) for k, v in ev.items()},
+        "weights": "detector_weights(): inverse variance of the detector's scatter about "
+                   "the embedding on these renders, calibrated points only",
         "render_seconds": data.seconds, "search_seconds": time.perf_counter() - t0,
     }
     emb.save(output)
