@@ -141,6 +141,9 @@ def test_10_config_rejects_unknown_keys(tmp_path):
     (tmp_path / "c.toml").write_text("[photometric]\nspp = 8\nresolution = [64]\n")
     with pytest.raises(HackError, match="unknown key 'resolution'"):
         load_config(tmp_path / "c.toml")
+    (tmp_path / "w.toml").write_text("[landmarks]\npoint_weights = [1.0, 2.0]\n")
+    with pytest.raises(HackError, match="point_weights"):
+        load_config(tmp_path / "w.toml")
     (tmp_path / "t.toml").write_text("[photometric]\ntorch_threads = 0\n")
     with pytest.raises(HackError, match="torch_threads"):
         load_config(tmp_path / "t.toml")

@@ -181,3 +181,54 @@ def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
         assert not used and torch.equal(lm[17:], verts[li[17:]])
     finally:
         mod.DEFAULT_FILE = old
+
+
+def test_07_detector_weights_are_inverse_variances(tmp_path, model):
+    """A point the fake detector scatters 3x more gets ~1/9 the weight of the others
+    (clipped at 0.25 of the mean); the weights survive save/load, are validated, and the
+    fitter applies them to embedded (dlib) views only."""
+    from hack_render.errors import HackError
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import Detection
+    from hack_render.fit.photo import Photo
+
+    li = model.landmark_indices.numpy()
+    emb = le.LandmarkEmbedding.from_vertices(li, model.faces.numpy())
+    emb.calibrated[[8] + list(range(17, 68))] = True
+    data = _fake_subjects(model, emb.points_np, n=24, noise=0.01, seed=4)
+    rng = np.random.default_rng(9)
+    for s in range(len(data.indices)):  # points 30 and 31 scatter 3x and 1.5x more
+        iod = np.linalg.norm(data.points[s, 36] - data.points[s, 45])
+        data.points[s, 30] += rng.normal(0, 0.02 * iod, 2)
+        data.points[s, 31] += rng.normal(0, 0.0112 * iod, 2)
+    w = le.detector_weights(data, emb, li)
+    cal = [8] + list(range(17, 68))
+    assert np.allclose(w[[i for i in range(17) if i != 8]], 1.0)  # contours untouched
+    assert w[cal].mean() == pytest.approx(1.0)
+    others = np.median(np.delete(w, [30, 31] + list(range(17)))[: len(cal) - 3])
+    assert w[30] < 0.35 * others and 0.2 < w[31] / others < 0.75
+    emb.weights = w
+    p = emb.save(tmp_path / "w.npz")
+    np.testing.assert_allclose(le.LandmarkEmbedding.load(p, model).weights, w)
+    with pytest.raises(HackError, match="weights"):
+        le.LandmarkEmbedding(emb.face_ids, emb.vertex_ids, emb.bary, emb.calibrated,
+                             weights=-w).validate()
+    shipped = le.LandmarkEmbedding.load(le.DEFAULT_FILE, model)
+    assert shipped.weights is not None and shipped.weights[cal].mean() == pytest.approx(1.0)
+    assert shipped.weights[17:27].mean() < shipped.weights[36:48].mean()  # dlib: brows < eyes
+    photo = Photo(np.full((64, 64, 3), 0.5, np.float32), "grey")
+    pts = np.random.default_rng(0).uniform(10, 50, (68, 2))
+
+    def weights(source, **lm):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f = Fitter([photo], [Detection(pts, (10, 10, 50, 50), 1, source)],
+                       load_config(None, {"landmarks": lm}), model=model, appearance=None,
+                       progress=False)
+        return f.view_landmark_weights(f.views[0]), f.lmk_w
+
+    got, base = weights("dlib")
+    torch.testing.assert_close(got, base * torch.as_tensor(shipped.weights, dtype=base.dtype))
+    assert torch.equal(weights("truth")[0], weights("truth")[1])
+    assert torch.equal(*weights("dlib", calibrated_weights=False))
