@@ -36,6 +36,7 @@ import argparse
 import json
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -142,8 +143,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         if k in done:
             continue
         subj = render_subject(k, res, model, app, expressions)
-        beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
-                                                                 "tmaps", "cam", "photo"))
+        _beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
+                                                                  "tmaps", "cam", "photo"))
         if known_focal:  # as a camera's EXIF FocalLengthIn35mmFilm would give it
             photo.focal_mm = float(cam.K[0, 0]) / max(photo.width, photo.height) * 36.0
             photo.focal_source = "exif (bench: the render's true focal length)"
@@ -246,7 +247,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
 PORTRAITS = ("astronaut", "grace_hopper")
 
 
-def portrait_file(name: str, folder) -> "Path":
+def portrait_file(name: str, folder) -> Path:
     """Write portrait ``name`` (see :data:`PORTRAITS`) into ``folder``; its path."""
     from pathlib import Path
 

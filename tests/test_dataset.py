@@ -197,7 +197,7 @@ def test_larynx_peak_follows_tau_and_sits_at_c4_c5(monkeypatch):
     monkeypatch.setattr(m, "has_larynx", False)
     with torch.no_grad():
         out0 = m()
-    k0, p0 = lab.larynx_peak(m, out0, 0.0)
+    k0, _p0 = lab.larynx_peak(m, out0, 0.0)
     cand = lab.larynx_candidates(m)
     rest = out0.rest_vertices[0].numpy()
     c45 = out0.rest_joints[0, m.joint_names.index("c4-c5")].numpy()
@@ -292,7 +292,7 @@ def test_sample_files_and_labels(rendered):
 
     from hack_render.render.image_io import read_exr
 
-    out, cfg, summary = rendered
+    out, _cfg, summary = rendered
     assert summary == {"rendered": 3, "skipped": 0, "total": 3,
                        "manifest": str(out / "manifest" / "shard-000-of-001.jsonl")}
     lines = (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines()

@@ -114,8 +114,8 @@ def test_06_mapping_mlp_beats_the_mean_on_held_out_identities():
     rng = np.random.default_rng(2)
     b = rng.standard_normal((220, 6))
     w = np.tanh(b @ rng.standard_normal((6, 4)))
-    mlp, train, val = train_mapping(b[:200], w[:200], b[200:], w[200:], lr=1e-3, epochs=150,
-                                    progress=False)
+    mlp, _train, val = train_mapping(b[:200], w[:200], b[200:], w[200:], lr=1e-3, epochs=150,
+                                     progress=False)
     baseline = ((w[200:] - w[:200].mean(0)) ** 2).sum(1).mean()
     assert val < 0.3 * baseline
     np.testing.assert_allclose(((mlp_forward(mlp, b[200:]) - w[200:]) ** 2).sum(1).mean(), val, rtol=1e-3)
@@ -123,7 +123,7 @@ def test_06_mapping_mlp_beats_the_mean_on_held_out_identities():
 
 # -------------------------------------------------------------------------- 4 pose
 def _pose_setup(seed=1):
-    from hack_render.build.pose_learn import PoseTrainer, weight_support
+    from hack_render.build.pose_learn import weight_support
 
     a = synthetic_arrays(0, nx=8, ny=14)
     v = a["template_vertices"].astype(float)
@@ -159,7 +159,7 @@ def test_07_pose_recovery_known_weights_recovers_the_corrective_on_held_out_pose
     features the data excites)."""
     from hack_render.build.pose_learn import PoseTrainer
 
-    a, v, j, w0, ws, p, rng = _pose_setup()
+    a, v, j, _w0, ws, p, rng = _pose_setup()
     tr = PoseTrainer(v[None], j[None], a["faces"], ws, PARENTS, weights={"ski": 0.0, "smo": 0.0})
     fit = tr.fit(_random_sequences(tr, p, ws, rng), iterations=500, lr=0.03, learn_weights=False,
                  progress=False)
@@ -268,7 +268,7 @@ def test_10c_closed_form_pose_blendshapes_reproduce_known_correctives():
     non-rigid blended rotations)."""
     from hack_render.build.pose_learn import PoseTrainer
 
-    a, v, j, w0, ws, p, rng = _pose_setup()
+    a, v, j, _w0, ws, p, rng = _pose_setup()
     tr = PoseTrainer(v[None], j[None], a["faces"], ws, PARENTS)
     fit = tr.unposed_least_squares(_random_sequences(tr, p, ws, rng, n=6))
     held = _random_sequences(tr, p, ws, rng, n=2)

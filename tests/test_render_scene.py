@@ -81,7 +81,7 @@ def test_03_mitsuba_camera_matches_opencv_projection(head_model):
 
 @pytest.mark.skipif(not is_jit(), reason="kernel caching is a JIT-variant property")
 def test_04_parameter_updates_reuse_compiled_kernels(head_model):
-    topo, v = head_model
+    _topo, v = head_model
     cam = cameras.preset("portrait", 32, 32)[0]
     head = make(head_model, cam)
     old_scene = head.scene
@@ -110,7 +110,7 @@ def test_04_parameter_updates_reuse_compiled_kernels(head_model):
 
 
 def test_05_vertex_update_moves_the_render(head_model):
-    topo, v = head_model
+    _topo, v = head_model
     cam = cameras.preset("portrait", 32, 32)[0]
     head = make(head_model, cam)
     before = head.aovs()["depth"]

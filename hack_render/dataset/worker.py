@@ -204,7 +204,7 @@ class SampleRenderer:
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
-        from hack_render.render.image_io import rgb_channels, to_srgb8, write_exr
+        from hack_render.render.image_io import rgb_channels, write_exr
 
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"

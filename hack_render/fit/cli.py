@@ -173,8 +173,8 @@ def calibrate_landmarks(
     seed = le.CALIBRATION_SEED if seed is None else seed
     cmd = "hack-render calibrate-landmarks " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 \
         else ""
-    emb, report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
-                           progress=not quiet)
+    emb, _report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
+                            progress=not quiet)
     typer.echo(json.dumps({"used": emb.meta["subjects_used"],
                            "left_out": len(emb.meta["left_out"]),
                            "calibrated": int(emb.calibrated.sum()),
