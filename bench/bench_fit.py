@@ -208,7 +208,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         if expressions:  # mean absolute error of the 53 expression weights
             extra["psi_mae"] = float((fitter.psi.detach() - subj["psi"]).abs().mean())
         mask = app.mask_np[:, : app.height]
-        lab = lambda x: colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.clip(x, 1e-6, 1),  # noqa: E731
+        lab = lambda x: colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.clip(x, 1e-6, 1),
                                                                apply_cctf_decoding=False))
         de = colour.delta_E(lab(fit_maps["albedo"].numpy()[:, : app.height][mask]),
                             lab(tmaps.diffuse[0].numpy()[:, : app.height][mask]),

@@ -119,7 +119,7 @@ def main():
         debiased = dataclasses.replace(det, points=p)
         focal_mm = float(s["cam"].K[0, 0]) * SENSOR_MM / args.res
         true_focal = {"camera": {"focal_mm_prior": focal_mm, "fit_focal": False}}
-        err = lambda X: 1000 * similarity_error(X[face], V[face])  # noqa: E731
+        err = lambda X: 1000 * similarity_error(X[face], V[face])
         with torch.no_grad():
             rest = model(beta=s["beta"]).vertices[0].numpy().astype(np.float64)
         row = {"subject": k,

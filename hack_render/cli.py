@@ -26,14 +26,14 @@ app = typer.Typer(
 )
 
 # --- sub-apps and commands: one line each, owned by the module named -----------------
-from hack_render.geometry import cli as _geometry_cli  # noqa: E402
+from hack_render.geometry import cli as _geometry_cli
 
 _geometry_cli.register(app)
-from appearance import cli as _appearance_cli; app.add_typer(_appearance_cli.app, name="appearance")  # noqa: E402,E702
-from hack_render.render import cli as _render_cli; _render_cli.register(app)  # noqa: E402,E702
-from hack_render.fit import cli as _fit_cli; _fit_cli.register(app)  # noqa: E402,E702
-from hack_render.build import cli as _build_cli; _build_cli.register(app)  # noqa: E402,E702
-from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)  # noqa: E402,E702
+from appearance import cli as _appearance_cli; app.add_typer(_appearance_cli.app, name="appearance")
+from hack_render.render import cli as _render_cli; _render_cli.register(app)
+from hack_render.fit import cli as _fit_cli; _fit_cli.register(app)
+from hack_render.build import cli as _build_cli; _build_cli.register(app)
+from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)
 # --- end of sub-apps --------------------------------------------------------------------
 
 

@@ -63,7 +63,7 @@ def check(setup, renderer, name, base, direction, h, rtol, w=None):
     kw = dict(setup.get("kw", {}))
     loss(renderer.render(seed=3, **{name: base + x * direction}, **kw), w).backward()
     ad = float(x.grad)
-    f = lambda s: float(loss(renderer.render(seed=3, **{name: base + s * direction}, **kw), w))  # noqa: E731
+    f = lambda s: float(loss(renderer.render(seed=3, **{name: base + s * direction}, **kw), w))
     fd = (f(h) - f(-h)) / (2 * h)
     assert ad != 0.0 and np.isfinite(ad)
     assert abs(ad - fd) <= rtol * abs(fd), f"{name}: AD {ad:.5g} vs FD {fd:.5g}"

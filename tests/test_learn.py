@@ -11,9 +11,9 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from synthetic import synthetic_arrays  # noqa: E402
+from synthetic import synthetic_arrays
 
-from hack_render.errors import HackError  # noqa: E402
+from hack_render.errors import HackError
 
 PARENTS = (-1, 0, 1, 2, 3, 4, 5, 6)
 

@@ -10,10 +10,10 @@ ensure_variant()
 if not is_jit():
     pytest.skip("hack_skin needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb)", allow_module_level=True)
 
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
+import drjit as dr
+import mitsuba as mi
 
-from hack_render.render.materials import bitmap  # noqa: E402
+from hack_render.render.materials import bitmap
 
 N = 200_000
 

@@ -8,14 +8,14 @@ from hack_render.render.engine import ensure_variant, is_jit
 
 ensure_variant()
 
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
+import drjit as dr
+import mitsuba as mi
 
-from hack_render.geometry import load_default_model  # noqa: E402
-from hack_render.render.emitters import camera_to_world  # noqa: E402
-from hack_render.render.parts import REGIONS, Topology  # noqa: E402
-from hack_render.render.scene import HeadScene, RenderSettings  # noqa: E402
-from scenes import cameras, lights  # noqa: E402
+from hack_render.geometry import load_default_model
+from hack_render.render.emitters import camera_to_world
+from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes import cameras, lights
 
 
 @pytest.fixture(scope="module")

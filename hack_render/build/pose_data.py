@@ -127,7 +127,7 @@ class ArapNeck:
         for a, b, c in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
             u, v = rest[faces[:, a]] - rest[faces[:, c]], rest[faces[:, b]] - rest[faces[:, c]]
             cot = (u * v).sum(1) / np.maximum(np.linalg.norm(np.cross(u, v), axis=1), 1e-20)
-            rows.append(faces[:, a]); cols.append(faces[:, b]); vals.append(0.5 * np.maximum(cot, 1e-3))  # noqa: E702
+            rows.append(faces[:, a]); cols.append(faces[:, b]); vals.append(0.5 * np.maximum(cot, 1e-3))
         w = sparse.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                               shape=(n, n)).tocsr()
         w = (w + w.T).tocsr()

@@ -102,7 +102,7 @@ class PoseTrainer:
 
     def __init__(self, rest, joints, faces, weights_init, parents, weights: dict | None = None,
                  col_margin: float = 0.005, dtype=torch.float64):
-        t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)  # noqa: E731
+        t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
         self.rest, self.joints = t(rest), t(joints)
         if self.rest.ndim != 3 or self.joints.ndim != 3 or self.rest.shape[0] != self.joints.shape[0]:
             raise HackError(f"PoseTrainer: expected rest (I, M, 3) and joints (I, K, 3), found "

@@ -191,7 +191,7 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
             import yaml
 
             data = yaml.safe_load(path.read_text()) or {}
-        except Exception as err:  # noqa: BLE001 - any parser error
+        except Exception as err:  # any parser error
             raise HackError(f"--config {path}: not valid YAML ({err}).") from err
         if not isinstance(data, dict):
             raise HackError(f"--config {path}: expected a mapping of sections, found "

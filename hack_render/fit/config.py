@@ -279,7 +279,7 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
                 data = yaml.safe_load(text) or {}
             else:
                 data = json.loads(text)
-        except Exception as err:  # noqa: BLE001 - parser errors differ per format
+        except Exception as err:  # parser errors differ per format
             raise HackError(f"--config {path}: not valid {path.suffix.lstrip('.').upper()}: "
                             f"{err}") from err
         _merge(cfg, data, str(path))
