@@ -13,8 +13,10 @@
     python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
     python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
 
-Landmarks: fits use the calibrated dlib embedding (hack_render/data/
-landmark_embedding_dlib.npz) unless --embedding says otherwise. --detector-only reports
+Landmarks: fits use dlib's points moved by the landmark refiner (hack_render/data/
+landmark_refiner_dlib.npz; --set '{"landmarks": {"refiner": "off"}}' for dlib's own) and
+the calibrated dlib embedding (hack_render/data/landmark_embedding_dlib.npz) unless
+--embedding says otherwise. --detector-only reports
 dlib's NME against the true landmark vertices (detector_nme) and against the true
 embedding points (detector_nme_embedding); fits report the fitted-vs-true NME of both
 (nme: landmark vertices, nme_embedding: embedding points).
@@ -111,7 +113,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.fit.landmarks import detect
     from hack_render.geometry import load_default_model
 
     from appearance.model import AppearanceModel
@@ -149,7 +151,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             photo.focal_mm = float(cam.K[0, 0]) / max(photo.width, photo.height) * 36.0
             photo.focal_source = "exif (bench: the render's true focal length)"
         try:
-            det = detect_landmarks(photo.uint8(), name=photo.name)
+            # dlib, refined as the fit config says (landmarks.refiner)
+            det = detect(photo.uint8(), load_config(None, cfg_over).landmarks, photo.name)
         except Exception as err:  # noqa: BLE001 - reported, not hidden
             rows.append({"subject": k, "error": str(err)})
             save()
@@ -293,7 +296,15 @@ def astronaut(res: int, cfg_over: dict, name: str = "astronaut") -> dict:
     err = np.linalg.norm(pred - det, axis=1) / np.linalg.norm(det[36] - det[45])
     groups = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36),
               "eyes": slice(36, 48), "mouth": slice(48, 68)}
-    return {"total_s": total, "stages_s": res_.timings,
+    # refined detections (landmarks.refiner): also against dlib's own points, and how far
+    # the refiner moved them (mean over the chin and the inner points)
+    raw = v.detection.raw if v.detection.refined else det
+    iod_raw = np.linalg.norm(raw[36] - raw[45])
+    err_raw = np.linalg.norm(pred - raw, axis=1) / iod_raw
+    shift = np.linalg.norm(det - raw, axis=1)[[8] + list(range(17, 68))] / iod_raw
+    return {"total_s": total, "stages_s": res_.timings, "refined": v.detection.refined,
+            "landmark_nme_dlib_raw": float(err_raw.mean()),
+            "refiner_shift_inner": float(shift.mean()),
             "landmark_nme": float(err.mean()), "landmark_nme_inner": float(err[17:].mean()),
             "landmark_nme_groups": {k: float(err[s].mean()) for k, s in groups.items()},
             "photometric_iteration_s": {r.name: float(np.mean(r.per_iteration_s))

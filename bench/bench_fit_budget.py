@@ -7,7 +7,9 @@ landmark stages (camera + shape, no photometric stage) are run with more and mor
 truth given, and the face vertex error after similarity alignment is reported (median
 over the subjects, mm):
 
-- ``dlib``: dlib's 68 points through the calibrated embedding (the default fit);
+- ``dlib``: dlib's 68 points, as dlib places them, through the calibrated embedding;
+- ``dlib_refined``: the same after the landmark refiner (``landmark_refiner.py``, trained
+  on other synthetic renders) has moved the inner points: the default fit;
 - ``dlib_debiased``: dlib's points less the detector's mean error on the *other* subjects
   of the run (leave-one-out; per point, detected minus the true embedding point, in
   inter-ocular units): what the fit would gain if dlib's bias common to these renders
@@ -21,7 +23,8 @@ over the subjects, mm):
 Each step removes one source of error; the differences are its cost. The JSON also has
 ``detector``: dlib's error against the true embedding points (calibrated points, inter-
 ocular units, rms over points and subjects), split into the mean over the subjects
-(``mean_bias_rms``) and what is left per subject (``per_subject_rms``).
+(``mean_bias_rms``) and what is left per subject (``per_subject_rms``); ``refined``: the
+same for the refined points.
 """
 
 from __future__ import annotations
@@ -81,7 +84,7 @@ def main():
     from appearance.model import AppearanceModel
     from hack_render.fit.fitter import SENSOR_MM
     from hack_render.fit.landmark_embedding import load_default
-    from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.fit.landmarks import detect_landmarks, refine_detection
     from hack_render.fit.metrics import similarity_error
     from hack_render.geometry import load_default_model
 
@@ -101,16 +104,23 @@ def main():
         V = s["out"].vertices[0].numpy().astype(np.float64)
         lv = s["cam"].project(V[li])
         iod = float(np.linalg.norm(lv[36] - lv[45]))
-        resid = (det.points - s["cam"].project(emb.points_np(V))) / iod  # (68, 2)
-        subjects.append((k, s, det, V, resid))
-    R = np.array([r[4] for r in subjects])
-    bias = R[:, cal].mean(0)
-    detector = {"subjects": len(subjects),
+        emb_px = s["cam"].project(emb.points_np(V))
+        resid = (det.points - emb_px) / iod  # (68, 2)
+        refined = refine_detection(s["photo"].uint8(), det, "dlib")
+        subjects.append((k, s, det, V, resid, refined, (refined.points - emb_px) / iod))
+
+    def stats(R):
+        bias = R[:, cal].mean(0)
+        return {"subjects": len(subjects),
                 "rms": float(np.sqrt((R[:, cal] ** 2).sum(-1).mean())),
                 "mean_bias_rms": float(np.sqrt((bias ** 2).sum(-1).mean())),
                 "per_subject_rms": float(np.sqrt(((R[:, cal] - bias) ** 2).sum(-1).mean()))}
+
+    R = np.array([r[4] for r in subjects])
+    detector = stats(R)
+    detector["refined"] = stats(np.array([r[6] for r in subjects]))
     print(json.dumps({"detector": detector}), flush=True)
-    for i, (k, s, det, V, _) in enumerate(subjects):
+    for i, (k, s, det, V, _, refined, _) in enumerate(subjects):
         truth = dataclasses.replace(det, points=s["cam"].project(V[li]), source="truth")
         # leave-one-out mean error of the others, in this photo's inter-ocular pixels
         loo = np.delete(R, i, axis=0).mean(0) if len(R) > 1 else np.zeros((68, 2))
@@ -124,6 +134,8 @@ def main():
             rest = model(beta=s["beta"]).vertices[0].numpy().astype(np.float64)
         row = {"subject": k,
                "dlib": err(_fit(model, s["photo"], det, {})),
+               # dlib's inner points moved by the landmark refiner (landmark_refiner.py)
+               "dlib_refined": err(_fit(model, s["photo"], refined, {})),
                "dlib_debiased": err(_fit(model, s["photo"], debiased, {})),
                "true_points": err(_fit(model, s["photo"], truth, {})),
                "true_points_focal": err(_fit(model, s["photo"], truth, true_focal)),

@@ -56,6 +56,12 @@ class LandmarkConfig:
     # landmark vertices, with a warning, if it is missing), "vertices" (ICT's 68 landmark
     # vertices), or the path of an embedding file (hack-render calibrate-landmarks)
     embedding: str = "dlib"
+    # dlib's inner points (and chin) refined toward the embedding's points by a regressor
+    # of the image trained on synthetic renders (landmark_refiner.py): "dlib" (the shipped
+    # hack_render/data/landmark_refiner_dlib.npz; dlib's points, with a warning, if it is
+    # missing), "off", or the path of a refiner file (hack-render train-landmark-refiner).
+    # Landmark files are never refined
+    refiner: str = "dlib"
     # --landmarks files follow "detector" (dlib's convention: the embedding above) or
     # "vertices" (they mark the model's own landmark vertices)
     files_follow: str = "detector"
@@ -207,6 +213,11 @@ class FitConfig:
         if not isinstance(lm.embedding, str) or not lm.embedding:
             raise HackError(f"config landmarks.embedding: expected 'dlib', 'vertices' or an "
                             f"embedding file path, found {lm.embedding!r}.")
+        if not isinstance(lm.refiner, str) or not lm.refiner or (
+                lm.refiner not in ("dlib", "off") and not Path(lm.refiner).is_file()):
+            raise HackError(f"config landmarks.refiner: expected 'dlib', 'off' or the path of "
+                            f"a refiner file (hack-render train-landmark-refiner), found "
+                            f"{lm.refiner!r}.")
         c = self.camera
         for key in ("focal_log_sigma", "photo_focal_log_sigma", "focal_mm_prior"):
             if not float(getattr(c, key)) > 0:

@@ -246,13 +246,17 @@ class Fitter:
 
     def view_landmark_weights(self, v: View) -> torch.Tensor:
         """(68,) the landmark loss's weights for a view: the configured ones, times the
-        embedding's detector weights when the view's points go through the embedding
-        (``landmarks.calibrated_weights``)."""
+        detector's weights when the view's points go through the embedding
+        (``landmarks.calibrated_weights``): the refiner's for refined points, else the
+        embedding file's."""
         emb = self.embedding
-        if (v.embedded and self.cfg.landmarks.calibrated_weights and emb is not None
-                and emb.weights is not None):
-            return self.lmk_w * torch.as_tensor(emb.weights, dtype=self.lmk_w.dtype)
-        return self.lmk_w
+        if not (v.embedded and self.cfg.landmarks.calibrated_weights and emb is not None):
+            return self.lmk_w
+        # refined points: the refiner's weights (its scatter about the embedding)
+        w = v.detection.weights if v.detection.weights is not None else emb.weights
+        if w is None:
+            return self.lmk_w
+        return self.lmk_w * torch.as_tensor(w, dtype=self.lmk_w.dtype)
 
     def focal_prior_px(self, photo: Photo) -> tuple[float, float, str]:
         """(centre in pixels, std of log focal, source) of a photo's focal-length prior:

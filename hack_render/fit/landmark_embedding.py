@@ -204,6 +204,7 @@ class CalibrationSet:
     indices: np.ndarray
     missed: list = field(default_factory=list)
     seconds: float = 0.0
+    images: np.ndarray | None = None  # (S, H, W, 3) uint8 sRGB renders (images=True)
 
     def project(self, s: int, X: np.ndarray) -> np.ndarray:
         cam = X @ self.R[s].T + self.t[s]
@@ -216,14 +217,15 @@ class CalibrationSet:
 
 def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None = None,
                     start: int = 0, progress: bool = True,
-                    max_vertex_nme: float = 0.3) -> CalibrationSet:
+                    max_vertex_nme: float = 0.3, images: bool = False) -> CalibrationSet:
     """Render dataset samples ``start .. start + n - 1`` of ``seed`` (the dataset sampler
     and its scenes, :mod:`hack_render.dataset`, with :data:`CALIBRATION_DATASET` and
     ``overrides``), and run dlib on each (the sRGB image the dataset writes as rgb.png).
 
     Subjects without a face, or whose detection is farther than ``max_vertex_nme`` (inter-
     ocular units, mean over the 68) from the model's landmark vertices (a wrong face or a
-    failed fit of dlib's shape model), are left out and listed in ``missed``.
+    failed fit of dlib's shape model), are left out and listed in ``missed``. ``images``:
+    keep the renders (the landmark refiner's training data).
     """
     from hack_render.dataset.config import load_config
     from hack_render.dataset.sampling import model_kwargs
@@ -234,7 +236,8 @@ def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None
     cfg = load_config(None, _merge_dict(CALIBRATION_DATASET, overrides or {}))
     r = SampleRenderer(cfg, out="/nonexistent-not-written", seed=seed)
     res = cfg["render"]["resolution"]
-    keep = {"vertices": [], "K": [], "R": [], "t": [], "points": [], "indices": []}
+    keep = {"vertices": [], "K": [], "R": [], "t": [], "points": [], "indices": [],
+            "images": []}
     missed = []
     t0 = time.perf_counter()
     it = range(start, start + n)
@@ -272,12 +275,14 @@ def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None
             missed.append((int(index), f"detection {nme:.2f} IOD from the model's landmarks"))
             continue
         for k, v in (("vertices", verts.astype(np.float32)), ("K", cam.K), ("R", cam.R),
-                     ("t", cam.t), ("points", det.points), ("indices", index)):
+                     ("t", cam.t), ("points", det.points), ("indices", index),
+                     ("images", rgb8 if images else None)):
             keep[k].append(v)
     if not keep["indices"]:
         raise HackError("calibration: the detector found no face in any subject.")
-    arr = {k: np.asarray(v) for k, v in keep.items()}
-    return CalibrationSet(**arr, missed=missed, seconds=time.perf_counter() - t0)
+    arr = {k: np.asarray(v) for k, v in keep.items() if k != "images"}
+    return CalibrationSet(**arr, missed=missed, seconds=time.perf_counter() - t0,
+                          images=np.asarray(keep["images"]) if images else None)
 
 
 # --- the search -----------------------------------------------------------------------
@@ -422,22 +427,29 @@ def evaluate(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
 
 def detector_weights(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
                      clip: tuple[float, float] = (0.25, 4.0)) -> np.ndarray:
-    """(68,) landmark-loss weights for the detector: for the calibrated points, the
-    inverse variance of its scatter about the embedding (per point, the median over the
-    subjects of |r - median r|, r the detected minus the embedded point's projection in
-    inter-ocular units), normalised to mean 1 over those points and clipped to ``clip``
-    (then normalised again); 1 for the others (the jawline contours keep their own
-    weight). Maximum likelihood under independent Gaussian scatter: a point the detector
-    places less reliably pulls less."""
+    """(68,) landmark-loss weights for the detector: :func:`scatter_weights` of its
+    residuals about the embedding on ``data`` (detected minus the embedded point's
+    projection, in inter-ocular units of the model's landmark vertices 37 and 46)."""
     res = []
     for s in range(len(data.indices)):
         V = data.vertices[s].astype(np.float64)
         lv = data.project(s, V[li])
         iod = max(float(np.linalg.norm(lv[36] - lv[45])), 1e-9)
         res.append((data.points[s] - data.project(s, emb.points_np(V))) / iod)
-    r = np.asarray(res)  # (S, 68, 2)
+    return scatter_weights(np.asarray(res), emb.calibrated, clip)
+
+
+def scatter_weights(residuals: np.ndarray, calibrated: np.ndarray,
+                    clip: tuple[float, float] = (0.25, 4.0)) -> np.ndarray:
+    """(68,) weights from residuals (S, 68, 2) (inter-ocular units): for the calibrated
+    points, the inverse variance of the scatter (per point, the median over the subjects
+    of |r - median r|), normalised to mean 1 over those points and clipped to ``clip``
+    (then normalised again); 1 for the others (the jawline contours keep their own
+    weight). Maximum likelihood under independent Gaussian scatter: a point the detector
+    places less reliably pulls less."""
+    r = np.asarray(residuals, np.float64)
     spread = np.median(np.linalg.norm(r - np.median(r, 0), axis=2), 0)
-    cal = np.flatnonzero(emb.calibrated)
+    cal = np.flatnonzero(calibrated)
     w = np.ones(68)
     inv = 1.0 / np.maximum(spread[cal], 1e-6) ** 2
     inv = np.clip(inv / inv.mean(), *clip)

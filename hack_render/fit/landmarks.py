@@ -41,12 +41,20 @@ class FaceWarning(UserWarning):
 @dataclass
 class Detection:
     """Landmarks (68, 2) in pixels (continuous, pixel centres at +0.5), the face box
-    (left, top, right, bottom) and the number of faces found."""
+    (left, top, right, bottom) and the number of faces found. A refined detection
+    (:func:`refine_detection`) keeps the detector's own points in ``raw`` and carries the
+    refiner's per-point loss weights in ``weights``."""
 
     points: np.ndarray
     box: tuple[float, float, float, float]
     n_faces: int
     source: str = "dlib"
+    raw: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    @property
+    def refined(self) -> bool:
+        return self.raw is not None
 
     @property
     def size(self) -> float:
@@ -119,6 +127,30 @@ def detect_landmarks(rgb8: np.ndarray, upsample: int = 1, min_face_px: int = 64,
     shape = predictor(img, dlib.rectangle(r.left(), r.top(), r.right(), r.bottom()))
     pts = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
     return Detection(pts, (r.left(), r.top(), r.right(), r.bottom()), len(rects))
+
+
+def refine_detection(rgb8: np.ndarray, det: Detection, refiner: str = "dlib") -> Detection:
+    """dlib's detection with its inner points moved by the landmark refiner named by
+    ``landmarks.refiner`` ("dlib": the shipped one, "off", or a file;
+    :mod:`hack_render.fit.landmark_refiner`). Other sources are returned as they are."""
+    from hack_render.fit.landmark_refiner import load_refiner
+
+    ref = load_refiner(refiner) if det.source == "dlib" and not det.refined else None
+    if ref is None:
+        return det
+    return Detection(ref.refine(rgb8, det.points), det.box, det.n_faces, det.source,
+                     raw=np.array(det.points, copy=True), weights=ref.weights)
+
+
+def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
+    """:func:`detect_landmarks` and :func:`refine_detection` with a fit config's
+    ``landmarks`` section (defaults when None)."""
+    if config is None:
+        from hack_render.fit.config import LandmarkConfig
+
+        config = LandmarkConfig()
+    det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
+    return refine_detection(rgb8, det, config.refiner)
 
 
 def read_landmark_file(path: str | Path) -> Detection:
