@@ -111,6 +111,11 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     npz = np.load(out / "params.npz")
     K, t = npz["view0_K"], npz["view0_t"]
     report = json.loads((out / "fit_report.json").read_text())
+    # dlib's points went through the landmark refiner; both sets are written
+    assert report["views"][0]["landmarks_refined"] is True
+    assert report["landmark_refiner"].startswith("derived")
+    assert 0.0 < report["views"][0]["refiner_shift_iod"] < 0.1
+    assert npz["view0_landmarks_dlib"].shape == (68, 2)
     focal = report["views"][0]["focal"]  # a PNG without EXIF: the 85 mm prior
     assert focal["source"] == "prior" and focal["prior_mm"] == pytest.approx(85.0)
     assert focal["fitted_mm"] == pytest.approx(K[0, 0] / 512 * 36, rel=1e-4)

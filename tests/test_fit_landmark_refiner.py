@@ -193,3 +193,23 @@ def test_08_fitter_uses_the_refiners_weights():
     torch.testing.assert_close(w1, f.lmk_w * torch.as_tensor(w, dtype=f.lmk_w.dtype))
     torch.testing.assert_close(w0, f.lmk_w * torch.as_tensor(f.embedding.weights,
                                                              dtype=f.lmk_w.dtype))
+
+
+def test_09_training_renders_resume_from_the_cache(tmp_path):
+    """Chunks are written as they complete and read back on a rerun (an interrupted
+    `train-landmark-refiner --cache` resumes); the targets are the embedding's points."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = lr.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
+        assert a["chunks_from_cache"] == 0
+        assert len(list(tmp_path.glob("refiner_5150_*.npz"))) == 2
+        b = lr.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
+    assert b["chunks_from_cache"] == 2
+    for k in ("images", "dlib", "targets", "iod", "indices"):
+        np.testing.assert_array_equal(a[k], b[k])
+    assert len(a["indices"]) + len(a["missed"]) == 2
+    if len(a["indices"]):
+        assert a["images"].dtype == np.uint8 and a["images"].ndim == 3
+        # dlib's points lie near the targets (the embedding is calibrated to dlib)
+        nme = lr.inner_nme(a["dlib"], a["targets"], a["iod"])
+        assert np.all(nme < 0.15)

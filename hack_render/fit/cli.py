@@ -91,6 +91,9 @@ def fit(
                                               "term; default: segmented when the background "
                                               "is plain, else no silhouette term."),
     no_silhouette: bool = typer.Option(False, "--no-silhouette", help="No silhouette term."),
+    no_refine: bool = typer.Option(False, "--no-refine", help="Fit dlib's points as dlib "
+                                   "places them, without the landmark refiner (trained on "
+                                   "synthetic renders; config landmarks.refiner)."),
     focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="35 mm-equivalent "
                                              "focal length of the photos (36 mm across the "
                                              "long side; uncropped photos). Default: EXIF's "
@@ -132,6 +135,8 @@ def fit(
         over["per_view_expression"] = True
     if no_silhouette:
         over["silhouette"] = {"mode": "off"}
+    if no_refine:
+        over["landmarks"] = {"refiner": "off"}
     cfg = load_config(config, over)
     result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
                                masks=mask or None, focal_mm=focal_mm)

@@ -35,10 +35,13 @@ class LandmarkConfig:
     min_face_px: int = 64            # refuse faces smaller than this (box side, pixels)
     max_side_px: int = 8000          # larger photos are downscaled to working_side_px
     working_side_px: int = 2048
-    # weight of the 17 jawline (contour) landmarks; 0.2: dlib's jawline scatters most
-    # (3.4 % NME against the truth vs 2.7 % for points 18-68), and on 8 synthetic subjects
-    # (landmark stages only) 0.2 gave 2.32 mm vertex error, 0.5 2.58 mm, 1.0 2.87 mm
-    jaw_weight: float = 0.2
+    # weight of the 17 jawline (contour) landmarks; dlib's jawline scatters most (3.4 %
+    # NME against the truth vs 2.7 % for points 18-68), and on 8 synthetic subjects
+    # (landmark stages only) 0.2 gave 2.32 mm vertex error, 0.5 2.58 mm, 1.0 2.87 mm.
+    # With the refined inner points (refiner, below) the unrefined jaw is relatively
+    # noisier still: on synthetic subjects 20-39 (disjoint from the benchmark's 0-19),
+    # landmark stages, 0.1 gave 1.69 mm (15 of 20 better), 0.05 1.72, 0.2 1.75, 0.3 1.79
+    jaw_weight: float = 0.1
     # weight of the 10 brow landmarks (dlib's brows are its least certain inner points:
     # 3.8 % NME against the calibrated embedding's truth, README)
     brow_weight: float = 1.0

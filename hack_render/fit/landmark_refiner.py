@@ -153,7 +153,7 @@ class LandmarkRefiner:
             pts = self.step(gray, pts, k)
         return pts
 
-    def validate(self, where: str = "landmark refiner") -> "LandmarkRefiner":
+    def validate(self, where: str = "landmark refiner") -> LandmarkRefiner:
         L2 = 2 * len(INNER)
         K = len(self.W)
         ok = (K >= 1 and self.W.ndim == 3 and self.W.shape[1:] == (self.spec.dim, L2)
@@ -189,7 +189,7 @@ class LandmarkRefiner:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "LandmarkRefiner":
+    def load(cls, path: str | Path) -> LandmarkRefiner:
         path = Path(path)
         if not path.is_file():
             raise HackError(f"landmark refiner {path}: file not found.")
@@ -318,7 +318,8 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
     settings, :func:`~hack_render.fit.landmark_embedding.render_subjects`), rendered in
     chunks of ``chunk``; with ``cache``, each chunk is written there as it completes and
     read back on a rerun (an interrupted build resumes). Returns images (S, H, W) gray
-    uint8, dlib (S, 68, 2), targets (S, 68, 2), iod (S,), indices (S,), missed."""
+    uint8, dlib (S, 68, 2), targets (S, 68, 2), iod (S,), indices (S,), missed, and
+    chunks_from_cache (how many chunks were read back rather than rendered)."""
     from hack_render.fit import landmark_embedding as le
     from hack_render.geometry import load_default_model
 
@@ -330,21 +331,26 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
     li = model.landmark_indices.numpy()
     tag = f"{seed}-{emb.meta.get('command', '')}-{emb.vertex_ids.sum()}-{emb.bary.sum():.9f}"
     cache = Path(cache) if cache else None
-    parts, missed = [], []
+    parts, missed, cached = [], [], 0
     for start in range(0, subjects, chunk):
         n = min(chunk, subjects - start)
         path = cache / f"refiner_{seed}_{start:06d}_{n}.npz" if cache else None
         if path is not None and path.is_file():
             with np.load(path, allow_pickle=False) as z:
                 if str(z["tag"]) == tag:
-                    parts.append({k: z[k] for k in ("images", "dlib", "targets", "iod",
-                                                    "indices")})
+                    if "images" in z.files:  # else: no face in the whole chunk
+                        parts.append({k: z[k] for k in ("images", "dlib", "targets", "iod",
+                                                        "indices")})
                     missed += json.loads(str(z["missed"]))
+                    cached += 1
                     continue
         try:
             data = le.render_subjects(n, seed, start=start, progress=progress, images=True)
         except HackError as err:  # no face in the whole chunk
-            missed += [[i, str(err)] for i in range(start, start + n)]
+            gone = [[i, str(err)] for i in range(start, start + n)]
+            missed += gone
+            if path is not None:
+                _save_chunk(path, {"tag": np.array(tag), "missed": np.array(json.dumps(gone))})
             continue
         tg, iod = [], []
         for s in range(len(data.indices)):
@@ -359,16 +365,21 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
         parts.append(part)
         missed += [[int(i), why] for i, why in data.missed]
         if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.stem}.tmp.npz")
-            np.savez_compressed(tmp, **part, tag=np.array(tag),
-                                missed=np.array(json.dumps(data.missed)))
-            tmp.replace(path)
+            _save_chunk(path, {**part, "tag": np.array(tag),
+                               "missed": np.array(json.dumps(data.missed))})
     if not parts:
         raise HackError("landmark refiner: the detector found no face in any subject.")
     out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     out["missed"] = missed
+    out["chunks_from_cache"] = cached
     return out
+
+
+def _save_chunk(path: Path, arrays: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
 
 
 def inner_nme(points: np.ndarray, targets: np.ndarray, iod: np.ndarray) -> np.ndarray:
@@ -391,7 +402,7 @@ def build(output: str | Path, subjects: int = 1200, seed: int | None = None,
     data = render_training_set(subjects, seed, cache, progress=progress)
     t_render = time.perf_counter() - t0
     n = len(data["indices"])
-    n_val = int(round(holdout * n))
+    n_val = round(holdout * n)
     if n - n_val < 10:
         raise HackError(f"landmark refiner: {n} usable subjects; expected at least "
                         f"{10 + n_val} (raise --subjects).")
@@ -426,6 +437,7 @@ def build(output: str | Path, subjects: int = 1200, seed: int | None = None,
                               f"--subjects {subjects}",
         "dataset_seed": seed, "subjects_requested": int(subjects), "stages": int(stages),
         "lambda": float(lam), "render_seconds": t_render, "train_seconds": t_train,
+        "chunks_from_cache": int(data["chunks_from_cache"]),
         **{k: v for k, v in report.items() if k != "left_out"},
         "left_out": len(data["missed"]),
         "weights": "scatter_weights(): inverse variance of the refined points' scatter "

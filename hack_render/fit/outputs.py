@@ -41,6 +41,26 @@ def camera_dict(v) -> dict:
             "convention": "OpenCV: x_cam = R @ X_world + t; x right, y down, z forward"}
 
 
+def _refiner_shift(det) -> float | None:
+    """Mean distance the landmark refiner moved the chin and inner points, in units of
+    dlib's inter-ocular distance (None: not refined)."""
+    if not det.refined:
+        return None
+    iod = max(float(np.linalg.norm(det.raw[36] - det.raw[45])), 1e-9)
+    idx = [8] + list(range(17, 68))
+    return float(np.linalg.norm(det.points[idx] - det.raw[idx], axis=1).mean() / iod)
+
+
+def _refiner_provenance(res) -> str | None:
+    """The landmark refiner's provenance when a view's points were refined."""
+    if not any(v.detection.refined for v in res.views):
+        return None
+    from hack_render.fit.landmark_refiner import load_refiner
+
+    ref = load_refiner(res.config.landmarks.refiner)
+    return None if ref is None else ref.meta.get("provenance")
+
+
 def _focal_entry(fitter, v) -> dict:
     """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
     prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
@@ -74,7 +94,9 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
         arrays[f"view{i}_K"] = np.asarray(cam["K"])
         arrays[f"view{i}_R"] = np.asarray(cam["R"])
         arrays[f"view{i}_t"] = np.asarray(cam["t"])
-        arrays[f"view{i}_landmarks_detected"] = v.detection.points
+        arrays[f"view{i}_landmarks_detected"] = v.detection.points  # refined, if so
+        if v.detection.refined:  # dlib's own points, before the landmark refiner
+            arrays[f"view{i}_landmarks_dlib"] = v.detection.raw
         if v.lighting is not None:
             arrays[f"view{i}_env_map"] = v.lighting.env_map().detach().numpy()
             if v.lighting.mode == "sh":
@@ -103,13 +125,16 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
               "views": [{"photo": v.photo.name, "notes": v.photo.notes,
                          "faces_found": v.detection.n_faces,
                          "landmark_source": v.detection.source,
+                         "landmarks_refined": v.detection.refined,
+                         "refiner_shift_iod": _refiner_shift(v.detection),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v)}
                         for v in res.views],
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None
-                                     else None)}
+                                     else None),
+              "landmark_refiner": _refiner_provenance(res)}
     report.update(extra or {})
     written.append(_atomic_bytes(outdir / "fit_report.json",
                                  lambda t: t.write_text(json.dumps(report, indent=1))))
