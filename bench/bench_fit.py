@@ -12,6 +12,7 @@
     python bench/bench_fit.py --merge a.json b.json --out all.json   # one table
     python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
     python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
+    python bench/bench_fit.py --subjects 20 --lighting random # random lighting presets
 
 Landmarks: fits use dlib's points moved by the landmark refiner (hack_render/data/
 landmark_refiner_dlib.npz; --set '{"landmarks": {"refiner": "off"}}' for dlib's own) and
@@ -23,9 +24,10 @@ embedding points (detector_nme_embedding); fits report the fitted-vs-true NME of
 
 Synthetic: subjects from random beta (N(0, 0.8^2), 20 comps), head rotation, appearance
 alpha and a frontal camera with random focal length (--expressions: plus 3 random FACS
-units at 0.3-0.8); rendered with the path tracer (64 spp,
-light_stage) at --res; fitted from the image (dlib landmarks) and reported as medians:
-face vertex error after similarity alignment (mm), landmark NME vs the true landmarks
+units at 0.3-0.8); rendered with the path tracer (64 spp; light_stage, or with
+--lighting random one of the four presets per subject, the rig turned U(-45, 45) deg
+about the vertical) at --res; fitted from the image (dlib landmarks) and reported as
+medians: face vertex error after similarity alignment (mm), landmark NME vs the true landmarks
 (inter-ocular), albedo CIEDE2000 over the face tile, re-render PSNR over the skin mask,
 neck joint angle error (degrees, mean over joints and axes). PSNR is reported for the
 fitter's own re-render (4 spp, as it optimises) and for the same re-render at the
@@ -57,13 +59,18 @@ def _medians(rows: list) -> dict:
             if any(k in r for r in ok)}
 
 
-def render_subject(k: int, res: int, model, app, expressions: bool = False) -> dict:
+def render_subject(k: int, res: int, model, app, expressions: bool = False,
+                   lighting: str = "light_stage") -> dict:
     """Synthetic subject k of the benchmark (torch generator seeded 100 + k): random
     beta, head rotation, appearance alpha, a frontal camera at a random focal length,
-    rendered with the path tracer (64 spp, light_stage). ``expressions``: also 3 random
-    FACS units of the 53 at weights U(0.3, 0.8) (a second generator, seeded 1000 + k, so
-    the other parameters are those of the neutral subject k). Returns its parameters, the
-    model output, the true skin maps, the camera and the sRGB photo."""
+    rendered with the path tracer (64 spp). ``expressions``: also 3 random FACS units of
+    the 53 at weights U(0.3, 0.8) (a second generator, seeded 1000 + k, so the other
+    parameters are those of the neutral subject k). ``lighting``: a preset name
+    (default ``light_stage``, uniform light) or ``"random"``: one of the four presets
+    drawn with a rotation U(-45, 45) degrees about the vertical (a third generator,
+    seeded 2000 + k; the other parameters stay those of subject k). Returns its
+    parameters, the model output, the true skin maps, the camera, the lighting and the
+    sRGB photo."""
     import colour
 
     from hack_render.fit.fitter import R0
@@ -73,7 +80,7 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False) -> d
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from scenes.cameras import Camera
-    from scenes.lights import preset
+    from scenes.lights import PRESETS, preset
 
     g = torch.Generator().manual_seed(100 + k)
     beta = 0.8 * torch.randn(1, 20, generator=g)
@@ -92,19 +99,25 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False) -> d
     f = 50.0 / 36.0 * res * (1.8 + 0.6 * float(torch.rand(1, generator=g)))
     K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
     cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res)
+    if lighting == "random":
+        gl = torch.Generator().manual_seed(2000 + k)
+        name = list(PRESETS)[int(torch.randint(len(PRESETS), (1,), generator=gl))]
+        rig = preset(name, rotation_deg=float(90.0 * torch.rand(1, generator=gl) - 45.0))
+    else:
+        rig = preset(lighting)
     head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
-                     preset("light_stage"), cam, RenderSettings(res, res, 64, 4, 0),
+                     rig, cam, RenderSettings(res, res, 64, 4, 0),
                      SkinMaps.from_appearance(tmaps))
     img = head.render()[..., :3]
     srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
     photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
     return {"beta": beta, "psi": psi, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
-            "cam": cam, "photo": photo}
+            "cam": cam, "lighting": f"{rig.name} {rig.rotation_deg:+.0f} deg", "photo": photo}
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
               oracle_landmarks=False, first: int = 0, expressions: bool = False,
-              known_focal: bool = False) -> dict:
+              known_focal: bool = False, lighting: str = "light_stage") -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
     interrupted run resumes."""
@@ -129,7 +142,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         if out_path is not None:
             tmp = Path(str(out_path) + ".tmp")
             tmp.write_text(json.dumps({"config": cfg_over, "res": res,
-                                       "expressions": expressions, "known_focal": known_focal, "subjects": rows,
+                                       "expressions": expressions, "known_focal": known_focal,
+                                       "lighting": lighting, "subjects": rows,
                                        "n_ok": sum("error" not in r for r in rows),
                                        "median": _medians(rows)}, indent=1))
             tmp.replace(out_path)
@@ -144,7 +158,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     for k in range(first, n):
         if k in done:
             continue
-        subj = render_subject(k, res, model, app, expressions)
+        subj = render_subject(k, res, model, app, expressions, lighting)
         _beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
                                                                   "tmaps", "cam", "photo"))
         if known_focal:  # as a camera's EXIF FocalLengthIn35mmFilm would give it
@@ -154,7 +168,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             # dlib, refined as the fit config says (landmarks.refiner)
             det = detect(photo.uint8(), load_config(None, cfg_over).landmarks, photo.name)
         except Exception as err:  # noqa: BLE001 - reported, not hidden
-            rows.append({"subject": k, "error": str(err)})
+            rows.append({"subject": k, "lighting": subj["lighting"], "error": str(err)})
             save()
             continue
         # the detector's own error against the true landmarks (a floor for the fit's
@@ -237,7 +251,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         from hack_render.geometry.rotations import axis_angle_to_euler
 
         jerr = float(torch.rad2deg((axis_angle_to_euler(th_fit) - axis_angle_to_euler(theta)).abs()).mean())
-        rows.append({"subject": k, "vertex_mm": 1000 * verr, "nme": float(nme),
+        rows.append({"subject": k, "lighting": subj["lighting"],
+                     "vertex_mm": 1000 * verr, "nme": float(nme),
                      "albedo_de2000": float(np.median(de)), "psnr_db": float(psnr),
                      "joint_deg": jerr, "seconds": dt, **extra, **det_nme})
         print(json.dumps(rows[-1]), flush=True)
@@ -444,6 +459,9 @@ def main():
     ap.add_argument("--set", type=str, default=None, metavar="JSON",
                     help='config overrides by section, e.g. \'{"shape": {"w_psi": 0.02}, '
                          '"photometric": {"enabled": false}}\' (the ablations in the README)')
+    ap.add_argument("--lighting", type=str, default="light_stage",
+                    help="synthetic: the targets' lighting, a preset name or 'random' (one "
+                         "of the four presets per subject, rotated U(-45, 45) deg)")
     ap.add_argument("--first", type=int, default=0,
                     help="synthetic: first subject (split a run over processes, then "
                          "--merge their JSON files)")
@@ -459,7 +477,8 @@ def main():
                       key=lambda r: r["subject"])
         merged = {"config": parts[0]["config"], "res": parts[0]["res"],
                   "expressions": parts[0].get("expressions", False),
-                  "known_focal": parts[0].get("known_focal", False), "subjects": rows,
+                  "known_focal": parts[0].get("known_focal", False),
+                  "lighting": parts[0].get("lighting", "light_stage"), "subjects": rows,
                   "n_ok": sum("error" not in r for r in rows), "median": _medians(rows)}
         text = json.dumps(merged, indent=1)
         if args.out:
@@ -494,7 +513,7 @@ def main():
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
-                                     args.expressions, args.known_focal)
+                                     args.expressions, args.known_focal, args.lighting)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

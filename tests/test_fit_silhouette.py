@@ -42,6 +42,48 @@ def test_01_plain_background_segmented_cluttered_refused():
     assert m is None and why
 
 
+def test_01b_shading_through_the_background_colour_keeps_the_person_whole():
+    """A side light's terminator: the person's shading passes through the backdrop's
+    colour along a thin band that cracks the colour key in two (as on a dark studio
+    backdrop); the mask is still the whole person, not the half holding the face."""
+    rng = np.random.default_rng(1)
+    disc = _disc()
+    img = np.full(disc.shape + (3,), 0.22, np.float32) + 0.005 * rng.standard_normal(
+        disc.shape + (3,)).astype(np.float32)
+    xx = np.mgrid[0:96, 0:96][1] + 0.5
+    lit = disc & (xx < 47)
+    img[lit] = [0.85, 0.7, 0.6]
+    img[disc & (xx > 49)] = [0.05, 0.03, 0.02]           # the shadowed half
+    img[disc & (xx >= 47) & (xx <= 49)] = 0.22           # the terminator: backdrop-coloured
+    m, why = segment_plain_background(img, _points_in((58, 44), 16))
+    assert why == "" and m is not None
+    iou = (m & disc).sum() / (m | disc).sum()
+    assert iou > 0.95, iou
+    assert m[lit].mean() > 0.97 and m[disc & (xx > 49)].mean() > 0.97
+
+
+def test_01c_backdrop_of_one_colour_per_row_segmented():
+    """A horizon behind the person (sky above, ground below, each with a vertical
+    gradient: one colour per row, not one colour) gives a mask; a backdrop whose left
+    and right edges differ row by row does not."""
+    rng = np.random.default_rng(2)
+    disc = _disc()
+    yy = np.mgrid[0:96, 0:96][0][..., None] / 96.0
+    img = np.where(yy < 0.55, np.array([0.6, 0.7, 0.85]) + 0.2 * yy,
+                   np.array([0.35, 0.33, 0.3]) - 0.1 * yy).astype(np.float32)
+    img += 0.005 * rng.standard_normal(img.shape).astype(np.float32)
+    img[disc] = [0.85, 0.65, 0.55]
+    m, why = segment_plain_background(img, _points_in((50, 44), 25))
+    assert why == "" and m is not None
+    iou = (m & disc).sum() / (m | disc).sum()
+    assert iou > 0.97, iou
+    halves = img.copy()
+    halves[:, 48:] = rng.random((96, 1, 3)).astype(np.float32)  # right edge: other colours
+    halves[disc] = [0.85, 0.65, 0.55]
+    m, why = segment_plain_background(halves, _points_in((50, 44), 25))
+    assert m is None and "rows" in why
+
+
 def test_02_signed_distance_and_its_gradient():
     c, r = (50.0, 44.0), 25.0
     sil = PhotoSilhouette.from_mask(_disc(c=c, r=r), "test")
