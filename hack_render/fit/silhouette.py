@@ -162,7 +162,11 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
     fg = np.isin(lab, keep[keep > 0])
     r = 3
     pad = np.pad(fg, r, mode="edge")
-    fg = ndimage.binary_fill_holes(ndimage.binary_closing(pad, iterations=r))[r:-r, r:-r]
+    sealed = ndimage.binary_fill_holes(ndimage.binary_closing(pad, iterations=r))
+    # what the closing added only where it lies deeper than r inside the sealed outline
+    # (a crack); its fills of the outline's own narrow concavities are taken back
+    deep = ndimage.binary_erosion(sealed, iterations=r + 1)[r:-r, r:-r]
+    fg = ndimage.binary_fill_holes(fg | (sealed[r:-r, r:-r] & deep))
     # the outline at half the contrast (pixels half covered by the person): a threshold
     # near the background's own noise would count faint anti-aliased edge pixels in and
     # move the outline outward (~0.7 px at 256 px on the synthetic renders). Only the
