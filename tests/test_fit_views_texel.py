@@ -146,6 +146,23 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     assert reg["smooth"] < 0.5 * free["smooth"], (reg, free)
     assert reg["symmetry"] < 0.5 * free["symmetry"], (reg, free)
 
+    # photometric.lr_psi_scale 0: the photometric stage refines the identity and pose but
+    # leaves the expressions where the landmark stages put them
+    f.albedo_delta = None  # the photometric stage renders the PCA maps at coarser mips
+    f.cfg.photometric.iterations = [8]
+    moved = {}
+    for scale in (1.0, 0.0):
+        f.cfg.photometric.lr_psi_scale = scale
+        before = [x.detach().clone() for x in (f.psi, f.beta, f.alpha)]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f.photometric(texel=False)
+        moved[scale] = [float((x.detach() - b).abs().max())
+                        for x, b in zip((f.psi, f.beta, f.alpha), before)]
+    # the stage kept a later iterate both times (beta and alpha moved); psi only with 1
+    assert min(moved[1.0]) > 0.0 and moved[0.0][0] == 0.0, moved
+    assert moved[0.0][1] > 0.0 and moved[0.0][2] > 0.0, moved
+
 
 def test_03_similarity_error_ignores_similarity_only():
     from hack_render.fit.metrics import similarity_error

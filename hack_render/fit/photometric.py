@@ -320,12 +320,13 @@ def _groups(fitter, texel: bool) -> list[dict]:
         groups.append({"params": [fitter.const_albedo], "lr": cfg.lr_alpha * 0.2})
     if cfg.refine_geometry:
         lr = cfg.lr_geometry
-        groups += [{"params": [fitter.beta, fitter.psi, fitter.eta], "lr": lr},
+        groups += [{"params": [fitter.beta, fitter.eta], "lr": lr},
+                   {"params": [fitter.psi], "lr": lr * cfg.lr_psi_scale},
                    {"params": [fitter.tau], "lr": lr * 0.01}]
         for v in fitter.views:
             # the camera (translation, focal) stays as the landmark stages left it: the
             # level's scene camera is built from it; the head moves instead
             groups.append({"params": [v.dtheta, v.head_angles], "lr": lr * 0.2})
             if v.psi is not None:
-                groups.append({"params": [v.psi], "lr": lr})
+                groups.append({"params": [v.psi], "lr": lr * cfg.lr_psi_scale})
     return groups
