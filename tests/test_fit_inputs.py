@@ -101,7 +101,8 @@ def test_07_cli_no_face_exit_code_2(tmp_path):
 
     Image.fromarray(np.full((120, 120, 3), 90, np.uint8)).save(tmp_path / "wall.png")
     r = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit", str(tmp_path / "wall.png"),
-                        "-o", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True)
+                        "-o", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True,
+                        check=False)
     assert r.returncode == 2 and "no face found" in r.stderr
 
 

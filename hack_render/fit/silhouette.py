@@ -170,8 +170,8 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
     # the outline at half the contrast (pixels half covered by the person): a threshold
     # near the background's own noise would count faint anti-aliased edge pixels in and
     # move the outline outward (~0.7 px at 256 px on the synthetic renders). Only the
-    # outline's 2 px band is re-thresholded (the closing's fills of narrow concavities
-    # open again there); inside it a darker patch stays the person's
+    # outline's 2 px band is re-thresholded; inside it a darker patch (a shadow near the
+    # backdrop's colour) stays the person's
     core = ndimage.binary_erosion(fg, iterations=2)
     if core.any():
         half = 0.5 * float(np.median(dist[core]))
