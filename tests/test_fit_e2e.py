@@ -16,8 +16,9 @@ pytest.importorskip("mitsuba")
 
 
 
-def synthetic_target(model, res=96):
-    """A render of known parameters; returns the photo, landmarks and the truth."""
+def synthetic_target(model, res=96, rig=None):
+    """A render of known parameters (lit by ``rig``, default the ``light_stage`` preset);
+    returns the photo, landmarks and the truth."""
     from hack_render.fit.fitter import R0
     from hack_render.geometry.skeleton import distribute_head_rotation
     from hack_render.render.parts import Topology
@@ -35,7 +36,8 @@ def synthetic_target(model, res=96):
     K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
     t = np.array([0.0, -0.03, 1.0])
     cam = Camera(K, R0.numpy().astype(np.float64), t, res, res, "synthetic")
-    head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(), preset("light_stage"),
+    head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
+                     preset("light_stage") if rig is None else rig,
                      cam, RenderSettings(res, res, 16, 4, 0))
     img = head.render()[..., :3]
     lm = cam.project(out.landmarks[0].numpy().astype(np.float64))

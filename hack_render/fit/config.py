@@ -144,8 +144,12 @@ class PhotometricConfig:
     iterations: list = field(default_factory=lambda: [40, 30])
     spp: int = 4
     integrator: str = "prb"
-    lighting: str = "sh"             # "sh" (order-2 spherical harmonics) or "env" (texels)
+    # "sh" (order-2 spherical harmonics), "env" (free texels) or "sg" (the SH plus
+    # `lobes` spherical Gaussians on a map of sg_height rows; fitting.lighting)
+    lighting: str = "sh"
     env_height: int = 16
+    lobes: int = 1
+    sg_height: int = 32
     n_alpha: int = 20
     lr_alpha: float = 0.05
     lr_light: float = 0.05
@@ -237,9 +241,15 @@ class FitConfig:
         if any(not 16 <= int(r) <= 1024 for r in p.resolutions):
             raise HackError(f"config photometric.resolutions: expected 16..1024 px, found "
                             f"{p.resolutions}.")
-        if p.lighting not in ("sh", "env"):
-            raise HackError(f"config photometric.lighting: expected 'sh' or 'env', found "
-                            f"{p.lighting!r}.")
+        if p.lighting not in ("sh", "env", "sg"):
+            raise HackError(f"config photometric.lighting: expected 'sh', 'env' or 'sg', "
+                            f"found {p.lighting!r}.")
+        if not 1 <= p.lobes <= 4:
+            raise HackError(f"config photometric.lobes: expected 1..4, found {p.lobes}.")
+        for key in ("env_height", "sg_height"):
+            if not 4 <= getattr(p, key) <= 256:
+                raise HackError(f"config photometric.{key}: expected 4..256 rows, found "
+                                f"{getattr(p, key)}.")
         if p.torch_threads < 1:
             raise HackError(f"config photometric.torch_threads: expected >= 1, found "
                             f"{p.torch_threads}.")

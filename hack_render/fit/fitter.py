@@ -60,6 +60,7 @@ class View:
     global_orient: torch.Tensor   # (3,) torso rotation
     psi: torch.Tensor | None      # (1, E) when expressions are per view
     lighting: Lighting | None = None
+    lighting_init: list = field(default_factory=list)  # init_lobes' report ("sg" lighting)
     renderer: object = None       # DiffRenderer of the current photometric level
     silhouette: object = None     # PhotoSilhouette (person mask), or None: no silhouette term
     silhouette_note: str = ""     # where the mask came from, or why there is none

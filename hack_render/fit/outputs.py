@@ -99,8 +99,10 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
             arrays[f"view{i}_landmarks_dlib"] = v.detection.raw
         if v.lighting is not None:
             arrays[f"view{i}_env_map"] = v.lighting.env_map().detach().numpy()
-            if v.lighting.mode == "sh":
+            if v.lighting.mode in ("sh", "sg"):
                 arrays[f"view{i}_sh"] = v.lighting.coeffs.detach().numpy()
+            for key, val in v.lighting.summary().items():  # "sg": the lobes
+                arrays[f"view{i}_{key}"] = np.asarray(val, np.float32)
     written.append(_atomic_bytes(outdir / "params.npz", lambda t: np.savez(t, **arrays)))
     cams = [camera_dict(v) for v in res.views]
     written.append(_atomic_bytes(outdir / "cameras.json",

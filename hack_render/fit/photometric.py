@@ -13,6 +13,8 @@ penalties.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -124,7 +126,8 @@ def setup_level(fitter, view, res: int, full_maps: bool = False) -> None:
     p = np.c_[view.detection.points, np.ones(68)] @ Hi.T
     pts_v = p[:, :2] / p[:, 2:3]
     if view.lighting is None:
-        view.lighting = Lighting(cfg.lighting, cfg.env_height)
+        view.lighting = Lighting(cfg.lighting, cfg.sg_height if cfg.lighting == "sg"
+                                 else cfg.env_height, cfg.lobes)
     map_height = None if full_maps else level_map_height(fitter, res)
     with torch.no_grad():
         verts = fitter.forward(view).vertices[0]
@@ -178,6 +181,79 @@ def match_exposure(fitter, view) -> None:
             return
         ratio = (view.level["target"][m].mean(0) / img[m].mean(0).clamp_min(1e-4)).numpy()
         view.lighting.scale_(np.clip(ratio, 1e-3, 1e3))
+
+
+def init_lobes(fitter, view, sharpness: float = 10.0) -> list[dict]:
+    """Start an "sg" lighting from the photo (in place of :func:`match_exposure`).
+
+    Rendering is linear in the emitted radiance, so with the geometry and maps fixed the
+    masked photo is fitted as ``b B + sum_j a_j A_j`` per colour channel by non-negative
+    least squares: B renders a uniform unit environment, A_j a unit lobe of the given
+    sharpness around candidate direction j (:func:`~hack_render.fit.lighting.
+    candidate_directions`, 32 over the sphere). The lobes are chosen greedily, each the
+    candidate that lowers the residual most with the earlier ones kept; the SH starts
+    as the uniform b, each lobe at its a_j. Costs 33 renders at the first level's size.
+    Returns, per lobe, the chosen direction and the residual before and after it.
+    """
+    from scipy.optimize import nnls
+
+    from hack_render.fit.lighting import candidate_directions
+
+    L = view.lighting
+    m = view.level["mask"].numpy()
+    if int(m.sum()) < 8:
+        match_exposure(fitter, view)
+        return []
+    seed = fitter.cfg.seed * 1000 + 777
+    with torch.no_grad():
+        maps = level_maps(fitter, view)
+        verts = fitter.forward(view).vertices[0]
+
+        def shot(env):
+            img = view.renderer.render(seed=seed, vertices=verts, albedo=maps["albedo"],
+                                       specular=maps["specular"], roughness=maps["roughness"],
+                                       normal=maps["normal"], env=env)
+            return img[..., :3].numpy()[m].astype(np.float64)  # (n, 3)
+
+        one = torch.ones(L.height, 2 * L.height, 3)
+        B = shot(one)
+        dirs = candidate_directions(32)
+        lam = torch.tensor(float(sharpness))
+        A = [shot(one * L.lobe_map(torch.as_tensor(d, dtype=torch.float32), lam)[..., None])
+             for d in dirs]
+    T = view.level["target"].numpy()[m].astype(np.float64)
+
+    def solve(cols):
+        """Per channel NNLS; (coefficients (len(cols), 3), residual norm)."""
+        x, r = np.zeros((len(cols), 3)), 0.0
+        for c in range(3):
+            x[:, c], rc = nnls(np.stack([col[:, c] for col in cols], 1), T[:, c])
+            r += rc * rc
+        return x, float(np.sqrt(r))
+
+    chosen, report = [], []
+    x, res0 = solve([B])
+    for _ in range(L.lobe_dir.shape[0]):
+        best = None
+        for j in range(len(dirs)):
+            if j in chosen:
+                continue
+            xj, rj = solve([B] + [A[i] for i in chosen] + [A[j]])
+            if best is None or rj < best[2]:
+                best = (j, xj, rj)
+        chosen.append(best[0])
+        report.append({"direction": dirs[best[0]].tolist(), "residual_before": res0,
+                       "residual_after": best[2]})
+        x, res0 = best[1], best[2]
+    with torch.no_grad():
+        L.coeffs.zero_()
+        L.coeffs[0] = torch.as_tensor(np.maximum(x[0], 1e-4) / 0.282095, dtype=torch.float32)
+        for k, j in enumerate(chosen):
+            L.lobe_dir[k] = torch.as_tensor(dirs[j], dtype=torch.float32)
+            L.lobe_log_sharpness[k] = math.log(sharpness)
+            L.lobe_log_amplitude[k] = torch.as_tensor(np.log(np.maximum(x[1 + k], 1e-6)),
+                                                      dtype=torch.float32)
+    return report
 
 
 def symmetry_pairs(model) -> tuple[torch.Tensor, torch.Tensor]:
@@ -300,7 +376,10 @@ def _run_levels(fitter, texel, levels, pairs, reports) -> None:
                     or v.level.get("map_height") != want):
                 setup_level(fitter, v, int(res), full_maps=texel)
                 if not texel and res == levels[0][0]:
-                    match_exposure(fitter, v)
+                    if v.lighting.mode == "sg":
+                        v.lighting_init = init_lobes(fitter, v)
+                    else:
+                        match_exposure(fitter, v)
         groups, loss = level_objective(fitter, texel, pairs)
         name = f"texel@{res}" if texel else f"photometric@{res}"
         reports.append(fitter._run(name, groups, loss, int(iters),
@@ -312,8 +391,8 @@ def _groups(fitter, texel: bool) -> list[dict]:
     cfg = fitter.cfg.photometric
     if texel:
         return [{"params": [fitter.albedo_delta], "lr": fitter.cfg.texel.lr}]
-    groups = [{"params": [v.lighting.coeffs if v.lighting.mode == "sh" else v.lighting.log_texels],
-               "lr": cfg.lr_light} for v in fitter.views]
+    groups = [{"params": list(v.lighting.parameters()), "lr": cfg.lr_light}
+              for v in fitter.views]
     if fitter.appearance is not None and fitter.alpha.shape[1]:
         groups.append({"params": [fitter.alpha], "lr": cfg.lr_alpha})
     elif fitter.appearance is None:
