@@ -13,6 +13,7 @@
     python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
     python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
     python bench/bench_fit.py --subjects 20 --lighting random # random lighting presets
+    python bench/bench_fit.py --subjects 20 --lighting random --oracle-lighting  # true light
 
 Landmarks: fits use dlib's points moved by the landmark refiner (hack_render/data/
 landmark_refiner_dlib.npz; --set '{"landmarks": {"refiner": "off"}}' for dlib's own) and
@@ -112,15 +113,58 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
     srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
     photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
     return {"beta": beta, "psi": psi, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
-            "cam": cam, "lighting": f"{rig.name} {rig.rotation_deg:+.0f} deg", "photo": photo}
+            "cam": cam, "lighting": f"{rig.name} {rig.rotation_deg:+.0f} deg", "rig": rig,
+            "photo": photo}
+
+
+def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) -> np.ndarray:
+    """A light rig as one lat-long environment map (height, 2 height, 3) seen from
+    ``centre`` (the head): area lights rasterised where a ray from the centre meets them,
+    the rig's environment turned by its rotation, supersampled ``ss`` x ``ss`` per texel.
+    Diagnostic (``--oracle-lighting``): the best the photometric stage's environment can
+    know of the light; it leaves out the area lights' parallax across the head."""
+    import math
+
+    from hack_render.render.emitters import area_light_transform, rotation_y
+    from hack_render.render.image_io import read_hdr_image
+    from scenes.lights import latlong_directions
+
+    hs = height * ss
+    d = latlong_directions(hs).reshape(-1, 3)
+    c = np.asarray(centre, float)
+    img = np.zeros((len(d), 3))
+    if rig.env_constant is not None:
+        img += np.asarray(rig.env_constant)
+    src = rig.env_map if rig.env_map is not None else (
+        read_hdr_image(rig.env_file)[..., :3] if rig.env_file is not None else None)
+    if src is not None:  # world direction -> the map's own frame (the rig turns it)
+        dl = d @ np.asarray(rotation_y(rig.rotation_deg))[:3, :3]
+        th = np.arccos(np.clip(dl[:, 1], -1.0, 1.0))
+        ph = np.arctan2(dl[:, 0], -dl[:, 2]) % (2 * math.pi)
+        h = src.shape[0]
+        img += src[np.clip((th / math.pi * h).astype(int), 0, h - 1),
+                   np.clip((ph / (2 * math.pi) * 2 * h).astype(int), 0, 2 * h - 1)]
+    for light in rig.area:
+        m = area_light_transform(light, rig.rotation_deg)
+        p, ex, ey, n = m[:3, 3], m[:3, 0], m[:3, 1], m[:3, 2] / np.linalg.norm(m[:3, 2])
+        dn = d @ n
+        t = ((p - c) @ n) / np.where(np.abs(dn) > 1e-9, dn, 1e-9)
+        q = c + t[:, None] * d - p
+        a, b = q @ ex / (ex @ ex), q @ ey / (ey @ ey)
+        img[(t > 0) & (dn < 0) & (np.abs(a) <= 1) & (np.abs(b) <= 1)] += light.radiance
+    img = img.reshape(hs, 2 * hs, 3) * rig.scale
+    return img.reshape(height, ss, 2 * height, ss, 3).mean((1, 3)).astype(np.float32)
 
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
               oracle_landmarks=False, first: int = 0, expressions: bool = False,
-              known_focal: bool = False, lighting: str = "light_stage") -> dict:
+              known_focal: bool = False, lighting: str = "light_stage",
+              oracle_lighting: bool = False) -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
-    interrupted run resumes."""
+    interrupted run resumes. ``oracle_lighting``: the photometric stage lit by the
+    subject's true rig (:func:`rig_env_map`, 64 rows, held fixed but for the exposure
+    match), a diagnostic of what the lighting model costs."""
     import colour
     from pathlib import Path
 
@@ -206,6 +250,13 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             warnings.simplefilter("ignore")
             fitter = Fitter([photo], [det], load_config(None, cfg_over), model=model,
                             appearance=app, progress=True)
+            if oracle_lighting:
+                from hack_render.fit.lighting import Lighting
+
+                fitter.views[0].lighting = Lighting("env", 64)
+                with torch.no_grad():
+                    env = torch.from_numpy(rig_env_map(subj["rig"], 64))
+                    fitter.views[0].lighting.log_texels.copy_(torch.log(env.clamp_min(1e-4)))
             fitter.run()
         dt = time.perf_counter() - t0
         v = fitter.views[0]
@@ -462,6 +513,10 @@ def main():
     ap.add_argument("--lighting", type=str, default="light_stage",
                     help="synthetic: the targets' lighting, a preset name or 'random' (one "
                          "of the four presets per subject, rotated U(-45, 45) deg)")
+    ap.add_argument("--oracle-lighting", action="store_true",
+                    help="synthetic, diagnostic: the photometric stage lit by each subject's "
+                         "true light rig as a fixed 64-row environment map (only its exposure "
+                         "is matched), not a fitted lighting model")
     ap.add_argument("--first", type=int, default=0,
                     help="synthetic: first subject (split a run over processes, then "
                          "--merge their JSON files)")
@@ -491,6 +546,8 @@ def main():
                            "spp": args.spp}}
     if args.embedding:
         cfg["landmarks"] = {"embedding": args.embedding}
+    if args.oracle_lighting:
+        cfg["photometric"].update(lighting="env", env_height=64, lr_light=0.0)
     if args.set:
         for sec, val in json.loads(args.set).items():
             if isinstance(val, dict):
@@ -513,7 +570,8 @@ def main():
     if args.subjects:
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
-                                     args.expressions, args.known_focal, args.lighting)
+                                     args.expressions, args.known_focal, args.lighting,
+                                     args.oracle_lighting)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

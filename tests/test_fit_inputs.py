@@ -148,6 +148,10 @@ def test_10_config_rejects_unknown_keys(tmp_path):
     (tmp_path / "t.toml").write_text("[photometric]\ntorch_threads = 0\n")
     with pytest.raises(HackError, match="torch_threads"):
         load_config(tmp_path / "t.toml")
+    for key, val in (("lighting", '"disco"'), ("lobes", "0"), ("sg_height", "2")):
+        (tmp_path / "l.toml").write_text(f"[photometric]\n{key} = {val}\n")
+        with pytest.raises(HackError, match=f"photometric.{key}"):
+            load_config(tmp_path / "l.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
 

@@ -84,7 +84,11 @@ def fit(
     texel: bool = typer.Option(False, "--texel", help="Per-texel albedo refinement (stage 5)."),
     per_view_expression: bool = typer.Option(False, "--per-view-expression",
                                              help="Multi-view: one expression per photo."),
-    lighting: Optional[str] = typer.Option(None, help="sh (spherical harmonics) or env."),
+    lighting: Optional[str] = typer.Option(None, help="Lighting model of the photometric "
+                                           "stage: sg (default: order-2 spherical harmonics "
+                                           "plus a spherical-Gaussian lobe for the dominant "
+                                           "light), sh (the harmonics alone) or env (free "
+                                           "environment texels)."),
     mask: Optional[List[Path]] = typer.Option(None, "--mask", help="Person mask per photo "
                                               "(image of the photo's size, nonzero = person: "
                                               "head, hair, neck, clothes) for the silhouette "
