@@ -380,7 +380,7 @@ def astronaut(res: int, cfg_over: dict, name: str = "astronaut") -> dict:
 
 
 def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -> dict:
-    """Photometric iteration through the bridge (torch model + appearance maps + SH light
+    """Photometric iteration through the bridge (torch model + appearance maps + light
     -> render -> loss -> backward into torch) vs pure-Mitsuba iterations of the same scene
     (same DiffRenderer: integrator, resolution, spp), see DiffRenderer.bare_iteration:
     ``bare_step`` writes the parameters the bridge feeds (vertex positions, skin maps,
@@ -394,7 +394,8 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
-    from hack_render.fit.photometric import level_maps, level_objective, render_view, setup_level
+    from hack_render.fit.photometric import (init_lobes, level_maps, level_objective,
+                                             render_view, setup_level)
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():
@@ -413,8 +414,10 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     setup_level(fitter, v, res)
     r = v.renderer
     target = v.level["target"]
+    if v.lighting.mode == "sg":  # the lobe where the stage starts it
+        init_lobes(fitter, v)
     leaves = [fitter.alpha, fitter.beta, fitter.psi, v.dtheta, v.head_angles,
-              v.lighting.coeffs if v.lighting.mode == "sh" else v.lighting.log_texels]
+              *v.lighting.parameters()]
 
     def bridge_iter(i):
         for p in leaves:
