@@ -50,12 +50,12 @@ def main(argv: list[str] | None = None) -> None:
     except SystemExit:
         raise
     except Exception as err:  # click usage errors carry their own exit code
-        import click
-
-        if isinstance(err, click.exceptions.ClickException):
-            err.show()
+        # by what they do, not their class: typer >= 0.2x vendors click as typer._click,
+        # whose exceptions are not click's own (an unknown option was a traceback)
+        if callable(getattr(err, "show", None)) and hasattr(err, "exit_code"):
+            err.show()  # "Usage: ... Error: No such option: --x"
             sys.exit(2)
-        if isinstance(err, click.exceptions.Exit):
+        if type(err).__name__ == "Exit" and hasattr(err, "exit_code"):
             sys.exit(err.exit_code)
         raise
 

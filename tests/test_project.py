@@ -48,6 +48,13 @@ def test_cli_bad_input_exits_2(tmp_path):
     assert res.returncode == 2 and "unknown keys ['betas']" in res.stderr
     res = _cli("model", "info", str(tmp_path / "missing.npz"))
     assert res.returncode == 2 and "not found" in res.stderr
+    # a misspelt option or a missing value: click's usage message, exit 2, no traceback
+    for args in (("fit", "photo.png", "-o", str(tmp_path / "f"), "--resolutions", "64"),
+                 ("mesh", "-o")):
+        res = _cli(*args)
+        assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+        assert "Error:" in res.stderr and ("No such option: --resolutions" in res.stderr
+                                           or "'-o' requires an argument" in res.stderr), res.stderr
     assert not (tmp_path / "x.obj").exists()
 
 
