@@ -55,7 +55,9 @@ def main(argv: list[str] | None = None) -> None:
         if callable(getattr(err, "show", None)) and hasattr(err, "exit_code"):
             err.show()  # "Usage: ... Error: No such option: --x"
             sys.exit(2)
-        if type(err).__name__ == "Exit" and hasattr(err, "exit_code"):
+        import click
+
+        if isinstance(err, (typer.Exit, click.exceptions.Exit)):
             sys.exit(err.exit_code)
         raise
 

@@ -122,6 +122,12 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     focal = report["views"][0]["focal"]  # a PNG without EXIF: the 85 mm prior
     assert focal["source"] == "prior" and focal["prior_mm"] == pytest.approx(85.0)
     assert focal["fitted_mm"] == pytest.approx(K[0, 0] / 512 * 36, rel=1e-4)
+    # the default "sg" lighting: one lobe, started by init_lobes, which lowered the residual
+    light = report["views"][0]["lighting"]
+    assert light["mode"] == "sg" and len(light["lobe_direction"]) == 1
+    start = light["lobe_start"][0]
+    assert start["residual_after"] < start["residual_before"]
+    assert np.allclose(npz["view0_lobe_direction"], light["lobe_direction"], atol=1e-6)
     losses = json.loads((out / "losses.json").read_text())
     assert losses["shape"]["landmarks"][-1] < losses["camera"]["landmarks"][0]
     # the fitted landmarks agree with the detector (normalised mean error)

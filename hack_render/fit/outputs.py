@@ -131,7 +131,11 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "refiner_shift_iod": _refiner_shift(v.detection),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
-                         "focal": _focal_entry(fitter, v)}
+                         "focal": _focal_entry(fitter, v),
+                         # "sg" lighting: the lobes fitted, and how init_lobes started them
+                         "lighting": ({"mode": v.lighting.mode, **v.lighting.summary(),
+                                       "lobe_start": v.lighting_init}
+                                      if v.lighting is not None else None)}
                         for v in res.views],
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None
