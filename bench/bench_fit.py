@@ -14,6 +14,7 @@
     python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
     python bench/bench_fit.py --subjects 20 --lighting random # random lighting presets
     python bench/bench_fit.py --subjects 20 --lighting random --oracle-lighting  # true light
+    python bench/bench_fit.py --subjects 20 --lighting random --oracle-mask  # true mask
 
 Landmarks: fits use dlib's points moved by the landmark refiner (hack_render/data/
 landmark_refiner_dlib.npz; --set '{"landmarks": {"refiner": "off"}}' for dlib's own) and
@@ -21,7 +22,10 @@ the calibrated dlib embedding (hack_render/data/landmark_embedding_dlib.npz) unl
 --embedding says otherwise. --detector-only reports
 dlib's NME against the true landmark vertices (detector_nme) and against the true
 embedding points (detector_nme_embedding); fits report the fitted-vs-true NME of both
-(nme: landmark vertices, nme_embedding: embedding points).
+(nme: landmark vertices, nme_embedding: embedding points). Both report mask_iou: the
+automatic person mask (the silhouette term's, segmented from the photo as the fit config
+says) against the render's true coverage (intersection over union; absent where the
+photo gives no mask).
 
 Synthetic: subjects from random beta (N(0, 0.8^2), 20 comps), head rotation, appearance
 alpha and a frontal camera with random focal length (--expressions: plus 3 random FACS
@@ -52,7 +56,7 @@ from hack_render.fit.metrics import similarity_error
 def _medians(rows: list) -> dict:
     ok = [r for r in rows if "error" not in r]
     keys = ("vertex_mm", "nme", "nme_embedding", "psi_mae", "albedo_de2000", "psnr_db", "psnr_db_64spp",
-            "joint_deg",
+            "joint_deg", "mask_iou",
             "seconds", "detector_nme", "detector_nme_inner", "detector_nme_contour",
             "detector_nme_embedding", "detector_nme_embedding_inner",
             "detector_nme_embedding_contour")
@@ -71,7 +75,7 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
     drawn with a rotation U(-45, 45) degrees about the vertical (a third generator,
     seeded 2000 + k; the other parameters stay those of subject k). Returns its
     parameters, the model output, the true skin maps, the camera, the lighting and the
-    sRGB photo."""
+    sRGB photo (and ``coverage``: 1 where a pixel centre's ray hits the head)."""
     import colour
 
     from hack_render.fit.fitter import R0
@@ -114,7 +118,7 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
     photo = Photo(srgb.astype(np.float32), f"synthetic{k}")
     return {"beta": beta, "psi": psi, "theta": theta, "alpha": alpha, "out": out, "tmaps": tmaps,
             "cam": cam, "lighting": f"{rig.name} {rig.rotation_deg:+.0f} deg", "rig": rig,
-            "photo": photo}
+            "photo": photo, "coverage": (head.aovs()["depth"] > 0).astype(np.float32)}
 
 
 def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) -> np.ndarray:
@@ -159,18 +163,21 @@ def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) ->
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
               oracle_landmarks=False, first: int = 0, expressions: bool = False,
               known_focal: bool = False, lighting: str = "light_stage",
-              oracle_lighting: bool = False) -> dict:
+              oracle_lighting: bool = False, oracle_mask: bool = False) -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
     interrupted run resumes. ``oracle_lighting``: the photometric stage lit by the
     subject's true rig (:func:`rig_env_map`, 64 rows, held fixed but for the exposure
-    match), a diagnostic of what the lighting model costs."""
+    match), a diagnostic of what the lighting model costs. ``oracle_mask``: the person mask
+    is the render's true coverage (> 0.5), not one segmented from the photo, a diagnostic
+    of what the automatic segmentation costs."""
     import colour
     from pathlib import Path
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect
+    from hack_render.fit.silhouette import segment_plain_background
     from hack_render.geometry import load_default_model
 
     from appearance.model import AppearanceModel
@@ -240,6 +247,14 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
 
             # the true landmark vertices, fitted through the vertices (source "truth")
             det = dataclasses.replace(det, points=lm_true.astype(np.float64), source="truth")
+        # the automatic person mask (as the fitter makes it) against the true coverage
+        fcfg = load_config(None, cfg_over)
+        auto, _ = segment_plain_background(photo.rgb, det.points,
+                                           max_spread=fcfg.silhouette.max_spread,
+                                           chroma=fcfg.silhouette.chroma)
+        cov = subj["coverage"] > 0.5
+        if auto is not None:
+            det_nme["mask_iou"] = float((auto & cov).sum() / (auto | cov).sum())
         if detector_only:
             rows.append({"subject": k, **det_nme})
             print(json.dumps(rows[-1]), flush=True)
@@ -249,7 +264,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fitter = Fitter([photo], [det], load_config(None, cfg_over), model=model,
-                            appearance=app, progress=True)
+                            appearance=app, progress=True,
+                            masks=[subj["coverage"] > 0.5] if oracle_mask else None)
             if oracle_lighting:
                 from hack_render.fit.lighting import Lighting
 
@@ -486,7 +502,8 @@ def main():
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--iterations", type=str, default="40,30")
     ap.add_argument("--detector-only", action="store_true",
-                    help="synthetic: render and detect only (the detector's landmark NME)")
+                    help="synthetic: render, detect and segment only (the detector's "
+                         "landmark NME, the automatic mask's IoU)")
     ap.add_argument("--oracle-landmarks", action="store_true",
                     help="synthetic, diagnostic: fit to the true projected landmark points "
                          "instead of dlib's (what the fit reaches without detector noise)")
@@ -520,6 +537,9 @@ def main():
                     help="synthetic, diagnostic: the photometric stage lit by each subject's "
                          "true light rig as a fixed 64-row environment map (only its exposure "
                          "is matched), not a fitted lighting model")
+    ap.add_argument("--oracle-mask", action="store_true",
+                    help="synthetic, diagnostic: the silhouette term's person mask is the "
+                         "render's true coverage, not one segmented from the photo")
     ap.add_argument("--first", type=int, default=0,
                     help="synthetic: first subject (split a run over processes, then "
                          "--merge their JSON files)")
@@ -574,7 +594,7 @@ def main():
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
                                      args.expressions, args.known_focal, args.lighting,
-                                     args.oracle_lighting)
+                                     args.oracle_lighting, args.oracle_mask)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 

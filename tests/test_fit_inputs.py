@@ -152,6 +152,10 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         (tmp_path / "l.toml").write_text(f"[photometric]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"photometric.{key}"):
             load_config(tmp_path / "l.toml")
+    for key, val in (("border_depth", "0"), ("border_depth", '"deep"'), ("chroma", '"yes"')):
+        (tmp_path / "s.toml").write_text(f"[silhouette]\n{key} = {val}\n")
+        with pytest.raises(HackError, match=f"silhouette.{key}"):
+            load_config(tmp_path / "s.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
 

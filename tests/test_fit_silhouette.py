@@ -62,6 +62,40 @@ def test_01b_shading_through_the_background_colour_keeps_the_person_whole():
     assert m[lit].mean() > 0.97 and m[disc & (xx > 49)].mean() > 0.97
 
 
+def test_01d_shadowed_skin_as_bright_as_the_backdrop_kept_by_its_chromaticity():
+    """A shadow that darkens a side of the face to the backdrop's brightness opens a gap
+    onto the background (no hole to fill): the colour key drops it, the chromaticity
+    step gives it back. On a backdrop of the skin's own chromaticity nothing is grown
+    (the key's mask is kept as it is), and no backdrop pixel is ever added."""
+    rng = np.random.default_rng(3)
+    disc = _disc()
+    xx = np.mgrid[0:96, 0:96][1] + 0.5
+    shadow = disc & (xx > 62)                      # the right third of the face
+    skin = np.array([0.62, 0.45, 0.36], np.float32)
+
+    def photo(backdrop, shadow_rgb):
+        img = np.broadcast_to(np.asarray(backdrop, np.float32), disc.shape + (3,)).copy()
+        img += 0.004 * rng.standard_normal(img.shape).astype(np.float32)
+        img[disc] = skin
+        img[shadow] = shadow_rgb
+        return img
+
+    grey = 0.22
+    # the shadowed skin: the skin's chromaticity at the grey backdrop's brightness
+    dark = skin * (3 * grey / skin.sum())
+    m, why = segment_plain_background(photo([grey] * 3, dark), _points_in((44, 44), 16))
+    assert why == "" and m is not None
+    assert m[shadow].mean() > 0.95, m[shadow].mean()
+    assert (m & ~disc).sum() <= 0.01 * disc.sum()
+    iou = (m & disc).sum() / (m | disc).sum()
+    assert iou > 0.97, iou
+    # the key alone (the step off: a backdrop of the shadow's own chromaticity) loses it
+    beige = dark * (1.0 + 0.02 * np.array([1, 0, -1], np.float32))
+    m2, why = segment_plain_background(photo(beige, dark), _points_in((44, 44), 16))
+    assert m2 is not None
+    assert m2[shadow].mean() < 0.5 and (m2 & ~disc).sum() <= 0.01 * disc.sum()
+
+
 def test_01c_backdrop_of_one_colour_per_row_segmented():
     """A horizon behind the person (sky above, ground below, each with a vertical
     gradient: one colour per row, not one colour) gives a mask; a backdrop whose left

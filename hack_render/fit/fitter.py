@@ -131,7 +131,8 @@ class Fitter:
         if config.silhouette.mode != "off":
             from hack_render.fit.silhouette import ModelSilhouette
 
-            self.silhouette = ModelSilhouette(m, scalp=config.silhouette.scalp)
+            self.silhouette = ModelSilhouette(m, scalp=config.silhouette.scalp,
+                                              border_depth=config.silhouette.border_depth)
         self.views = [self._init_view(p, d, None if masks is None else masks[i])
                       for i, (p, d) in enumerate(zip(photos, detections))]
         self.reports: list[StageReport] = []
@@ -176,7 +177,8 @@ class Fitter:
             view.silhouette_note = "mask file"
             return
         m, why = segment_plain_background(view.photo.rgb, view.detection.points,
-                                          max_spread=self.cfg.silhouette.max_spread)
+                                          max_spread=self.cfg.silhouette.max_spread,
+                                          chroma=self.cfg.silhouette.chroma)
         if m is None:
             view.silhouette_note = f"none: {why}"
             return

@@ -88,8 +88,8 @@ class PhotoSilhouette:
 
 
 def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: float = 0.03,
-                             max_spread: float = 0.06, max_side: int = 512
-                             ) -> tuple[np.ndarray | None, str]:
+                             max_spread: float = 0.06, max_side: int = 512,
+                             chroma: bool = True) -> tuple[np.ndarray | None, str]:
     """Person mask of a photo on a plain background, or (None, why) when it is not.
 
     Plain: most of a border band is of one colour, or of one colour per row (a horizon or
@@ -102,6 +102,8 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
         border_frac: width of the border band whose colour is the background's.
         max_spread: colour distance (sRGB units) to the band's median within which a
             band pixel is background; under 60 % of the band so: cluttered.
+        chroma: give back the shadowed skin the colour key dropped by its chromaticity
+            (:func:`_grow_by_chroma`).
     Returns:
         ((h, w) bool mask, "") or (None, the reason no mask was made).
     """
@@ -184,6 +186,8 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
             if len(ids):
                 fg = lab == np.bincount(ids).argmax()
     fg = ndimage.binary_fill_holes(fg)
+    if chroma:
+        fg = _grow_by_chroma(small, fg, bg, band, near, pts)
     # the inner points (nose, eyes, mouth) lie inside; jaw and brow points of a turned
     # head often sit on, or past, the outline
     inside = fg[pts[27:, 1], pts[27:, 0]].mean()
@@ -193,6 +197,60 @@ def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: f
     if step > 1:
         fg = np.repeat(np.repeat(fg, step, 0), step, 1)[:h, :w]
     return fg, ""
+
+
+def chromaticity(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 2): the r and b shares of r + g + b (brightness left out)."""
+    rgb = np.asarray(rgb, np.float64)
+    s = rgb.sum(-1, keepdims=True)
+    return (rgb[..., [0, 2]] / np.maximum(s, 1e-6)).astype(np.float32)
+
+
+def _grow_by_chroma(img: np.ndarray, fg: np.ndarray, bg: np.ndarray, band, near: np.ndarray,
+                    pts: np.ndarray, min_separation: float = 6.0, min_spread: float = 0.004,
+                    min_lum: float = 0.04,
+                    reach: float = 0.25) -> np.ndarray:
+    """Add to the colour key's mask ``fg`` the shadowed skin it missed.
+
+    Where a shadow darkens the skin to the backdrop's brightness (a cheek turned from a
+    side light against a dark studio backdrop, a neck under the jaw against the ground
+    below a horizon) the key drops it, and the gap opens onto the background, so no
+    hole filling closes it. Shadow changes brightness far more than chromaticity (the
+    r and b shares of r + g + b): the missed skin keeps the skin's chromaticity while a
+    grey or coloured backdrop keeps its own. A pixel is added when its chromaticity lies
+    past the midpoint from the backdrop's (the key's background model ``bg`` at that
+    pixel) toward the person's (the median over the mask's core) - the half-coverage
+    threshold, as for the outline - it is not too dark for its chromaticity to mean
+    anything (``min_lum``), it lies within ``reach`` face sizes of the mask and is
+    connected to it. Nothing is added unless the two chromaticities are at least
+    ``min_separation`` times the backdrop's spread apart (the border band's about the
+    background model, at least ``min_spread``: a backdrop's chromaticity drifts across
+    it even where it is noiseless): a skin-coloured backdrop leaves the key's mask as
+    it is.
+    """
+    from scipy import ndimage
+
+    core = ndimage.binary_erosion(fg, iterations=3)
+    if core.sum() < 50:
+        return fg
+    c = chromaticity(img)
+    c_fg = np.median(c[core], axis=0)
+    c_bg = chromaticity(bg)
+    dev = chromaticity(band(img))[near] - chromaticity(band(bg))[near]
+    s_bg = 1.4826 * np.median(np.abs(dev), axis=0)
+    axis = c_fg - c_bg                                     # (h, w, 2)
+    length = np.linalg.norm(axis, axis=-1)
+    ok = length > min_separation * max(float(np.linalg.norm(s_bg)), min_spread)
+    if not ok[fg].any():
+        return fg
+    t = ((c - c_bg) * axis).sum(-1) / np.maximum(length, 1e-9) ** 2
+    size = float(np.ptp(pts[:, 0]) + np.ptp(pts[:, 1])) / 2.0
+    within = ndimage.distance_transform_edt(~fg) <= max(reach * size, 2.0)
+    grow = ok & within & (t > 0.5) & (np.asarray(img, np.float64).mean(-1) > min_lum)
+    grow = ndimage.binary_opening(grow, iterations=1) & ~fg
+    lab, _ = ndimage.label(grow | fg)
+    ids = np.unique(lab[fg])
+    return ndimage.binary_fill_holes(np.isin(lab, ids[ids > 0]))
 
 
 def load_mask(path, shape: tuple[int, int], original: tuple[int, int] | None = None
@@ -228,9 +286,12 @@ class ModelSilhouette:
         model: a HackModel (regions, faces, rest vertices).
         scalp: also match the scalp's contour (bald heads, shaved, or a mask of the skin
             alone); off by default, hair is not skin.
+        border_depth: how deep inside the model's footprint (footprint pixels) a contour
+            crossing may lie and still count as the outline (:meth:`select_contour`).
     """
 
-    def __init__(self, model, scalp: bool = False):
+    def __init__(self, model, scalp: bool = False, border_depth: float = 1.0):
+        self.border_depth = float(border_depth)
         regions = model.vertex_region.numpy()
         names = list(model.region_names)
         ids = lambda rs: [names.index(r) for r in rs if r in names]
@@ -269,11 +330,15 @@ class ModelSilhouette:
 
         The occluding contour of the smooth (vertex-normal) surface crosses an edge where
         n.(v - c) changes sign between its ends; t is that zero crossing (linear along
-        the edge). Kept are the crossings within ~2 splat radii of the border of the
-        footprint of the projected vertices, so contours hidden behind the head
-        (the far cheek's, the jaw's over the neck) are left out. ``px``: the footprint's
-        working pixel size in photo pixels. A vertex band of grazing normals instead
-        (|n.v| < 0.3) sat ~2 px inside the outline on the neck at 256 px."""
+        the edge). Kept are the crossings within ``border_depth`` footprint pixels of the
+        border of the footprint of the projected vertices, so contours hidden behind the
+        head (the far cheek's, the jaw's over the neck) are left out. ``px``: the
+        footprint's working pixel size in photo pixels. A vertex band of grazing normals
+        instead (|n.v| < 0.3) sat ~2 px inside the outline on the neck at 256 px. At a
+        depth of 2.5 (the previous default) a sixth of the crossings selected on the true
+        mesh lay over 2 px inside its own silhouette (the ears' and the cheeks' inner
+        contours), mean -0.7 px (256 px renders of synthetic subjects 1 and 10); pulled
+        to the mask's border, they widened the fit; at 1.0, mean -0.1 to -0.3 px."""
         from scipy import ndimage
 
         a, b = self.edges[:, 0], self.edges[:, 1]
@@ -294,7 +359,7 @@ class ModelSilhouette:
         foot = ndimage.binary_fill_holes(ndimage.binary_closing(foot, iterations=2))
         depth = ndimage.distance_transform_edt(foot)
         q = np.clip(np.round(project(pts) / px - 0.5).astype(int) + 1, 0, [w - 1, h - 1])
-        keep = depth[q[:, 1], q[:, 0]] <= 2.5
+        keep = depth[q[:, 1], q[:, 0]] <= self.border_depth
         return np.stack([a[keep], b[keep]], 1), t[keep]
 
     def points(self, verts: torch.Tensor, pairs: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
