@@ -221,14 +221,13 @@ def test_04b_contour_crossings_lie_on_the_true_outline(subject):
     distance is within 0.4 px and under 5 % lie over 2 px inside. At 2.5 (the previous
     default) the ears' and cheeks' inner contours were kept too: a mean further inside,
     which pulled the fit wider."""
-    from scenes.cameras import Camera
-
     from hack_render.fit.fitter import R0
     from hack_render.fit.silhouette import ModelSilhouette
     from hack_render.geometry.skeleton import distribute_head_rotation
     from hack_render.render.bridge import vertex_normals_torch
+    from scenes.cameras import Camera
 
-    model, beta, (photo, det, mask) = subject
+    model, beta, (_photo, det, mask) = subject
     ang = torch.deg2rad(torch.tensor([4.0, 20.0, 2.0]))
     with torch.no_grad():
         V = model(beta=beta, theta=distribute_head_rotation(ang)[None]).vertices[0]
