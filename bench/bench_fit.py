@@ -15,6 +15,7 @@
     python bench/bench_fit.py --subjects 20 --lighting random # random lighting presets
     python bench/bench_fit.py --subjects 20 --lighting random --oracle-lighting  # true light
     python bench/bench_fit.py --subjects 20 --lighting random --oracle-mask  # true mask
+    python bench/bench_fit.py --subjects 20 --lighting random --camera random  # orbiting cameras
 
 Landmarks: fits use dlib's points moved by the landmark refiner (hack_render/data/
 landmark_refiner_dlib.npz; --set '{"landmarks": {"refiner": "off"}}' for dlib's own) and
@@ -65,7 +66,7 @@ def _medians(rows: list) -> dict:
 
 
 def render_subject(k: int, res: int, model, app, expressions: bool = False,
-                   lighting: str = "light_stage") -> dict:
+                   lighting: str = "light_stage", camera: str = "frontal") -> dict:
     """Synthetic subject k of the benchmark (torch generator seeded 100 + k): random
     beta, head rotation, appearance alpha, a frontal camera at a random focal length,
     rendered with the path tracer (64 spp). ``expressions``: also 3 random FACS units of
@@ -73,7 +74,10 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
     parameters are those of the neutral subject k). ``lighting``: a preset name
     (default ``light_stage``, uniform light) or ``"random"``: one of the four presets
     drawn with a rotation U(-45, 45) degrees about the vertical (a third generator,
-    seeded 2000 + k; the other parameters stay those of subject k). Returns its
+    seeded 2000 + k; the other parameters stay those of subject k). ``camera``:
+    ``"frontal"`` (default) or ``"random"``: the camera orbits the head by a yaw U(-25, 25)
+    and a pitch U(-10, 10) degrees about the point between the ears, same distance and
+    focal length (a fourth generator, seeded 3000 + k). Returns its
     parameters, the model output, the true skin maps, the camera, the lighting and the
     sRGB photo (and ``coverage``: 1 where a pixel centre's ray hits the head)."""
     import colour
@@ -103,7 +107,18 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
         tmaps = app.maps(alpha)
     f = 50.0 / 36.0 * res * (1.8 + 0.6 * float(torch.rand(1, generator=g)))
     K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
-    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res)
+    R, t = R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0])
+    if camera == "random":
+        from scipy.spatial.transform import Rotation
+
+        gc = torch.Generator().manual_seed(3000 + k)
+        yaw, pitch = (float(x) for x in (torch.tensor([25.0, 10.0])
+                                         * (2 * torch.rand(2, generator=gc) - 1)))
+        c = np.array([0.0, 0.03, 0.0])            # about the middle of the head
+        Rw = Rotation.from_euler("yx", [yaw, pitch], degrees=True).as_matrix()
+        t = t + R @ c - R @ Rw @ c
+        R = R @ Rw
+    cam = Camera(K, R, t, res, res)
     if lighting == "random":
         gl = torch.Generator().manual_seed(2000 + k)
         name = list(PRESETS)[int(torch.randint(len(PRESETS), (1,), generator=gl))]
@@ -162,7 +177,7 @@ def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) ->
 
 def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=False,
               oracle_landmarks=False, first: int = 0, expressions: bool = False,
-              known_focal: bool = False, lighting: str = "light_stage",
+              known_focal: bool = False, lighting: str = "light_stage", camera: str = "frontal",
               oracle_lighting: bool = False, oracle_mask: bool = False) -> dict:
     """Fit synthetic subjects ``first`` .. ``n - 1``; with ``out_path`` the JSON is
     rewritten after every subject (and subjects already in it are skipped), so an
@@ -194,7 +209,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             tmp = Path(str(out_path) + ".tmp")
             tmp.write_text(json.dumps({"config": cfg_over, "res": res,
                                        "expressions": expressions, "known_focal": known_focal,
-                                       "lighting": lighting, "subjects": rows,
+                                       "lighting": lighting, "camera": camera,
+                                       "subjects": rows,
                                        "n_ok": sum("error" not in r for r in rows),
                                        "median": _medians(rows)}, indent=1))
             tmp.replace(out_path)
@@ -209,7 +225,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     for k in range(first, n):
         if k in done:
             continue
-        subj = render_subject(k, res, model, app, expressions, lighting)
+        subj = render_subject(k, res, model, app, expressions, lighting, camera)
         _beta, theta, out, tmaps, cam, photo = (subj[x] for x in ("beta", "theta", "out",
                                                                   "tmaps", "cam", "photo"))
         if known_focal:  # as a camera's EXIF FocalLengthIn35mmFilm would give it
@@ -533,6 +549,9 @@ def main():
     ap.add_argument("--lighting", type=str, default="light_stage",
                     help="synthetic: the targets' lighting, a preset name or 'random' (one "
                          "of the four presets per subject, rotated U(-45, 45) deg)")
+    ap.add_argument("--camera", choices=("frontal", "random"), default="frontal",
+                    help="synthetic: the targets' camera, frontal or orbiting the head by a "
+                         "random yaw U(-25, 25) and pitch U(-10, 10) deg")
     ap.add_argument("--oracle-lighting", action="store_true",
                     help="synthetic, diagnostic: the photometric stage lit by each subject's "
                          "true light rig as a fixed 64-row environment map (only its exposure "
@@ -556,7 +575,8 @@ def main():
         merged = {"config": parts[0]["config"], "res": parts[0]["res"],
                   "expressions": parts[0].get("expressions", False),
                   "known_focal": parts[0].get("known_focal", False),
-                  "lighting": parts[0].get("lighting", "light_stage"), "subjects": rows,
+                  "lighting": parts[0].get("lighting", "light_stage"),
+                  "camera": parts[0].get("camera", "frontal"), "subjects": rows,
                   "n_ok": sum("error" not in r for r in rows), "median": _medians(rows)}
         text = json.dumps(merged, indent=1)
         if args.out:
@@ -594,7 +614,8 @@ def main():
         out["synthetic"] = synthetic(args.subjects, args.res, cfg, args.out,
                                      args.detector_only, args.oracle_landmarks, args.first,
                                      args.expressions, args.known_focal, args.lighting,
-                                     args.oracle_lighting, args.oracle_mask)
+                                     camera=args.camera, oracle_lighting=args.oracle_lighting,
+                                     oracle_mask=args.oracle_mask)
         print(json.dumps(out["synthetic"]["median"]))
     print(json.dumps(out, indent=1))
 
