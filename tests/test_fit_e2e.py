@@ -132,10 +132,9 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     assert losses["shape"]["landmarks"][-1] < losses["camera"]["landmarks"][0]
     # the fitted landmarks agree with the detector (normalised mean error)
     from hack_render.fit.fitter import R0
+    from hack_render.fit.landmark_embedding import load_default
     from hack_render.geometry import load_default_model
     from hack_render.geometry.params import model_inputs
-
-    from hack_render.fit.landmark_embedding import load_default
 
     model = load_default_model()
     emb = load_default(model)  # what dlib's points are fitted to (README: embedding)
