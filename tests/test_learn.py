@@ -32,7 +32,7 @@ def grid(nx=15, ny=15, size=0.06):
 
 # ------------------------------------------------------------------ 1 deformation transfer
 def test_01_deformation_transfer_onto_itself_is_exact():
-    from hack_render.build.deformation_transfer import TargetSolver, source_gradients
+    from hack_render.learn.deformation_transfer import TargetSolver, source_gradients
 
     v, f = grid()
     rng = np.random.default_rng(0)
@@ -46,7 +46,7 @@ def test_01_deformation_transfer_onto_itself_is_exact():
 
 def test_02_deformation_transfer_follows_the_target_scale():
     """A bump transferred onto a target scaled by 2 comes out with twice the height."""
-    from hack_render.build.deformation_transfer import TargetSolver, source_gradients
+    from hack_render.learn.deformation_transfer import TargetSolver, source_gradients
 
     v, f = grid(21, 21)
     r = np.linalg.norm(v[:, :2], axis=1)
@@ -60,8 +60,8 @@ def test_02_deformation_transfer_follows_the_target_scale():
 
 # ---------------------------------------------------------------------------- 2 larynx
 def test_03_larynx_removal_recovers_a_bump_and_is_zero_outside():
-    from hack_render.build.larynx_learn import Remover
-    from hack_render.build.mesh_ops import vertex_normals
+    from hack_render.learn.larynx_learn import Remover
+    from hack_render.learn.mesh_ops import vertex_normals
 
     v, f = grid(25, 25)
     r = np.linalg.norm(v[:, :2], axis=1)
@@ -79,7 +79,7 @@ def test_03_larynx_removal_recovers_a_bump_and_is_zero_outside():
 
 
 def test_04_uv_raster_interpolates_linear_functions_exactly():
-    from hack_render.build.larynx_learn import uv_raster_matrix
+    from hack_render.learn.larynx_learn import uv_raster_matrix
 
     v, f = grid(9, 9, size=1.0)
     uv = v[:, :2] + 0.5
@@ -95,7 +95,7 @@ def test_04_uv_raster_interpolates_linear_functions_exactly():
 
 # --------------------------------------------------------------- 3 PCA and mapping MLP
 def test_05_pca_reconstructs_training_data_and_is_compact():
-    from hack_render.build.pca import compactness, fit_pca
+    from hack_render.learn.pca import compactness, fit_pca
 
     rng = np.random.default_rng(1)
     x = rng.standard_normal((30, 5)) @ rng.standard_normal((5, 200)) + 1.0
@@ -109,7 +109,7 @@ def test_05_pca_reconstructs_training_data_and_is_compact():
 
 
 def test_06_mapping_mlp_beats_the_mean_on_held_out_identities():
-    from hack_render.build.personal import mlp_forward, train_mapping
+    from hack_render.learn.personal import mlp_forward, train_mapping
 
     rng = np.random.default_rng(2)
     b = rng.standard_normal((220, 6))
@@ -123,7 +123,7 @@ def test_06_mapping_mlp_beats_the_mean_on_held_out_identities():
 
 # -------------------------------------------------------------------------- 4 pose
 def _pose_setup(seed=1):
-    from hack_render.build.pose_learn import weight_support
+    from hack_render.learn.pose_learn import weight_support
 
     a = synthetic_arrays(0, nx=8, ny=14)
     v = a["template_vertices"].astype(float)
@@ -137,7 +137,7 @@ def _pose_setup(seed=1):
 
 
 def _random_sequences(trainer, p, w, rng, n=4, frames=30):
-    from hack_render.build.pose_learn import Sequence
+    from hack_render.learn.pose_learn import Sequence
     from hack_render.geometry.rotations import euler_to_axis_angle
     from hack_render.geometry.skeleton import rotation_limits
 
@@ -157,7 +157,7 @@ def test_07_pose_recovery_known_weights_recovers_the_corrective_on_held_out_pose
     """Sequences from a known W*, P*: with W = W* known, the fitted P reproduces P*'s
     correctives on held-out poses within 10 % (P itself is identifiable only along the pose
     features the data excites)."""
-    from hack_render.build.pose_learn import PoseTrainer
+    from hack_render.learn.pose_learn import PoseTrainer
 
     a, v, j, _w0, ws, p, rng = _pose_setup()
     tr = PoseTrainer(v[None], j[None], a["faces"], ws, PARENTS, weights={"ski": 0.0, "smo": 0.0})
@@ -177,7 +177,7 @@ def test_07_pose_recovery_known_weights_recovers_the_corrective_on_held_out_pose
 
 @pytest.mark.slow
 def test_08_pose_recovery_known_pose_blendshapes_moves_weights_towards_the_truth():
-    from hack_render.build.pose_learn import PoseTrainer
+    from hack_render.learn.pose_learn import PoseTrainer
 
     a, v, j, w0, ws, p, rng = _pose_setup()
     tr = PoseTrainer(v[None], j[None], a["faces"], w0, PARENTS, weights={"ski": 0.0, "smo": 0.0})
@@ -190,7 +190,7 @@ def test_08_pose_recovery_known_pose_blendshapes_moves_weights_towards_the_truth
 
 
 def test_09_temporal_penalty_tolerates_slow_motion_and_punishes_jumps():
-    from hack_render.build.pose_learn import TEMPORAL, temporal_penalty
+    from hack_render.learn.pose_learn import TEMPORAL, temporal_penalty
 
     ramp = torch.linspace(0, 1, 20)[:, None] * 0.1 * 19 / 20  # slope 0.1 < eps 0.15
     assert float(temporal_penalty(ramp, *TEMPORAL["theta"])) < 1e-9
@@ -200,7 +200,7 @@ def test_09_temporal_penalty_tolerates_slow_motion_and_punishes_jumps():
 
 
 def test_10_dqs_keeps_neck_area_under_twist_where_lbs_loses_it():
-    from hack_render.build.pose_data import twist_area_ratio
+    from hack_render.learn.pose_data import twist_area_ratio
 
     a = synthetic_arrays(0, nx=16, ny=12)
     v = torch.as_tensor(a["template_vertices"], dtype=torch.float64)
@@ -221,7 +221,7 @@ def test_10_dqs_keeps_neck_area_under_twist_where_lbs_loses_it():
 
 def _cylinder_twist(degrees=40.0):
     """A synthetic neck tube with a sharp skinning band at one joint and a twist there."""
-    from hack_render.build.pose_data import pose_sequence
+    from hack_render.learn.pose_data import pose_sequence
 
     a = synthetic_arrays(0, nx=16, ny=14)
     v = torch.as_tensor(a["template_vertices"], dtype=torch.float64)
@@ -244,7 +244,7 @@ def _max_stretch(p, v, faces):
 
 
 def test_10b_arap_spreads_a_twist_keeps_fixed_vertices_and_rest():
-    from hack_render.build.pose_data import ArapNeck
+    from hack_render.learn.pose_data import ArapNeck
 
     a, v, j, w, theta, fixed, pose_sequence = _cylinder_twist()
     # Only the band is skinned to both nodes; fix the tube's ends to the skeleton.
@@ -266,7 +266,7 @@ def test_10c_closed_form_pose_blendshapes_reproduce_known_correctives():
     """Sequences from known P* with W known: the unposed least-squares start alone
     reproduces P*'s correctives on held-out poses (its error comes only from LBS's
     non-rigid blended rotations)."""
-    from hack_render.build.pose_learn import PoseTrainer
+    from hack_render.learn.pose_learn import PoseTrainer
 
     a, v, j, _w0, ws, p, rng = _pose_setup()
     tr = PoseTrainer(v[None], j[None], a["faces"], ws, PARENTS)
@@ -285,7 +285,7 @@ def test_10c_closed_form_pose_blendshapes_reproduce_known_correctives():
 
 # -------------------------------------------------------------------- 5 joint regressor
 def test_11_joint_regressor_recovers_joints_of_held_out_meshes():
-    from hack_render.build.joint_regressor import joint_errors, train_joint_regressor
+    from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
 
     a = synthetic_arrays(0, nx=10, ny=16)
     v = a["template_vertices"].astype(float)
@@ -371,7 +371,7 @@ def test_14_shipped_larynx_eta_scales_protrusion_and_zero_gives_template(shipped
 
 
 def test_15_shipped_model_has_provenance_and_report(shipped, tmp_path):
-    from hack_render.build.report import write_report
+    from hack_render.learn.report import write_report
 
     prov = shipped.meta["provenance"]
     for key, label in (("larynx", "simulated"), ("personalised_expressions", "derived"),

@@ -120,7 +120,7 @@ def build(
     output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
 ) -> None:
     """Build the default HACK model from ICT-FaceKit (shape PCA, AU table, skeleton, weights)."""
-    from hack_render.build.ict_default import build_default_model
+    from hack_render.learn.ict_default import build_default_model
     from hack_render.geometry.model_file import save_model_file
 
     arrays, meta = build_default_model(ict)

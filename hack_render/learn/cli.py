@@ -25,7 +25,7 @@ def build_v2(
     expression_epochs: int = typer.Option(2000, help="Epochs of the M_E MLP."),
 ) -> None:
     """Build the v2 model: v1 + larynx, personalised expressions, pose blendshapes (minutes)."""
-    from hack_render.build.full_model import build_full_model
+    from hack_render.learn.full_model import build_full_model
     from hack_render.geometry.model_file import save_model_file
 
     if expression_identities < 20 or pose_identities < 2:
@@ -41,7 +41,7 @@ def report(
     output: Path = typer.Option(Path("out/model_report"), "-o", "--output", help="Output folder."),
 ) -> None:
     """Write Fig. 11-style compactness/generalisation curves (report.json, report.png)."""
-    from hack_render.build.report import write_report
+    from hack_render.learn.report import write_report
     from hack_render.geometry import default_model_path
     from hack_render.geometry.model_file import load_model_file
 
@@ -59,7 +59,7 @@ def learn_joints(
     """Train the joint regressor J (Eq. 6) from (mesh, joint) pairs, e.g. ultrasound labels."""
     import numpy as np
 
-    from hack_render.build.joint_regressor import joint_errors, train_joint_regressor
+    from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
 
     if not data.is_file():
         raise HackError(f"{data}: not found; pass an .npz with 'meshes' and 'joints'.")

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from hack_render.build.pca import PCA, fit_pca
+from hack_render.learn.pca import PCA, fit_pca
 
 
 @dataclass

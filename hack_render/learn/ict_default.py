@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy import sparse
 
-from hack_render.build.skeleton_fit import (
+from hack_render.learn.skeleton_fit import (
     DEPTH_FRACTION,
     affine_regressor,
     midline_profiles,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-from hack_render.build.skeleton_fit import midline_profiles
+from hack_render.learn.skeleton_fit import midline_profiles
 
 
 def vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -20,7 +20,7 @@ def vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def uniform_laplacian(faces: np.ndarray, n: int, v: np.ndarray | None = None) -> sparse.csr_matrix:
     """L = I - A with A the row-normalised adjacency (inverse-edge-length weighted if ``v``)."""
-    from hack_render.build.ict_default import averaging_operator
+    from hack_render.learn.ict_default import averaging_operator
 
     return (sparse.eye(n) - averaging_operator(faces, n, v)).tocsr()
 
@@ -39,7 +39,7 @@ def neck_front_landmarks(v: np.ndarray, skin_idx: np.ndarray, chin_idx: int) -> 
     midline of one mesh (metres).
 
     The notch is the most posterior point of the front midline profile below the chin (as in
-    :mod:`hack_render.build.skeleton_fit`); the angle is the lowest height above which the
+    :mod:`hack_render.learn.skeleton_fit`); the angle is the lowest height above which the
     profile leaves the lower-neck line (fitted over the 3 cm above the notch) by more than
     6 mm forward. Surface anatomy (ANATOMY.md) puts the hyoid at C3, the laryngeal prominence
     at C4-C5 and the notch at T2; taking vertebral levels as evenly spaced along the front

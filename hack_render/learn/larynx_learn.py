@@ -3,7 +3,7 @@
 Pipeline, per sampled identity mesh x_i (metres):
 
 1. **Larynx removal.** Inside a front-neck patch between the chin-neck angle and the
-   suprasternal notch (:func:`hack_render.build.mesh_ops.neck_front_landmarks`), the
+   suprasternal notch (:func:`hack_render.learn.mesh_ops.neck_front_landmarks`), the
    surface is replaced by the bi-harmonic fill of its surroundings (minimise ||L x||^2 with
    two rings of boundary vertices fixed; L the inverse-edge-length graph Laplacian). The
    fill is smooth and larynx-free. ``Gamma = (original - removed)`` projected on the template
@@ -36,8 +36,8 @@ from scipy import sparse
 from scipy.sparse.linalg import splu
 from tqdm import tqdm
 
-from hack_render.build.mesh_ops import neck_front_landmarks, ring, uniform_laplacian, vertex_normals
-from hack_render.build.pca import compactness, fit_pca, generalisation
+from hack_render.learn.mesh_ops import neck_front_landmarks, ring, uniform_laplacian, vertex_normals
+from hack_render.learn.pca import compactness, fit_pca, generalisation
 from hack_render.errors import HackError
 
 SKIN_LAST = 11247

@@ -1,6 +1,6 @@
 """The v2 default model: the v1 ICT-FaceKit model plus every learned HACK component.
 
-``build_full_model(ict)`` calls :func:`hack_render.build.ict_default.build_default_model`
+``build_full_model(ict)`` calls :func:`hack_render.learn.ict_default.build_default_model`
 and adds, in order: the larynx basis with the larynx-removed template and shape space
 (:mod:`larynx_learn`), personalised expressions and M_E (:mod:`expression_learn`), and pose
 blendshapes, skinning weights and M_P learned from simulated sequences (:mod:`pose_data`,
@@ -17,12 +17,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from hack_render.build.mesh_ops import ring
-from hack_render.build.pca import compactness, generalisation
-from hack_render.build.personal import learn_personal_space, mlp_forward, personal_arrays
-from hack_render.build.pose_data import (ArapNeck, action_thetas, pose_sequence, single_joint_sweeps,
+from hack_render.learn.mesh_ops import ring
+from hack_render.learn.pca import compactness, generalisation
+from hack_render.learn.personal import learn_personal_space, mlp_forward, personal_arrays
+from hack_render.learn.pose_data import (ArapNeck, action_thetas, pose_sequence, single_joint_sweeps,
                                          twist_area_ratio)
-from hack_render.build.pose_learn import PoseTrainer, Sequence
+from hack_render.learn.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247
 
@@ -167,9 +167,9 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
                      expression_epochs: int = 3000, learn_weights: bool = False,
                      progress: bool = True) -> tuple[dict, dict]:
     """Arrays and metadata of the v2 default model (see module docstring)."""
-    from hack_render.build.expression_learn import learn_expressions
-    from hack_render.build.ict_default import build_default_model
-    from hack_render.build.larynx_learn import learn_larynx
+    from hack_render.learn.expression_learn import learn_expressions
+    from hack_render.learn.ict_default import build_default_model
+    from hack_render.learn.larynx_learn import learn_larynx
 
     torch.set_num_threads(1)
     timings = {}

@@ -13,7 +13,7 @@ ICT = Path(__file__).resolve().parents[2] / "shared" / "data" / "ict-facekit"
 
 
 def test_load_ict_refuses_bad_folders(tmp_path):
-    from hack_render.build.ict_default import load_ict
+    from hack_render.learn.ict_default import load_ict
 
     with pytest.raises(HackError, match="not a folder"):
         load_ict(tmp_path / "missing")
@@ -22,7 +22,7 @@ def test_load_ict_refuses_bad_folders(tmp_path):
 
 
 def test_shape_pca_is_orthonormal_and_preserves_covariance():
-    from hack_render.build.ict_default import shape_pca
+    from hack_render.learn.ict_default import shape_pca
 
     rng = np.random.default_rng(0)
     modes = rng.standard_normal((6, 40, 3)) * np.linspace(3, 1, 6)[:, None, None]
@@ -39,7 +39,7 @@ def test_shape_pca_is_orthonormal_and_preserves_covariance():
 def test_build_from_ict_matches_shipped_model(tmp_path):
     if not ICT.is_dir():
         pytest.fail(f"ICT-FaceKit data not found at {ICT}; the shared data folder must sit beside the repo")
-    from hack_render.build.ict_default import build_default_model
+    from hack_render.learn.ict_default import build_default_model
     from hack_render.geometry import default_model_path
     from hack_render.geometry.model_file import load_model_file, save_model_file
 
@@ -66,7 +66,7 @@ def test_load_ict_reads_original_facexmodel_folder(tmp_path):
     """The original ICT-FaceKit layout: one OBJ per identity mode and per expression."""
     import json
 
-    from hack_render.build.ict_default import load_ict
+    from hack_render.learn.ict_default import load_ict
 
     root = tmp_path / "ICT-FaceKit" / "FaceXModel"
     root.mkdir(parents=True)
