@@ -15,10 +15,10 @@ import sys
 import time
 
 TRAINERS = {
-    "larynx (60 identities)": "from hack_render.build.larynx_learn import learn_larynx; learn_larynx(a, num_identities=60, progress=False)",
-    "expressions (DT 30 identities, M_E 300 epochs)": "from hack_render.build.expression_learn import learn_expressions; learn_expressions(a, a['template_vertices'], a['shape_components'], num_identities=30, epochs=300, progress=False)",
-    "pose (2 identities, 20 iterations)": "from hack_render.build.full_model import learn_pose; learn_pose(a, num_identities=2, iterations=20, progress=False)",
-    "joint regressor (40 meshes)": "import numpy as np; from hack_render.build.joint_regressor import train_joint_regressor; v=a['template_vertices']; S=a['shape_components'][:10]*a['shape_std'][:10,None,None]; rng=np.random.default_rng(0); M=v[None]+np.einsum('ps,snc->pnc', rng.standard_normal((40,10)), S); J=np.einsum('kn,pnc->pkc', a['joint_regressor'], M); train_joint_regressor(M, J, candidates=np.arange(11248))",
+    "larynx (60 identities)": "from hack_render.learn.larynx_learn import learn_larynx; learn_larynx(a, num_identities=60, progress=False)",
+    "expressions (DT 30 identities, M_E 300 epochs)": "from hack_render.learn.expression_learn import learn_expressions; learn_expressions(a, a['template_vertices'], a['shape_components'], num_identities=30, epochs=300, progress=False)",
+    "pose (2 identities, 20 iterations)": "from hack_render.learn.full_model import learn_pose; learn_pose(a, num_identities=2, iterations=20, progress=False)",
+    "joint regressor (40 meshes)": "import numpy as np; from hack_render.learn.joint_regressor import train_joint_regressor; v=a['template_vertices']; S=a['shape_components'][:10]*a['shape_std'][:10,None,None]; rng=np.random.default_rng(0); M=v[None]+np.einsum('ps,snc->pnc', rng.standard_normal((40,10)), S); J=np.einsum('kn,pnc->pkc', a['joint_regressor'], M); train_joint_regressor(M, J, candidates=np.arange(11248))",
 }
 
 
