@@ -36,6 +36,21 @@ def build(
 
 
 @app.command()
+def template(
+    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder holding "
+                             "generic_neutral_mesh.obj (or the OBJ itself); ICT-FaceKit is "
+                             "public, MIT licence"),
+    out: Path | None = typer.Option(None, "-o", "--output", help="file to write (default: "
+                                    "the package's own appearance/data/ict_template.npz)"),
+):
+    """Rebuild the packaged skin template (the UV atlas's mesh) from ICT-FaceKit's OBJ."""
+    from appearance.uv import TEMPLATE_FILE, write_template_file
+
+    path = write_template_file(ict, out or TEMPLATE_FILE)
+    typer.echo(f"wrote {path}")
+
+
+@app.command()
 def sample(
     out: Path = typer.Option(..., "-o", "--out", help="output folder for the texture set"),
     model: Path | None = typer.Option(None, help="model file (default: shipped model)"),

@@ -1,6 +1,6 @@
 """The skin UV atlas of the template: rasterisation, validity mask and seam dilation.
 
-The template (ICT-FaceKit ``generic_neutral_mesh.obj``) lays its skin out in two UDIM-like
+The template (ICT-FaceKit ``generic_neutral_mesh.obj``, shipped as ``data/ict_template.npz``) lays its skin out in two UDIM-like
 tiles: material ``M_Face`` in u in [0, 1] (tile 0, the face) and ``M_BackHead`` in
 u in [1, 2] (tile 1: back of the head, scalp, ears, neck down to the shoulders, and the
 mouth and eye sockets). A skin map is one image covering u in [0, 2], v in [0, 1]:
@@ -28,27 +28,93 @@ from scipy import ndimage
 
 from hack_render.errors import HackError
 
-#: The template OBJ (ICT-FaceKit, MIT licence), relative to the shared data folder.
-TEMPLATE_CANDIDATES = (
-    Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "ict-facekit"
-    / "generic_neutral_mesh.obj",
-    Path("/work/shared/data/ict-facekit/generic_neutral_mesh.obj"),
-)
+#: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
+#: ``appearance/data/LICENSE-ICT-FaceKit``), shipped as package data: vertices (cm, as in
+#: the OBJ, larynx included), triangles, UVs and materials. Rebuilt from the OBJ by
+#: :func:`write_template_file` (``hack-render appearance template --ict DIR``).
+TEMPLATE_FILE = Path(__file__).resolve().parent / "data" / "ict_template.npz"
+TEMPLATE_FORMAT = 1
 SKIN_MATERIALS = ("M_Face", "M_BackHead")
+_TEMPLATE_KEYS = {"format_version": "i", "meta_json": "U", "vertices": "f", "faces": "i",
+                  "uvs": "f", "uv_faces": "i", "face_material": "i", "materials": "U",
+                  "polygon_of_face": "i"}
 
 
-def template_path() -> Path:
-    """Path of the ICT-FaceKit template OBJ (env ``HACK_ICT_OBJ`` overrides)."""
-    import os
+def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -> Path:
+    """Convert ICT-FaceKit's ``generic_neutral_mesh.obj`` into the packaged template file.
 
-    env = os.environ.get("HACK_ICT_OBJ")
-    cands = ([Path(env)] if env else []) + [p.resolve() for p in TEMPLATE_CANDIDATES]
-    for p in cands:
-        if p.is_file():
-            return p
-    raise HackError(
-        f"ICT-FaceKit template: expected generic_neutral_mesh.obj, found none at "
-        f"{', '.join(str(p) for p in cands)}. Set HACK_ICT_OBJ to the file's path.")
+    Args:
+        obj_path: the OBJ, or the ICT-FaceKit folder holding ``generic_neutral_mesh.obj``.
+        out: the ``.npz`` to write (default: the package's own file).
+    Returns:
+        The path written. Vertices and UVs are kept in float64, exactly as parsed, so the
+        atlas rasterised from the file is identical to one rasterised from the OBJ.
+    """
+    import hashlib
+    import json
+
+    from hack_render.geometry.obj_io import read_obj
+
+    obj_path = Path(obj_path)
+    if obj_path.is_dir():
+        obj_path = obj_path / "generic_neutral_mesh.obj"
+    if not obj_path.is_file():
+        raise HackError(f"ICT-FaceKit template: expected generic_neutral_mesh.obj, found "
+                        f"none at {obj_path}. ICT-FaceKit is public (MIT licence; "
+                        f"github.com/ICT-VGL/ICT-FaceKit, FaceXModel/): pass its folder.")
+    mesh = read_obj(obj_path)
+    missing = [m for m in SKIN_MATERIALS if m not in mesh.materials]
+    if missing:
+        raise HackError(f"{obj_path}: expected the skin materials {SKIN_MATERIALS}, found "
+                        f"{mesh.materials} (missing {missing}). Pass ICT-FaceKit's "
+                        f"generic_neutral_mesh.obj.")
+    meta = {"source": "ICT-FaceKit generic_neutral_mesh.obj (MIT licence, "
+                      "University of Southern California ICT; see LICENSE-ICT-FaceKit)",
+            "provenance": "captured (ICT-FaceKit's template), converted unchanged: "
+                          "vertices in centimetres, larynx included",
+            "obj_sha256": hashlib.sha256(obj_path.read_bytes()).hexdigest(),
+            "command": "hack-render appearance template --ict ICT_FACEKIT_DIR"}
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp.npz")
+    np.savez_compressed(
+        tmp, format_version=np.int32(TEMPLATE_FORMAT), meta_json=np.array(json.dumps(meta)),
+        vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32),
+        uvs=mesh.uvs.astype(np.float64), uv_faces=mesh.uv_faces.astype(np.int32),
+        face_material=mesh.face_material.astype(np.int16),
+        materials=np.array(mesh.materials), polygon_of_face=mesh.polygon_of_face.astype(np.int32))
+    tmp.replace(out)
+    return out
+
+
+def load_template(path: str | Path = TEMPLATE_FILE):
+    """The skin template as an :class:`~hack_render.geometry.obj_io.ObjMesh`, from the
+    packaged file (no file outside the package is read).
+
+    Raises:
+        HackError: the file is missing, truncated or lacks a key.
+    """
+    from hack_render.geometry.obj_io import ObjMesh
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in _TEMPLATE_KEYS if k in z.files}
+    except (OSError, ValueError, EOFError) as err:
+        raise HackError(f"skin template {path}: expected the packaged ict_template.npz, "
+                        f"could not read it ({err}). Reinstall hack-render, or rebuild it "
+                        f"with `hack-render appearance template --ict ICT_FACEKIT_DIR`.") from err
+    missing = sorted(set(_TEMPLATE_KEYS) - set(d))
+    if missing or int(d["format_version"]) != TEMPLATE_FORMAT:
+        raise HackError(f"skin template {path}: expected format {TEMPLATE_FORMAT} with keys "
+                        f"{sorted(_TEMPLATE_KEYS)}, found missing {missing} / format "
+                        f"{d.get('format_version')}. Rebuild it with `hack-render appearance "
+                        f"template --ict ICT_FACEKIT_DIR`.")
+    return ObjMesh(vertices=d["vertices"].astype(np.float64), faces=d["faces"].astype(np.int64),
+                   uvs=d["uvs"].astype(np.float64), uv_faces=d["uv_faces"].astype(np.int64),
+                   face_material=d["face_material"].astype(np.int64),
+                   materials=tuple(str(m) for m in d["materials"]),
+                   polygon_of_face=d["polygon_of_face"].astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -171,11 +237,9 @@ def rasterize_uv(uv_tris: np.ndarray, height: int, chunk: int = 4096):
     return face.reshape(h, w), bary.reshape(h, w, 3)
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=1)
 def _template():
-    from hack_render.geometry.obj_io import read_obj
-
-    return read_obj(template_path())
+    return load_template()
 
 
 @lru_cache(maxsize=4)

@@ -102,9 +102,9 @@ def check_job(job: Job) -> None:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
     if app["source"] in ("seed", "alpha"):
-        from appearance.uv import template_path
+        from appearance.uv import _template
 
-        template_path()  # the skin atlas needs the template (raises with the fix)
+        _template()  # the skin atlas needs the packaged template (raises with the fix)
     try:
         check_writable(job.out / "samples" / "x")
         check_writable(job.out / "manifest" / "x")

@@ -39,9 +39,10 @@ def default_model_path() -> Path:
     """Path of the built-in default model shipped as package data."""
     path = Path(str(resources.files("hack_render") / "data" / DEFAULT_MODEL_NAME))
     if not path.is_file():
-        raise HackError(f"the built-in default model {path} is missing; rebuild it with "
-                        "`hack-render model build --ict ../shared/data/ict-facekit "
-                        f"-o {path}` or reinstall hack-render.")
+        raise HackError(f"the built-in default model {path} is missing: reinstall "
+                        f"hack-render, or rebuild it from ICT-FaceKit (public, MIT licence; "
+                        f"github.com/ICT-VGL/ICT-FaceKit) with `hack-render model build-v2 "
+                        f"--ict ICT_FACEKIT_DIR -o {path}`.")
     return path
 
 

@@ -114,7 +114,7 @@ def mesh(
 
 @model_app.command("build")
 def build(
-    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder: the shared layout "
+    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder: the development layout "
                              "(ict_facekit.npz, generic_neutral_mesh.obj, vertex_indices.json) or "
                              "the original FaceXModel/ folder of OBJs."),
     output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),

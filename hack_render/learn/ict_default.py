@@ -1,6 +1,6 @@
 """Building the default HACK model file from ICT-FaceKit (MIT licence, USC ICT 2020).
 
-Accepts either the shared data layout (``ict_facekit.npz`` + ``generic_neutral_mesh.obj`` +
+Accepts either the development data layout (``ict_facekit.npz`` + ``generic_neutral_mesh.obj`` +
 ``vertex_indices.json``) or the original ICT-FaceKit ``FaceXModel/`` folder of OBJs
 (``generic_neutral_mesh.obj``, ``identity000.obj`` ..., one OBJ per expression shape named
 after it, and ``vertex_indices.json``), and writes one validated ``.npz`` (see
@@ -79,8 +79,12 @@ REGIONS = ("face", "scalp_and_ears", "neck", "chest_and_shoulders", "mouth_inter
            "eye_socket", "eye", "teeth", "gums_and_tongue", "eyelashes", "eye_helper")
 
 
+_WHERE = (" ICT-FaceKit is public (MIT licence): get it from github.com/ICT-VGL/ICT-FaceKit "
+          "(the FaceXModel/ folder) and pass that folder.")
+
+
 def load_ict(path: str | Path) -> dict:
-    """Read ICT-FaceKit from the shared layout or from an original ``FaceXModel`` folder.
+    """Read ICT-FaceKit from the development layout (``ict_facekit.npz`` beside the OBJ) or from an original ``FaceXModel`` folder.
 
     Returns a dict with ``neutral`` (N, 3) cm, ``identity`` (I, N, 3) and ``expressions``
     (E, N, 3) cm deltas, ``expression_names``, ``mesh`` (:class:`ObjMesh`) and ``indices``.
@@ -88,7 +92,7 @@ def load_ict(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_dir():
         raise HackError(f"--ict {path}: not a folder. Pass the ICT-FaceKit folder (with "
-                        "ict_facekit.npz, or the original FaceXModel/ folder of OBJs).")
+                        "ict_facekit.npz, or the original FaceXModel/ folder of OBJs)." + _WHERE)
     if (path / "FaceXModel").is_dir():
         path = path / "FaceXModel"
     obj = path / "generic_neutral_mesh.obj"
@@ -96,7 +100,7 @@ def load_ict(path: str | Path) -> dict:
     for req in (obj, js):
         if not req.is_file():
             raise HackError(f"--ict {path}: missing {req.name}; expected ICT-FaceKit's "
-                            "generic_neutral_mesh.obj and vertex_indices.json there.")
+                            "generic_neutral_mesh.obj and vertex_indices.json there." + _WHERE)
     mesh = read_obj(obj)
     indices = json.loads(js.read_text())
     npz = path / "ict_facekit.npz"
