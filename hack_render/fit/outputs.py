@@ -1,6 +1,6 @@
-"""Writing a fit: parameters (JSON + npz), meshes (OBJ + PLY), texture maps (EXR + PNG),
-an overlay sheet, loss curves (PNG + JSON), timings and a report. Every file is written
-under a temporary name and renamed."""
+"""Writing a fit: parameters (JSON + npz), meshes (OBJ + .mtl + PLY, in the model's vertex
+order), texture maps (EXR + PNG), an overlay sheet, loss curves (PNG + JSON), timings and a
+report. Every file is written under a temporary name and renamed."""
 
 from __future__ import annotations
 
@@ -74,8 +74,9 @@ def _focal_entry(fitter, v) -> dict:
 
 def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
     """Write everything; returns the paths written."""
-    from hack_render.geometry.obj_io import write_mesh
+    from hack_render.geometry.obj_io import ObjMaterials, write_mesh
     from hack_render.geometry.params import save_params
+    from hack_render.render.materials import material_base_colours
 
     outdir.mkdir(parents=True, exist_ok=True)
     written = []
@@ -108,14 +109,21 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     written.append(_atomic_bytes(outdir / "cameras.json",
                                  lambda t: t.write_text(json.dumps({"cameras": cams}, indent=1))))
     m = res.model
+    textures = write_textures(fitter, outdir / "textures")
+    written += textures
+    # the OBJs' .mtl names the fitted maps written just above (PNG, relative paths)
+    mats = ObjMaterials(m.material_names, m.face_material.numpy(),
+                        {t.stem: f"textures/{t.name}" for t in textures if t.suffix == ".png"},
+                        colours=material_base_colours(m.material_names))
     for i, v in enumerate(res.views):
         with torch.no_grad():
             verts = fitter.forward(v).vertices[0].numpy()
         stem = "mesh" if i == 0 else f"mesh_view{i}"
         for ext in (".obj", ".ply"):
             written.append(write_mesh(outdir / f"{stem}{ext}", verts, m.faces.numpy(),
-                                      m.uvs.numpy(), m.uv_faces.numpy()))
-    written += write_textures(fitter, outdir / "textures")
+                                      m.uvs.numpy(), m.uv_faces.numpy(), mats))
+            if ext == ".obj":
+                written.append(outdir / f"{stem}.mtl")
     written += write_overlays(fitter, outdir)
     written += write_losses(res, outdir)
     report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),

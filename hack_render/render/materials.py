@@ -156,3 +156,21 @@ def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB) -> n
     iris = rgb[None] * (striation * collarette * limbal)[:, None]
     out = np.where((r < LIMBUS_RADIUS)[:, None], iris, np.asarray(SCLERA_RGB)[None])
     return np.where((r < PUPIL_RADIUS)[:, None], 0.01, out).astype(np.float32)
+
+
+def material_base_colours(material_names) -> dict[str, tuple[float, float, float]]:
+    """Linear RGB base colour of each non-skin model material (``M_Teeth`` ...), from the
+    parts' BSDFs above, for formats that carry one colour per material (MTL, glTF)."""
+    from hack_render.render.parts import PART_SPECS
+
+    fixed = {**fixed_bsdfs(), "iris": {"diffuse_reflectance": {"value": DEFAULT_IRIS_RGB}}}
+    out = {}
+    for part, (mats, *_) in PART_SPECS.items():
+        d = fixed.get(part)
+        while d is not None and "diffuse_reflectance" not in d:
+            d = d.get("bsdf")
+        if d is None:
+            continue
+        rgb = tuple(float(x) for x in d["diffuse_reflectance"]["value"])
+        out.update({m: rgb for m in mats if m in material_names})
+    return out
