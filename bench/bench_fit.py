@@ -9,7 +9,7 @@
     python bench/bench_fit.py --subjects 5 --oracle-landmarks # fit to the true points
     python bench/bench_fit.py --subjects 10 --out a.json & \
       python bench/bench_fit.py --subjects 20 --first 10 --out b.json; wait
-    python bench/bench_fit.py --merge a.json b.json --out all.json   # one table
+    python bench/bench_fit.py --merge a.json b.json --out bench/results/fit_NAME.json
     python bench/bench_fit.py --subjects 8 --set '{"photometric": {"enabled": false}}'
     python bench/bench_fit.py --subjects 8 --expressions      # subjects with expressions
     python bench/bench_fit.py --subjects 20 --lighting random # random lighting presets
@@ -52,6 +52,7 @@ import numpy as np
 import torch
 
 from hack_render.fit.metrics import similarity_error
+from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 
 def _medians(rows: list) -> dict:
@@ -206,14 +207,12 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
 
     def save():
         if out_path is not None:
-            tmp = Path(str(out_path) + ".tmp")
-            tmp.write_text(json.dumps({"config": cfg_over, "res": res,
-                                       "expressions": expressions, "known_focal": known_focal,
-                                       "lighting": lighting, "camera": camera,
-                                       "subjects": rows,
-                                       "n_ok": sum("error" not in r for r in rows),
-                                       "median": _medians(rows)}, indent=1))
-            tmp.replace(out_path)
+            write_result(out_path, {"config": cfg_over, "res": res,
+                                    "expressions": expressions, "known_focal": known_focal,
+                                    "lighting": lighting, "camera": camera,
+                                    "subjects": rows,
+                                    "n_ok": sum("error" not in r for r in rows),
+                                    "median": _medians(rows)})
 
     from hack_render.fit.landmark_embedding import (CalibrationSet, LandmarkEmbedding,
                                                     evaluate, load_default)
@@ -578,9 +577,8 @@ def main():
                   "lighting": parts[0].get("lighting", "light_stage"),
                   "camera": parts[0].get("camera", "frontal"), "subjects": rows,
                   "n_ok": sum("error" not in r for r in rows), "median": _medians(rows)}
-        text = json.dumps(merged, indent=1)
         if args.out:
-            Path(args.out).write_text(text)
+            write_result(args.out, merged)
         print(json.dumps(merged["median"]))
         return
     torch.set_num_threads(args.torch_threads)

@@ -1,6 +1,6 @@
 """Where the single-photo fit loses accuracy: an error budget (figures for the README).
 
-    python bench/bench_fit_budget.py --subjects 8 --out budget.json
+    python bench/bench_fit_budget.py --subjects 8 --out bench/results/fit_budget8.json
     python bench/bench_fit_budget.py --first 20 --subjects 40 --configs '{"a": {}, ...}'
 
 For the synthetic subjects of ``bench_fit.py`` (same renders, same dlib detections), the
@@ -37,6 +37,7 @@ import warnings
 
 import numpy as np
 import torch
+from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 
 def _fit(model, photo, det, over: dict, freeze_psi: bool = False):
@@ -109,9 +110,7 @@ def tune(args) -> dict:
         print(name, json.dumps({k: v for k, v in out["configs"][name].items()
                                 if k != "vertex_mm"}), flush=True)
     if args.out:
-        from pathlib import Path
-
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        write_result(args.out, out)
     return out
 
 
@@ -207,9 +206,7 @@ def main():
     out = {"res": args.res, "subjects": rows, "n_ok": len(ok), "median_mm": med,
            "detector": detector}
     if args.out:
-        from pathlib import Path
-
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        write_result(args.out, out)
     print(json.dumps(med))
 
 

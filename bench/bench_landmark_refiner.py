@@ -1,6 +1,6 @@
 """The landmark refiner's accuracy and its settings (figures for the README; not a test).
 
-    python bench/bench_landmark_refiner.py --cache renders/ --out refiner.json
+    python bench/bench_landmark_refiner.py --cache renders/ --out bench/results/landmark_refiner.json
     python bench/bench_landmark_refiner.py --cache renders/ --variants default
     python bench/bench_landmark_refiner.py --cache renders/ --variants ""   # mirror checks only
 
@@ -28,6 +28,7 @@ import warnings
 
 import numpy as np
 import torch
+from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 VARIANTS = {
     "default": {},                       # the shipped settings: 3 stages, mirror, lambda 100
@@ -155,9 +156,7 @@ def main():
             out["mirror_consistency"][name] = {"dlib": c[0], "refined": c[1], "shift": c[2]}
     print(json.dumps(out["mirror_consistency"]), flush=True)
     if args.out:
-        from pathlib import Path
-
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        write_result(args.out, out)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 # Sets up hack-render on a fresh Debian (bookworm or newer) machine as root, using only
 # the package registries. Idempotent: re-running it skips what is already there.
 #   bash scripts/setup.sh          # runtime
-#   bash scripts/setup.sh --test   # runtime + test and fitting extras
+#   bash scripts/setup.sh --test   # runtime + test and fitting extras (pytest, Ray, mkdocs + material + mkdocstrings)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 extras="fit"

@@ -1,0 +1,91 @@
+"""Documentation invariants: a short self-contained README, a docs site that builds with
+`mkdocs build --strict`, and benchmark results that say where they came from."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _bench_module(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_readme_is_short_and_links_stay_in_the_repository():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 250
+    targets = re.findall(r"\]\(([^)\s]+)\)", text)
+    assert targets, "the README links its pictures and docs pages"
+    for target in targets:
+        assert not target.startswith(("http:", "https:", "/", "..")), target
+        assert (ROOT / target.split("#")[0]).exists(), f"README links a missing file: {target}"
+    assert "../shared" not in text
+
+
+def test_planned_features_say_so_and_name_their_issue():
+    for page, issues in (("register.md", ["22"]), ("motion.md", ["24", "26"])):
+        text = (ROOT / "docs" / page).read_text()
+        assert "Not available yet" in text, page
+        for n in issues:
+            assert f"issue {n}" in text.lower() or f"Issue {n}" in text, (page, n)
+
+
+def test_every_benchmark_result_has_provenance():
+    files = sorted((ROOT / "bench" / "results").glob("*.json"))
+    assert len(files) >= 20
+    assert not list((ROOT / "docs").glob("bench_*.json")), "results belong in bench/results"
+    for path in files:
+        data = json.loads(path.read_text())
+        for key in ("commit", "date", "machine", "command"):
+            assert isinstance(data.get(key), str) and data[key].strip(), (path.name, key)
+        assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?|unknown", data["commit"]), path.name
+        assert re.match(r"\d{4}-\d\d-\d\dT", data["date"]), path.name
+        assert "previous" not in path.stem, f"{path.name}: name a result by what it ran"
+
+
+def test_write_result_records_commit_date_machine_and_command(tmp_path):
+    prov = _bench_module("provenance")
+    out = prov.write_result(tmp_path / "r.json", {"median": 1.5, "commit": "stale"},
+                            argv=["bench/bench_x.py", "--subjects", "2"])
+    data = json.loads(out.read_text())
+    assert list(data)[:4] == ["commit", "date", "machine", "command"]
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                          text=True).stdout.strip()
+    assert data["commit"].split("-")[0] == (head or "unknown")
+    assert data["command"] == "python bench/bench_x.py --subjects 2"
+    assert data["median"] == 1.5 and not (tmp_path / "r.json.tmp").exists()
+
+
+def test_benchmarks_page_is_generated_from_the_results():
+    page = _bench_module("make_benchmarks_page")
+    text = page.render(page.load())
+    assert (ROOT / "docs" / "benchmarks.md").read_text() == text, \
+        "docs/benchmarks.md is stale: run python bench/make_benchmarks_page.py"
+    for path in (ROOT / "bench" / "results").glob("*.json"):
+        assert f"bench/results/{path.name}" in text, f"{path.name} is not on the page"
+
+
+def test_mkdocs_build_strict(tmp_path):
+    missing = [m for m in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python")
+               if importlib.util.find_spec(m.split(".")[0]) is None]
+    if missing:
+        pytest.skip(f"{', '.join(missing)} not installed: bash scripts/setup.sh --test "
+                    "installs the docs tools")
+    res = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir",
+                          str(tmp_path / "site")], cwd=ROOT, capture_output=True, text=True,
+                         env={**os.environ, "NO_MKDOCS_2_WARNING": "1"}, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    api = (tmp_path / "site" / "api" / "index.html").read_text()
+    assert "personalize" in api and "distribute_head_rotation" in api  # docstrings rendered
