@@ -34,6 +34,7 @@ from hack_render.render import cli as _render_cli; _render_cli.register(app)
 from hack_render.fit import cli as _fit_cli; _fit_cli.register(app)
 from hack_render.learn import cli as _learn_cli; _learn_cli.register(app)
 from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)
+from hack_render.export import cli as _export_cli; _export_cli.register(app)
 # --- end of sub-apps --------------------------------------------------------------------
 
 

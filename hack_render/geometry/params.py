@@ -16,12 +16,17 @@ A parameter file is a mapping with any of these keys (all optional; missing = ze
     tau: 0.0                       # larynx vertical slide, metres
 
 Unknown keys are errors (a misspelt key must not be silently ignored).
+
+A parameter *sequence* (:class:`ParamSequence`, :func:`load_sequence`) animates one person:
+per-frame ``theta``, ``psi``, ``tau``, ``global_orient``, ``transl`` at a frame rate ``fps``,
+as ``.npz`` arrays or JSON lines (a header line, then one object per frame).
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -152,3 +157,223 @@ def model_inputs(model, params: dict[str, Any]) -> dict[str, torch.Tensor]:
     if "eta" not in kw and getattr(model, "has_larynx", False):
         kw["eta"] = torch.ones(1, dtype=dtype)  # the identity's mean larynx, not none
     return kw
+
+
+# ------------------------------------------------------------------ parameter sequences
+#: Per-frame keys of a parameter sequence and each frame's shape (None: any length).
+SEQUENCE_KEYS: dict[str, tuple[int | None, ...]] = {
+    "theta": (8, 3), "psi": (None,), "tau": (), "global_orient": (3,), "transl": (3,)}
+SEQUENCE_FORMAT = "hack-sequence"
+
+
+@dataclass(frozen=True)
+class ParamSequence:
+    """A parameter sequence: per-frame pose, expression and larynx arrays at a frame rate.
+
+    The identity (beta, eta) is not part of it: it animates one person, whose parameter
+    file gives them. Missing per-frame keys are zero (psi: the neutral face).
+
+    Attributes:
+        fps: frames per second (> 0).
+        theta: (T, 8, 3) axis-angle per joint c7-t1 ... o-c1, radians.
+        psi: (T, E) expression weights, or None.
+        tau: (T,) larynx vertical slide, metres, or None.
+        global_orient: (T, 3) root axis-angle, radians, or None.
+        transl: (T, 3) metres, or None.
+    """
+
+    fps: float
+    theta: np.ndarray
+    psi: np.ndarray | None = None
+    tau: np.ndarray | None = None
+    global_orient: np.ndarray | None = None
+    transl: np.ndarray | None = None
+
+    @property
+    def frames(self) -> int:
+        return len(self.theta)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-frame arrays that are present, by key."""
+        return {k: getattr(self, k) for k in SEQUENCE_KEYS if getattr(self, k) is not None}
+
+
+def _frame_error(where: str, frame: int, key: str, msg: str) -> HackError:
+    return HackError(f"{where}: frame {frame}, key '{key}': {msg}")
+
+
+def _check_frames(where: str, key: str, arr: np.ndarray, frames: int,
+                  num_expressions: int | None) -> np.ndarray:
+    """(T, ...) array of one key: shape per frame and finite values, else the frame named."""
+    want = SEQUENCE_KEYS[key]
+    if key == "psi" and num_expressions is not None:
+        want = (num_expressions,)
+    shape_text = " x ".join("E" if d is None else str(d) for d in want) or "a number"
+    if arr.ndim != len(want) + 1 or any(d is not None and d != s for d, s in
+                                         zip(want, arr.shape[1:])):
+        raise _frame_error(where, 0, key, f"expected {shape_text} per frame, found "
+                           f"{arr.shape[1:] or 'a number'} (array shape {arr.shape}).")
+    if len(arr) != frames:
+        raise HackError(f"{where}: key '{key}' has {len(arr)} frames, key 'theta' has "
+                        f"{frames}; every per-frame key needs one entry per frame.")
+    bad = ~np.isfinite(arr.reshape(len(arr), -1)).all(1)
+    if bad.any():
+        raise _frame_error(where, int(np.flatnonzero(bad)[0]), key, "contains NaN or inf.")
+    return arr.astype(np.float64)
+
+
+def check_sequence(data: dict[str, Any], fps: Any, where: str = "sequence",
+                   num_expressions: int | None = None) -> ParamSequence:
+    """Validate per-frame arrays (``SEQUENCE_KEYS``) and a frame rate into a sequence."""
+    unknown = sorted(set(data) - set(SEQUENCE_KEYS))
+    if unknown:
+        raise HackError(f"{where}: unknown keys {unknown}; per-frame keys: "
+                        f"{', '.join(SEQUENCE_KEYS)} (and 'fps').")
+    try:
+        fps = float(np.asarray(fps).item())
+    except (TypeError, ValueError) as exc:
+        raise HackError(f"{where}: key 'fps' expected a number of frames per second, found "
+                        f"{fps!r}.") from exc
+    if not (math.isfinite(fps) and 0 < fps <= 1000):
+        raise HackError(f"{where}: key 'fps' expected a frame rate in (0, 1000], found {fps}.")
+    if "theta" not in data:
+        raise HackError(f"{where}: key 'theta' is missing: a sequence needs (T, 8, 3) joint "
+                        "rotations (zeros for a still neck).")
+    theta = np.asarray(data["theta"], dtype=np.float64)
+    if theta.ndim == 0 or len(theta) == 0:
+        raise HackError(f"{where}: key 'theta' holds no frames; expected (T, 8, 3), T >= 1.")
+    out = {k: _check_frames(where, k, np.asarray(v, dtype=np.float64), len(theta),
+                            num_expressions) for k, v in data.items()}
+    return ParamSequence(fps=fps, **out)
+
+
+def _jsonl_frames(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    header, frames = None, []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise HackError(f"{path}:{lineno}: not valid JSON ({exc.msg}); expected one JSON "
+                            "object per line.") from exc
+        if not isinstance(obj, dict):
+            raise HackError(f"{path}:{lineno}: expected a JSON object, found "
+                            f"{type(obj).__name__}.")
+        if header is None:
+            header = obj
+        else:
+            frames.append(obj)
+    if header is None or "fps" not in header:
+        raise HackError(f"{path}: the first line must be the header "
+                        f'{{"format": "{SEQUENCE_FORMAT}", "fps": 24}}; found '
+                        f"{'an empty file' if header is None else sorted(header)}.")
+    return header, frames
+
+
+def _stack_frames(path: Path, frames: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+    """Per-key (T, ...) arrays from frame objects; every frame must carry frame 0's keys."""
+    if not frames:
+        raise HackError(f"{path}: no frames after the header; expected one JSON object per "
+                        "frame with 'theta' (and optionally psi, tau, global_orient, transl).")
+    keys = list(frames[0])
+    out: dict[str, list] = {k: [] for k in keys}
+    for i, fr in enumerate(frames):
+        unknown = sorted(set(fr) - set(SEQUENCE_KEYS))
+        if unknown:
+            raise _frame_error(str(path), i, unknown[0], "unknown key; per-frame keys: "
+                               f"{', '.join(SEQUENCE_KEYS)}.")
+        for k in keys:
+            if k not in fr:
+                raise _frame_error(str(path), i, k, "missing (frame 0 has it; every frame "
+                                   "needs the same keys).")
+            try:
+                a = np.asarray(fr[k], dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise _frame_error(str(path), i, k, f"expected numbers, found {fr[k]!r}.") from exc
+            want = SEQUENCE_KEYS[k]
+            if a.ndim != len(want) or any(d is not None and d != s for d, s in zip(want, a.shape)):
+                shape_text = " x ".join("E" if d is None else str(d) for d in want) or "a number"
+                raise _frame_error(str(path), i, k, f"expected {shape_text}, found shape "
+                                   f"{a.shape or 'a number'}.")
+            if not np.isfinite(a).all():
+                raise _frame_error(str(path), i, k, "contains NaN or inf.")
+            if k == "psi" and out[k] and a.shape != out[k][0].shape:
+                raise _frame_error(str(path), i, k, f"expected {out[k][0].shape[0]} values like "
+                                   f"frame 0, found {a.shape[0]}.")
+            out[k].append(a)
+        extra = sorted(set(fr) - set(keys))
+        if extra:
+            raise _frame_error(str(path), i, extra[0], "not in frame 0; every frame needs the "
+                               "same keys.")
+    return {k: np.stack(v) for k, v in out.items()}
+
+
+def load_sequence(path: str | Path, num_expressions: int | None = None) -> ParamSequence:
+    """Read and validate a parameter sequence: ``.npz`` or JSON lines (``.jsonl``).
+
+    NPZ: arrays ``theta`` (T, 8, 3) and optionally ``psi`` (T, E), ``tau`` (T,),
+    ``global_orient`` (T, 3), ``transl`` (T, 3), plus a scalar ``fps``.
+    JSON lines: a header ``{"format": "hack-sequence", "fps": 24}``, then one object per
+    frame with the same keys (each frame's values, e.g. ``"theta": [[0, 0.1, 0], ...]``).
+    Errors name the file, the frame and the key. ``num_expressions`` checks psi's length.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"--sequence {path}: file not found.")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except Exception as exc:
+            raise HackError(f"{path}: not a readable .npz ({exc}).") from exc
+        if "fps" not in data:
+            raise HackError(f"{path}: key 'fps' is missing; save the frame rate as a scalar "
+                            "array 'fps'.")
+        fps = data.pop("fps")
+        data.pop("format", None)
+    elif suffix in (".jsonl", ".ndjson"):
+        header, frames = _jsonl_frames(path)
+        fps = header["fps"]
+        data = _stack_frames(path, frames)
+    else:
+        raise HackError(f"--sequence {path}: expected a .npz or .jsonl file, found "
+                        f"{suffix or 'no suffix'}.")
+    return check_sequence(data, fps, str(path), num_expressions)
+
+
+def save_sequence(path: str | Path, seq: ParamSequence) -> Path:
+    """Write a sequence as ``.npz`` or JSON lines (by suffix), atomically."""
+    path = Path(path)
+    seq = check_sequence(seq.arrays(), seq.fps, str(path))
+    suffix = path.suffix.lower()
+    if suffix not in (".npz", ".jsonl", ".ndjson"):
+        raise HackError(f"{path}: expected a .npz or .jsonl sequence file, found "
+                        f"{suffix or 'no suffix'}.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{suffix}")
+    try:
+        if suffix == ".npz":
+            np.savez(tmp, fps=np.float64(seq.fps), format=np.str_(SEQUENCE_FORMAT),
+                     **seq.arrays())
+        else:
+            arrays = seq.arrays()
+            lines = [json.dumps({"format": SEQUENCE_FORMAT, "version": 1, "fps": seq.fps})]
+            lines += [json.dumps({k: a[i].tolist() for k, a in arrays.items()})
+                      for i in range(seq.frames)]
+            tmp.write_text("\n".join(lines) + "\n")
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def sequence_inputs(model, seq: ParamSequence) -> dict[str, torch.Tensor]:
+    """Forward-pass keyword arguments (batch T) of a sequence, without beta and eta."""
+    dtype = model.template.dtype
+    if seq.psi is not None and seq.psi.shape[1] != model.num_expressions:
+        raise _frame_error("sequence", 0, "psi", f"expected {model.num_expressions} values "
+                           f"(the model's expressions), found {seq.psi.shape[1]}.")
+    return {k: torch.as_tensor(a, dtype=dtype) for k, a in seq.arrays().items()}

@@ -182,6 +182,10 @@ def turntable(
                                 "always kept in <out>/frames for --resume)."),
     fps: int = typer.Option(24, help="Frames per second."),
     resume: bool = typer.Option(False, "--resume", help="Skip frames already in <out>/frames."),
+    sequence: Optional[Path] = typer.Option(None, "--sequence", help="Also write the head "
+                                            "motion (look-around, swallow) as a parameter "
+                                            "sequence, .npz or .jsonl, for `hack-render export "
+                                            "--sequence`."),
     params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file."),
     beta: Optional[str] = typer.Option(None, help="Identity, comma-separated."),
     expression: Optional[str] = typer.Option(None, "--expr", help="e.g. 'AU12=0.7'."),
@@ -239,6 +243,12 @@ def turntable(
     model = load_model(model_path)
     base = model_inputs(model, gather_params(params, beta, expression, None, None, None))
     topo = Topology.from_model(model)
+    if sequence is not None:
+        from hack_render.geometry.params import save_sequence
+
+        tau0 = float(base["tau"][0]) if "tau" in base else 0.0
+        motion = tt.motion_sequence(spec, base["theta"][0].numpy(), base["psi"][0].numpy(), tau0)
+        typer.echo(f"wrote {save_sequence(sequence, motion).resolve()}")
 
     def vertices_at(i: int) -> np.ndarray:
         kw = dict(base)

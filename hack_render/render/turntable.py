@@ -81,3 +81,24 @@ def rotate_about_y(vertices: np.ndarray, degrees: float, centre) -> np.ndarray:
 def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
     """Frames still to render (all of them unless ``resume``)."""
     return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
+
+
+def motion_sequence(spec: TurntableSpec, base_theta: np.ndarray | None = None,
+                    base_psi: np.ndarray | None = None, base_tau: float = 0.0):
+    """The turntable's head motion as a parameter sequence (``hack_render.geometry.params``):
+    per frame, ``base_theta`` (8, 3) plus the look-around's share of each joint, the
+    swallow's tau (else ``base_tau``) and ``base_psi`` (E,), at ``spec.fps``. The camera
+    orbit and the subject turn are not head motion and are not in it."""
+    import torch
+
+    from hack_render.geometry.params import ParamSequence
+    from hack_render.geometry.skeleton import distribute_head_rotation
+
+    n = spec.frames
+    theta = np.zeros((n, 8, 3)) + (0.0 if base_theta is None else np.asarray(base_theta))
+    if spec.look_around:
+        ang = np.deg2rad([head_angles_deg(spec.phase(i)) for i in range(n)])
+        theta = theta + distribute_head_rotation(torch.as_tensor(ang)).numpy()
+    tau = np.array([swallow_tau(spec.phase(i)) if spec.swallow else base_tau for i in range(n)])
+    psi = None if base_psi is None else np.tile(np.asarray(base_psi, np.float64), (n, 1))
+    return ParamSequence(fps=float(spec.fps), theta=theta, psi=psi, tau=tau)

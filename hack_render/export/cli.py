@@ -1,0 +1,153 @@
+"""`hack-render export` (a rigged glTF, or mesh files, of one person) and `hack-render view`
+(a local three.js page for an exported file)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from hack_render.errors import HackError
+
+
+def export(
+    output: Path = typer.Option(..., "-o", "--output", help="person.glb or person.gltf (+ .bin "
+                                "beside it): a rigged, animatable glTF 2.0; or person.obj / "
+                                "person.ply: the posed mesh in the model's vertex order (OBJ: "
+                                "with an .mtl and PNG skin maps)."),
+    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
+                                          "(keys: beta, psi, expression, head_rotation_deg, "
+                                          "theta, global_orient, transl, eta, tau): the identity "
+                                          "and larynx size baked in, and the pose at rest."),
+    sequence: Optional[Path] = typer.Option(None, "--sequence", help="Parameter sequence, "
+                                            ".npz or .jsonl (per-frame theta, psi, tau, "
+                                            "global_orient, transl at an fps): becomes the "
+                                            "glTF animation. `hack-render turntable --sequence` "
+                                            "writes one."),
+    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
+    expression: Optional[str] = typer.Option(None, "--expr", help="FACS AUs and/or shape "
+                                             "names, e.g. 'AU12=0.7,jawOpen=0.3'."),
+    head_rotation: Optional[str] = typer.Option(None, "--head-rotation", help="Whole-head "
+                                                "'flexion,axial,lateral' in degrees."),
+    eta: Optional[float] = typer.Option(None, help="Larynx size."),
+    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
+    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: "
+                                              "built-in)."),
+    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients, comma-separated "
+                                        "(default: the mean appearance, alpha = 0)."),
+    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed",
+                                                  help="Random appearance from this seed."),
+    textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
+                                            "roughness(, normal).exr skin maps (a fit's "
+                                            "textures/)."),
+    influences: int = typer.Option(4, help="Skin weights per vertex: 4 (what most engines "
+                                   "take; the error it costs is printed) or 8 (exact)."),
+) -> None:
+    """Export one person to CG tools: a rigged glTF 2.0 (skeleton, 53 expression, larynx and
+    pose-corrective morph targets, PBR skin, optional animation) or OBJ/PLY mesh files.
+
+    Example: hack-render export --params person.json --sequence motion.npz -o out/person.glb
+    """
+    from hack_render.geometry import load_model
+    from hack_render.geometry.cli import _floats, gather_params
+    from hack_render.geometry.params import load_sequence
+    from hack_render.render.image_io import check_writable
+
+    suffix = output.suffix.lower()
+    if suffix not in (".glb", ".gltf", ".obj", ".ply"):
+        raise HackError(f"-o {output}: expected a .glb, .gltf, .obj or .ply output, found "
+                        f"{suffix or 'no suffix'}.")
+    if suffix in (".obj", ".ply") and sequence is not None:
+        raise HackError(f"--sequence: an animation needs a .glb or .gltf output, found -o "
+                        f"{output}.")
+    if influences not in (4, 8):
+        raise HackError(f"--influences: expected 4 or 8, found {influences}.")
+    p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    model = load_model(model_path)
+    seq = load_sequence(sequence, model.num_expressions) if sequence is not None else None
+    from hack_render.geometry.params import model_inputs
+
+    model_inputs(model, p)  # beta length, expression names: checked before anything heavy
+    maps = _skin_maps(_floats(alpha, "alpha"), appearance_seed, textures)
+    check_writable(output)
+    if suffix in (".obj", ".ply"):
+        for path in _export_mesh(model, p, maps, output):
+            typer.echo(f"wrote {path.resolve()}")
+        return
+    from hack_render.export.person import export_person
+
+    rep = export_person(model, p, output, seq, maps, influences)
+    for f in rep["files"]:
+        typer.echo(f"wrote {Path(f).resolve()}")
+    typer.echo(f"  {rep['bytes'] / 1e6:.1f} MB, {rep['targets']} morph targets, "
+               f"{rep['frames']} animation frames, {rep['seconds']:.1f} s")
+    err_mm = 1000 * rep["weight_truncation_error_m"]
+    typer.echo(f"  skin: {influences} weights per vertex; largest vertex error this costs at "
+               f"the joint limits: {err_mm:.3g} mm"
+               + (" (--influences 8 is exact)" if influences == 4 else ""))
+
+
+def _skin_maps(alpha, seed, textures):
+    """The skin maps: a texture folder, A(alpha) or a seeded subject; default A(0)."""
+    from hack_render.render.skin_maps import skin_maps
+
+    if alpha is None and seed is None and textures is None:
+        alpha = [0.0]
+    return skin_maps(alpha, seed, textures)
+
+
+def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
+    """The posed mesh as OBJ (+ .mtl + PNG maps in <stem>_maps/) or PLY."""
+    import torch
+
+    from hack_render.export.gltf import png_bytes
+    from hack_render.geometry.obj_io import ObjMaterials, write_mesh
+    from hack_render.geometry.params import model_inputs
+    from hack_render.render.materials import material_base_colours
+
+    with torch.no_grad():
+        verts = model(**model_inputs(model, params)).vertices[0].numpy()
+    args = (verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())
+    if output.suffix.lower() == ".ply":
+        return [write_mesh(output, *args)]
+    folder = output.parent / f"{output.stem}_maps"
+    folder.mkdir(parents=True, exist_ok=True)
+    images = {"diffuse": (maps.diffuse, True), "specular": (maps.specular, False),
+              "roughness": (maps.roughness, False)}
+    if maps.normal is not None:
+        images["normal"] = (0.5 * maps.normal + 0.5, False)
+    written = []
+    for key, (img, srgb) in images.items():
+        path = folder / f"{key}.png"
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_bytes(png_bytes(img, srgb))
+        tmp.replace(path)
+        written.append(path)
+    mats = ObjMaterials(model.material_names, model.face_material.numpy(),
+                        {k: f"{folder.name}/{k}.png" for k in images},
+                        colours=material_base_colours(model.material_names))
+    return written + [write_mesh(output, *args, mats), output.with_suffix(".mtl")]
+
+
+def view(
+    file: Path = typer.Argument(..., help="An exported person.glb or .gltf."),
+    port: int = typer.Option(8023, help="Port on 127.0.0.1 (0: any free port)."),
+    open_browser: bool = typer.Option(True, "--open/--no-open", help="Open the page in the "
+                                      "default browser."),
+) -> None:
+    """Serve a local page (127.0.0.1 only, three.js bundled, no network) that shows an
+    exported person with sliders for the expressions, the 8 joints, the larynx and the
+    animation's timeline. Stop with Ctrl-C.
+
+    Example: hack-render view out/person.glb
+    """
+    from hack_render.export.viewer import serve
+
+    serve(file, port, open_browser)
+
+
+def register(app: typer.Typer) -> None:
+    """Add `export` and `view` to the main app."""
+    app.command("export")(export)
+    app.command("view")(view)

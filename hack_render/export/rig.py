@@ -1,0 +1,244 @@
+"""One person's HACK as a CG rig: a rest mesh, morph targets, a skeleton and skin weights,
+and the morph weights and joint rotations that reproduce the model's forward pass.
+
+The forward pass (``geometry/model.py``) for a fixed identity beta and larynx size eta is
+
+    rest = v_shaped + psi @ E(beta) + f(theta) @ P(beta) + L(beta, eta, tau)
+    G    = transl + sum_k W[:, k] rel_k(theta, global_orient) rest
+
+with ``f(theta)`` the pose feature (R_j - I per joint, 72 numbers). A glTF skinned mesh
+with morph targets computes ``sum_k w_k J_k IBM_k (base + sum_t weight_t delta_t)``, so:
+
+- base: ``v_shaped + L(beta, eta, 0)`` (identity and larynx size baked in);
+- targets: the 53 personalised expressions E(beta) (weights psi), ``larynx_size``
+  (L at eta = 1, tau = 0: weight = a change of eta), the larynx slide as in-between
+  targets at fixed tau (weights: linear interpolation between neighbours, since L is not
+  linear in tau), and 72 pose correctives P(beta) (weights: the pose feature);
+- skeleton: a root (thorax, at c7-t1, carrying global_orient and transl) and the 8 joints
+  with rest-pose inverse bind matrices; 4 weights per vertex (the model's 9, truncated to
+  the largest 4: :func:`top_weights`; :attr:`ExportRig.weight_error_m` says what it
+  costs), or 8 (two glTF sets; the model never has more than 8 nonzero, so exact).
+
+Pure torch/numpy; no file formats here (see :mod:`.gltf`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+from hack_render.geometry.lbs import local_rotations, pose_feature
+
+ROOT_NAME = "thorax"
+#: Larynx slide in-betweens: spacing and default half-range, metres.
+TAU_STEP = 0.001
+TAU_RANGE = 0.02
+INFLUENCES = 4
+
+
+@dataclass
+class ExportRig:
+    """A person ready for a CG format (N = model vertices, K = morph targets).
+
+    Attributes:
+        base: (N, 3) float64 rest mesh, metres.
+        target_names: K names; expressions first, in the model's order.
+        targets: (K, N, 3) float32 morph deltas, metres (mostly zero rows: see nonzero).
+        node_names: 9 names, root first, then the model's joints.
+        parents: 9 parent indices (-1 for the root).
+        rest_nodes: (9, 3) rest positions of the nodes (the root sits at c7-t1).
+        joints4: (N, I) int node indices; weights4: (N, I) float32, rows sum to 1
+            (I = 4 influences, or 8).
+        weight_error_m: largest vertex displacement (m) that keeping I weights causes over
+            the poses of :func:`weight_truncation_error` (joints at their limits).
+        tau_grid: (G,) float64 slide values of the in-between targets (0 excluded).
+        num_expressions: E; the expression targets are ``targets[:E]``.
+        eta: the larynx size baked into ``base``.
+    """
+
+    base: np.ndarray
+    target_names: list[str]
+    targets: np.ndarray
+    node_names: list[str]
+    parents: list[int]
+    rest_nodes: np.ndarray
+    joints4: np.ndarray
+    weights4: np.ndarray
+    weight_error_m: float
+    tau_grid: np.ndarray
+    num_expressions: int
+    eta: float
+
+    @property
+    def slots(self) -> dict[str, slice]:
+        """Where each kind of target sits in ``targets``."""
+        e, g = self.num_expressions, len(self.tau_grid)
+        return {"expression": slice(0, e), "larynx_size": slice(e, e + 1),
+                "larynx_slide": slice(e + 1, e + 1 + g),
+                "pose": slice(e + 1 + g, len(self.target_names))}
+
+
+def top_weights(weights: np.ndarray, k: int = INFLUENCES) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the k largest weights per row. weights (N, J), nodes in chain order (a serial
+    chain: node j's neighbours are j - 1 and j + 1) -> idx (N, k), w (N, k) float32.
+
+    A dropped weight goes to the kept node nearest to it along the chain (ties: the one
+    below), not spread over all kept nodes: neighbouring joints move alike, so this costs
+    less (4 influences, joints at their limits: 4.6 mm instead of 12 mm for plain
+    renormalisation on the default model). Rows still sum to 1; unused slots get index 0
+    and weight 0."""
+    weights = np.asarray(weights, np.float64)
+    n, j = weights.shape
+    idx = np.argsort(-weights, axis=1, kind="stable")[:, :k]
+    valid = np.take_along_axis(weights, idx, 1) > 0
+    nodes = np.arange(j)[None, :, None]  # (1, J, 1) against kept (N, 1, k)
+    dist = np.abs(idx[:, None, :] - nodes) + 1e-3 * (idx[:, None, :] > nodes)
+    slot = np.argmin(np.where(valid[:, None, :], dist, np.inf), axis=2)  # (N, J)
+    w = np.zeros((n, idx.shape[1]))
+    for node in range(j):
+        np.add.at(w, (np.arange(n), slot[:, node]), weights[:, node])
+    w /= w.sum(1, keepdims=True)
+    idx = np.where(w > 0, idx, 0)
+    order = np.argsort(-w, axis=1, kind="stable")  # nonzero weights first
+    return np.take_along_axis(idx, order, 1), np.take_along_axis(w, order, 1).astype(np.float32)
+
+
+def tau_weights(tau: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Weights (T, G) of the slide in-betweens at ``grid`` (G,) for slides tau (T,): linear
+    interpolation between the two neighbours (0 is the base, no target), clamped at the
+    ends of the grid."""
+    full = np.sort(np.r_[grid, 0.0])
+    t = np.clip(np.asarray(tau, np.float64), full[0], full[-1])
+    j = np.clip(np.searchsorted(full, t, side="right") - 1, 0, len(full) - 2)
+    a = (t - full[j]) / (full[j + 1] - full[j])
+    out = np.zeros((len(t), len(full)))
+    np.put_along_axis(out, j[:, None], (1 - a)[:, None], 1)
+    np.put_along_axis(out, (j + 1)[:, None], a[:, None], 1)
+    keep = full != 0.0
+    return out[:, keep]
+
+
+def pose_features(theta: torch.Tensor) -> torch.Tensor:
+    """theta (T, 8, 3) axis-angle -> (T, 72): the weights of the pose-corrective targets."""
+    zeros = theta.new_zeros(theta.shape[0], 3)
+    return pose_feature(local_rotations(theta, zeros)[:, 1:])
+
+
+def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = TAU_RANGE,
+              tau_step: float = TAU_STEP, influences: int = INFLUENCES) -> ExportRig:
+    """Personalise ``model`` for one identity (beta (1, S)) and larynx size ``eta``, with
+    ``influences`` (4 or 8) skin weights per vertex."""
+    if influences not in (4, 8):
+        raise HackError(f"--influences: expected 4 or 8 skin weights per vertex, found "
+                        f"{influences}.")
+    dtype = model.template.dtype
+    beta = torch.zeros(1, 0, dtype=dtype) if beta is None else beta
+    pm = model.personalize(beta)
+    n, e = model.num_vertices, model.num_expressions
+    with torch.no_grad():
+        basis = pm.basis.view(-1, n, 3)
+        names = list(model.expression_names)
+        blocks = [basis[:e].float().numpy()]
+        base = pm.v_shaped.double()
+        grid = np.zeros(0)
+        if model.has_larynx:
+            grid = _tau_grid(tau_range, tau_step)
+            lar = model.larynx_vertices.numpy()
+            comb = pm.larynx_combined
+            taus = torch.as_tensor(np.r_[0.0, grid], dtype=dtype)
+            ones = torch.ones_like(taus)
+            unit = model._larynx_sample(comb.expand(len(taus), -1, -1, -1), ones, taus).double()
+            base = base.index_add(0, model.larynx_vertices, eta * unit[0])
+            lar_t = np.zeros((1 + len(grid), n, 3), np.float32)
+            lar_t[0, lar] = unit[0].numpy()  # larynx_size: d(rest)/d(eta) at tau = 0
+            lar_t[1:, lar] = (eta * (unit[1:] - unit[:1])).numpy()
+            blocks.append(lar_t)
+            names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
+        if pm.uses_pose:
+            blocks.append(basis[e:].float().numpy())
+            names += [f"pose_{j}_r{r}{c}" for j in model.joint_names for r in range(3)
+                      for c in range(3)]
+        rest_joints = pm.joints.double().numpy()
+    joints4, weights4 = top_weights(model.skinning_weights.double().numpy(), influences)
+    rig = ExportRig(base=base.numpy(), target_names=names,
+                    targets=np.concatenate(blocks, 0), node_names=[ROOT_NAME, *model.joint_names],
+                    parents=[-1] + [p + 1 if p >= 0 else 0 for p in model.parents],
+                    rest_nodes=np.concatenate([rest_joints[:1], rest_joints], 0),
+                    joints4=joints4, weights4=weights4, weight_error_m=0.0, tau_grid=grid,
+                    num_expressions=e, eta=float(eta))
+    rig.weight_error_m = weight_truncation_error(model, rig)
+    return rig
+
+
+def _tau_grid(tau_range: float, step: float) -> np.ndarray:
+    if not (0 < step <= tau_range <= 0.1):
+        raise HackError(f"larynx slide range: expected 0 < step <= range <= 0.1 m, found step "
+                        f"{step}, range {tau_range}.")
+    k = int(round(tau_range / step))
+    return np.array([i * step for i in range(-k, k + 1) if i != 0])
+
+
+def weight_truncation_error(model, rig: ExportRig, theta: torch.Tensor | None = None) -> float:
+    """Largest vertex displacement (m) between skinning with the model's weights and with
+    the 4 kept, over poses ``theta`` (T, 8, 3) (default: each joint at its limits, one
+    axis at a time, and the whole-head extremes of the turntable's look-around)."""
+    from hack_render.geometry.lbs import chain_parents, rigid_transforms, skin
+
+    if theta is None:
+        theta = limit_poses(model)
+    rot = local_rotations(theta.double(), theta.new_zeros(len(theta), 3).double())
+    nodes = torch.as_tensor(rig.rest_nodes)[None].expand(len(theta), -1, -1)
+    _, rel = rigid_transforms(rot, nodes, chain_parents(model.parents))
+    rest = torch.as_tensor(rig.base)[None].expand(len(theta), -1, -1)
+    full = skin(rest, model.skinning_weights.double(), rel)
+    w4 = np.zeros(model.skinning_weights.shape)
+    np.put_along_axis(w4, rig.joints4, rig.weights4.astype(np.float64), 1)
+    cut = skin(rest, torch.as_tensor(w4), rel)
+    return float((full - cut).norm(dim=-1).max())
+
+
+def limit_poses(model) -> torch.Tensor:
+    """Poses (T, 8, 3) at the anatomical limits: every joint at both ends of each axis
+    together (flexion, extension, axial either way, lateral either way)."""
+    from hack_render.geometry.rotations import euler_to_axis_angle
+
+    lim = torch.deg2rad(model.rotation_limits_deg.double())  # (8, 3, 2)
+    poses = []
+    for axis in range(3):
+        for end in range(2):
+            e = torch.zeros(8, 3, dtype=torch.float64)
+            e[:, axis] = lim[:, axis, end]
+            poses.append(euler_to_axis_angle(e))
+    return torch.stack(poses)
+
+
+def frame_weights(rig: ExportRig, psi: np.ndarray | None, theta: np.ndarray,
+                  tau: np.ndarray | None) -> np.ndarray:
+    """Morph weights (T, K) for frames: psi (T, E) or None, theta (T, 8, 3), tau (T,) or None."""
+    t = len(theta)
+    out = np.zeros((t, len(rig.target_names)))
+    s = rig.slots
+    if psi is not None:
+        out[:, s["expression"]] = psi
+    if len(rig.tau_grid):
+        out[:, s["larynx_slide"]] = tau_weights(np.zeros(t) if tau is None else tau, rig.tau_grid)
+    if s["pose"].stop > s["pose"].start:
+        out[:, s["pose"]] = pose_features(torch.tensor(np.asarray(theta), dtype=torch.float64)).numpy()
+    return out
+
+
+def axis_angle_quaternions(r: np.ndarray) -> np.ndarray:
+    """Axis-angle (..., 3) -> unit quaternions (..., 4) in glTF order (x, y, z, w), exact
+    near zero; consecutive rows along axis 0 keep one hemisphere (for interpolation)."""
+    r = np.asarray(r, np.float64)
+    angle = np.linalg.norm(r, axis=-1, keepdims=True)
+    # sin(a/2)/a with its series for small a (no division by zero)
+    s = np.where(angle < 1e-4, 0.5 - angle ** 2 / 48, np.sin(angle / 2) / np.where(angle > 0, angle, 1))
+    q = np.concatenate([r * s, np.cos(angle / 2)], -1)
+    for i in range(1, len(q)) if q.ndim > 1 else ():
+        flip = (q[i] * q[i - 1]).sum(-1, keepdims=True) < 0
+        q[i] = np.where(flip, -q[i], q[i])
+    return q

@@ -1,0 +1,187 @@
+// The hack-render viewer: an exported person (glTF) with sliders for the expressions, the
+// 8 neck joints, the larynx and the animation's timeline. The pose-corrective morph
+// targets follow the joints as in the model: weight = (R - I) of each joint's rotation.
+// URL parameters (used by the tests): ?set=NAME:VALUE,... sets sliders (expression names,
+// JOINT.x|y|z in degrees, larynx.size, larynx.slide_mm) and ?frame=K selects a frame.
+import * as THREE from 'three-bundle';
+
+const status = document.getElementById('status');
+const view = document.getElementById('view');
+const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+renderer.setPixelRatio(1);
+renderer.toneMapping = THREE.ACESFilmicToneMapping;
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x3a3a3a);
+const pmrem = new THREE.PMREMGenerator(renderer);
+scene.environment = pmrem.fromScene(new THREE.RoomEnvironment(), 0.04).texture;
+const key = new THREE.DirectionalLight(0xffffff, 1.5);
+key.position.set(0.5, 0.6, 1.0);
+scene.add(key);
+const camera = new THREE.PerspectiveCamera(20, 1, 0.01, 10);
+const controls = new THREE.OrbitControls(camera, renderer.domElement);
+
+let meshes = [], bones = {}, hack = {}, names = [], mixer = null, action = null, clip = null;
+const sliders = {};   // id -> input element
+const state = { weights: null, joints: {}, size: 0, slide_mm: 0 };
+
+function resize() {
+  const w = view.clientWidth, h = view.clientHeight;
+  renderer.setSize(w, h); camera.aspect = w / h; camera.updateProjectionMatrix();
+}
+window.addEventListener('resize', resize);
+
+function row(parent, id, label, min, max, step, value, onInput) {
+  const div = document.createElement('div'); div.className = 'row';
+  const lab = document.createElement('label'); lab.textContent = label; lab.title = label;
+  const inp = document.createElement('input');
+  Object.assign(inp, { type: 'range', min, max, step, value, id: 's_' + id });
+  const out = document.createElement('output'); out.textContent = (+value).toFixed(2);
+  inp.addEventListener('input', () => { out.textContent = (+inp.value).toFixed(2); onInput(+inp.value); });
+  div.append(lab, inp, out); parent.appendChild(div);
+  sliders[id] = inp;
+  return inp;
+}
+
+function stopClip() {
+  if (action && action.isRunning()) { action.stop(); document.getElementById('play').textContent = 'play'; }
+  if (action) action.stop();
+}
+
+function slideWeights(tau) {   // linear interpolation between the in-between targets
+  const grid = hack.larynx_slide_m || [];
+  const full = [...grid, 0].sort((a, b) => a - b);
+  const t = Math.min(Math.max(tau, full[0]), full[full.length - 1]);
+  const w = new Array(grid.length).fill(0);
+  for (let j = 0; j < full.length - 1; j++) {
+    if (t >= full[j] && t <= full[j + 1]) {
+      const a = (t - full[j]) / (full[j + 1] - full[j]);
+      const i0 = grid.indexOf(full[j]), i1 = grid.indexOf(full[j + 1]);
+      if (i0 >= 0) w[i0] = 1 - a;
+      if (i1 >= 0) w[i1] = a;
+      break;
+    }
+  }
+  return w;
+}
+
+function applySliders() {   // sliders -> bones and morph weights
+  const s = hack.target_slots;
+  const w = state.weights;
+  if (s.larynx_size) w[s.larynx_size[0]] = state.size;
+  if (s.larynx_slide) slideWeights(state.slide_mm / 1000).forEach((v, i) => { w[s.larynx_slide[0] + i] = v; });
+  for (const [name, e] of Object.entries(state.joints)) {
+    const b = bones[name];
+    if (b) b.quaternion.setFromEuler(new THREE.Euler(...e.map(THREE.MathUtils.degToRad), 'XZY'));
+  }
+  for (const m of meshes) m.morphTargetInfluences.splice(0, w.length, ...w);
+}
+
+function correctives() {   // pose-corrective weights from the joints' current rotations
+  const s = hack.target_slots;
+  if (!s.pose || s.pose[1] <= s.pose[0]) return;
+  const m = new THREE.Matrix4();
+  hack.joints.forEach((name, j) => {
+    m.makeRotationFromQuaternion(bones[name].quaternion);
+    const e = m.elements;  // column-major
+    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) {
+      const v = e[c * 4 + r] - (r === c ? 1 : 0);
+      for (const mesh of meshes) mesh.morphTargetInfluences[s.pose[0] + 9 * j + 3 * r + c] = v;
+    }
+  });
+}
+
+function buildPanel() {
+  const ex = document.getElementById('expressions');
+  const ne = hack.target_slots.expression[1];
+  for (let i = 0; i < ne; i++) {
+    row(ex, names[i], names[i], 0, 1, 0.01, state.weights[i], (v) => { stopClip(); state.weights[i] = v; applySliders(); });
+  }
+  const jp = document.getElementById('joints');
+  const axes = ['x', 'y', 'z'], axisName = { x: 'flexion', y: 'axial', z: 'lateral' };
+  hack.joints.forEach((name, j) => {
+    const lim = hack.joint_limits_deg[j];
+    const e = new THREE.Euler().setFromQuaternion(bones[name].quaternion, 'XZY');
+    state.joints[name] = [e.x, e.y, e.z].map(THREE.MathUtils.radToDeg);
+    axes.forEach((a, k) => row(jp, `${name}.${a}`, `${name} ${axisName[a]}`, lim[k][0], lim[k][1], 0.1,
+      state.joints[name][k], (v) => { stopClip(); state.joints[name][k] = v; applySliders(); }));
+  });
+  const lp = document.getElementById('larynx');
+  const grid = hack.larynx_slide_m || [];
+  if (hack.target_slots.larynx_size) {
+    row(lp, 'larynx.size', 'size change (eta)', -1, 1, 0.01, 0, (v) => { stopClip(); state.size = v; applySliders(); });
+    const r = grid.length ? 1000 * Math.max(...grid.map(Math.abs)) : 0;
+    row(lp, 'larynx.slide_mm', 'slide (mm)', -r, r, 0.1, 0, (v) => { stopClip(); state.slide_mm = v; applySliders(); });
+  }
+  document.getElementById('reset').onclick = () => {
+    stopClip();
+    for (const inp of Object.values(sliders)) { inp.value = 0; inp.dispatchEvent(new Event('input')); }
+  };
+}
+
+function setupTimeline(gltf) {
+  if (!gltf.animations.length) return;
+  clip = gltf.animations[0];
+  mixer = new THREE.AnimationMixer(gltf.scene);
+  action = mixer.clipAction(clip);
+  const track = clip.tracks[0];
+  const n = track.times.length, fps = n > 1 ? (n - 1) / (track.times[n - 1] - track.times[0]) : 1;
+  const frame = document.getElementById('frame'), info = document.getElementById('frameinfo');
+  const play = document.getElementById('play');
+  Object.assign(frame, { max: n - 1, disabled: false }); play.disabled = false;
+  const show = (k) => { info.textContent = ` frame ${k} / ${n - 1} (${fps.toFixed(1)} fps)`; };
+  frame.addEventListener('input', () => {
+    action.play(); action.paused = true; mixer.setTime(track.times[+frame.value]); show(+frame.value);
+  });
+  play.onclick = () => {
+    if (action.isRunning() && !action.paused) { action.paused = true; play.textContent = 'play'; }
+    else { action.play(); action.paused = false; play.textContent = 'pause'; }
+  };
+  sliders.frame = frame; show(0);
+}
+
+function applyUrl() {
+  const q = new URLSearchParams(location.search);
+  for (const item of (q.get('set') || '').split(',').filter(Boolean)) {
+    const i = item.lastIndexOf(':');
+    const inp = sliders[item.slice(0, i)];
+    if (inp) { inp.value = item.slice(i + 1); inp.dispatchEvent(new Event('input')); }
+    else console.warn('no slider', item);
+  }
+  if (q.has('frame') && sliders.frame) { sliders.frame.value = q.get('frame'); sliders.frame.dispatchEvent(new Event('input')); }
+}
+
+const config = await (await fetch('./config.json')).json();
+new THREE.GLTFLoader().load(config.model, (gltf) => {
+  hack = (gltf.parser.json.asset.extras || {}).hack || {};
+  const root = gltf.scene;
+  scene.add(root);
+  root.traverse((o) => {
+    if (o.isSkinnedMesh && o.morphTargetInfluences) meshes.push(o);
+    if (o.isBone || (o.type === 'Bone')) bones[o.name] = o;
+  });
+  names = Object.keys(meshes[0].morphTargetDictionary).sort((a, b) => meshes[0].morphTargetDictionary[a] - meshes[0].morphTargetDictionary[b]);
+  hack.joints = hack.joints || [];
+  state.weights = Array.from(meshes[0].morphTargetInfluences);
+  for (const m of meshes) m.frustumCulled = false;
+  buildPanel();
+  setupTimeline(gltf);
+  const box = new THREE.Box3().setFromObject(root);
+  const c = box.getCenter(new THREE.Vector3());
+  const target = new THREE.Vector3(c.x, box.max.y - 0.12, c.z);
+  controls.target.copy(target);
+  camera.position.set(target.x, target.y + 0.02, target.z + 0.9);
+  controls.update();
+  resize();
+  applyUrl();
+  status.textContent = `${names.length} morph targets, ${hack.joints.length} joints` + (clip ? `, animation ${clip.duration.toFixed(2)} s` : '');
+  document.title = 'hack-render view: ready';
+}, undefined, (err) => { status.textContent = 'failed to load: ' + err; document.title = 'hack-render view: error'; });
+
+const clock = new THREE.Clock();
+renderer.setAnimationLoop(() => {
+  const dt = clock.getDelta();
+  if (mixer) mixer.update(action && !action.paused ? dt : 0);
+  if (meshes.length) correctives();
+  renderer.render(scene, camera);
+});
