@@ -9,13 +9,19 @@ Public API:
 This package never imports Mitsuba or Dr.Jit.
 """
 
-from appearance.model import AppearanceMaps, AppearanceModel  # noqa: F401
-from appearance.regions import REGIONS, region_labels  # noqa: F401
-from appearance.uv import UVLayout, rasterize_layout  # noqa: F401
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
+    from appearance.model import AppearanceMaps, AppearanceModel  # noqa: F401
+    from appearance.regions import REGIONS, region_labels  # noqa: F401
+    from appearance.uv import UVLayout, rasterize_layout  # noqa: F401
 
 
 def __getattr__(name):  # lazy imports keep `import appearance` light
-    lazy = {"compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
+    lazy = {"AppearanceMaps": "appearance.model", "AppearanceModel": "appearance.model",
+            "REGIONS": "appearance.regions", "region_labels": "appearance.regions",
+            "UVLayout": "appearance.uv", "rasterize_layout": "appearance.uv",
+            "compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
             "build_model": "appearance.builder", "generate_subject": "appearance.generator",
             "TextureSet": "appearance.generator", "read_exr": "appearance.texture_io",
             "write_exr": "appearance.texture_io", "read_png": "appearance.texture_io",

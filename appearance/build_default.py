@@ -5,7 +5,7 @@
 Generates subjects 0..N-1 with :func:`appearance.generator.generate_subject` (calibrated
 constants from ``data/calibration.json``), writes them as EXR texture sets to a
 temporary folder, builds the model with the ordinary builder (the same code path as
-``hack-render appearance build``), stores the basis as int8 so the file stays under
+``hack-render learn appearance``), stores the basis as int8 so the file stays under
 30 MB, and writes ``data/default_appearance.npz``, its report (``.report.json``,
 ``.report.png``) and the provenance file ``data/default_appearance.json``. The data is
 procedural: no captured textures are involved.

@@ -1,6 +1,6 @@
 """Build an appearance model from a folder of texture sets, memory-bounded, with a report.
 
-    hack-render appearance build DIR -o model.npz [--height 256] [--components K]
+    hack-render learn appearance DIR -o model.npz [--height 256] [--components K]
 
 DIR holds one folder per subject (layout in :mod:`appearance.texture_io`). The build:
 
@@ -314,7 +314,7 @@ def build_model(root, out, height: int = 256, n_components: int | None = None,
             report["heldout"]["split_seed"] = seed
         report["build_seconds"] = round(time.perf_counter() - t0, 2)
     meta = {"kind": "unknown", "source": str(root), "n_subjects": n,
-            "builder": "hack-render appearance build", "basis_dtype": basis_dtype,
+            "builder": "hack-render learn appearance", "basis_dtype": basis_dtype,
             "roughness_modelled": has_rough}
     meta.update(metadata or {})
     save_model(out, height=height, mask=mask, mean=mean, basis=basis, stddev=stddev[:k],

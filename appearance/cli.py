@@ -1,4 +1,7 @@
-"""`hack-render appearance ...`: build a model, sample texture sets, re-plot a report."""
+"""`hack-render appearance ...`: sample texture sets, re-plot a report, rebuild the template.
+
+Building a model is `hack-render learn appearance` (this module's :func:`build`,
+registered by hack_render.learn.cli; `appearance build` is its deprecated old name)."""
 
 from __future__ import annotations
 
@@ -9,23 +12,35 @@ import typer
 
 from hack_render.errors import HackError
 
-app = typer.Typer(help="Appearance model A(alpha): build, sample, report.",
+app = typer.Typer(help="Appearance model A(alpha): sample, report, template "
+                  "(`hack-render learn appearance` builds one).",
                   no_args_is_help=True, add_completion=False)
 
 
-@app.command()
 def build(
     data: Path = typer.Argument(..., help="folder with one sub-folder per subject "
                                 "(diffuse, specular, normal[, roughness] .exr/.png)"),
-    out: Path = typer.Option(..., "-o", "--out", help="model file to write (.npz)"),
+    output: Path | None = typer.Option(None, "-o", "--output", help="model file to write "
+                                       "(.npz)"),
+    out_old: Path | None = typer.Option(None, "--out", hidden=True,
+                                        help="Deprecated: -o/--output."),
     height: int = typer.Option(256, help="model atlas height H (maps are H x 2H)"),
     components: int | None = typer.Option(None, help="components kept (default all)"),
     basis_dtype: str = typer.Option("float32", help="float32 | float16 | int8"),
     holdout: float = typer.Option(0.1, help="held-out fraction for the report"),
     seed: int = typer.Option(0, help="seed of the 90/10 split"),
 ):
-    """Build an appearance model and its report (JSON + PNG beside the model)."""
+    """Learn an appearance model (texture PCA) and its report (JSON + PNG beside the model).
+
+    Registered as `hack-render learn appearance` by hack_render.learn.cli.
+    Example: hack-render learn appearance captures/ -o appearance.npz --components 50
+    """
     from appearance.builder import build_model
+    from hack_render.cli_options import renamed
+
+    out = renamed(output, out_old, "--out", "-o/--output")
+    if out is None:
+        raise HackError("expected -o/--output MODEL.npz, found none.")
 
     if basis_dtype not in ("float32", "float16", "int8"):
         raise HackError(f"--basis-dtype: expected float32, float16 or int8, found {basis_dtype!r}.")
@@ -52,10 +67,14 @@ def template(
 
 @app.command()
 def sample(
-    out: Path = typer.Option(..., "-o", "--out", help="output folder for the texture set"),
+    output: Path | None = typer.Option(None, "-o", "--output", help="output folder for the "
+                                       "texture set"),
+    out_old: Path | None = typer.Option(None, "--out", hidden=True,
+                                        help="Deprecated: -o/--output."),
     model: Path | None = typer.Option(None, help="model file (default: shipped model)"),
-    alpha: list[float] | None = typer.Option(None, "--alpha", help="coefficients, repeat "
-                                                "the option: --alpha 1 --alpha -0.5"),
+    alpha: list[str] | None = typer.Option(None, "--alpha", help="coefficients, "
+                                           "comma-separated as in `render --alpha`: "
+                                           "--alpha 1,-0.5 (repeating the option appends)"),
     seed: int | None = typer.Option(None, help="draw alpha ~ N(0, I) with this seed"),
     components: int | None = typer.Option(None, help="use the first k components"),
     fmt: str = typer.Option("exr", "--format", help="exr | png"),
@@ -68,7 +87,16 @@ def sample(
 
     from appearance.model import AppearanceModel
     from appearance.texture_io import write_map, write_texture_set
+    from hack_render.cli_options import renamed
 
+    out = renamed(output, out_old, "--out", "-o/--output")
+    if out is None:
+        raise HackError("sample: expected -o/--output FOLDER, found none.")
+    try:
+        alpha = [float(x) for item in alpha or [] for x in item.split(",") if x.strip()]
+    except ValueError as err:
+        raise HackError(f"--alpha: expected comma-separated numbers like '1,-0.5', found "
+                        f"{alpha!r}.") from err
     if alpha and seed is not None:
         raise HackError("sample: expected --alpha or --seed, found both. Pass one of them.")
     m = AppearanceModel.load(model)
@@ -98,15 +126,20 @@ def sample(
 
 @app.command()
 def report(model: Path = typer.Argument(..., help="model file (.npz)"),
-           out: Path | None = typer.Option(None, "-o", "--out", help="PNG to write")):
+           output: Path | None = typer.Option(None, "-o", "--output", help="PNG to write"),
+           out_old: Path | None = typer.Option(None, "--out", hidden=True,
+                                               help="Deprecated: -o/--output.")):
     """Re-plot a model's explained-variance and held-out error curves."""
     from appearance.builder import plot_report
     from appearance.model import load_model_arrays
+    from hack_render.cli_options import renamed
+
+    out = renamed(output, out_old, "--out", "-o/--output")
 
     rep = load_model_arrays(model)["report"]
     if not rep:
         raise HackError(f"{model}: expected a build report inside the model, found none. "
-                        f"Rebuild it with `hack-render appearance build`.")
+                        f"Rebuild it with `hack-render learn appearance`.")
     png = out or model.with_suffix(".report.png")
     plot_report(rep, png)
     ho = rep.get("heldout", {})

@@ -256,7 +256,7 @@ class AppearanceModel:
         return AppearanceModel(**load_model_arrays(path or DEFAULT_MODEL))
 
 
-def _fail(path, what, expected, found, fix="Rebuild it with `hack-render appearance build`."):
+def _fail(path, what, expected, found, fix="Rebuild it with `hack-render learn appearance`."):
     raise HackError(f"{path}: {what}: expected {expected}, found {found}. {fix}")
 
 
@@ -265,7 +265,7 @@ def load_model_arrays(path) -> dict:
     path = Path(path)
     if not path.is_file():
         _fail(path, "appearance model", "an existing .npz file", "no file",
-              "Pass a model built by `hack-render appearance build`.")
+              "Pass a model built by `hack-render learn appearance`.")
     try:
         z = np.load(path, allow_pickle=False)
     except Exception as exc:

@@ -95,7 +95,7 @@ def mirror_consistency(rgb8: np.ndarray, ref) -> tuple[float, float, float]:
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", required=True, help="the training renders' folder "
-                    "(hack-render train-landmark-refiner --cache)")
+                    "(hack-render learn landmark-refiner --cache)")
     ap.add_argument("--subjects", type=int, default=1150, help="training subjects")
     ap.add_argument("--bench-subjects", type=int, default=20)
     ap.add_argument("--res", type=int, default=256)

@@ -25,17 +25,23 @@ FIT_RUNS = {
     "fit_synthetic256_random_lighting": "default, random presets",
     "fit_synthetic256_random_lighting_landmarks": "random presets, landmark stages only",
     "fit_synthetic256_known_focal": "true focal length given (as EXIF would)",
-    "fit_synthetic256_silhouette_depth2.5": "`light_stage`, silhouette border depth 2.5, no chroma step",
-    "fit_synthetic256_random_lighting_silhouette_depth2.5": "random presets, border depth 2.5, no chroma step",
-    "fit_synthetic256_random_lighting_landmarks_silhouette_depth2.5": "random presets, landmark stages, border depth 2.5",
-    "fit_synthetic256_random_lighting_landmarks_oracle_mask_depth2.5": "random presets, landmark stages, true mask (diagnostic)",
+    "fit_synthetic256_silhouette_depth2.5":
+        "`light_stage`, silhouette border depth 2.5, no chroma step",
+    "fit_synthetic256_random_lighting_silhouette_depth2.5":
+        "random presets, border depth 2.5, no chroma step",
+    "fit_synthetic256_random_lighting_landmarks_silhouette_depth2.5":
+        "random presets, landmark stages, border depth 2.5",
+    "fit_synthetic256_random_lighting_landmarks_oracle_mask_depth2.5":
+        "random presets, landmark stages, true mask (diagnostic)",
     "fit_synthetic256_sh": "`light_stage`, SH lighting alone",
     "fit_synthetic256_random_lighting_sh": "random presets, SH lighting alone",
     "fit_synthetic256_random_lighting_lobes2": "random presets, two lobes",
     "fit_synthetic256_random_lighting_lr_geometry": "random presets, `lr_geometry` 0.01",
-    "fit_synthetic256_random_lighting_iterations60_45_first10": "random presets, 60 + 45 iterations, subjects 0-9",
+    "fit_synthetic256_random_lighting_iterations60_45_first10":
+        "random presets, 60 + 45 iterations, subjects 0-9",
     "fit_synthetic256_random_lighting_oracle_light": "random presets, true light (diagnostic)",
-    "fit_detector_random_lighting_nochroma": "random presets, detector and mask only, no chroma step",
+    "fit_detector_random_lighting_nochroma":
+        "random presets, detector and mask only, no chroma step",
     "fit_expressions8_l1": "8 subjects with expressions, L1 psi prior, landmark stages",
     "fit_expressions8_l2": "8 subjects with expressions, Gaussian psi prior, landmark stages",
     "fit_oracle6": "6 subjects fitted to the true landmarks (diagnostic)",
@@ -44,7 +50,8 @@ FIT_COLUMNS = [("vertex_mm", "vertex error (mm)", 1, "{:.2f}"), ("nme", "NME (%)
                ("psnr_db_64spp", "PSNR 64 spp (dB)", 1, "{:.1f}"),
                ("albedo_de2000", "albedo ΔE2000", 1, "{:.1f}"),
                ("joint_deg", "neck joints (deg)", 1, "{:.2f}"),
-               ("mask_iou", "mask IoU", 1, "{:.3f}"), ("detector_nme_inner", "dlib NME 18-68 (%)", 100, "{:.2f}"),
+               ("mask_iou", "mask IoU", 1, "{:.3f}"),
+               ("detector_nme_inner", "dlib NME 18-68 (%)", 100, "{:.2f}"),
                ("seconds", "s / subject", 1, "{:.0f}")]
 
 
@@ -79,7 +86,8 @@ def _fit_table(results: dict) -> list[str]:
             v = med.get(key)
             cells.append(fmt.format(v * scale) if isinstance(v, (int, float)) else "-")
         total = len(d.get("subjects", []))
-        lines.append(f"| {FIT_RUNS[n]} | {d.get('n_ok', '-')} of {total} | " + " | ".join(cells) + " |")
+        lines.append(f"| {FIT_RUNS[n]} | {d.get('n_ok', '-')} of {total} | "
+                     + " | ".join(cells) + " |")
     lines += ["", "Sources:", ""] + [f"- {_source(n, results[n])}" + (f" Note: {results[n]['note']}"
                                      if results[n].get("note") else "") for n in names]
     return lines

@@ -9,7 +9,7 @@ import typer
 
 from hack_render.errors import HackError
 
-app = typer.Typer(help="Render labelled datasets (see the README (Datasets)).",
+app = typer.Typer(help="Render labelled datasets (docs/datasets.md).",
                   invoke_without_command=True, no_args_is_help=False)
 
 
@@ -19,7 +19,7 @@ def dataset(
     n: Optional[int] = typer.Option(None, "--n", help="Number of samples in the whole dataset."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Dataset folder."),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML overriding the "
-                                          "defaults (the README (Datasets) lists every key)."),
+                                          "defaults (docs/datasets.md lists every key)."),
     shard: Optional[str] = typer.Option(None, "--shard", help="K/M: render only samples "
                                         "with index % M == K (0 <= K < M), e.g. one Slurm "
                                         "array task."),

@@ -71,12 +71,15 @@ def fit(
     photos: List[Path] = typer.Argument(..., help="One or more photos of one person."),
     output: Path = typer.Option(Path("out/fit"), "-o", "--output", help="Output folder."),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML/YAML/JSON config "
-                                          "overriding the defaults (see the README, Fitting photos)."),
+                                          "overriding the defaults (docs/fit.md)."),
     landmarks: Optional[List[Path]] = typer.Option(None, "--landmarks", help="68-point "
                                                    "landmark file per photo (.pts/.txt/.json/"
                                                    ".npy) instead of dlib."),
-    resolution: Optional[str] = typer.Option(None, "--resolution", help="Photometric "
-                                             "resolutions, coarse to fine, e.g. '64,128'."),
+    levels: Optional[str] = typer.Option(None, "--levels", help="Image sizes of the "
+                                         "photometric stage's levels in pixels, coarse to "
+                                         "fine, e.g. '64,128'."),
+    levels_old: Optional[str] = typer.Option(None, "--resolution", hidden=True,
+                                             help="Deprecated: --levels."),
     iterations: Optional[str] = typer.Option(None, "--iterations", help="Photometric "
                                              "iterations per resolution, e.g. '40,30'."),
     spp: Optional[int] = typer.Option(None, help="Samples per pixel of the photometric stage."),
@@ -84,11 +87,13 @@ def fit(
     texel: bool = typer.Option(False, "--texel", help="Per-texel albedo refinement (stage 5)."),
     per_view_expression: bool = typer.Option(False, "--per-view-expression",
                                              help="Multi-view: one expression per photo."),
-    lighting: Optional[str] = typer.Option(None, help="Lighting model of the photometric "
-                                           "stage: sg (default: order-2 spherical harmonics "
-                                           "plus a spherical-Gaussian lobe for the dominant "
-                                           "light), sh (the harmonics alone) or env (free "
-                                           "environment texels)."),
+    light_model: Optional[str] = typer.Option(None, "--light-model", help="Lighting model "
+                                              "of the photometric stage: sg (default: order-2 "
+                                              "spherical harmonics plus a spherical-Gaussian "
+                                              "lobe for the dominant light), sh (the harmonics "
+                                              "alone) or env (free environment texels)."),
+    lighting_old: Optional[str] = typer.Option(None, "--lighting", hidden=True,
+                                               help="Deprecated: --light-model."),
     mask: Optional[List[Path]] = typer.Option(None, "--mask", help="Person mask per photo "
                                               "(image of the photo's size, nonzero = person: "
                                               "head, hair, neck, clothes) for the silhouette "
@@ -111,8 +116,13 @@ def fit(
 
     Example: hack-render fit face.jpg -o out/fit && hack-render render --params out/fit/params.json
     """
+    from hack_render.cli_options import renamed
     from hack_render.fit.config import load_config
 
+    # `--resolution` means an image size (W or WxH) in every other command; `--lighting` a
+    # lighting preset: their old meanings here live on as hidden, deprecated spellings
+    resolution = renamed(levels, levels_old, "fit --resolution", "--levels")
+    lighting = renamed(light_model, lighting_old, "fit --lighting", "--light-model")
     over: dict = {"photometric": {}, "texel": {}}
 
     def ints(text, name):
@@ -122,7 +132,7 @@ def fit(
             raise HackError(f"--{name}: expected comma-separated integers, found {text!r}.") from err
 
     if resolution:
-        over["photometric"]["resolutions"] = ints(resolution, "resolution")
+        over["photometric"]["resolutions"] = ints(resolution, "levels")
         if not iterations:
             over["photometric"]["iterations"] = [30] * len(over["photometric"]["resolutions"])
     if iterations:
@@ -159,7 +169,10 @@ def calibrate_landmarks(
                                  "(the detector's misses are left out and reported)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
                              "(default 5150; bench/bench_fit.py's subjects are disjoint)."),
-    resolution: Optional[int] = typer.Option(None, "--res", help="Render size in pixels (default 320)."),
+    resolution: Optional[int] = typer.Option(None, "--resolution", help="Render size in "
+                                             "pixels (default 320)."),
+    resolution_old: Optional[int] = typer.Option(None, "--res", hidden=True,
+                                                 help="Deprecated: --resolution."),
     spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
     radius: float = typer.Option(0.025, "--radius", help="Search radius around each model "
                                  "landmark vertex, metres on the rest mesh."),
@@ -172,16 +185,17 @@ def calibrate_landmarks(
     contour-matched), the skin point whose projections are nearest to dlib's points.
     The fitter uses hack_render/data/landmark_embedding_dlib.npz by default.
 
-    Example: hack-render calibrate-landmarks -o emb.npz --subjects 60
+    Example: hack-render learn landmark-embedding -o emb.npz --subjects 60
     """
     import json
     import sys
 
+    from hack_render.cli_options import renamed
     from hack_render.fit import landmark_embedding as le
 
+    resolution = renamed(resolution, resolution_old, "--res", "--resolution")
     seed = le.CALIBRATION_SEED if seed is None else seed
-    cmd = "hack-render calibrate-landmarks " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 \
-        else ""
+    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
     emb, _report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
                             progress=not quiet)
     typer.echo(json.dumps({"used": emb.meta["subjects_used"],
@@ -217,15 +231,14 @@ def train_landmark_refiner(
     inner points, % of the inter-ocular distance). The fitter uses
     hack_render/data/landmark_refiner_dlib.npz by default (config landmarks.refiner).
 
-    Example: hack-render train-landmark-refiner -o refiner.npz --subjects 1150 --cache renders/
+    Example: hack-render learn landmark-refiner -o refiner.npz --subjects 1150 --cache renders/
     """
     import json
     import sys
 
     from hack_render.fit import landmark_refiner as lr
 
-    cmd = "hack-render train-landmark-refiner " + " ".join(sys.argv[2:]) \
-        if len(sys.argv) > 2 else ""
+    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
     _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache, command=cmd,
                             progress=not quiet)
     typer.echo(json.dumps({k: v for k, v in report.items() if k != "left_out"}))
@@ -233,7 +246,6 @@ def train_landmark_refiner(
 
 
 def register(app: typer.Typer) -> None:
-    """Add `fit`, `calibrate-landmarks` and `train-landmark-refiner` to the main app."""
+    """Add `fit` to the main app (hack_render.learn.cli registers the two learners above
+    as `learn landmark-embedding` and `learn landmark-refiner`)."""
     app.command("fit")(fit)
-    app.command("calibrate-landmarks")(calibrate_landmarks)
-    app.command("train-landmark-refiner")(train_landmark_refiner)

@@ -58,12 +58,12 @@ class LandmarkConfig:
     # which surface points the 68 detected points are fitted to: "dlib" (the embedding
     # calibrated to dlib, hack_render/data/landmark_embedding_dlib.npz; the model's
     # landmark vertices, with a warning, if it is missing), "vertices" (ICT's 68 landmark
-    # vertices), or the path of an embedding file (hack-render calibrate-landmarks)
+    # vertices), or the path of an embedding file (hack-render learn landmark-embedding)
     embedding: str = "dlib"
     # dlib's inner points (and chin) refined toward the embedding's points by a regressor
     # of the image trained on synthetic renders (landmark_refiner.py): "dlib" (the shipped
     # hack_render/data/landmark_refiner_dlib.npz; dlib's points, with a warning, if it is
-    # missing), "off", or the path of a refiner file (hack-render train-landmark-refiner).
+    # missing), "off", or the path of a refiner file (hack-render learn landmark-refiner).
     # Landmark files are never refined
     refiner: str = "dlib"
     # --landmarks files follow "detector" (dlib's convention: the embedding above) or
@@ -238,7 +238,7 @@ class FitConfig:
         if not isinstance(lm.refiner, str) or not lm.refiner or (
                 lm.refiner not in ("dlib", "off") and not Path(lm.refiner).is_file()):
             raise HackError(f"config landmarks.refiner: expected 'dlib', 'off' or the path of "
-                            f"a refiner file (hack-render train-landmark-refiner), found "
+                            f"a refiner file (hack-render learn landmark-refiner), found "
                             f"{lm.refiner!r}.")
         c = self.camera
         for key in ("focal_log_sigma", "photo_focal_log_sigma", "focal_mm_prior"):

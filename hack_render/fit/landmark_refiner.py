@@ -11,7 +11,7 @@ current points to a mean shape, so the features do not depend on the face's size
 roll) and moves all inner points at once by a ridge regression of those features,
 ``x <- x + R^T(A phi(x) + b) / s``.
 
-It is trained (:func:`train`, ``hack-render train-landmark-refiner``) on synthetic renders
+It is trained (:func:`train`, ``hack-render learn landmark-refiner``) on synthetic renders
 of the default model (the dataset sampler with the landmark calibration's settings,
 :data:`~hack_render.fit.landmark_embedding.CALIBRATION_DATASET`) whose targets are the
 embedding's points projected from the known geometry, each render also mirrored and its
@@ -224,7 +224,7 @@ def load_refiner(name: str) -> LandmarkRefiner | None:
     if key not in _CACHE:
         if name == "dlib" and not path.is_file():
             warnings.warn(f"landmark refiner {path} is missing; using dlib's points as they "
-                          "are (hack-render train-landmark-refiner builds it).",
+                          "are (hack-render learn landmark-refiner builds it).",
                           RefinerWarning, stacklevel=2)
             return None
         _CACHE[key] = LandmarkRefiner.load(path)
@@ -327,7 +327,7 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
     emb = le.load_default(model)
     if emb is None:
         raise HackError("landmark refiner: the calibrated landmark embedding is missing "
-                        "(hack-render calibrate-landmarks builds it); it defines the targets.")
+                        "(hack-render learn landmark-embedding builds it); it defines the targets.")
     li = model.landmark_indices.numpy()
     tag = f"{seed}-{emb.meta.get('command', '')}-{emb.vertex_ids.sum()}-{emb.bary.sum():.9f}"
     cache = Path(cache) if cache else None
@@ -433,7 +433,7 @@ def build(output: str | Path, subjects: int = 1200, seed: int | None = None,
                        f"from the known geometry; no captured data"),
         "detector": "dlib shape_predictor_68_face_landmarks",
         "method": "supervised descent (SDM): ridge regression of HOG-like patch features",
-        "command": command or f"hack-render train-landmark-refiner -o {output} "
+        "command": command or f"hack-render learn landmark-refiner -o {output} "
                               f"--subjects {subjects}",
         "dataset_seed": seed, "subjects_requested": int(subjects), "stages": int(stages),
         "lambda": float(lam), "render_seconds": t_render, "train_seconds": t_train,

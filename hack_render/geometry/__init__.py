@@ -5,17 +5,35 @@ from __future__ import annotations
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hack_render.errors import HackError
-from hack_render.geometry.model import HackModel, HackOutput, PersonalizedHack
-from hack_render.geometry.skeleton import (
-    JOINT_NAMES,
-    adjacent_similarity_penalty,
-    clamp_to_limits,
-    distribute_head_rotation,
-    rotation_limit_penalty,
-    rotation_limits,
-)
+
+if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
+    from hack_render.geometry.model import HackModel, HackOutput, PersonalizedHack
+    from hack_render.geometry.skeleton import (
+        JOINT_NAMES,
+        adjacent_similarity_penalty,
+        clamp_to_limits,
+        distribute_head_rotation,
+        rotation_limit_penalty,
+        rotation_limits,
+    )
+
+_LAZY = {"HackModel": "model", "HackOutput": "model", "PersonalizedHack": "model",
+         "JOINT_NAMES": "skeleton", "adjacent_similarity_penalty": "skeleton",
+         "clamp_to_limits": "skeleton", "distribute_head_rotation": "skeleton",
+         "rotation_limit_penalty": "skeleton", "rotation_limits": "skeleton"}
+
+
+def __getattr__(name: str):
+    """The public names of model.py and skeleton.py, imported on first use (they import
+    torch, which takes seconds; the CLI imports this package for every `--help`)."""
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f"hack_render.geometry.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'hack_render.geometry' has no attribute {name!r}")
 
 DEFAULT_MODEL_NAME = "hack_default.npz"
 
@@ -48,6 +66,8 @@ def default_model_path() -> Path:
 
 @lru_cache(maxsize=4)
 def _load_cached(path: str) -> HackModel:
+    from hack_render.geometry.model import HackModel
+
     return HackModel.from_file(path)
 
 

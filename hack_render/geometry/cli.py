@@ -1,4 +1,5 @@
-"""`hack-render mesh` and `hack-render model build|info`."""
+"""`hack-render mesh` and `hack-render model info`; `build` (the base model) is registered
+as `hack-render learn base-model` by hack_render.learn.cli."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ class LimitPolicy(str, Enum):
     error = "error"
 
 
-model_app = typer.Typer(help="Build and inspect HACK model files.", no_args_is_help=True)
+model_app = typer.Typer(help="Inspect HACK model files (`hack-render learn model` builds one).",
+                        no_args_is_help=True)
 
 
 def _floats(text: str | None, name: str) -> list[float] | None:
@@ -42,22 +44,18 @@ def gather_params(params_file: Path | None, beta: str | None, expression: str | 
     return check_params(params, "command-line parameters")
 
 
-def apply_limit_policy(theta, policy: LimitPolicy):
-    """Warn about, clamp, or refuse joint rotations beyond the anatomical limits."""
-    from hack_render.geometry.skeleton import clamp_to_limits, outside_limits
+def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) -> dict:
+    """Warn about, clamp, or refuse (exit 2) out-of-range joint rotations, whole-head
+    rotations, larynx slide tau and size eta (:func:`hack_render.geometry.limits.enforce_limits`);
+    warnings name each value and its limit, and go to stderr and :mod:`warnings`."""
+    from hack_render.geometry.limits import enforce_limits
 
-    bad = outside_limits(theta[0])
-    if not bad:
-        return theta
-    text = "; ".join(f"{name} {axis}={deg:.1f} deg (limits {lo:.1f}..{hi:.1f})"
-                     for _, name, axis, deg, lo, hi in bad)
-    if policy is LimitPolicy.error:
-        raise HackError(f"rotations outside the anatomical limits: {text}. Use --limits clamp or warn.")
-    if policy is LimitPolicy.clamp:
-        return clamp_to_limits(theta)
-    warnings.warn(f"rotations outside the anatomical limits: {text} (use --limits clamp to clamp)")
-    typer.secho(f"warning: rotations outside the anatomical limits: {text}", err=True, fg="yellow")
-    return theta
+    kw, messages = enforce_limits(kw, policy, head_rotation_deg)
+    if messages:
+        text = "; ".join(messages)
+        warnings.warn(f"outside the anatomical limits: {text}", stacklevel=2)
+        typer.secho(f"warning: outside the anatomical limits: {text}", err=True, fg="yellow")
+    return kw
 
 
 def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
@@ -72,8 +70,7 @@ def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, 
 
     model = load_model(model_path)
     p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
-    kw = model_inputs(model, p)
-    kw["theta"] = apply_limit_policy(kw["theta"], limits)
+    kw = apply_limit_policy(model_inputs(model, p), limits, p.get("head_rotation_deg"))
     with torch.no_grad():
         out = model(**kw)
     return model, kw, out.vertices[0].numpy()
@@ -92,10 +89,13 @@ def mesh(
     head_rotation: str | None = typer.Option(None, "--head-rotation", help="Whole-head "
                                                 "'flexion,axial,lateral' in degrees, shared over the 8 "
                                                 "cervical joints by their ranges, e.g. '15,40,0'."),
-    eta: float | None = typer.Option(None, help="Larynx size."),
-    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres."),
-    limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Joint rotations beyond the "
-                                       "anatomical limits: warn, clamp or error."),
+    eta: float | None = typer.Option(None, help="Larynx size, 0..1.5 (default 1: the "
+                                     "identity's own larynx; 0: none)."),
+    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres, up positive, "
+                                     "-0.01..0.02 (a swallow rises ~0.02)."),
+    limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Values beyond the anatomical "
+                                       "limits (joint rotations, --head-rotation, --eta, "
+                                       "--tau): warn, clamp (and warn) or error."),
     model_path: Path | None = typer.Option(None, "--model", help="Model file (default: built-in)."),
     both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
 ) -> None:
@@ -112,14 +112,17 @@ def mesh(
         typer.echo(f"wrote {target.resolve()}")
 
 
-@model_app.command("build")
 def build(
     ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder: the development layout "
                              "(ict_facekit.npz, generic_neutral_mesh.obj, vertex_indices.json) or "
                              "the original FaceXModel/ folder of OBJs."),
     output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
 ) -> None:
-    """Build the default HACK model from ICT-FaceKit (shape PCA, AU table, skeleton, weights)."""
+    """Learn the base model from ICT-FaceKit: shape PCA, AU table, skeleton, weights (~15 s).
+
+    Registered as `hack-render learn base-model` by hack_render.learn.cli.
+    Example: hack-render learn base-model --ict ICT_FACEKIT_DIR -o base.npz
+    """
     from hack_render.learn.ict_default import build_default_model
     from hack_render.geometry.model_file import save_model_file
 

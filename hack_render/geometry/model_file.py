@@ -66,7 +66,7 @@ FORMAT_VERSION = 2
 SUPPORTED_VERSIONS = (1, 2)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
-_FIX = "Rebuild the file with `hack-render model build`, or pass a valid HACK model file."
+_FIX = "Rebuild the file with `hack-render learn base-model`, or pass a valid HACK model file."
 
 REQUIRED: dict[str, tuple[str, str]] = {
     # key: (shape spec, dtype kind) -- symbols resolved against the template's sizes

@@ -1,7 +1,12 @@
-"""`hack-render model build-v2`, `hack-render model report`, `hack-render learn joints`.
+"""`hack-render learn ...`: every learner under one group, and `hack-render model report`.
 
-The `model` sub-app belongs to :mod:`hack_render.geometry.cli`; this module adds its two
-commands to it and a `learn` sub-app of its own.
+`learn model` (the full model), `learn base-model` (the ICT-FaceKit base), `learn joints`,
+`learn appearance`, `learn landmark-embedding`, `learn landmark-refiner`. The commands
+whose code lives beside what they learn (`hack_render.geometry.cli.build`,
+`appearance.cli.build`, `hack_render.fit.cli.calibrate_landmarks` and
+`train_landmark_refiner`) are registered here; their old names (`model build`,
+`model build-v2`, `appearance build`, `calibrate-landmarks`, `train-landmark-refiner`)
+keep working for one release, hidden, with a deprecation message.
 """
 
 from __future__ import annotations
@@ -13,18 +18,24 @@ import typer
 
 from hack_render.errors import HackError
 
-learn_app = typer.Typer(help="Train HACK components from your own data.", no_args_is_help=True)
+learn_app = typer.Typer(help="Learn HACK's components from data: the model, its joints, the "
+                        "appearance model, the fitter's landmark embedding and refiner.",
+                        no_args_is_help=True)
 
 
 def build_v2(
-    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder (as for `model build`)."),
+    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder (as for `learn base-model`)."),
     output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
     expression_identities: int = typer.Option(300, help="Identities for deformation transfer."),
     pose_identities: int = typer.Option(12, help="Identities with simulated pose sequences."),
     pose_iterations: int = typer.Option(30, help="Adam iterations of the pose learner (after its closed-form start)."),
     expression_epochs: int = typer.Option(2000, help="Epochs of the M_E MLP."),
 ) -> None:
-    """Build the v2 model: v1 + larynx, personalised expressions, pose blendshapes (minutes)."""
+    """Learn the full model: the base model + larynx, personalised expressions and pose
+    blendshapes (about 31 minutes on 2 CPU cores for the defaults).
+
+    Example: hack-render learn model --ict ICT_FACEKIT_DIR -o model.npz
+    """
     from hack_render.learn.full_model import build_full_model
     from hack_render.geometry.model_file import save_model_file
 
@@ -50,7 +61,6 @@ def report(
     typer.echo(f"wrote {js.resolve()}\nwrote {png.resolve()}")
 
 
-@learn_app.command("joints")
 def learn_joints(
     data: Path = typer.Argument(..., help=".npz with 'meshes' (P, N, 3) and 'joints' (P, 8, 3), metres."),
     output: Path = typer.Option(..., "-o", "--output", help="Where to write the regressor (.npy, (8, N))."),
@@ -74,8 +84,24 @@ def learn_joints(
 
 
 def register(app: typer.Typer) -> None:
-    from hack_render.geometry.cli import model_app
+    """Add the `learn` group, `model report` and the learners' deprecated old names."""
+    from appearance import cli as appearance_cli
+    from hack_render.cli_options import add_deprecated
+    from hack_render.fit import cli as fit_cli
+    from hack_render.geometry import cli as geometry_cli
 
-    model_app.command("build-v2")(build_v2)
-    model_app.command("report")(report)
+    learners = [("model", build_v2, "model build-v2", geometry_cli.model_app, "build-v2"),
+                ("base-model", geometry_cli.build, "model build", geometry_cli.model_app,
+                 "build"),
+                ("appearance", appearance_cli.build, "appearance build", appearance_cli.app,
+                 "build"),
+                ("landmark-embedding", fit_cli.calibrate_landmarks, "calibrate-landmarks", app,
+                 "calibrate-landmarks"),
+                ("landmark-refiner", fit_cli.train_landmark_refiner, "train-landmark-refiner",
+                 app, "train-landmark-refiner")]
+    for name, func, old, old_app, old_name in learners:
+        learn_app.command(name)(func)
+        add_deprecated(old_app, old_name, func, old, f"learn {name}")
+    learn_app.command("joints")(learn_joints)
+    geometry_cli.model_app.command("report")(report)
     app.add_typer(learn_app, name="learn")

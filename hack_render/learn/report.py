@@ -28,7 +28,7 @@ def model_curves(meta: dict) -> dict:
     curves = meta.get("learn", {}).get("curves")
     if not curves:
         raise HackError("this model has no learned-component curves (metadata 'learn.curves'); "
-                        "build it with `hack-render model build-v2`.")
+                        "build it with `hack-render learn model`.")
     return curves
 
 

@@ -1,0 +1,118 @@
+"""The command line's shape: every learner under `learn`, old names still working with a
+deprecation message, one option vocabulary, and `--help` fast because it imports no torch."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import time
+
+import pytest
+
+HEAVY = ("torch", "mitsuba", "drjit", "scipy", "dlib", "ray")
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "hack_render.cli", *args], check=False,
+                          capture_output=True, text=True)
+
+
+def _command_tree():
+    """[(path, click command)] for every command and group of the app, hidden ones included."""
+    import typer.main
+
+    from hack_render.cli import app
+
+    out = []
+
+    def walk(cmd, path):
+        out.append((path, cmd))
+        for name, sub in getattr(cmd, "commands", {}).items():
+            walk(sub, path + [name])
+
+    walk(typer.main.get_command(app), [])
+    return out
+
+
+def test_every_learner_is_under_learn_and_old_names_are_hidden():
+    tree = dict((" ".join(p), c) for p, c in _command_tree())
+    learn = tree["learn"]
+    assert {"model", "base-model", "joints", "appearance", "landmark-embedding",
+            "landmark-refiner"} <= set(learn.commands)
+    for old in ("model build", "model build-v2", "appearance build", "calibrate-landmarks",
+                "train-landmark-refiner"):
+        assert old in tree and tree[old].hidden, old  # still there for one release, unlisted
+    listed = _cli("--help").stdout
+    assert "learn" in listed and "calibrate-landmarks" not in listed
+
+
+def test_old_names_print_a_deprecation_and_behave_as_the_new_ones(tmp_path):
+    res = _cli("model", "build", "--ict", str(tmp_path / "missing"), "-o", str(tmp_path / "m.npz"))
+    new = _cli("learn", "base-model", "--ict", str(tmp_path / "missing"), "-o",
+               str(tmp_path / "m.npz"))
+    assert res.returncode == new.returncode == 2
+    assert "deprecated" in res.stderr and "hack-render learn base-model" in res.stderr
+    assert "deprecated" not in new.stderr
+    assert res.stderr.splitlines()[-1] == new.stderr.splitlines()[-1]  # the same error
+    # an old option spelling: the same, with a message naming the new one
+    res = _cli("appearance", "report", str(tmp_path / "none.npz"), "--out", str(tmp_path / "r.png"))
+    assert res.returncode == 2 and "--out is deprecated" in res.stderr and "-o/--output" in res.stderr
+    res = _cli("fit", str(tmp_path / "none.jpg"), "--resolution", "64", "-o", str(tmp_path / "f"))
+    assert res.returncode == 2 and "use --levels" in res.stderr
+    res = _cli("appearance", "report", str(tmp_path / "none.npz"), "--out", "a.png", "-o", "b.png")
+    assert res.returncode == 2 and "found both" in res.stderr
+
+
+def test_one_option_vocabulary():
+    """A visible option name means one thing: outputs are `-o/--output`, image sizes
+    `--resolution`; the old spellings survive only hidden."""
+    for path, cmd in _command_tree():
+        visible = [p for p in getattr(cmd, "params", []) if not getattr(p, "hidden", False)]
+        names = {n for p in visible for n in getattr(p, "opts", [])}
+        where = " ".join(path)
+        assert not names & {"--out", "--res", "--resolutions"}, where
+        if "-o" in names:
+            opt = next(p for p in visible if "-o" in p.opts)
+            assert opt.opts == ["-o", "--output"], where
+        if path == ["fit"]:
+            assert {"--levels", "--light-model"} <= names and "--resolution" not in names
+            assert "--lighting" not in names  # a preset in render, a model in fit: renamed
+
+
+def test_help_imports_no_heavy_module():
+    """Every `--help` in one process; afterwards none of torch, Mitsuba, Dr.Jit, SciPy,
+    dlib or Ray may have been imported (they take seconds)."""
+    code = (
+        "import json, sys\n"
+        "from hack_render.cli import main\n"
+        "import typer.main\n"
+        "from hack_render.cli import app\n"
+        "def walk(c, p):\n"
+        "    yield p\n"
+        "    for n, s in getattr(c, 'commands', {}).items(): yield from walk(s, p + [n])\n"
+        "paths = list(walk(typer.main.get_command(app), []))\n"
+        "for p in paths:\n"
+        "    try: main(p + ['--help'])\n"
+        "    except SystemExit as e: assert e.code in (0, None), p\n"
+        f"print(json.dumps([len(paths), [m for m in {HEAVY!r} if m in sys.modules]]))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    n, heavy = json.loads(res.stdout.strip().splitlines()[-1])
+    assert n >= 15 and heavy == [], heavy
+
+
+@pytest.mark.parametrize("args", [[], ["render"], ["fit"], ["learn"], ["learn", "model"],
+                                  ["dataset"], ["appearance", "sample"]])
+def test_help_is_fast(args):
+    """Target 0.5 s (measured 0.3-0.45 s on the 2-core development machine); the bound is
+    twice that, for a loaded CI machine, and still fails if torch (2-5 s) comes back."""
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        res = _cli(*args, "--help")
+        times.append(time.perf_counter() - t0)
+        assert res.returncode == 0, res.stderr
+    assert statistics.median(times) <= 1.0, (args, times)
