@@ -1,15 +1,23 @@
-"""`hack-render render` and `hack-render turntable`."""
+"""`hack-render render` and `hack-render turntable`.
+
+The options the two commands share (pose, skin, lighting, image) are declared once in
+:mod:`hack_render.cli_options`. numpy and everything heavier are imported inside the
+commands, so `--help` stays fast.
+"""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
-import numpy as np
 import typer
 
+from hack_render import cli_options as opts
 from hack_render.errors import HackError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
@@ -48,6 +56,8 @@ def _aov_list(text: Optional[str]) -> list[str]:
 
 def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str]) -> dict:
     """EXR channel dict: R, G, B, A then the requested AOV layers."""
+    import numpy as np
+
     from hack_render.render.image_io import rgb_channels
 
     ch = rgb_channels(image[..., :3])
@@ -78,42 +88,39 @@ def render(
     exr: Optional[Path] = typer.Option(None, "--exr", help="Also write a linear EXR here."),
     aov: Optional[str] = typer.Option(None, "--aov", help="AOV channels for the EXR: "
                                       "depth,normal,albedo,uv,segmentation or 'all'."),
-    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
-                                          "(the format of `hack-render mesh`)."),
-    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated."),
-    expression: Optional[str] = typer.Option(None, "--expr", help="e.g. 'AU12=0.7,jawOpen=0.3'."),
-    head_rotation: Optional[str] = typer.Option(None, "--head-rotation",
-                                                help="'flexion,axial,lateral' degrees."),
-    eta: Optional[float] = typer.Option(None, help="Larynx size."),
-    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
-    limits: str = typer.Option("warn", help="Joint limits: warn, clamp or error."),
-    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: built-in)."),
-    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients, comma-separated."),
-    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed",
-                                                  help="Random appearance from this seed."),
-    textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
-                                            "roughness(, normal).exr skin maps."),
-    lighting: str = typer.Option("studio", help="studio, light_stage, overcast_sun, window, "
-                                 "or env:PATH.exr/.hdr (a lat-long HDR map)."),
-    env_rotation: float = typer.Option(0.0, help="Rotate the lighting about +Y, degrees."),
-    exposure: float = typer.Option(0.0, help="Lighting exposure, stops."),
+    params: opts.Params = None,
+    beta: opts.Beta = None,
+    expression: opts.Expression = None,
+    head_rotation: opts.HeadRotation = None,
+    eta: opts.Eta = None,
+    tau: opts.Tau = None,
+    limits: opts.Limits = "warn",
+    model_path: opts.ModelPath = None,
+    alpha: opts.Alpha = None,
+    appearance_seed: opts.AppearanceSeed = None,
+    textures: opts.Textures = None,
+    lighting: opts.Lighting = "studio",
+    env_rotation: opts.EnvRotation = 0.0,
+    exposure: opts.Exposure = 0.0,
     camera: str = typer.Option("portrait", help="portrait, three_quarter, profile or ring."),
     focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="Focal length (36 mm "
                                              "sensor width); default 85 (ring: 50)."),
     views: int = typer.Option(8, help="Number of cameras of the ring preset."),
-    resolution: str = typer.Option("512", help="'W' or 'WxH' pixels."),
-    spp: int = typer.Option(64, help="Samples per pixel."),
-    seed: int = typer.Option(0, help="Sampler seed."),
+    resolution: opts.Resolution = "512",
+    spp: opts.Spp = 64,
+    seed: opts.Seed = 0,
     max_depth: int = typer.Option(8, help="Maximum path length."),
     iris_color: Optional[str] = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
-    tonemap: str = typer.Option("aces", help="PNG tone map: aces, reinhard or clip."),
-    variant: Optional[str] = typer.Option(None, help="Mitsuba variant (default: "
-                                          "$HACK_RENDER_VARIANT or automatic)."),
+    tonemap: opts.Tonemap = "aces",
+    variant: opts.Variant = None,
+    quiet: opts.Quiet = False,
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
     Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 64
     """
+    import numpy as np
+
     from hack_render.geometry.cli import LimitPolicy
     from hack_render.render.image_io import check_writable, tone_map, write_exr, write_png
     from hack_render.render.scene import RenderSettings
@@ -149,7 +156,7 @@ def render(
     for cam in views_:
         head.set_camera(cam)
         t0 = time.perf_counter()
-        image = head.render(progress=True)
+        image = head.render(progress=not quiet)
         dt = time.perf_counter() - t0
         suffix = "" if len(views_) == 1 else f"_{cam.name}"
         for path in [output] + ([exr] if exr else []):
@@ -186,29 +193,34 @@ def turntable(
                                             "motion (look-around, swallow) as a parameter "
                                             "sequence, .npz or .jsonl, for `hack-render export "
                                             "--sequence`."),
-    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file."),
-    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated."),
-    expression: Optional[str] = typer.Option(None, "--expr", help="e.g. 'AU12=0.7'."),
-    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file."),
-    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients."),
-    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed"),
-    textures: Optional[Path] = typer.Option(None, help="Skin map folder."),
-    lighting: str = typer.Option("studio", help="Lighting preset or env:PATH."),
-    env_rotation: float = typer.Option(0.0, help="Lighting rotation about +Y, degrees."),
-    exposure: float = typer.Option(0.0, help="Lighting exposure, stops."),
+    params: opts.Params = None,
+    beta: opts.Beta = None,
+    expression: opts.Expression = None,
+    head_rotation: opts.HeadRotation = None,
+    eta: opts.Eta = None,
+    tau: opts.Tau = None,
+    model_path: opts.ModelPath = None,
+    alpha: opts.Alpha = None,
+    appearance_seed: opts.AppearanceSeed = None,
+    textures: opts.Textures = None,
+    lighting: opts.Lighting = "studio",
+    env_rotation: opts.EnvRotation = 0.0,
+    exposure: opts.Exposure = 0.0,
     focal_mm: float = typer.Option(85.0, "--focal-mm", help="Focal length, mm."),
     pitch: float = typer.Option(5.0, help="Camera elevation, degrees."),
-    resolution: str = typer.Option("256", help="'W' or 'WxH' (even, for MP4)."),
-    spp: int = typer.Option(32, help="Samples per pixel."),
-    seed: int = typer.Option(0, help="Sampler seed (frame i uses seed + i)."),
-    tonemap: str = typer.Option("aces", help="aces, reinhard or clip."),
-    variant: Optional[str] = typer.Option(None, help="Mitsuba variant."),
+    resolution: opts.Resolution = "256",
+    spp: opts.Spp = 32,
+    seed: opts.Seed = 0,
+    tonemap: opts.Tonemap = "aces",
+    variant: opts.Variant = None,
+    quiet: opts.Quiet = False,
 ) -> None:
     """Render a seamless looping turntable of the head to MP4 (H.264) / GIF / PNG frames.
 
     Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
     """
     import imageio.v3 as iio
+    import numpy as np
     import torch
     from tqdm import tqdm
 
@@ -241,7 +253,8 @@ def turntable(
     from hack_render.render.parts import Topology
 
     model = load_model(model_path)
-    base = model_inputs(model, gather_params(params, beta, expression, None, None, None))
+    base = model_inputs(model, gather_params(params, beta, expression, head_rotation, eta,
+                                                     tau))
     topo = Topology.from_model(model)
     if sequence is not None:
         from hack_render.geometry.params import save_sequence
@@ -274,7 +287,7 @@ def turntable(
                          skin_maps(_floats(alpha, "alpha"), appearance_seed, textures),
                          None, variant)
         times = []
-        for i in tqdm(todo, desc="turntable", unit="frame"):
+        for i in tqdm(todo, desc="turntable", unit="frame", disable=quiet):
             t0 = time.perf_counter()
             if i != todo[0] or look_around or swallow or mode == "subject":
                 head.set_vertices(vertices_at(i))
