@@ -130,47 +130,81 @@ def pose_features(theta: torch.Tensor) -> torch.Tensor:
 def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = TAU_RANGE,
               tau_step: float = TAU_STEP, influences: int = INFLUENCES) -> ExportRig:
     """Personalise ``model`` for one identity (beta (1, S)) and larynx size ``eta``, with
-    ``influences`` (4 or 8) skin weights per vertex."""
+    ``influences`` (4 or 8) skin weights per vertex.
+
+    Every target comes from the model's public forward pass (its ``rest_vertices``), which
+    is linear in psi, in the pose feature and in eta: an expression target is the rest mesh
+    at psi = e_i minus the neutral one; a joint's 9 pose-corrective targets solve the 9 x 9
+    system of 9 rotations of that joint alone. So the rig follows the model, whatever its
+    internal layout (personalised bases, sparse rows), without reading its buffers."""
     if influences not in (4, 8):
         raise HackError(f"--influences: expected 4 or 8 skin weights per vertex, found "
                         f"{influences}.")
     dtype = model.template.dtype
-    beta = torch.zeros(1, 0, dtype=dtype) if beta is None else beta
-    pm = model.personalize(beta)
-    n, e = model.num_vertices, model.num_expressions
-    with torch.no_grad():
-        basis = pm.basis.view(-1, n, 3)
-        names = list(model.expression_names)
-        blocks = [basis[:e].float().numpy()]
-        base = pm.v_shaped.double()
-        grid = np.zeros(0)
-        if model.has_larynx:
-            grid = _tau_grid(tau_range, tau_step)
-            lar = model.larynx_vertices.numpy()
-            comb = pm.larynx_combined
-            taus = torch.as_tensor(np.r_[0.0, grid], dtype=dtype)
-            ones = torch.ones_like(taus)
-            unit = model._larynx_sample(comb.expand(len(taus), -1, -1, -1), ones, taus).double()
-            base = base.index_add(0, model.larynx_vertices, eta * unit[0])
-            lar_t = np.zeros((1 + len(grid), n, 3), np.float32)
-            lar_t[0, lar] = unit[0].numpy()  # larynx_size: d(rest)/d(eta) at tau = 0
-            lar_t[1:, lar] = (eta * (unit[1:] - unit[:1])).numpy()
-            blocks.append(lar_t)
-            names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
-        if pm.uses_pose:
-            blocks.append(basis[e:].float().numpy())
-            names += [f"pose_{j}_r{r}{c}" for j in model.joint_names for r in range(3)
-                      for c in range(3)]
-        rest_joints = pm.joints.double().numpy()
+    beta = torch.zeros(1, 0, dtype=dtype) if beta is None else torch.as_tensor(beta, dtype=dtype)
+    e, k = model.num_expressions, model.num_joints
+
+    def rest(n: int, **kw) -> tuple[np.ndarray, np.ndarray]:
+        with torch.no_grad():
+            out = model(beta=beta.expand(n, -1), **{"eta": torch.zeros(n, dtype=dtype), **kw})
+        return out.rest_vertices.double().numpy(), out.rest_joints[0].double().numpy()
+
+    neutral, rest_joints = rest(1)
+    neutral = neutral[0]
+    psi = torch.eye(e, dtype=dtype)
+    blocks = [(rest(e, psi=psi)[0] - neutral).astype(np.float32)]
+    names = list(model.expression_names)
+    base = neutral
+    grid = np.zeros(0)
+    if model.has_larynx:
+        grid = _tau_grid(tau_range, tau_step)
+        taus = np.r_[0.0, 0.0, grid]
+        etas = np.r_[1.0, eta, np.full(len(grid), eta)]
+        lar = rest(len(taus), eta=torch.as_tensor(etas, dtype=dtype),
+                   tau=torch.as_tensor(taus, dtype=dtype))[0] - neutral
+        base = neutral + lar[1]  # eta baked in, at tau = 0
+        blocks.append(np.concatenate([lar[:1], lar[2:] - lar[1]]).astype(np.float32))
+        names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
+    pose = _pose_targets(rest, neutral, k, dtype)
+    if pose is not None:
+        blocks.append(pose)
+        names += [f"pose_{j}_r{r}{c}" for j in model.joint_names for r in range(3)
+                  for c in range(3)]
     joints4, weights4 = top_weights(model.skinning_weights.double().numpy(), influences)
-    rig = ExportRig(base=base.numpy(), target_names=names,
-                    targets=np.concatenate(blocks, 0), node_names=[ROOT_NAME, *model.joint_names],
+    rig = ExportRig(base=base, target_names=names, targets=np.concatenate(blocks, 0),
+                    node_names=[ROOT_NAME, *model.joint_names],
                     parents=[-1] + [p + 1 if p >= 0 else 0 for p in model.parents],
                     rest_nodes=np.concatenate([rest_joints[:1], rest_joints], 0),
                     joints4=joints4, weights4=weights4, weight_error_m=0.0, tau_grid=grid,
                     num_expressions=e, eta=float(eta))
     rig.weight_error_m = weight_truncation_error(model, rig)
     return rig
+
+
+#: Axes (unnormalised) of the 9 rotations per joint whose (R - I) span all 3 x 3 matrices.
+_PROBE_AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (0, 1, 1), (1, 0, 1), (1, -1, 0),
+               (0, 1, -1), (-1, 0, 1))
+_PROBE_ANGLE = 1.0  # radians: far from zero, so the 9 x 9 systems are well conditioned
+
+
+def _pose_targets(rest, neutral: np.ndarray, k: int, dtype) -> np.ndarray | None:
+    """(9K, N, 3) pose-corrective targets (feature order: joint, row, column of R - I), or
+    None when the model has none (the rest mesh does not depend on the pose)."""
+    axes = np.asarray(_PROBE_AXES, np.float64)
+    aa = _PROBE_ANGLE * axes / np.linalg.norm(axes, axis=1, keepdims=True)  # (9, 3)
+    theta = np.zeros((9 * k, k, 3))
+    for j in range(k):
+        theta[9 * j:9 * j + 9, j] = aa
+    y = rest(9 * k, theta=torch.as_tensor(theta, dtype=dtype))[0] - neutral  # (9K, N, 3)
+    if not np.any(y):
+        return None
+    feat = pose_features(torch.as_tensor(theta)).numpy()  # (9K, 9K), block diagonal
+    out = np.zeros_like(y)
+    n = y.shape[1] * 3
+    for j in range(k):
+        rows = slice(9 * j, 9 * j + 9)
+        out[rows] = np.linalg.solve(feat[rows, rows], y[rows].reshape(9, n)).reshape(9, -1, 3)
+    return out.astype(np.float32)
 
 
 def _tau_grid(tau_range: float, step: float) -> np.ndarray:
@@ -195,7 +229,8 @@ def weight_truncation_error(model, rig: ExportRig, theta: torch.Tensor | None = 
     rest = torch.as_tensor(rig.base)[None].expand(len(theta), -1, -1)
     full = skin(rest, model.skinning_weights.double(), rel)
     w4 = np.zeros(model.skinning_weights.shape)
-    np.put_along_axis(w4, rig.joints4, rig.weights4.astype(np.float64), 1)
+    rows = np.arange(len(w4))[:, None].repeat(rig.joints4.shape[1], 1)
+    np.add.at(w4, (rows, rig.joints4), rig.weights4.astype(np.float64))  # unused slots add 0
     cut = skin(rest, torch.as_tensor(w4), rel)
     return float((full - cut).norm(dim=-1).max())
 

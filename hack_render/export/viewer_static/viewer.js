@@ -168,9 +168,9 @@ new THREE.GLTFLoader().load(config.model, (gltf) => {
   setupTimeline(gltf);
   const box = new THREE.Box3().setFromObject(root);
   const c = box.getCenter(new THREE.Vector3());
-  const target = new THREE.Vector3(c.x, box.max.y - 0.12, c.z);
+  const target = new THREE.Vector3(c.x, box.max.y - 0.16, c.z);
   controls.target.copy(target);
-  camera.position.set(target.x, target.y + 0.02, target.z + 0.9);
+  camera.position.set(target.x, target.y + 0.03, target.z + 1.5);
   controls.update();
   resize();
   applyUrl();
