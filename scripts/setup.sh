@@ -20,3 +20,17 @@ PY=${PYTHON:-python3}
 # torch first, pinned: the CPU build lies on disk; an open range would pull a CUDA build.
 $PY -m pip install -q "torch==2.13.0"
 $PY -m pip install -q -e ".[${extras}]"
+# export tests (tests/test_export_*.py): node + the Khronos glTF-Validator (npm) check every
+# exported glTF; Debian's chromium, headless, drives the viewer. Tests skip without them.
+if [[ "${1:-}" == "--test" ]]; then
+  need=()
+  command -v node >/dev/null || need+=(nodejs)
+  command -v npm >/dev/null || need+=(npm)
+  command -v chromium >/dev/null || need+=(chromium)
+  if ((${#need[@]})); then
+    export DEBIAN_FRONTEND=noninteractive
+    $SUDO apt-get update -qq
+    $SUDO apt-get install -y -qq "${need[@]}" >/dev/null
+  fi
+  [[ -d "$(npm root -g)/gltf-validator" ]] || $SUDO npm install -g --no-audit --no-fund -q gltf-validator@2.0.0-dev.3.10
+fi
