@@ -1,4 +1,5 @@
-"""A small synthetic HACK model with every optional component, for fast exact tests."""
+"""Shared test helpers: a small synthetic HACK model with every optional component (fast
+exact tests), landmark views of the model, and synthetic photo targets for the fitter."""
 
 from __future__ import annotations
 
@@ -108,3 +109,34 @@ def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: i
         rr, cc = polygon(tri[:, 1] - 0.5, tri[:, 0] - 0.5, (res, res))
         m[rr, cc] = True
     return photo, det, m
+
+
+def synthetic_target(model, res=96, rig=None):
+    """A render of known parameters (lit by ``rig``, default the ``light_stage`` preset) of
+    the full model: returns the photo (res, res, 3) linear RGB, its 68 landmarks (68, 2) in
+    pixels and the truth (beta, head angles, vertices). Needs Mitsuba."""
+    import torch
+
+    from hack_render.fit.fitter import R0
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from scenes.cameras import Camera
+    from scenes.lights import preset
+
+    g = torch.Generator().manual_seed(7)
+    beta = torch.randn(1, 20, generator=g) * 1.0
+    angles = torch.deg2rad(torch.tensor([8.0, 15.0, -4.0]))
+    theta = distribute_head_rotation(angles)[None]
+    with torch.no_grad():
+        out = model(beta=beta, theta=theta)
+    f = 50.0 / 36.0 * res * 2.2
+    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
+    t = np.array([0.0, -0.03, 1.0])
+    cam = Camera(K, R0.numpy().astype(np.float64), t, res, res, "synthetic")
+    head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
+                     preset("light_stage") if rig is None else rig,
+                     cam, RenderSettings(res, res, 16, 4, 0))
+    img = head.render()[..., :3]
+    lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
+    return img, lm, dict(beta=beta, angles=angles, vertices=out.vertices[0])

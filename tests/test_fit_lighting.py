@@ -61,7 +61,7 @@ def test_01_lobe_map_peak_sharpness_and_direction_gradient():
 
 def _fitter(model, rig, res=80):
     import colour
-    from test_fit_e2e import synthetic_target
+    from synthetic import synthetic_target
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter

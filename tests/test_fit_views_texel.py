@@ -74,7 +74,7 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
 
 def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     import colour
-    from test_fit_e2e import synthetic_target
+    from synthetic import synthetic_target
 
     from hack_render.fit import photometric as ph
     from hack_render.fit.config import load_config
