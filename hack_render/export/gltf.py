@@ -222,6 +222,7 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         iris_vertex_colors,
         material_base_colours,
     )
+    from hack_render.export.rig import pose_split
     from hack_render.render.parts import Topology, split_parts, vertex_normals
 
     g = GltfBuilder()
@@ -279,6 +280,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         "larynx_slide_m": [float(t) for t in rig.tau_grid], "eta": rig.eta,
         "influences": n_inf, "weight_truncation_error_m": rig.weight_error_m,
         "joints": list(model.joint_names), "root": rig.node_names[0],
+        "pose_targets": [[f, sg] for f, sg, _ in pose_split(model.num_joints)]
+        if rig.slots["pose"].stop > rig.slots["pose"].start else [],
         "joint_limits_deg": model.rotation_limits_deg.tolist(),
         "units": "metres, Y up, face along +Z"}}
     return g

@@ -13,7 +13,11 @@ with morph targets computes ``sum_k w_k J_k IBM_k (base + sum_t weight_t delta_t
 - targets: the 53 personalised expressions E(beta) (weights psi), ``larynx_size``
   (L at eta = 1, tau = 0: weight = a change of eta), the larynx slide as in-between
   targets at fixed tau (weights: linear interpolation between neighbours, since L is not
-  linear in tau), and 72 pose correctives P(beta) (weights: the pose feature);
+  linear in tau), and the pose correctives P(beta) (weights: the pose feature), each
+  feature's target split by sign so that every weight is >= 0 (:func:`pose_split`:
+  diagonal features R_ii - 1 are never positive; 8 x (3 + 2 x 6) = 120 targets). Weights
+  in [0, 1] are what importers expect: Blender's glTF importer (4.5) widens a shape key's
+  slider range from the first keyframe only, and clamps the rest;
 - skeleton: a root (thorax, at c7-t1, carrying global_orient and transl) and the 8 joints
   with rest-pose inverse bind matrices; 4 weights per vertex (the model's 9, truncated to
   the largest 4: :func:`top_weights`; :attr:`ExportRig.weight_error_m` says what it
@@ -121,6 +125,20 @@ def tau_weights(tau: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return out[:, keep]
 
 
+def pose_split(num_joints: int) -> list[tuple[int, float, str]]:
+    """The pose-corrective targets: (feature index, sign, name) each; the target is sign
+    times the feature's corrective and its weight max(sign * feature, 0). Diagonal
+    features (R_ii - 1 <= 0) have one target (sign -1), the others one per sign."""
+    out = []
+    for j in range(num_joints):
+        for r in range(3):
+            for c in range(3):
+                f = 9 * j + 3 * r + c
+                out += [(f, -1.0, f"r{r}{c}-")] if r == c else [(f, 1.0, f"r{r}{c}+"),
+                                                                (f, -1.0, f"r{r}{c}-")]
+    return out
+
+
 def pose_features(theta: torch.Tensor) -> torch.Tensor:
     """theta (T, 8, 3) axis-angle -> (T, 72): the weights of the pose-corrective targets."""
     zeros = theta.new_zeros(theta.shape[0], 3)
@@ -167,9 +185,9 @@ def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = T
         names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
     pose = _pose_targets(rest, neutral, k, dtype)
     if pose is not None:
-        blocks.append(pose)
-        names += [f"pose_{j}_r{r}{c}" for j in model.joint_names for r in range(3)
-                  for c in range(3)]
+        split = pose_split(k)
+        blocks.append(np.stack([sign * pose[f] for f, sign, _ in split]))
+        names += [f"pose_{model.joint_names[f // 9]}_{tag}" for f, _, tag in split]
     joints4, weights4 = top_weights(model.skinning_weights.double().numpy(), influences)
     rig = ExportRig(base=base, target_names=names, targets=np.concatenate(blocks, 0),
                     node_names=[ROOT_NAME, *model.joint_names],
@@ -261,7 +279,11 @@ def frame_weights(rig: ExportRig, psi: np.ndarray | None, theta: np.ndarray,
     if len(rig.tau_grid):
         out[:, s["larynx_slide"]] = tau_weights(np.zeros(t) if tau is None else tau, rig.tau_grid)
     if s["pose"].stop > s["pose"].start:
-        out[:, s["pose"]] = pose_features(torch.tensor(np.asarray(theta), dtype=torch.float64)).numpy()
+        feat = pose_features(torch.tensor(np.asarray(theta), dtype=torch.float64)).numpy()
+        split = pose_split(feat.shape[1] // 9)
+        idx = np.array([f for f, _, _ in split])
+        sign = np.array([sg for _, sg, _ in split])
+        out[:, s["pose"]] = np.maximum(feat[:, idx] * sign, 0.0)
     return out
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import typer
 
+from hack_render import cli_options as opts
 from hack_render.errors import HackError
 
 
@@ -85,20 +86,15 @@ def mesh(
     output: Path = typer.Option(Path("out/hack_mesh.obj"), "-o", "--output",
                                 help="Output mesh; .obj or .ply (both with UVs). A second format "
                                      "is written beside it with --both."),
-    params: Path | None = typer.Option(None, "--params", help="JSON/YAML parameter file "
-                                          "(keys: beta, psi, expression, head_rotation_deg, theta, "
-                                          "global_orient, transl, eta, tau)."),
-    beta: str | None = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
-    expression: str | None = typer.Option(None, "--expr", help="FACS AUs and/or shape names, "
-                                             "e.g. 'AU12=0.7,jawOpen=0.3'."),
-    head_rotation: str | None = typer.Option(None, "--head-rotation", help="Whole-head "
-                                                "'flexion,axial,lateral' in degrees, shared over the 8 "
-                                                "cervical joints by their ranges, e.g. '15,40,0'."),
+    params: opts.Params = None,
+    beta: opts.Beta = None,
+    expression: opts.Expression = None,
+    head_rotation: opts.HeadRotation = None,
     eta: float | None = typer.Option(None, help="Larynx size."),
     tau: float | None = typer.Option(None, help="Larynx vertical slide, metres."),
     limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Joint rotations beyond the "
                                        "anatomical limits: warn, clamp or error."),
-    model_path: Path | None = typer.Option(None, "--model", help="Model file (default: built-in)."),
+    model_path: opts.ModelPath = None,
     both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
 ) -> None:
     """Write a posed HACK mesh (OBJ/PLY with UVs) for the given parameters.

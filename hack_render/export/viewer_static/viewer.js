@@ -80,14 +80,16 @@ function applySliders() {   // sliders -> bones and morph weights
 function correctives() {   // pose-corrective weights from the joints' current rotations
   const s = hack.target_slots;
   if (!s.pose || s.pose[1] <= s.pose[0]) return;
-  const m = new THREE.Matrix4();
+  const m = new THREE.Matrix4(), feat = [];
   hack.joints.forEach((name, j) => {
     m.makeRotationFromQuaternion(bones[name].quaternion);
     const e = m.elements;  // column-major
-    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) {
-      const v = e[c * 4 + r] - (r === c ? 1 : 0);
-      for (const mesh of meshes) mesh.morphTargetInfluences[s.pose[0] + 9 * j + 3 * r + c] = v;
-    }
+    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) feat[9 * j + 3 * r + c] = e[c * 4 + r] - (r === c ? 1 : 0);
+  });
+  // each feature's target split by sign: weight = max(sign * feature, 0)
+  hack.pose_targets.forEach(([f, sign], i) => {
+    const v = Math.max(sign * feat[f], 0);
+    for (const mesh of meshes) mesh.morphTargetInfluences[s.pose[0] + i] = v;
   });
 }
 
