@@ -1,0 +1,54 @@
+"""`hack-render view` end to end in headless Chromium (Debian's `chromium`, started here):
+the page loads the exported person with the bundled three.js, and moving a slider (an
+expression, a joint) changes the pixels of the 3D view. Opt-in (--runslow): software
+WebGL takes ~20 s a screenshot on two cores."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from hack_render.geometry import load_default_model
+from hack_render.geometry.params import check_params
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+VIEW_WIDTH = 340  # the 3D view: the page's left part (640 px wide minus the 300 px panel)
+
+
+def screenshot(url: str, out) -> np.ndarray:
+    import imageio.v3 as iio
+
+    r = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--use-angle=swiftshader",
+                        "--enable-unsafe-swiftshader", "--disable-gpu-sandbox",
+                        "--window-size=640,480", "--hide-scrollbars",
+                        "--virtual-time-budget=8000", f"--screenshot={out}", url],
+                       capture_output=True, text=True, check=False, timeout=180)
+    assert r.returncode == 0 and out.is_file(), r.stderr[-2000:]
+    return iio.imread(out)[..., :3].astype(np.float64)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/setup.sh --test)")
+def test_sliders_change_the_rendered_pixels(tmp_path):
+    from hack_render.export.person import export_person
+    from hack_render.export.viewer import start
+    from hack_render.render import turntable as tt
+
+    glb = tmp_path / "person.glb"
+    seq = tt.motion_sequence(tt.TurntableSpec(8, look_around=True, swallow=True))
+    export_person(load_default_model(), check_params({"beta": [0.5, -1.0]}), glb, seq)
+    server, url = start(glb, 0)
+    try:
+        base = screenshot(url, tmp_path / "base.png")
+        jaw = screenshot(url + "?set=jawOpen:1", tmp_path / "jaw.png")
+        turn = screenshot(url + "?set=c1-c2.y:35", tmp_path / "turn.png")
+    finally:
+        server.shutdown()
+    view = base[:420, :VIEW_WIDTH]
+    assert view.std() > 20, "the 3D view is blank: the model did not load or render"
+    for name, img in (("jawOpen", jaw), ("c1-c2 axial", turn)):
+        diff = np.abs(img[:420, :VIEW_WIDTH] - view).max(-1)
+        assert (diff > 30).sum() > 500, f"moving {name} changed {int((diff > 30).sum())} pixels"
