@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -124,6 +125,8 @@ def main() -> None:
     ap.add_argument("--components", type=int, default=0, help="components kept (0 = all)")
     ap.add_argument("--workdir", default=None, help="keep subjects here (resumable)")
     ap.add_argument("--skip-maps", action="store_true")
+    ap.add_argument("--out", default=None, help="also write the results, with commit, date, "
+                    "machine and command, e.g. bench/results/appearance.json")
     ap.add_argument("--child-gen", nargs=4, help=argparse.SUPPRESS)
     ap.add_argument("--child-build", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -146,6 +149,8 @@ def main() -> None:
             out["build"] = {**gen, **_run_child("--child-build", a.build_subjects,
                                                 a.build_height, a.components, wd)}
             print(json.dumps(out["build"], indent=1))
+    if a.out:
+        write_result(a.out, out)
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from provenance import recorded  # bench/ is sys.path[0] when run as a script
 
 
 def peak_rss_mib() -> float:
@@ -173,10 +174,10 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
     """Serial (Dr.Jit on every core, then on one) vs Ray with 2 single-thread actors."""
     import threading
 
+    import drjit as dr
+
     from hack_render.dataset.runner import Job
     from hack_render.render.engine import ensure_variant, set_thread_count
-
-    import drjit as dr
 
     ensure_variant(cfg["render"]["variant"])
     cores = dr.thread_count()
@@ -229,9 +230,11 @@ def main() -> None:
     ap.add_argument("--no-labels", action="store_true", help="skip (a)")
     ap.add_argument("--inline-writes", action="store_true",
                     help="(a): write files in the rendering thread (no background writer)")
+    ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
+                    "date, machine and command, e.g. bench/results/dataset.json")
     a = ap.parse_args()
     cfg = config(a.size, a.spp, a.appearance)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, recorded(a.out, "Datasets"):
         if not a.no_labels:
             labels_benchmark(cfg, a.n, Path(tmp) / "a", a.seed, not a.inline_writes, a.block)
             print(f"(c) peak RSS of this process after (a): {peak_rss_mib():.0f} MiB")

@@ -50,9 +50,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 from hack_render.fit.metrics import similarity_error
-from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 
 def _medians(rows: list) -> dict:
@@ -187,16 +187,16 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
     match), a diagnostic of what the lighting model costs. ``oracle_mask``: the person mask
     is the render's true coverage (> 0.5), not one segmented from the photo, a diagnostic
     of what the automatic segmentation costs."""
-    import colour
     from pathlib import Path
 
+    import colour
+
+    from appearance.model import AppearanceModel
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect
     from hack_render.fit.silhouette import segment_plain_background
     from hack_render.geometry import load_default_model
-
-    from appearance.model import AppearanceModel
 
     model = load_default_model()
     app = AppearanceModel.load()
@@ -214,8 +214,12 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
                                     "n_ok": sum("error" not in r for r in rows),
                                     "median": _medians(rows)})
 
-    from hack_render.fit.landmark_embedding import (CalibrationSet, LandmarkEmbedding,
-                                                    evaluate, load_default)
+    from hack_render.fit.landmark_embedding import (
+        CalibrationSet,
+        LandmarkEmbedding,
+        evaluate,
+        load_default,
+    )
 
     emb = load_default(model)
     li = model.landmark_indices.numpy()
@@ -425,8 +429,13 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
-    from hack_render.fit.photometric import (init_lobes, level_maps, level_objective,
-                                             render_view, setup_level)
+    from hack_render.fit.photometric import (
+        init_lobes,
+        level_maps,
+        level_objective,
+        render_view,
+        setup_level,
+    )
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():
@@ -615,6 +624,8 @@ def main():
                                      camera=args.camera, oracle_lighting=args.oracle_lighting,
                                      oracle_mask=args.oracle_mask)
         print(json.dumps(out["synthetic"]["median"]))
+    elif args.out:  # --overhead / --astronaut: the synthetic run writes its own file
+        write_result(args.out, out)
     print(json.dumps(out, indent=1))
 
 

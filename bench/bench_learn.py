@@ -14,6 +14,8 @@ import subprocess
 import sys
 import time
 
+from provenance import recorded  # bench/ is sys.path[0] when run as a script
+
 TRAINERS = {
     "larynx (60 identities)": "from hack_render.learn.larynx_learn import learn_larynx; learn_larynx(a, num_identities=60, progress=False)",
     "expressions (DT 30 identities, M_E 300 epochs)": "from hack_render.learn.expression_learn import learn_expressions; learn_expressions(a, a['template_vertices'], a['shape_components'], num_identities=30, epochs=300, progress=False)",
@@ -69,6 +71,12 @@ def trainers() -> None:
 
 
 if __name__ == "__main__":
-    which = sys.argv[1:] or ["personalise", "trainers"]
-    for w in which:
-        {"personalise": personalise, "trainers": trainers}[w]()
+    # python bench/bench_learn.py [personalise] [trainers] [--out bench/results/learn.json]
+    args = sys.argv[1:]
+    out = None
+    if "--out" in args:
+        i = args.index("--out")
+        out, args = args[i + 1], args[:i] + args[i + 2:]
+    with recorded(out, "Learners"):
+        for w in args or ["personalise", "trainers"]:
+            {"personalise": personalise, "trainers": trainers}[w]()

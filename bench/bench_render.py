@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from provenance import recorded  # bench/ is sys.path[0] when run as a script
 
 
 def peak_rss_mib() -> float:
@@ -148,16 +149,19 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
+                    "date, machine and command, e.g. bench/results/render.json")
     args = ap.parse_args()
     from hack_render.render.engine import ensure_variant
 
     variant = ensure_variant(args.variant)
-    if not args.cold_only:
-        print(f"variant: {variant}")
-    turntable_benchmark(args.tt_size, args.tt_spp, args.frames, args.cold_only)
     if args.cold_only:
+        turntable_benchmark(args.tt_size, args.tt_spp, args.frames, True)
         return
-    material_benchmark(args.size, args.spp, args.repeats)
+    with recorded(args.out, "Rendering"):
+        print(f"variant: {variant}")
+        turntable_benchmark(args.tt_size, args.tt_spp, args.frames, False)
+        material_benchmark(args.size, args.spp, args.repeats)
 
 
 if __name__ == "__main__":

@@ -130,8 +130,12 @@ def _refiner(results: dict) -> list[str]:
 
 
 def _figures(name: str, d: dict) -> list[str]:
-    lines = [f"### {d.get('title', name)}", "", "| what | result |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in d["figures"].items()]
+    lines = [f"### {d.get('title', name)}", ""]
+    if "figures" in d:
+        lines += ["| what | result |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in d["figures"].items()]
+    else:  # a script that reports by printing (bench/provenance.py's recorded)
+        lines += ["```text", *d["printed"], "```"]
     return lines + ["", f"- {_source(name, d)}", ""]
 
 
@@ -153,7 +157,7 @@ def render(results: dict) -> str:
     out += ["", "## Landmark refiner", ""] + _refiner(results)
     out += ["", "## Other benchmarks", ""]
     for name, d in results.items():
-        if "figures" in d:
+        if "figures" in d or "printed" in d:
             out += _figures(name, d)
     return "\n".join(out).rstrip() + "\n"
 

@@ -7,11 +7,16 @@ docs' benchmarks page.
 
     from provenance import write_result      # bench/ is on sys.path when run as a script
     write_result("bench/results/fit_synthetic256.json", {"median": ...})
+
+Scripts that report by printing wrap their run in :func:`recorded`, which keeps what they
+print and writes it with the same fields (``--out``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import io
 import json
 import os
 import platform
@@ -80,3 +85,35 @@ def write_result(path: str | os.PathLike, data: dict, argv: list[str] | None = N
     tmp.write_text(json.dumps(out, indent=1) + "\n")
     tmp.replace(path)
     return path
+
+
+class _Tee(io.TextIOBase):
+    def __init__(self, *streams):
+        self.streams = streams
+
+    def write(self, text):
+        for stream in self.streams:
+            stream.write(text)
+        return len(text)
+
+    def flush(self):
+        for stream in self.streams:
+            stream.flush()
+
+
+@contextlib.contextmanager
+def recorded(path: str | os.PathLike | None, title: str, argv: list[str] | None = None):
+    """Run the ``with`` body printing as usual; when ``path`` is given and the body ends
+    without an error, write what it printed (``"printed"``: a list of lines) under
+    ``title`` with the provenance fields."""
+    if path is None:
+        yield
+        return
+    buf = io.StringIO()
+    stdout = sys.stdout
+    sys.stdout = _Tee(stdout, buf)
+    try:
+        yield
+    finally:
+        sys.stdout = stdout
+    write_result(path, {"title": title, "printed": buf.getvalue().splitlines()}, argv)

@@ -68,6 +68,19 @@ def test_write_result_records_commit_date_machine_and_command(tmp_path):
     assert data["median"] == 1.5 and not (tmp_path / "r.json.tmp").exists()
 
 
+def test_recorded_keeps_what_a_benchmark_prints(tmp_path, capsys):
+    prov = _bench_module("provenance")
+    with prov.recorded(tmp_path / "p.json", "Toy", argv=["bench/bench_toy.py"]):
+        print("ratio 1.25x")
+    assert capsys.readouterr().out == "ratio 1.25x\n"  # still printed
+    data = json.loads((tmp_path / "p.json").read_text())
+    assert data["printed"] == ["ratio 1.25x"] and data["title"] == "Toy"
+    assert data["command"] == "python bench/bench_toy.py" and data["commit"]
+    with pytest.raises(ZeroDivisionError), prov.recorded(tmp_path / "q.json", "Toy"):
+        print(1 / 0)
+    assert not (tmp_path / "q.json").exists()  # a failed run writes no result
+
+
 def test_benchmarks_page_is_generated_from_the_results():
     page = _bench_module("make_benchmarks_page")
     text = page.render(page.load())
