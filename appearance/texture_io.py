@@ -183,7 +183,7 @@ def read_map(path: Path, name: str) -> np.ndarray:
     h, w = img.shape[:2]
     if w != 2 * h:
         raise HackError(f"{path}: map {name!r} expected an atlas of shape (H, 2H) covering "
-                        f"u in [0, 2], found {h} x {w}. See the README (Appearance model) for the layout.")
+                        f"u in [0, 2], found {h} x {w}. See docs/model.md (the appearance model) for the layout.")
     return img
 
 

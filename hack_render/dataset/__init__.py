@@ -4,7 +4,7 @@ Public API:
     load_config, check_config, DEFAULTS (config.py); sample_spec, model_kwargs (sampling.py);
     LABELS, to_labels, soft_masks, larynx_peak (labels.py); SampleRenderer (worker.py);
     Job, run, parse_shard, write_manifest, read_record (runner.py); contact_sheet (preview.py).
-CLI: ``hack-render dataset`` and ``hack-render dataset preview`` (cli.py); the README (Datasets).
+CLI: ``hack-render dataset`` and ``hack-render dataset preview`` (cli.py); docs/datasets.md.
 """
 
 from typing import TYPE_CHECKING

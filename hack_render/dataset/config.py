@@ -1,6 +1,6 @@
 """Dataset configuration: defaults, a YAML file's overrides, validation naming the key.
 
-A config is a nested mapping (see :data:`DEFAULTS` and the README (Datasets)). A YAML file
+A config is a nested mapping (see :data:`DEFAULTS` and docs/datasets.md). A YAML file
 overrides any subset of it; unknown keys, wrong types, impossible ranges and unknown
 presets are refused by :func:`load_config` / :func:`check_config` before anything is
 rendered, with a message that names the key (``camera.yaw_deg``) and the fix.
@@ -80,7 +80,7 @@ def _merge(base: dict, override: dict, prefix: str = "") -> dict:
         key = f"{prefix}{k}"
         if k not in base:
             raise HackError(f"config key '{key}': unknown key; known keys here: "
-                            f"{', '.join(base)}. Check its spelling (the README (Datasets)).")
+                            f"{', '.join(base)}. Check its spelling (docs/datasets.md).")
         if isinstance(base[k], dict):
             if not isinstance(v, dict):
                 _fail(key, "a mapping", v)

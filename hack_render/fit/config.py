@@ -44,10 +44,10 @@ class LandmarkConfig:
     # landmark stages, 0.1 gave 1.69 mm (15 of 20 better), 0.05 1.72, 0.2 1.75, 0.3 1.79
     jaw_weight: float = 0.1
     # weight of the 10 brow landmarks (dlib's brows are its least certain inner points:
-    # 3.8 % NME against the calibrated embedding's truth, README)
+    # 3.8 % NME against the calibrated embedding's truth, CHANGELOG.md)
     brow_weight: float = 1.0
     # 68 per-landmark multipliers on top of the two weights above (None: all 1), e.g.
-    # inverse variances of the detector's scatter (README, Synthetic recovery)
+    # inverse variances of the detector's scatter (CHANGELOG.md, fitting history)
     point_weights: list | None = None
     # also weigh each point by the embedding file's inverse variance of the detector's
     # scatter (landmark_embedding.detector_weights; dlib's points through the embedding
@@ -79,13 +79,13 @@ class CameraConfig:
     lr: float = 0.03
     # prior centre, 36 mm sensor width equivalent: 85 mm, the classic portrait focal
     # length (a single view barely constrains focal length, so the prior sets it; at
-    # 50 mm the synthetic subjects' shapes absorbed the wrong perspective, README)
+    # 50 mm the synthetic subjects' shapes absorbed the wrong perspective, CHANGELOG.md)
     focal_mm_prior: float = 85.0
     focal_log_sigma: float = 0.35    # prior std of log focal length
     # a photo's own focal length (EXIF FocalLengthIn35mmFilm, or --focal-mm) replaces the
     # prior centre above, with this std of log focal length (0.05: ~5 %, a zoom lens's
     # rounding); use_photo_focal false ignores it. Synthetic subjects 0-7, landmark
-    # stages: 1.74 mm with the 85 mm prior, 1.64 mm at the true focal (README)
+    # stages: 1.74 mm with the 85 mm prior, 1.64 mm at the true focal (CHANGELOG.md)
     use_photo_focal: bool = True
     photo_focal_log_sigma: float = 0.05
     fit_focal: bool = True
@@ -108,7 +108,7 @@ class ShapeConfig:
     # units cost less than the many weak ones that would mimic an identity; "l2":
     # w_psi * sum(psi^2), which prefers exactly those many weak ones. Landmark stages on
     # 8 synthetic subjects, l1 w_psi 0.1 / 0.2 / 0.3: 2.71 / 2.37 / 2.34 mm; whole fit of
-    # the smiling astronaut, landmark NME 3.83 % (l2, w_psi 2) vs 2.89 % (l1 0.3), README
+    # the smiling astronaut, landmark NME 3.83 % (l2, w_psi 2) vs 2.89 % (l1 0.3), CHANGELOG.md
     psi_prior: str = "l1"
     lr_head: float = 0.002           # head and torso rotation (radians)
     lr_joints: float = 0.0004        # residual per-joint rotations (radians)
@@ -133,7 +133,7 @@ class SilhouetteConfig:
     # contour crossings at most this deep inside the model's own footprint (footprint
     # pixels, ~face size / 60) count as its outline (silhouette.select_contour); landmark
     # stages on synthetic subjects 20-39 under random presets, chroma masks: 2.5 (the
-    # previous default) median 1.90 mm, 1.0 1.62 mm (README)
+    # previous default) median 1.90 mm, 1.0 1.62 mm (CHANGELOG.md)
     border_depth: float = 1.0
     # a border pixel within this colour distance (sRGB) of the border median is background;
     # under 60 % of the border so: a cluttered background, no automatic mask
@@ -155,7 +155,7 @@ class PhotometricConfig:
     # "sg" (order-2 spherical harmonics plus `lobes` spherical Gaussians on a map of
     # sg_height rows, started from the photo: lighting.py), "sh" (the SH alone) or "env"
     # (free texels). Synthetic 20 under random presets: sg 1.60 mm, sh 1.71 mm (window
-    # 1.48 vs 1.72, overcast_sun 1.86 vs 1.97); under light_stage within the spread (README)
+    # 1.48 vs 1.72, overcast_sun 1.86 vs 1.97); under light_stage within the spread (CHANGELOG.md)
     lighting: str = "sg"
     env_height: int = 16
     lobes: int = 1
@@ -166,13 +166,13 @@ class PhotometricConfig:
     lr_geometry: float = 0.005
     # the expressions' step, relative to lr_geometry; 0 holds them where the landmark
     # stages left them (random-preset benchmark: median 1.73 vs 1.71 mm, mean 1.66 vs
-    # 1.69 mm on neutral subjects; README)
+    # 1.69 mm on neutral subjects; CHANGELOG.md)
     lr_psi_scale: float = 1.0
     w_alpha: float = 1e-3
     # the shape stage's objective (landmarks + priors) is kept, scaled by this, beside
     # the photo term; on 8 synthetic subjects 0.1 and 1.0 left the geometry where the
     # landmarks put it (the photo term's gradients are small), 0.001 let the photo term
-    # refine it: landmark NME 2.43 % -> 1.93 %, vertex error 2.30 -> 2.23 mm (README)
+    # refine it: landmark NME 2.43 % -> 1.93 %, vertex error 2.30 -> 2.23 mm (CHANGELOG.md)
     w_landmarks: float = 0.001
     # the silhouette term's scale in this stage (the shape stage's weights times this)
     w_silhouette: float = 0.001
@@ -181,11 +181,11 @@ class PhotometricConfig:
     mask_erode_px: int = 1
     # render each level with the coarsest mip of the skin maps that still has a texel per
     # pixel (photometric.level_map_height: 128 rows at 128 px); the torch maps' forward and
-    # backward cost falls with the texel count (README, the bridge's overhead)
+    # backward cost falls with the texel count (CHANGELOG.md, the bridge's overhead)
     coarse_maps: bool = True
     # torch's intra-op threads during this stage. Its OpenMP workers spin-wait after each
     # parallel op and take cores from Mitsuba's render threads: at 128 px an iteration
-    # took 0.27-0.29 s with 2 torch threads vs 0.23-0.25 s with 1 (2-core CPU, README)
+    # took 0.27-0.29 s with 2 torch threads vs 0.23-0.25 s with 1 (2-core CPU, CHANGELOG.md)
     torch_threads: int = 1
 
 

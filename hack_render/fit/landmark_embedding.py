@@ -3,7 +3,7 @@
 Each of the 68 landmarks is a point on the mesh surface: a triangle (its three vertex
 ids) and barycentric coordinates. The model's own landmark vertices (ICT-FaceKit's 68) do
 not follow dlib's annotation convention (dlib's points differ from them by ~6 % of the
-inter-ocular distance on synthetic renders, README (Fitting photos)); a fit to dlib's
+inter-ocular distance on synthetic renders, docs/fit.md); a fit to dlib's
 points through those vertices inherits that bias. :func:`calibrate` chooses, per
 landmark, the surface point whose projection is nearest (robust mean, in units of each
 subject's inter-ocular distance) to what the detector finds on renders of synthetic

@@ -1,7 +1,7 @@
 """A learned refinement of dlib's inner landmarks toward the embedding's surface points.
 
 dlib's 68 points are 4.1 % of the inter-ocular distance (rms) from the calibrated
-embedding's points on synthetic renders (README, Synthetic recovery): 2.3 % of it is an
+embedding's points on synthetic renders (docs/fit.md): 2.3 % of it is an
 error common to all faces (the embedding absorbs most of it) and 3.4 % differs from face
 to face, a bias of dlib's shape model that no calibration of its points removes. This
 module learns that per-face part from the image, as a supervised descent method (SDM,

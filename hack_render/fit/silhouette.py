@@ -1,6 +1,6 @@
 """Silhouette term: the head's outline in the photo against the model's occluding contour.
 
-``prb`` renders give shading gradients but none at silhouettes (README, the bridge), so
+``prb`` renders give shading gradients but none at silhouettes (docs/fit.md, the bridge), so
 the outline is fitted in torch, beside the landmarks, without rendering:
 
 - **Photo side** (:func:`segment_plain_background`, or a user mask file): a person mask

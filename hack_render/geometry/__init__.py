@@ -78,5 +78,5 @@ def load_model(path: str | Path | None = None) -> HackModel:
 
 
 def load_default_model() -> HackModel:
-    """The built-in default HACK model (ICT-FaceKit based, see README)."""
+    """The built-in default HACK model (ICT-FaceKit based; docs/model.md)."""
     return load_model(None)

@@ -18,7 +18,7 @@ Inputs that are None keep the scene's current value. Visibility: the default int
 is Mitsuba's ``prb`` (max depth 2: direct lighting from the environment and area lights,
 with shadows), which differentiates shading but not silhouettes or shadow boundaries;
 ``direct_projective`` also differentiates silhouettes (about 50x slower on a CPU, see
-the README, Fitting photos). The image is linear RGBA (H, W, 4); alpha is coverage.
+docs/fit.md). The image is linear RGBA (H, W, 4); alpha is coverage.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
                 maps[name] = None
                 continue
             raise HackError(f"--textures {folder}: expected {path.name}, found it missing. "
-                            "Write the skin maps there as EXR (see the README, Rendering).")
+                            "Write the skin maps there as EXR (docs/render.md).")
         ch = read_exr(path)
         keys = ["R", "G", "B"] if c == 3 else [k for k in ("Y", "R", "A") if k in ch][:1]
         if not keys or not all(k in ch for k in keys):
