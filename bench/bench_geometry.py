@@ -1,80 +1,175 @@
-"""Geometry forward cost against a physical floor, measured in one run (issue 2, Sec. 6).
+"""Geometry forward cost, measured fairly: against smplx's ``lbs`` on the same arrays and
+against a memory floor that reads the bytes the forward actually reads (issue 21, part 4).
 
-Floor: one matrix product that reads the same blendshape bytes once: (B, K) @ (K, 3N) over a
-contiguous float32 buffer as large as every basis the general forward reads (the shape,
-expression and pose blendshapes, and, when the model carries them, the personalised
-expression and pose PCA components and the larynx maps). Reports forward / floor at B = 1
-and B = 64, and the speed-up of the personalised forward over the general one for a fixed
-identity.
+Sides, timed interleaved (one call of each per round, the order rotating every round, so
+load on a shared machine hits all of them alike), ``--repeats`` rounds; each is reported as
+the median with its range (min..max) over the rounds, and ratios of medians:
 
-    python bench/bench_geometry.py [--repeats 30]
+* ``hack``: ``HackModel.forward`` with every term on: shape, expressions, generic and
+  personalised pose correctives, personalised expressions, larynx (eta, tau), LBS.
+* ``smplx``: ``smplx.lbs.lbs`` (smplx 0.1.28, a bench-only dependency: ``pip install
+  smplx``) on the same arrays: v_template = the template, shapedirs = the shape and
+  expression blendshapes (betas = [beta, psi]), posedirs = the dense (72, 3N) pose basis
+  (SMPL's layout; the zeros off the neck included), J_regressor = the joint regressor with
+  the root row (c7-t1) first, parents = the chain, lbs_weights = the skinning weights. It
+  has no personalised or larynx terms: the HACK side does strictly more work.
+* ``floor``: one (B, K) @ (K, 3N) float32 product over a buffer as large as the bytes the
+  HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, the
+  personalised components of the used rows, the pose columns, larynx maps, skinning
+  weights and template), i.e. reading those bytes once.
+
+Configurations: B = 1 and B = 64 distinct identities with dense random psi (every row of
+every basis read), B = 64 rows of one identity (a sequence or a multi-view fit; the
+personalised bases are built once), and B = 1 with a FACS expression (sparse psi).
+
+    python bench/bench_geometry.py [--repeats 21] [--out bench/results/bench_geometry.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
+import sys
 import time
+from pathlib import Path
 
 import torch
 
-from hack_render.geometry import distribute_head_rotation, load_default_model
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import write_result  # noqa: E402
+
+from hack_render.geometry import distribute_head_rotation, load_default_model  # noqa: E402
+
+try:
+    from smplx.lbs import lbs as smplx_lbs
+except ImportError as err:  # bench-only dependency
+    raise SystemExit("bench_geometry needs smplx (a bench-only dependency): pip install smplx"
+                     ) from err
 
 
-def best_time(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+def smplx_arrays(model) -> dict[str, torch.Tensor]:
+    """The HACK model's arrays in smplx ``lbs``'s layout (see the module docstring)."""
+    n, e = model.num_vertices, model.num_expressions
+    rows = model.expr_shape_basis  # (E + S, 3N): expressions first
+    dirs = torch.cat([rows[e:], rows[:e]], 0)  # smplx order: [beta, psi]
+    shapedirs = dirs.view(-1, n, 3).permute(1, 2, 0).contiguous()  # (N, 3, S + E)
+    p = 9 * model.num_joints
+    posedirs = torch.zeros(p, n, 3)
+    posedirs[:, model.pose_columns] = model.pose_basis_columns.view(p, -1, 3)
+    reg = torch.cat([model.joint_regressor[:1], model.joint_regressor], 0)  # root at c7-t1
+    parents = torch.tensor([-1] + [q + 1 for q in model.parents])
+    return {"v_template": model.template[None], "shapedirs": shapedirs,
+            "posedirs": posedirs.view(p, -1), "J_regressor": reg, "parents": parents,
+            "lbs_weights": model.skinning_weights}
 
 
-def floor_basis(model) -> torch.Tensor:
-    """A (K, 3N) float32 buffer with as many bytes as every basis the general forward reads."""
-    parts = [model.blend_basis.flatten()]
-    for pb in (model.expr_personal, model.pose_personal):
-        if pb is not None:
-            parts += [pb.components.flatten(), pb.mean.flatten()]
+def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
+    """Bytes of model buffers the forward reads for these inputs (float32, index arrays
+    excluded): the expression rows with a nonzero weight, the given betas' shape rows,
+    the pose columns, the personalised components and means of the used rows (once for a
+    shared identity or a batch: the outer-product form reads them once either way), the
+    larynx maps, the skinning weights and the template."""
+    f = 4
+    n3 = model.expr_shape_basis.shape[1]
+    used_e = int(psi.ne(0).any(0).sum())
+    total = (used_e + beta.shape[1]) * n3 * f + model.template.numel() * f
+    total += model.pose_basis_columns.numel() * f
+    if model.expr_personal is not None:
+        d, c, k = model.expr_personal.components.shape
+        total += used_e * (c + 1) * k * f
+    if model.pose_personal is not None:
+        total += (model.pose_personal.components.numel() + model.pose_personal.mean.numel()) * f
     if model.has_larynx:
-        parts.append(model.larynx_maps.flatten())
-    flat = torch.cat(parts)
-    width = model.blend_basis.shape[1]
-    rows = -(-flat.numel() // width)
-    return torch.nn.functional.pad(flat, (0, rows * width - flat.numel())).view(rows, width).contiguous()
+        total += model.larynx_maps.numel() * f
+    total += model.skinning_weights.numel() * f
+    return total
+
+
+def floor_buffer(nbytes: int, width: int) -> torch.Tensor:
+    rows = -(-nbytes // (4 * width))
+    return torch.randn(rows, width)
+
+
+def interleaved(fns: dict, repeats: int) -> dict[str, list[float]]:
+    """Per side, the wall times of ``repeats`` rounds; one call per side per round, the
+    order rotating, after one warm-up call each."""
+    names = list(fns)
+    for f in fns.values():
+        f()
+    times = {k: [] for k in names}
+    for r in range(repeats):
+        order = names[r % len(names):] + names[:r % len(names)]
+        for k in order:
+            t0 = time.perf_counter()
+            fns[k]()
+            times[k].append(time.perf_counter() - t0)
+    return times
+
+
+def summary(ts: list[float]) -> dict:
+    return {"median_ms": 1e3 * statistics.median(ts), "min_ms": 1e3 * min(ts),
+            "max_ms": 1e3 * max(ts), "n": len(ts)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--repeats", type=int, default=21, help="rounds (>= 15 for the medians)")
+    ap.add_argument("--out", type=Path, default=Path("bench/results/bench_geometry.json"))
     args = ap.parse_args()
     model = load_default_model()
-    basis = floor_basis(model)
+    sx = smplx_arrays(model)
     gen = torch.Generator().manual_seed(0)
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, bases read by the forward: "
-          f"{basis.numel() * 4 / 1e6:.1f} MB float32 (blend basis {tuple(model.blend_basis.shape)}"
-          f"{', personalised PCA, larynx maps' if basis.shape[0] > model.blend_basis.shape[0] else ''})")
-    rows = []
+    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, repeats {args.repeats}")
+    results = {"repeats": args.repeats, "threads": torch.get_num_threads(),
+               "torch": torch.__version__, "configs": {}}
+    configs = [("B=1", 1, False, False), ("B=64", 64, False, False),
+               ("B=64 one identity", 64, True, False), ("B=1 FACS expression", 1, False, True)]
     with torch.no_grad():
-        for b in (1, 64):
-            beta = torch.randn(b, model.num_shape, generator=gen)
+        for name, b, shared, facs in configs:
+            beta = torch.randn(1 if shared else b, model.num_shape, generator=gen)
             psi = torch.rand(b, model.num_expressions, generator=gen)
+            if facs:
+                psi = model.expression_vector("mouthSmile_L=0.7, mouthSmile_R=0.7, jawOpen=0.3, "
+                                               "cheekSquint_L=0.5, cheekSquint_R=0.5")[None]
             theta = distribute_head_rotation(0.3 * torch.randn(b, 3, generator=gen))
-            coeffs = torch.randn(b, basis.shape[0], generator=gen)
-            t_floor = best_time(lambda c=coeffs: c @ basis, args.repeats)
-            t_fwd = best_time(lambda b_=beta, p_=psi, t_=theta: model(beta=b_, psi=p_, theta=t_),
-                              args.repeats)
-            rows.append((b, t_fwd, t_floor))
-            print(f"B={b:3d}: forward {t_fwd * 1e3:8.2f} ms, matmul floor {t_floor * 1e3:8.2f} ms, "
-                  f"ratio {t_fwd / t_floor:5.2f}x (target at B=1: <= 2.0x)")
+            go = 0.1 * torch.randn(b, 3, generator=gen)
+            eta = 0.5 + torch.rand(b, generator=gen)
+            tau = 0.005 * torch.randn(b, generator=gen)
+            pose = torch.cat([go[:, None], theta], 1).reshape(b, -1)
+            betas_sx = torch.cat([beta.expand(b, -1), psi], 1)
+            nbytes = bytes_read(model, beta, psi)
+            floor = floor_buffer(nbytes, model.expr_shape_basis.shape[1])
+            coeffs = torch.randn(b, floor.shape[0], generator=gen)
+            fns = {
+                "hack": lambda: model(beta=beta, psi=psi, theta=theta, global_orient=go,
+                                      eta=eta, tau=tau),
+                "smplx": lambda: smplx_lbs(betas_sx, pose, **sx),
+                "floor": lambda: coeffs @ floor,
+            }
+            times = interleaved(fns, args.repeats)
+            s = {k: summary(v) for k, v in times.items()}
+            row = {**s, "bytes_read_mb": nbytes / 1e6,
+                   "hack_over_smplx": s["hack"]["median_ms"] / s["smplx"]["median_ms"],
+                   "hack_over_floor": s["hack"]["median_ms"] / s["floor"]["median_ms"]}
+            results["configs"][name] = row
+            print(f"{name:22s} hack {s['hack']['median_ms']:8.2f} ms "
+                  f"[{s['hack']['min_ms']:.2f}..{s['hack']['max_ms']:.2f}]  smplx "
+                  f"{s['smplx']['median_ms']:8.2f} ms [{s['smplx']['min_ms']:.2f}.."
+                  f"{s['smplx']['max_ms']:.2f}]  floor ({nbytes / 1e6:.1f} MB) "
+                  f"{s['floor']['median_ms']:7.2f} ms  hack/smplx {row['hack_over_smplx']:.2f}x"
+                  f"  hack/floor {row['hack_over_floor']:.2f}x")
         beta1 = torch.randn(1, model.num_shape, generator=gen)
         pers = model.personalize(beta1)
         psi = torch.rand(1, model.num_expressions, generator=gen)
         theta = distribute_head_rotation(0.3 * torch.randn(1, 3, generator=gen))
-        t_gen = best_time(lambda: model(beta=beta1, psi=psi, theta=theta), args.repeats)
-        t_per = best_time(lambda: pers(psi=psi, theta=theta), args.repeats)
-        print(f"fixed identity, B=1: general {t_gen * 1e3:.2f} ms, personalised {t_per * 1e3:.2f} ms, "
-              f"speed-up {t_gen / t_per:.2f}x")
+        times = interleaved({"general": lambda: model(beta=beta1, psi=psi, theta=theta),
+                             "personalised": lambda: pers(psi=psi, theta=theta)}, args.repeats)
+        s = {k: summary(v) for k, v in times.items()}
+        s["speed_up"] = s["general"]["median_ms"] / s["personalised"]["median_ms"]
+        results["configs"]["B=1 personalised vs general"] = s
+        print(f"fixed identity, B=1: general {s['general']['median_ms']:.2f} ms, personalised "
+              f"{s['personalised']['median_ms']:.2f} ms, speed-up {s['speed_up']:.2f}x")
+    print(f"wrote {write_result(args.out, results)}")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ import torch
 from hack_render.errors import HackError
 from hack_render.geometry import HackModel, load_default_model
 from hack_render.geometry import rotations as R
+from hack_render.geometry.model import personal_product, reference_forward, rows_product
 from hack_render.geometry.lbs import rigid_transforms, skin, skin_reference
 from hack_render.geometry.model_file import load_model_file, save_model_file
 from hack_render.geometry.skeleton import (
@@ -29,6 +30,25 @@ def synth64():
 
 
 @pytest.fixture(scope="module")
+def synth_rigid():
+    """The synthetic model with the default model's structure: most vertices rigid with
+    o-c1 and the generic pose rows on the personalised pose vertices (folded together)."""
+    a = synthetic_arrays(seed=3)
+    n = len(a["template_vertices"])
+    w = a["skinning_weights"]
+    rigid = np.arange(n) % 3 != 0
+    w[rigid] = 0.0
+    w[rigid, 8] = 1.0
+    cols = a["pose_pca_vertices"]
+    mask = np.zeros(n, bool)
+    mask[cols] = True
+    a["pose_basis"][:, ~mask] = 0.0
+    m = HackModel(a).double()
+    assert m.pose_folded and len(m.blended_vertices) < n
+    return m
+
+
+@pytest.fixture(scope="module")
 def default():
     return load_default_model()
 
@@ -44,13 +64,36 @@ def _random_params(model, b, gen, scale=0.3):
 
 
 def test_zero_parameters_give_template(default, synth64):
-    out = default()
+    """All zeros (eta = 0: no larynx) give the template; the defaults (eta = 1, the
+    identity's own larynx, as on the CLI) add exactly L(0, 1, 0) at the larynx vertices."""
+    out = default(eta=torch.zeros(1))
     assert out.vertices.shape == (1, default.num_vertices, 3)
     torch.testing.assert_close(out.vertices[0], default.template, atol=1e-7, rtol=0)
     assert torch.equal(out.rest_vertices[0], default.template)
     # float64: exact up to round-off of the kinematic chain
     out64 = synth64(eta=torch.zeros(1, dtype=torch.float64))
     assert (out64.vertices[0] - synth64.template).abs().max() < 1e-15
+    with torch.no_grad():
+        rest = default().rest_vertices[0]
+    expect = default.template.index_add(0, default.larynx_vertices, default.larynx_displacement()[0])
+    torch.testing.assert_close(rest, expect, atol=1e-7, rtol=0)
+    assert (rest - default.template).norm(dim=1).max() > 0.003  # a real larynx, mm-sized
+
+
+def test_eta_has_one_default_everywhere(default):
+    """Python API, parameter files / CLI and larynx_displacement all default eta to 1."""
+    from hack_render.geometry.larynx import ETA_DEFAULT
+    from hack_render.geometry.params import model_inputs
+
+    assert ETA_DEFAULT == 1.0
+    kw = model_inputs(default, {})
+    assert float(kw["eta"][0]) == ETA_DEFAULT
+    with torch.no_grad():
+        api = default().vertices
+        cli = default(**kw).vertices
+        one = default(eta=torch.ones(1)).vertices
+    assert torch.equal(api, cli) and torch.equal(api, one)
+    assert "missing: 1" in HackModel.forward.__doc__
 
 
 def test_rotations_exact_near_zero_and_round_trips():
@@ -88,29 +131,88 @@ def test_gradcheck_every_parameter(synth64, name):
     assert torch.autograd.gradcheck(f, (x,), eps=1e-6, atol=1e-6)
 
 
-def test_sparse_expression_weights_exact(synth64):
-    """Fitted psi is mostly exact zeros: the forward reads only the used basis rows, the
-    backward the whole basis (model.sparse_rows_product). Values and gradients in beta
-    and psi (zero rows included) match the dense expression and finite differences."""
-    from hack_render.geometry.model import sparse_rows_product
-
+def test_sparse_products_exact_with_gradients():
+    """rows_product and personal_product read only the rows with a nonzero coefficient
+    forward and every row backward: values equal the dense expressions, and gradients
+    (zero coefficients included) equal finite differences, for distinct identities (w of
+    B rows), one shared identity (w of one row) and all-nonzero coefficients."""
     gen = torch.Generator().manual_seed(5)
+    dd = {"dtype": torch.float64, "generator": gen}
+    B, C, D, K = 3, 4, 7, 10
+    mean, comps = torch.randn(D, K, **dd), torch.randn(C, D, K, **dd)
+    rows, bias = torch.randn(D, K, **dd), torch.randn(K, **dd)
+    coeffs = torch.randn(B, D, **dd)
+    for zero in ([], [1, 2, 5], [0, 1, 2, 3, 4, 5, 6]):
+        c = coeffs.clone()
+        c[:, zero] = 0.0
+        torch.testing.assert_close(rows_product(c, rows, bias), bias + c @ rows, atol=1e-14, rtol=0)
+        assert torch.autograd.gradcheck(lambda x, b: rows_product(x, rows, b),
+                                        (c.clone().requires_grad_(True),
+                                         bias[None].clone().requires_grad_(True)))
+        for nw in (B, 1):
+            w = torch.randn(nw, C, **dd)
+            dense = torch.stack([c[b] @ (mean + torch.einsum("c,cdk->dk", w[b % nw], comps))
+                                 for b in range(B)])
+            with torch.no_grad():
+                torch.testing.assert_close(personal_product(c, mean, w, comps), dense,
+                                           atol=1e-13, rtol=0)
+            assert torch.autograd.gradcheck(lambda x, ww: personal_product(x, mean, ww, comps),
+                                            (c.clone().requires_grad_(True),
+                                             w.clone().requires_grad_(True)))
+
+
+def _grads(model, fn, params):
+    leaves = {k: v.clone().requires_grad_(True) for k, v in params.items() if torch.is_tensor(v)}
+    out = fn(model, **{**params, **leaves})
+    gen = torch.Generator().manual_seed(11)
+    loss = sum((getattr(out, f) * torch.randn(getattr(out, f).shape, generator=gen,
+                                              dtype=torch.float64)).sum()
+               for f in ("vertices", "joints", "rest_vertices"))
+    names = list(leaves)
+    return out, dict(zip(names, torch.autograd.grad(loss, [leaves[k] for k in names])))
+
+
+@pytest.mark.parametrize("case", ["distinct", "one_identity", "equal_rows", "sparse_psi", "batch1"])
+def test_fast_forward_equals_reference(synth64, synth_rigid, default, case):
+    """The optimised forward (batched personalised bases, exact zeros skipped, one
+    identity's work shared, rigid vertices posed by one product) equals the plain
+    reference_forward: every output, and (float64 models) the gradient of every input."""
+    gen = torch.Generator().manual_seed(40)
+    for model, tol in ((synth64, 1e-12), (synth_rigid, 1e-12), (default, 2e-6)):
+        p = _random_params(model, 1 if case == "batch1" else 3, gen)
+        if case == "one_identity":
+            p["beta"] = p["beta"][:1]
+        if case == "equal_rows":
+            p["beta"] = p["beta"][:1].repeat(3, 1)
+        if case == "sparse_psi":
+            p["psi"][:, 1::2] = 0.0
+            p["psi"][0, 0] = 0.0
+        if model is default:
+            with torch.no_grad():
+                fast, ref = model(**p), reference_forward(model, **p)
+        else:
+            fast, g_fast = _grads(model, lambda m, **k: m(**k), p)
+            ref, g_ref = _grads(model, reference_forward, p)
+            for k in g_ref:
+                torch.testing.assert_close(g_fast[k], g_ref[k], atol=1e-10, rtol=1e-10, msg=k)
+        for field in ("vertices", "joints", "rest_joints", "landmarks", "rest_vertices"):
+            torch.testing.assert_close(getattr(fast, field), getattr(ref, field).expand_as(
+                getattr(fast, field)), atol=tol, rtol=0, msg=f"{case} {field}")
+
+
+def test_shared_identity_gradients_reach_each_row(synth64):
+    """Equal beta rows that need gradients are not collapsed into one identity: each row
+    gets its own gradient (as with distinct rows), and an expanded row gets the sum."""
+    gen = torch.Generator().manual_seed(12)
     p = _random_params(synth64, 2, gen)
-    psi = p.pop("psi")
-    psi[:, 1::2] = 0.0
-    psi[0, 0] = 0.0  # a row used by one batch item only
-    beta = p.pop("beta")
-    assert torch.autograd.gradcheck(lambda b, e: synth64(beta=b, psi=e, **p).vertices,
-                                    (beta.clone().requires_grad_(True), psi.clone().requires_grad_(True)),
-                                    eps=1e-6, atol=1e-6)
-    assert torch.autograd.gradcheck(lambda e: synth64(beta=beta, psi=e, **p).vertices,
-                                    (torch.zeros_like(psi, requires_grad=True),), eps=1e-6, atol=1e-6)
-    pb = synth64.expr_personal
-    w = pb.mlp(beta)
-    C, D, K = pb.components.shape
-    dense = torch.bmm(psi.unsqueeze(1), (w @ pb.components.reshape(C, -1)).view(2, D, K) + pb.mean)
-    torch.testing.assert_close(sparse_rows_product(psi, pb.mean, w, pb.components), dense[:, 0],
-                               atol=1e-14, rtol=0)
+    beta = p.pop("beta")[:1].repeat(2, 1).requires_grad_(True)
+    synth64(beta=beta, **p).vertices[0].sum().backward()
+    assert beta.grad[0].abs().sum() > 0 and beta.grad[1].abs().max() == 0
+    one = beta.detach()[:1].clone().requires_grad_(True)
+    synth64(beta=one, **p).vertices.sum().backward()
+    b2 = beta.detach().clone().requires_grad_(True)
+    synth64(beta=b2, **p).vertices.sum().backward()
+    torch.testing.assert_close(one.grad[0], b2.grad.sum(0), atol=1e-12, rtol=0)
 
 
 def test_lbs_matches_slow_reference():
@@ -254,8 +356,8 @@ def _skin_edges(model):
 
 def _deformation(model, theta):
     faces, edges = _skin_edges(model)
-    v0 = model.template
-    with torch.no_grad():
+    with torch.no_grad():  # against the rest pose of the same (default) parameters
+        v0 = model().vertices[0]
         v = model(theta=theta[None]).vertices[0]
 
     def normals(x):

@@ -40,6 +40,7 @@ from hack_render.fit.landmarks import Detection, JawContour, landmark_weights
 from hack_render.fit.lighting import Lighting
 from hack_render.fit.photo import Photo
 from hack_render.fit.stages import StageReport, run_stage
+from hack_render.geometry.larynx import ETA_RANGE, TAU_RANGE_M
 from hack_render.geometry.skeleton import (adjacent_similarity_penalty, distribute_head_rotation,
                                            rotation_limit_penalty)
 
@@ -397,8 +398,9 @@ class Fitter:
             for v in self.views:
                 if v.psi is not None:
                     v.psi.clamp_(0.0, 1.0)
-            self.eta.clamp_(-3.0, 3.0)
-            self.tau.clamp_(-0.02, 0.02)
+            # the anatomical ranges (larynx.py); E_larynx penalises the excess before this
+            self.eta.clamp_(*ETA_RANGE)
+            self.tau.clamp_(*TAU_RANGE_M)
 
     def _run(self, name, groups, loss, iterations, after_step=None, keep="best") -> StageReport:
         t0 = time.perf_counter()

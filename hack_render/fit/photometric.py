@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from hack_render.fit.lighting import Lighting
+from hack_render.geometry.larynx import larynx_limit_penalty
 
 FACE_OUTLINE = list(range(0, 17)) + list(range(26, 16, -1))
 HOLES = (list(range(36, 42)), list(range(42, 48)), list(range(60, 68)))
@@ -336,6 +337,9 @@ def level_objective(fitter, texel: bool = False, pairs=None):
         if refine:
             extra["beta_prior"] = cfg.w_landmarks * fitter.beta_prior()
             extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
+            # E_larynx: eta and tau beyond their anatomical ranges, as E_rot for the joints
+            extra["E_larynx"] = fitter.cfg.shape.w_rot * larynx_limit_penalty(fitter.eta,
+                                                                              fitter.tau).sum()
         if texel:
             for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
                 w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,

@@ -45,22 +45,18 @@ def gather_params(params_file: Path | None, beta: str | None, expression: str | 
     return check_params(params, "command-line parameters")
 
 
-def apply_limit_policy(theta, policy: LimitPolicy):
-    """Warn about, clamp, or refuse joint rotations beyond the anatomical limits."""
-    from hack_render.geometry.skeleton import clamp_to_limits, outside_limits
+def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) -> dict:
+    """Warn about, clamp, or refuse (exit 2) out-of-range joint rotations, whole-head
+    rotations, larynx slide tau and size eta (:func:`hack_render.geometry.limits.enforce_limits`);
+    warnings name each value and its limit, and go to stderr and :mod:`warnings`."""
+    from hack_render.geometry.limits import enforce_limits
 
-    bad = outside_limits(theta[0])
-    if not bad:
-        return theta
-    text = "; ".join(f"{name} {axis}={deg:.1f} deg (limits {lo:.1f}..{hi:.1f})"
-                     for _, name, axis, deg, lo, hi in bad)
-    if policy is LimitPolicy.error:
-        raise HackError(f"rotations outside the anatomical limits: {text}. Use --limits clamp or warn.")
-    if policy is LimitPolicy.clamp:
-        return clamp_to_limits(theta)
-    warnings.warn(f"rotations outside the anatomical limits: {text} (use --limits clamp to clamp)")
-    typer.secho(f"warning: rotations outside the anatomical limits: {text}", err=True, fg="yellow")
-    return theta
+    kw, messages = enforce_limits(kw, policy, head_rotation_deg)
+    if messages:
+        text = "; ".join(messages)
+        warnings.warn(f"outside the anatomical limits: {text}", stacklevel=2)
+        typer.secho(f"warning: outside the anatomical limits: {text}", err=True, fg="yellow")
+    return kw
 
 
 def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
@@ -75,8 +71,7 @@ def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, 
 
     model = load_model(model_path)
     p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
-    kw = model_inputs(model, p)
-    kw["theta"] = apply_limit_policy(kw["theta"], limits)
+    kw = apply_limit_policy(model_inputs(model, p), limits, p.get("head_rotation_deg"))
     with torch.no_grad():
         out = model(**kw)
     return model, kw, out.vertices[0].numpy()
@@ -90,10 +85,13 @@ def mesh(
     beta: opts.Beta = None,
     expression: opts.Expression = None,
     head_rotation: opts.HeadRotation = None,
-    eta: float | None = typer.Option(None, help="Larynx size."),
-    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres."),
-    limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Joint rotations beyond the "
-                                       "anatomical limits: warn, clamp or error."),
+    eta: float | None = typer.Option(None, help="Larynx size, 0..1.5 (default 1: the "
+                                     "identity's own larynx; 0: none)."),
+    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres, up positive, "
+                                     "-0.01..0.02 (a swallow rises ~0.02)."),
+    limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Values beyond the anatomical "
+                                       "limits (joint rotations, --head-rotation, --eta, "
+                                       "--tau): warn, clamp (and warn) or error."),
     model_path: opts.ModelPath = None,
     both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
 ) -> None:

@@ -11,12 +11,69 @@ with ``c(beta) = A beta + c0``, a documented generalisation of Eq. 4 (``A = I``,
 is the paper's form; ``c0`` lets a mean larynx exist at ``beta = 0``). ``tau`` is in metres
 of vertical slide along the neck's UV ``v`` direction, so the larynx only moves vertically.
 Sampling is bilinear and differentiable in beta, eta and tau.
+
+Ranges (enforced like the joints' rotation limits: :func:`larynx_limit_penalty` for fitting,
+:func:`clamp_larynx` / :func:`larynx_outside_limits` on input, ``--limits`` on the CLI):
+
+* ``tau`` in [-0.01, +0.02] m (``TAU_RANGE_M``). Up: the larynx rises about 2-3 cm (up and
+  forward) in a swallow (Logemann, *Evaluation and Treatment of Swallowing Disorders*, 2nd
+  ed. 1998, videofluoroscopic laryngeal elevation) and by a few millimetres in speech
+  (shared docs ANATOMY.md). The upper bound is the swallow's lower end, 2 cm, because that
+  is what the shipped maps hold: the larynx region's vertices end ~2.2 cm above the
+  prominence at rest, and beyond +2 cm the bump leaves the region (at beta = 0 its summed
+  displacement falls 7 % by +2.5 cm, its peak 5 % by +3 cm). Down: the larynx "does not move
+  down much" (ANATOMY.md); it lowers by a few millimetres in speech and by up to about 1 cm
+  for low pitch (Honda, Hirai, Masaki & Shimada, "Role of vertical larynx movement and
+  cervical lordosis in F0 control", Language and Speech 42, 1999: MRI of larynx height
+  against F0), so -1 cm; at -4 cm the prominence would sit on the suprasternal notch.
+* ``eta`` in [0, 1.5] (``ETA_RANGE``), a size factor on the identity's own larynx. The
+  laryngeal prominence protrudes about 5-10 mm in adult males and 1-3 mm in females
+  (ANATOMY.md). The shipped maps give, at eta = 1, a peak displacement of 6.6 mm at the
+  median identity (3.0 mm at the 5th percentile, 11.4 mm at the 95th; 500 identities
+  beta ~ N(0, I)): eta = 0 flattens it (no prominence, the lower end of the female range
+  with rounding), eta = 1.5 takes the median identity to ~10 mm, the top of the male range.
+  Negative eta would turn the prominence into a dent, which no neck has; larger eta
+  extrapolates the learned maps linearly beyond any simulated identity.
 """
 
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
+
+#: Vertical slide tau, metres (up positive): (min, max). See the module docstring.
+TAU_RANGE_M: tuple[float, float] = (-0.01, 0.02)
+#: Larynx size eta (1 = the identity's own larynx): (min, max). See the module docstring.
+ETA_RANGE: tuple[float, float] = (0.0, 1.5)
+#: The default eta everywhere (Python API, parameter files, CLI): the identity's own larynx.
+ETA_DEFAULT = 1.0
+
+
+def larynx_limit_penalty(eta: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """E_larynx: L1 excess of eta and tau over their ranges, each divided by its range's
+    width (dimensionless, so a fraction of a range costs the same for both).
+
+    eta, tau: (B,) -> (B,); zero inside the ranges, positive and differentiable outside."""
+    out = eta.new_zeros(torch.broadcast_shapes(eta.shape, tau.shape))
+    for x, (lo, hi) in ((eta, ETA_RANGE), (tau, TAU_RANGE_M)):
+        out = out + (torch.relu(x - hi) + torch.relu(lo - x)) / (hi - lo)
+    return out
+
+
+def clamp_larynx(eta: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """eta and tau clamped to ``ETA_RANGE`` and ``TAU_RANGE_M`` (any shapes)."""
+    return eta.clamp(*ETA_RANGE), tau.clamp(*TAU_RANGE_M)
+
+
+def larynx_outside_limits(eta: torch.Tensor | float, tau: torch.Tensor | float,
+                          tol: float = 1e-9) -> list[tuple[str, float, float, float]]:
+    """The values beyond the ranges: (name, value, min, max) per offending entry."""
+    bad = []
+    for name, x, (lo, hi) in (("eta", eta, ETA_RANGE), ("tau", tau, TAU_RANGE_M)):
+        for val in torch.as_tensor(x, dtype=torch.float64).detach().flatten().tolist():
+            if val < lo - tol or val > hi + tol:
+                bad.append((name, val, lo, hi))
+    return bad
 
 
 def larynx_coefficients(beta: torch.Tensor, coef_matrix: torch.Tensor,

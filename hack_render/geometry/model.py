@@ -4,8 +4,13 @@
     G = LBS(T, J(beta), theta, W)
 
 The module is stateless in its inputs (SMPL-X layer style): every parameter is a call
-argument, missing ones are zeros on the buffers' device and dtype, and the batch size comes
-from the inputs. ``model.double()`` gives a float64 model for gradient checks.
+argument, missing ones are filled on the buffers' device and dtype (zeros, except eta = 1,
+the identity's own larynx), and the batch size comes from the inputs. ``model.double()``
+gives a float64 model for gradient checks.
+
+The forward (:meth:`HackModel.forward`) is the fast path; :func:`reference_forward` is the
+same model written plainly (dense bases, per-row personalised bases, skinning of every
+vertex), kept beside it for teaching and as the reference the tests compare it with.
 """
 
 from __future__ import annotations
@@ -29,6 +34,18 @@ from hack_render.geometry.lbs import (
     skin,
 )
 from hack_render.geometry.model_file import load_model_file
+
+#: FACS action units that no shape of the ARKit set (ICT-FaceKit's expressions) makes, and
+#: why: the expression parser names them instead of calling them unknown. The AU table
+#: itself is built by :func:`hack_render.learn.ict_default.facs_au_table`.
+FACS_WITHOUT_SHAPES: dict[str, str] = {
+    "AU11": "nasolabial deepener: no ARKit shape deepens the nasolabial furrow alone",
+    "AU13": "sharp lip puller: no ARKit shape; AU12 (mouthSmile) is the nearest",
+    "AU23": "lip tightener: no ARKit shape narrows the lips' red margins",
+    "AU25": "lips part: no shape parts the lips without the jaw (mouthClose is its opposite)",
+    "AU27": "mouth stretch: no ARKit shape stretches the mouth open beyond a jaw drop; AU26 "
+            "(jawOpen, jaw drop) is the nearest",
+}
 
 
 @dataclass
@@ -69,67 +86,153 @@ class _MLP(nn.Module):
         return x @ self.w2.T + self.b2
 
 
-def _add_rows(rest: torch.Tensor, index: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-    """rest (B, N, 3) with delta (B, M, 3) added at vertices ``index`` (M,), out of place.
+# --------------------------------------------------------------------- basis products
+def _add_rows_(rest: torch.Tensor, index: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    """rest (B, N, 3) += delta (B, M, 3) at vertices ``index`` (M,), in place; returns rest.
     One identity (B = 1) adds along dim 0 of the (N, 3) view: index_add on dim 1 takes a
     slower path (forward + backward 1.4-2.3x on the CPU)."""
     if rest.shape[0] == 1:
-        n = rest.shape[1]
-        return rest.reshape(n, 3).index_add(0, index, delta.reshape(-1, 3)).view(1, n, 3)
-    return rest.index_add(1, index, delta)
+        rest.view(rest.shape[1], 3).index_add_(0, index, delta.reshape(-1, 3))
+    else:
+        rest.index_add_(1, index, delta)
+    return rest
 
 
-class _SparseRowsProduct(torch.autograd.Function):
-    """coeffs @ (mean + sum_c w_c comps_c); see :func:`sparse_rows_product`."""
+def _nonzero_columns(coeffs: torch.Tensor) -> torch.Tensor | None:
+    """Indices (n,) of the columns of coeffs (B, D) with a nonzero entry; None when all are."""
+    used = coeffs.detach().ne(0).any(0)
+    if bool(used.all()):
+        return None
+    return torch.nonzero(used).flatten()
+
+
+def _runs(index: list[int]) -> list[tuple[int, int, int]]:
+    """Maximal runs of consecutive integers in a sorted list: (position, first, end) each."""
+    runs: list[tuple[int, int, int]] = []
+    for pos, d in enumerate(index):
+        if runs and runs[-1][2] == d:
+            runs[-1] = (runs[-1][0], runs[-1][1], d + 1)
+        else:
+            runs.append((pos, d, d + 1))
+    return runs
+
+
+def _accumulate_rows_(out: torch.Tensor, coeffs: torch.Tensor, rows: torch.Tensor,
+                      nz: torch.Tensor) -> None:
+    """out (B, K) += coeffs[:, nz] @ rows[nz], reading only rows ``nz``. Each run of
+    consecutive rows is one in-place product on a slice (no copy); when the runs are many
+    and the output is tall, copying the used rows once moves fewer bytes than re-reading
+    the output once per run."""
+    idx = nz.tolist()
+    runs = _runs(idx)
+    if out.shape[0] * (len(runs) - 1) <= len(idx):
+        for _, first, end in runs:
+            out.addmm_(coeffs[:, first:end], rows[first:end])
+    else:
+        out.addmm_(coeffs.index_select(1, nz), rows.index_select(0, nz))
+
+
+class _RowsProduct(torch.autograd.Function):
+    """bias + coeffs @ rows, the forward reading only the rows of nonzero coefficients."""
 
     @staticmethod
-    def forward(ctx, coeffs, mean, w, comps):
-        nz = torch.nonzero(coeffs.ne(0).any(0)).flatten().tolist()
-        # read only the rows some coefficient uses: mean's rows, and each used row's
-        # components in place (comps[:, d] is a strided (C, K) matrix; no gathered copy)
-        out = coeffs[:, nz] @ mean[nz]
-        if comps is not None:
-            for d in nz:
-                out = out + coeffs[:, d:d + 1] * (w @ comps[:, d])
+    def forward(ctx, coeffs, rows, bias, nz):
+        out = bias.expand(coeffs.shape[0], rows.shape[1]).clone()
+        if len(nz):
+            _accumulate_rows_(out, coeffs, rows, nz)
+        ctx.save_for_backward(rows)
+        ctx.bias_shape = tuple(bias.shape)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        (rows,) = ctx.saved_tensors
+        grad_c = g @ rows.T if ctx.needs_input_grad[0] else None  # every row: zeros too
+        grad_b = None
+        if ctx.needs_input_grad[2]:
+            shape = ctx.bias_shape
+            grad_b = g if shape == tuple(g.shape) else g.sum(0).reshape(shape)
+        return grad_c, None, grad_b, None
+
+
+def rows_product(coeffs: torch.Tensor, rows: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """``bias + coeffs @ rows``: coeffs (B, D), rows (D, K) a basis buffer, bias (K,),
+    (1, K) or (B, K) -> a new (B, K) tensor, differentiable in coeffs and bias.
+
+    The forward reads only the rows d where some ``coeffs[:, d]`` is nonzero: expression
+    weights from FACS strings, and fitted ones (clamped to [0, 1] under an L1 prior), are
+    mostly exact zeros. The backward reads every row, so a zero weight still gets its
+    gradient (a fit can move it off zero)."""
+    nz = _nonzero_columns(coeffs)
+    if nz is None:
+        return torch.addmm(bias, coeffs, rows)
+    return _RowsProduct.apply(coeffs, rows, bias, nz)
+
+
+class _PersonalProduct(torch.autograd.Function):
+    """Per-row personalised product, unused rows skipped; see :func:`personal_product`."""
+
+    @staticmethod
+    def forward(ctx, coeffs, mean, w, comps, nz):
+        B = coeffs.shape[0]
+        C, _, K = comps.shape
+        n = len(nz)
+        x = (w[:, :, None] * coeffs[:, None, nz]).reshape(B, C * n)  # outer products, used rows
+        out = torch.addmm(coeffs[:, nz] @ mean[nz], x, comps.index_select(1, nz).view(C * n, K))
         ctx.save_for_backward(coeffs, mean, w, comps)
         return out
 
     @staticmethod
     def backward(ctx, g):
         coeffs, mean, w, comps = ctx.saved_tensors
-        need_c, need_w = ctx.needs_input_grad[0], ctx.needs_input_grad[2]
-        grad_c = g @ mean.T if need_c else None
-        grad_w = None
-        if comps is not None and (need_c or need_w):
-            C, D, K = comps.shape
-            G = (comps.reshape(C * D, K) @ g.T).view(C, D, -1)  # the one full read
-            if need_c:
-                grad_c = grad_c + torch.einsum("bc,cdb->bd", w, G)
-            if need_w:
-                grad_w = torch.einsum("bd,cdb->bc", coeffs, G)
-        return grad_c, None, grad_w, None
-
-
-def sparse_rows_product(coeffs: torch.Tensor, mean: torch.Tensor, w: torch.Tensor | None = None,
-                        comps: torch.Tensor | None = None) -> torch.Tensor:
-    """``coeffs @ (mean + sum_c w[:, c] comps[c])`` per batch row, (B, K), exact and
-    differentiable in ``coeffs`` (B, D) and ``w`` (B, C) (not in the buffers ``mean``
-    (D, K) and ``comps`` (C, D, K)).
-
-    The forward reads only the basis rows d where some ``coeffs[:, d]`` is nonzero: the
-    fitted expression weights are clamped to [0, 1] under an L1 prior, so most are exactly
-    zero. The backward reads the whole basis once and gets both gradients from that one
-    pass (``G = comps @ g``: d/dcoeffs = w G + mean g, d/dw = coeffs G), where autograd
-    of the dense expression read the components once forward and once backward."""
-    if bool(coeffs.ne(0).all()):  # every row used: plain autograd (as fast, no saved state)
-        if comps is None:
-            return coeffs @ mean
         C, D, K = comps.shape
-        basis = (w @ comps.reshape(C, D * K)).view(w.shape[0], D, K) + mean
-        return torch.bmm(coeffs.unsqueeze(1), basis).squeeze(1)
-    if comps is None:
-        return _SparseRowsProduct.apply(coeffs, mean, None, None)
-    return _SparseRowsProduct.apply(coeffs, mean, w, comps)
+        # the one full read: G[b, c, d] = sum_k comps[c, d, k] g[b, k]
+        G = (g @ comps.view(C * D, K).T).view(-1, C, D)
+        grad_c = g @ mean.T + (G * w[:, :, None]).sum(1) if ctx.needs_input_grad[0] else None
+        grad_w = (G * coeffs[:, None, :]).sum(2) if ctx.needs_input_grad[2] else None
+        return grad_c, None, grad_w, None, None
+
+
+def personal_product(coeffs: torch.Tensor, mean: torch.Tensor, w: torch.Tensor,
+                     comps: torch.Tensor) -> torch.Tensor:
+    """``coeffs[b] @ (mean + sum_c w[b, c] comps[c])`` per batch row -> (B, K).
+
+    Args:
+        coeffs: (B, D) expression weights or pose features.
+        mean: (D, K) the personalised basis's mean.
+        w: (B, C) per-row identity weights (the MLP of beta), or (1, C) when the whole
+            batch shares one identity.
+        comps: (C, D, K) components.
+
+    Exact and differentiable in ``coeffs`` and ``w``. One identity (``w`` of one row): its
+    basis rows are built by one (1, C) x (C, n K) product per run of consecutive used rows
+    (strided views, no copy), then the batch is one (B, n) x (n, K) product; rows whose
+    coefficients are all zero are not read unless ``coeffs`` needs a gradient. Distinct
+    identities: one product of the (B, C D) outer products ``w[b, c] coeffs[b, d]`` with
+    the (C D, K) components, so the components are read once per forward however large B
+    is (not once per row); with unused rows, only the used rows are gathered and read (the
+    backward reads them all, for the gradients of zero coefficients)."""
+    C, D, K = comps.shape
+    if w.shape[0] == 1:
+        grad = torch.is_grad_enabled() and coeffs.requires_grad
+        nz = None if grad else _nonzero_columns(coeffs)
+        if nz is None:
+            return coeffs @ (mean + (w @ comps.view(C, D * K)).view(D, K))
+        out = None
+        for _, first, end in _runs(nz.tolist()):
+            n = end - first
+            basis = torch.addmm(mean[first:end].reshape(1, n * K), w,
+                                comps[:, first:end].reshape(C, n * K)).view(n, K)
+            part = coeffs[:, first:end] @ basis
+            out = part if out is None else out + part
+        if out is None:
+            out = coeffs.new_zeros(coeffs.shape[0], K)
+        return out
+    nz = _nonzero_columns(coeffs)
+    if nz is None:
+        x = (w[:, :, None] * coeffs[:, None, :]).reshape(coeffs.shape[0], C * D)
+        return torch.addmm(coeffs @ mean, x, comps.view(C * D, K))
+    return _PersonalProduct.apply(coeffs, mean, w, comps, nz)
 
 
 class _PersonalBasis(nn.Module):
@@ -144,15 +247,29 @@ class _PersonalBasis(nn.Module):
         self.register_buffer("components", comps.reshape(comps.shape[0], comps.shape[1], -1))  # (C, D, 3M)
         self.mlp = _MLP(*(t(f"mlp_{k}").float() for k in ("w0", "b0", "w1", "b1", "w2", "b2")))
 
-    def apply(self, coeffs: torch.Tensor, beta: torch.Tensor) -> torch.Tensor:
-        """Personal part of coeffs @ basis. coeffs: (B, D), beta: (B, S) -> (B, M, 3)."""
-        out = sparse_rows_product(coeffs, self.mean, self.mlp(beta), self.components)
+    def apply(self, coeffs: torch.Tensor, w: torch.Tensor, mean: torch.Tensor | None = None
+              ) -> torch.Tensor:
+        """Personal part of coeffs @ basis. coeffs: (B, D), w: (B or 1, C) from :attr:`mlp`
+        -> (B, M, 3) metres; ``mean`` (D, 3M) replaces the stored mean (generic rows folded
+        in)."""
+        out = personal_product(coeffs, self.mean if mean is None else mean, w, self.components)
         return out.reshape(coeffs.shape[0], -1, 3)
 
     def basis(self, beta: torch.Tensor) -> torch.Tensor:
         """The personal deltas themselves for one identity. beta: (1, S) -> (D, M, 3)."""
-        w = self.mlp(beta)[0]
-        return (self.mean + torch.einsum("c,cdk->dk", w, self.components)).reshape(self.mean.shape[0], -1, 3)
+        C, D, K = self.components.shape
+        return (self.mean + (self.mlp(beta) @ self.components.view(C, D * K)).view(D, K)
+                ).reshape(D, -1, 3)
+
+
+def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+    """LBS of some vertices, as :func:`hack_render.geometry.lbs.skin` (the same blend of
+    ``rel - I``), with the per-vertex 3x4 product written out elementwise (a batched 3x3 @
+    3x1 matmul per vertex is slow). v: (B, M, 3), weights (M, K), rel (B, K, 4, 4)."""
+    B, K = rel.shape[:2]
+    eye = torch.eye(4, dtype=rel.dtype, device=rel.device)[:3]
+    d = torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
+    return v + (d[..., :3] * v.unsqueeze(-2)).sum(-1) + d[..., 3]
 
 
 class HackModel(nn.Module):
@@ -184,6 +301,7 @@ class HackModel(nn.Module):
         self.register_buffer("au_matrix", f32("au_matrix"))
         self.register_buffer("rotation_limits_deg", f32("rotation_limits_deg"))
         self.register_buffer("skinning_weights", f32("skinning_weights"))
+        self._init_skinning_split()
 
         comps, std = f32("shape_components"), f32("shape_std")
         self.num_shape = comps.shape[0]
@@ -191,16 +309,15 @@ class HackModel(nn.Module):
         self.register_buffer("shape_std", std)
         shape_dirs = (comps * std[:, None, None]).reshape(self.num_shape, -1)  # (S, 3N) metres
         expr_dirs = f32("expression_basis").reshape(self.num_expressions, -1)  # (E, 3N)
-        blocks = [shape_dirs, expr_dirs]
+        # One contiguous (E + S, 3N) basis, expressions first: the expression weights and
+        # the given betas are one contiguous block of rows, so the whole blendshape sum is
+        # one matrix product (betas past the given ones, zero, are not read).
+        self.register_buffer("expr_shape_basis", torch.cat([expr_dirs, shape_dirs], 0).contiguous())
         self.has_pose_basis = "pose_basis" in arrays
         if self.has_pose_basis:
-            blocks.append(f32("pose_basis").reshape(-1, 3 * n))
-        # One contiguous (S + E [+ 9K], 3N) basis: the whole blendshape sum is one matmul.
-        self.register_buffer("blend_basis", torch.cat(blocks, 0).contiguous())
-        if self.has_pose_basis:
             # the pose correctives move the neck only (~1.4k of ~27k vertices in the default
-            # model): forward reads them on those vertices' columns, not the zeros elsewhere
-            pose = blocks[2].view(-1, n, 3)
+            # model): stored and read on those vertices' columns, not the zeros elsewhere
+            pose = f32("pose_basis").reshape(-1, n, 3)
             cols = torch.nonzero(pose.abs().amax(dim=(0, 2)) > 0).flatten()
             self.register_buffer("pose_columns", cols)
             self.register_buffer("pose_basis_columns",
@@ -212,6 +329,11 @@ class HackModel(nn.Module):
                                                               shape_dirs.reshape(-1, n, 3)))
         self.expr_personal = _PersonalBasis(arrays, "expr") if "expr_pca_vertices" in arrays else None
         self.pose_personal = _PersonalBasis(arrays, "pose") if "pose_pca_vertices" in arrays else None
+        # generic pose rows on the same vertices as the personalised ones: one product
+        # (the generic rows are added to the personalised mean at run time, in the model's
+        # dtype, so a float64 model stays exact)
+        self.pose_folded = (self.has_pose_basis and self.pose_personal is not None
+                            and torch.equal(self.pose_columns, self.pose_personal.vertices))
         self.has_larynx = "larynx_maps" in arrays
         if self.has_larynx:
             self.register_buffer("larynx_maps", f32("larynx_maps"))
@@ -224,6 +346,18 @@ class HackModel(nn.Module):
             chart = (f32("larynx_vertex_uv") if "larynx_vertex_uv" in arrays
                      else self.vertex_uv[self.larynx_vertices])
             self.register_buffer("larynx_uv", chart)
+
+    def _init_skinning_split(self) -> None:
+        """Most vertices move rigidly with one node (the default model: 25,347 of 26,719
+        with the skull, o-c1): those are posed by one 3x3 product per batch row, and only
+        the others are blended."""
+        w = self.skinning_weights
+        single = (w == 1).sum(0)
+        node = int(single.argmax())
+        rigid = (w[:, node] == 1) & ((w != 0).sum(1) == 1)
+        self.rigid_node = node
+        self.register_buffer("blended_vertices", torch.nonzero(~rigid).flatten(), persistent=False)
+        self.register_buffer("blended_weights", w[~rigid].contiguous(), persistent=False)
 
     # ----------------------------------------------------------------------------- loading
     @classmethod
@@ -239,6 +373,17 @@ class HackModel(nn.Module):
         return len(self.joint_names)
 
     # ---------------------------------------------------------------------- input handling
+    def _psi_value(self, value):
+        """psi given as an expression string or dict (one row), or a list of them (and/or
+        weight vectors), one per batch row -> (E,) or (B, E); anything else unchanged."""
+        if isinstance(value, (str, dict)):
+            return self.expression_vector(value)
+        if isinstance(value, (list, tuple)) and any(isinstance(v, (str, dict)) for v in value):
+            dd = {"dtype": self.template.dtype, "device": self.template.device}
+            return torch.stack([self.expression_vector(v) if isinstance(v, (str, dict))
+                                else torch.as_tensor(v, **dd) for v in value])
+        return value
+
     def _params(self, beta, psi, theta, global_orient, transl, eta, tau) -> dict[str, torch.Tensor]:
         dtype, device = self.template.dtype, self.template.device
         given = {"beta": beta, "psi": psi, "theta": theta, "global_orient": global_orient,
@@ -250,8 +395,8 @@ class HackModel(nn.Module):
         for name, value in given.items():
             if value is None:
                 continue
-            if isinstance(value, str) and name == "psi":
-                value = self.expression_vector(value)
+            if name == "psi":
+                value = self._psi_value(value)
             value = torch.as_tensor(value, dtype=dtype, device=device)
             if not torch.is_floating_point(value):
                 value = value.to(dtype)
@@ -280,7 +425,8 @@ class HackModel(nn.Module):
                  "global_orient": (3,), "transl": (3,), "eta": (), "tau": ()}
         for name, shp in zeros.items():
             if name not in out:
-                out[name] = torch.zeros((batch,) + shp, dtype=dtype, device=device)
+                fill = _larynx.ETA_DEFAULT if name == "eta" else 0.0
+                out[name] = torch.full((batch,) + shp, fill, dtype=dtype, device=device)
             elif out[name].shape[0] != batch:
                 out[name] = out[name].expand((batch,) + tuple(out[name].shape[1:]))
         return out
@@ -290,7 +436,8 @@ class HackModel(nn.Module):
         """psi (E,) from shape names and FACS action units.
 
         ``spec`` is a dict or a string like ``"AU12=0.7, jawOpen=0.4"``; AU entries add
-        their shapes (table ``au_names`` / ``au_matrix``), shape names add themselves.
+        their shapes (table ``au_names`` / ``au_matrix``), shape names add themselves. For a
+        batch, pass a list of specs (one per row) as ``psi`` to the forward.
         """
         if isinstance(spec, str):
             items = {}
@@ -303,6 +450,9 @@ class HackModel(nn.Module):
                 except ValueError as exc:
                     raise HackError(f"expression '{part}': value {v!r} is not a number.") from exc
             spec = items
+        if not isinstance(spec, dict):
+            raise HackError(f"expression: expected a string like 'AU12=0.7, jawOpen=0.4' or a "
+                            f"mapping of names to weights, found {type(spec).__name__}.")
         psi = torch.zeros(self.num_expressions, dtype=self.template.dtype, device=self.template.device)
         for name, value in spec.items():
             value = float(value)
@@ -312,6 +462,10 @@ class HackModel(nn.Module):
                 psi = psi + value * self.au_matrix[self.au_names.index(name)]
             elif name in self.expression_names:
                 psi[self.expression_names.index(name)] += value
+            elif name.upper() in FACS_WITHOUT_SHAPES and name.upper() not in self.au_names:
+                raise HackError(f"expression '{name}': FACS {name.upper()} "
+                                f"({FACS_WITHOUT_SHAPES[name.upper()]}). Known AUs: "
+                                f"{', '.join(self.au_names)}.")
             else:
                 close = [n for n in self.au_names + self.expression_names if n.lower() == name.lower()]
                 hint = f" Did you mean {close[0]!r}?" if close else ""
@@ -328,65 +482,85 @@ class HackModel(nn.Module):
 
     def forward(self, beta=None, psi=None, theta=None, global_orient=None, transl=None,
                 eta=None, tau=None, clamp_limits: bool = False) -> HackOutput:
-        """Evaluate G. Shapes: beta (B, <=S), psi (B, E) or an expression string, theta
-        (B, 8, 3) axis-angle c7-t1 ... o-c1, global_orient (B, 3) root axis-angle about the
-        c7-t1 joint, transl (B, 3) metres, eta (B,), tau (B,) metres. Missing inputs are zero.
-        With ``clamp_limits`` each joint is clamped to its anatomical limits first.
+        """Evaluate G.
+
+        Args:
+            beta: (B, <=S) identity, N(0, 1) units; missing: 0 (the mean identity).
+            psi: (B, E) expression weights, or an expression string / dict such as
+                ``"AU12=0.7, jawOpen=0.4"`` (one row), or a list of them, one per row.
+            theta: (B, 8, 3) axis-angle per joint c7-t1 ... o-c1, radians; missing: 0.
+            global_orient: (B, 3) root axis-angle about the c7-t1 joint; missing: 0.
+            transl: (B, 3) metres; missing: 0.
+            eta: (B,) larynx size; missing: 1 (``larynx.ETA_DEFAULT``: the identity's own
+                larynx, as on the CLI; 0 gives no larynx). Range ``larynx.ETA_RANGE``.
+            tau: (B,) larynx vertical slide, metres, up positive; missing: 0. Range
+                ``larynx.TAU_RANGE_M``.
+            clamp_limits: clamp each joint to its rotation limits and eta, tau to their
+                ranges first (``hack_render.geometry.limits`` warns or refuses instead).
+
+        A batch whose rows share one identity (beta given as one row, or equal rows that
+        need no gradient) builds its personalised bases, joints and larynx once.
         """
         p = self._params(beta, psi, theta, global_orient, transl, eta, tau)
         if clamp_limits:
             from hack_render.geometry.skeleton import clamp_to_limits
 
             p["theta"] = clamp_to_limits(p["theta"])
-        B = p["theta"].shape[0]
-        beta = p["beta"]
+            p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
-        feat = pose_feature(rot[:, 1:])  # (B, 72): joints only, not the global rotation
-        beta_full = torch.nn.functional.pad(beta, (0, self.num_shape - beta.shape[1]))
-        S, E, nb = self.num_shape, self.num_expressions, beta.shape[1]
-        # beta's rows and the expression rows of the one basis (the shape rows past the
-        # given betas, zero coefficients, are not read), then the pose rows on the
-        # vertices they move
-        blend = sparse_rows_product(p["psi"], self.blend_basis[S:S + E])
-        if nb:
-            blend = torch.addmm(blend, beta, self.blend_basis[:nb])
-        rest = self.template + blend.view(B, -1, 3)
-        if self.has_pose_basis:
-            rest = _add_rows(rest, self.pose_columns,
-                                  (feat @ self.pose_basis_columns).view(B, -1, 3))
-        rest = self._personal_and_larynx(rest, beta_full, p["psi"], feat, p["eta"], p["tau"])
-        joints = self.rest_joints(beta_full)
+        beta = p["beta"]
+        shared = _shares_identity(beta)
+        ident = beta[:1] if shared else beta
+        rest = self._rest(ident, p["psi"], pose_feature(rot[:, 1:]), p["eta"], p["tau"])
+        joints = self.rest_joints(ident).expand(rest.shape[0], -1, -1)
         return self._pose(rest, joints, rot, p["transl"])
 
-    def _personal_and_larynx(self, rest, beta, psi, feat, eta, tau):
-        if self.expr_personal is not None:
-            rest = _add_rows(rest, self.expr_personal.vertices, self.expr_personal.apply(psi, beta))
+    def _rest(self, beta, psi, feat, eta, tau) -> torch.Tensor:
+        """T(beta, psi, theta, eta, tau) (B, N, 3). beta: (B, s) or (1, s) for a batch that
+        shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,)."""
+        B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
+        template = self.template.view(1, -1)
+        if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
+            bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
+            flat = rows_product(psi, self.expr_shape_basis[:E], bias)
+        else:
+            flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb], template)
+        rest = flat.view(B, -1, 3)
+        beta_full = torch.nn.functional.pad(beta, (0, self.num_shape - nb))
         if self.pose_personal is not None:
-            rest = _add_rows(rest, self.pose_personal.vertices, self.pose_personal.apply(feat, beta))
+            w = self.pose_personal.mlp(beta_full)
+            mean = self.pose_personal.mean + self.pose_basis_columns if self.pose_folded else None
+            _add_rows_(rest, self.pose_personal.vertices, self.pose_personal.apply(feat, w, mean))
+        if self.has_pose_basis and not self.pose_folded:
+            _add_rows_(rest, self.pose_columns, (feat @ self.pose_basis_columns).view(B, -1, 3))
+        if self.expr_personal is not None:
+            w = self.expr_personal.mlp(beta_full)
+            _add_rows_(rest, self.expr_personal.vertices, self.expr_personal.apply(psi, w))
         if self.has_larynx:
-            combined = _larynx.combine_maps(
-                _larynx.larynx_coefficients(beta, self.larynx_coef_matrix, self.larynx_coef_offset),
-                self.larynx_maps)
-            rest = _add_rows(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
+            combined = self._larynx_combined(beta_full).expand(B, -1, -1, -1)
+            _add_rows_(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
         return rest
+
+    def _larynx_combined(self, beta: torch.Tensor) -> torch.Tensor:
+        """sum_i c_i(beta) L_i: (B, S) -> (B, 3, H, W) metres."""
+        return _larynx.combine_maps(_larynx.larynx_coefficients(
+            beta, self.larynx_coef_matrix, self.larynx_coef_offset), self.larynx_maps)
 
     def larynx_displacement(self, beta: torch.Tensor | None = None, eta: torch.Tensor | None = None,
                             tau: torch.Tensor | None = None) -> torch.Tensor:
         """L(beta, eta, tau) at the larynx-region vertices (``larynx_vertices``): (B, M, 3)
-        metres. Missing inputs: beta = 0, eta = 1 (the identity's mean larynx), tau = 0."""
+        metres. Missing inputs: beta = 0, eta = 1 (the identity's own larynx), tau = 0."""
         if not self.has_larynx:
             raise HackError("larynx_displacement: this model carries no larynx basis "
                             "(build one with `hack-render model build-v2`).")
         ref = next(t for t in (beta, eta, tau, self.template[None, :1, 0]) if t is not None)
         B = ref.shape[0]
-        dd = dict(dtype=self.template.dtype, device=self.template.device)
+        dd = {"dtype": self.template.dtype, "device": self.template.device}
         beta = torch.zeros(B, self.num_shape, **dd) if beta is None else beta
         beta = torch.nn.functional.pad(beta, (0, self.num_shape - beta.shape[1]))
-        eta = torch.ones(B, **dd) if eta is None else eta
+        eta = torch.full((B,), _larynx.ETA_DEFAULT, **dd) if eta is None else eta
         tau = torch.zeros(B, **dd) if tau is None else tau
-        combined = _larynx.combine_maps(_larynx.larynx_coefficients(
-            beta, self.larynx_coef_matrix, self.larynx_coef_offset), self.larynx_maps)
-        return self._larynx_sample(combined, eta, tau)
+        return self._larynx_sample(self._larynx_combined(beta), eta, tau)
 
     def _larynx_sample(self, combined, eta, tau):
         return _larynx.sample_displacement(combined, self.larynx_uv,
@@ -396,7 +570,17 @@ class HackModel(nn.Module):
         root = joints[:, :1]  # the root (thorax) rotates about the c7-t1 joint
         nodes = torch.cat([root, joints], 1)
         posed_nodes, rel = rigid_transforms(rot, nodes, chain_parents(self.parents))
-        verts = skin(rest, self.skinning_weights, rel) + transl[:, None]
+        # every vertex as if rigid with the node most vertices follow (one (B, N, 3) x
+        # (B, 3, 3) product), then the blended vertices overwritten with their LBS
+        a = rel[:, self.rigid_node, :3]  # (B, 3, 4)
+        verts = torch.baddbmm((a[:, :, 3] + transl)[:, None], rest, a[:, :, :3].transpose(1, 2))
+        idx = self.blended_vertices
+        if len(idx):
+            blended = _skin_rows(rest[:, idx], self.blended_weights, rel) + transl[:, None]
+            if verts.shape[0] == 1:
+                verts.view(-1, 3).index_copy_(0, idx, blended[0])
+            else:
+                verts.index_copy_(1, idx, blended)
         return HackOutput(vertices=verts, joints=posed_nodes[:, 1:] + transl[:, None],
                           rest_joints=joints, landmarks=verts[:, self.landmark_indices],
                           rest_vertices=rest)
@@ -412,6 +596,17 @@ class HackModel(nn.Module):
         return PersonalizedHack(self, beta)
 
 
+def _shares_identity(beta: torch.Tensor) -> bool:
+    """Whether a (B, s) beta is one identity for the whole batch, so that per-identity work
+    may be done once: one row, a row expanded over the batch (stride 0: the gradient of the
+    one row is what autograd wants), or equal rows that need no gradient."""
+    if beta.shape[0] == 1 or beta.shape[1] == 0 or beta.stride(0) == 0:
+        return True
+    if torch.is_grad_enabled() and beta.requires_grad:
+        return False
+    return bool((beta == beta[:1]).all())
+
+
 class PersonalizedHack(nn.Module):
     """HACK for one fixed identity: "personalise once, animate many"."""
 
@@ -424,38 +619,89 @@ class PersonalizedHack(nn.Module):
             raise HackError(f"beta: personalize takes one identity, found batch {beta.shape[0]}.")
         with torch.no_grad():
             beta_full = torch.nn.functional.pad(beta, (0, model.num_shape - beta.shape[1]))
-            s, e = model.num_shape, model.num_expressions
-            v_shaped = model.template + (beta_full @ model.blend_basis[:s]).view(-1, 3)
-            basis = model.blend_basis[s:].clone().view(-1, model.num_vertices, 3)  # (E [+ P], N, 3)
+            e, n = model.num_expressions, model.num_vertices
+            v_shaped = model.template.view(1, -1) + beta_full @ model.expr_shape_basis[e:]
+            expr = model.expr_shape_basis[:e].clone().view(e, n, 3)  # (E, N, 3)
             if model.expr_personal is not None:
-                basis[:e].index_add_(1, model.expr_personal.vertices, model.expr_personal.basis(beta_full))
+                expr.index_add_(1, model.expr_personal.vertices, model.expr_personal.basis(beta_full))
+            # pose correctives on the union of the generic and personalised columns
+            parts = []
+            if model.has_pose_basis:
+                parts.append((model.pose_columns, model.pose_basis_columns.view(-1, len(model.pose_columns), 3)))
             if model.pose_personal is not None:
-                if not model.has_pose_basis:
-                    basis = torch.cat([basis, basis.new_zeros(9 * model.num_joints, model.num_vertices, 3)])
-                basis[e:].index_add_(1, model.pose_personal.vertices, model.pose_personal.basis(beta_full))
-            self.uses_pose = basis.shape[0] > e
+                parts.append((model.pose_personal.vertices, model.pose_personal.basis(beta_full)))
+            self.uses_pose = bool(parts)
+            if parts:
+                cols = torch.unique(torch.cat([c for c, _ in parts]))
+                pose = torch.zeros(9 * model.num_joints, n, 3, dtype=expr.dtype, device=expr.device)
+                for c, b in parts:
+                    pose.index_add_(1, c, b)
+                self.register_buffer("pose_columns", cols)
+                self.register_buffer("pose_basis", pose[:, cols].reshape(pose.shape[0], -1).contiguous())
             self.register_buffer("v_shaped", v_shaped)
-            self.register_buffer("basis", basis.reshape(basis.shape[0], -1).contiguous())
+            self.register_buffer("basis", expr.reshape(e, -1))
             self.register_buffer("joints", model.rest_joints(beta_full)[0])
             if model.has_larynx:
-                self.register_buffer("larynx_combined", _larynx.combine_maps(
-                    _larynx.larynx_coefficients(beta_full, model.larynx_coef_matrix,
-                                                model.larynx_coef_offset), model.larynx_maps))
+                self.register_buffer("larynx_combined", model._larynx_combined(beta_full))
 
     def forward(self, psi=None, theta=None, global_orient=None, transl=None, eta=None,
                 tau=None, clamp_limits: bool = False) -> HackOutput:
+        """As :meth:`HackModel.forward` at the personalised beta (same defaults)."""
         m = self.model
         p = m._params(None, psi, theta, global_orient, transl, eta, tau)
         if clamp_limits:
             from hack_render.geometry.skeleton import clamp_to_limits
 
             p["theta"] = clamp_to_limits(p["theta"])
+            p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         B = p["theta"].shape[0]
         rot = local_rotations(p["theta"], p["global_orient"])
-        coeffs = [p["psi"]] + ([pose_feature(rot[:, 1:])] if self.uses_pose else [])
-        rest = self.v_shaped + (torch.cat(coeffs, 1) @ self.basis).view(B, -1, 3)
+        rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
+        if self.uses_pose:
+            _add_rows_(rest, self.pose_columns,
+                       (pose_feature(rot[:, 1:]) @ self.pose_basis).view(B, -1, 3))
         if m.has_larynx:
-            rest = _add_rows(rest, m.larynx_vertices,
-                                  m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
-                                                   p["eta"], p["tau"]))
+            _add_rows_(rest, m.larynx_vertices,
+                       m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
+                                        p["eta"], p["tau"]))
         return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
+
+
+def reference_forward(model: HackModel, beta=None, psi=None, theta=None, global_orient=None,
+                      transl=None, eta=None, tau=None) -> HackOutput:
+    """G written plainly, for teaching and as the tests' reference for the fast forward:
+    dense (3N-wide) shape, expression and pose bases, each row's personalised bases built
+    in full, the larynx per row, and every vertex skinned by :func:`lbs.skin`. Same inputs
+    and defaults as :meth:`HackModel.forward` (no ``clamp_limits``); slow."""
+    m = model
+    p = m._params(beta, psi, theta, global_orient, transl, eta, tau)
+    B, n, E = p["theta"].shape[0], m.num_vertices, m.num_expressions
+    beta = torch.nn.functional.pad(p["beta"], (0, m.num_shape - p["beta"].shape[1]))
+    beta = beta.expand(B, -1)
+    rot = local_rotations(p["theta"], p["global_orient"])
+    feat = pose_feature(rot[:, 1:])
+    shape_dirs, expr_dirs = m.expr_shape_basis[E:], m.expr_shape_basis[:E]
+    rest = m.template + (beta @ shape_dirs + p["psi"] @ expr_dirs).view(B, n, 3)
+    if m.has_pose_basis:  # the dense (72, N, 3) pose basis, zeros off the stored columns
+        dense = torch.zeros(feat.shape[1], n, 3, dtype=rest.dtype, device=rest.device)
+        dense[:, m.pose_columns] = m.pose_basis_columns.view(feat.shape[1], -1, 3)
+        rest = rest + (feat @ dense.view(feat.shape[1], -1)).view(B, n, 3)
+    for pb, coeffs in ((m.expr_personal, p["psi"]), (m.pose_personal, feat)):
+        if pb is None:
+            continue
+        rows = []
+        for b in range(B):  # each row's own basis: mean + sum_c w_c components_c
+            w = pb.mlp(beta[b:b + 1])[0]
+            basis = pb.mean + torch.einsum("c,cdk->dk", w, pb.components)
+            rows.append((coeffs[b] @ basis).view(-1, 3))
+        rest = rest.index_add(1, pb.vertices, torch.stack(rows))
+    if m.has_larynx:
+        lar = m._larynx_sample(m._larynx_combined(beta), p["eta"], p["tau"])
+        rest = rest.index_add(1, m.larynx_vertices, lar)
+    joints = m.rest_joints(beta)
+    nodes = torch.cat([joints[:, :1], joints], 1)
+    posed, rel = rigid_transforms(rot, nodes, chain_parents(m.parents))
+    verts = skin(rest, m.skinning_weights, rel) + p["transl"][:, None]
+    return HackOutput(vertices=verts, joints=posed[:, 1:] + p["transl"][:, None],
+                      rest_joints=joints, landmarks=verts[:, m.landmark_indices],
+                      rest_vertices=rest)

@@ -118,6 +118,28 @@ def outside_limits(theta: torch.Tensor, tol_deg: float = 1e-3) -> list[tuple[int
     return bad
 
 
+def head_rotation_range_deg() -> torch.Tensor:
+    """The whole neck's range for a head rotation, degrees, shape (3, 2): [axis (flexion X,
+    axial Y, lateral Z), (min, max)], the sums of the joints' limits (float64). A request
+    beyond it is what :func:`distribute_head_rotation` clamps."""
+    return rotation_limits_deg().sum(0)
+
+
+def head_rotation_outside_limits(angles_deg, tol_deg: float = 1e-6
+                                 ) -> list[tuple[str, float, float, float]]:
+    """Axes of a whole-head rotation (3,) degrees beyond :func:`head_rotation_range_deg`:
+    (axis name, requested deg, min, max) each."""
+    a = torch.as_tensor(angles_deg, dtype=torch.float64).reshape(3)
+    rng = head_rotation_range_deg()
+    return [(HEAD_AXES[i], float(a[i]), float(rng[i, 0]), float(rng[i, 1])) for i in range(3)
+            if a[i] < rng[i, 0] - tol_deg or a[i] > rng[i, 1] + tol_deg]
+
+
+#: Names of the Euler axes (x, y, z) of a joint or of a whole-head rotation.
+HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)",
+                                   "lateral bending (z)")
+
+
 def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.Tensor:
     """Share a whole-head rotation over the 8 joints in proportion to their ranges.
 

@@ -46,25 +46,70 @@ GROUPS = (
 SKIN_LAST = 11247
 CHIN_LANDMARK = 8  # Multi-PIE index of the chin
 
-# FACS action units -> ICT/ARKit shapes (shared DATA.md). AU30 and the gaze AUs are split
-# by direction so that every AU is a non-negative combination of shapes.
+# FACS action units -> ICT/ARKit shapes. Names and definitions: Ekman, Friesen & Hager, *Facial
+# Action Coding System* (2002); ARKit shapes: Apple's ARFaceAnchor.BlendShapeLocation
+# documentation (ICT-FaceKit uses the same names with _L/_R, left = the subject's left).
+# Every AU is a non-negative sum of shapes, so AU30 and the gaze AUs are split by direction.
+# Checked entry by entry against the FACS definitions (issue 21); the earlier table (DATA.md)
+# had AU10 on mouthShrugUpper, AU11 on mouthUpperUp, AU27 on jawOpen and no AU26, and AU33 on
+# cheekPuff.
 AU_TABLE: dict[str, tuple[str, ...]] = {
-    "AU1": ("browInnerUp_L", "browInnerUp_R"), "AU2": ("browOuterUp_L", "browOuterUp_R"),
-    "AU4": ("browDown_L", "browDown_R"), "AU5": ("eyeWide_L", "eyeWide_R"),
-    "AU6": ("cheekSquint_L", "cheekSquint_R"), "AU7": ("eyeSquint_L", "eyeSquint_R"),
-    "AU9": ("noseSneer_L", "noseSneer_R"), "AU10": ("mouthShrugUpper",),
-    "AU11": ("mouthUpperUp_L", "mouthUpperUp_R"), "AU12": ("mouthSmile_L", "mouthSmile_R"),
-    "AU14": ("mouthDimple_L", "mouthDimple_R"), "AU15": ("mouthFrown_L", "mouthFrown_R"),
-    "AU16": ("mouthLowerDown_L", "mouthLowerDown_R"), "AU17": ("mouthShrugLower",),
-    "AU18": ("mouthPucker",), "AU20": ("mouthStretch_L", "mouthStretch_R"),
-    "AU22": ("mouthFunnel",), "AU24": ("mouthPress_L", "mouthPress_R"), "AU27": ("jawOpen",),
-    "AU28": ("mouthRollLower", "mouthRollUpper"), "AU29": ("jawForward",),
-    "AU30L": ("jawLeft",), "AU30R": ("jawRight",), "AU33": ("cheekPuff_L", "cheekPuff_R"),
-    "AU45": ("eyeBlink_L", "eyeBlink_R"),
-    "AU61": ("eyeLookOut_L", "eyeLookIn_R"),  # eyes turn left
-    "AU62": ("eyeLookIn_L", "eyeLookOut_R"),  # eyes turn right
-    "AU63": ("eyeLookUp_L", "eyeLookUp_R"), "AU64": ("eyeLookDown_L", "eyeLookDown_R"),
+    "AU1": ("browInnerUp_L", "browInnerUp_R"),      # inner brow raiser
+    "AU2": ("browOuterUp_L", "browOuterUp_R"),      # outer brow raiser
+    "AU4": ("browDown_L", "browDown_R"),            # brow lowerer
+    "AU5": ("eyeWide_L", "eyeWide_R"),              # upper lid raiser
+    "AU6": ("cheekSquint_L", "cheekSquint_R"),      # cheek raiser
+    "AU7": ("eyeSquint_L", "eyeSquint_R"),          # lid tightener
+    "AU9": ("noseSneer_L", "noseSneer_R"),          # nose wrinkler
+    "AU10": ("mouthUpperUp_L", "mouthUpperUp_R"),   # upper lip raiser
+    "AU12": ("mouthSmile_L", "mouthSmile_R"),       # lip corner puller
+    "AU14": ("mouthDimple_L", "mouthDimple_R"),     # dimpler
+    "AU15": ("mouthFrown_L", "mouthFrown_R"),       # lip corner depressor
+    "AU16": ("mouthLowerDown_L", "mouthLowerDown_R"),  # lower lip depressor
+    # chin raiser: pushes the chin boss and lower lip up, and the closed upper lip with it
+    # (ARKit splits this "mouth shrug" into its lower- and upper-lip parts)
+    "AU17": ("mouthShrugLower", "mouthShrugUpper"),
+    "AU18": ("mouthPucker",),                       # lip pucker
+    "AU20": ("mouthStretch_L", "mouthStretch_R"),   # lip stretcher (corners pulled sideways)
+    "AU22": ("mouthFunnel",),                       # lip funneler
+    "AU24": ("mouthPress_L", "mouthPress_R"),       # lip pressor
+    "AU26": ("jawOpen",),                           # jaw drop
+    "AU28": ("mouthRollLower", "mouthRollUpper"),   # lip suck
+    "AU29": ("jawForward",),                        # jaw thrust
+    "AU30L": ("jawLeft",), "AU30R": ("jawRight",),  # jaw sideways, to the left / right
+    "AU34": ("cheekPuff_L", "cheekPuff_R"),         # cheek puff (AU33 is cheek blow)
+    "AU43": ("eyeBlink_L", "eyeBlink_R"),           # eyes closed
+    "AU45": ("eyeBlink_L", "eyeBlink_R"),           # blink (a brief AU43)
+    "AU61": ("eyeLookOut_L", "eyeLookIn_R"),        # eyes turn left
+    "AU62": ("eyeLookIn_L", "eyeLookOut_R"),        # eyes turn right
+    "AU63": ("eyeLookUp_L", "eyeLookUp_R"),         # eyes up
+    "AU64": ("eyeLookDown_L", "eyeLookDown_R"),     # eyes down
 }
+# FACS AUs without an ARKit shape (AU11, AU13, AU23, AU25, AU27) are listed, with why, in
+# hack_render.geometry.model.FACS_WITHOUT_SHAPES, so the expression parser can name them.
+
+
+def facs_au_table(expression_names) -> tuple[np.ndarray, np.ndarray]:
+    """The FACS action-unit table for a set of expression shapes.
+
+    Args:
+        expression_names: (E,) the model's expression shape names (ICT/ARKit names).
+
+    Returns:
+        (au_names (A,) str, au_matrix (A, E) float32): row a holds 1 for each shape of
+        ``AU_TABLE[au_names[a]]``; an AU whose shapes are not all in ``expression_names``
+        is left out. Apply to a model file's arrays as
+        ``arrays["au_names"], arrays["au_matrix"] = facs_au_table(arrays["expression_names"])``.
+    """
+    names = [str(n) for n in expression_names]
+    rows = [(au, shapes) for au, shapes in AU_TABLE.items() if all(s in names for s in shapes)]
+    au = np.zeros((len(rows), len(names)), dtype=np.float32)
+    for a, (_, shapes) in enumerate(rows):
+        for s in shapes:
+            au[a, names.index(s)] = 1.0
+    return np.array([r[0] for r in rows]), au
+
+
 # Window of the neck coordinate s over which each joint's cumulative influence C_k ramps
 # from 0 to 1 (see skinning_weights). The lower joints get successively higher bands; c1-c2
 # and o-c1 both sit at the level of the skull base, above all neck skin, so the whole neck
@@ -293,11 +338,7 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
     flat_v, flat_t = mesh.faces.ravel(), mesh.uv_faces.ravel()
     first = np.unique(flat_v[::-1], return_index=True)  # last occurrence in reversed = first
     vertex_uv[first[0]] = mesh.uvs[flat_t[::-1][first[1]]]
-    au_names = list(AU_TABLE)
-    au = np.zeros((len(au_names), len(names)), dtype=np.float32)
-    for a, shapes in enumerate(AU_TABLE.values()):
-        for s in shapes:
-            au[a, names.index(s)] = 1.0
+    au_names, au = facs_au_table(names)
     arrays = {
         "template_vertices": v.astype(np.float32),
         "faces": mesh.faces.astype(np.int32), "uvs": mesh.uvs.astype(np.float32),
@@ -309,7 +350,7 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
         "landmark_indices": landmarks,
         "shape_components": comps.astype(np.float32), "shape_std": std.astype(np.float32),
         "expression_basis": (ict["expressions"] * CM).astype(np.float32),
-        "expression_names": np.array(names), "au_names": np.array(au_names), "au_matrix": au,
+        "expression_names": np.array(names), "au_names": au_names, "au_matrix": au,
         "joint_names": np.array(JOINT_NAMES), "joint_parents": np.array(PARENTS, dtype=np.int32),
         "joint_regressor": regressor.astype(np.float32),
         "skinning_weights": weights.astype(np.float32),
@@ -325,7 +366,7 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
             "shape_space": f"captured (orthonormal PCA of ICT-FaceKit's {len(ict['identity'])} "
                            "identity modes; beta ~ N(0, I))",
             "expressions": "captured (ICT-FaceKit's 53 generic ARKit-named shapes), FACS AU "
-                           "table from DATA.md",
+                           "table checked against FACS 2002 (ict_default.AU_TABLE)",
             "skeleton": "derived (8 joints placed from anatomical priors on the template: "
                         "surface landmarks, vertebral sizes, 20 deg lordosis, "
                         f"{int(DEPTH_FRACTION * 100)} % depth; regressor = non-negative affine "
