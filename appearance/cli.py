@@ -71,7 +71,11 @@ def sample(
                                        "texture set"),
     out_old: Path | None = typer.Option(None, "--out", hidden=True,
                                         help="Deprecated: -o/--output."),
-    model: Path | None = typer.Option(None, help="model file (default: shipped model)"),
+    model: Path | None = typer.Option(None, "--appearance-model", help="appearance model "
+                                      "file (default: the shipped one)"),
+    model_old: Path | None = typer.Option(None, "--model", hidden=True,
+                                          help="Deprecated: --appearance-model (--model is "
+                                          "the geometry model in every other command)."),
     alpha: list[str] | None = typer.Option(None, "--alpha", help="coefficients, "
                                            "comma-separated as in `render --alpha`: "
                                            "--alpha 1,-0.5 (repeating the option appends)"),
@@ -90,6 +94,7 @@ def sample(
     from hack_render.cli_options import renamed
 
     out = renamed(output, out_old, "--out", "-o/--output")
+    model = renamed(model, model_old, "appearance sample --model", "--appearance-model")
     if out is None:
         raise HackError("sample: expected -o/--output FOLDER, found none.")
     try:

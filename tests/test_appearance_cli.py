@@ -1,4 +1,5 @@
-"""`hack-render appearance build | sample | report` end to end, and exit code 2 on bad input."""
+"""`hack-render learn appearance` and `appearance sample | report` end to end, and exit
+code 2 on bad input."""
 
 import json
 
@@ -29,7 +30,7 @@ def model(tmp_path_factory):
         write_texture_set(root / f"s{s}", {"diffuse": ts.diffuse, "specular": ts.specular,
                                            "normal": ts.normal}, fmt="png" if s % 2 else "exr")
     out = tmp_path_factory.mktemp("m") / "model.npz"
-    assert _run(["appearance", "build", str(root), "-o", str(out), "--height", str(H)]) == 0
+    assert _run(["learn", "appearance", str(root), "-o", str(out), "--height", str(H)]) == 0
     return out
 
 
@@ -48,7 +49,7 @@ def torch_allclose(t, v):
 
 
 def test_sample_with_alpha_and_seed(model, tmp_path):
-    assert _run(["appearance", "sample", "--model", str(model), "--alpha", "1.5",
+    assert _run(["appearance", "sample", "--appearance-model", str(model), "--alpha", "1.5",
                  "--alpha", "-0.5", "-o", str(tmp_path / "a")]) == 0
     ts = read_texture_set(tmp_path / "a")
     assert ts["diffuse"].shape == (H, 2 * H, 3) and (tmp_path / "a" / "preview.png").is_file()
@@ -57,9 +58,9 @@ def test_sample_with_alpha_and_seed(model, tmp_path):
 
     ref = m.maps(torch.tensor([[1.5, -0.5]])).diffuse[0].numpy()
     np.testing.assert_array_equal(ts["diffuse"], ref)
-    assert _run(["appearance", "sample", "--model", str(model), "--seed", "4",
+    assert _run(["appearance", "sample", "--appearance-model", str(model), "--seed", "4",
                  "-o", str(tmp_path / "b")]) == 0
-    assert _run(["appearance", "sample", "--model", str(model), "--seed", "4",
+    assert _run(["appearance", "sample", "--appearance-model", str(model), "--seed", "4",
                  "-o", str(tmp_path / "c")]) == 0
     np.testing.assert_array_equal(read_texture_set(tmp_path / "b")["normal"],
                                   read_texture_set(tmp_path / "c")["normal"])
@@ -73,7 +74,7 @@ def test_report_replots(model, tmp_path):
 
 def test_bad_input_exit_code_2(tmp_path, capsys):
     (tmp_path / "pop" / "s0").mkdir(parents=True)
-    assert _run(["appearance", "build", str(tmp_path / "pop"), "-o",
+    assert _run(["learn", "appearance", str(tmp_path / "pop"), "-o",
                  str(tmp_path / "x.npz")]) == 2
     assert _run(["appearance", "report", str(tmp_path / "nope.npz")]) == 2
     assert "error:" in capsys.readouterr().err

@@ -76,6 +76,8 @@ def test_one_option_vocabulary():
         if "-o" in names:
             opt = next(p for p in visible if "-o" in p.opts)
             assert opt.opts == ["-o", "--output"], where
+        if path[:1] == ["appearance"]:  # --model is the geometry model everywhere else
+            assert "--model" not in names, where
         if path == ["fit"]:
             assert {"--levels", "--light-model"} <= names and "--resolution" not in names
             assert "--lighting" not in names  # a preset in render, a model in fit: renamed
