@@ -7,6 +7,7 @@ from typing import Optional
 
 import typer
 
+from hack_render import cli_options as opts
 from hack_render.errors import HackError
 
 app = typer.Typer(help="Render labelled datasets (docs/datasets.md).",
@@ -32,6 +33,7 @@ def dataset(
                                           "(default: start a local Ray instance)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Ray actors (default: "
                                           "one per CPU of the Ray instance)."),
+    quiet: opts.Quiet = False,
 ) -> None:
     """Render N sampled people (identity, expression, neck pose, larynx, skin, light,
     cameras) with RGB, alpha, depth, normals, UV, segmentation, soft masks, landmarks
@@ -48,7 +50,7 @@ def dataset(
         raise HackError("dataset: expected --n N and -o DIR (or the `preview` subcommand), "
                         "found them missing. Example: hack-render dataset --n 100 -o out/ds")
     job = Job(output, n, seed, load_config(config), parse_shard(shard), resume)
-    summary = run(job, executor, address, workers)
+    summary = run(job, executor, address, workers, progress=not quiet)
     typer.echo(f"{summary['rendered']} rendered, {summary['skipped']} already complete, "
                f"{summary['total']} in this shard; manifest {summary['manifest']}")
 
