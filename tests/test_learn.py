@@ -365,8 +365,8 @@ def test_14_shipped_larynx_eta_scales_protrusion_and_zero_gives_template(shipped
     _, h2 = _larynx_peak(shipped, 2.0, 0.0)
     assert 0.001 < h1 < 0.012
     assert abs(h2 - 2 * h1) < 1e-6
-    with torch.no_grad():
-        out = shipped().vertices[0]
+    with torch.no_grad():  # eta = 0: no larynx (the default, 1, is the identity's own)
+        out = shipped(eta=torch.zeros(1)).vertices[0]
     torch.testing.assert_close(out, shipped.template, atol=1e-7, rtol=0)
 
 

@@ -65,18 +65,41 @@ def default_model_path() -> Path:
 
 
 @lru_cache(maxsize=4)
-def _load_cached(path: str) -> HackModel:
+def _load_cached(path: str, stamp: tuple[int, int]) -> HackModel:
+    """The model file at ``path`` as loaded once per (modification time, size) ``stamp``:
+    the prototype that :func:`load_model` hands out independent copies of."""
     from hack_render.geometry.model import HackModel
 
     return HackModel.from_file(path)
 
 
+def _independent_copy(model: HackModel) -> HackModel:
+    """A new module (its own submodules, attributes and buffer tables) whose buffers are
+    the prototype's tensors: no memory is copied, and ``.double()`` / ``.to()`` / attribute
+    changes on one copy replace that copy's tensors only. Treat the buffers as read-only:
+    an in-place change (``model.template.add_(...)``) would show in every copy."""
+    import copy
+
+    return copy.deepcopy(model, {id(t): t for t in model.buffers()})
+
+
 def load_model(path: str | Path | None = None) -> HackModel:
-    """Load a model file (default: the built-in model). The result is cached per path; call
-    ``.to(...)`` / ``.double()`` on a copy (``copy.deepcopy``) if you need another dtype."""
-    return _load_cached(str(Path(path) if path is not None else default_model_path()))
+    """Load a model file (default: the built-in model).
+
+    Every call returns an independent module: ``.double()``, ``.to(device)`` or changed
+    attributes in one caller's model do not change another's. The file is read and
+    validated once per path (again when the file changes), and the copies share its
+    tensors read-only."""
+    p = Path(path) if path is not None else default_model_path()
+    try:
+        st = p.stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        stamp = (0, 0)  # a missing file: from_file says so
+    return _independent_copy(_load_cached(str(p), stamp))
 
 
 def load_default_model() -> HackModel:
-    """The built-in default HACK model (ICT-FaceKit based; docs/model.md)."""
+    """The built-in default HACK model (ICT-FaceKit based; docs/model.md), an independent
+    module per call (see :func:`load_model`)."""
     return load_model(None)
