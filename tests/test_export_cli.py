@@ -145,7 +145,8 @@ def test_export_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, cap
     assert code == 2
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and want in lines[0] and "Traceback" not in err, err
-    assert not out.exists() and not list(tmp_path.rglob("*.glb")) and not list(tmp_path.rglob(".*tmp"))
+    assert not out.exists() and not list(tmp_path.rglob("*.glb"))
+    assert not list(tmp_path.rglob(".*tmp"))
 
 
 def test_export_cli_writes_glb_and_reports(tmp_path, capsys):

@@ -164,7 +164,8 @@ def test_top_weights_keep_rows_normalised_and_exact_with_eight():
     w /= w.sum(1, keepdims=True)
     idx8, w8 = R.top_weights(w, 8)
     back = np.zeros_like(w)
-    np.add.at(back, (np.arange(50)[:, None].repeat(8, 1), idx8), w8)  # unused slots: index 0, weight 0
+    # unused slots: index 0, weight 0
+    np.add.at(back, (np.arange(50)[:, None].repeat(8, 1), idx8), w8)
     np.testing.assert_allclose(back, w, atol=1e-6)
 
 

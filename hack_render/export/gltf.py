@@ -80,8 +80,9 @@ class GltfBuilder:
         v = np.asarray(values, np.float32)
         rows = np.flatnonzero(np.any(v != 0, axis=1))
         item = {"componentType": FLOAT, "count": len(v), "type": "VEC3"}
-        full = v[rows] if len(rows) == len(v) else np.vstack([v[rows], np.zeros((1, 3), np.float32)])
-        item["min"], item["max"] = _bounds(full if len(rows) else np.zeros((1, 3), np.float32), FLOAT)
+        zero = np.zeros((1, 3), np.float32)  # the rows not stored are zeros
+        full = v[rows] if len(rows) == len(v) else np.vstack([v[rows], zero])
+        item["min"], item["max"] = _bounds(full, FLOAT)
         if len(rows):
             ityp = USHORT if len(v) < 65536 else UINT
             item["sparse"] = {
@@ -218,11 +219,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         maps: skin maps (``render.materials.SkinMaps``) or None (a plain skin colour).
         animation: the clip, or None.
     """
-    from hack_render.render.materials import (
-        iris_vertex_colors,
-        material_base_colours,
-    )
     from hack_render.export.rig import pose_split
+    from hack_render.render.materials import iris_vertex_colors, material_base_colours
     from hack_render.render.parts import Topology, split_parts, vertex_normals
 
     g = GltfBuilder()
@@ -343,7 +341,7 @@ def write_document(g: GltfBuilder, path: str | Path) -> list[Path]:
             tmp = target.with_name(f".{target.name}.tmp")
             tmps.append(tmp)
             tmp.write_bytes(data)
-        for (target, _), tmp in zip(files, tmps):
+        for (target, _), tmp in zip(files, tmps, strict=True):
             tmp.replace(target)
     except OSError as exc:
         for tmp in tmps:

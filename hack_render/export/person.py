@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from hack_render.errors import HackError
 from hack_render.export import rig as R

@@ -24,8 +24,7 @@ def read_gltf(path: str | Path) -> tuple[dict, bytes]:
     path = Path(path)
     raw = path.read_bytes()
     if raw[:4] == b"glTF":
-        magic, version, total = struct.unpack_from("<III", raw, 0)
-        jlen, _ = struct.unpack_from("<II", raw, 12)
+        jlen, _ = struct.unpack_from("<II", raw, 12)  # after magic, version, length
         doc = json.loads(raw[20:20 + jlen])
         off = 20 + jlen
         blen, _ = struct.unpack_from("<II", raw, off)

@@ -229,7 +229,7 @@ def _tau_grid(tau_range: float, step: float) -> np.ndarray:
     if not (0 < step <= tau_range <= 0.1):
         raise HackError(f"larynx slide range: expected 0 < step <= range <= 0.1 m, found step "
                         f"{step}, range {tau_range}.")
-    k = int(round(tau_range / step))
+    k = round(tau_range / step)
     return np.array([i * step for i in range(-k, k + 1) if i != 0])
 
 
@@ -293,7 +293,8 @@ def axis_angle_quaternions(r: np.ndarray) -> np.ndarray:
     r = np.asarray(r, np.float64)
     angle = np.linalg.norm(r, axis=-1, keepdims=True)
     # sin(a/2)/a with its series for small a (no division by zero)
-    s = np.where(angle < 1e-4, 0.5 - angle ** 2 / 48, np.sin(angle / 2) / np.where(angle > 0, angle, 1))
+    safe = np.where(angle > 0, angle, 1.0)
+    s = np.where(angle < 1e-4, 0.5 - angle ** 2 / 48, np.sin(angle / 2) / safe)
     q = np.concatenate([r * s, np.cos(angle / 2)], -1)
     for i in range(1, len(q)) if q.ndim > 1 else ():
         flip = (q[i] * q[i - 1]).sum(-1, keepdims=True) < 0

@@ -119,8 +119,8 @@ _MTL_MAP = {"diffuse": "map_Kd", "specular": "map_Ks", "roughness": "map_Pr", "n
 
 
 def _mtl_text(mats: ObjMaterials) -> str:
-    lines = ["# hack-render: one material per model material; skin maps on the atlas's two "
-             "tiles (u in [0, 2], hence -s 0.5 1 1)"]
+    lines = [("# hack-render: one material per model material; skin maps on the atlas's two "
+              "tiles (u in [0, 2], hence -s 0.5 1 1)")]
     for name in mats.names:
         rgb = (mats.colours or {}).get(name, (0.8, 0.8, 0.8))
         lines += [f"newmtl {name}", "Ka 0 0 0", "Kd {:.4f} {:.4f} {:.4f}".format(*rgb),

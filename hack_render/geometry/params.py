@@ -210,7 +210,7 @@ def _check_frames(where: str, key: str, arr: np.ndarray, frames: int,
         want = (num_expressions,)
     shape_text = " x ".join("E" if d is None else str(d) for d in want) or "a number"
     if arr.ndim != len(want) + 1 or any(d is not None and d != s for d, s in
-                                         zip(want, arr.shape[1:])):
+                                         zip(want, arr.shape[1:], strict=True)):
         raise _frame_error(where, 0, key, f"expected {shape_text} per frame, found "
                            f"{arr.shape[1:] or 'a number'} (array shape {arr.shape}).")
     if len(arr) != frames:
@@ -292,7 +292,7 @@ def _stack_frames(path: Path, frames: list[dict[str, Any]]) -> dict[str, np.ndar
             except (TypeError, ValueError) as exc:
                 raise _frame_error(str(path), i, k, f"expected numbers, found {fr[k]!r}.") from exc
             want = SEQUENCE_KEYS[k]
-            if a.ndim != len(want) or any(d is not None and d != s for d, s in zip(want, a.shape)):
+            if a.ndim != len(want) or any(d is not None and d != s for d, s in zip(want, a.shape, strict=True)):
                 shape_text = " x ".join("E" if d is None else str(d) for d in want) or "a number"
                 raise _frame_error(str(path), i, k, f"expected {shape_text}, found shape "
                                    f"{a.shape or 'a number'}.")
