@@ -7,6 +7,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -90,15 +91,41 @@ def test_benchmarks_page_is_generated_from_the_results():
         assert f"bench/results/{path.name}" in text, f"{path.name} is not on the page"
 
 
-def test_mkdocs_build_strict(tmp_path):
-    missing = [m for m in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python")
-               if importlib.util.find_spec(m.split(".")[0]) is None]
+def _need_mkdocs():
+    missing = [m for m in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers")
+               if importlib.util.find_spec(m) is None]
     if missing:
         pytest.skip(f"{', '.join(missing)} not installed: bash scripts/setup.sh --test "
                     "installs the docs tools")
-    res = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir",
-                          str(tmp_path / "site")], cwd=ROOT, capture_output=True, text=True,
-                         env={**os.environ, "NO_MKDOCS_2_WARNING": "1"}, timeout=300)
+
+
+def _mkdocs_build(config: Path, site: Path):
+    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
+                           str(config), "--site-dir", str(site)], cwd=config.parent,
+                          capture_output=True, text=True, check=False, timeout=300,
+                          env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+
+
+def test_mkdocs_build_strict(tmp_path):
+    _need_mkdocs()
+    res = _mkdocs_build(ROOT / "mkdocs.yml", tmp_path / "site")
     assert res.returncode == 0, res.stderr[-3000:]
     api = (tmp_path / "site" / "api" / "index.html").read_text()
     assert "personalize" in api and "distribute_head_rotation" in api  # docstrings rendered
+
+
+@pytest.mark.parametrize("breakage, message", [
+    ("see [this page](missing.md)", "missing.md"),
+    ("::: hack_render.geometry.no_such_function", "no_such_function"),
+])
+def test_strict_build_fails_on_a_broken_link_or_api_reference(tmp_path, breakage, message):
+    """The CI check has teeth: the same site with one broken link, or one reference to a
+    name that has no docstring to render, does not build."""
+    _need_mkdocs()
+    shutil.copytree(ROOT / "docs", tmp_path / "docs")
+    with open(tmp_path / "docs" / "troubleshooting.md", "a") as f:
+        f.write(f"\n{breakage}\n")
+    (tmp_path / "mkdocs.yml").write_text(f"INHERIT: {ROOT / 'mkdocs.yml'}\n"
+                                         "docs_dir: docs\nhooks: []\n")
+    res = _mkdocs_build(tmp_path / "mkdocs.yml", tmp_path / "site")
+    assert res.returncode != 0 and message in res.stderr + res.stdout, res.stderr[-2000:]
