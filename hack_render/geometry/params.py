@@ -292,7 +292,8 @@ def _stack_frames(path: Path, frames: list[dict[str, Any]]) -> dict[str, np.ndar
             except (TypeError, ValueError) as exc:
                 raise _frame_error(str(path), i, k, f"expected numbers, found {fr[k]!r}.") from exc
             want = SEQUENCE_KEYS[k]
-            if a.ndim != len(want) or any(d is not None and d != s for d, s in zip(want, a.shape, strict=True)):
+            if a.ndim != len(want) or any(d is not None and d != s
+                                          for d, s in zip(want, a.shape, strict=True)):
                 shape_text = " x ".join("E" if d is None else str(d) for d in want) or "a number"
                 raise _frame_error(str(path), i, k, f"expected {shape_text}, found shape "
                                    f"{a.shape or 'a number'}.")
