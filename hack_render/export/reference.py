@@ -108,7 +108,7 @@ def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | Non
     for prim in mesh["primitives"]:
         at = prim["attributes"]
         pos = accessor(doc, buf, at["POSITION"])
-        for w, tgt in zip(weights, prim.get("targets", [])):
+        for w, tgt in zip(weights, prim.get("targets", []), strict=True):
             if w != 0:
                 pos = pos + w * accessor(doc, buf, tgt["POSITION"])
         blend = np.zeros((len(pos), 4, 4))
