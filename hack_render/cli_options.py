@@ -72,11 +72,13 @@ Expression = Annotated[Optional[str], typer.Option(
 HeadRotation = Annotated[Optional[str], typer.Option(
     "--head-rotation", help="Whole-head 'flexion,axial,lateral' in degrees, shared over the "
     "8 cervical joints by their ranges, e.g. '15,40,0'.")]
-Eta = Annotated[Optional[float], typer.Option("--eta", help="Larynx size (1 = the mean "
-                                              "larynx of the identity).")]
-Tau = Annotated[Optional[float], typer.Option("--tau", help="Larynx vertical slide, metres.")]
-Limits = Annotated[str, typer.Option("--limits", help="Joint rotations beyond the "
-                                     "anatomical limits: warn, clamp or error.")]
+Eta = Annotated[Optional[float], typer.Option("--eta", help="Larynx size, 0..1.5 (default 1: "
+                                              "the identity's own larynx; 0: none).")]
+Tau = Annotated[Optional[float], typer.Option("--tau", help="Larynx vertical slide, metres, up "
+                                              "positive, -0.01..0.02 (a swallow rises ~0.02).")]
+Limits = Annotated[str, typer.Option("--limits", help="Values beyond the anatomical limits "
+                                     "(joint rotations, --head-rotation, --eta, --tau): warn, "
+                                     "clamp (and warn) or error.")]
 ModelPath = Annotated[Optional[Path], typer.Option("--model", help="Model file (default: "
                                                    "built-in).")]
 Alpha = Annotated[Optional[str], typer.Option("--alpha", help="Appearance coefficients, "

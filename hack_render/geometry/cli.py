@@ -85,10 +85,8 @@ def mesh(
     beta: opts.Beta = None,
     expression: opts.Expression = None,
     head_rotation: opts.HeadRotation = None,
-    eta: float | None = typer.Option(None, help="Larynx size, 0..1.5 (default 1: the "
-                                     "identity's own larynx; 0: none)."),
-    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres, up positive, "
-                                     "-0.01..0.02 (a swallow rises ~0.02)."),
+    eta: opts.Eta = None,
+    tau: opts.Tau = None,
     limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Values beyond the anatomical "
                                        "limits (joint rotations, --head-rotation, --eta, "
                                        "--tau): warn, clamp (and warn) or error."),
