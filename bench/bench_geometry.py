@@ -22,7 +22,7 @@ Configurations: B = 1 and B = 64 distinct identities with dense random psi (ever
 every basis read), B = 64 rows of one identity (a sequence or a multi-view fit; the
 personalised bases are built once), and B = 1 with a FACS expression (sparse psi).
 
-    python bench/bench_geometry.py [--repeats 21] [--out bench/results/bench_geometry.json]
+    python bench/bench_geometry.py [--repeats 21] [--threads N] [--out bench/results/bench_geometry.json]
 """
 
 from __future__ import annotations
@@ -115,7 +115,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=21, help="rounds (>= 15 for the medians)")
     ap.add_argument("--out", type=Path, default=Path("bench/results/bench_geometry.json"))
+    ap.add_argument("--threads", type=int, default=None,
+                    help="torch CPU threads (default: torch's own choice)")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     model = load_default_model()
     sx = smplx_arrays(model)
     gen = torch.Generator().manual_seed(0)

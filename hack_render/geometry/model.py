@@ -169,18 +169,34 @@ def rows_product(coeffs: torch.Tensor, rows: torch.Tensor, bias: torch.Tensor) -
     return _RowsProduct.apply(coeffs, rows, bias, nz)
 
 
+def _personal_rows(coeffs, mean, w, comps, nz):
+    """coeffs[:, nz] @ (mean + w comps)[nz] for one identity (w: (1, C)): per run of
+    consecutive used rows, its basis rows by one (1, C) x (C, n K) product over a strided
+    view (no copy), then one (B, n) x (n, K) product."""
+    C, _, K = comps.shape
+    out = None
+    for _, first, end in _runs(nz.tolist()):
+        n = end - first
+        basis = torch.addmm(mean[first:end].reshape(1, n * K), w,
+                            comps[:, first:end].reshape(C, n * K)).view(n, K)
+        part = coeffs[:, first:end] @ basis
+        out = part if out is None else out.add_(part)
+    return coeffs.new_zeros(coeffs.shape[0], K) if out is None else out
+
+
 class _PersonalProduct(torch.autograd.Function):
     """Per-row personalised product, unused rows skipped; see :func:`personal_product`."""
 
     @staticmethod
     def forward(ctx, coeffs, mean, w, comps, nz):
+        ctx.save_for_backward(coeffs, mean, w, comps)
+        if w.shape[0] == 1:
+            return _personal_rows(coeffs, mean, w, comps, nz)
         B = coeffs.shape[0]
         C, _, K = comps.shape
         n = len(nz)
         x = (w[:, :, None] * coeffs[:, None, nz]).reshape(B, C * n)  # outer products, used rows
-        out = torch.addmm(coeffs[:, nz] @ mean[nz], x, comps.index_select(1, nz).view(C * n, K))
-        ctx.save_for_backward(coeffs, mean, w, comps)
-        return out
+        return torch.addmm(coeffs[:, nz] @ mean[nz], x, comps.index_select(1, nz).view(C * n, K))
 
     @staticmethod
     def backward(ctx, g):
@@ -190,6 +206,8 @@ class _PersonalProduct(torch.autograd.Function):
         G = (g @ comps.view(C * D, K).T).view(-1, C, D)
         grad_c = g @ mean.T + (G * w[:, :, None]).sum(1) if ctx.needs_input_grad[0] else None
         grad_w = (G * coeffs[:, None, :]).sum(2) if ctx.needs_input_grad[2] else None
+        if grad_w is not None and w.shape[0] == 1:
+            grad_w = grad_w.sum(0, keepdim=True)
         return grad_c, None, grad_w, None, None
 
 
@@ -204,34 +222,30 @@ def personal_product(coeffs: torch.Tensor, mean: torch.Tensor, w: torch.Tensor,
             batch shares one identity.
         comps: (C, D, K) components.
 
-    Exact and differentiable in ``coeffs`` and ``w``. One identity (``w`` of one row): its
-    basis rows are built by one (1, C) x (C, n K) product per run of consecutive used rows
-    (strided views, no copy), then the batch is one (B, n) x (n, K) product; rows whose
-    coefficients are all zero are not read unless ``coeffs`` needs a gradient. Distinct
-    identities: one product of the (B, C D) outer products ``w[b, c] coeffs[b, d]`` with
-    the (C D, K) components, so the components are read once per forward however large B
-    is (not once per row); with unused rows, only the used rows are gathered and read (the
-    backward reads them all, for the gradients of zero coefficients)."""
+    Exact and differentiable in ``coeffs`` and ``w``; every form reads the components
+    once per forward, and only the rows d with a nonzero ``coeffs[:, d]`` (the backward
+    reads all rows, for the gradients of zero coefficients).
+
+    * Distinct identities (and B = 1): one (B, C D) x (C D, K) product of the outer
+      products ``w[b, c] coeffs[b, d]`` with the components, not one basis per row; its
+      output is only (B, K), so at B = 1 it is a cache-friendly matrix-vector product.
+    * One identity for a batch (``w`` of one row, B > 1): the identity's (D, K) basis once,
+      then one (B, D) x (D, K) product (B C D K multiply-adds become C D K + B D K).
+    """
     C, D, K = comps.shape
-    if w.shape[0] == 1:
-        grad = torch.is_grad_enabled() and coeffs.requires_grad
-        nz = None if grad else _nonzero_columns(coeffs)
+    B = coeffs.shape[0]
+    grad = torch.is_grad_enabled() and (coeffs.requires_grad or w.requires_grad)
+    if w.shape[0] == 1 and B > 1:
+        nz = None if grad and coeffs.requires_grad else _nonzero_columns(coeffs)
         if nz is None:
             return coeffs @ (mean + (w @ comps.view(C, D * K)).view(D, K))
-        out = None
-        for _, first, end in _runs(nz.tolist()):
-            n = end - first
-            basis = torch.addmm(mean[first:end].reshape(1, n * K), w,
-                                comps[:, first:end].reshape(C, n * K)).view(n, K)
-            part = coeffs[:, first:end] @ basis
-            out = part if out is None else out + part
-        if out is None:
-            out = coeffs.new_zeros(coeffs.shape[0], K)
-        return out
+        return _personal_rows(coeffs, mean, w, comps, nz)
     nz = _nonzero_columns(coeffs)
     if nz is None:
-        x = (w[:, :, None] * coeffs[:, None, :]).reshape(coeffs.shape[0], C * D)
+        x = (w[:, :, None] * coeffs[:, None, :]).reshape(B, C * D)
         return torch.addmm(coeffs @ mean, x, comps.view(C * D, K))
+    if not grad and w.shape[0] == 1:
+        return _personal_rows(coeffs, mean, w, comps, nz)
     return _PersonalProduct.apply(coeffs, mean, w, comps, nz)
 
 
