@@ -1,19 +1,24 @@
 """HACK parameter files (JSON or YAML), shared by `mesh`, `render`, `turntable` and `fit`.
 
 A parameter file is a mapping with any of these keys (all optional; missing = zero, except
-``eta``, which is 1, the identity's mean larynx, for a model that carries a larynx)::
+``eta``, which is 1, the identity's own larynx: the same default as the Python API,
+``HackModel.forward``)::
 
     beta: [0.5, -1.0]              # identity, in standard deviations (N(0, 1) units)
     psi: [...]                     # 53 expression weights, or instead / in addition:
     expression: {AU12: 0.7, jawOpen: 0.4}   # FACS action units and shape names
     head_rotation_deg: [20, 30, 0] # whole-head (flexion X, axial Y, lateral Z), degrees,
-                                   # shared over the 8 joints by their ranges
+                                   # shared over the 8 joints by their ranges (the
+                                   # whole neck's range: skeleton.head_rotation_range_deg)
     theta: [[x, y, z], ...]        # 8 x 3 axis-angle per joint, radians (added after the
                                    # head rotation's share when both are given)
     global_orient: [x, y, z]       # root axis-angle, radians
     transl: [x, y, z]              # metres
-    eta: 1.0                       # larynx size (0 = none, 1 = the identity's mean larynx)
-    tau: 0.0                       # larynx vertical slide, metres
+    eta: 1.0                       # larynx size, 0..1.5 (0 = none, 1 = the identity's own)
+    tau: 0.0                       # larynx vertical slide, metres, up, -0.01..0.02
+
+Values beyond the anatomical limits (joints, head rotation, eta, tau) are governed by the
+commands' ``--limits`` (:mod:`hack_render.geometry.limits`).
 
 Unknown keys are errors (a misspelt key must not be silently ignored).
 
@@ -155,7 +160,9 @@ def model_inputs(model, params: dict[str, Any]) -> dict[str, torch.Tensor]:
         if key in params:
             kw[key] = torch.tensor([params[key]], dtype=dtype)
     if "eta" not in kw and getattr(model, "has_larynx", False):
-        kw["eta"] = torch.ones(1, dtype=dtype)  # the identity's mean larynx, not none
+        from hack_render.geometry.larynx import ETA_DEFAULT
+
+        kw["eta"] = torch.full((1,), ETA_DEFAULT, dtype=dtype)  # the API's default too
     return kw
 
 
