@@ -1,0 +1,131 @@
+"""Pose-space stress test of the neck (issue 21; a benchmark, not a test).
+
+Samples poses over the whole joint space (:func:`hack_render.geometry.deformation.
+sample_pose_space`: every joint uniform within its limits, and whole-head rotations shared
+out by ``distribute_head_rotation`` up to each axis's full range, singly and combined) for
+identities beta ~ N(0, I) (20 components), with and without an expression, and measures
+per model the largest skin-edge stretch and compression per pose (median / p99 / max over
+poses) and the folded skin triangles, for
+
+* plain LBS: the model without pose correctives,
+* the previous shipped model (a model file from git history, ``--previous REV``),
+* the shipped model (or ``--model``).
+
+    python bench/bench_pose_space.py                         # 2,000 poses x 10 identities
+    python bench/bench_pose_space.py --poses 400 --identities 3 --out /tmp/p.json
+
+Writes ``bench/results/pose_space.json`` (commit, date, machine, command first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import ROOT, write_result  # noqa: E402
+
+from hack_render.geometry.deformation import (  # noqa: E402
+    model_deformation,
+    sample_pose_space,
+    skin_topology,
+)
+from hack_render.geometry.model import HackModel  # noqa: E402
+from hack_render.geometry.model_file import load_model_file  # noqa: E402
+
+#: the expression held over the poses in the "with expression" configuration
+EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
+
+
+def model_from_git(rev: str, path: str = "hack_render/data/hack_default.npz") -> HackModel:
+    """The model file as it was at ``rev``."""
+    data = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=ROOT, capture_output=True,
+                          check=True).stdout
+    with tempfile.NamedTemporaryFile(suffix=".npz") as f:
+        f.write(data)
+        f.flush()
+        return HackModel(*load_model_file(f.name))
+
+
+def without_correctives(model_path) -> HackModel:
+    """The same model with its pose blendshapes (generic and personalised) removed."""
+    arrays, meta = load_model_file(model_path)
+    return HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+
+
+def summarise(stretch: np.ndarray, comp: np.ndarray, folded: np.ndarray,
+              lbs: np.ndarray | None) -> dict:
+    out = {"poses": int(stretch.size),
+           "stretch": {"median": float(np.median(stretch)), "p99": float(np.quantile(stretch, 0.99)),
+                       "max": float(stretch.max())},
+           "compression": {"median": float(np.median(comp)), "p99": float(np.quantile(comp, 0.99)),
+                           "max": float(comp.max())},
+           "folded_poses": int((folded > 0).sum()), "folded_triangles": int(folded.sum())}
+    if lbs is not None:
+        out["poses_worse_than_lbs"] = int((stretch > lbs + 0.01).sum())
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--poses", type=int, default=2000)
+    ap.add_argument("--identities", type=int, default=10)
+    ap.add_argument("--seed", type=int, default=21)
+    ap.add_argument("--model", type=Path, default=ROOT / "hack_render/data/hack_default.npz")
+    ap.add_argument("--previous", default="f9ed56b",
+                    help="git revision of the previous shipped model ('' to skip)")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench/results/pose_space.json")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    models = {"lbs": without_correctives(args.model),
+              "shipped": HackModel(*load_model_file(args.model))}
+    if args.previous:
+        models["previous"] = model_from_git(args.previous)
+    topo = skin_topology(models["shipped"])
+    fams = sample_pose_space(args.poses, args.seed)
+    theta = torch.cat(list(fams.values())).float()
+    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams)])
+    g = torch.Generator().manual_seed(args.seed)
+    betas = torch.randn(args.identities, 20, generator=g)
+    psi = models["shipped"].expression_vector(EXPRESSION)
+    res: dict = {"poses": args.poses, "identities": args.identities, "seed": args.seed,
+                 "families": {k: len(v) for k, v in fams.items()}, "expression": EXPRESSION,
+                 "previous": args.previous, "configurations": {}}
+    t0 = time.time()
+    for expr in (False, True):
+        raw = {}
+        for name, model in models.items():
+            st = [model_deformation(model, b[None], theta, psi if expr else None, topo)
+                  for b in betas]
+            raw[name] = [np.stack([getattr(s, k).numpy() for s in st])
+                         for k in ("stretch", "compression", "folded")]
+        conf = {}
+        for name, (s, c, f) in raw.items():
+            lbs = raw["lbs"][0] if name != "lbs" else None
+            entry = {"all": summarise(s, c, f, lbs)}
+            for k, fam in enumerate(fams):
+                sel = fam_of == k
+                entry[fam] = summarise(s[:, sel], c[:, sel], f[:, sel],
+                                       None if lbs is None else lbs[:, sel])
+            conf[name] = entry
+            a = entry["all"]
+            print(f"{'expression' if expr else 'neutral':10s} {name:9s} stretch median "
+                  f"{a['stretch']['median']:.3f} p99 {a['stretch']['p99']:.3f} max "
+                  f"{a['stretch']['max']:.3f} | folded poses {a['folded_poses']} triangles "
+                  f"{a['folded_triangles']}" + (f" | worse than LBS {a['poses_worse_than_lbs']}"
+                                                 if lbs is not None else ""), flush=True)
+        res["configurations"]["expression" if expr else "neutral"] = conf
+    res["seconds"] = time.time() - t0
+    write_result(args.out, res)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,164 @@
+"""How much a pose deforms the skin: edge stretch and compression, folded triangles, and
+the pose samplers that cover the joint space (singly and combined).
+
+Used by the pose-space stress test (``bench/bench_pose_space.py``,
+``tests/test_pose_space.py``) and by the pose-corrective learner. Torch and numpy only.
+
+Definitions (per pose, over the skin triangles: vertex groups ``face`` and
+``head_and_neck``):
+
+* stretch: the largest ``|e| / |e0| - 1`` over skin edges, posed edge e against the same
+  identity's and expression's edge e0 at zero pose;
+* compression: the largest ``1 - |e| / |e0|``;
+* folded triangles: those whose posed normal points against their rest normal carried by
+  the triangle's rigid rotation: the rotation nearest (polar decomposition) to the blend of
+  the node rotations by the summed skinning weights of its corners, so skin turned inside
+  out counts, and skin merely turned with the head or the neck does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from hack_render.geometry.rotations import euler_to_axis_angle
+from hack_render.geometry.skeleton import distribute_head_rotation, rotation_limits
+
+#: vertex groups whose triangles count as skin (HackModel.group_names 0 and 1)
+SKIN_GROUPS = ("face", "head_and_neck")
+
+
+@dataclass
+class SkinTopology:
+    """Skin triangles and edges of a model, and each triangle's skinning weights.
+
+    Attributes:
+        faces: (T, 3) int64 skin triangles.
+        edges: (E, 2) int64 unique skin edges.
+        weights: (T, K + 1) the corners' mean skinning weights (root first).
+    """
+
+    faces: torch.Tensor
+    edges: torch.Tensor
+    weights: torch.Tensor
+
+
+def skin_topology(model) -> SkinTopology:
+    """The skin triangles, edges and triangle weights of a :class:`HackModel`."""
+    groups = [model.group_names.index(g) for g in SKIN_GROUPS]
+    skin_v = torch.isin(model.vertex_group, torch.tensor(groups))
+    faces = model.faces[skin_v[model.faces].all(1)]
+    e = torch.cat([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).sort(1).values
+    edges = torch.unique(e, dim=0)
+    return SkinTopology(faces=faces, edges=edges, weights=model.skinning_weights[faces].mean(1))
+
+
+@dataclass
+class DeformationStats:
+    """Per pose (B,): largest skin-edge stretch and compression (fractions), and the number
+    of folded skin triangles."""
+
+    stretch: torch.Tensor
+    compression: torch.Tensor
+    folded: torch.Tensor
+
+
+def _normals(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    return torch.cross(v[..., faces[:, 1], :] - v[..., faces[:, 0], :],
+                       v[..., faces[:, 2], :] - v[..., faces[:, 0], :], dim=-1)
+
+
+def deformation_stats(rest: torch.Tensor, posed: torch.Tensor, node_rotations: torch.Tensor,
+                      topo: SkinTopology) -> DeformationStats:
+    """Skin deformation of posed meshes against their zero-pose meshes.
+
+    Args:
+        rest: (B, N, 3) or (N, 3) the same identity and expression at zero pose (posed
+            by the root's rotation alone is fine: lengths and rotated normals compare).
+        posed: (B, N, 3) posed vertices.
+        node_rotations: (B, K + 1, 3, 3) world rotation of each node (root first), the
+            rotation part of the skinning transforms.
+        topo: :func:`skin_topology` of the model.
+    """
+    rest = rest.expand_as(posed)
+    a, b = topo.edges[:, 0], topo.edges[:, 1]
+    l0 = (rest[:, a] - rest[:, b]).norm(dim=-1).clamp(min=1e-12)
+    ratio = (posed[:, a] - posed[:, b]).norm(dim=-1) / l0
+    n0 = _normals(rest, topo.faces)  # (B, T, 3)
+    blend = torch.einsum("tk,bkij->btij", topo.weights.to(node_rotations.dtype), node_rotations)
+    u, _, vh = torch.linalg.svd(blend)  # polar: the nearest rotation to the blend
+    d = torch.linalg.det(u @ vh)
+    u = torch.cat([u[..., :2], u[..., 2:] * d[..., None, None]], -1)
+    carried = torch.einsum("btij,btj->bti", u @ vh, n0)
+    folded = ((_normals(posed, topo.faces) * carried).sum(-1) < 0).sum(1)
+    return DeformationStats(stretch=ratio.max(1).values - 1, compression=1 - ratio.min(1).values,
+                            folded=folded)
+
+
+def model_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
+                      topo: SkinTopology | None = None, chunk: int = 64) -> DeformationStats:
+    """:func:`deformation_stats` of one identity over many poses.
+
+    Args:
+        model: a :class:`HackModel`.
+        beta: (1, S) identity.
+        theta: (P, 8, 3) poses.
+        psi: optional (E,) or (1, E) expression held over the poses (and in the reference).
+    """
+    from hack_render.geometry.lbs import local_rotations, rigid_transforms, chain_parents
+
+    topo = topo or skin_topology(model)
+    person = model.personalize(beta)
+    out = {"stretch": [], "compression": [], "folded": []}
+    with torch.no_grad():
+        psi1 = None if psi is None else torch.as_tensor(psi, dtype=model.template.dtype).reshape(1, -1)
+        rest = person(psi=psi1).vertices
+        for s in range(0, theta.shape[0], chunk):
+            th = theta[s:s + chunk].to(model.template.dtype)
+            f = th.shape[0]
+            posed = person(psi=None if psi1 is None else psi1.expand(f, -1), theta=th).vertices
+            rot = local_rotations(th, th.new_zeros(f, 3))
+            j = person.joints.expand(f, -1, -1)
+            _, rel = rigid_transforms(rot, torch.cat([j[:, :1], j], 1), chain_parents(model.parents))
+            st = deformation_stats(rest, posed, rel[..., :3, :3], topo)
+            for k in out:
+                out[k].append(getattr(st, k))
+    return DeformationStats(**{k: torch.cat(v) for k, v in out.items()})
+
+
+def head_rotation_range_deg() -> torch.Tensor:
+    """(3, 2) whole-neck range per axis (flexion X, axial Y, lateral Z): the sums of the
+    joints' limits, degrees (what :func:`distribute_head_rotation` reaches unclamped)."""
+    return torch.rad2deg(rotation_limits(torch.float64).sum(0))
+
+
+def sample_joint_poses(n: int, generator: torch.Generator, dtype=torch.float64) -> torch.Tensor:
+    """(n, 8, 3) axis-angle poses, every joint's three Euler angles uniform within its
+    limits, independently (combined flexion, lateral bend and axial rotation everywhere)."""
+    lim = rotation_limits(dtype)
+    u = torch.rand(n, 8, 3, generator=generator, dtype=dtype)
+    return euler_to_axis_angle(lim[..., 0] + u * (lim[..., 1] - lim[..., 0]))
+
+
+def sample_head_poses(n: int, generator: torch.Generator, axes: str = "xyz",
+                      dtype=torch.float64) -> torch.Tensor:
+    """(n, 8, 3) whole-head rotations uniform up to each axis's full range on the named
+    axes (zero on the others), shared out by :func:`distribute_head_rotation`."""
+    rng = torch.deg2rad(head_rotation_range_deg()).to(dtype)
+    u = torch.rand(n, 3, generator=generator, dtype=dtype)
+    ang = rng[:, 0] + u * (rng[:, 1] - rng[:, 0])
+    keep = torch.tensor([a in axes for a in "xyz"], dtype=dtype)
+    return distribute_head_rotation(ang * keep)
+
+
+def sample_pose_space(n: int, seed: int, dtype=torch.float64) -> dict[str, torch.Tensor]:
+    """The stress test's pose families, seeded: per-joint uniform (half), whole-head
+    rotations on each axis alone (a twelfth each) and on all three combined (the rest)."""
+    g = torch.Generator().manual_seed(seed)
+    fam = {"joints_uniform": sample_joint_poses(n // 2, g, dtype)}
+    for ax in "xyz":
+        fam[f"head_{ax}"] = sample_head_poses(n // 12, g, ax, dtype)
+    fam["head_xyz"] = sample_head_poses(n - sum(len(v) for v in fam.values()), g, "xyz", dtype)
+    return fam
