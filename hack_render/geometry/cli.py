@@ -4,7 +4,6 @@ as `hack-render learn base-model` by hack_render.learn.cli."""
 from __future__ import annotations
 
 import json
-import warnings
 from enum import Enum
 from pathlib import Path
 
@@ -48,14 +47,13 @@ def gather_params(params_file: Path | None, beta: str | None, expression: str | 
 def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) -> dict:
     """Warn about, clamp, or refuse (exit 2) out-of-range joint rotations, whole-head
     rotations, larynx slide tau and size eta (:func:`hack_render.geometry.limits.enforce_limits`);
-    warnings name each value and its limit, and go to stderr and :mod:`warnings`."""
+    warnings name each value and its limit, and go to stderr (once)."""
     from hack_render.geometry.limits import enforce_limits
 
     kw, messages = enforce_limits(kw, policy, head_rotation_deg)
     if messages:
-        text = "; ".join(messages)
-        warnings.warn(f"outside the anatomical limits: {text}", stacklevel=2)
-        typer.secho(f"warning: outside the anatomical limits: {text}", err=True, fg="yellow")
+        typer.secho(f"warning: outside the anatomical limits: {'; '.join(messages)}", err=True,
+                    fg="yellow")
     return kw
 
 
