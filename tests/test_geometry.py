@@ -11,8 +11,8 @@ import torch
 from hack_render.errors import HackError
 from hack_render.geometry import HackModel, load_default_model
 from hack_render.geometry import rotations as R
-from hack_render.geometry.model import personal_product, reference_forward, rows_product
 from hack_render.geometry.lbs import rigid_transforms, skin, skin_reference
+from hack_render.geometry.model import personal_product, reference_forward, rows_product
 from hack_render.geometry.model_file import load_model_file, save_model_file
 from hack_render.geometry.skeleton import (
     adjacent_similarity_penalty,

@@ -63,6 +63,7 @@ def test_larynx_ranges_hold_on_the_shipped_maps(default):
         for tau in TAU_RANGE_M:
             h, v = peak(1.0, tau)
             assert h >= 0.95 * h0, (tau, h, h0)
+            assert abs((v - v0) - tau) < 0.003, (tau, v - v0)  # the peak slides by tau
         assert peak(ETA_RANGE[0], 0.0)[0] == 0.0
         g = torch.Generator().manual_seed(3)
         beta = torch.randn(200, default.num_shape, generator=g)
