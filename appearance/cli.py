@@ -50,7 +50,6 @@ def build(
                f"report {out.with_suffix('.report.json')}")
 
 
-@app.command()
 def template(
     ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder holding "
                              "generic_neutral_mesh.obj (or the OBJ itself); ICT-FaceKit is "
@@ -58,7 +57,10 @@ def template(
     out: Path | None = typer.Option(None, "-o", "--output", help="file to write (default: "
                                     "the package's own appearance/data/ict_template.npz)"),
 ):
-    """Rebuild the packaged skin template (the UV atlas's mesh) from ICT-FaceKit's OBJ."""
+    """Rebuild the packaged skin template (the UV atlas's mesh) from ICT-FaceKit's OBJ.
+
+    Example: hack-render learn template --ict ICT_FACEKIT_DIR
+    """
     from appearance.uv import TEMPLATE_FILE, write_template_file
 
     path = write_template_file(ict, out or TEMPLATE_FILE)

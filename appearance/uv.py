@@ -31,7 +31,7 @@ from hack_render.errors import HackError
 #: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
 #: ``appearance/data/LICENSE-ICT-FaceKit``), shipped as package data: vertices (cm, as in
 #: the OBJ, larynx included), triangles, UVs and materials. Rebuilt from the OBJ by
-#: :func:`write_template_file` (``hack-render appearance template --ict DIR``).
+#: :func:`write_template_file` (``hack-render learn template --ict DIR``).
 TEMPLATE_FILE = Path(__file__).resolve().parent / "data" / "ict_template.npz"
 TEMPLATE_FORMAT = 1
 SKIN_MATERIALS = ("M_Face", "M_BackHead")
@@ -73,7 +73,7 @@ def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -
             "provenance": "captured (ICT-FaceKit's template), converted unchanged: "
                           "vertices in centimetres, larynx included",
             "obj_sha256": hashlib.sha256(obj_path.read_bytes()).hexdigest(),
-            "command": "hack-render appearance template --ict ICT_FACEKIT_DIR"}
+            "command": "hack-render learn template --ict ICT_FACEKIT_DIR"}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp.npz")
@@ -103,7 +103,7 @@ def load_template(path: str | Path = TEMPLATE_FILE):
     except (OSError, ValueError, EOFError) as err:
         raise HackError(f"skin template {path}: expected the packaged ict_template.npz, "
                         f"could not read it ({err}). Reinstall hack-render, or rebuild it "
-                        f"with `hack-render appearance template --ict ICT_FACEKIT_DIR`.") from err
+                        f"with `hack-render learn template --ict ICT_FACEKIT_DIR`.") from err
     missing = sorted(set(_TEMPLATE_KEYS) - set(d))
     if missing or int(d["format_version"]) != TEMPLATE_FORMAT:
         raise HackError(f"skin template {path}: expected format {TEMPLATE_FORMAT} with keys "

@@ -30,15 +30,15 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from provenance import ROOT, write_result  # noqa: E402
+from provenance import ROOT, write_result
 
-from hack_render.geometry.deformation import (  # noqa: E402
+from hack_render.geometry.deformation import (
     model_deformation,
     sample_pose_space,
     skin_topology,
 )
-from hack_render.geometry.model import HackModel  # noqa: E402
-from hack_render.geometry.model_file import load_model_file  # noqa: E402
+from hack_render.geometry.model import HackModel
+from hack_render.geometry.model_file import load_model_file
 
 #: the expression held over the poses in the "with expression" configuration
 EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
@@ -91,7 +91,7 @@ def main(argv=None) -> None:
     topo = skin_topology(models["shipped"])
     fams = sample_pose_space(args.poses, args.seed)
     theta = torch.cat(list(fams.values())).float()
-    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams)])
+    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams.values())])
     g = torch.Generator().manual_seed(args.seed)
     betas = torch.randn(args.identities, 20, generator=g)
     psi = models["shipped"].expression_vector(EXPRESSION)

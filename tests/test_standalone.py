@@ -122,9 +122,9 @@ def test_02_wheel_in_a_fresh_venv_runs_the_main_jobs(tmp_path):
                MPLBACKEND="Agg")
     _run([str(py), "-m", "pip", "install", "--no-deps", "--force-reinstall", "-q", str(wheel)],
          work, env)
-    where = _run([str(py), "-c", "import hack_render, appearance, scenes, sys; "
-                  "print(hack_render.__file__, appearance.__file__, scenes.__file__); "
-                  "print(*sys.path)"], work, env).stdout
+    probe = ("import hack_render, appearance, scenes, sys; "
+             "print(hack_render.__file__, appearance.__file__, scenes.__file__); print(*sys.path)")
+    where = _run([str(py), "-c", probe], work, env).stdout
     first, paths = where.splitlines()[0], where.splitlines()[1]
     for f in first.split():
         assert Path(f).is_relative_to(venv), f"imported from outside the venv: {f}"
@@ -136,8 +136,8 @@ def test_02_wheel_in_a_fresh_venv_runs_the_main_jobs(tmp_path):
           "--formats", "gif"], work, env)
     (work / "tiny.yaml").write_text("render:\n  resolution: 48\n  spp: 2\n")
     _run([hr, "dataset", "--n", "1", "-o", "ds", "--config", "tiny.yaml"], work, env)
-    _run([str(py), "-c", "import imageio.v3 as iio, skimage.data; "
-          "iio.imwrite('astronaut.png', skimage.data.astronaut())"], work, env)
+    photo = "import imageio.v3 as iio, skimage.data; iio.imwrite('astronaut.png', skimage.data.astronaut())"
+    _run([str(py), "-c", photo], work, env)
     _run([hr, "fit", "astronaut.png", "-o", "fit", "--no-photometric", "--quiet"], work, env)
 
     assert (work / "r.png").stat().st_size > 0

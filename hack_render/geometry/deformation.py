@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 
 from hack_render.geometry.rotations import euler_to_axis_angle
@@ -107,7 +106,7 @@ def model_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
         theta: (P, 8, 3) poses.
         psi: optional (E,) or (1, E) expression held over the poses (and in the reference).
     """
-    from hack_render.geometry.lbs import local_rotations, rigid_transforms, chain_parents
+    from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 
     topo = topo or skin_topology(model)
     person = model.personalize(beta)
@@ -123,8 +122,8 @@ def model_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
             j = person.joints.expand(f, -1, -1)
             _, rel = rigid_transforms(rot, torch.cat([j[:, :1], j], 1), chain_parents(model.parents))
             st = deformation_stats(rest, posed, rel[..., :3, :3], topo)
-            for k in out:
-                out[k].append(getattr(st, k))
+            for k, acc in out.items():
+                acc.append(getattr(st, k))
     return DeformationStats(**{k: torch.cat(v) for k, v in out.items()})
 
 

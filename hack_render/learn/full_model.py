@@ -20,8 +20,13 @@ from tqdm import tqdm
 from hack_render.learn.mesh_ops import ring
 from hack_render.learn.pca import compactness, generalisation
 from hack_render.learn.personal import learn_personal_space, mlp_forward, personal_arrays
-from hack_render.learn.pose_data import (ArapNeck, action_thetas, pose_sequence, single_joint_sweeps,
-                                         twist_area_ratio)
+from hack_render.learn.pose_data import (
+    ArapNeck,
+    action_thetas,
+    pose_sequence,
+    single_joint_sweeps,
+    twist_area_ratio,
+)
 from hack_render.learn.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247
@@ -162,11 +167,79 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 30, lr:
     return {"arrays": out, "report": report}
 
 
+def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
+                      num_components: int = 8, identities: int = 4, poses: int = 8,
+                      learn_weights: bool = True, seed: int = 12, progress: bool = True) -> dict:
+    """Pose correctives P, the personalised components and M_P, and the neck's skinning
+    weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
+    whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
+    model arrays and a report."""
+    from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
+
+    sub = pose_subset(arrays)
+    n, m = len(arrays["template_vertices"]), len(sub)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64) * std[:, None, None]
+    region = neck_region(arrays["faces"], SKIN_LAST, sub)
+    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                arrays["skinning_weights"], arrays["joint_parents"], region,
+                                num_components=num_components, seed=seed)
+    res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
+                      learn_weights=learn_weights, seed=seed, progress=progress)
+    generic = np.zeros((72, n, 3), np.float32)
+    generic[:, sub] = res.pose_basis
+    out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),
+           "pose_pca_mean": np.zeros((72, m, 3), np.float32),
+           "pose_pca_components": res.components}
+    out.update({f"pose_mlp_{k}": v for k, v in res.mlp.items()})
+    if learn_weights:
+        w = np.asarray(arrays["skinning_weights"], np.float64).copy()
+        w[sub] = res.weights
+        out["skinning_weights"] = (w / w.sum(1, keepdims=True)).astype(np.float32)
+    report = {"method": "energy (hack_render.learn.pose_energy)", "iterations": iterations,
+              "lr_cm": lr, "identities_per_step": identities, "poses_per_identity": poses,
+              "components": num_components, "subset_vertices": int(m),
+              "region_triangles": len(region.faces), "learned_weights": learn_weights,
+              "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history}
+    return {"arrays": out, "report": report}
+
+
+def pose_curves(out: dict, num_identities: int = 200, seed: int = 5) -> dict:
+    """Compactness of the personalised pose blendshapes: explained variance of the deltas
+    m(beta) C over sampled identities (beta ~ N(0, I)), against the number of components."""
+    rng = np.random.default_rng(seed)
+    w = mlp_forward({k[9:]: v for k, v in out.items() if k.startswith("pose_mlp_")},
+                    rng.standard_normal((num_identities, out["pose_mlp_w0"].shape[1])))
+    comps = out["pose_pca_components"].reshape(len(out["pose_pca_components"]), -1)
+    d = w @ comps
+    sv = np.linalg.svd(d - d.mean(0), compute_uv=False) ** 2
+    return {"explained_variance": (np.cumsum(sv) / max(sv.sum(), 1e-30)).tolist()[: len(comps)],
+            "note": f"personal deltas of {num_identities} sampled identities"}
+
+
+def pose_provenance(report: dict) -> dict:
+    """Model-file provenance of the pose correctives and the neck's skinning weights."""
+    out = {"pose_blendshapes": (
+        "optimised (not captured): generic P, personalised components and the M_P MLP "
+        "minimise the neck skin's deformation energy (strain, stretch and compression tails, "
+        "folds, bending, never worse than plain LBS) under LBS over poses sampled from the "
+        f"whole joint space ({report['iterations']} Adam steps x {report['identities_per_step']} "
+        f"identities beta ~ N(0, I) x {report['poses_per_identity']} poses: each joint uniform "
+        "within its limits, whole-head rotations up to each axis's full range, singly and "
+        "combined); hack_render.learn.pose_energy")}
+    if report.get("learned_weights"):
+        out["skinning_weights_neck"] = ("optimised with the pose correctives (same energy), "
+                                        "from the procedural weights, on the neck's "
+                                        f"{report['subset_vertices']} vertices")
+    return out
+
+
 def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
-                     num_pose_identities: int = 12, pose_iterations: int = 30,
-                     expression_epochs: int = 3000, learn_weights: bool = False,
+                     num_pose_identities: int = 4, pose_iterations: int = 700,
+                     expression_epochs: int = 3000, learn_weights: bool = True,
                      progress: bool = True) -> tuple[dict, dict]:
-    """Arrays and metadata of the v2 default model (see module docstring)."""
+    """Arrays and metadata of the v2 default model (see module docstring).
+    ``num_pose_identities``: identities per step of the pose learner (new ones each step)."""
     from hack_render.learn.expression_learn import learn_expressions
     from hack_render.learn.ict_default import build_default_model
     from hack_render.learn.larynx_learn import learn_larynx
@@ -190,13 +263,13 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
     arrays.update(ex.arrays)
     timings["expressions"] = time.time() - t
     t = time.time()
-    po = learn_pose(arrays, num_identities=num_pose_identities, iterations=pose_iterations,
-                    learn_weights=learn_weights, progress=progress)
+    po = learn_pose_energy(arrays, iterations=pose_iterations, identities=num_pose_identities,
+                           learn_weights=learn_weights, progress=progress)
     arrays.update(po["arrays"])
     timings["pose"] = time.time() - t
     curves["larynx"] = lar.report.pop("curves")
     curves["expression"] = ex.report.pop("curves")
-    curves["pose"] = po["report"].pop("curves")
+    curves["pose"] = pose_curves(po["arrays"])
     prov = meta["provenance"]
     prov.update({
         "template": prov["template"] + "; larynx removed (derived: bi-harmonic fill of the "
@@ -209,14 +282,8 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
         "personalised_expressions": f"derived: deformation transfer (Sumner & Popovic 2004) of the "
                                     f"53 ICT shapes onto {num_expression_identities} sampled "
                                     "identities; PCA (50) + M_E MLP",
-        "pose_blendshapes": f"simulated: fitted (Eq. 8-12) to range-of-motion sequences posed "
-                            f"by dual-quaternion skinning then ARAP of the neck skin (face, head "
-                            f"and chest rigid) ( Sec. 4.2 actions + each joint alone to its limits) of "
-                            f"{num_pose_identities} sampled identities; "
-                            "generic = mean, personal = PCA + M_P MLP",
     })
-    if po["report"]["learned_weights"]:
-        prov["skinning_weights"] += "; neck rows refined by the pose learner (simulated data)"
+    prov.update(pose_provenance(po["report"]))
     meta["model_version"] = 2
     meta["learn"] = {"larynx": lar.report, "expressions": ex.report, "pose": po["report"],
                      "timings_s": timings, "curves": curves}

@@ -305,7 +305,9 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
     names = ict["expression_names"]
     landmarks = np.asarray(ict["indices"]["idx_to_landmark_verts"], dtype=np.int32)
     skin_idx = np.arange(SKIN_LAST + 1)
-    placed = place_joints(v, skin_idx, int(landmarks[CHIN_LANDMARK]))
+    socket = next((lo, hi) for g, lo, hi in GROUPS if g == "mouth_socket")
+    placed = place_joints(v, skin_idx, int(landmarks[CHIN_LANDMARK]),
+                          np.arange(socket[0], socket[1] + 1))
     joints = placed["joints"]
     regressor = affine_regressor(v, skin_idx, joints)
     ys, front, back = midline_profiles(v[skin_idx])
@@ -369,7 +371,9 @@ def build_default_model(ict_path: str | Path) -> tuple[dict[str, np.ndarray], di
                            "table checked against FACS 2002 (ict_default.AU_TABLE)",
             "skeleton": "derived (8 joints placed from anatomical priors on the template: "
                         "surface landmarks, vertebral sizes, 20 deg lordosis, "
-                        f"{int(DEPTH_FRACTION * 100)} % depth; regressor = non-negative affine "
+                        f"{int(DEPTH_FRACTION * 100)} % depth at c7-t1, the column moved back "
+                        "to lie 12 mm behind the pharynx's posterior wall; regressor = "
+                        "non-negative affine "
                         "vertex weights). Not learned from ultrasound/CT.",
             "skinning_weights": "derived (procedural from the spine and a head cut, Laplacian "
                                 "smoothed); not learned",

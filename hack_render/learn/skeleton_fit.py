@@ -17,7 +17,14 @@ Placement, in the sagittal plane (metres, Y up, face +Z):
     trapezius slope);
   * between them, joints at cumulative anatomical heights (vertebral bodies C3-C7 14.5 mm,
     discs 5 mm, C2 to the c1-c2 joint 25 mm, C1 to o-c1 15 mm) along a curve from c7-t1
-    to o-c1 that bows forward with a 20 degree Cobb angle (lordosis, apex at c4-c5).
+    to o-c1 that bows forward with a 20 degree Cobb angle (lordosis, apex at c4-c5);
+  * the vertebral bodies lie behind the pharynx (ANATOMY.md): where the template has a
+    mouth socket reaching down the throat, the column is moved back, by a shift growing
+    linearly from 0 at c7-t1 to its largest at o-c1, until every joint at the socket's
+    height lies PHARYNX_MARGIN_M behind the socket's posterior (midline) wall: the
+    retropharyngeal soft tissue in front of C2-C4 is under 7 mm thick in adults, and a
+    cervical body's centre lies about 8 mm behind its front (bodies about 15-16 mm deep;
+    Gopalakrishnan et al. 1990, White & Panjabi 1990).
 """
 
 from __future__ import annotations
@@ -31,6 +38,38 @@ _CUM = np.cumsum([0.0, _BODY + _DISC, _BODY + _DISC, _BODY + _DISC, _BODY + _DIS
                   _BODY + _DISC, 0.025, 0.015])  # c7-t1 ... o-c1
 DEPTH_FRACTION = 0.55
 COBB_DEG = 20.0  # cervical lordosis C2-C7 in neutral standing, ANATOMY.md: 15-25 degrees
+# joint centre behind the pharynx's posterior wall: prevertebral soft tissue (< 7 mm at
+# C2-C4) plus half a vertebral body's depth (~8 mm); see the module docstring
+PHARYNX_MARGIN_M = 0.012
+
+
+def pharynx_wall(template: np.ndarray, socket_idx: np.ndarray, y: np.ndarray,
+                 half_width: float = 0.01, half_height: float = 0.005) -> np.ndarray:
+    """Posterior wall (min z) of the mouth socket's midline slice at heights y (K,);
+    NaN where the socket does not reach that height."""
+    sock = template[socket_idx]
+    mid = sock[np.abs(sock[:, 0]) < half_width]
+    out = np.full(len(y), np.nan)
+    for k, yk in enumerate(y):
+        sl = mid[np.abs(mid[:, 1] - yk) < half_height]
+        if len(sl):
+            out[k] = sl[:, 2].min()
+    return out
+
+
+def behind_pharynx(joints: np.ndarray, template: np.ndarray, socket_idx: np.ndarray,
+                   margin: float = PHARYNX_MARGIN_M) -> np.ndarray:
+    """Joints (K, 3) moved back (-z) by ``d * t_k`` (t_k: 0 at c7-t1 to 1 at o-c1, by
+    column length), with the smallest d >= 0 that puts every joint at the socket's height
+    ``margin`` behind its posterior wall."""
+    t = _CUM / _CUM[-1]
+    wall = pharynx_wall(template, socket_idx, joints[:, 1])
+    need = joints[:, 2] - (wall - margin)
+    ok = np.isfinite(need) & (t > 0)
+    d = float(np.max(np.clip(need[ok] / t[ok], 0, None), initial=0.0))
+    out = joints.copy()
+    out[:, 2] -= d * t
+    return out
 
 
 def midline_profiles(skin: np.ndarray, half_width: float = 0.005):
@@ -48,13 +87,16 @@ def midline_profiles(skin: np.ndarray, half_width: float = 0.005):
     return ys, np.asarray(front), np.asarray(back)
 
 
-def place_joints(template: np.ndarray, skin_idx: np.ndarray, chin_idx: int) -> dict[str, np.ndarray]:
+def place_joints(template: np.ndarray, skin_idx: np.ndarray, chin_idx: int,
+                 socket_idx: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Anatomical joint positions (8, 3) on a template, plus the landmarks used.
 
     Args:
         template: (N, 3) metres.
         skin_idx: indices of skin vertices (face and head-and-neck groups).
         chin_idx: the chin landmark vertex (Multi-PIE 8), which bounds the neck from above.
+        socket_idx: the mouth socket's vertices (the mouth and pharynx surface): the
+            column is placed behind it (:func:`behind_pharynx`); None skips that step.
     """
     skin = template[skin_idx]
     ys, front, back = midline_profiles(skin)
@@ -85,6 +127,8 @@ def place_joints(template: np.ndarray, skin_idx: np.ndarray, chin_idx: int) -> d
     arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
     joints = np.stack([curve[np.searchsorted(arc, fr * arc[-1]).clip(0, 2000)] for fr in frac])
     joints[0], joints[-1] = c7, oc1
+    if socket_idx is not None and len(socket_idx):
+        joints = behind_pharynx(joints, template, np.asarray(socket_idx))
     return {"joints": joints, "notch_y": np.array(y_notch), "ear_lobe": lobe, "curve": curve}
 
 

@@ -1,0 +1,309 @@
+"""Pose correctives learned by minimising the neck skin's deformation energy over the
+whole joint space (issue 21).
+
+Why not regression onto simulated targets any more: the previous learner fitted P and M_P
+to DQS + ARAP range-of-motion sequences that moved one axis at a time; a corrective linear
+in the pose features extrapolated badly where axes combine (112 of 201 whole-head
+rotations folded skin; the largest stretch reached 1,034 %). Simulating the targets over
+combined poses does not cure it: a surface-only ARAP has no bending stiffness, so under
+the strong compression of combined poses it buckles, and its targets fold skin themselves
+(5 of 12 full-range combined whole-head rotations, measured on the template). This learner
+asks the skinned neck itself to be well behaved, pose by pose, over poses sampled from the
+whole space (every joint uniform within its limits, whole-head rotations up to each axis's
+full range, singly and combined), for identities sampled from the shape space at every
+step, so the personalised part generalises to identities it never saw.
+
+The model (paper Eq. 2-3, unchanged in form): the posed neck is
+``LBS(T(beta) + f(theta) (P + sum_c m_c(beta) C_c), J(beta), theta, W)``, f = the 72 pose
+features (R_k - I), P the generic pose blendshapes, C_c the personalised components and
+m(beta) the M_P MLP (3 layers, 64 units), W the skinning weights of the neck vertices
+(softmax over each vertex's chain neighbourhood). All of P, C, m and W are learned.
+
+Energy per pose, over the skin triangles touching the neck (:class:`NeckRegion`), each term
+a mean over its elements (r = |e| / |e0| - 1 per edge):
+
+* ``strain``: r^2 (overall elasticity);
+* ``stretch`` / ``compress``: relu(r - s0)^2 / relu(-r - c0)^2, the tails the stress test
+  measures;
+* ``fold``: relu(f0 - cos)^2, cos between a triangle's posed normal and its rest normal
+  carried by its blended rigid rotation (the stress test's fold measure, made smooth);
+* ``bend``: the change of the cosine between adjacent triangles' normals (bending
+  stiffness: the buckling that ARAP lacks);
+* ``worse``: per edge and triangle, the excess over plain LBS of the same pose and
+  identity (stretch beyond max(LBS, s0), cos below min(LBS, f0)), LBS with the initial
+  weights W0 and with the current W, whichever is better: correctives may only improve
+  on LBS;
+* ``smooth``: the squared uniform Laplacian of P over the region; ``weights``: ||W - W0||^2.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hack_render.geometry.deformation import sample_head_poses, sample_joint_poses
+from hack_render.geometry.lbs import (
+    chain_parents,
+    local_rotations,
+    pose_feature,
+    rigid_transforms,
+    skin,
+)
+from hack_render.learn.pose_learn import weight_support
+
+#: loss weights and thresholds (s0, c0: stretch / compression past which the tails count;
+#: f0: the normal cosine below which a triangle counts as folding)
+DEFAULTS = {"s0": 0.2, "c0": 0.3, "f0": 0.3, "strain": 1.0, "stretch": 30.0, "compress": 10.0,
+            "fold": 30.0, "bend": 3.0, "worse": 300.0, "smooth": 1e-3, "weights": 1e-2}
+
+
+@dataclass
+class NeckRegion:
+    """The skin around the neck where correctives act, in local indices.
+
+    Attributes:
+        vertices: (V,) model vertex ids of every corner of the skin triangles that touch
+            the corrective subset.
+        subset: (M,) local ids of the corrective subset (where P, C and W are learned).
+        faces: (T, 3) local triangles; edges (E, 2); pairs (Q, 2) adjacent triangles.
+    """
+
+    vertices: torch.Tensor
+    subset: torch.Tensor
+    faces: torch.Tensor
+    edges: torch.Tensor
+    pairs: torch.Tensor
+
+
+def neck_region(faces: np.ndarray, skin_last: int, subset: np.ndarray) -> NeckRegion:
+    """The :class:`NeckRegion` of a model's triangles (ids <= ``skin_last`` are skin)."""
+    f = torch.as_tensor(np.asarray(faces), dtype=torch.long)
+    f = f[(f <= skin_last).all(1)]
+    n = int(f.max()) + 1
+    sub = torch.as_tensor(np.asarray(subset), dtype=torch.long)
+    insub = torch.zeros(n, dtype=torch.bool)
+    insub[sub] = True
+    f = f[insub[f].any(1)]
+    verts = torch.unique(f)
+    loc = -torch.ones(n, dtype=torch.long)
+    loc[verts] = torch.arange(len(verts))
+    f = loc[f]
+    half = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).sort(1).values
+    edges = torch.unique(half, dim=0)
+    fid = torch.arange(len(f)).repeat(3)
+    order = torch.argsort(half[:, 0] * (len(verts) + 1) + half[:, 1])
+    hs, fs = half[order], fid[order]
+    same = (hs[1:] == hs[:-1]).all(1)
+    pairs = torch.stack([fs[:-1][same], fs[1:][same]], 1)
+    return NeckRegion(vertices=verts, subset=loc[sub], faces=f, edges=edges, pairs=pairs)
+
+
+def _unit(x: torch.Tensor) -> torch.Tensor:
+    return x / x.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+
+
+def _normals(v: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    return torch.cross(v[..., f[:, 1], :] - v[..., f[:, 0], :], v[..., f[:, 2], :] - v[..., f[:, 0], :], dim=-1)
+
+
+def _nearest_rotation(m: torch.Tensor) -> torch.Tensor:
+    u, _, vh = torch.linalg.svd(m)
+    d = torch.linalg.det(u @ vh)
+    return torch.cat([u[..., :2], u[..., 2:] * d[..., None, None]], -1) @ vh
+
+
+def skin_measures(region: NeckRegion, rest: torch.Tensor, posed: torch.Tensor,
+                  rel_rot: torch.Tensor, face_weights: torch.Tensor):
+    """Per pose: edge strain r (B, E), fold cosines (B, T) and adjacent-normal cosines
+    (B, Q) of posed (B, V, 3) against rest (B, V, 3); rel_rot (B, K+1, 3, 3)."""
+    e, f, q = region.edges, region.faces, region.pairs
+    l0 = (rest[:, e[:, 0]] - rest[:, e[:, 1]]).norm(dim=-1).clamp(min=1e-12)
+    r = (posed[:, e[:, 0]] - posed[:, e[:, 1]]).norm(dim=-1) / l0 - 1
+    n0, n = _unit(_normals(rest, f)), _unit(_normals(posed, f))
+    with torch.no_grad():  # the SVD's gradient is unstable at repeated singular values
+        carry = _nearest_rotation(torch.einsum("tk,bkij->btij", face_weights, rel_rot))
+    cos_fold = (n * torch.einsum("btij,btj->bti", carry, n0)).sum(-1)
+    bend = (n[:, q[:, 0]] * n[:, q[:, 1]]).sum(-1) - (n0[:, q[:, 0]] * n0[:, q[:, 1]]).sum(-1)
+    return r, cos_fold, bend
+
+
+@dataclass
+class PoseEnergyResult:
+    """Learned arrays (float32, model-file layout) and the training record."""
+
+    pose_basis: np.ndarray  # (72, M, 3) generic P on the subset, metres
+    components: np.ndarray  # (C, 72, M, 3) personalised components
+    mlp: dict[str, np.ndarray]  # M_P: w0, b0, w1, b1, w2, b2
+    weights: np.ndarray  # (M, K + 1) skinning weights of the subset
+    history: list[dict] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+class PoseEnergyLearner:
+    """Learns P, C, M_P and W (see the module docstring).
+
+    Args:
+        template: (N, 3) T_bar (with the model's default larynx), metres.
+        shape_dirs: (S, N, 3) shape blendshapes times their std (beta ~ N(0, I)).
+        joint_regressor: (K, N); weights: (N, K + 1) initial skinning weights W0.
+        parents: joint parents; region: :func:`neck_region`; subset: (M,) model ids.
+        num_components: C, personalised components; num_shape: betas fed to M_P.
+    """
+
+    def __init__(self, template, shape_dirs, joint_regressor, weights, parents, region: NeckRegion,
+                 num_components: int = 8, num_shape: int = 20, hidden: int = 64,
+                 loss: dict | None = None, seed: int = 0, dtype=torch.float64):
+        t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
+        self.region, self.parents = region, tuple(parents)
+        self.lam = dict(DEFAULTS, **(loss or {}))
+        vid = region.vertices
+        self.template = t(template)[vid]
+        sd = t(shape_dirs)[:num_shape]
+        self.shape_dirs = sd[:, vid]
+        reg = t(joint_regressor)
+        self.joints0 = reg @ t(template)
+        self.joint_dirs = torch.einsum("kn,snc->skc", reg, sd)
+        self.num_shape = num_shape
+        w0 = t(weights)[vid]
+        self.w_fixed = w0
+        sub = region.subset
+        self.w0_sub = w0[sub]
+        self.support = torch.as_tensor(weight_support(w0[sub].numpy(), self.parents))
+        m = len(sub)
+        g = torch.Generator().manual_seed(seed)
+        self.p_cm = torch.zeros(72, m, 3, dtype=dtype, requires_grad=True)
+        self.c_cm = (1e-3 * torch.randn(num_components, 72, m, 3, generator=g, dtype=dtype)).requires_grad_()
+        self.mlp = torch.nn.Sequential(torch.nn.Linear(num_shape, hidden), torch.nn.ReLU(),
+                                       torch.nn.Linear(hidden, hidden), torch.nn.ReLU(),
+                                       torch.nn.Linear(hidden, num_components)).to(dtype)
+        torch.nn.init.zeros_(self.mlp[4].weight)
+        torch.nn.init.zeros_(self.mlp[4].bias)
+        self.logits = torch.log(self.w0_sub.clamp(min=1e-4)).clone().requires_grad_()
+        self.lap = self._laplacian(m)
+
+    def start_from(self, arrays: dict) -> None:
+        """Continue from learned model arrays (``pose_basis`` on the subset's rows,
+        ``pose_pca_components``, ``pose_mlp_*``, ``skinning_weights``; model-file layout)."""
+        sub_ids = self.region.vertices[self.region.subset].numpy()
+        with torch.no_grad():
+            self.p_cm.copy_(torch.as_tensor(np.asarray(arrays["pose_basis"])[:, sub_ids]) * 100)
+            self.c_cm.copy_(torch.as_tensor(np.asarray(arrays["pose_pca_components"])) * 100)
+            lin = [m for m in self.mlp if isinstance(m, torch.nn.Linear)]
+            for i, layer in enumerate(lin):
+                layer.weight.copy_(torch.as_tensor(np.asarray(arrays[f"pose_mlp_w{i}"])))
+                layer.bias.copy_(torch.as_tensor(np.asarray(arrays[f"pose_mlp_b{i}"])))
+            w = torch.as_tensor(np.asarray(arrays["skinning_weights"]), dtype=self.logits.dtype)
+            self.logits.copy_(torch.log(w[sub_ids].clamp(min=1e-6)))
+
+    def _laplacian(self, m: int) -> torch.Tensor:
+        sub = self.region.subset
+        loc = -torch.ones(len(self.region.vertices), dtype=torch.long)
+        loc[sub] = torch.arange(m)
+        e = loc[self.region.edges]
+        e = e[(e >= 0).all(1)]
+        i = torch.cat([e[:, 0], e[:, 1]])
+        j = torch.cat([e[:, 1], e[:, 0]])
+        deg = torch.zeros(m, dtype=self.template.dtype).index_add_(0, i, torch.ones(len(i), dtype=self.template.dtype))
+        vals = -1.0 / deg.clamp(min=1)[i]
+        idx = torch.cat([torch.stack([i, j]), torch.arange(m).repeat(2, 1)], 1)
+        return torch.sparse_coo_tensor(idx, torch.cat([vals, torch.ones(m, dtype=vals.dtype)]), (m, m),
+                                       check_invariants=True).coalesce()
+
+    def weights(self) -> torch.Tensor:
+        """(V, K + 1) region weights: learned on the subset, W0 elsewhere."""
+        ws = torch.softmax(self.logits.masked_fill(~self.support, -1e9), dim=1)
+        return self.w_fixed.index_put((self.region.subset,), ws)
+
+    def blendshapes(self, beta: torch.Tensor) -> torch.Tensor:
+        """(B, 72, M, 3) P + sum_c m_c(beta) C_c, metres."""
+        w = self.mlp(beta)
+        return (self.p_cm + torch.einsum("bc,cdmk->bdmk", w, self.c_cm)) / 100
+
+    def pose(self, beta: torch.Tensor, theta: torch.Tensor, corrective: bool = True,
+             weights: torch.Tensor | None = None):
+        """Rest (B, V, 3), posed (B, V, 3) and node rotations (B, K+1, 3, 3) of the region
+        for identities beta (B, S) in poses theta (B, 8, 3); without ``corrective``, plain
+        LBS with ``weights`` (default W0)."""
+        b = theta.shape[0]
+        rest = self.template + torch.einsum("bs,svc->bvc", beta, self.shape_dirs)
+        joints = self.joints0 + torch.einsum("bs,skc->bkc", beta, self.joint_dirs)
+        rot = local_rotations(theta, theta.new_zeros(b, 3))
+        v = rest
+        if corrective:
+            feat = pose_feature(rot[:, 1:])
+            delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(beta))
+            v = rest.index_add(1, self.region.subset, delta)
+        _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))
+        w = self.weights() if corrective else (self.w_fixed if weights is None else weights)
+        return rest, skin(v, w, rel), rel[..., :3, :3]
+
+    def terms(self, beta: torch.Tensor, theta: torch.Tensor) -> dict[str, torch.Tensor]:
+        lam, reg = self.lam, self.region
+        with torch.no_grad():  # plain LBS, with W0 and with the current W: the stricter
+            r_l, c_l = None, None
+            for w in (self.w_fixed, self.weights()):
+                rest, lbs, rot0 = self.pose(beta, theta, corrective=False, weights=w)
+                r, c, _ = skin_measures(reg, rest, lbs, rot0, w[reg.faces].mean(1))
+                r_l = r if r_l is None else torch.minimum(r_l, r)
+                c_l = c if c_l is None else torch.maximum(c_l, c)
+        rest, posed, rot = self.pose(beta, theta)
+        r, cosf, bend = skin_measures(reg, rest, posed, rot, self.weights()[reg.faces].mean(1))
+        s0 = torch.full_like(r_l, lam["s0"])
+        f0 = torch.full_like(c_l, lam["f0"])
+        p = self.p_cm / 100
+        m = p.shape[1]
+        return {
+            "strain": (r ** 2).mean(), "stretch": torch.relu(r - lam["s0"]).pow(2).mean(),
+            "compress": torch.relu(-r - lam["c0"]).pow(2).mean(),
+            "fold": torch.relu(lam["f0"] - cosf).pow(2).mean(), "bend": (bend ** 2).mean(),
+            "worse": torch.relu(r - torch.maximum(r_l, s0)).pow(2).mean()
+            + torch.relu(torch.minimum(c_l, f0) - cosf).pow(2).mean(),
+            "smooth": (torch.sparse.mm(self.lap, p.permute(1, 0, 2).reshape(m, -1)) ** 2).sum(),
+            "weights": ((self.weights()[reg.subset] - self.w0_sub) ** 2).sum(),
+        }
+
+    def sample(self, g: torch.Generator, identities: int, poses: int):
+        """A batch: identities beta ~ N(0, I), each in ``poses`` poses (half per-joint
+        uniform, a quarter whole-head at full range, a quarter at 60 % of it)."""
+        k = max(poses // 4, 1)
+        th = torch.cat([sample_joint_poses(identities * (poses - 2 * k), g),
+                        sample_head_poses(identities * k, g, "xyz"),
+                        0.6 * sample_head_poses(identities * k, g, "xyz")]).to(self.template.dtype)
+        th = th[torch.randperm(len(th), generator=g)]
+        beta = torch.randn(identities, self.num_shape, generator=g, dtype=self.template.dtype)
+        return beta.repeat_interleave(len(th) // identities, 0), th
+
+    def fit(self, iterations: int = 600, lr: float = 0.01, identities: int = 4, poses: int = 8,
+            learn_weights: bool = True, seed: int = 0, progress: bool = True,
+            log_every: int = 50) -> PoseEnergyResult:
+        """Adam (``lr`` in centimetres for P and C), decaying linearly to 10 %."""
+        params = [self.p_cm, self.c_cm, *self.mlp.parameters()] + ([self.logits] if learn_weights else [])
+        opt = torch.optim.Adam(params, lr=lr)
+        g = torch.Generator().manual_seed(seed)
+        hist, t0 = [], time.time()
+        for it in tqdm(range(iterations), desc="pose correctives", disable=not progress, mininterval=2.0):
+            for grp in opt.param_groups:
+                grp["lr"] = lr * (1 - 0.9 * it / max(iterations, 1))
+            beta, theta = self.sample(g, identities, poses)
+            terms = self.terms(beta, theta)
+            loss = sum(self.lam[k] * v for k, v in terms.items())
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if it % log_every == 0 or it == iterations - 1:
+                hist.append({"iteration": it, "loss": float(loss.detach()),
+                             **{k: float(v.detach()) for k, v in terms.items()}})
+        lin = [m for m in self.mlp if isinstance(m, torch.nn.Linear)]
+        mlp = {}
+        for i, layer in enumerate(lin):
+            mlp[f"w{i}"] = layer.weight.detach().numpy().astype(np.float32)
+            mlp[f"b{i}"] = layer.bias.detach().numpy().astype(np.float32)
+        return PoseEnergyResult(
+            pose_basis=(self.p_cm.detach() / 100).numpy().astype(np.float32),
+            components=(self.c_cm.detach() / 100).numpy().astype(np.float32), mlp=mlp,
+            weights=self.weights()[self.region.subset].detach().numpy().astype(np.float32),
+            history=hist, seconds=time.time() - t0)
