@@ -156,3 +156,24 @@ def test_07_learn_pose_writes_a_model_that_loads(tmp_path):
     assert "optimised" in meta["provenance"]["pose_blendshapes"]
     assert meta["learn"]["pose"]["iterations"] == 2
     HackModel(new, meta)(theta=torch.full((1, 8, 3), 0.05))  # it runs
+
+
+def test_08_pose_learner_personalises():
+    """A few learner steps on the shipped arrays: the loss terms are finite, and M_P's
+    output differs between identities (its hidden units once all died at a large learning
+    rate, leaving one constant for every identity)."""
+    from hack_render.learn.full_model import SKIN_LAST, pose_subset
+    from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
+
+    arrays, _ = load_model_file(load_default_model().source_path)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    sub = pose_subset(arrays)
+    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                arrays["skinning_weights"], arrays["joint_parents"],
+                                neck_region(arrays["faces"], SKIN_LAST, sub), seed=3)
+    res = learner.fit(iterations=6, identities=2, poses=4, seed=3, progress=False, log_every=1)
+    assert all(np.isfinite(h["loss"]) for h in res.history)
+    with torch.no_grad():
+        out = learner.mlp(torch.randn(16, 20, dtype=torch.float64))
+    assert float(out.std(0).max()) > 1e-4

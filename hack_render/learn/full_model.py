@@ -197,7 +197,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
         w[sub] = res.weights
         out["skinning_weights"] = (w / w.sum(1, keepdims=True)).astype(np.float32)
     report = {"method": "energy (hack_render.learn.pose_energy)", "iterations": iterations,
-              "lr_cm": lr, "identities_per_step": identities, "poses_per_identity": poses,
+              "lr_cm": lr, "mlp_lr": 1e-4, "identities_per_step": identities, "poses_per_identity": poses,
               "components": num_components, "subset_vertices": int(m),
               "region_triangles": len(region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history}
@@ -210,11 +210,19 @@ def pose_curves(out: dict, num_identities: int = 200, seed: int = 5) -> dict:
     rng = np.random.default_rng(seed)
     w = mlp_forward({k[9:]: v for k, v in out.items() if k.startswith("pose_mlp_")},
                     rng.standard_normal((num_identities, out["pose_mlp_w0"].shape[1])))
-    comps = out["pose_pca_components"].reshape(len(out["pose_pca_components"]), -1)
-    d = w @ comps
-    sv = np.linalg.svd(d - d.mean(0), compute_uv=False) ** 2
-    return {"explained_variance": (np.cumsum(sv) / max(sv.sum(), 1e-30)).tolist()[: len(comps)],
-            "note": f"personal deltas of {num_identities} sampled identities"}
+    comps = np.asarray(out["pose_pca_components"], np.float64).reshape(len(out["pose_pca_components"]), -1)
+    # the deltas w C have rank <= C: their spectrum is that of (w - mean) scaled by C's Gram
+    wc = w - w.mean(0)
+    g = comps @ comps.T
+    u, s, _ = np.linalg.svd(g)
+    half = (u * np.sqrt(s.clip(min=0))) @ u.T  # G^(1/2): same spectrum, symmetric
+    sv = np.linalg.eigvalsh(half @ (wc.T @ wc) @ half)[::-1].clip(min=0)
+    ev = np.cumsum(sv) / max(sv.sum(), 1e-30)
+    ref = np.abs(np.asarray(out["pose_basis"], np.float64)).max()
+    return {"explained_variance": ev.tolist(),
+            "personal_to_generic": float(np.abs(w @ comps).max() / max(ref, 1e-30)),
+            "note": f"personal deltas m(beta) C of {num_identities} sampled identities; "
+                    "personal_to_generic = their largest entry over the generic P's"}
 
 
 def pose_provenance(report: dict) -> dict:

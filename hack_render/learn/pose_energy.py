@@ -180,7 +180,8 @@ class PoseEnergyLearner:
         self.mlp = torch.nn.Sequential(torch.nn.Linear(num_shape, hidden), torch.nn.ReLU(),
                                        torch.nn.Linear(hidden, hidden), torch.nn.ReLU(),
                                        torch.nn.Linear(hidden, num_components)).to(dtype)
-        torch.nn.init.zeros_(self.mlp[4].weight)
+        # small, not zero: with a zero last layer and near-zero C, neither gets a gradient
+        torch.nn.init.normal_(self.mlp[4].weight, std=0.01, generator=g)
         torch.nn.init.zeros_(self.mlp[4].bias)
         self.logits = torch.log(self.w0_sub.clamp(min=1e-4)).clone().requires_grad_()
         self.lap = self._laplacian(m)
@@ -279,15 +280,19 @@ class PoseEnergyLearner:
 
     def fit(self, iterations: int = 600, lr: float = 0.01, identities: int = 4, poses: int = 8,
             learn_weights: bool = True, seed: int = 0, progress: bool = True,
-            log_every: int = 50) -> PoseEnergyResult:
-        """Adam (``lr`` in centimetres for P and C), decaying linearly to 10 %."""
-        params = [self.p_cm, self.c_cm, *self.mlp.parameters()] + ([self.logits] if learn_weights else [])
-        opt = torch.optim.Adam(params, lr=lr)
+            log_every: int = 50, mlp_lr: float = 1e-4) -> PoseEnergyResult:
+        """Adam (``lr`` in centimetres for P and C, and for W's logits; ``mlp_lr`` for M_P,
+        the paper's 1e-4: at 1e-2 its hidden units all died within a few hundred steps and
+        it returned one constant for every identity), decaying linearly to 10 %."""
+        groups = [{"params": [self.p_cm, self.c_cm] + ([self.logits] if learn_weights else []),
+                   "lr": lr, "base": lr},
+                  {"params": list(self.mlp.parameters()), "lr": mlp_lr, "base": mlp_lr}]
+        opt = torch.optim.Adam(groups)
         g = torch.Generator().manual_seed(seed)
         hist, t0 = [], time.time()
         for it in tqdm(range(iterations), desc="pose correctives", disable=not progress, mininterval=2.0):
             for grp in opt.param_groups:
-                grp["lr"] = lr * (1 - 0.9 * it / max(iterations, 1))
+                grp["lr"] = grp["base"] * (1 - 0.9 * it / max(iterations, 1))
             beta, theta = self.sample(g, identities, poses)
             terms = self.terms(beta, theta)
             loss = sum(self.lam[k] * v for k, v in terms.items())
