@@ -369,13 +369,21 @@ def _deformation(model, theta):
     return flips, stretch
 
 
-# With pure LBS (no pose blendshapes) c1-c2's 40 degree axial twist alone stretches the
-# side of the short ICT neck by 53 % and o-c1's flexion by 31 % (README); the shipped model's
-# pose correctives, learned from ARAP-deformed sequences, bring every limit under 30 %.
+# With plain LBS (no pose blendshapes) c1-c2's 40 degree axial twist alone stretches the
+# side of the short ICT neck by 52 % and o-c1's extension by 37 %; the shipped correctives
+# (optimised over the whole joint space, tests/test_pose_space.py) bring them to 37 % and
+# 31 %, and every other limit to <= 19 %, each below LBS. (The correctives shipped before,
+# fitted to single-joint sweeps, held 26 % here but folded skin in combined poses.)
+
+
+@pytest.fixture(scope="module")
+def default_lbs(default):
+    arrays, meta = load_model_file(default.source_path)
+    return HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
 
 
 @pytest.mark.parametrize("joint", range(8))
-def test_joint_limits_flip_nothing_and_stretch_little(default, joint):
+def test_joint_limits_flip_nothing_and_stretch_little(default, default_lbs, joint):
     assert default.has_pose_basis and default.pose_personal is not None
     lim = torch.deg2rad(default.rotation_limits_deg)
     for axis in range(3):
@@ -383,8 +391,10 @@ def test_joint_limits_flip_nothing_and_stretch_little(default, joint):
             e = torch.zeros(8, 3)
             e[joint, axis] = lim[joint, axis, side]
             flips, stretch = _deformation(default, R.euler_to_axis_angle(e))
+            _, lbs = _deformation(default_lbs, R.euler_to_axis_angle(e))
             assert flips == 0, (joint, axis, side)
-            assert stretch <= 0.30, (joint, axis, side, stretch)
+            assert stretch <= 0.38, (joint, axis, side, stretch)
+            assert stretch <= lbs + 1e-3, (joint, axis, side, stretch, lbs)
 
 
 def test_face_is_rigid_with_the_skull(default):

@@ -375,7 +375,7 @@ def test_15_shipped_model_has_provenance_and_report(shipped, tmp_path):
 
     prov = shipped.meta["provenance"]
     for key, label in (("larynx", "simulated"), ("personalised_expressions", "derived"),
-                       ("pose_blendshapes", "simulated")):
+                       ("pose_blendshapes", "optimised")):
         assert label in prov[key]
     assert shipped.expr_personal is not None and shipped.pose_personal is not None
     js, png = write_report(shipped.meta, tmp_path)

@@ -167,6 +167,21 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 30, lr:
     return {"arrays": out, "report": report}
 
 
+def clean_weights(w: np.ndarray, w0: np.ndarray, floor: float = 1e-3, most: int = 8) -> np.ndarray:
+    """Learned skinning weights (N, K+1) made sparse and safe: rows that were rigid in the
+    initial weights ``w0`` (one node at 1: the skull-rigid face, the root-rigid chest) stay
+    exactly as they were; elsewhere weights below ``floor`` are dropped, at most ``most``
+    nodes are kept (a glTF vertex carries 8), and rows sum to one."""
+    w0 = np.asarray(w0, np.float64)
+    out = np.where(w >= floor, w, 0.0)
+    drop = np.argsort(out, axis=1)[:, : max(out.shape[1] - most, 0)]
+    np.put_along_axis(out, drop, 0.0, axis=1)
+    out /= out.sum(1, keepdims=True)
+    rigid = w0.max(1) >= 1.0 - 1e-6
+    out[rigid] = w0[rigid]
+    return out
+
+
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True) -> dict:
@@ -195,7 +210,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     if learn_weights:
         w = np.asarray(arrays["skinning_weights"], np.float64).copy()
         w[sub] = res.weights
-        out["skinning_weights"] = (w / w.sum(1, keepdims=True)).astype(np.float32)
+        out["skinning_weights"] = clean_weights(w, arrays["skinning_weights"]).astype(np.float32)
     report = {"method": "energy (hack_render.learn.pose_energy)", "iterations": iterations,
               "lr_cm": lr, "mlp_lr": 1e-4, "identities_per_step": identities, "poses_per_identity": poses,
               "components": num_components, "subset_vertices": int(m),

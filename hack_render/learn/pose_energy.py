@@ -172,7 +172,9 @@ class PoseEnergyLearner:
         self.w_fixed = w0
         sub = region.subset
         self.w0_sub = w0[sub]
-        self.support = torch.as_tensor(weight_support(w0[sub].numpy(), self.parents))
+        support = torch.as_tensor(weight_support(w0[sub].numpy(), self.parents))
+        rigid = self.w0_sub.max(1).values >= 1 - 1e-6  # skull- or root-rigid rows stay so
+        self.support = torch.where(rigid[:, None], self.w0_sub > 0.5, support)
         m = len(sub)
         g = torch.Generator().manual_seed(seed)
         self.p_cm = torch.zeros(72, m, 3, dtype=dtype, requires_grad=True)
