@@ -86,11 +86,17 @@ def deformation_stats(rest: torch.Tensor, posed: torch.Tensor, node_rotations: t
     l0 = (rest[:, a] - rest[:, b]).norm(dim=-1).clamp(min=1e-12)
     ratio = (posed[:, a] - posed[:, b]).norm(dim=-1) / l0
     n0 = _normals(rest, topo.faces)  # (B, T, 3)
-    blend = torch.einsum("tk,bkij->btij", topo.weights.to(node_rotations.dtype), node_rotations)
-    u, _, vh = torch.linalg.svd(blend)  # polar: the nearest rotation to the blend
+    w = topo.weights.to(node_rotations.dtype)
+    # a triangle skinned to one node turns with it; the others by the polar factor (the
+    # nearest rotation) of their blended rotation
+    rigid = w.max(1).values >= 1 - 1e-6
+    rot = node_rotations[:, w.argmax(1)]  # (B, T, 3, 3)
+    blend = torch.einsum("tk,bkij->btij", w[~rigid], node_rotations)
+    u, _, vh = torch.linalg.svd(blend)
     d = torch.linalg.det(u @ vh)
     u = torch.cat([u[..., :2], u[..., 2:] * d[..., None, None]], -1)
-    carried = torch.einsum("btij,btj->bti", u @ vh, n0)
+    rot[:, ~rigid] = u @ vh
+    carried = torch.einsum("btij,btj->bti", rot, n0)
     folded = ((_normals(posed, topo.faces) * carried).sum(-1) < 0).sum(1)
     return DeformationStats(stretch=ratio.max(1).values - 1, compression=1 - ratio.min(1).values,
                             folded=folded)
