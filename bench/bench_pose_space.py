@@ -11,7 +11,7 @@ poses) and the folded skin triangles, for
 * the previous shipped model (a model file from git history, ``--previous REV``),
 * the shipped model (or ``--model``).
 
-    python bench/bench_pose_space.py                         # 2,000 poses x 10 identities
+    python bench/bench_pose_space.py --threads 2             # 2,000 poses x 10 identities
     python bench/bench_pose_space.py --poses 400 --identities 3 --out /tmp/p.json
 
 Writes ``bench/results/pose_space.json`` (commit, date, machine, command first).
@@ -82,8 +82,9 @@ def main(argv=None) -> None:
     ap.add_argument("--previous", default="f9ed56b",
                     help="git revision of the previous shipped model ('' to skip)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench/results/pose_space.json")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads")
     args = ap.parse_args(argv)
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     models = {"lbs": without_correctives(args.model),
               "shipped": HackModel(*load_model_file(args.model))}
     if args.previous:
