@@ -14,7 +14,7 @@ import torch
 
 pytest.importorskip("mitsuba")
 
-from synthetic import synthetic_target  # noqa: E402 - after the skip: it renders
+from synthetic import synthetic_target  # after the skip: it renders
 
 
 def test_01_synthetic_round_trip_moves_toward_truth():

@@ -137,9 +137,9 @@ def _pose_setup(seed=1):
 
 
 def _random_sequences(trainer, p, w, rng, n=4, frames=30):
-    from hack_render.learn.pose_learn import Sequence
     from hack_render.geometry.rotations import euler_to_axis_angle
     from hack_render.geometry.skeleton import rotation_limits
+    from hack_render.learn.pose_learn import Sequence
 
     lim = rotation_limits(torch.float64)
     out = []
@@ -319,7 +319,7 @@ def test_12_format_1_files_still_load_and_larynx_chart_is_used(tmp_path):
     loaded, _ = load_model_file(tmp_path / "v1.npz")
     assert "larynx_vertex_uv" not in loaded
     chart = dict(arrays, larynx_vertex_uv=arrays["vertex_uv"][arrays["larynx_vertices"]] * 0.5)
-    kw = dict(beta=torch.ones(1, 5), eta=torch.ones(1))
+    kw = {"beta": torch.ones(1, 5), "eta": torch.ones(1)}
     with torch.no_grad():
         a0 = HackModel(loaded)(**kw).rest_vertices
         a1 = HackModel(chart)(**kw).rest_vertices
