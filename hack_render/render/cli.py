@@ -184,7 +184,8 @@ def turntable(
     mode: str = typer.Option("orbit", help="orbit (camera circles) or subject (head turns)."),
     look_around: bool = typer.Option(False, "--look-around", help="Animate the neck: a "
                                      "look-around shared over the 8 joints within their limits."),
-    swallow: bool = typer.Option(False, "--swallow", help="Animate a swallow (larynx tau curve)."),
+    swallow: bool = typer.Option(False, "--swallow", help="Animate a swallow: the larynx "
+                                 "tau curve averaged from aligned swallows (it says which)."),
     formats: str = typer.Option("mp4,gif", help="Any of mp4, gif, frames (PNG frames are "
                                 "always kept in <out>/frames for --resume)."),
     fps: int = typer.Option(24, help="Frames per second."),
@@ -281,6 +282,8 @@ def turntable(
         yaw = spec.yaw_deg(i) if mode == "orbit" else 0.0
         return cams.orbit(w, h, focal_mm, yaw, pitch, name=f"frame_{i:04d}")
 
+    if swallow:
+        typer.echo(tt.swallow_source())
     todo = tt.pending_frames(output, frames, resume)
     if todo:
         head = HeadScene(topo, vertices_at(todo[0]), rig, camera_at(todo[0]), settings,

@@ -8,7 +8,8 @@ frame 0 and is never rendered. Motion options (any combination):
 - ``look_around``: a neck animation, whole-head angles (flexion, axial, lateral) on
   periodic curves, shared over the 8 cervical joints within their limits by
   ``distribute_head_rotation``.
-- ``swallow``: the larynx rises and returns (a smooth tau bump in the middle of the loop).
+- ``swallow``: the larynx rises and returns: the averaged swallow curve packaged as
+  ``hack_render/data/swallow_tau.npz`` (:func:`swallow_source` says where it came from).
 
 Frames are written as PNG (sRGB, tone mapped) under ``<out>/frames``; ``resume`` skips
 frames already there (each was written atomically, so an existing file is complete).
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -60,9 +62,48 @@ def head_angles_deg(t: float) -> tuple[float, float, float]:
             math.sin(w))
 
 
-def swallow_tau(t: float, height: float = 0.015) -> float:
-    """Larynx slide (metres, up) at phase t: a smooth periodic bump peaking at t = 0.5."""
-    return height * math.sin(math.pi * t) ** 8
+#: The swallow's curve (package data): averaged by ``hack_render.motion.swallow`` from
+#: aligned tau clips; its ``meta`` says which clips (the shipped one: procedural ones).
+SWALLOW_CURVE = "swallow_tau.npz"
+#: Loop phases where the swallow starts and ends (the larynx rests outside them).
+SWALLOW_SPAN = (0.15, 0.85)
+
+
+@lru_cache(maxsize=1)
+def _swallow_curve() -> tuple[np.ndarray, np.ndarray, dict]:
+    """(times (S,) s, tau (S,) m, meta) of the packaged swallow curve."""
+    import json
+    from importlib import resources
+
+    path = Path(str(resources.files("hack_render") / "data" / SWALLOW_CURVE))
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return (np.asarray(z["times"], np.float64), np.asarray(z["tau"], np.float64),
+                    json.loads(str(z["meta"])))
+    except (OSError, KeyError, ValueError) as exc:
+        raise HackError(f"{path}: the swallow curve is missing or unreadable ({exc}); "
+                        "reinstall hack-render or run `python -m hack_render.motion.swallow`."
+                        ) from exc
+
+
+def swallow_source() -> str:
+    """One line saying where the turntable's swallow curve comes from."""
+    _, tau, meta = _swallow_curve()
+    prov = meta.get("provenance", {})
+    return (f"swallow: tau curve {SWALLOW_CURVE} ({prov.get('kind', 'unlabelled')}; "
+            f"{meta.get('count')} swallows aligned at valleys and peak and averaged, peak "
+            f"{1e3 * tau.max():.1f} mm; source: {prov.get('source', 'unknown')})")
+
+
+def swallow_tau(t: float, height: float | None = None) -> float:
+    """Larynx slide (metres, up) at loop phase t in [0, 1): the packaged averaged swallow
+    (``SWALLOW_CURVE``), onset to offset stretched over ``SWALLOW_SPAN`` of the loop, 0
+    outside; scaled to peak at ``height`` metres when given (default: its own height)."""
+    times, tau, _ = _swallow_curve()
+    a, b = SWALLOW_SPAN
+    x = times[0] + (t % 1.0 - a) / (b - a) * (times[-1] - times[0])
+    y = float(np.interp(x, times, tau, left=0.0, right=0.0))
+    return y if height is None else y * height / float(tau.max())
 
 
 def frame_path(folder: Path, i: int) -> Path:
