@@ -7,6 +7,7 @@ message and exit code 2.
 
 from __future__ import annotations
 
+import errno
 import sys
 
 import typer
@@ -37,19 +38,36 @@ from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)
 from hack_render.export import cli as _export_cli; _export_cli.register(app)
 # --- end of sub-apps --------------------------------------------------------------------
 
+#: OS errors that are the user's environment, not a bug: a clean message and exit 2
+_USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                   errno.EISDIR, errno.ENOTDIR, errno.EEXIST, errno.ENOENT, errno.ENAMETOOLONG}
+
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: runs the app, mapping HackError to exit code 2."""
+    """Console entry point: runs the app; exit codes: 0 done, 2 a user error (a
+    :class:`~hack_render.errors.HackError`, a usage error, a disk full or unwritable
+    output), 130 interrupted (Ctrl-C, with one line saying what was kept and how to
+    resume; :func:`hack_render.boundary.on_interrupt`)."""
+    from hack_render import boundary
+
     try:
-        app(args=argv, standalone_mode=False)
+        # standalone_mode=False: Typer *returns* an exit code (130 on Ctrl-C, n for
+        # typer.Exit(n)) instead of exiting; it must not be dropped
+        code = app(args=argv, standalone_mode=False)
     except HackError as err:
         typer.secho(f"error: {err}", err=True, fg=typer.colors.RED)
         sys.exit(2)
+    except KeyboardInterrupt:  # outside a command (while parsing or importing)
+        code = 130
     except typer.Abort:
-        typer.secho("aborted", err=True)
-        sys.exit(130)
+        code = 130
     except SystemExit:
         raise
+    except OSError as err:
+        if err.errno not in _USER_OS_ERRORS:
+            raise
+        typer.secho(f"error: {boundary.os_error_message(err)}", err=True, fg=typer.colors.RED)
+        sys.exit(2)
     except Exception as err:  # click usage errors carry their own exit code
         # by what they do, not their class: typer >= 0.2x vendors click as typer._click,
         # whose exceptions are not click's own (an unknown option was a traceback)
@@ -61,6 +79,11 @@ def main(argv: list[str] | None = None) -> None:
         if isinstance(err, (typer.Exit, click.exceptions.Exit)):
             sys.exit(err.exit_code)
         raise
+    if code == 130:
+        typer.secho(boundary.interrupt_message(), err=True, fg=typer.colors.YELLOW)
+        sys.exit(130)
+    if isinstance(code, int) and not isinstance(code, bool) and code != 0:
+        sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ from pathlib import Path
 import typer
 
 from hack_render import cli_options as opts
-from hack_render.errors import HackError
 
 
 class LimitPolicy(str, Enum):
@@ -24,12 +23,26 @@ model_app = typer.Typer(help="Inspect HACK model files (`hack-render learn model
 
 
 def _floats(text: str | None, name: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        return [float(x) for x in text.replace(" ", "").split(",") if x]
-    except ValueError as exc:
-        raise HackError(f"--{name}: expected comma-separated numbers like '0.5,-1', found {text!r}.") from exc
+    """Comma-separated finite numbers of option ``--name`` (None passes through)."""
+    from hack_render.boundary import numbers
+
+    return numbers(text, f"--{name}")
+
+
+def check_flags(beta: str | None, expression: str | None, head_rotation: str | None,
+                eta: float | None, tau: float | None) -> dict:
+    """The pose flags of `mesh`, `render`, `turntable`, `export`, checked (finite, inside
+    the hard bounds of :data:`hack_render.geometry.params.BOUNDS`) and named by option."""
+    from hack_render import boundary as b
+    from hack_render.geometry.params import BOUNDS, parse_expression
+
+    return {"beta": b.numbers(beta, "--beta", None, -BOUNDS["beta"], BOUNDS["beta"],
+                              unit=" (standard deviations)", example="1.0,-0.5"),
+            "expression": None if expression is None else parse_expression(expression, "--expr"),
+            "head_rotation_deg": b.numbers(head_rotation, "--head-rotation", 3, -360, 360,
+                                           unit=" degrees", example="15,40,0"),
+            "eta": b.number(eta, "--eta", *BOUNDS["eta"]),
+            "tau": b.number(tau, "--tau", *BOUNDS["tau"], unit=" metres")}
 
 
 def gather_params(params_file: Path | None, beta: str | None, expression: str | None,
@@ -37,9 +50,8 @@ def gather_params(params_file: Path | None, beta: str | None, expression: str | 
     """Parameters from a file, overridden by command-line flags (shared by several commands)."""
     from hack_render.geometry.params import check_params, load_params
 
+    flags = check_flags(beta, expression, head_rotation, eta, tau)
     params = load_params(params_file) if params_file else {}
-    flags = {"beta": _floats(beta, "beta"), "expression": expression,
-             "head_rotation_deg": _floats(head_rotation, "head-rotation"), "eta": eta, "tau": tau}
     params.update({k: v for k, v in flags.items() if v is not None})
     return check_params(params, "command-line parameters")
 
@@ -95,10 +107,16 @@ def mesh(
 
     Example: hack-render mesh -o out/smile.obj --expr AU12=0.8 --head-rotation 10,30,0
     """
+    from hack_render import boundary
     from hack_render.geometry.obj_io import write_mesh
 
-    model, _, verts = posed_model(params, beta, expression, head_rotation, eta, tau, limits, model_path)
-    targets = [output] + ([output.with_suffix(".ply" if output.suffix.lower() == ".obj" else ".obj")] if both else [])
+    boundary.output_file(output, "-o/--output", (".obj", ".ply"))
+    targets = [output] + ([output.with_suffix(".ply" if output.suffix.lower() == ".obj"
+                                              else ".obj")] if both else [])
+    for target in targets[1:]:
+        boundary.output_file(target, "--both")
+    model, _, verts = posed_model(params, beta, expression, head_rotation, eta, tau, limits,
+                                  model_path)
     for target in targets:
         write_mesh(target, verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())
         typer.echo(f"wrote {target.resolve()}")
@@ -115,8 +133,8 @@ def build(
     Registered as `hack-render learn base-model` by hack_render.learn.cli.
     Example: hack-render learn base-model --ict ICT_FACEKIT_DIR -o base.npz
     """
-    from hack_render.learn.ict_default import build_default_model
     from hack_render.geometry.model_file import save_model_file
+    from hack_render.learn.ict_default import build_default_model
 
     arrays, meta = build_default_model(ict)
     errors = save_model_file(output, arrays, meta)

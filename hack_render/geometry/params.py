@@ -44,39 +44,193 @@ KEYS = ("beta", "psi", "expression", "head_rotation_deg", "theta", "global_orien
         "eta", "tau")
 
 
+#: Hard bounds of each key (beyond them a value means nothing, under any ``--limits``;
+#: the anatomical limits inside them are :mod:`hack_render.geometry.limits`' business).
+BOUNDS = {"beta": 10.0, "psi": 10.0, "expression": 10.0, "head_rotation_deg": 360.0,
+          "theta": 2 * math.pi, "global_orient": 2 * math.pi, "transl": 10.0,
+          "eta": (0.0, 10.0), "tau": (-0.1, 0.1)}
+#: What each bound means, for the messages.
+_UNITS = {"beta": " (standard deviations)", "psi": "", "expression": "",
+          "head_rotation_deg": " degrees", "theta": " radians", "global_orient": " radians",
+          "transl": " metres", "eta": "", "tau": " metres"}
+
+
+class _UniqueKeyLoader:
+    """A YAML safe loader that refuses duplicate keys (PyYAML keeps the last silently)."""
+
+    _cls = None
+
+    @classmethod
+    def get(cls):
+        if cls._cls is None:
+            import yaml
+
+            class Loader(yaml.SafeLoader):
+                def construct_mapping(self, node, deep=False):
+                    seen = set()
+                    for key_node, _ in node.value:
+                        key = self.construct_object(key_node, deep=deep)
+                        if isinstance(key, (list, dict)):
+                            raise HackError(f"line {key_node.start_mark.line + 1}: a key must "
+                                            f"be a name, found {key!r}.")
+                        if key in seen:
+                            raise HackError(f"duplicate key {key!r} (line "
+                                            f"{key_node.start_mark.line + 1}); each key may "
+                                            f"appear once. Remove one of them.")
+                        seen.add(key)
+                    return super().construct_mapping(node, deep=deep)
+
+            cls._cls = Loader
+        return cls._cls
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    dup = sorted({k for k in keys if keys.count(k) > 1})
+    if dup:
+        raise HackError(f"duplicate key {dup[0]!r}; each key may appear once (JSON keeps only "
+                        f"the last). Remove one of them.")
+    return dict(pairs)
+
+
+def _refuse_constant(name: str):
+    raise HackError(f"{name} is not a number JSON allows; expected finite numbers.")
+
+
+def parse_params_text(text: str, suffix: str, where: str) -> Any:
+    """The data of a parameter file's text: JSON (duplicate keys and NaN refused) or YAML
+    (``suffix`` .yaml/.yml; duplicate keys refused)."""
+    try:
+        if suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
+        return json.loads(text, object_pairs_hook=_unique_pairs,
+                          parse_constant=_refuse_constant)
+    except HackError as exc:
+        raise HackError(f"--params {where}: {exc}") from exc
+    except (ValueError, RecursionError) as exc:  # json.JSONDecodeError is a ValueError
+        kind = "YAML" if suffix.lower() in (".yaml", ".yml") else "JSON"
+        raise HackError(f"--params {where}: not valid {kind} ({str(exc)[:200]}).") from exc
+    except Exception as exc:  # yaml.YAMLError and its parser/scanner errors
+        raise HackError(f"--params {where}: not valid YAML ({str(exc).splitlines()[0][:200]})."
+                        ) from exc
+
+
 def load_params(path: str | Path) -> dict[str, Any]:
     """Read and check a JSON or YAML parameter file; returns the validated mapping."""
     path = Path(path)
+    if path.is_dir():
+        raise HackError(f"--params {path}: expected a .json or .yaml file, found a folder.")
     if not path.is_file():
         raise HackError(f"--params {path}: file not found.")
-    text = path.read_text()
+    if path.suffix.lower() not in (".json", ".yaml", ".yml"):
+        raise HackError(f"--params {path}: expected a .json, .yaml or .yml file, found "
+                        f"{repr(path.suffix) if path.suffix else 'no suffix'}.")
     try:
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise HackError(f"--params {path}: expected UTF-8 text, found binary data.") from exc
+    except OSError as exc:
+        raise HackError(f"--params {path}: not readable ({exc.strerror}).") from exc
+    data = parse_params_text(text, path.suffix, str(path))
+    return check_params({} if data is None else data, str(path))
 
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except Exception as exc:
-        raise HackError(f"--params {path}: not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {exc}") from exc
-    return check_params(data or {}, str(path))
+
+def _bound_text(key: str) -> tuple[float, float, str]:
+    b = BOUNDS[key]
+    lo, hi = (-b, b) if not isinstance(b, tuple) else b
+    return lo, hi, f"{lo:g}..{hi:g}{_UNITS[key]}"
+
+
+def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape`` (None: any length) inside the key's
+    hard bounds, else a HackError naming the key."""
+    ok = not isinstance(value, (str, bytes, dict, bool)) and value is not None
+    arr = None
+    if ok:
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            arr = None
+    shown = repr(value) if len(repr(value)) < 80 else repr(value)[:77] + "..."
+    if arr is None or arr.dtype == object:
+        raise HackError(f"{where}: key '{key}' expected {want}, found {shown}.")
+    if arr.ndim != len(shape) or any(d is not None and d != s for d, s in zip(shape, arr.shape)):
+        raise HackError(f"{where}: key '{key}' expected {want}, found shape {arr.shape}.")
+    if not np.isfinite(arr).all():
+        raise HackError(f"{where}: key '{key}' contains NaN or inf; expected finite numbers.")
+    lo, hi, text = _bound_text(key)
+    if arr.size and (arr.min() < lo or arr.max() > hi):
+        bad = arr.min() if arr.min() < lo else arr.max()
+        raise HackError(f"{where}: key '{key}' expected values in {text}, found {bad:g}.")
+    return arr
 
 
 def _vector(value, name: str, where: str, length: int | None = None) -> list[float]:
-    arr = np.asarray(value, dtype=np.float64) if not isinstance(value, str) else None
-    if arr is None or arr.ndim != 1 or (length is not None and len(arr) != length):
-        want = f"a list of {length} numbers" if length else "a list of numbers"
-        raise HackError(f"{where}: key '{name}' expected {want}, found {value!r}.")
-    if not np.isfinite(arr).all():
-        raise HackError(f"{where}: key '{name}' contains NaN or inf.")
-    return arr.tolist()
+    want = f"a list of {length} numbers" if length else "a list of numbers"
+    return _array(value, name, where, (length,), want).tolist()
+
+
+def _scalar(value, key: str, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise HackError(f"{where}: key '{key}' expected a number, found {value!r}.")
+    return float(_array(value, key, where, (), "a number"))
+
+
+def parse_expression(text: str, where: str) -> dict[str, float]:
+    """``"AU12=0.7, jawOpen=0.4"`` -> {name: weight}, each weight finite and inside the
+    hard bound; names are checked against the model later (``expression_vector``)."""
+    import re
+
+    out: dict[str, float] = {}
+    for part in filter(None, (p.strip() for p in re.split(r"[,;]", text))):
+        name, eq, value = part.partition("=")
+        try:
+            weight = float(value) if eq and name.strip() else None
+        except ValueError:
+            weight = None
+        if weight is None:
+            raise HackError(f"{where}: expected NAME=VALUE pairs like 'AU12=0.7,jawOpen=0.4', "
+                            f"found {part!r}.")
+        out[name.strip()] = _expr_weight(weight, name.strip(), where)
+    return out
+
+
+def _expression(expr, where: str):
+    if isinstance(expr, str):
+        return parse_expression(expr, f"{where}: key 'expression'")
+    if not isinstance(expr, dict):
+        raise HackError(f"{where}: key 'expression' expected a mapping like {{AU12: 0.7}} or "
+                        f"a string 'AU12=0.7,jawOpen=0.4', found {expr!r}.")
+    out = {}
+    for k, v in expr.items():
+        if not isinstance(k, str):
+            raise HackError(f"{where}: key 'expression' expected names (AU12, jawOpen), "
+                            f"found {k!r}.")
+        out[k] = _expr_weight(v, k, where)
+    return out
+
+
+def _expr_weight(v, name: str, where: str) -> float:
+    what = f"{where}: key 'expression.{name}'" if where.endswith(("json", "yaml", "yml",
+                                                                   "parameters")) else \
+        f"{where} {name}"
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise HackError(f"{what}: expected a number, found {v!r}.")
+    lo, hi, text = _bound_text("expression")
+    if not math.isfinite(v) or not lo <= v <= hi:
+        raise HackError(f"{what}: expected a finite weight in {text}, found {v!r}.")
+    return float(v)
 
 
 def check_params(data: dict[str, Any], where: str = "parameters") -> dict[str, Any]:
-    """Validate a parameter mapping (types, lengths, finiteness, known keys)."""
+    """Validate a parameter mapping: known keys, types, shapes, finite values inside
+    :data:`BOUNDS`. Returns plain lists and floats."""
     if not isinstance(data, dict):
-        raise HackError(f"{where}: expected a mapping of parameter names to values, found {type(data).__name__}.")
-    unknown = sorted(set(data) - set(KEYS))
+        raise HackError(f"{where}: expected a mapping of parameter names to values, found "
+                        f"{type(data).__name__}.")
+    unknown = sorted(map(str, set(data) - set(KEYS)))
     if unknown:
         raise HackError(f"{where}: unknown keys {unknown}; known keys: {', '.join(KEYS)}.")
     out: dict[str, Any] = {}
@@ -87,29 +241,13 @@ def check_params(data: dict[str, Any], where: str = "parameters") -> dict[str, A
         if key in data:
             out[key] = _vector(data[key], key, where, 3)
     if "theta" in data:
-        arr = np.asarray(data["theta"], dtype=np.float64)
-        if arr.shape != (8, 3) or not np.isfinite(arr).all():
-            raise HackError(f"{where}: key 'theta' expected 8 x 3 finite numbers (axis-angle per "
-                            f"joint c7-t1 ... o-c1, radians), found shape {arr.shape}.")
-        out["theta"] = arr.tolist()
+        out["theta"] = _array(data["theta"], "theta", where, (8, 3), "8 x 3 numbers "
+                              "(axis-angle per joint c7-t1 ... o-c1, radians)").tolist()
     for key in ("eta", "tau"):
         if key in data:
-            try:
-                val = float(data[key])
-            except (TypeError, ValueError) as exc:
-                raise HackError(f"{where}: key '{key}' expected a number, found {data[key]!r}.") from exc
-            if not math.isfinite(val):
-                raise HackError(f"{where}: key '{key}' is not finite.")
-            out[key] = val
+            out[key] = _scalar(data[key], key, where)
     if "expression" in data:
-        expr = data["expression"]
-        if isinstance(expr, str):
-            out["expression"] = expr
-        elif isinstance(expr, dict):
-            out["expression"] = {str(k): float(v) for k, v in expr.items()}
-        else:
-            raise HackError(f"{where}: key 'expression' expected a mapping like {{AU12: 0.7}} "
-                            f"or a string 'AU12=0.7,jawOpen=0.4', found {expr!r}.")
+        out["expression"] = _expression(data["expression"], where)
     return out
 
 

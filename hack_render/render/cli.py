@@ -32,16 +32,26 @@ def _resolution(text: str) -> tuple[int, int]:
     return (parts[0], parts[-1])
 
 
-def _floats(text: Optional[str], name: str, n: Optional[int] = None) -> Optional[list[float]]:
-    if text is None:
-        return None
-    try:
-        vals = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError as err:
-        raise HackError(f"--{name}: expected comma-separated numbers, found {text!r}.") from err
-    if n is not None and len(vals) != n:
-        raise HackError(f"--{name}: expected {n} numbers, found {len(vals)} in {text!r}.")
-    return vals
+def _floats(text: Optional[str], name: str, n: Optional[int] = None, lo: float = -1e3,
+            hi: float = 1e3) -> Optional[list[float]]:
+    from hack_render.boundary import numbers
+
+    return numbers(text, f"--{name}", n, lo, hi)
+
+
+def check_look(env_rotation: float, exposure: float, focal_mm: Optional[float],
+               alpha: Optional[str], appearance_seed: Optional[int]) -> Optional[list[float]]:
+    """The lighting, lens and skin options that `render` and `turntable` share, checked
+    (finite, in range) before anything heavy; returns alpha as numbers."""
+    from hack_render import boundary as b
+
+    b.number(env_rotation, "--env-rotation", -3600.0, 3600.0, unit=" degrees")
+    b.number(exposure, "--exposure", -20.0, 20.0, unit=" stops",
+             fix="Each stop doubles the light; -3..3 covers most uses.")
+    b.number(focal_mm, "--focal-mm", 5.0, 2000.0, unit=" mm (36 mm sensor)")
+    b.number(appearance_seed, "--appearance-seed", 0, 2 ** 31 - 1, integer=True)
+    return b.numbers(alpha, "--alpha", None, -10.0, 10.0, unit=" (standard deviations)",
+                     example="0.8,-0.6,0.4")
 
 
 def _aov_list(text: Optional[str]) -> list[str]:
@@ -121,25 +131,30 @@ def render(
     """
     import numpy as np
 
+    from hack_render import boundary
     from hack_render.geometry.cli import LimitPolicy
-    from hack_render.render.image_io import check_writable, tone_map, write_exr, write_png
+    from hack_render.render.image_io import tone_map
     from hack_render.render.scene import RenderSettings
     from scenes import cameras as cams
     from scenes import lights
 
     # every cheap check before anything heavy is loaded or allocated
     w, h = _resolution(resolution)
+    boundary.number(max_depth, "--max-depth", 1, 64, integer=True)
+    boundary.number(views, "--views", 1, 1024, integer=True)
     settings = RenderSettings(w, h, spp, max_depth, seed)
     aov_names = _aov_list(aov)
-    for path in [output] + ([exr] if exr else []):
-        if path.suffix.lower() not in (".png", ".exr"):
-            raise HackError(f"{path}: expected a .png or .exr output, found "
-                            f"{path.suffix or 'no suffix'}.")
-        check_writable(path)
+    boundary.output_file(output, "-o/--output", (".png", ".exr"))
+    if exr is not None:
+        boundary.output_file(exr, "--exr", (".exr",))
+    if aov_names and exr is None and output.suffix.lower() != ".exr":
+        raise HackError("--aov: expected an EXR output to hold the AOV channels (-o x.exr or "
+                        "--exr x.exr), found only a PNG.")
     tone_map(np.zeros(3), 0.0, tonemap)
+    alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = lights.preset(lighting, env_rotation, exposure)
     views_ = cams.preset(camera, w, h, focal_mm, n=views)
-    iris = _floats(iris_color, "iris-color", 3)
+    iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     try:
         policy = LimitPolicy(limits)
     except ValueError as err:
@@ -150,9 +165,26 @@ def render(
     from hack_render.render.scene import HeadScene
     from hack_render.render.skin_maps import skin_maps
 
-    maps = skin_maps(_floats(alpha, "alpha"), appearance_seed, textures)
+    maps = skin_maps(alpha_, appearance_seed, textures)
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
     outputs = []
+    with boundary.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
+                               f"{len(views_) * (1 + (exr is not None))}; run the command "
+                               "again to render them all"):
+        _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs)
+    cam_json = output.with_name(f"{output.stem}.cameras.json")
+    cams.save_cameras(cam_json, views_)
+    for target in outputs + [cam_json]:
+        typer.echo(f"wrote {target.resolve()}")
+
+
+def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs) -> None:
+    """Render each camera of ``views_`` to ``output`` (and ``exr``), appending the paths
+    written to ``outputs``."""
+    import json
+
+    from hack_render.render.image_io import write_exr, write_png
+
     for cam in views_:
         head.set_camera(cam)
         t0 = time.perf_counter()
@@ -165,16 +197,14 @@ def render(
                 write_png(target, image[..., :3], operator=tonemap)
             else:
                 aovs = head.aovs() if aov_names else {}
-                meta = {"hack_camera": __import__("json").dumps(cam.to_dict()),
+                meta = {"hack_camera": json.dumps(cam.to_dict()),
                         "hack_regions": ",".join(head.region_names),
                         "hack_variant": head.variant}
                 write_exr(target, exr_channels(image, aovs, aov_names), meta)
             outputs.append(target)
-        typer.echo(f"{cam.name}: {w}x{h}, {spp} spp, {dt:.1f} s ({head.variant})")
-    cam_json = output.with_name(f"{output.stem}.cameras.json")
-    cams.save_cameras(cam_json, views_)
-    for target in outputs + [cam_json]:
-        typer.echo(f"wrote {target.resolve()}")
+        st = head.settings
+        typer.echo(f"{cam.name}: {st.width}x{st.height}, {st.spp} spp, {dt:.1f} s "
+                   f"({head.variant})")
 
 
 def turntable(
@@ -225,11 +255,12 @@ def turntable(
     import torch
     from tqdm import tqdm
 
+    from hack_render import boundary
     from hack_render.geometry.cli import gather_params
     from hack_render.geometry.params import model_inputs
     from hack_render.geometry.skeleton import distribute_head_rotation
     from hack_render.render import turntable as tt
-    from hack_render.render.image_io import atomic_path, check_writable, to_srgb8
+    from hack_render.render.image_io import atomic_path, to_srgb8
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
     from hack_render.render.video import write_gif, write_mp4
@@ -246,23 +277,31 @@ def turntable(
     if "mp4" in fmt and (w % 2 or h % 2):
         raise HackError(f"--resolution: expected even width and height for MP4 (yuv420p), "
                         f"found {w}x{h}.")
-    check_writable(output / "frames" / "x.png")
-    tone_map_check = to_srgb8(np.zeros((1, 1, 3)), 0.0, tonemap)  # noqa: F841 - validates
+    boundary.output_dir(output)
+    if sequence is not None:
+        boundary.output_file(sequence, "--sequence", (".npz", ".jsonl", ".ndjson"))
+    to_srgb8(np.zeros((1, 1, 3)), 0.0, tonemap)  # validates --tonemap
+    boundary.number(pitch, "--pitch", -89.0, 89.0, unit=" degrees")
+    alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = lights.preset(lighting, env_rotation, exposure)
 
     from hack_render.geometry import load_model
     from hack_render.render.parts import Topology
 
     model = load_model(model_path)
-    base = model_inputs(model, gather_params(params, beta, expression, head_rotation, eta,
-                                                     tau))
+    p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    base = model_inputs(model, p)
     topo = Topology.from_model(model)
-    if sequence is not None:
-        from hack_render.geometry.params import save_sequence
-
-        tau0 = float(base["tau"][0]) if "tau" in base else 0.0
-        motion = tt.motion_sequence(spec, base["theta"][0].numpy(), base["psi"][0].numpy(), tau0)
-        typer.echo(f"wrote {save_sequence(sequence, motion).resolve()}")
+    # everything that decides the frames' pixels: a resume with anything else is refused
+    record = boundary.RunRecord(output, "turntable", {
+        "params": p, "model": boundary.file_identity(model_path) or "built-in",
+        "alpha": alpha_, "appearance_seed": appearance_seed,
+        "textures": boundary.file_identity(textures), "lighting": lighting,
+        "env_map": boundary.file_identity(rig.env_file) if lighting.startswith("env:") else None,
+        "env_rotation": env_rotation, "exposure": exposure, "focal_mm": focal_mm,
+        "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
+        "variant": variant, "frames": frames, "mode": mode, "look_around": look_around,
+        "swallow": swallow}, name="turntable.json")
 
     def vertices_at(i: int) -> np.ndarray:
         kw = dict(base)
@@ -282,37 +321,61 @@ def turntable(
         yaw = spec.yaw_deg(i) if mode == "orbit" else 0.0
         return cams.orbit(w, h, focal_mm, yaw, pitch, name=f"frame_{i:04d}")
 
-    if swallow:
-        typer.echo(tt.swallow_source())
-    todo = tt.pending_frames(output, frames, resume)
-    if todo:
-        head = HeadScene(topo, vertices_at(todo[0]), rig, camera_at(todo[0]), settings,
-                         skin_maps(_floats(alpha, "alpha"), appearance_seed, textures),
-                         None, variant)
-        times = []
-        for i in tqdm(todo, desc="turntable", unit="frame", disable=quiet):
-            t0 = time.perf_counter()
-            if i != todo[0] or look_around or swallow or mode == "subject":
-                head.set_vertices(vertices_at(i))
-            head.set_camera(camera_at(i))
-            img = head.render(seed=seed + i)
-            with atomic_path(tt.frame_path(output, i)) as tmp:
-                iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
-            times.append(time.perf_counter() - t0)
-        if len(times) > 1:
-            typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
-                       f"{np.mean(times[1:]):.2f} s ({head.variant})")
-    else:
-        typer.echo(f"all {frames} frames already in {output / 'frames'} (--resume)")
-    seq = [iio.imread(tt.frame_path(output, i)) for i in range(frames)]
-    written = []
-    if "mp4" in fmt:
-        written.append(write_mp4(output / "turntable.mp4", seq, fps))
-    if "gif" in fmt:
-        written.append(write_gif(output / "turntable.gif", seq, fps))
-    cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)])
-    for p in written + [output / "cameras.json"]:
-        typer.echo(f"wrote {p.resolve()}")
+    def kept() -> str:
+        return (f"kept {tt.frames_on_disk(output)} of {frames} frames in {output / 'frames'}; "
+                "run the same command with --resume to finish")
+
+    with boundary.folder_lock(output), boundary.on_interrupt(kept):
+        record.check_resume(resume, tt.frames_on_disk(output) > 0)
+        if not resume:  # frames of another run must not be taken for this one's later
+            for old in (output / "frames").glob("frame_*.png"):
+                old.unlink()
+        record.write(complete=False)
+        if sequence is not None:
+            from hack_render.geometry.params import save_sequence
+
+            tau0 = float(base["tau"][0]) if "tau" in base else 0.0
+            motion = tt.motion_sequence(spec, base["theta"][0].numpy(), base["psi"][0].numpy(),
+                                        tau0)
+            typer.echo(f"wrote {save_sequence(sequence, motion).resolve()}")
+        if swallow:
+            typer.echo(tt.swallow_source())
+        todo = tt.pending_frames(output, frames, resume)
+        if todo:
+            typer.echo(f"turntable: {len(todo)} of {frames} frames to render, {w}x{h}, "
+                       f"{spp} spp")
+            head = HeadScene(topo, vertices_at(todo[0]), rig, camera_at(todo[0]), settings,
+                             skin_maps(alpha_, appearance_seed, textures), None, variant)
+            times, animated = [], look_around or swallow or mode == "subject"
+            for i in tqdm(todo, desc="turntable", unit="frame", disable=quiet):
+                t0 = time.perf_counter()
+                # every frame from the same state changes, whatever came before it (a
+                # resumed run starts elsewhere): the vertices and camera set, then the
+                # environment given the current bounds (HeadScene.sync_environment)
+                if animated:
+                    head.set_vertices(vertices_at(i), update=False)
+                head.set_camera(camera_at(i))
+                if animated:
+                    head.sync_environment()
+                img = head.render(seed=seed + i)
+                with atomic_path(tt.frame_path(output, i)) as tmp:
+                    iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
+                times.append(time.perf_counter() - t0)
+            if len(times) > 1:
+                typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
+                           f"{np.mean(times[1:]):.2f} s ({head.variant})")
+        else:
+            typer.echo(f"all {frames} frames already in {output / 'frames'} (--resume)")
+        seq = [iio.imread(tt.frame_path(output, i)) for i in range(frames)]
+        written = []
+        if "mp4" in fmt:
+            written.append(write_mp4(output / "turntable.mp4", seq, fps))
+        if "gif" in fmt:
+            written.append(write_gif(output / "turntable.gif", seq, fps))
+        cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)])
+        record.write(complete=True)  # the completion marker, last
+    for path in written + [output / "cameras.json"]:
+        typer.echo(f"wrote {path.resolve()}")
 
 
 def register(app: typer.Typer) -> None:

@@ -120,8 +120,21 @@ def rotate_about_y(vertices: np.ndarray, degrees: float, centre) -> np.ndarray:
 
 
 def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
-    """Frames still to render (all of them unless ``resume``)."""
+    """Frames still to render (all of them unless ``resume``). A frame on disk is complete
+    (written under a temporary name, then renamed); the temporaries a killed run left in
+    ``<folder>/frames`` and ``<folder>`` are removed first."""
+    from hack_render.boundary import clean_temporaries
+
+    clean_temporaries(Path(folder) / "frames", ".frame_*")
+    for stem in ("turntable", "cameras", "run"):  # the video, GIF, cameras and run record
+        clean_temporaries(Path(folder), f".{stem}.*")
     return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
+
+
+def frames_on_disk(folder: Path) -> int:
+    """How many frames ``<folder>/frames`` holds (what an interrupted run kept)."""
+    frames = Path(folder) / "frames"
+    return len(list(frames.glob("frame_*.png"))) if frames.is_dir() else 0
 
 
 def motion_sequence(spec: TurntableSpec, base_theta: np.ndarray | None = None,

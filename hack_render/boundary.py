@@ -1,0 +1,347 @@
+"""The command line's boundary: every user input is checked here, before any work starts.
+
+One module, used by every command, for the four things a user can get wrong or cut short:
+
+- **Output paths** (:func:`output_file`, :func:`output_dir`): the suffix is one the command
+  writes (never silently appended), a directory is refused where a file is meant and the
+  reverse, a parent that is a file is named, and the nearest existing folder is checked
+  for writability (by creating and removing a probe file, which also catches read-only
+  mounts and immutable folders) *before* the work starts. Nothing is created by a check:
+  a refused command leaves no file or folder behind; writers create the parents and write
+  atomically (:func:`hack_render.render.image_io.atomic_path`).
+- **Numbers** (:func:`number`, :func:`numbers`): finite and inside a range, else a message
+  naming the option, the range and what was found. Anatomical limits (``--limits``) stay
+  in :mod:`hack_render.geometry.limits`; the ranges here are the hard ones, beyond which a
+  value means nothing (``--beta 1e30``) under any ``--limits``.
+- **Resumable runs** (:func:`fingerprint`, :class:`RunRecord`, :func:`folder_lock`,
+  :func:`clean_temporaries`): a fingerprint of the arguments that determine the output is
+  stored with the partial output, a resume with other arguments is refused, a completion
+  marker is written last, one writer at a time holds a folder, and a killed run's
+  temporaries are removed.
+- **Interruptions** (:func:`on_interrupt`, :func:`interrupt_message`): Ctrl-C exits 130
+  (:func:`hack_render.cli.main`) with one line saying what was kept and how to resume.
+
+Imports nothing heavy (``--help`` imports it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from hack_render.errors import HackError
+
+# --------------------------------------------------------------------------- numbers
+
+
+def _range_text(lo: float, hi: float, unit: str) -> str:
+    if lo == -math.inf and hi == math.inf:
+        return "a finite number"
+    if lo == -math.inf:
+        return f"a number <= {hi:g}{unit}"
+    if hi == math.inf:
+        return f"a number >= {lo:g}{unit}"
+    return f"a number in {lo:g}..{hi:g}{unit}"
+
+
+def number(value: Any, name: str, lo: float = -math.inf, hi: float = math.inf, *,
+           integer: bool = False, unit: str = "", fix: str = "") -> Any:
+    """``value`` if it is a finite number in ``[lo, hi]`` (None passes through).
+
+    Raises:
+        HackError: naming ``name`` (e.g. ``"--exposure"``), the range and the value found.
+    """
+    if value is None:
+        return None
+    kind = "an integer" if integer else "a number"
+    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type:
+        raise HackError(f"{name}: expected {kind}, found {value!r}." + (f" {fix}" if fix else ""))
+    if not math.isfinite(value) or not lo <= value <= hi:
+        want = _range_text(lo, hi, unit).replace("a number", kind)
+        raise HackError(f"{name}: expected {want}, found {value!r}." + (f" {fix}" if fix else ""))
+    return value
+
+
+def numbers(text: str | None, name: str, n: int | None = None, lo: float = -math.inf,
+            hi: float = math.inf, *, integer: bool = False, unit: str = "",
+            example: str = "0.5,-1", fix: str = "") -> list | None:
+    """Comma-separated numbers (None passes through): each finite and in ``[lo, hi]``,
+    ``n`` of them when given, at least one."""
+    if text is None:
+        return None
+    parts = [x for x in str(text).replace(" ", "").split(",") if x]
+    kind = "integers" if integer else "numbers"
+    try:
+        vals = [int(x) if integer else float(x) for x in parts]
+    except ValueError as err:
+        raise HackError(f"{name}: expected comma-separated {kind} like {example!r}, found "
+                        f"{text!r}.") from err
+    if not vals or (n is not None and len(vals) != n):
+        raise HackError(f"{name}: expected {n or 'one or more'} comma-separated {kind}, found "
+                        f"{len(vals)} in {text!r}.")
+    for v in vals:
+        if not math.isfinite(v) or not lo <= v <= hi:
+            want = _range_text(lo, hi, unit).replace("a number", f"{kind}").replace(
+                f"a finite {kind[:-1]}", f"finite {kind}")
+            raise HackError(f"{name}: expected {want}, found {v!r} in {text!r}."
+                            + (f" {fix}" if fix else ""))
+    return vals
+
+
+# ---------------------------------------------------------------------- output paths
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path
+    while not p.exists() and p != p.parent:
+        if p.is_symlink():  # a dangling link: its target's folder is what would be written
+            break
+        p = p.parent
+    return p
+
+
+def _probe_writable(folder: Path, option: str, target: Path) -> None:
+    """Create and remove a file in ``folder`` (catches read-only mounts, immutable folders
+    and permissions alike, where ``os.access`` only sees the permission bits)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".hack-render-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as err:
+        raise HackError(f"{option} {target}: expected a writable folder, found {folder} "
+                        f"is not writable ({err.strerror or err}). Choose another path with "
+                        f"{option} or fix the folder's permissions.") from err
+
+
+def _check_folder_chain(folder: Path, option: str, target: Path) -> None:
+    """Every existing ancestor of ``folder`` must be a folder, the nearest one writable."""
+    existing = _nearest_existing(folder)
+    if existing.exists() and not existing.is_dir():
+        raise HackError(f"{option} {target}: expected {existing} to be a folder, found a "
+                        f"file. Choose another path with {option} or move the file.")
+    _probe_writable(existing if existing.exists() else Path.cwd(), option, target)
+
+
+def output_file(path: str | Path, option: str = "-o/--output",
+                suffixes: Sequence[str] | None = None) -> Path:
+    """Check an output file's path before the work starts; returns it as a Path.
+
+    The suffix must be one of ``suffixes`` (lower case, with the dot) when given; an
+    existing directory at ``path``, or a file among its parents, is refused; the nearest
+    existing parent must be writable. Nothing is created.
+    """
+    path = Path(path)
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise HackError(f"{option} {path}: expected a {' or '.join(suffixes)} file, found "
+                        f"{repr(path.suffix) if path.suffix else 'no suffix'}. Give the "
+                        f"output a {suffixes[0]} suffix.")
+    if str(path).endswith(os.sep) or path.is_dir():
+        raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
+                        f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
+    _check_folder_chain(path.parent, option, path)
+    return path
+
+
+def output_dir(path: str | Path, option: str = "-o/--output") -> Path:
+    """Check an output folder before the work starts (an existing file there is refused;
+    the nearest existing folder must be writable). Nothing is created."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise HackError(f"{option} {path}: expected a folder, found a file. Choose another "
+                        f"folder with {option} or move the file.")
+    _check_folder_chain(path, option, path)
+    return path
+
+
+def input_file(path: str | Path, option: str, suffixes: Sequence[str] | None = None,
+               what: str = "file") -> Path:
+    """An existing, readable file with one of ``suffixes`` (when given)."""
+    path = Path(path)
+    if path.is_dir():
+        raise HackError(f"{option} {path}: expected a {what}, found a folder.")
+    if not path.is_file():
+        raise HackError(f"{option} {path}: {what} not found. Check the path.")
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise HackError(f"{option} {path}: expected a {' or '.join(suffixes)} {what}, found "
+                        f"{repr(path.suffix) if path.suffix else 'no suffix'}.")
+    if not os.access(path, os.R_OK):
+        raise HackError(f"{option} {path}: expected a readable {what}, found it unreadable "
+                        "(permissions).")
+    return path
+
+
+def os_error_message(err: OSError) -> str:
+    """One line for an OS error met while writing (disk full, permissions, ...)."""
+    where = err.filename or "an output file"
+    if err.errno == errno.ENOSPC:
+        return (f"{where}: no space left on the device. Free some space or write elsewhere "
+                f"with -o; the files already complete were kept.")
+    if err.errno == errno.EDQUOT:
+        return f"{where}: disk quota exceeded. Free some space or write elsewhere with -o."
+    if err.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        return f"{where}: not writable ({err.strerror}). Choose another path with -o."
+    return f"{where}: {err.strerror or err}."
+
+
+# ------------------------------------------------------------------- resumable runs
+
+
+def fingerprint(args: dict[str, Any]) -> str:
+    """SHA-256 of the canonical JSON of ``args`` (the arguments that determine an output)."""
+    text = json.dumps(args, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def file_identity(path: str | Path | None) -> Any:
+    """What a fingerprint records of an input file: its path, size and content hash."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.is_dir():
+        return {"dir": str(path.resolve()),
+                "files": {p.name: file_identity(p)["sha256"] for p in sorted(path.iterdir())
+                          if p.is_file()}}
+    if not path.is_file():
+        return str(path)
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return {"path": str(path.resolve()), "sha256": h.hexdigest()}
+
+
+class RunRecord:
+    """``<folder>/<name>``: which command made a folder's partial output, with what
+    arguments, and whether it is complete (the marker, written last).
+
+    JSON: ``{"command", "fingerprint", "args", "complete"}``.
+    """
+
+    def __init__(self, folder: str | Path, command: str, args: dict[str, Any],
+                 name: str = "run.json"):
+        self.folder, self.command, self.args = Path(folder), command, args
+        self.path = self.folder / name
+        self.fingerprint = fingerprint(args)
+
+    def read(self) -> dict | None:
+        try:
+            data = json.loads(self.path.read_text())
+        except (OSError, ValueError):
+            return None
+        return data if isinstance(data, dict) else None
+
+    def check_resume(self, resume: bool, has_partial: bool, how: str = "--resume") -> dict | None:
+        """Refuse a resume whose arguments differ from the stored ones (naming them), and
+        a resume over output with no record. Returns the stored record (None: none)."""
+        old = self.read()
+        if not resume:
+            return old
+        if old is None:
+            if has_partial:
+                raise HackError(f"{how}: expected {self.path} beside the partial output, "
+                                f"found none (made by an older version, or not by "
+                                f"`hack-render {self.command}`). Start again without {how}, "
+                                f"or in another folder.")
+            return None
+        if old.get("fingerprint") != self.fingerprint:
+            before = old.get("args", {})
+            diff = sorted(k for k in set(before) | set(self.args)
+                          if before.get(k) != self.args.get(k))
+            raise HackError(f"{how}: the output in {self.folder} was made with other "
+                            f"arguments (different: {', '.join(diff) or 'unknown'}); resuming "
+                            f"would mix the two. Rerun with the original arguments, or drop "
+                            f"{how} to start again.")
+        return old
+
+    def write(self, complete: bool) -> None:
+        from hack_render.render.image_io import atomic_path
+
+        data = {"command": self.command, "fingerprint": self.fingerprint, "args": self.args,
+                "complete": complete}
+        with atomic_path(self.path) as tmp:
+            tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+
+
+@contextlib.contextmanager
+def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
+                option: str = "-o/--output") -> Iterator[Path]:
+    """Hold an exclusive lock on ``folder`` (created) while the block runs; a second
+    writer is refused at once with exit 2, naming the process that holds it. The lock is
+    the operating system's (``flock``): it ends with the process, even on SIGKILL."""
+    import fcntl
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as err:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "another process"
+            raise HackError(f"{option} {folder}: another hack-render run ({holder}) is "
+                            f"writing to this folder. Wait for it to finish, or choose "
+                            f"another folder.") from err
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()}".encode(), 0)
+        yield path
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def clean_temporaries(folder: str | Path, pattern: str = ".*",
+                      recursive: bool = False) -> int:
+    """Remove the hidden temporaries a killed run left (``atomic_path`` writes
+    ``.<stem>.XXXX<suffix>``); the lock file is kept. Returns how many were removed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    n = 0
+    for p in (folder.rglob(pattern) if recursive else folder.glob(pattern)):
+        if p.is_file() and p.name != ".hack-render.lock":
+            p.unlink(missing_ok=True)
+            n += 1
+    return n
+
+
+# --------------------------------------------------------------------- interruptions
+
+_CAUGHT: list[str] = []
+
+
+def _evaluate(note: Callable[[], str] | str) -> str:
+    if not callable(note):
+        return note
+    try:
+        return note()
+    except Exception:  # noqa: BLE001 - the report of an interruption must not fail
+        return "the output may be partial"
+
+
+@contextlib.contextmanager
+def on_interrupt(note: Callable[[], str] | str) -> Iterator[None]:
+    """While the block runs, an interruption (Ctrl-C) is reported by ``note``: what was
+    kept and how to resume (a string, or a function called when the interruption comes).
+    The innermost block's note wins."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if not _CAUGHT:
+            _CAUGHT.append(_evaluate(note))
+        raise
+
+
+def interrupt_message() -> str:
+    """The line printed on Ctrl-C (``interrupted: ...``); forgets the note."""
+    note = _CAUGHT[0] if _CAUGHT else "nothing was written"
+    _CAUGHT.clear()
+    return f"interrupted: {note}."
