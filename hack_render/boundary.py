@@ -275,27 +275,40 @@ class RunRecord:
 def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
                 option: str = "-o/--output") -> Iterator[Path]:
     """Hold an exclusive lock on ``folder`` (created) while the block runs; a second
-    writer is refused at once with exit 2, naming the process that holds it. The lock is
-    the operating system's (``flock``): it ends with the process, even on SIGKILL."""
+    writer is refused at once with exit 2, naming the process that holds it.
+
+    The lock is the operating system's (``flock`` on ``<folder>/<name>``): it ends with
+    the process, even on SIGKILL (a stale file is then taken over). The file is removed
+    on release; a lock taken on a file that was meanwhile removed is retried."""
     import fcntl
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / name
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as err:
             holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "another process"
+            os.close(fd)
             raise HackError(f"{option} {folder}: another hack-render run ({holder}) is "
                             f"writing to this folder. Wait for it to finish, or choose "
                             f"another folder.") from err
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the previous holder removed it as we opened it: take the new one
+    try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()}".encode(), 0)
         yield path
     finally:
-        os.close(fd)  # releases the lock
+        path.unlink(missing_ok=True)  # under the lock: the next writer opens a new file
+        os.close(fd)
 
 
 def clean_temporaries(folder: str | Path, pattern: str = ".*",
@@ -307,7 +320,7 @@ def clean_temporaries(folder: str | Path, pattern: str = ".*",
         return 0
     n = 0
     for p in (folder.rglob(pattern) if recursive else folder.glob(pattern)):
-        if p.is_file() and p.name != ".hack-render.lock":
+        if p.is_file() and not p.name.endswith(".lock"):
             p.unlink(missing_ok=True)
             n += 1
     return n

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,9 @@ from pathlib import Path
 from hack_render.errors import HackError
 
 EXECUTORS = ("serial", "ray")
+#: The most samples one dataset folder holds (sample folders are named by a 7-digit index
+#: and one folder of 10^8 entries is already beyond what file systems list in useful time).
+MAX_SAMPLES = 10 ** 8
 
 
 @dataclass(frozen=True)
@@ -43,14 +47,25 @@ class Job:
     shard: tuple[int, int] = (0, 1)
     resume: bool = False
 
-    def indices(self) -> list[int]:
+    def indices(self) -> range:
+        """The shard's sample indices (a range: planning streams, whatever ``n``)."""
         k, m = self.shard
-        return list(range(k, self.n, m))
+        return range(k, self.n, m)
 
     @property
     def manifest_path(self) -> Path:
         k, m = self.shard
         return self.out / "manifest" / f"shard-{k:03d}-of-{m:03d}.jsonl"
+
+    @property
+    def complete_path(self) -> Path:
+        """The shard's completion marker, written last."""
+        return self.manifest_path.with_name(f"{self.manifest_path.stem}.complete.json")
+
+    @property
+    def lock_name(self) -> str:
+        """One writer per shard and folder (``boundary.folder_lock`` in ``manifest/``)."""
+        return f".lock.{self.manifest_path.stem}"
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -71,11 +86,15 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def check_job(job: Job) -> None:
     """Everything that can be checked before rendering: N, seed, model-dependent config
     values, the output folder, an existing folder's config. Raises HackError."""
+    from hack_render import boundary
     from hack_render.geometry import load_default_model
-    from hack_render.render.image_io import check_writable
 
-    if isinstance(job.n, bool) or not isinstance(job.n, int) or job.n < 0:
-        raise HackError(f"--n: expected a non-negative number of samples, found {job.n!r}.")
+    if isinstance(job.n, bool) or not isinstance(job.n, int) or not 1 <= job.n <= MAX_SAMPLES:
+        raise HackError(f"--n: expected a number of samples in 1..{MAX_SAMPLES:,}, found "
+                        f"{job.n!r}. Larger datasets: several folders with different --seed.")
+    if not job.indices():
+        raise HackError(f"--shard {job.shard[0]}/{job.shard[1]}: expected a shard that owns "
+                        f"samples, found none of the {job.n} (K >= N). Use fewer shards.")
     if not 0 <= job.seed < 2 ** 63:
         raise HackError(f"--seed: expected 0 <= seed < 2^63, found {job.seed}.")
     model = load_default_model()
@@ -105,11 +124,9 @@ def check_job(job: Job) -> None:
         from appearance.uv import _template
 
         _template()  # the skin atlas needs the packaged template (raises with the fix)
-    try:
-        check_writable(job.out / "samples" / "x")
-        check_writable(job.out / "manifest" / "x")
-    except HackError as err:
-        raise HackError(f"-o/--output {job.out}: {err}") from err
+    boundary.output_dir(job.out)
+    for sub in ("samples", "manifest"):
+        boundary.output_dir(job.out / sub)
     info = run_info(job)
     path = job.out / "config.json"
     if path.is_file():
@@ -157,75 +174,142 @@ def _clean_temporaries(folder: Path, pattern: str = ".*") -> None:
             p.unlink()
 
 
-def prepare(job: Job) -> list[int]:
-    """Check the job, write ``config.json`` and return the sample indices to render."""
+def existing_samples(job: Job) -> list[int]:
+    """Indices of the shard's sample folders already in ``DIR/samples`` (complete or not)."""
+    folder = job.out / "samples"
+    if not folder.is_dir():
+        return []
+    k, m = job.shard
+    found = [int(p.name) for p in folder.iterdir() if p.name.isdigit()]
+    return sorted(i for i in found if i < job.n and i % m == k)
+
+
+def prepare(job: Job) -> tuple[object, int]:
+    """Write ``config.json`` and the manifest of what is complete; returns (the sample
+    indices to render, streamed, and their count). Run under the shard's lock, after
+    :func:`check_job`.
+
+    Without ``resume`` the shard must have no samples in the folder yet (a re-run would
+    redo complete samples and could be killed half-way through one); with it, partial
+    samples are cleaned and redone, complete ones kept."""
     from hack_render.dataset.worker import _write_json, sample_dir
 
-    check_job(job)
+    existing = existing_samples(job)
+    if existing and not job.resume:
+        raise HackError(f"-o/--output {job.out}: expected no samples of this shard yet, found "
+                        f"{len(existing)} (e.g. {sample_dir(job.out, existing[0])}). Add "
+                        "--resume to keep the complete ones and render the rest, or choose "
+                        "an empty folder.")
     _write_json(job.out / "config.json", run_info(job))
     (job.out / "manifest").mkdir(parents=True, exist_ok=True)
-    todo = job.indices()
+    job.complete_path.unlink(missing_ok=True)
     _clean_temporaries(job.out / "manifest", f".{job.manifest_path.stem}.*")
-    if job.resume:
-        for i in todo:
-            if sample_dir(job.out, i).is_dir():
-                _clean_temporaries(sample_dir(job.out, i))
-        todo = [i for i in todo if read_record(job.out, i) is None]
-    return todo
+    done: dict[int, dict] = {}
+    for i in existing:
+        _clean_temporaries(sample_dir(job.out, i))
+        rec = read_record(job.out, i)
+        if rec is not None:
+            done[i] = rec
+    # the manifest starts as the complete samples' records: no line of a sample redone
+    _write_manifest_lines(job, [done[i] for i in sorted(done)])
+    todo = (i for i in job.indices() if i not in done)
+    return todo, len(job.indices()) - len(done)
+
+
+def _write_manifest_lines(job: Job, records: list[dict]) -> Path:
+    from hack_render.render.image_io import atomic_path
+
+    with atomic_path(job.manifest_path) as tmp:
+        tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))
+    return job.manifest_path
 
 
 def write_manifest(job: Job) -> Path:
     """Write the shard's manifest from its complete samples' records, sorted by index."""
-    from hack_render.render.image_io import atomic_path
-
-    lines = []
-    for i in job.indices():
-        rec = read_record(job.out, i)
-        if rec is not None:
-            lines.append(json.dumps(rec, sort_keys=True))
-    with atomic_path(job.manifest_path) as tmp:
-        tmp.write_text("".join(line + "\n" for line in lines))
-    return job.manifest_path
+    records = [rec for i in existing_samples(job)
+               if (rec := read_record(job.out, i)) is not None]
+    return _write_manifest_lines(job, records)
 
 
 def _append_manifest(job: Job, rec: dict) -> None:
-    """Progress log while running (rewritten, sorted, by :func:`write_manifest`)."""
+    """Progress log while running (rewritten, sorted, by :func:`write_manifest`); a line
+    that cannot be written whole (disk full) is taken back, never left truncated."""
+    line = json.dumps(rec, sort_keys=True) + "\n"
     with open(job.manifest_path, "a") as f:
-        f.write(json.dumps(rec, sort_keys=True) + "\n")
+        start = f.tell()
+        try:
+            f.write(line)
+            f.flush()
+        except OSError:
+            try:
+                f.truncate(start)
+            except OSError:
+                pass
+            raise
 
 
-def run_serial(job: Job, todo: list[int], progress: bool = True) -> int:
+def _estimate_line(seconds: float, remaining: int) -> str:
+    total = seconds * remaining
+    for unit, size in (("years", 365 * 86400), ("days", 86400), ("hours", 3600),
+                       ("minutes", 60)):
+        if total >= 2 * size:
+            return (f"dataset: {seconds:.1f} s per sample; the {remaining:,} left take about "
+                    f"{total / size:,.1f} {unit} at this rate")
+    return f"dataset: {seconds:.1f} s per sample; about {total:.0f} s for the rest"
+
+
+def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
+               tally: dict | None = None) -> int:
+    """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
+    many. ``tally["complete"]`` counts the shard's complete samples as they land."""
+    import time
+
     from tqdm import tqdm
 
     from hack_render.dataset.worker import SampleRenderer
 
-    if not todo:
+    if total is None:
+        todo = list(todo)
+        total = len(todo)
+    if not total:
         return 0
+    tally = {"complete": 0} if tally is None else tally
+
+    def log(rec: dict) -> None:
+        _append_manifest(job, rec)
+        tally["complete"] += 1
+
     # files are written on a background thread while the next sample renders; records
     # are logged in order as their samples complete
     renderer = SampleRenderer(job.cfg, job.out, job.seed, background_writes=True)
     pending: deque = deque()
+    count, t0 = 0, time.perf_counter()
     try:
-        for i in tqdm(todo, desc="dataset", unit="sample", disable=not progress):
+        for i in tqdm(todo, total=total, desc="dataset", unit="sample", disable=not progress):
             pending.append(renderer.submit(i))
+            count += 1
+            if count == 1:
+                t0 = time.perf_counter()  # the first sample compiles the kernels: not a rate
+            elif count == 2 and total > 2:  # the size of the job, once its rate is known
+                print(_estimate_line(time.perf_counter() - t0, total - 2), file=sys.stderr)
             while pending and pending[0].done():
-                _append_manifest(job, pending.popleft().result())
+                log(pending.popleft().result())
     except BaseException:
         # interrupted (Ctrl-C) or failed: finish the queued writes, so that every sample
         # whose files were queued is complete on disk, then stop
         renderer.close()
         for f in pending:
             if f.exception() is None:
-                _append_manifest(job, f.result())
+                log(f.result())
         raise
     renderer.close()
     for f in pending:
-        _append_manifest(job, f.result())  # raises a failed write's error
-    return len(todo)
+        log(f.result())  # raises a failed write's error
+    return count
 
 
-def run_ray(job: Job, todo: list[int], address: str | None = None,
-            workers: int | None = None, progress: bool = True) -> int:
+def run_ray(job: Job, todo, address: str | None = None,
+            workers: int | None = None, progress: bool = True, tally: dict | None = None) -> int:
     """Render ``todo`` on Ray actors (one renderer and one CPU each) through ActorPool."""
     try:
         import ray
@@ -235,8 +319,10 @@ def run_ray(job: Job, todo: list[int], address: str | None = None,
                         "extra: pip install 'hack-render[ray]'.") from err
     from tqdm import tqdm
 
+    todo = list(todo)
     if not todo:
         return 0
+    tally = {"complete": 0} if tally is None else tally
     started = False
     if not ray.is_initialized():
         kw = {"address": address} if address else {"num_cpus": workers or os.cpu_count()}
@@ -250,6 +336,7 @@ def run_ray(job: Job, todo: list[int], address: str | None = None,
         for rec in tqdm(results, total=len(todo), desc=f"dataset (ray x{n})", unit="sample",
                         disable=not progress):
             _append_manifest(job, rec)
+            tally["complete"] += 1
     finally:
         if started:
             ray.shutdown()
@@ -298,12 +385,31 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         except ImportError as err:
             raise HackError("--executor ray: expected Ray, found it not installed. Install "
                             "the extra: pip install 'hack-render[ray]'.") from err
-    todo = prepare(job)
+    from hack_render import boundary
+    from hack_render.dataset.worker import _write_json
+
+    check_job(job)
     total = len(job.indices())
-    if executor == "ray":
-        done = run_ray(job, todo, address, workers, progress)
-    else:
-        done = run_serial(job, todo, progress)
-    manifest = write_manifest(job)
-    return {"rendered": done, "skipped": total - len(todo), "total": total,
+    k, m = job.shard
+    with boundary.folder_lock(job.out / "manifest", job.lock_name):
+        todo, n_todo = prepare(job)
+        tally = {"complete": total - n_todo}
+        print(f"dataset: {n_todo:,} of the {total:,} samples of shard {k}/{m} to render into "
+              f"{job.out} ({job.cfg['render']['resolution']} px, {job.cfg['render']['spp']} "
+              f"spp, {job.cfg['camera']['views']} view(s) each)", file=sys.stderr)
+
+        def kept() -> str:
+            return (f"kept {tally['complete']:,} complete samples of the {total:,} of shard "
+                    f"{k}/{m} in {job.out}; run the same command with --resume to render the "
+                    "rest")
+
+        with boundary.on_interrupt(kept):
+            if executor == "ray":
+                done = run_ray(job, todo, address, workers, progress, tally)
+            else:
+                done = run_serial(job, todo, progress, n_todo, tally)
+            manifest = write_manifest(job)
+            _write_json(job.complete_path, {"complete": True, "n": job.n,
+                                            "shard": [k, m], "samples": total})
+    return {"rendered": done, "skipped": total - n_todo, "total": total,
             "manifest": str(manifest)}
