@@ -44,6 +44,16 @@ def build(
 
     if basis_dtype not in ("float32", "float16", "int8"):
         raise HackError(f"--basis-dtype: expected float32, float16 or int8, found {basis_dtype!r}.")
+    from hack_render import boundary
+
+    boundary.input_dir(data, "DATA", "folder of subjects")
+    boundary.output_file(out, "-o/--output", (".npz",))
+    boundary.number(height, "--height", 16, 4096, integer=True, unit=" pixels")
+    boundary.number(components, "--components", 1, 100000, integer=True,
+                    fix="A model needs at least one component (default: all).")
+    boundary.number(holdout, "--holdout", 0.0, 0.5,
+                    fix="It is the share of subjects held out for the report (0: none).")
+    boundary.number(seed, "--seed", 0, 2 ** 32 - 1, integer=True)
     rep = build_model(data, out, height=height, n_components=components,
                       basis_dtype=basis_dtype, holdout=holdout, seed=seed)
     typer.echo(f"wrote {out} ({rep['n_components']} components, {rep['n_subjects']} subjects); "
@@ -62,7 +72,12 @@ def template(
     Example: hack-render learn template --ict ICT_FACEKIT_DIR
     """
     from appearance.uv import TEMPLATE_FILE, write_template_file
+    from hack_render import boundary
 
+    if not Path(ict).exists():
+        raise HackError(f"--ict {ict}: not found; pass the ICT-FaceKit folder or its "
+                        "generic_neutral_mesh.obj.")
+    boundary.output_file(out or TEMPLATE_FILE, "-o/--output", (".npz",))
     path = write_template_file(ict, out or TEMPLATE_FILE)
     typer.echo(f"wrote {path}")
 
@@ -97,16 +112,28 @@ def sample(
 
     out = renamed(output, out_old, "--out", "-o/--output")
     model = renamed(model, model_old, "appearance sample --model", "--appearance-model")
+    from hack_render import boundary
+
     if out is None:
         raise HackError("sample: expected -o/--output FOLDER, found none.")
-    try:
-        alpha = [float(x) for item in alpha or [] for x in item.split(",") if x.strip()]
-    except ValueError as err:
-        raise HackError(f"--alpha: expected comma-separated numbers like '1,-0.5', found "
-                        f"{alpha!r}.") from err
+    alpha = [x for item in alpha or []
+             for x in boundary.numbers(item, "--alpha", None, -10.0, 10.0,
+                                       unit=" (standard deviations)", example="1,-0.5")]
     if alpha and seed is not None:
         raise HackError("sample: expected --alpha or --seed, found both. Pass one of them.")
+    boundary.number(seed, "--seed", 0, 2 ** 32 - 1, integer=True)
+    boundary.number(components, "--components", 1, 100000, integer=True,
+                    fix="Sample at least one component (default: all).")
+    if detail:
+        boundary.number(detail, "--detail", 16, 8192, integer=True, unit=" pixels",
+                        fix="It is the pore layer's atlas height; 0 writes none.")
+    if fmt not in ("exr", "png"):
+        raise HackError(f"--format: expected exr or png, found {fmt!r}.")
+    boundary.output_dir(out)
     m = AppearanceModel.load(model)
+    if components is not None and components > m.n_components:
+        raise HackError(f"--components: expected 1..{m.n_components} (the model's components), "
+                        f"found {components}.")
     if alpha:
         a = torch.tensor([alpha], dtype=torch.float32)
     else:
@@ -127,7 +154,10 @@ def sample(
     from appearance.report import preview_sheet
 
     preview_sheet(arrays, out / "preview.png", title=f"alpha[:4]={a[0, :4].tolist()}")
-    (out / "alpha.json").write_text(json.dumps({"alpha": a[0].tolist()}))
+    from hack_render.render.image_io import atomic_path
+
+    with atomic_path(out / "alpha.json") as tmp:
+        tmp.write_text(json.dumps({"alpha": a[0].tolist()}))
     typer.echo(f"wrote {len(written)} maps and preview.png to {out}")
 
 
@@ -139,10 +169,12 @@ def report(model: Path = typer.Argument(..., help="model file (.npz)"),
     """Re-plot a model's explained-variance and held-out error curves."""
     from appearance.builder import plot_report
     from appearance.model import load_model_arrays
+    from hack_render import boundary
     from hack_render.cli_options import renamed
 
     out = renamed(output, out_old, "--out", "-o/--output")
-
+    boundary.input_file(model, "MODEL", (".npz",), "appearance model file")
+    boundary.output_file(out or model.with_suffix(".report.png"), "-o/--output", (".png",))
     rep = load_model_arrays(model)["report"]
     if not rep:
         raise HackError(f"{model}: expected a build report inside the model, found none. "

@@ -100,6 +100,11 @@ def numbers(text: str | None, name: str, n: int | None = None, lo: float = -math
 # ---------------------------------------------------------------------- output paths
 
 
+def _one_of(items: Sequence[str]) -> str:
+    items = list(items)
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
+
+
 def _nearest_existing(path: Path) -> Path:
     p = path
     while not p.exists() and p != p.parent:
@@ -141,7 +146,7 @@ def output_file(path: str | Path, option: str = "-o/--output",
     """
     path = Path(path)
     if suffixes is not None and path.suffix.lower() not in suffixes:
-        raise HackError(f"{option} {path}: expected a {' or '.join(suffixes)} file, found "
+        raise HackError(f"{option} {path}: expected a {_one_of(suffixes)} file, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}. Give the "
                         f"output a {suffixes[0]} suffix.")
     if str(path).endswith(os.sep) or path.is_dir():
@@ -169,13 +174,23 @@ def input_file(path: str | Path, option: str, suffixes: Sequence[str] | None = N
     if path.is_dir():
         raise HackError(f"{option} {path}: expected a {what}, found a folder.")
     if not path.is_file():
-        raise HackError(f"{option} {path}: {what} not found. Check the path.")
+        raise HackError(f"{option} {path}: file not found ({what}). Check the path.")
     if suffixes is not None and path.suffix.lower() not in suffixes:
-        raise HackError(f"{option} {path}: expected a {' or '.join(suffixes)} {what}, found "
+        raise HackError(f"{option} {path}: expected a {_one_of(suffixes)} {what}, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}.")
     if not os.access(path, os.R_OK):
         raise HackError(f"{option} {path}: expected a readable {what}, found it unreadable "
                         "(permissions).")
+    return path
+
+
+def input_dir(path: str | Path, option: str, what: str = "folder") -> Path:
+    """An existing folder."""
+    path = Path(path)
+    if path.is_file():
+        raise HackError(f"{option} {path}: expected a {what}, found a file.")
+    if not path.is_dir():
+        raise HackError(f"{option} {path}: {what} not found. Check the path.")
     return path
 
 

@@ -49,6 +49,9 @@ def dataset(
     if n is None or output is None:
         raise HackError("dataset: expected --n N and -o DIR (or the `preview` subcommand), "
                         "found them missing. Example: hack-render dataset --n 100 -o out/ds")
+    from hack_render import boundary
+
+    boundary.number(workers, "--workers", 1, 4096, integer=True)
     job = Job(output, n, seed, load_config(config), parse_shard(shard), resume)
     summary = run(job, executor, address, workers, progress=not quiet)
     typer.echo(f"{summary['rendered']} rendered, {summary['skipped']} already complete, "
@@ -64,8 +67,13 @@ def preview(
     columns: int = typer.Option(4, "--columns", help="Tiles per row."),
 ) -> None:
     """Contact sheet of the first samples with segmentation and landmarks overlaid."""
+    from hack_render import boundary
     from hack_render.dataset.preview import contact_sheet
 
+    boundary.input_dir(folder, "FOLDER", "dataset folder")
+    boundary.output_file(output or folder / "preview.png", "-o/--output", (".png",))
+    boundary.number(count, "--count", 1, 4096, integer=True)
+    boundary.number(columns, "--columns", 1, 256, integer=True)
     typer.echo(f"wrote {contact_sheet(folder, output, count, columns).resolve()}")
 
 

@@ -49,28 +49,30 @@ def export(
 
     Example: hack-render export --params person.json --sequence motion.npz -o out/person.glb
     """
+    from hack_render import boundary
     from hack_render.geometry import load_model
-    from hack_render.geometry.cli import _floats, gather_params
+    from hack_render.geometry.cli import gather_params
     from hack_render.geometry.params import load_sequence
-    from hack_render.render.image_io import check_writable
 
     suffix = output.suffix.lower()
-    if suffix not in (".glb", ".gltf", ".obj", ".ply"):
-        raise HackError(f"-o {output}: expected a .glb, .gltf, .obj or .ply output, found "
-                        f"{suffix or 'no suffix'}.")
+    boundary.output_file(output, "-o/--output", (".glb", ".gltf", ".obj", ".ply"))
     if suffix in (".obj", ".ply") and sequence is not None:
         raise HackError(f"--sequence: an animation needs a .glb or .gltf output, found -o "
                         f"{output}.")
     if influences not in (4, 8):
         raise HackError(f"--influences: expected 4 or 8, found {influences}.")
+    alpha_ = boundary.numbers(alpha, "--alpha", None, -10.0, 10.0,
+                              unit=" (standard deviations)", example="0.8,-0.6,0.4")
+    boundary.number(appearance_seed, "--appearance-seed", 0, 2 ** 31 - 1, integer=True)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    if model_path is not None:
+        boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = load_model(model_path)
     seq = load_sequence(sequence, model.num_expressions) if sequence is not None else None
     from hack_render.geometry.params import model_inputs
 
     model_inputs(model, p)  # beta length, expression names: checked before anything heavy
-    maps = _skin_maps(_floats(alpha, "alpha"), appearance_seed, textures)
-    check_writable(output)
+    maps = _skin_maps(alpha_, appearance_seed, textures)
     if suffix in (".obj", ".ply"):
         for path in _export_mesh(model, p, maps, output):
             typer.echo(f"wrote {path.resolve()}")
@@ -142,8 +144,11 @@ def view(
 
     Example: hack-render view out/person.glb
     """
+    from hack_render import boundary
     from hack_render.export.viewer import serve
 
+    boundary.input_file(file, "FILE", (".glb", ".gltf"), "exported person")
+    boundary.number(port, "--port", 0, 65535, integer=True)
     serve(file, port, open_browser)
 
 

@@ -16,14 +16,7 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
                focal_mm: float | None = None):
     """Library entry point of the command: read, detect, fit, write. Returns (result, paths).
     ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
-    import torch
-
     from hack_render.fit.config import FitConfig
-    from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect, read_landmark_file
-    from hack_render.fit.outputs import write_all
-    from hack_render.fit.photo import load_photo
-    from hack_render.render.image_io import check_writable
 
     cfg = config or FitConfig()
     if landmarks and len(landmarks) != len(photos):
@@ -32,10 +25,82 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     if masks and len(masks) != len(photos):
         raise HackError(f"--mask: expected one mask per photo ({len(photos)}), found "
                         f"{len(masks)}.")
-    if focal_mm is not None and not 5.0 <= float(focal_mm) <= 2000.0:
-        raise HackError(f"--focal-mm: expected a 35 mm-equivalent focal length of 5..2000 mm, "
-                        f"found {focal_mm}.")
-    check_writable(outdir / "params.json")
+    from hack_render import boundary
+
+    boundary.number(focal_mm, "--focal-mm", 5.0, 2000.0, unit=" mm (35 mm-equivalent)")
+    for p in photos:
+        boundary.input_file(p, "photo", what="photo")
+    for p in landmarks or []:
+        check_landmark_file(p)
+    for p in masks or []:
+        boundary.input_file(p, "--mask", what="mask image")
+    boundary.output_dir(outdir)
+    record = boundary.RunRecord(outdir, "fit", {
+        "photos": [boundary.file_identity(p) for p in photos],
+        "landmarks": [boundary.file_identity(p) for p in landmarks or []],
+        "masks": [boundary.file_identity(p) for p in masks or []],
+        "focal_mm": focal_mm, "config": cfg.to_dict()}, name="fit_run.json")
+    with boundary.on_interrupt(f"nothing was written to {outdir} (interrupted while "
+                               "fitting); run the same command again"):
+        result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
+    from hack_render.fit.outputs import write_all
+
+    # the files are written under the folder's lock, after a record that says the folder
+    # holds no complete fit (what an earlier fit left there is being replaced)
+    with boundary.folder_lock(outdir), boundary.on_interrupt(
+            f"the fit in {outdir} is incomplete ({record.path.name} says complete: false; "
+            "files from an earlier fit there may remain); run the same command again"):
+        record.write(complete=False)
+        paths = write_all(result, fitter, outdir)
+        record.write(complete=True)  # the completion marker, written last
+    return result, paths + [record.path]
+
+
+def check_landmark_file(path: Path) -> None:
+    """A landmark file holds 68 rows of exactly two finite numbers (x, y pixels); checked
+    before the photos are read (a 3-column file is not 2-D points, an empty one no file)."""
+    import numpy as np
+
+    from hack_render import boundary
+
+    boundary.input_file(path, "--landmarks", (".pts", ".txt", ".csv", ".json", ".npy"),
+                        "landmark file")
+    if path.stat().st_size == 0:
+        raise HackError(f"--landmarks {path}: expected 68 'x y' points, found an empty file.")
+    if path.suffix.lower() == ".npy":
+        try:
+            pts = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as err:
+            raise HackError(f"--landmarks {path}: expected a .npy array of shape (68, 2), "
+                            f"could not read it ({err}).") from err
+        if pts.shape != (68, 2) or not np.issubdtype(pts.dtype, np.number):
+            raise HackError(f"--landmarks {path}: expected an array of shape (68, 2) (x, y "
+                            f"pixels), found shape {pts.shape} ({pts.dtype}).")
+        return
+    if path.suffix.lower() in (".txt", ".csv", ".pts"):
+        try:
+            lines = path.read_text().splitlines()
+        except UnicodeDecodeError as err:
+            raise HackError(f"--landmarks {path}: expected text, found binary data.") from err
+        rows = [ln.replace(",", " ").split() for ln in lines
+                if ln.strip() and not ln.lstrip().startswith("#")]
+        if path.suffix.lower() == ".pts":
+            rows = [r for r in rows if len(r) == 2 and r[0] not in ("version:", "n_points:")]
+        bad = [r for r in rows if len(r) != 2 and r not in (["{"], ["}"])]
+        if bad:
+            raise HackError(f"--landmarks {path}: expected two columns (x y) per row, found "
+                            f"{len(bad[0])} in {' '.join(bad[0])!r}. 3-D points are not "
+                            "image landmarks: give pixel coordinates.")
+
+
+def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
+    """Read, detect and fit (nothing written); returns (result, fitter)."""
+    import torch
+
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import detect, read_landmark_file
+    from hack_render.fit.photo import load_photo
+
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
     lc = cfg.landmarks
@@ -63,8 +128,7 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     fitter.timings["landmarks"] = t_detect
     result = fitter.run()
     result.fitter = fitter  # for callers that evaluate the fit (bench/bench_fit.py)
-    paths = write_all(result, fitter, outdir)
-    return result, paths
+    return result, fitter
 
 
 def fit(
@@ -125,18 +189,24 @@ def fit(
     lighting = renamed(light_model, lighting_old, "fit --lighting", "--light-model")
     over: dict = {"photometric": {}, "texel": {}}
 
-    def ints(text, name):
-        try:
-            return [int(x) for x in text.split(",") if x.strip()]
-        except ValueError as err:
-            raise HackError(f"--{name}: expected comma-separated integers, found {text!r}.") from err
+    from hack_render import boundary
 
-    if resolution:
-        over["photometric"]["resolutions"] = ints(resolution, "levels")
+    if resolution is not None:
+        over["photometric"]["resolutions"] = boundary.numbers(
+            resolution, "--levels", None, 16, 1024, integer=True, unit=" pixels",
+            example="64,128")
         if not iterations:
             over["photometric"]["iterations"] = [30] * len(over["photometric"]["resolutions"])
-    if iterations:
-        over["photometric"]["iterations"] = ints(iterations, "iterations")
+    if iterations is not None:
+        over["photometric"]["iterations"] = boundary.numbers(
+            iterations, "--iterations", None, 1, 100000, integer=True, example="40,30",
+            fix="A fit with no iterations fits nothing; use --no-photometric to skip the stage.")
+        n_levels = len(over["photometric"].get("resolutions", [0] * len(
+            over["photometric"]["iterations"])))
+        if len(over["photometric"]["iterations"]) != n_levels:
+            raise HackError(f"--iterations: expected one count per level ({n_levels}), found "
+                            f"{len(over['photometric']['iterations'])} in {iterations!r}.")
+    boundary.number(spp, "--spp", 1, 4096, integer=True)
     if spp is not None:
         over["photometric"]["spp"] = spp
     if lighting:
@@ -190,10 +260,16 @@ def calibrate_landmarks(
     import json
     import sys
 
+    from hack_render import boundary
     from hack_render.cli_options import renamed
     from hack_render.fit import landmark_embedding as le
 
     resolution = renamed(resolution, resolution_old, "--res", "--resolution")
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(resolution, "--resolution", 64, 4096, integer=True, unit=" pixels")
+    boundary.number(spp, "--spp", 1, 4096, integer=True)
+    boundary.number(radius, "--radius", 0.001, 0.2, unit=" metres")
+    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
     seed = le.CALIBRATION_SEED if seed is None else seed
     cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
     emb, _report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
@@ -236,8 +312,14 @@ def train_landmark_refiner(
     import json
     import sys
 
+    from hack_render import boundary
     from hack_render.fit import landmark_refiner as lr
 
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
+    boundary.number(lam, "--lambda", 0.0, 1e12)
+    if cache is not None:
+        boundary.output_dir(cache, "--cache")
     cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
     _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache, command=cmd,
                             progress=not quiet)

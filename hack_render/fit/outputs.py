@@ -12,12 +12,28 @@ import torch
 
 from hack_render.fit.fitter import R0, FitResult
 
+#: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
+TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
+               ".overlay*", ".mesh*", ".fit_run.*")
+
 
 def _atomic_bytes(path: Path, write) -> Path:
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    write(tmp)
-    tmp.replace(path)
+    try:
+        write(tmp)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)  # interrupted or failed: no temporary left
     return path
+
+
+def clean_temporaries(outdir: Path) -> None:
+    """Remove what a killed fit left half-written in ``outdir`` (its own names only)."""
+    from hack_render.boundary import clean_temporaries as clean
+
+    for pattern in TEMPORARIES:
+        clean(outdir, pattern)
+    clean(outdir / "textures", ".*")
 
 
 def view_params(res: FitResult, i: int) -> dict:
@@ -79,6 +95,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     from hack_render.render.materials import material_base_colours
 
     outdir.mkdir(parents=True, exist_ok=True)
+    clean_temporaries(outdir)
     written = []
     for i, v in enumerate(res.views):
         name = "params.json" if i == 0 else f"params_view{i}.json"

@@ -79,6 +79,10 @@ def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, 
     from hack_render.geometry import load_model
     from hack_render.geometry.params import model_inputs
 
+    if model_path is not None:
+        from hack_render import boundary
+
+        boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = load_model(model_path)
     p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
     kw = apply_limit_policy(model_inputs(model, p), limits, p.get("head_rotation_deg"))
@@ -133,9 +137,12 @@ def build(
     Registered as `hack-render learn base-model` by hack_render.learn.cli.
     Example: hack-render learn base-model --ict ICT_FACEKIT_DIR -o base.npz
     """
+    from hack_render import boundary
     from hack_render.geometry.model_file import save_model_file
     from hack_render.learn.ict_default import build_default_model
 
+    boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
+    boundary.output_file(output, "-o/--output", (".npz",))
     arrays, meta = build_default_model(ict)
     errors = save_model_file(output, arrays, meta)
     typer.echo(f"wrote {output.resolve()} ({output.stat().st_size / 1e6:.1f} MB)")
@@ -146,8 +153,11 @@ def build(
 @model_app.command("info")
 def info(model_path: Path | None = typer.Argument(None, help="Model file (default: built-in).")) -> None:
     """Print a model's sizes, joints, action units, expression names and provenance."""
+    from hack_render import boundary
     from hack_render.geometry import load_model
 
+    if model_path is not None:
+        boundary.input_file(model_path, "MODEL", (".npz",), "model file")
     m = load_model(model_path)
     typer.echo(f"vertices {m.num_vertices}, triangles {len(m.faces)}, shape components {m.num_shape}, "
                f"expressions {m.num_expressions}, joints {', '.join(m.joint_names)}")

@@ -39,12 +39,16 @@ def build_v2(
 
     Example: hack-render learn model --ict ICT_FACEKIT_DIR -o model.npz
     """
+    from hack_render import boundary
     from hack_render.geometry.model_file import save_model_file
     from hack_render.learn.full_model import build_full_model
 
-    if expression_identities < 20 or pose_identities < 1 or pose_iterations < 1:
-        raise HackError("--expression-identities must be >= 20, --pose-identities and "
-                        "--pose-iterations >= 1.")
+    boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(expression_identities, "--expression-identities", 20, 100000, integer=True)
+    boundary.number(pose_identities, "--pose-identities", 1, 1000, integer=True)
+    boundary.number(pose_iterations, "--pose-iterations", 1, 1000000, integer=True)
+    boundary.number(expression_epochs, "--expression-epochs", 1, 1000000, integer=True)
     arrays, meta = build_full_model(ict, expression_identities, pose_identities, pose_iterations,
                                     expression_epochs)
     save_model_file(output, arrays, meta)
@@ -69,12 +73,17 @@ def learn_pose(
 
     Example: hack-render learn pose -o model_pose.npz --iterations 700
     """
+    from hack_render import boundary
     from hack_render.geometry import default_model_path
     from hack_render.geometry.model_file import load_model_file, save_model_file
     from hack_render.learn.full_model import learn_pose_energy, pose_curves, pose_provenance
 
-    if iterations < 1 or identities < 1:
-        raise HackError("--iterations and --identities must be >= 1.")
+    if model_path is not None:
+        boundary.input_file(model_path, "--model", (".npz",), "model file")
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(iterations, "--iterations", 1, 1000000, integer=True)
+    boundary.number(identities, "--identities", 1, 1000, integer=True)
+    boundary.number(seed, "--seed", 0, 2 ** 32 - 1, integer=True)
     src = model_path or default_model_path()
     arrays, meta = load_model_file(src)
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
@@ -95,10 +104,14 @@ def report(
     output: Path = typer.Option(Path("out/model_report"), "-o", "--output", help="Output folder."),
 ) -> None:
     """Write Fig. 11-style compactness/generalisation curves (report.json, report.png)."""
+    from hack_render import boundary
     from hack_render.geometry import default_model_path
     from hack_render.geometry.model_file import load_model_file
     from hack_render.learn.report import write_report
 
+    if model_path is not None:
+        boundary.input_file(model_path, "MODEL", (".npz",), "model file")
+    boundary.output_dir(output)
     _, meta = load_model_file(model_path or default_model_path())
     js, png = write_report(meta, output)
     typer.echo(f"wrote {js.resolve()}\nwrote {png.resolve()}")
@@ -112,18 +125,57 @@ def learn_joints(
     """Train the joint regressor J (Eq. 6) from (mesh, joint) pairs, e.g. ultrasound labels."""
     import numpy as np
 
+    from hack_render import boundary
     from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
 
-    if not data.is_file():
-        raise HackError(f"{data}: not found; pass an .npz with 'meshes' and 'joints'.")
-    with np.load(data) as z:
-        if "meshes" not in z or "joints" not in z:
-            raise HackError(f"{data}: expected keys 'meshes' and 'joints', found {list(z.keys())}.")
-        meshes, joints = z["meshes"], z["joints"]
+    boundary.input_file(data, "DATA", (".npz",), "training data file")
+    boundary.output_file(output, "-o/--output", (".npy",))
+    boundary.number(slab, "--slab", 0.001, 0.1, unit=" metres")
+    meshes, joints = _joint_data(data)
+    typer.echo(f"learn joints: {len(meshes)} pairs of {meshes.shape[1]} vertices, 8 joints "
+               "(a bounded least squares per joint; large meshes take minutes)")
     reg = train_joint_regressor(meshes, joints, slab=slab)
-    np.save(output, reg.astype(np.float32))
+    if not np.isfinite(reg).all():
+        raise HackError(f"{data}: the regressor came out non-finite; check 'meshes' and "
+                        "'joints' (metres, the same people in the same order).")
+    from hack_render.render.image_io import atomic_path
+
+    with atomic_path(output) as tmp:
+        np.save(tmp, reg.astype(np.float32))
     err = joint_errors(reg, meshes, joints) * 1e3
     typer.echo(f"wrote {output.resolve()}; training error mean {err.mean():.2f} mm, max {err.max():.2f} mm")
+
+
+def _joint_data(data: Path):
+    """(meshes (P, N, 3), joints (P, 8, 3)) float64 from a training .npz, checked: keys,
+    numeric dtypes, shapes, the same P >= 2, finite values."""
+    import numpy as np
+
+    try:
+        with np.load(data, allow_pickle=False) as z:
+            keys = list(z.keys())
+            if "meshes" not in keys or "joints" not in keys:
+                raise HackError(f"{data}: expected keys 'meshes' and 'joints', found {keys}.")
+            meshes, joints = z["meshes"], z["joints"]
+    except HackError:
+        raise
+    except Exception as err:  # not a zip, pickled objects, truncated: numpy's many errors
+        raise HackError(f"{data}: expected a .npz of numeric arrays 'meshes' (P, N, 3) and "
+                        f"'joints' (P, 8, 3), could not read it ({err}).") from err
+    for key, arr, want in (("meshes", meshes, "(P, N, 3)"), ("joints", joints, "(P, 8, 3)")):
+        if not np.issubdtype(arr.dtype, np.number) or arr.ndim != 3 or arr.shape[2] != 3:
+            raise HackError(f"{data}: key '{key}' expected numbers of shape {want}, metres, "
+                            f"found {arr.dtype} {arr.shape}.")
+        if not np.isfinite(arr).all():
+            raise HackError(f"{data}: key '{key}' contains NaN or inf; expected finite "
+                            "positions in metres (drop the unlabelled pairs).")
+    if joints.shape[1] != 8:
+        raise HackError(f"{data}: key 'joints' expected 8 joints per pair (c7-t1 ... o-c1), "
+                        f"found {joints.shape[1]}.")
+    if len(meshes) != len(joints) or len(meshes) < 2:
+        raise HackError(f"{data}: expected the same number P >= 2 of meshes and joints, found "
+                        f"{len(meshes)} and {len(joints)}.")
+    return meshes.astype(np.float64), joints.astype(np.float64)
 
 
 def register(app: typer.Typer) -> None:
