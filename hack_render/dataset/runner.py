@@ -139,6 +139,7 @@ def check_job(job: Job) -> None:
             raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
                             f"the same config and seed, found a dataset that differs in "
                             f"{diff}. Choose another folder.")
+    _refuse_rerun(job, existing_samples(job))
 
 
 def run_info(job: Job) -> dict:
@@ -184,6 +185,16 @@ def existing_samples(job: Job) -> list[int]:
     return sorted(i for i in found if i < job.n and i % m == k)
 
 
+def _refuse_rerun(job: Job, existing: list[int]) -> None:
+    from hack_render.dataset.worker import sample_dir
+
+    if existing and not job.resume:
+        raise HackError(f"-o/--output {job.out}: expected no samples of this shard yet, found "
+                        f"{len(existing)} (e.g. {sample_dir(job.out, existing[0])}). Add "
+                        "--resume to keep the complete ones and render the rest, or choose "
+                        "an empty folder.")
+
+
 def prepare(job: Job) -> tuple[object, int]:
     """Write ``config.json`` and the manifest of what is complete; returns (the sample
     indices to render, streamed, and their count). Run under the shard's lock, after
@@ -195,11 +206,7 @@ def prepare(job: Job) -> tuple[object, int]:
     from hack_render.dataset.worker import _write_json, sample_dir
 
     existing = existing_samples(job)
-    if existing and not job.resume:
-        raise HackError(f"-o/--output {job.out}: expected no samples of this shard yet, found "
-                        f"{len(existing)} (e.g. {sample_dir(job.out, existing[0])}). Add "
-                        "--resume to keep the complete ones and render the rest, or choose "
-                        "an empty folder.")
+    _refuse_rerun(job, existing)  # again, under the lock
     _write_json(job.out / "config.json", run_info(job))
     (job.out / "manifest").mkdir(parents=True, exist_ok=True)
     job.complete_path.unlink(missing_ok=True)

@@ -29,7 +29,22 @@ def _resolution(text: str) -> tuple[int, int]:
         raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
     if len(parts) not in (1, 2):
         raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
+    from hack_render.render.scene import MAX_SIDE
+
+    if not all(1 <= p <= MAX_SIDE for p in parts):
+        raise HackError(f"--resolution: expected sides of 1..{MAX_SIDE} pixels, found "
+                        f"{text!r}. Pass e.g. --resolution 512.")
     return (parts[0], parts[-1])
+
+
+def named(option: str, fn, *args, **kwargs):
+    """``fn(*args)``, its HackError prefixed with the option it came from."""
+    try:
+        return fn(*args, **kwargs)
+    except HackError as err:
+        if str(err).startswith(option):
+            raise
+        raise HackError(f"{option}: {err}") from err
 
 
 def _floats(text: Optional[str], name: str, n: Optional[int] = None, lo: float = -1e3,
@@ -134,12 +149,14 @@ def render(
     from hack_render import boundary
     from hack_render.geometry.cli import LimitPolicy
     from hack_render.render.image_io import tone_map
-    from hack_render.render.scene import RenderSettings
+    from hack_render.render.scene import MAX_SPP, RenderSettings
     from scenes import cameras as cams
     from scenes import lights
 
     # every cheap check before anything heavy is loaded or allocated
     w, h = _resolution(resolution)
+    boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
+    boundary.number(seed, "--seed", 0, 2 ** 31 - 1, integer=True)
     boundary.number(max_depth, "--max-depth", 1, 64, integer=True)
     boundary.number(views, "--views", 1, 1024, integer=True)
     settings = RenderSettings(w, h, spp, max_depth, seed)
@@ -150,10 +167,10 @@ def render(
     if aov_names and exr is None and output.suffix.lower() != ".exr":
         raise HackError("--aov: expected an EXR output to hold the AOV channels (-o x.exr or "
                         "--exr x.exr), found only a PNG.")
-    tone_map(np.zeros(3), 0.0, tonemap)
+    named("--tonemap", tone_map, np.zeros(3), 0.0, tonemap)
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
-    rig = lights.preset(lighting, env_rotation, exposure)
-    views_ = cams.preset(camera, w, h, focal_mm, n=views)
+    rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
+    views_ = named("--camera", cams.preset, camera, w, h, focal_mm, n=views)
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     try:
         policy = LimitPolicy(limits)
@@ -268,7 +285,11 @@ def turntable(
     from scenes import lights
 
     spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
+    from hack_render.render.scene import MAX_SPP
+
     w, h = _resolution(resolution)
+    boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
+    boundary.number(seed, "--seed", 0, 2 ** 31 - 1 - frames, integer=True)
     settings = RenderSettings(w, h, spp, 8, seed)
     fmt = [f.strip() for f in formats.split(",") if f.strip()]
     bad = [f for f in fmt if f not in tt.FORMATS]
@@ -280,10 +301,10 @@ def turntable(
     boundary.output_dir(output)
     if sequence is not None:
         boundary.output_file(sequence, "--sequence", (".npz", ".jsonl", ".ndjson"))
-    to_srgb8(np.zeros((1, 1, 3)), 0.0, tonemap)  # validates --tonemap
+    named("--tonemap", to_srgb8, np.zeros((1, 1, 3)), 0.0, tonemap)
     boundary.number(pitch, "--pitch", -89.0, 89.0, unit=" degrees")
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
-    rig = lights.preset(lighting, env_rotation, exposure)
+    rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
 
     from hack_render.geometry import load_model
     from hack_render.render.parts import Topology

@@ -1,0 +1,433 @@
+"""Every bad input a clean answer (issue 29): exit code 2, one line naming the argument,
+no traceback, and no file or folder left behind; and a fuzz of the parameter-file reader.
+
+Each case runs `hack-render` in-process (``hack_render.cli.main``) in a fresh output
+folder ``{o}`` that holds a folder ``d/``, a file ``file`` and a dataset folder with one
+sample; inputs (parameter files, landmark files, training data) are in ``{i}``.
+
+``python tests/test_bad_inputs.py`` runs the whole table and prints the issue's figures:
+cases tried, clean exits, tracebacks, and exits 0 (each of which would be garbage
+written, since every case is a bad input).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import traceback
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hack_render.cli import main
+
+# (id, arguments, text the one error line must contain: the argument's name)
+CASES: list[tuple[str, str, str]] = [
+    # --- mesh: output paths -------------------------------------------------------------
+    ("mesh-out-is-dir", "mesh -o {o}/d", "-o/--output"),
+    ("mesh-out-parent-is-file", "mesh -o {o}/file/x.obj", "-o/--output"),
+    ("mesh-out-wrong-suffix", "mesh -o {o}/x.txt", "-o/--output"),
+    ("mesh-out-no-suffix", "mesh -o {o}/x", "-o/--output"),
+    ("mesh-both-target-is-dir", "mesh -o {o}/m.obj --both", "--both"),
+    # --- mesh: numbers ----------------------------------------------------------------------
+    ("mesh-beta-1e30", "mesh -o {o}/x.obj --beta 1e30", "--beta"),
+    ("mesh-beta-nan", "mesh -o {o}/x.obj --beta 1,nan", "--beta"),
+    ("mesh-beta-text", "mesh -o {o}/x.obj --beta abc", "--beta"),
+    ("mesh-tau-1e30", "mesh -o {o}/x.obj --tau 1e30", "--tau"),
+    ("mesh-eta-1e30", "mesh -o {o}/x.obj --eta 1e30", "--eta"),
+    ("mesh-eta-nan", "mesh -o {o}/x.obj --eta nan", "--eta"),
+    ("mesh-eta-negative", "mesh -o {o}/x.obj --eta -1", "--eta"),
+    ("mesh-head-rotation-1000-limits-error",
+     "mesh -o {o}/x.obj --head-rotation 1000,0,0 --limits error", "--head-rotation"),
+    ("mesh-head-rotation-beyond-neck-limits-error",
+     "mesh -o {o}/x.obj --head-rotation 100,0,0 --limits error", "head rotation"),
+    ("mesh-tau-beyond-limits-error", "mesh -o {o}/x.obj --tau 0.05 --limits error", "tau"),
+    ("mesh-head-rotation-two-values", "mesh -o {o}/x.obj --head-rotation 1,2", "--head-rotation"),
+    ("mesh-head-rotation-inf", "mesh -o {o}/x.obj --head-rotation inf,0,0", "--head-rotation"),
+    ("mesh-expr-1e9", "mesh -o {o}/x.obj --expr AU12=1e9", "--expr"),
+    ("mesh-expr-no-value", "mesh -o {o}/x.obj --expr AU12", "--expr"),
+    ("mesh-expr-nan", "mesh -o {o}/x.obj --expr AU12=nan", "--expr"),
+    ("mesh-expr-unknown-au", "mesh -o {o}/x.obj --expr AU99=0.5", "AU99"),
+    ("mesh-limits-unknown", "mesh -o {o}/x.obj --limits sometimes", "--limits"),
+    ("mesh-model-missing", "mesh -o {o}/x.obj --model {i}/none.npz", "--model"),
+    ("mesh-unknown-option", "mesh -o {o}/x.obj --bogus", "--bogus"),
+    # --- parameter files ------------------------------------------------------------------
+    ("params-missing", "mesh -o {o}/x.obj --params {i}/none.json", "--params"),
+    ("params-folder", "mesh -o {o}/x.obj --params {i}", "--params"),
+    ("params-wrong-suffix", "mesh -o {o}/x.obj --params {i}/params.txt", "--params"),
+    ("params-duplicate-key-json", "mesh -o {o}/x.obj --params {i}/dup.json", "duplicate key"),
+    ("params-duplicate-key-yaml", "mesh -o {o}/x.obj --params {i}/dup.yaml", "duplicate key"),
+    ("params-theta-string", "mesh -o {o}/x.obj --params {i}/theta_zero.json", "theta"),
+    ("params-theta-ragged", "mesh -o {o}/x.obj --params {i}/ragged.json", "theta"),
+    ("params-nan", "mesh -o {o}/x.obj --params {i}/nan.json", "--params"),
+    ("params-beta-1e30", "mesh -o {o}/x.obj --params {i}/huge.json", "beta"),
+    ("params-not-a-mapping", "mesh -o {o}/x.obj --params {i}/list.json", "mapping"),
+    ("params-unknown-key", "mesh -o {o}/x.obj --params {i}/unknown.json", "unknown keys"),
+    ("params-bad-json", "mesh -o {o}/x.obj --params {i}/broken.json", "not valid JSON"),
+    ("params-bad-yaml", "mesh -o {o}/x.obj --params {i}/broken.yaml", "not valid YAML"),
+    ("params-eta-string", "mesh -o {o}/x.obj --params {i}/eta_text.json", "eta"),
+    ("params-expression-weight-text", "mesh -o {o}/x.obj --params {i}/expr_text.json",
+     "expression"),
+    ("params-binary", "mesh -o {o}/x.obj --params {i}/binary.json", "--params"),
+    # --- render -----------------------------------------------------------------------------
+    ("render-out-is-dir", "render -o {o}/d", "-o/--output"),
+    ("render-out-jpg", "render -o {o}/x.jpg", "-o/--output"),
+    ("render-out-parent-is-file", "render -o {o}/file/x.png", "-o/--output"),
+    ("render-exr-not-exr", "render -o {o}/x.png --exr {o}/x.png", "--exr"),
+    ("render-exposure-nan", "render -o {o}/x.png --exposure nan", "--exposure"),
+    ("render-exposure-minus-1e6", "render -o {o}/x.png --exposure -1e6", "--exposure"),
+    ("render-exposure-1e6", "render -o {o}/x.png --exposure 1e6", "--exposure"),
+    ("render-env-rotation-inf", "render -o {o}/x.png --env-rotation inf", "--env-rotation"),
+    ("render-iris-color-nan", "render -o {o}/x.png --iris-color nan,0,0", "--iris-color"),
+    ("render-iris-color-two", "render -o {o}/x.png --iris-color 1,0", "--iris-color"),
+    ("render-iris-color-above-1", "render -o {o}/x.png --iris-color 5,0,0", "--iris-color"),
+    ("render-focal-1e9", "render -o {o}/x.png --focal-mm 1e9", "--focal-mm"),
+    ("render-focal-0", "render -o {o}/x.png --focal-mm 0", "--focal-mm"),
+    ("render-alpha-1e30", "render -o {o}/x.png --alpha 1e30", "--alpha"),
+    ("render-beta-1e30", "render -o {o}/x.png --beta 1e30", "--beta"),
+    ("render-resolution-0", "render -o {o}/x.png --resolution 0", "--resolution"),
+    ("render-resolution-text", "render -o {o}/x.png --resolution big", "--resolution"),
+    ("render-resolution-huge", "render -o {o}/x.png --resolution 100000", "--resolution"),
+    ("render-spp-0", "render -o {o}/x.png --spp 0", "--spp"),
+    ("render-spp-text", "render -o {o}/x.png --spp many", "--spp"),
+    ("render-max-depth-0", "render -o {o}/x.png --max-depth 0", "--max-depth"),
+    ("render-views-0", "render -o {o}/x.png --camera ring --views 0", "--views"),
+    ("render-camera-unknown", "render -o {o}/x.png --camera fisheye", "--camera"),
+    ("render-lighting-unknown", "render -o {o}/x.png --lighting disco", "--lighting"),
+    ("render-lighting-env-missing", "render -o {o}/x.png --lighting env:{i}/none.exr",
+     "--lighting"),
+    ("render-tonemap-unknown", "render -o {o}/x.png --tonemap filmic", "--tonemap"),
+    ("render-aov-unknown", "render -o {o}/x.exr --aov depth,colour", "--aov"),
+    ("render-aov-without-exr", "render -o {o}/x.png --aov all", "--aov"),
+    ("render-appearance-seed-negative", "render -o {o}/x.png --appearance-seed -1",
+     "--appearance-seed"),
+    ("render-limits-unknown", "render -o {o}/x.png --limits maybe", "--limits"),
+    ("render-seed-negative", "render -o {o}/x.png --seed -4", "--seed"),
+    # --- turntable --------------------------------------------------------------------------
+    ("turntable-out-is-file", "turntable -o {o}/file", "-o/--output"),
+    ("turntable-pitch-nan", "turntable -o {o}/t --pitch nan", "--pitch"),
+    ("turntable-pitch-100", "turntable -o {o}/t --pitch 100", "--pitch"),
+    ("turntable-frames-1", "turntable -o {o}/t --frames 1", "--frames"),
+    ("turntable-frames-0", "turntable -o {o}/t --frames 0", "--frames"),
+    ("turntable-frames-fraction", "turntable -o {o}/t --frames 1.5", "--frames"),
+    ("turntable-fps-0", "turntable -o {o}/t --fps 0", "--fps"),
+    ("turntable-mode-unknown", "turntable -o {o}/t --mode spin", "--mode"),
+    ("turntable-formats-unknown", "turntable -o {o}/t --formats avi", "--formats"),
+    ("turntable-odd-resolution-mp4", "turntable -o {o}/t --resolution 33", "--resolution"),
+    ("turntable-sequence-suffix", "turntable -o {o}/t --sequence {o}/s.txt", "--sequence"),
+    ("turntable-exposure-inf", "turntable -o {o}/t --exposure inf", "--exposure"),
+    ("turntable-focal-nan", "turntable -o {o}/t --focal-mm nan", "--focal-mm"),
+    ("turntable-beta-1e30", "turntable -o {o}/t --beta 1e30", "--beta"),
+    ("turntable-spp-0", "turntable -o {o}/t --spp 0", "--spp"),
+    # --- fit --------------------------------------------------------------------------------
+    ("fit-photo-missing", "fit {i}/none.jpg -o {o}/f", "photo"),
+    ("fit-iterations-0", "fit {i}/face.png -o {o}/f --iterations 0", "--iterations"),
+    ("fit-iterations-negative", "fit {i}/face.png -o {o}/f --iterations -1", "--iterations"),
+    ("fit-iterations-text", "fit {i}/face.png -o {o}/f --iterations a,b", "--iterations"),
+    ("fit-iterations-count", "fit {i}/face.png -o {o}/f --levels 64 --iterations 4,4",
+     "--iterations"),
+    ("fit-levels-8", "fit {i}/face.png -o {o}/f --levels 8", "--levels"),
+    ("fit-spp-0", "fit {i}/face.png -o {o}/f --spp 0", "--spp"),
+    ("fit-focal-1", "fit {i}/face.png -o {o}/f --focal-mm 1", "--focal-mm"),
+    ("fit-focal-nan", "fit {i}/face.png -o {o}/f --focal-mm nan", "--focal-mm"),
+    ("fit-landmarks-3-columns", "fit {i}/face.png -o {o}/f --landmarks {i}/lm3.txt",
+     "--landmarks"),
+    ("fit-landmarks-empty-npy", "fit {i}/face.png -o {o}/f --landmarks {i}/empty.npy",
+     "--landmarks"),
+    ("fit-landmarks-3d-npy", "fit {i}/face.png -o {o}/f --landmarks {i}/lm3.npy",
+     "--landmarks"),
+    ("fit-landmarks-count", ("fit {i}/face.png -o {o}/f --landmarks {i}/lm3.txt "
+     "--landmarks {i}/lm3.txt"), "--landmarks"),
+    ("fit-landmarks-suffix", "fit {i}/face.png -o {o}/f --landmarks {i}/params.txt.bin",
+     "--landmarks"),
+    ("fit-out-is-file", "fit {i}/face.png -o {o}/file", "-o/--output"),
+    ("fit-config-missing", "fit {i}/face.png -o {o}/f --config {i}/none.toml", "--config"),
+    ("fit-mask-missing", "fit {i}/face.png -o {o}/f --mask {i}/none.png", "--mask"),
+    # --- dataset ----------------------------------------------------------------------------
+    ("dataset-n-0", "dataset --n 0 -o {o}/ds", "--n"),
+    ("dataset-n-negative", "dataset --n -3 -o {o}/ds", "--n"),
+    ("dataset-n-1e12", "dataset --n 1000000000000 -o {o}/ds", "--n"),
+    ("dataset-n-1e12-sharded", "dataset --n 1000000000000 --shard 0/1000 -o {o}/ds", "--n"),
+    ("dataset-n-missing", "dataset -o {o}/ds", "--n"),
+    ("dataset-shard-k-ge-m", "dataset --n 3 --shard 3/2 -o {o}/ds", "--shard"),
+    ("dataset-shard-empty", "dataset --n 3 --shard 5/10 -o {o}/ds", "--shard"),
+    ("dataset-shard-text", "dataset --n 3 --shard a/b -o {o}/ds", "--shard"),
+    ("dataset-executor-unknown", "dataset --n 3 --executor mpi -o {o}/ds", "--executor"),
+    ("dataset-workers-0", "dataset --n 3 --workers 0 -o {o}/ds", "--workers"),
+    ("dataset-seed-negative", "dataset --n 3 --seed -1 -o {o}/ds", "--seed"),
+    ("dataset-config-missing", "dataset --n 3 --config {i}/none.yaml -o {o}/ds", "--config"),
+    ("dataset-config-bad-key", "dataset --n 3 --config {i}/ds_bad.yaml -o {o}/ds",
+     "config key"),
+    ("dataset-out-is-file", "dataset --n 3 -o {o}/file", "-o/--output"),
+    ("dataset-rerun-without-resume", ("dataset --n 1 -o {o}/ds_existing --config "
+     "{i}/ds_tiny.yaml"), "--resume"),
+    ("dataset-preview-missing", "dataset preview {i}/none", "FOLDER"),
+    ("dataset-preview-count-0", "dataset preview {o}/ds_existing --count 0", "--count"),
+    # --- appearance -------------------------------------------------------------------------
+    ("appearance-sample-components-0", "appearance sample -o {o}/s --components 0",
+     "--components"),
+    ("appearance-sample-detail-negative", "appearance sample -o {o}/s --detail -1",
+     "--detail"),
+    ("appearance-sample-alpha-nan", "appearance sample -o {o}/s --alpha nan", "--alpha"),
+    ("appearance-sample-alpha-and-seed", "appearance sample -o {o}/s --alpha 1 --seed 2",
+     "--alpha or --seed"),
+    ("appearance-sample-format", "appearance sample -o {o}/s --format tiff", "--format"),
+    ("appearance-sample-out-is-file", "appearance sample -o {o}/file", "-o/--output"),
+    ("appearance-sample-no-output", "appearance sample", "-o/--output"),
+    ("appearance-build-components-0", "learn appearance {i} -o {o}/a.npz --components 0",
+     "--components"),
+    ("appearance-build-holdout-1.5", "learn appearance {i} -o {o}/a.npz --holdout 1.5",
+     "--holdout"),
+    ("appearance-build-data-missing", "learn appearance {i}/none -o {o}/a.npz", "DATA"),
+    ("appearance-build-out-suffix", "learn appearance {i} -o {o}/a.txt", "-o/--output"),
+    ("appearance-report-missing", "appearance report {i}/none.npz", "MODEL"),
+    # --- model, learn -----------------------------------------------------------------------
+    ("model-info-missing", "model info {i}/none.npz", "MODEL"),
+    ("model-report-out-is-file", "model report -o {o}/file", "-o/--output"),
+    ("learn-joints-missing", "learn joints {i}/none.npz -o {o}/j.npy", "DATA"),
+    ("learn-joints-out-suffix", "learn joints {i}/joints.npz -o {o}/j.txt", "-o/--output"),
+    ("learn-joints-out-is-dir", "learn joints {i}/joints.npz -o {o}/d", "-o/--output"),
+    ("learn-joints-wrong-shape", "learn joints {i}/joints_shape.npz -o {o}/j.npy", "joints"),
+    ("learn-joints-nan", "learn joints {i}/joints_nan.npz -o {o}/j.npy", "NaN"),
+    ("learn-joints-single-pair", "learn joints {i}/joints_one.npz -o {o}/j.npy", "P >= 2"),
+    ("learn-joints-text-file", "learn joints {i}/joints_text.npz -o {o}/j.npy",
+     "could not read"),
+    ("learn-joints-pickled", "learn joints {i}/joints_pickle.npz -o {o}/j.npy",
+     "could not read"),
+    ("learn-joints-missing-key", "learn joints {i}/joints_key.npz -o {o}/j.npy",
+     "expected keys"),
+    ("learn-joints-slab-0", "learn joints {i}/joints.npz -o {o}/j.npy --slab 0", "--slab"),
+    ("learn-pose-out-suffix", "learn pose -o {o}/m.txt", "-o/--output"),
+    ("learn-pose-iterations-0", "learn pose -o {o}/m.npz --iterations 0", "--iterations"),
+    ("learn-model-ict-missing", "learn model --ict {i}/none -o {o}/m.npz", "--ict"),
+    ("learn-base-model-ict-missing", "learn base-model --ict {i}/none -o {o}/m.npz", "--ict"),
+    ("learn-embedding-out-suffix", "learn landmark-embedding -o {o}/e.txt", "-o/--output"),
+    ("learn-embedding-spp-0", "learn landmark-embedding -o {o}/e.npz --spp 0", "--spp"),
+    ("learn-refiner-out-suffix", "learn landmark-refiner -o {o}/r.txt", "-o/--output"),
+    ("learn-refiner-cache-is-file", "learn landmark-refiner -o {o}/r.npz --cache {o}/file",
+     "--cache"),
+    ("learn-template-ict-missing", "learn template --ict {i}/none -o {o}/t.npz", "--ict"),
+    # --- export, view -----------------------------------------------------------------------
+    ("export-out-fbx", "export -o {o}/p.fbx", "-o/--output"),
+    ("export-out-is-dir", "export -o {o}/d", "-o/--output"),
+    ("export-out-parent-is-file", "export -o {o}/file/p.glb", "-o/--output"),
+    ("export-beta-inf", "export -o {o}/p.glb --beta inf", "--beta"),
+    ("export-alpha-nan", "export -o {o}/p.glb --alpha nan", "--alpha"),
+    ("export-influences-3", "export -o {o}/p.glb --influences 3", "--influences"),
+    ("export-sequence-missing", "export -o {o}/p.glb --sequence {i}/none.npz", "--sequence"),
+    ("export-sequence-with-obj", "export -o {o}/p.obj --sequence {i}/none.npz", "--sequence"),
+    ("export-params-duplicate-key", "export -o {o}/p.glb --params {i}/dup.json",
+     "duplicate key"),
+    ("view-missing", "view {i}/none.glb --no-open", "FILE"),
+    ("view-wrong-suffix", "view {i}/params.txt --no-open", "FILE"),
+    ("view-port-70000", "view {i}/person.glb --no-open --port 70000", "--port"),
+]
+
+
+def make_inputs(folder: Path) -> Path:
+    """The input files the cases name as ``{i}/...``."""
+    import imageio.v3 as iio
+
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {
+        "params.txt": "beta: [1]\n",
+        "params.txt.bin": "1 2\n",
+        "dup.json": '{"beta": [1.0], "beta": [2.0]}',
+        "dup.yaml": "beta: [1.0]\neta: 1.0\nbeta: [2.0]\n",
+        "theta_zero.json": json.dumps({"theta": "zero"}),
+        "ragged.json": json.dumps({"theta": [[0, 0, 0], [0, 0]]}),
+        "nan.json": '{"beta": [NaN]}',
+        "huge.json": json.dumps({"beta": [1e30]}),
+        "list.json": "[1, 2]",
+        "unknown.json": json.dumps({"bta": [1.0]}),
+        "broken.json": "{",
+        "broken.yaml": "beta: [1, 2\n",
+        "eta_text.json": json.dumps({"eta": "big"}),
+        "expr_text.json": json.dumps({"expression": {"AU12": "lots"}}),
+        "lm3.txt": "\n".join("1 2 3" for _ in range(68)) + "\n",
+        "ds_bad.yaml": "camera: {yaw: [0, 1]}\n",
+        "ds_tiny.yaml": "render: {resolution: 16, spp: 1, soft_mask_samples: 0}\n"
+                        "appearance: {height: 16, source: constant}\n"
+                        "lighting: {presets: [studio]}\n",
+        "joints_text.npz": "meshes, joints\n1, 2\n",
+        "person.glb": "not really a glb",
+    }
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    (folder / "binary.json").write_bytes(b"\xff\xfe\x00\x81 binary")
+    (folder / "empty.npy").write_bytes(b"")
+    np.save(folder / "lm3.npy", np.zeros((68, 3)))
+    iio.imwrite(folder / "face.png", np.full((48, 48, 3), 128, np.uint8))
+    rng = np.random.default_rng(0)
+    meshes = rng.normal(size=(3, 50, 3)) * 0.05
+    joints = rng.normal(size=(3, 8, 3)) * 0.05
+    np.savez(folder / "joints.npz", meshes=meshes, joints=joints)
+    np.savez(folder / "joints_shape.npz", meshes=meshes, joints=joints[:, :5])
+    np.savez(folder / "joints_nan.npz", meshes=meshes, joints=np.full_like(joints, np.nan))
+    np.savez(folder / "joints_one.npz", meshes=meshes[:1], joints=joints[:1])
+    np.savez(folder / "joints_key.npz", mesh=meshes, joints=joints)
+    np.savez(folder / "joints_pickle.npz", meshes=np.array([{"a": 1}], dtype=object),
+             joints=joints)
+    return folder
+
+
+def make_output_folder(folder: Path) -> Path:
+    """The case's output folder: ``d/``, ``file``, a mesh target whose .ply twin is a
+    folder, and a dataset folder holding one sample."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "d").mkdir()
+    (folder / "file").write_text("x")
+    (folder / "m.ply").mkdir()
+    (folder / "ds_existing" / "samples" / "0000000").mkdir(parents=True)
+    return folder
+
+
+def snapshot(folder: Path) -> dict[str, bytes | None]:
+    """Every file (bytes) and folder (None) under ``folder``."""
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+def run_case(args: str, i: Path, o: Path, capsys) -> tuple[object, str]:
+    """(exit code, or the exception that escaped, and stderr) of one case."""
+    argv = args.format(i=i, o=o).split()
+    try:
+        main(argv)
+        code: object = 0
+    except SystemExit as exc:
+        code = exc.code
+    except BaseException as exc:  # noqa: BLE001 - a traceback is what the table counts
+        code = exc
+        traceback.print_exc()
+    return code, capsys.readouterr().err
+
+
+def error_lines(err: str) -> list[str]:
+    """The error lines of stderr (ours: ``error: ...``; Click's usage errors: ``Error:``)."""
+    return [ln for ln in err.splitlines() if ln.lstrip(" │").startswith(("error:", "Error:"))]
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    return make_inputs(tmp_path_factory.mktemp("bad_inputs"))
+
+
+@pytest.mark.parametrize("case, args, names", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_is_a_clean_answer(case, args, names, inputs, tmp_path, capsys):
+    out = make_output_folder(tmp_path / "o")
+    before, before_in = snapshot(out), snapshot(inputs)
+    code, err = run_case(args, inputs, out, capsys)
+    assert code == 2, f"{case}: exit {code!r}\n{err[-3000:]}"
+    assert "Traceback" not in err, err
+    lines = error_lines(err)
+    assert len(lines) == 1, f"{case}: expected one error line, found {lines}\n{err}"
+    assert names in lines[0], f"{case}: {names!r} not in {lines[0]!r}"
+    assert snapshot(out) == before, f"{case}: files left behind"
+    assert snapshot(inputs) == before_in, f"{case}: an input was changed"
+
+
+def test_the_table_is_large_enough():
+    """Every family of the issue, and at least 60 more cases."""
+    assert len(CASES) >= 60 + 30 and len({c[0] for c in CASES}) == len(CASES)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_output_folder_is_refused_before_the_work(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        code, err = run_case("mesh -o {o}/ro/x.obj", tmp_path, tmp_path, capsys)
+    finally:
+        ro.chmod(0o755)
+    assert code == 2 and "not writable" in err and not list(ro.iterdir())
+
+
+# --- the parameter-file reader, fuzzed ------------------------------------------------------
+hypothesis = pytest.importorskip("hypothesis")
+st = hypothesis.strategies
+
+_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
+                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=5))
+_values = st.recursive(_scalars, lambda kids: st.one_of(
+    st.lists(kids, max_size=9), st.dictionaries(st.text(max_size=6), kids, max_size=4)),
+    max_leaves=30)
+_keys = st.one_of(st.sampled_from(["beta", "psi", "expression", "head_rotation_deg",
+                                   "theta", "global_orient", "transl", "eta", "tau"]),
+                  st.text(max_size=8))
+
+
+@hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
+@hypothesis.given(data=st.dictionaries(_keys, _values, max_size=5))
+def test_fuzz_parameter_mapping_never_raises_anything_but_hack_error(data):
+    from hack_render.errors import HackError
+    from hack_render.geometry.params import check_params
+
+    try:
+        out = check_params(data, "fuzz")
+    except HackError as err:
+        assert "\n" not in str(err)
+        return
+    # accepted: every value is finite and inside its bound, lists have the right shapes
+    json.dumps(out, allow_nan=False)
+    if "theta" in out:
+        assert np.asarray(out["theta"]).shape == (8, 3)
+
+
+@hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
+@hypothesis.given(text=st.one_of(st.text(max_size=60), st.binary(max_size=60).map(
+    lambda b: b.decode("latin-1"))), suffix=st.sampled_from([".json", ".yaml"]))
+def test_fuzz_parameter_file_text_never_raises_anything_but_hack_error(text, suffix):
+    from hack_render.errors import HackError
+    from hack_render.geometry.params import check_params, parse_params_text
+
+    try:
+        data = parse_params_text(text, suffix, "fuzz" + suffix)
+        check_params({} if data is None else data, "fuzz" + suffix)
+    except HackError:
+        pass
+
+
+def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`
+    """Run the table outside pytest and print the issue's figures."""
+    import contextlib
+    import io
+    import tempfile
+
+    class Capture:
+        def __init__(self):
+            self.buf = io.StringIO()
+
+        def readouterr(self):
+            text, self.buf = self.buf.getvalue(), io.StringIO()
+            return type("R", (), {"err": text})
+
+    tally = {"tried": 0, "clean": 0, "traceback": 0, "exit0": 0, "other": 0}
+    with tempfile.TemporaryDirectory() as tmp:
+        i = make_inputs(Path(tmp) / "i")
+        for n, (case, args, names) in enumerate(CASES):
+            o = make_output_folder(Path(tmp) / f"o{n}")
+            before, cap = snapshot(o), Capture()
+            with contextlib.redirect_stderr(cap.buf), contextlib.redirect_stdout(io.StringIO()):
+                code, err = run_case(args, i, o, cap)
+            lines = error_lines(err)
+            tally["tried"] += 1
+            if isinstance(code, BaseException) or "Traceback" in err:
+                kind = "traceback"
+            elif code == 0:
+                kind = "exit0"
+            elif (code == 2 and len(lines) == 1 and names in lines[0]
+                  and snapshot(o) == before):
+                kind = "clean"
+            else:
+                kind = "other"
+            tally[kind] += 1
+            if kind != "clean":
+                print(f"{kind}: {case}: exit {code!r}: {err.strip().splitlines()[-1:]}")
+    print(json.dumps(tally))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(_figures())
