@@ -1,0 +1,291 @@
+"""HACK's neck motion on a glTF character with any neck chain.
+
+The 8 HACK joints are mapped onto the character's neck bones, from the base of the neck to
+the head: by a name map (each HACK joint to a bone; several may share one), or by arc
+length (each HACK joint to the bone nearest its relative position along the column; the
+chain named by ``--neck-chain`` or found by bone names containing "neck" up to "head").
+Each bone's rotation is the product of its HACK joints' rotations, in chain order.
+
+Retargeting in each bone's rest frame: HACK's joint frames are the model's axes at rest
+(Y up, face +Z, glTF's convention too), so a HACK rotation R is about world axes; a bone
+whose rest world rotation is Q turns by ``Q^-1 R Q`` in its own frame, and its animated
+local rotation is ``r_rest Q^-1 R Q``. Composed down the chain, each bone's world rotation
+becomes ``R_1 ... R_b Q_b``: the head turns exactly as HACK's skull does, whatever the
+bones' rest orientations (the tests' round trip).
+
+The animation is added to a copy of the character's glTF (the export's
+:class:`~hack_render.export.gltf.GltfBuilder` and writer), as LINEAR rotation channels on
+the mapped bones. A primitive without ``TEXCOORD_0`` gets a UV atlas from xatlas.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+
+@dataclass
+class GltfCharacter:
+    """A glTF document, its buffer, and each node's rest transforms.
+
+    Attributes:
+        doc, buf: the JSON document and its binary buffer.
+        parents: parent node index per node (-1: a scene root).
+        world: (n, 4, 4) rest world matrices of the nodes.
+    """
+
+    path: Path
+    doc: dict
+    buf: bytes
+    parents: list[int]
+    world: np.ndarray
+
+    @property
+    def names(self) -> list[str]:
+        return [n.get("name", f"node{i}") for i, n in enumerate(self.doc.get("nodes", []))]
+
+    def node(self, name: str) -> int:
+        names = self.names
+        if name not in names:
+            raise HackError(f"{self.path}: no node named {name!r}; nodes: "
+                            f"{', '.join(names[:40])}{' ...' if len(names) > 40 else ''}.")
+        return names.index(name)
+
+
+def _local(node: dict) -> np.ndarray:
+    from hack_render.export.reference import _local as ref_local
+
+    if "matrix" in node:
+        return np.asarray(node["matrix"], np.float64).reshape(4, 4).T
+    return ref_local(node)
+
+
+def load_gltf_character(path: str | Path) -> GltfCharacter:
+    """Read a ``.glb``/``.gltf`` character with a skin; errors name the fix."""
+    from hack_render.export.reference import read_gltf
+
+    path = Path(path)
+    if not path.is_file():
+        raise HackError(f"--target {path}: file not found.")
+    try:
+        doc, buf = read_gltf(path)
+    except Exception as exc:
+        raise HackError(f"--target {path}: not a readable glTF 2.0 file ({exc}).") from exc
+    nodes = doc.get("nodes", [])
+    if len(doc.get("buffers", [])) > 1:
+        raise HackError(f"--target {path}: {len(doc['buffers'])} buffers; expected one (a "
+                        ".glb, or a .gltf with one .bin): re-export it as .glb.")
+    if not doc.get("skins") or not nodes:
+        raise HackError(f"--target {path}: the glTF has no skin (skeleton); a target needs a "
+                        "skinned mesh with a neck chain.")
+    parents = [-1] * len(nodes)
+    for i, n in enumerate(nodes):
+        for c in n.get("children", []):
+            parents[c] = i
+    world = np.zeros((len(nodes), 4, 4))
+    done = [False] * len(nodes)
+
+    def w(i: int) -> np.ndarray:
+        if not done[i]:
+            world[i] = _local(nodes[i]) if parents[i] < 0 else w(parents[i]) @ _local(nodes[i])
+            done[i] = True
+        return world[i]
+
+    for i in range(len(nodes)):
+        w(i)
+    return GltfCharacter(path, doc, bytes(buf), parents, world)
+
+
+def find_neck_chain(ch: GltfCharacter, chain: list[str] | None = None) -> list[int]:
+    """Node indices of the neck chain, base first, head last: the names given, or the
+    skin's bones named like "neck" followed by the first "head" bone above them."""
+    if chain:
+        idx = [ch.node(n) for n in chain]
+        for a, b in itertools.pairwise(idx):
+            if not _is_ancestor(ch, a, b):
+                raise HackError(f"--neck-chain: {ch.names[a]!r} is not an ancestor of "
+                                f"{ch.names[b]!r}; list the chain's bones from the base of the "
+                                "neck up to the head.")
+        return idx
+    joints = {j for s in ch.doc["skins"] for j in s["joints"]}
+    names = ch.names
+    neck = [i for i in joints if "neck" in names[i].lower()]
+    head = [i for i in joints if "head" in names[i].lower() and "end" not in names[i].lower()]
+    if not neck and not head:
+        raise HackError(f"--target {ch.path}: no neck chain found (no skin bone named like "
+                        "'neck' or 'head'); name it with --neck-chain BONE1,...,HEAD or map the "
+                        "joints with --name-map.")
+    tip = next((h for h in sorted(head) if any(_is_ancestor(ch, n, h) for n in neck)),
+               head[0] if head else max(neck, key=lambda i: _depth(ch, i)))
+    path = [tip]
+    while ch.parents[path[-1]] >= 0 and ch.parents[path[-1]] in neck:
+        path.append(ch.parents[path[-1]])
+    path = path[::-1]
+    if len(path) < 2:
+        raise HackError(f"--target {ch.path}: the neck chain is a single bone "
+                        f"({names[path[0]]!r}); name the chain with --neck-chain.")
+    return path
+
+
+def _is_ancestor(ch: GltfCharacter, a: int, b: int) -> bool:
+    while b >= 0:
+        b = ch.parents[b]
+        if b == a:
+            return True
+    return False
+
+
+def _depth(ch: GltfCharacter, i: int) -> int:
+    d = 0
+    while ch.parents[i] >= 0:
+        i, d = ch.parents[i], d + 1
+    return d
+
+
+def arc_length_map(hack_joints: np.ndarray, chain_pos: np.ndarray) -> list[int]:
+    """For each HACK joint (8, 3) the index of the chain bone (B, 3) nearest its relative
+    arc length (c7-t1 at 0, o-c1 at 1; the chain's first bone at 0, its last at 1)."""
+    def rel(p):
+        s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+        return s / max(s[-1], 1e-12)
+
+    s, u = rel(hack_joints), rel(chain_pos)
+    return [int(np.argmin(np.abs(u - x))) for x in s]
+
+
+def joint_map(ch: GltfCharacter, hack_joints: np.ndarray, chain: list[str] | None = None,
+              name_map: dict | None = None) -> tuple[list[int], list[int]]:
+    """(bones, assignment): the chain's node indices and, per HACK joint, the index into
+    ``bones`` that receives its rotation."""
+    from hack_render.geometry.skeleton import JOINT_NAMES
+
+    if name_map:
+        unknown = sorted(set(name_map) - set(JOINT_NAMES))
+        missing = [j for j in JOINT_NAMES if j not in name_map]
+        if unknown or missing:
+            raise HackError(f"--name-map: expected every HACK joint ({', '.join(JOINT_NAMES)}) "
+                            f"mapped to a bone; unknown {unknown}, missing {missing}.")
+        nodes = [ch.node(name_map[j]) for j in JOINT_NAMES]
+        bones = sorted(set(nodes), key=lambda i: _depth(ch, i))
+        assign = [bones.index(n) for n in nodes]
+        if assign != sorted(assign):
+            raise HackError("--name-map: the bones must follow the neck upwards (c7-t1's bone "
+                            "at or below c6-c7's, ..., o-c1's the highest).")
+        return bones, assign
+    bones = find_neck_chain(ch, chain)
+    return bones, arc_length_map(hack_joints, ch.world[bones, :3, 3])
+
+
+def bone_rotations(theta: np.ndarray, assign: list[int], n_bones: int) -> np.ndarray:
+    """World-axes rotation per bone and frame: theta (T, 8, 3) -> (T, B, 3, 3), each bone's
+    HACK joints' rotations multiplied in chain order (identity for a bone with none)."""
+    import torch
+
+    from hack_render.geometry.rotations import axis_angle_to_matrix
+
+    r = axis_angle_to_matrix(torch.as_tensor(np.asarray(theta, np.float64))).numpy()
+    out = np.tile(np.eye(3), (len(r), n_bones, 1, 1))
+    for j, b in enumerate(assign):
+        out[:, b] = out[:, b] @ r[:, j]
+    return out
+
+
+def _quat(m: np.ndarray) -> np.ndarray:
+    """(…, 3, 3) -> (…, 4) xyzw, w >= 0."""
+    import torch
+
+    from hack_render.geometry.rotations import matrix_to_quaternion
+
+    q = matrix_to_quaternion(torch.as_tensor(m)).numpy()  # wxyz
+    return np.concatenate([q[..., 1:], q[..., :1]], -1)
+
+
+def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
+             theta: np.ndarray) -> np.ndarray:
+    """Local rotations (T, B, 4) xyzw of the chain's bones: ``r_rest Q^-1 R Q`` per bone."""
+    nodes = ch.doc["nodes"]
+    rb = bone_rotations(theta, assign, len(bones))
+    out = []
+    for k, b in enumerate(bones):
+        q = ch.world[b, :3, :3]
+        q = q / np.linalg.norm(q, axis=0, keepdims=True)  # rotation part (no scale)
+        rest = _local(nodes[b])[:3, :3]
+        rest = rest / np.linalg.norm(rest, axis=0, keepdims=True)
+        out.append(rest @ q.T @ rb[:, k] @ q)
+    q = _quat(np.stack(out, 1))
+    for i in range(1, len(q)):  # one hemisphere between frames (interpolation)
+        flip = (q[i] * q[i - 1]).sum(-1) < 0
+        q[i, flip] *= -1
+    return q
+
+
+def add_uv_atlas(ch: GltfCharacter) -> int:
+    """Give every triangle primitive without ``TEXCOORD_0`` a UV atlas from xatlas (its
+    vertices split at the atlas's seams, every attribute and morph target carried along);
+    returns how many primitives got one."""
+    import xatlas
+
+    from hack_render.export.gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UINT, GltfBuilder
+    from hack_render.export.reference import accessor
+
+    g = GltfBuilder()
+    g.doc, g.bin = ch.doc, bytearray(ch.buf)
+    count = 0
+    for mesh in ch.doc.get("meshes", []):
+        for prim in mesh["primitives"]:
+            if "TEXCOORD_0" in prim["attributes"] or prim.get("mode", 4) != 4:
+                continue
+            pos = accessor(g.doc, bytes(g.bin), prim["attributes"]["POSITION"])
+            idx = (accessor(g.doc, bytes(g.bin), prim["indices"])[:, 0].astype(np.uint32)
+                   if "indices" in prim else np.arange(len(pos), dtype=np.uint32))
+            vmap, faces, uvs = xatlas.parametrize(pos.astype(np.float32),
+                                                  idx.reshape(-1, 3).astype(np.uint32))
+            for key, acc in list(prim["attributes"].items()):
+                a = g.doc["accessors"][acc]
+                vals = accessor(g.doc, bytes(g.bin), acc)[vmap]
+                if a["componentType"] != FLOAT and not a.get("normalized"):
+                    vals = vals.astype(np.int64)
+                prim["attributes"][key] = g.accessor(vals, a["componentType"], a["type"],
+                                                     ARRAY_BUFFER, bounds=key == "POSITION")
+            for tgt in prim.get("targets", []):
+                for key, acc in list(tgt.items()):
+                    vals = accessor(g.doc, bytes(g.bin), acc)[vmap]
+                    tgt[key] = g.accessor(vals, FLOAT, g.doc["accessors"][acc]["type"],
+                                          bounds=key == "POSITION")
+            prim["attributes"]["TEXCOORD_0"] = g.accessor(uvs, FLOAT, "VEC2", ARRAY_BUFFER)
+            prim["indices"] = g.accessor(faces.reshape(-1, 1).astype(np.uint32), UINT,
+                                         "SCALAR", ELEMENT_ARRAY_BUFFER)
+            count += 1
+    ch.buf = bytes(g.bin)
+    return count
+
+
+def write_animated(ch: GltfCharacter, bones: list[int], quats: np.ndarray, fps: float,
+                   output: str | Path, provenance: dict) -> list[Path]:
+    """A copy of the character with an animation ``hack_transfer`` (LINEAR rotations of
+    ``bones``, quats (T, B, 4) xyzw) through the export's builder and writer."""
+    from hack_render.export.gltf import FLOAT, GltfBuilder, write_document
+
+    g = GltfBuilder()
+    g.doc = json.loads(json.dumps(ch.doc))
+    g.doc.pop("buffers", None)
+    for bv in g.doc.get("bufferViews", []):
+        bv["buffer"] = 0
+    g.bin = bytearray(ch.buf)
+    times = g.accessor((np.arange(len(quats)) / fps).reshape(-1, 1), FLOAT, "SCALAR", bounds=True)
+    samplers, channels = [], []
+    for k, b in enumerate(bones):
+        out = g.accessor(quats[:, k], FLOAT, "VEC4")
+        samplers.append({"input": times, "output": out, "interpolation": "LINEAR"})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": b, "path": "rotation"}})
+    g.doc.setdefault("animations", []).append({"name": "hack_transfer", "samplers": samplers,
+                                               "channels": channels})
+    g.doc.setdefault("asset", {"version": "2.0"}).setdefault("extras", {})["hack_transfer"] = \
+        provenance
+    return write_document(g, output)
