@@ -315,7 +315,7 @@ def turntable(
     topo = Topology.from_model(model)
     # everything that decides the frames' pixels: a resume with anything else is refused
     record = boundary.RunRecord(output, "turntable", {
-        "params": p, "model": boundary.file_identity(model_path) or "built-in",
+        **p, "model": boundary.file_identity(model_path) or "built-in",
         "alpha": alpha_, "appearance_seed": appearance_seed,
         "textures": boundary.file_identity(textures), "lighting": lighting,
         "env_map": boundary.file_identity(rig.env_file) if lighting.startswith("env:") else None,

@@ -1,0 +1,293 @@
+"""Every interruption honest (issue 29): Ctrl-C exits 130 with one line saying what was
+kept and how to resume; resumable commands (turntable, dataset, fit) resume to the
+uninterrupted result or refuse when their arguments changed; one writer per folder; a
+full disk is a clean exit 2 with nothing corrupted.
+
+Real processes are killed (SIGKILL, SIGINT) at seeded points of tiny runs; the rest runs
+in-process (``hack_render.cli.main``).
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hack_render.cli import main
+
+TT = ["turntable", "--frames", "10", "--resolution", "16", "--spp", "1", "--look-around",
+      "--formats", "frames,gif", "--quiet"]
+DS_CONFIG = ("render: {resolution: 16, spp: 1, soft_mask_samples: 0}\n"
+             "appearance: {height: 16, source: constant}\nlighting: {presets: [studio]}\n")
+#: Where the processes are killed: after this many frames / samples (seeded, so a failure
+#: reproduces).
+POINTS = np.random.default_rng(29).integers(1, 6, size=4).tolist()
+
+
+def run(args, capsys=None):
+    """(exit code, stderr) of an in-process run."""
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    return code, (capsys.readouterr().err if capsys is not None else "")
+
+
+def tree(folder: Path, skip=()) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name not in skip}
+
+
+def spawn(args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "hack_render.cli", *map(str, args)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+
+
+def kill_when(proc: subprocess.Popen, ready, sig: int, timeout: float = 240.0) -> tuple[int, str]:
+    """Send ``sig`` once ``ready()`` holds (or the process ended); (exit code, stderr)."""
+    deadline = time.time() + timeout
+    while not ready() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    if proc.poll() is None:
+        os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=120)
+    return proc.returncode, err
+
+
+@pytest.fixture(scope="module")
+def turntable_reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tt") / "ref"
+    assert run(TT + ["-o", out])[0] == 0
+    return out
+
+
+# --- turntable -------------------------------------------------------------------------------
+@pytest.mark.parametrize("sig, point", [(signal.SIGKILL, POINTS[0]), (signal.SIGINT, POINTS[1])],
+                         ids=["SIGKILL", "SIGINT"])
+def test_turntable_killed_then_resumed_is_byte_identical(turntable_reference, tmp_path, sig,
+                                                         point, capsys):
+    out = tmp_path / "tt"
+    frames = out / "frames"
+    proc = spawn(TT + ["-o", out])
+    code, err = kill_when(proc, lambda: frames.is_dir() and
+                          len(list(frames.glob("frame_*.png"))) >= point, sig)
+    if sig == signal.SIGINT and code != 0:  # 0: it finished before the signal came
+        assert code == 130, err
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("interrupted: kept ") and "--resume" in last, err
+        assert "Traceback" not in err
+    elif sig == signal.SIGKILL:
+        assert code in (-signal.SIGKILL, 0)
+    record = json.loads((out / "turntable.json").read_text())
+    assert record["complete"] is (code == 0)
+    # a kill between two writes leaves a temporary: resume removes it
+    (frames / ".frame_0009.abc123.png").write_bytes(b"half")
+    assert run(TT + ["-o", out, "--resume"])[0] == 0
+    assert json.loads((out / "turntable.json").read_text())["complete"] is True
+    assert tree(out) == tree(turntable_reference)  # frames, GIF, cameras and the record
+
+
+def test_turntable_resume_with_other_arguments_is_refused(turntable_reference, tmp_path,
+                                                          capsys):
+    import shutil
+
+    out = tmp_path / "tt"
+    shutil.copytree(turntable_reference, out)
+    before = tree(out)
+    for change in (["--resolution", "24"], ["--beta", "1.0"], ["--spp", "2"]):
+        # Click keeps the last value of a repeated option: the change overrides TT's
+        code, err = run(TT + change + ["-o", out, "--resume"], capsys)
+        assert code == 2 and "--resume" in err and change[0].lstrip("-") in err, err
+    assert tree(out) == before  # nothing touched
+
+
+def test_turntable_frames_without_a_record_are_not_resumed(turntable_reference, tmp_path,
+                                                           capsys):
+    import shutil
+
+    out = tmp_path / "tt"
+    shutil.copytree(turntable_reference / "frames", out / "frames")
+    code, err = run(TT + ["-o", out, "--resume"], capsys)
+    assert code == 2 and "turntable.json" in err
+
+
+def test_two_writers_on_one_folder(tmp_path, capsys):
+    from hack_render import boundary
+
+    out = tmp_path / "tt"
+    with boundary.folder_lock(out):
+        code, err = run(TT + ["-o", out], capsys)
+    assert code == 2 and f"pid {os.getpid()}" in err and "another hack-render run" in err
+    assert not (out / ".hack-render.lock").exists()  # released and removed
+
+
+def test_disk_full_while_rendering_frames(tmp_path, capsys, monkeypatch):
+    import imageio.v3 as iio
+
+    real, calls = iio.imwrite, []
+
+    def full(path, *a, **k):
+        calls.append(path)
+        if len(calls) == 3:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(iio, "imwrite", full)
+    out = tmp_path / "tt"
+    code, err = run(TT + ["-o", out], capsys)
+    assert code == 2 and "no space left" in err and "Traceback" not in err
+    assert len([ln for ln in err.splitlines() if ln.startswith("error:")]) == 1
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [
+        "frame_0000.png", "frame_0001.png"]  # complete frames kept, no temporary
+    assert json.loads((out / "turntable.json").read_text())["complete"] is False
+
+
+# --- Ctrl-C in-process: exit 130 and the line ------------------------------------------------
+def test_ctrl_c_in_render_exits_130_with_a_line(tmp_path, capsys, monkeypatch):
+    from hack_render.render import scene
+
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(scene.HeadScene, "render", interrupted)
+    code, err = run(["render", "-o", tmp_path / "x.png", "--resolution", "16", "--spp", "1"],
+                    capsys)
+    assert code == 130
+    assert err.strip().splitlines()[-1].startswith("interrupted: kept 0 finished image(s)")
+    assert not list(tmp_path.iterdir())
+
+
+def test_ctrl_c_in_mesh_exits_130(tmp_path, capsys, monkeypatch):
+    from hack_render.geometry import obj_io
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(obj_io, "write_mesh", interrupted)
+    code, err = run(["mesh", "-o", tmp_path / "x.obj"], capsys)
+    assert code == 130 and err.strip().splitlines()[-1] == "interrupted: nothing was written."
+
+
+def test_fit_interrupted_while_writing_is_marked_incomplete(tmp_path, capsys, monkeypatch):
+    """The fit is done, its files half written: fit_run.json says complete: false; a fit
+    interrupted before writing leaves nothing."""
+    from hack_render.fit import cli as fit_cli
+    from hack_render.fit import outputs
+
+    photo = tmp_path / "face.png"
+    import imageio.v3 as iio
+
+    iio.imwrite(photo, np.full((32, 32, 3), 100, np.uint8))
+
+    def fitting_interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fit_cli, "_fit", fitting_interrupted)
+    code, err = run(["fit", photo, "-o", tmp_path / "f", "--quiet"], capsys)
+    assert code == 130 and "nothing was written" in err and not (tmp_path / "f").exists()
+
+    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: (object(), object()))
+
+    def half_written(res, fitter, outdir, extra=None):
+        (outdir / "params.json").write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs, "write_all", half_written)
+    code, err = run(["fit", photo, "-o", tmp_path / "f", "--quiet"], capsys)
+    assert code == 130 and "incomplete" in err.strip().splitlines()[-1]
+    record = json.loads((tmp_path / "f" / "fit_run.json").read_text())
+    assert record["complete"] is False and record["command"] == "fit"
+
+
+# --- dataset -------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def dataset_reference(tmp_path_factory):
+    base = tmp_path_factory.mktemp("ds")
+    (base / "cfg.yaml").write_text(DS_CONFIG)
+    out = base / "ref"
+    assert run(["dataset", "--n", 4, "-o", out, "--config", base / "cfg.yaml", "--quiet"])[0] == 0
+    return out, base / "cfg.yaml"
+
+
+def test_dataset_sigint_exits_130_then_resume_is_byte_identical(dataset_reference, tmp_path):
+    ref, cfg = dataset_reference
+    out = tmp_path / "ds"
+    point = POINTS[2] % 3 + 1
+    proc = spawn(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet"])
+    code, err = kill_when(proc, lambda: len(list(out.glob("samples/*/sample.json"))) >= point,
+                          signal.SIGINT)
+    if code != 0:
+        assert code == 130, err
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("interrupted: kept ") and "--resume" in last, err
+        assert not (out / "manifest" / "shard-000-of-001.complete.json").exists()
+        # every manifest line is whole and names a complete sample
+        for line in (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines():
+            rec = json.loads(line)
+            assert (out / "samples" / f"{rec['index']:07d}" / "sample.json").is_file()
+    assert run(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet", "--resume"])[0] == 0
+    assert tree(out) == tree(ref)
+
+
+def test_dataset_rerun_over_complete_folder_without_resume_is_refused(dataset_reference,
+                                                                      capsys):
+    ref, cfg = dataset_reference
+    before = tree(ref)
+    code, err = run(["dataset", "--n", 4, "-o", ref, "--config", cfg, "--quiet"], capsys)
+    assert code == 2 and "--resume" in err
+    assert tree(ref) == before
+
+
+def test_dataset_disk_full_keeps_whole_manifest_lines(dataset_reference, tmp_path, capsys,
+                                                      monkeypatch):
+    from hack_render.dataset import worker
+
+    ref, cfg = dataset_reference
+    real = worker._write_png
+
+    def full(path, array):
+        if "0000002" in str(path):
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, array)
+
+    monkeypatch.setattr(worker, "_write_png", full)
+    out = tmp_path / "ds"
+    code, err = run(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet"], capsys)
+    assert code == 2 and "no space left" in err and "Traceback" not in err
+    lines = (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines()
+    assert [json.loads(x)["index"] for x in lines] == [0, 1]
+    assert not (out / "samples" / "0000002" / "sample.json").exists()
+    monkeypatch.setattr(worker, "_write_png", real)
+    assert run(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet", "--resume"])[0] == 0
+    assert tree(out) == tree(ref)
+
+
+def test_two_dataset_writers_on_one_shard(dataset_reference, tmp_path, capsys):
+    from hack_render import boundary
+
+    _, cfg = dataset_reference
+    out = tmp_path / "ds"
+    with boundary.folder_lock(out / "manifest", ".lock.shard-000-of-001"):
+        code, err = run(["dataset", "--n", 2, "-o", out, "--config", cfg, "--quiet"], capsys)
+    assert code == 2 and "another hack-render run" in err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("point", POINTS[2:])
+def test_more_seeded_kill_points(turntable_reference, tmp_path, point):
+    out = tmp_path / "tt"
+    proc = spawn(TT + ["-o", out])
+    kill_when(proc, lambda: len(list((out / "frames").glob("frame_*.png"))) >= point,
+              signal.SIGKILL)
+    assert run(TT + ["-o", out, "--resume"])[0] == 0
+    assert tree(out) == tree(turntable_reference)
