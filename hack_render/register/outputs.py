@@ -1,0 +1,146 @@
+"""A registration's files, each written whole (temporary name, then renamed), the report
+last, so a folder with ``report.json`` is complete and one without it is not.
+
+- ``registered.obj``: the registered mesh in the model's vertex order (UVs, materials),
+  in the scan's frame and units, so it lies on the scan in any viewer.
+- ``registered_model.obj``: the model's own fit, before the free-form offsets.
+- ``params.json``: beta, psi, theta, global_orient, transl, eta, tau in the model's frame
+  (metres), for ``render --params``, ``turntable --params`` and ``export --params``.
+- ``offsets.npy``: (N, 3) free-form offsets, metres, model frame (zero off the skin).
+- ``error.ply``: the registered mesh coloured by each vertex's distance to the scan
+  (blue 0 mm, red >= 3 mm, grey where not measured), the distance also as a
+  ``quality`` property (millimetres).
+- ``error.png``: that heat map ray cast from the front and both sides, with a colour bar.
+- ``landmarks.json``: the 3-D landmarks used (scan frame and units) and where they came from.
+- ``textures/``: baked skin maps when the scan has colours (see :mod:`.bake`).
+- ``report.json``: errors, per-stage times, status (``ok`` or ``failed`` with reasons).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from hack_render.register.pipeline import Registration
+
+HEAT_MAX_MM = 3.0
+
+
+def heat_colors(err_mm: np.ndarray, vmax: float = HEAT_MAX_MM) -> np.ndarray:
+    """(N, 3) sRGB colours in [0, 1] of errors (nan: grey), matplotlib's ``turbo``."""
+    from matplotlib import colormaps
+
+    x = np.clip(np.nan_to_num(err_mm, nan=0.0) / vmax, 0, 1)
+    c = colormaps["turbo"](x)[:, :3]
+    c[~np.isfinite(err_mm)] = 0.5
+    return c
+
+
+def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray
+                    ) -> Path:
+    """Binary PLY: positions, uchar RGB from :func:`heat_colors`, float ``quality`` (mm)."""
+    from hack_render.render.image_io import atomic_path
+
+    rgb = np.round(heat_colors(err_mm) * 255).astype(np.uint8)
+    vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+                    ("blue", "u1"), ("quality", "<f4")])
+    va = np.empty(len(vertices), vdt)
+    for k, n in enumerate("xyz"):
+        va[n] = vertices[:, k]
+    va["red"], va["green"], va["blue"] = rgb.T
+    va["quality"] = np.nan_to_num(err_mm, nan=-1.0)
+    fdt = np.dtype([("n", "u1"), ("i", "<i4", (3,))])
+    fa = np.empty(len(faces), fdt)
+    fa["n"], fa["i"] = 3, faces
+    header = ("ply\nformat binary_little_endian 1.0\ncomment hack-render register: distance "
+              "to the scan, mm (quality; -1 = not measured)\n"
+              f"element vertex {len(vertices)}\nproperty float x\nproperty float y\n"
+              "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+              f"property float quality\nelement face {len(faces)}\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(header.encode() + va.tobytes() + fa.tobytes())
+    return path
+
+
+def heat_map_image(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
+                   size: int = 384) -> np.ndarray:
+    """(size, 3 * size + bar, 3) uint8: front, left and right views of the error colours."""
+    from hack_render.register.scan import srgb_to_linear
+    from hack_render.render.image_io import to_srgb8
+    from hack_render.render.mesh_views import MeshViews
+    from scenes.cameras import Camera, framing_distance, intrinsics, look_at
+
+    v = np.asarray(model_vertices, np.float64)
+    centre = 0.5 * (v.min(0) + v.max(0))
+    views = MeshViews(v, faces, srgb_to_linear(heat_colors(err_mm)), size, size)
+    K = intrinsics(size, size, 50.0)
+    d = framing_distance(K, size, size, float(np.ptp(v, 0).max()))
+    tiles = []
+    for yaw in (0.0, 60.0, -60.0):
+        a = np.radians(yaw)
+        eye = centre + d * np.array([np.sin(a), 0.0, np.cos(a)])
+        R, t = look_at(eye, centre)
+        img = views.render(Camera(K, R, t, size, size, "heat"))
+        tiles.append(to_srgb8(img[..., :3], operator="clip"))
+    bar = _colour_bar(size)
+    return np.concatenate(tiles + [bar], 1)
+
+
+def _colour_bar(height: int, width: int = 48) -> np.ndarray:
+    """A vertical colour bar, 0 mm at the bottom, ``HEAT_MAX_MM`` at the top, white ticks
+    at every millimetre."""
+    x = np.linspace(HEAT_MAX_MM, 0, height)
+    col = np.round(heat_colors(x) * 255).astype(np.uint8)
+    bar = np.repeat(col[:, None], width, 1)
+    for mm in range(int(HEAT_MAX_MM) + 1):
+        row = round((1 - mm / HEAT_MAX_MM) * (height - 1))
+        bar[max(row - 1, 0): row + 1, : width // 3] = 255
+    return bar
+
+
+def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
+                       extra_files: dict | None = None) -> list[Path]:
+    """Write every file of one registration into ``outdir``; ``report.json`` last."""
+    from hack_render.geometry.obj_io import write_mesh
+    from hack_render.geometry.params import save_params
+    from hack_render.render.image_io import atomic_path
+
+    outdir.mkdir(parents=True, exist_ok=True)
+    faces = model.faces.numpy()
+    uvs, uv_faces = model.uvs.numpy(), model.uv_faces.numpy()
+    written = [write_mesh(outdir / "registered.obj", reg.vertices, faces, uvs, uv_faces),
+               write_mesh(outdir / "registered_model.obj", reg.model_vertices, faces, uvs,
+                          uv_faces),
+               save_params(outdir / "params.json", reg.params)]
+    with atomic_path(outdir / "offsets.npy") as tmp, open(tmp, "wb") as fh:
+        np.save(fh, reg.offsets.astype(np.float32), allow_pickle=False)
+    written.append(outdir / "offsets.npy")
+    written.append(write_error_ply(outdir / "error.ply", reg.vertices, faces, reg.vertex_error))
+    import imageio.v3 as iio
+
+    # the heat map on the mesh in the model's frame (upright, facing the camera)
+    with atomic_path(outdir / "error.png") as tmp:
+        iio.imwrite(tmp, heat_map_image(_model_frame(reg), faces, reg.vertex_error),
+                    extension=".png")
+    written.append(outdir / "error.png")
+    with atomic_path(outdir / "landmarks.json") as tmp:
+        tmp.write_text(json.dumps(landmarks, indent=1))
+    written.append(outdir / "landmarks.json")
+    written += list((extra_files or {}).values())
+    report = dict(reg.report)
+    report["files"] = sorted(str(p.relative_to(outdir)) for p in written)
+    with atomic_path(outdir / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
+    written.append(outdir / "report.json")
+    return written
+
+
+def _model_frame(reg: Registration) -> np.ndarray:
+    """The registered vertices moved back into the model's frame (metres, upright)."""
+    sim = reg.report["similarity_scan_to_model"]
+    scale_m = reg.report.get("scan_scale_m", 1.0)
+    s, R, t = sim["scale"], np.asarray(sim["R"]), np.asarray(sim["t"])
+    return s * (reg.vertices * scale_m) @ R.T + t

@@ -1,0 +1,126 @@
+"""Any triangle mesh (a scan, a registration) in front of a camera: shaded or coloured
+images and the surface point under every pixel.
+
+Used by registration to find a scan's face (render it from several views, detect 2-D
+landmarks, read the 3-D point under each) and to draw error heat maps. The mesh is lit
+by an ambient term and a key light above and to the left of the camera (moving with
+it), so a surface without colours reads by its shading alone. Images are ray cast
+(Mitsuba's ``ray_intersect``, a few rays a pixel) and shaded in numpy: no Monte Carlo
+noise for a face detector to trip on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hack_render.render.engine import ensure_variant
+from scenes.cameras import Camera
+
+
+def _mesh(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None,
+          normals: np.ndarray | None):
+    import mitsuba as mi
+
+    from hack_render.render.parts import vertex_normals
+
+    v = np.asarray(vertices, np.float64)
+    n = vertex_normals(v, faces) if normals is None else np.asarray(normals, np.float64)
+    mesh = mi.Mesh("mesh", len(v), len(faces), has_vertex_normals=True)
+    p = mi.traverse(mesh)
+    p["vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+    p["vertex_normals"] = mi.Float(n.ravel().astype(np.float32))
+    p["faces"] = mi.UInt32(np.asarray(faces).ravel().astype(np.uint32))
+    p.update()
+    if colors is not None:
+        mesh.add_attribute("vertex_color", 3, mi.Float(np.asarray(colors, np.float32).ravel()))
+        bsdf = {"type": "diffuse", "reflectance": {"type": "mesh_attribute",
+                                                   "name": "vertex_color"}}
+    else:
+        bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.6, 0.6, 0.6]}}
+    mesh.set_bsdf(mi.load_dict(bsdf))
+    return mesh
+
+
+class MeshViews:
+    """One mesh in a Mitsuba scene; ray cast it from any camera of one size."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray,
+                 colors: np.ndarray | None = None, width: int = 256, height: int = 256,
+                 variant: str | None = None, normals: np.ndarray | None = None):
+        ensure_variant(variant)
+        import mitsuba as mi
+
+        from hack_render.render import emitters
+        from scenes.cameras import intrinsics, look_at
+
+        self.width, self.height = width, height
+        K = intrinsics(width, height, 50.0)
+        R, t = look_at((0, 0, 1), (0, 0, 0))
+        cam = Camera(K, R, t, width, height, "view")
+        self.scene = mi.load_dict({
+            "type": "scene",
+            "sensor": emitters.sensor_dict(cam, 1, pixel_format="rgba", pixel_filter="box"),
+            "mesh": _mesh(vertices, faces, colors, normals),
+        }, parallel=False, optimize=False)
+        self.params = mi.traverse(self.scene)
+        self.light = np.zeros(3)
+
+    def _set_camera(self, cam: Camera) -> None:
+        import mitsuba as mi
+
+        from hack_render.render.emitters import camera_to_world, check_intrinsics
+
+        if (cam.width, cam.height) != (self.width, self.height):
+            raise ValueError(f"camera size {cam.width}x{cam.height}, views are "
+                             f"{self.width}x{self.height}")
+        check_intrinsics(cam)
+        self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(cam).tolist())
+        self.params["sensor.x_fov"] = cam.fov_x_deg
+        self.params.update()
+        # the key light: up and to the left of the camera by half its distance to the
+        # world origin (a portrait key light that moves with the camera)
+        d = float(np.linalg.norm(cam.t)) or 1.0
+        right, down = cam.R[0], cam.R[1]
+        self.light = cam.center + 0.5 * d * (-down - 0.6 * right)
+
+    def _trace(self, cam: Camera, supersample: int = 1):
+        """Mitsuba rays through a ``supersample`` x ``supersample`` grid in each pixel ->
+        (position, shading normal, diffuse albedo, hit), each (H*s, W*s[, 3])."""
+        import drjit as dr
+        import mitsuba as mi
+
+        self._set_camera(cam)
+        s = int(supersample)
+        w, h = self.width * s, self.height * s
+        idx = dr.arange(mi.UInt32, w * h)
+        x = mi.Float(idx % w) + 0.5
+        y = mi.Float(idx // w) + 0.5
+        sensor = self.scene.sensors()[0]
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+        si = self.scene.ray_intersect(ray)
+        valid = si.is_valid()
+        albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
+        dr.eval(si.p, si.sh_frame.n, albedo, valid)
+        arr = lambda v: np.asarray(v, np.float64).reshape(3, h, w).transpose(1, 2, 0)
+        return arr(si.p), arr(si.sh_frame.n), arr(albedo), np.asarray(valid, bool).reshape(h, w)
+
+    def render(self, cam: Camera, supersample: int = 2) -> np.ndarray:
+        """(H, W, 4) linear RGBA of the mesh seen by ``cam``: diffuse albedo (the mesh's
+        colours, or grey) lit by an ambient term and the key light, Lambert, no shadows.
+        Ray cast (no Monte Carlo noise), ``supersample``^2 rays a pixel."""
+        p, n, albedo, hit = self._trace(cam, supersample)
+        to_light = self.light - p
+        to_light /= np.maximum(np.linalg.norm(to_light, axis=-1, keepdims=True), 1e-12)
+        view = cam.center - p
+        n = np.where(((n * view).sum(-1) < 0)[..., None], -n, n)  # back faces lit as front
+        lambert = np.clip((n * to_light).sum(-1), 0, None)
+        rgb = albedo * (0.25 + 0.85 * lambert)[..., None]
+        rgba = np.concatenate([np.where(hit[..., None], rgb, 0.0), hit[..., None]], -1)
+        s = int(supersample)
+        rgba = rgba.reshape(self.height, s, self.width, s, 4).mean((1, 3))
+        return rgba.astype(np.float32)
+
+    def surface_points(self, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """(position (H, W, 3) world point under each pixel centre, hit (H, W) bool)."""
+        p, _, _, hit = self._trace(cam, 1)
+        return p, hit
