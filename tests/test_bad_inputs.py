@@ -346,48 +346,53 @@ def test_read_only_output_folder_is_refused_before_the_work(tmp_path, capsys):
 
 
 # --- the parameter-file reader, fuzzed ------------------------------------------------------
-hypothesis = pytest.importorskip("hypothesis")
-st = hypothesis.strategies
-
-_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
-                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=5))
-_values = st.recursive(_scalars, lambda kids: st.one_of(
-    st.lists(kids, max_size=9), st.dictionaries(st.text(max_size=6), kids, max_size=4)),
-    max_leaves=30)
-_keys = st.one_of(st.sampled_from(["beta", "psi", "expression", "head_rotation_deg",
-                                   "theta", "global_orient", "transl", "eta", "tau"]),
-                  st.text(max_size=8))
+try:
+    import hypothesis
+    from hypothesis import strategies as st
+except ImportError:  # the test extra installs it; the table above runs without
+    hypothesis = None
 
 
-@hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
-@hypothesis.given(data=st.dictionaries(_keys, _values, max_size=5))
-def test_fuzz_parameter_mapping_never_raises_anything_but_hack_error(data):
-    from hack_render.errors import HackError
-    from hack_render.geometry.params import check_params
-
-    try:
-        out = check_params(data, "fuzz")
-    except HackError as err:
-        assert "\n" not in str(err)
-        return
-    # accepted: every value is finite and inside its bound, lists have the right shapes
-    json.dumps(out, allow_nan=False)
-    if "theta" in out:
-        assert np.asarray(out["theta"]).shape == (8, 3)
+if hypothesis is not None:
+    _scalars = st.one_of(st.none(), st.booleans(), st.integers(-10 ** 30, 10 ** 30),
+                         st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=5))
+    _values = st.recursive(_scalars, lambda kids: st.one_of(
+        st.lists(kids, max_size=9), st.dictionaries(st.text(max_size=6), kids, max_size=4)),
+        max_leaves=30)
+    _keys = st.one_of(st.sampled_from(["beta", "psi", "expression", "head_rotation_deg",
+                                       "theta", "global_orient", "transl", "eta", "tau"]),
+                      st.text(max_size=8))
 
 
-@hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
-@hypothesis.given(text=st.one_of(st.text(max_size=60), st.binary(max_size=60).map(
-    lambda b: b.decode("latin-1"))), suffix=st.sampled_from([".json", ".yaml"]))
-def test_fuzz_parameter_file_text_never_raises_anything_but_hack_error(text, suffix):
-    from hack_render.errors import HackError
-    from hack_render.geometry.params import check_params, parse_params_text
+    @hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
+    @hypothesis.given(data=st.dictionaries(_keys, _values, max_size=5))
+    def test_fuzz_parameter_mapping_never_raises_anything_but_hack_error(data):
+        from hack_render.errors import HackError
+        from hack_render.geometry.params import check_params
 
-    try:
-        data = parse_params_text(text, suffix, "fuzz" + suffix)
-        check_params({} if data is None else data, "fuzz" + suffix)
-    except HackError:
-        pass
+        try:
+            out = check_params(data, "fuzz")
+        except HackError as err:
+            assert "\n" not in str(err)
+            return
+        # accepted: every value is finite and inside its bound, lists have the right shapes
+        json.dumps(out, allow_nan=False)
+        if "theta" in out:
+            assert np.asarray(out["theta"]).shape == (8, 3)
+
+
+    @hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
+    @hypothesis.given(text=st.one_of(st.text(max_size=60), st.binary(max_size=60).map(
+        lambda b: b.decode("latin-1"))), suffix=st.sampled_from([".json", ".yaml"]))
+    def test_fuzz_parameter_file_text_never_raises_anything_but_hack_error(text, suffix):
+        from hack_render.errors import HackError
+        from hack_render.geometry.params import check_params, parse_params_text
+
+        try:
+            data = parse_params_text(text, suffix, "fuzz" + suffix)
+            check_params({} if data is None else data, "fuzz" + suffix)
+        except HackError:
+            pass
 
 
 def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`

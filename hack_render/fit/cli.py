@@ -321,8 +321,12 @@ def train_landmark_refiner(
     if cache is not None:
         boundary.output_dir(cache, "--cache")
     cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
-    _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache, command=cmd,
-                            progress=not quiet)
+    note = (f"the renders done so far are kept in --cache {cache}; run the same command to "
+            "go on from them" if cache is not None else
+            "nothing was written (give --cache DIR to keep the renders of an interrupted run)")
+    with boundary.on_interrupt(note):
+        _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache,
+                                command=cmd, progress=not quiet)
     typer.echo(json.dumps({k: v for k, v in report.items() if k != "left_out"}))
     typer.echo(f"wrote {Path(output).resolve()}")
 
