@@ -53,9 +53,10 @@ def learn_head_to_neck(
     if steps < 1:
         raise HackError(f"--steps: expected >= 1, found {steps}.")
     train_p, test_p = _split_held_out(list(sequences), held_out)
-    mapping = H.train(H.load_thetas(train_p), steps=steps, seed=seed, progress=not quiet,
+    train_t, test_t = H.load_thetas(train_p), H.load_thetas(test_p)  # all checked first
+    mapping = H.train(train_t, steps=steps, seed=seed, progress=not quiet,
                       sources=[str(p) for p in train_p])
-    rep = H.compare(mapping, H.load_thetas(test_p))
+    rep = H.compare(mapping, test_t)
     mapping.meta["held_out"] = {"sequences": [str(p) for p in test_p], **rep}
     mapping.save(output)
     typer.echo(f"wrote {output.resolve()} ({mapping.meta['training_frames']} training frames, "

@@ -170,9 +170,13 @@ def _batch(psis, taus, cfg: LarynxConfig, g: torch.Generator):
             torch.as_tensor(np.stack(ys), dtype=torch.float32) * TAU_SCALE)
 
 
-def save_checkpoint(path: Path, model: LarynxTransformer, opt, step: int, meta: dict) -> None:
-    """Model weights, Adam's state and the step as named arrays (atomic write)."""
+def save_checkpoint(path: Path, model: LarynxTransformer, opt, step: int, meta: dict,
+                    rng: torch.Generator | None = None) -> None:
+    """Model weights, Adam's state, the batch generator's state and the step as named
+    arrays (atomic write)."""
     arrays = {f"model/{k}": v.detach().numpy() for k, v in model.state_dict().items()}
+    if rng is not None:
+        arrays["rng_state"] = rng.get_state().numpy()
     if opt is not None:
         for i, st in opt.state_dict()["state"].items():
             for k, v in st.items():
@@ -207,11 +211,14 @@ def load_model(path: str | Path) -> tuple[LarynxTransformer, dict]:
 
 
 def train(pairs, cfg: LarynxConfig, output: str | Path, resume: bool = False,
-          progress: bool = True, checkpoint_every: int = 100, sources=None) -> tuple:
+          progress: bool = True, checkpoint_every: int = 100, sources=None,
+          stop_after: int | None = None) -> tuple:
     """Train on (psi (T, E), tau (T,) metres) pairs; returns (model, meta).
 
     The checkpoint (``output``) is written every ``checkpoint_every`` steps and at the
-    end; with ``resume``, training continues from it (weights, Adam's moments, step)."""
+    end; with ``resume``, training continues from it (weights, Adam's moments, the batch
+    generator, step) as if never stopped. ``stop_after`` ends the run early at that step
+    (checkpointed), as an interruption would."""
     from tqdm import tqdm
 
     output = Path(output)
@@ -240,9 +247,12 @@ def train(pairs, cfg: LarynxConfig, output: str | Path, resume: bool = False,
         opt.load_state_dict(opt_state)
         start = int(old["step"])
         meta["seconds"] = old.get("seconds", 0.0)
-    g = torch.Generator().manual_seed(cfg.seed + start)  # a resumed run draws new crops
+    g = torch.Generator().manual_seed(cfg.seed)
+    if start and "rng_state" in arrays:  # the crops and noise an uninterrupted run draws
+        g.set_state(torch.from_numpy(arrays["rng_state"].copy()))
     t0 = time.perf_counter() - meta.get("seconds", 0.0)
-    bar = tqdm(range(start, cfg.steps), desc="larynx-motion", unit="step",
+    end = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
+    bar = tqdm(range(start, end), desc="larynx-motion", unit="step",
                disable=not progress, initial=start, total=cfg.steps)
     for step in bar:
         x, y = _batch(psis, taus, cfg, g)
@@ -254,9 +264,9 @@ def train(pairs, cfg: LarynxConfig, output: str | Path, resume: bool = False,
         loss.backward()
         opt.step()
         bar.set_postfix(rmse_mm=f"{10 * loss.item() ** 0.5:.3f}")
-        if (step + 1) % checkpoint_every == 0 or step + 1 == cfg.steps:
+        if (step + 1) % checkpoint_every == 0 or step + 1 == end:
             meta["seconds"] = time.perf_counter() - t0
-            save_checkpoint(output, model, opt, step + 1, meta)
+            save_checkpoint(output, model, opt, step + 1, meta, g)
     meta["seconds"] = time.perf_counter() - t0
     return model.eval(), meta
 

@@ -85,18 +85,24 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
     if turntable:
         verts, _ = crig.pose(frames["psi"], frames["theta"], frames["tau"],
                              frames["global_orient"], frames["transl"])
-        report["files"] += [str(p) for p in render_turntable(model, verts, outdir / "turntable",
-                                                             progress=progress, **turntable)]
+        below = float(character.joints[0, 1]) - 0.04  # from just below c7-t1
+        report["files"] += [str(p) for p in render_turntable(
+            model, verts, outdir / "turntable", progress=progress, frame_above=below,
+            **turntable)]
     report["seconds"] = round(time.perf_counter() - t0, 2)
     return report
 
 
 def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, fps: int = 24,
                      resolution: int = 192, spp: int = 16, formats: tuple = ("mp4", "gif"),
-                     variant: str | None = None, progress: bool = True) -> list[Path]:
+                     variant: str | None = None, progress: bool = True,
+                     frame_above: float | None = None, lighting: str = "overcast_sun"
+                     ) -> list[Path]:
     """An orbiting turntable of a posed character (verts (T, N, 3), the model's topology):
     frame i of ``frames`` shows motion frame ``i T / frames``, the camera at ``360 i /
-    frames`` degrees, framed on the character's extent over the motion."""
+    frames`` degrees, framed on the vertices above height ``frame_above`` (the neck and
+    head; default: all) over the motion. Lit by an environment (``lighting``): the studio's
+    soft boxes stand around a human head and would be in view of a taller character."""
     import imageio.v3 as iio
     from tqdm import tqdm
 
@@ -109,7 +115,10 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
 
     w = h = int(resolution) + int(resolution) % 2
     settings = RenderSettings(w, h, spp, 8, 0)
-    lo, hi = verts.reshape(-1, 3).min(0), verts.reshape(-1, 3).max(0)
+    pts = verts.reshape(-1, 3)
+    if frame_above is not None and (pts[:, 1] > frame_above).any():
+        pts = pts[pts[:, 1] > frame_above]
+    lo, hi = pts.min(0), pts.max(0)
     target, extent = 0.5 * (lo + hi), float((hi - lo).max())
     pick = (np.arange(frames) * len(verts)) // frames
 
@@ -117,7 +126,7 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
         return cams.orbit(w, h, 50.0, 360.0 * i / frames, 5.0, target=tuple(target),
                           extent=extent, name=f"frame_{i:04d}")
 
-    head = HeadScene(Topology.from_model(model), verts[pick[0]], lights.preset("studio"), cam(0),
+    head = HeadScene(Topology.from_model(model), verts[pick[0]], lights.preset(lighting), cam(0),
                      settings, None, None, variant)
     images = []
     for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
