@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     resume; :func:`hack_render.boundary.on_interrupt`)."""
     from hack_render import boundary
 
+    boundary.interrupt_message()  # forget a note left by an earlier in-process call
     try:
         # standalone_mode=False: Typer *returns* an exit code (130 on Ctrl-C, n for
         # typer.Exit(n)) instead of exiting; it must not be dropped

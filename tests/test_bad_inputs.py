@@ -333,6 +333,12 @@ def test_the_table_is_large_enough():
     assert len(CASES) >= 60 + 30 and len({c[0] for c in CASES}) == len(CASES)
 
 
+def test_missing_parents_are_created(tmp_path, capsys):
+    """Not a bad input: an output whose folders do not exist yet is written there."""
+    code, err = run_case("mesh -o {o}/new/sub/x.obj", tmp_path, tmp_path, capsys)
+    assert code == 0 and (tmp_path / "new" / "sub" / "x.obj").stat().st_size > 1000, err
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder_is_refused_before_the_work(tmp_path, capsys):
     ro = tmp_path / "ro"

@@ -152,6 +152,27 @@ def test_disk_full_while_rendering_frames(tmp_path, capsys, monkeypatch):
     assert json.loads((out / "turntable.json").read_text())["complete"] is False
 
 
+@pytest.mark.parametrize("command", ["mesh", "render"])
+def test_disk_full_in_mesh_and_render(tmp_path, capsys, monkeypatch, command):
+    import os as os_
+
+    real = os_.replace
+
+    def full(src, dst, *a, **k):  # the rename that would complete the file
+        raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+
+    monkeypatch.setattr(os_, "replace", full)
+    out = tmp_path / ("x.obj" if command == "mesh" else "x.png")
+    args = [command, "-o", out] + ([] if command == "mesh" else ["--resolution", "16",
+                                                                  "--spp", "1"])
+    code, err = run(args, capsys)
+    monkeypatch.setattr(os_, "replace", real)
+    errors = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert code == 2 and len(errors) == 1 and "no space left" in errors[0].lower()
+    assert "Traceback" not in err
+    assert not list(tmp_path.rglob("*.*"))  # no output, no temporary
+
+
 # --- Ctrl-C in-process: exit 130 and the line ------------------------------------------------
 def test_ctrl_c_in_render_exits_130_with_a_line(tmp_path, capsys, monkeypatch):
     from hack_render.render import scene
@@ -216,6 +237,10 @@ def dataset_reference(tmp_path_factory):
     (base / "cfg.yaml").write_text(DS_CONFIG)
     out = base / "ref"
     assert run(["dataset", "--n", 4, "-o", out, "--config", base / "cfg.yaml", "--quiet"])[0] == 0
+    # no stray folders (samples/x, manifest/x), no lock left, the shard marked complete
+    assert sorted(p.name for p in (out / "samples").iterdir()) == [f"{i:07d}" for i in range(4)]
+    assert sorted(p.name for p in (out / "manifest").iterdir()) == [
+        "shard-000-of-001.complete.json", "shard-000-of-001.jsonl"]
     return out, base / "cfg.yaml"
 
 
@@ -265,8 +290,11 @@ def test_dataset_disk_full_keeps_whole_manifest_lines(dataset_reference, tmp_pat
     code, err = run(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet"], capsys)
     assert code == 2 and "no space left" in err and "Traceback" not in err
     lines = (out / "manifest" / "shard-000-of-001.jsonl").read_text().splitlines()
-    assert [json.loads(x)["index"] for x in lines] == [0, 1]
+    logged = [json.loads(x)["index"] for x in lines]  # whole lines, complete samples only
+    assert {0, 1} <= set(logged) and 2 not in logged  # (3 too if it was already queued)
+    assert all((out / "samples" / f"{i:07d}" / "sample.json").is_file() for i in logged)
     assert not (out / "samples" / "0000002" / "sample.json").exists()
+    assert not (out / "manifest" / "shard-000-of-001.complete.json").exists()
     monkeypatch.setattr(worker, "_write_png", real)
     assert run(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet", "--resume"])[0] == 0
     assert tree(out) == tree(ref)

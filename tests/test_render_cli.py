@@ -71,10 +71,10 @@ def test_03_turntable_mp4_has_n_frames_and_resume_skips_done_frames(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--resolution", "0"], "image width"),
-    (["--resolution", "100000x100000"], "image width"),
-    (["--spp", "0"], "samples per pixel"),
-    (["--spp", "100000000"], "samples per pixel"),
+    (["--resolution", "0"], "--resolution: expected sides of 1..8192 pixels"),
+    (["--resolution", "100000x100000"], "--resolution: expected sides of 1..8192 pixels"),
+    (["--spp", "0"], "--spp: expected an integer in 1..65536"),
+    (["--spp", "100000000"], "--spp: expected an integer in 1..65536"),
     (["--lighting", "disco"], "lighting preset"),
     (["--camera", "fisheye"], "camera preset"),
     (["--lighting", "env:/nonexistent/sky.exr"], "expected an existing"),

@@ -255,16 +255,6 @@ def _append_manifest(job: Job, rec: dict) -> None:
             raise
 
 
-def _estimate_line(seconds: float, remaining: int) -> str:
-    total = seconds * remaining
-    for unit, size in (("years", 365 * 86400), ("days", 86400), ("hours", 3600),
-                       ("minutes", 60)):
-        if total >= 2 * size:
-            return (f"dataset: {seconds:.1f} s per sample; the {remaining:,} left take about "
-                    f"{total / size:,.1f} {unit} at this rate")
-    return f"dataset: {seconds:.1f} s per sample; about {total:.0f} s for the rest"
-
-
 def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                tally: dict | None = None) -> int:
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
@@ -273,6 +263,7 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
 
     from tqdm import tqdm
 
+    from hack_render.boundary import estimate_line
     from hack_render.dataset.worker import SampleRenderer
 
     if total is None:
@@ -298,7 +289,8 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
             if count == 1:
                 t0 = time.perf_counter()  # the first sample compiles the kernels: not a rate
             elif count == 2 and total > 2:  # the size of the job, once its rate is known
-                print(_estimate_line(time.perf_counter() - t0, total - 2), file=sys.stderr)
+                print(estimate_line("dataset", time.perf_counter() - t0, total - 2),
+                      file=sys.stderr)
             while pending and pending[0].done():
                 log(pending.popleft().result())
     except BaseException:

@@ -382,6 +382,9 @@ def turntable(
                 with atomic_path(tt.frame_path(output, i)) as tmp:
                     iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
                 times.append(time.perf_counter() - t0)
+                if len(times) == 2 and len(todo) > 2:  # the first frame compiles: no rate
+                    typer.echo(boundary.estimate_line("turntable", times[1], len(todo) - 2,
+                                                      "frame"), err=True)
             if len(times) > 1:
                 typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
                            f"{np.mean(times[1:]):.2f} s ({head.variant})")
