@@ -48,45 +48,69 @@ _USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: runs the app; exit codes: 0 done, 2 a user error (a
     :class:`~hack_render.errors.HackError`, a usage error, a disk full or unwritable
-    output), 130 interrupted (Ctrl-C, with one line saying what was kept and how to
-    resume; :func:`hack_render.boundary.on_interrupt`)."""
+    output), 130 interrupted (Ctrl-C) and 143 terminated (SIGTERM, e.g. a Slurm time
+    limit), each with one line saying what was kept and how to resume
+    (:func:`hack_render.boundary.on_interrupt`)."""
+    import signal
+    import threading
+
     from hack_render import boundary
 
     boundary.interrupt_message()  # forget a note left by an earlier in-process call
+    terminated: list[int] = []
+
+    def on_sigterm(signum, frame):  # as Ctrl-C: complete what is queued, say what is kept
+        terminated.append(signum)
+        raise KeyboardInterrupt
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        code = _run(argv)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    if code == 130:
+        line = boundary.interrupt_message()
+        if terminated:
+            line, code = line.replace("interrupted:", "terminated (SIGTERM):", 1), 143
+        typer.secho(line, err=True, fg=typer.colors.YELLOW)
+    if isinstance(code, int) and not isinstance(code, bool) and code != 0:
+        sys.exit(code)
+
+
+def _run(argv: list[str] | None) -> int | None:
+    """Run the app; returns its exit code (130: interrupted), printing user errors."""
+    from hack_render import boundary
+
     try:
         # standalone_mode=False: Typer *returns* an exit code (130 on Ctrl-C, n for
         # typer.Exit(n)) instead of exiting; it must not be dropped
-        code = app(args=argv, standalone_mode=False)
+        return app(args=argv, standalone_mode=False)
     except HackError as err:
         typer.secho(f"error: {err}", err=True, fg=typer.colors.RED)
-        sys.exit(2)
-    except KeyboardInterrupt:  # outside a command (while parsing or importing)
-        code = 130
-    except typer.Abort:
-        code = 130
+        return 2
+    except (KeyboardInterrupt, typer.Abort):  # outside a command (parsing, importing)
+        return 130
     except SystemExit:
         raise
     except OSError as err:
         if err.errno not in _USER_OS_ERRORS:
             raise
         typer.secho(f"error: {boundary.os_error_message(err)}", err=True, fg=typer.colors.RED)
-        sys.exit(2)
+        return 2
     except Exception as err:  # click usage errors carry their own exit code
         # by what they do, not their class: typer >= 0.2x vendors click as typer._click,
         # whose exceptions are not click's own (an unknown option was a traceback)
         if callable(getattr(err, "show", None)) and hasattr(err, "exit_code"):
             err.show()  # "Usage: ... Error: No such option: --x"
-            sys.exit(2)
+            return 2
         import click
 
         if isinstance(err, (typer.Exit, click.exceptions.Exit)):
-            sys.exit(err.exit_code)
+            return err.exit_code
         raise
-    if code == 130:
-        typer.secho(boundary.interrupt_message(), err=True, fg=typer.colors.YELLOW)
-        sys.exit(130)
-    if isinstance(code, int) and not isinstance(code, bool) and code != 0:
-        sys.exit(code)
 
 
 if __name__ == "__main__":

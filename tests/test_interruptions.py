@@ -264,6 +264,20 @@ def test_dataset_sigint_exits_130_then_resume_is_byte_identical(dataset_referenc
     assert tree(out) == tree(ref)
 
 
+def test_dataset_sigterm_exits_143_with_the_line(dataset_reference, tmp_path):
+    """A scheduler's SIGTERM (Slurm's time limit) is an interruption too: the queued
+    samples are completed, the line says what was kept, the exit code is 128 + 15."""
+    _, cfg = dataset_reference
+    out = tmp_path / "ds"
+    proc = spawn(["dataset", "--n", 4, "-o", out, "--config", cfg, "--quiet"])
+    code, err = kill_when(proc, lambda: len(list(out.glob("samples/*/sample.json"))) >= 1,
+                          signal.SIGTERM)
+    if code != 0:
+        assert code == 143, err
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("terminated (SIGTERM): kept ") and "--resume" in last, err
+
+
 def test_dataset_rerun_over_complete_folder_without_resume_is_refused(dataset_reference,
                                                                       capsys):
     ref, cfg = dataset_reference
