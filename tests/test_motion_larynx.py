@@ -36,7 +36,7 @@ def test_01_recovers_a_known_lagged_function(names, data, tmp_path):
     constant's error) and correlation above 0.95 (measured: about 0.33 mm against 1.7 mm,
     0.98); the lags matter: the same rule without them explains far less."""
     torch.set_num_threads(2)
-    model, meta = L.train(data[:16], _cfg(names, steps=300), tmp_path / "lm.npz",
+    model, _ = L.train(data[:16], _cfg(names, steps=300), tmp_path / "lm.npz",
                           progress=False)
     rep = L.evaluate(model, data[16:])
     assert rep["rmse_mm"] < 0.3 * rep["tau_std_mm"], rep

@@ -184,21 +184,35 @@ def _transfer_targets(model, src_base: np.ndarray, dst_base: np.ndarray,
                       targets: np.ndarray, chunk: int = 16) -> np.ndarray:
     """Deformation transfer of morph targets (K, N, 3) from ``src_base`` to ``dst_base``
     (both (N, 3), the model's topology): the vertices some target moves are solved for,
-    the others stay put."""
+    the others stay put. A mesh component that every target leaves whole-free (a tooth, an
+    eye's lacrimal film: no fixed vertex to anchor its position, so the Poisson system
+    would be singular there) takes the source's displacements as they are."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
     from hack_render.learn.deformation_transfer import TargetSolver, source_gradients
 
     faces = model.faces.numpy()
+    n = len(dst_base)
     free = np.any(targets != 0, axis=(0, 2))
     if not free.any():
         return np.zeros_like(targets)
-    near = faces[free[faces].any(1)]
-    solver = TargetSolver(dst_base, near, free)
+    ring = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    adj = sparse.coo_matrix((np.ones(len(ring)), (ring[:, 0], ring[:, 1])), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    anchored = np.zeros(label.max() + 1, bool)
+    anchored[np.unique(label[~free])] = True
+    solve = free & anchored[label]
     out = np.zeros_like(targets)
+    copy = free & ~solve
+    out[:, copy] = targets[:, copy]
+    near = faces[solve[faces].any(1)]
+    solver = TargetSolver(dst_base, near, solve)
     for s in range(0, len(targets), chunk):
         part = targets[s:s + chunk].astype(np.float64)
         grads = np.stack([source_gradients(src_base, src_base + d, solver.faces) for d in part])
-        out[s:s + chunk] = (solver.transfer(grads) - dst_base[None]).astype(targets.dtype)
-    out[:, ~free] = 0.0
+        res = solver.transfer(grads) - dst_base[None]
+        out[s:s + chunk, solve] = res[:, solve].astype(targets.dtype)
     return out
 
 
@@ -210,7 +224,11 @@ def character_rig(model, character: Character, beta=None, eta: float = 1.0,
 
     tau_range = R.TAU_RANGE if tau_range is None else tau_range
     human = R.build_rig(model, beta, eta, tau_range, R.TAU_STEP, influences)
-    targets = _transfer_targets(model, human.base, character.vertices, human.targets)
+    targets = np.zeros_like(human.targets)
+    for sl in human.slots.values():  # one solve per kind: each kind's own free vertices
+        if sl.stop > sl.start:
+            targets[sl] = _transfer_targets(model, human.base, character.vertices,
+                                            human.targets[sl])
     j4, w4 = R.top_weights(character.weights, influences)
     rig = replace(human, base=np.asarray(character.vertices, np.float64), targets=targets,
                   rest_nodes=np.concatenate([character.joints[:1], character.joints]),
