@@ -92,6 +92,7 @@ def test_turntable_killed_then_resumed_is_byte_identical(turntable_reference, tm
     assert record["complete"] is (code == 0)
     # a kill between two writes leaves a temporary: resume removes it
     (frames / ".frame_0009.abc123.png").write_bytes(b"half")
+    (out / ".turntable.x7k2q.gif").write_bytes(b"GIF89a half")  # killed while encoding
     assert run(TT + ["-o", out, "--resume"])[0] == 0
     assert json.loads((out / "turntable.json").read_text())["complete"] is True
     assert tree(out) == tree(turntable_reference)  # frames, GIF, cameras and the record
