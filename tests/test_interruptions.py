@@ -231,6 +231,37 @@ def test_fit_interrupted_while_writing_is_marked_incomplete(tmp_path, capsys, mo
     assert record["complete"] is False and record["command"] == "fit"
 
 
+def test_fit_resume_skips_a_complete_fit_and_refuses_other_inputs(tmp_path, capsys,
+                                                                  monkeypatch):
+    import imageio.v3 as iio
+
+    from hack_render.fit import cli as fit_cli
+    from hack_render.fit import outputs
+
+    photo = tmp_path / "face.png"
+    iio.imwrite(photo, np.full((32, 32, 3), 100, np.uint8))
+    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: (object(), object()))
+
+    def write_all(res, fitter, outdir, extra=None):
+        (outdir / "params.json").write_text("{}")
+        return [outdir / "params.json"]
+
+    monkeypatch.setattr(outputs, "write_all", write_all)
+    out = tmp_path / "f"
+    assert fit_cli.fit_photos([photo], out, progress=False)[1][-1] == out / "fit_run.json"
+    assert json.loads((out / "fit_run.json").read_text())["complete"] is True
+
+    def must_not_fit(*a, **k):
+        raise AssertionError("a complete fit was redone")
+
+    monkeypatch.setattr(fit_cli, "_fit", must_not_fit)
+    code, err = run(["fit", photo, "-o", out, "--resume", "--quiet"], capsys)
+    assert code == 0
+    iio.imwrite(photo, np.full((32, 32, 3), 200, np.uint8))  # another photo, same name
+    code, err = run(["fit", photo, "-o", out, "--resume", "--quiet"], capsys)
+    assert code == 2 and "--resume" in err and "photos" in err
+
+
 # --- dataset -------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def dataset_reference(tmp_path_factory):

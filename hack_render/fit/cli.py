@@ -13,8 +13,10 @@ from hack_render.errors import HackError
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
                progress: bool = True, masks: list[Path] | None = None,
-               focal_mm: float | None = None):
-    """Library entry point of the command: read, detect, fit, write. Returns (result, paths).
+               focal_mm: float | None = None, resume: bool = False):
+    """Library entry point of the command: read, detect, fit, write. Returns (result, paths);
+    (None, []) when ``resume`` and ``outdir`` already holds a complete fit of these inputs
+    (``fit_run.json``; other inputs there are refused).
     ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
     from hack_render.fit.config import FitConfig
 
@@ -40,6 +42,9 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
         "landmarks": [boundary.file_identity(p) for p in landmarks or []],
         "masks": [boundary.file_identity(p) for p in masks or []],
         "focal_mm": focal_mm, "config": cfg.to_dict()}, name="fit_run.json")
+    old = record.check_resume(resume, (outdir / "params.json").exists())
+    if resume and old is not None and old.get("complete"):
+        return None, []
     with boundary.on_interrupt(f"nothing was written to {outdir} (interrupted while "
                                "fitting); run the same command again"):
         result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
@@ -174,6 +179,10 @@ def fit(
                                              "else a prior centred on 85 mm. A single view "
                                              "barely constrains the focal length, and a wrong "
                                              "one distorts the fitted shape."),
+    resume: bool = typer.Option(False, "--resume", help="Skip the fit when -o already "
+                                "holds a complete one of the same photos, landmarks, masks, "
+                                "focal length and config (fit_run.json); refuse other "
+                                "inputs there; redo an incomplete one."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Fit HACK geometry, appearance, lighting and cameras to photos by inverse rendering.
@@ -223,7 +232,11 @@ def fit(
         over["landmarks"] = {"refiner": "off"}
     cfg = load_config(config, over)
     result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
-                               masks=mask or None, focal_mm=focal_mm)
+                               masks=mask or None, focal_mm=focal_mm, resume=resume)
+    if result is None:
+        typer.echo(f"{output} already holds a complete fit of these inputs (--resume): "
+                   "nothing to do")
+        return
     for f in result.failures:
         typer.secho(f"warning: {f}", err=True, fg=typer.colors.YELLOW)
     total = sum(result.timings.values())
