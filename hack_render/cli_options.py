@@ -13,8 +13,9 @@ Imports nothing heavy: every `--help` imports this module.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Callable, Optional
+from typing import Annotated, Any, Optional
 
 import typer
 
@@ -77,8 +78,10 @@ Eta = Annotated[Optional[float], typer.Option("--eta", help="Larynx size, 0..1.5
 Tau = Annotated[Optional[float], typer.Option("--tau", help="Larynx vertical slide, metres, up "
                                               "positive, -0.01..0.02 (a swallow rises ~0.02).")]
 Limits = Annotated[str, typer.Option("--limits", help="Values beyond the anatomical limits "
-                                     "(joint rotations, --head-rotation, --eta, --tau): warn, "
-                                     "clamp (and warn) or error.")]
+                                     "(joint rotations, --head-rotation, --eta, --tau) or the "
+                                     "plausible identities (--beta beyond +-5): warn, clamp "
+                                     "(and warn) or error. Values beyond any meaning (NaN, "
+                                     "--beta 1e30) are always refused.")]
 ModelPath = Annotated[Optional[Path], typer.Option("--model", help="Model file (default: "
                                                    "built-in).")]
 Alpha = Annotated[Optional[str], typer.Option("--alpha", help="Appearance coefficients, "

@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from hack_render import cli_options as opts
+from hack_render.errors import HackError
 
 
 class LimitPolicy(str, Enum):
@@ -56,13 +57,42 @@ def gather_params(params_file: Path | None, beta: str | None, expression: str | 
     return check_params(params, "command-line parameters")
 
 
+#: Identities beyond this many standard deviations (per component) are implausible: the
+#: shape space is N(0, I), and the dataset sampler truncates at 2.5 by default.
+BETA_PLAUSIBLE = 5.0
+
+
+def beta_messages(beta) -> list[str]:
+    """Shape coefficients beyond :data:`BETA_PLAUSIBLE`, as phrases."""
+    import torch
+
+    b = torch.as_tensor(beta).reshape(-1)
+    return [f"beta[{i}] = {float(v):.3g} (plausible identities lie within "
+            f"+-{BETA_PLAUSIBLE:g} standard deviations; clamped to "
+            f"{max(-BETA_PLAUSIBLE, min(BETA_PLAUSIBLE, float(v))):g})"
+            for i, v in enumerate(b.tolist()) if abs(v) > BETA_PLAUSIBLE]
+
+
 def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) -> dict:
     """Warn about, clamp, or refuse (exit 2) out-of-range joint rotations, whole-head
-    rotations, larynx slide tau and size eta (:func:`hack_render.geometry.limits.enforce_limits`);
-    warnings name each value and its limit, and go to stderr (once)."""
+    rotations, larynx slide tau and size eta (:func:`hack_render.geometry.limits.enforce_limits`)
+    and implausible identities (``beta`` beyond :data:`BETA_PLAUSIBLE`); warnings name each
+    value and its limit, and go to stderr (once)."""
     from hack_render.geometry.limits import enforce_limits
 
+    policy_name = str(getattr(policy, "value", policy))
+    ident = beta_messages(kw["beta"]) if kw.get("beta") is not None else []
+    if ident and policy_name == "error":
+        text = "; ".join(m.split("; clamped to")[0] + ")" for m in ident)
+        raise HackError(f"--beta: outside the plausible identities: {text}. Change the value, "
+                        "or use --limits clamp (clamp and warn) or --limits warn.")
     kw, messages = enforce_limits(kw, policy, head_rotation_deg)
+    if ident and policy_name == "clamp":
+        kw = dict(kw, beta=kw["beta"].clamp(-BETA_PLAUSIBLE, BETA_PLAUSIBLE))
+    elif ident:
+        ident = [m.split("; clamped to")[0] + "; kept, use --limits clamp to clamp)"
+                 for m in ident]
+    messages = messages + ident
     if messages:
         typer.secho(f"warning: outside the anatomical limits: {'; '.join(messages)}", err=True,
                     fg="yellow")
@@ -103,7 +133,8 @@ def mesh(
     tau: opts.Tau = None,
     limits: LimitPolicy = typer.Option(LimitPolicy.warn, help="Values beyond the anatomical "
                                        "limits (joint rotations, --head-rotation, --eta, "
-                                       "--tau): warn, clamp (and warn) or error."),
+                                       "--tau) or the plausible identities (--beta beyond "
+                                       "+-5): warn, clamp (and warn) or error."),
     model_path: opts.ModelPath = None,
     both: bool = typer.Option(False, "--both", help="Write both OBJ and PLY."),
 ) -> None:

@@ -247,6 +247,7 @@ def turntable(
     head_rotation: opts.HeadRotation = None,
     eta: opts.Eta = None,
     tau: opts.Tau = None,
+    limits: opts.Limits = "warn",
     model_path: opts.ModelPath = None,
     alpha: opts.Alpha = None,
     appearance_seed: opts.AppearanceSeed = None,
@@ -307,11 +308,16 @@ def turntable(
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
 
     from hack_render.geometry import load_model
+    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
     from hack_render.render.parts import Topology
 
+    try:
+        policy = LimitPolicy(limits)
+    except ValueError as err:
+        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
     model = load_model(model_path)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
-    base = model_inputs(model, p)
+    base = apply_limit_policy(model_inputs(model, p), policy, p.get("head_rotation_deg"))
     topo = Topology.from_model(model)
     # everything that decides the frames' pixels: a resume with anything else is refused
     record = boundary.RunRecord(output, "turntable", {
@@ -321,7 +327,8 @@ def turntable(
         "env_map": boundary.file_identity(rig.env_file) if lighting.startswith("env:") else None,
         "env_rotation": env_rotation, "exposure": exposure, "focal_mm": focal_mm,
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
-        "variant": variant, "frames": frames, "mode": mode, "look_around": look_around,
+        "variant": variant, "limits": limits, "frames": frames, "mode": mode,
+        "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 
     def vertices_at(i: int) -> np.ndarray:
