@@ -8,7 +8,9 @@ mean, ``shape_components`` / ``shape_std`` the PCA's. Everything else of the bas
 that reads beta (personalised expression and pose MLPs, the larynx coefficients) is
 carried over exactly within the old space: old beta = P new beta + b0, with P and b0 the
 least-squares coordinates of the new components and mean in the old components, folded
-into those maps' first linear layers. Compactness and held-out generalisation curves
+into those maps' first linear layers. The model adds its larynx L(beta, eta, tau) to the
+shape: registrations with a larynx give a space that holds it too (fit such a model
+with a smaller eta, or learn from meshes without it). Compactness and held-out generalisation curves
 (leave-one-out folds) go into the file's metadata and a PNG beside it.
 """
 
@@ -39,7 +41,7 @@ def read_registration(path: Path, num_vertices: int) -> np.ndarray:
         raise HackError(f"{path}: no such file. Pass registered meshes (OBJ/PLY in the "
                         "model's vertex order) or `hack-render register` output folders.")
     try:
-        mesh = trimesh.load(str(path), process=False, force="mesh")
+        mesh = trimesh.load(str(path), process=False, force="mesh", maintain_order=True)
     except Exception as exc:
         raise HackError(f"{path}: cannot read it as a mesh ({exc}).") from exc
     v = np.asarray(mesh.vertices, np.float64)

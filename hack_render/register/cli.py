@@ -84,6 +84,9 @@ def register_cmd(
                               "colours into the model's UV layout (textures/)."),
     texture_size: int = typer.Option(1024, "--texture-size", help="Baked map height (width "
                                      "is twice it)."),
+    iterations: str = typer.Option("50,220,150", "--iterations", help="Adam steps of the "
+                                   "rigid, model and free-form stages: fewer is faster and "
+                                   "coarser."),
     shard: str | None = typer.Option(None, "--shard", help="K/M: register only scans "
                                         "K, K+M, K+2M, ... (one process per shard)."),
     model_path: opts.ModelPath = None,
@@ -120,12 +123,15 @@ def register_cmd(
         raise HackError(f"--shape-components: expected 1..300, found {shape_components}.")
     if not 256 <= texture_size <= 8192:
         raise HackError(f"--texture-size: expected 256..8192, found {texture_size}.")
-    cfg = RegisterConfig.preset_named(preset, free_form=free_form,
-                                      num_shape=shape_components)
+    steps = _iterations(iterations)
+    cfg = RegisterConfig.preset_named(preset, free_form=free_form, num_shape=shape_components,
+                                      rigid_iterations=steps[0], model_iterations=steps[1],
+                                      free_iterations=steps[2])
     lmk_file = read_landmarks_3d(landmarks) if landmarks is not None else None
     model = load_model(model_path)
     output.mkdir(parents=True, exist_ok=True)
-    settings = {"preset": preset, "free_form": free_form, "shape_components": shape_components,
+    settings = {"preset": preset, "iterations": steps, "free_form": free_form,
+                "shape_components": shape_components,
                 "units": units, "bake": bake, "texture_size": texture_size,
                 "model": str(model_path) if model_path else "default",
                 "landmarks": _fingerprint(landmarks, {}) if landmarks else None}
@@ -137,7 +143,7 @@ def register_cmd(
             skipped += 1
             continue
         scan = load_scan(path, units)
-        lmk, ids, lmk_info = _landmarks(scan, lmk_file, quiet)
+        lmk, ids, lmk_info = _landmarks(scan, lmk_file, quiet, model)
         reg = register(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
                        landmark_source=lmk_info["source"])
         reg.report["fingerprint"] = fp
@@ -167,14 +173,29 @@ def register_cmd(
         raise typer.Exit(1)
 
 
-def _landmarks(scan, lmk_file, quiet: bool):
+def _iterations(text: str) -> tuple[int, int, int]:
+    try:
+        steps = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        steps = ()
+    if len(steps) != 3 or not all(0 <= x <= 100_000 for x in steps) or steps[1] < 1:
+        raise HackError(f"--iterations: expected three step counts 'RIGID,MODEL,FREE' (e.g. "
+                        f"50,220,150; MODEL >= 1), found {text!r}.")
+    return steps
+
+
+def _landmarks(scan, lmk_file, quiet: bool, model):
     """(landmarks in scan units, Multi-PIE ids, info) from the file or found on the scan."""
     if lmk_file is not None:
         pts, ids = lmk_file
         return pts, ids, {"source": "file"}
     from hack_render.register.find_landmarks import find_landmarks
 
-    pts_m, ids, info = find_landmarks(scan, progress=not quiet)
+    import torch
+
+    with torch.no_grad():
+        reference = model().landmarks[0].double().numpy()
+    pts_m, ids, info = find_landmarks(scan, progress=not quiet, reference=reference)
     return pts_m / scan.scale, ids, {"source": "found", **info}
 
 

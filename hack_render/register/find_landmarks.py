@@ -7,8 +7,9 @@
    them; the view with the best detection score is the face's.
 2. Refine: from the 68 points of that view, read the surface point under each (Mitsuba
    ray casts, :class:`hack_render.render.mesh_views.MeshViews`), fit the face's frame
-   (centre, forward, up), and render five close views around its front (straight on,
-   25 degrees left, right, up and down), upright.
+   (the similarity onto a reference face's landmarks), and render five close views
+   around its front (straight on, 25 degrees left, right, 20 up and down), upright;
+   then once more from the frame those views give.
 3. Agree: lift each view's landmarks onto the surface; a landmark is kept when at least
    two views put it within ``agree_mm`` of the median of all views, and is the mean of
    those. The jaw line (landmarks 0-16) is a contour that moves with the view, so only
@@ -20,6 +21,7 @@ Point clouds have no surface to render: they need ``--landmarks``.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -29,6 +31,8 @@ from hack_render.register.scan import Scan
 from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 ROTATION_STEP_DEG = 45
+#: (yaw, pitch) of the close views around the face's front, degrees
+CLOSE_VIEWS = ((0, 0), (25, 0), (-25, 0), (0, 20), (0, -20))
 
 
 def _directions() -> np.ndarray:
@@ -105,9 +109,45 @@ def _vertex_colors(scan: Scan) -> np.ndarray | None:
     return None
 
 
+def _face_frame(lmk: np.ndarray, reference: np.ndarray, seen_from: np.ndarray):
+    """(centre, forward, up) of a face from its lifted landmarks (68, 3; nan where
+    missing): the rotation of the least-squares similarity onto the ``reference``
+    landmarks (a head looking along +Z, +Y up) carries the reference's axes over."""
+    from hack_render.register.align import umeyama
+
+    ok = [i for i in INNER if np.isfinite(lmk[i]).all()]
+    _, R, _ = umeyama(lmk[ok], reference[ok])  # scan -> reference
+    fwd, up = R.T @ np.array([0.0, 0.0, 1.0]), R.T @ np.array([0.0, 1.0, 0.0])
+    if fwd @ (seen_from - lmk[ok].mean(0)) < 0:  # a mirror-image fit: face the camera
+        fwd = -fwd
+    centre = 0.5 * (np.nanmean(lmk[36:48], 0) + np.nanmean(lmk[48:68], 0))
+    return centre, fwd, up
+
+
+def _close_views(views, frame, size: int) -> list[np.ndarray]:
+    """Lifted landmarks of the close views around the face's front that find a face."""
+    centre, fwd, up = frame
+    K = intrinsics(size, size, 50.0)
+    close = framing_distance(K, size, size, 0.24, margin=1.1)
+    side = np.cross(up, fwd)
+    lifts = []
+    for yaw, pitch in CLOSE_VIEWS:
+        d = fwd * math.cos(math.radians(yaw)) + side * math.sin(math.radians(yaw))
+        d = d * math.cos(math.radians(pitch)) + up * math.sin(math.radians(pitch))
+        cam = _camera(centre + d * close, centre, up, size)
+        _, pts = _detect(_to_rgb8(views.render(cam)))
+        if pts is not None:
+            lifts.append(_lift(views, cam, pts))
+    return lifts
+
+
 def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
-                   progress: bool = False) -> tuple[np.ndarray, tuple[int, ...], dict]:
-    """(K, 3) landmarks in the scan's frame (metres), their Multi-PIE ids, and a report."""
+                   progress: bool = False, reference: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, tuple[int, ...], dict]:
+    """(K, 3) landmarks in the scan's frame (metres), their Multi-PIE ids, and a report.
+
+    ``reference``: (68, 3) landmarks of a head looking along +Z with +Y up (default: the
+    built-in model's mean face), whose axes give the face's frame."""
     from tqdm import tqdm
 
     from hack_render.render.mesh_views import MeshViews
@@ -117,8 +157,15 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
                         "--landmarks FILE (68 or 51 3-D points in the scan's units).")
     from hack_render.register.scan import smoothed
 
+    if reference is None:
+        import torch
+
+        from hack_render.geometry import load_default_model
+
+        with torch.no_grad():
+            reference = load_default_model()().landmarks[0].double().numpy()
     # rendered and lifted on the scan smoothed a little (a few tenths of a millimetre):
-    # a noisy scan's self-shadowing would otherwise hide the face from the detector
+    # a noisy scan's normals would otherwise turn its shading to salt
     views = MeshViews(smoothed(scan.faces, scan.points), scan.faces, _vertex_colors(scan),
                       size, size)
     centre = 0.5 * (scan.points.min(0) + scan.points.max(0))
@@ -145,32 +192,20 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
     if ok[list(INNER)].sum() < 20:
         raise HackError(f"{scan.name}: the face found does not lie on the scan's surface. "
                         "Pass --landmarks FILE.")
-    # the face's frame from the first lift: forward from the eyes' plane, up brow - chin
-    eyes = np.nanmean(first[36:48], 0)
-    mouth = np.nanmean(first[48:68], 0)
-    up = eyes - mouth
-    up /= np.linalg.norm(up)
-    right_to_left = np.nanmean(first[42:48], 0) - np.nanmean(first[36:42], 0)
-    fwd = np.cross(right_to_left, up)
-    fwd /= np.linalg.norm(fwd)
-    if fwd @ (cam.center - eyes) < 0:
-        fwd = -fwd
-    face_c = 0.5 * (eyes + mouth)
-    close = framing_distance(K, size, size, 0.24, margin=1.1)
-    lifts = []
-    for yaw, pitch in ((0, 0), (25, 0), (-25, 0), (0, 20), (0, -20)):
-        side = np.cross(up, fwd)
-        d = fwd * math.cos(math.radians(yaw)) + side * math.sin(math.radians(yaw))
-        d = d * math.cos(math.radians(pitch)) + up * math.sin(math.radians(pitch))
-        c2 = _camera(face_c + d * close, face_c, up, size)
-        _, p2 = _detect(_to_rgb8(views.render(c2)))
-        if p2 is not None:
-            lifts.append(_lift(views, c2, p2))
+    lifts: list[np.ndarray] = []
+    for _ in range(2):  # the frame from the search view, then from the close views
+        L = np.stack(lifts) if lifts else first[None]
+        with warnings.catch_warnings():  # landmarks no view hit stay nan
+            warnings.simplefilter("ignore", RuntimeWarning)
+            lifts = _close_views(views, _face_frame(np.nanmedian(L, 0), reference, cam.center),
+                                 size)
     if len(lifts) < 2:
         raise HackError(f"{scan.name}: the face was found in only {len(lifts)} close view(s); "
                         "expected 2 or more. Pass --landmarks FILE.")
     L = np.stack(lifts)  # (V, 68, 3)
-    med = np.nanmedian(L, 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(L, 0)
     near = np.linalg.norm(L - med, axis=2) * 1000.0 < agree_mm  # (V, 68)
     ids = [i for i in INNER if near[:, i].sum() >= 2]
     if len(ids) < 20:

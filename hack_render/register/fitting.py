@@ -136,11 +136,6 @@ def _trimmed(d: np.ndarray, ok: np.ndarray, trim: float) -> np.ndarray:
     return ok & (d <= cut)
 
 
-def _local_normals(vertices: np.ndarray, faces: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    n = vertex_normals(vertices, faces)
-    return n[ids]
-
-
 class TwoWayDistance:
     """The robust, trimmed two-way point-to-plane distance between model and scan."""
 
@@ -163,11 +158,12 @@ class TwoWayDistance:
 
         c, cfg = self.c, self.cfg
         v_np = verts.detach().double().numpy()
+        normals = vertex_normals(v_np, c.cand_faces)  # skin faces are among them
         out = {}
         if cfg.w_m2s > 0:
             skin = c.skin.numpy()
             vs = v_np[skin]
-            n_model = _local_normals(v_np, c.skin_faces, skin)
+            n_model = normals[skin]
             d, idx = c.index.nearest(vs, cfg.max_distance)
             ok = np.isfinite(d)
             idx_ok = np.where(ok, idx, 0)
@@ -177,7 +173,7 @@ class TwoWayDistance:
             sel = torch.as_tensor(np.flatnonzero(ok))
             target = torch.as_tensor(c.index.points[idx_ok[ok]], dtype=verts.dtype)
             normal = torch.as_tensor(c.index.normals[idx_ok[ok]], dtype=verts.dtype)
-            diff = verts[c.skin[sel]] - target
+            diff = verts.index_select(0, c.skin[sel]) - target
             r = 1000.0 * (diff * normal).sum(1)
             tangential = 1000.0 * diff
             out["m2s"] = self._loss(r, tangential, verts)
@@ -185,14 +181,14 @@ class TwoWayDistance:
         if cfg.w_s2m > 0:
             cand = c.candidates.numpy()
             vc = v_np[cand]
-            n_model = _local_normals(v_np, c.cand_faces, cand)
+            n_model = normals[cand]
             d, j = cKDTree(vc).query(c.scan_points, k=1, distance_upper_bound=cfg.max_distance)
             ok = _trimmed(d, np.isfinite(d), cfg.trim)
             j = np.where(ok, j, 0)
             sel = np.flatnonzero(ok)
             p = torch.as_tensor(c.scan_points[sel], dtype=verts.dtype)
             n = torch.as_tensor(n_model[j[sel]], dtype=verts.dtype)
-            diff = p - verts[c.candidates[torch.as_tensor(j[sel])]]
+            diff = p - verts.index_select(0, c.candidates[torch.as_tensor(j[sel])])
             r = 1000.0 * (diff * n).sum(1)
             out["s2m"] = self._loss(r, 1000.0 * diff, verts)
             self.s2m_used = int(ok.sum())

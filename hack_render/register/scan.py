@@ -60,6 +60,13 @@ class Scan:
     scale: float = 1.0
     notes: list[str] = field(default_factory=list)
 
+    @classmethod
+    def from_mesh(cls, name: str, points: np.ndarray, faces: np.ndarray, **kw) -> Scan:
+        """A mesh scan already in metres: normals and boundary computed."""
+        points, faces = np.asarray(points, np.float64), np.asarray(faces, np.int64)
+        return cls(name, points, vertex_normals(points, faces), faces,
+                   boundary=_boundary_vertices(faces, len(points)), **kw)
+
     @property
     def is_mesh(self) -> bool:
         return self.faces is not None and len(self.faces) > 0
@@ -184,9 +191,9 @@ def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
 def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(N, 3) area-weighted unit vertex normals (zero-area neighbourhoods: +Z)."""
     fn = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
-    vn = np.zeros_like(points)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
+    idx = faces.T.ravel()  # corner k of every face, k = 0, 1, 2
+    w = np.tile(fn, (3, 1))
+    vn = np.stack([np.bincount(idx, w[:, c], minlength=len(points)) for c in range(3)], 1)
     norm = np.linalg.norm(vn, axis=1, keepdims=True)
     return np.where(norm > 0, vn / np.maximum(norm, 1e-30), [0.0, 0.0, 1.0])
 
@@ -298,11 +305,12 @@ class SurfaceIndex:
 
         self.scan = scan
         pts, nrm, col = scan.points, scan.normals, self._vertex_colors(scan)
-        near_boundary = np.zeros(len(pts), bool)
         if scan.is_mesh:
             p, n, c = self._sample_faces(scan, spacing, max_samples, seed)
             pts, nrm = np.concatenate([pts, p]), np.concatenate([nrm, n])
             col = None if col is None else np.concatenate([col, c])
+        near_boundary = np.zeros(len(pts), bool)
+        if scan.is_mesh:
             if scan.boundary is not None and scan.boundary.any():
                 bt = cKDTree(scan.points[scan.boundary])
                 d, _ = bt.query(pts, k=1, distance_upper_bound=boundary_margin)
