@@ -232,6 +232,49 @@ CASES: list[tuple[str, str, str]] = [
 ]
 
 
+# commands added by the other open issues (register, motion): their own checks, held to
+# the same standard here
+CASES += [
+    ("register-scan-missing", "register {i}/none.ply -o {o}/r", "none.ply"),
+    ("register-preset-unknown", "register {i}/scan.ply -o {o}/r --preset fast", "--preset"),
+    ("register-shape-components-0", "register {i}/scan.ply -o {o}/r --shape-components 0",
+     "--shape-components"),
+    ("register-texture-size-0", "register {i}/scan.ply -o {o}/r --texture-size 0",
+     "--texture-size"),
+    ("register-shard-k-ge-m", "register {i}/scan.ply -o {o}/r --shard 3/2", "--shard"),
+    ("register-landmarks-missing", "register {i}/scan.ply -o {o}/r --landmarks {i}/none.json",
+     "--landmarks"),
+    ("transfer-target-unknown", ("transfer --motion {i}/seq.npz --target procedural:giraffe "
+     "-o {o}/t"), "--target"),
+    ("transfer-influences-3", ("transfer --motion {i}/seq.npz --target procedural:long-neck "
+     "-o {o}/t --influences 3"), "--influences"),
+    ("transfer-frames-0", ("transfer --motion {i}/seq.npz --target procedural:long-neck "
+     "-o {o}/t --frames 0"), "--frames"),
+    ("learn-head-to-neck-one-sequence", "learn head-to-neck {i}/seq.npz -o {o}/h.npz",
+     "SEQUENCES"),
+    ("learn-larynx-motion-held-out", "learn larynx-motion {i}/seq.npz -o {o}/l.npz",
+     "--held-out"),
+    ("learn-shape-too-few", "learn shape {i}/scan.ply -o {o}/s.npz", "registrations"),
+    ("learn-shape-out-suffix", ("learn shape {i}/scan.ply {i}/scan.ply {i}/scan.ply "
+     "-o {o}/s.txt"), "-o"),
+    ("learn-shape-components-0", "learn shape {i}/scan.ply -o {o}/s.npz --components 0",
+     "--components"),
+]
+
+#: Found not clean in those commands (their owners' to fix; xfail until then, not strict)
+KNOWN = [
+    ("register-out-is-file", "register {i}/scan.ply -o {o}/file", "-o/--output"),
+    ("register-units-unknown", "register {i}/scan.ply -o {o}/r --units inch", "--units"),
+    ("register-not-a-scan", "register {i}/params.txt -o {o}/r", "params.txt"),
+    ("transfer-motion-missing", ("transfer --motion {i}/none.npz --target "
+     "procedural:long-neck -o {o}/t"), "--motion"),
+    ("transfer-out-is-file", ("transfer --motion {i}/seq.npz --target procedural:long-neck "
+     "-o {o}/file"), "-o/--output"),
+    ("transfer-spp-0", ("transfer --motion {i}/seq.npz --target procedural:long-neck "
+     "-o {o}/t --spp 0"), "--spp"),
+]
+
+
 def make_inputs(folder: Path) -> Path:
     """The input files the cases name as ``{i}/...``."""
     import imageio.v3 as iio
@@ -265,6 +308,11 @@ def make_inputs(folder: Path) -> Path:
     (folder / "binary.json").write_bytes(b"\xff\xfe\x00\x81 binary")
     (folder / "empty.npy").write_bytes(b"")
     np.save(folder / "lm3.npy", np.zeros((68, 3)))
+    (folder / "scan.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
+    np.savez(folder / "seq.npz", fps=24.0, theta=np.zeros((3, 8, 3)))
     iio.imwrite(folder / "face.png", np.full((48, 48, 3), 128, np.uint8))
     rng = np.random.default_rng(0)
     meshes = rng.normal(size=(3, 50, 3)) * 0.05
@@ -332,6 +380,13 @@ def test_bad_input_is_a_clean_answer(case, args, names, inputs, tmp_path, capsys
     assert names in lines[0], f"{case}: {names!r} not in {lines[0]!r}"
     assert snapshot(out) == before, f"{case}: files left behind"
     assert snapshot(inputs) == before_in, f"{case}: an input was changed"
+
+
+@pytest.mark.xfail(reason="not clean yet in the command's own checks (issue 29)",
+                   strict=False)
+@pytest.mark.parametrize("case, args, names", KNOWN, ids=[c[0] for c in KNOWN])
+def test_known_unclean_inputs_of_newer_commands(case, args, names, inputs, tmp_path, capsys):
+    test_bad_input_is_a_clean_answer(case, args, names, inputs, tmp_path, capsys)
 
 
 def test_the_table_is_large_enough():
@@ -424,7 +479,7 @@ def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`
     tally = {"tried": 0, "clean": 0, "traceback": 0, "exit0": 0, "other": 0}
     with tempfile.TemporaryDirectory() as tmp:
         i = make_inputs(Path(tmp) / "i")
-        for n, (case, args, names) in enumerate(CASES):
+        for n, (case, args, names) in enumerate(CASES + KNOWN):
             o = make_output_folder(Path(tmp) / f"o{n}")
             before, cap = snapshot(o), Capture()
             with contextlib.redirect_stderr(cap.buf), contextlib.redirect_stdout(io.StringIO()):
