@@ -113,6 +113,12 @@ def register_cmd(
     from hack_render.register.pipeline import register
     from hack_render.register.scan import load_scan
 
+    from hack_render import boundary
+    from hack_render.register.scan import UNITS
+
+    boundary.output_dir(output)
+    if units is not None and units not in UNITS:
+        raise HackError(f"--units: expected m, cm or mm, found {units!r}.")
     files = _scan_files(list(scans))
     k, m = parse_shard(shard)
     files = files[k::m]
@@ -129,7 +135,6 @@ def register_cmd(
                                       free_iterations=steps[2])
     lmk_file = read_landmarks_3d(landmarks) if landmarks is not None else None
     model = load_model(model_path)
-    output.mkdir(parents=True, exist_ok=True)
     settings = {"preset": preset, "iterations": steps, "free_form": free_form,
                 "shape_components": shape_components,
                 "units": units, "bake": bake, "texture_size": texture_size,
@@ -142,8 +147,15 @@ def register_cmd(
         if _finished(outdir, fp):
             skipped += 1
             continue
-        scan = load_scan(path, units)
-        lmk, ids, lmk_info = _landmarks(scan, lmk_file, quiet, model)
+        try:
+            scan = load_scan(path, units)
+            lmk, ids, lmk_info = _landmarks(scan, lmk_file, quiet, model)
+        except HackError as err:
+            if len(files) == 1:
+                raise
+            typer.secho(f"{path.name}: skipped: {err}", err=True, fg=typer.colors.RED)
+            failed += 1
+            continue
         reg = register(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
                        landmark_source=lmk_info["source"])
         reg.report["fingerprint"] = fp
