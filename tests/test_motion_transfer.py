@@ -324,3 +324,23 @@ def test_09_cli_turntable(tmp_path):
               for i in range(4)]
     assert (tmp_path / "out" / "turntable" / "turntable.mp4").stat().st_size > 0
     assert all(f.std() > 5 for f in frames)  # something is in view
+
+
+def test_10_cli_gltf_target(tmp_path, capsys):
+    """A glTF target through the command: found chain, arc-length mapping in the report,
+    the animation added to a copy (the input untouched), a UV atlas for its UV-less box."""
+    from hack_render.cli import main
+
+    src = _chain_gltf(tmp_path / "chain.glb")
+    before = src.read_bytes()
+    motion = save_sequence(tmp_path / "anim.npz", _motion(3))
+    main(["transfer", "--motion", str(motion), "--target", str(src), "-o", str(tmp_path / "o"),
+          "--quiet"])
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["target"]["method"] == "arc length along the neck chain"
+    assert rep["target"]["mapping"]["c7-t1"] == "neck_01" and rep["target"]["mapping"]["o-c1"] == "head"
+    assert rep["target"]["uv_atlas_primitives"] == 1
+    doc, _ = read_gltf(tmp_path / "o" / "chain_hack.glb")
+    assert [a["name"] for a in doc["animations"]] == ["hack_transfer"]
+    assert "TEXCOORD_0" in doc["meshes"][0]["primitives"][0]["attributes"]
+    assert src.read_bytes() == before
