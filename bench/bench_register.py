@@ -25,6 +25,10 @@ surface, vertex error against the truth (mm, skin), landmark error, seconds per 
 
     python bench/bench_register.py                          # 10 held out of 60
     python bench/bench_register.py --held-out 3 --population 20 --out /tmp/r.json
+    # in parallel, then merged:
+    python bench/bench_register.py --threads 1 --identities 0:5 --out /tmp/a.json &
+    python bench/bench_register.py --threads 1 --identities 5:10 --out /tmp/b.json
+    python bench/bench_register.py --merge /tmp/a.json /tmp/b.json
 
 Writes ``bench/results/register.json``.
 """
@@ -111,14 +115,59 @@ def summarise(rows: list[dict], key: str) -> dict:
     return {"mean": float(x.mean()), "std": float(x.std()), "n": len(x)} if len(x) else {}
 
 
+def table_of(rows: dict[str, list]) -> dict:
+    table = {}
+    for key, rs in rows.items():
+        name, kind = key.split("/")
+        entry = {k: summarise(rs, k) for k in ("s2m_mean", "s2m_face", "s2m_neck",
+                                               "clean_s2m_mean", "vertex_mean",
+                                               "landmark_mean", "seconds")}
+        entry["failed"] = sum(r["status"] != "ok" for r in rs)
+        table[f"{name}/{kind}"] = entry
+        if name == "hack":
+            table[f"hack (no free-form)/{kind}"] = {
+                "s2m_mean": summarise(rs, "s2m_model_mean"),
+                "clean_s2m_mean": summarise(rs, "clean_s2m_model_mean"),
+                "vertex_mean": summarise(rs, "vertex_model_mean")}
+    for kind in ("neutral", "posed"):
+        lin = table.get(f"linear/{kind}", {}).get("s2m_mean", {}).get("mean")
+        hk = table.get(f"hack (no free-form)/{kind}", {}).get("s2m_mean", {}).get("mean")
+        if lin and hk:
+            table[f"ratio hack/linear ({kind}, no free-form)"] = hk / lin
+    return table
+
+
+def merge(parts: list[Path], out: Path) -> None:
+    """One result from several runs over parts of the held-out identities (same protocol)."""
+    import json
+
+    data = [json.loads(p.read_text()) for p in parts]
+    rows: dict[str, list] = {}
+    for d in data:
+        for k, rs in d["scans"].items():
+            rows.setdefault(k, []).extend(rs)
+    protocol = dict(data[0]["protocol"])
+    protocol["held_out"] = len({r["identity"] for r in rows.get("hack/neutral", [])})
+    protocol["parts"] = [{"file": str(p), "commit": d["commit"], "command": d["command"],
+                          "date": d["date"]} for p, d in zip(parts, data)]
+    write_result(out, {"protocol": protocol, "table": table_of(rows), "scans": rows})
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--population", type=int, default=60)
     ap.add_argument("--held-out", type=int, default=10)
+    ap.add_argument("--identities", default=None, help="START:STOP, a part of the held-out "
+                    "identities (run parts in parallel, then --merge their files)")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "register.json")
     args = ap.parse_args()
+    if args.merge:
+        merge(args.merge, args.out)
+        return
     torch.set_num_threads(args.threads)
     base = load_default_model()
     betas = population(base, args.population, args.seed)
@@ -127,12 +176,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         reg_model = leave_out_model(base, train, Path(tmp))
     learn_s = time.perf_counter() - t0
-    rng = np.random.default_rng(args.seed)
     configs = {"hack": RegisterConfig(), "linear": RegisterConfig(joints=False, larynx=False,
                                                                   free_form=False),
                "paper": RegisterConfig.preset_named("paper", free_form=False)}
+    start, stop = (0, len(test)) if args.identities is None else \
+        (int(x) for x in args.identities.split(":"))
     rows: dict[str, list] = {}
-    for i, b in enumerate(test):
+    for i in range(start, stop):
+        b = test[i]
+        rng = np.random.default_rng(1000 * args.seed + i)  # the same scans in any part
         for kind in ("neutral", "posed"):
             extra = posed_inputs(base, rng) if kind == "posed" else {}
             with torch.no_grad():
@@ -153,32 +205,14 @@ def main() -> None:
                 print(f"{i} {kind:7s} {name:6s} s2m {r['s2m_mean']:.3f} (model "
                       f"{r['s2m_model_mean']:.3f}) clean {r['clean_s2m_mean']:.3f} vertex "
                       f"{r['vertex_mean']:.2f} {r['seconds']:.0f} s {r['status']}", flush=True)
-    table = {}
-    for key, rs in rows.items():
-        name, kind = key.split("/")
-        entry = {k: summarise(rs, k) for k in ("s2m_mean", "s2m_face", "s2m_neck",
-                                               "clean_s2m_mean", "vertex_mean",
-                                               "landmark_mean", "seconds")}
-        entry["failed"] = sum(r["status"] != "ok" for r in rs)
-        table[f"{name}/{kind}"] = entry
-        if name == "hack":
-            table[f"hack (no free-form)/{kind}"] = {
-                "s2m_mean": summarise(rs, "s2m_model_mean"),
-                "clean_s2m_mean": summarise(rs, "clean_s2m_model_mean"),
-                "vertex_mean": summarise(rs, "vertex_model_mean")}
-    for kind in ("neutral", "posed"):
-        lin = table.get(f"linear/{kind}", {}).get("s2m_mean", {}).get("mean")
-        hk = table.get(f"hack (no free-form)/{kind}", {}).get("s2m_mean", {}).get("mean")
-        if lin and hk:
-            table[f"ratio hack/linear ({kind}, no free-form)"] = hk / lin
     write_result(args.out, {
-        "protocol": {"population": args.population, "held_out": args.held_out,
+        "protocol": {"population": args.population, "held_out": stop - start,
                      "registering_model_components": reg_model.num_shape,
                      "learn_shape_s": learn_s, "noise_mm": 0.5, "holes": 3,
                      "retessellated": True, "torch_threads": args.threads,
                      "data": "derived: synthetic scans of identities sampled from the shipped "
                              "model's ICT-FaceKit shape space; no real scans"},
-        "table": table, "scans": rows})
+        "table": table_of(rows), "scans": rows})
     print(f"wrote {args.out}")
 
 

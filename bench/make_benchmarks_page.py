@@ -139,7 +139,44 @@ def _figures(name: str, d: dict) -> list[str]:
     return lines + ["", f"- {_source(name, d)}", ""]
 
 
-KNOWN = set(FIT_RUNS) | {"fit_budget20", "fit_budget8", "fit_tune_jaw_20_39", "landmark_refiner"}
+KNOWN = set(FIT_RUNS) | {"fit_budget20", "fit_budget8", "fit_tune_jaw_20_39", "landmark_refiner",
+                         "register"}
+
+
+def _pm(entry: dict, key: str, fmt: str = "{:.2f}") -> str:
+    v = entry.get(key) or {}
+    if not v:
+        return "-"
+    return f"{fmt.format(v['mean'])} ± {fmt.format(v['std'])}"
+
+
+def _register(results: dict) -> list[str]:
+    """bench_register.py's Table 1: mean +- std over held-out scans per configuration."""
+    d = results.get("register")
+    if d is None:
+        return []
+    p = d["protocol"]
+    lines = [f"Leave-k-out: {p['held_out']} identities held out of {p['population']}; the "
+             f"registering model's shape space ({p['registering_model_components']} components) "
+             "is learned without them. Scans re-tessellated, "
+             f"{p['noise_mm']} mm noise, {p['holes']} holes, a random similarity; {p['data']}. "
+             "Scan-to-mesh: each scan's mean distance (mm) from its points to the registration; "
+             "against the clean surface: from the noise-free surface; vertex: registered "
+             "vertices to the truth over the skin.", "",
+             "| model | scans | scan-to-mesh (mm) | to the clean surface (mm) | vertex (mm) | "
+             "s / scan | failed |", "|---|---|---|---|---|---|---|"]
+    order = ["linear", "paper", "hack (no free-form)", "hack"]
+    for kind in ("neutral", "posed"):
+        for name in order:
+            e = d["table"].get(f"{name}/{kind}")
+            if not e:
+                continue
+            lines.append(f"| {name} | {kind} | {_pm(e, 's2m_mean')} | {_pm(e, 'clean_s2m_mean')} | "
+                         f"{_pm(e, 'vertex_mean')} | {_pm(e, 'seconds', '{:.0f}')} | "
+                         f"{e.get('failed', '-')} |")
+    ratios = {k: v for k, v in d["table"].items() if k.startswith("ratio")}
+    lines += [""] + [f"- {k}: {v:.2f}" for k, v in ratios.items()]
+    return lines + ["", f"- {_source('register', d)}"]
 SKIP = {"commit", "date", "machine", "command", "provenance_note", "title", "note"}
 
 
@@ -190,6 +227,8 @@ def render(results: dict) -> str:
     out += _fit_table(results)
     out += ["", "## Fitting: where the error lies", ""] + _budget(results)
     out += ["", "## Landmark refiner", ""] + _refiner(results)
+    if "register" in results:
+        out += ["", "## Registration to scans (Table 1 style)", ""] + _register(results)
     out += ["", "## Other benchmarks", ""]
     for name, d in results.items():
         if "figures" in d or "printed" in d:
