@@ -320,3 +320,25 @@ def test_learn_shape_spans_its_registrations_and_keeps_the_model(model, tmp_path
     # carried over to within that motion: within 10 % of the expression's size
     diff = np.linalg.norm(e_new.numpy() @ R.T - e_old.numpy(), axis=1)
     assert diff.max() < 0.1 * np.linalg.norm(e_old.numpy(), axis=1).max(), diff.max()
+
+
+def test_textured_scans_carry_their_texture_colours(tmp_path):
+    """A textured OBJ (texture image + UVs): the surface samples take the texture's colour."""
+    from PIL import Image
+
+    from hack_render.register.scan import SurfaceIndex, srgb_to_linear
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.12)
+    uv = np.stack([(mesh.vertices[:, 0] > 0) * 0.5 + 0.25, np.full(len(mesh.vertices), 0.5)], 1)
+    img = np.zeros((8, 8, 3), np.uint8)
+    img[:, :4] = (200, 40, 40)  # u < 0.5: red
+    img[:, 4:] = (40, 40, 200)  # u >= 0.5: blue
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(img))
+    mesh.export(tmp_path / "t.obj")
+    scan = load_scan(tmp_path / "t.obj")
+    assert scan.texture is not None and scan.has_color
+    index = SurfaceIndex(scan)
+    right = index.points[:, 0] > 0.05
+    red, blue = srgb_to_linear(np.array([200, 40, 40]) / 255), srgb_to_linear(np.array([40, 40, 200]) / 255)
+    np.testing.assert_allclose(np.median(index.colors[right], 0), blue, atol=0.02)
+    np.testing.assert_allclose(np.median(index.colors[index.points[:, 0] < -0.05], 0), red, atol=0.02)
