@@ -372,26 +372,35 @@ def turntable(
         if todo:
             typer.echo(f"turntable: {len(todo)} of {frames} frames to render, {w}x{h}, "
                        f"{spp} spp")
-            head = HeadScene(topo, vertices_at(todo[0]), rig, camera_at(todo[0]), settings,
+            head = HeadScene(topo, vertices_at(0), rig, camera_at(0), settings,
                              skin_maps(alpha_, appearance_seed, textures), None, variant)
             times, animated = [], look_around or swallow or mode == "subject"
-            for i in tqdm(todo, desc="turntable", unit="frame", disable=quiet):
+            pending, bar = set(todo), tqdm(total=len(todo), desc="turntable", unit="frame",
+                                           disable=quiet)
+            # The scene goes through every frame's changes from frame 0, rendering only the
+            # pending frames: Mitsuba's state after an update (the acceleration structure,
+            # the environment's bounds) depends on the updates before it, so a resumed
+            # run replays the skipped frames' updates to render the same bytes as an
+            # uninterrupted one (one started at its first pending frame differed in a few
+            # pixels of later frames by up to 6/255).
+            for i in range(max(todo) + 1):
                 t0 = time.perf_counter()
-                # every frame from the same state changes, whatever came before it (a
-                # resumed run starts elsewhere): the vertices and camera set, then the
-                # environment given the current bounds (HeadScene.sync_environment)
                 if animated:
                     head.set_vertices(vertices_at(i), update=False)
                 head.set_camera(camera_at(i))
                 if animated:
                     head.sync_environment()
+                if i not in pending:
+                    continue
                 img = head.render(seed=seed + i)
                 with atomic_path(tt.frame_path(output, i)) as tmp:
                     iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
                 times.append(time.perf_counter() - t0)
+                bar.update()
                 if len(times) == 2 and len(todo) > 2:  # the first frame compiles: no rate
                     typer.echo(boundary.estimate_line("turntable", times[1], len(todo) - 2,
                                                       "frame"), err=True)
+            bar.close()
             if len(times) > 1:
                 typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
                            f"{np.mean(times[1:]):.2f} s ({head.variant})")
