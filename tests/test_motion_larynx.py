@@ -49,6 +49,10 @@ def test_01_recovers_a_known_lagged_function(names, data, tmp_path):
     m2, meta2 = L.load_model(tmp_path / "lm.npz")
     np.testing.assert_allclose(L.predict(m2, psi[:40]), L.predict(model, psi[:40]), atol=1e-6)
     assert meta2["step"] == 300 and meta2["format"] == L.FORMAT
+    from hack_render.geometry.params import ParamSequence
+
+    seq = L.fill_tau(m2, ParamSequence(fps=30.0, theta=np.zeros((40, 8, 3)), psi=psi[:40]))
+    np.testing.assert_allclose(seq.tau, L.predict(model, psi[:40]), atol=1e-6)
 
 
 def test_02_checkpoint_resumes_exactly(names, data, tmp_path):

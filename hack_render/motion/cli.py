@@ -45,8 +45,10 @@ def learn_head_to_neck(
 
     Example: hack-render learn head-to-neck takes/*.npz --held-out 2 -o head_to_neck.npz
     """
+    from hack_render import boundary as B
     from hack_render.motion import head_to_neck as H
 
+    B.output_file(output, "-o/--output", (".npz",))
     if len(sequences) < 2:
         raise HackError(f"SEQUENCES: expected at least 2 files (training and held-out), found "
                         f"{len(sequences)}.")
@@ -104,12 +106,15 @@ def learn_larynx_motion(
 
     Example: hack-render learn larynx-motion talks/*.npz --held-out 2 -o larynx_motion.npz
     """
+    from hack_render import boundary as B
     from hack_render.motion import larynx_motion as L
 
+    B.output_file(output, "-o/--output", (".npz",))
     if not 0 <= held_out < len(sequences):
         raise HackError(f"--held-out: expected 0..{len(sequences) - 1}, found {held_out}.")
-    if output.suffix.lower() != ".npz":
-        raise HackError(f"-o {output}: expected an .npz output.")
+    for name, value, lo in (("--steps", steps, 1), ("--d-model", d_model, 4),
+                            ("--layers", layers, 1), ("--window", window, 1)):
+        B.number(value, name, lo, 1e6, integer=True)
     pairs = _larynx_pairs(list(sequences))
     train_pairs = pairs[:len(pairs) - held_out]
     cfg = L.LarynxConfig(num_expressions=pairs[0][0].shape[1], d_model=d_model, layers=layers,
@@ -154,16 +159,21 @@ def transfer(
 
     Example: hack-render transfer --motion anim.npz --target procedural:long-neck -o out/giraffe
     """
+    from hack_render import boundary as B
     from hack_render.geometry import load_model
     from hack_render.geometry.cli import gather_params
     from hack_render.motion.transfer import run_transfer, target_kind
 
-    target_kind(target)
+    B.input_file(motion, "--motion", (".npz", ".jsonl", ".ndjson"), "parameter sequence")
+    kind = target_kind(target)
+    if kind != "procedural":
+        B.input_file(target, "--target", None, "character")
+    B.output_dir(output)
     if influences not in (4, 8):
         raise HackError(f"--influences: expected 4 or 8, found {influences}.")
-    if not (2 <= frames <= 2000 and 16 <= resolution <= 4096):
-        raise HackError(f"--frames 2..2000 and --resolution 16..4096 expected, found {frames}, "
-                        f"{resolution}.")
+    B.number(frames, "--frames", 2, 2000, integer=True)
+    B.number(resolution, "--resolution", 16, 4096, integer=True, unit="pixels")
+    B.number(spp, "--spp", 1, 65536, integer=True)
     nmap = None
     if name_map is not None:
         try:

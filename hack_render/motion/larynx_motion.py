@@ -280,6 +280,17 @@ def predict(model: LarynxTransformer, psi: np.ndarray) -> np.ndarray:
     return model.generate(torch.as_tensor(psi, dtype=torch.float32)).double().numpy() / TAU_SCALE
 
 
+def fill_tau(model: LarynxTransformer, seq):
+    """A parameter sequence (``geometry.params.ParamSequence``) with its tau predicted from
+    its psi (an expression-only sequence, e.g. from an ARKit capture, gains a larynx)."""
+    from dataclasses import replace
+
+    if seq.psi is None:
+        raise HackError("sequence: key 'psi' is missing; the larynx is predicted from the "
+                        "per-frame expressions.")
+    return replace(seq, tau=predict(model, seq.psi))
+
+
 def evaluate(model: LarynxTransformer, pairs) -> dict:
     """RMSE and max error (mm) of autoregressive prediction on (psi, tau) pairs, against
     tau's own standard deviation (what predicting a constant would cost)."""

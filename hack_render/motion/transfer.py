@@ -144,29 +144,38 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
     return out
 
 
-def transfer_gltf(model, path: Path, seq, outdir: Path, chain: list[str] | None = None,
-                  name_map: dict | None = None) -> dict:
-    """A glTF character: the neck's rotations retargeted onto its chain, written as a copy
-    with the animation added (and a UV atlas where a primitive had none)."""
+def prepare_gltf(model, path: Path, chain: list[str] | None = None,
+                 name_map: dict | None = None):
+    """Load a glTF character and map HACK's joints onto its neck (every check before any
+    output is written): (character, bones, assignment)."""
     import torch
 
     from hack_render.motion import retarget as RT
 
-    t0 = time.perf_counter()
     ch = RT.load_gltf_character(path)
     with torch.no_grad():
         hack_joints = model(beta=torch.zeros(1, 0, dtype=model.template.dtype)).rest_joints[0]
     bones, assign = RT.joint_map(ch, hack_joints.double().numpy(), chain, name_map)
+    return ch, bones, assign
+
+
+def transfer_gltf(ch, bones: list[int], assign: list[int], seq, outdir: Path,
+                  by_name: bool) -> dict:
+    """A glTF character: the neck's rotations retargeted onto its chain, written as a copy
+    with the animation added (and a UV atlas where a primitive had none)."""
+    from hack_render.geometry.skeleton import JOINT_NAMES
+    from hack_render.motion import retarget as RT
+
+    t0 = time.perf_counter()
     quats = RT.retarget(ch, bones, assign, seq.theta)
     atlas = RT.add_uv_atlas(ch)
-    from hack_render.geometry.skeleton import JOINT_NAMES
-
     mapping = {j: ch.names[bones[b]] for j, b in zip(JOINT_NAMES, assign, strict=True)}
-    prov = {"source": str(path), "mapping": mapping,
-            "method": "name map" if name_map else "arc length along the neck chain",
+    prov = {"source": str(ch.path), "mapping": mapping,
+            "method": "name map" if by_name else "arc length along the neck chain",
             "dropped": "expressions, larynx, global_orient and transl (they need the model's "
                        "topology or a body root)", "uv_atlas_primitives": atlas}
-    files = RT.write_animated(ch, bones, quats, seq.fps, outdir / f"{path.stem}_hack.glb", prov)
+    files = RT.write_animated(ch, bones, quats, seq.fps, outdir / f"{ch.path.stem}_hack.glb",
+                              prov)
     return {"target": prov, "frames": seq.frames, "fps": seq.fps,
             "files": [str(f) for f in files], "seconds": round(time.perf_counter() - t0, 2)}
 
@@ -175,21 +184,24 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
                  chain: list[str] | None = None, name_map: dict | None = None,
                  influences: int = 4, turntable: dict | None = None,
                  progress: bool = True) -> dict:
-    """Check the inputs, transfer, and write ``report.json`` beside the outputs."""
+    """Check every input, then transfer and write ``report.json`` beside the outputs (the
+    output folder is created only once the inputs are known good)."""
     from hack_render.geometry.params import load_sequence
     from hack_render.motion.character import load_character, long_neck_character
 
     kind = target_kind(target)
     seq = load_sequence(motion, model.num_expressions)
-    outdir.mkdir(parents=True, exist_ok=True)
     if kind == "gltf":
-        report = transfer_gltf(model, Path(target), seq, outdir, chain, name_map)
+        ch, bones, assign = prepare_gltf(model, Path(target), chain, name_map)
+        outdir.mkdir(parents=True, exist_ok=True)
+        report = transfer_gltf(ch, bones, assign, seq, outdir, bool(name_map))
     else:
         if chain or name_map:
             raise HackError("--neck-chain and --name-map apply to glTF targets; a character "
                             "in the model's topology carries its 8 neck joints.")
         character = (long_neck_character(model) if kind == "procedural"
                      else load_character(target, model))
+        outdir.mkdir(parents=True, exist_ok=True)
         report = transfer_topology(model, character, seq, params or {}, outdir,
                                    influences=influences, turntable=turntable,
                                    progress=progress)
