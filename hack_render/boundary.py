@@ -108,8 +108,6 @@ def _one_of(items: Sequence[str]) -> str:
 def _nearest_existing(path: Path) -> Path:
     p = path
     while not p.exists() and p != p.parent:
-        if p.is_symlink():  # a dangling link: its target's folder is what would be written
-            break
         p = p.parent
     return p
 

@@ -5,6 +5,8 @@ together and turns user errors (:class:`hack_render.errors.HackError`) into a cl
 message and exit code 2.
 """
 
+# ruff: noqa: I001 - the sub-apps block is one line per owner, in the order of --help
+
 from __future__ import annotations
 
 import errno
