@@ -145,6 +145,9 @@ def transfer(
     name_map: Path | None = typer.Option(None, "--name-map", help="glTF: JSON mapping each "
                                             "HACK joint (c7-t1 ... o-c1) to a bone name."),
     influences: int = typer.Option(4, help="Skin weights per vertex in the glTF: 4 or 8."),
+    alpha: opts.Alpha = None,
+    appearance_seed: opts.AppearanceSeed = None,
+    textures: opts.Textures = None,
     turntable: bool = typer.Option(True, "--turntable/--no-turntable", help="Render a "
                                    "turntable of the transferred motion (model topology)."),
     frames: int = typer.Option(24, help="Turntable frames."),
@@ -188,8 +191,16 @@ def transfer(
     model = load_model(model_path)
     tt = ({"frames": frames, "resolution": resolution, "spp": spp, "variant": variant}
           if turntable else None)
+    maps = None
+    if target_kind(target) != "gltf":  # the skin maps in the model's atlas (default: A(0))
+        from hack_render.geometry.cli import _floats
+        from hack_render.render.skin_maps import skin_maps
+
+        a = _floats(alpha, "alpha")
+        maps = skin_maps([0.0] if a is None and appearance_seed is None and textures is None
+                         else a, appearance_seed, textures)
     rep = run_transfer(model, motion, target, output, p, chain, nmap, influences, tt,
-                       progress=not quiet)
+                       progress=not quiet, maps=maps)
     for f in rep["files"]:
         typer.echo(f"wrote {Path(f).resolve()}")
     d = rep.get("deformation")

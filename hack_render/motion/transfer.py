@@ -53,8 +53,9 @@ def _summary(stats: dict, lbs: dict) -> dict:
 
 def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
                       influences: int = 4, turntable: dict | None = None,
-                      progress: bool = True) -> dict:
-    """A same-topology character: its rig, the animated glTF, the measures, the turntable."""
+                      progress: bool = True, maps=None) -> dict:
+    """A same-topology character: its rig, the animated glTF, the measures, the turntable.
+    ``maps``: skin maps in the model's UV atlas (the character shares it), for both."""
     from hack_render.export import rig as R
     from hack_render.export.gltf import Animation, Pose, person_document, write_document
     from hack_render.export.person import _frames_from
@@ -74,7 +75,7 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
                      weights)
     pose = Pose(R.axis_angle_quaternions(np.zeros((9, 3))), np.zeros(3),
                 np.zeros(len(rig.target_names)))
-    doc = person_document(model, rig, pose, None, anim, character.name)
+    doc = person_document(model, rig, pose, maps, anim, character.name)
     doc.doc["asset"]["extras"]["hack"]["character"] = character.meta
     files = write_document(doc, outdir / f"{character.name}.glb")
     stats = pose_checks(crig, model, frames["theta"], frames["psi"])
@@ -88,7 +89,7 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
         below = float(character.joints[0, 1]) - 0.04  # from just below c7-t1
         report["files"] += [str(p) for p in render_turntable(
             model, verts, outdir / "turntable", progress=progress, frame_above=below,
-            **turntable)]
+            maps=maps, **turntable)]
     report["seconds"] = round(time.perf_counter() - t0, 2)
     return report
 
@@ -96,8 +97,8 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
 def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, fps: int = 24,
                      resolution: int = 192, spp: int = 16, formats: tuple = ("mp4", "gif"),
                      variant: str | None = None, progress: bool = True,
-                     frame_above: float | None = None, lighting: str = "overcast_sun"
-                     ) -> list[Path]:
+                     frame_above: float | None = None, lighting: str = "overcast_sun",
+                     maps=None) -> list[Path]:
     """An orbiting turntable of a posed character (verts (T, N, 3), the model's topology):
     frame i of ``frames`` shows motion frame ``i T / frames``, the camera at ``360 i /
     frames`` degrees, framed on the vertices above height ``frame_above`` (the neck and
@@ -127,7 +128,7 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
                           extent=extent, name=f"frame_{i:04d}")
 
     head = HeadScene(Topology.from_model(model), verts[pick[0]], lights.preset(lighting), cam(0),
-                     settings, None, None, variant)
+                     settings, maps, None, variant)
     images = []
     for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
         head.set_vertices(verts[pick[i]])
@@ -183,7 +184,7 @@ def transfer_gltf(ch, bones: list[int], assign: list[int], seq, outdir: Path,
 def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | None = None,
                  chain: list[str] | None = None, name_map: dict | None = None,
                  influences: int = 4, turntable: dict | None = None,
-                 progress: bool = True) -> dict:
+                 progress: bool = True, maps=None) -> dict:
     """Check every input, then transfer and write ``report.json`` beside the outputs (the
     output folder is created only once the inputs are known good)."""
     from hack_render.geometry.params import load_sequence
@@ -204,7 +205,7 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
         outdir.mkdir(parents=True, exist_ok=True)
         report = transfer_topology(model, character, seq, params or {}, outdir,
                                    influences=influences, turntable=turntable,
-                                   progress=progress)
+                                   progress=progress, maps=maps)
     report["motion"] = str(motion)
     path = outdir / "report.json"
     path.write_text(json.dumps(report, indent=2))
