@@ -342,3 +342,16 @@ def test_textured_scans_carry_their_texture_colours(tmp_path):
     red, blue = srgb_to_linear(np.array([200, 40, 40]) / 255), srgb_to_linear(np.array([40, 40, 200]) / 255)
     np.testing.assert_allclose(np.median(index.colors[right], 0), blue, atol=0.02)
     np.testing.assert_allclose(np.median(index.colors[index.points[:, 0] < -0.05], 0), red, atol=0.02)
+
+
+def test_landmarks_are_found_on_a_point_cloud(model):
+    """A point cloud (no faces, estimated normals) is meshed, then its face found."""
+    from hack_render.register.find_landmarks import find_landmarks
+    from hack_render.register.scan import Scan, estimate_normals
+
+    truth, _, _ = _posed_truth(model, seed=6, posed=False)
+    sc = make_scan(model, truth, seed=8)
+    pts = sc.vertices / sc.scale
+    found, ids, _ = find_landmarks(Scan("pc", pts, estimate_normals(pts)), size=256)
+    ref = sc.truth[model.landmark_indices.numpy()][list(ids)] / sc.scale
+    assert len(ids) >= 35 and np.median(1000 * np.linalg.norm(found - ref, axis=1)) < 6.0

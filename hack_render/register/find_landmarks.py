@@ -15,7 +15,8 @@
    those. The jaw line (landmarks 0-16) is a contour that moves with the view, so only
    the 51 inner landmarks are returned.
 
-Point clouds have no surface to render: they need ``--landmarks``.
+A point cloud is first meshed (:func:`surface_of_points`) to be rendered; its landmarks
+are lifted onto that mesh, within a voxel of the points.
 """
 
 from __future__ import annotations
@@ -141,6 +142,38 @@ def _close_views(views, frame, size: int) -> list[np.ndarray]:
     return lifts
 
 
+def surface_of_points(scan: Scan, voxel: float = 0.0025, band: float = 0.006) -> Scan:
+    """A mesh through a point cloud, for rendering it: the zero set of the signed distance
+    to the nearest point's tangent plane (Hoppe et al. 1992), sampled on a ``voxel`` grid
+    within ``band`` of the points and meshed by marching cubes (scikit-image)."""
+    from scipy.spatial import cKDTree
+    from skimage.measure import marching_cubes
+
+    lo = scan.points.min(0) - 2 * band
+    shape = np.ceil((scan.points.max(0) + 2 * band - lo) / voxel).astype(int) + 1
+    if np.prod(shape) > 40_000_000:
+        raise HackError(f"{scan.name}: the point cloud is too large to mesh for finding its "
+                        "face; pass --landmarks FILE.")
+    axes = [lo[k] + voxel * np.arange(shape[k]) for k in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    d, i = cKDTree(scan.points).query(grid, distance_upper_bound=band, workers=-1)
+    near = np.isfinite(d)
+    sdf = np.full(len(grid), band)
+    j = i[near]
+    sdf[near] = np.einsum("nc,nc->n", grid[near] - scan.points[j], scan.normals[j])
+    try:
+        v, f, _, _ = marching_cubes(sdf.reshape(shape), level=0.0, spacing=(voxel,) * 3)
+    except (ValueError, RuntimeError) as exc:
+        raise HackError(f"{scan.name}: no surface could be made through the points ({exc}); "
+                        "pass --landmarks FILE.") from exc
+    v = v + lo
+    colors = None
+    if scan.colors is not None:
+        colors = scan.colors[cKDTree(scan.points).query(v, workers=-1)[1]]
+    # marching cubes orders the triangles for an SDF that grows outwards
+    return Scan.from_mesh(scan.name, v, f[:, ::-1].copy(), colors=colors)
+
+
 def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
                    progress: bool = False, reference: np.ndarray | None = None
                    ) -> tuple[np.ndarray, tuple[int, ...], dict]:
@@ -153,8 +186,7 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
     from hack_render.render.mesh_views import MeshViews
 
     if not scan.is_mesh:
-        raise HackError(f"{scan.name}: a point cloud has no surface to find a face on. Pass "
-                        "--landmarks FILE (68 or 51 3-D points in the scan's units).")
+        scan = surface_of_points(scan)
     from hack_render.register.scan import smoothed
 
     if reference is None:
