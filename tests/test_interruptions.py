@@ -98,8 +98,10 @@ def test_turntable_killed_then_resumed_is_byte_identical(turntable_reference, tm
     assert tree(out) == tree(turntable_reference)  # frames, GIF, cameras and the record
 
 
-@pytest.mark.parametrize("missing", [[2, 3, 4, 5, 6, 7, 8, 9], [3, 4, 5, 6, 7, 8, 9], [0, 4, 8],
-                                     [9]], ids=["from-2", "from-3", "holes", "last"])
+@pytest.mark.parametrize("missing", [
+    [2, 3, 4, 5, 6, 7, 8, 9], [0, 4, 8],
+    pytest.param([3, 4, 5, 6, 7, 8, 9], marks=pytest.mark.slow),
+    pytest.param([9], marks=pytest.mark.slow)], ids=["from-2", "holes", "from-3", "last"])
 def test_turntable_resumed_from_any_frame_is_byte_identical(turntable_reference, tmp_path,
                                                             missing):
     """Mitsuba's state after an update depends on the updates before it (a run started at
@@ -312,6 +314,7 @@ def test_dataset_sigint_exits_130_then_resume_is_byte_identical(dataset_referenc
     assert tree(out) == tree(ref)
 
 
+@pytest.mark.slow
 def test_dataset_sigterm_exits_143_with_the_line(dataset_reference, tmp_path):
     """A scheduler's SIGTERM (Slurm's time limit) is an interruption too: the queued
     samples are completed, the line says what was kept, the exit code is 128 + 15."""
