@@ -25,7 +25,8 @@ def dataset(
                                         "with index % M == K (0 <= K < M), e.g. one Slurm "
                                         "array task."),
     resume: bool = typer.Option(False, "--resume", help="Skip complete samples, redo "
-                                "partial ones."),
+                                "partial ones (without it, a folder that already holds "
+                                "this shard's samples is refused)."),
     seed: int = typer.Option(0, "--seed", help="Dataset seed: sample i is a function of "
                              "(seed, i) alone."),
     executor: str = typer.Option("serial", "--executor", help="serial or ray."),

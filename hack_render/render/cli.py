@@ -236,7 +236,9 @@ def turntable(
     formats: str = typer.Option("mp4,gif", help="Any of mp4, gif, frames (PNG frames are "
                                 "always kept in <out>/frames for --resume)."),
     fps: int = typer.Option(24, help="Frames per second."),
-    resume: bool = typer.Option(False, "--resume", help="Skip frames already in <out>/frames."),
+    resume: bool = typer.Option(False, "--resume", help="Skip frames already in <out>/frames "
+                                "(refused when the arguments differ from theirs: "
+                                "<out>/turntable.json)."),
     sequence: Optional[Path] = typer.Option(None, "--sequence", help="Also write the head "
                                             "motion (look-around, swallow) as a parameter "
                                             "sequence, .npz or .jsonl, for `hack-render export "
