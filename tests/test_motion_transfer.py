@@ -308,6 +308,14 @@ def test_08_bad_inputs_exit_2(model, tmp_path, capsys):
         assert msg in capsys.readouterr().err, (motion, target, msg)
     with pytest.raises(HackError, match="not an ancestor"):
         RT.find_neck_chain(RT.load_gltf_character(no_neck), ["d", "a"])
+    from hack_render.geometry.skeleton import JOINT_NAMES
+
+    chain = RT.load_gltf_character(_chain_gltf(tmp_path / "c.glb"))
+    with pytest.raises(HackError, match="every HACK joint"):
+        RT.joint_map(chain, None, name_map={"c7-t1": "neck_01"})
+    down = {j: ("head" if k < 4 else "neck_01") for k, j in enumerate(JOINT_NAMES)}
+    with pytest.raises(HackError, match="upwards"):
+        RT.joint_map(chain, None, name_map=down)
 
 
 @pytest.mark.slow

@@ -189,7 +189,10 @@ def train(thetas: list[np.ndarray], steps: int = 3000, batch: int = 256, lr: flo
             "training_frames": len(theta), "training_sequences": sources or [],
             "train_rmse_deg": float(np.rad2deg(loss.item() ** 0.5)),
             "seconds": round(time.perf_counter() - t0, 2),
-            "input": "o-c1 rotation relative to the thorax (product of the 8 joint rotations)"}
+            "input": "o-c1 rotation relative to the thorax (product of the 8 joint rotations)",
+            "provenance": {"kind": "learned from the training sequences listed",
+                           "note": "as good as those sequences' neck joints: synthetic or "
+                                   "derived sequences give a synthetic or derived mapping"}}
     return HeadToNeck(mlp.eval(), meta)
 
 

@@ -177,6 +177,11 @@ def joint_map(ch: GltfCharacter, hack_joints: np.ndarray, chain: list[str] | Non
         if assign != sorted(assign):
             raise HackError("--name-map: the bones must follow the neck upwards (c7-t1's bone "
                             "at or below c6-c7's, ..., o-c1's the highest).")
+        for a, b in itertools.pairwise(bones):
+            if not _is_ancestor(ch, a, b):
+                raise HackError(f"--name-map: {ch.names[a]!r} and {ch.names[b]!r} are not on "
+                                "one chain (the first is not an ancestor of the second); map "
+                                "the joints onto the neck's bones from its base to the head.")
         return bones, assign
     bones = find_neck_chain(ch, chain)
     return bones, arc_length_map(hack_joints, ch.world[bones, :3, 3])
