@@ -192,6 +192,61 @@ def input_dir(path: str | Path, option: str, what: str = "folder") -> Path:
     return path
 
 
+class _UniqueKeyLoader:
+    """A YAML safe loader that refuses duplicate keys (PyYAML keeps the last silently)."""
+
+    _cls = None
+
+    @classmethod
+    def get(cls):
+        if cls._cls is None:
+            import yaml
+
+            class Loader(yaml.SafeLoader):
+                def construct_mapping(self, node, deep=False):
+                    seen = set()
+                    for key_node, _ in node.value:
+                        key = self.construct_object(key_node, deep=deep)
+                        line = key_node.start_mark.line + 1
+                        if isinstance(key, (list, dict)):
+                            raise HackError(f"line {line}: a key must be a name, found {key!r}.")
+                        if key in seen:
+                            raise HackError(f"duplicate key {key!r} (line {line}); each key "
+                                            "may appear once. Remove one of them.")
+                        seen.add(key)
+                    return super().construct_mapping(node, deep=deep)
+
+            cls._cls = Loader
+        return cls._cls
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    dup = sorted({k for k in keys if keys.count(k) > 1})
+    if dup:
+        raise HackError(f"duplicate key {dup[0]!r}; each key may appear once (JSON keeps only "
+                        "the last). Remove one of them.")
+    return dict(pairs)
+
+
+def _refuse_constant(name: str):
+    raise HackError(f"{name} is not a number JSON allows; expected finite numbers.")
+
+
+def parse_json(text: str) -> Any:
+    """JSON with duplicate keys and NaN/Infinity refused (HackError); syntax errors are
+    ``ValueError`` (``json.JSONDecodeError``)."""
+    return json.loads(text, object_pairs_hook=_unique_pairs, parse_constant=_refuse_constant)
+
+
+def parse_yaml(text: str) -> Any:
+    """YAML (safe) with duplicate keys refused (HackError); syntax errors are
+    ``yaml.YAMLError``."""
+    import yaml
+
+    return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
+
+
 def os_error_message(err: OSError) -> str:
     """One line for an OS error met while writing (disk full, permissions, ...)."""
     where = err.filename or "an output file"

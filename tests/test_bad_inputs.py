@@ -166,6 +166,9 @@ CASES: list[tuple[str, str, str]] = [
     ("dataset-config-missing", "dataset --n 3 --config {i}/none.yaml -o {o}/ds", "--config"),
     ("dataset-config-bad-key", "dataset --n 3 --config {i}/ds_bad.yaml -o {o}/ds",
      "config key"),
+    ("dataset-config-duplicate-key", "dataset --n 3 --config {i}/dup.yaml -o {o}/ds",
+     "duplicate key"),
+    ("dataset-config-broken", "dataset --n 3 --config {i}/broken.yaml -o {o}/ds", "--config"),
     ("dataset-out-is-file", "dataset --n 3 -o {o}/file", "-o/--output"),
     ("dataset-rerun-without-resume", ("dataset --n 1 -o {o}/ds_existing --config "
      "{i}/ds_tiny.yaml"), "--resume"),

@@ -187,12 +187,15 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         path = Path(path)
         if not path.is_file():
             raise HackError(f"--config {path}: file not found.")
-        try:
-            import yaml
+        from hack_render.boundary import parse_yaml
 
-            data = yaml.safe_load(path.read_text()) or {}
+        try:
+            data = parse_yaml(path.read_text()) or {}
+        except HackError as err:  # a duplicate key
+            raise HackError(f"--config {path}: {err}") from err
         except Exception as err:  # any parser error
-            raise HackError(f"--config {path}: not valid YAML ({err}).") from err
+            raise HackError(f"--config {path}: not valid YAML "
+                            f"({str(err).splitlines()[0] if str(err) else err}).") from err
         if not isinstance(data, dict):
             raise HackError(f"--config {path}: expected a mapping of sections, found "
                             f"{type(data).__name__}.")

@@ -55,58 +55,15 @@ _UNITS = {"beta": " (standard deviations)", "psi": "", "expression": "",
           "transl": " metres", "eta": "", "tau": " metres"}
 
 
-class _UniqueKeyLoader:
-    """A YAML safe loader that refuses duplicate keys (PyYAML keeps the last silently)."""
-
-    _cls = None
-
-    @classmethod
-    def get(cls):
-        if cls._cls is None:
-            import yaml
-
-            class Loader(yaml.SafeLoader):
-                def construct_mapping(self, node, deep=False):
-                    seen = set()
-                    for key_node, _ in node.value:
-                        key = self.construct_object(key_node, deep=deep)
-                        if isinstance(key, (list, dict)):
-                            raise HackError(f"line {key_node.start_mark.line + 1}: a key must "
-                                            f"be a name, found {key!r}.")
-                        if key in seen:
-                            raise HackError(f"duplicate key {key!r} (line "
-                                            f"{key_node.start_mark.line + 1}); each key may "
-                                            f"appear once. Remove one of them.")
-                        seen.add(key)
-                    return super().construct_mapping(node, deep=deep)
-
-            cls._cls = Loader
-        return cls._cls
-
-
-def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    keys = [k for k, _ in pairs]
-    dup = sorted({k for k in keys if keys.count(k) > 1})
-    if dup:
-        raise HackError(f"duplicate key {dup[0]!r}; each key may appear once (JSON keeps only "
-                        f"the last). Remove one of them.")
-    return dict(pairs)
-
-
-def _refuse_constant(name: str):
-    raise HackError(f"{name} is not a number JSON allows; expected finite numbers.")
-
-
 def parse_params_text(text: str, suffix: str, where: str) -> Any:
     """The data of a parameter file's text: JSON (duplicate keys and NaN refused) or YAML
     (``suffix`` .yaml/.yml; duplicate keys refused)."""
+    from hack_render import boundary
+
     try:
         if suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
-        return json.loads(text, object_pairs_hook=_unique_pairs,
-                          parse_constant=_refuse_constant)
+            return boundary.parse_yaml(text)
+        return boundary.parse_json(text)
     except HackError as exc:
         raise HackError(f"--params {where}: {exc}") from exc
     except (ValueError, RecursionError) as exc:  # json.JSONDecodeError is a ValueError
