@@ -403,6 +403,29 @@ def test_missing_parents_are_created(tmp_path, capsys):
     assert code == 0 and (tmp_path / "new" / "sub" / "x.obj").stat().st_size > 1000, err
 
 
+@pytest.mark.parametrize("args", ["mesh -o {o}/imm/x.obj", "turntable -o {o}/imm/t",
+                                  "dataset --n 2 -o {o}/imm/ds",
+                                  "learn joints {i}/joints.npz -o {o}/imm/j.npy"],
+                         ids=["mesh", "turntable", "dataset", "learn-joints"])
+def test_immutable_output_folder_is_refused_before_the_work(inputs, tmp_path, capsys, args):
+    """chattr +i: not even root writes there (the issue's immutable folder)."""
+    import shutil
+    import subprocess
+
+    imm = tmp_path / "imm"
+    imm.mkdir()
+    if shutil.which("chattr") is None or subprocess.run(
+            ["chattr", "+i", str(imm)], check=False, capture_output=True).returncode != 0:
+        pytest.skip("chattr +i is not available here")
+    try:
+        code, err = run_case(args, inputs, tmp_path, capsys)
+    finally:
+        subprocess.run(["chattr", "-i", str(imm)], check=True)
+    lines = error_lines(err)
+    assert code == 2 and len(lines) == 1 and "not writable" in lines[0], err
+    assert "-o/--output" in lines[0] and not list(imm.iterdir())
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder_is_refused_before_the_work(tmp_path, capsys):
     ro = tmp_path / "ro"
