@@ -102,18 +102,11 @@ def register_cmd(
     render/turntable/export --params), offsets.npy, error.ply, error.png, landmarks.json,
     textures/ (coloured scans) and report.json (written last).
     """
-    import numpy as np
-    from tqdm import tqdm
-
+    from hack_render import boundary
     from hack_render.dataset.runner import parse_shard
     from hack_render.geometry import load_model
     from hack_render.register.align import read_landmarks_3d
     from hack_render.register.fitting import RegisterConfig
-    from hack_render.register.outputs import write_registration
-    from hack_render.register.pipeline import register
-    from hack_render.register.scan import load_scan
-
-    from hack_render import boundary
     from hack_render.register.scan import UNITS
 
     boundary.output_dir(output)
@@ -140,6 +133,27 @@ def register_cmd(
                 "units": units, "bake": bake, "texture_size": texture_size,
                 "model": str(model_path) if model_path else "default",
                 "landmarks": _fingerprint(landmarks, {}) if landmarks else None}
+    finished = lambda: sum(1 for p in output.glob("*/report.json"))
+    with boundary.on_interrupt(lambda: f"{finished()} finished registration(s) kept in "
+                               f"{output} (a folder with report.json is complete); run the "
+                               "same command again to go on"):
+        done, failed, skipped = _register_all(files, output, model, cfg, settings, units,
+                                              lmk_file, bake, texture_size, quiet)
+    typer.echo(f"{done} registered, {failed} failed, {skipped} already done, in {output}")
+    if failed:
+        raise typer.Exit(1)
+
+
+def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, texture_size,
+                  quiet) -> tuple[int, int, int]:
+    """Register every scan not already done; (registered, failed, skipped)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from hack_render.register.outputs import write_registration
+    from hack_render.register.pipeline import register
+    from hack_render.register.scan import load_scan
+
     done = failed = skipped = 0
     for path in tqdm(files, desc="register", unit="scan", disable=quiet or len(files) < 2):
         outdir = output / path.stem
@@ -180,9 +194,7 @@ def register_cmd(
                    f"{rep['scan_to_mesh_mm']['neck'].get('mean', float('nan')):.3f}), "
                    f"{rep['seconds']['total']:.0f} s -> {outdir}"
                    + ("" if status == "ok" else f" ({'; '.join(rep['failure'])})"))
-    typer.echo(f"{done} registered, {failed} failed, {skipped} already done, in {output}")
-    if failed:
-        raise typer.Exit(1)
+    return done, failed, skipped
 
 
 def _iterations(text: str) -> tuple[int, int, int]:
@@ -201,9 +213,9 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
     if lmk_file is not None:
         pts, ids = lmk_file
         return pts, ids, {"source": "file"}
-    from hack_render.register.find_landmarks import find_landmarks
-
     import torch
+
+    from hack_render.register.find_landmarks import find_landmarks
 
     with torch.no_grad():
         reference = model().landmarks[0].double().numpy()
