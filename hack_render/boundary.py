@@ -434,6 +434,8 @@ def on_interrupt(note: Callable[[], str] | str) -> Iterator[None]:
 
 def interrupt_message() -> str:
     """The line printed on Ctrl-C (``interrupted: ...``); forgets the note."""
-    note = _CAUGHT[0] if _CAUGHT else "nothing was written"
+    note = _CAUGHT[0] if _CAUGHT else (
+        "no file was left half-written (each is written whole under a temporary name, then "
+        "renamed); run the command again")
     _CAUGHT.clear()
     return f"interrupted: {note}."

@@ -215,7 +215,9 @@ def test_ctrl_c_in_mesh_exits_130(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(obj_io, "write_mesh", interrupted)
     code, err = run(["mesh", "-o", tmp_path / "x.obj"], capsys)
-    assert code == 130 and err.strip().splitlines()[-1] == "interrupted: nothing was written."
+    assert code == 130 and err.strip().splitlines()[-1].startswith(
+        "interrupted: no file was left half-written")
+    assert not list(tmp_path.iterdir())
 
 
 def test_fit_interrupted_while_writing_is_marked_incomplete(tmp_path, capsys, monkeypatch):
