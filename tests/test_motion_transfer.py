@@ -149,8 +149,9 @@ def _chain_gltf(path, names=("hips", "spine", "neck_01", "neck_02", "neck_03", "
     return path
 
 
-def _animated_world(path, frame):
-    """World rotation (n, 3, 3) of every node at an animation keyframe of our clip."""
+def _animated_world(path, frame, full=False):
+    """World rotation (n, 3, 3) (or matrix (n, 4, 4)) of every node at an animation
+    keyframe of our clip."""
     doc, buf = read_gltf(path)
     nodes = [dict(n) for n in doc["nodes"]]
     anim = next(a for a in doc["animations"] if a["name"] == "hack_transfer")
@@ -163,7 +164,7 @@ def _animated_world(path, frame):
         m = RT._local(nodes[i])
         return world(parent[i]) @ m if i in parent else m
 
-    return np.stack([world(i)[:3, :3] for i in range(len(nodes))])
+    return np.stack([world(i) if full else world(i)[:3, :3] for i in range(len(nodes))])
 
 
 def test_04_retarget_round_trip_in_each_bones_rest_frame(model, tmp_path):
@@ -343,7 +344,7 @@ def test_10_cli_gltf_target(tmp_path, capsys):
     before = src.read_bytes()
     motion = save_sequence(tmp_path / "anim.npz", _motion(3))
     main(["transfer", "--motion", str(motion), "--target", str(src), "-o", str(tmp_path / "o"),
-          "--quiet"])
+          "--no-turntable", "--quiet"])
     rep = json.loads((tmp_path / "o" / "report.json").read_text())
     assert rep["target"]["method"] == "arc length along the neck chain"
     assert rep["target"]["mapping"]["c7-t1"] == "neck_01" and rep["target"]["mapping"]["o-c1"] == "head"
@@ -352,3 +353,36 @@ def test_10_cli_gltf_target(tmp_path, capsys):
     assert [a["name"] for a in doc["animations"]] == ["hack_transfer"]
     assert "TEXCOORD_0" in doc["meshes"][0]["primitives"][0]["attributes"]
     assert src.read_bytes() == before
+
+
+def test_11_gltf_skinning_and_turntable(tmp_path):
+    """posed_mesh (glTF skinning, used by the glTF turntable): at rest it gives the file's
+    positions; under the retargeted clip each box moves rigidly with its bone, as the
+    animated file's node matrices say; the command renders a turntable of it."""
+    from hack_render.cli import main
+
+    path = _chain_gltf(tmp_path / "chain.glb")
+    ch = RT.load_gltf_character(path)
+    prim = ch.doc["meshes"][0]["primitives"][0]
+    rest = accessor(ch.doc, ch.buf, prim["attributes"]["POSITION"])
+    v0, f0 = RT.posed_mesh(ch)
+    np.testing.assert_allclose(v0, rest, atol=1e-6)
+    assert f0.shape == (12 * 6, 3)
+    bones, assign = RT.joint_map(ch, np.cumsum(np.ones((8, 3)) * [0, 0.02, 0], 0))
+    seq = _motion(3, seed=7)
+    quats = RT.retarget(ch, bones, assign, seq.theta)
+    out = RT.write_animated(ch, bones, quats, seq.fps, tmp_path / "a.glb", {})[0]
+    for f in range(3):
+        v, _ = RT.posed_mesh(ch, bones, quats[f])
+        wa = _animated_world(out, f, full=True)
+        for b in range(6):
+            m = wa[b] @ np.linalg.inv(ch.world[b])
+            np.testing.assert_allclose(v[8 * b:8 * b + 8], rest[8 * b:8 * b + 8] @ m[:3, :3].T
+                                       + m[:3, 3], atol=1e-5)
+    motion = save_sequence(tmp_path / "anim.npz", seq)
+    main(["transfer", "--motion", str(motion), "--target", str(path), "-o", str(tmp_path / "o"),
+          "--frames", "2", "--resolution", "32", "--spp", "1", "--quiet"])
+    import imageio.v3 as iio
+
+    img = iio.imread(tmp_path / "o" / "turntable" / "frames" / "frame_0001.png")
+    assert img.shape == (32, 32, 3) and img.std() > 3  # the boxes are in view

@@ -149,7 +149,7 @@ def transfer(
     appearance_seed: opts.AppearanceSeed = None,
     textures: opts.Textures = None,
     turntable: bool = typer.Option(True, "--turntable/--no-turntable", help="Render a "
-                                   "turntable of the transferred motion (model topology)."),
+                                   "turntable of the transferred motion."),
     frames: int = typer.Option(24, help="Turntable frames."),
     resolution: int = typer.Option(192, help="Turntable size in pixels (square)."),
     spp: opts.Spp = 16,

@@ -163,6 +163,16 @@ def joint_map(ch: GltfCharacter, hack_joints: np.ndarray, chain: list[str] | Non
               name_map: dict | None = None) -> tuple[list[int], list[int]]:
     """(bones, assignment): the chain's node indices and, per HACK joint, the index into
     ``bones`` that receives its rotation."""
+    bones, assign = _joint_map(ch, hack_joints, chain, name_map)
+    fixed = [ch.names[b] for b in bones if "matrix" in ch.doc["nodes"][b]]
+    if fixed:
+        raise HackError(f"--target {ch.path}: bones {fixed} store a matrix, which glTF does "
+                        "not animate; re-export the character with translation/rotation/"
+                        "scale nodes.")
+    return bones, assign
+
+
+def _joint_map(ch, hack_joints, chain, name_map):
     from hack_render.geometry.skeleton import JOINT_NAMES
 
     if name_map:
@@ -228,6 +238,62 @@ def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
         flip = (q[i] * q[i - 1]).sum(-1) < 0
         q[i, flip] *= -1
     return q
+
+
+def posed_mesh(ch: GltfCharacter, bones: list[int] | None = None,
+               quats: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The character's triangles posed with local rotations ``quats`` (B, 4) xyzw on
+    ``bones`` (default: the rest pose): skinned primitives by their joints' world matrices
+    times inverse bind matrices (glTF 2.0 skinning), others by their node's world matrix.
+    -> vertices (V, 3), faces (F, 3) over every triangle primitive of the scene."""
+    from hack_render.export.reference import accessor
+
+    nodes = [dict(n) for n in ch.doc["nodes"]]
+    for b, q in zip(bones or [], [] if quats is None else quats, strict=True):
+        nodes[b]["rotation"] = [float(x) for x in q]
+    world: dict[int, np.ndarray] = {}
+
+    def w(i: int) -> np.ndarray:
+        if i not in world:
+            local = _local(nodes[i])
+            world[i] = local if ch.parents[i] < 0 else w(ch.parents[i]) @ local
+        return world[i]
+
+    verts, faces, off = [], [], 0
+    for i, node in enumerate(nodes):
+        if "mesh" not in node:
+            continue
+        skin = ch.doc["skins"][node["skin"]] if "skin" in node else None
+        if skin is not None:
+            ibm = (accessor(ch.doc, ch.buf, skin["inverseBindMatrices"]).reshape(-1, 4, 4)
+                   .transpose(0, 2, 1) if "inverseBindMatrices" in skin
+                   else np.tile(np.eye(4), (len(skin["joints"]), 1, 1)))
+            jm = np.stack([w(j) @ ibm[k] for k, j in enumerate(skin["joints"])])
+        for prim in ch.doc["meshes"][node["mesh"]]["primitives"]:
+            if prim.get("mode", 4) != 4:
+                continue
+            at = prim["attributes"]
+            pos = accessor(ch.doc, ch.buf, at["POSITION"])
+            pos = np.c_[pos, np.ones(len(pos))]
+            if skin is not None and "JOINTS_0" in at:
+                m = np.zeros((len(pos), 4, 4))
+                k = 0
+                while f"JOINTS_{k}" in at:
+                    jj = accessor(ch.doc, ch.buf, at[f"JOINTS_{k}"]).astype(np.int64)
+                    ww = accessor(ch.doc, ch.buf, at[f"WEIGHTS_{k}"])
+                    m += np.einsum("nk,nkab->nab", ww, jm[jj])
+                    k += 1
+                v = np.einsum("nab,nb->na", m, pos)[:, :3]
+            else:
+                v = (pos @ w(i).T)[:, :3]
+            idx = (accessor(ch.doc, ch.buf, prim["indices"])[:, 0].astype(np.int64)
+                   if "indices" in prim else np.arange(len(v)))
+            verts.append(v)
+            faces.append(idx.reshape(-1, 3) + off)
+            off += len(v)
+    if not verts:
+        raise HackError(f"{ch.path}: no triangle mesh to show.")
+    return np.concatenate(verts), np.concatenate(faces)
 
 
 def add_uv_atlas(ch: GltfCharacter) -> int:

@@ -9,7 +9,8 @@ Targets:
   stress test's measures on every frame (``report.json``);
 - a glTF character with any neck chain (:mod:`.retarget`): the neck's rotations retargeted
   onto its bones; output: a copy of it with the animation added (and a UV atlas where it
-  had none). Expressions need the model's topology and are not transferred to it.
+  had none) and a turntable (skinned per frame, ray cast, grey). Expressions need the
+  model's topology and are not transferred to it.
 """
 
 from __future__ import annotations
@@ -160,10 +161,52 @@ def prepare_gltf(model, path: Path, chain: list[str] | None = None,
     return ch, bones, assign
 
 
+def render_gltf_turntable(ch, bones: list[int], quats: np.ndarray, folder: Path,
+                          frames: int = 24, fps: int = 24, resolution: int = 192,
+                          spp: int = 16, formats: tuple = ("mp4", "gif"),
+                          variant: str | None = None, progress: bool = True) -> list[Path]:
+    """An orbiting turntable of a glTF character under its retargeted animation: skinned
+    per frame (:func:`retarget.posed_mesh`), ray cast and shaded grey (the render layer's
+    ``MeshViews``; its materials are not read), ``spp`` as supersampling (its square root
+    per side)."""
+    import imageio.v3 as iio
+    from tqdm import tqdm
+
+    from hack_render.motion.retarget import posed_mesh
+    from hack_render.render.image_io import atomic_path, to_srgb8
+    from hack_render.render.mesh_views import MeshViews
+    from hack_render.render.video import write_gif, write_mp4
+    from scenes import cameras as cams
+
+    w = h = int(resolution) + int(resolution) % 2
+    pick = (np.arange(frames) * len(quats)) // frames
+    posed = [posed_mesh(ch, bones, quats[k]) for k in pick]
+    pts = np.concatenate([v for v, _ in posed])
+    lo, hi = pts.min(0), pts.max(0)
+    target, extent = 0.5 * (lo + hi), float((hi - lo).max())
+    ss = max(1, round(spp ** 0.5))
+    images = []
+    for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
+        cam = cams.orbit(w, h, 50.0, 360.0 * i / frames, 5.0, target=tuple(target),
+                         extent=extent, name=f"frame_{i:04d}")
+        rgba = MeshViews(*posed[i], None, w, h, variant).render(cam, ss)
+        rgb = rgba[..., :3] + (1 - rgba[..., 3:]) * 0.18  # grey backdrop
+        img = to_srgb8(rgb, 0.0, "aces")
+        with atomic_path(folder / "frames" / f"frame_{i:04d}.png") as tmp:
+            iio.imwrite(tmp, img, extension=".png")
+        images.append(img)
+    out = []
+    if "mp4" in formats:
+        out.append(write_mp4(folder / "turntable.mp4", images, fps))
+    if "gif" in formats:
+        out.append(write_gif(folder / "turntable.gif", images, fps))
+    return out
+
+
 def transfer_gltf(ch, bones: list[int], assign: list[int], seq, outdir: Path,
-                  by_name: bool) -> dict:
+                  by_name: bool, turntable: dict | None = None, progress: bool = True) -> dict:
     """A glTF character: the neck's rotations retargeted onto its chain, written as a copy
-    with the animation added (and a UV atlas where a primitive had none)."""
+    with the animation added (and a UV atlas where a primitive had none), and a turntable."""
     from hack_render.geometry.skeleton import JOINT_NAMES
     from hack_render.motion import retarget as RT
 
@@ -177,6 +220,9 @@ def transfer_gltf(ch, bones: list[int], assign: list[int], seq, outdir: Path,
                        "topology or a body root)", "uv_atlas_primitives": atlas}
     files = RT.write_animated(ch, bones, quats, seq.fps, outdir / f"{ch.path.stem}_hack.glb",
                               prov)
+    if turntable:
+        files += render_gltf_turntable(ch, bones, quats, outdir / "turntable",
+                                       progress=progress, **turntable)
     return {"target": prov, "frames": seq.frames, "fps": seq.fps,
             "files": [str(f) for f in files], "seconds": round(time.perf_counter() - t0, 2)}
 
@@ -195,7 +241,8 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
     if kind == "gltf":
         ch, bones, assign = prepare_gltf(model, Path(target), chain, name_map)
         outdir.mkdir(parents=True, exist_ok=True)
-        report = transfer_gltf(ch, bones, assign, seq, outdir, bool(name_map))
+        report = transfer_gltf(ch, bones, assign, seq, outdir, bool(name_map), turntable,
+                               progress)
     else:
         if chain or name_map:
             raise HackError("--neck-chain and --name-map apply to glTF targets; a character "
