@@ -224,6 +224,8 @@ CASES: list[tuple[str, str, str]] = [
     ("export-out-parent-is-file", "export -o {o}/file/p.glb", "-o/--output"),
     ("export-beta-inf", "export -o {o}/p.glb --beta inf", "--beta"),
     ("export-alpha-nan", "export -o {o}/p.glb --alpha nan", "--alpha"),
+    ("export-tau-limits-error", "export -o {o}/p.glb --tau 0.05 --limits error", "tau"),
+    ("export-limits-unknown", "export -o {o}/p.glb --limits maybe", "--limits"),
     ("export-influences-3", "export -o {o}/p.glb --influences 3", "--influences"),
     ("export-sequence-missing", "export -o {o}/p.glb --sequence {i}/none.npz", "--sequence"),
     ("export-sequence-with-obj", "export -o {o}/p.obj --sequence {i}/none.npz", "--sequence"),

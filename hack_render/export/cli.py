@@ -41,6 +41,10 @@ def export(
     textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
                                             "roughness(, normal).exr skin maps (a fit's "
                                             "textures/)."),
+    limits: str = typer.Option("warn", "--limits", help="Values beyond the anatomical "
+                               "limits (joint rotations, --head-rotation, --eta, --tau) or "
+                               "the plausible identities (--beta beyond +-5): warn, clamp "
+                               "(and warn) or error."),
     influences: int = typer.Option(4, help="Skin weights per vertex: 4 (what most engines "
                                    "take; the error it costs is printed) or 8 (exact)."),
 ) -> None:
@@ -71,7 +75,9 @@ def export(
     seq = load_sequence(sequence, model.num_expressions) if sequence is not None else None
     from hack_render.geometry.params import model_inputs
 
-    model_inputs(model, p)  # beta length, expression names: checked before anything heavy
+    # beta length, expression names: checked before anything heavy; then the limits
+    p = _limited(p, apply_limits(model_inputs(model, p), limits, p.get("head_rotation_deg")),
+                 limits)
     maps = _skin_maps(alpha_, appearance_seed, textures)
     if suffix in (".obj", ".ply"):
         for path in _export_mesh(model, p, maps, output):
@@ -88,6 +94,32 @@ def export(
     typer.echo(f"  skin: {influences} weights per vertex; largest vertex error this costs at "
                f"the joint limits: {err_mm:.3g} mm"
                + (" (--influences 8 is exact)" if influences == 4 else ""))
+
+
+def apply_limits(kw: dict, limits: str, head_rotation_deg) -> dict:
+    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
+
+    try:
+        policy = LimitPolicy(limits)
+    except ValueError as err:
+        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    return apply_limit_policy(kw, policy, head_rotation_deg)
+
+
+def _limited(p: dict, kw: dict, limits: str) -> dict:
+    """The parameters ``p`` with ``--limits clamp``'s clamped values (joint rotations as one
+    theta, the head rotation's share included); unchanged otherwise."""
+    if limits != "clamp":
+        return p
+    p = dict(p)
+    if "theta" in p or "head_rotation_deg" in p:
+        p.pop("head_rotation_deg", None)
+        p["theta"] = kw["theta"][0].tolist()
+    for key in ("beta", "eta", "tau"):
+        if key in p:
+            v = kw[key][0]
+            p[key] = v.tolist() if key == "beta" else float(v)
+    return p
 
 
 def _skin_maps(alpha, seed, textures):
