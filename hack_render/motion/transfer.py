@@ -67,7 +67,12 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
     kw = model_inputs(model, params)
     eta = float(kw["eta"][0]) if "eta" in kw else 0.0
     frames = _frames_from(kw, seq, model)
-    crig = character_rig(model, character, kw.get("beta"), eta, influences)
+    tau_max = float(np.abs(frames["tau"]).max())
+    tau_range = max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP)
+    if tau_range > 0.1:  # as the export: in-betweens cover the sequence's slides
+        raise HackError(f"tau: a larynx slide of {tau_max:.3f} m is beyond the 0.1 m the "
+                        "export covers; the model's slide is a few centimetres.")
+    crig = character_rig(model, character, kw.get("beta"), eta, influences, float(tau_range))
     rig = crig.rig
     rot = R.axis_angle_quaternions(np.concatenate([frames["global_orient"][:, None],
                                                    frames["theta"]], 1))
@@ -249,6 +254,10 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
                             "in the model's topology carries its 8 neck joints.")
         character = (long_neck_character(model) if kind == "procedural"
                      else load_character(target, model))
+        if seq.tau is not None and np.abs(seq.tau).max() > 0.1:
+            raise HackError(f"{motion}: key 'tau': a larynx slide of "
+                            f"{np.abs(seq.tau).max():.3f} m; expected at most 0.1 m (the "
+                            "model's slide is a few centimetres).")
         outdir.mkdir(parents=True, exist_ok=True)
         report = transfer_topology(model, character, seq, params or {}, outdir,
                                    influences=influences, turntable=turntable,
