@@ -229,14 +229,11 @@ def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return dict(pairs)
 
 
-def _refuse_constant(name: str):
-    raise HackError(f"{name} is not a number JSON allows; expected finite numbers.")
-
-
 def parse_json(text: str) -> Any:
-    """JSON with duplicate keys and NaN/Infinity refused (HackError); syntax errors are
-    ``ValueError`` (``json.JSONDecodeError``)."""
-    return json.loads(text, object_pairs_hook=_unique_pairs, parse_constant=_refuse_constant)
+    """JSON with duplicate keys refused (HackError); syntax errors are ``ValueError``
+    (``json.JSONDecodeError``). NaN and Infinity are read as floats, for the checks of
+    each key to refuse them by name."""
+    return json.loads(text, object_pairs_hook=_unique_pairs)
 
 
 def parse_yaml(text: str) -> Any:

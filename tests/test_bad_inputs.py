@@ -67,7 +67,7 @@ CASES: list[tuple[str, str, str]] = [
     ("params-duplicate-key-yaml", "mesh -o {o}/x.obj --params {i}/dup.yaml", "duplicate key"),
     ("params-theta-string", "mesh -o {o}/x.obj --params {i}/theta_zero.json", "theta"),
     ("params-theta-ragged", "mesh -o {o}/x.obj --params {i}/ragged.json", "theta"),
-    ("params-nan", "mesh -o {o}/x.obj --params {i}/nan.json", "--params"),
+    ("params-nan", "mesh -o {o}/x.obj --params {i}/nan.json", "beta"),
     ("params-beta-1e30", "mesh -o {o}/x.obj --params {i}/huge.json", "beta"),
     ("params-not-a-mapping", "mesh -o {o}/x.obj --params {i}/list.json", "mapping"),
     ("params-unknown-key", "mesh -o {o}/x.obj --params {i}/unknown.json", "unknown keys"),
