@@ -115,7 +115,7 @@ def register(model, scan: Scan, landmarks: np.ndarray | None, landmark_ids: tupl
              cfg: RegisterConfig, progress: bool = True, landmark_source: str = "file"
              ) -> Registration:
     """Register ``model`` to ``scan`` (metres) with 3-D ``landmarks`` (K, 3), scan metres."""
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     if landmarks is None:
         raise HackError(f"{scan.name}: no landmarks to start from. Pass --landmarks FILE, or "
                         "let `register` find them (a mesh scan with the fit extra installed).")
@@ -170,6 +170,9 @@ def register(model, scan: Scan, landmarks: np.ndarray | None, landmark_ids: tupl
                                      "note": "x_model = scale * R @ x_scan_metres + t"},
         "seconds": {"align": t_align - t0, "index": t_index - t_align, "fit": t_fit - t_index,
                     "measure": t_end - t_fit, "total": t_end - t0,
+                    # CPU seconds of the process (all threads): the wall time on an idle
+                    # machine with as many cores as threads used, whatever the load now
+                    "cpu_total": time.process_time() - cpu0,
                     **{f"stage_{r.name}": r.seconds for r in st.reports}},
         "notes": list(scan.notes),
         "thresholds": {"fail_mean_mm": FAIL_MEAN_MM, "fail_coverage_1cm": FAIL_COVERAGE,
