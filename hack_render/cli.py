@@ -40,6 +40,7 @@ from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)
 from hack_render.export import cli as _export_cli; _export_cli.register(app)
 from hack_render.motion import cli as _motion_cli; _motion_cli.register(app)
 from hack_render.register import cli as _register_cli; _register_cli.register(app)
+from hack_render.motion import drive_cli as _drive_cli; _drive_cli.register(app)
 # --- end of sub-apps --------------------------------------------------------------------
 
 #: OS errors that are the user's environment, not a bug: a clean message and exit 2
