@@ -321,8 +321,10 @@ def track_larynx(normal_maps: np.ndarray, kernel: np.ndarray | None = None,
 
     The response ``[k * n](x)`` (the kernel's dot product with the map around x, summed
     over the 3 channels; the flat-skin part (0, 0, 1) removed from both so that flat skin
-    gives no response) is maximised over x; tau is the maximum's height above
-    ``rest_row`` (default: frame 0's) in metres (``metres_per_pixel``), up positive."""
+    gives no response) is maximised over x (to a fraction of a pixel: a parabola through
+    the peak's column); tau is the maximum's height above ``rest_row`` (default: frame
+    0's) in metres (``metres_per_pixel``), up positive. Maps: x right, y up, z towards
+    the camera (the renderer's OpenCV-frame normal AOV is (x, -y, -z) of this)."""
     from scipy.signal import fftconvolve
 
     n = np.asarray(normal_maps, np.float64)
@@ -336,7 +338,13 @@ def track_larynx(normal_maps: np.ndarray, kernel: np.ndarray | None = None,
     rows = []
     for frame in n - flat:
         resp = sum(fftconvolve(frame[..., c], kk[..., c], mode="same") for c in range(3))
-        rows.append(np.unravel_index(np.argmax(resp), resp.shape)[0])
+        r, c = np.unravel_index(np.argmax(resp), resp.shape)
+        off = 0.0
+        if 0 < r < resp.shape[0] - 1:  # sub-pixel: the parabola through the peak's column
+            a, b, d = resp[r - 1, c], resp[r, c], resp[r + 1, c]
+            den = a - 2 * b + d
+            off = 0.5 * (a - d) / den if den < 0 else 0.0
+        rows.append(r + off)
     rows = np.asarray(rows, np.float64)
     rest = rows[0] if rest_row is None else rest_row
     return (rest - rows) * metres_per_pixel
