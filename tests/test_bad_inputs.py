@@ -238,8 +238,7 @@ CASES: list[tuple[str, str, str]] = [
 
 
 # commands added by the other open issues (register, transfer, drive, learn shape and the
-# motion learners): their own checks, held to
-# the same standard here
+# motion learners): their own checks, held to the same standard here
 CASES += [
     ("register-scan-missing", "register {i}/none.ply -o {o}/r", "none.ply"),
     ("register-preset-unknown", "register {i}/scan.ply -o {o}/r --preset fast", "--preset"),
