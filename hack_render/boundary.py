@@ -193,7 +193,8 @@ def input_dir(path: str | Path, option: str, what: str = "folder") -> Path:
 
 
 class _UniqueKeyLoader:
-    """A YAML safe loader that refuses duplicate keys (PyYAML keeps the last silently)."""
+    """A YAML safe loader that refuses duplicate keys (PyYAML keeps the last silently) and
+    aliases."""
 
     _cls = None
 
@@ -203,6 +204,14 @@ class _UniqueKeyLoader:
             import yaml
 
             class Loader(yaml.SafeLoader):
+                def compose_node(self, parent, index):
+                    # aliases (*name) can nest a few lines into billions of values
+                    if self.check_event(yaml.events.AliasEvent):
+                        line = self.peek_event().start_mark.line + 1
+                        raise HackError(f"line {line}: YAML aliases (*name) are not "
+                                        "supported here; write the values out.")
+                    return super().compose_node(parent, index)
+
                 def construct_mapping(self, node, deep=False):
                     seen = set()
                     for key_node, _ in node.value:
@@ -237,7 +246,7 @@ def parse_json(text: str) -> Any:
 
 
 def parse_yaml(text: str) -> Any:
-    """YAML (safe) with duplicate keys refused (HackError); syntax errors are
+    """YAML (safe) with duplicate keys and aliases refused (HackError); syntax errors are
     ``yaml.YAMLError``."""
     import yaml
 

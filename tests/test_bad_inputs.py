@@ -73,6 +73,7 @@ CASES: list[tuple[str, str, str]] = [
     ("params-unknown-key", "mesh -o {o}/x.obj --params {i}/unknown.json", "unknown keys"),
     ("params-bad-json", "mesh -o {o}/x.obj --params {i}/broken.json", "not valid JSON"),
     ("params-bad-yaml", "mesh -o {o}/x.obj --params {i}/broken.yaml", "not valid YAML"),
+    ("params-yaml-alias-bomb", "mesh -o {o}/x.obj --params {i}/bomb.yaml", "aliases"),
     ("params-eta-string", "mesh -o {o}/x.obj --params {i}/eta_text.json", "eta"),
     ("params-expression-weight-text", "mesh -o {o}/x.obj --params {i}/expr_text.json",
      "expression"),
@@ -307,6 +308,8 @@ def make_inputs(folder: Path) -> Path:
         "broken.json": "{",
         "broken.yaml": "beta: [1, 2\n",
         "eta_text.json": json.dumps({"eta": "big"}),
+        "bomb.yaml": "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a]\n"
+                     "psi: [*b, *b, *b, *b, *b, *b, *b, *b]\n",
         "expr_text.json": json.dumps({"expression": {"AU12": "lots"}}),
         "lm3.txt": "\n".join("1 2 3" for _ in range(68)) + "\n",
         "ds_bad.yaml": "camera: {yaw: [0, 1]}\n",
