@@ -74,6 +74,7 @@ CASES: list[tuple[str, str, str]] = [
     ("params-bad-json", "mesh -o {o}/x.obj --params {i}/broken.json", "not valid JSON"),
     ("params-bad-yaml", "mesh -o {o}/x.obj --params {i}/broken.yaml", "not valid YAML"),
     ("params-yaml-alias-bomb", "mesh -o {o}/x.obj --params {i}/bomb.yaml", "aliases"),
+    ("params-huge-file", "mesh -o {o}/x.obj --params {i}/huge_file.json", "--params"),
     ("params-eta-string", "mesh -o {o}/x.obj --params {i}/eta_text.json", "eta"),
     ("params-expression-weight-text", "mesh -o {o}/x.obj --params {i}/expr_text.json",
      "expression"),
@@ -323,6 +324,8 @@ def make_inputs(folder: Path) -> Path:
         (folder / name).write_text(text)
     (folder / "binary.json").write_bytes(b"\xff\xfe\x00\x81 binary")
     (folder / "empty.npy").write_bytes(b"")
+    with open(folder / "huge_file.json", "wb") as f:  # sparse: no disk used
+        f.truncate(20 * 1024 * 1024)
     np.save(folder / "lm3.npy", np.zeros((68, 3)))
     (folder / "scan.ply").write_text(
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"

@@ -74,6 +74,10 @@ def parse_params_text(text: str, suffix: str, where: str) -> Any:
                         ) from exc
 
 
+#: A parameter file holds at most a few hundred numbers; anything this large is not one.
+MAX_PARAMS_BYTES = 16 * 1024 * 1024
+
+
 def load_params(path: str | Path) -> dict[str, Any]:
     """Read and check a JSON or YAML parameter file; returns the validated mapping."""
     path = Path(path)
@@ -84,6 +88,10 @@ def load_params(path: str | Path) -> dict[str, Any]:
     if path.suffix.lower() not in (".json", ".yaml", ".yml"):
         raise HackError(f"--params {path}: expected a .json, .yaml or .yml file, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}.")
+    size = path.stat().st_size
+    if size > MAX_PARAMS_BYTES:
+        raise HackError(f"--params {path}: expected a parameter file of a few KB, found "
+                        f"{size / 1e6:.0f} MB. Pass the parameter file, not a data file.")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:
