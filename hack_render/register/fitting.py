@@ -227,6 +227,8 @@ class RegisterState:
     tau: torch.Tensor
     offsets: torch.Tensor  # (S, 3) metres, on the skin vertices
     reports: list = field(default_factory=list)
+    head_orient: torch.Tensor | None = None  # optimised instead of global_orient: see
+    # global_from_head
 
     def params(self) -> dict:
         """The model's parameters as a parameter-file dict (lists)."""
@@ -248,7 +250,26 @@ def initial_state(model, num_shape: int, R: np.ndarray) -> RegisterState:
                          z(1, 3), torch.full((1,), ETA_DEFAULT), z(1), z(len(skin), 3))
 
 
+def global_from_head(head_orient: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
+    """The root rotation (B, 3) that leaves the skull turned by ``head_orient`` (B, 3) in
+    the world whatever the joints ``theta`` (B, 8, 3): R_root = R_head (R_1 ... R_8)^T.
+
+    Optimising the head's orientation and the joints, rather than the root's and the
+    joints, makes "the neck turned, the head where it is" one coordinate instead of a
+    narrow valley between two (a scan is aligned by its face, so a turned neck starts as
+    a turned torso)."""
+    from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+
+    chain = axis_angle_to_matrix(theta)  # (B, 8, 3, 3), c7-t1 ... o-c1
+    total = chain[:, 0]
+    for k in range(1, chain.shape[1]):
+        total = total @ chain[:, k]
+    return matrix_to_axis_angle(axis_angle_to_matrix(head_orient) @ total.transpose(1, 2))
+
+
 def posed_vertices(model, st: RegisterState, skin: torch.Tensor, free: bool) -> tuple:
+    if st.head_orient is not None:
+        st.global_orient = global_from_head(st.head_orient, st.theta)
     out = model(beta=st.beta, psi=st.psi, theta=st.theta, global_orient=st.global_orient,
                 transl=st.transl, eta=st.eta, tau=st.tau)
     v = out.vertices[0]
@@ -347,7 +368,14 @@ def run_registration(model, index: SurfaceIndex, landmarks: np.ndarray | None,
                               {"params": [st.transl], "lr": 2e-3}],
                     model_loss(False, False, rigid_only=True), cfg.rigid_iterations, progress)
     st.reports.append(rep)
-    groups = [{"params": [st.global_orient], "lr": cfg.lr_pose * 0.5},
+    if cfg.joints:  # the head keeps its orientation while the joints move
+        st.global_orient.requires_grad_(False)
+        st.head_orient = global_from_head(st.global_orient.detach(), st.theta.detach()
+                                          ).detach().requires_grad_(True)
+        orient = st.head_orient
+    else:
+        orient = st.global_orient
+    groups = [{"params": [orient], "lr": cfg.lr_pose * 0.5},
               {"params": [st.transl], "lr": 1e-3},
               {"params": [st.beta], "lr": cfg.lr_shape}]
     st.beta.requires_grad_(True)
@@ -364,6 +392,10 @@ def run_registration(model, index: SurfaceIndex, landmarks: np.ndarray | None,
     rep = run_stage("model", groups, model_loss(False, True), cfg.model_iterations, progress,
                     after_step=project)
     st.reports.append(rep)
+    if st.head_orient is not None:
+        with torch.no_grad():
+            st.global_orient = global_from_head(st.head_orient, st.theta).detach()
+        st.head_orient = None
     if cfg.free_form and cfg.free_iterations > 0:
         for p in (st.beta, st.psi, st.theta, st.eta, st.tau, st.global_orient, st.transl):
             p.requires_grad_(False)
