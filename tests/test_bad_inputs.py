@@ -239,6 +239,46 @@ CASES: list[tuple[str, str, str]] = [
 ]
 
 
+# inputs that are files of the wrong kind (a model, a photo, a texture folder, a config)
+CASES += [
+    ("preview-folder-without-samples", "dataset preview {o}/d", "/d"),
+    ("appearance-report-not-a-model", "appearance report {i}/joints.npz", "joints.npz"),
+    ("model-info-not-a-model", "model info {i}/joints.npz", "joints.npz"),
+    ("render-textures-missing", "render -o {o}/x.png --textures {i}/none", "--textures"),
+    ("render-textures-empty", "render -o {o}/x.png --textures {o}/d", "--textures"),
+    ("export-textures-missing", "export -o {o}/p.glb --textures {i}/none", "--textures"),
+    ("fit-photo-is-text", "fit {i}/params.txt -o {o}/f", "params.txt"),
+    ("fit-photo-is-dir", "fit {i} -o {o}/f", "photo"),
+    ("fit-config-unknown-key", "fit {i}/face.png -o {o}/f --config {i}/fit_unknown.json",
+     "bta"),
+    ("fit-config-duplicate-key", "fit {i}/face.png -o {o}/f --config {i}/fit_dup.json",
+     "duplicate key"),
+    ("fit-light-model-unknown", "fit {i}/face.png -o {o}/f --light-model laser", "laser"),
+    ("turntable-sequence-is-dir", "turntable -o {o}/t --sequence {o}/d", "--sequence"),
+    ("learn-template-not-obj", "learn template --ict {i}/params.txt -o {o}/t.npz",
+     "params.txt"),
+    ("export-sequence-not-a-sequence", "export -o {o}/p.glb --sequence {i}/joints.npz",
+     "joints.npz"),
+    ("appearance-sample-model-missing",
+     "appearance sample -o {o}/s --appearance-model {i}/none.npz", "none.npz"),
+    ("appearance-sample-not-a-model",
+     "appearance sample -o {o}/s --appearance-model {i}/joints.npz", "joints.npz"),
+    ("render-model-not-a-model", "render -o {o}/x.png --model {i}/joints.npz", "joints.npz"),
+    ("mesh-model-not-readable", "mesh -o {o}/x.obj --model {i}/joints_text.npz",
+     "joints_text.npz"),
+    ("learn-pose-model-not-a-model", "learn pose --model {i}/joints.npz -o {o}/m.npz",
+     "joints.npz"),
+    ("learn-appearance-no-subjects", "learn appearance {o}/d -o {o}/a.npz", "subject"),
+    ("dataset-config-not-a-mapping", "dataset --n 2 --config {i}/list.json -o {o}/ds",
+     "--config"),
+    ("learn-refiner-holdout-0.9", "learn landmark-refiner -o {o}/r.npz --holdout 0.9",
+     "--holdout"),
+    ("learn-refiner-subjects-5", "learn landmark-refiner -o {o}/r.npz --subjects 5",
+     "--subjects"),
+    ("learn-embedding-subjects-0", "learn landmark-embedding -o {o}/e.npz --subjects 0",
+     "--subjects"),
+]
+
 # commands added by the other open issues (register, transfer, drive, learn shape and the
 # motion learners): their own checks, held to the same standard here
 CASES += [
@@ -309,6 +349,8 @@ def make_inputs(folder: Path) -> Path:
         "broken.json": "{",
         "broken.yaml": "beta: [1, 2\n",
         "eta_text.json": json.dumps({"eta": "big"}),
+        "fit_unknown.json": json.dumps({"bta": 1}),
+        "fit_dup.json": '{"seed": 1, "seed": 2}',
         "bomb.yaml": "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a]\n"
                      "psi: [*b, *b, *b, *b, *b, *b, *b, *b]\n",
         "expr_text.json": json.dumps({"expression": {"AU12": "lots"}}),

@@ -61,6 +61,26 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     return result, paths + [record.path]
 
 
+def _refuse_duplicate_keys(config: Path) -> None:
+    """A JSON/YAML config with a key twice is refused (the parsers keep the last one);
+    TOML refuses them itself. Other problems are left to ``load_config``'s messages."""
+    from hack_render import boundary
+
+    suffix = config.suffix.lower()
+    if suffix not in (".json", ".yaml", ".yml") or not config.is_file():
+        return
+    try:
+        text = config.read_text()
+        if suffix == ".json":
+            boundary.parse_json(text)
+        else:
+            boundary.parse_yaml(text)
+    except HackError as err:
+        raise HackError(f"--config {config}: {err}") from err
+    except Exception:  # noqa: BLE001 - a syntax error: load_config says it with context
+        return
+
+
 def check_landmark_file(path: Path) -> None:
     """A landmark file holds 68 rows of exactly two finite numbers (x, y pixels); checked
     before the photos are read (a 3-column file is not 2-D points, an empty one no file)."""
@@ -230,6 +250,8 @@ def fit(
         over["silhouette"] = {"mode": "off"}
     if no_refine:
         over["landmarks"] = {"refiner": "off"}
+    if config is not None:
+        _refuse_duplicate_keys(config)
     cfg = load_config(config, over)
     result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
                                masks=mask or None, focal_mm=focal_mm, resume=resume)
