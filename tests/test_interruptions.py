@@ -367,6 +367,46 @@ def test_dataset_disk_full_keeps_whole_manifest_lines(dataset_reference, tmp_pat
     assert tree(out) == tree(ref)
 
 
+def test_manifest_line_cut_by_a_full_disk_is_taken_back(tmp_path, monkeypatch):
+    """The disk fills half-way through a manifest line: the line is removed, the earlier
+    ones stay whole (a truncated line was left before)."""
+    from hack_render.dataset import runner
+
+    job = runner.Job(tmp_path, 3, 0, {})
+    job.manifest_path.parent.mkdir(parents=True)
+    runner._append_manifest(job, {"index": 0})
+    real_open = open
+
+    class HalfFull:
+        def __init__(self, *a, **k):
+            self.f = real_open(*a, **k)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def tell(self):
+            return self.f.tell()
+
+        def truncate(self, n):
+            return self.f.truncate(n)
+
+        def write(self, text):
+            self.f.write(text[: len(text) // 2])
+            self.f.flush()
+            raise OSError(errno.ENOSPC, "No space left on device", str(job.manifest_path))
+
+        def flush(self):
+            self.f.flush()
+
+    monkeypatch.setattr(runner, "open", HalfFull, raising=False)
+    with pytest.raises(OSError, match="No space"):
+        runner._append_manifest(job, {"index": 1, "files": {"a": 1}})
+    assert job.manifest_path.read_text() == '{"index": 0}\n'
+
+
 def test_two_dataset_writers_on_one_shard(dataset_reference, tmp_path, capsys):
     from hack_render import boundary
 
