@@ -1,8 +1,10 @@
 """The `hack-render` command line: one command, several subcommands.
 
 Each layer contributes its own Typer sub-app or commands; this module only wires them
-together and turns user errors (:class:`hack_render.errors.HackError`) into a clear
-message and exit code 2.
+together and turns the ways a command ends into exit codes: 0 done; 2 a user error (a
+:class:`hack_render.errors.HackError`, a usage error, a full disk or an unwritable
+output), one line; 130 Ctrl-C and 143 SIGTERM, one line saying what was kept and how to
+resume. What a user can get wrong is checked by :mod:`hack_render.boundary`.
 """
 
 # ruff: noqa: I001 - the sub-apps block is one line per owner, in the order of --help
