@@ -173,11 +173,18 @@ def subset_mean(store: GramStore, rows: np.ndarray) -> np.ndarray:
 
 
 def subject_folders(root) -> list[Path]:
-    """Subject folders of ``root`` (sorted); error if there are none."""
+    """Subject folders of ``root`` (sorted); error if there are none. A sub-folder holding
+    its maps in ``textures/`` (a `hack-render register` output folder of a coloured scan)
+    counts as that folder; one of an uncoloured scan (no maps) is left out."""
     root = Path(root)
     if not root.is_dir():
         raise HackError(f"{root}: expected a folder of subject folders, found no folder.")
     subs = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    # `hack-render register`'s output: one folder per scan, its baked maps in textures/
+    subs = [p / "textures" if (p / "textures").is_dir() and not any(p.glob("diffuse.*"))
+            else p for p in subs]
+    subs = [p for p in subs if not ((p / "registered.obj").is_file()
+                                    and not any(p.glob("diffuse.*")))]
     if len(subs) < 3:
         raise HackError(f"{root}: expected at least 3 subject folders (each with diffuse, "
                         f"specular and normal maps), found {len(subs)}.")

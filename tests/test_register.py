@@ -358,3 +358,18 @@ def test_landmarks_are_found_on_a_point_cloud(model):
     found, ids, _ = find_landmarks(Scan("pc", pts, estimate_normals(pts)), size=256)
     ref = sc.truth[model.landmark_indices.numpy()][list(ids)] / sc.scale
     assert len(ids) >= 35 and np.median(1000 * np.linalg.norm(found - ref, axis=1)) < 6.0
+
+
+def test_register_outputs_feed_the_appearance_builder(tmp_path):
+    """`learn appearance OUTDIR` takes register's folders: baked maps in textures/, and
+    scans without colours (no maps) left out."""
+    from appearance.builder import subject_folders
+
+    for name in ("a", "b", "c"):
+        (tmp_path / name / "textures").mkdir(parents=True)
+        (tmp_path / name / "textures" / "diffuse.exr").write_bytes(b"")
+        (tmp_path / name / "registered.obj").write_text("")
+    (tmp_path / "grey").mkdir()
+    (tmp_path / "grey" / "registered.obj").write_text("")
+    got = [p.relative_to(tmp_path).as_posix() for p in subject_folders(tmp_path)]
+    assert got == ["a/textures", "b/textures", "c/textures"]
