@@ -185,6 +185,8 @@ def render(
     maps = skin_maps(alpha_, appearance_seed, textures)
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
     outputs = []
+    if len(views_) > 1:
+        typer.echo(f"render: {len(views_)} views of {w}x{h} at {spp} spp", err=True)
     with boundary.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
