@@ -306,6 +306,9 @@ def calibrate_landmarks(
     boundary.number(radius, "--radius", 0.001, 0.2, unit=" metres")
     boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
     seed = le.CALIBRATION_SEED if seed is None else seed
+    typer.echo(f"learn landmark-embedding: {subjects} synthetic subjects to render and detect "
+               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min)",
+               err=True)
     cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
     emb, _report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
                             progress=not quiet)
@@ -359,6 +362,9 @@ def train_landmark_refiner(
     note = (f"the renders done so far are kept in --cache {cache}; run the same command to "
             "go on from them" if cache is not None else
             "nothing was written (give --cache DIR to keep the renders of an interrupted run)")
+    typer.echo(f"learn landmark-refiner: {subjects} synthetic subjects to render and detect "
+               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min, "
+               "less for those already in --cache)", err=True)
     with boundary.on_interrupt(note):
         _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache,
                                 command=cmd, progress=not quiet)
