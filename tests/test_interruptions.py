@@ -150,6 +150,18 @@ def test_two_writers_on_one_folder(tmp_path, capsys):
     assert not (out / ".hack-render.lock").exists()  # released and removed
 
 
+def test_a_killed_runs_lock_file_does_not_block(tmp_path, capsys):
+    """flock ends with its process: a lock file left by a SIGKILL is taken over."""
+    out = tmp_path / "tt"
+    out.mkdir()
+    (out / ".hack-render.lock").write_text("pid 99999")
+    from hack_render import boundary
+
+    with boundary.folder_lock(out) as path:
+        assert path.read_text() == f"pid {os.getpid()}"
+    assert not path.exists()
+
+
 def test_disk_full_while_rendering_frames(tmp_path, capsys, monkeypatch):
     import imageio.v3 as iio
 
