@@ -231,6 +231,8 @@ CASES: list[tuple[str, str, str]] = [
     ("export-influences-3", "export -o {o}/p.glb --influences 3", "--influences"),
     ("export-sequence-missing", "export -o {o}/p.glb --sequence {i}/none.npz", "--sequence"),
     ("export-sequence-with-obj", "export -o {o}/p.obj --sequence {i}/none.npz", "--sequence"),
+    ("export-sequence-duplicate-key", "export -o {o}/p.glb --sequence {i}/dup.jsonl",
+     "duplicate key"),
     ("export-params-duplicate-key", "export -o {o}/p.glb --params {i}/dup.json",
      "duplicate key"),
     ("view-missing", "view {i}/none.glb --no-open", "FILE"),
@@ -351,6 +353,7 @@ def make_inputs(folder: Path) -> Path:
         "eta_text.json": json.dumps({"eta": "big"}),
         "fit_unknown.json": json.dumps({"bta": 1}),
         "fit_dup.json": '{"seed": 1, "seed": 2}',
+        "dup.jsonl": '{"format": "hack-sequence", "fps": 24}\n{"tau": 0.0, "tau": 0.01}\n',
         "bomb.yaml": "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a]\n"
                      "psi: [*b, *b, *b, *b, *b, *b, *b, *b]\n",
         "expr_text.json": json.dumps({"expression": {"AU12": "lots"}}),

@@ -358,14 +358,19 @@ def check_sequence(data: dict[str, Any], fps: Any, where: str = "sequence",
 
 
 def _jsonl_frames(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    from hack_render import boundary
+
     header, frames = None, []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip():
             continue
         try:
-            obj = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise HackError(f"{path}:{lineno}: not valid JSON ({exc.msg}); expected one JSON "
+            obj = boundary.parse_json(line)
+        except HackError as exc:  # a key twice in one frame
+            raise HackError(f"{path}:{lineno}: {exc}") from exc
+        except (json.JSONDecodeError, RecursionError) as exc:
+            msg = getattr(exc, "msg", "nested too deeply")
+            raise HackError(f"{path}:{lineno}: not valid JSON ({msg}); expected one JSON "
                             "object per line.") from exc
         if not isinstance(obj, dict):
             raise HackError(f"{path}:{lineno}: expected a JSON object, found "
