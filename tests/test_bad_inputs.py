@@ -551,6 +551,33 @@ if hypothesis is not None:
             pass
 
 
+if hypothesis is not None:
+    _flag_text = st.one_of(st.none(), st.text(max_size=30), st.lists(
+        st.one_of(st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                  st.sampled_from(["AU12=0.5", "jawOpen=1e9", "=", "nan", "x=nan", ""])),
+        max_size=5).map(",".join))
+    _flag_number = st.one_of(st.none(), st.floats(allow_nan=True, allow_infinity=True))
+
+    @hypothesis.settings(max_examples=400, deadline=None, derandomize=True)
+    @hypothesis.given(beta=_flag_text, expression=_flag_text, head=_flag_text,
+                      eta=_flag_number, tau=_flag_number)
+    def test_fuzz_pose_flags_never_raise_anything_but_hack_error(beta, expression, head, eta,
+                                                                 tau):
+        """The flags of mesh/render/turntable/export: a clean refusal or finite values
+        inside their bounds, whatever the text."""
+        from hack_render.errors import HackError
+        from hack_render.geometry.cli import check_flags
+        from hack_render.geometry.params import check_params
+
+        try:
+            flags = check_flags(beta, expression, head, eta, tau)
+        except HackError as err:
+            assert "\n" not in str(err)
+            return
+        out = check_params({k: v for k, v in flags.items() if v is not None}, "flags")
+        json.dumps(out, allow_nan=False)
+
+
 def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`
     """Run the table outside pytest and print the issue's figures."""
     import contextlib
