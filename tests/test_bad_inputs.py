@@ -271,6 +271,8 @@ CASES += [
     ("learn-pose-model-not-a-model", "learn pose --model {i}/joints.npz -o {o}/m.npz",
      "joints.npz"),
     ("learn-appearance-no-subjects", "learn appearance {o}/d -o {o}/a.npz", "subject"),
+    ("dataset-config-preset-null", "dataset --n 2 --config {i}/ds_null.yaml -o {o}/ds",
+     "lighting.presets"),
     ("dataset-config-not-a-mapping", "dataset --n 2 --config {i}/list.json -o {o}/ds",
      "--config"),
     ("learn-refiner-holdout-0.9", "learn landmark-refiner -o {o}/r.npz --holdout 0.9",
@@ -359,6 +361,7 @@ def make_inputs(folder: Path) -> Path:
         "expr_text.json": json.dumps({"expression": {"AU12": "lots"}}),
         "lm3.txt": "\n".join("1 2 3" for _ in range(68)) + "\n",
         "ds_bad.yaml": "camera: {yaw: [0, 1]}\n",
+        "ds_null.yaml": "lighting: {presets: [null]}\n",
         "ds_tiny.yaml": "render: {resolution: 16, spp: 1, soft_mask_samples: 0}\n"
                         "appearance: {height: 16, source: constant}\n"
                         "lighting: {presets: [studio]}\n",
@@ -576,6 +579,33 @@ if hypothesis is not None:
             return
         out = check_params({k: v for k, v in flags.items() if v is not None}, "flags")
         json.dumps(out, allow_nan=False)
+
+
+if hypothesis is not None:
+    def _config_sections():
+        from hack_render.dataset.config import DEFAULTS
+
+        leaf = st.recursive(_scalars, lambda kids: st.one_of(
+            st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=5), kids,
+                                                        max_size=3)), max_leaves=10)
+        return st.fixed_dictionaries({}, optional={
+            name: st.dictionaries(st.sampled_from(list(keys)), leaf, max_size=3)
+            for name, keys in DEFAULTS.items()})
+
+    @hypothesis.settings(max_examples=300, deadline=None, derandomize=True)
+    @hypothesis.given(overrides=_config_sections())
+    def test_fuzz_dataset_config_never_raises_anything_but_hack_error(overrides):
+        """Any values under the config's own keys: refused naming the key, or a config
+        whose ranges are finite (found: `lighting.presets: [null]` was a traceback)."""
+        from hack_render.dataset.config import load_config
+        from hack_render.errors import HackError
+
+        try:
+            cfg = load_config(None, overrides)
+        except HackError as err:
+            assert "config key" in str(err) or "--config" in str(err), err
+            return
+        json.dumps(cfg, allow_nan=False)
 
 
 def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`

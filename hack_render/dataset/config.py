@@ -162,6 +162,9 @@ def check_config(cfg: dict) -> dict:
     if not isinstance(presets, list) or not presets:
         _fail("lighting.presets", "a non-empty list of lighting presets", presets)
     for name in presets:
+        if not isinstance(name, str):
+            _fail("lighting.presets", "preset names (studio, light_stage, overcast_sun, "
+                  "window) or env:PATH.exr", name)
         try:
             lights.preset(name, 0.0, 0.0)
         except HackError as err:
