@@ -1,6 +1,6 @@
 """The command line's boundary: every user input is checked here, before any work starts.
 
-One module, used by every command, for the four things a user can get wrong or cut short:
+One module, used by every command, for what a user can get wrong or cut short:
 
 - **Output paths** (:func:`output_file`, :func:`output_dir`): the suffix is one the command
   writes (never silently appended), a directory is refused where a file is meant and the
@@ -9,6 +9,9 @@ One module, used by every command, for the four things a user can get wrong or c
   mounts and immutable folders) *before* the work starts. Nothing is created by a check:
   a refused command leaves no file or folder behind; writers create the parents and write
   atomically (:func:`hack_render.render.image_io.atomic_path`).
+- **Input files** (:func:`input_file`, :func:`input_dir`, :func:`parse_json`,
+  :func:`parse_yaml`): present, of the right kind; JSON and YAML with a key given twice
+  (the parsers keep the last one silently) or YAML aliases refused.
 - **Numbers** (:func:`number`, :func:`numbers`): finite and inside a range, else a message
   naming the option, the range and what was found. Anatomical limits (``--limits``) stay
   in :mod:`hack_render.geometry.limits`; the ranges here are the hard ones, beyond which a
