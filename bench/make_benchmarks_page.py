@@ -163,19 +163,23 @@ def _register(results: dict) -> list[str]:
              "Scan-to-mesh: each scan's mean distance (mm) from its points to the registration; "
              "against the clean surface: from the noise-free surface; vertex: registered "
              "vertices to the truth over the skin.", "",
-             "| model | scans | scan-to-mesh (mm) | to the clean surface (mm) | vertex (mm) | "
-             "s / scan | failed |", "|---|---|---|---|---|---|---|"]
+             "| model | scans | scan-to-mesh (mm) | face | neck | to the clean surface (mm) | "
+             "vertex (mm) | s / scan | failed |", "|---|---|---|---|---|---|---|---|---|"]
     order = ["linear", "paper", "hack (no free-form)", "hack"]
     for kind in ("neutral", "posed"):
         for name in order:
             e = d["table"].get(f"{name}/{kind}")
             if not e:
                 continue
-            lines.append(f"| {name} | {kind} | {_pm(e, 's2m_mean')} | {_pm(e, 'clean_s2m_mean')} | "
+            lines.append(f"| {name} | {kind} | {_pm(e, 's2m_mean')} | {_pm(e, 's2m_face')} | "
+                         f"{_pm(e, 's2m_neck')} | {_pm(e, 'clean_s2m_mean')} | "
                          f"{_pm(e, 'vertex_mean')} | {_pm(e, 'seconds', '{:.0f}')} | "
                          f"{e.get('failed', '-')} |")
     ratios = {k: v for k, v in d["table"].items() if k.startswith("ratio")}
     lines += [""] + [f"- {k}: {v:.2f}" for k, v in ratios.items()]
+    lines += [f"- part: `{q['command']}` (commit `{q['commit'][:10]}`)" for q in p.get("parts", [])]
+    lines += [f"- seconds per scan: wall time with torch on {p['torch_threads']} thread(s), the "
+              "runs side by side on this machine; landmarks given"]
     return lines + ["", f"- {_source('register', d)}"]
 SKIP = {"commit", "date", "machine", "command", "provenance_note", "title", "note"}
 
