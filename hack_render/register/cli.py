@@ -88,7 +88,7 @@ def register_cmd(
                                    "rigid, model and free-form stages: fewer is faster and "
                                    "coarser."),
     threads: int = typer.Option(1, "--threads", help="Torch threads. One is the fastest "
-                                "for this work's small tensors: on a 51,802-vertex scan 40 CPU "
+                                "for this work's small tensors: on a 51,802-vertex scan 42 CPU "
                                 "seconds with one, 190 with two on a busy 2-core machine."),
     shard: str | None = typer.Option(None, "--shard", help="K/M: register only scans "
                                         "K, K+M, K+2M, ... (one process per shard)."),
