@@ -72,8 +72,9 @@ def turntable_reference(tmp_path_factory):
 
 
 # --- turntable -------------------------------------------------------------------------------
-@pytest.mark.parametrize("sig, point", [(signal.SIGKILL, POINTS[0]), (signal.SIGINT, POINTS[1])],
-                         ids=["SIGKILL", "SIGINT"])
+@pytest.mark.parametrize("sig, point", [
+    pytest.param(signal.SIGKILL, POINTS[0], marks=pytest.mark.slow),  # more in the slow run
+    (signal.SIGINT, POINTS[1])], ids=["SIGKILL", "SIGINT"])
 def test_turntable_killed_then_resumed_is_byte_identical(turntable_reference, tmp_path, sig,
                                                          point, capsys):
     out = tmp_path / "tt"
