@@ -146,13 +146,13 @@ def output_file(path: str | Path, option: str = "-o/--output",
     existing parent must be writable. Nothing is created.
     """
     path = Path(path)
+    if path.is_dir():
+        raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
+                        f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise HackError(f"{option} {path}: expected a {_one_of(suffixes)} file, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}. Give the "
                         f"output a {suffixes[0]} suffix.")
-    if str(path).endswith(os.sep) or path.is_dir():
-        raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
-                        f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
     _check_folder_chain(path.parent, option, path)
     return path
 
