@@ -10,7 +10,8 @@ last, so a folder with ``report.json`` is complete and one without it is not.
 - ``error.ply``: the registered mesh coloured by each vertex's distance to the scan
   (blue 0 mm, red >= 3 mm, grey where not measured), the distance also as a
   ``quality`` property (millimetres).
-- ``error.png``: that heat map ray cast from the front and both sides, with a colour bar.
+- ``error.png``: that heat map ray cast from the front and both sides, with a labelled
+  colour bar (matplotlib) and the scan's errors in the title.
 - ``landmarks.json``: the 3-D landmarks used (scan frame and units) and where they came from.
 - ``textures/``: baked skin maps when the scan has colours (see :mod:`.bake`).
 - ``report.json``: errors, per-stage times, status (``ok`` or ``failed`` with reasons).
@@ -65,12 +66,12 @@ def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm:
     return path
 
 
-def heat_map_image(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
-                   size: int = 384) -> np.ndarray:
-    """(size, 3 * size + bar, 3) uint8: front, left and right views of the error colours."""
-    from hack_render.register.scan import srgb_to_linear
+def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
+                   size: int = 384) -> list[np.ndarray]:
+    """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
     from hack_render.render.image_io import to_srgb8
     from hack_render.render.mesh_views import MeshViews
+    from hack_render.register.scan import srgb_to_linear
     from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
     v = np.asarray(model_vertices, np.float64)
@@ -85,20 +86,36 @@ def heat_map_image(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.nda
         R, t = look_at(eye, centre)
         img = views.render(Camera(K, R, t, size, size, "heat"))
         tiles.append(to_srgb8(img[..., :3], operator="clip"))
-    bar = _colour_bar(size)
-    return np.concatenate(tiles + [bar], 1)
+    return tiles
 
 
-def _colour_bar(height: int, width: int = 48) -> np.ndarray:
-    """A vertical colour bar, 0 mm at the bottom, ``HEAT_MAX_MM`` at the top, white ticks
-    at every millimetre."""
-    x = np.linspace(HEAT_MAX_MM, 0, height)
-    col = np.round(heat_colors(x) * 255).astype(np.uint8)
-    bar = np.repeat(col[:, None], width, 1)
-    for mm in range(int(HEAT_MAX_MM) + 1):
-        row = round((1 - mm / HEAT_MAX_MM) * (height - 1))
-        bar[max(row - 1, 0): row + 1, : width // 3] = 255
-    return bar
+def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
+                   err_mm: np.ndarray, title: str) -> Path:
+    """``path`` (PNG): the three views side by side with a labelled colour bar (mm)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import colormaps
+    from matplotlib.colors import Normalize
+
+    from hack_render.render.image_io import atomic_path
+
+    tiles = heat_map_views(model_vertices, faces, err_mm)
+    fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.9))
+    for ax, img, name in zip(axes, tiles, ("front", "left", "right"), strict=True):
+        ax.imshow(img)
+        ax.set_title(name, fontsize=9)
+        ax.axis("off")
+    sm = plt.cm.ScalarMappable(norm=Normalize(0, HEAT_MAX_MM), cmap=colormaps["turbo"])
+    bar = fig.colorbar(sm, ax=axes, fraction=0.025, pad=0.01)
+    bar.set_label(f"distance to the scan, mm (grey: not measured; >= {HEAT_MAX_MM:g} red)",
+                  fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png", facecolor="white")
+    plt.close(fig)
+    return path
 
 
 def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
@@ -119,13 +136,12 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
         np.save(fh, reg.offsets.astype(np.float32), allow_pickle=False)
     written.append(outdir / "offsets.npy")
     written.append(write_error_ply(outdir / "error.ply", reg.vertices, faces, reg.vertex_error))
-    import imageio.v3 as iio
-
     # the heat map on the mesh in the model's frame (upright, facing the camera)
-    with atomic_path(outdir / "error.png") as tmp:
-        iio.imwrite(tmp, heat_map_image(_model_frame(reg), faces, reg.vertex_error),
-                    extension=".png")
-    written.append(outdir / "error.png")
+    err = reg.report["scan_to_mesh_mm"]["all"]
+    title = (f"{reg.report['scan']}: scan-to-mesh mean {err.get('mean', float('nan')):.2f} mm, "
+             f"p95 {err.get('p95', float('nan')):.2f} mm ({reg.report['status']})")
+    written.append(write_heat_map(outdir / "error.png", _model_frame(reg), faces,
+                                  reg.vertex_error, title))
     with atomic_path(outdir / "landmarks.json") as tmp:
         tmp.write_text(json.dumps(landmarks, indent=1))
     written.append(outdir / "landmarks.json")
