@@ -69,9 +69,9 @@ def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm:
 def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
                    size: int = 384) -> list[np.ndarray]:
     """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
+    from hack_render.register.scan import srgb_to_linear
     from hack_render.render.image_io import to_srgb8
     from hack_render.render.mesh_views import MeshViews
-    from hack_render.register.scan import srgb_to_linear
     from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
     v = np.asarray(model_vertices, np.float64)
