@@ -181,6 +181,8 @@ def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, te
         reg = register(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
                        landmark_source=lmk_info["source"])
         reg.report["fingerprint"] = fp
+        if "seconds" in lmk_info:
+            reg.report["seconds"]["find_landmarks"] = lmk_info["seconds"]
         reg.report["scan_file"] = str(path)
         extra = {}
         if bake and scan.has_color:
@@ -227,7 +229,11 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
 
     with torch.no_grad():
         reference = model().landmarks[0].double().numpy()
+    import time
+
+    t0 = time.perf_counter()
     pts_m, ids, info = find_landmarks(scan, progress=not quiet, reference=reference)
+    info["seconds"] = round(time.perf_counter() - t0, 2)
     return pts_m / scan.scale, ids, {"source": "found", **info}
 
 
