@@ -52,3 +52,33 @@ def test_sliders_change_the_rendered_pixels(tmp_path):
     for name, img in (("jawOpen", jaw), ("c1-c2 axial", turn)):
         diff = np.abs(img[:420, :VIEW_WIDTH] - view).max(-1)
         assert (diff > 30).sum() > 500, f"moving {name} changed {int((diff > 30).sum())} pixels"
+
+
+def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
+    """Ctrl-C stops the viewer like any command: exit 130 and one line, no traceback."""
+    import signal
+    import socket
+    import time
+
+    from hack_render.export.person import export_person
+
+    glb = tmp_path / "p.glb"
+    export_person(load_default_model(), {}, glb)
+    with socket.socket() as s:  # a free port
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    exe = shutil.which("hack-render")
+    assert exe, "the hack-render console script is installed with the package"
+    p = subprocess.Popen([exe, "view", str(glb), "--no-open", "--port", str(port)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline:  # wait until it serves
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            break
+        except OSError:
+            time.sleep(0.3)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert "interrupted: the viewer stopped" in err and "Traceback" not in err

@@ -181,7 +181,8 @@ def view(
 
     boundary.input_file(file, "FILE", (".glb", ".gltf"), "exported person")
     boundary.number(port, "--port", 0, 65535, integer=True)
-    serve(file, port, open_browser)
+    with boundary.on_interrupt("the viewer stopped (it writes no files)"):
+        serve(file, port, open_browser)
 
 
 def register(app: typer.Typer) -> None:

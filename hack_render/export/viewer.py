@@ -106,7 +106,5 @@ def serve(model: str | Path, port: int = 8023, open_browser: bool = True) -> Non
     try:
         while True:
             time.sleep(3600)
-    except KeyboardInterrupt:
-        pass
-    finally:
+    finally:  # Ctrl-C stops the server and goes on to the CLI (exit 130, like every command)
         server.shutdown()
