@@ -67,7 +67,7 @@ def test_umeyama_recovers_a_similarity():
     src = rng.normal(size=(51, 3))
     R = random_rotation(rng)
     dst = 3.5 * src @ R.T + np.array([1.0, -2.0, 0.5])
-    s, R2, t = umeyama(src, dst)
+    s, R2, _ = umeyama(src, dst)
     assert s == pytest.approx(3.5)
     np.testing.assert_allclose(R2, R, atol=1e-10)
     s1, R1, _ = umeyama(src, dst / 3.5, with_scale=False)

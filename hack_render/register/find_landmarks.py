@@ -28,7 +28,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.register.align import INNER
-from hack_render.register.scan import Scan
+from hack_render.register.scan import Scan, vertex_colors
 from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 ROTATION_STEP_DEG = 45
@@ -98,16 +98,6 @@ def _lift(views, cam: Camera, pts: np.ndarray) -> np.ndarray:
     out = pos[ij[:, 1], ij[:, 0]].copy()
     out[~hit[ij[:, 1], ij[:, 0]]] = np.nan
     return out
-
-
-def _vertex_colors(scan: Scan) -> np.ndarray | None:
-    from hack_render.register.scan import sample_texture
-
-    if scan.colors is not None:
-        return scan.colors
-    if scan.texture is not None:
-        return sample_texture(scan.texture, scan.uv)
-    return None
 
 
 def _face_frame(lmk: np.ndarray, reference: np.ndarray, seen_from: np.ndarray):
@@ -198,7 +188,7 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
             reference = load_default_model()().landmarks[0].double().numpy()
     # rendered and lifted on the scan smoothed a little (a few tenths of a millimetre):
     # a noisy scan's normals would otherwise turn its shading to salt
-    views = MeshViews(smoothed(scan.faces, scan.points), scan.faces, _vertex_colors(scan),
+    views = MeshViews(smoothed(scan.faces, scan.points), scan.faces, vertex_colors(scan),
                       size, size)
     centre = 0.5 * (scan.points.min(0) + scan.points.max(0))
     extent = scan.extent

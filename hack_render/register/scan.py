@@ -291,6 +291,15 @@ def transformed(scan: Scan, scale: float, R: np.ndarray, t: np.ndarray) -> Scan:
                                normals=scan.normals @ R.T)
 
 
+def vertex_colors(scan: Scan) -> np.ndarray | None:
+    """(N, 3) linear colour per vertex: its own, or its texture's at its UV; None if none."""
+    if scan.colors is not None:
+        return scan.colors
+    if scan.texture is not None:
+        return sample_texture(scan.texture, scan.uv)
+    return None
+
+
 class SurfaceIndex:
     """Dense samples of a scan's surface in a KD-tree.
 
@@ -304,7 +313,7 @@ class SurfaceIndex:
         from scipy.spatial import cKDTree
 
         self.scan = scan
-        pts, nrm, col = scan.points, scan.normals, self._vertex_colors(scan)
+        pts, nrm, col = scan.points, scan.normals, vertex_colors(scan)
         if scan.is_mesh:
             p, n, c = self._sample_faces(scan, spacing, max_samples, seed)
             pts, nrm = np.concatenate([pts, p]), np.concatenate([nrm, n])
@@ -318,14 +327,6 @@ class SurfaceIndex:
         self.points, self.normals, self.colors = pts, nrm, col
         self.near_boundary = near_boundary
         self.tree = cKDTree(pts)
-
-    @staticmethod
-    def _vertex_colors(scan: Scan) -> np.ndarray | None:
-        if scan.colors is not None:
-            return scan.colors
-        if scan.texture is not None:
-            return sample_texture(scan.texture, scan.uv)
-        return None
 
     @staticmethod
     def _sample_faces(scan: Scan, spacing: float, max_samples: int, seed: int):
