@@ -70,7 +70,10 @@ def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
     exe = shutil.which("hack-render")
     assert exe, "the hack-render console script is installed with the package"
     p = subprocess.Popen([exe, "view", str(glb), "--no-open", "--port", str(port)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         # CI runs the suite in the background, which hands children
+                         # SIGINT ignored: give the viewer its default Ctrl-C back
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 60
     while time.time() < deadline:  # wait until it serves
         try:

@@ -47,10 +47,17 @@ def tree(folder: Path, skip=()) -> dict[str, bytes]:
             if p.is_file() and p.name not in skip}
 
 
+def default_sigint() -> None:
+    """In the child before exec: Ctrl-C back to its default. A suite started in the
+    background by a non-interactive shell (as CI runs it) hands its children SIGINT
+    ignored, and a command that ignores Ctrl-C cannot be tested on it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def spawn(args) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "hack_render.cli", *map(str, args)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=default_sigint)
 
 
 def kill_when(proc: subprocess.Popen, ready, sig: int, timeout: float = 240.0) -> tuple[int, str]:

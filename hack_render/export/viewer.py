@@ -10,6 +10,7 @@ path is a 404: the server shows no other file of the machine.
 from __future__ import annotations
 
 import json
+import signal
 import threading
 from functools import partial
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -78,6 +79,14 @@ class _Handler(BaseHTTPRequestHandler):
         pass
 
 
+def _serve_without_signals(server: ThreadingHTTPServer) -> None:
+    """The serving thread blocks Ctrl-C and SIGTERM, so the kernel hands them to the main
+    thread: a signal taken by this thread would leave the main thread asleep (Python runs
+    handlers in the main thread only when it wakes) and the viewer would not stop."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    server.serve_forever()
+
+
 def start(model: str | Path, port: int = 0) -> tuple[ThreadingHTTPServer, str]:
     """Start serving in a background thread; returns the server and the page's URL."""
     table = routes(model)
@@ -86,7 +95,7 @@ def start(model: str | Path, port: int = 0) -> tuple[ThreadingHTTPServer, str]:
     except OSError as exc:
         raise HackError(f"--port {port}: cannot listen on 127.0.0.1 ({exc.strerror or exc}); "
                         "pick another port, or 0 for any free one.") from exc
-    threading.Thread(target=server.serve_forever, daemon=True).start()
+    threading.Thread(target=_serve_without_signals, args=(server,), daemon=True).start()
     return server, f"http://127.0.0.1:{server.server_address[1]}/"
 
 
