@@ -227,8 +227,12 @@ def _visibility_reference(head, points, tolerance=2e-3, see_through=("eyelashes"
                    mi.Vector3f(*[d[:, k].astype(np.float32) for k in range(3)]))
     through = [REGIONS.index(n) for n in see_through]
     through_ids = [sid for sid, (reg, _, _) in head._shape_regions.items() if reg in through]
+    # the lights' rectangles: camera rays look through them
+    emitter_ids = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(s))[0])
+                   for s in head.scene.shapes() if s.is_emitter()]
+    through_ids += emitter_ids
     blocked, alive, travelled = np.zeros(len(p), bool), np.ones(len(p), bool), np.zeros(len(p))
-    for _ in range(4):
+    for _ in range(4 + len(emitter_ids)):
         si = head.scene.ray_intersect(ray)
         ids = np.asarray(dr.reinterpret_array(mi.UInt32, si.shape), np.int64)
         t = np.where(np.asarray(si.is_valid(), bool), np.asarray(si.t, np.float64), np.inf)

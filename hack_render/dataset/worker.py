@@ -235,8 +235,8 @@ class SampleRenderer:
                    put(_write_json, vdir / "camera.json", cam.to_dict())]
         img = head.render(seed=spec["render_seed"] + v)
         img[..., :3] *= np.float32(2.0 ** spec["lighting"]["exposure"])
-        # the matte is geometric coverage: the film's alpha is 1 on every pixel once an
-        # environment light is visible behind the subject
+        # the matte is the geometric coverage of the label rays (the soft masks); the
+        # film's alpha (coverage of the path tracer's own samples) agrees up to noise
         alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)
         ch = rgb_channels(img[..., :3])
         ch["A"] = alpha

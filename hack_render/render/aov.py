@@ -11,6 +11,10 @@ traces its own primary rays (one per pixel centre, no filter) and reads the hit:
 - ``albedo``: (H, W, 3) diffuse reflectance of the hit material (linear).
 - ``uv``: (H, W, 2) the model's own UDIM-style texture coordinates (u in [0, 7], v up).
 - ``segmentation``: (H, W) region id (``parts.REGIONS``; 0 = background).
+
+Like the path tracer (``hide_emitters``), every pass here looks through the area lights'
+rectangles (:func:`camera_hit`): a pixel is background, depth 0, exactly where no
+surface of the subject is met, so segmentation and depth agree.
 """
 
 from __future__ import annotations
@@ -20,6 +24,47 @@ import numpy as np
 from hack_render.errors import HackError
 
 AOV_NAMES = ("depth", "normal", "albedo", "uv", "segmentation")
+
+
+def _emitter_layers(head) -> int:
+    """How many emitter shapes a camera ray may have to pass (the rig's area lights)."""
+    return sum(1 for shape in head.scene.shapes() if shape.is_emitter())
+
+
+def camera_hit(head, ray, active=True, coherent: bool = False):
+    """The first intersection along ``ray`` that is not an emitter's shape (a camera ray
+    looks through the area lights, as the renderer's ``hide_emitters`` does). Returns a
+    SurfaceInteraction3f (invalid where nothing else is hit)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    active = mi.Bool(active)
+    layers = _emitter_layers(head)
+    if layers == 0:
+        return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
+    ray = mi.Ray3f(ray)
+    for _ in range(layers):
+        pi = head.scene.ray_intersect_preliminary(ray, coherent, active)
+        skip = active & pi.is_valid() & pi.shape.is_emitter()
+        # continue from just past the rectangle (10 um; the head is metres away from it)
+        ray.o = dr.select(skip, ray(pi.t + 1e-5), ray.o)
+    return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
+
+
+def emitter_pixels(head) -> np.ndarray:
+    """(H, W) bool: pixels whose centre ray meets an emitter's shape before any surface
+    of the subject (where a light would show in frame if camera rays saw emitters)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    cam = head.camera
+    w, h = cam.width, cam.height
+    idx = dr.arange(mi.UInt32, w * h)
+    xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    ray, _ = head.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5, 0.5))
+    pi = head.scene.ray_intersect_preliminary(ray)
+    hit = pi.is_valid() & pi.shape.is_emitter()
+    return np.asarray(hit, dtype=bool).reshape(h, w)
 
 
 def gbuffer(head) -> dict[str, np.ndarray]:
@@ -34,7 +79,7 @@ def gbuffer(head) -> dict[str, np.ndarray]:
     y = mi.Float(idx // w) + 0.5
     sensor = head.scene.sensors()[0]
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
-    si = head.scene.ray_intersect(ray)
+    si = camera_hit(head, ray)
     valid = si.is_valid()
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
     region, u_model, v_model = _region_uv_jit(head, si, valid)
@@ -172,12 +217,12 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
     # coherent: camera rays, a pixel's sub-pixel rays side by side (Embree's coherent
     # traversal; ~15 % faster here, same hits)
-    si = head.scene.ray_intersect(ray, mi.RayFlags.All, True)
+    si = camera_hit(head, ray, coherent=True)
     label, region, u, v = labels_of(si, mi.Bool(True))
     through = mi.Bool(False)
     for r_ in see:
         through |= region == r_
-    si2 = head.scene.ray_intersect(si.spawn_ray(ray.d), through)
+    si2 = camera_hit(head, si.spawn_ray(ray.d), through)
     behind = dr.select(through, labels_of(si2, through)[0], 0)
     valid = si.is_valid()
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid & centre)
@@ -250,13 +295,13 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
     y = mi.Float(idx // w) + float(offset[1])
     sensor = head.scene.sensors()[0]
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
-    si = head.scene.ray_intersect(ray)
+    si = camera_hit(head, ray)
     region, uv = _hit_region_uv(head, si, si.is_valid(), h, w)
     out = {"region": region, "uv": uv, "region_behind": np.zeros_like(region),
            "uv_behind": np.zeros_like(uv)}
     through = [REGIONS.index(n) for n in see_through if n in REGIONS]
     if through and np.isin(region, through).any():
-        si2 = head.scene.ray_intersect(si.spawn_ray(ray.d))
+        si2 = camera_hit(head, si.spawn_ray(ray.d))
         mask = mi.Bool(np.isin(region, through).ravel())
         r2, uv2 = _hit_region_uv(head, si2, si2.is_valid() & mask, h, w)
         out["region_behind"], out["uv_behind"] = r2, uv2
@@ -306,14 +351,16 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     # intersections (Embree's distance and shape only): no surface interaction is needed,
     # and tracing one is a virtual call over every shape, which cost more than the rays.
     step = 1e-5
-    for _ in range(4):
+    for _ in range(4 + _emitter_layers(head)):
         pi = head.scene.ray_intersect_preliminary(ray, False, alive)
         sid = dr.reinterpret_array(mi.UInt32, pi.shape)
         valid = alive & pi.is_valid()
         ok = valid & (sid < size)
         region = dr.gather(mi.UInt32, lut_region, sid, ok)
         hit_before = valid & (travelled + pi.t < limit)
-        passes = hit_before & ok & dr.gather(mi.Bool, see, region, ok)
+        # lash cards and the lights' rectangles (which camera rays look through) pass
+        passes = hit_before & ((ok & dr.gather(mi.Bool, see, region, ok))
+                               | pi.shape.is_emitter())
         blocked |= hit_before & ~passes
         alive = passes
         travelled += dr.select(alive, pi.t + step, 0.0)

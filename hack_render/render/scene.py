@@ -72,6 +72,16 @@ def validate_size(width: int, height: int, spp: int) -> None:
                         f"{spp!r}. 16-64 spp is plenty for previews, 256+ for finals.")
 
 
+def composite(image: np.ndarray, backdrop: np.ndarray | None) -> np.ndarray:
+    """Premultiplied linear RGBA (H, W, 4) over a linear RGB backdrop (H, W, 3) or None:
+    RGB + (1 - alpha) backdrop; alpha is kept (the subject's coverage)."""
+    if backdrop is None:
+        return image
+    out = image.copy()
+    out[..., :3] += (1.0 - image[..., 3:4]) * backdrop
+    return out
+
+
 def _np(x) -> np.ndarray:
     x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
     return x.astype(np.float64)
@@ -118,8 +128,14 @@ class HeadScene:
         skin = mi.load_dict(materials.skin_bsdf(maps, jit))
         fixed = materials.fixed_bsdfs()
         normals = vertex_normals(v, topology.faces)
+        # hide_emitters: camera rays pass through the area lights' rectangles and do not
+        # see the environment, so no light is ever in frame and the film's alpha is the
+        # subject's coverage; the environment is put back behind the subject as a
+        # backdrop (:meth:`backdrop`), lights and shading unchanged (only depth-0 emission
+        # is hidden)
         scene: dict = {"type": "scene",
-                       "integrator": {"type": "path", "max_depth": settings.max_depth},
+                       "integrator": {"type": "path", "max_depth": settings.max_depth,
+                                      "hide_emitters": True},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter)}
         for part in self.parts:
@@ -143,6 +159,7 @@ class HeadScene:
         # is a function of its inputs alone. parallel=False: nothing depends on threads.
         self.scene = mi.load_dict(scene, parallel=False, optimize=False)
         self.params = mi.traverse(self.scene)
+        self._backdrop: np.ndarray | None = None
         self._skin_key = self._find_skin_key()
         self._shape_regions = self._shape_region_table()
 
@@ -244,6 +261,7 @@ class HeadScene:
         check_intrinsics(camera)
         self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(camera).tolist())
         self.params["sensor.x_fov"] = camera.fov_x_deg
+        self._backdrop = None
         if update:
             self.params.update()
         self.camera = camera
@@ -268,6 +286,7 @@ class HeadScene:
             key = f"light_{i}.to_world"
             if key in self.params:
                 self.params[key] = opaque(area_light_transform(light, degrees))
+        self._backdrop = None
         if update:
             self.params.update()
 
@@ -290,11 +309,18 @@ class HeadScene:
         self.scene.parameters_changed()
 
     # --- rendering -------------------------------------------------------------------
-    def render(self, seed: int | None = None, progress: bool = False) -> np.ndarray:
+    def render(self, seed: int | None = None, progress: bool = False,
+               backdrop=True) -> np.ndarray:
         """Render the image: (H, W, 4) float32 linear Rec.709 RGB + alpha (coverage).
 
         Samples are split into equal passes of at most ``SAMPLES_PER_PASS`` samples with
         seeds derived from ``seed`` (default: the settings' seed), then averaged.
+
+        Camera rays never see an emitter (the path integrator's ``hide_emitters``): the
+        film holds the subject alone, RGB premultiplied by the alpha. ``backdrop`` says
+        what fills the rest: True, the rig's environment as seen along each pixel's
+        centre ray (:meth:`backdrop`); False, nothing (premultiplied RGBA, for
+        compositing); or an (H, W, 3) linear image composited behind the subject.
         """
         import mitsuba as mi
 
@@ -309,7 +335,44 @@ class HeadScene:
         for i in steps:
             img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31)))
             acc = img if acc is None else acc + img
-        return (acc / n).astype(np.float32)
+        img = (acc / n).astype(np.float32)
+        return composite(img, self._backdrop_of(backdrop))
+
+    def _backdrop_of(self, backdrop) -> np.ndarray | None:
+        if backdrop is True:
+            return self.backdrop()
+        if backdrop is False or backdrop is None:
+            return None
+        bg = np.asarray(backdrop, dtype=np.float32)
+        shape = (self.settings.height, self.settings.width, 3)
+        if bg.shape != shape or not np.all(np.isfinite(bg)):
+            raise HackError(f"backdrop: expected a finite linear RGB image of shape {shape}, "
+                            f"found {bg.shape}.")
+        return bg
+
+    def backdrop(self) -> np.ndarray:
+        """(H, W, 3) float32: the environment's radiance along each pixel-centre camera
+        ray (zeros without an environment); what the camera would see behind the
+        subject, lights excluded. Cached until the camera or the rig moves."""
+        if self._backdrop is None:
+            import drjit as dr
+            import mitsuba as mi
+
+            w, h = self.settings.width, self.settings.height
+            env = self.scene.environment()
+            if env is None:
+                self._backdrop = np.zeros((h, w, 3), np.float32)
+            else:
+                idx = dr.arange(mi.UInt32, w * h)
+                xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+                ray, _ = self.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5))
+                si = dr.zeros(mi.SurfaceInteraction3f, w * h)
+                si.wi = -ray.d
+                rgb = env.eval(si)
+                self._backdrop = np.stack([np.broadcast_to(np.asarray(rgb[c], np.float32),
+                                                           (w * h,)) for c in range(3)],
+                                          -1).reshape(h, w, 3)
+        return self._backdrop
 
     def aovs(self) -> dict[str, np.ndarray]:
         """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
