@@ -230,7 +230,7 @@ def test_06_uv_atlas_for_a_character_without_uvs(tmp_path):
     path = _chain_gltf(tmp_path / "chain.glb")
     ch = RT.load_gltf_character(path)
     before = accessor(ch.doc, ch.buf, ch.doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
-    assert RT.add_uv_atlas(ch) == 1
+    assert RT.add_uv_atlas(ch) == [(0, 0)]
     prim = ch.doc["meshes"][0]["primitives"][0]
     uv = accessor(ch.doc, ch.buf, prim["attributes"]["TEXCOORD_0"])
     pos = accessor(ch.doc, ch.buf, prim["attributes"]["POSITION"])
@@ -239,7 +239,7 @@ def test_06_uv_atlas_for_a_character_without_uvs(tmp_path):
     a, b = uv[idx[:, 1]] - uv[idx[:, 0]], uv[idx[:, 2]] - uv[idx[:, 0]]
     area = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     assert (np.abs(area) > 0).all()  # every triangle has room in the atlas
-    assert RT.add_uv_atlas(ch) == 0  # it has UVs now
+    assert RT.add_uv_atlas(ch) == []  # it has UVs now
 
 
 # ------------------------------------------------------------------ the command
@@ -344,7 +344,7 @@ def test_10_cli_gltf_target(tmp_path, capsys):
     before = src.read_bytes()
     motion = save_sequence(tmp_path / "anim.npz", _motion(3))
     main(["transfer", "--motion", str(motion), "--target", str(src), "-o", str(tmp_path / "o"),
-          "--no-turntable", "--quiet"])
+          "--no-turntable", "--quiet", "--bake-size", "64"])
     rep = json.loads((tmp_path / "o" / "report.json").read_text())
     assert rep["target"]["method"] == "arc length along the neck chain"
     assert rep["target"]["mapping"]["c7-t1"] == "neck_01" and rep["target"]["mapping"]["o-c1"] == "head"
@@ -381,7 +381,7 @@ def test_11_gltf_skinning_and_turntable(tmp_path):
                                        + m[:3, 3], atol=1e-5)
     motion = save_sequence(tmp_path / "anim.npz", seq)
     main(["transfer", "--motion", str(motion), "--target", str(path), "-o", str(tmp_path / "o"),
-          "--frames", "2", "--resolution", "32", "--spp", "1", "--quiet"])
+          "--frames", "2", "--resolution", "32", "--spp", "1", "--quiet", "--bake-size", "64"])
     import imageio.v3 as iio
 
     img = iio.imread(tmp_path / "o" / "turntable" / "frames" / "frame_0001.png")

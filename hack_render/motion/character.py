@@ -269,3 +269,68 @@ def pose_checks(crig: CharacterRig, model, theta: np.ndarray, psi=None) -> dict:
         for k, acc in out.items():
             acc.append(getattr(st, k).numpy())
     return {k: np.concatenate(v) for k, v in out.items()}
+
+
+#: The procedural glTF character's bones (:func:`long_neck_gltf`) and the HACK nodes
+#: (root, then c7-t1 ... o-c1) each one takes the skinning weight of.
+GLTF_BONES = {"hips": (), "spine": (0,), "neck_01": (1, 2), "neck_02": (3, 4),
+              "neck_03": (5, 6, 7), "head": (8,)}
+
+
+def long_neck_gltf(model, path: str | Path, character: Character | None = None,
+                   hips_drop: float = 0.3) -> Path:
+    """The procedural long-necked character (:func:`long_neck_character`) written as a
+    plain glTF character of its own: the skin's triangles only (no eyes, teeth or mouth
+    interior), no UVs and no materials, a skeleton of 6 bones (``hips`` and ``spine``
+    below, ``neck_01`` at c7-t1, ``neck_02`` at c5-c6, ``neck_03`` at c3-c4, ``head`` at
+    o-c1) and 4 skin weights per vertex summed from HACK's onto them (:data:`GLTF_BONES`).
+    A test target for the glTF path; labelled procedural in ``asset.extras``."""
+    from hack_render.export.gltf import (
+        ARRAY_BUFFER,
+        ELEMENT_ARRAY_BUFFER,
+        FLOAT,
+        UBYTE,
+        UINT,
+        GltfBuilder,
+        write_document,
+    )
+    from hack_render.export.rig import top_weights
+    from hack_render.motion.surface_transfer import skin_faces
+
+    ch = long_neck_character(model) if character is None else character
+    faces, _ = skin_faces(model)
+    used = np.unique(faces)
+    v = ch.vertices[used]
+    f = np.searchsorted(used, faces)
+    nodes9 = np.concatenate([ch.joints[:1], ch.joints])
+    heads = {"hips": nodes9[0] - [0.0, hips_drop, 0.0], "spine": nodes9[0] - [0.0, 0.1, 0.0],
+             "neck_01": nodes9[1], "neck_02": nodes9[3], "neck_03": nodes9[5],
+             "head": nodes9[8]}
+    names = list(GLTF_BONES)
+    w = np.zeros((len(used), len(names)))
+    for b, src in enumerate(GLTF_BONES.values()):
+        for s in src:
+            w[:, b] += ch.weights[used, s]
+    j4, w4 = top_weights(w, 4)
+    g = GltfBuilder()
+    attrs = {"POSITION": g.accessor(v, FLOAT, "VEC3", ARRAY_BUFFER, bounds=True),
+             "JOINTS_0": g.accessor(j4, UBYTE, "VEC4", ARRAY_BUFFER),
+             "WEIGHTS_0": g.accessor(w4, FLOAT, "VEC4", ARRAY_BUFFER)}
+    g._add("meshes", {"name": ch.name, "primitives": [{"attributes": attrs, "mode": 4,
+           "indices": g.accessor(f.reshape(-1, 1), UINT, "SCALAR", ELEMENT_ARRAY_BUFFER)}]})
+    for i, n in enumerate(names):
+        t = heads[n] - (heads[names[i - 1]] if i else 0.0)
+        node = {"name": n, "translation": [float(x) for x in t]}
+        if i + 1 < len(names):
+            node["children"] = [i + 1]
+        g._add("nodes", node)
+    ibm = np.tile(np.eye(4).reshape(1, 16), (len(names), 1))
+    ibm[:, 12:15] = -np.stack([heads[n] for n in names])
+    g._add("skins", {"joints": list(range(len(names))),
+                     "inverseBindMatrices": g.accessor(ibm, FLOAT, "MAT4")})
+    body = g._add("nodes", {"name": ch.name, "mesh": 0, "skin": 0})
+    g.doc["scenes"] = [{"nodes": [0, body]}]
+    g.doc["scene"] = 0
+    g.doc["asset"]["extras"] = {"character": ch.meta, "note": "procedural test character for "
+                                "the glTF path of hack-render transfer (skin only, no UVs)"}
+    return write_document(g, path)[0]

@@ -145,6 +145,8 @@ def transfer(
     name_map: Path | None = typer.Option(None, "--name-map", help="glTF: JSON mapping each "
                                             "HACK joint (c7-t1 ... o-c1) to a bone name."),
     influences: int = typer.Option(4, help="Skin weights per vertex in the glTF: 4 or 8."),
+    bake_size: int = typer.Option(1024, "--bake-size", help="glTF targets: texels per side "
+                                  "of the atlas the skin maps are baked into."),
     alpha: opts.Alpha = None,
     appearance_seed: opts.AppearanceSeed = None,
     textures: opts.Textures = None,
@@ -158,7 +160,8 @@ def transfer(
     quiet: opts.Quiet = False,
 ) -> None:
     """Move HACK motion onto another character: an animated glTF, a turntable and
-    report.json (the pose-space stress test's measures on every frame).
+    report.json (the pose-space stress test's measures on every frame; for a glTF
+    character, the alignment, bake and morph-target figures).
 
     Example: hack-render transfer --motion anim.npz --target procedural:long-neck -o out/giraffe
     """
@@ -177,6 +180,7 @@ def transfer(
     B.number(frames, "--frames", 2, 2000, integer=True)
     B.number(resolution, "--resolution", 16, 4096, integer=True, unit="pixels")
     B.number(spp, "--spp", 1, 65536, integer=True)
+    B.number(bake_size, "--bake-size", 16, 8192, integer=True, unit="texels")
     nmap = None
     if name_map is not None:
         try:
@@ -191,16 +195,14 @@ def transfer(
     model = load_model(model_path)
     tt = ({"frames": frames, "resolution": resolution, "spp": spp, "variant": variant}
           if turntable else None)
-    maps = None
-    if target_kind(target) != "gltf":  # the skin maps in the model's atlas (default: A(0))
-        from hack_render.geometry.cli import _floats
-        from hack_render.render.skin_maps import skin_maps
+    from hack_render.geometry.cli import _floats
+    from hack_render.render.skin_maps import skin_maps
 
-        a = _floats(alpha, "alpha")
-        maps = skin_maps([0.0] if a is None and appearance_seed is None and textures is None
-                         else a, appearance_seed, textures)
+    a = _floats(alpha, "alpha")  # the skin maps in the model's atlas (default: A(0))
+    maps = skin_maps([0.0] if a is None and appearance_seed is None and textures is None
+                     else a, appearance_seed, textures)
     rep = run_transfer(model, motion, target, output, p, chain, nmap, influences, tt,
-                       progress=not quiet, maps=maps)
+                       progress=not quiet, maps=maps, bake_size=bake_size)
     for f in rep["files"]:
         typer.echo(f"wrote {Path(f).resolve()}")
     d = rep.get("deformation")

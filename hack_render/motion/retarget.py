@@ -200,11 +200,7 @@ def _joint_map(ch, hack_joints, chain, name_map):
 def bone_rotations(theta: np.ndarray, assign: list[int], n_bones: int) -> np.ndarray:
     """World-axes rotation per bone and frame: theta (T, 8, 3) -> (T, B, 3, 3), each bone's
     HACK joints' rotations multiplied in chain order (identity for a bone with none)."""
-    import torch
-
-    from hack_render.geometry.rotations import axis_angle_to_matrix
-
-    r = axis_angle_to_matrix(torch.as_tensor(np.asarray(theta, np.float64))).numpy()
+    r = _matrices(theta)
     out = np.tile(np.eye(3), (len(r), n_bones, 1, 1))
     for j, b in enumerate(assign):
         out[:, b] = out[:, b] @ r[:, j]
@@ -221,36 +217,102 @@ def _quat(m: np.ndarray) -> np.ndarray:
     return np.concatenate([q[..., 1:], q[..., :1]], -1)
 
 
-def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
-             theta: np.ndarray) -> np.ndarray:
-    """Local rotations (T, B, 4) xyzw of the chain's bones: ``r_rest Q^-1 R Q`` per bone."""
-    nodes = ch.doc["nodes"]
-    rb = bone_rotations(theta, assign, len(bones))
-    out = []
-    for k, b in enumerate(bones):
-        q = ch.world[b, :3, :3]
-        q = q / np.linalg.norm(q, axis=0, keepdims=True)  # rotation part (no scale)
-        rest = _local(nodes[b])[:3, :3]
-        rest = rest / np.linalg.norm(rest, axis=0, keepdims=True)
-        out.append(rest @ q.T @ rb[:, k] @ q)
-    q = _quat(np.stack(out, 1))
-    for i in range(1, len(q)):  # one hemisphere between frames (interpolation)
+def _rest_frame(ch: GltfCharacter, node: int, rot: np.ndarray) -> np.ndarray:
+    """Local rotations (T, 3, 3) of ``node`` that turn it by world-axes rotations ``rot``
+    (T, 3, 3) about its rest orientation: ``r_rest Q^-1 R Q``."""
+    q = ch.world[node, :3, :3]
+    q = q / np.linalg.norm(q, axis=0, keepdims=True)  # rotation part (no scale)
+    rest = _local(ch.doc["nodes"][node])[:3, :3]
+    rest = rest / np.linalg.norm(rest, axis=0, keepdims=True)
+    return rest @ q.T @ rot @ q
+
+
+def _hemisphere(q: np.ndarray) -> np.ndarray:
+    """One hemisphere between consecutive frames (axis 0), for interpolation."""
+    for i in range(1, len(q)):
         flip = (q[i] * q[i - 1]).sum(-1) < 0
         q[i, flip] *= -1
     return q
 
 
-def posed_mesh(ch: GltfCharacter, bones: list[int] | None = None,
-               quats: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The character's triangles posed with local rotations ``quats`` (B, 4) xyzw on
-    ``bones`` (default: the rest pose): skinned primitives by their joints' world matrices
-    times inverse bind matrices (glTF 2.0 skinning), others by their node's world matrix.
-    -> vertices (V, 3), faces (F, 3) over every triangle primitive of the scene."""
+def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
+             theta: np.ndarray, global_orient: np.ndarray | None = None) -> np.ndarray:
+    """Local rotations (T, B, 4) xyzw of the chain's bones: ``r_rest Q^-1 R Q`` per bone;
+    ``global_orient`` (T, 3), when given, turns the first bone too (a chain that starts at
+    the skeleton's root, see :func:`body_root`)."""
+    rb = bone_rotations(theta, assign, len(bones))
+    if global_orient is not None:
+        rb[:, 0] = _matrices(global_orient) @ rb[:, 0]
+    q = _quat(np.stack([_rest_frame(ch, b, rb[:, k]) for k, b in enumerate(bones)], 1))
+    return _hemisphere(q)
+
+
+def _matrices(r: np.ndarray) -> np.ndarray:
+    import torch
+
+    from hack_render.geometry.rotations import axis_angle_to_matrix
+
+    return axis_angle_to_matrix(torch.as_tensor(np.array(r, np.float64))).numpy()
+
+
+def body_root(ch: GltfCharacter, bones: list[int]) -> int:
+    """The node that carries HACK's global pose: the highest skin joint above the neck
+    chain (the body's root, e.g. the hips), or the chain's first bone when none is."""
+    joints = {j for s in ch.doc["skins"] for j in s["joints"]}
+    root, i = bones[0], ch.parents[bones[0]]
+    while i >= 0:
+        if i in joints:
+            root = i
+        i = ch.parents[i]
+    if "matrix" in ch.doc["nodes"][root]:
+        raise HackError(f"--target {ch.path}: the root bone {ch.names[root]!r} stores a matrix, "
+                        "which glTF does not animate; re-export the character with "
+                        "translation/rotation/scale nodes.")
+    return root
+
+
+def root_tracks(ch: GltfCharacter, root: int, global_orient: np.ndarray,
+                transl: np.ndarray) -> dict[str, np.ndarray]:
+    """HACK's global pose on the body's root: {"rotation": (T, 4) xyzw (the global rotation
+    about world axes, in the root's rest frame), "translation": (T, 3) (the rest
+    translation plus ``transl`` metres along world axes)}."""
+    node = ch.doc["nodes"][root]
+    rot = _hemisphere(_quat(_rest_frame(ch, root, _matrices(global_orient))))
+    p = ch.parents[root]
+    lin = ch.world[p, :3, :3] if p >= 0 else np.eye(3)
+    t = np.asarray(node.get("translation", [0.0, 0.0, 0.0]), np.float64)
+    return {"rotation": rot, "translation": t + np.asarray(transl, np.float64) @ np.linalg.inv(lin).T}
+
+
+@dataclass
+class PosedPrimitive:
+    """One triangle primitive, posed: its node, mesh and primitive indices, vertices
+    (V, 3) world, faces (F, 3), each vertex's linear transform (V, 3, 3) (blended skin
+    matrices, or its node's) and the node of its largest skin weight (V,) (-1: none)."""
+
+    node: int
+    mesh: int
+    prim: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    linear: np.ndarray
+    dominant: np.ndarray
+
+
+def posed_primitives(ch: GltfCharacter, nodes: list[dict] | None = None,
+                     morph: dict[int, np.ndarray] | None = None):
+    """Every triangle primitive posed (glTF 2.0 skinning: joints' world matrices times
+    inverse bind matrices; unskinned ones by their node's world matrix), morph targets
+    first: yields :class:`PosedPrimitive`.
+
+    Args:
+        nodes: the document's nodes with animated values set (default: the rest pose).
+        morph: mesh index -> its morph weights (default: the mesh's ``weights`` or 0).
+    """
     from hack_render.export.reference import accessor
 
-    nodes = [dict(n) for n in ch.doc["nodes"]]
-    for b, q in zip(bones or [], [] if quats is None else quats, strict=True):
-        nodes[b]["rotation"] = [float(x) for x in q]
+    nodes = ch.doc["nodes"] if nodes is None else nodes
+    morph = morph or {}
     world: dict[int, np.ndarray] = {}
 
     def w(i: int) -> np.ndarray:
@@ -259,47 +321,87 @@ def posed_mesh(ch: GltfCharacter, bones: list[int] | None = None,
             world[i] = local if ch.parents[i] < 0 else w(ch.parents[i]) @ local
         return world[i]
 
-    verts, faces, off = [], [], 0
     for i, node in enumerate(nodes):
         if "mesh" not in node:
             continue
+        mesh = ch.doc["meshes"][node["mesh"]]
         skin = ch.doc["skins"][node["skin"]] if "skin" in node else None
         if skin is not None:
             ibm = (accessor(ch.doc, ch.buf, skin["inverseBindMatrices"]).reshape(-1, 4, 4)
                    .transpose(0, 2, 1) if "inverseBindMatrices" in skin
                    else np.tile(np.eye(4), (len(skin["joints"]), 1, 1)))
             jm = np.stack([w(j) @ ibm[k] for k, j in enumerate(skin["joints"])])
-        for prim in ch.doc["meshes"][node["mesh"]]["primitives"]:
+        weights = morph.get(node["mesh"], mesh.get("weights"))
+        for pi, prim in enumerate(mesh["primitives"]):
             if prim.get("mode", 4) != 4:
                 continue
             at = prim["attributes"]
             pos = accessor(ch.doc, ch.buf, at["POSITION"])
+            for wk, tgt in zip(weights if weights is not None else [], prim.get("targets", []),
+                               strict=False):
+                if wk != 0 and "POSITION" in tgt:
+                    pos = pos + wk * accessor(ch.doc, ch.buf, tgt["POSITION"])
             pos = np.c_[pos, np.ones(len(pos))]
+            dom = np.full(len(pos), -1)
             if skin is not None and "JOINTS_0" in at:
                 m = np.zeros((len(pos), 4, 4))
-                k = 0
+                k, best = 0, np.zeros(len(pos))
                 while f"JOINTS_{k}" in at:
                     jj = accessor(ch.doc, ch.buf, at[f"JOINTS_{k}"]).astype(np.int64)
                     ww = accessor(ch.doc, ch.buf, at[f"WEIGHTS_{k}"])
                     m += np.einsum("nk,nkab->nab", ww, jm[jj])
+                    a = ww.argmax(1)
+                    top = ww[np.arange(len(ww)), a]
+                    dom = np.where(top > best, np.asarray(skin["joints"])[jj[np.arange(len(jj)), a]],
+                                   dom)
+                    best = np.maximum(best, top)
                     k += 1
-                v = np.einsum("nab,nb->na", m, pos)[:, :3]
             else:
-                v = (pos @ w(i).T)[:, :3]
+                m = np.broadcast_to(w(i), (len(pos), 4, 4))
+            v = np.einsum("nab,nb->na", m, pos)[:, :3]
             idx = (accessor(ch.doc, ch.buf, prim["indices"])[:, 0].astype(np.int64)
                    if "indices" in prim else np.arange(len(v)))
-            verts.append(v)
-            faces.append(idx.reshape(-1, 3) + off)
-            off += len(v)
+            yield PosedPrimitive(i, node["mesh"], pi, v, idx.reshape(-1, 3), m[:, :3, :3], dom)
+
+
+def descendants(ch: GltfCharacter, node: int) -> set[int]:
+    """``node`` and every node below it."""
+    return {i for i in range(len(ch.parents)) if i == node or _is_ancestor(ch, node, i)}
+
+
+def posed_nodes(ch: GltfCharacter, bones: list[int] | None = None,
+                quats: np.ndarray | None = None, tracks: dict | None = None) -> list[dict]:
+    """A copy of the nodes with local rotations ``quats`` (B, 4) xyzw on ``bones`` and
+    ``tracks`` {node: {"rotation": (4,), "translation": (3,)}} set."""
+    nodes = [dict(n) for n in ch.doc["nodes"]]
+    for b, q in zip(bones or [], [] if quats is None else quats, strict=True):
+        nodes[b]["rotation"] = [float(x) for x in q]
+    for b, tr in (tracks or {}).items():
+        for key, val in tr.items():
+            nodes[b][key] = [float(x) for x in val]
+    return nodes
+
+
+def posed_mesh(ch: GltfCharacter, bones: list[int] | None = None,
+               quats: np.ndarray | None = None, tracks: dict | None = None,
+               morph: dict[int, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The character's triangles posed (:func:`posed_nodes`, :func:`posed_primitives`;
+    default: the rest pose) -> vertices (V, 3), faces (F, 3) over every triangle primitive
+    of the scene."""
+    verts, faces, off = [], [], 0
+    for p in posed_primitives(ch, posed_nodes(ch, bones, quats, tracks), morph):
+        verts.append(p.vertices)
+        faces.append(p.faces + off)
+        off += len(p.vertices)
     if not verts:
         raise HackError(f"{ch.path}: no triangle mesh to show.")
     return np.concatenate(verts), np.concatenate(faces)
 
 
-def add_uv_atlas(ch: GltfCharacter) -> int:
+def add_uv_atlas(ch: GltfCharacter) -> list[tuple[int, int]]:
     """Give every triangle primitive without ``TEXCOORD_0`` a UV atlas from xatlas (its
     vertices split at the atlas's seams, every attribute and morph target carried along);
-    returns how many primitives got one."""
+    returns the (mesh, primitive) indices of those that got one."""
     import xatlas
 
     from hack_render.export.gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UINT, GltfBuilder
@@ -307,9 +409,9 @@ def add_uv_atlas(ch: GltfCharacter) -> int:
 
     g = GltfBuilder()
     g.doc, g.bin = ch.doc, bytearray(ch.buf)
-    count = 0
-    for mesh in ch.doc.get("meshes", []):
-        for prim in mesh["primitives"]:
+    done = []
+    for m_i, mesh in enumerate(ch.doc.get("meshes", [])):
+        for pi, prim in enumerate(mesh["primitives"]):
             if "TEXCOORD_0" in prim["attributes"] or prim.get("mode", 4) != 4:
                 continue
             pos = accessor(g.doc, bytes(g.bin), prim["attributes"]["POSITION"])
@@ -332,15 +434,69 @@ def add_uv_atlas(ch: GltfCharacter) -> int:
             prim["attributes"]["TEXCOORD_0"] = g.accessor(uvs, FLOAT, "VEC2", ARRAY_BUFFER)
             prim["indices"] = g.accessor(faces.reshape(-1, 1).astype(np.uint32), UINT,
                                          "SCALAR", ELEMENT_ARRAY_BUFFER)
-            count += 1
+            done.append((m_i, pi))
     ch.buf = bytes(g.bin)
-    return count
+    return done
+
+
+def _builder(ch: GltfCharacter):
+    """A GltfBuilder appending to the character's own document and buffer (store
+    ``bytes(g.bin)`` back into ``ch.buf`` when done)."""
+    from hack_render.export.gltf import GltfBuilder
+
+    g = GltfBuilder()
+    g.doc, g.bin = ch.doc, bytearray(ch.buf)
+    return g
+
+
+def add_morph_targets(ch: GltfCharacter, mesh: int, targets: dict[int, np.ndarray],
+                      names: list[str]) -> int:
+    """Append K morph targets to every primitive of mesh ``mesh``: ``targets`` maps a
+    primitive index to its POSITION displacements (K, V, 3) (sparse accessors: only moved
+    vertices stored); other primitives get empty ones (glTF wants one count per mesh).
+    Names go to ``extras.targetNames``, 0 to the default weights. Returns the first new
+    target's index."""
+    g = _builder(ch)
+    m = ch.doc["meshes"][mesh]
+    old = len(m["primitives"][0].get("targets", []))
+    for pi, prim in enumerate(m["primitives"]):
+        count = ch.doc["accessors"][prim["attributes"]["POSITION"]]["count"]
+        t = targets.get(pi)
+        tl = prim.setdefault("targets", [])
+        for k in range(len(names)):
+            tl.append({"POSITION": g.sparse_vec3(np.zeros((count, 3)) if t is None else t[k])})
+    extras = m.setdefault("extras", {})
+    extras["targetNames"] = (list(extras.get("targetNames", [f"target_{i}" for i in range(old)]))
+                             + list(names))
+    m["weights"] = [float(x) for x in m.get("weights", [0.0] * old)] + [0.0] * len(names)
+    ch.buf = bytes(g.bin)
+    return old
+
+
+def add_baked_material(ch: GltfCharacter, prim: dict, maps, name: str) -> int:
+    """A material with baked maps (diffuse, specular, roughness, normal in the
+    character's atlas; the export's :func:`~hack_render.export.gltf.skin_material`),
+    assigned to ``prim``; the extensions it uses are declared."""
+    from hack_render.export.gltf import skin_material
+
+    g = _builder(ch)
+    mat = skin_material(g, maps)
+    ch.doc["materials"][mat]["name"] = name
+    prim["material"] = mat
+    used = set(ch.doc.get("extensionsUsed", []))
+    used |= set(ch.doc["materials"][mat].get("extensions", {}))
+    ch.doc["extensionsUsed"] = sorted(used)
+    ch.buf = bytes(g.bin)
+    return mat
 
 
 def write_animated(ch: GltfCharacter, bones: list[int], quats: np.ndarray, fps: float,
-                   output: str | Path, provenance: dict) -> list[Path]:
+                   output: str | Path, provenance: dict, tracks: dict | None = None,
+                   morph_weights: dict[int, np.ndarray] | None = None) -> list[Path]:
     """A copy of the character with an animation ``hack_transfer`` (LINEAR rotations of
-    ``bones``, quats (T, B, 4) xyzw) through the export's builder and writer."""
+    ``bones``, quats (T, B, 4) xyzw; ``tracks`` {node: {"rotation" (T, 4), "translation"
+    (T, 3)}}; ``morph_weights`` {mesh node: (T, K) every morph weight of its mesh})
+    through the export's builder and writer."""
     from hack_render.export.gltf import FLOAT, GltfBuilder, write_document
 
     g = GltfBuilder()
@@ -351,10 +507,19 @@ def write_animated(ch: GltfCharacter, bones: list[int], quats: np.ndarray, fps: 
     g.bin = bytearray(ch.buf)
     times = g.accessor((np.arange(len(quats)) / fps).reshape(-1, 1), FLOAT, "SCALAR", bounds=True)
     samplers, channels = [], []
-    for k, b in enumerate(bones):
-        out = g.accessor(quats[:, k], FLOAT, "VEC4")
+
+    def add(node: int, path: str, values: np.ndarray, atype: str) -> None:
+        out = g.accessor(values, FLOAT, atype)
         samplers.append({"input": times, "output": out, "interpolation": "LINEAR"})
-        channels.append({"sampler": len(samplers) - 1, "target": {"node": b, "path": "rotation"}})
+        channels.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": path}})
+
+    for k, b in enumerate(bones):
+        add(b, "rotation", quats[:, k], "VEC4")
+    for node, tr in (tracks or {}).items():
+        for path, values in tr.items():
+            add(node, path, values, "VEC4" if path == "rotation" else "VEC3")
+    for node, wts in (morph_weights or {}).items():
+        add(node, "weights", np.asarray(wts).reshape(-1, 1), "SCALAR")
     g.doc.setdefault("animations", []).append({"name": "hack_transfer", "samplers": samplers,
                                                "channels": channels})
     g.doc.setdefault("asset", {"version": "2.0"}).setdefault("extras", {})["hack_transfer"] = \

@@ -8,9 +8,11 @@ Targets:
   output: an animated glTF through the export's writer, a turntable, and the pose-space
   stress test's measures on every frame (``report.json``);
 - a glTF character with any neck chain (:mod:`.retarget`): the neck's rotations retargeted
-  onto its bones; output: a copy of it with the animation added (and a UV atlas where it
-  had none) and a turntable (skinned per frame, ray cast, grey). Expressions need the
-  model's topology and are not transferred to it.
+  onto its bones, the global pose onto its body's root; expressions and the larynx (size
+  and slide) as morph targets, and the skin maps baked into its UV atlas (xatlas where it
+  had none), both by closest-point transfer from HACK's surface laid onto it
+  (:mod:`.surface_transfer`, derived); output: a copy of it with the animation added and
+  a turntable (skinned per frame, ray cast, coloured by the baked diffuse).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -100,6 +103,39 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
     return report
 
 
+def _orbit(folder: Path, frames: int, size: int, target: np.ndarray, extent: float,
+           render, fps: int, formats: tuple, progress: bool) -> list[Path]:
+    """The turntable loop shared by both kinds of character: frame i of ``frames`` with the
+    camera at ``360 i / frames`` degrees about ``target``, ``render(i, camera)`` -> linear
+    RGB (size, size, 3); PNG frames (each written under a temporary name), then videos."""
+    import imageio.v3 as iio
+    from tqdm import tqdm
+
+    from hack_render.render.image_io import atomic_path, to_srgb8
+    from hack_render.render.video import write_gif, write_mp4
+    from scenes import cameras as cams
+
+    images = []
+    for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
+        cam = cams.orbit(size, size, 50.0, 360.0 * i / frames, 5.0, target=tuple(target),
+                         extent=extent, name=f"frame_{i:04d}")
+        img = to_srgb8(render(i, cam), 0.0, "aces")
+        with atomic_path(folder / "frames" / f"frame_{i:04d}.png") as tmp:
+            iio.imwrite(tmp, img, extension=".png")
+        images.append(img)
+    out = []
+    if "mp4" in formats:
+        out.append(write_mp4(folder / "turntable.mp4", images, fps))
+    if "gif" in formats:
+        out.append(write_gif(folder / "turntable.gif", images, fps))
+    return out
+
+
+def _framing(pts: np.ndarray) -> tuple[np.ndarray, float]:
+    lo, hi = pts.min(0), pts.max(0)
+    return 0.5 * (lo + hi), float((hi - lo).max())
+
+
 def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, fps: int = 24,
                      resolution: int = 192, spp: int = 16, formats: tuple = ("mp4", "gif"),
                      variant: str | None = None, progress: bool = True,
@@ -110,45 +146,28 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
     frames`` degrees, framed on the vertices above height ``frame_above`` (the neck and
     head; default: all) over the motion. Lit by an environment (``lighting``): the studio's
     soft boxes stand around a human head and would be in view of a taller character."""
-    import imageio.v3 as iio
-    from tqdm import tqdm
-
-    from hack_render.render.image_io import atomic_path, to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.video import write_gif, write_mp4
-    from scenes import cameras as cams
     from scenes import lights
 
-    w = h = int(resolution) + int(resolution) % 2
-    settings = RenderSettings(w, h, spp, 8, 0)
+    w = int(resolution) + int(resolution) % 2
     pts = verts.reshape(-1, 3)
     if frame_above is not None and (pts[:, 1] > frame_above).any():
         pts = pts[pts[:, 1] > frame_above]
-    lo, hi = pts.min(0), pts.max(0)
-    target, extent = 0.5 * (lo + hi), float((hi - lo).max())
+    target, extent = _framing(pts)
     pick = (np.arange(frames) * len(verts)) // frames
+    head = None
 
-    def cam(i: int):
-        return cams.orbit(w, h, 50.0, 360.0 * i / frames, 5.0, target=tuple(target),
-                          extent=extent, name=f"frame_{i:04d}")
-
-    head = HeadScene(Topology.from_model(model), verts[pick[0]], lights.preset(lighting), cam(0),
-                     settings, maps, None, variant)
-    images = []
-    for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
+    def render(i, cam):
+        nonlocal head
+        if head is None:
+            head = HeadScene(Topology.from_model(model), verts[pick[0]], lights.preset(lighting),
+                             cam, RenderSettings(w, w, spp, 8, 0), maps, None, variant)
         head.set_vertices(verts[pick[i]])
-        head.set_camera(cam(i))
-        img = to_srgb8(head.render(seed=i)[..., :3], 0.0, "aces")
-        with atomic_path(folder / "frames" / f"frame_{i:04d}.png") as tmp:
-            iio.imwrite(tmp, img, extension=".png")
-        images.append(img)
-    out = []
-    if "mp4" in formats:
-        out.append(write_mp4(folder / "turntable.mp4", images, fps))
-    if "gif" in formats:
-        out.append(write_gif(folder / "turntable.gif", images, fps))
-    return out
+        head.set_camera(cam)
+        return head.render(seed=i)[..., :3]
+
+    return _orbit(folder, frames, w, target, extent, render, fps, formats, progress)
 
 
 def prepare_gltf(model, path: Path, chain: list[str] | None = None,
@@ -163,81 +182,192 @@ def prepare_gltf(model, path: Path, chain: list[str] | None = None,
     with torch.no_grad():
         hack_joints = model(beta=torch.zeros(1, 0, dtype=model.template.dtype)).rest_joints[0]
     bones, assign = RT.joint_map(ch, hack_joints.double().numpy(), chain, name_map)
+    RT.body_root(ch, bones)  # its checks too
     return ch, bones, assign
 
 
 def render_gltf_turntable(ch, bones: list[int], quats: np.ndarray, folder: Path,
                           frames: int = 24, fps: int = 24, resolution: int = 192,
                           spp: int = 16, formats: tuple = ("mp4", "gif"),
-                          variant: str | None = None, progress: bool = True) -> list[Path]:
+                          variant: str | None = None, progress: bool = True,
+                          tracks: dict | None = None, morph: dict | None = None,
+                          colours=None) -> list[Path]:
     """An orbiting turntable of a glTF character under its retargeted animation: skinned
-    per frame (:func:`retarget.posed_mesh`), ray cast and shaded grey (the render layer's
-    ``MeshViews``; its materials are not read), ``spp`` as supersampling (its square root
-    per side)."""
-    import imageio.v3 as iio
-    from tqdm import tqdm
-
+    per frame (:func:`retarget.posed_mesh`; ``tracks`` and ``morph`` (mesh index -> (T, K)
+    weights) as the animation's), ray cast (the render layer's ``MeshViews``) and shaded
+    with ``colours`` (V,) linear RGB per vertex (the baked diffuse) or grey; ``spp`` as
+    supersampling (its square root per side)."""
     from hack_render.motion.retarget import posed_mesh
-    from hack_render.render.image_io import atomic_path, to_srgb8
     from hack_render.render.mesh_views import MeshViews
-    from hack_render.render.video import write_gif, write_mp4
-    from scenes import cameras as cams
 
-    w = h = int(resolution) + int(resolution) % 2
+    w = int(resolution) + int(resolution) % 2
     pick = (np.arange(frames) * len(quats)) // frames
-    posed = [posed_mesh(ch, bones, quats[k]) for k in pick]
-    pts = np.concatenate([v for v, _ in posed])
-    lo, hi = pts.min(0), pts.max(0)
-    target, extent = 0.5 * (lo + hi), float((hi - lo).max())
+    posed = [posed_mesh(ch, bones, quats[k],
+                        {n: {p: v[k] for p, v in tr.items()} for n, tr in (tracks or {}).items()},
+                        {m: wt[k] for m, wt in (morph or {}).items()}) for k in pick]
+    target, extent = _framing(np.concatenate([v for v, _ in posed]))
     ss = max(1, round(spp ** 0.5))
-    images = []
-    for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
-        cam = cams.orbit(w, h, 50.0, 360.0 * i / frames, 5.0, target=tuple(target),
-                         extent=extent, name=f"frame_{i:04d}")
-        rgba = MeshViews(*posed[i], None, w, h, variant).render(cam, ss)
-        rgb = rgba[..., :3] + (1 - rgba[..., 3:]) * 0.18  # grey backdrop
-        img = to_srgb8(rgb, 0.0, "aces")
-        with atomic_path(folder / "frames" / f"frame_{i:04d}.png") as tmp:
-            iio.imwrite(tmp, img, extension=".png")
-        images.append(img)
-    out = []
-    if "mp4" in formats:
-        out.append(write_mp4(folder / "turntable.mp4", images, fps))
-    if "gif" in formats:
-        out.append(write_gif(folder / "turntable.gif", images, fps))
-    return out
+
+    def render(i, cam):
+        rgba = MeshViews(*posed[i], colours, w, w, variant).render(cam, ss)
+        return rgba[..., :3] + (1 - rgba[..., 3:]) * 0.18  # grey backdrop
+
+    return _orbit(folder, frames, w, target, extent, render, fps, formats, progress)
 
 
-def transfer_gltf(ch, bones: list[int], assign: list[int], seq, outdir: Path,
-                  by_name: bool, turntable: dict | None = None, progress: bool = True) -> dict:
-    """A glTF character: the neck's rotations retargeted onto its chain, written as a copy
-    with the animation added (and a UV atlas where a primitive had none), and a turntable."""
+def _rest_primitives(ch) -> list:
+    from hack_render.motion.retarget import posed_primitives
+
+    return list(posed_primitives(ch))
+
+
+def bake_onto_gltf(model, ch, rig, bones: list[int], prims: list[tuple[int, int]], maps,
+                   size: int) -> tuple[dict, dict[int, int], slice]:
+    """HACK's surface onto a glTF character (:mod:`.surface_transfer`): the maps baked into
+    the atlas of primitives ``prims`` ((mesh, primitive) pairs), the person's expression
+    and larynx targets as morph targets of every skinned mesh they reach; ``ch`` is
+    changed in place. Returns a report, the index of each moved mesh's first HACK target
+    and the rig's target slice they are."""
+    from hack_render.export.reference import accessor
+    from hack_render.motion import retarget as RT
+    from hack_render.motion import surface_transfer as ST
+
+    rest = _rest_primitives(ch)
+    head = RT.descendants(ch, bones[-1])
+    head_pts = np.concatenate([p.vertices[np.isin(p.dominant, list(head))] for p in rest])
+    surface = ST.hack_surface(model, rig, ch.world[bones, :3, 3], head_pts)
+    report = {"alignment": surface.info, "maps": {}, "morph_targets": {}}
+    for p in rest:
+        prim = ch.doc["meshes"][p.mesh]["primitives"][p.prim]
+        if maps is not None and (p.mesh, p.prim) in prims:
+            uv = accessor(ch.doc, ch.buf, prim["attributes"]["TEXCOORD_0"])
+            baked, stats = ST.bake_maps(surface, maps, p.vertices, p.faces, uv, size)
+            RT.add_baked_material(ch, prim, SimpleNamespace(**baked),
+                                  f"hack_skin_baked_{p.mesh}_{p.prim}")
+            report["maps"][f"mesh {p.mesh} primitive {p.prim}"] = stats
+    keep = slice(0, rig.slots["larynx_slide"].stop)  # expressions, larynx size and slide
+    moved: dict[int, dict[int, np.ndarray]] = {}
+    for p in rest:
+        if "skin" not in ch.doc["nodes"][p.node] or p.mesh in moved and p.prim in moved[p.mesh]:
+            continue
+        d, _ = ST.transfer_displacements(surface, rig.targets[keep], p.vertices)
+        if np.any(d != 0):  # world displacements at rest -> the mesh's own frame
+            lin = np.where(np.abs(np.linalg.det(p.linear))[:, None, None] > 1e-12, p.linear,
+                           np.eye(3))
+            d = np.einsum("vab,kvb->kva", np.linalg.inv(lin), d).astype(np.float32)
+            moved.setdefault(p.mesh, {})[p.prim] = d
+    first = {}
+    names = [f"hack_{n}" for n in rig.target_names[keep]]
+    for mesh, per_prim in moved.items():
+        first[mesh] = RT.add_morph_targets(ch, mesh, per_prim, names)
+        jaw = names.index("hack_jawOpen") if "hack_jawOpen" in names else 0
+        report["morph_targets"][f"mesh {mesh}"] = {
+            "targets": len(names), "first": first[mesh],
+            "vertices_moved": int(sum(np.any(t != 0, axis=(0, 2)).sum()
+                                      for t in per_prim.values())),
+            "jawOpen_max_mm": round(1e3 * max(float(np.linalg.norm(t[jaw], axis=1).max())
+                                              for t in per_prim.values()), 2)}
+    return report, first, keep
+
+
+def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: Path,
+                  by_name: bool, params: dict | None = None, maps=None, bake_size: int = 1024,
+                  turntable: dict | None = None, progress: bool = True) -> dict:
+    """A glTF character: HACK's global pose on its body's root, the neck's rotations on
+    its chain, expressions and larynx as morph targets, the maps baked into its atlas (a
+    UV atlas added where a primitive had none); written as a copy with the animation
+    added, and a turntable."""
+    from hack_render.export import rig as R
+    from hack_render.export.person import _frames_from
+    from hack_render.geometry.params import model_inputs
     from hack_render.geometry.skeleton import JOINT_NAMES
     from hack_render.motion import retarget as RT
 
     t0 = time.perf_counter()
-    quats = RT.retarget(ch, bones, assign, seq.theta)
+    kw = model_inputs(model, params or {})
+    eta = float(kw["eta"][0]) if "eta" in kw else 1.0
+    fr = _frames_from(kw, seq, model)
+    tau_max = float(np.abs(fr["tau"]).max())
+    rig = R.build_rig(model, kw.get("beta"), eta,
+                      max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP))
     atlas = RT.add_uv_atlas(ch)
+    baked, first, keep = bake_onto_gltf(model, ch, rig, bones, atlas, maps, bake_size)
+    root = RT.body_root(ch, bones)
+    tracks = RT.root_tracks(ch, root, fr["global_orient"], fr["transl"])
+    if root == bones[0]:  # the chain starts at the root: it turns the first bone
+        quats = RT.retarget(ch, bones, assign, fr["theta"], fr["global_orient"])
+        tracks = {root: {"translation": tracks["translation"]}}
+    else:
+        quats = RT.retarget(ch, bones, assign, fr["theta"])
+        tracks = {root: tracks}
+    fw = R.frame_weights(rig, fr["psi"], fr["theta"], fr["tau"])[:, keep]
+    fw[:, rig.slots["larynx_size"]] = rig.eta  # the person's larynx size, held
+    morph, node_weights = {}, {}
+    for mesh, k0 in first.items():
+        default = np.asarray(ch.doc["meshes"][mesh]["weights"][:k0], np.float64)
+        morph[mesh] = np.concatenate([np.broadcast_to(default, (len(fw), k0)), fw], 1)
+        for n, node in enumerate(ch.doc["nodes"]):
+            if node.get("mesh") == mesh:
+                node_weights[n] = morph[mesh]
     mapping = {j: ch.names[bones[b]] for j, b in zip(JOINT_NAMES, assign, strict=True)}
     prov = {"source": str(ch.path), "mapping": mapping,
             "method": "name map" if by_name else "arc length along the neck chain",
-            "dropped": "expressions, larynx, global_orient and transl (they need the model's "
-                       "topology or a body root)", "uv_atlas_primitives": atlas}
+            "global_pose": f"global_orient and transl on {ch.names[root]!r} (the body's root)",
+            "uv_atlas_primitives": len(atlas), "derived": {
+                "maps": "HACK's skin maps baked onto the character's atlas by closest-point "
+                        "transfer from the aligned HACK surface: derived, not painted",
+                "morph_targets": "the person's expression and larynx targets moved onto the "
+                                 "character by closest-point transfer (faded out away from "
+                                 "HACK's skin): derived, not sculpted"},
+            "dropped": "pose correctives (HACK's skinning, not the character's)", **baked}
     files = RT.write_animated(ch, bones, quats, seq.fps, outdir / f"{ch.path.stem}_hack.glb",
-                              prov)
+                              prov, tracks, node_weights)
     if turntable:
         files += render_gltf_turntable(ch, bones, quats, outdir / "turntable",
-                                       progress=progress, **turntable)
+                                       progress=progress, tracks=tracks, morph=morph,
+                                       colours=_vertex_colours(ch, maps), **turntable)
     return {"target": prov, "frames": seq.frames, "fps": seq.fps,
             "files": [str(f) for f in files], "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def _vertex_colours(ch, maps) -> np.ndarray | None:
+    """Linear RGB per vertex of :func:`retarget.posed_mesh` from the baked base colour
+    textures (nearest texel at each vertex's UV), grey where a primitive has none."""
+    import imageio.v3 as iio
+
+    from appearance.colour_space import srgb_decode
+    from hack_render.export.reference import accessor
+
+    if maps is None:
+        return None
+    out = []
+    for p in _rest_primitives(ch):
+        prim = ch.doc["meshes"][p.mesh]["primitives"][p.prim]
+        mat = ch.doc.get("materials", [{}])[prim["material"]] if "material" in prim else {}
+        tex = mat.get("pbrMetallicRoughness", {}).get("baseColorTexture")
+        col = np.full((len(p.vertices), 3), 0.6)
+        if tex is not None and "TEXCOORD_0" in prim["attributes"] and \
+                mat.get("name", "").startswith("hack_skin_baked"):
+            img_i = ch.doc["textures"][tex["index"]]["source"]
+            bv = ch.doc["bufferViews"][ch.doc["images"][img_i]["bufferView"]]
+            o = bv.get("byteOffset", 0)
+            img = srgb_decode(iio.imread(ch.buf[o:o + bv["byteLength"]]) / 255.0)
+            uv = accessor(ch.doc, ch.buf, prim["attributes"]["TEXCOORD_0"])
+            s = img.shape[0]
+            col = img[np.clip((uv[:, 1] * s).astype(int), 0, s - 1),
+                      np.clip((uv[:, 0] * s).astype(int), 0, s - 1), :3]
+        out.append(col)
+    return np.concatenate(out)
 
 
 def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | None = None,
                  chain: list[str] | None = None, name_map: dict | None = None,
                  influences: int = 4, turntable: dict | None = None,
-                 progress: bool = True, maps=None) -> dict:
+                 progress: bool = True, maps=None, bake_size: int = 1024) -> dict:
     """Check every input, then transfer and write ``report.json`` beside the outputs (the
-    output folder is created only once the inputs are known good)."""
+    output folder is created only once the inputs are known good). ``maps``: the skin maps
+    (the model's atlas) shown by a same-topology character, or baked into a glTF
+    character's atlas at ``bake_size`` texels."""
     from hack_render.geometry.params import load_sequence
     from hack_render.motion.character import load_character, long_neck_character
 
@@ -246,8 +376,8 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
     if kind == "gltf":
         ch, bones, assign = prepare_gltf(model, Path(target), chain, name_map)
         outdir.mkdir(parents=True, exist_ok=True)
-        report = transfer_gltf(ch, bones, assign, seq, outdir, bool(name_map), turntable,
-                               progress)
+        report = transfer_gltf(model, ch, bones, assign, seq, outdir, bool(name_map), params,
+                               maps, bake_size, turntable, progress)
     else:
         if chain or name_map:
             raise HackError("--neck-chain and --name-map apply to glTF targets; a character "
