@@ -1,0 +1,142 @@
+"""Per-frame 68-point landmarks for the tracker: dlib's detector searched around the last
+face (the whole frame when the face was lost), its 68-point predictor, the fit's landmark
+refiner, and a plausibility check against the last good frame. Frames without a usable
+face are marked lost (their points NaN), never dropped."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+
+@dataclass
+class FrameLandmarks:
+    """A clip's landmarks: ``points`` (T, 68, 2) pixels (NaN where lost), ``found`` (T,)
+    bool, ``boxes`` (T, 4) left, top, right, bottom (NaN where lost), ``why`` (T,) the
+    reason a frame was lost ('' where found), ``weights`` (68,) the refiner's per-point
+    weights (ones without a refiner), and ``raw`` (T, 68, 2) dlib's own points."""
+
+    points: np.ndarray
+    found: np.ndarray
+    boxes: np.ndarray
+    why: list[str]
+    weights: np.ndarray
+    raw: np.ndarray
+
+    def save(self, path) -> None:
+        from hack_render.render.image_io import atomic_path
+
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, points=self.points, found=self.found, boxes=self.boxes,
+                     why=np.array(self.why, dtype=str), weights=self.weights, raw=self.raw)
+
+    @classmethod
+    def load(cls, path) -> "FrameLandmarks":
+        with np.load(path, allow_pickle=False) as z:
+            return cls(z["points"], z["found"], z["boxes"], [str(s) for s in z["why"]],
+                       z["weights"], z["raw"])
+
+
+class FrameDetector:
+    """Landmarks frame after frame. ``min_face_px``: smaller faces count as lost;
+    ``refiner``: the fit's landmark refiner ("dlib": the shipped one, "off", or a file);
+    ``max_jump``: a frame whose landmarks moved more than this fraction of the face's size
+    from the last good frame (beyond the motion since) is lost as an outlier."""
+
+    def __init__(self, min_face_px: int = 48, refiner: str = "dlib", max_jump: float = 0.5):
+        from hack_render.fit.landmarks import _dlib
+
+        self.detector, self.predictor = _dlib()
+        self.min_face_px, self.max_jump = min_face_px, max_jump
+        self.refiner = None
+        if refiner != "off":
+            from hack_render.fit.landmark_refiner import load_refiner
+
+            self.refiner = load_refiner(refiner)
+        self.last_box: np.ndarray | None = None
+        self.last_points: np.ndarray | None = None
+        self.lost_run = 0
+
+    def _rects(self, img: np.ndarray) -> list:
+        """Face rectangles, near the last face first (a crop of twice its size), the whole
+        frame when that finds none or there is no last face."""
+        h, w = img.shape[:2]
+        if self.last_box is not None and self.lost_run < 5:
+            l, t, r, b = self.last_box
+            s = max(r - l, b - t)
+            cx, cy = (l + r) / 2, (t + b) / 2
+            x0, y0 = int(max(0, cx - s)), int(max(0, cy - s))
+            x1, y1 = int(min(w, cx + s)), int(min(h, cy + s))
+            crop = np.ascontiguousarray(img[y0:y1, x0:x1])
+            up = 1 if s < 90 else 0
+            rects = [(rc.left() + x0, rc.top() + y0, rc.right() + x0, rc.bottom() + y0)
+                     for rc in self.detector(crop, up)]
+            if rects:
+                return rects
+        rects = [(rc.left(), rc.top(), rc.right(), rc.bottom()) for rc in self.detector(img, 0)]
+        if not rects:
+            rects = [(rc.left(), rc.top(), rc.right(), rc.bottom())
+                     for rc in self.detector(img, 1)]
+        return rects
+
+    def __call__(self, rgb8: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None,
+                                                 np.ndarray | None, str]:
+        """(points (68, 2), dlib's raw points, box, '') or (None, None, None, why)."""
+        import dlib
+
+        img = np.ascontiguousarray(rgb8[..., :3], dtype=np.uint8)
+        rects = self._rects(img)
+        if not rects:
+            self.lost_run += 1
+            return None, None, None, "no face found"
+        if self.last_box is not None:  # the face nearest the last one
+            c = np.array([(self.last_box[0] + self.last_box[2]) / 2,
+                          (self.last_box[1] + self.last_box[3]) / 2])
+            rects.sort(key=lambda r: np.hypot((r[0] + r[2]) / 2 - c[0], (r[1] + r[3]) / 2 - c[1]))
+        else:
+            rects.sort(key=lambda r: (r[2] - r[0]) * (r[3] - r[1]), reverse=True)
+        l, t, r, b = rects[0]
+        if max(r - l, b - t) < self.min_face_px:
+            self.lost_run += 1
+            return None, None, None, f"face smaller than {self.min_face_px} px"
+        shape = self.predictor(img, dlib.rectangle(int(l), int(t), int(r), int(b)))
+        raw = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
+        pts = self.refiner.refine(img, raw) if self.refiner is not None else raw
+        box = np.array([l, t, r, b], dtype=np.float64)
+        if self.last_points is not None and self.lost_run == 0:
+            size = np.linalg.norm(np.ptp(self.last_points, 0)) / np.sqrt(2)
+            # the landmarks' shape relative to their own centre: a jump there is a bad fit
+            # of the predictor, not motion
+            a = pts - pts.mean(0)
+            b0 = self.last_points - self.last_points.mean(0)
+            if np.median(np.linalg.norm(a - b0, axis=1)) > self.max_jump * size:
+                self.lost_run += 1
+                return None, None, None, "landmarks jumped (outlier)"
+        self.last_box, self.last_points, self.lost_run = box, pts, 0
+        return pts, raw, box, ""
+
+
+def detect_frames(frames, detector: FrameDetector | None = None, progress: bool = True,
+                  total: int | None = None) -> FrameLandmarks:
+    """Landmarks of every frame of an iterable of (H, W, 3) uint8 images."""
+    from tqdm import tqdm
+
+    det = detector or FrameDetector()
+    pts, raws, boxes, why = [], [], [], []
+    for img in tqdm(frames, total=total, desc="landmarks", unit="frame", disable=not progress,
+                    leave=False):
+        p, raw, box, reason = det(img)
+        nan = np.full((68, 2), np.nan)
+        pts.append(nan if p is None else p)
+        raws.append(nan if raw is None else raw)
+        boxes.append(np.full(4, np.nan) if box is None else box)
+        why.append(reason)
+    if not pts:
+        raise HackError("track: the video has no frames.")
+    found = np.array([w == "" for w in why])
+    weights = (np.asarray(det.refiner.weights, dtype=np.float64)
+               if det.refiner is not None and det.refiner.weights is not None else np.ones(68))
+    return FrameLandmarks(np.stack(pts), found, np.stack(boxes), why, weights, np.stack(raws))
