@@ -52,7 +52,9 @@ class TrackConfig:
     robust_knee: float = 0.03       # Charbonnier knee, fraction of the outer-eye distance
     jaw_weight: float = 0.3         # the 17 jawline points (dlib's noisiest)
     psi_l1: float = 2e-4            # sparsity of the expression weights
-X
+    # keeps the torso near the keyframes' (radians^-2): the head's and the torso's rotations
+    # move the face almost alike, so the landmarks alone cannot tell them apart
+    torso_prior: float = 50.0
     # temporal priors of the joint solve, per unit of each group (radians, metres,
     # expression weight): velocity and acceleration between consecutive frames
     velocity: dict = field(default_factory=lambda: {"h": 0.05, "g": 5.0, "t": 20.0,
