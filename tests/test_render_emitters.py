@@ -15,11 +15,11 @@ from hack_render.render.engine import ensure_variant
 
 ensure_variant()
 
-from hack_render.geometry import load_default_model  # noqa: E402
-from hack_render.render import aov  # noqa: E402
-from hack_render.render.parts import Topology  # noqa: E402
-from hack_render.render.scene import HeadScene, RenderSettings  # noqa: E402
-from scenes import cameras, lights  # noqa: E402
+from hack_render.geometry import load_default_model
+from hack_render.render import aov
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes import cameras, lights
 
 RES = 40
 

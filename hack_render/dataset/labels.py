@@ -25,7 +25,8 @@ from hack_render.errors import HackError
 
 #: Dataset segmentation labels; the id is the index.
 LABELS: tuple[str, ...] = ("background", "face_skin", "neck_skin", "scalp", "ears", "lips",
-                           "eyebrows", "eyes", "iris", "teeth", "gums_tongue", "eyelashes")
+                           "eyebrows", "eyes", "iris", "teeth", "gums_tongue", "eyelashes",
+                           "bust_cap")
 LABEL_ID = {n: i for i, n in enumerate(LABELS)}
 LABEL_DESCRIPTIONS = {
     "background": "no surface",
@@ -40,6 +41,7 @@ LABEL_DESCRIPTIONS = {
     "teeth": "teeth",
     "gums_tongue": "gums, tongue and the mouth socket",
     "eyelashes": "eyelash cards (rendered 50 % opaque)",
+    "bust_cap": "the matte grey cap closing the cut of the chest and shoulders (not anatomy)",
 }
 #: Appearance atlas region -> dataset label (sockets are split by vertex group).
 _ATLAS_TO_LABEL = {"none": "face_skin", "forehead": "face_skin", "brows": "eyebrows",
@@ -50,7 +52,7 @@ _ATLAS_TO_LABEL = {"none": "face_skin", "forehead": "face_skin", "brows": "eyebr
 #: Render region (``parts.REGIONS``) -> dataset label; skin regions use the atlas.
 _RENDER_TO_LABEL = {"background": "background", "mouth": "gums_tongue", "teeth": "teeth",
                     "sclera": "eyes", "iris": "iris", "lacrimal": "eyes",
-                    "eyelashes": "eyelashes"}
+                    "eyelashes": "eyelashes", "bust": "bust_cap"}
 SKIN_RENDER_REGIONS = ("face", "back_head")
 #: Atlas height of the label lookup (texel ~ 1 mm on the face).
 ATLAS_HEIGHT = 256

@@ -67,6 +67,39 @@ def emitter_pixels(head) -> np.ndarray:
     return np.asarray(hit, dtype=bool).reshape(h, w)
 
 
+def denoise_features(head, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The denoiser's auxiliary images: albedo and world-space shading normal, each
+    (H, W, 3) float32, averaged over k x k stratified primary rays per pixel (the pixel's
+    footprint, so edges are antialiased like the render's), looking through the lights;
+    0 where nothing is hit. One kernel."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if not 1 <= k <= 16:
+        raise HackError(f"denoise features: expected 1 <= k <= 16 rays per side, found {k}.")
+    cam = head.camera
+    w, h, kk = cam.width, cam.height, k * k
+    j = dr.arange(mi.UInt32, w * h * kk)
+    pix, sub = j // kk, j % kk
+    x = mi.Float(pix % w) + (mi.Float(sub % k) + 0.5) / k
+    y = mi.Float(pix // w) + (mi.Float(sub // k) + 0.5) / k
+    sensor = head.scene.sensors()[0]
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+    si = camera_hit(head, ray, coherent=True)
+    valid = si.is_valid()
+    albedo = dr.select(valid, si.bsdf(ray).eval_diffuse_reflectance(si, valid), 0.0)
+    normal = dr.select(valid, si.sh_frame.n, 0.0)
+    out = []
+    for value in (albedo, normal):
+        acc = [dr.zeros(mi.Float, w * h) for _ in range(3)]
+        for c in range(3):
+            dr.scatter_reduce(dr.ReduceOp.Add, acc[c], value[c], pix)
+        out.append(acc)
+    dr.eval(out)
+    return tuple(np.stack([np.asarray(a, np.float32) for a in acc], -1).reshape(h, w, 3) / kk
+                 for acc in out)
+
+
 def gbuffer(head) -> dict[str, np.ndarray]:
     """Compute every AOV of a :class:`~hack_render.render.scene.HeadScene`'s current state."""
     import drjit as dr

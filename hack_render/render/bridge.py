@@ -167,9 +167,10 @@ class DiffRenderer:
             n = vertex_normals_torch(v, self._faces)
             pos = v.index_select(0, self._gather).split(self._part_sizes)
             nrm = n.index_select(0, self._gather).split(self._part_sizes)
-            for name, p, q in zip(self._part_names, pos, nrm):
-                out[f"pos:{name}"] = p.reshape(-1)
-                out[f"nrm:{name}"] = q.reshape(-1)
+            for part, p, q in zip(self.head.parts, pos, nrm):
+                out[f"pos:{part.name}"] = p.reshape(-1)
+                if not part.flat:  # flat-shaded parts (the bust cap) have no normals
+                    out[f"nrm:{part.name}"] = q.reshape(-1)
         for key, x in (("albedo", albedo), ("specular", specular), ("roughness", roughness),
                        ("normalmap", normal)):
             if x is None:

@@ -21,6 +21,30 @@ if TYPE_CHECKING:
 
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
+SamplerOpt = typer.Option("multijitter", "--sampler", help="Mitsuba sampler: multijitter, "
+                          "stratified, orthogonal, ldsampler or independent. All but "
+                          "independent round --spp (said when they do); see docs/render.md.")
+DenoiseOpt = typer.Option("auto", "--denoise", help="Intel Open Image Denoise with albedo "
+                          "and normal AOVs: auto (if the 'denoise' extra is installed, else "
+                          "the noisy image with a warning), on (refuse without it), off.")
+KeepNoisyOpt = typer.Option(False, "--keep-noisy", help="Also keep the image before "
+                            "denoising (render: <name>.noisy.<ext>; turntable: noisy/).")
+
+
+def check_denoise(denoise: str) -> bool:
+    """--denoise resolved to yes/no (HackError naming the extra when 'on' cannot run; a
+    one-line warning on stderr when 'auto' falls back to the noisy image)."""
+    import warnings
+
+    from hack_render.render import denoise as dn
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", dn.DenoiserWarning)
+        use = named("--denoise", dn.resolve, denoise)
+    for w in caught:
+        typer.echo(f"warning: {w.message}", err=True)
+    return use
+
 
 def _resolution(text: str) -> tuple[int, int]:
     try:
@@ -139,6 +163,9 @@ def render(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    sampler: str = SamplerOpt,
+    denoise: str = DenoiseOpt,
+    keep_noisy: bool = KeepNoisyOpt,
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
@@ -159,7 +186,9 @@ def render(
     boundary.number(seed, "--seed", 0, 2 ** 31 - 1, integer=True)
     boundary.number(max_depth, "--max-depth", 1, 64, integer=True)
     boundary.number(views, "--views", 1, 1024, integer=True)
-    settings = RenderSettings(w, h, spp, max_depth, seed)
+    settings = named("--sampler", RenderSettings, w, h, spp, max_depth, seed,
+                     sampler=sampler)
+    use_denoise = check_denoise(denoise)
     aov_names = _aov_list(aov)
     boundary.output_file(output, "-o/--output", (".png", ".exr"))
     if exr is not None:
@@ -184,22 +213,27 @@ def render(
 
     maps = skin_maps(alpha_, appearance_seed, textures)
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
+    if settings.spp_note():
+        typer.echo(settings.spp_note(), err=True)
     outputs = []
     if len(views_) > 1:
         typer.echo(f"render: {len(views_)} views of {w}x{h} at {spp} spp", err=True)
     with boundary.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
-        _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs)
+        _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
+                      use_denoise, keep_noisy)
     cam_json = output.with_name(f"{output.stem}.cameras.json")
     cams.save_cameras(cam_json, views_)
     for target in outputs + [cam_json]:
         typer.echo(f"wrote {target.resolve()}")
 
 
-def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs) -> None:
+def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
+                  use_denoise: bool = False, keep_noisy: bool = False) -> None:
     """Render each camera of ``views_`` to ``output`` (and ``exr``), appending the paths
-    written to ``outputs``."""
+    written to ``outputs``; denoised when ``use_denoise`` (the noisy image kept as
+    ``<name>.noisy.<ext>`` with ``keep_noisy``)."""
     import json
 
     from hack_render.render.image_io import write_exr, write_png
@@ -207,22 +241,29 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs)
     for cam in views_:
         head.set_camera(cam)
         t0 = time.perf_counter()
-        image = head.render(progress=not quiet)
+        bare = head.render(progress=not quiet, backdrop=False)
+        images = {"": head.composite(bare)}
+        if use_denoise:
+            images = {"": head.composite(head.denoise(bare)),
+                      **({".noisy": images[""]} if keep_noisy else {})}
         dt = time.perf_counter() - t0
         suffix = "" if len(views_) == 1 else f"_{cam.name}"
-        for path in [output] + ([exr] if exr else []):
-            target = path.with_name(f"{path.stem}{suffix}{path.suffix}")
-            if target.suffix.lower() == ".png":
-                write_png(target, image[..., :3], operator=tonemap)
-            else:
-                aovs = head.aovs() if aov_names else {}
-                meta = {"hack_camera": json.dumps(cam.to_dict()),
-                        "hack_regions": ",".join(head.region_names),
-                        "hack_variant": head.variant}
-                write_exr(target, exr_channels(image, aovs, aov_names), meta)
-            outputs.append(target)
+        aovs = head.aovs() if aov_names else {}
+        for tag, image in images.items():
+            for path in [output] + ([exr] if exr else []):
+                target = path.with_name(f"{path.stem}{suffix}{tag}{path.suffix}")
+                if target.suffix.lower() == ".png":
+                    write_png(target, image[..., :3], operator=tonemap)
+                else:
+                    meta = {"hack_camera": json.dumps(cam.to_dict()),
+                            "hack_regions": ",".join(head.region_names),
+                            "hack_variant": head.variant,
+                            "hack_denoised": "yes" if use_denoise and not tag else "no"}
+                    write_exr(target, exr_channels(image, aovs, aov_names), meta)
+                outputs.append(target)
         st = head.settings
-        typer.echo(f"{cam.name}: {st.width}x{st.height}, {st.spp} spp, {dt:.1f} s "
+        typer.echo(f"{cam.name}: {st.width}x{st.height}, {st.effective_spp} spp "
+                   f"({st.sampler}{', denoised' if use_denoise else ''}), {dt:.1f} s "
                    f"({head.variant})")
 
 
@@ -267,6 +308,9 @@ def turntable(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    sampler: str = SamplerOpt,
+    denoise: str = DenoiseOpt,
+    keep_noisy: bool = KeepNoisyOpt,
 ) -> None:
     """Render a seamless looping turntable of the head to MP4 (H.264) / GIF / PNG frames.
 
@@ -295,7 +339,8 @@ def turntable(
     w, h = _resolution(resolution)
     boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
     boundary.number(seed, "--seed", 0, 2 ** 31 - 1 - frames, integer=True)
-    settings = RenderSettings(w, h, spp, 8, seed)
+    settings = named("--sampler", RenderSettings, w, h, spp, 8, seed, sampler=sampler)
+    use_denoise = check_denoise(denoise)
     fmt = [f.strip() for f in formats.split(",") if f.strip()]
     bad = [f for f in fmt if f not in tt.FORMATS]
     if bad or not fmt:
@@ -332,6 +377,7 @@ def turntable(
         "env_rotation": env_rotation, "exposure": exposure, "focal_mm": focal_mm,
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
         "variant": variant, "limits": limits, "frames": frames, "mode": mode,
+        "sampler": sampler, "denoise": use_denoise,
         "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 
@@ -375,7 +421,10 @@ def turntable(
         todo = tt.pending_frames(output, frames, resume)
         if todo:
             typer.echo(f"turntable: {len(todo)} of {frames} frames to render, {w}x{h}, "
-                       f"{spp} spp")
+                       f"{settings.effective_spp} spp ({sampler}"
+                       f"{', denoised' if use_denoise else ''})")
+            if settings.spp_note():
+                typer.echo(settings.spp_note(), err=True)
             head = HeadScene(topo, vertices_at(0), rig, camera_at(0), settings,
                              skin_maps(alpha_, appearance_seed, textures), None, variant)
             times, animated = [], look_around or swallow or mode == "subject"
@@ -396,7 +445,13 @@ def turntable(
                     head.sync_environment()
                 if i not in pending:
                     continue
-                img = head.render(seed=seed + i)
+                bare = head.render(seed=seed + i, backdrop=False)
+                img = head.composite(head.denoise(bare) if use_denoise else bare)
+                if use_denoise and keep_noisy:
+                    noisy = tt.frame_path(output, i, "noisy")
+                    with atomic_path(noisy) as tmp:
+                        iio.imwrite(tmp, to_srgb8(head.composite(bare)[..., :3], 0.0,
+                                                  tonemap), extension=".png")
                 with atomic_path(tt.frame_path(output, i)) as tmp:
                     iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
                 times.append(time.perf_counter() - t0)

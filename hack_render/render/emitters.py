@@ -36,12 +36,14 @@ def check_intrinsics(cam: Camera) -> None:
 
 
 def sensor_dict(cam: Camera, spp: int, pixel_format: str = "rgba",
-                pixel_filter: str = "gaussian") -> dict:
+                pixel_filter: str = "gaussian", sampler: str = "independent") -> dict:
     """A ``perspective`` sensor with an ``hdrfilm`` of the camera's size.
 
     ``pixel_filter="box"`` splats each sample into one pixel only: with a fixed seed the
     image is then bit-identical from run to run (the wider ``gaussian`` filter adds
-    samples into neighbouring pixels from several threads, in no fixed order)."""
+    samples into neighbouring pixels from several threads, in no fixed order).
+    ``sampler``: a Mitsuba sampler plugin; ``spp`` must be a count it takes unrounded
+    (``scene.sampler_spp``)."""
     import mitsuba as mi
 
     check_intrinsics(cam)
@@ -52,7 +54,7 @@ def sensor_dict(cam: Camera, spp: int, pixel_format: str = "rgba",
         "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
                  "pixel_format": pixel_format, "component_format": "float32",
                  "rfilter": {"type": pixel_filter}},
-        "sampler": {"type": "independent", "sample_count": spp},
+        "sampler": {"type": sampler, "sample_count": spp},
     }
 
 

@@ -7,6 +7,7 @@
   under a GGX dielectric coat), wet and glossy where the tissue is.
 - iris: ``principled`` over per-vertex colours (pupil, iris with radial striations in
   the iris colour, dark limbal ring); its glossy clearcoat is the cornea's gloss, because the outer shell is opened over the cornea (``parts.py``).
+- bust cap (closing the cut of the chest): matte grey (a sculpted bust's base), two-sided.
 - lacrimal film: two-sided (a thin shell). eyelashes: dark brown, slightly glossy,
   two-sided and 50 % opaque (ICT's lash cards expect an alpha texture).
 """
@@ -116,6 +117,9 @@ def fixed_bsdfs() -> dict[str, dict]:
         "lacrimal": {"type": "twosided", "bsdf": _plastic((0.62, 0.45, 0.42), 0.03, 1.336)},
         # lash cards without their alpha texture: half-transparent, so they read as
         # lashes rather than as a painted line
+        # the cap over the cut of the chest: matte grey, as the base of a sculpted bust
+        "bust_cap": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
+            "type": "rgb", "value": [0.40, 0.40, 0.42]}}},
         "eyelashes": {"type": "mask", "opacity": {"type": "uniform", "value": EYELASH_OPACITY},
                       "bsdf": {"type": "twosided",
                                "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}},

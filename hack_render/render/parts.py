@@ -11,6 +11,12 @@ for alpha compositing with textures we do not ship, and drawn opaque they cover 
 The outer eye shell (``M_Sclera*``) is opened over the cornea so that the inner eye
 (``M_Iris*``, a sphere with the iris at its front) shows through; the corneal gloss is
 given to the iris material (see ``materials.py``).
+
+The bust cap (``bust_cap``, region ``bust``): ICT's skin ends in an open cut across the
+chest and shoulders, whose inside (back faces, black) showed from behind and below. The
+cap closes that boundary loop with triangles over the loop's own vertices (ear clipping
+in the loop's best-fit plane), so it follows every pose through the same gather as the
+other parts; it is flat-shaded matte grey (``materials.py``), not anatomy.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from hack_render.errors import HackError
 
 #: Segmentation labels, index = region id (0 is background).
 REGIONS: tuple[str, ...] = ("background", "face", "back_head", "mouth", "teeth", "sclera",
-                            "iris", "lacrimal", "eyelashes")
+                            "iris", "lacrimal", "eyelashes", "bust")
 
 #: Part name -> (ICT materials, region, u offset subtracted, u scale applied after).
 PART_SPECS: dict[str, tuple[tuple[str, ...], str, float, float]] = {
@@ -35,7 +41,9 @@ PART_SPECS: dict[str, tuple[tuple[str, ...], str, float, float]] = {
     "iris": (("M_IrisLeft", "M_IrisRight"), "iris", 0.0, 1.0),
     "lacrimal": (("M_LacrimalFluid",), "lacrimal", 4.0, 0.5),
     "eyelashes": (("M_EyeLashes",), "eyelashes", 6.0, 1.0),
+    "bust_cap": ((), "bust", 0.0, 1.0),  # built from the skin's boundary (split_parts)
 }
+SKIN_MATERIALS = ("M_Face", "M_BackHead")
 HIDDEN_MATERIALS = ("M_EyeBlend", "M_EyeOcclusion")
 #: Radius of the visible iris / cornea (limbus), metres (adult mean 11.7 mm diameter).
 LIMBUS_RADIUS = 0.0058
@@ -86,6 +94,8 @@ class Part:
         faces: (f, 3) indices into the part's vertices.
         texcoords: (n, 2) Mitsuba texture coordinates (v flipped: 1 - v).
         model_uv: (n, 2) the model's own (UDIM-style, v up) texture coordinates.
+        flat: flat-shaded (no vertex normals: the bust cap, whose vertices are the skin's
+            boundary, where the skin's normals point sideways).
     """
 
     name: str
@@ -94,6 +104,7 @@ class Part:
     faces: np.ndarray
     texcoords: np.ndarray
     model_uv: np.ndarray
+    flat: bool = False
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -136,10 +147,95 @@ def radial_eye_distance(points: np.ndarray, axes) -> tuple[np.ndarray, np.ndarra
     return r, z
 
 
-def split_parts(topo: Topology, vertices: np.ndarray) -> tuple[list[Part], list]:
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Closed loops of boundary edges (edges of one face) of a triangle mesh (F, 3), each
+    an array of vertex indices in order. Assumes a manifold boundary (two boundary edges
+    per boundary vertex), as ICT's skin has."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    directed = e[counts[inv.ravel()] == 1]  # boundary edges, in their face's winding
+    nxt = dict(zip(directed[:, 0].tolist(), directed[:, 1].tolist()))
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        if v == start and len(loop) >= 3:
+            loops.append(np.array(loop, np.int64))
+    return loops
+
+
+def _inside_triangle(p: np.ndarray, a, b, c) -> np.ndarray:
+    """Which 2-D points p (n, 2) lie inside or on the counter-clockwise triangle abc."""
+    def cross(o, q, r):
+        return (q[0] - o[0]) * (r[..., 1] - o[1]) - (q[1] - o[1]) * (r[..., 0] - o[0])
+
+    return (cross(a, b, p) >= 0) & (cross(b, c, p) >= 0) & (cross(c, a, p) >= 0)
+
+
+def triangulate_polygon(points: np.ndarray) -> np.ndarray:
+    """Ear-clipping triangulation of a simple polygon (n, 2) in order (either winding).
+
+    Returns (n - 2, 3) indices, each triangle counter-clockwise in the plane."""
+    pts = np.asarray(points, np.float64)
+    n = len(pts)
+    area2 = np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1])
+    idx = list(range(n)) if area2 > 0 else list(range(n))[::-1]
+    tris = []
+    while len(idx) > 3:
+        m = len(idx)
+        for k in range(m):
+            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % m]
+            a, b, c = pts[i0], pts[i1], pts[i2]
+            if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) <= 0:
+                continue  # reflex (or degenerate) corner: not an ear
+            others = [j for j in idx if j not in (i0, i1, i2)]
+            if others and _inside_triangle(pts[others], a, b, c).any():
+                continue
+            tris.append((i0, i1, i2))
+            del idx[k]
+            break
+        else:  # no ear found (a self-touching loop): close the rest as a fan
+            tris += [(idx[0], idx[j], idx[j + 1]) for j in range(1, len(idx) - 1)]
+            idx = idx[:3]
+            break
+    tris.append(tuple(idx))
+    return np.array(tris, np.int64)
+
+
+def bust_cap(topo: Topology, vertices: np.ndarray) -> Part | None:
+    """The part closing the skin's lowest boundary loop (the chest/shoulder cut), or None
+    when the skin has no boundary. Faces face away from the head (outwards, down)."""
+    ids = [topo.material_names.index(m) for m in SKIN_MATERIALS if m in topo.material_names]
+    faces = topo.faces[np.isin(topo.face_material, ids)]
+    loops = boundary_loops(faces)
+    if not loops:
+        return None
+    loop = min(loops, key=lambda lp: vertices[lp, 1].mean())
+    p = vertices[loop]
+    centre = p.mean(0)
+    _, _, vt = np.linalg.svd(p - centre)
+    axis_u, axis_v, normal = vt
+    tri = triangulate_polygon(np.stack([(p - centre) @ axis_u, (p - centre) @ axis_v], 1))
+    # counter-clockwise in (u, v) means the face normal is +normal: point it away from the
+    # skin (the cap's outside)
+    if np.dot(normal, centre - vertices[np.unique(faces)].mean(0)) < 0:
+        tri = tri[:, ::-1]
+    zeros = np.zeros((len(loop), 2))
+    return Part("bust_cap", REGIONS.index("bust"), loop, tri, zeros, zeros, flat=True)
+
+
+def split_parts(topo: Topology, vertices: np.ndarray,
+                cap: bool = False) -> tuple[list[Part], list]:
     """Build the render parts from the topology and rest vertices (N, 3) metres.
 
-    Parts whose materials are absent are skipped (a model without eyes still renders).
+    Parts whose materials are absent are skipped (a model without eyes still renders);
+    ``cap`` adds the bust cap (:func:`bust_cap`) closing the cut of the skin.
     Returns the parts and the eye axes [(centre (3,), forward axis (3,)), ...].
     """
     names = topo.material_names
@@ -158,7 +254,7 @@ def split_parts(topo: Topology, vertices: np.ndarray) -> tuple[list[Part], list]
             # open the shell over the cornea: drop faces whose centroid lies inside the limbus
             r, z = radial_eye_distance(vertices[topo.faces].mean(1), axes)
             sel &= (r > LIMBUS_RADIUS) | (z < 0)
-        if not sel.any():
+        if not mats or not sel.any():
             continue
         f, tf = topo.faces[sel], topo.uv_faces[sel]
         pairs = np.stack([f.ravel(), tf.ravel()], axis=1)
@@ -167,4 +263,8 @@ def split_parts(topo: Topology, vertices: np.ndarray) -> tuple[list[Part], list]
         tc = np.stack([(uv[:, 0] - u_off) * u_scale, 1.0 - uv[:, 1]], axis=1)
         parts.append(Part(pname, REGIONS.index(region), uniq[:, 0],
                           inverse.reshape(-1, 3).astype(np.int64), tc, uv))
+    if cap:
+        part = bust_cap(topo, vertices)
+        if part is not None:
+            parts.append(part)
     return parts, axes

@@ -106,8 +106,9 @@ def swallow_tau(t: float, height: float | None = None) -> float:
     return y if height is None else y * height / float(tau.max())
 
 
-def frame_path(folder: Path, i: int) -> Path:
-    return folder / "frames" / f"frame_{i:04d}.png"
+def frame_path(folder: Path, i: int, kind: str = "frames") -> Path:
+    """PNG of frame i: ``<folder>/frames`` (or ``<folder>/noisy``, before denoising)."""
+    return folder / kind / f"frame_{i:04d}.png"
 
 
 def rotate_about_y(vertices: np.ndarray, degrees: float, centre) -> np.ndarray:
@@ -126,6 +127,8 @@ def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
     from hack_render.boundary import clean_temporaries
 
     clean_temporaries(Path(folder) / "frames", ".frame_*")
+    if (Path(folder) / "noisy").is_dir():
+        clean_temporaries(Path(folder) / "noisy", ".frame_*")
     for stem in ("turntable", "cameras", "run"):  # the video, GIF, cameras and run record
         clean_temporaries(Path(folder), f".{stem}.*")
     return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
