@@ -214,12 +214,8 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
                                     "n_ok": sum("error" not in r for r in rows),
                                     "median": _medians(rows)})
 
-    from hack_render.fit.landmark_embedding import (
-        CalibrationSet,
-        LandmarkEmbedding,
-        evaluate,
-        load_default,
-    )
+    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
+    from hack_render.learn.landmark_calibration import CalibrationSet, evaluate
 
     emb = load_default(model)
     li = model.landmark_indices.numpy()
@@ -319,19 +315,19 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         from hack_render.fit.photometric import level_maps, render_view, setup_level
 
         if v.renderer is None:  # photometric stage off: a level (and lighting) to render
-            setup_level(fitter, v, res)
+            setup_level(fitter.state, fitter.cfg, v, res)
         with torch.no_grad():
-            lmaps = level_maps(fitter, v)  # the atlas size of the level's scene
-            rimg = render_view(fitter, v, lmaps, fo.vertices[0], 999)[..., :3].numpy()
+            lmaps = level_maps(fitter.state, v)  # the atlas size of the level's scene
+            rimg = render_view(v, lmaps, fo.vertices[0], 999)[..., :3].numpy()
             # the same re-render at the target's 64 spp: the fit without the 4-spp noise
             rimg64 = v.renderer.render(seed=999, spp=64, vertices=fo.vertices[0],
                                        albedo=lmaps["albedo"], specular=lmaps["specular"],
                                        roughness=lmaps["roughness"], normal=lmaps["normal"],
                                        env=v.lighting.env_map())[..., :3].numpy()
-        m = v.level["mask"].numpy()
-        mse = float(((rimg - v.level["target"].numpy())[m] ** 2).mean())
+        m = v.level.mask.numpy()
+        mse = float(((rimg - v.level.target.numpy())[m] ** 2).mean())
         psnr = 10 * np.log10(1.0 / max(mse, 1e-12))
-        mse64 = float(((rimg64 - v.level["target"].numpy())[m] ** 2).mean())
+        mse64 = float(((rimg64 - v.level.target.numpy())[m] ** 2).mean())
         extra["psnr_db_64spp"] = float(10 * np.log10(1.0 / max(mse64, 1e-12)))
         th_fit = fitter.theta(v).detach()
         from hack_render.geometry.rotations import axis_angle_to_euler
@@ -451,20 +447,20 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     fitter.fit_shape()
     # the torch threads the photometric stage runs with (photometric.torch_threads)
     torch.set_num_threads(fitter.cfg.photometric.torch_threads)
-    setup_level(fitter, v, res)
+    setup_level(fitter.state, fitter.cfg, v, res)
     r = v.renderer
-    target = v.level["target"]
+    target = v.level.target
     if v.lighting.mode == "sg":  # the lobe where the stage starts it
-        init_lobes(fitter, v)
+        init_lobes(fitter.state, fitter.cfg, v)
     leaves = [fitter.alpha, fitter.beta, fitter.psi, v.dtheta, v.head_angles,
               *v.lighting.parameters()]
 
     def bridge_iter(i):
         for p in leaves:
             p.grad = None
-        maps = level_maps(fitter, v)  # the atlas size the photometric stage renders with
+        maps = level_maps(fitter.state, v)  # the atlas size the photometric stage renders with
         verts = fitter.forward(v).vertices[0]
-        img = render_view(fitter, v, maps, verts, i)
+        img = render_view(v, maps, verts, i)
         (img[..., :3] - target).abs().mean().backward()
 
     def model_iter(i):  # the torch parts alone: HACK model forward + backward
@@ -474,9 +470,9 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
 
     def maps_iter(i):  # appearance maps forward + backward, at the level's atlas size
         fitter.alpha.grad = None
-        sum(x.sum() for x in level_maps(fitter, v).values() if x is not None).backward()
+        sum(x.sum() for x in level_maps(fitter.state, v).values() if x is not None).backward()
 
-    _, stage_loss = level_objective(fitter)  # the photometric stage's own objective
+    _, stage_loss = level_objective(fitter.state, fitter.cfg)  # the photometric stage's own objective
 
     def stage_iter(i):  # one iteration of the stage: its whole loss + backward
         for p in leaves:

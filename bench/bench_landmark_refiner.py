@@ -105,13 +105,14 @@ def main():
     args = ap.parse_args()
     torch.set_num_threads(1)
     from hack_render.fit import landmark_refiner as lr
+    from hack_render.learn import landmark_refiner_training as lt
 
-    data = lr.render_training_set(args.subjects, 5150, args.cache, progress=True)
+    data = lt.render_training_set(args.subjects, 5150, args.cache, progress=True)
     n = len(data["indices"])
     n_tr = n - round(0.1 * n)  # the shipped file's split: the last 10 % held out
     grays = [im.astype(np.float32) / 255.0 for im in data["images"]]
     b = bench_subjects(args.bench_subjects, args.res)
-    before = lr.inner_nme(b["dlib"], b["truth"], b["iod"])
+    before = lt.inner_nme(b["dlib"], b["truth"], b["iod"])
     out = {"training_subjects": n_tr, "bench_subjects": [int(k) for k in b["subject"]],
            "bench_missed": b["missed"],
            "dlib": {"median": 100 * float(np.median(before)),
@@ -121,9 +122,9 @@ def main():
         kw = dict(VARIANTS[name])
         m = kw.pop("n_train", n_tr)
         t0 = time.perf_counter()
-        ref = lr.train(grays[:m], list(data["dlib"][:m]), list(data["targets"][:m]),
+        ref = lt.train(grays[:m], list(data["dlib"][:m]), list(data["targets"][:m]),
                        progress=False, **{"stages": 3, "lam": 100.0, **kw})
-        after = lr.inner_nme(np.array([ref.refine(g, p) for g, p in zip(b["rgb"], b["dlib"])]),
+        after = lt.inner_nme(np.array([ref.refine(g, p) for g, p in zip(b["rgb"], b["dlib"])]),
                              b["truth"], b["iod"])
         out["variants"][name] = {"train": int(m), "median": 100 * float(np.median(after)),
                                  "mean": 100 * float(after.mean()),

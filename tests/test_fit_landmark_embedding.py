@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from hack_render.fit import landmark_embedding as le
+from hack_render.learn import landmark_calibration as lc
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +66,7 @@ def _fake_subjects(model, true_points_fn, n=6, noise=0.002, seed=3):
         uv = uv + rng.normal(0, noise * iod, uv.shape)
         V.append(verts.astype(np.float32)), K.append(cam.K), R.append(cam.R)
         t.append(cam.t), P.append(uv)
-    return le.CalibrationSet(np.array(V), np.array(K), np.array(R), np.array(t), np.array(P),
+    return lc.CalibrationSet(np.array(V), np.array(K), np.array(R), np.array(t), np.array(P),
                              np.arange(n))
 
 
@@ -74,7 +75,7 @@ def test_03_calibration_recovers_a_known_offset_embedding(model):
     tmpl = model.template.numpy().astype(np.float64)
     li = model.landmark_indices.numpy()
     truth = le.LandmarkEmbedding.from_vertices(li, faces)
-    mask = le.skin_faces(model)
+    mask = lc.skin_faces(model)
     cent = tmpl[faces].mean(1)
     tri = tmpl[faces]
     nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -87,7 +88,7 @@ def test_03_calibration_recovers_a_known_offset_embedding(model):
         b = rng.dirichlet([3, 3, 3])
         truth.face_ids[lmk], truth.vertex_ids[lmk], truth.bary[lmk] = f, faces[f], b
     data = _fake_subjects(model, truth.points_np)
-    emb, report = le.calibrate(data, model, landmarks=chosen, radius=0.02, grid=4,
+    emb, report = lc.calibrate(data, model, landmarks=chosen, radius=0.02, grid=4,
                                refine_grid=12, refine_top=6, progress=False)
     emb.validate(model.num_vertices, faces)
     got, want = emb.points_np(tmpl), truth.points_np(tmpl)
@@ -99,7 +100,7 @@ def test_03_calibration_recovers_a_known_offset_embedding(model):
     for lmk in chosen:
         r = report["landmarks"][lmk]
         assert r["mean_dist_after"] < r["mean_dist_before"]
-    ev = le.evaluate(data, emb, li)
+    ev = lc.evaluate(data, emb, li)
     assert np.median(ev["embedding"]) < np.median(ev["vertices"])
 
 
@@ -202,7 +203,7 @@ def test_07_detector_weights_are_inverse_variances(tmp_path, model):
         iod = np.linalg.norm(data.points[s, 36] - data.points[s, 45])
         data.points[s, 30] += rng.normal(0, 0.02 * iod, 2)
         data.points[s, 31] += rng.normal(0, 0.0112 * iod, 2)
-    w = le.detector_weights(data, emb, li)
+    w = lc.detector_weights(data, emb, li)
     cal = [8] + list(range(17, 68))
     assert np.allclose(w[[i for i in range(17) if i != 8]], 1.0)  # contours untouched
     assert w[cal].mean() == pytest.approx(1.0)

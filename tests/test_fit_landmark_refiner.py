@@ -14,6 +14,8 @@ import torch
 from hack_render.errors import HackError
 from hack_render.fit import landmark_refiner as lr
 from hack_render.fit.landmarks import Detection, refine_detection
+from hack_render.learn import landmark_calibration as lc
+from hack_render.learn import landmark_refiner_training as lt
 
 
 def _face_points(rng, size=128, iod=40.0, roll=0.0, centre=None):
@@ -53,7 +55,7 @@ def test_02_features_follow_the_face_frame():
     rng = np.random.default_rng(1)
     pts = _face_points(rng, 160, 40.0)
     pts2 = _face_points(np.random.default_rng(1), 160, 56.0, roll=0.3, centre=(70, 90))
-    ms = lr.mean_shape_of([pts])
+    ms = lt.mean_shape_of([pts])
     f1, s1, _ = lr.patch_features(_blob_image(pts, 160), pts, ms)
     f2, s2, _ = lr.patch_features(_blob_image(pts2, 160, sigma=1.6 * 56 / 40), pts2, ms)
     assert f1.shape == (lr.PatchSpec().dim,) and np.all(np.isfinite(f1))
@@ -81,11 +83,11 @@ def test_03_sdm_learns_a_known_correction():
         return G, S, T
 
     G, S, T = sample(200)
-    ref = lr.train(G, S, T, stages=3, lam=1.0, copies=3, mirror=False, progress=False)
+    ref = lt.train(G, S, T, stages=3, lam=1.0, copies=3, mirror=False, progress=False)
     Gv, Sv, Tv = sample(12)
     iod = np.array([np.linalg.norm(t[36] - t[45]) for t in Tv])
-    before = lr.inner_nme(np.array(Sv), np.array(Tv), iod)
-    after = lr.inner_nme(np.array([ref.refine(g, s) for g, s in zip(Gv, Sv)]), np.array(Tv), iod)
+    before = lt.inner_nme(np.array(Sv), np.array(Tv), iod)
+    after = lt.inner_nme(np.array([ref.refine(g, s) for g, s in zip(Gv, Sv)]), np.array(Tv), iod)
     assert np.median(after) < 0.7 * np.median(before)
     assert (after < before).sum() >= 10
     out = ref.refine(Gv[0], Sv[0])
@@ -98,7 +100,7 @@ def test_04_save_load_round_trip(tmp_path):
     G = [_blob_image(_face_points(rng)) for _ in range(8)]
     S = [_face_points(np.random.default_rng(3)) + rng.normal(0, 1, (68, 2)) for _ in range(8)]
     T = [_face_points(np.random.default_rng(3)) for _ in range(8)]
-    ref = lr.train(G, S, T, stages=2, lam=1.0, copies=0, mirror=True, progress=False)
+    ref = lt.train(G, S, T, stages=2, lam=1.0, copies=0, mirror=True, progress=False)
     ref.weights, ref.meta = np.linspace(0.5, 1.5, 68), {"provenance": "derived: test"}
     back = lr.LandmarkRefiner.load(ref.save(tmp_path / "r.npz"))
     assert back.meta == ref.meta and back.spec == ref.spec and back.stages == 2
@@ -146,11 +148,10 @@ def test_06_shipped_file_is_labelled_and_measured():
 @pytest.fixture(scope="module")
 def unseen_renders():
     """Calibration-sampler renders past the training set's last index (1149)."""
-    from hack_render.fit import landmark_embedding as le
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return le.render_subjects(4, start=1200, progress=False, images=True)
+        return lc.render_subjects(4, start=1200, progress=False, images=True)
 
 
 def test_07_shipped_refiner_moves_dlib_toward_the_truth(unseen_renders):
@@ -168,8 +169,8 @@ def test_07_shipped_refiner_moves_dlib_toward_the_truth(unseen_renders):
         truth = data.project(s, emb.points_np(V))
         iod = np.linalg.norm(truth[36] - truth[45])
         refined = ref.refine(data.images[s], data.points[s])
-        before.append(lr.inner_nme(data.points[s][None], truth[None], iod)[0])
-        after.append(lr.inner_nme(refined[None], truth[None], iod)[0])
+        before.append(lt.inner_nme(data.points[s][None], truth[None], iod)[0])
+        after.append(lt.inner_nme(refined[None], truth[None], iod)[0])
     assert np.mean(after) < 0.75 * np.mean(before), (before, after)
 
 
@@ -200,10 +201,10 @@ def test_09_training_renders_resume_from_the_cache(tmp_path):
     `train-landmark-refiner --cache` resumes); the targets are the embedding's points."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        a = lr.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
+        a = lt.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
         assert a["chunks_from_cache"] == 0
         assert len(list(tmp_path.glob("refiner_5150_*.npz"))) == 2
-        b = lr.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
+        b = lt.render_training_set(2, 5150, tmp_path, chunk=1, progress=False)
     assert b["chunks_from_cache"] == 2
     for k in ("images", "dlib", "targets", "iod", "indices"):
         np.testing.assert_array_equal(a[k], b[k])
@@ -211,5 +212,5 @@ def test_09_training_renders_resume_from_the_cache(tmp_path):
     if len(a["indices"]):
         assert a["images"].dtype == np.uint8 and a["images"].ndim == 3
         # dlib's points lie near the targets (the embedding is calibrated to dlib)
-        nme = lr.inner_nme(a["dlib"], a["targets"], a["iod"])
+        nme = lt.inner_nme(a["dlib"], a["targets"], a["iod"])
         assert np.all(nme < 0.15)

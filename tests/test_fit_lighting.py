@@ -97,8 +97,8 @@ def test_02_init_lobes_finds_the_window():
         rig = preset(name, rotation_deg=rot)
         f = _fitter(model, rig)
         v = f.views[0]
-        ph.setup_level(f, v, 48)
-        rep = ph.init_lobes(f, v)
+        ph.setup_level(f.state, f.cfg, v, 48)
+        rep = ph.init_lobes(f.state, f.cfg, v)
         assert len(rep) == 1
         found[name] = (rep[0], v.lighting.summary())
     # the window's centre as seen from the head, rotated with the rig about +Y

@@ -196,7 +196,7 @@ def test_04_outer_contour_and_recovery(subject):
     without = _fit(model, (photo, det), mask, "off")
     v = with_sil.views[0]
     assert v.silhouette_note == "mask file" and without.views[0].silhouette is None
-    pairs, t = v.level["sil_contour"]
+    pairs, t = v.sil_contour
     # the outer contour: points on mesh edges (zero crossings of n.v), on the face/neck
     # outline; contours hidden inside the footprint (the jaw's over the neck) left out
     assert len(t) > 40 and bool(((t >= 0) & (t <= 1)).all())

@@ -81,6 +81,7 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.fit.robust import charbonnier
     from hack_render.geometry import load_default_model
 
     torch.set_num_threads(1)
@@ -106,19 +107,19 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     v = f.views[0]
     # the texel stage renders the full atlas (the photometric stage a coarser mip): the
     # before/after losses below are both taken on the texel stage's scene
-    ph.setup_level(f, v, int(cfg.photometric.resolutions[-1]), full_maps=True)
+    ph.setup_level(f.state, f.cfg, v, int(cfg.photometric.resolutions[-1]), full_maps=True)
 
     def photo_loss():
         """Masked Charbonnier at 16 spp over two fixed sample patterns (not the stage's)."""
         with torch.no_grad():
-            maps, verts = ph.level_maps(f, v), f.forward(v).vertices[0]
-            m = v.level["mask"]
+            maps, verts = ph.level_maps(f.state, v), f.forward(v).vertices[0]
+            m = v.level.mask
             out = 0.0
             for seed in (11, 12):
                 im = v.renderer.render(seed=seed, spp=16, vertices=verts, albedo=maps["albedo"],
                                        specular=maps["specular"], roughness=maps["roughness"],
                                        normal=maps["normal"], env=v.lighting.env_map())[..., :3]
-                d = ph.charbonnier(im - v.level["target"], cfg.photometric.charbonnier_eps)
+                d = charbonnier(im - v.level.target, cfg.photometric.charbonnier_eps)
                 out += float((d * m[..., None]).sum() / (3 * m.sum())) / 2
         return out
 

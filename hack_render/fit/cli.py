@@ -298,6 +298,7 @@ def calibrate_landmarks(
     from hack_render import boundary
     from hack_render.cli_options import renamed
     from hack_render.fit import landmark_embedding as le
+    from hack_render.learn import landmark_calibration as lc
 
     resolution = renamed(resolution, resolution_old, "--res", "--resolution")
     boundary.output_file(output, "-o/--output", (".npz",))
@@ -310,7 +311,7 @@ def calibrate_landmarks(
                f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min)",
                err=True)
     cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
-    emb, _report = le.build(output, subjects, seed, resolution, spp, radius, command=cmd,
+    emb, _report = lc.build(output, subjects, seed, resolution, spp, radius, command=cmd,
                             progress=not quiet)
     typer.echo(json.dumps({"used": emb.meta["subjects_used"],
                            "left_out": len(emb.meta["left_out"]),
@@ -351,7 +352,7 @@ def train_landmark_refiner(
     import sys
 
     from hack_render import boundary
-    from hack_render.fit import landmark_refiner as lr
+    from hack_render.learn import landmark_refiner_training as lr
 
     boundary.output_file(output, "-o/--output", (".npz",))
     boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)

@@ -150,6 +150,11 @@ class PhotometricConfig:
     enabled: bool = True
     resolutions: list = field(default_factory=lambda: [64, 128])
     iterations: list = field(default_factory=lambda: [40, 30])
+    # finer levels after those, each run only where every photo's face crop (twice the
+    # landmarks' size, the level's field of view) has at least that many pixels: the fit
+    # goes up to the photo's own resolution, never past it (photometric.levels)
+    fine_resolutions: list = field(default_factory=lambda: [256, 512])
+    fine_iterations: list = field(default_factory=lambda: [12, 6])
     spp: int = 4
     integrator: str = "prb"
     # "sg" (order-2 spherical harmonics plus `lobes` spherical Gaussians on a map of
@@ -206,6 +211,23 @@ class TexelConfig:
 
 
 @dataclass
+class FinalConfig:
+    """After the stages: the fit re-rendered at the photo's size (``render.png``) and the
+    photo(s) baked into a per-texel diffuse map (``texture.py``)."""
+
+    enabled: bool = True
+    # samples per pixel of render.png (and of the render the bake divides the photo by)
+    spp: int = 256
+    max_depth: int = 2               # path depth: the photometric stage's (direct light)
+    max_side: int = 1024             # render.png's long side at most (the photo's size below)
+    atlas_height: int = 1024         # the baked diffuse map: atlas_height x 2 atlas_height
+    edge_px: float = 2.0             # photo pixels dropped inside the render's silhouette
+    # robust rejection of pixels the render cannot explain (occluders, clothes): the log
+    # ratio photo / render and the chromaticity beyond this many MADs of the skin's
+    reject_sigma: float = 3.0
+
+
+@dataclass
 class FitConfig:
     """Everything the fitter reads; see the section classes for the fields."""
 
@@ -215,6 +237,7 @@ class FitConfig:
     silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     texel: TexelConfig = field(default_factory=TexelConfig)
+    final: FinalConfig = field(default_factory=FinalConfig)
     per_view_expression: bool = False
     seed: int = 0
 
@@ -248,7 +271,11 @@ class FitConfig:
         if len(p.resolutions) != len(p.iterations):
             raise HackError(f"config photometric: expected as many iterations as resolutions, "
                             f"found {len(p.iterations)} and {len(p.resolutions)}.")
-        if any(not 16 <= int(r) <= 1024 for r in p.resolutions):
+        if len(p.fine_resolutions) != len(p.fine_iterations):
+            raise HackError(f"config photometric: expected as many fine_iterations as "
+                            f"fine_resolutions, found {len(p.fine_iterations)} and "
+                            f"{len(p.fine_resolutions)}.")
+        if any(not 16 <= int(r) <= 1024 for r in list(p.resolutions) + list(p.fine_resolutions)):
             raise HackError(f"config photometric.resolutions: expected 16..1024 px, found "
                             f"{p.resolutions}.")
         if p.lighting not in ("sh", "env", "sg"):
@@ -278,6 +305,13 @@ class FitConfig:
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")
+        fc = self.final
+        if not 1 <= fc.spp <= 4096 or not 1 <= fc.max_depth <= 16:
+            raise HackError(f"config final: expected spp 1..4096 and max_depth 1..16, found "
+                            f"{fc.spp} and {fc.max_depth}.")
+        if not 64 <= fc.atlas_height <= 4096 or not 16 <= fc.max_side <= 8192:
+            raise HackError(f"config final: expected atlas_height 64..4096 and max_side "
+                            f"16..8192, found {fc.atlas_height} and {fc.max_side}.")
         for name in ("camera", "shape", "texel"):
             if getattr(self, name).iterations < 0:
                 raise HackError(f"config {name}.iterations: expected >= 0.")
@@ -342,5 +376,7 @@ def tiny_overrides() -> dict:
     """Settings for tests and CI (tests/test_fit_e2e.py; timed by
     ``bench/bench_fit.py --astronaut --tiny``): tiny resolution, few samples and iterations."""
     return {"camera": {"iterations": 40}, "shape": {"iterations": 40, "n_beta": 20},
-            "photometric": {"resolutions": [24], "iterations": [4], "spp": 2, "n_alpha": 6},
-            "texel": {"iterations": 3}}
+            "photometric": {"resolutions": [24], "iterations": [4], "spp": 2, "n_alpha": 6,
+                            "fine_resolutions": [], "fine_iterations": []},
+            "texel": {"iterations": 3},
+            "final": {"spp": 8, "atlas_height": 128, "max_side": 128}}

@@ -4,6 +4,7 @@ report. Every file is written under a temporary name and renamed."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from hack_render.fit.fitter import R0, FitResult
 
 #: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
 TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
-               ".overlay*", ".mesh*", ".fit_run.*")
+               ".overlay*", ".mesh*", ".fit_run.*", ".render*", ".occlusion*")
 
 
 def _atomic_bytes(path: Path, write) -> Path:
@@ -126,7 +127,11 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     written.append(_atomic_bytes(outdir / "cameras.json",
                                  lambda t: t.write_text(json.dumps({"cameras": cams}, indent=1))))
     m = res.model
-    textures = write_textures(fitter, outdir / "textures")
+    # the photo-size renders and the baked skin need the fitted lighting (the photometric
+    # stage's); without it the textures are the model's own maps
+    final = final_renders(fitter) if res.config.final.enabled and all(
+        v.lighting is not None for v in res.views) else None
+    textures = write_textures(fitter, outdir / "textures", final)
     written += textures
     # the OBJs' .mtl names the fitted maps written just above (PNG, relative paths)
     mats = ObjMaterials(m.material_names, m.face_material.numpy(),
@@ -141,6 +146,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                       m.uvs.numpy(), m.uv_faces.numpy(), mats))
             if ext == ".obj":
                 written.append(outdir / f"{stem}.mtl")
+    if final is not None:
+        written += write_photo_renders(fitter, final, outdir)
     written += write_overlays(fitter, outdir)
     written += write_losses(res, outdir)
     report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),
@@ -162,6 +169,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                        "lobe_start": v.lighting_init}
                                       if v.lighting is not None else None)}
                         for v in res.views],
+              "final": final.report if final is not None else None,
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None
                                      else None),
@@ -174,18 +182,93 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     return written
 
 
-def write_textures(fitter, folder: Path) -> list[Path]:
-    """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise)."""
+class FinalRenders:
+    """The views rendered at the photo's size with the fitted maps (the bake's divisor),
+    the baked skin (``texture.bake_diffuse``), the views re-rendered with the baked maps
+    (``render.png``), and what it cost."""
+
+    def __init__(self, fitter):
+        import time
+
+        from hack_render.fit import texture
+
+        st, cfg = fitter.state, fitter.cfg
+        t0 = time.perf_counter()
+        self.fitted = [texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side)
+                       for v in st.views]
+        self.baked = texture.bake_diffuse(st, cfg, self.fitted)
+        t1 = time.perf_counter()
+        self.maps = dataclasses.replace(texture._skin_maps(st, cfg.final.atlas_height),
+                                        diffuse=self.baked.diffuse)
+        self.renders = [texture.render_at_photo(st, cfg, v, maps=self.maps,
+                                                max_side=cfg.final.max_side)
+                        for v in st.views]
+        self.report = {"spp": cfg.final.spp, "atlas_height": cfg.final.atlas_height,
+                       "seen_fraction": self.baked.seen_fraction,
+                       "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
+                       "size": [list(r.rgba.shape[1::-1]) for r in self.renders],
+                       "diffuse": "derived: the photo(s) with the fitted lighting divided "
+                                  "out where seen (confidence.png), the mirrored face or "
+                                  "the appearance model A(alpha) elsewhere"}
+
+
+def final_renders(fitter) -> FinalRenders:
+    return FinalRenders(fitter)
+
+
+def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]:
+    """``render.png`` (the fit re-rendered with the baked skin at the photo's size, over a
+    transparent background), ``render_over_photo.png`` (over the photo), and
+    ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
+    skin, e.g. occluders, clothes, the silhouette's edge), one set per view."""
+    from PIL import Image
+    from skimage.transform import resize
+
+    from hack_render.render.image_io import to_srgb8
+
+    out = []
+    for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
+        sfx = "" if i == 0 else f"_view{i}"
+        rgba = r.rgba
+        a = np.clip(rgba[..., 3:4], 0.0, 1.0)
+        rgb = rgba[..., :3] / np.maximum(a, 1e-6)  # straight (not premultiplied) colour
+        rgb8 = to_srgb8(np.where(a > 0, rgb, 0.0), 0.0, "clip")
+        img = np.concatenate([rgb8, np.round(a * 255).astype(np.uint8)], -1)
+        h, w = rgba.shape[:2]
+        photo = v.photo.linear()
+        if photo.shape[:2] != (h, w):
+            photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
+        over = to_srgb8(rgba[..., :3] + (1.0 - a) * photo, 0.0, "clip")
+        occ = np.round(255 * np.clip(final.baked.pixel_weights[i], 0, 1)).astype(np.uint8)
+        for name, arr in ((f"render{sfx}.png", img), (f"render_over_photo{sfx}.png", over),
+                          (f"occlusion{sfx}.png", occ)):
+            out.append(_atomic_bytes(outdir / name,
+                                     lambda t, arr=arr: Image.fromarray(arr).save(t, "PNG")))
+    return out
+
+
+def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> list[Path]:
+    """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise).
+    With ``final``: the baked diffuse map at ``final.atlas_height`` (the other maps
+    resampled to its size), its ``confidence`` and the model's own ``diffuse_model``."""
     from appearance.texture_io import write_exr, write_png
 
     folder.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         maps = {k: (x.detach().numpy() if x is not None else None)
                 for k, x in fitter.maps().items()}
+    extra = []
+    if final is not None:
+        fm = final.maps
+        extra = [("diffuse_model", maps["albedo"]),
+                 ("confidence", final.baked.confidence[..., None])]
+        maps = {"albedo": fm.diffuse, "specular": fm.specular, "roughness": fm.roughness,
+                "normal": fm.normal}
     out = []
     for name, key in (("diffuse", "albedo"), ("specular", "specular"),
-                      ("roughness", "roughness"), ("normal", "normal")):
-        img = maps[key]
+                      ("roughness", "roughness"), ("normal", "normal")) + tuple(
+                          (n, n) for n, _ in extra):
+        img = maps[key] if key in maps else dict(extra)[key]
         if img is None:
             continue
         img = np.ascontiguousarray(img, np.float32)
@@ -193,7 +276,7 @@ def write_textures(fitter, folder: Path) -> list[Path]:
         out.append(folder / f"{name}.exr")
         png = img if name != "normal" else 0.5 * img + 0.5
         write_png(folder / f"{name}.png", png if png.shape[2] > 1 else png[..., 0],
-                  srgb=(name == "diffuse"))
+                  srgb=name.startswith("diffuse"))
         out.append(folder / f"{name}.png")
     return out
 
@@ -203,8 +286,7 @@ def _final_render(fitter, v):
     from hack_render.fit.photometric import level_maps, render_view
 
     with torch.no_grad():
-        img = render_view(fitter, v, level_maps(fitter, v), fitter.forward(v).vertices[0],
-                          12345)
+        img = render_view(v, level_maps(fitter.state, v), fitter.forward(v).vertices[0], 12345)
     return img.numpy()
 
 
@@ -222,16 +304,16 @@ def write_overlays(fitter, outdir: Path) -> list[Path]:
     out = []
     for i, v in enumerate(fitter.views):
         if v.renderer is None:  # photometric stage off: build a level for the sheet
-            setup_level(fitter, v, int(fitter.cfg.photometric.resolutions[-1]))
+            setup_level(fitter.state, fitter.cfg, v, int(fitter.cfg.photometric.resolutions[-1]))
         lv = v.level
         img = _final_render(fitter, v)
-        target = lv["target"].numpy()
+        target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
         rend8 = to_srgb8(img[..., :3], 0.0, "clip")
         a = img[..., 3:4]
         over = (a * rend8 + (1 - a) * photo8).astype(np.uint8)
-        err = np.abs(img[..., :3] - target).mean(-1) * lv["mask"].numpy()
-        H = np.linalg.inv(lv["H"])
+        err = np.abs(img[..., :3] - target).mean(-1) * lv.mask.numpy()
+        H = np.linalg.inv(lv.H)
         with torch.no_grad():
             verts = fitter.forward(v).vertices[0]
             fit_px = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()

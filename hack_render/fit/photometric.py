@@ -18,7 +18,13 @@ import math
 import numpy as np
 import torch
 
+from hack_render.fit import terms
+from hack_render.fit.camera import R0
+from hack_render.fit.config import FitConfig
 from hack_render.fit.lighting import Lighting
+from hack_render.fit.robust import charbonnier
+from hack_render.fit.stages import StageLog, StageReport
+from hack_render.fit.state import FitState, Level, View
 from hack_render.geometry.larynx import larynx_limit_penalty
 
 FACE_OUTLINE = list(range(0, 17)) + list(range(26, 16, -1))
@@ -38,11 +44,9 @@ def rotation_to_axis(d: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * K @ K
 
 
-def virtual_camera(fitter, view, res: int):
+def virtual_camera(view: View, res: int):
     """(Camera, H) for a view at ``res`` px: H maps virtual pixels to photo pixels."""
     from scenes.cameras import Camera
-
-    from hack_render.fit.fitter import R0
 
     ph, det = view.photo, view.detection
     f = float(view.focal.detach())
@@ -91,13 +95,13 @@ def face_mask(points_v: np.ndarray, res: int) -> np.ndarray:
     return m
 
 
-def level_map_height(fitter, res: int) -> int | None:
+def level_map_height(state: FitState, cfg: FitConfig, res: int) -> int | None:
     """Atlas height for a level of ``res`` px: with ``photometric.coarse_maps``, the
     coarsest mip of the appearance model (its height / 2^k, at least 32) with at least
     ``res`` rows, so a texel never spans more than a pixel of the face (the face takes
     about half of the level's width, the face tile's whole height); None: full size."""
-    app = fitter.appearance
-    if app is None or not fitter.cfg.photometric.coarse_maps:
+    app = state.appearance
+    if app is None or not cfg.photometric.coarse_maps:
         return None
     h = app.height
     while h % 2 == 0 and h // 2 >= max(int(res), 32):
@@ -105,13 +109,14 @@ def level_map_height(fitter, res: int) -> int | None:
     return None if h == app.height else h
 
 
-def level_maps(fitter, view, with_delta: bool = True) -> dict:
+def level_maps(state: FitState, view: View, with_delta: bool = True) -> dict:
     """The skin maps at the atlas size of the view's current level (see
     :func:`level_map_height`)."""
-    return fitter.maps(with_delta, height=view.level.get("map_height"))
+    return state.maps(with_delta, height=view.level.map_height)
 
 
-def setup_level(fitter, view, res: int, full_maps: bool = False) -> None:
+def setup_level(state: FitState, cfg: FitConfig, view: View, res: int,
+                full_maps: bool = False) -> Level:
     """Build the view's scene, renderer, target and masks for one resolution
     (``full_maps``: the appearance model's own atlas size, e.g. for per-texel work)."""
     from hack_render.render.bridge import DiffRenderer
@@ -120,71 +125,69 @@ def setup_level(fitter, view, res: int, full_maps: bool = False) -> None:
     from hack_render.render.scene import HeadScene, RenderSettings
     from scenes.lights import LightRig
 
-    cfg = fitter.cfg.photometric
-    cam, H, scale = virtual_camera(fitter, view, res)
+    pc = cfg.photometric
+    cam, H, scale = virtual_camera(view, res)
     target = warp_photo(view.photo.linear(), H, res, scale)
     Hi = np.linalg.inv(H)
     p = np.c_[view.detection.points, np.ones(68)] @ Hi.T
     pts_v = p[:, :2] / p[:, 2:3]
     if view.lighting is None:
-        view.lighting = Lighting(cfg.lighting, cfg.sg_height if cfg.lighting == "sg"
-                                 else cfg.env_height, cfg.lobes)
-    map_height = None if full_maps else level_map_height(fitter, res)
+        view.lighting = Lighting(pc.lighting, pc.sg_height if pc.lighting == "sg"
+                                 else pc.env_height, pc.lobes)
+    map_height = None if full_maps else level_map_height(state, cfg, res)
     with torch.no_grad():
-        verts = fitter.forward(view).vertices[0]
+        verts = state.forward(view).vertices[0]
         maps = {k: (x.detach().numpy() if x is not None else None)
-                for k, x in fitter.maps(height=map_height).items()}
+                for k, x in state.maps(height=map_height).items()}
         env = view.lighting.env_map().numpy()
     sm = SkinMaps(maps["albedo"], maps["specular"], maps["roughness"], maps["normal"])
     rig = LightRig(name="fit", env_map=env.astype(np.float32))
-    head = HeadScene(Topology.from_model(fitter.model), verts.numpy(), rig, cam,
-                     RenderSettings(res, res, cfg.spp, 8, fitter.cfg.seed), sm)
-    view.renderer = DiffRenderer(head, cfg.integrator, max_depth=2, spp=cfg.spp)
-    view.level = {"res": res, "camera": cam, "H": H, "target": torch.from_numpy(target),
-                  "photo_mask": face_mask(pts_v, res), "points_v": pts_v,
-                  "jaw": view.level.get("jaw"), "map_height": map_height}
-    if view.level["jaw"] is None:
-        view.level.pop("jaw")
+    head = HeadScene(Topology.from_model(state.model), verts.numpy(), rig, cam,
+                     RenderSettings(res, res, pc.spp, 8, cfg.seed), sm)
+    renderer = DiffRenderer(head, pc.integrator, max_depth=2, spp=pc.spp)
+    view.level = Level(res, cam, H, torch.from_numpy(target), face_mask(pts_v, res), pts_v,
+                       map_height, renderer, erode=pc.mask_erode_px)
     update_mask(view)
+    return view.level
 
 
 def update_mask(view) -> None:
     """Skin mask = photo face polygon AND rendered face region, eroded."""
     from scipy.ndimage import binary_erosion
 
-    seg = view.renderer.head.aovs()["segmentation"]
-    m = view.level["photo_mask"] & (seg == 1)
-    k = view.level.get("erode", 1)
-    if k > 0:
-        m = binary_erosion(m, iterations=k)
-    view.level["mask"] = torch.from_numpy(m)
+    lv = view.level
+    seg = lv.renderer.head.aovs()["segmentation"]
+    m = lv.photo_mask & (seg == 1)
+    if lv.erode > 0:
+        m = binary_erosion(m, iterations=lv.erode)
+    lv.mask = torch.from_numpy(m)
 
 
-def render_view(fitter, view, maps, verts, seed: int, light_grad: bool = True) -> torch.Tensor:
+def render_view(view: View, maps: dict, verts: torch.Tensor, seed: int,
+                light_grad: bool = True) -> torch.Tensor:
+    """Render the view's current level (differentiable in the vertices, the maps and,
+    with ``light_grad``, the lighting)."""
     env = view.lighting.env_map()
     return view.renderer.render(seed=seed, vertices=verts, albedo=maps["albedo"],
                                 specular=maps["specular"], roughness=maps["roughness"],
                                 normal=maps["normal"], env=env if light_grad else env.detach())
 
 
-def charbonnier(diff: torch.Tensor, eps: float) -> torch.Tensor:
-    return torch.sqrt(diff * diff + eps * eps) - eps
-
-
-def match_exposure(fitter, view) -> None:
+def match_exposure(state: FitState, view: View) -> None:
     """Scale the lighting so the first render's masked mean matches the photo's."""
     with torch.no_grad():
-        maps = level_maps(fitter, view)
-        verts = fitter.forward(view).vertices[0]
-        img = render_view(fitter, view, maps, verts, 0)[..., :3]
-        m = view.level["mask"]
+        maps = level_maps(state, view)
+        verts = state.forward(view).vertices[0]
+        img = render_view(view, maps, verts, 0)[..., :3]
+        m = view.level.mask
         if int(m.sum()) < 4:
             return
-        ratio = (view.level["target"][m].mean(0) / img[m].mean(0).clamp_min(1e-4)).numpy()
+        ratio = (view.level.target[m].mean(0) / img[m].mean(0).clamp_min(1e-4)).numpy()
         view.lighting.scale_(np.clip(ratio, 1e-3, 1e3))
 
 
-def init_lobes(fitter, view, sharpness: float = 10.0) -> list[dict]:
+def init_lobes(state: FitState, cfg: FitConfig, view: View,
+               sharpness: float = 10.0) -> list[dict]:
     """Start an "sg" lighting from the photo (in place of :func:`match_exposure`).
 
     Rendering is linear in the emitted radiance, so with the geometry and maps fixed the
@@ -201,14 +204,14 @@ def init_lobes(fitter, view, sharpness: float = 10.0) -> list[dict]:
     from hack_render.fit.lighting import candidate_directions
 
     L = view.lighting
-    m = view.level["mask"].numpy()
+    m = view.level.mask.numpy()
     if int(m.sum()) < 8:
-        match_exposure(fitter, view)
+        match_exposure(state, view)
         return []
-    seed = fitter.cfg.seed * 1000 + 777
+    seed = cfg.seed * 1000 + 777
     with torch.no_grad():
-        maps = level_maps(fitter, view)
-        verts = fitter.forward(view).vertices[0]
+        maps = level_maps(state, view)
+        verts = state.forward(view).vertices[0]
 
         def shot(env):
             img = view.renderer.render(seed=seed, vertices=verts, albedo=maps["albedo"],
@@ -222,7 +225,7 @@ def init_lobes(fitter, view, sharpness: float = 10.0) -> list[dict]:
         lam = torch.tensor(float(sharpness))
         A = [shot(one * L.lobe_map(torch.as_tensor(d, dtype=torch.float32), lam)[..., None])
              for d in dirs]
-    T = view.level["target"].numpy()[m].astype(np.float64)
+    T = view.level.target.numpy()[m].astype(np.float64)
 
     def solve(cols):
         """Per channel NNLS; (coefficients (len(cols), 3), residual norm)."""
@@ -283,43 +286,42 @@ def texel_regularisers(delta: torch.Tensor, pairs) -> dict[str, torch.Tensor]:
             "magnitude": (delta ** 2).mean()}
 
 
-def level_objective(fitter, texel: bool = False, pairs=None):
+def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=None):
     """(Adam parameter groups, loss) of one photometric level (``texel``: of the per-texel
-    albedo stage, with the symmetry ``pairs``) over the views' current scenes (set up by
+    albedo stage, with the symmetry ``pairs``) over the views' current levels (set up by
     :func:`setup_level`): ``loss(it)`` -> (total, {term: float}), the objective the stage
     minimises (``bench/bench_fit.py --overhead`` times it as the stage's iteration)."""
-    cfg, tcfg = fitter.cfg.photometric, fitter.cfg.texel
-    groups = _groups(fitter, texel)
+    pc, tcfg = cfg.photometric, cfg.texel
+    groups = _groups(state, cfg, texel)
     # Geometry is frozen in the texel stage and when refine_geometry is off: evaluate it
     # once per level (no model forward/backward per iteration; the bridge then uploads
     # the unchanged vertices once instead of rebuilding the scene every iteration), and
     # drop the terms that are constant then (landmarks, pose priors, mask refresh).
-    refine = cfg.refine_geometry and not texel
+    refine = pc.refine_geometry and not texel
     fixed = {}
     if not refine:
         with torch.no_grad():
-            fixed = {id(v): fitter.forward(v).vertices[0] for v in fitter.views}
+            fixed = {id(v): state.forward(v).vertices[0] for v in state.views}
     pca = None
     if texel:
         with torch.no_grad():
             pca = {k: (x.detach() if x is not None else None)
-                   for k, x in fitter.maps(with_delta=False).items()}  # full atlas
+                   for k, x in state.maps(with_delta=False).items()}  # full atlas
 
     def loss(it):
         if pca is not None:
-            maps = dict(pca, albedo=(pca["albedo"] + fitter.albedo_delta).clamp(0.0, 1.0))
+            maps = dict(pca, albedo=(pca["albedo"] + state.albedo_delta).clamp(0.0, 1.0))
         else:  # the views of a level share its atlas size
-            maps = level_maps(fitter, fitter.views[0])
-        total, terms = 0.0, {}
-        for v in fitter.views:
+            maps = level_maps(state, state.views[0])
+        total, parts_sum = 0.0, {}
+        for v in state.views:
             if refine and it and it % 10 == 0:
                 update_mask(v)
-            verts = fitter.forward(v).vertices[0] if refine else fixed[id(v)]
-            img = render_view(fitter, v, maps, verts, fitter.cfg.seed * 1000 + it,
-                              light_grad=not texel)[..., :3]
-            m = v.level["mask"]
+            verts = state.forward(v).vertices[0] if refine else fixed[id(v)]
+            img = render_view(v, maps, verts, cfg.seed * 1000 + it, light_grad=not texel)[..., :3]
+            m = v.level.mask
             n = m.sum().clamp_min(1)
-            ph = charbonnier(img - v.level["target"], cfg.charbonnier_eps)
+            ph = charbonnier(img - v.level.target, pc.charbonnier_eps)
             parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
             if not texel:
                 parts["light_smooth"] = 1e-3 * v.lighting.smoothness()
@@ -328,88 +330,101 @@ def level_objective(fitter, texel: bool = False, pairs=None):
                 # whole by w_landmarks: the priors keep their balance with the landmarks
                 # (an unscaled prior against the scaled landmarks would pull beta and
                 # psi toward zero while the photo term's gradients are small)
-                parts.update({k: (cfg.w_silhouette if k == "silhouette" else cfg.w_landmarks)
-                              * x for k, x in fitter.shape_terms(v, verts, it).items()})
+                parts.update({k: (pc.w_silhouette if k == "silhouette" else pc.w_landmarks)
+                              * x for k, x in terms.shape_terms(state, cfg, v, verts,
+                                                                it).items()})
             for k, x in parts.items():
                 total = total + x
-                terms[k] = terms.get(k, 0.0) + float(x.detach())
-        extra = {} if texel else {"alpha_prior": cfg.w_alpha * (fitter.alpha ** 2).sum()}
+                parts_sum[k] = parts_sum.get(k, 0.0) + float(x.detach())
+        extra = {} if texel else {"alpha_prior": pc.w_alpha * (state.alpha ** 2).sum()}
         if refine:
-            extra["beta_prior"] = cfg.w_landmarks * fitter.beta_prior()
-            extra["larynx_prior"] = 1e-3 * (fitter.eta ** 2).sum() + 10.0 * (fitter.tau ** 2).sum()
+            extra["beta_prior"] = pc.w_landmarks * terms.beta_prior(state, cfg)
+            extra["larynx_prior"] = 1e-3 * (state.eta ** 2).sum() + 10.0 * (state.tau ** 2).sum()
             # E_larynx: eta and tau beyond their anatomical ranges, as E_rot for the joints
-            extra["E_larynx"] = fitter.cfg.shape.w_rot * larynx_limit_penalty(fitter.eta,
-                                                                              fitter.tau).sum()
+            extra["E_larynx"] = cfg.shape.w_rot * larynx_limit_penalty(state.eta,
+                                                                       state.tau).sum()
         if texel:
-            for k, x in texel_regularisers(fitter.albedo_delta, pairs).items():
+            for k, x in texel_regularisers(state.albedo_delta, pairs).items():
                 w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,
                      "magnitude": tcfg.w_magnitude}[k]
                 extra[f"texel_{k}"] = w * x
         for k, x in extra.items():
             total = total + x
-            terms[k] = float(x.detach())
-        return total, terms
+            parts_sum[k] = float(x.detach())
+        return total, parts_sum
 
     return groups, loss
 
 
-def run(fitter, texel: bool = False):
-    """Run the photometric stage (or, with ``texel``, the per-texel albedo stage)."""
-    cfg, tcfg = fitter.cfg.photometric, fitter.cfg.texel
+def levels(state: FitState, cfg: FitConfig) -> list[tuple[int, int]]:
+    """(resolution, iterations) of the photometric levels: ``photometric.resolutions``,
+    then each of ``fine_resolutions`` that every view's face crop (twice the landmarks'
+    size, see :func:`virtual_camera`) has at least as many photo pixels as."""
+    pc = cfg.photometric
+    out = [(int(r), int(n)) for r, n in zip(pc.resolutions, pc.iterations)]
+    crop = min(2.0 * v.detection.size for v in state.views)
+    top = max((r for r, _ in out), default=0)
+    for r, n in zip(pc.fine_resolutions, pc.fine_iterations):
+        if int(r) > top and crop >= int(r) and int(n) > 0:
+            out.append((int(r), int(n)))
+            top = int(r)
+    return out
+
+
+def run(state: FitState, cfg: FitConfig, log: StageLog, texel: bool = False
+        ) -> list[StageReport]:
+    """The photometric stage, one report per level (:func:`levels`; or, with ``texel``,
+    the per-texel albedo stage at the last level's resolution)."""
+    pc, tcfg = cfg.photometric, cfg.texel
     reports = []
-    levels = list(zip(cfg.resolutions, cfg.iterations))
+    lv = levels(state, cfg)
+    levels_ = lv
     if texel:
-        levels = [(cfg.resolutions[-1], tcfg.iterations)]
-        h = fitter.appearance.height
-        fitter.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
-    pairs = symmetry_pairs(fitter.model) if texel else None
+        levels_ = [(lv[-1][0], tcfg.iterations)]
+        h = state.appearance.height
+        state.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
+    pairs = symmetry_pairs(state.model) if texel else None
     threads = torch.get_num_threads()
-    torch.set_num_threads(cfg.torch_threads)
+    torch.set_num_threads(pc.torch_threads)
     try:
-        _run_levels(fitter, texel, levels, pairs, reports)
+        for res, iters in levels_:
+            for v in state.views:
+                want = None if texel else level_map_height(state, cfg, int(res))
+                if v.level is None or v.level.res != res or v.level.map_height != want:
+                    setup_level(state, cfg, v, int(res), full_maps=texel)
+                    if not texel and res == levels_[0][0]:
+                        if v.lighting.mode == "sg":
+                            v.lighting_init = init_lobes(state, cfg, v)
+                        else:
+                            match_exposure(state, v)
+            groups, loss = level_objective(state, cfg, texel, pairs)
+            name = f"texel@{res}" if texel else f"photometric@{res}"
+            reports.append(log.run(name, groups, loss, int(iters), after_step=state.clamp_,
+                                   keep="last" if texel else "best"))
     finally:
         torch.set_num_threads(threads)
     return reports
 
 
-def _run_levels(fitter, texel, levels, pairs, reports) -> None:
-    for res, iters in levels:
-        for v in fitter.views:
-            want = None if texel else level_map_height(fitter, int(res))
-            if (v.level.get("res") != res or v.renderer is None
-                    or v.level.get("map_height") != want):
-                setup_level(fitter, v, int(res), full_maps=texel)
-                if not texel and res == levels[0][0]:
-                    if v.lighting.mode == "sg":
-                        v.lighting_init = init_lobes(fitter, v)
-                    else:
-                        match_exposure(fitter, v)
-        groups, loss = level_objective(fitter, texel, pairs)
-        name = f"texel@{res}" if texel else f"photometric@{res}"
-        reports.append(fitter._run(name, groups, loss, int(iters),
-                                   after_step=fitter._project_psi,
-                                   keep="last" if texel else "best"))
-
-
-def _groups(fitter, texel: bool) -> list[dict]:
-    cfg = fitter.cfg.photometric
+def _groups(state: FitState, cfg: FitConfig, texel: bool) -> list[dict]:
+    pc = cfg.photometric
     if texel:
-        return [{"params": [fitter.albedo_delta], "lr": fitter.cfg.texel.lr}]
-    groups = [{"params": list(v.lighting.parameters()), "lr": cfg.lr_light}
-              for v in fitter.views]
-    if fitter.appearance is not None and fitter.alpha.shape[1]:
-        groups.append({"params": [fitter.alpha], "lr": cfg.lr_alpha})
-    elif fitter.appearance is None:
-        groups.append({"params": [fitter.const_albedo], "lr": cfg.lr_alpha * 0.2})
-    if cfg.refine_geometry:
-        lr = cfg.lr_geometry
-        groups += [{"params": [fitter.beta, fitter.eta], "lr": lr},
-                   {"params": [fitter.psi], "lr": lr * cfg.lr_psi_scale},
-                   {"params": [fitter.tau], "lr": lr * 0.01}]
-        for v in fitter.views:
+        return [{"params": [state.albedo_delta], "lr": cfg.texel.lr}]
+    groups = [{"params": list(v.lighting.parameters()), "lr": pc.lr_light}
+              for v in state.views]
+    if state.appearance is not None and state.alpha.shape[1]:
+        groups.append({"params": [state.alpha], "lr": pc.lr_alpha})
+    elif state.appearance is None:
+        groups.append({"params": [state.const_albedo], "lr": pc.lr_alpha * 0.2})
+    if pc.refine_geometry:
+        lr = pc.lr_geometry
+        groups += [{"params": [state.beta, state.eta], "lr": lr},
+                   {"params": [state.psi], "lr": lr * pc.lr_psi_scale},
+                   {"params": [state.tau], "lr": lr * 0.01}]
+        for v in state.views:
             # the camera (translation, focal) stays as the landmark stages left it: the
             # level's scene camera is built from it; the head moves instead
             groups.append({"params": [v.dtheta, v.head_angles], "lr": lr * 0.2})
             if v.psi is not None:
-                groups.append({"params": [v.psi], "lr": lr * cfg.lr_psi_scale})
+                groups.append({"params": [v.psi], "lr": lr * pc.lr_psi_scale})
     return groups

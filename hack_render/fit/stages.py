@@ -93,3 +93,22 @@ def run_stage(name: str, groups: list[dict], loss_fn: Callable[[int], tuple[torc
                 p.copy_(b)
     report.seconds = time.perf_counter() - t0
     return report
+
+
+@dataclass
+class StageLog:
+    """The reports of the stages run so far and the seconds per stage name (a stage run
+    twice, e.g. per-texel refinement after the photometric levels, adds up)."""
+
+    reports: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+    progress: bool = True
+
+    def run(self, name: str, groups: list[dict], loss_fn, iterations: int,
+            after_step: Callable[[], None] | None = None, keep: str = "best") -> StageReport:
+        """:func:`run_stage`, its report appended and its seconds added."""
+        t0 = time.perf_counter()
+        rep = run_stage(name, groups, loss_fn, iterations, self.progress, after_step, keep)
+        self.reports.append(rep)
+        self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
+        return rep

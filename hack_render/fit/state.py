@@ -1,0 +1,170 @@
+"""The fit's typed state: what the stages read and update.
+
+- :class:`Level`: one view's photometric level (virtual camera, warped photo, masks,
+  renderer), built by :func:`hack_render.fit.photometric.setup_level`.
+- :class:`View`: one photo, its detection and its own parameters (camera, head and neck
+  pose, expression when per view, lighting), the landmark and silhouette terms'
+  correspondences of the current iterate, and its current :class:`Level`.
+- :class:`FitState`: the model, the appearance model, the shared parameters (beta, psi,
+  alpha, eta, tau, the per-texel albedo delta), the views, and the fixed pieces the loss
+  terms use (jaw contour, landmark embedding and weights, model silhouette); the model's
+  forward pass, the projection and the skin maps of the current parameters.
+
+Nothing here optimises: stages (``geometric.py``, ``photometric.py``) take a state and a
+config and return reports; loss terms live in ``terms.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hack_render.errors import HackError
+from hack_render.fit.camera import R0
+from hack_render.fit.landmarks import Detection, JawContour
+from hack_render.fit.lighting import Lighting
+from hack_render.fit.photo import Photo
+from hack_render.geometry.larynx import ETA_RANGE, TAU_RANGE_M
+from hack_render.geometry.skeleton import distribute_head_rotation
+
+
+@dataclass
+class Level:
+    """One view's photometric level at ``res`` px: the virtual camera, the homography
+    ``H`` (virtual pixels -> photo pixels), the photo resampled into it (linear RGB), the
+    landmark face polygon (``photo_mask``), the landmarks in virtual pixels, the atlas
+    height of its skin maps (None: the model's own), the renderer, and the skin mask of
+    the photo term (the polygon and the rendered face, eroded; :func:`update_mask`)."""
+
+    res: int
+    camera: object
+    H: np.ndarray
+    target: torch.Tensor
+    photo_mask: np.ndarray
+    points_v: np.ndarray
+    map_height: int | None
+    renderer: object
+    mask: torch.Tensor | None = None
+    erode: int = 1
+
+
+@dataclass
+class View:
+    """One photo and its own parameters (torch leaves)."""
+
+    photo: Photo
+    detection: Detection
+    log_focal: torch.Tensor
+    transl: torch.Tensor          # camera t (3,), metres: x_cam = R0 X + t
+    head_angles: torch.Tensor     # (3,) whole-head Euler angles, radians
+    dtheta: torch.Tensor          # (8, 3) residual per-joint axis-angle
+    global_orient: torch.Tensor   # (3,) torso rotation
+    psi: torch.Tensor | None      # (1, E) when expressions are per view
+    lighting: Lighting | None = None
+    lighting_init: list = field(default_factory=list)  # init_lobes' report ("sg" lighting)
+    silhouette: object = None     # PhotoSilhouette (person mask), or None: no silhouette term
+    silhouette_note: str = ""     # where the mask came from, or why there is none
+    embedded: bool = False        # landmarks are the embedding's points (else vertices)
+    # the jawline's contour vertices (17,) matched at the last re-match, None before
+    jaw: np.ndarray | None = None
+    # the silhouette term's outer-contour points (edge pairs, parameters), None before
+    sil_contour: tuple | None = None
+    level: Level | None = None    # the current photometric level
+
+    @property
+    def focal(self) -> torch.Tensor:
+        return torch.exp(self.log_focal)
+
+    @property
+    def renderer(self):
+        """The current level's renderer (None before the photometric stage)."""
+        return self.level.renderer if self.level is not None else None
+
+
+@dataclass
+class FitState:
+    """The model, the shared parameters (torch leaves), the views and the fixed pieces the
+    loss terms use. Build with :func:`hack_render.fit.fitter.init_state`."""
+
+    model: object
+    appearance: object            # AppearanceModel, or None: a constant albedo
+    beta: torch.Tensor            # (1, B)
+    psi: torch.Tensor             # (1, E) shared expression
+    eta: torch.Tensor             # (1,) larynx
+    tau: torch.Tensor             # (1,) swallow
+    alpha: torch.Tensor           # (1, A) appearance coefficients
+    const_albedo: torch.Tensor    # (3,) without an appearance model
+    jaw: JawContour
+    lmk_idx: torch.Tensor         # (68,) the model's landmark vertices
+    embedding: object             # LandmarkEmbedding, or None: the vertices
+    lmk_w: torch.Tensor           # (68,) configured landmark weights
+    silhouette: object = None     # ModelSilhouette, or None: no silhouette term
+    views: list = field(default_factory=list)
+    albedo_delta: torch.Tensor | None = None   # (H, 2H, 3) per-texel refinement
+    coarse_appearance: dict = field(default_factory=dict)  # (height, n_alpha) -> model
+
+    @property
+    def faces(self) -> torch.Tensor:
+        return self.model.faces
+
+    def view_psi(self, v: View) -> torch.Tensor:
+        return v.psi if v.psi is not None else self.psi
+
+    def theta(self, v: View) -> torch.Tensor:
+        """(1, 8, 3) neck pose: the head rotation's anatomical share plus the residual."""
+        return (distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta)[None]
+
+    def forward(self, v: View):
+        return self.model(beta=self.beta, psi=self.view_psi(v), theta=self.theta(v),
+                          global_orient=v.global_orient[None], eta=self.eta, tau=self.tau)
+
+    def project(self, v: View, X: torch.Tensor) -> torch.Tensor:
+        """World points (..., 3) -> photo pixels (..., 2) (continuous coordinates)."""
+        cam = X @ R0.T + v.transl
+        uv = v.focal * cam[..., :2] / cam[..., 2:3].clamp_min(1e-4)
+        return uv + torch.tensor([v.photo.width / 2.0, v.photo.height / 2.0])
+
+    def camera_centre(self, v: View) -> np.ndarray:
+        return (-R0.T @ v.transl.detach()).numpy()
+
+    def clamp_(self) -> None:
+        """Project the bounded parameters back into range after a step: psi to [0, 1],
+        eta and tau to their anatomical ranges (larynx.py; E_larynx penalises the excess
+        before this)."""
+        with torch.no_grad():
+            self.psi.clamp_(0.0, 1.0)
+            for v in self.views:
+                if v.psi is not None:
+                    v.psi.clamp_(0.0, 1.0)
+            self.eta.clamp_(*ETA_RANGE)
+            self.tau.clamp_(*TAU_RANGE_M)
+
+    def maps(self, with_delta: bool = True, height: int | None = None) -> dict:
+        """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal
+        (``with_delta``: the per-texel albedo refinement added, when there is one).
+        ``height``: a coarser atlas (the appearance model's height / 2^k, see
+        :meth:`~appearance.model.AppearanceModel.downsampled`) for coarse photometric
+        levels; None: the model's own."""
+        if self.appearance is None:
+            h = 16
+            d = self.const_albedo.clamp(0, 1).expand(h, 2 * h, 3)
+            return {"albedo": d, "specular": torch.full((h, 2 * h, 1), 0.6),
+                    "roughness": torch.full((h, 2 * h, 1), 0.5), "normal": None}
+        app = self.appearance
+        if height is not None and height != app.height:
+            if with_delta and self.albedo_delta is not None:
+                raise HackError("maps: the per-texel albedo refinement is at the full atlas "
+                                f"({app.height} px), not at {height} px.")
+            key = (int(height), self.alpha.shape[1])
+            if key not in self.coarse_appearance:
+                self.coarse_appearance[key] = app.downsampled(*key)
+            app = self.coarse_appearance[key]
+        m = app.maps(self.alpha)
+        d = m.diffuse[0]
+        if with_delta and self.albedo_delta is not None:
+            d = (d + self.albedo_delta).clamp(0.0, 1.0)
+        return {"albedo": d, "specular": m.specular[0], "roughness": m.roughness[0],
+                "normal": m.normal[0]}
+

@@ -1,0 +1,175 @@
+"""The fit's loss terms on a :class:`~hack_render.fit.state.FitState`: landmarks (jawline
+re-matched to the occluding contour), silhouette, focal, pose, expression and identity
+priors, and the shape objective that sums them over the views. Every robust term uses
+:mod:`hack_render.fit.robust`. Pure functions of (state, config, view, vertices,
+iteration); the only state they write is the view's contour correspondences
+(``View.jaw``, ``View.sil_contour``), re-selected every few iterations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from hack_render.fit.camera import focal_prior_px
+from hack_render.fit.config import FitConfig
+from hack_render.fit.robust import huber
+from hack_render.fit.state import FitState, View
+from hack_render.geometry.skeleton import adjacent_similarity_penalty, rotation_limit_penalty
+
+
+def _normals(state: FitState, verts: torch.Tensor) -> np.ndarray:
+    from hack_render.render.bridge import vertex_normals_torch
+
+    return vertex_normals_torch(verts, state.faces).numpy()
+
+
+def model_landmarks(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
+                    it: int) -> torch.Tensor:
+    """(68, 3) landmark points with the jawline re-matched to the contour every
+    ``landmarks.contour_every`` iterations: the calibrated embedding's surface points
+    (barycentric interpolation, differentiable) when the view uses it, else the model's
+    landmark vertices."""
+    if it % max(1, cfg.landmarks.contour_every) == 0:
+        with torch.no_grad():
+            vv = verts.detach()
+            state.jaw.match(vv.numpy(), _normals(state, vv), state.camera_centre(v),
+                            lambda p: state.project(v, torch.as_tensor(p)).numpy(),
+                            v.detection.points)
+            v.jaw = state.jaw.current.copy()
+    if v.embedded:
+        pts = state.embedding.points(verts)
+        if v.jaw is not None:  # contour points; a fixed jaw point (the chin) stays embedded
+            fixed = torch.tensor([len(c) == 1 for c in state.jaw.candidates])[:, None]
+            pts = torch.cat([torch.where(fixed, pts[:17], verts[torch.as_tensor(v.jaw)]),
+                             pts[17:]])
+        return pts
+    idx = state.lmk_idx.clone()
+    if v.jaw is not None:
+        idx[:17] = torch.as_tensor(v.jaw)
+    return verts[idx]
+
+
+def view_landmark_weights(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:
+    """(68,) the landmark loss's weights for a view: the configured ones, times the
+    detector's weights when the view's points go through the embedding
+    (``landmarks.calibrated_weights``): the refiner's for refined points, else the
+    embedding file's."""
+    emb = state.embedding
+    if not (v.embedded and cfg.landmarks.calibrated_weights and emb is not None):
+        return state.lmk_w
+    w = v.detection.weights if v.detection.weights is not None else emb.weights
+    if w is None:
+        return state.lmk_w
+    return state.lmk_w * torch.as_tensor(w, dtype=state.lmk_w.dtype)
+
+
+def landmark_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
+                  it: int) -> torch.Tensor:
+    """Weighted Huber of the landmark residuals, in units of the robust knee (a fraction
+    of the face size), so the term is O(1) at a typical misfit and the priors' weights
+    read naturally."""
+    pred = state.project(v, model_landmarks(state, cfg, v, verts, it))
+    tgt = torch.as_tensor(v.detection.points, dtype=pred.dtype)
+    r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size
+                                                         * cfg.landmarks.huber_px)
+    w = view_landmark_weights(state, cfg, v)
+    return (w * huber(r)).sum() / w.sum()
+
+
+def focal_prior(cfg: FitConfig, v: View) -> torch.Tensor:
+    f0, sigma, _ = focal_prior_px(cfg.camera, v.photo)
+    return ((v.log_focal - math.log(f0)) / sigma).pow(2).sum()
+
+
+def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
+                    it: int) -> torch.Tensor:
+    """The silhouette term (``silhouette.py``): skin vertices outside the person mask
+    (one-sided) plus the model's outer contour points off the mask's border, Huber, in
+    the landmark term's units; the contour set is re-selected every
+    ``silhouette.contour_every`` iterations."""
+    sc, sil, ms = cfg.silhouette, v.silhouette, state.silhouette
+    if it % max(1, sc.contour_every) == 0 or v.sil_contour is None:
+        with torch.no_grad():
+            vv = verts.detach()
+            n = _normals(state, vv)
+            pairs, t = ms.select_contour(
+                vv.numpy().astype(np.float64), n.astype(np.float64), state.camera_centre(v),
+                lambda p: state.project(v, torch.as_tensor(p, dtype=vv.dtype)).numpy(),
+                sil.shape, max(v.detection.size / 60.0, 0.5))
+        v.sil_contour = (torch.as_tensor(pairs, dtype=torch.long),
+                         torch.as_tensor(t, dtype=verts.dtype))
+    knee = v.detection.size * cfg.landmarks.huber_px
+    pairs, t = v.sil_contour
+    n_c = max(len(t), 1)
+    d, ok = sil.distance(state.project(v, verts.index_select(0, ms.inside)))
+    inside = (huber(torch.relu(d) / knee) * ok).sum() / n_c
+    if len(t):
+        d, ok = sil.distance(state.project(v, ms.points(verts, pairs, t)))
+        contour = (huber(d / knee) * ok).sum() / n_c
+    else:
+        contour = inside * 0.0
+    return sc.w_inside * inside + sc.weight * contour
+
+
+def pose_priors(state: FitState, cfg: FitConfig, v: View) -> dict[str, torch.Tensor]:
+    s = cfg.shape
+    th = state.theta(v)
+    return {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
+            "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
+            "dtheta": s.w_dtheta * (v.dtheta ** 2).sum(),
+            "global": s.w_global * (v.global_orient ** 2).sum()}
+
+
+def psi_prior(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:
+    """w_psi times the expression prior: sum(psi) ("l1", psi is in [0, 1], so this is the
+    L1 norm: a sparse prior, a few strong FACS units cost less than many weak ones) or
+    sum(psi^2) ("l2")."""
+    s = cfg.shape
+    psi = state.view_psi(v)
+    return s.w_psi * (psi.sum() if s.psi_prior == "l1" else (psi ** 2).sum())
+
+
+def beta_prior(state: FitState, cfg: FitConfig) -> torch.Tensor:
+    return cfg.shape.w_beta * (state.beta ** 2).sum()
+
+
+def shape_terms(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
+                it: int) -> dict[str, torch.Tensor]:
+    """One view's part of the shape objective: landmarks, focal prior, pose priors and the
+    expression prior (the photometric stage keeps it, scaled), and the silhouette term
+    when the view has a person mask."""
+    terms = {"landmarks": landmark_loss(state, cfg, v, verts, it),
+             "focal_prior": 0.01 * focal_prior(cfg, v), **pose_priors(state, cfg, v),
+             "psi_prior": psi_prior(state, cfg, v)}
+    if v.silhouette is not None:
+        terms["silhouette"] = silhouette_loss(state, cfg, v, verts, it)
+    return terms
+
+
+def shape_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Tensor, dict]:
+    """Sum of :func:`shape_terms` over the views plus the identity prior, and its terms
+    as floats (the shape stage's loss)."""
+    total, terms = 0.0, {}
+    for v in state.views:
+        for k, x in shape_terms(state, cfg, v, state.forward(v).vertices[0], it).items():
+            total = total + x
+            terms[k] = terms.get(k, 0.0) + float(x.detach())
+    bp = beta_prior(state, cfg)
+    terms["beta_prior"] = float(bp.detach())
+    return total + bp, terms
+
+
+def camera_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Tensor, dict]:
+    """The camera stage's loss: landmarks, a light focal prior and E_rot, per view."""
+    total, terms = 0.0, {"landmarks": 0.0, "focal_prior": 0.0}
+    for v in state.views:
+        verts = state.forward(v).vertices[0]
+        lm = landmark_loss(state, cfg, v, verts, it)
+        fp = 0.01 * focal_prior(cfg, v)
+        rot = rotation_limit_penalty(state.theta(v)).sum()
+        total = total + lm + fp + rot
+        terms["landmarks"] += float(lm.detach())
+        terms["focal_prior"] += float(fp.detach())
+    return total, terms

@@ -1,0 +1,252 @@
+"""The person's own skin: the photo(s) baked into the model's skin atlas, and the fit
+re-rendered at the photo's size.
+
+:func:`render_at_photo` renders a view through its fitted camera at the photo's own size
+(the fitted geometry, skin maps and lighting; ``final.spp`` samples per pixel) with the
+G-buffer of the same camera (model UV, normal, albedo and region per pixel).
+
+:func:`bake_diffuse` makes a per-texel diffuse map of ``final.atlas_height`` rows (the
+model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
+
+- seen texels: every skin pixel of every view is the fitted albedo there times the ratio
+  photo / render, i.e. the photo with the fitted lighting divided out (the render holds
+  the same lighting, geometry and BSDF, so shading, shadows and the specular sheen cancel
+  to first order). Pixels are weighted by the cosine of the view angle (squared: grazing
+  pixels smear), dropped near the render's silhouette, where the ratio is far from 1
+  (occluders: hair, hands, glasses, where the render cannot explain the photo) and where
+  their chromaticity is far from the face's skin (clothes, lips' edges, hair); each
+  view's per-pixel weight is written out as its occlusion mask. They are splatted into
+  the atlas bilinearly and spread by a normalised Gaussian whose width is the photo
+  pixel's footprint in texels.
+- unseen texels: the same texel of the mirrored face (the atlas is left-right symmetric
+  within each tile: u -> 1 - u), else the appearance model's A(alpha).
+- the confidence (H, 2H) in [0, 1]: 1 where the photo(s) saw the texel at full weight,
+  half the mirrored confidence where the mirror image fills it, 0 where A(alpha) does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from hack_render.fit.camera import R0
+from hack_render.fit.config import FitConfig
+from hack_render.fit.state import FitState, View
+
+SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REGIONS)
+
+
+@dataclass
+class PhotoRender:
+    """A view rendered through its fitted camera at the photo's size: premultiplied
+    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``), the spp and seconds."""
+
+    rgba: np.ndarray
+    gbuffer: dict
+    spp: int
+    seconds: float
+
+
+@dataclass
+class BakedSkin:
+    """The baked diffuse map (H, 2H, 3) linear, its confidence (H, 2H) in [0, 1], the
+    source of each texel (0: A(alpha), 1: photo, 2: mirrored photo; the larger weight),
+    each view's pixel weights (h, w) in [0, 1] (0: not skin, occluded or unseen), and the
+    share of the face tile's skin texels seen (confidence > 0.5)."""
+
+    diffuse: np.ndarray
+    confidence: np.ndarray
+    source: np.ndarray
+    pixel_weights: list
+    seen_fraction: float
+
+
+def photo_camera(view: View, width: int | None = None, height: int | None = None):
+    """The view's fitted camera at the photo's size (or scaled to ``width`` x ``height``)."""
+    from scenes.cameras import Camera
+
+    ph = view.photo
+    w, h = width or ph.width, height or ph.height
+    s = w / ph.width
+    f = float(view.focal.detach()) * s
+    K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
+    return Camera(K, R0.numpy().astype(np.float64), view.transl.detach().numpy().astype(np.float64),
+                  w, h, f"{ph.name}_photo")
+
+
+def _skin_maps(state: FitState, height: int | None = None):
+    """The fitted maps (torch -> numpy SkinMaps), resampled to ``height`` rows."""
+    from hack_render.render.materials import SkinMaps
+
+    with torch.no_grad():
+        m = {k: (x.detach().numpy().astype(np.float32) if x is not None else None)
+             for k, x in state.maps().items()}
+    if height is not None and m["albedo"].shape[0] != height:
+        m = {k: (resize_atlas(x, height) if x is not None else None) for k, x in m.items()}
+        if m["normal"] is not None:
+            m["normal"] /= np.linalg.norm(m["normal"], axis=-1, keepdims=True).clip(1e-6)
+    return SkinMaps(m["albedo"], m["specular"], m["roughness"], m["normal"])
+
+
+def resize_atlas(img: np.ndarray, height: int) -> np.ndarray:
+    """Bilinear resampling of an (H, 2H, C) atlas to (height, 2 height, C)."""
+    from skimage.transform import resize
+
+    return resize(img, (height, 2 * height, img.shape[2]), order=1, mode="edge",
+                  anti_aliasing=img.shape[0] > height).astype(np.float32)
+
+
+def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
+                    spp: int | None = None, max_side: int | None = None) -> PhotoRender:
+    """Render the view through its fitted camera at the photo's size (the long side at
+    most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
+    view's lighting, the photometric stage's path depth, ``final.spp`` samples."""
+    import time
+
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from scenes.lights import LightRig
+
+    t0 = time.perf_counter()
+    spp = int(spp or cfg.final.spp)
+    ph = view.photo
+    s = 1.0 if max_side is None else min(1.0, max_side / max(ph.width, ph.height))
+    w, h = max(1, round(ph.width * s)), max(1, round(ph.height * s))
+    cam = photo_camera(view, w, h)
+    with torch.no_grad():
+        verts = state.forward(view).vertices[0].numpy()
+        env = view.lighting.env_map().detach().numpy().astype(np.float32)
+    maps = maps if maps is not None else _skin_maps(state)
+    rig = LightRig(name="fit", env_map=env)
+    head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
+                     RenderSettings(w, h, spp, cfg.final.max_depth, cfg.seed), maps)
+    rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
+    gb = head.aovs()
+    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0)
+
+
+def _mirror(a: np.ndarray) -> np.ndarray:
+    """The atlas mirrored left-right within each of its two tiles (u -> 1 - u)."""
+    h = a.shape[0]
+    return np.concatenate([a[:, :h][:, ::-1], a[:, h:][:, ::-1]], axis=1)
+
+
+def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(weights (h, w) in [0, 1], albedo observations (h, w, 3)) of one view's pixels:
+    skin hits away from the silhouette, cos^2 of the view angle, and robust rejection of
+    what the render cannot explain (see the module's docstring)."""
+    from scipy.ndimage import binary_erosion
+    from skimage.transform import resize
+
+    fc = cfg.final
+    gb, rgba = pr.gbuffer, pr.rgba
+    h, w = rgba.shape[:2]
+    photo = view.photo.linear()
+    if photo.shape[:2] != (h, w):
+        photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
+    skin = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
+    skin = binary_erosion(skin, iterations=max(1, round(fc.edge_px * w / view.photo.width)))
+    # cosine between the normal and the direction to the camera (camera frame, z forward)
+    f = w / view.photo.width * float(view.focal.detach())
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    d = np.stack([(xx - w / 2) / f, (yy - h / 2) / f, np.ones_like(xx)], -1)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    cos = np.clip(-(gb["normal"] * d).sum(-1), 0.0, 1.0)
+    rgb = rgba[..., :3]
+    ratio = photo / np.maximum(rgb, 1e-4)
+    obs = gb["albedo"] * ratio
+    lum = rgb.mean(-1)
+    ok = skin & (lum > 0.1 * np.median(lum[skin])) if skin.any() else skin
+    # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
+    # render does not have) or the observation's chromaticity far from the skin's
+    lr = np.log(np.clip(ratio.mean(-1), 1e-3, 1e3))
+    if ok.sum() >= 16:
+        med = np.median(lr[ok])
+        mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
+        ok &= np.abs(lr - med) < max(fc.reject_sigma * mad, np.log(1.4))
+        chroma = obs / np.maximum(obs.sum(-1, keepdims=True), 1e-4)
+        cm = np.median(chroma[ok], 0)
+        cd = np.linalg.norm(chroma - cm, axis=-1)
+        cmad = 1.4826 * np.median(cd[ok]) + 1e-3
+        ok &= cd < max(fc.reject_sigma * cmad, 0.03)
+    wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
+    return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
+
+
+def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) -> BakedSkin:
+    """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
+    (see the module's docstring)."""
+    from scipy.ndimage import gaussian_filter
+
+    H = int(cfg.final.atlas_height)
+    W = 2 * H
+    num = np.zeros((H, W, 3), np.float64)
+    den = np.zeros((H, W), np.float64)
+    weights, footprints = [], []
+    for v, pr in zip(state.views, renders):
+        wgt, obs = pixel_weights(v, pr, cfg)
+        weights.append(wgt)
+        sel = wgt > 0
+        if not sel.any():
+            continue
+        uv = pr.gbuffer["uv"]
+        x = uv[..., 0] * H - 0.5          # atlas pixel coordinates (centres at +0.5)
+        y = (1.0 - uv[..., 1]) * H - 0.5
+        # the photo pixel's footprint in texels (median over skin: neighbours' uv distance)
+        dx = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1))[:-1]
+        both = sel[:-1, :-1] & sel[:-1, 1:] & sel[1:, :-1]
+        if both.any():
+            footprints.append(float(np.median(dx[both[:, :dx.shape[1]]])))
+        xs, ys, ws, os_ = x[sel], y[sel], wgt[sel], obs[sel]
+        x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
+        fx, fy = xs - x0, ys - y0
+        for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                          (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            xi, yi = np.clip(x0 + ox, 0, W - 1), np.clip(y0 + oy, 0, H - 1)
+            kw = ws * k
+            np.add.at(den, (yi, xi), kw)
+            for c in range(3):
+                np.add.at(num[..., c], (yi, xi), kw * os_[:, c])
+    fp = float(np.median(footprints)) if footprints else 1.0
+    sigma = max(0.7, 0.5 * fp)
+    den_b = gaussian_filter(den, sigma)
+    num_b = np.stack([gaussian_filter(num[..., c], sigma) for c in range(3)], -1)
+    seen = den_b > 1e-8
+    obs = np.where(seen[..., None], num_b / np.maximum(den_b, 1e-12)[..., None], 0.0)
+    # full confidence: the density a fully seen texel gets at cos = 1 (a pixel's unit
+    # weight spread over fp^2 texels), reached at half of it
+    full = 0.5 / max(fp * fp, 1.0)
+    conf = np.clip(den_b / full, 0.0, 1.0)
+    conf_m = _mirror(conf)
+    obs_m = _mirror(obs)
+    prior = _skin_maps(state, H).diffuse.astype(np.float64)
+    c1 = conf
+    c2 = (1.0 - conf) * conf_m
+    c3 = 1.0 - c1 - c2
+    diffuse = c1[..., None] * obs + c2[..., None] * obs_m + c3[..., None] * prior
+    source = np.argmax(np.stack([c3, c1, c2]), 0).astype(np.uint8)
+    confidence = (c1 + 0.5 * c2).astype(np.float32)
+    face_tile = _face_tile_mask(state, H)
+    seen_fraction = float((conf[face_tile] > 0.5).mean()) if face_tile.any() else 0.0
+    return BakedSkin(np.clip(diffuse, 0.0, 1.0).astype(np.float32), confidence, source,
+                     weights, seen_fraction)
+
+
+def _face_tile_mask(state: FitState, H: int) -> np.ndarray:
+    """Texels of the face material's triangles (the skin of the face tile, u in [0, 1])."""
+    from skimage.draw import polygon
+
+    m = state.model
+    names = list(m.material_names)
+    if "M_Face" not in names:
+        return np.zeros((H, 2 * H), bool)
+    sel = m.face_material.numpy() == names.index("M_Face")
+    uvf = m.uv_faces.numpy()[sel]
+    uvs = m.uvs.numpy().astype(np.float64)
+    out = np.zeros((H, 2 * H), bool)
+    for tri in uvs[uvf]:
+        rr, cc = polygon((1.0 - tri[:, 1]) * H - 0.5, tri[:, 0] * H - 0.5, out.shape)
+        out[rr, cc] = True
+    return out

@@ -1,0 +1,119 @@
+"""The person's own skin (hack_render/fit/texture.py): the photo baked into the model's
+UV atlas with the fitted lighting divided out, the mirrored face and A(alpha) where the
+photo does not see, a confidence map; the fit's outputs render.png and
+render_over_photo.png at the photo's size."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mitsuba")
+
+
+@pytest.fixture(scope="module")
+def model():
+    from hack_render.geometry import load_default_model
+
+    return load_default_model()
+
+
+def _fitter(model, yaw=30.0, res=160):
+    """A fitter whose state is the truth of a synthetic photo: the head turned by ``yaw``
+    (one cheek away from the camera), lit by a uniform environment, the photo rendered
+    from the state itself with a patterned diffuse map the appearance model lacks."""
+    from synthetic import landmark_view
+
+    from hack_render.fit import texture
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.lighting import Lighting
+
+    photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
+    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res}})
+    f = Fitter([photo], [det], cfg, model=model, progress=False)
+    v = f.views[0]
+    with torch.no_grad():
+        # the truth pose: landmark_view's head rotation, shared by the anatomical prior
+        v.head_angles.copy_(torch.deg2rad(torch.tensor([0.0, yaw, 0.0])))
+        v.transl.copy_(torch.tensor([0.0, -0.03, 1.0]))
+        v.log_focal.fill_(float(np.log(50.0 / 36.0 * res * 2.2)))
+    v.lighting = Lighting("env", 8)
+    with torch.no_grad():
+        v.lighting.log_texels.fill_(0.0)  # uniform unit radiance
+    H = 256
+    prior = texture._skin_maps(f.state, H)
+    yy, xx = np.mgrid[0:H, 0:2 * H]
+    pat = 1.0 + 0.3 * np.sign(np.sin(xx / 5.0) * np.sin(yy / 5.0))
+    truth = np.clip(prior.diffuse * pat[..., None], 0, 1).astype(np.float32)
+    true_maps = dataclasses.replace(prior, diffuse=truth)
+    return f, cfg, true_maps, prior.diffuse, truth
+
+
+def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
+    import colour
+
+    from hack_render.fit import texture
+    from hack_render.fit.photo import Photo
+
+    f, cfg, true_maps, prior, truth = _fitter(model)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5  # a grey backdrop
+    v.photo = Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
+                               np.float32), "syn")
+    pr = texture.render_at_photo(f.state, cfg, v)   # with the model's own map A(alpha)
+    bk = texture.bake_diffuse(f.state, cfg, [pr])
+    H = cfg.final.atlas_height
+    assert bk.diffuse.shape == (H, 2 * H, 3) and bk.confidence.shape == (H, 2 * H)
+    assert 0.0 <= bk.confidence.min() and bk.confidence.max() <= 1.0
+    seen = bk.confidence > 0.9
+    assert seen.sum() > 2000 and 0.1 < bk.seen_fraction < 0.9
+    err_prior = np.abs(prior - truth)[seen].mean()
+    err_bake = np.abs(bk.diffuse - truth)[seen].mean()
+    # the pattern (+-30 %) is recovered where the photo sees the skin
+    assert err_bake < 0.45 * err_prior, (err_bake, err_prior)
+    # unseen texels keep A(alpha) exactly; mirrored ones come from the photo's side
+    unseen = bk.source == 0
+    assert unseen.any()
+    np.testing.assert_allclose(bk.diffuse[unseen & (bk.confidence == 0)],
+                               prior[unseen & (bk.confidence == 0)], atol=1e-5)
+    mirrored = bk.source == 2
+    assert mirrored.sum() > 500
+    # the weights mark the photo's skin pixels only
+    w = bk.pixel_weights[0]
+    assert w.shape == v.photo.rgb.shape[:2] and w.max() <= 1.0
+    assert (w[shot.rgba[..., 3] < 0.5] == 0).all()
+
+
+def test_02_occluder_is_rejected(model):
+    """A dark square pasted over the cheek (a hand, hair) gets no weight and leaves the
+    baked texels under it near the truth (not dark)."""
+    import colour
+
+    from hack_render.fit import texture
+    from hack_render.fit.photo import Photo
+
+    f, cfg, true_maps, prior, truth = _fitter(model, yaw=0.0)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    pts = v.detection.points
+    x0, y0 = int(pts[2, 0]) + 4, int(pts[29, 1])
+    occ = np.zeros(rgb.shape[:2], bool)
+    occ[y0:y0 + 14, x0:x0 + 14] = True
+    rgb[occ] = [0.05, 0.03, 0.02]
+    v.photo = Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
+                               np.float32), "syn")
+    pr = texture.render_at_photo(f.state, cfg, v)
+    bk = texture.bake_diffuse(f.state, cfg, [pr])
+    assert (bk.pixel_weights[0][occ] == 0).mean() > 0.95
+    # the texels the square covers: the uv of its pixels
+    uv = pr.gbuffer["uv"][occ & (pr.rgba[..., 3] > 0.99)]
+    H = cfg.final.atlas_height
+    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+    yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    assert bk.diffuse[yi, xi].mean() > 0.6 * truth[yi, xi].mean()
