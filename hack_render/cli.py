@@ -43,6 +43,7 @@ from hack_render.export import cli as _export_cli; _export_cli.register(app)
 from hack_render.motion import cli as _motion_cli; _motion_cli.register(app)
 from hack_render.register import cli as _register_cli; _register_cli.register(app)
 from hack_render.motion import drive_cli as _drive_cli; _drive_cli.register(app)
+from hack_render.track import cli as _track_cli; _track_cli.register(app)
 # --- end of sub-apps --------------------------------------------------------------------
 
 #: OS errors that are the user's environment, not a bug: a clean message and exit 2

@@ -65,6 +65,18 @@ class MeshViews:
         self.params = mi.traverse(self.scene)
         self.light = np.zeros(3)
 
+    def set_vertices(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        """Move the mesh (same topology): new positions and their vertex normals."""
+        import mitsuba as mi
+
+        from hack_render.render.parts import vertex_normals
+
+        v = np.asarray(vertices, np.float64)
+        self.params["mesh.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+        self.params["mesh.vertex_normals"] = mi.Float(
+            vertex_normals(v, faces).ravel().astype(np.float32))
+        self.params.update()
+
     def _set_camera(self, cam: Camera) -> None:
         import mitsuba as mi
 

@@ -1,0 +1,144 @@
+"""`hack-render track VIDEO -o OUTDIR`: a clip to a HACK performance."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from hack_render.errors import HackError
+
+
+def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 640,
+                fps: float | None = None, config=None, overlay: bool = True,
+                tau: bool = True, resume: bool = False, progress: bool = True,
+                max_frames: int | None = None, truth: dict | None = None):
+    """Library entry point of the command: read, detect, fit, track, write. Returns
+    (TrackResult, paths). With ``resume``, landmarks found by an interrupted run of the
+    same command (``landmarks.npz``) are reused."""
+    import torch
+
+    from hack_render import boundary
+    from hack_render.fit.config import FitConfig
+    from hack_render.track.detect import FrameLandmarks
+    from hack_render.track.video import open_clip
+
+    boundary.number(keyframes, "--keyframes", 1, 50)
+    boundary.number(max_side, "--max-side", 64, 4096, unit=" px")
+    if max_frames is not None:
+        boundary.number(max_frames, "--max-frames", 3, 10_000_000)
+    cfg = config or FitConfig()
+    clip = open_clip(video, max_side, fps)
+    if max_frames is not None and max_frames < clip.frames:
+        import dataclasses
+
+        clip = dataclasses.replace(clip, frames=int(max_frames))
+    if clip.frames < 3:
+        raise HackError(f"{video}: {clip.frames} frame(s); expected at least 3 to track.")
+    boundary.output_dir(outdir)
+    record = boundary.RunRecord(outdir, "track", {
+        "video": boundary.file_identity(video) if Path(video).is_file() else str(video),
+        "keyframes": keyframes, "max_side": max_side, "fps": clip.fps,
+        "frames": clip.frames, "config": cfg.to_dict(), "tau": tau}, name="track_run.json")
+    lm_path = outdir / "landmarks.npz"
+    old = record.check_resume(resume, lm_path.exists())
+    if resume and old is not None and old.get("complete"):
+        return None, []
+    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    landmarks = None
+    if resume and lm_path.is_file():
+        landmarks = FrameLandmarks.load(lm_path)
+        if len(landmarks.found) != clip.frames:
+            landmarks = None
+    outdir.mkdir(parents=True, exist_ok=True)
+    with boundary.folder_lock(outdir):
+        record.write(complete=False)
+        if landmarks is None:
+            from hack_render.track.detect import FrameDetector, detect_frames
+
+            with boundary.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
+                                       "landmarks); run the same command again"):
+                landmarks = detect_frames(clip.read(), FrameDetector(
+                    refiner=cfg.landmarks.refiner), progress, clip.frames)
+            landmarks.save(lm_path)  # a resumed run starts after the landmarks
+        with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
+                                   "run the same command with --resume to go on from there"):
+            result, fitter = _track(clip, cfg, keyframes, progress, landmarks, tau)
+            from hack_render.track.outputs import write_outputs
+
+            paths = write_outputs(result, fitter, outdir, overlay, progress, truth)
+        record.write(complete=True)  # the completion marker, last
+    return result, paths + [record.path]
+
+
+def _track(clip, cfg, keyframes, progress, landmarks, tau):
+    from hack_render.track.pipeline import track_clip
+
+    result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
+                        landmarks=landmarks, estimate_tau=tau)
+    return result, result.fitter
+
+
+def track(
+    video: Path = typer.Argument(..., help="A clip (MP4, MOV, AVI, WebM, MKV) or a folder of "
+                                 "frames (PNG/JPG, in name order)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output folder."),
+    keyframes: int = typer.Option(5, "--keyframes", help="Frames the identity (shape, skin, "
+                                  "focal length) is fitted on, spread over the clip."),
+    max_side: int = typer.Option(640, "--max-side", help="Working size: frames are scaled so "
+                                 "their long side is at most this (px)."),
+    fps: Optional[float] = typer.Option(None, "--fps", help="Frame rate (default: the "
+                                        "video's; a folder of frames: 30)."),
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Track only the "
+                                             "first N frames."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Fit config (TOML/YAML/JSON) "
+                                          "for the keyframe fit; see `hack-render fit`."),
+    no_photometric: bool = typer.Option(False, "--no-photometric", help="Keyframe fit from "
+                                        "landmarks only (no skin, faster)."),
+    no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
+    no_tau: bool = typer.Option(False, "--no-tau", help="Do not track the larynx (tau = 0)."),
+    resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
+                                "(same arguments): its landmarks are reused."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Track a video into HACK parameters: one identity for the clip, and per frame the
+    8 neck joints (from the head's rotation), the torso, the expression and the larynx.
+
+    Writes sequence.npz (per-frame theta, psi, tau, global_orient, transl: `hack-render
+    export --params OUT/person.json --sequence OUT/sequence.npz -o anim.glb`),
+    person.json (beta, eta), identity/ (the keyframe fit: skin textures, meshes),
+    camera.json, landmarks.npz, overlay.mp4 and report.json (per-frame landmark error,
+    jitter, lost frames: marked and interpolated, never dropped).
+
+    Example: hack-render track clip.mp4 -o out/clip
+    """
+    from hack_render.fit.config import load_config
+
+    over: dict = {}
+    if no_photometric:
+        over["photometric"] = {"enabled": False}
+    if config is not None:
+        from hack_render import boundary
+
+        boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
+                            "config file")
+    cfg = load_config(config, over)
+    result, paths = track_video(video, output, keyframes, max_side, fps, cfg,
+                                not no_overlay, not no_tau, resume, not quiet, max_frames)
+    if result is None:
+        typer.echo(f"{output}: already complete (--resume); nothing to do")
+        return
+    lm = result.landmarks
+    typer.echo(f"tracked {result.clip.frames} frames at {result.clip.fps:g} fps "
+               f"({int((~lm.found).sum())} without a face, interpolated); keyframes "
+               f"{result.keyframes}")
+    for note in result.notes:
+        typer.echo(f"note: {note}")
+    for p in paths:
+        if p.name in ("sequence.npz", "person.json", "overlay.mp4", "report.json"):
+            typer.echo(f"wrote {p.resolve()}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("track")(track)

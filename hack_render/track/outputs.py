@@ -1,0 +1,189 @@
+"""What `hack-render track` writes: the parameter sequence, the person, the camera, the
+landmarks, the overlay video and the report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hack_render.track.pipeline import TrackResult, sequence_of
+
+
+def jitter(x: np.ndarray) -> float:
+    """Mean magnitude of the frame-to-frame acceleration of a (T, ...) series: the
+    trailing axis is one vector (a point's x, y; a joint's axis-angle), the axes between
+    are averaged over (frames with NaN are skipped)."""
+    x = np.asarray(x, np.float64)
+    if len(x) < 3:
+        return float("nan")
+    x = x.reshape(len(x), -1, x.shape[-1]) if x.ndim > 1 else x.reshape(len(x), 1, 1)
+    a = x[2:] - 2 * x[1:-1] + x[:-2]
+    return float(np.nanmean(np.linalg.norm(a, axis=-1)))
+
+
+def frame_vertices(result: TrackResult, start: int, stop: int) -> np.ndarray:
+    """The fitted model's vertices (stop - start, N, 3) for frames start .. stop - 1."""
+    from hack_render.geometry.skeleton import distribute_head_rotation
+
+    fit, p = result.fit, result.params
+    model = result.fit.model
+    sl = slice(start, stop)
+    with torch.no_grad():
+        theta = distribute_head_rotation(torch.as_tensor(p.h[sl]).float(), clamp=False)
+        out = model(beta=fit.beta.detach(), psi=torch.as_tensor(p.psi[sl]).float(), theta=theta,
+                    global_orient=torch.as_tensor(p.g[sl]).float(),
+                    transl=torch.as_tensor(p.t[sl]).float(),
+                    eta=fit.eta.detach().expand(stop - start),
+                    tau=torch.as_tensor(result.tau[sl]).float())
+    return out.vertices.numpy()
+
+
+def _dots(img: np.ndarray, pts: np.ndarray, colour, r: int = 1) -> None:
+    h, w = img.shape[:2]
+    for x, y in pts:
+        if not (np.isfinite(x) and np.isfinite(y)):
+            continue
+        xi, yi = int(x), int(y)
+        img[max(0, yi - r):min(h, yi + r + 1), max(0, xi - r):min(w, xi + r + 1)] = colour
+
+
+def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Path:
+    """MP4 at the clip's rate: each frame with the fitted model ray cast over it (shaded,
+    60 % opacity), the detected landmarks (green) and the model's (red); lost frames say
+    so in a red band."""
+    from PIL import Image, ImageDraw
+    from tqdm import tqdm
+
+    from hack_render.render.mesh_views import MeshViews
+    from hack_render.track.solve import landmark_error
+    from hack_render.track.video import Mp4Writer
+    from scenes.cameras import Camera
+    from hack_render.fit.camera import R0
+
+    clip, cam = result.clip, result.camera
+    w, h = clip.work
+    K = np.array([[cam.focal, 0, w / 2], [0, cam.focal, h / 2], [0, 0, 1.0]])
+    camera = Camera(K, R0.double().numpy(), np.asarray(cam.cam_t, np.float64), w, h, "clip")
+    faces = result.fit.model.faces.numpy()
+    _, _, uv = landmark_error(result.rig, cam, result.params, result.landmarks.points,
+                              result.landmarks.found)
+    views = None
+    chunk = 16
+    verts = None
+    with Mp4Writer(path, (w, h), clip.fps) as out:
+        for i, img in enumerate(tqdm(clip.read(), total=clip.frames, desc="overlay",
+                                     unit="frame", disable=not progress, leave=False)):
+            if i % chunk == 0:
+                verts = frame_vertices(result, i, min(clip.frames, i + chunk))
+            v = verts[i % chunk]
+            if views is None:
+                views = MeshViews(v, faces, width=w, height=h)
+            else:
+                views.set_vertices(v, faces)
+            rgba = views.render(camera, supersample=1)
+            a = 0.6 * rgba[..., 3:4]
+            shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
+            frame = (img * (1 - a) + shade * a).astype(np.uint8)
+            _dots(frame, result.landmarks.points[i], (40, 220, 60))
+            _dots(frame, uv[i], (230, 40, 40))
+            if not result.landmarks.found[i]:
+                pil = Image.fromarray(frame)
+                d = ImageDraw.Draw(pil)
+                d.rectangle([0, 0, w, 14], fill=(200, 20, 20))
+                d.text((4, 1), f"frame {i}: face lost ({result.landmarks.why[i]}); "
+                       "interpolated", fill=(255, 255, 255))
+                frame = np.asarray(pil)
+            out.write(frame)
+    return path
+
+
+def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
+    """The report: per-frame landmark error, jitter, lost frames, timings (and errors
+    against ``truth`` when given: theta, psi, tau per frame)."""
+    from hack_render.track.solve import landmark_error
+
+    lm = result.landmarks
+    err_px, nme, uv = landmark_error(result.rig, result.camera, result.params, lm.points,
+                                     lm.found)
+    seq = sequence_of(result)
+    fps = result.clip.fps
+    lost = [{"frame": int(i), "why": lm.why[i]} for i in np.flatnonzero(~lm.found)]
+    n = result.clip.frames
+    track_s = sum(result.timings.get(k, 0.0) for k in ("landmarks_s", "per_frame_s",
+                                                       "smoothing_s"))
+    rep = {
+        "source": str(result.clip.source), "frames": n, "fps": fps,
+        "size": list(result.clip.size), "working_size": list(result.clip.work),
+        "keyframes": result.keyframes,
+        "camera": result.camera.to_dict(),
+        "landmark_error_px": {"mean": float(np.nanmean(err_px)),
+                              "median": float(np.nanmedian(err_px)),
+                              "max": float(np.nanmax(err_px))},
+        "landmark_nme": {"mean": float(np.nanmean(nme)), "median": float(np.nanmedian(nme)),
+                         "normalised_by": "outer-eye distance (landmarks 37 and 46)"},
+        "jitter": {"landmarks_px_per_frame2": jitter(np.where(lm.found[:, None, None], uv,
+                                                              np.nan)),
+                   "detected_landmarks_px_per_frame2": jitter(lm.points),
+                   "theta_deg_per_frame2": float(np.degrees(jitter(seq.theta))),
+                   "head_deg_per_frame2": float(np.degrees(jitter(result.params.h)))},
+        "lost_frames": lost,
+        "lost_count": len(lost),
+        "timings_s": result.timings,
+        "tracking_fps": n / track_s if track_s > 0 else None,
+        "notes": result.notes,
+        "per_frame": [{"frame": i, "found": bool(lm.found[i]),
+                       "landmark_error_px": None if not lm.found[i] else float(err_px[i]),
+                       "head_deg": np.degrees(result.params.h[i]).round(3).tolist(),
+                       "tau_mm": round(1e3 * float(result.tau[i]), 3)} for i in range(n)],
+    }
+    if truth is not None:
+        rep["truth"] = truth_errors(result, truth)
+    return rep
+
+
+def truth_errors(result: TrackResult, truth: dict) -> dict:
+    """Errors against a clip's known parameters (``synthetic.render_clip``'s truth)."""
+    seq = sequence_of(result)
+    th = np.degrees(np.linalg.norm(seq.theta - truth["theta"], axis=-1))  # (T, 8)
+    psi = np.abs(seq.psi - truth["psi"])
+    active = np.abs(truth["psi"]).max(0) > 0.05
+    tau = 1e3 * np.abs(np.asarray(result.tau) - truth["tau"])
+    head = np.degrees(np.abs(result.params.h - truth["h"]))
+    return {"theta_joint_deg": {"mean": float(th.mean()), "max": float(th.max())},
+            "head_deg": {"mean": head.mean(0).tolist(), "max": head.max(0).tolist()},
+            "psi_abs": {"mean": float(psi.mean()),
+                        "active_mean": float(psi[:, active].mean()) if active.any() else None},
+            "tau_mm": {"mean": float(tau.mean()), "max": float(tau.max()),
+                       "truth_range": float(1e3 * np.ptp(truth["tau"]))},
+            "jitter_truth": {"theta_deg_per_frame2": float(np.degrees(jitter(truth["theta"])))},
+            "per_frame_theta_deg": th.mean(1).round(3).tolist(),
+            "per_frame_tau_mm": tau.round(3).tolist()}
+
+
+def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
+                  progress: bool = True, truth: dict | None = None) -> list[Path]:
+    """Everything; the report last. Returns the paths written."""
+    from hack_render.fit.outputs import write_all
+    from hack_render.geometry.params import save_params, save_sequence
+    from hack_render.render.image_io import atomic_path
+
+    written = []
+    written += write_all(result.fit, fitter, outdir / "identity")
+    person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
+    written.append(save_params(outdir / "person.json", person))
+    written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
+    result.landmarks.save(outdir / "landmarks.npz")
+    written.append(outdir / "landmarks.npz")
+    with atomic_path(outdir / "camera.json") as tmp:
+        tmp.write_text(json.dumps(result.camera.to_dict(), indent=1))
+    written.append(outdir / "camera.json")
+    if overlay:
+        written.append(write_overlay(result, outdir / "overlay.mp4", progress))
+    rep = report_dict(result, truth)
+    with atomic_path(outdir / "report.json") as tmp:
+        tmp.write_text(json.dumps(rep, indent=1))
+    written.append(outdir / "report.json")
+    return written
