@@ -283,7 +283,8 @@ def long_neck_gltf(model, path: str | Path, character: Character | None = None,
     plain glTF character of its own: the skin's triangles only (no eyes, teeth or mouth
     interior), no UVs and no materials, a skeleton of 6 bones (``hips`` and ``spine``
     below, ``neck_01`` at c7-t1, ``neck_02`` at c5-c6, ``neck_03`` at c3-c4, ``head`` at
-    o-c1) and 4 skin weights per vertex summed from HACK's onto them (:data:`GLTF_BONES`).
+    o-c1) and 4 skin weights per vertex summed from HACK's onto them (:data:`GLTF_BONES`);
+    ``_HACK_VERTEX`` holds each vertex's template index (as the export's), for tests.
     A test target for the glTF path; labelled procedural in ``asset.extras``."""
     from hack_render.export.gltf import (
         ARRAY_BUFFER,
@@ -315,7 +316,9 @@ def long_neck_gltf(model, path: str | Path, character: Character | None = None,
     g = GltfBuilder()
     attrs = {"POSITION": g.accessor(v, FLOAT, "VEC3", ARRAY_BUFFER, bounds=True),
              "JOINTS_0": g.accessor(j4, UBYTE, "VEC4", ARRAY_BUFFER),
-             "WEIGHTS_0": g.accessor(w4, FLOAT, "VEC4", ARRAY_BUFFER)}
+             "WEIGHTS_0": g.accessor(w4, FLOAT, "VEC4", ARRAY_BUFFER),
+             "_HACK_VERTEX": g.accessor(used.astype(np.float32), FLOAT, "SCALAR", ARRAY_BUFFER,
+                                        bounds=True)}
     g._add("meshes", {"name": ch.name, "primitives": [{"attributes": attrs, "mode": 4,
            "indices": g.accessor(f.reshape(-1, 1), UINT, "SCALAR", ELEMENT_ARRAY_BUFFER)}]})
     for i, n in enumerate(names):

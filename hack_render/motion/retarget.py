@@ -398,10 +398,13 @@ def posed_mesh(ch: GltfCharacter, bones: list[int] | None = None,
     return np.concatenate(verts), np.concatenate(faces)
 
 
-def add_uv_atlas(ch: GltfCharacter) -> list[tuple[int, int]]:
+def add_uv_atlas(ch: GltfCharacter, resolution: int = 1024,
+                 padding: int = 2) -> list[tuple[int, int]]:
     """Give every triangle primitive without ``TEXCOORD_0`` a UV atlas from xatlas (its
-    vertices split at the atlas's seams, every attribute and morph target carried along);
-    returns the (mesh, primitive) indices of those that got one."""
+    vertices split at the atlas's seams, every attribute and morph target carried along),
+    its charts ``padding`` texels apart at ``resolution`` texels (so a map baked at that
+    size filters without bleeding between charts); returns the (mesh, primitive) indices
+    of those that got one."""
     import xatlas
 
     from hack_render.export.gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UINT, GltfBuilder
@@ -417,8 +420,12 @@ def add_uv_atlas(ch: GltfCharacter) -> list[tuple[int, int]]:
             pos = accessor(g.doc, bytes(g.bin), prim["attributes"]["POSITION"])
             idx = (accessor(g.doc, bytes(g.bin), prim["indices"])[:, 0].astype(np.uint32)
                    if "indices" in prim else np.arange(len(pos), dtype=np.uint32))
-            vmap, faces, uvs = xatlas.parametrize(pos.astype(np.float32),
-                                                  idx.reshape(-1, 3).astype(np.uint32))
+            atlas = xatlas.Atlas()
+            atlas.add_mesh(pos.astype(np.float32), idx.reshape(-1, 3).astype(np.uint32))
+            pack = xatlas.PackOptions()
+            pack.resolution, pack.padding, pack.bilinear = int(resolution), int(padding), True
+            atlas.generate(pack_options=pack)
+            vmap, faces, uvs = atlas[0]
             for key, acc in list(prim["attributes"].items()):
                 a = g.doc["accessors"][acc]
                 vals = accessor(g.doc, bytes(g.bin), acc)[vmap]

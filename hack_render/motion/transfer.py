@@ -290,7 +290,7 @@ def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: P
     tau_max = float(np.abs(fr["tau"]).max())
     rig = R.build_rig(model, kw.get("beta"), eta,
                       max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP))
-    atlas = RT.add_uv_atlas(ch)
+    atlas = RT.add_uv_atlas(ch, bake_size)
     baked, first, keep = bake_onto_gltf(model, ch, rig, bones, atlas, maps, bake_size)
     root = RT.body_root(ch, bones)
     tracks = RT.root_tracks(ch, root, fr["global_orient"], fr["transl"])
