@@ -468,7 +468,7 @@ def test_12_gltf_head_follows_the_global_pose(model, gltf_run):
     1e-6; the translation moves the root by transl; the neck bones follow as before."""
     from hack_render.motion.head_to_neck import head_orientation
 
-    d, src, seq, rep = gltf_run
+    d, _, seq, rep = gltf_run
     assert rep["target"]["global_pose"].startswith("global_orient and transl on 'hips'")
     out = d / "out" / "long_neck_hack.glb"
     ch = RT.load_gltf_character(out)
@@ -490,7 +490,7 @@ def test_13_gltf_expression_and_larynx_move_the_right_regions(model, gltf_run):
     larynx moves by the person's in-betweens (same ratio), what they leave still does not move."""
     from hack_render.export import rig as R
 
-    d, _, seq, rep = gltf_run
+    d, _, _, rep = gltf_run
     human = R.build_rig(model, None, 1.0)
     ch = RT.load_gltf_character(d / "out" / "long_neck_hack.glb")
     rest, tmpl = _template_index(model, ch)
@@ -568,10 +568,10 @@ def test_14_gltf_maps_baked_in_the_right_places(model, gltf_run):
     assert np.quantile(err, 0.99) < 0.01 and np.median(err) < 0.004, np.quantile(err, [0.5, 0.99])
     # the normal map: the character's tangent frame at each texel -> world normal
     nrm = image(mat["normalTexture"]["index"]) * 2 - 1
-    surf = ST.hack_surface(model, R_rig(model), ch.world[[ch.node(n) for n in
+    surf = ST.hack_surface(model, _person_rig(model), ch.world[[ch.node(n) for n in
                            ("neck_01", "neck_02", "neck_03", "head")], :3, 3],
                            rest.vertices[np.isin(rest.dominant, [ch.node("head")])])
-    cov, f, b = cov[::7], f[::7], b[::7]
+    cov, f, b = cov[::20], f[::20], b[::20]
     pts = np.einsum("qk,qkc->qc", b, rest.vertices[rest.faces[f]])
     cn = np.einsum("qk,qkc->qc", b, ST._vertex_normals(rest.vertices, rest.faces)[rest.faces[f]])
     uv_up = np.stack([uv[:, 0], 1 - uv[:, 1]], 1)
@@ -586,7 +586,7 @@ def test_14_gltf_maps_baked_in_the_right_places(model, gltf_run):
     assert np.quantile(np.degrees(np.arccos(np.clip(cosang, -1, 1))), 0.95) < 3.0
 
 
-def R_rig(model):
+def _person_rig(model):
     from hack_render.export import rig as R
 
     return R.build_rig(model, None, 1.0)

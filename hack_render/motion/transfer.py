@@ -232,11 +232,14 @@ def bake_onto_gltf(model, ch, rig, bones: list[int], prims: list[tuple[int, int]
     from hack_render.motion import retarget as RT
     from hack_render.motion import surface_transfer as ST
 
+    t0 = time.process_time()
     rest = _rest_primitives(ch)
     head = RT.descendants(ch, bones[-1])
     head_pts = np.concatenate([p.vertices[np.isin(p.dominant, list(head))] for p in rest])
     surface = ST.hack_surface(model, rig, ch.world[bones, :3, 3], head_pts)
-    report = {"alignment": surface.info, "maps": {}, "morph_targets": {}}
+    report = {"alignment": surface.info, "maps": {}, "morph_targets": {},
+              "cpu_seconds": {"align": round(time.process_time() - t0, 2)}}
+    t0 = time.process_time()
     for p in rest:
         prim = ch.doc["meshes"][p.mesh]["primitives"][p.prim]
         if maps is not None and (p.mesh, p.prim) in prims:
@@ -245,6 +248,8 @@ def bake_onto_gltf(model, ch, rig, bones: list[int], prims: list[tuple[int, int]
             RT.add_baked_material(ch, prim, SimpleNamespace(**baked),
                                   f"hack_skin_baked_{p.mesh}_{p.prim}")
             report["maps"][f"mesh {p.mesh} primitive {p.prim}"] = stats
+    report["cpu_seconds"]["bake"] = round(time.process_time() - t0, 2)
+    t0 = time.process_time()
     keep = slice(0, rig.slots["larynx_slide"].stop)  # expressions, larynx size and slide
     moved: dict[int, dict[int, np.ndarray]] = {}
     for p in rest:
