@@ -6,8 +6,15 @@
 (b) Turntable reuse: frames 2..N of a turntable (vertices and camera updated through
     ``mi.traverse``) vs one fresh render (scene build + first render after flushing
     Dr.Jit's in-memory kernel cache). Target <= 0.5x.
+(c) Equal quality (``--only quality``): PSNR (linear) and SSIM (tone-mapped sRGB) of the
+    studio portrait against a high-spp reference, for the ``independent`` and
+    ``multijitter`` samplers over a range of spp and for multijitter + OIDN denoising;
+    CPU seconds per image (process time, all threads: Dr.Jit's and OIDN's). The time the
+    independent sampler needs to reach the denoised image's PSNR is interpolated on its
+    PSNR-log(spp) curve.
 
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
+       python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
 """
 
 from __future__ import annotations
@@ -139,6 +146,84 @@ def turntable_benchmark(size: int, spp: int, frames: int, cold_only: bool = Fals
           f"peak RSS {peak_rss_mib():.0f} MiB")
 
 
+def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
+    import warnings
+
+    import mitsuba as mi
+    from skimage.metrics import structural_similarity
+
+    from hack_render.geometry import load_default_model
+    from hack_render.render.image_io import to_srgb8
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    mi.set_log_level(mi.LogLevel.Error)
+    warnings.simplefilter("ignore")
+    model = load_default_model()
+    with torch.no_grad():
+        v = model().vertices[0].double().numpy()
+    topo = Topology.from_model(model)
+    maps = skin_maps([0.8, -0.6, 0.4])
+    cam = cameras.orbit(size, size, 85.0, 20.0, 5.0)
+
+    def scene(spp, sampler):
+        return HeadScene(topo, v, lights.preset("studio"), cam,
+                         RenderSettings(size, size, spp, sampler=sampler), maps)
+
+    t0 = time.process_time()
+    ref = scene(ref_spp, "multijitter").render(seed=12345)[..., :3]
+    print(f"  reference: {size}^2, {ref_spp} spp multijitter, {time.process_time() - t0:.0f} "
+          "CPU s")
+    ref8 = to_srgb8(ref, 0.0, "aces")
+
+    def score(img):
+        mse = float(np.mean((img[..., :3] - ref) ** 2))
+        psnr = 10 * np.log10(float(ref.max()) ** 2 / mse)
+        ssim = structural_similarity(to_srgb8(img[..., :3], 0.0, "aces"), ref8,
+                                     channel_axis=-1)
+        return psnr, float(ssim)
+
+    rows = {}
+    for sampler, spps, denoise in (("independent", (16, 32, 64, 128, 256, 512), False),
+                                   ("multijitter", (16, 32, 64, 128, 256), False),
+                                   ("multijitter", (4, 8, 16, 32), True)):
+        for spp in spps:
+            head = scene(spp, sampler)
+            head.render(seed=0, denoise=denoise)  # compile
+            cpu, res = [], []
+            for r in range(repeats):
+                t0 = time.process_time()
+                img = head.render(seed=1 + r, denoise=denoise)
+                cpu.append(time.process_time() - t0)
+                res.append(score(img))
+            psnr, ssim = np.mean(res, axis=0)
+            name = f"{sampler} {head.settings.effective_spp} spp" + (" + OIDN" if denoise else "")
+            rows[name] = (statistics.median(cpu), psnr, ssim, sampler, denoise,
+                          head.settings.effective_spp)
+            print(f"  {name:32s} {rows[name][0]:6.2f} CPU s  PSNR {psnr:5.2f} dB  "
+                  f"SSIM {ssim:.4f}")
+    ind = sorted((r[5], r[0], r[1]) for r in rows.values() if r[3] == "independent")
+    spp_i, cpu_i, psnr_i = (np.array(x, float) for x in zip(*ind))
+
+    def independent_at(psnr):
+        """(spp, CPU s) of the independent sampler at this PSNR (log-log interpolation;
+        extrapolated past its last point along its last segment)."""
+        k = np.clip(np.searchsorted(psnr_i, psnr) - 1, 0, len(psnr_i) - 2)
+        f = (psnr - psnr_i[k]) / (psnr_i[k + 1] - psnr_i[k])
+        spp = np.exp(np.log(spp_i[k]) + f * (np.log(spp_i[k + 1]) - np.log(spp_i[k])))
+        cpu = np.exp(np.log(cpu_i[k]) + f * (np.log(cpu_i[k + 1]) - np.log(cpu_i[k])))
+        return spp, cpu
+
+    for name, (cpu, psnr, _ssim, sampler, denoise, _spp) in rows.items():
+        if sampler == "multijitter" and (denoise or _spp in (16, 32)):
+            spp_eq, cpu_eq = independent_at(psnr)
+            print(f"(c) {name}: {cpu:.2f} CPU s for {psnr:.2f} dB; the independent sampler "
+                  f"needs ~{spp_eq:.0f} spp, ~{cpu_eq:.2f} CPU s: {cpu / cpu_eq:.2f}x the time "
+                  "at equal PSNR")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -149,6 +234,9 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--only", choices=("all", "quality"), default="all")
+    ap.add_argument("--q-size", type=int, default=128)
+    ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
                     "date, machine and command, e.g. bench/results/render.json")
     args = ap.parse_args()
@@ -157,6 +245,11 @@ def main() -> None:
     variant = ensure_variant(args.variant)
     if args.cold_only:
         turntable_benchmark(args.tt_size, args.tt_spp, args.frames, True)
+        return
+    if args.only == "quality":
+        with recorded(args.out, "Rendering: equal-quality time"):
+            print(f"variant: {variant}")
+            quality_benchmark(args.q_size, args.q_ref_spp, args.repeats)
         return
     with recorded(args.out, "Rendering"):
         print(f"variant: {variant}")
