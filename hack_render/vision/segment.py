@@ -1,0 +1,290 @@
+"""Person, face, skin and occluder masks of a photo on any background, offline.
+
+- **person** (soft, [0, 1]): MediaPipe's selfie segmentation (the landscape model, shipped
+  in the ``mediapipe`` wheel; it measured better than the general one on the
+  composites, docs/vision.md), above ``PERSON_THRESHOLD``, the connected part that holds
+  the face.
+- **face** (soft): the face mesh's face oval (:mod:`hack_render.vision.detect`'s dense
+  points), anti-aliased, inside the person.
+- **skin / hair / clothes** (bool, heuristic): skin is the person's pixels whose colour
+  lies within the face's own skin colour distribution (a Gaussian in CIE Lab a*, b* and
+  a loose L* band, estimated from the cheeks and forehead of the face mesh); the rest of
+  the person is hair above the mouth's line and clothes below the chin's.
+- **occluder** (bool): what covers the face: inside the face oval, pixels that are not
+  skin-coloured (hair strands, glasses, a scarf) outside the eyes, brows and lips, and
+  hands (MediaPipe's hand landmarks' outline, dilated) wherever they overlap the face.
+  The photometric loss leaves these pixels out.
+
+:func:`segment` returns all of them as :class:`Segmentation`; :func:`person_mask` is the
+silhouette term's entry point (same contract as ``fit.silhouette.segment_plain_background``:
+a mask or None and the reason).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.vision.detect import FaceLandmarks, as_rgb8
+
+#: face-mesh point rings (MediaPipe's FACEMESH_* connection sets, as ordered loops)
+_RINGS = ("FACEMESH_FACE_OVAL", "FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE", "FACEMESH_LIPS",
+          "FACEMESH_LEFT_EYEBROW", "FACEMESH_RIGHT_EYEBROW")
+#: face-mesh points on the cheeks and forehead (skin-colour samples)
+_SKIN_SAMPLES = (50, 101, 118, 123, 147, 187, 205, 280, 330, 347, 352, 376, 411, 425,
+                 10, 67, 69, 104, 108, 109, 151, 297, 299, 333, 337, 338, 4, 5, 195, 197)
+
+#: person probability above which a pixel is the person's (0.7: the best IoU on the
+#: composites among 0.3, 0.5, 0.7, 0.85)
+PERSON_THRESHOLD = 0.7
+#: CIE Lab (a*, b*) of skin across tones, the prior that picks the skin's colour cluster
+SKIN_AB_PRIOR = np.array([13.0, 17.0])
+
+
+@dataclass
+class Segmentation:
+    """Masks at the photo's size (H, W): person, face (float32 in [0, 1]); skin, hair,
+    clothes, occluder (bool). ``source`` names the models used."""
+
+    person: np.ndarray
+    face: np.ndarray
+    skin: np.ndarray
+    hair: np.ndarray
+    clothes: np.ndarray
+    occluder: np.ndarray
+    source: str
+
+    def photometric_weight(self) -> np.ndarray:
+        """(H, W) float32: the face's pixels a photometric loss may use (soft face mask,
+        occluders removed)."""
+        return (self.face * ~self.occluder).astype(np.float32)
+
+
+_CACHE: dict = {}
+
+
+def _selfie():
+    if "selfie" not in _CACHE:
+        os.environ.setdefault("GLOG_minloglevel", "2")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mediapipe as mp
+
+            _CACHE["selfie"] = mp.solutions.selfie_segmentation.SelfieSegmentation(
+                model_selection=1)
+    return _CACHE["selfie"]
+
+
+def _hands():
+    if "hands" not in _CACHE:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mediapipe as mp
+
+            _CACHE["hands"] = mp.solutions.hands.Hands(static_image_mode=True,
+                                                      max_num_hands=2,
+                                                      min_detection_confidence=0.5)
+    return _CACHE["hands"]
+
+
+def ring(name: str) -> np.ndarray:
+    """A face-mesh connection set (e.g. ``FACEMESH_FACE_OVAL``) as an ordered loop of
+    point ids."""
+    if name not in _CACHE:
+        from mediapipe.python.solutions import face_mesh_connections as fmc
+
+        edges = dict(getattr(fmc, name))
+        loops, seen = [], set()
+        for start in edges:       # the lips set holds two loops (outer, inner): the outer
+            if start in seen:
+                continue
+            loop, p = [], start
+            while p not in seen and p in edges:
+                seen.add(p)
+                loop.append(p)
+                p = edges[p]
+            loops.append(loop)
+        _CACHE[name] = np.array(max(loops, key=len))
+    return _CACHE[name]
+
+
+def person_probability(rgb8: np.ndarray) -> np.ndarray:
+    """(H, W) float32: MediaPipe selfie segmentation's person probability."""
+    res = _selfie().process(rgb8)
+    return np.asarray(res.segmentation_mask, np.float32)
+
+
+def _polygon_mask(poly: np.ndarray, shape, soft: bool = True) -> np.ndarray:
+    """(H, W) float32 coverage of a polygon (pixels), 4x4 supersampled when ``soft``."""
+    from skimage.draw import polygon
+
+    h, w = shape
+    s = 4 if soft else 1
+    m = np.zeros((h * s, w * s), np.float32)
+    rr, cc = polygon(poly[:, 1] * s - 0.5, poly[:, 0] * s - 0.5, (h * s, w * s))
+    m[rr, cc] = 1.0
+    return m.reshape(h, s, w, s).mean((1, 3)) if s > 1 else m
+
+
+def _lab(rgb8: np.ndarray) -> np.ndarray:
+    from skimage.color import rgb2lab
+
+    return rgb2lab(rgb8).astype(np.float32)
+
+
+def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
+                     k: float = 3.0) -> np.ndarray:
+    """(H, W) bool: pixels in ``within`` whose Lab a*, b* lie within Mahalanobis ``k`` of
+    the skin samples' (cheeks, forehead, nose: visible face-mesh points) and whose L* is
+    within 2.5 times the samples' spread (at least 25) of theirs."""
+    from scipy import ndimage
+
+    h, w = rgb8.shape[:2]
+    lab = _lab(rgb8)
+    from hack_render.vision.dense68 import load_map
+
+    vis = load_map().dense_visible(dense)
+    ids = [i for i in _SKIN_SAMPLES if vis[i]] or list(_SKIN_SAMPLES)
+    p = np.clip(np.round(dense[ids, :2] - 0.5).astype(int), 0, [w - 1, h - 1])
+    # a 3 x 3 neighbourhood of each sample point
+    sm = np.zeros((h, w), bool)
+    sm[p[:, 1], p[:, 0]] = True
+    sm = ndimage.binary_dilation(sm, iterations=1)
+    x = lab[sm]
+    # robust: a strand of hair or a hand may cover half the sample points. The samples'
+    # colour clusters (a*, b* within 8 units of one another) holding at least a quarter
+    # of them are candidates; the one nearest a skin chromaticity prior (any skin tone:
+    # a* ~ 13, b* ~ 17) is the skin
+    ab = x[:, 1:]
+    near = np.linalg.norm(ab[:, None] - ab[None], axis=-1) < 8.0
+    cand = near.sum(1) >= max(3, len(x) // 4)
+    if cand.any():
+        score = np.linalg.norm(ab - SKIN_AB_PRIOR, axis=1) + 1e3 * ~cand
+        x = x[near[int(np.argmin(score))]]
+    mu = np.median(x, 0)
+    mad = 1.4826 * np.median(np.abs(x - mu), 0) + 1.0
+    dev = x[:, 1:] - mu[1:]
+    cov = dev.T @ dev / max(len(dev) - 1, 1) + np.eye(2) * 4.0   # >= 2 units of a*, b*
+    icov = np.linalg.inv(cov)
+    d = lab[..., 1:] - mu[1:]
+    maha = np.sqrt(np.einsum("...i,ij,...j->...", d, icov, d))
+    spread = max(25.0, 2.5 * float(mad[0]))
+    return within & (maha < k) & (np.abs(lab[..., 0] - mu[0]) < spread)
+
+
+def hand_mask(rgb8: np.ndarray, dilate: float = 0.08) -> np.ndarray:
+    """(H, W) bool: the convex hull of each hand's 21 landmarks (MediaPipe hands),
+    dilated by ``dilate`` of the hand's size (the landmarks are joints, not the outline)."""
+    from scipy import ndimage
+    from scipy.spatial import ConvexHull
+
+    h, w = rgb8.shape[:2]
+    out = np.zeros((h, w), bool)
+    res = _hands().process(rgb8)
+    for hand in res.multi_hand_landmarks or []:
+        p = np.array([[q.x * w, q.y * h] for q in hand.landmark])
+        hull = p[ConvexHull(p).vertices]
+        m = _polygon_mask(hull, (h, w), soft=False) > 0
+        r = round(dilate * float(np.ptp(p, 0).max()))
+        out |= ndimage.binary_dilation(m, iterations=max(r, 1))
+    return out
+
+
+def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
+            name: str = "photo") -> Segmentation:
+    """All masks of ``image`` (see the module docstring). ``face``: a detection with
+    dense points (:func:`hack_render.vision.detect.detect_face`, mesh); detected here
+    when None. ``hands``: look for hands over the face (MediaPipe hands, ~30 ms)."""
+    from scipy import ndimage
+
+    from hack_render.vision.detect import detect_face
+
+    rgb8 = as_rgb8(image, name)
+    if face is None:
+        face = detect_face(rgb8, "mesh", name=name)
+    if face.dense is None:
+        raise HackError(f"{name}: segmentation needs the face mesh's dense points; expected "
+                        f"a 'mesh' detection, found one from {face.source}.")
+    h, w = rgb8.shape[:2]
+    prob = person_probability(rgb8)
+    person_bin = _holding_face(prob > PERSON_THRESHOLD, face.points)
+    person = np.where(ndimage.binary_dilation(person_bin, iterations=2), prob, 0.0)
+    oval = _polygon_mask(face.dense[ring("FACEMESH_FACE_OVAL"), :2], (h, w))
+    # the face oval is the mesh's, which also covers the far side of a turned head: only
+    # its part inside the person is seen
+    face_soft = np.minimum(oval, np.maximum(person, person_bin.astype(np.float32)))
+    skin = skin_colour_mask(rgb8, face.dense, person_bin | (oval > 0.5))
+    features = np.zeros((h, w), np.float32)
+    for nm in _RINGS[1:]:
+        poly = face.dense[ring(nm), :2]
+        if nm.endswith("EYEBROW"):      # a brow is a thin loop: widen it
+            c = poly.mean(0)
+            poly = c + 1.6 * (poly - c)
+        features = np.maximum(features, _polygon_mask(poly, (h, w), soft=False))
+    inner = (oval > 0.5) & (features < 0.5)
+    occluder = inner & ~skin
+    occluder = ndimage.binary_opening(occluder, iterations=1)
+    if hands:
+        occluder |= hand_mask(rgb8) & (oval > 0.5)
+    skin_all = skin & person_bin
+    rest = person_bin & ~skin_all
+    mouth_y = float(face.points[48:68, 1].mean())
+    chin_y = float(face.points[8, 1])
+    up = _upright_rows(face, h, w)
+    hair = rest & (up < mouth_y) & (oval < 0.5)
+    clothes = rest & (up > chin_y)
+    return Segmentation(person.astype(np.float32), face_soft.astype(np.float32), skin_all,
+                        hair, clothes, occluder, "mediapipe selfie_segmentation + face mesh"
+                        + (" + hands" if hands else ""))
+
+
+def _upright_rows(face: FaceLandmarks, h: int, w: int) -> np.ndarray:
+    """(H, W) each pixel's row in the face's upright frame (the image turned by the
+    face's roll about the nose), so 'above the mouth' holds for a tilted head."""
+    import math
+
+    a = math.radians(face.roll_deg)
+    c = face.points[30]
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    return c[1] + (xx - c[0]) * math.sin(a) + (yy - c[1]) * math.cos(a)
+
+
+def _holding_face(mask: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The connected parts of ``mask`` that hold the face's inner landmarks."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(mask)
+    if n == 0:
+        return mask
+    h, w = mask.shape
+    p = np.clip(np.floor(points[27:]).astype(int), 0, [w - 1, h - 1])
+    ids = np.unique(lab[p[:, 1], p[:, 0]])
+    ids = ids[ids > 0]
+    return np.isin(lab, ids) if len(ids) else mask
+
+
+def person_mask(rgb, points: np.ndarray, threshold: float = PERSON_THRESHOLD,
+                min_inside: float = 0.9) -> tuple[np.ndarray | None, str]:
+    """The silhouette term's person mask on any background: MediaPipe selfie
+    segmentation above ``threshold``, the connected parts holding the face.
+
+    Args:
+        rgb: (h, w, 3) sRGB image, uint8 or float in [0, 1].
+        points: (68, 2) landmarks of the face, pixels.
+    Returns:
+        ((h, w) bool mask, "") or (None, why): no mask when under ``min_inside`` of the
+        nose, eye and mouth landmarks fall inside it (the model missed the person).
+    """
+    rgb8 = as_rgb8(rgb)
+    m = _holding_face(person_probability(rgb8) > threshold, np.asarray(points))
+    h, w = m.shape
+    p = np.clip(np.floor(np.asarray(points)[27:]).astype(int), 0, [w - 1, h - 1])
+    inside = float(m[p[:, 1], p[:, 0]].mean())
+    if inside < min_inside or m.all():
+        return None, (f"the person segmentation holds only {100 * inside:.0f} % of the nose, "
+                      "eye and mouth landmarks")
+    return m, ""
