@@ -2,7 +2,9 @@
 (made from the template, labelled procedural) passes the pose-space stress test's fold and
 stretch checks; retargeting onto glTF neck chains round-trips in each bone's rest frame;
 `hack-render transfer` writes a glTF that the reference evaluator poses as the character
-rig does; bad inputs exit with code 2."""
+rig does; on a glTF character (the same procedural character, written as a plain skinned
+glTF) the head follows the global pose, expressions and the larynx move the right regions,
+and the baked maps land where they should; bad inputs exit with code 2."""
 
 from __future__ import annotations
 
