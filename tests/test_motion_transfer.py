@@ -310,6 +310,9 @@ def test_08_bad_inputs_exit_2(model, tmp_path, capsys):
         assert _code(["transfer", "--motion", str(motion), "--target", target, "-o",
                       str(tmp_path / "o"), "--no-turntable", "--quiet"]) == 2, (motion, target)
         assert msg in capsys.readouterr().err, (motion, target, msg)
+    assert _code(["transfer", "--motion", str(good), "--target", str(no_neck), "-o",
+                  str(tmp_path / "o"), "--bake-size", "5", "--quiet"]) == 2
+    assert "--bake-size: expected an integer in 16..8192 texels" in capsys.readouterr().err
     with pytest.raises(HackError, match="not an ancestor"):
         RT.find_neck_chain(RT.load_gltf_character(no_neck), ["d", "a"])
     from hack_render.geometry.skeleton import JOINT_NAMES

@@ -178,9 +178,9 @@ def transfer(
     if influences not in (4, 8):
         raise HackError(f"--influences: expected 4 or 8, found {influences}.")
     B.number(frames, "--frames", 2, 2000, integer=True)
-    B.number(resolution, "--resolution", 16, 4096, integer=True, unit="pixels")
+    B.number(resolution, "--resolution", 16, 4096, integer=True, unit=" pixels")
     B.number(spp, "--spp", 1, 65536, integer=True)
-    B.number(bake_size, "--bake-size", 16, 8192, integer=True, unit="texels")
+    B.number(bake_size, "--bake-size", 16, 8192, integer=True, unit=" texels")
     nmap = None
     if name_map is not None:
         try:
