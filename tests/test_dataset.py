@@ -50,8 +50,14 @@ def test_changing_one_section_leaves_the_others(au_names):
     a = sample_spec(load_config(), 1, 3, au_names)
     b = sample_spec(load_config(overrides={"camera": {"yaw_deg": [10, 20]}}), 1, 3, au_names)
     assert a["cameras"] != b["cameras"] and 10 <= b["cameras"][0]["yaw_deg"] <= 20
-    for k in ("beta", "expression", "theta", "eta", "tau", "appearance", "lighting"):
+    for k in ("beta", "expression", "theta", "eta", "tau", "appearance", "lighting",
+              "background"):
         assert a[k] == b[k], k
+    c = sample_spec(load_config(overrides={"background": {"crop": [0.5, 0.6]}}), 1, 3,
+                    au_names)
+    assert c["background"] != a["background"] and 0.5 <= c["background"]["crop"][2] <= 0.6
+    assert {k: v for k, v in c.items() if k != "background"} == \
+        {k: v for k, v in a.items() if k != "background"}
 
 
 def test_sampled_values_respect_the_config(au_names):
@@ -83,6 +89,11 @@ def test_sampled_values_respect_the_config(au_names):
     ({"larynx": {"p_swallow": 1.5}}, "larynx.p_swallow"),
     ({"camera": {"fov": 3}}, "camera.fov"),
     ({"neck": {"head_std_deg": [1, 2]}}, "neck.head_std_deg"),
+    ({"background": {"source": "sky"}}, "background.source"),
+    ({"background": {"photos": ["astronaut"]}}, "background.photos"),
+    ({"background": {"luminance": [0.5, 0.1]}}, "background.luminance"),
+    ({"render": {"denoise": "yes"}}, "render.denoise"),
+    ({"render": {"sampler": "sobol"}}, "render.sampler"),
 ])
 def test_bad_config_names_the_key(override, key):
     with pytest.raises(HackError, match=key.replace(".", r"\.")):
@@ -337,6 +348,71 @@ def test_sample_files_and_labels(rendered):
     assert [w["name"] for w in rec["views"]] == ["view_00", "view_01"]
     params = json.loads((out / "samples" / "0000001" / "params.json").read_text())
     assert np.allclose(params["theta"], rec["theta"])
+
+
+def _eroded(mask: np.ndarray) -> np.ndarray:
+    """Pixels whose 3 x 3 neighbourhood lies in ``mask``."""
+    p = np.pad(mask, 1)
+    return np.all([p[dy:dy + mask.shape[0], dx:dx + mask.shape[1]]
+                   for dy in range(3) for dx in range(3)], axis=0)
+
+
+def test_background_photo_is_behind_the_subject_only(rendered, tmp_path):
+    """Each sample's photo (scikit-image's, sampled crop) fills exactly the uncovered
+    pixels: where the matte is 0 the RGB is the photo; where it is 1 the RGB and every
+    label are those of the same sample rendered over its environment instead."""
+    from hack_render.dataset.backgrounds import PHOTOS, background_image
+    from hack_render.render.image_io import read_exr
+
+    out, cfg, _ = rendered
+    env_cfg = load_config(overrides=dict(TINY, camera={"views": 2},
+                                         background={"source": "environment"}))
+    run(Job(tmp_path / "env", 3, 11, env_cfg), progress=False)
+    names = set()
+    for i in range(3):
+        rec = json.loads((out / "samples" / f"{i:07d}" / "sample.json").read_text())
+        bg = rec["background"]
+        assert bg["source"] == "photo" and bg["name"] in PHOTOS
+        names.add(bg["name"])
+        photo = background_image(bg, 32, 32)
+        assert abs(float(np.mean(photo @ [0.2126, 0.7152, 0.0722])) - bg["luminance"]) \
+            < 0.5 * bg["luminance"]
+        for v in range(2):
+            a = out / "samples" / f"{i:07d}" / f"view_{v:02d}"
+            b = tmp_path / "env" / "samples" / f"{i:07d}" / f"view_{v:02d}"
+            rgb, rgb_env = read_exr(a / "rgb.exr"), read_exr(b / "rgb.exr")
+            # the matte comes from the label rays, the film's coverage from its own
+            # samples: they differ at the outline, so compare one pixel inside it
+            clear, inside = _eroded(rgb["A"] == 0), _eroded(rgb["A"] == 1)
+            img = np.stack([rgb[c] for c in "RGB"], -1)
+            img_env = np.stack([rgb_env[c] for c in "RGB"], -1)
+            np.testing.assert_allclose(img[clear], photo[clear], rtol=1e-5, atol=1e-7)
+            assert clear.sum() > 100 and inside.sum() > 100
+            np.testing.assert_allclose(img[inside], img_env[inside], rtol=1e-5, atol=1e-6)
+            for name in ("segmentation.png", "depth.exr", "masks.exr", "alpha.png"):
+                assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert len(names) >= 2  # seeded: different samples, different photos
+
+
+def test_denoised_samples_keep_the_noisy_image(tmp_path, monkeypatch):
+    """render.denoise on + keep_noisy: rgb.exr is OIDN's output over the same background,
+    rgb_noisy.exr the path tracer's; without pyoidn 'on' is refused naming the extra."""
+    pytest.importorskip("pyoidn")
+    from hack_render.render.image_io import read_exr
+
+    cfg = load_config(overrides=dict(TINY, render=dict(TINY["render"], denoise="on",
+                                                       keep_noisy=True)))
+    run(Job(tmp_path / "d", 1, 4, cfg), progress=False)
+    v = tmp_path / "d" / "samples" / "0000000" / "view_00"
+    den, noisy = read_exr(v / "rgb.exr"), read_exr(v / "rgb_noisy.exr")
+    clear, inside = _eroded(den["A"] == 0), _eroded(den["A"] == 1)
+    d = np.stack([den[c] for c in "RGB"], -1)
+    n = np.stack([noisy[c] for c in "RGB"], -1)
+    np.testing.assert_allclose(d[clear], n[clear], rtol=1e-5, atol=1e-7)
+    assert np.abs(d[inside] - n[inside]).mean() > 1e-3  # the subject was denoised
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    with pytest.raises(HackError, match=r"hack-render\[denoise\]"):
+        run(Job(tmp_path / "e", 1, 4, cfg), progress=False)
 
 
 @pytest.mark.parametrize("k", [0, 2, 3])

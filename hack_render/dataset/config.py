@@ -25,6 +25,9 @@ DEFAULTS: dict[str, Any] = {
         "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
         "variant": None,          # Mitsuba variant (None: automatic)
+        "sampler": "multijitter",  # Mitsuba sampler (render/scene.py SAMPLERS)
+        "denoise": "off",         # OIDN (extra 'denoise'): off, auto (noisy if missing), on
+        "keep_noisy": False,      # with denoise: also write rgb_noisy.exr
     },
     "identity": {
         "components": 20,         # beta ~ N(0, I) in the first k shape components
@@ -59,6 +62,12 @@ DEFAULTS: dict[str, Any] = {
         "presets": ["studio", "light_stage", "overcast_sun", "window"],  # or env:PATH.exr
         "rotation_deg": [-180.0, 180.0],
         "exposure": [-0.5, 0.5],  # stops
+    },
+    "background": {
+        "source": "photos",       # photos (scikit-image's shipped photos) or environment
+        "photos": "all",          # or a list of names (dataset/backgrounds.py PHOTOS)
+        "crop": [0.35, 1.0],      # crop side, fraction of the photo's short side
+        "luminance": [0.03, 0.3],  # mean linear luminance (log-uniform)
     },
     "camera": {
         "views": 1,               # cameras per sample (a multi-view group of one scene)
@@ -171,6 +180,17 @@ def check_config(cfg: dict) -> dict:
             raise HackError(f"config key 'lighting.presets': {err}") from err
     _range(cfg, "lighting", "rotation_deg", -3600.0, 3600.0)
     _range(cfg, "lighting", "exposure", -20.0, 20.0)
+    from hack_render.dataset.backgrounds import check_background_config
+
+    check_background_config(cfg, _fail)
+    from hack_render.render.scene import SAMPLERS
+
+    if cfg["render"]["sampler"] not in SAMPLERS:
+        _fail("render.sampler", f"one of {', '.join(SAMPLERS)}", cfg["render"]["sampler"])
+    if cfg["render"]["denoise"] not in ("off", "auto", "on"):
+        _fail("render.denoise", "off, auto or on", cfg["render"]["denoise"])
+    if not isinstance(cfg["render"]["keep_noisy"], bool):
+        _fail("render.keep_noisy", "true or false", cfg["render"]["keep_noisy"])
     _number(cfg, "camera", "views", 1, 1024, integer=True)
     _range(cfg, "camera", "yaw_deg", -360.0, 360.0)
     _range(cfg, "camera", "pitch_deg", -89.0, 89.0)

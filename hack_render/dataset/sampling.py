@@ -16,7 +16,7 @@ import torch
 
 #: Generator stream per component (never reorder: it would change every dataset).
 STREAMS = {"identity": 1, "expression": 2, "neck": 3, "larynx": 4, "appearance": 5,
-           "lighting": 6, "camera": 7, "render": 8}
+           "lighting": 6, "camera": 7, "render": 8, "background": 9}
 
 
 def _rng(seed: int, index: int, stream: str) -> np.random.Generator:
@@ -113,7 +113,7 @@ def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> 
     """Everything that defines sample ``index`` of the dataset with ``seed``.
 
     Returns a JSON-ready dict: beta, expression (AU weights), head_rotation_deg, theta,
-    eta, tau, swallow_phase, appearance, lighting, cameras, render_seed.
+    eta, tau, swallow_phase, appearance, lighting, cameras, render_seed, background.
     """
     head, theta = sample_neck(cfg, _rng(seed, index, "neck"))
     spec = {"index": int(index), "seed": int(seed),
@@ -125,6 +125,9 @@ def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> 
     spec["lighting"] = sample_lighting(cfg, _rng(seed, index, "lighting"))
     spec["cameras"] = sample_cameras(cfg, _rng(seed, index, "camera"))
     spec["render_seed"] = int(_rng(seed, index, "render").integers(0, 2 ** 31 - 1024))
+    from hack_render.dataset.backgrounds import sample_background
+
+    spec["background"] = sample_background(cfg, _rng(seed, index, "background"))
     return spec
 
 

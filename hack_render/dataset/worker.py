@@ -150,7 +150,7 @@ class SampleRenderer:
 
         r = self.cfg["render"]
         settings = RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
-                                  pixel_filter="box")
+                                  pixel_filter="box", sampler=r["sampler"])
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
@@ -204,7 +204,9 @@ class SampleRenderer:
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
+        from hack_render.dataset.backgrounds import background_image
         from hack_render.render.image_io import rgb_channels, write_exr
+        from hack_render.render.scene import composite
 
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"
@@ -233,8 +235,18 @@ class SampleRenderer:
                                  larynx)
         writes += [put(_write_json, vdir / "landmarks.json", lm),
                    put(_write_json, vdir / "camera.json", cam.to_dict())]
-        img = head.render(seed=spec["render_seed"] + v)
-        img[..., :3] *= np.float32(2.0 ** spec["lighting"]["exposure"])
+        bare = head.render(seed=spec["render_seed"] + v, backdrop=False)
+        mode = r["denoise"]
+        img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
+        gain = np.float32(2.0 ** spec["lighting"]["exposure"])
+        backdrop = background_image(spec["background"], cam.width, cam.height)
+        if backdrop is None:  # the rig's environment, exposed like the lights
+            backdrop = head.backdrop() * gain
+        if mode != "off" and r["keep_noisy"]:
+            noisy = composite(bare * np.float32([gain, gain, gain, 1.0]), backdrop)
+            writes.append(put(write_exr, vdir / "rgb_noisy.exr", rgb_channels(noisy[..., :3]),
+                              meta))
+        img = composite(img * np.float32([gain, gain, gain, 1.0]), backdrop)
         # the matte is the geometric coverage of the label rays (the soft masks); the
         # film's alpha (coverage of the path tracer's own samples) agrees up to noise
         alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)

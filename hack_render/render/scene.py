@@ -417,7 +417,9 @@ class HeadScene:
 
         albedo, normal = denoise_features(self, k)
         out = image.copy()
-        out[..., :3] = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
+        den = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
+        # premultiplied: no coverage, no colour (OIDN leaves ~1e-6 residues there)
+        out[..., :3] = np.where(image[..., 3:4] > 0, den, 0.0)
         return out
 
     def composite(self, image: np.ndarray, backdrop=True) -> np.ndarray:

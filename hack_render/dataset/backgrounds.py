@@ -1,0 +1,121 @@
+"""Dataset backgrounds: real photographs shipped with scikit-image, composited behind.
+
+The renderer's film holds the subject alone (camera rays never see an emitter, see
+``render/scene.py``), premultiplied by its coverage; a sample's background photo is
+cropped, flipped and scaled here and composited behind it (RGB + (1 - alpha) photo), so
+labels, depth and the matte are those of the subject exactly as without a background.
+
+Photos (:data:`PHOTOS`): the colour and texture images that scikit-image installs with
+its package (``skimage/data``, no download), each public domain or CC0 according to
+scikit-image's own documentation (``skimage.data.<name>.__doc__``); faces are left out
+(``astronaut``) so that no person is labelled background, and so is the stereo
+``motorcycle`` pair (Middlebury licence). Photos are sRGB-decoded (colour-science) to
+linear and scaled to a sampled mean luminance: the lighting of the head is not matched
+to them.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from hack_render.errors import HackError
+
+#: name -> (file in skimage/data, credit and licence as scikit-image documents them)
+PHOTOS: dict[str, tuple[str, str]] = {
+    "chelsea": ("chelsea.png", "Stefan van der Walt; CC0"),
+    "coffee": ("coffee.png", "Rachel Michetti, courtesy of Pikolo Espresso Bar; CC0"),
+    "rocket": ("rocket.jpg", "SpaceX, launch of DSCOVR on Falcon 9; public domain"),
+    "hubble_deep_field": ("hubble_deep_field.jpg", "NASA, Hubble Telescope; public domain"),
+    "brick": ("brick.png", "CC0Textures Bricks25; CC0 (greyscale)"),
+    "grass": ("grass.png", "CC0Textures Grass; CC0 (greyscale)"),
+    "gravel": ("gravel.png", "CC0Textures Gravel04; CC0 (greyscale)"),
+}
+SOURCES = ("photos", "environment")
+
+
+def _data_dir():
+    from pathlib import Path
+
+    try:
+        import skimage
+    except ImportError as err:
+        raise HackError(f"dataset background photos: expected scikit-image (its sample "
+                        f"photos), found it unavailable ({err}). `pip install scikit-image` "
+                        "or set background.source: environment.") from err
+    return Path(skimage.__file__).parent / "data"
+
+
+@lru_cache(maxsize=len(PHOTOS))
+def photo(name: str) -> np.ndarray:
+    """(h, w, 3) float32 linear Rec.709 of a shipped photo, mean luminance 1."""
+    import colour
+    import imageio.v3 as iio
+
+    if name not in PHOTOS:
+        raise HackError(f"background photo: expected one of {', '.join(PHOTOS)}, found "
+                        f"{name!r}.")
+    path = _data_dir() / PHOTOS[name][0]
+    if not path.is_file():
+        raise HackError(f"background photo {name!r}: expected {path} (shipped with "
+                        "scikit-image), found no file. Reinstall scikit-image or set "
+                        "background.source: environment.")
+    img = np.asarray(iio.imread(path), np.float64) / 255.0
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    lin = colour.cctf_decoding(img[..., :3], function="sRGB")
+    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+    return (lin / max(float(lum.mean()), 1e-6)).astype(np.float32)
+
+
+def sample_background(cfg: dict, rng: np.random.Generator) -> dict:
+    """The background of one sample (JSON-ready): a photo with its crop (centre u, v in
+    [0, 1] of the free range, side as a fraction of the photo's short side), a mirror
+    flag and the mean luminance; or the rig's environment."""
+    c = cfg["background"]
+    if c["source"] == "environment":
+        return {"source": "environment"}
+    names = list(PHOTOS) if c["photos"] == "all" else list(c["photos"])
+    return {"source": "photo", "name": names[int(rng.integers(0, len(names)))],
+            "crop": [float(rng.random()), float(rng.random()), float(rng.uniform(*c["crop"]))],
+            "mirror": bool(rng.random() < 0.5),
+            "luminance": float(np.exp(rng.uniform(*np.log(c["luminance"]))))}
+
+
+def background_image(spec: dict, width: int, height: int) -> np.ndarray | None:
+    """(H, W, 3) float32 linear background of a sample spec's ``background``; None for
+    the environment. The crop keeps the image's aspect; resampled with area averaging."""
+    if spec["source"] == "environment":
+        return None
+    from skimage.transform import resize
+
+    img = photo(spec["name"])
+    h, w = img.shape[:2]
+    u, v, side = spec["crop"]
+    ch = max(2, int(round(min(h, w) * side)))
+    cw = max(2, min(w, int(round(ch * width / height))))
+    ch = max(2, min(h, int(round(cw * height / width))))
+    y0, x0 = int(round(v * (h - ch))), int(round(u * (w - cw)))
+    crop = img[y0:y0 + ch, x0:x0 + cw]
+    if spec["mirror"]:
+        crop = crop[:, ::-1]
+    out = resize(crop, (height, width), order=1, anti_aliasing=True, preserve_range=True)
+    return (out * spec["luminance"]).astype(np.float32)
+
+
+def check_background_config(cfg: dict, fail) -> None:
+    """Validate ``cfg['background']``; ``fail(key, expected, found)`` raises."""
+    c = cfg["background"]
+    if c["source"] not in SOURCES:
+        fail("background.source", f"one of {', '.join(SOURCES)}", c["source"])
+    photos = c["photos"]
+    if photos != "all" and (not isinstance(photos, list) or not photos
+                            or any(p not in PHOTOS for p in photos)):
+        fail("background.photos", f"'all' or a non-empty list of {', '.join(PHOTOS)}", photos)
+    for key, lo, hi in (("crop", 0.05, 1.0), ("luminance", 1e-4, 100.0)):
+        v = c[key]
+        if (not isinstance(v, (list, tuple)) or len(v) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                or not lo <= v[0] <= v[1] <= hi):
+            fail(f"background.{key}", f"[min, max] with {lo} <= min <= max <= {hi}", v)
