@@ -13,8 +13,13 @@
     independent sampler needs to reach the denoised image's PSNR is interpolated on its
     PSNR-log(spp) curve.
 
+(d) End to end (``--only e2e``): ``hack-render render`` of a 256 px image at 16 spp
+    (no denoiser) as a user runs it, CPU seconds of the child process (user + system,
+    median of 3), and a breakdown of one in-process run by phase (CPU seconds).
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
+       python bench/bench_render.py --only e2e
 """
 
 from __future__ import annotations
@@ -224,6 +229,56 @@ def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
                   "at equal PSNR")
 
 
+E2E_PHASES = """
+import time, sys
+t = [time.process_time()]
+def lap(): t.append(time.process_time())
+import torch; lap()
+import mitsuba, drjit; lap()
+from hack_render.render.engine import ensure_variant; ensure_variant(); lap()
+from hack_render.geometry import load_default_model
+from hack_render.render.parts import Topology
+m = load_default_model()
+with torch.no_grad(): v = m().vertices[0].double().numpy()
+topo = Topology.from_model(m); lap()
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes import cameras, lights
+cam = cameras.preset("portrait", 256, 256)[0]
+head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(256, 256, 16)); lap()
+img = head.render(); lap()
+from hack_render.render.image_io import write_png
+write_png(sys.argv[1], img[..., :3]); lap()
+names = ["import torch", "import mitsuba + drjit", "variant + plugins",
+         "model load + forward", "scene build", "render 16 spp (kernels from disk cache)",
+         "tone map + PNG write"]
+for n, a, b in zip(names, t, t[1:]):
+    print(f"    {n:40s} {b - a:5.2f} CPU s")
+"""
+
+
+def e2e_benchmark(repeats: int = 3) -> None:
+    import os
+    import subprocess
+    import sys
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = ["hack-render", "render", "-o", f"{tmp}/a.png", "--resolution", "256",
+               "--spp", "16", "--denoise", "off"]
+        subprocess.run(cmd, check=True, capture_output=True)  # warm the disk caches
+        cpu = []
+        for _ in range(repeats):
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            subprocess.run(cmd, check=True, capture_output=True)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
+        print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, --denoise off: median "
+              f"{statistics.median(cpu):.2f} CPU s (user + system) of {repeats} runs")
+        print("  one in-process run by phase:")
+        out = subprocess.run([sys.executable, "-c", E2E_PHASES, f"{tmp}/b.png"], check=True,
+                             capture_output=True, text=True, env=dict(os.environ))
+        print(out.stdout.rstrip())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -234,7 +289,7 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--only", choices=("all", "quality"), default="all")
+    ap.add_argument("--only", choices=("all", "quality", "e2e"), default="all")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -245,6 +300,10 @@ def main() -> None:
     variant = ensure_variant(args.variant)
     if args.cold_only:
         turntable_benchmark(args.tt_size, args.tt_spp, args.frames, True)
+        return
+    if args.only == "e2e":
+        with recorded(args.out, "Rendering: end-to-end `hack-render render`"):
+            e2e_benchmark(args.repeats)
         return
     if args.only == "quality":
         with recorded(args.out, "Rendering: equal-quality time"):

@@ -364,7 +364,7 @@ def test_background_photo_is_behind_the_subject_only(rendered, tmp_path):
     from hack_render.dataset.backgrounds import PHOTOS, background_image
     from hack_render.render.image_io import read_exr
 
-    out, cfg, _ = rendered
+    out, _cfg, _ = rendered
     env_cfg = load_config(overrides=dict(TINY, camera={"views": 2},
                                          background={"source": "environment"}))
     run(Job(tmp_path / "env", 3, 11, env_cfg), progress=False)
@@ -685,4 +685,4 @@ def test_ray_missing_is_a_clear_error(tmp_path, monkeypatch):
 def test_defaults_are_valid():
     assert load_config() == load_config(overrides={})
     assert set(DEFAULTS) == {"render", "identity", "expression", "neck", "larynx",
-                             "appearance", "lighting", "camera"}
+                             "appearance", "lighting", "background", "camera"}

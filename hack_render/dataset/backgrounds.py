@@ -93,10 +93,10 @@ def background_image(spec: dict, width: int, height: int) -> np.ndarray | None:
     img = photo(spec["name"])
     h, w = img.shape[:2]
     u, v, side = spec["crop"]
-    ch = max(2, int(round(min(h, w) * side)))
-    cw = max(2, min(w, int(round(ch * width / height))))
-    ch = max(2, min(h, int(round(cw * height / width))))
-    y0, x0 = int(round(v * (h - ch))), int(round(u * (w - cw)))
+    ch = max(2, round(min(h, w) * side))
+    cw = max(2, min(w, round(ch * width / height)))
+    ch = max(2, min(h, round(cw * height / width)))
+    y0, x0 = round(v * (h - ch)), round(u * (w - cw))
     crop = img[y0:y0 + ch, x0:x0 + cw]
     if spec["mirror"]:
         crop = crop[:, ::-1]
