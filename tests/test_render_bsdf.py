@@ -18,9 +18,10 @@ from hack_render.render.materials import bitmap
 N = 200_000
 
 
-def skin(albedo=1.0, spec=0.0, rough=0.5, normal=None):
+def skin(albedo=1.0, spec=0.0, rough=0.5, normal=None, **lobes):
     d = {"type": "hack_skin", "albedo": bitmap(np.full((4, 8, 3), albedo)),
-         "specular": bitmap(np.full((4, 8, 1), spec)), "roughness": bitmap(np.full((4, 8, 1), rough))}
+         "specular": bitmap(np.full((4, 8, 1), spec)), "roughness": bitmap(np.full((4, 8, 1), rough)),
+         **lobes}
     if normal is not None:
         n = np.asarray(normal, float) / np.linalg.norm(normal)
         d["normalmap"] = bitmap(np.broadcast_to(n, (4, 8, 3)))
@@ -114,6 +115,41 @@ def test_05_sampling_matches_evaluation():
     assert abs(by_sampling - by_uniform) < 0.01
     # the pdf integrates to one over the hemisphere
     assert abs(float(dr.mean(pdf)[0]) * 2 * np.pi - 1.0) < 0.02
+
+
+def test_07_dual_lobe_is_the_mixture_of_its_single_lobes():
+    """The default specular (0.85 of a lobe at 0.75 r, 0.15 at 1.3 r) evaluates to that
+    mixture of single-lobe BSDFs (mix 1) at the scaled roughness, and the single-lobe
+    setting reproduces the one-lobe model; sampling the dual lobe matches evaluation."""
+    r, n = 0.5, 20_000
+    s = sampler(3)
+    wi = mi.Vector3f(float(np.sin(0.5)), 0.0, float(np.cos(0.5)))
+    wo = mi.warp.square_to_cosine_hemisphere(s.next_2d())
+    ctx = mi.BSDFContext()
+    ctx.component = 1  # the specular lobe only
+    ctx.type_mask = +mi.BSDFFlags.GlossyReflection
+
+    def f(b):
+        return np.asarray(b.eval(ctx, interaction(wi, N), wo).x)[:n]
+
+    dual = f(skin(0.5, 1.0, r))
+    single = {k: f(skin(0.5, 1.0, r * k, lobe_mix=1.0, lobe_roughness_0=1.0))
+              for k in (0.75, 1.3)}
+    np.testing.assert_allclose(dual, 0.85 * single[0.75] + 0.15 * single[1.3], rtol=2e-4,
+                               atol=1e-6)
+    # the dual lobe is sharper at the peak and wider in the tail than one lobe at r
+    one = f(skin(0.5, 1.0, r, lobe_mix=1.0, lobe_roughness_0=1.0))
+    assert dual.max() > 1.2 * one.max()
+    b = skin(0.8, 1.0, 0.4)
+    wi2 = mi.Vector3f(float(np.sin(0.7)), 0.0, float(np.cos(0.7)))
+    s2 = sampler(9)
+    _, w = b.sample(mi.BSDFContext(), interaction(wi2), s2.next_1d(), s2.next_2d())
+    wo2 = mi.warp.square_to_uniform_hemisphere(s2.next_2d())
+    v, pdf = b.eval_pdf(mi.BSDFContext(), interaction(wi2), wo2)
+    assert abs(float(dr.mean(w.x)[0]) - float(dr.mean(v.x)[0]) * 2 * np.pi) < 0.01
+    assert abs(float(dr.mean(pdf)[0]) * 2 * np.pi - 1.0) < 0.02
+    with pytest.raises(Exception, match="lobe_mix"):
+        skin(lobe_mix=1.5)
 
 
 def uv_sphere(n_lat=24, n_lon=48, r=0.5):

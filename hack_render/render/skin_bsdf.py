@@ -1,4 +1,4 @@
-"""The ``hack_skin`` BSDF: Lambert diffuse + GGX specular with skin Fresnel, map driven.
+"""The ``hack_skin`` BSDF: Lambert diffuse + dual-lobe GGX specular with skin Fresnel.
 
 A Python ``mi.BSDF`` plugin (JIT variants trace it into the same kernels as the C++
 plugins). Per shading point it reads four textures, all differentiable through
@@ -14,7 +14,14 @@ plugins). Per shading point it reads four textures, all differentiable through
 The model (with F(c) Schlick's Fresnel for F0 = ``f0``, 0.028 for skin, n = 1.4)::
 
     f(wi, wo) = rho/pi * (1 - s F(cos_i)) (1 - s F(cos_o))        (diffuse lobe)
-              + s F(wi.h) D(h) G(wi, wo) / (4 cos_i cos_o)        (GGX specular lobe)
+              + s F(wi.h) sum_k w_k D_k(h) G_k(wi, wo) / (4 cos_i cos_o)   (specular)
+
+Skin's specular is two GGX lobes (the oily film's sharp sheen over the rougher
+stratum corneum; the "dual lobe" of d'Eon & Luebke's and of production skin shaders):
+lobe k has perceptual roughness ``lobe_roughness[k]`` x r and weight ``w_k``
+(``lobe_mix`` = w_0, w_1 = 1 - w_0). Defaults 0.75 x r and 1.3 x r mixed 0.85 : 0.15
+(Unreal's subsurface-profile defaults); ``lobe_mix`` 1 with ``lobe_roughness`` (1, 1)
+gives the single lobe of before.
 
 Both lobes are symmetric in (wi, wo), so the BSDF is reciprocal; the diffuse lobe with
 s = 0 is exactly Lambertian (white furnace = rho); the (1 - sF) factors take the energy
@@ -27,6 +34,10 @@ which avoids light leaks the way Mitsuba's ``normalmap`` plugin does.
 from __future__ import annotations
 
 NAME = "hack_skin"
+#: Dual-lobe specular: perceptual roughness multipliers of the two lobes and the first's
+#: weight (Unreal's subsurface-profile defaults: 0.75, 1.30, 0.85).
+LOBE_ROUGHNESS = (0.75, 1.30)
+LOBE_MIX = 0.85
 #: Normal-incidence reflectance of skin (index of refraction about 1.4).
 SKIN_F0 = 0.028
 MIN_ALPHA = 1e-3
@@ -66,6 +77,14 @@ def _make_class():
             self.roughness = props["roughness"]
             self.normalmap = props["normalmap"] if "normalmap" in props else None
             self.f0 = float(props["f0"]) if "f0" in props else SKIN_F0
+            self.mix = float(props["lobe_mix"]) if "lobe_mix" in props else LOBE_MIX
+            self.lobe_r = (float(props["lobe_roughness_0"]) if "lobe_roughness_0" in props
+                           else LOBE_ROUGHNESS[0],
+                           float(props["lobe_roughness_1"]) if "lobe_roughness_1" in props
+                           else LOBE_ROUGHNESS[1])
+            if not (0.0 <= self.mix <= 1.0 and min(self.lobe_r) > 0.0):
+                raise ValueError(f"hack_skin: expected 0 <= lobe_mix <= 1 and positive lobe "
+                                 f"roughness multipliers, found {self.mix}, {self.lobe_r}.")
             sv = mi.BSDFFlags.SpatiallyVarying | mi.BSDFFlags.FrontSide
             diffuse = mi.BSDFFlags.DiffuseReflection | sv
             glossy = mi.BSDFFlags.GlossyReflection | sv
@@ -91,10 +110,19 @@ def _make_class():
             return mi.Frame3f(nw)
 
         def _params(self, si, active):
+            """Specular intensity s and the two lobes' GGX alphas."""
             s = dr.clip(self.specular.eval_1(si, active), 0.0, 1.0)
             r = self.roughness.eval_1(si, active)
-            alpha = dr.maximum(dr.square(r), MIN_ALPHA)
-            return s, alpha
+            alphas = tuple(dr.maximum(dr.square(k * r), MIN_ALPHA) for k in self.lobe_r)
+            return s, alphas
+
+        def _lobes(self, alphas):
+            """[(weight, GGX distribution)] of the specular lobes (weight 0 ones left out)."""
+            out = []
+            for w, a in zip((self.mix, 1.0 - self.mix), alphas):
+                if w > 0.0:
+                    out.append((w, mi.MicrofacetDistribution(mi.MicrofacetType.GGX, a, True)))
+            return out
 
         def _lobe_prob(self, si, s, cos_i, active):
             """Probability of sampling the specular lobe, from the lobes' albedos."""
@@ -116,7 +144,7 @@ def _make_class():
             frame = self._frame(si, active)
             wi, wo_p, ok = self._local(si, frame, wo)
             active = active & ok
-            s, alpha = self._params(si, active)
+            s, alphas = self._params(si, active)
             cos_i = mi.Frame3f.cos_theta(wi)
             cos_o = mi.Frame3f.cos_theta(wo_p)
             has_d = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0)
@@ -127,13 +155,15 @@ def _make_class():
                 rho = self.albedo.eval(si, active)
                 att = (1.0 - s * schlick(self.f0, cos_i)) * (1.0 - s * schlick(self.f0, cos_o))
                 value += rho * (att * cos_o * dr.inv_pi)
-            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
             h = dr.normalize(wi + wo_p)
-            pdf_s = distr.pdf(wi, h) / dr.maximum(4.0 * dr.dot(wo_p, h), 1e-8)
+            jac = 1.0 / dr.maximum(4.0 * dr.dot(wo_p, h), 1e-8)
+            pdf_s, dg = mi.Float(0.0), mi.Float(0.0)
+            for w, distr in self._lobes(alphas):
+                pdf_s += w * distr.pdf(wi, h) * jac
+                if has_s:
+                    dg += w * distr.eval(h) * distr.G(wi, wo_p, h)
             if has_s:
-                d = distr.eval(h)
-                g = distr.G(wi, wo_p, h)
-                spec = s * schlick(self.f0, dr.dot(wi, h)) * d * g / dr.maximum(4.0 * cos_i, 1e-8)
+                spec = s * schlick(self.f0, dr.dot(wi, h)) * dg / dr.maximum(4.0 * cos_i, 1e-8)
                 value += mi.Color3f(spec)
             p_s = self._lobe_prob(si, s, cos_i, active)
             if not has_d:
@@ -156,7 +186,7 @@ def _make_class():
         def sample(self, ctx, si, sample1, sample2, active=True):
             frame = self._frame(si, active)
             wi = frame.to_local(si.to_world(si.wi))
-            s, alpha = self._params(si, active)
+            s, alphas = self._params(si, active)
             has_d = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0)
             has_s = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1)
             p_s = self._lobe_prob(si, s, mi.Frame3f.cos_theta(wi), active)
@@ -165,8 +195,13 @@ def _make_class():
             if not has_s:
                 p_s = mi.Float(0.0)
             pick_s = sample1 < p_s
-            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
-            m, _ = distr.sample(wi, sample2)
+            # which specular lobe: sample1 reused, rescaled within [0, p_s)
+            u = sample1 / dr.maximum(p_s, 1e-8)
+            lobes = self._lobes(alphas)
+            m, _ = lobes[0][1].sample(wi, sample2)
+            if len(lobes) > 1:
+                m1, _ = lobes[1][1].sample(wi, sample2)
+                m = dr.select(u < lobes[0][0], m, m1)
             wo_s = mi.reflect(wi, m)
             wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
             wo_p = dr.select(pick_s, wo_s, wo_d)
@@ -198,7 +233,8 @@ def _make_class():
             pass  # textures are evaluated at render time; nothing is cached here
 
         def to_string(self):
-            return f"SkinBSDF[f0={self.f0}, normalmap={self.normalmap is not None}]"
+            return (f"SkinBSDF[f0={self.f0}, lobes={self.lobe_r} mixed {self.mix}, "
+                    f"normalmap={self.normalmap is not None}]")
 
     return SkinBSDF
 
