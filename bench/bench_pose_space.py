@@ -9,10 +9,18 @@ poses) and the folded skin triangles, for
 
 * plain LBS: the model without pose correctives,
 * the previous shipped model (a model file from git history, ``--previous REV``),
-* the shipped model (or ``--model``).
+* the shipped model (or ``--model``),
+
+and, per pose, the lower bound on the largest stretch that any deformer keeping the face
+rigid with the skull and the chest rim with the thorax must reach
+(:func:`hack_render.geometry.deformation.stretch_lower_bound`): how many pose-identity
+pairs no corrective or weighting can bring within the issue's targets (stretch <= 35 % /
+60 %), and each model's stretch above the bound.
 
     python bench/bench_pose_space.py --threads 2             # 2,000 poses x 10 identities
     python bench/bench_pose_space.py --poses 400 --identities 3 --out /tmp/p.json
+    python bench/bench_pose_space.py --bound-only            # the bound alone, merged into
+                                                             # the results file's run
 
 Writes ``bench/results/pose_space.json`` (commit, date, machine, command first).
 """
@@ -34,6 +42,8 @@ from provenance import ROOT, write_result
 
 from hack_render.geometry.deformation import (
     model_deformation,
+    model_stretch_bound,
+    rigid_anchors,
     sample_pose_space,
     skin_topology,
 )
@@ -60,8 +70,20 @@ def without_correctives(model_path) -> HackModel:
     return HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
 
 
+#: the issue's stretch targets: p99 and max of the largest skin-edge stretch per pose
+TARGETS = (0.35, 0.60)
+
+
+def summarise_bound(bound: np.ndarray) -> dict:
+    """Median / p99 / max of the per-pose stretch lower bound, and the pairs above each
+    target (no deformer with the model's rigid rows can meet the target on them)."""
+    return {"poses": int(bound.size), "median": float(np.median(bound)),
+            "p99": float(np.quantile(bound, 0.99)), "max": float(bound.max()),
+            "poses_above": {f"{t:.2f}": int((bound > t).sum()) for t in TARGETS}}
+
+
 def summarise(stretch: np.ndarray, comp: np.ndarray, folded: np.ndarray,
-              lbs: np.ndarray | None) -> dict:
+              lbs: np.ndarray | None, bound: np.ndarray | None = None) -> dict:
     out = {"poses": int(stretch.size),
            "stretch": {"median": float(np.median(stretch)), "p99": float(np.quantile(stretch, 0.99)),
                        "max": float(stretch.max())},
@@ -70,7 +92,56 @@ def summarise(stretch: np.ndarray, comp: np.ndarray, folded: np.ndarray,
            "folded_poses": int((folded > 0).sum()), "folded_triangles": int(folded.sum())}
     if lbs is not None:
         out["poses_worse_than_lbs"] = int((stretch > lbs + 0.01).sum())
+    if bound is not None:
+        gap = stretch - bound
+        out["stretch_above_bound"] = {"median": float(np.median(gap)),
+                                      "p99": float(np.quantile(gap, 0.99)), "min": float(gap.min())}
     return out
+
+
+def bounds(model: HackModel, betas: torch.Tensor, theta: torch.Tensor, psi) -> np.ndarray:
+    """(I, P) stretch lower bound per identity and pose (expression psi held, or None)."""
+    topo = skin_topology(model)
+    anchors = rigid_anchors(model, topo)
+    return np.stack([model_stretch_bound(model, b[None], theta, psi, topo, anchors).numpy()
+                     for b in betas])
+
+
+def bound_section(model, betas, theta, psi, fams, fam_of) -> dict:
+    """The results' ``bound`` entry for one configuration, and the raw (I, P) bound."""
+    b = bounds(model, betas, theta, psi)
+    entry = {"all": summarise_bound(b)}
+    for k, fam in enumerate(fams):
+        entry[fam] = summarise_bound(b[:, fam_of == k])
+    a = entry["all"]
+    print(f"stretch bound: median {a['median']:.3f} p99 {a['p99']:.3f} max {a['max']:.3f} | "
+          f"pairs above 0.35: {a['poses_above']['0.35']}, above 0.60: {a['poses_above']['0.60']}",
+          flush=True)
+    return entry, b
+
+
+def merge_bound(args, models, betas, theta, psi, fams, fam_of) -> None:
+    """``--bound-only``: add the bound to an existing results file of the same sampling."""
+    import json
+
+    from provenance import commit
+
+    res = json.loads(args.out.read_text())
+    same = (res["poses"], res["identities"], res["seed"]) == (args.poses, args.identities, args.seed)
+    if not same:
+        raise SystemExit(f"{args.out} was sampled with poses/identities/seed {res['poses']}/"
+                         f"{res['identities']}/{res['seed']}, not {args.poses}/{args.identities}/"
+                         f"{args.seed}: run the whole bench instead")
+    t0 = time.time()
+    for conf, expr in (("neutral", False), ("expression", True)):
+        res["configurations"][conf]["bound"], _ = bound_section(
+            models["shipped"], betas, theta, psi if expr else None, fams, fam_of)
+    res["bound_provenance"] = {"commit": commit(), "command": " ".join(sys.argv),
+                               "seconds": time.time() - t0,
+                               "note": "the bound depends on the skeleton and the rigid rows "
+                                       "only; the models' figures are from the run above"}
+    args.out.write_text(json.dumps(res, indent=1) + "\n")
+    print(f"merged the bound into {args.out}")
 
 
 def main(argv=None) -> None:
@@ -83,11 +154,14 @@ def main(argv=None) -> None:
                     help="git revision of the previous shipped model ('' to skip)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench/results/pose_space.json")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
+    ap.add_argument("--bound-only", action="store_true",
+                    help="compute the stretch lower bound alone and merge it into --out "
+                         "(a results file of the same poses, identities and seed)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     models = {"lbs": without_correctives(args.model),
               "shipped": HackModel(*load_model_file(args.model))}
-    if args.previous:
+    if args.previous and not args.bound_only:
         models["previous"] = model_from_git(args.previous)
     topo = skin_topology(models["shipped"])
     fams = sample_pose_space(args.poses, args.seed)
@@ -96,6 +170,8 @@ def main(argv=None) -> None:
     g = torch.Generator().manual_seed(args.seed)
     betas = torch.randn(args.identities, 20, generator=g)
     psi = models["shipped"].expression_vector(EXPRESSION)
+    if args.bound_only:
+        return merge_bound(args, models, betas, theta, psi, fams, fam_of)
     res: dict = {"poses": args.poses, "identities": args.identities, "seed": args.seed,
                  "families": {k: len(v) for k, v in fams.items()}, "expression": EXPRESSION,
                  "previous": args.previous, "configurations": {}}
@@ -108,13 +184,15 @@ def main(argv=None) -> None:
             raw[name] = [np.stack([getattr(s, k).numpy() for s in st])
                          for k in ("stretch", "compression", "folded")]
         conf = {}
+        conf["bound"], bound = bound_section(models["shipped"], betas, theta,
+                                             psi if expr else None, fams, fam_of)
         for name, (s, c, f) in raw.items():
             lbs = raw["lbs"][0] if name != "lbs" else None
-            entry = {"all": summarise(s, c, f, lbs)}
+            entry = {"all": summarise(s, c, f, lbs, bound)}
             for k, fam in enumerate(fams):
                 sel = fam_of == k
                 entry[fam] = summarise(s[:, sel], c[:, sel], f[:, sel],
-                                       None if lbs is None else lbs[:, sel])
+                                       None if lbs is None else lbs[:, sel], bound[:, sel])
             conf[name] = entry
             a = entry["all"]
             print(f"{'expression' if expr else 'neutral':10s} {name:9s} stretch median "

@@ -13,7 +13,9 @@ Definitions (per pose, over the skin triangles: vertex groups ``face`` and
 * folded triangles: those whose posed normal points against their rest normal carried by
   the triangle's rigid rotation: the rotation nearest (polar decomposition) to the blend of
   the node rotations by the summed skinning weights of its corners, so skin turned inside
-  out counts, and skin merely turned with the head or the neck does not.
+  out counts, and skin merely turned with the head or the neck does not;
+* stretch lower bound: what no corrective or neck weighting can get below while the skin
+  rigid with the skull and with the thorax stays so (:func:`stretch_lower_bound`).
 """
 
 from __future__ import annotations
@@ -167,3 +169,122 @@ def sample_pose_space(n: int, seed: int, dtype=torch.float64) -> dict[str, torch
         fam[f"head_{ax}"] = sample_head_poses(n // 12, g, ax, dtype)
     fam["head_xyz"] = sample_head_poses(n - sum(len(v) for v in fam.values()), g, "xyz", dtype)
     return fam
+
+
+@dataclass
+class RigidAnchors:
+    """Skin vertices that every pose carries rigidly with one node (skinning rows with one
+    weight of 1: the face with the skull, the chest rim with the thorax) and that border
+    skin not rigid with that node: the pairs of them on different nodes bound the stretch
+    (:func:`stretch_lower_bound`). Rigid vertices inside a rigid patch add nothing: a
+    shortest path from one leaves the patch through a border vertex, and its rigid part
+    keeps its length.
+
+    Attributes:
+        vertices: (S,) vertex ids; node: (S,) the node each is rigid with (0 = root, the
+            thorax; K = o-c1, the skull).
+        edges: (E, 2) the skin edges the bounding paths run on: those with an end not
+            rigid, and those joining two anchors (paths through the inside of a rigid
+            patch are left out: fewer paths only weaken the bound, and it stays cheap).
+    """
+
+    vertices: torch.Tensor
+    node: torch.Tensor
+    edges: torch.Tensor
+
+
+def rigid_anchors(model, topo: SkinTopology | None = None) -> RigidAnchors:
+    """The :class:`RigidAnchors` of a :class:`HackModel`'s skin."""
+    topo = topo or skin_topology(model)
+    w = model.skinning_weights
+    skin = torch.zeros(w.shape[0], dtype=torch.bool)
+    skin[topo.faces.unique()] = True
+    node = torch.where(skin & (w.max(1).values >= 1 - 1e-6), w.argmax(1), -1)
+    a, b = topo.edges[:, 0], topo.edges[:, 1]
+    differ = node[a] != node[b]
+    border = torch.zeros_like(skin)
+    border[a[differ & (node[a] >= 0)]] = True
+    border[b[differ & (node[b] >= 0)]] = True
+    ids = border.nonzero()[:, 0]
+    free = (node[a] < 0) | (node[b] < 0) | (border[a] & border[b])
+    return RigidAnchors(vertices=ids, node=node[ids], edges=topo.edges[free])
+
+
+def edge_path_lengths(vertices: torch.Tensor, edges: torch.Tensor, sources: torch.Tensor,
+                      max_rounds: int = 100000) -> torch.Tensor:
+    """(S, N) length of the shortest path along ``edges`` from each source to every vertex
+    of (N, 3) ``vertices`` (inf where unreachable): Bellman-Ford relaxation over all edges
+    at once, until nothing shortens."""
+    n = vertices.shape[0]
+    ln = (vertices[edges[:, 0]] - vertices[edges[:, 1]]).norm(dim=-1)
+    i = torch.cat([edges[:, 0], edges[:, 1]])
+    j = torch.cat([edges[:, 1], edges[:, 0]])
+    ln = torch.cat([ln, ln])
+    dist = torch.full((len(sources), n), float("inf"), dtype=vertices.dtype)
+    dist[torch.arange(len(sources)), sources] = 0.0
+    for _ in range(max_rounds):
+        new = dist.scatter_reduce(1, j.expand(len(sources), -1), dist[:, i] + ln, "amin")
+        if torch.equal(new, dist):
+            break
+        dist = new
+    return dist
+
+
+def stretch_lower_bound(rest: torch.Tensor, transforms: torch.Tensor, anchors: RigidAnchors,
+                        paths: torch.Tensor | None = None) -> torch.Tensor:
+    """(B,) a lower bound on the largest skin-edge stretch (:func:`deformation_stats`) of
+    any deformation that keeps the anchors rigid with their nodes.
+
+    For two anchors s and t on different nodes, the shortest edge path between them at
+    rest has length L_st; posed, its edges span at least the straight distance d_st between
+    the two rigidly carried ends, so one of its edges is stretched by at least
+    d_st / L_st - 1. Whatever the correctives or the weights of the skin between, the
+    largest stretch is at least the largest of these.
+
+    Args:
+        rest: (N, 3) the identity (and expression) at zero pose.
+        transforms: (B, K + 1, 4, 4) node skinning transforms (rest to posed).
+        anchors: :func:`rigid_anchors`.
+        paths: (S, S) rest path lengths between the anchors, if already computed
+            (:func:`anchor_paths`).
+    """
+    if paths is None:
+        paths = anchor_paths(rest, anchors)
+    paths = paths.to(rest.dtype)
+    m = transforms.to(rest.dtype)[:, anchors.node]  # (B, S, 4, 4)
+    p = torch.einsum("bsij,sj->bsi", m[..., :3, :3], rest[anchors.vertices]) + m[..., :3, 3]
+    other = anchors.node[:, None] != anchors.node[None]
+    ratio = torch.cdist(p, p) / paths.clamp(min=1e-12)
+    return torch.where(other, ratio, torch.zeros_like(ratio)).amax((1, 2)) - 1
+
+
+def anchor_paths(rest: torch.Tensor, anchors: RigidAnchors) -> torch.Tensor:
+    """(S, S) shortest path lengths between the anchors along ``anchors.edges`` on (N, 3)
+    ``rest``."""
+    return edge_path_lengths(rest, anchors.edges, anchors.vertices)[:, anchors.vertices]
+
+
+def model_stretch_bound(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
+                        topo: SkinTopology | None = None, anchors: RigidAnchors | None = None,
+                        chunk: int = 256) -> torch.Tensor:
+    """(P,) :func:`stretch_lower_bound` of one identity (beta (1, S), expression psi held)
+    over poses theta (P, 8, 3): what no corrective or neck weighting can get below while
+    the face stays rigid with the skull and the chest rim with the thorax."""
+    from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
+
+    topo = topo or skin_topology(model)
+    anchors = anchors or rigid_anchors(model, topo)
+    person = model.personalize(beta)
+    with torch.no_grad():
+        psi1 = None if psi is None else torch.as_tensor(psi, dtype=model.template.dtype).reshape(1, -1)
+        rest = person(psi=psi1).vertices[0].double()
+        paths = anchor_paths(rest, anchors)
+        out = []
+        for s in range(0, theta.shape[0], chunk):
+            th = theta[s:s + chunk].double()
+            f = th.shape[0]
+            rot = local_rotations(th, th.new_zeros(f, 3))
+            j = person.joints.double().expand(f, -1, -1)
+            _, rel = rigid_transforms(rot, torch.cat([j[:, :1], j], 1), chain_parents(model.parents))
+            out.append(stretch_lower_bound(rest, rel, anchors, paths))
+    return torch.cat(out).to(model.template.dtype)

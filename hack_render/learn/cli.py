@@ -68,6 +68,12 @@ def learn_pose(
     keep_weights: bool = typer.Option(False, "--keep-weights", help="Learn the correctives "
                                       "only; keep the file's skinning weights."),
     seed: int = typer.Option(12, help="Seed of the sampled identities and poses."),
+    continue_: bool = typer.Option(False, "--continue", help="Continue from the model file's "
+                                   "correctives and neck weights (M_P restarted, its mean "
+                                   "folded into P) instead of from zero."),
+    lr: float = typer.Option(0.01, "--lr", help="Adam step of P, the components and the "
+                             "weights' logits (cm), decaying linearly to 10 %."),
+    mlp_lr: float = typer.Option(1e-4, "--mlp-lr", help="Adam step of M_P."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Re-learn a model's pose correctives (P, the personalised components and M_P) and the
@@ -87,13 +93,23 @@ def learn_pose(
     boundary.number(iterations, "--iterations", 1, 1000000, integer=True)
     boundary.number(identities, "--identities", 1, 1000, integer=True)
     boundary.number(seed, "--seed", 0, 2 ** 32 - 1, integer=True)
+    boundary.number(lr, "--lr", 1e-6, 1.0)
+    boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     typer.echo(f"learn pose: {iterations} steps of about 1.5 s on 2 CPU cores (~"
                f"{max(1, round(iterations * 1.5 / 60))} min)", err=True)
     src = model_path or default_model_path()
     arrays, meta = load_model_file(src)
+    if continue_ and "pose_pca_components" not in arrays:
+        from hack_render.errors import HackError
+
+        raise HackError(f"{src}: --continue needs a model file with learned pose correctives "
+                        "(pose_basis, pose_pca_components, pose_mlp_*); drop --continue to "
+                        "learn them from zero.")
+    start = dict(arrays) if continue_ else None
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
-    po = learn_pose_energy(arrays, iterations=iterations, identities=identities,
-                           learn_weights=not keep_weights, seed=seed, progress=not quiet)
+    po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
+                           learn_weights=not keep_weights, seed=seed, progress=not quiet,
+                           start=start, mlp_lr=mlp_lr)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

@@ -184,11 +184,17 @@ def clean_weights(w: np.ndarray, w0: np.ndarray, floor: float = 1e-3, most: int 
 
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
-                      learn_weights: bool = True, seed: int = 12, progress: bool = True) -> dict:
+                      learn_weights: bool = True, seed: int = 12, progress: bool = True,
+                      start: dict | None = None, mlp_lr: float = 1e-4) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
-    model arrays and a report."""
+    model arrays and a report.
+
+    ``start``: model arrays whose correctives and weights (``pose_*``,
+    ``skinning_weights``) the learner continues from, M_P restarted
+    (:meth:`~hack_render.learn.pose_energy.PoseEnergyLearner.restart_personalisation`);
+    without it P and the components start at zero."""
     from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
 
     sub = pose_subset(arrays)
@@ -199,8 +205,12 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
                                 arrays["skinning_weights"], arrays["joint_parents"], region,
                                 num_components=num_components, seed=seed)
+    old_spread = None
+    if start is not None:
+        learner.start_from(start)
+        old_spread = learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
-                      learn_weights=learn_weights, seed=seed, progress=progress)
+                      learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr)
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = res.pose_basis
     out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),
@@ -212,10 +222,13 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
         w[sub] = res.weights
         out["skinning_weights"] = clean_weights(w, arrays["skinning_weights"]).astype(np.float32)
     report = {"method": "energy (hack_render.learn.pose_energy)", "iterations": iterations,
-              "lr_cm": lr, "mlp_lr": 1e-4, "identities_per_step": identities, "poses_per_identity": poses,
+              "lr_cm": lr, "mlp_lr": mlp_lr, "identities_per_step": identities, "poses_per_identity": poses,
               "components": num_components, "subset_vertices": int(m),
               "region_triangles": len(region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history}
+    if start is not None:
+        report["continued"] = {"from": "the input model's correctives and neck weights",
+                               "mp_restarted": True, "old_mp_output_std_max": old_spread}
     return {"arrays": out, "report": report}
 
 
@@ -250,6 +263,10 @@ def pose_provenance(report: dict) -> dict:
         f"identities beta ~ N(0, I) x {report['poses_per_identity']} poses: each joint uniform "
         "within its limits, whole-head rotations up to each axis's full range, singly and "
         "combined); hack_render.learn.pose_energy")}
+    if report.get("continued"):
+        out["pose_blendshapes"] += (f"; these {report['iterations']} steps continued from the "
+                                    "input model's correctives and neck weights, with M_P "
+                                    "restarted (its mean output folded into P)")
     if report.get("learned_weights"):
         out["skinning_weights_neck"] = ("optimised with the pose correctives (same energy), "
                                         "from the procedural weights, on the neck's "

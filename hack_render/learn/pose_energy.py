@@ -202,6 +202,24 @@ class PoseEnergyLearner:
             w = torch.as_tensor(np.asarray(arrays["skinning_weights"]), dtype=self.logits.dtype)
             self.logits.copy_(torch.log(w[sub_ids].clamp(min=1e-6)))
 
+    def restart_personalisation(self, seed: int = 0, samples: int = 512) -> float:
+        """Fold M_P's mean output over sampled identities into P (``P += mean_beta m(beta) C``)
+        and restart M_P small, as at construction: a continuation whose M_P had died (one
+        constant for every identity) keeps its generic correctives and learns the personal
+        part afresh. Returns the largest standard deviation of the old m(beta) over the
+        samples (0 for a dead M_P)."""
+        g = torch.Generator().manual_seed(seed)
+        beta = torch.randn(samples, self.num_shape, generator=g, dtype=self.template.dtype)
+        with torch.no_grad():
+            w = self.mlp(beta)
+            self.p_cm += torch.einsum("c,cdmk->dmk", w.mean(0), self.c_cm)
+            for layer in self.mlp:
+                if isinstance(layer, torch.nn.Linear):
+                    layer.reset_parameters()
+            torch.nn.init.normal_(self.mlp[4].weight, std=0.01, generator=g)
+            torch.nn.init.zeros_(self.mlp[4].bias)
+        return float(w.std(0).max())
+
     def _laplacian(self, m: int) -> torch.Tensor:
         sub = self.region.subset
         loc = -torch.ones(len(self.region.vertices), dtype=torch.long)
