@@ -17,9 +17,17 @@
     (no denoiser) as a user runs it, CPU seconds of the child process (user + system,
     median of 3), and a breakdown of one in-process run by phase (CPU seconds).
 
+(e) Subsurface scattering by volumetric path tracing (``--only sss``): a skin-sized
+    sphere (radius 9 cm) with a rough dielectric boundary (n = 1.4) around a homogeneous
+    medium whose coefficients come from ``appearance/skin_optics.py`` (dermis with 5 %
+    blood, reduced scattering, at 610 / 550 / 465 nm for R, G, B), rendered by
+    ``volpath`` against the same sphere with ``hack_skin`` (albedo: the same model's
+    two-layer Kubelka-Munk albedo) under the studio rig: CPU seconds at equal spp.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
+       python bench/bench_render.py --only sss
 """
 
 from __future__ import annotations
@@ -279,6 +287,55 @@ def e2e_benchmark(repeats: int = 3) -> None:
         print(out.stdout.rstrip())
 
 
+def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
+    import mitsuba as mi
+
+    from appearance.skin_optics import (WAVELENGTHS, dermis_absorption, reduced_scattering,
+                                        skin_albedo)
+    from hack_render.render import emitters, materials
+    from hack_render.render.image_io import write_png
+    from scenes import cameras, lights
+
+    wl = np.array([610.0, 550.0, 465.0])
+    mu_a = dermis_absorption(0.05, wl) * 1e3  # 1/mm -> 1/m
+    mu_s = reduced_scattering(wl)[1] * 1e3  # dermis, reduced (isotropic phase)
+    albedo_rgb = skin_albedo(0.05, 0.05, 0.7).tolist()
+    print(f"  medium: sigma_a {np.round(mu_a, 1).tolist()} 1/m, sigma_s' "
+          f"{np.round(mu_s, 0).tolist()} 1/m (mean free path {1e3 / mu_s.mean():.2f} mm); "
+          f"hack_skin albedo {np.round(albedo_rgb, 3).tolist()} ({len(WAVELENGTHS)}-band model)")
+    cam = cameras.look_at(np.array([0.0, 0.0, 0.6]), np.zeros(3))
+    K = cameras.intrinsics(size, size, 85.0)
+    camera = cameras.Camera(K, cam[0], cam[1], size, size, "sss")
+    rig = lights.preset("studio")
+    sphere = {"type": "sphere", "radius": 0.09}
+    maps = materials.SkinMaps.constant(4, albedo=albedo_rgb)
+    sss = dict(sphere, bsdf={"type": "roughdielectric", "alpha": 0.3, "int_ior": 1.4},
+               interior={"type": "homogeneous", "albedo": {"type": "rgb", "value": (
+                   mu_s / (mu_s + mu_a)).tolist()}, "sigma_t": {"type": "rgb", "value": (
+                       (mu_s + mu_a) / (mu_s + mu_a).max()).tolist()},
+                   "scale": float((mu_s + mu_a).max())})
+    surf = dict(sphere, bsdf=materials.skin_bsdf(maps, jit=True))
+    results = {}
+    for name, shape, integ in (("hack_skin (path, depth 8)", surf,
+                                {"type": "path", "max_depth": 8, "hide_emitters": True}),
+                               (f"volpath SSS (depth {max_depth})", sss,
+                                {"type": "volpath", "max_depth": max_depth,
+                                 "rr_depth": max_depth, "hide_emitters": True})):
+        d = {"type": "scene", "integrator": integ, "head": shape,
+             "sensor": emitters.sensor_dict(camera, spp, sampler="multijitter")}
+        d.update(emitters.emitter_dicts(rig, None))
+        scene = mi.load_dict(d)
+        np.asarray(mi.render(scene, seed=0))
+        t0 = time.process_time()
+        img = np.asarray(mi.render(scene, seed=1))
+        results[name] = (time.process_time() - t0, img)
+        print(f"  {name:28s} {results[name][0]:7.2f} CPU s, mean radiance "
+              f"{np.round(img[..., :3][img[..., 3] > 0.99].mean(0), 3).tolist()}")
+        write_png(f"/tmp/sss_{name.split()[0]}.png", img[..., :3])
+    (a, _), (b, _) = results.values()
+    print(f"(e) {size}^2 {spp} spp: volumetric SSS / hack_skin = {b / a:.0f}x the CPU time")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -289,7 +346,7 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--only", choices=("all", "quality", "e2e"), default="all")
+    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss"), default="all")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -300,6 +357,11 @@ def main() -> None:
     variant = ensure_variant(args.variant)
     if args.cold_only:
         turntable_benchmark(args.tt_size, args.tt_spp, args.frames, True)
+        return
+    if args.only == "sss":
+        with recorded(args.out, "Rendering: volumetric subsurface scattering cost"):
+            print(f"variant: {variant}")
+            sss_benchmark()
         return
     if args.only == "e2e":
         with recorded(args.out, "Rendering: end-to-end `hack-render render`"):
