@@ -5,8 +5,8 @@
 #   bash scripts/setup.sh --test   # runtime + test and fitting extras (pytest, Ray, mkdocs + material + mkdocstrings)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-extras="fit"
-[[ "${1:-}" == "--test" ]] && extras="fit,test"
+extras="fit,denoise"  # denoise: Intel Open Image Denoise (pyoidn, ~170 MB) for --denoise
+[[ "${1:-}" == "--test" ]] && extras="fit,denoise,test"
 
 SUDO=""; [[ $(id -u) -ne 0 ]] && SUDO="sudo"
 # Mitsuba's CPU backend (llvm_ad_rgb) needs a system LLVM; 14/15 abort with
