@@ -124,3 +124,25 @@ def test_05_failing_denoiser_is_a_clear_error_or_the_noisy_image(monkeypatch):
         warnings.simplefilter("always")
         assert np.array_equal(dn.denoise(img, fallback=True), img)
     assert any(issubclass(w.category, dn.DenoiserWarning) for w in caught)
+
+
+def test_06_cli_keeps_the_noisy_image_and_says_when_spp_is_rounded(tmp_path, capsys):
+    pytest.importorskip("pyoidn")
+    import imageio.v3 as iio
+
+    out = tmp_path / "a.png"
+    assert run(["render", "-o", str(out), "--resolution", "32", "--spp", "8",
+                "--denoise", "on", "--keep-noisy", "--sampler", "stratified"]) == 0
+    err = capsys.readouterr().err
+    assert "8 requested, 9 rendered" in err  # stratified: the next square
+    den, noisy = iio.imread(out), iio.imread(tmp_path / "a.noisy.png")
+    assert den.shape == noisy.shape and np.abs(den.astype(int) - noisy).mean() > 0.2
+    tt = tmp_path / "tt"
+    assert run(["turntable", "-o", str(tt), "--frames", "2", "--resolution", "32", "--spp", "4",
+                "--formats", "frames", "--keep-noisy", "--quiet"]) == 0
+    assert sorted(p.name for p in (tt / "noisy").iterdir()) == ["frame_0000.png",
+                                                                "frame_0001.png"]
+    assert not (tmp_path / "b.noisy.png").exists()
+    assert run(["render", "-o", str(tmp_path / "b.png"), "--resolution", "32", "--spp", "4",
+                "--denoise", "off", "--keep-noisy"]) == 0
+    assert not (tmp_path / "b.noisy.png").exists()  # nothing denoised, nothing kept twice
