@@ -89,6 +89,7 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     assert (w[shot.rgba[..., 3] < 0.5] == 0).all()
 
 
+@pytest.mark.slow
 def test_02_occluder_is_rejected(model):
     """A dark square pasted over the cheek (a hand, hair) gets no weight and leaves the
     baked texels under it near the truth (not dark)."""
@@ -97,7 +98,7 @@ def test_02_occluder_is_rejected(model):
     from hack_render.fit import texture
     from hack_render.fit.photo import Photo
 
-    f, cfg, true_maps, prior, truth = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, truth = _fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5

@@ -69,6 +69,9 @@ class LandmarkConfig:
     # --landmarks files follow "detector" (dlib's convention: the embedding above) or
     # "vertices" (they mark the model's own landmark vertices)
     files_follow: str = "detector"
+    # where dlib finds no face: "mesh" (the vision package's face mesh, any angle: its
+    # hidden points get no weight) or "off" (the fit stops, exit 2)
+    fallback: str = "mesh"
 
 
 @dataclass
@@ -89,6 +92,11 @@ class CameraConfig:
     use_photo_focal: bool = True
     photo_focal_log_sigma: float = 0.05
     fit_focal: bool = True
+    # what turns to face the camera: "torso" (global_orient: head, neck and chest together,
+    # so a three-quarter camera is a turned body, not a twisted neck; the shape stage's
+    # silhouette then moves the neck where the shoulders say so) or "head" (the neck's
+    # joints, as before: a frontal body with the head turned)
+    rotate: str = "torso"
 
 
 @dataclass
@@ -115,7 +123,14 @@ class ShapeConfig:
     w_rot: float = 1.0               # E_rot (paper Eq. 9)
     w_sim: float = 0.1               # E_sim (paper Eq. 10, normalised by joint ranges)
     w_dtheta: float = 0.5            # residual joint rotations beyond the anatomical share
-    w_global: float = 1.0            # torso (global) rotation prior
+    # torso (global) rotation prior: weak, since the camera may stand anywhere about the
+    # body; the neck's rotation (head_angles, beyond the anatomical prior's E_rot) costs
+    # w_neck per rad^2, so a turn the landmarks cannot place goes to the torso (synthetic:
+    # camera yaw 30 deg, neck 3 deg -> fitted neck yaw 32 deg with w_global 1 and no neck
+    # prior; tests/test_fit_views.py)
+    w_global: float = 0.01
+    w_neck: float = 0.5
+    lr_torso: float = 0.005          # torso rotation (radians)
 
 
 @dataclass
@@ -141,6 +156,10 @@ class SilhouetteConfig:
     # give back shadowed skin the colour key dropped (as dark as the backdrop, but of the
     # skin's chromaticity: silhouette._grow_by_chroma)
     chroma: bool = True
+    # on a background that is not plain: the person mask of the vision package's
+    # segmentation (hack_render.vision.segment; MediaPipe selfie segmentation), and its
+    # occluders (hair, hands over the face) left out of the photometric term
+    segment: bool = True
 
 
 @dataclass
@@ -217,7 +236,11 @@ class FinalConfig:
 
     enabled: bool = True
     # samples per pixel of render.png (and of the render the bake divides the photo by)
+    # without a denoiser; with Intel OIDN (the denoise extra, render/denoise.py) and
+    # denoise "auto": spp_denoised samples, denoised with the render's albedo and normals
     spp: int = 256
+    denoise: str = "auto"
+    spp_denoised: int = 64
     max_depth: int = 2               # path depth: the photometric stage's (direct light)
     max_side: int = 1024             # render.png's long side at most (the photo's size below)
     atlas_height: int = 1024         # the baked diffuse map: atlas_height x 2 atlas_height
@@ -252,6 +275,9 @@ class FitConfig:
                 raise HackError("config landmarks.point_weights: expected 68 finite weights "
                                 f">= 0 with a positive sum, found shape {w.shape}, min "
                                 f"{w.min() if w.size else 'n/a'}.")
+        if lm.fallback not in ("mesh", "off"):
+            raise HackError(f"config landmarks.fallback: expected 'mesh' or 'off', found "
+                            f"{lm.fallback!r}.")
         if lm.files_follow not in ("detector", "vertices"):
             raise HackError(f"config landmarks.files_follow: expected 'detector' or 'vertices', "
                             f"found {lm.files_follow!r}.")
@@ -302,10 +328,16 @@ class FitConfig:
         if not isinstance(self.silhouette.chroma, bool):
             raise HackError(f"config silhouette.chroma: expected true or false, found "
                             f"{self.silhouette.chroma!r}.")
+        if self.camera.rotate not in ("torso", "head"):
+            raise HackError(f"config camera.rotate: expected 'torso' or 'head', found "
+                            f"{self.camera.rotate!r}.")
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")
         fc = self.final
+        if fc.denoise not in ("auto", "off"):
+            raise HackError(f"config final.denoise: expected 'auto' or 'off', found "
+                            f"{fc.denoise!r}.")
         if not 1 <= fc.spp <= 4096 or not 1 <= fc.max_depth <= 16:
             raise HackError(f"config final: expected spp 1..4096 and max_depth 1..16, found "
                             f"{fc.spp} and {fc.max_depth}.")

@@ -152,16 +152,51 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     if mask is not None:
         view.silhouette = PhotoSilhouette.from_mask(mask, "file")
         view.silhouette_note = "mask file"
+        view.shoulders = shows_shoulders(np.asarray(mask) > 0.5, view.detection.points)
         return
     m, why = segment_plain_background(view.photo.rgb, view.detection.points,
                                       max_spread=cfg.silhouette.max_spread,
                                       chroma=cfg.silhouette.chroma)
+    if m is None and cfg.silhouette.segment:
+        seg, err = _segment(view)
+        if seg is not None:
+            person = seg.person > 0.5
+            view.silhouette = PhotoSilhouette.from_mask(person, "segmentation")
+            view.occluder = seg.occluder
+            view.shoulders = shows_shoulders(person, view.detection.points)
+            view.silhouette_note = (f"segmented by {seg.source} ({100 * person.mean():.0f} % "
+                                    f"of the photo; occluders {100 * seg.occluder.mean():.1f} %)")
+            return
+        why = f"{why}; segmentation: {err}"
     if m is None:
         view.silhouette_note = f"none: {why}"
         return
     view.silhouette = PhotoSilhouette.from_mask(m, "plain background")
+    view.shoulders = shows_shoulders(m, view.detection.points)
     view.silhouette_note = (f"segmented from a plain background "
                             f"({100 * m.mean():.0f} % of the photo)")
+
+
+def shows_shoulders(mask: np.ndarray, points: np.ndarray) -> bool:
+    """Whether a person mask shows the shoulders: at 0.8 face heights below the chin
+    (landmark 8) it is at least 1.8 times as wide as the face (landmarks 0-16)."""
+    face_w = float(np.ptp(points[:17, 0]))
+    face_h = float(points[8, 1] - points[19:25, 1].min())
+    row = round(points[8, 1] + 0.8 * face_h)
+    if not 0 <= row < mask.shape[0] or face_w <= 0:
+        return False
+    cols = np.flatnonzero(mask[row])
+    return bool(len(cols)) and float(np.ptp(cols)) >= 1.8 * face_w
+
+
+def _segment(view: View):
+    """(Segmentation, None) of the view's photo by the vision package, or (None, why)."""
+    try:
+        from hack_render.vision.segment import segment
+
+        return segment(view.photo.uint8(), name=view.photo.name), None
+    except (ImportError, OSError, HackError) as err:
+        return None, str(err)
 
 
 class Fitter:

@@ -22,8 +22,9 @@ def fit_camera(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
     c = cfg.camera
     groups = []
     for v in state.views:
+        turn = v.global_orient if c.rotate == "torso" else v.head_angles
         groups += [{"params": [v.transl], "lr": c.lr * 0.1},
-                   {"params": [v.head_angles], "lr": c.lr}]
+                   {"params": [turn], "lr": c.lr}]
         if c.fit_focal:
             groups.append({"params": [v.log_focal], "lr": c.lr})
     return log.run("camera", groups, lambda it: terms.camera_objective(state, cfg, it),
@@ -40,7 +41,8 @@ def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
         # coordinate by about its lr, and 8 joints' residuals add up (at 0.5 x lr the
         # first step turned the head by ~5 degrees and the landmark loss rose 20-fold)
         groups += [{"params": [v.dtheta], "lr": s.lr_joints},
-                   {"params": [v.head_angles, v.global_orient], "lr": s.lr_head},
+                   {"params": [v.head_angles], "lr": s.lr_head},
+                   {"params": [v.global_orient], "lr": s.lr_torso},
                    {"params": [v.transl], "lr": s.lr * 0.05},
                    {"params": [v.log_focal], "lr": s.lr * 0.5}]
         if v.psi is not None:

@@ -51,6 +51,9 @@ class Detection:
     source: str = "dlib"
     raw: np.ndarray | None = None
     weights: np.ndarray | None = None
+    # (68,) bool: False where the detector says the point is hidden (the far side of a
+    # profile; the face mesh's fallback detections); None: all seen
+    visible: np.ndarray | None = None
 
     @property
     def refined(self) -> bool:
@@ -149,8 +152,31 @@ def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
         from hack_render.fit.config import LandmarkConfig
 
         config = LandmarkConfig()
-    det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
+    try:
+        det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
+    except HackError as err:
+        if config.fallback != "mesh" or "no face found" not in str(err):
+            raise
+        det = _mesh_detection(rgb8, config.min_face_px, name, err)
     return refine_detection(rgb8, det, config.refiner)
+
+
+def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err) -> Detection:
+    """dlib found no face (profiles, heads tilted far back): the face mesh's detection
+    (:func:`hack_render.vision.detect.detect_face`, any angle), its hidden points marked;
+    dlib's error when the vision package is unavailable or finds nothing either."""
+    try:
+        from hack_render.vision.detect import detect_face
+
+        f = detect_face(rgb8, "mesh", min_face_px, name)
+    except (ImportError, OSError, HackError) as err:
+        raise HackError(f"{dlib_err} (The face-mesh fallback: {err})") from err
+    warnings.warn(f"{name}: dlib found no face; using the face mesh's landmarks "
+                  f"(yaw {f.pose[0]:.0f} deg)" if f.pose else
+                  f"{name}: dlib found no face; using the face mesh's landmarks",
+                  FaceWarning, stacklevel=3)
+    return Detection(np.asarray(f.points, np.float64), tuple(f.box), f.n_faces, "mesh",
+                     visible=np.asarray(f.visible, bool))
 
 
 def read_landmark_file(path: str | Path) -> Detection:

@@ -78,6 +78,23 @@ def _refiner_provenance(res) -> str | None:
     return None if ref is None else ref.meta.get("provenance")
 
 
+def _pose_entry(fitter, v) -> dict:
+    """Torso, neck and head angles of a view (degrees, pitch/yaw/roll about the model's
+    x, y, z): the torso (global_orient, relative to the camera), the neck's turn (the
+    head's rotation shared over the cervical joints, plus their residuals: the sum over
+    the 8 joints), and the head's (the two together, to first order); and what set the
+    torso: the silhouette where the person mask shows the shoulders, else the priors
+    (a turn the landmarks cannot place goes to the torso)."""
+    with torch.no_grad():
+        torso = np.rad2deg(v.global_orient.numpy())
+        neck = np.rad2deg(fitter.theta(v)[0].sum(0).numpy())
+    return {"torso": torso.round(2).tolist(), "neck": neck.round(2).tolist(),
+            "head": (torso + neck).round(2).tolist(),
+            "torso_from": ("silhouette (the shoulders are in the person mask)"
+                           if v.shoulders and v.silhouette is not None
+                           else "priors (no shoulders in a person mask)")}
+
+
 def _focal_entry(fitter, v) -> dict:
     """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
     prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
@@ -164,6 +181,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v),
+                         "pose_deg": _pose_entry(fitter, v),
                          # "sg" lighting: the lobes fitted, and how init_lobes started them
                          "lighting": ({"mode": v.lighting.mode, **v.lighting.summary(),
                                        "lobe_start": v.lighting_init}
@@ -203,7 +221,8 @@ class FinalRenders:
         self.renders = [texture.render_at_photo(st, cfg, v, maps=self.maps,
                                                 max_side=cfg.final.max_side)
                         for v in st.views]
-        self.report = {"spp": cfg.final.spp, "atlas_height": cfg.final.atlas_height,
+        self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
+                       "atlas_height": cfg.final.atlas_height,
                        "seen_fraction": self.baked.seen_fraction,
                        "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
                        "size": [list(r.rgba.shape[1::-1]) for r in self.renders],

@@ -66,6 +66,10 @@ class View:
     lighting_init: list = field(default_factory=list)  # init_lobes' report ("sg" lighting)
     silhouette: object = None     # PhotoSilhouette (person mask), or None: no silhouette term
     silhouette_note: str = ""     # where the mask came from, or why there is none
+    # (h, w) bool at the photo's size: occluders over the face (hair, hands; the vision
+    # package's segmentation), left out of the photometric term; None: none known
+    occluder: np.ndarray | None = None
+    shoulders: bool = False       # the person mask shows the shoulders (torso orientation)
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     # the jawline's contour vertices (17,) matched at the last re-match, None before
     jaw: np.ndarray | None = None

@@ -75,7 +75,9 @@ def landmark_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
     r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size
                                                          * cfg.landmarks.huber_px)
     w = view_landmark_weights(state, cfg, v)
-    return (w * huber(r)).sum() / w.sum()
+    if v.detection.visible is not None:  # hidden points (a profile's far side) count 0
+        w = w * torch.as_tensor(v.detection.visible, dtype=w.dtype)
+    return (w * huber(r)).sum() / w.sum().clamp_min(1e-6)
 
 
 def focal_prior(cfg: FitConfig, v: View) -> torch.Tensor:
@@ -119,7 +121,8 @@ def pose_priors(state: FitState, cfg: FitConfig, v: View) -> dict[str, torch.Ten
     return {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
             "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
             "dtheta": s.w_dtheta * (v.dtheta ** 2).sum(),
-            "global": s.w_global * (v.global_orient ** 2).sum()}
+            "global": s.w_global * (v.global_orient ** 2).sum(),
+            "neck": s.w_neck * (v.head_angles ** 2).sum()}
 
 
 def psi_prior(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:

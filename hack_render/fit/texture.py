@@ -41,12 +41,14 @@ SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REG
 @dataclass
 class PhotoRender:
     """A view rendered through its fitted camera at the photo's size: premultiplied
-    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``), the spp and seconds."""
+    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``), the spp, seconds, and
+    whether it was denoised."""
 
     rgba: np.ndarray
     gbuffer: dict
     spp: int
     seconds: float
+    denoised: bool = False
 
 
 @dataclass
@@ -102,7 +104,8 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                     spp: int | None = None, max_side: int | None = None) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
-    view's lighting, the photometric stage's path depth, ``final.spp`` samples."""
+    view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
+    ``final.spp_denoised`` denoised by OIDN where it is installed (``final.denoise``)."""
     import time
 
     from hack_render.render.parts import Topology
@@ -110,7 +113,10 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     from scenes.lights import LightRig
 
     t0 = time.perf_counter()
-    spp = int(spp or cfg.final.spp)
+    fc = cfg.final
+    dn = _denoiser() if spp is None and fc.denoise == "auto" else None
+    denoised = dn is not None
+    spp = int(spp or (fc.spp_denoised if denoised else fc.spp))
     ph = view.photo
     s = 1.0 if max_side is None else min(1.0, max_side / max(ph.width, ph.height))
     w, h = max(1, round(ph.width * s)), max(1, round(ph.height * s))
@@ -124,7 +130,19 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                      RenderSettings(w, h, spp, cfg.final.max_depth, cfg.seed), maps)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs()
-    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0)
+    if denoised:
+        rgba = rgba.copy()
+        rgba[..., :3] = dn.denoise(rgba[..., :3], gb["albedo"], gb["normal"], fallback=True)
+    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)
+
+
+def _denoiser():
+    """The render package's OIDN denoiser module where it and pyoidn are installed."""
+    try:
+        from hack_render.render import denoise as dn
+    except ImportError:
+        return None
+    return dn if dn.available() else None
 
 
 def _mirror(a: np.ndarray) -> np.ndarray:
@@ -204,11 +222,11 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) ->
         fx, fy = xs - x0, ys - y0
         for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
                           (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            xi, yi = np.clip(x0 + ox, 0, W - 1), np.clip(y0 + oy, 0, H - 1)
+            flat = np.clip(y0 + oy, 0, H - 1) * W + np.clip(x0 + ox, 0, W - 1)
             kw = ws * k
-            np.add.at(den, (yi, xi), kw)
+            den += np.bincount(flat, kw, H * W).reshape(H, W)
             for c in range(3):
-                np.add.at(num[..., c], (yi, xi), kw * os_[:, c])
+                num[..., c] += np.bincount(flat, kw * os_[:, c], H * W).reshape(H, W)
     fp = float(np.median(footprints)) if footprints else 1.0
     sigma = max(0.7, 0.5 * fp)
     den_b = gaussian_filter(den, sigma)
@@ -228,25 +246,21 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) ->
     diffuse = c1[..., None] * obs + c2[..., None] * obs_m + c3[..., None] * prior
     source = np.argmax(np.stack([c3, c1, c2]), 0).astype(np.uint8)
     confidence = (c1 + 0.5 * c2).astype(np.float32)
-    face_tile = _face_tile_mask(state, H)
-    seen_fraction = float((conf[face_tile] > 0.5).mean()) if face_tile.any() else 0.0
+    seen_fraction = _seen_fraction(state, conf)
     return BakedSkin(np.clip(diffuse, 0.0, 1.0).astype(np.float32), confidence, source,
                      weights, seen_fraction)
 
 
-def _face_tile_mask(state: FitState, H: int) -> np.ndarray:
-    """Texels of the face material's triangles (the skin of the face tile, u in [0, 1])."""
-    from skimage.draw import polygon
-
+def _seen_fraction(state: FitState, conf: np.ndarray) -> float:
+    """The share of the face material's vertices (at their UV) whose texel the photo(s)
+    saw (confidence > 0.5)."""
     m = state.model
     names = list(m.material_names)
     if "M_Face" not in names:
-        return np.zeros((H, 2 * H), bool)
-    sel = m.face_material.numpy() == names.index("M_Face")
-    uvf = m.uv_faces.numpy()[sel]
-    uvs = m.uvs.numpy().astype(np.float64)
-    out = np.zeros((H, 2 * H), bool)
-    for tri in uvs[uvf]:
-        rr, cc = polygon((1.0 - tri[:, 1]) * H - 0.5, tri[:, 0] * H - 0.5, out.shape)
-        out[rr, cc] = True
-    return out
+        return 0.0
+    uvf = m.uv_faces.numpy()[m.face_material.numpy() == names.index("M_Face")]
+    uv = m.uvs.numpy()[np.unique(uvf)]
+    H = conf.shape[0]
+    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+    yi = np.clip(((1.0 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    return float((conf[yi, xi] > 0.5).mean())
