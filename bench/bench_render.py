@@ -24,6 +24,12 @@
     ``volpath`` against the same sphere with ``hack_skin`` (albedo: the same model's
     two-layer Kubelka-Munk albedo) under the studio rig: CPU seconds at equal spp.
 
+(f) Turntable frame cost before and after (``--only frames``): CPU seconds per frame
+    (process time, after the first) of the README's turntable settings (256 px, --spp 32,
+    studio, look-around + swallow) with the previous renderer (independent sampler,
+    single-lobe specular, no bust cap, no denoiser) and the current one (multijitter 35
+    spp, dual lobe, bust cap, OIDN), in one run.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
@@ -336,6 +342,48 @@ def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
     print(f"(e) {size}^2 {spp} spp: volumetric SSS / hack_skin = {b / a:.0f}x the CPU time")
 
 
+def frame_cost_benchmark(size: int = 256, spp: int = 32, frames: int = 6) -> None:
+    from hack_render.geometry import load_default_model
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render import skin_bsdf
+    from hack_render.render import turntable as tt
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    model = load_default_model()
+    topo = Topology.from_model(model)
+    maps = skin_maps([0.8, -0.6, 0.4])
+
+    def verts(i):
+        ang = torch.deg2rad(torch.tensor(tt.head_angles_deg(i / 36)))
+        with torch.no_grad():
+            return model(theta=distribute_head_rotation(ang.float())[None],
+                         tau=torch.tensor([tt.swallow_tau(i / 36)])).vertices[0].numpy()
+
+    lobes = (skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS)
+    for name, sampler, single, cap, denoise in (
+            ("before: independent 32 spp, one lobe, no cap", "independent", True, False, False),
+            ("after: multijitter 35 spp, dual lobe, cap", "multijitter", False, True, False),
+            ("after, + OIDN", "multijitter", False, True, True)):
+        skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS = (1.0, (1.0, 1.0)) if single else lobes
+        head = HeadScene(topo, verts(0), lights.preset("studio"),
+                         cameras.orbit(size, size, 85.0, 0.0, 5.0),
+                         RenderSettings(size, size, spp, sampler=sampler), maps,
+                         bust_cap=cap)
+        cpu = []
+        for i in range(frames):
+            t0 = time.process_time()
+            head.set_vertices(verts(i), update=False)
+            head.set_camera(cameras.orbit(size, size, 85.0, 10.0 * i, 5.0))
+            head.render(seed=i, denoise=denoise)
+            cpu.append(time.process_time() - t0)
+        print(f"(f) {name:48s} {statistics.mean(cpu[1:]):.2f} CPU s per frame "
+              f"(mean of frames 2..{frames})")
+    skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS = lobes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -346,7 +394,8 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss"), default="all")
+    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames"),
+                    default="all")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -357,6 +406,11 @@ def main() -> None:
     variant = ensure_variant(args.variant)
     if args.cold_only:
         turntable_benchmark(args.tt_size, args.tt_spp, args.frames, True)
+        return
+    if args.only == "frames":
+        with recorded(args.out, "Rendering: turntable frame cost before and after"):
+            print(f"variant: {variant}")
+            frame_cost_benchmark()
         return
     if args.only == "sss":
         with recorded(args.out, "Rendering: volumetric subsurface scattering cost"):
