@@ -296,8 +296,12 @@ def e2e_benchmark(repeats: int = 3) -> None:
 def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
     import mitsuba as mi
 
-    from appearance.skin_optics import (WAVELENGTHS, dermis_absorption, reduced_scattering,
-                                        skin_albedo)
+    from appearance.skin_optics import (
+        WAVELENGTHS,
+        dermis_absorption,
+        reduced_scattering,
+        skin_albedo,
+    )
     from hack_render.render import emitters, materials
     from hack_render.render.image_io import write_png
     from scenes import cameras, lights

@@ -37,7 +37,7 @@ DEFAULT_SAMPLER = "multijitter"
 
 def _next_prime(n: int) -> int:
     n = max(n, 2)
-    while any(n % d == 0 for d in range(2, int(math.isqrt(n)) + 1)):
+    while any(n % d == 0 for d in range(2, math.isqrt(n) + 1)):
         n += 1
     return n
 
