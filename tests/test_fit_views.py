@@ -111,3 +111,42 @@ def test_03_strong_expressions_reach_their_strength(model):
         p = f.psi.detach()[0]
         assert float(p[idx].min()) > 0.75 * 0.9, (units, p[idx])
         assert float(p.sum() - p[idx].sum()) < 0.3, (units, float(p.sum()))
+
+
+def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
+    """Where dlib finds no face, ``landmarks.detect`` takes the face mesh's detection
+    (source "mesh", its visibility kept); the landmark term gives hidden points no
+    weight, so moving them anywhere leaves it unchanged, and the mesh's fixed points are
+    not re-matched to the jaw contour."""
+    from hack_render.errors import HackError
+    from hack_render.fit import landmarks, terms
+    from hack_render.vision import detect as vd
+
+    photo, det = _view(model, head=(0.0, 60.0, 0.0))
+    hidden = np.zeros(68, bool)
+    hidden[36:42] = True  # an eye (inside the face's box, whose size scales the term)
+
+    def no_face(*a, **k):
+        raise HackError("photo: no face found. Use a photo ...")
+
+    fake = vd.FaceLandmarks(det.points.copy(), det.box, 1, "mesh", visible=~hidden,
+                            convention="3d")
+    monkeypatch.setattr(landmarks, "detect_landmarks", no_face)
+    monkeypatch.setattr(vd, "detect_face", lambda *a, **k: fake)
+    with pytest.warns(landmarks.FaceWarning, match="face mesh"):
+        got = landmarks.detect(photo.uint8())
+    assert got.source == "mesh" and (got.visible == ~hidden).all()
+    f = _fit(model, [(photo, got)], {"camera": {"iterations": 0},
+                                     "shape": {"iterations": 0}})
+    v = f.views[0]
+    with torch.no_grad():
+        verts = f.forward(v).vertices[0]
+        a = float(terms.landmark_loss(f.state, f.cfg, v, verts, 0))
+        v.detection.points[hidden] += 3.0
+        b = float(terms.landmark_loss(f.state, f.cfg, v, verts, 0))
+    assert a == pytest.approx(b) and v.jaw is None
+    monkeypatch.setattr(landmarks, "detect_landmarks", no_face)
+    from hack_render.fit.config import LandmarkConfig
+
+    with pytest.raises(HackError, match="no face found"):
+        landmarks.detect(photo.uint8(), LandmarkConfig(fallback="off"))
