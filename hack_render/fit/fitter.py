@@ -157,12 +157,15 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     m, why = segment_plain_background(view.photo.rgb, view.detection.points,
                                       max_spread=cfg.silhouette.max_spread,
                                       chroma=cfg.silhouette.chroma)
+    seg, err = _segment(view) if cfg.silhouette.segment else (None, "off")
+    if seg is not None:  # skin and occluders whichever mask the silhouette takes
+        # the skin inside the face mesh's oval: hair of a skin-like colour and the
+        # clothes' edges stay out of the bake
+        view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
     if m is None and cfg.silhouette.segment:
-        seg, err = _segment(view)
         if seg is not None:
             person = seg.person > 0.5
             view.silhouette = PhotoSilhouette.from_mask(person, "segmentation")
-            view.occluder = seg.occluder
             view.shoulders = shows_shoulders(person, view.detection.points)
             view.silhouette_note = (f"segmented by {seg.source} ({100 * person.mean():.0f} % "
                                     f"of the photo; occluders {100 * seg.occluder.mean():.1f} %)")

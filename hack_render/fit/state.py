@@ -70,6 +70,9 @@ class View:
     # package's segmentation), left out of the photometric term; None: none known
     occluder: np.ndarray | None = None
     shoulders: bool = False       # the person mask shows the shoulders (torso orientation)
+    # (h, w) bool: the segmentation's skin inside the face oval (no hair, clothes,
+    # occluders); the bake takes its pixels only; None: no segmentation
+    skin: np.ndarray | None = None
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     # the jawline's contour vertices (17,) matched at the last re-match, None before
     jaw: np.ndarray | None = None

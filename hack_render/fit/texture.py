@@ -165,6 +165,12 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     if photo.shape[:2] != (h, w):
         photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
     skin = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
+    for mask, keep in ((view.skin, True), (view.occluder, False)):
+        if mask is not None:  # the segmentation's skin, without its occluders
+            mk = np.asarray(mask, bool)
+            if mk.shape != (h, w):
+                mk = resize(mk.astype(np.float32), (h, w), order=0) > 0.5
+            skin &= mk if keep else ~mk
     skin = binary_erosion(skin, iterations=max(1, round(fc.edge_px * w / view.photo.width)))
     # cosine between the normal and the direction to the camera (camera frame, z forward)
     f = w / view.photo.width * float(view.focal.detach())
