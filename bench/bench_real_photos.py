@@ -258,7 +258,7 @@ def main(argv=None) -> None:
     import torch
 
     torch.set_num_threads(1)
-    detectors = ["mesh", "dlib_hog"] + ([] if a.no_cnn else ["dlib_cnn"])
+    detectors = ["auto", "mesh", "ert", "dlib_hog"] + ([] if a.no_cnn else ["dlib_cnn"])
     t0 = time.time()
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": SEED, "real": run_real(detectors, a.fit),

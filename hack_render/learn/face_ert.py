@@ -60,8 +60,8 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 32, out=None) -
     return arrays
 
 
-def train(data: dict, out=DEFAULT_FILE, trees: int = 60, depth: int = 4, cascade: int = 10,
-          oversampling: int = 20, threads: int = 2) -> Path:
+def train(data: dict, out=DEFAULT_FILE, trees: int = 50, depth: int = 4, cascade: int = 10,
+          oversampling: int = 10, nu: float = 0.4, threads: int = 2) -> Path:
     """dlib.train_shape_predictor on the composites (mirrored copies added: a face and
     its mirror image, the points relabelled left for right)."""
     import dlib
@@ -88,7 +88,7 @@ def train(data: dict, out=DEFAULT_FILE, trees: int = 60, depth: int = 4, cascade
     opt.tree_depth = depth
     opt.cascade_depth = cascade
     opt.oversampling_amount = oversampling
-    opt.nu = 0.1
+    opt.nu = nu
     opt.feature_pool_size = 400
     opt.num_threads = threads
     opt.be_verbose = False
@@ -136,7 +136,8 @@ def main(argv=None) -> None:
     t = sub.add_parser("train")
     t.add_argument("data")
     t.add_argument("--out", default=str(DEFAULT_FILE))
-    t.add_argument("--trees", type=int, default=60)
+    t.add_argument("--trees", type=int, default=50)
+    t.add_argument("--nu", type=float, default=0.4)
     sub.add_parser("mean-shape")
     a = ap.parse_args(argv)
     if a.cmd == "mean-shape":
@@ -145,7 +146,7 @@ def main(argv=None) -> None:
         collect(a.samples, a.seed, out=a.out)
     else:
         with np.load(a.data) as z:
-            train({k: z[k] for k in z.files}, a.out, a.trees)
+            train({k: z[k] for k in z.files}, a.out, a.trees, nu=a.nu)
 
 
 if __name__ == "__main__":

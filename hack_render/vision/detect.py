@@ -303,7 +303,14 @@ def mesh_landmarks(rgb8: np.ndarray, box, keypoints=None, passes: int = 2):
     on the box's region, then on regions from its own points. Returns ((468, 3) points,
     presence in [0, 1])."""
     centre, size, angle = _roi_from_box(box, keypoints)
-    pts, presence = _run_mesh(rgb8, centre, size, angle)
+    # BlazeFace's eye keypoints can be far off on a turned face, and swapped on an
+    # upside-down one: four in-plane angles are tried, the most confident kept
+    best = None
+    for turn in (0.0, math.pi, 0.7, -0.7):
+        pts, presence = _run_mesh(rgb8, centre, size, angle + turn)
+        if best is None or presence > best[1] + 0.05:
+            best = (pts, presence)
+    pts, presence = best
     for _ in range(passes - 1):
         pts, presence = _run_mesh(rgb8, *_roi_from_points(pts))
     return pts, presence

@@ -6,10 +6,10 @@
   the face.
 - **face** (soft): the face mesh's face oval (:mod:`hack_render.vision.detect`'s dense
   points), anti-aliased, inside the person.
-- **skin / hair / clothes** (bool, heuristic): skin is the person's pixels whose colour
-  lies within the face's own skin colour distribution (a Gaussian in CIE Lab a*, b* and
-  a loose L* band, estimated from the cheeks and forehead of the face mesh); the rest of
-  the person is hair above the mouth's line and clothes below the chin's.
+- **skin / hair / clothes** (bool, heuristic): skin is the person's pixels whose
+  chromaticity lies within the face's own skin distribution (a Gaussian estimated from
+  the cheeks, forehead and nose of the face mesh); the rest of the person is hair above
+  the mouth's line and clothes below the chin's.
 - **occluder** (bool): what covers the face: inside the face oval, pixels that are not
   skin-coloured (hair strands, glasses, a scarf) outside the eyes, brows and lips, and
   hands (MediaPipe's hand landmarks' outline, dilated) wherever they overlap the face.
@@ -41,8 +41,9 @@ _SKIN_SAMPLES = (50, 101, 118, 123, 147, 187, 205, 280, 330, 347, 352, 376, 411,
 #: person probability above which a pixel is the person's (0.7: the best IoU on the
 #: composites among 0.3, 0.5, 0.7, 0.85)
 PERSON_THRESHOLD = 0.7
-#: CIE Lab (a*, b*) of skin across tones, the prior that picks the skin's colour cluster
-SKIN_AB_PRIOR = np.array([13.0, 17.0])
+#: chromaticity (r and b shares of r + g + b, sRGB) of skin across tones: the prior that
+#: picks the skin's cluster among the colour samples
+SKIN_CHROMA_PRIOR = np.array([0.43, 0.25])
 
 
 @dataclass
@@ -130,50 +131,53 @@ def _polygon_mask(poly: np.ndarray, shape, soft: bool = True) -> np.ndarray:
     return m.reshape(h, s, w, s).mean((1, 3)) if s > 1 else m
 
 
-def _lab(rgb8: np.ndarray) -> np.ndarray:
-    from skimage.color import rgb2lab
-
-    return rgb2lab(rgb8).astype(np.float32)
-
-
 def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
                      k: float = 3.0) -> np.ndarray:
-    """(H, W) bool: pixels in ``within`` whose Lab a*, b* lie within Mahalanobis ``k`` of
-    the skin samples' (cheeks, forehead, nose: visible face-mesh points) and whose L* is
-    within 2.5 times the samples' spread (at least 25) of theirs."""
+    """(H, W) bool: pixels in ``within`` whose chromaticity (the r and b shares of
+    r + g + b: shading and highlights change brightness far more than it) lies within
+    Mahalanobis ``k`` of the skin samples' (cheeks, forehead, nose: visible face-mesh
+    points) and that are not too dark for their chromaticity to mean anything."""
     from scipy import ndimage
 
-    h, w = rgb8.shape[:2]
-    lab = _lab(rgb8)
     from hack_render.vision.dense68 import load_map
 
+    h, w = rgb8.shape[:2]
+    img = rgb8.astype(np.float32) / 255.0
+    chroma = img[..., [0, 2]] / np.maximum(img.sum(-1, keepdims=True), 1e-6)
     vis = load_map().dense_visible(dense)
     ids = [i for i in _SKIN_SAMPLES if vis[i]] or list(_SKIN_SAMPLES)
     p = np.clip(np.round(dense[ids, :2] - 0.5).astype(int), 0, [w - 1, h - 1])
-    # a 3 x 3 neighbourhood of each sample point
     sm = np.zeros((h, w), bool)
     sm[p[:, 1], p[:, 0]] = True
-    sm = ndimage.binary_dilation(sm, iterations=1)
-    x = lab[sm]
-    # robust: a strand of hair or a hand may cover half the sample points. The samples'
-    # colour clusters (a*, b* within 8 units of one another) holding at least a quarter
-    # of them are candidates; the one nearest a skin chromaticity prior (any skin tone:
-    # a* ~ 13, b* ~ 17) is the skin
-    ab = x[:, 1:]
-    near = np.linalg.norm(ab[:, None] - ab[None], axis=-1) < 8.0
-    cand = near.sum(1) >= max(3, len(x) // 4)
-    if cand.any():
-        score = np.linalg.norm(ab - SKIN_AB_PRIOR, axis=1) + 1e3 * ~cand
-        x = x[near[int(np.argmin(score))]]
-    mu = np.median(x, 0)
-    mad = 1.4826 * np.median(np.abs(x - mu), 0) + 1.0
-    dev = x[:, 1:] - mu[1:]
-    cov = dev.T @ dev / max(len(dev) - 1, 1) + np.eye(2) * 4.0   # >= 2 units of a*, b*
-    icov = np.linalg.inv(cov)
-    d = lab[..., 1:] - mu[1:]
-    maha = np.sqrt(np.einsum("...i,ij,...j->...", d, icov, d))
-    spread = max(25.0, 2.5 * float(mad[0]))
-    return within & (maha < k) & (np.abs(lab[..., 0] - mu[0]) < spread)
+    sm = ndimage.binary_dilation(sm, iterations=1)   # a 3 x 3 neighbourhood of each
+    x = chroma[sm]
+    # robust, and for light of two colours (a warm key, a cool fill): the samples'
+    # chromaticity clusters (greedy, 0.03 across) holding a sixth of them or more and
+    # lying within 0.08 of a skin prior (any skin tone) are all skin; a strand of hair or
+    # a hand over some sample points makes a cluster of its own, far from the prior
+    left = np.ones(len(x), bool)
+    clusters = []
+    while left.sum() >= 3:
+        d = np.linalg.norm(x[:, None] - x[None], axis=-1) < 0.03
+        d &= left[None] & left[:, None]
+        i = int(np.argmax(d.sum(1)))
+        members = d[i]
+        if members.sum() < max(3, len(x) // 6):
+            break
+        clusters.append(x[members])
+        left &= ~members
+    skin_like = [c for c in clusters
+                 if np.linalg.norm(np.median(c, 0) - SKIN_CHROMA_PRIOR) < 0.08]
+    clusters = skin_like or clusters[:1] or [x]
+    maha = np.full((h, w), np.inf, np.float32)
+    for c in clusters:
+        mu = np.median(c, 0)
+        dev = c - mu
+        cov = dev.T @ dev / max(len(dev) - 1, 1) + np.eye(2) * 1e-4   # >= 0.01 per share
+        dd = chroma - mu
+        maha = np.minimum(maha, np.sqrt(np.einsum("...i,ij,...j->...", dd,
+                                                   np.linalg.inv(cov), dd)))
+    return within & (maha < k) & (img.mean(-1) > 0.06)
 
 
 def hand_mask(rgb8: np.ndarray, dilate: float = 0.08) -> np.ndarray:
