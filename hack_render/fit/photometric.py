@@ -146,7 +146,7 @@ def setup_level(state: FitState, cfg: FitConfig, view: View, res: int,
                      RenderSettings(res, res, pc.spp, 8, cfg.seed), sm)
     renderer = DiffRenderer(head, pc.integrator, max_depth=2, spp=pc.spp)
     photo_mask = face_mask(pts_v, res)
-    if view.occluder is not None:  # hair, hands over the face: not the model's to explain
+    if pc.occluders and view.occluder is not None:  # hair, hands: not the model's to explain
         occ = warp_photo(view.occluder.astype(np.float32)[..., None], H, res, scale)[..., 0]
         photo_mask &= occ < 0.5
     view.level = Level(res, cam, H, torch.from_numpy(target), photo_mask, pts_v,
