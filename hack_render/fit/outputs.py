@@ -208,19 +208,30 @@ class FinalRenders:
     def __init__(self, fitter):
         import time
 
+        from tqdm import tqdm
+
         from hack_render.fit import texture
 
         st, cfg = fitter.state, fitter.cfg
+        bar = tqdm(total=2 * len(st.views) + 1, desc="fit final (renders, bake)",
+                   unit="step", disable=not fitter.progress, leave=False)
         t0 = time.perf_counter()
-        self.fitted = [texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side)
-                       for v in st.views]
+        self.fitted = []
+        for v in st.views:
+            self.fitted.append(texture.render_at_photo(st, cfg, v,
+                                                       max_side=cfg.final.max_side))
+            bar.update()
         self.baked = texture.bake_diffuse(st, cfg, self.fitted)
+        bar.update()
         t1 = time.perf_counter()
         self.maps = dataclasses.replace(texture._skin_maps(st, cfg.final.atlas_height),
                                         diffuse=self.baked.diffuse)
-        self.renders = [texture.render_at_photo(st, cfg, v, maps=self.maps,
-                                                max_side=cfg.final.max_side)
-                        for v in st.views]
+        self.renders = []
+        for v in st.views:
+            self.renders.append(texture.render_at_photo(st, cfg, v, maps=self.maps,
+                                                        max_side=cfg.final.max_side))
+            bar.update()
+        bar.close()
         self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
                        "atlas_height": cfg.final.atlas_height,
                        "seen_fraction": self.baked.seen_fraction,
