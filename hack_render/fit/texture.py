@@ -165,6 +165,7 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     if photo.shape[:2] != (h, w):
         photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
     skin = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
+    skin &= ~_feature_holes(view.detection.points * (w / view.photo.width), (h, w))
     for mask, keep in ((view.skin, True), (view.occluder, False)):
         if mask is not None:  # the segmentation's skin, without its occluders
             mk = np.asarray(mask, bool)
@@ -197,6 +198,22 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         ok &= cd < max(fc.reject_sigma * cmad, 0.03)
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
+
+
+def _feature_holes(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: the eyes (their landmark rings scaled 1.8 about their centres: lashes,
+    lids and the sockets' shadow, which the model's eyes do not match) and the mouth's
+    opening (scaled 1.2), left out of the bake."""
+    from skimage.draw import polygon
+
+    m = np.zeros(shape, bool)
+    for ring, k in ((range(36, 42), 1.8), (range(42, 48), 1.8), (range(60, 68), 1.2)):
+        p = points[list(ring)]
+        c = p.mean(0)
+        p = c + k * (p - c)
+        rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
+        m[rr, cc] = True
+    return m
 
 
 def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) -> BakedSkin:
