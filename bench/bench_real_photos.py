@@ -238,10 +238,12 @@ def run_fit(name: str, img: np.ndarray) -> dict:
         row = {"exit": p.returncode, "seconds": round(time.time() - t, 1)}
         if p.returncode:
             row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
-        rep = Path(tmp) / "out" / "report.json"
-        if rep.is_file():
-            data = json.loads(rep.read_text())
-            row["report"] = {k: v for k, v in data.items() if isinstance(v, (int, float, str))}
+        for name in ("fit_report.json", "timings.json"):   # the fitter's outputs
+            f = Path(tmp) / "out" / name
+            if f.is_file():
+                data = json.loads(f.read_text())
+                row[f.stem] = {k: v for k, v in data.items()
+                               if isinstance(v, (int, float, str))}
     return row
 
 
