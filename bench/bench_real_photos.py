@@ -238,8 +238,8 @@ def run_fit(name: str, img: np.ndarray) -> dict:
         row = {"exit": p.returncode, "seconds": round(time.time() - t, 1)}
         if p.returncode:
             row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
-        for name in ("fit_report.json", "timings.json"):   # the fitter's outputs
-            f = Path(tmp) / "out" / name
+        for out_name in ("fit_report.json", "timings.json"):   # the fitter's outputs
+            f = Path(tmp) / "out" / out_name
             if f.is_file():
                 data = json.loads(f.read_text())
                 row[f.stem] = {k: v for k, v in data.items()
