@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -12,7 +11,7 @@ from hack_render.errors import HackError
 
 def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 640,
                 fps: float | None = None, config=None, overlay: bool = True,
-                tau: bool = True, resume: bool = False, progress: bool = True,
+                resume: bool = False, progress: bool = True,
                 max_frames: int | None = None, truth: dict | None = None):
     """Library entry point of the command: read, detect, fit, track, write. Returns
     (TrackResult, paths). With ``resume``, landmarks found by an interrupted run of the
@@ -40,7 +39,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     record = boundary.RunRecord(outdir, "track", {
         "video": boundary.file_identity(video) if Path(video).is_file() else str(video),
         "keyframes": keyframes, "max_side": max_side, "fps": clip.fps,
-        "frames": clip.frames, "config": cfg.to_dict(), "tau": tau}, name="track_run.json")
+        "frames": clip.frames, "config": cfg.to_dict()}, name="track_run.json")
     lm_path = outdir / "landmarks.npz"
     old = record.check_resume(resume, lm_path.exists())
     if resume and old is not None and old.get("complete"):
@@ -64,7 +63,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
         with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
-            result, fitter = _track(clip, cfg, keyframes, progress, landmarks, tau)
+            result, fitter = _track(clip, cfg, keyframes, progress, landmarks)
             from hack_render.track.outputs import write_outputs
 
             paths = write_outputs(result, fitter, outdir, overlay, progress, truth)
@@ -72,11 +71,11 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     return result, paths + [record.path]
 
 
-def _track(clip, cfg, keyframes, progress, landmarks, tau):
+def _track(clip, cfg, keyframes, progress, landmarks):
     from hack_render.track.pipeline import track_clip
 
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
-                        landmarks=landmarks, estimate_tau=tau)
+                        landmarks=landmarks)
     return result, result.fitter
 
 
@@ -88,22 +87,22 @@ def track(
                                   "focal length) is fitted on, spread over the clip."),
     max_side: int = typer.Option(640, "--max-side", help="Working size: frames are scaled so "
                                  "their long side is at most this (px)."),
-    fps: Optional[float] = typer.Option(None, "--fps", help="Frame rate (default: the "
+    fps: float | None = typer.Option(None, "--fps", help="Frame rate (default: the "
                                         "video's; a folder of frames: 30)."),
-    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Track only the "
+    max_frames: int | None = typer.Option(None, "--max-frames", help="Track only the "
                                              "first N frames."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Fit config (TOML/YAML/JSON) "
+    config: Path | None = typer.Option(None, "--config", help="Fit config (TOML/YAML/JSON) "
                                           "for the keyframe fit; see `hack-render fit`."),
     no_photometric: bool = typer.Option(False, "--no-photometric", help="Keyframe fit from "
                                         "landmarks only (no skin, faster)."),
     no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
-    no_tau: bool = typer.Option(False, "--no-tau", help="Do not track the larynx (tau = 0)."),
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Track a video into HACK parameters: one identity for the clip, and per frame the
-    8 neck joints (from the head's rotation), the torso, the expression and the larynx.
+    8 neck joints (from the head's rotation), the torso and the expression. The larynx's
+    slide (tau) is not tracked from video: it keeps the keyframe fit's value.
 
     Writes sequence.npz (per-frame theta, psi, tau, global_orient, transl: `hack-render
     export --params OUT/person.json --sequence OUT/sequence.npz -o anim.glb`),
@@ -125,7 +124,7 @@ def track(
                             "config file")
     cfg = load_config(config, over)
     result, paths = track_video(video, output, keyframes, max_side, fps, cfg,
-                                not no_overlay, not no_tau, resume, not quiet, max_frames)
+                                not no_overlay, resume, not quiet, max_frames)
     if result is None:
         typer.echo(f"{output}: already complete (--resume); nothing to do")
         return

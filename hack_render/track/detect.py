@@ -34,7 +34,7 @@ class FrameLandmarks:
                      why=np.array(self.why, dtype=str), weights=self.weights, raw=self.raw)
 
     @classmethod
-    def load(cls, path) -> "FrameLandmarks":
+    def load(cls, path) -> FrameLandmarks:
         with np.load(path, allow_pickle=False) as z:
             return cls(z["points"], z["found"], z["boxes"], [str(s) for s in z["why"]],
                        z["weights"], z["raw"])

@@ -8,15 +8,14 @@
 3. Per frame (``solve.py``): head rotation (over the 8 neck joints), torso rotation,
    translation and expression, warm-started from the previous frame, then one joint solve
    with velocity and acceleration priors; lost frames are carried by the priors.
-4. The larynx's slide tau per frame from the neck's shading (``larynx.py``).
-5. Outputs (``outputs.py``).
+4. Outputs (``outputs.py``). The larynx's slide tau is not tracked from plain video (no
+   cue measured reliable enough, docs/motion.md): it stays at the keyframe fit's.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -40,6 +39,23 @@ class TrackResult:
     timings: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     fitter: object = None          # the keyframe fit's Fitter (its outputs are written)
+
+
+class _timed:
+    """Adds ``<name>_s`` (wall) and ``<name>_cpu_s`` (this process's CPU time, all
+    threads) to ``timings`` for the block."""
+
+    def __init__(self, timings: dict, name: str):
+        self.timings, self.name = timings, name
+
+    def __enter__(self):
+        self.t, self.c = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc):
+        self.timings[f"{self.name}_s"] = time.perf_counter() - self.t
+        self.timings[f"{self.name}_cpu_s"] = time.process_time() - self.c
+        return False
 
 
 def pick_keyframes(found: np.ndarray, count: int, points: np.ndarray) -> list[int]:
@@ -86,10 +102,26 @@ def fit_identity(clip: Clip, lm: FrameLandmarks, keyframes: list[int], config,
     return result, fitter
 
 
+def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int,
+                 tcfg: TrackConfig, progress: bool) -> FrameParams:
+    """The warm-started pass from frame ``first`` (where ``init`` holds): forward to the
+    clip's end, and backward to frame 0."""
+    from hack_render.track.solve import solve_frames
+
+    parts = [solve_frames(rig, camera, obs[first:], found[first:], weights, init, tcfg,
+                          progress, init.g[0])]
+    if first > 0:
+        back = solve_frames(rig, camera, np.ascontiguousarray(obs[:first + 1][::-1]),
+                            np.ascontiguousarray(found[:first + 1][::-1]), weights, init,
+                            tcfg, False, init.g[0])
+        parts.insert(0, FrameParams(*(a[::-1][:-1] for a in (back.h, back.g, back.t, back.psi))))
+    return FrameParams(*(np.concatenate([getattr(p, k) for p in parts]) for k in
+                         ("h", "g", "t", "psi")))
+
+
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
-               landmarks: FrameLandmarks | None = None, estimate_tau: bool = True
-               ) -> TrackResult:
+               landmarks: FrameLandmarks | None = None) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
     ``landmarks``: reuse landmarks found before (a resumed run)."""
@@ -99,24 +131,22 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     from hack_render.fit.config import FitConfig
     from hack_render.track.detect import FrameDetector, detect_frames
     from hack_render.track.rig import LandmarkRig
-    from hack_render.track.solve import solve_clip, solve_frames
+    from hack_render.track.solve import solve_clip
 
     tcfg = track_config or TrackConfig()
     cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
     timings, notes = {}, list(clip.notes)
-    t0 = time.perf_counter()
     if landmarks is None:
-        landmarks = detect_frames(clip.read(), FrameDetector(refiner=cfg.landmarks.refiner),
-                                  progress, clip.frames)
-        timings["landmarks_s"] = time.perf_counter() - t0
+        with _timed(timings, "landmarks"):
+            landmarks = detect_frames(clip.read(), FrameDetector(
+                refiner=cfg.landmarks.refiner), progress, clip.frames)
     if landmarks.found.sum() < 2:
         raise HackError(f"track: a face was found in {int(landmarks.found.sum())} of "
                         f"{len(landmarks.found)} frames; expected at least 2. Use a clip with "
                         "a visible face of at least 48 px, frontal to three-quarter.")
     keys = pick_keyframes(landmarks.found, keyframes, landmarks.points)
-    t1 = time.perf_counter()
-    fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
-    timings["identity_fit_s"] = time.perf_counter() - t1
+    with _timed(timings, "identity_fit"):
+        fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     state = fitter.state
     rig = LandmarkRig.build(state.model, fit.beta.detach(), state.embedding)
     views = fit.views
@@ -127,36 +157,20 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     g_ref = np.median(np.stack([v.global_orient.detach().double().numpy() for v in views]), 0)
     v0 = views[0]
     psi0 = (v0.psi if v0.psi is not None else fit.psi).detach().double().numpy()
-    init = FrameParams(v0.head_angles.detach().double().numpy()[None],
-                       v0.global_orient.detach().double().numpy()[None],
+    # the torso the clip keeps is the keyframes' median; the first frame's head starts
+    # with the first keyframe's whole rotation (torso and head) given to the head
+    g0 = v0.global_orient.detach().double().numpy()
+    init = FrameParams((v0.head_angles.detach().double().numpy() + g0 - g_ref)[None],
+                       g_ref[None],
                        (R.T @ (v0.transl.detach().double().numpy() - cam_t))[None], psi0)
-    t2 = time.perf_counter()
-    first = keys[0]
     obs, found = landmarks.points, landmarks.found.copy()
-    # the warm-started pass runs forward from the first keyframe and backward to frame 0
-    fwd = solve_frames(rig, camera, obs[first:], found[first:], landmarks.weights, init, tcfg,
-                       progress)
-    parts = [fwd]
-    if first > 0:
-        back = solve_frames(rig, camera, np.ascontiguousarray(obs[:first + 1][::-1]),
-                            np.ascontiguousarray(found[:first + 1][::-1]),
-                            landmarks.weights, init, tcfg, progress=False)
-        parts.insert(0, FrameParams(*(a[::-1][:-1] for a in (back.h, back.g, back.t, back.psi))))
-    seq = FrameParams(*(np.concatenate([getattr(p, k) for p in parts]) for k in
-                        ("h", "g", "t", "psi")))
-    timings["per_frame_s"] = time.perf_counter() - t2
-    t3 = time.perf_counter()
-    params = solve_clip(rig, camera, obs, found, landmarks.weights, seq, g_ref, tcfg, progress)
-    timings["smoothing_s"] = time.perf_counter() - t3
-    tau = np.zeros(clip.frames)
-    if estimate_tau:
-        from hack_render.track.larynx import track_tau
-
-        t4 = time.perf_counter()
-        tau, note = track_tau(clip, state.model, fit, rig, camera, params, found, progress)
-        timings["tau_s"] = time.perf_counter() - t4
-        if note:
-            notes.append(note)
+    with _timed(timings, "per_frame"):
+        seq = warm_started(rig, camera, obs, found, landmarks.weights, init, keys[0], tcfg,
+                           progress)
+    with _timed(timings, "smoothing"):
+        params = solve_clip(rig, camera, obs, found, landmarks.weights, seq, g_ref, tcfg,
+                            progress)
+    tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
                        fitter)
 

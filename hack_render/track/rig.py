@@ -38,7 +38,7 @@ class LandmarkRig:
     node: int
 
     @classmethod
-    def build(cls, model, beta: torch.Tensor, embedding=None) -> "LandmarkRig":
+    def build(cls, model, beta: torch.Tensor, embedding=None) -> LandmarkRig:
         """The rig of ``model`` at identity ``beta`` (1, S); the 68 points are the landmark
         embedding's (``embedding``, a :class:`~hack_render.fit.landmark_embedding.
         LandmarkEmbedding`) or, without one, the model's landmark vertices."""

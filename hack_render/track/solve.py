@@ -84,7 +84,7 @@ class FrameParams:
         return np.concatenate([self.h, self.g, self.t, self.psi], 1)
 
     @classmethod
-    def from_vector(cls, x: np.ndarray) -> "FrameParams":
+    def from_vector(cls, x: np.ndarray) -> FrameParams:
         return cls(x[:, :3].copy(), x[:, 3:6].copy(), x[:, 6:9].copy(),
                    np.clip(x[:, 9:], 0.0, 1.0))
 
@@ -163,7 +163,7 @@ def _lbfgs(x0: torch.Tensor, fn, iterations: int) -> torch.Tensor:
     return x.detach()
 
 
-def _frame_residuals(obj: "_Objective", i: int, prev: torch.Tensor, irls: torch.Tensor):
+def _frame_residuals(obj: _Objective, i: int, prev: torch.Tensor, irls: torch.Tensor):
     """The residual function of frame ``i`` for Gauss-Newton, batched (x: (N, D) -> (N, R)):
     landmark residuals with the robust loss's IRLS weights, a small L2 pull of psi to 0
     (the L1 prior's local quadratic), the limit penalty, the torso prior and the pull
@@ -187,7 +187,7 @@ def _frame_residuals(obj: "_Objective", i: int, prev: torch.Tensor, irls: torch.
     return fn
 
 
-def _frame_lm(obj: "_Objective", i: int, x0: torch.Tensor, prev: torch.Tensor,
+def _frame_lm(obj: _Objective, i: int, x0: torch.Tensor, prev: torch.Tensor,
               iterations: int, eps: float = 1e-7) -> torch.Tensor:
     """Levenberg-Marquardt on one frame from ``x0`` (psi kept in [0, 1] by projection).
     The Jacobian is taken by forward differences in float64, all columns in one batched
@@ -224,20 +224,29 @@ def _frame_lm(obj: "_Objective", i: int, x0: torch.Tensor, prev: torch.Tensor,
 
 def solve_frames(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray,
                  weights: np.ndarray, init: FrameParams, cfg: TrackConfig | None = None,
-                 progress: bool = True) -> FrameParams:
+                 progress: bool = True, g_ref: np.ndarray | None = None) -> FrameParams:
     """The warm-started pass: frame i starts from frame i-1's solution (the first from
-    ``init``'s first row) and is fitted alone by Levenberg-Marquardt, with a weak pull
-    toward the previous frame (its velocity prior); a lost frame keeps the previous
-    frame's parameters."""
+    ``init``'s first row, fitted longer, without the pull toward it) and is fitted alone
+    by Levenberg-Marquardt, with a weak pull toward the previous frame (its velocity
+    prior); a lost frame keeps the previous frame's parameters. ``g_ref``: the torso the
+    prior holds (default: ``init``'s)."""
     from tqdm import tqdm
 
     cfg = cfg or TrackConfig()
     T = len(obs)
     x_prev = torch.as_tensor(init.vector()[0], dtype=torch.float64)
     out = np.zeros((T, len(x_prev)))
-    obj = _Objective(rig, cam, obs, found, weights, cfg, init.g[:1])
+    obj = _Objective(rig, cam, obs, found, weights, cfg,
+                     init.g[:1] if g_ref is None else np.asarray(g_ref)[None])
+    started = False
     for i in tqdm(range(T), desc="tracking", unit="frame", disable=not progress, leave=False):
         if found[i]:
+            if not started:  # the first frame: no previous frame to stay near
+                free = TrackConfig(**{**cfg.__dict__, "velocity": {k: 0.0 for k in cfg.velocity}})
+                first = _Objective.__new__(_Objective)
+                first.__dict__.update({**obj.__dict__, "cfg": free})
+                x_prev = _frame_lm(first, i, x_prev, x_prev.clone(), 10 * cfg.frame_iterations)
+                started = True
             x_prev = _frame_lm(obj, i, x_prev, x_prev.clone(), cfg.frame_iterations)
         out[i] = x_prev.numpy()
     return FrameParams.from_vector(out)
@@ -263,8 +272,8 @@ def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights
         e = min(T, s + cfg.window)
         obj = _Objective(rig, cam, obs[s:e], found[s:e], weights, cfg, g_ref)
         head = x_all[max(0, s - 2):s] if s > 0 else None
-        x = _lbfgs(x_all[s:e], lambda x: obj.data(x).sum() + obj.priors(x).sum()
-                   + obj.temporal(x, head), cfg.joint_iterations)
+        x = _lbfgs(x_all[s:e], lambda x, obj=obj, head=head: obj.data(x).sum()
+                   + obj.priors(x).sum() + obj.temporal(x, head), cfg.joint_iterations)
         keep = s if s == 0 else s + (min(cfg.window // 8, e - s))  # the overlap's later half
         x_all[keep:e] = x[keep - s:]
     return FrameParams.from_vector(x_all.numpy())

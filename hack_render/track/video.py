@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class Clip:
 
 def _work_size(w: int, h: int, max_side: int) -> tuple[int, int]:
     s = min(1.0, max_side / max(w, h))
-    ew, eh = max(2, int(round(w * s / 2)) * 2), max(2, int(round(h * s / 2)) * 2)
+    ew, eh = max(2, round(w * s / 2) * 2), max(2, round(h * s / 2) * 2)
     return ew, eh
 
 
@@ -149,7 +149,7 @@ class Mp4Writer:
         else:
             self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
 
-    def __enter__(self) -> "Mp4Writer":
+    def __enter__(self) -> Mp4Writer:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
