@@ -175,10 +175,10 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     from hack_render.render.video import count_mp4_frames
     from hack_render.track.cli import track_video
 
-    folder, _ = small_clip
+    folder, truth = small_clip
     over = tiny_overrides()
     over["photometric"] = {"enabled": False}
-    _, paths = track_video(folder / "frames", tmp_path / "out", keyframes=2, fps=12.0,
+    res, paths = track_video(folder / "frames", tmp_path / "out", keyframes=2, fps=12.0,
                              config=load_config(None, over), progress=False,
                              truth=dict(np.load(folder / "truth.npz")))
     names = {p.name for p in paths}
@@ -189,8 +189,40 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     assert count_mp4_frames(tmp_path / "out" / "overlay.mp4")[0] == 12
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["frames"] == 12 and len(rep["per_frame"]) == 12
-    t = rep["truth"]
-    assert t["theta_joint_deg"]["mean"] < 3.0, t["theta_joint_deg"]  # measured 1.8
-    assert max(t["head_deg"]["mean"]) < 6.0, t["head_deg"]
+    assert rep["lost_count"] == int((~res.landmarks.found).sum()) <= 4
+    # the head's rotation on the frames with a face, against the truth (a fast turn:
+    # 1.5 cycles of +-30 degrees in 12 frames; a broken sign or convention is off by 30+)
+    found = res.landmarks.found
+    err = np.degrees(np.abs(res.params.h - truth["h"]))[found].mean(0)
+    assert (err < 8.0).all(), err
+    assert rep["truth"]["theta_joint_deg"]["mean"] < 3.0, rep["truth"]["theta_joint_deg"]
     assert rep["landmark_nme"]["median"] < 0.08
     assert json.loads((tmp_path / "out" / "track_run.json").read_text())["complete"] is True
+
+
+def test_07_a_real_face_follows_a_known_roll(tmp_path):
+    """No installed package ships a video of a face, so a real photo (scikit-image's
+    astronaut, public domain) is rolled in the image plane by known angles: the tracked
+    head roll follows them (tracking a real face, not only renders)."""
+    import imageio.v3 as iio
+    from skimage import data, transform
+
+    from hack_render.fit.config import load_config, tiny_overrides
+    from hack_render.track.cli import track_video
+
+    img = data.astronaut()
+    angles = np.linspace(-12.0, 12.0, 8)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, a in enumerate(angles):
+        frame = transform.rotate(img, a, center=(250, 200), mode="edge", preserve_range=True)
+        iio.imwrite(folder / f"{i:03d}.png", frame.astype(np.uint8))
+    over = tiny_overrides()
+    over["photometric"] = {"enabled": False}
+    res, _ = track_video(folder, tmp_path / "out", keyframes=2, fps=8.0,
+                         config=load_config(None, over), overlay=False, progress=False)
+    assert res.landmarks.found.all()
+    roll = np.degrees(res.params.h[:, 2] + res.params.g[:, 2])
+    slope = np.polyfit(angles, roll, 1)[0]
+    assert abs(np.corrcoef(angles, roll)[0, 1]) > 0.95, roll
+    assert 0.7 < abs(slope) < 1.3, (slope, roll)

@@ -60,9 +60,15 @@ class FrameDetector:
         self.last_points: np.ndarray | None = None
         self.lost_run = 0
 
+    def _run(self, img: np.ndarray, upsample: int, dx: int = 0, dy: int = 0) -> list:
+        rects, scores, _ = self.detector.run(img, upsample, 0.0)
+        return [(rc.left() + dx, rc.top() + dy, rc.right() + dx, rc.bottom() + dy, float(sc))
+                for rc, sc in zip(rects, scores)]
+
     def _rects(self, img: np.ndarray) -> list:
-        """Face rectangles, near the last face first (a crop of twice its size), the whole
-        frame when that finds none or there is no last face."""
+        """Face rectangles with the detector's scores (left, top, right, bottom, score),
+        near the last face first (a crop of twice its size), the whole frame when that
+        finds none or there is no last face."""
         h, w = img.shape[:2]
         if self.last_box is not None and self.lost_run < 5:
             l, t, r, b = self.last_box
@@ -71,16 +77,10 @@ class FrameDetector:
             x0, y0 = int(max(0, cx - s)), int(max(0, cy - s))
             x1, y1 = int(min(w, cx + s)), int(min(h, cy + s))
             crop = np.ascontiguousarray(img[y0:y1, x0:x1])
-            up = 1 if s < 90 else 0
-            rects = [(rc.left() + x0, rc.top() + y0, rc.right() + x0, rc.bottom() + y0)
-                     for rc in self.detector(crop, up)]
+            rects = self._run(crop, 1 if s < 90 else 0, x0, y0)
             if rects:
                 return rects
-        rects = [(rc.left(), rc.top(), rc.right(), rc.bottom()) for rc in self.detector(img, 0)]
-        if not rects:
-            rects = [(rc.left(), rc.top(), rc.right(), rc.bottom())
-                     for rc in self.detector(img, 1)]
-        return rects
+        return self._run(img, 0) or self._run(img, 1)
 
     def __call__(self, rgb8: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None,
                                                  np.ndarray | None, str]:
@@ -92,13 +92,13 @@ class FrameDetector:
         if not rects:
             self.lost_run += 1
             return None, None, None, "no face found"
-        if self.last_box is not None:  # the face nearest the last one
+        if self.last_box is not None and self.lost_run < 5:  # the face nearest the last one
             c = np.array([(self.last_box[0] + self.last_box[2]) / 2,
                           (self.last_box[1] + self.last_box[3]) / 2])
             rects.sort(key=lambda r: np.hypot((r[0] + r[2]) / 2 - c[0], (r[1] + r[3]) / 2 - c[1]))
-        else:
-            rects.sort(key=lambda r: (r[2] - r[0]) * (r[3] - r[1]), reverse=True)
-        l, t, r, b = rects[0]
+        else:  # the detector's most confident face (the largest can be a false one)
+            rects.sort(key=lambda r: r[4], reverse=True)
+        l, t, r, b, _ = rects[0]
         if max(r - l, b - t) < self.min_face_px:
             self.lost_run += 1
             return None, None, None, f"face smaller than {self.min_face_px} px"

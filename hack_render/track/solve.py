@@ -222,6 +222,35 @@ def _frame_lm(obj: _Objective, i: int, x0: torch.Tensor, prev: torch.Tensor,
     return x
 
 
+def _data_cost(obj: "_Objective", i: int, x: torch.Tensor) -> float:
+    with torch.no_grad():
+        sub = _Objective.__new__(_Objective)
+        sub.__dict__.update(obj.__dict__)
+        sub.obs, sub.mask, sub.scale = obj.obs[i:i + 1], obj.mask[i:i + 1], obj.scale[i:i + 1]
+        return float(sub.data(x[None]).sum() + sub.priors(x[None]).sum())
+
+
+def _first_frame(obj: "_Objective", i: int, x0: torch.Tensor, cfg: TrackConfig) -> torch.Tensor:
+    """The first frame, with no previous frame to stay near: Levenberg-Marquardt from the
+    given start and from the head turned -30, 0 and +30 degrees (the landmarks of a face
+    seen from the front fit a turned head locally well too); the lowest cost wins."""
+    free = TrackConfig(**{**cfg.__dict__, "velocity": {k: 0.0 for k in cfg.velocity}})
+    first = _Objective.__new__(_Objective)
+    first.__dict__.update({**obj.__dict__, "cfg": free})
+    starts = [x0]
+    for yaw in (-0.5, 0.0, 0.5):
+        x = x0.clone()
+        x[:3] = torch.tensor([0.0, yaw, 0.0], dtype=x.dtype)
+        starts.append(x)
+    best, best_cost = x0, float("inf")
+    for x in starts:
+        x = _frame_lm(first, i, x, x.clone(), 10 * cfg.frame_iterations)
+        c = _data_cost(first, i, x)
+        if c < best_cost:
+            best, best_cost = x, c
+    return best
+
+
 def solve_frames(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray,
                  weights: np.ndarray, init: FrameParams, cfg: TrackConfig | None = None,
                  progress: bool = True, g_ref: np.ndarray | None = None) -> FrameParams:
@@ -238,16 +267,22 @@ def solve_frames(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray,
     out = np.zeros((T, len(x_prev)))
     obj = _Objective(rig, cam, obs, found, weights, cfg,
                      init.g[:1] if g_ref is None else np.asarray(g_ref)[None])
-    started = False
+    started, costs = False, []
     for i in tqdm(range(T), desc="tracking", unit="frame", disable=not progress, leave=False):
         if found[i]:
             if not started:  # the first frame: no previous frame to stay near
-                free = TrackConfig(**{**cfg.__dict__, "velocity": {k: 0.0 for k in cfg.velocity}})
-                first = _Objective.__new__(_Objective)
-                first.__dict__.update({**obj.__dict__, "cfg": free})
-                x_prev = _frame_lm(first, i, x_prev, x_prev.clone(), 10 * cfg.frame_iterations)
+                x_prev = _first_frame(obj, i, x_prev, cfg)
                 started = True
-            x_prev = _frame_lm(obj, i, x_prev, x_prev.clone(), cfg.frame_iterations)
+            x = _frame_lm(obj, i, x_prev, x_prev.clone(), cfg.frame_iterations)
+            cost = _data_cost(obj, i, x)
+            if costs and cost > 4.0 * float(np.median(costs[-15:])):
+                # lost the face's pose (a fast turn, a bad detection): start again as for
+                # a first frame, from here and from the turned heads, and keep the best
+                y = _first_frame(obj, i, x, cfg)
+                if _data_cost(obj, i, y) < cost:
+                    x, cost = y, _data_cost(obj, i, y)
+            costs.append(cost)
+            x_prev = x
         out[i] = x_prev.numpy()
     return FrameParams.from_vector(out)
 
