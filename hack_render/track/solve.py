@@ -222,7 +222,7 @@ def _frame_lm(obj: _Objective, i: int, x0: torch.Tensor, prev: torch.Tensor,
     return x
 
 
-def _data_cost(obj: "_Objective", i: int, x: torch.Tensor) -> float:
+def _data_cost(obj: _Objective, i: int, x: torch.Tensor) -> float:
     with torch.no_grad():
         sub = _Objective.__new__(_Objective)
         sub.__dict__.update(obj.__dict__)
@@ -230,7 +230,7 @@ def _data_cost(obj: "_Objective", i: int, x: torch.Tensor) -> float:
         return float(sub.data(x[None]).sum() + sub.priors(x[None]).sum())
 
 
-def _first_frame(obj: "_Objective", i: int, x0: torch.Tensor, cfg: TrackConfig) -> torch.Tensor:
+def _first_frame(obj: _Objective, i: int, x0: torch.Tensor, cfg: TrackConfig) -> torch.Tensor:
     """The first frame, with no previous frame to stay near: Levenberg-Marquardt from the
     given start and from the head turned -30, 0 and +30 degrees (the landmarks of a face
     seen from the front fit a turned head locally well too); the lowest cost wins."""
