@@ -42,7 +42,8 @@ def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
         # first step turned the head by ~5 degrees and the landmark loss rose 20-fold)
         groups += [{"params": [v.dtheta], "lr": s.lr_joints},
                    {"params": [v.head_angles], "lr": s.lr_head},
-                   {"params": [v.global_orient], "lr": s.lr_torso},
+                   {"params": [v.global_orient],
+                    "lr": s.lr_torso if cfg.camera.rotate == "torso" else s.lr_head},
                    {"params": [v.transl], "lr": s.lr * 0.05},
                    {"params": [v.log_focal], "lr": s.lr * 0.5}]
         if v.psi is not None:

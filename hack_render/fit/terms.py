@@ -120,11 +120,15 @@ def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
 def pose_priors(state: FitState, cfg: FitConfig, v: View) -> dict[str, torch.Tensor]:
     s = cfg.shape
     th = state.theta(v)
-    return {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
-            "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
-            "dtheta": s.w_dtheta * (v.dtheta ** 2).sum(),
-            "global": s.w_global * (v.global_orient ** 2).sum(),
-            "neck": s.w_neck * (v.head_angles ** 2).sum()}
+    terms = {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
+             "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
+             "dtheta": s.w_dtheta * (v.dtheta ** 2).sum()}
+    if cfg.camera.rotate == "torso":  # the turn to the torso, the neck held
+        terms["global"] = s.w_global_torso * (v.global_orient ** 2).sum()
+        terms["neck"] = s.w_neck * (v.head_angles ** 2).sum()
+    else:
+        terms["global"] = s.w_global * (v.global_orient ** 2).sum()
+    return terms
 
 
 def psi_prior(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:
