@@ -122,11 +122,11 @@ def test_forward_clamp_limits_clamps_eta_and_tau(default):
 def test_fitter_projects_eta_and_tau_onto_their_ranges():
     """The fitter's projection after each step uses the anatomical ranges (the photometric
     stage also adds E_larynx = w_rot * larynx_limit_penalty to its objective)."""
-    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.state import FitState
 
     ns = SimpleNamespace(psi=torch.tensor([1.5]), views=[], eta=torch.tensor([2.5]),
                          tau=torch.tensor([-0.04]))
-    Fitter._project_psi(ns)
+    FitState.clamp_(ns)
     assert float(ns.eta) == ETA_RANGE[1] and float(ns.tau) == pytest.approx(TAU_RANGE_M[0])
 
 
