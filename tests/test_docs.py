@@ -38,14 +38,16 @@ def test_readme_is_short_and_links_stay_in_the_repository():
 def test_planned_features_say_so_and_name_their_issue():
     """What is not built says so and names its issue; what is built is not called planned."""
     motion = (ROOT / "docs" / "motion.md").read_text()
-    assert "not available yet" in motion.lower() and "issue 24" in motion.lower()
-    register = (ROOT / "docs" / "register.md").read_text()
-    assert "not available yet" not in register.lower()
+    # the larynx slide from plain video is the part of tracking not built
+    assert "**not tracked: the larynx's slide tau.**" in motion.lower()
+    assert "issues 24 and 26 stay open" in motion.lower()
+    for page in ("register.md", "motion.md"):
+        assert "not available yet" not in (ROOT / "docs" / page).read_text().lower(), page
     from hack_render.cli import app
 
     names = {c.name for c in app.registered_commands}
-    assert {"register", "transfer"} <= names
-    for cmd in ("register", "transfer"):
+    assert {"register", "transfer", "track"} <= names
+    for cmd in ("register", "transfer", "track"):
         assert f"`{cmd}`" not in (ROOT / "README.md").read_text().split("Not available yet")[-1]
 
 

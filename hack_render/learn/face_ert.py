@@ -1,8 +1,8 @@
 """Train the any-angle 68-point shape predictor (dlib's ensemble of regression trees) on
 the model's renders composited over photographs.
 
-    python -m hack_render.learn.face_ert collect --samples 600 --out /tmp/ert_data.npz
-    python -m hack_render.learn.face_ert train /tmp/ert_data.npz
+    python -m hack_render.learn.face_ert collect --samples 600 --out ert_data.npz
+    python -m hack_render.learn.face_ert train ert_data.npz
     python -m hack_render.learn.face_ert mean-shape     # the head-pose fit's mean landmarks
 
 MediaPipe's face mesh, dlib's and most public 68-point models are trained on faces
