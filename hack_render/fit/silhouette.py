@@ -373,7 +373,3 @@ def _boundary_vertices(faces: np.ndarray, n: int) -> np.ndarray:
     e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     uniq, count = np.unique(e, axis=0, return_counts=True)
     return np.unique(uniq[count == 1])
-
-
-def huber(r: torch.Tensor) -> torch.Tensor:
-    return torch.where(r.abs() < 1.0, 0.5 * r ** 2, r.abs() - 0.5)
