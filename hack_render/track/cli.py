@@ -45,7 +45,9 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     if resume and old is not None and old.get("complete"):
         return None, []
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
-    landmarks = None
+    from hack_render.track.pipeline import _timed
+
+    landmarks, timings = None, {}
     if resume and lm_path.is_file():
         landmarks = FrameLandmarks.load(lm_path)
         if len(landmarks.found) != clip.frames:
@@ -57,13 +59,15 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
             from hack_render.track.detect import FrameDetector, detect_frames
 
             with boundary.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
-                                       "landmarks); run the same command again"):
+                                       "landmarks); run the same command again"), \
+                    _timed(timings, "landmarks"):
                 landmarks = detect_frames(clip.read(), FrameDetector(
                     refiner=cfg.landmarks.refiner), progress, clip.frames)
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
         with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
             result, fitter = _track(clip, cfg, keyframes, progress, landmarks)
+            result.timings.update(timings)  # the landmarks' time (none when resumed)
             from hack_render.track.outputs import write_outputs
 
             paths = write_outputs(result, fitter, outdir, overlay, progress, truth)
