@@ -187,6 +187,17 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     seq = load_sequence(tmp_path / "out" / "sequence.npz", 53)
     assert seq.frames == 12 and seq.fps == 12.0
     assert count_mp4_frames(tmp_path / "out" / "overlay.mp4")[0] == 12
+    # the person and the sequence animate an exported glTF, as the docs say
+    from hack_render.export.person import export_person
+    from hack_render.export.reference import read_gltf
+    from hack_render.geometry import load_model
+    from hack_render.geometry.params import load_params
+
+    glb = tmp_path / "anim.glb"
+    export_person(load_model(None), load_params(tmp_path / "out" / "person.json"), glb,
+                  sequence=seq)
+    doc, _ = read_gltf(glb)
+    assert len(doc["animations"]) == 1
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["frames"] == 12 and len(rep["per_frame"]) == 12
     assert rep["lost_count"] == int((~res.landmarks.found).sum()) <= 4
