@@ -25,19 +25,29 @@ class FrameLandmarks:
     why: list[str]
     weights: np.ndarray
     raw: np.ndarray
+    mask: np.ndarray | None = None     # (T, 68) per-frame point weights (None: all 1)
+    source: list[str] | None = None    # (T,) "dlib", "mesh" (the fallback) or "" (lost)
+
+    def __post_init__(self):
+        if self.mask is None:
+            self.mask = np.ones(self.points.shape[:2])
+        if self.source is None:
+            self.source = ["dlib" if f else "" for f in self.found]
 
     def save(self, path) -> None:
         from hack_render.render.image_io import atomic_path
 
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, points=self.points, found=self.found, boxes=self.boxes,
-                     why=np.array(self.why, dtype=str), weights=self.weights, raw=self.raw)
+                     why=np.array(self.why, dtype=str), weights=self.weights, raw=self.raw,
+                     mask=self.mask, source=np.array(self.source, dtype=str))
 
     @classmethod
     def load(cls, path) -> FrameLandmarks:
         with np.load(path, allow_pickle=False) as z:
             return cls(z["points"], z["found"], z["boxes"], [str(s) for s in z["why"]],
-                       z["weights"], z["raw"])
+                       z["weights"], z["raw"], z["mask"] if "mask" in z else None,
+                       [str(s) for s in z["source"]] if "source" in z else None)
 
 
 class FrameDetector:
@@ -46,7 +56,8 @@ class FrameDetector:
     ``max_jump``: a frame whose landmarks moved more than this fraction of the face's size
     from the last good frame (beyond the motion since) is lost as an outlier."""
 
-    def __init__(self, min_face_px: int = 48, refiner: str = "dlib", max_jump: float = 0.5):
+    def __init__(self, min_face_px: int = 48, refiner: str = "dlib", max_jump: float = 0.5,
+                 fallback: bool = True):
         from hack_render.fit.landmarks import _dlib
 
         self.detector, self.predictor = _dlib()
@@ -56,6 +67,9 @@ class FrameDetector:
             from hack_render.fit.landmark_refiner import load_refiner
 
             self.refiner = load_refiner(refiner)
+        # where dlib finds no face: the vision package's face mesh (its 68 points are fixed
+        # surface points, so its jawline is not dlib's outline: the solve skips it)
+        self.fallback = fallback
         self.last_box: np.ndarray | None = None
         self.last_points: np.ndarray | None = None
         self.lost_run = 0
@@ -81,6 +95,42 @@ class FrameDetector:
             if rects:
                 return rects
         return self._run(img, 0) or self._run(img, 1)
+
+    def _mesh(self, img: np.ndarray):
+        """(points, visible (68,), box) of the face mesh's face nearest the last one, or
+        None (no face, or the vision package's models are not installed)."""
+        try:
+            from hack_render.vision.detect import detect_faces
+
+            faces = detect_faces(img, "mesh")
+        except (ImportError, HackError, OSError, RuntimeError):
+            return None
+        faces = [f for f in faces if f.size >= self.min_face_px]
+        if not faces:
+            return None
+        if self.last_box is not None:
+            c = np.array([(self.last_box[0] + self.last_box[2]) / 2,
+                          (self.last_box[1] + self.last_box[3]) / 2])
+            faces.sort(key=lambda f: np.hypot(*(f.points.mean(0) - c)))
+        f = faces[0]
+        vis = np.ones(68, bool) if f.visible is None else np.asarray(f.visible, bool)
+        return np.asarray(f.points, np.float64), vis, np.asarray(f.box, np.float64)
+
+    def detect(self, rgb8: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None,
+                                                np.ndarray | None, str, np.ndarray | None]:
+        """As calling the detector, with the face mesh where dlib finds no usable face:
+        (points, raw, box, why, mask (68,); None for dlib's points)."""
+        pts, raw, box, why = self(rgb8)
+        if pts is not None or not self.fallback:
+            return pts, raw, box, why, None
+        got = self._mesh(np.ascontiguousarray(rgb8[..., :3], dtype=np.uint8))
+        if got is None:
+            return None, None, None, why, None
+        pts, vis, box = got
+        mask = vis.astype(np.float64)
+        mask[:17] = 0.0  # the mesh's jawline is not dlib's outline
+        self.last_box, self.last_points, self.lost_run = box, pts, 0
+        return pts, pts, box, "", mask
 
     def __call__(self, rgb8: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None,
                                                  np.ndarray | None, str]:
@@ -110,8 +160,8 @@ class FrameDetector:
             size = np.linalg.norm(np.ptp(self.last_points, 0)) / np.sqrt(2)
             # the landmarks' shape relative to their own centre: a jump there is a bad fit
             # of the predictor, not motion
-            a = pts - pts.mean(0)
-            b0 = self.last_points - self.last_points.mean(0)
+            a = pts[17:] - pts[17:].mean(0)  # inner points (the mesh's jaw is not dlib's)
+            b0 = self.last_points[17:] - self.last_points[17:].mean(0)
             if np.median(np.linalg.norm(a - b0, axis=1)) > self.max_jump * size:
                 self.lost_run += 1
                 return None, None, None, "landmarks jumped (outlier)"
@@ -125,18 +175,21 @@ def detect_frames(frames, detector: FrameDetector | None = None, progress: bool 
     from tqdm import tqdm
 
     det = detector or FrameDetector()
-    pts, raws, boxes, why = [], [], [], []
+    pts, raws, boxes, why, masks, source = [], [], [], [], [], []
     for img in tqdm(frames, total=total, desc="landmarks", unit="frame", disable=not progress,
                     leave=False):
-        p, raw, box, reason = det(img)
+        p, raw, box, reason, mask = det.detect(img)
         nan = np.full((68, 2), np.nan)
         pts.append(nan if p is None else p)
         raws.append(nan if raw is None else raw)
         boxes.append(np.full(4, np.nan) if box is None else box)
         why.append(reason)
+        masks.append(np.ones(68) if mask is None else mask)
+        source.append("" if p is None else ("dlib" if mask is None else "mesh"))
     if not pts:
         raise HackError("track: the video has no frames.")
     found = np.array([w == "" for w in why])
     weights = (np.asarray(det.refiner.weights, dtype=np.float64)
                if det.refiner is not None and det.refiner.weights is not None else np.ones(68))
-    return FrameLandmarks(np.stack(pts), found, np.stack(boxes), why, weights, np.stack(raws))
+    return FrameLandmarks(np.stack(pts), found, np.stack(boxes), why, weights, np.stack(raws),
+                          np.stack(masks), source)

@@ -132,6 +132,8 @@ def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
                    "head_deg_per_frame2": float(np.degrees(jitter(result.params.h)))},
         "lost_frames": lost,
         "lost_count": len(lost),
+        # frames whose landmarks came from the face mesh (dlib found no face there)
+        "mesh_fallback_frames": [i for i, src in enumerate(lm.source) if src == "mesh"],
         "timings_s": result.timings,
         # landmark-driven tracking (landmarks, per-frame solve, smoothing; not the keyframe
         # fit): frames per wall second, and per CPU second (the figure a loaded machine

@@ -108,12 +108,14 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
     clip's end, and backward to frame 0."""
     from hack_render.track.solve import solve_frames
 
-    parts = [solve_frames(rig, camera, obs[first:], found[first:], weights, init, tcfg,
-                          progress, init.g[0])]
+    w = np.asarray(weights)
+    parts = [solve_frames(rig, camera, obs[first:], found[first:],
+                          w[first:] if w.ndim == 2 else w, init, tcfg, progress, init.g[0])]
     if first > 0:
         back = solve_frames(rig, camera, np.ascontiguousarray(obs[:first + 1][::-1]),
-                            np.ascontiguousarray(found[:first + 1][::-1]), weights, init,
-                            tcfg, False, init.g[0])
+                            np.ascontiguousarray(found[:first + 1][::-1]),
+                            np.ascontiguousarray(w[:first + 1][::-1]) if w.ndim == 2 else w,
+                            init, tcfg, False, init.g[0])
         parts.insert(0, FrameParams(*(a[::-1][:-1] for a in (back.h, back.g, back.t, back.psi))))
     return FrameParams(*(np.concatenate([getattr(p, k) for p in parts]) for k in
                          ("h", "g", "t", "psi")))
@@ -144,7 +146,10 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         raise HackError(f"track: a face was found in {int(landmarks.found.sum())} of "
                         f"{len(landmarks.found)} frames; expected at least 2. Use a clip with "
                         "a visible face of at least 48 px, frontal to three-quarter.")
-    keys = pick_keyframes(landmarks.found, keyframes, landmarks.points)
+    # keyframes from dlib's frames: the fit reads their jawline as dlib's outline
+    by_dlib = landmarks.found & np.array([src == "dlib" for src in landmarks.source])
+    keys = pick_keyframes(by_dlib if by_dlib.any() else landmarks.found, keyframes,
+                          landmarks.points)
     with _timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     state = fitter.state
@@ -164,11 +169,12 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                        g_ref[None],
                        (R.T @ (v0.transl.detach().double().numpy() - cam_t))[None], psi0)
     obs, found = landmarks.points, landmarks.found.copy()
+    point_w = landmarks.weights[None] * landmarks.mask  # (T, 68): the mesh's jaw left out
     with _timed(timings, "per_frame"):
-        seq = warm_started(rig, camera, obs, found, landmarks.weights, init, keys[0], tcfg,
+        seq = warm_started(rig, camera, obs, found, point_w, init, keys[0], tcfg,
                            progress)
     with _timed(timings, "smoothing"):
-        params = solve_clip(rig, camera, obs, found, landmarks.weights, seq, g_ref, tcfg,
+        params = solve_clip(rig, camera, obs, found, point_w, seq, g_ref, tcfg,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,

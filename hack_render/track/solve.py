@@ -90,9 +90,17 @@ class FrameParams:
 
 
 def _landmark_weights(cfg: TrackConfig, point_weights: np.ndarray) -> torch.Tensor:
+    """Per-point weights, (68,) for every frame or (T, 68) per frame (0 drops a point in
+    that frame), the jawline scaled by ``jaw_weight``, each row with mean 1."""
     w = np.asarray(point_weights, dtype=np.float64).copy()
-    w[:17] *= cfg.jaw_weight
-    return torch.as_tensor(w / w.mean())
+    w[..., :17] *= cfg.jaw_weight
+    return torch.as_tensor(w / np.maximum(w.mean(-1, keepdims=True), 1e-12))
+
+
+def _window(weights: np.ndarray, sl: slice) -> np.ndarray:
+    """The rows of per-frame weights for frames ``sl`` (shared weights unchanged)."""
+    w = np.asarray(weights)
+    return w[sl] if w.ndim == 2 else w
 
 
 class _Objective:
@@ -169,7 +177,7 @@ def _frame_residuals(obj: _Objective, i: int, prev: torch.Tensor, irls: torch.Te
     (the L1 prior's local quadratic), the limit penalty, the torso prior and the pull
     toward the previous frame (the velocity prior)."""
     cfg = obj.cfg
-    w = torch.sqrt(obj.w * irls)[:, None] / obj.scale[i]
+    w = torch.sqrt((obj.w[i] if obj.w.ndim == 2 else obj.w) * irls)[:, None] / obj.scale[i]
     obs = obj.obs[i]
     vel = torch.cat([torch.full((3,), cfg.velocity["h"]), torch.full((3,), cfg.velocity["g"]),
                      torch.full((3,), cfg.velocity["t"]),
@@ -227,6 +235,8 @@ def _data_cost(obj: _Objective, i: int, x: torch.Tensor) -> float:
         sub = _Objective.__new__(_Objective)
         sub.__dict__.update(obj.__dict__)
         sub.obs, sub.mask, sub.scale = obj.obs[i:i + 1], obj.mask[i:i + 1], obj.scale[i:i + 1]
+        if obj.w.ndim == 2:
+            sub.w = obj.w[i:i + 1]
         return float(sub.data(x[None]).sum() + sub.priors(x[None]).sum())
 
 
@@ -305,7 +315,8 @@ def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights
     for s in tqdm(starts, desc="smoothing", unit="window", disable=not progress or len(starts) < 2,
                   leave=False):
         e = min(T, s + cfg.window)
-        obj = _Objective(rig, cam, obs[s:e], found[s:e], weights, cfg, g_ref)
+        obj = _Objective(rig, cam, obs[s:e], found[s:e], _window(weights, slice(s, e)), cfg,
+                         g_ref)
         head = x_all[max(0, s - 2):s] if s > 0 else None
         x = _lbfgs(x_all[s:e], lambda x, obj=obj, head=head: obj.data(x).sum()
                    + obj.priors(x).sum() + obj.temporal(x, head), cfg.joint_iterations)
