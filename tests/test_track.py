@@ -249,7 +249,7 @@ def test_08_face_mesh_takes_over_where_dlib_finds_no_face():
     from hack_render.track.detect import FrameDetector
 
     img = data.astronaut()
-    up, up_raw, _, _ = FrameDetector(refiner="off")(img)
+    up, _, _, _ = FrameDetector(refiner="off")(img)
     assert up is not None
     a = 70.0
     rolled = transform.rotate(img, a, center=(256, 256), preserve_range=True).astype(np.uint8)
