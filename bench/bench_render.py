@@ -93,8 +93,8 @@ def material_benchmark(size: int, spp: int, repeats: int) -> None:
         results = {}
         for name, sc in (("diffuse", diffuse), ("hack_skin", skin)):
             # np.asarray waits for the (asynchronously launched) kernels to finish
-            first = timed(lambda: np.asarray(mi.render(sc, seed=0)), 1)[0]
-            rest = timed(lambda: np.asarray(mi.render(sc, seed=1)), repeats)
+            first = timed(lambda sc=sc: np.asarray(mi.render(sc, seed=0)), 1)[0]
+            rest = timed(lambda sc=sc: np.asarray(mi.render(sc, seed=1)), repeats)
             results[name] = statistics.median(rest)
             print(f"  {name:10s} first (compile) {first:6.2f} s, then median of {repeats}: "
                   f"{results[name]:6.2f} s")

@@ -53,7 +53,7 @@ def test_mesh_distance_is_exact_on_a_mesh():
     md = MeshDistance(mesh.vertices, mesh.faces)
     rng = np.random.default_rng(1)
     pts = rng.normal(size=(200, 3)) * 0.08
-    d, q, f = md.closest(pts)
+    d, q, _ = md.closest(pts)
     tri = mesh.vertices[mesh.faces]
     brute = np.stack([np.linalg.norm(pts - closest_point_on_triangles(
         pts, *[np.repeat(tri[i:i + 1, k], len(pts), 0) for k in range(3)]), axis=1)
