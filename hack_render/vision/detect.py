@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.fit.landmarks import Detection
 
 METHODS = ("auto", "mesh", "ert", "dlib_hog", "dlib_cnn")
 ERT_FILE = Path(__file__).resolve().parents[1] / "data" / "face_ert_68.dat"
@@ -74,7 +75,7 @@ class FaceWarning(UserWarning):
 
 
 @dataclass
-class FaceLandmarks:
+class FaceLandmarks(Detection):
     """One detected face.
 
     points: (68, 2) Multi-PIE landmarks in pixels (continuous, pixel centres at +0.5).
@@ -89,36 +90,19 @@ class FaceLandmarks:
     project) or "2d" (dlib: the jawline on the visible outline). pose: (yaw, pitch,
     roll) degrees of the camera about the head, from the points
     (:func:`hack_render.vision.pose.fit_pose`; 3-D convention only). ``raw`` and
-    ``weights`` as the fitter's ``Detection`` (None here).
+    ``weights`` as the fitter's ``Detection`` (None here), whose fields, ``size`` and
+    ``interocular`` it extends, so it goes wherever a ``Detection`` does.
     """
 
-    points: np.ndarray
-    box: tuple[float, float, float, float]
-    n_faces: int
-    source: str
     score: float = 1.0
-    visible: np.ndarray | None = None
     dense: np.ndarray | None = None
     roll_deg: float = 0.0
     convention: str = "2d"
     pose: tuple[float, float, float] | None = None
-    raw: np.ndarray | None = None
-    weights: np.ndarray | None = None
 
     def __post_init__(self):
         if self.visible is None:
             self.visible = np.ones(len(self.points), bool)
-
-    @property
-    def size(self) -> float:
-        """Face size in pixels: the landmarks' bounding-box diagonal / sqrt(2)."""
-        span = self.points.max(0) - self.points.min(0)
-        return float(np.linalg.norm(span) / np.sqrt(2.0))
-
-    @property
-    def interocular(self) -> float:
-        """Distance between the outer eye corners (landmarks 36 and 45), pixels."""
-        return float(np.linalg.norm(self.points[36] - self.points[45]))
 
 
 # --- image checks ------------------------------------------------------------------------
@@ -335,9 +319,9 @@ def _mesh_face(rgb8: np.ndarray, box, score: float, kp) -> FaceLandmarks:
 
     return FaceLandmarks(pts, tuple(float(v) for v in (*dense[:, :2].min(0),
                                                        *dense[:, :2].max(0))), 0,
-                         "mesh", float(presence * score), dmap.visible(dense), dense,
-                         math.degrees(math.atan2(-d[1], d[0])), "3d",
-                         pose=fit_pose(pts).angles())
+                         "mesh", score=float(presence * score), visible=dmap.visible(dense),
+                         dense=dense, roll_deg=math.degrees(math.atan2(-d[1], d[0])),
+                         convention="3d", pose=fit_pose(pts).angles())
 
 
 def _ert_face(rgb8: np.ndarray, box, score: float) -> FaceLandmarks:
@@ -349,9 +333,10 @@ def _ert_face(rgb8: np.ndarray, box, score: float) -> FaceLandmarks:
     from hack_render.vision.pose import fit_pose, visible_from_pose
 
     pose = fit_pose(pts)
-    return FaceLandmarks(pts, tuple(float(v) for v in box), 0, "ert", score,
-                         visible_from_pose(pose), None,
-                         math.degrees(math.atan2(-d[1], d[0])), "3d", pose=pose.angles())
+    return FaceLandmarks(pts, tuple(float(v) for v in box), 0, "ert", score=score,
+                         visible=visible_from_pose(pose),
+                         roll_deg=math.degrees(math.atan2(-d[1], d[0])), convention="3d",
+                         pose=pose.angles())
 
 
 def _ert():
@@ -432,7 +417,7 @@ def _dlib_faces(rgb8: np.ndarray, method: str) -> list[FaceLandmarks]:
         shape = _dlib("shape")(rgb8, dlib.rectangle(*[round(v) for v in b]))
         pts = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], float)
         d = pts[45] - pts[36]
-        faces.append(FaceLandmarks(pts, tuple(float(v) for v in b), 0, method, s,
+        faces.append(FaceLandmarks(pts, tuple(float(v) for v in b), 0, method, score=s,
                                    roll_deg=math.degrees(math.atan2(-d[1], d[0]))))
     return faces
 
