@@ -95,26 +95,67 @@ class MeshViews:
         right, down = cam.R[0], cam.R[1]
         self.light = cam.center + 0.5 * d * (-down - 0.6 * right)
 
-    def _trace(self, cam: Camera, supersample: int = 1):
-        """Mitsuba rays through a ``supersample`` x ``supersample`` grid in each pixel ->
-        (position, shading normal, diffuse albedo, hit), each (H*s, W*s[, 3])."""
+    def _intersect(self, cam: Camera, supersample: int = 1, window=None):
+        """Mitsuba rays through a ``supersample`` x ``supersample`` grid in each pixel of
+        ``window`` (x0, y0, x1, y1; default: the whole image) -> (ray, surface
+        interaction, hit mask, rows h*s, columns w*s)."""
         import drjit as dr
         import mitsuba as mi
 
         self._set_camera(cam)
         s = int(supersample)
-        w, h = self.width * s, self.height * s
+        x0, y0, x1, y1 = window or (0, 0, self.width, self.height)
+        w, h = (x1 - x0) * s, (y1 - y0) * s
         idx = dr.arange(mi.UInt32, w * h)
-        x = mi.Float(idx % w) + 0.5
-        y = mi.Float(idx // w) + 0.5
+        x = mi.Float(idx % w) + 0.5 + x0 * s
+        y = mi.Float(idx // w) + 0.5 + y0 * s
         sensor = self.scene.sensors()[0]
-        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+        ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / (self.width * s),
+                                                        y / (self.height * s)),
+                                   mi.Point2f(0.5, 0.5))
         si = self.scene.ray_intersect(ray)
-        valid = si.is_valid()
+        return ray, si, si.is_valid(), h, w
+
+    def _trace(self, cam: Camera, supersample: int = 1, window=None):
+        """(position, shading normal, diffuse albedo, hit), each (h*s, w*s[, 3]), of the
+        rays of :meth:`_intersect`."""
+        import drjit as dr
+
+        ray, si, valid, h, w = self._intersect(cam, supersample, window)
         albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
         dr.eval(si.p, si.sh_frame.n, albedo, valid)
         arr = lambda v: np.asarray(v, np.float64).reshape(3, h, w).transpose(1, 2, 0)
         return arr(si.p), arr(si.sh_frame.n), arr(albedo), np.asarray(valid, bool).reshape(h, w)
+
+    def trace_triangles(self, cam: Camera, window: tuple[int, int, int, int] | None = None):
+        """The triangle under each pixel centre of ``window`` (as :meth:`trace`): (triangle
+        index (h, w) int64, barycentric weights of its three corners (h, w, 3), hit
+        (h, w)); a point is ``sum_k bary[..., k] * vertices[faces[tri, k]]``. Misses have
+        index 0 and weights 0."""
+        import drjit as dr
+
+        _, si, valid, h, w = self._intersect(cam, 1, self._window(window))
+        dr.eval(si.prim_index, si.uv, valid)
+        hit = np.asarray(valid, bool).reshape(h, w)
+        tri = np.where(hit, np.asarray(si.prim_index, np.int64).reshape(h, w), 0)
+        b = np.asarray(si.uv, np.float64).reshape(2, h, w).transpose(1, 2, 0)
+        bary = np.concatenate([1.0 - b.sum(-1, keepdims=True), b], -1) * hit[..., None]
+        return tri, bary, hit
+
+    def _window(self, window):
+        if window is None:
+            return None
+        x0, y0, x1, y1 = (int(v) for v in window)
+        if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
+            raise ValueError(f"window {window} is not inside the {self.width}x"
+                             f"{self.height} image")
+        return x0, y0, x1, y1
+
+    def trace(self, cam: Camera, window: tuple[int, int, int, int] | None = None):
+        """The surface under each pixel centre of ``window`` (x0, y0, x1, y1: pixel columns
+        x0..x1-1 and rows y0..y1-1; default the whole image): (position (h, w, 3), unit
+        shading normal (h, w, 3), diffuse albedo or vertex colour (h, w, 3), hit (h, w))."""
+        return self._trace(cam, 1, self._window(window))
 
     def render(self, cam: Camera, supersample: int = 2) -> np.ndarray:
         """(H, W, 4) linear RGBA of the mesh seen by ``cam``: diffuse albedo (the mesh's

@@ -12,10 +12,12 @@ from hack_render.errors import HackError
 def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 640,
                 fps: float | None = None, config=None, overlay: bool = True,
                 resume: bool = False, progress: bool = True,
-                max_frames: int | None = None, truth: dict | None = None):
+                max_frames: int | None = None, truth: dict | None = None,
+                larynx: bool = True):
     """Library entry point of the command: read, detect, fit, track, write. Returns
     (TrackResult, paths). With ``resume``, landmarks found by an interrupted run of the
-    same command (``landmarks.npz``) are reused."""
+    same command (``landmarks.npz``) are reused. ``larynx``: track tau per frame from the
+    neck's shading (else the keyframe fit's tau throughout)."""
     import torch
 
     from hack_render import boundary
@@ -38,7 +40,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     boundary.output_dir(outdir)
     record = boundary.RunRecord(outdir, "track", {
         "video": boundary.file_identity(video) if Path(video).is_file() else str(video),
-        "keyframes": keyframes, "max_side": max_side, "fps": clip.fps,
+        "keyframes": keyframes, "max_side": max_side, "fps": clip.fps, "larynx": larynx,
         "frames": clip.frames, "config": cfg.to_dict()}, name="track_run.json")
     lm_path = outdir / "landmarks.npz"
     old = record.check_resume(resume, lm_path.exists())
@@ -66,7 +68,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
         with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
-            result, fitter = _track(clip, cfg, keyframes, progress, landmarks)
+            result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx)
             result.timings.update(timings)  # the landmarks' time (none when resumed)
             from hack_render.track.outputs import write_outputs
 
@@ -75,11 +77,11 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     return result, paths + [record.path]
 
 
-def _track(clip, cfg, keyframes, progress, landmarks):
+def _track(clip, cfg, keyframes, progress, landmarks, larynx=True):
     from hack_render.track.pipeline import track_clip
 
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
-                        landmarks=landmarks)
+                        landmarks=landmarks, larynx=larynx)
     return result, result.fitter
 
 
@@ -99,14 +101,20 @@ def track(
                                           "for the keyframe fit; see `hack-render fit`."),
     no_photometric: bool = typer.Option(False, "--no-photometric", help="Keyframe fit from "
                                         "landmarks only (no skin, faster)."),
+    tau: str = typer.Option("photometric", "--tau", help="The larynx's slide per frame: "
+                            "'photometric' (from the neck's shading: the mesh at a grid of "
+                            "slides, the light refitted per frame, the least-cost smooth path) "
+                            "or 'fixed' (the keyframe fit's value throughout; faster)."),
     no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Track a video into HACK parameters: one identity for the clip, and per frame the
-    8 neck joints (from the head's rotation), the torso and the expression. The larynx's
-    slide (tau) is not tracked from video: it keeps the keyframe fit's value.
+    8 neck joints (from the head's rotation), the torso, the expression and the larynx's
+    slide tau (from the neck's shading; it needs the front of the neck in view and a light
+    that is not straight from the camera, and frames where the shading cannot tell
+    follow their neighbours).
 
     Writes sequence.npz (per-frame theta, psi, tau, global_orient, transl: `hack-render
     export --params OUT/person.json --sequence OUT/sequence.npz -o anim.glb`),
@@ -118,6 +126,8 @@ def track(
     """
     from hack_render.fit.config import load_config
 
+    if tau not in ("photometric", "fixed"):
+        raise HackError(f"--tau {tau!r}: expected 'photometric' or 'fixed'.")
     over: dict = {}
     if no_photometric:
         over["photometric"] = {"enabled": False}
@@ -128,7 +138,8 @@ def track(
                             "config file")
     cfg = load_config(config, over)
     result, paths = track_video(video, output, keyframes, max_side, fps, cfg,
-                                not no_overlay, resume, not quiet, max_frames)
+                                not no_overlay, resume, not quiet, max_frames,
+                                larynx=tau == "photometric")
     if result is None:
         typer.echo(f"{output}: already complete (--resume); nothing to do")
         return

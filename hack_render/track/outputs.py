@@ -140,15 +140,35 @@ def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
         # does not distort)
         "tracking_fps": n / track_s if track_s > 0 else None,
         "tracking_fps_cpu": n / track_cpu if track_cpu > 0 else None,
+        "larynx": _larynx_report(result),
         "notes": result.notes,
         "per_frame": [{"frame": i, "found": bool(lm.found[i]),
                        "landmark_error_px": None if not lm.found[i] else float(err_px[i]),
                        "head_deg": np.degrees(result.params.h[i]).round(3).tolist(),
-                       "tau_mm": round(1e3 * float(result.tau[i]), 3)} for i in range(n)],
+                       "tau_mm": round(1e3 * float(result.tau[i]), 3),
+                       "tau_confidence": None if result.larynx is None else
+                       round(float(result.larynx.confidence[i]), 4)} for i in range(n)],
     }
     if truth is not None:
         rep["truth"] = truth_errors(result, truth)
     return rep
+
+
+def _larynx_report(result: TrackResult) -> dict:
+    """How tau was found, and the photometric stage's speed."""
+    lt = result.larynx
+    if lt is None:
+        return {"method": "fixed: the keyframe fit's tau on every frame (--tau fixed)"}
+    sec = result.timings.get("larynx_s", 0.0)
+    cpu = result.timings.get("larynx_cpu_s", 0.0)
+    return {"method": "photometric: the neck's shading at a grid of slides, the light "
+                      "refitted per frame and slide, then the least-cost smooth path",
+            "grid_mm": (1e3 * lt.grid).round(3).tolist(),
+            "pixels_median": float(np.median(lt.pixels[lt.pixels > 0])) if (lt.pixels > 0).any()
+            else 0.0,
+            "confidence_median": float(np.median(lt.confidence)),
+            "fps": len(lt.tau) / sec if sec > 0 else None,
+            "fps_cpu": len(lt.tau) / cpu if cpu > 0 else None}
 
 
 def truth_errors(result: TrackResult, truth: dict) -> dict:
@@ -158,13 +178,17 @@ def truth_errors(result: TrackResult, truth: dict) -> dict:
     psi = np.abs(seq.psi - truth["psi"])
     active = np.abs(truth["psi"]).max(0) > 0.05
     tau = 1e3 * np.abs(np.asarray(result.tau) - truth["tau"])
+    moving = np.ptp(truth["tau"]) > 0 and np.ptp(result.tau) > 0
     head = np.degrees(np.abs(result.params.h - truth["h"]))
     return {"theta_joint_deg": {"mean": float(th.mean()), "max": float(th.max())},
             "head_deg": {"mean": head.mean(0).tolist(), "max": head.max(0).tolist()},
             "psi_abs": {"mean": float(psi.mean()),
                         "active_mean": float(psi[:, active].mean()) if active.any() else None},
-            "tau_mm": {"mean": float(tau.mean()), "max": float(tau.max()),
-                       "truth_range": float(1e3 * np.ptp(truth["tau"]))},
+            "tau_mm": {"mean": float(tau.mean()), "rmse": float(np.sqrt((tau ** 2).mean())),
+                       "max": float(tau.max()),
+                       "truth_range": float(1e3 * np.ptp(truth["tau"])),
+                       "correlation": float(np.corrcoef(result.tau, truth["tau"])[0, 1])
+                       if moving else None},
             "jitter_truth": {"theta_deg_per_frame2": float(np.degrees(jitter(truth["theta"])))},
             "per_frame_theta_deg": th.mean(1).round(3).tolist(),
             "per_frame_tau_mm": tau.round(3).tolist()}

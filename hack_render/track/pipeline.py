@@ -8,8 +8,10 @@
 3. Per frame (``solve.py``): head rotation (over the 8 neck joints), torso rotation,
    translation and expression, warm-started from the previous frame, then one joint solve
    with velocity and acceleration priors; lost frames are carried by the priors.
-4. Outputs (``outputs.py``). The larynx's slide tau is not tracked from plain video (no
-   cue measured reliable enough, docs/motion.md): it stays at the keyframe fit's.
+4. The larynx's slide tau per frame (``larynx.py``): the neck's shading fitted at a grid
+   of slides with the light refitted per frame, then the least-cost smooth path over the
+   clip (``larynx=False``: the keyframe fit's tau throughout).
+5. Outputs (``outputs.py``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ class TrackResult:
     timings: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     fitter: object = None          # the keyframe fit's Fitter (its outputs are written)
+    larynx: object = None          # the photometric tau's LarynxTrack (None: not tracked)
 
 
 class _timed:
@@ -123,10 +126,11 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
 
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
-               landmarks: FrameLandmarks | None = None) -> TrackResult:
+               landmarks: FrameLandmarks | None = None, larynx: bool = True) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
-    ``landmarks``: reuse landmarks found before (a resumed run)."""
+    ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
+    larynx's slide per frame from the neck's shading (else the keyframe fit's tau)."""
     import dataclasses
 
     from hack_render.fit.camera import R0
@@ -177,8 +181,17 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         params = solve_clip(rig, camera, obs, found, point_w, seq, g_ref, tcfg,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
+    track = None
+    if larynx:
+        from hack_render.track.larynx import track_tau
+
+        with _timed(timings, "larynx"):
+            track = track_tau(clip.read(), state.model, fit.beta.detach(),
+                              float(fit.eta.detach().reshape(-1)[0]), params, camera, found,
+                              clip.fps, progress=progress)
+        tau = track.tau
     return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
-                       fitter)
+                       fitter, track)
 
 
 def sequence_of(result: TrackResult):
