@@ -291,10 +291,50 @@ def test_12_learn_pose_continue(tmp_path):
 
     out = tmp_path / "m.npz"
     main(["learn", "pose", "--continue", "-o", str(out), "--iterations", "1", "--identities", "1",
-          "--lr", "1e-6", "--quiet"])
+          "--lr", "1e-6", "--hard-examples", "0", "--quiet"])
     src, _ = load_model_file(load_default_model().source_path)
     new, meta = load_model_file(out)
     p0, p1 = np.asarray(src["pose_basis"]), np.asarray(new["pose_basis"])
     assert np.abs(p1 - p0).max() < 0.05 * np.abs(p0).max()
     assert meta["learn"]["pose"]["continued"]["mp_restarted"]
     assert "continued from the input model" in meta["provenance"]["pose_blendshapes"]
+
+
+def test_13_learner_rest_is_the_models_and_screen_finds_folds():
+    """The learner on the model's own rest meshes (larynx, personalised expressions, an
+    expression held) poses the neck exactly as the model does; its hard-example screen
+    flags every row where plain LBS folds skin (with P at zero the learner is plain LBS)."""
+    from hack_render.geometry.deformation import sample_head_poses
+    from hack_render.learn.full_model import SKIN_LAST, model_rest_fn, pose_subset
+    from hack_render.learn.pose_energy import PoseBatch, PoseEnergyLearner, neck_region
+
+    model = load_default_model().double()
+    arrays, meta = load_model_file(model.source_path)
+    plain = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
+    region = neck_region(arrays["faces"], SKIN_LAST, pose_subset(plain))
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                arrays["skinning_weights"], arrays["joint_parents"], region,
+                                rest_fn=model_rest_fn(plain, region.vertices), seed=13)
+    learner.start_from(arrays)
+    g = torch.Generator().manual_seed(13)
+    theta = sample_head_poses(48, g, "xyz")
+    beta = torch.randn(1, 20, generator=g, dtype=torch.float64).expand(48, -1)
+    psi = model.expression_vector("jawOpen=0.5, mouthSmile_L=0.8, mouthSmile_R=0.8").expand(48, -1)
+    rest, joints = learner.rest(beta, psi)
+    batch = PoseBatch(beta, theta, psi, rest, joints)
+    with torch.no_grad():
+        posed, _ = learner.pose(batch)
+        ref = model(beta=beta, psi=psi, theta=theta).vertices[:, region.vertices]
+    assert float((posed - ref).abs().max()) < 1e-6  # 1 micrometre: float32-stored arrays
+
+    lbs = HackModel(plain, meta).double()
+    folded = model_deformation(lbs, beta[:1], theta, psi[:1]).folded
+    assert int((folded > 0).sum()) >= 2  # full-range combined rotations: LBS folds some
+    with torch.no_grad():
+        learner.p_cm.zero_()
+        learner.c_cm.zero_()
+    flagged = learner.screen(batch)
+    assert bool(flagged[folded > 0].all()), (folded.tolist(), flagged.tolist())
+    assert not bool(flagged.all())

@@ -13,6 +13,8 @@ keep working for one release, hidden, with a deprecation message.
 
 from __future__ import annotations
 
+import math
+import sys
 from pathlib import Path
 
 import typer
@@ -58,6 +60,33 @@ def build_v2(
     typer.echo(f"wrote {output.resolve()} ({output.stat().st_size / 1e6:.1f} MB)")
 
 
+def _command_line() -> str | None:
+    """The command as typed, when run as ``hack-render learn ...`` (None when called from
+    Python, e.g. the tests)."""
+    if Path(sys.argv[0]).name == "hack-render" and sys.argv[1:2] == ["learn"]:
+        return " ".join(["hack-render", *sys.argv[1:]])
+    return None
+
+
+def _loss_overrides(items: list[str]) -> dict:
+    """``--loss KEY=VALUE`` items as a dict, keys checked against the learner's DEFAULTS."""
+    from hack_render.learn.pose_energy import DEFAULTS
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        try:
+            val = float(value)
+        except ValueError:
+            val = None
+        if not sep or key not in DEFAULTS or val is None or not math.isfinite(val) or val < 0:
+            raise HackError(f"--loss {item!r}: expected KEY=VALUE with KEY one of "
+                            f"{', '.join(DEFAULTS)} and VALUE a number >= 0")
+        out[key] = val
+    return out
+
+
 def learn_pose(
     model_path: Path | None = typer.Option(None, "--model", help="Model file to start from "
                                               "(default: built-in); its joints, shape space "
@@ -74,6 +103,15 @@ def learn_pose(
     lr: float = typer.Option(0.01, "--lr", help="Adam step of P, the components and the "
                              "weights' logits (cm), decaying linearly to 10 %."),
     mlp_lr: float = typer.Option(1e-4, "--mlp-lr", help="Adam step of M_P."),
+    hard: int = typer.Option(16, "--hard-examples", help="Rows per step drawn from a pool of "
+                             "mined hard examples (poses that fold, nearly fold or stretch "
+                             "more than plain LBS); 0: none."),
+    expressions: bool = typer.Option(True, "--expressions/--neutral-only", help="Train on the "
+                                     "model's own rest meshes with sampled expressions (as the "
+                                     "stress test measures), or on neutral T_bar + B_S(beta)."),
+    loss: list[str] = typer.Option([], "--loss", help="A loss weight or threshold of "
+                                   "hack_render.learn.pose_energy.DEFAULTS, KEY=VALUE "
+                                   "(repeatable), e.g. --loss worse_max=1000."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Re-learn a model's pose correctives (P, the personalised components and M_P) and the
@@ -95,6 +133,8 @@ def learn_pose(
     boundary.number(seed, "--seed", 0, 2 ** 32 - 1, integer=True)
     boundary.number(lr, "--lr", 1e-6, 1.0)
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
+    boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
+    overrides = _loss_overrides(loss)
     typer.echo(f"learn pose: {iterations} steps of about 1.5 s on 2 CPU cores (~"
                f"{max(1, round(iterations * 1.5 / 60))} min)", err=True)
     src = model_path or default_model_path()
@@ -109,10 +149,15 @@ def learn_pose(
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
     po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
-                           start=start, mlp_lr=mlp_lr)
+                           start=start, mlp_lr=mlp_lr, hard=hard, expressions=expressions,
+                           loss=overrides)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})
+    po["report"]["command"] = _command_line()
+    if continue_ and "pose" in learn:  # the runs this one continues, newest first
+        before = {k: v for k, v in learn["pose"].items() if k != "history"}
+        po["report"]["continued"]["previous"] = before
     learn["pose"] = po["report"]
     learn.setdefault("curves", {})["pose"] = pose_curves(po["arrays"])
     save_model_file(output, arrays, meta)

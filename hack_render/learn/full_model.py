@@ -182,10 +182,28 @@ def clean_weights(w: np.ndarray, w0: np.ndarray, floor: float = 1e-3, most: int 
     return out
 
 
+def model_rest_fn(arrays: dict, vertices) -> callable:
+    """``(beta (U, S), psi (U, E) or None) -> (rest (U, V, 3), joints (U, K, 3))``: the rest
+    mesh of the model the arrays make without pose correctives (template, shape, larynx at
+    eta = 1, generic and personalised expressions), on ``vertices``, in float64."""
+    from hack_render.geometry.model import HackModel
+
+    model = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}).double()
+    idx = torch.as_tensor(np.asarray(vertices), dtype=torch.long)
+
+    def rest(beta, psi):
+        with torch.no_grad():
+            out = model(beta=beta.double(), psi=psi.double() if psi is not None else None)
+        return out.rest_vertices[:, idx], out.rest_joints
+
+    return rest
+
+
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True,
-                      start: dict | None = None, mlp_lr: float = 1e-4) -> dict:
+                      start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
+                      expressions: bool = True, loss: dict | None = None) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -194,7 +212,11 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     ``start``: model arrays whose correctives and weights (``pose_*``,
     ``skinning_weights``) the learner continues from, M_P restarted
     (:meth:`~hack_render.learn.pose_energy.PoseEnergyLearner.restart_personalisation`);
-    without it P and the components start at zero."""
+    without it P and the components start at zero.
+
+    ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
+    with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
+    on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none)."""
     from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
 
     sub = pose_subset(arrays)
@@ -202,15 +224,22 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     std = np.asarray(arrays["shape_std"], np.float64)
     dirs = np.asarray(arrays["shape_components"], np.float64) * std[:, None, None]
     region = neck_region(arrays["faces"], SKIN_LAST, sub)
+    rest = model_rest_fn(arrays, region.vertices) if expressions else None
+    names = [str(x) for x in arrays["expression_names"]]
     learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
                                 arrays["skinning_weights"], arrays["joint_parents"], region,
-                                num_components=num_components, seed=seed)
+                                num_components=num_components, seed=seed, rest_fn=rest, loss=loss,
+                                num_expressions=len(names) if expressions else 0,
+                                jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
+                                symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
+                                           if n.endswith("_L") and n[:-2] + "_R" in names])
     old_spread = None
     if start is not None:
         learner.start_from(start)
         old_spread = learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
-                      learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr)
+                      learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr,
+                      hard=hard)
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = res.pose_basis
     out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),
@@ -225,7 +254,11 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "lr_cm": lr, "mlp_lr": mlp_lr, "identities_per_step": identities, "poses_per_identity": poses,
               "components": num_components, "subset_vertices": int(m),
               "region_triangles": len(region.faces), "learned_weights": learn_weights,
-              "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history}
+              "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
+              "seed": seed, "hard_examples_per_step": hard,
+              "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
+                       "identities with a sampled expression" if expressions
+                       else "T_bar + B_S(beta), neutral")}
     if start is not None:
         report["continued"] = {"from": "the input model's correctives and neck weights",
                                "mp_restarted": True, "old_mp_output_std_max": old_spread}

@@ -33,7 +33,26 @@ a mean over its elements (r = |e| / |e0| - 1 per edge):
   identity (stretch beyond max(LBS, s0), cos below min(LBS, f0)), LBS with the initial
   weights W0 and with the current W, whichever is better: correctives may only improve
   on LBS;
+* ``fold_sum``: the fold hinge summed over a pose's triangles (``fold`` is a mean over
+  some 3,000 triangles, so a pose that folds a handful weighs almost nothing in it; this
+  term makes every folding triangle count);
+* ``worse_max``: per pose, the excess of the largest edge stretch over plain LBS's largest
+  (the stricter of W0 and the current W) plus a margin: the stress test's "worse than LBS";
+* ``worse_pose``: the same bound on every edge, summed over a pose's edges: each edge
+  stretched past plain LBS's largest stretch of that pose counts (the max alone moves
+  one edge per step, and the next one then stands out);
 * ``smooth``: the squared uniform Laplacian of P over the region; ``weights``: ||W - W0||^2.
+
+Hard examples (issue 21: the rare full-range combined rotations that still folded once the
+mean energy was low): every few steps the learner screens a fresh batch without gradients
+and keeps, in a pool, the pose-identity-expression triples that fold a triangle, come
+within a margin of folding, or stretch more than plain LBS; each step then trains on some
+of the pool beside the fresh samples.
+
+Rest shapes: by default T_bar + B_S(beta) from the arrays given; with ``rest_fn`` (see
+:func:`~hack_render.learn.full_model.learn_pose_energy`) the model's own rest mesh for each
+identity and a sampled expression (larynx and personalised expressions included), as the
+stress test measures it.
 """
 
 from __future__ import annotations
@@ -58,7 +77,13 @@ from hack_render.learn.pose_learn import weight_support
 #: loss weights and thresholds (s0, c0: stretch / compression past which the tails count;
 #: f0: the normal cosine below which a triangle counts as folding)
 DEFAULTS = {"s0": 0.2, "c0": 0.3, "f0": 0.3, "strain": 1.0, "stretch": 30.0, "compress": 10.0,
-            "fold": 30.0, "bend": 3.0, "worse": 300.0, "smooth": 1e-3, "weights": 1e-2}
+            "fold": 30.0, "bend": 3.0, "worse": 300.0, "smooth": 1e-3, "weights": 1e-2,
+            "fold_sum": 1.0, "worse_max": 100.0, "worse_pose": 0.0, "worse_margin": 0.005,
+            "near_fold": 0.1, "near_worse": 0.0}
+
+#: terms of :meth:`PoseEnergyLearner.terms` (the other DEFAULTS keys are thresholds)
+TERMS = ("strain", "stretch", "compress", "fold", "bend", "worse", "smooth", "weights",
+         "fold_sum", "worse_max", "worse_pose")
 
 
 @dataclass
@@ -143,6 +168,31 @@ class PoseEnergyResult:
     seconds: float = 0.0
 
 
+@dataclass
+class PoseBatch:
+    """Training rows: identities beta (B, S), poses theta (B, 8, 3), expressions psi (B, E)
+    or None, and each row's rest region (B, V, 3) and rest joints (B, K, 3)."""
+
+    beta: torch.Tensor
+    theta: torch.Tensor
+    psi: torch.Tensor | None
+    rest: torch.Tensor
+    joints: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.theta.shape[0]
+
+    def rows(self, keep: torch.Tensor) -> PoseBatch:
+        return PoseBatch(self.beta[keep], self.theta[keep], None if self.psi is None else self.psi[keep],
+                         self.rest[keep], self.joints[keep])
+
+    @staticmethod
+    def cat(parts: list[PoseBatch]) -> PoseBatch:
+        psi = None if any(p.psi is None for p in parts) else torch.cat([p.psi for p in parts])
+        return PoseBatch(*(torch.cat([getattr(p, k) for p in parts]) for k in ("beta", "theta")),
+                         psi, *(torch.cat([getattr(p, k) for p in parts]) for k in ("rest", "joints")))
+
+
 class PoseEnergyLearner:
     """Learns P, C, M_P and W (see the module docstring).
 
@@ -152,11 +202,20 @@ class PoseEnergyLearner:
         joint_regressor: (K, N); weights: (N, K + 1) initial skinning weights W0.
         parents: joint parents; region: :func:`neck_region`; subset: (M,) model ids.
         num_components: C, personalised components; num_shape: betas fed to M_P.
+        rest_fn: optional ``(beta (U, S), psi (U, E) or None) -> (rest (U, V, 3), joints
+            (U, K, 3))``, the region's rest vertices and the rest joints of each identity
+            and expression (default: T_bar + B_S(beta) and the regressor's joints).
+        num_expressions: E, expression weights sampled for ``rest_fn`` (0: neutral only);
+        jaw_open: the index of the jaw opening among them, sampled more often;
+        symmetric: (left, right) index pairs of mirrored expressions (e.g. mouthSmile_L /
+        _R), given one value on both sides in half of the expressive rows.
     """
 
     def __init__(self, template, shape_dirs, joint_regressor, weights, parents, region: NeckRegion,
                  num_components: int = 8, num_shape: int = 20, hidden: int = 64,
-                 loss: dict | None = None, seed: int = 0, dtype=torch.float64):
+                 loss: dict | None = None, seed: int = 0, dtype=torch.float64,
+                 rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
+                 symmetric: list[tuple[int, int]] | None = None):
         t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
         self.region, self.parents = region, tuple(parents)
         self.lam = dict(DEFAULTS, **(loss or {}))
@@ -187,6 +246,9 @@ class PoseEnergyLearner:
         torch.nn.init.zeros_(self.mlp[4].bias)
         self.logits = torch.log(self.w0_sub.clamp(min=1e-4)).clone().requires_grad_()
         self.lap = self._laplacian(m)
+        self.rest_fn, self.num_expressions = rest_fn, num_expressions if rest_fn else 0
+        self.jaw_open = jaw_open
+        self.symmetric = torch.as_tensor(symmetric or [], dtype=torch.long).reshape(-1, 2)
 
     def start_from(self, arrays: dict) -> None:
         """Continue from learned model arrays (``pose_basis`` on the subset's rows,
@@ -244,84 +306,152 @@ class PoseEnergyLearner:
         w = self.mlp(beta)
         return (self.p_cm + torch.einsum("bc,cdmk->bdmk", w, self.c_cm)) / 100
 
-    def pose(self, beta: torch.Tensor, theta: torch.Tensor, corrective: bool = True,
-             weights: torch.Tensor | None = None):
-        """Rest (B, V, 3), posed (B, V, 3) and node rotations (B, K+1, 3, 3) of the region
-        for identities beta (B, S) in poses theta (B, 8, 3); without ``corrective``, plain
-        LBS with ``weights`` (default W0)."""
-        b = theta.shape[0]
+    def rest(self, beta: torch.Tensor, psi: torch.Tensor | None = None):
+        """Rest region (U, V, 3) and rest joints (U, K, 3) of identities beta (U, S) with
+        expressions psi (U, E) (see ``rest_fn``)."""
+        if self.rest_fn is not None:
+            with torch.no_grad():
+                rest, joints = self.rest_fn(beta, psi)
+            return rest.to(self.template.dtype), joints.to(self.template.dtype)
         rest = self.template + torch.einsum("bs,svc->bvc", beta, self.shape_dirs)
-        joints = self.joints0 + torch.einsum("bs,skc->bkc", beta, self.joint_dirs)
+        return rest, self.joints0 + torch.einsum("bs,skc->bkc", beta, self.joint_dirs)
+
+    def pose(self, batch: PoseBatch, corrective: bool = True, weights: torch.Tensor | None = None):
+        """Posed region (B, V, 3) and node rotations (B, K+1, 3, 3) of a :class:`PoseBatch`;
+        without ``corrective``, plain LBS with ``weights`` (default W0)."""
+        theta, rest, joints = batch.theta, batch.rest, batch.joints
+        b = theta.shape[0]
         rot = local_rotations(theta, theta.new_zeros(b, 3))
         v = rest
         if corrective:
             feat = pose_feature(rot[:, 1:])
-            delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(beta))
+            delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta))
             v = rest.index_add(1, self.region.subset, delta)
         _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))
         w = self.weights() if corrective else (self.w_fixed if weights is None else weights)
-        return rest, skin(v, w, rel), rel[..., :3, :3]
+        return skin(v, w, rel), rel[..., :3, :3]
 
-    def terms(self, beta: torch.Tensor, theta: torch.Tensor) -> dict[str, torch.Tensor]:
-        lam, reg = self.lam, self.region
-        with torch.no_grad():  # plain LBS, with W0 and with the current W: the stricter
-            r_l, c_l = None, None
+    def _lbs_reference(self, batch: PoseBatch):
+        """Plain LBS with W0 and with the current W, the stricter per element: edge strain
+        (B, E), fold cosines (B, T), and per pose the smaller of the two largest strains (B,)."""
+        reg = self.region
+        with torch.no_grad():
+            r_l, c_l, r_max = None, None, None
             for w in (self.w_fixed, self.weights()):
-                rest, lbs, rot0 = self.pose(beta, theta, corrective=False, weights=w)
-                r, c, _ = skin_measures(reg, rest, lbs, rot0, w[reg.faces].mean(1))
+                lbs, rot0 = self.pose(batch, corrective=False, weights=w)
+                r, c, _ = skin_measures(reg, batch.rest, lbs, rot0, w[reg.faces].mean(1))
                 r_l = r if r_l is None else torch.minimum(r_l, r)
                 c_l = c if c_l is None else torch.maximum(c_l, c)
-        rest, posed, rot = self.pose(beta, theta)
-        r, cosf, bend = skin_measures(reg, rest, posed, rot, self.weights()[reg.faces].mean(1))
+                r_max = r.amax(1) if r_max is None else torch.minimum(r_max, r.amax(1))
+        return r_l, c_l, r_max
+
+    def terms(self, batch: PoseBatch) -> dict[str, torch.Tensor]:
+        lam, reg = self.lam, self.region
+        r_l, c_l, r_lmax = self._lbs_reference(batch)
+        posed, rot = self.pose(batch)
+        r, cosf, bend = skin_measures(reg, batch.rest, posed, rot, self.weights()[reg.faces].mean(1))
         s0 = torch.full_like(r_l, lam["s0"])
         f0 = torch.full_like(c_l, lam["f0"])
         p = self.p_cm / 100
         m = p.shape[1]
+        fold = torch.relu(lam["f0"] - cosf).pow(2)
         return {
             "strain": (r ** 2).mean(), "stretch": torch.relu(r - lam["s0"]).pow(2).mean(),
             "compress": torch.relu(-r - lam["c0"]).pow(2).mean(),
-            "fold": torch.relu(lam["f0"] - cosf).pow(2).mean(), "bend": (bend ** 2).mean(),
+            "fold": fold.mean(), "bend": (bend ** 2).mean(),
             "worse": torch.relu(r - torch.maximum(r_l, s0)).pow(2).mean()
             + torch.relu(torch.minimum(c_l, f0) - cosf).pow(2).mean(),
             "smooth": (torch.sparse.mm(self.lap, p.permute(1, 0, 2).reshape(m, -1)) ** 2).sum(),
             "weights": ((self.weights()[reg.subset] - self.w0_sub) ** 2).sum(),
+            "fold_sum": fold.sum(1).mean(),
+            "worse_max": torch.relu(r.amax(1) - r_lmax + lam["worse_margin"]).pow(2).mean(),
+            "worse_pose": torch.relu(r - r_lmax[:, None] + lam["worse_margin"]).pow(2).sum(1).mean(),
         }
 
-    def sample(self, g: torch.Generator, identities: int, poses: int):
-        """A batch: identities beta ~ N(0, I), each in ``poses`` poses (half per-joint
-        uniform, a quarter whole-head at full range, a quarter at 60 % of it)."""
+    def screen(self, batch: PoseBatch) -> torch.Tensor:
+        """(B,) bool: the hard examples: the rows that fold a triangle or come near it (a
+        fold cosine below ``near_fold``), or whose largest strain comes within
+        ``near_worse`` of plain LBS's (the stricter of W0 and W) or exceeds it."""
+        reg = self.region
+        with torch.no_grad():
+            _, _, r_lmax = self._lbs_reference(batch)
+            posed, rot = self.pose(batch)
+            r, cosf, _ = skin_measures(reg, batch.rest, posed, rot, self.weights()[reg.faces].mean(1))
+        return (cosf.amin(1) < self.lam["near_fold"]) | (r.amax(1) > r_lmax - self.lam["near_worse"])
+
+    def _expressions(self, g: torch.Generator, n: int) -> torch.Tensor | None:
+        """(n, E) expressions: half neutral, the rest a jaw opening (U(0, 1), half the
+        time) and each other weight U(0, 1) with probability 0.15, mirrored pairs given
+        their left value on both sides in half of the rows (a smile is usually both
+        sides': the stress test holds one)."""
+        if not self.num_expressions:
+            return None
+        dt = self.template.dtype
+        psi = torch.rand(n, self.num_expressions, generator=g, dtype=dt)
+        psi = psi * (torch.rand(n, self.num_expressions, generator=g, dtype=dt) < 0.15)
+        if len(self.symmetric):
+            both = torch.rand(n, generator=g) < 0.5
+            left, right = self.symmetric[:, 0], self.symmetric[:, 1]
+            psi[:, right] = torch.where(both[:, None], psi[:, left], psi[:, right])
+        if self.jaw_open is not None:
+            psi[:, self.jaw_open] = torch.rand(n, generator=g, dtype=dt) * (torch.rand(n, generator=g) < 0.5)
+        return psi * (torch.rand(n, 1, generator=g) < 0.5)
+
+    def sample(self, g: torch.Generator, identities: int, poses: int) -> PoseBatch:
+        """A batch: identities beta ~ N(0, I) (each with a sampled expression where
+        ``rest_fn`` is given), each in ``poses`` poses (half per-joint uniform, a quarter
+        whole-head at full range, a quarter at 60 % of it)."""
         k = max(poses // 4, 1)
         th = torch.cat([sample_joint_poses(identities * (poses - 2 * k), g),
                         sample_head_poses(identities * k, g, "xyz"),
                         0.6 * sample_head_poses(identities * k, g, "xyz")]).to(self.template.dtype)
         th = th[torch.randperm(len(th), generator=g)]
         beta = torch.randn(identities, self.num_shape, generator=g, dtype=self.template.dtype)
-        return beta.repeat_interleave(len(th) // identities, 0), th
+        psi = self._expressions(g, identities)
+        rest, joints = self.rest(beta, psi)
+        per = len(th) // identities
+        rep = lambda x: None if x is None else x.repeat_interleave(per, 0)
+        return PoseBatch(rep(beta), th, rep(psi), rep(rest), rep(joints))
 
     def fit(self, iterations: int = 600, lr: float = 0.01, identities: int = 4, poses: int = 8,
             learn_weights: bool = True, seed: int = 0, progress: bool = True,
-            log_every: int = 50, mlp_lr: float = 1e-4) -> PoseEnergyResult:
+            log_every: int = 50, mlp_lr: float = 1e-4, hard: int = 0, mine_every: int = 10,
+            mine_poses: int = 48, pool_size: int = 512) -> PoseEnergyResult:
         """Adam (``lr`` in centimetres for P and C, and for W's logits; ``mlp_lr`` for M_P,
         the paper's 1e-4: at 1e-2 its hidden units all died within a few hundred steps and
-        it returned one constant for every identity), decaying linearly to 10 %."""
+        it returned one constant for every identity), decaying linearly to 10 %.
+
+        ``hard`` > 0: every ``mine_every`` steps screen ``identities`` x ``mine_poses`` fresh
+        rows (:meth:`screen`) and keep the hard ones in a pool of at most ``pool_size``
+        (oldest dropped); each step adds ``hard`` rows drawn from the pool."""
         groups = [{"params": [self.p_cm, self.c_cm] + ([self.logits] if learn_weights else []),
                    "lr": lr, "base": lr},
                   {"params": list(self.mlp.parameters()), "lr": mlp_lr, "base": mlp_lr}]
         opt = torch.optim.Adam(groups)
         g = torch.Generator().manual_seed(seed)
-        hist, t0 = [], time.time()
+        hist, t0, pool, mined = [], time.time(), None, 0
         for it in tqdm(range(iterations), desc="pose correctives", disable=not progress, mininterval=2.0):
             for grp in opt.param_groups:
                 grp["lr"] = grp["base"] * (1 - 0.9 * it / max(iterations, 1))
-            beta, theta = self.sample(g, identities, poses)
-            terms = self.terms(beta, theta)
+            if hard and it % mine_every == 0:
+                cand = self.sample(g, identities, mine_poses)
+                found = cand.rows(self.screen(cand))
+                mined += len(found)
+                pool = found if pool is None else PoseBatch.cat([pool, found])
+                pool = pool.rows(torch.arange(max(len(pool) - pool_size, 0), len(pool)))
+            batch = self.sample(g, identities, poses)
+            if hard and pool is not None and len(pool):
+                pick = torch.randint(len(pool), (min(hard, len(pool)),), generator=g)
+                batch = PoseBatch.cat([batch, pool.rows(pick)])
+            terms = self.terms(batch)
             loss = sum(self.lam[k] * v for k, v in terms.items())
             opt.zero_grad()
             loss.backward()
             opt.step()
             if it % log_every == 0 or it == iterations - 1:
                 hist.append({"iteration": it, "loss": float(loss.detach()),
-                             **{k: float(v.detach()) for k, v in terms.items()}})
+                             **{k: float(v.detach()) for k, v in terms.items()},
+                             **({"pool": 0 if pool is None else len(pool), "mined": mined} if hard else {})})
         lin = [m for m in self.mlp if isinstance(m, torch.nn.Linear)]
         mlp = {}
         for i, layer in enumerate(lin):
