@@ -308,7 +308,7 @@ def test_10_robust_shading_fit_ignores_shadows():
     b = A @ rng.normal(size=17) * 0.05 + 0.5
     shadow = rng.random(3000) < 0.2
     b_obs = np.where(shadow, 0.3 * b, b)
-    r, s = robust_shading_fit(A, b_obs, 6)
+    r, _ = robust_shading_fit(A, b_obs, 6)
     assert np.abs(r[~shadow]).max() < 1e-3, np.abs(r[~shadow]).max()
     r_ls, _ = robust_shading_fit(A, b_obs, 1)  # one round: plain least squares
     assert np.abs(r_ls[~shadow]).max() > 0.02
@@ -333,3 +333,27 @@ def test_11_smooth_path_follows_the_curves_without_lag():
     assert np.abs(path - truth).max() < 0.0015, np.abs(path - truth).max()
     err = [np.abs(np.roll(path, k) - truth)[5:-5].mean() for k in (-2, -1, 0, 1, 2)]
     assert int(np.argmin(err)) == 2, err
+
+
+def test_12_skin_albedo_is_the_robust_ratio_over_the_chart(model):
+    """The albedo map over the larynx chart gives back a mole's darkening from ratios of
+    luminance over shading, ignores points of zero weight, and is 1 (relative) elsewhere."""
+    from hack_render.track.larynx import SkinAlbedo, _Region
+
+    region = _Region(model)
+    alb = SkinAlbedo(region)
+    rng = np.random.default_rng(2)
+    chart = region.chart[region.larynx_vertices]
+    lo, hi = chart.min(0), chart.max(0)
+    pts = lo + rng.random((20000, 2)) * (hi - lo)
+    mole = np.linalg.norm(pts - (lo + hi) / 2, axis=1) < 0.003
+    ratio = np.where(mole, 0.6, 1.0) * (1 + 0.02 * rng.normal(size=len(pts)))
+    w = np.ones(len(pts))
+    w[:500] = 0.0
+    ratio[:500] = 50.0  # a shadow's outliers, weighted out
+    alb.add(pts, ratio, w)
+    got = alb(pts[500:])
+    far = np.linalg.norm(pts[500:] - (lo + hi) / 2, axis=1) > 0.006
+    assert abs(np.median(got[far]) - 1.0) < 0.03
+    near = np.linalg.norm(pts[500:] - (lo + hi) / 2, axis=1) < 0.002
+    assert abs(np.median(got[near]) - 0.6) < 0.04

@@ -48,6 +48,8 @@ class LarynxTrackConfig:
         margin: pixels around the larynx region's projected box.
         min_pixels: frames whose larynx region covers fewer pixels are scored as lost.
         max_pixels: at most this many pixels are scored (an even spread of them).
+        cache_frames: clips up to this long keep their scored pixels for the second pass
+            (about 0.6 MB a frame); longer ones are read and ray cast again.
         speed: the larynx speed (m/s) whose velocity penalty equals ``smoothness``
             relative cost per frame (a swallow lifts it ~2 cm in ~0.3 s: ~0.07 m/s).
         smoothness: weight of the velocity penalty.
@@ -59,6 +61,7 @@ class LarynxTrackConfig:
     margin: int = 6
     min_pixels: int = 150
     max_pixels: int = 4000
+    cache_frames: int = 600
     speed: float = 0.05
     smoothness: float = 0.02
     irls: int = 4
@@ -140,6 +143,9 @@ class _Region:
         self.local = np.full(n, -1, np.int64)
         self.local[self.verts] = np.arange(len(self.verts))
         self.larynx_vertices = np.flatnonzero(inside)
+        # the larynx chart (metres) at every region vertex (others unused: zeros)
+        self.chart = np.zeros((n, 2))
+        self.chart[model.larynx_vertices.numpy()] = model.larynx_uv.double().numpy()
 
     def vertex_normals(self, V: torch.Tensor) -> torch.Tensor:
         """(C, n_sub, 3) unit normals at ``verts`` of the posed meshes V (C, N, 3); exact
@@ -153,10 +159,20 @@ class _Region:
         return out / out.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
-def frame_costs(views, camera, V: torch.Tensor, luminance: np.ndarray, region: _Region,
-                cfg: LarynxTrackConfig) -> tuple[np.ndarray, int]:
-    """One frame's cost per slide: (C,) truncated squared residual of the robust shading
-    fit, and the pixel count (costs are NaN below ``cfg.min_pixels``).
+@dataclass
+class _Sample:
+    """One frame's scored pixels: chart position (P, 2, metres), luminance (P,), unit view
+    direction (P, 3) and the unit normal under each pixel at every slide (C, P, 3)."""
+
+    chart: np.ndarray
+    lum: np.ndarray
+    view: np.ndarray
+    normals: np.ndarray
+
+
+def frame_sample(views, camera, V: torch.Tensor, luminance: np.ndarray, region: _Region,
+                 cfg: LarynxTrackConfig) -> tuple[_Sample | None, int]:
+    """One frame's scored pixels (None below ``cfg.min_pixels``) and their count.
 
     ``views``: a :class:`~hack_render.render.mesh_views.MeshViews` of the model's faces at
     the frame's size; ``camera``: the frame's :class:`~scenes.cameras.Camera`; ``V``
@@ -168,7 +184,7 @@ def frame_costs(views, camera, V: torch.Tensor, luminance: np.ndarray, region: _
     box = box[np.isfinite(box).all(1)]
     W, H = views.width, views.height
     if len(box) == 0:
-        return np.full(C, np.nan), 0
+        return None, 0
     x0 = int(np.clip(np.floor(box[:, 0].min()) - cfg.margin, 0, W - 1))
     y0 = int(np.clip(np.floor(box[:, 1].min()) - cfg.margin, 0, H - 1))
     x1 = int(np.clip(np.ceil(box[:, 0].max()) + cfg.margin, x0 + 1, W))
@@ -178,25 +194,76 @@ def frame_costs(views, camera, V: torch.Tensor, luminance: np.ndarray, region: _
     use = hit & region.face_in[tri]
     npix = int(use.sum())
     if npix < cfg.min_pixels:
-        return np.full(C, np.nan), npix
+        return None, npix
     keep = np.flatnonzero(use.ravel())
     keep = keep[np.linspace(0, len(keep) - 1, min(len(keep), cfg.max_pixels)).astype(int)]
     t, b = tri.ravel()[keep], bary.reshape(-1, 3)[keep]
     corners = region.local[region.faces[t]]                      # (P, 3) local ids
-    b_obs = luminance[y0:y1, x0:x1].ravel()[keep]
     pos = np.einsum("pk,pkc->pc", b, mid[region.faces[t]])
     view = camera.center - pos
     view /= np.linalg.norm(view, axis=1, keepdims=True)
     normals = region.vertex_normals(V.double()).numpy()          # (C, n_sub, 3)
-    res, scales = [], []
-    for k in range(C):
-        n = np.einsum("pk,pkc->pc", b, normals[k][corners])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        r, s = robust_shading_fit(shading_basis(n, view), b_obs, cfg.irls)
+    n = np.einsum("pk,cpkd->cpd", b, normals[:, corners])
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    chart = np.einsum("pk,pkc->pc", b, region.chart[region.faces[t]])
+    return _Sample(chart, luminance[y0:y1, x0:x1].ravel()[keep], view.astype(np.float32),
+                   n.astype(np.float32)), npix
+
+
+def sample_costs(sample: _Sample, albedo: np.ndarray | None, cfg: LarynxTrackConfig,
+                 shading_at: int | None = None):
+    """(C,) the frame's cost of each slide: the truncated squared residual of the robust
+    fit of its luminance by ``albedo`` (P,; None: uniform) times the shading model, one
+    truncation for all slides. With ``shading_at`` = k, also the fitted shading (P,)
+    at slide k and its robust weights (P,)."""
+    a = np.ones(len(sample.lum)) if albedo is None else albedo
+    res, scales, extra = [], [], None
+    for k in range(sample.normals.shape[0]):
+        A = shading_basis(sample.normals[k].astype(np.float64), sample.view.astype(np.float64))
+        r, s = robust_shading_fit(A * a[:, None], sample.lum, cfg.irls)
         res.append(r)
         scales.append(s)
-    cap = (2.5 * float(np.median(scales))) ** 2                  # one truncation per frame
-    return np.array([np.mean(np.minimum(r * r, cap)) for r in res]), npix
+        if k == shading_at:
+            shade = (sample.lum - r) / a
+            extra = (shade, np.clip(1 - (r / (4.685 * s)) ** 2, 0, None))
+    cap = (2.5 * float(np.median(scales))) ** 2
+    cost = np.array([np.mean(np.minimum(r * r, cap)) for r in res])
+    return cost if shading_at is None else (cost, *extra)
+
+
+class SkinAlbedo:
+    """The skin's relative albedo over the larynx chart (``model.larynx_uv``, metres), on
+    a grid of ``cell`` metres: the robust mean over frames of luminance over fitted
+    shading (moles and freckles ride on the skin; the bump's shading slides over it)."""
+
+    def __init__(self, region: _Region, cell: float = 0.001):
+        lo = region.chart[region.larynx_vertices].min(0)
+        hi = region.chart[region.larynx_vertices].max(0)
+        self.lo, self.cell = lo, cell
+        self.shape = tuple(int(x) for x in np.ceil((hi - lo) / cell) + 1)
+        self.sum = np.zeros(self.shape[0] * self.shape[1])
+        self.weight = np.zeros_like(self.sum)
+
+    def _cells(self, chart: np.ndarray) -> np.ndarray:
+        ij = np.clip(np.floor((chart - self.lo) / self.cell).astype(np.int64), 0,
+                     np.array(self.shape) - 1)
+        return ij[:, 0] * self.shape[1] + ij[:, 1]
+
+    def add(self, chart: np.ndarray, ratio: np.ndarray, weight: np.ndarray) -> None:
+        c = self._cells(chart)
+        ok = np.isfinite(ratio) & (weight > 0)
+        self.sum += np.bincount(c[ok], weight[ok] * np.clip(ratio[ok], 0.5, 2.0),
+                                minlength=len(self.sum))
+        self.weight += np.bincount(c[ok], weight[ok], minlength=len(self.sum))
+
+    def __call__(self, chart: np.ndarray) -> np.ndarray:
+        """(P,) relative albedo at chart points (1 where no frame saw the cell)."""
+        c = self._cells(chart)
+        w = self.weight[c]
+        a = np.where(w > 0, self.sum[c] / np.maximum(w, 1e-12), 1.0)
+        seen = self.weight > 0
+        mean = self.sum[seen].sum() / max(self.weight[seen].sum(), 1e-12) if seen.any() else 1.0
+        return a / mean
 
 
 def smooth_path(cost: np.ndarray, grid: np.ndarray, fps: float,
@@ -252,13 +319,24 @@ def slid_meshes(model, person, params, theta: torch.Tensor, i: int, eta: float,
     return V
 
 
+def _relative(raw: np.ndarray) -> np.ndarray:
+    rel = np.full_like(raw, np.nan)
+    ok = np.isfinite(raw).all(1)
+    rel[ok] = raw[ok] / raw[ok].min(1, keepdims=True) - 1
+    return rel
+
+
 def track_tau(frames, model, beta: torch.Tensor, eta: float, params, camera, found,
               fps: float, cfg: LarynxTrackConfig | None = None,
               progress: bool = True) -> LarynxTrack:
-    """The photometric tau of a tracked clip.
+    """The photometric tau of a tracked clip: a first pass with a uniform skin, the skin's
+    albedo over the larynx chart from it (:class:`SkinAlbedo`), then a second pass with
+    that albedo.
 
     Args:
-        frames: iterable of (H, W, 3) uint8 sRGB frames at the tracker's working size.
+        frames: a callable returning an iterator of (H, W, 3) uint8 sRGB frames at the
+            tracker's working size (``Clip.read``); called again for the second pass
+            when the clip is longer than ``cfg.cache_frames``.
         model: the :class:`~hack_render.geometry.model.HackModel`; beta (1, S); eta.
         params: the tracker's :class:`~hack_render.track.solve.FrameParams`.
         camera: the clip's :class:`~hack_render.track.solve.ClipCamera`.
@@ -274,7 +352,7 @@ def track_tau(frames, model, beta: torch.Tensor, eta: float, params, camera, fou
 
     cfg = cfg or LarynxTrackConfig()
     lo, hi = TAU_RANGE_M
-    grid = np.linspace(lo, hi, int(round((hi - lo) / cfg.step)) + 1)
+    grid = np.linspace(lo, hi, round((hi - lo) / cfg.step) + 1)
     C, T = len(grid), params.frames
     region = _Region(model)
     K = np.array([[camera.focal, 0, camera.width / 2], [0, camera.focal, camera.height / 2],
@@ -289,27 +367,50 @@ def track_tau(frames, model, beta: torch.Tensor, eta: float, params, camera, fou
                                           torch.full((C,), float(eta)),
                                           taus)  # (C, M, 3) rest-space
     views = None
-    raw = np.full((T, C), np.nan)
+    cache = T <= cfg.cache_frames
+    samples: dict[int, _Sample] = {}
     pixels = np.zeros(T, np.int64)
-    for i, frame in enumerate(tqdm(frames, total=T, desc="larynx", unit="frame",
-                                   disable=not progress, leave=False)):
-        if i >= T:
-            break
-        if not found[i]:
-            continue
-        V = slid_meshes(model, person, params, theta, i, float(eta), taus, d_tau)
-        if views is None:
-            views = MeshViews(V[C // 2].double().numpy(), region.faces, width=camera.width,
-                              height=camera.height)
-        raw[i], pixels[i] = frame_costs(views, cam, V, srgb_luminance(frame), region, cfg)
-    rel = np.full_like(raw, np.nan)
-    ok = np.isfinite(raw).all(1)
-    rel[ok] = raw[ok] / raw[ok].min(1, keepdims=True) - 1
+
+    def scan(desc: str):
+        nonlocal views
+        for i, frame in enumerate(tqdm(frames(), total=T, desc=desc, unit="frame",
+                                       disable=not progress, leave=False)):
+            if i >= T:
+                break
+            if not found[i]:
+                continue
+            V = slid_meshes(model, person, params, theta, i, float(eta), taus, d_tau)
+            if views is None:
+                views = MeshViews(V[C // 2].double().numpy(), region.faces,
+                                  width=camera.width, height=camera.height)
+            smp, pixels[i] = frame_sample(views, cam, V, srgb_luminance(frame), region, cfg)
+            if smp is not None:
+                yield i, smp
+
+    # pass 1: a uniform skin
+    raw = np.full((T, C), np.nan)
+    for i, smp in scan("larynx (1/2)"):
+        raw[i] = sample_costs(smp, None, cfg)
+        if cache:
+            samples[i] = smp
+    tau = smooth_path(_relative(raw), grid, fps, cfg)
+    # the skin's albedo over the chart: luminance over the shading fitted at the path
+    albedo = SkinAlbedo(region)
+    todo = samples.items() if cache else scan("larynx albedo")
+    for i, smp in todo:
+        k = int(np.argmin(np.abs(grid - tau[i])))
+        _, shade, w = sample_costs(smp, None, cfg, shading_at=k)
+        albedo.add(smp.chart, smp.lum / np.maximum(shade, 1e-6), w)
+    # pass 2: with the albedo
+    raw = np.full((T, C), np.nan)
+    for i, smp in (samples.items() if cache else scan("larynx (2/2)")):
+        raw[i] = sample_costs(smp, albedo(smp.chart), cfg)
+    rel = _relative(raw)
     conf = np.zeros(T)
     for i in np.flatnonzero(np.isfinite(rel).all(1)):
         k = int(np.argmin(rel[i]))
-        side = [rel[i, j] for j in (k - int(round(0.005 / cfg.step)),
-                                    k + int(round(0.005 / cfg.step))) if 0 <= j < C]
+        side = [rel[i, j] for j in (k - round(0.005 / cfg.step),
+                                    k + round(0.005 / cfg.step)) if 0 <= j < C]
         conf[i] = float(np.mean(side)) if side else 0.0
     tau = smooth_path(rel, grid, fps, cfg)
     return LarynxTrack(tau=tau, grid=grid, cost=rel, confidence=conf, pixels=pixels)

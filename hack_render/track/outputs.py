@@ -194,6 +194,41 @@ def truth_errors(result: TrackResult, truth: dict) -> dict:
             "per_frame_tau_mm": tau.round(3).tolist()}
 
 
+def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None) -> Path:
+    """``larynx.png``: each frame's relative cost of every slide (darker: the frame's
+    shading fits that slide better; grey columns: frames not scored) with the chosen
+    path over it (and the truth's, when given), and each frame's confidence."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hack_render.fit.outputs import _atomic_bytes
+
+    lt = result.larynx
+    T = len(lt.tau)
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True,
+                                 gridspec_kw={"height_ratios": [3, 1]})
+    cost = np.ma.masked_invalid(lt.cost.T)
+    ax.imshow(np.minimum(cost, np.nanpercentile(lt.cost, 95)) if np.isfinite(lt.cost).any()
+              else cost, origin="lower", aspect="auto", cmap="magma",
+              extent=(-0.5, T - 0.5, 1e3 * lt.grid[0], 1e3 * lt.grid[-1]))
+    ax.plot(np.arange(T), 1e3 * lt.tau, color="#3ddc84", lw=2, label="tracked tau")
+    if truth is not None and "tau" in truth:
+        ax.plot(np.arange(T), 1e3 * np.asarray(truth["tau"])[:T], "--", color="#7fd3ff",
+                lw=1.2, label="truth")
+    ax.set_ylabel("larynx slide tau (mm)")
+    ax.set_title("each frame's cost of each slide (dark: fits) and the path chosen", fontsize=9)
+    ax.legend(loc="upper right", fontsize=8)
+    bx.bar(np.arange(T), lt.confidence, color="#4c72b0", width=0.9)
+    bx.set_ylabel("confidence")
+    bx.set_xlabel("frame")
+    fig.tight_layout()
+    _atomic_bytes(path, lambda t: fig.savefig(t, dpi=90))
+    plt.close(fig)
+    return path
+
+
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
@@ -213,6 +248,8 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     written.append(outdir / "camera.json")
     if overlay:
         written.append(write_overlay(result, outdir / "overlay.mp4", progress))
+    if result.larynx is not None:
+        written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
     rep = report_dict(result, truth)
     with atomic_path(outdir / "report.json") as tmp:
         tmp.write_text(json.dumps(rep, indent=1))

@@ -186,7 +186,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         from hack_render.track.larynx import track_tau
 
         with _timed(timings, "larynx"):
-            track = track_tau(clip.read(), state.model, fit.beta.detach(),
+            track = track_tau(clip.read, state.model, fit.beta.detach(),
                               float(fit.eta.detach().reshape(-1)[0]), params, camera, found,
                               clip.fps, progress=progress)
         tau = track.tau

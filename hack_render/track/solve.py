@@ -55,11 +55,13 @@ class TrackConfig:
     # keeps the torso near the keyframes' (radians^-2): the head's and the torso's rotations
     # move the face almost alike, so the landmarks alone cannot tell them apart
     torso_prior: float = 50.0
-    # keeps the body's translation near the clip's mean (metres^-2): landmarks alone trade
-    # a head pitch for a move toward or away from the camera (on the benchmark clip, without
-    # it: 4 cm of spurious depth motion, the neck 17 px off in the image on average, 2.5 px
-    # with it)
-    transl_prior: float = 1000.0
+    # keeps the body's translation near the clip's mean, per axis x, y, z (metres^-2).
+    # Landmarks alone trade a head pitch for a move up or down in the image: on the
+    # benchmark clip without it the flexion was 5.2 degrees off and the neck sat 17 px
+    # off in the image; with it on y, 1.4 degrees and 7 px. Sideways sway stays free, and
+    # so does depth: it takes up the keyframe fit's focal length and scale (held too, it
+    # pushed the expressions to open the jaw).
+    transl_prior: tuple[float, float, float] = (0.0, 1000.0, 0.0)
     # temporal priors of the joint solve, per unit of each group (radians, metres,
     # expression weight): velocity and acceleration between consecutive frames
     velocity: dict = field(default_factory=lambda: {"h": 0.05, "g": 5.0, "t": 20.0,
@@ -92,6 +94,11 @@ class FrameParams:
     def from_vector(cls, x: np.ndarray) -> FrameParams:
         return cls(x[:, :3].copy(), x[:, 3:6].copy(), x[:, 6:9].copy(),
                    np.clip(x[:, 9:], 0.0, 1.0))
+
+
+def _transl_weights(cfg: TrackConfig) -> torch.Tensor:
+    """(3,) the translation prior's weight per axis (x, y, z)."""
+    return torch.as_tensor(cfg.transl_prior, dtype=torch.float64).expand(3)
 
 
 def _landmark_weights(cfg: TrackConfig, point_weights: np.ndarray) -> torch.Tensor:
@@ -149,7 +156,7 @@ class _Objective:
                  else self.t_ref.reshape(-1, 3)[:1])
         return (self.cfg.psi_l1 * u.clamp_min(0).sum(1) + 10.0 * box.sum(1)
                 + 10.0 * lim.sum(1) + self.cfg.torso_prior * ((g - self.g_ref) ** 2).sum(1)
-                + self.cfg.transl_prior * ((t - t_ref) ** 2).sum(1))
+                + (_transl_weights(self.cfg) * (t - t_ref) ** 2).sum(1))
 
     def temporal(self, x: torch.Tensor, head: torch.Tensor | None = None) -> torch.Tensor:
         """Velocity and acceleration penalties; ``head``: fixed frames before the window."""
@@ -197,7 +204,7 @@ def _frame_residuals(obj: _Objective, i: int, prev: torch.Tensor, irls: torch.Te
     g_ref = obj.g_ref.reshape(-1)[:3]
     t_ref = prev[6:9] if obj.t_ref is None else obj.t_ref.reshape(-1)[:3]
     s_psi, s_torso = float(np.sqrt(cfg.psi_l1 * 10)), float(np.sqrt(cfg.torso_prior))
-    s_transl = float(np.sqrt(cfg.transl_prior))
+    s_transl = torch.sqrt(_transl_weights(cfg))
 
     def fn(x):
         h, g, t, u = x[:, :3], x[:, 3:6], x[:, 6:9], x[:, 9:]
