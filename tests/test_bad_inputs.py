@@ -652,3 +652,16 @@ def _figures() -> None:  # pragma: no cover - `python tests/test_bad_inputs.py`
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(_figures())
+
+
+@pytest.mark.parametrize("over", [{"background": {"photos": [[]]}},
+                                  {"background": {"source": ["studio"]}}])
+def test_background_values_of_the_wrong_type_name_the_key(over):
+    """Found by the fuzz test above: a list inside background.photos (or a list as the
+    source) was a TypeError (unhashable) instead of an error naming the key."""
+    from hack_render.dataset.config import load_config
+    from hack_render.errors import HackError
+
+    key = next(iter(over["background"]))
+    with pytest.raises(HackError, match=f"background.{key}"):
+        load_config(None, over)

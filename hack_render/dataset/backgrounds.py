@@ -107,11 +107,11 @@ def background_image(spec: dict, width: int, height: int) -> np.ndarray | None:
 def check_background_config(cfg: dict, fail) -> None:
     """Validate ``cfg['background']``; ``fail(key, expected, found)`` raises."""
     c = cfg["background"]
-    if c["source"] not in SOURCES:
+    if not isinstance(c["source"], str) or c["source"] not in SOURCES:
         fail("background.source", f"one of {', '.join(SOURCES)}", c["source"])
     photos = c["photos"]
     if photos != "all" and (not isinstance(photos, list) or not photos
-                            or any(p not in PHOTOS for p in photos)):
+                            or any(not isinstance(p, str) or p not in PHOTOS for p in photos)):
         fail("background.photos", f"'all' or a non-empty list of {', '.join(PHOTOS)}", photos)
     for key, lo, hi in (("crop", 0.05, 1.0), ("luminance", 1e-4, 100.0)):
         v = c[key]
