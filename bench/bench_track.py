@@ -40,6 +40,8 @@ def main(argv=None) -> int:
     ap.add_argument("--keyframes", type=int, default=4)
     ap.add_argument("--photometric", action="store_true",
                     help="run the keyframe fit's photometric stage (default: landmarks only)")
+    ap.add_argument("--tau", choices=("photometric", "fixed"), default="photometric",
+                    help="how track finds the larynx's slide (the command's default: fixed)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track.json"))
     args = ap.parse_args(argv)
@@ -65,7 +67,8 @@ def main(argv=None) -> int:
             truth = dict(np.load(folder / "truth.npz"))
             cpu0 = time.process_time()
             res, _ = track_video(folder / "frames", folder / "out", keyframes=args.keyframes,
-                                 fps=args.fps, config=cfg, progress=True, truth=truth)
+                                 fps=args.fps, config=cfg, progress=True, truth=truth,
+                                 larynx=args.tau == "photometric")
             held = float(res.fit.tau.detach().reshape(-1)[0])
             rep = json.loads((folder / "out" / "report.json").read_text())
             t = rep["truth"]
@@ -96,6 +99,7 @@ def main(argv=None) -> int:
     result = {
         "what": "hack-render track on clips rendered with known parameters (procedural)",
         "keyframe_fit": "photometric" if args.photometric else "landmarks only",
+        "tau": args.tau,
         "clips": clips,
         "summary": {k: mean(k) for k in ("theta_joint_deg_mean", "psi_active_abs_mean",
                                          "tau_mm_mean", "tau_mm_rmse", "tau_correlation",

@@ -180,10 +180,14 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     over["photometric"] = {"enabled": False}
     res, paths = track_video(folder / "frames", tmp_path / "out", keyframes=2, fps=12.0,
                              config=load_config(None, over), progress=False,
-                             truth=dict(np.load(folder / "truth.npz")))
+                             truth=dict(np.load(folder / "truth.npz")), larynx=True)
     names = {p.name for p in paths}
     assert {"sequence.npz", "person.json", "camera.json", "landmarks.npz", "overlay.mp4",
-            "report.json", "track_run.json"} <= names
+            "larynx.png", "report.json", "track_run.json"} <= names
+    # the photometric tau ran on every frame with a face, within tau's range
+    lt = res.larynx
+    assert np.isfinite(lt.cost[res.landmarks.found]).all() and lt.pixels.max() > 150
+    assert (lt.tau >= -0.01 - 1e-9).all() and (lt.tau <= 0.02 + 1e-9).all()
     seq = load_sequence(tmp_path / "out" / "sequence.npz", 53)
     assert seq.frames == 12 and seq.fps == 12.0
     assert count_mp4_frames(tmp_path / "out" / "overlay.mp4")[0] == 12
@@ -200,6 +204,7 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     assert len(doc["animations"]) == 1
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["frames"] == 12 and len(rep["per_frame"]) == 12
+    assert rep["larynx"]["method"].startswith("photometric")
     assert rep["lost_count"] == int((~res.landmarks.found).sum()) <= 4
     # the head's rotation on the frames with a face, against the truth (a fast turn:
     # 1.5 cycles of +-30 degrees in 12 frames; a broken sign or convention is off by 30+)

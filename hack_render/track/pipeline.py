@@ -8,9 +8,10 @@
 3. Per frame (``solve.py``): head rotation (over the 8 neck joints), torso rotation,
    translation and expression, warm-started from the previous frame, then one joint solve
    with velocity and acceleration priors; lost frames are carried by the priors.
-4. The larynx's slide tau per frame (``larynx.py``): the neck's shading fitted at a grid
-   of slides with the light refitted per frame, then the least-cost smooth path over the
-   clip (``larynx=False``: the keyframe fit's tau throughout).
+4. With ``larynx=True`` (experimental), the larynx's slide tau per frame (``larynx.py``):
+   the neck's shading fitted at a grid of slides with the light refitted per frame, then
+   the least-cost smooth path over the clip; by default the keyframe fit's tau
+   throughout.
 5. Outputs (``outputs.py``).
 """
 
@@ -126,7 +127,7 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
 
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
-               landmarks: FrameLandmarks | None = None, larynx: bool = True) -> TrackResult:
+               landmarks: FrameLandmarks | None = None, larynx: bool = False) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
     ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
