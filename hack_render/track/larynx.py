@@ -210,25 +210,28 @@ def frame_sample(views, camera, V: torch.Tensor, luminance: np.ndarray, region: 
                    n.astype(np.float32)), npix
 
 
-def sample_costs(sample: _Sample, albedo: np.ndarray | None, cfg: LarynxTrackConfig,
-                 shading_at: int | None = None):
+def _fit(sample: _Sample, albedo: np.ndarray, k: int, rounds: int):
+    """The robust shading fit of the frame's luminance at slide ``k``: (residual, scale)."""
+    A = shading_basis(sample.normals[k].astype(np.float64), sample.view.astype(np.float64))
+    return robust_shading_fit(A * albedo[:, None], sample.lum, rounds)
+
+
+def sample_costs(sample: _Sample, albedo: np.ndarray | None,
+                 cfg: LarynxTrackConfig) -> np.ndarray:
     """(C,) the frame's cost of each slide: the truncated squared residual of the robust
     fit of its luminance by ``albedo`` (P,; None: uniform) times the shading model, one
-    truncation for all slides. With ``shading_at`` = k, also the fitted shading (P,)
-    at slide k and its robust weights (P,)."""
+    truncation for all slides."""
     a = np.ones(len(sample.lum)) if albedo is None else albedo
-    res, scales, extra = [], [], None
-    for k in range(sample.normals.shape[0]):
-        A = shading_basis(sample.normals[k].astype(np.float64), sample.view.astype(np.float64))
-        r, s = robust_shading_fit(A * a[:, None], sample.lum, cfg.irls)
-        res.append(r)
-        scales.append(s)
-        if k == shading_at:
-            shade = (sample.lum - r) / a
-            extra = (shade, np.clip(1 - (r / (4.685 * s)) ** 2, 0, None))
-    cap = (2.5 * float(np.median(scales))) ** 2
-    cost = np.array([np.mean(np.minimum(r * r, cap)) for r in res])
-    return cost if shading_at is None else (cost, *extra)
+    fits = [_fit(sample, a, k, cfg.irls) for k in range(sample.normals.shape[0])]
+    cap = (2.5 * float(np.median([s for _, s in fits]))) ** 2
+    return np.array([np.mean(np.minimum(r * r, cap)) for r, _ in fits])
+
+
+def fitted_shading(sample: _Sample, k: int, cfg: LarynxTrackConfig):
+    """The shading fitted to the frame at slide ``k`` with a uniform skin (P,), and the
+    robust fit's weights (P,): what :class:`SkinAlbedo` divides the luminance by."""
+    r, s = _fit(sample, np.ones(len(sample.lum)), k, cfg.irls)
+    return sample.lum - r, np.clip(1 - (r / (4.685 * s)) ** 2, 0, None)
 
 
 class SkinAlbedo:
@@ -399,7 +402,7 @@ def track_tau(frames, model, beta: torch.Tensor, eta: float, params, camera, fou
     todo = samples.items() if cache else scan("larynx albedo")
     for i, smp in todo:
         k = int(np.argmin(np.abs(grid - tau[i])))
-        _, shade, w = sample_costs(smp, None, cfg, shading_at=k)
+        shade, w = fitted_shading(smp, k, cfg)
         albedo.add(smp.chart, smp.lum / np.maximum(shade, 1e-6), w)
     # pass 2: with the albedo
     raw = np.full((T, C), np.nan)
