@@ -15,7 +15,10 @@
   folds, neck rings (depth growing with a per-subject age), bumpy mottling. Pores are not
   here: they live in the high-resolution detail layer (:mod:`appearance.detail`).
 
-Noise is evaluated on template surface points, so fields are continuous across seams.
+Noise is evaluated on template surface points, so fields are continuous across seams;
+the soft region weights, blurred per tile in UV space, are blended across the seams
+between the two tiles over :data:`SEAM_BLEND_CM` on each side, so the regional skin
+(the scalp's hair tint, the neck's paler skin) meets at the same value from both sides.
 Texels outside the skin islands are filled from the nearest valid texel (same tile).
 """
 
@@ -58,6 +61,10 @@ REGION_PARAMS = {
     "neck":     (0.88, 0.85, 0.55, 0.66),
     "sockets":  (0.40, 5.00, 1.00, 0.30),
 }
+
+
+#: Width (cm) over which the region weights are blended across the UV seams (each side).
+SEAM_BLEND_CM = 1.0
 
 
 @dataclass(frozen=True)
@@ -107,7 +114,44 @@ def _context(height: int) -> _Context:
         soft.append(out[m])
     soft = np.stack(soft)
     soft /= np.maximum(soft.sum(0, keepdims=True), 1e-6)
+    soft = _blend_across_seams(lay, soft, SEAM_BLEND_CM)
     return _Context(lay, lab, soft.astype(np.float32), lay.position[m].astype(np.float64), tcm)
+
+
+def _blend_across_seams(lay: UVLayout, soft: np.ndarray, width_cm: float) -> np.ndarray:
+    """Soft region weights made continuous across the UV seams between the two tiles.
+
+    The weights are blurred per tile in UV space, so where the tiles meet on the surface
+    (over the crown, at the temples, under the jaw, inside the lips and lids) each side
+    sees only its own labels and the skin steps at the seam. A texel within ``width_cm``
+    (3-D) of the other tile, on a surface facing the same way (normals within 60 degrees,
+    so the lips and lids do not mix with the sockets through the tissue), mixes in the
+    weights of the nearest texel there: half at the seam, so both sides meet at the same
+    value, fading linearly to none at ``width_cm``.
+
+    Args:
+        lay: the atlas layout.
+        soft: (R, N) weights at the N valid texels (columns sum to 1).
+        width_cm: blend width on each side of a seam, cm.
+    Returns:
+        (R, N) blended weights (columns still sum to 1).
+    """
+    from scipy.spatial import cKDTree
+
+    pos = lay.position[lay.mask].astype(np.float64)
+    nrm = lay.normal[lay.mask].astype(np.float64)
+    tile = lay.tile[lay.mask]
+    out = soft.copy()
+    for t in (0, 1):
+        mine, other = np.flatnonzero(tile == t), np.flatnonzero(tile != t)
+        if not len(mine) or not len(other):
+            continue
+        d, j = cKDTree(pos[other]).query(pos[mine], distance_upper_bound=width_cm)
+        near = np.isfinite(d)
+        a, b = mine[near], other[j[near]]
+        w = 0.5 * (1.0 - d[near] / width_cm) * (np.sum(nrm[a] * nrm[b], axis=1) > 0.5)
+        out[:, a] = (1.0 - w) * soft[:, a] + w * soft[:, b]
+    return out
 
 
 def _regional(ctx: _Context, values: dict[str, float]) -> np.ndarray:

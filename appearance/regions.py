@@ -9,6 +9,19 @@ vertex groups) are labelled from the vertex ranges. The labels are geometric
 approximations (e.g. the hairline is a smooth curve, the ears a box around the pinna of
 the template) meant for regional statistics in the generator and for segmentation masks;
 they are not hand-painted.
+
+The scalp is decided from the 3-D point by one hairline for both atlas tiles, so that
+texels meeting at the UV seam between the face tile and the back-of-head tile (which
+runs over the crown and down the temples in front of the ears) get the same label
+(:func:`hairline_y`): above the forehead a parabola in x, about 5.6 cm above the brows
+in the middle and lower at the temples, and at the sides no lower than the top of the
+ear (:data:`EAR_TOP_Y`), rising 1 cm per cm forward of z = :data:`SIDEBURN_Z` (a
+temple / sideburn line). On the back tile the hair also comes down behind the ears to
+the nape, :func:`nape_y`, about ear-lobe height (y = -1 cm) behind z = -2 cm, rising
+towards the ears; the nape only ever lowers the hairline, so the front of the crown on
+the back tile is scalp like the face tile's scalp strip next to it (an earlier nape curve
+rose without bound towards the front and labelled that strip ``neck``: a light band
+across the top of the forehead in the renders).
 """
 
 from __future__ import annotations
@@ -31,6 +44,37 @@ LANDMARK_VERTICES = np.array([
     3756, 3721, 3725, 3732, 5708, 5695, 2081, 0, 4275, 6200, 6213, 6346, 6461, 5518, 5957,
     5841, 5702, 5711, 5533, 6216, 6207, 6470, 5517, 5966])
 SOCKET_VERTICES = (11248, 14061)  # mouth socket and eye sockets, inclusive (DATA.md)
+#: Template height (cm) of the top of the ears: the box of the ``ears`` label ends here,
+#: and the hair at the temples comes down to it.
+EAR_TOP_Y = 5.5
+#: Depth (cm) behind which the temple hairline stays at :data:`EAR_TOP_Y`; the UV seam
+#: at the temples runs at z = -0.3 to 0.3 cm.
+SIDEBURN_Z = 0.5
+
+
+def hairline_y(x: np.ndarray, z: np.ndarray, brow_y: float) -> np.ndarray:
+    """Height (cm) of the hairline over the template point (x, z), both atlas tiles.
+
+    Args:
+        x, z: (N,) template coordinates, cm.
+        brow_y: height of the highest brow landmark, cm.
+    Returns:
+        (N,) y, cm: a parabola about 5.6 cm above the brows at x = 0, lower at the
+        temples, but above the ears no lower than :data:`EAR_TOP_Y` plus 1 cm per cm
+        forward of :data:`SIDEBURN_Z`.
+    """
+    front = brow_y + 5.6 - 0.07 * x ** 2
+    side = EAR_TOP_Y + np.clip(z - SIDEBURN_Z, 0, None)
+    return np.minimum(front, side)
+
+
+def nape_y(z: np.ndarray) -> np.ndarray:
+    """(N,) height (cm) of the hairline at the back of the head, at template depth z (cm).
+
+    About ear-lobe height (-1 cm) behind z = -2 cm, rising towards the ears. Used only to
+    lower the hairline (:func:`hairline_y`) on the back-of-head tile.
+    """
+    return -1.0 + 0.25 * np.clip(z + 2.0, 0, None) ** 2
 
 
 def _inside(poly_xy: np.ndarray, pts: np.ndarray, radius: float = 0.0) -> np.ndarray:
@@ -93,18 +137,18 @@ def region_labels(layout: UVLayout | int) -> np.ndarray:
     jaw_y = np.interp(x, jaw[:, 0], jaw[:, 1]) - 0.8
     put("neck", face & (y < jaw_y) & (np.abs(x) < np.abs(jaw[0, 0])))
     put("neck", face & (y < lm[8, 1] - 1.2))
-    # Hairline: about 5.5 cm above the brows in the middle, lower at the temples.
+    # Hairline, the same on both tiles at the seam (see the module docstring).
     brow_y = lm[17:27, 1].max()
-    hair_y = brow_y + 5.6 - 0.07 * x ** 2
+    hair_y = hairline_y(x, z, brow_y)
     put("scalp", face & (y > hair_y))
     put("forehead", face & (y > brow_y - 0.2) & (np.abs(x) < np.abs(lm[0, 0]) + 0.3))
     put("cheeks", face & (y > lm[57, 1] - 0.3))
     put("jaw", face)
     back = ~face
-    put("ears", back & (y > -1.5) & (y < 5.5) & (z > -3.5) & (z < 1.0) & (np.abs(x) > 7.0))
-    # Back of the head: hair down to the nape (about ear-lobe height at the back).
-    nape_y = -1.0 + 0.25 * np.clip(z + 2.0, 0, None) ** 2
-    put("scalp", back & (y > nape_y))
+    put("ears", back & (y > -1.5) & (y < EAR_TOP_Y) & (z > -3.5) & (z < 1.0)
+        & (np.abs(x) > 7.0))
+    # Back of the head: the hairline, lowered behind the ears down to the nape.
+    put("scalp", back & (y > np.minimum(hair_y, nape_y(z))))
     put("neck", back)
     lab[lay.mask] = out
     return lab
