@@ -2,10 +2,12 @@
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial import cKDTree
 
 from appearance.calibrate import TARGETS, TOLERANCE, population_albedo
 from appearance.generator import _context, generate_subject
+from appearance.model import DEFAULT_MODEL, AppearanceModel
 from appearance.population import load_calibration
 from appearance.regions import LANDMARK_VERTICES, REGION_ID, region_labels
 from appearance.uv import _template, fill_index, rasterize_layout
@@ -148,6 +150,16 @@ def test_no_band_along_scalp_line():
     diffuse = np.mean([generate_subject(s, 128).diffuse for s in range(4)], axis=0)
     band = _max_band(_crown_profile(diffuse, lay))
     assert band < 0.1, f"a crown strip is {band:.0%} brighter than both its sides"
+
+
+@pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="default model not built yet")
+def test_default_model_has_no_scalp_band():
+    """The shipped model's mean A(0) has no crown band (0.25 in the model built from the
+    old labels)."""
+    m = AppearanceModel.load()
+    diffuse = m.maps(torch.zeros(1, 0)).diffuse[0].numpy()
+    band = _max_band(_crown_profile(diffuse, rasterize_layout(m.height)))
+    assert band < 0.1, f"A(0): a crown strip is {band:.0%} brighter than both its sides"
 
 
 def test_fill_index_nearest_valid_same_tile():
