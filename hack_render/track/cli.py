@@ -13,11 +13,12 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
                 fps: float | None = None, config=None, overlay: bool = True,
                 resume: bool = False, progress: bool = True,
                 max_frames: int | None = None, truth: dict | None = None,
-                larynx: bool = False):
+                larynx: bool = False, outline: bool = True):
     """Library entry point of the command: read, detect, fit, track, write. Returns
     (TrackResult, paths). With ``resume``, landmarks found by an interrupted run of the
     same command (``landmarks.npz``) are reused. ``larynx``: track tau per frame from the
-    neck's shading (else the keyframe fit's tau throughout)."""
+    neck's shading (else the keyframe fit's tau throughout); ``outline``: place the neck
+    on the person's outline in every frame (the outline stage)."""
     import torch
 
     from hack_render import boundary
@@ -41,6 +42,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     record = boundary.RunRecord(outdir, "track", {
         "video": boundary.file_identity(video) if Path(video).is_file() else str(video),
         "keyframes": keyframes, "max_side": max_side, "fps": clip.fps, "larynx": larynx,
+        "outline": outline,
         "frames": clip.frames, "config": cfg.to_dict()}, name="track_run.json")
     lm_path = outdir / "landmarks.npz"
     old = record.check_resume(resume, lm_path.exists())
@@ -68,7 +70,8 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
         with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
-            result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx)
+            result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx,
+                                    outline)
             result.timings.update(timings)  # the landmarks' time (none when resumed)
             from hack_render.track.outputs import write_outputs
 
@@ -77,11 +80,11 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     return result, paths + [record.path]
 
 
-def _track(clip, cfg, keyframes, progress, landmarks, larynx=False):
+def _track(clip, cfg, keyframes, progress, landmarks, larynx=False, outline=True):
     from hack_render.track.pipeline import track_clip
 
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
-                        landmarks=landmarks, larynx=larynx)
+                        landmarks=landmarks, larynx=larynx, outline=outline)
     return result, result.fitter
 
 
@@ -107,6 +110,11 @@ def track(
                             "slides with the light refitted per frame, the least-cost smooth "
                             "path; on the benchmark's two clips 5.0 and 8.2 mm mean error "
                             "against 6.0 for 'fixed', see docs/motion.md)."),
+    no_outline: bool = typer.Option(False, "--no-outline", help="Skip the outline stage "
+                                    "(the neck placed on the person mask's border in every "
+                                    "frame: a plain background keyed out, else MediaPipe's "
+                                    "person segmentation); the neck then follows the "
+                                    "landmarks alone."),
     no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
@@ -140,7 +148,7 @@ def track(
     cfg = load_config(config, over)
     result, paths = track_video(video, output, keyframes, max_side, fps, cfg,
                                 not no_overlay, resume, not quiet, max_frames,
-                                larynx=tau == "photometric")
+                                larynx=tau == "photometric", outline=not no_outline)
     if result is None:
         typer.echo(f"{output}: already complete (--resume); nothing to do")
         return

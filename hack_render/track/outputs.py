@@ -141,17 +141,41 @@ def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
         "tracking_fps": n / track_s if track_s > 0 else None,
         "tracking_fps_cpu": n / track_cpu if track_cpu > 0 else None,
         "larynx": _larynx_report(result),
+        "outline": _outline_report(result),
         "notes": result.notes,
         "per_frame": [{"frame": i, "found": bool(lm.found[i]),
                        "landmark_error_px": None if not lm.found[i] else float(err_px[i]),
                        "head_deg": np.degrees(result.params.h[i]).round(3).tolist(),
                        "tau_mm": round(1e3 * float(result.tau[i]), 3),
                        "tau_confidence": None if result.larynx is None else
-                       round(float(result.larynx.confidence[i]), 4)} for i in range(n)],
+                       round(float(result.larynx.confidence[i]), 4),
+                       "outline_px": _outline_px(result, i)} for i in range(n)],
     }
     if truth is not None:
         rep["truth"] = truth_errors(result, truth)
     return rep
+
+
+def _outline_px(result: TrackResult, i: int) -> float | None:
+    """Frame i's mean distance (px) of the model's contour from the person mask's border
+    after the outline stage (None: no mask, or the stage did not run)."""
+    o = result.outline
+    if o is None or not np.isfinite(o.after[i]):
+        return None
+    return round(float(o.after[i]), 3)
+
+
+def _outline_report(result: TrackResult) -> dict:
+    """The outline stage: frames with a person mask, how they were made, the contour's
+    median distance from the mask's border before and after, and the stage's speed."""
+    o = result.outline
+    if o is None:
+        return {"ran": False}
+    sec = result.timings.get("outline_s", 0.0)
+    cpu = result.timings.get("outline_cpu_s", 0.0)
+    n = result.clip.frames
+    return {"ran": True, **o.report(),
+            "fps": n / sec if sec > 0 else None, "fps_cpu": n / cpu if cpu > 0 else None}
 
 
 def _larynx_report(result: TrackResult) -> dict:
@@ -180,7 +204,9 @@ def truth_errors(result: TrackResult, truth: dict) -> dict:
     tau = 1e3 * np.abs(np.asarray(result.tau) - truth["tau"])
     moving = np.ptp(truth["tau"]) > 0 and np.ptp(result.tau) > 0
     head = np.degrees(np.abs(result.params.h - truth["h"]))
+    neck = neck_offset_px(result, truth)
     return {"theta_joint_deg": {"mean": float(th.mean()), "max": float(th.max())},
+            "neck_px": {"mean": float(neck.mean()), "max": float(neck.max())},
             "head_deg": {"mean": head.mean(0).tolist(), "max": head.max(0).tolist()},
             "psi_abs": {"mean": float(psi.mean()),
                         "active_mean": float(psi[:, active].mean()) if active.any() else None},
@@ -191,7 +217,37 @@ def truth_errors(result: TrackResult, truth: dict) -> dict:
                        if moving else None},
             "jitter_truth": {"theta_deg_per_frame2": float(np.degrees(jitter(truth["theta"])))},
             "per_frame_theta_deg": th.mean(1).round(3).tolist(),
+            "per_frame_neck_px": neck.round(3).tolist(),
             "per_frame_tau_mm": tau.round(3).tolist()}
+
+
+def neck_offset_px(result: TrackResult, truth: dict) -> np.ndarray:
+    """(T,) how far the tracked neck sits from the true one in the image: the length of
+    the mean image offset (px) of the larynx region's vertices, the tracked model through
+    the tracked camera against the true model (``truth``: beta, theta, psi, tau, K,
+    cam_t; torso and translation zero) through the true camera."""
+    from hack_render.fit.camera import R0
+    from scenes.cameras import Camera
+
+    model = result.fit.model
+    T = result.clip.frames
+    w, h = result.clip.work
+    cam = result.camera
+    K = np.array([[cam.focal, 0, w / 2], [0, cam.focal, h / 2], [0, 0, 1.0]])
+    R = R0.double().numpy()
+    est_cam = Camera(K, R, np.asarray(cam.cam_t, np.float64), w, h, "tracked")
+    true_cam = Camera(np.asarray(truth["K"], np.float64), R,
+                      np.asarray(truth["cam_t"], np.float64), w, h, "truth")
+    lv = model.larynx_vertices.numpy()
+    est = frame_vertices(result, 0, T)[:, lv]
+    with torch.no_grad():
+        true = model(beta=torch.as_tensor(truth["beta"]).float().reshape(1, -1).expand(T, -1),
+                     psi=torch.as_tensor(truth["psi"]).float(),
+                     theta=torch.as_tensor(truth["theta"]).float(),
+                     tau=torch.as_tensor(truth["tau"]).float()).vertices[:, lv].numpy()
+    return np.array([np.linalg.norm((est_cam.project(est[i].astype(np.float64))
+                                     - true_cam.project(true[i].astype(np.float64))).mean(0))
+                     for i in range(T)])
 
 
 def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None) -> Path:

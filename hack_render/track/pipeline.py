@@ -8,11 +8,15 @@
 3. Per frame (``solve.py``): head rotation (over the 8 neck joints), torso rotation,
    translation and expression, warm-started from the previous frame, then one joint solve
    with velocity and acceleration priors; lost frames are carried by the priors.
-4. With ``larynx=True`` (experimental), the larynx's slide tau per frame (``larynx.py``):
+4. The outline stage (``outline.py``, ``outline=True``, the default): the person mask of
+   every frame (a plain background keyed out, else MediaPipe's person segmentation) and
+   one more joint solve with the model's face and neck contour held on its border, so
+   the neck below the face sits where the image shows it.
+5. With ``larynx=True`` (experimental), the larynx's slide tau per frame (``larynx.py``):
    the neck's shading fitted at a grid of slides with the light refitted per frame, then
    the least-cost smooth path over the clip; by default the keyframe fit's tau
    throughout.
-5. Outputs (``outputs.py``).
+6. Outputs (``outputs.py``).
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ class TrackResult:
     notes: list[str] = field(default_factory=list)
     fitter: object = None          # the keyframe fit's Fitter (its outputs are written)
     larynx: object = None          # the photometric tau's LarynxTrack (None: not tracked)
+    outline: object = None         # the outline stage's OutlineResult (None: not run)
 
 
 class _timed:
@@ -127,11 +132,13 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
 
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
-               landmarks: FrameLandmarks | None = None, larynx: bool = False) -> TrackResult:
+               landmarks: FrameLandmarks | None = None, larynx: bool = False,
+               outline: bool = True) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
     ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
-    larynx's slide per frame from the neck's shading (else the keyframe fit's tau)."""
+    larynx's slide per frame from the neck's shading (else the keyframe fit's tau);
+    ``outline``: place the neck on the person's outline (``outline.py``)."""
     import dataclasses
 
     from hack_render.fit.camera import R0
@@ -182,17 +189,31 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         params = solve_clip(rig, camera, obs, found, point_w, seq, g_ref, tcfg,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
+    eta = float(fit.eta.detach().reshape(-1)[0])
+    shape = None
+    if outline and cfg.silhouette.mode != "off":
+        from hack_render.track.outline import frame_masks, refine_outline
+
+        sc = cfg.silhouette
+        with _timed(timings, "outline"):
+            masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
+                                max_spread=sc.max_spread, chroma=sc.chroma)
+            params, shape = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
+                                           tcfg, state.model, fit.beta.detach(), eta, tau,
+                                           masks, progress=progress)
+        if not masks.has.any():
+            notes.append("outline: no frame gave a person mask (neither a plain background "
+                         "nor the person segmentation); the neck follows the landmarks alone")
     track = None
     if larynx:
         from hack_render.track.larynx import track_tau
 
         with _timed(timings, "larynx"):
-            track = track_tau(clip.read, state.model, fit.beta.detach(),
-                              float(fit.eta.detach().reshape(-1)[0]), params, camera, found,
-                              clip.fps, progress=progress)
+            track = track_tau(clip.read, state.model, fit.beta.detach(), eta, params, camera,
+                              found, clip.fps, progress=progress)
         tau = track.tau
     return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
-                       fitter, track)
+                       fitter, track, shape)
 
 
 def sequence_of(result: TrackResult):

@@ -322,10 +322,11 @@ def solve_frames(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray,
 
 def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights: np.ndarray,
                init: FrameParams, g_ref: np.ndarray, cfg: TrackConfig | None = None,
-               progress: bool = True) -> FrameParams:
+               progress: bool = True, extra=None) -> FrameParams:
     """The joint solve: every frame's landmarks and priors plus velocity and acceleration
     penalties, over windows of ``cfg.window`` frames (each starting from the warm-started
-    pass and joined to the frames before it)."""
+    pass and joined to the frames before it). ``extra(x, frames)``: a further cost of a
+    window's parameters x (T', D) for the frames (a slice) it holds (the outline stage's)."""
     from tqdm import tqdm
 
     cfg = cfg or TrackConfig()
@@ -341,8 +342,12 @@ def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights
         obj = _Objective(rig, cam, obs[s:e], found[s:e], _window(weights, slice(s, e)), cfg,
                          g_ref)
         head = x_all[max(0, s - 2):s] if s > 0 else None
-        x = _lbfgs(x_all[s:e], lambda x, obj=obj, head=head: obj.data(x).sum()
-                   + obj.priors(x).sum() + obj.temporal(x, head), cfg.joint_iterations)
+        sl = slice(s, e)
+
+        def fn(x, obj=obj, head=head, sl=sl):
+            cost = obj.data(x).sum() + obj.priors(x).sum() + obj.temporal(x, head)
+            return cost if extra is None else cost + extra(x, sl)
+        x = _lbfgs(x_all[s:e], fn, cfg.joint_iterations)
         keep = s if s == 0 else s + (min(cfg.window // 8, e - s))  # the overlap's later half
         x_all[keep:e] = x[keep - s:]
     return FrameParams.from_vector(x_all.numpy())

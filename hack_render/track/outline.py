@@ -1,0 +1,344 @@
+"""The neck's placement per frame from the person's outline (the tracker's outline stage).
+
+Landmarks pin the face, not the neck below it: a head turn that the tracker splits
+between the neck's twist and a sideways slide of the body, or a head pitch traded for a
+move up or down, leaves the face where it is and moves the neck by several pixels (7 px
+on average on the benchmark's clip 10, where a 1 mm slide of the larynx moves its bump
+1.4 px). The person's outline pins it: the neck's sides must lie on the border of the
+person mask in every frame.
+
+Per frame with a face:
+
+1. The person mask: the frame's plain background keyed out
+   (:func:`~hack_render.fit.silhouette.segment_plain_background`), else MediaPipe's person
+   segmentation (:func:`~hack_render.vision.segment.person_mask`) when it installs; its
+   signed distance map (:class:`~hack_render.fit.silhouette.PhotoSilhouette`). Frames
+   with no mask are left to the landmarks.
+2. The model's side is the fitter's silhouette term
+   (:class:`~hack_render.fit.silhouette.ModelSilhouette`): the outer occluding contour of
+   the face and neck skin (the bust's cut and the scalp left out) lies on the mask's
+   border; the skin projects inside the mask (one-sided: hair and clothes cost nothing).
+   The contour is selected on the full mesh at the frame's current pose; during the solve
+   its points move with the pose by linear blend skinning of the frame's corrected rest
+   mesh (exact for the pose the mesh was built at; the pose correctives are refreshed at
+   every round).
+3. One joint solve over the clip, as the tracker's smoothing solve (landmarks, priors,
+   velocity and acceleration) plus this term, in the landmark term's units (residuals
+   over the outer-eye distance, the same robust knee), for ``rounds`` rounds of contour
+   selection.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+#: frames whose contour is selected together (one batched forward of the model)
+_CHUNK = 32
+
+
+@dataclass
+class OutlineConfig:
+    """Weights of the outline stage, relative to the 68 landmarks' term: ``contour`` for
+    the model's contour points off the mask's border, ``inside`` for skin outside the
+    mask; ``rounds`` of contour selection; ``iterations`` of L-BFGS per round."""
+
+    contour: float = 1.0
+    inside: float = 1.0
+    rounds: int = 2
+    iterations: int = 60
+
+
+@dataclass
+class FrameMasks:
+    """Per-frame person masks as signed distance maps, stacked: ``sdf`` (T, 1, h, w) at
+    ``scale`` working px per frame px (> 0 outside), ``has`` (T,) frames with a mask,
+    ``source`` (T,) how each was made ("" where none)."""
+
+    sdf: torch.Tensor
+    scale: float
+    has: np.ndarray
+    source: list
+
+    @classmethod
+    def from_masks(cls, masks, source: list | None = None,
+                   max_side: int = 320) -> FrameMasks:
+        """From (H, W) bool masks, one per frame (None: no mask for that frame); each is
+        turned into its distance map as it comes (stored as float16 at ``max_side``: a
+        long clip's masks are not kept)."""
+        from hack_render.fit.silhouette import PhotoSilhouette
+
+        sdfs, has, kinds, scale = [], [], [], 1.0
+        for i, m in enumerate(masks):
+            kind = (source[i] if source is not None else "given") if m is not None else ""
+            if m is None:
+                sdfs.append(None)
+            else:
+                sil = PhotoSilhouette.from_mask(m, kind, max_side)
+                sdfs.append(sil.sdf[0].half())
+                scale = sil.scale
+            has.append(m is not None)
+            kinds.append(kind)
+        has = np.array(has, bool)
+        T = len(sdfs)
+        if not has.any():
+            return cls(torch.zeros(T, 1, 1, 1, dtype=torch.float16), 1.0, has, kinds)
+        zero = torch.zeros_like(next(x for x in sdfs if x is not None))
+        return cls(torch.stack([x if x is not None else zero for x in sdfs]), scale, has,
+                   kinds)
+
+    def distance(self, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Signed distance (frame px) at frame pixels uv (T, P, 2), bilinear and
+        differentiable, and (T, P) inside the frame."""
+        h, w = self.sdf.shape[-2:]
+        x, y = uv[..., 0] * self.scale, uv[..., 1] * self.scale
+        grid = torch.stack([2.0 * x / w - 1.0, 2.0 * y / h - 1.0], -1)
+        d = torch.nn.functional.grid_sample(self.sdf.to(grid.dtype), grid[:, None], mode="bilinear",
+                                            padding_mode="border", align_corners=False)
+        valid = (x >= 0) & (x <= w) & (y >= 0) & (y <= h)
+        return d[:, 0, 0] / self.scale, valid.detach()
+
+
+def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = True,
+                max_side: int = 320, max_spread: float = 0.06, chroma: bool = True
+                ) -> FrameMasks:
+    """The person mask of every frame with a face (:class:`FrameMasks`).
+
+    Args:
+        frames: iterable of (H, W, 3) uint8 sRGB frames at the tracker's working size.
+        points: (T, 68, 2) landmarks; found: (T,) frames with a face.
+        segment: use MediaPipe's person segmentation where the background is not plain
+            (it is skipped, with frames left without a mask, where mediapipe is missing).
+        max_side: the distance maps' size (long side, px).
+        max_spread, chroma: the plain-background key's (``fit.silhouette``).
+    """
+    from hack_render.fit.silhouette import segment_plain_background
+
+    T = len(found)
+    source = [""] * T
+
+    def masks():
+        n = 0
+        for i, img in enumerate(frames):
+            if i >= T:
+                break
+            n += 1
+            m = None
+            if found[i]:
+                m = segment_plain_background(img.astype(np.float32) / 255.0, points[i],
+                                             max_spread=max_spread, chroma=chroma)[0]
+                source[i] = "plain background"
+                if m is None and segment:
+                    m, source[i] = _segmented(img, points[i]), "segmentation"
+            yield m
+        yield from [None] * (T - n)  # a clip shorter than its landmarks
+
+    return FrameMasks.from_masks(masks(), source, max_side)
+
+
+def _segmented(img: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+    try:
+        from hack_render.vision.segment import person_mask
+    except ImportError:  # mediapipe missing: frames on a cluttered background get no mask
+        return None
+    try:
+        m, _ = person_mask(img, points)
+    except Exception:  # noqa: BLE001  (a segmentation that fails leaves the frame to the landmarks)
+        return None
+    return m
+
+
+class OutlineTerm:
+    """The outline cost of a window of frames, differentiable in the per-frame parameters
+    (h, g, t): see the module docstring.
+
+    Args:
+        model: the HackModel; person: its :class:`~hack_render.geometry.model.
+            PersonalizedHack` at the clip's identity; eta, tau: the larynx (tau (T,)).
+        camera: the clip's :class:`~hack_render.track.solve.ClipCamera`.
+        masks: :class:`FrameMasks`; scale: (T,) each frame's outer-eye distance (px).
+    """
+
+    def __init__(self, model, person, eta: float, tau: np.ndarray, camera, masks: FrameMasks,
+                 scale: np.ndarray, cfg: OutlineConfig, robust_knee: float):
+        from hack_render.fit.silhouette import ModelSilhouette
+        from hack_render.geometry.lbs import chain_parents
+
+        self.model, self.person, self.camera, self.masks = model, person, camera, masks
+        self.eta, self.tau = float(eta), np.asarray(tau, np.float64)
+        self.cfg, self.knee = cfg, float(robust_knee)
+        self.sil = ModelSilhouette(model)
+        self.scale = torch.as_tensor(np.asarray(scale, np.float64))
+        self.parents = chain_parents(model.parents)
+        self.faces = model.faces
+        # every 3rd of the silhouette term's inside set (every 9th skin vertex, ~1,200):
+        # the one-sided test needs coverage, not density
+        self.inside = self.sil.inside.numpy()[::3]
+        self.weights_all = model.skinning_weights.double()
+        joints = person.joints.double()[None]
+        self.nodes = torch.cat([joints[:, :1], joints], 1)
+        from hack_render.fit.camera import R0
+
+        self.centre = -(R0.double().T @ torch.as_tensor(camera.cam_t, dtype=torch.float64)).numpy()
+        self.rest = self.pairs = self.S = None
+
+    def select(self, params) -> None:
+        """Re-select every frame's contour and rest mesh at ``params``
+        (:class:`~hack_render.track.solve.FrameParams`)."""
+        from hack_render.geometry.skeleton import distribute_head_rotation
+        from hack_render.render.bridge import vertex_normals_torch
+
+        T = params.frames
+        rest_all, pairs, ts = [None] * T, [np.zeros((0, 2), np.int64)] * T, [np.zeros(0)] * T
+        h, w = self.camera.height, self.camera.width
+        for s in range(0, T, _CHUNK):
+            e = min(T, s + _CHUNK)
+            sl = slice(s, e)
+            if not self.masks.has[sl].any():
+                continue
+            with torch.no_grad():
+                out = self.person(
+                    psi=torch.as_tensor(params.psi[sl]).float(),
+                    theta=distribute_head_rotation(torch.as_tensor(params.h[sl]),
+                                                   clamp=False).float(),
+                    global_orient=torch.as_tensor(params.g[sl]).float(),
+                    transl=torch.as_tensor(params.t[sl]).float(),
+                    eta=torch.full((e - s,), self.eta),
+                    tau=torch.as_tensor(self.tau[sl]).float())
+            for k in range(e - s):
+                i = s + k
+                if not self.masks.has[i]:
+                    continue
+                rest_all[i] = out.rest_vertices[k]
+                V = out.vertices[k].double()
+                n = vertex_normals_torch(V, self.faces).numpy().astype(np.float64)
+                px = max(float(self.scale[i]) / 25.0, 1.0)
+                pairs[i], ts[i] = self.sil.select_contour(
+                    V.numpy(), n, self.centre,
+                    lambda X: self.camera.project(torch.as_tensor(X)).numpy(), (h, w), px)
+        # the vertices the term reads this round: the contours' and the inside set
+        self.S = np.unique(np.concatenate([self.inside] + [p.ravel() for p in pairs]))
+        local = np.full(self.model.num_vertices, -1, np.int64)
+        local[self.S] = np.arange(len(self.S))
+        S = torch.as_tensor(self.S)
+        self.weights = self.weights_all[S]
+        self.inside_local = torch.as_tensor(local[self.inside])
+        self.rest = torch.zeros(T, len(self.S), 3, dtype=torch.float64)
+        for i in range(T):
+            if rest_all[i] is not None:
+                self.rest[i] = rest_all[i][S].double()
+        P = max(1, max(len(t) for t in ts))
+        self.pairs = torch.zeros(T, P, 2, dtype=torch.long)
+        self.t = torch.zeros(T, P, dtype=torch.float64)
+        self.valid = torch.zeros(T, P, dtype=torch.float64)
+        for i in range(T):
+            n = len(ts[i])
+            if n:
+                self.pairs[i, :n] = torch.as_tensor(local[pairs[i]])
+                self.t[i, :n] = torch.as_tensor(ts[i])
+                self.valid[i, :n] = 1.0
+
+    def points(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
+        """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D)."""
+        from hack_render.geometry.lbs import local_rotations, rigid_transforms, skin
+        from hack_render.geometry.skeleton import distribute_head_rotation
+
+        h, g, t = x[:, :3], x[:, 3:6], x[:, 6:9]
+        rot = local_rotations(distribute_head_rotation(h, clamp=False), g)
+        _, rel = rigid_transforms(rot, self.nodes.expand(len(x), -1, -1), self.parents)
+        return skin(self.rest[sl], self.weights, rel) + t[:, None]
+
+    def frame_costs(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
+        """(T',) the outline cost of frames ``sl`` at parameters x (T', D)."""
+        P = self.points(x, sl)
+        k = self.knee
+        scale = self.scale[sl][:, None]
+
+        def rho(r):
+            return k * k * (torch.sqrt(1 + (r / k) ** 2) - 1)
+
+        pairs, tt, valid = self.pairs[sl], self.t[sl], self.valid[sl]
+        a = torch.gather(P, 1, pairs[..., 0:1].expand(-1, -1, 3))
+        b = torch.gather(P, 1, pairs[..., 1:2].expand(-1, -1, 3))
+        q = a + tt[..., None] * (b - a)
+        masks = FrameMasks(self.masks.sdf[sl], self.masks.scale, self.masks.has[sl], [])
+        d, ok = masks.distance(self.camera.project(q))
+        w = valid * ok
+        contour = (rho(d / scale) * w).sum(1) / w.sum(1).clamp_min(1.0)
+        d, ok = masks.distance(self.camera.project(P[:, self.inside_local]))
+        inside = (rho(torch.relu(d) / scale) * ok).sum(1) / ok.sum(1).clamp_min(1)
+        has = torch.as_tensor(self.masks.has[sl], dtype=x.dtype)
+        return 68.0 * has * (self.cfg.contour * contour + self.cfg.inside * inside)
+
+    def distances(self, params) -> np.ndarray:
+        """(T,) each frame's mean absolute distance (px) of its contour points from the
+        mask's border at ``params`` (NaN where no mask)."""
+        with torch.no_grad():
+            x = torch.as_tensor(params.vector(), dtype=torch.float64)
+            P = self.points(x, slice(None))
+            a = torch.gather(P, 1, self.pairs[..., 0:1].expand(-1, -1, 3))
+            b = torch.gather(P, 1, self.pairs[..., 1:2].expand(-1, -1, 3))
+            d, ok = self.masks.distance(self.camera.project(a + self.t[..., None] * (b - a)))
+            w = self.valid * ok
+            out = ((d.abs() * w).sum(1) / w.sum(1).clamp_min(1.0)).numpy()
+        return np.where(self.masks.has & (w.sum(1).numpy() > 0), out, np.nan)
+
+
+@dataclass
+class OutlineResult:
+    """What the outline stage did: per-frame contour distance (px, mean absolute) before
+    and after, and the frames' mask sources."""
+
+    before: np.ndarray
+    after: np.ndarray
+    source: list
+
+    def report(self) -> dict:
+        has = np.isfinite(self.after)
+        kinds = sorted({s for s in self.source if s})
+        return {"frames_with_mask": int(has.sum()), "mask_sources": kinds,
+                "contour_px_before": _med(self.before), "contour_px_after": _med(self.after)}
+
+
+def _med(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return round(float(np.median(x)), 3) if len(x) else None
+
+
+def refine_outline(rig, camera, obs, found, weights, params, g_ref, tcfg, model, beta,
+                   eta: float, tau: np.ndarray, masks: FrameMasks,
+                   cfg: OutlineConfig | None = None, progress: bool = True):
+    """The tracked parameters with the neck placed on the person's outline: the joint
+    solve (:func:`~hack_render.track.solve.solve_clip`) with :class:`OutlineTerm` added,
+    ``cfg.rounds`` times. Returns (FrameParams, :class:`OutlineResult`)."""
+    import dataclasses
+
+    from hack_render.track.solve import solve_clip
+
+    cfg = cfg or OutlineConfig()
+    if not masks.has.any():
+        nan = np.full(params.frames, np.nan)
+        return params, OutlineResult(nan, nan, masks.source)
+    person = model.personalize(beta.detach().float())
+    iod = np.linalg.norm(obs[:, 36] - obs[:, 45], axis=1)
+    iod = np.where(found & np.isfinite(iod), iod, np.nanmedian(iod[found]))
+    term = OutlineTerm(model, person, eta, tau, camera, masks, iod, cfg, tcfg.robust_knee)
+    joint = dataclasses.replace(tcfg, joint_iterations=cfg.iterations)
+    before = None
+    # many small tensor ops: one thread is faster than two here (and far faster on a
+    # loaded machine, where two spin against each other)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for _ in range(max(1, cfg.rounds)):
+            term.select(params)
+            if before is None:
+                before = term.distances(params)
+            params = solve_clip(rig, camera, obs, found, weights, params, g_ref, joint,
+                                progress, extra=lambda x, sl: term.frame_costs(x, sl).sum())
+        term.select(params)
+    finally:
+        torch.set_num_threads(threads)
+    return params, OutlineResult(before, term.distances(params), masks.source)
