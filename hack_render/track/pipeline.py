@@ -12,9 +12,9 @@
    every frame (a plain background keyed out, else MediaPipe's person segmentation) and
    one more joint solve with the model's face and neck contour held on its border, so
    the neck below the face sits where the image shows it.
-5. With ``larynx=True`` (experimental), the larynx's slide tau per frame (``larynx.py``):
+5. With ``larynx=True`` (the default), the larynx's slide tau per frame (``larynx.py``):
    the neck's shading fitted at a grid of slides with the light refitted per frame, then
-   the least-cost smooth path over the clip; by default the keyframe fit's tau
+   the least-cost smooth path over the clip; with ``larynx=False`` the keyframe fit's tau
    throughout.
 6. Outputs (``outputs.py``).
 """
@@ -132,7 +132,7 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
 
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
-               landmarks: FrameLandmarks | None = None, larynx: bool = False,
+               landmarks: FrameLandmarks | None = None, larynx: bool = True,
                outline: bool = True) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
