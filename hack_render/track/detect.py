@@ -127,10 +127,25 @@ class FrameDetector:
         if got is None:
             return None, None, None, why, None
         pts, vis, box = got
+        if self.last_points is not None and self._jumped(pts, self.lost_run):
+            return None, None, None, "face mesh's landmarks jumped (outlier)", None
         mask = vis.astype(np.float64)
         mask[:17] = 0.0  # the mesh's jawline is not dlib's outline
         self.last_box, self.last_points, self.lost_run = box, pts, 0
         return pts, pts, box, "", mask
+
+    def _jumped(self, pts: np.ndarray, frames: int) -> bool:
+        """Whether landmarks found ``frames`` frames after the last good ones are an
+        outlier: their inner points' shape (about their own centre) moved more than
+        ``max_jump`` of the face's size, or their centre more than ``max_jump`` of it per
+        frame (the face mesh can take an ear, or the back of a turned head, for a face)."""
+        last = self.last_points
+        size = np.linalg.norm(np.ptp(last, 0)) / np.sqrt(2)
+        a, b = pts[17:], last[17:]
+        shape = np.median(np.linalg.norm((a - a.mean(0)) - (b - b.mean(0)), axis=1))
+        centre = np.linalg.norm(a.mean(0) - b.mean(0))
+        return bool(shape > self.max_jump * size
+                    or centre > self.max_jump * size * max(1, frames))
 
     def __call__(self, rgb8: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None,
                                                  np.ndarray | None, str]:
@@ -156,15 +171,12 @@ class FrameDetector:
         raw = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
         pts = self.refiner.refine(img, raw) if self.refiner is not None else raw
         box = np.array([l, t, r, b], dtype=np.float64)
-        if self.last_points is not None and self.lost_run == 0:
-            size = np.linalg.norm(np.ptp(self.last_points, 0)) / np.sqrt(2)
-            # the landmarks' shape relative to their own centre: a jump there is a bad fit
-            # of the predictor, not motion
-            a = pts[17:] - pts[17:].mean(0)  # inner points (the mesh's jaw is not dlib's)
-            b0 = self.last_points[17:] - self.last_points[17:].mean(0)
-            if np.median(np.linalg.norm(a - b0, axis=1)) > self.max_jump * size:
-                self.lost_run += 1
-                return None, None, None, "landmarks jumped (outlier)"
+        # a jump of the landmarks' shape is a bad fit of the predictor, not motion; a jump
+        # of their centre is another thing taken for the face (an ear, on a turned head)
+        if self.last_points is not None and self.lost_run < 5 \
+                and self._jumped(pts, self.lost_run + 1):
+            self.lost_run += 1
+            return None, None, None, "landmarks jumped (outlier)"
         self.last_box, self.last_points, self.lost_run = box, pts, 0
         return pts, raw, box, ""
 
