@@ -107,8 +107,8 @@ def track(
     tau: str = typer.Option("photometric", "--tau", help="The larynx's slide per frame: "
                             "'photometric' (from the neck's shading: the mesh at a grid of "
                             "slides with the light refitted per frame, the least-cost smooth "
-                            "path; on the benchmark's two clips 2.8 and 5.9 mm mean error, "
-                            "correlation 0.97 and 0.80 with the true slide, against 6.0 mm "
+                            "path; on the benchmark's two clips 2.6 and 5.1 mm mean error, "
+                            "correlation 0.98 and 0.82 with the true slide, against 6.0 mm "
                             "for 'fixed'; see docs/motion.md) or 'fixed' (the keyframe fit's "
                             "value throughout)."),
     no_outline: bool = typer.Option(False, "--no-outline", help="Skip the outline stage "
