@@ -7,7 +7,7 @@ from scipy.spatial import cKDTree
 
 from appearance.calibrate import TARGETS, TOLERANCE, population_albedo
 from appearance.generator import _context, generate_subject
-from appearance.model import DEFAULT_MODEL, AppearanceModel
+from appearance.model import AppearanceModel
 from appearance.population import load_calibration
 from appearance.regions import LANDMARK_VERTICES, REGION_ID, region_labels
 from appearance.uv import _template, fill_index, rasterize_layout
@@ -45,8 +45,8 @@ def test_regional_structure():
         rg = ts.diffuse[..., 0] / ts.diffuse[..., 1]
         red.append((np.median(rg[lab == REGION_ID["lips"]]),
                     np.median(rg[lab == REGION_ID["forehead"]])))
-        for r in spec:
-            spec[r].append(np.median(ts.specular[lab == REGION_ID[r]]))
+        for r, vals in spec.items():
+            vals.append(np.median(ts.specular[lab == REGION_ID[r]]))
     red = np.array(red)
     assert np.all(red[:, 0] > red[:, 1])  # lips redder than forehead
     assert np.all(np.array(spec["nose"]) > np.array(spec["cheeks"]))  # oily T-zone
@@ -152,7 +152,6 @@ def test_no_band_along_scalp_line():
     assert band < 0.1, f"a crown strip is {band:.0%} brighter than both its sides"
 
 
-@pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="default model not built yet")
 def test_default_model_has_no_scalp_band():
     """The shipped model's mean A(0) has no crown band (0.25 in the model built from the
     old labels)."""

@@ -250,6 +250,14 @@ class OutlineTerm:
         _, rel = rigid_transforms(rot, self.nodes.expand(len(x), -1, -1), self.parents)
         return skin(self.rest[sl], self.weights, rel) + t[:, None]
 
+    def _contour(self, P: torch.Tensor, sl: slice) -> torch.Tensor:
+        """(T', C, 3) frames ``sl``'s contour points on their edges of the posed term
+        vertices P (T', |S|, 3) (padding rows: ``valid`` 0)."""
+        pairs, t = self.pairs[sl], self.t[sl]
+        a = torch.gather(P, 1, pairs[..., 0:1].expand(-1, -1, 3))
+        b = torch.gather(P, 1, pairs[..., 1:2].expand(-1, -1, 3))
+        return a + t[..., None] * (b - a)
+
     def frame_costs(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
         """(T',) the outline cost of frames ``sl`` at parameters x (T', D)."""
         P = self.points(x, sl)
@@ -259,13 +267,9 @@ class OutlineTerm:
         def rho(r):
             return k * k * (torch.sqrt(1 + (r / k) ** 2) - 1)
 
-        pairs, tt, valid = self.pairs[sl], self.t[sl], self.valid[sl]
-        a = torch.gather(P, 1, pairs[..., 0:1].expand(-1, -1, 3))
-        b = torch.gather(P, 1, pairs[..., 1:2].expand(-1, -1, 3))
-        q = a + tt[..., None] * (b - a)
         masks = FrameMasks(self.masks.sdf[sl], self.masks.scale, self.masks.has[sl], [])
-        d, ok = masks.distance(self.camera.project(q))
-        w = valid * ok
+        d, ok = masks.distance(self.camera.project(self._contour(P, sl)))
+        w = self.valid[sl] * ok
         contour = (rho(d / scale) * w).sum(1) / w.sum(1).clamp_min(1.0)
         d, ok = masks.distance(self.camera.project(P[:, self.inside_local]))
         inside = (rho(torch.relu(d) / scale) * ok).sum(1) / ok.sum(1).clamp_min(1)
@@ -278,9 +282,7 @@ class OutlineTerm:
         with torch.no_grad():
             x = torch.as_tensor(params.vector(), dtype=torch.float64)
             P = self.points(x, slice(None))
-            a = torch.gather(P, 1, self.pairs[..., 0:1].expand(-1, -1, 3))
-            b = torch.gather(P, 1, self.pairs[..., 1:2].expand(-1, -1, 3))
-            d, ok = self.masks.distance(self.camera.project(a + self.t[..., None] * (b - a)))
+            d, ok = self.masks.distance(self.camera.project(self._contour(P, slice(None))))
             w = self.valid * ok
             out = ((d.abs() * w).sum(1) / w.sum(1).clamp_min(1.0)).numpy()
         return np.where(self.masks.has & (w.sum(1).numpy() > 0), out, np.nan)

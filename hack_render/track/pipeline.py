@@ -190,7 +190,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     eta = float(fit.eta.detach().reshape(-1)[0])
-    shape = None
+    placed = None  # the outline stage's OutlineResult
     if outline and cfg.silhouette.mode != "off":
         from hack_render.track.outline import frame_masks, refine_outline
 
@@ -198,9 +198,9 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         with _timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
                                 max_spread=sc.max_spread, chroma=sc.chroma)
-            params, shape = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
-                                           tcfg, state.model, fit.beta.detach(), eta, tau,
-                                           masks, progress=progress)
+            params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
+                                            tcfg, state.model, fit.beta.detach(), eta, tau,
+                                            masks, progress=progress)
         if not masks.has.any():
             notes.append("outline: no frame gave a person mask (neither a plain background "
                          "nor the person segmentation); the neck follows the landmarks alone")
@@ -213,7 +213,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                               found, clip.fps, progress=progress)
         tau = track.tau
     return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
-                       fitter, track, shape)
+                       fitter, track, placed)
 
 
 def sequence_of(result: TrackResult):
