@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
-from hack_render.render.engine import is_jit
+from hack_render.render.engine import is_jit, release_parked, release_when_safe
 
 INTEGRATORS = ("prb", "direct_projective", "prb_projective")
 
@@ -82,6 +82,7 @@ class DiffRenderer:
         if integrator == "direct_projective":
             d = {"type": integrator}
         self.integrator = mi.load_dict(d)
+        release_when_safe(self, self.integrator)  # see engine.release_when_safe
         self.spp = int(spp or head.settings.spp)
         self.width, self.height = head.settings.width, head.settings.height
         self._faces = torch.as_tensor(head.topology.faces, dtype=torch.long)
@@ -206,6 +207,7 @@ class DiffRenderer:
         pattern; ``seed_grad`` the adjoint pass's (default: derived from ``seed``; Mitsuba
         requires it to differ from ``seed`` so that loss gradients stay unbiased).
         """
+        release_parked()
         inputs = self._drop_unchanged(self.inputs(**tensors))
         seed = int(seed) % (2 ** 31)
         sg = (seed * 65599 + 1) % (2 ** 31) if seed_grad is None else int(seed_grad) % (2 ** 31)
@@ -244,6 +246,7 @@ class DiffRenderer:
         Without ``write`` the scene is rendered as it is (no geometry rebuild). Returns
         the loss.
         """
+        release_parked()
         import drjit as dr
         import mitsuba as mi
 

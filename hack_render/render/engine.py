@@ -10,7 +10,9 @@ CLI's ``--variant`` override the choice. Every other module in this package call
 from __future__ import annotations
 
 import os
+import threading
 import warnings
+import weakref
 from dataclasses import dataclass
 
 from hack_render.errors import HackError
@@ -146,3 +148,41 @@ def set_thread_count(n: int) -> None:
     if n < 1:
         raise HackError(f"thread count: expected >= 1, found {n}.")
     dr.set_thread_count(int(n))
+
+
+# --- where Mitsuba objects die ---------------------------------------------------------
+# Mitsuba releases the GIL while it renders, and Dr.Jit keeps every BSDF, emitter and
+# shape of the process in one registry that a render walks as it traces. An object that
+# dies on another thread meanwhile (a garbage cycle holding an old scene, collected
+# when the dataset's writer thread happens to allocate) changes that registry under the
+# render: "jit_registry_id(...): pointer is not registered", or a segmentation fault
+# (found in CI: a resumed dataset run in the process of an interrupted one). So the
+# objects of a dropped scene are parked instead, whichever thread drops it, and freed
+# by the thread that renders, at the start of its next scene or render.
+_parked: list[tuple] = []
+_parked_lock = threading.Lock()
+
+
+def release_when_safe(owner, *objects) -> None:
+    """Keep ``objects`` (Mitsuba scenes, their parameters, integrators) alive past
+    ``owner``'s death until :func:`release_parked` frees them on the rendering thread.
+    ``objects`` must not refer back to ``owner`` (it would then never die)."""
+    fin = weakref.finalize(owner, _park, objects)
+    fin.atexit = False
+
+
+def _park(objects: tuple) -> None:
+    with _parked_lock:
+        _parked.append(objects)
+
+
+def release_parked() -> int:
+    """Free the Mitsuba objects of owners that died since the last call (see
+    :func:`release_when_safe`); call where no render is in progress. Returns how many
+    owners' objects were freed."""
+    with _parked_lock:
+        batch = _parked[:]
+        _parked.clear()
+    n = len(batch)
+    del batch  # the objects die here, on this thread
+    return n

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hack_render.render.engine import ensure_variant
+from hack_render.render.engine import ensure_variant, release_parked, release_when_safe
 from scenes.cameras import Camera
 
 
@@ -48,6 +48,7 @@ class MeshViews:
                  colors: np.ndarray | None = None, width: int = 256, height: int = 256,
                  variant: str | None = None, normals: np.ndarray | None = None):
         ensure_variant(variant)
+        release_parked()
         import mitsuba as mi
 
         from hack_render.render import emitters
@@ -63,6 +64,7 @@ class MeshViews:
             "mesh": _mesh(vertices, faces, colors, normals),
         }, parallel=False, optimize=False)
         self.params = mi.traverse(self.scene)
+        release_when_safe(self, self.scene, self.params)  # see engine.release_when_safe
         self.light = np.zeros(3)
 
     def set_vertices(self, vertices: np.ndarray, faces: np.ndarray) -> None:

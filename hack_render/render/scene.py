@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.render.engine import ensure_variant, is_jit
+from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
 from scenes.cameras import Camera
 from scenes.lights import LightRig
@@ -172,6 +172,7 @@ class HeadScene:
                             f"{settings.height} (the settings), found {camera.width}x"
                             f"{camera.height}.")
         self.variant = ensure_variant(variant)
+        release_parked()  # dropped scenes die here, on the thread that renders
         import mitsuba as mi
 
         from hack_render.render import emitters, materials
@@ -222,6 +223,8 @@ class HeadScene:
         # is a function of its inputs alone. parallel=False: nothing depends on threads.
         self.scene = mi.load_dict(scene, parallel=False, optimize=False)
         self.params = mi.traverse(self.scene)
+        # freed by a later scene or render, never by whatever thread collects this one
+        release_when_safe(self, self.scene, self.params)
         self._backdrop: np.ndarray | None = None
         self._skin_key = self._find_skin_key()
         self._shape_regions = self._shape_region_table()
@@ -391,6 +394,7 @@ class HeadScene:
         """
         import mitsuba as mi
 
+        release_parked()
         n, _ = self.settings.passes
         base = self.settings.seed if seed is None else int(seed)
         acc = None
