@@ -30,10 +30,24 @@
     single-lobe specular, no bust cap, no denoiser) and the current one (multijitter 35
     spp, dual lobe, bust cap, OIDN), in one run.
 
+(g) Against Blender Cycles (``--only cycles``): the default head as ``hack-render render``
+    builds it (``--alpha 0.8,-0.6,0.4``, portrait camera, studio rig, 256 px, depth 8)
+    rendered by ``HeadScene.render`` (multijitter, with and without OIDN) and by Cycles
+    (CPU, with and without its OIDN) in a bpy interpreter of its own
+    (``bench/cycles_scene.py``; ``--blender-python`` or ``HACK_RENDER_BPY_PYTHON``), on
+    the same parts (``obj_io.write_mesh``), normals, skin maps (``texture_io``), camera,
+    area lights and environment. Each image is scored against its own renderer's
+    high-spp reference (PSNR on linear RGB with peak 1, SSIM on the tone-mapped sRGB
+    image), CPU seconds of the render call (process time, all threads), the two renderers
+    interleaved rung by rung; time at equal PSNR is interpolated on each renderer's
+    PSNR-log(time) curve. Writes ``bench/results/render_cycles.json`` and
+    ``docs/images/cycles_side_by_side.png``.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
        python bench/bench_render.py --only sss
+       python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
 from __future__ import annotations
@@ -47,7 +61,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from provenance import recorded  # bench/ is sys.path[0] when run as a script
+from provenance import recorded, write_result  # bench/ is sys.path[0] when run as a script
 
 
 def peak_rss_mib() -> float:
@@ -388,6 +402,400 @@ def frame_cost_benchmark(size: int = 256, spp: int = 32, frames: int = 6) -> Non
     skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS = lobes
 
 
+#: Where the Cycles section finds Blender's Python when --blender-python is not given.
+BPY_ENV = "HACK_RENDER_BPY_PYTHON"
+BPY_HINT = ("python3 -m venv /work/bpy-venv && /work/bpy-venv/bin/pip install 'bpy>=4.2,<5' "
+            "(its own environment: bpy pins numpy < 2)")
+
+
+def blender_python(path: str | None) -> tuple[str, str]:
+    """(interpreter, bpy version) of the Python that has bpy; exits 2 with the fix when
+    there is none."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    cand = path or os.environ.get(BPY_ENV)
+    exe = (shutil.which(cand) or (cand if Path(cand).is_file() else None)) if cand else None
+    why = (f"--blender-python / ${BPY_ENV}: expected a Python interpreter with bpy, found "
+           f"{'nothing set' if not cand else repr(cand) + ' missing'}.")
+    if exe:
+        try:
+            out = subprocess.run([exe, "-c", "import bpy; print(bpy.app.version_string)"],
+                                 check=False, capture_output=True, text=True, timeout=300)
+            if out.returncode == 0:
+                return exe, out.stdout.strip().splitlines()[-1]
+            why = (f"--blender-python {exe}: 'import bpy' failed ("
+                   f"{(out.stderr.strip().splitlines() or ['no message'])[-1]}).")
+        except (OSError, subprocess.TimeoutExpired) as err:
+            why = f"--blender-python {exe}: could not run it ({err})."
+    print(f"error: {why} Make one: {BPY_HINT}; then pass --blender-python "
+          f"/work/bpy-venv/bin/python or set {BPY_ENV}.", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def _cycles_material(d: dict) -> dict:
+    """A part's Mitsuba BSDF dict (``materials.fixed_bsdfs``, ``iris_bsdf``) as the few
+    numbers the Cycles script builds a Principled (or Diffuse) BSDF from."""
+    import math
+
+    opacity = 1.0
+    if d["type"] == "mask":
+        opacity, d = float(d["opacity"]["value"]), d["bsdf"]
+    if d["type"] == "twosided":  # Cycles shades both sides anyway
+        d = d["bsdf"]
+    if d["type"] == "diffuse":
+        return {"kind": "diffuse", "base": list(d["reflectance"]["value"])}
+    if d["type"] == "roughplastic":  # diffuse base under a GGX coat: alpha = roughness^2
+        return {"kind": "principled", "base": list(d["diffuse_reflectance"]["value"]),
+                "roughness": math.sqrt(d["alpha"]), "ior": d["int_ior"], "opacity": opacity}
+    if d["type"] == "principled":  # the iris: Mitsuba's specular s is F0 = 0.08 s
+        f0 = math.sqrt(0.08 * d["specular"])
+        alpha_coat = 0.1 + (0.001 - 0.1) * d["clearcoat_gloss"]  # Disney's coat alpha
+        return {"kind": "principled", "vertex_color": "vertex_color",
+                "roughness": d["roughness"], "ior": (1 + f0) / (1 - f0),
+                "coat": 0.25 * d["clearcoat"],  # Disney weights its coat lobe by 1/4
+                "coat_roughness": math.sqrt(alpha_coat), "opacity": opacity}
+    raise ValueError(f"no Cycles material for {d['type']!r}")
+
+
+def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
+    """The scene of ``head`` (a HeadScene) for ``cycles_scene.py``: every render part as
+    an OBJ (``obj_io.write_mesh``) with the renderer's normals (and iris colours) beside
+    it, the skin maps as a texture set, and camera, lights and environment in
+    ``scene.json`` (Blender world matrices: no axis conversion, Y stays up)."""
+    import json
+
+    from appearance.texture_io import write_texture_set
+    from hack_render.geometry.obj_io import write_mesh
+    from hack_render.render import emitters, materials, skin_bsdf
+    from hack_render.render.parts import vertex_normals
+
+    rig, cam, settings = head.lights, head.camera, head.settings
+    if rig.env_map is not None or rig.env_file is not None:
+        raise SystemExit("cycles: only rigs with a constant environment (or none) are built")
+    v = np.asarray(vertices, np.float64)
+    normals = vertex_normals(v, head.topology.faces)
+    fixed = materials.fixed_bsdfs()
+    parts = []
+    for part in head.parts:
+        uv = part.texcoords.astype(np.float64).copy()
+        uv[:, 1] = 1.0 - uv[:, 1]  # Mitsuba's bitmaps take v down, Blender's up
+        write_mesh(folder / f"{part.name}.obj", v[part.gather], part.faces, uv, part.faces)
+        extra = {"positions": v[part.gather], "normals": normals[part.gather]}
+        if part.name.startswith("skin"):
+            spec = {"kind": "skin"}
+        elif part.name == "iris":
+            spec = _cycles_material(materials.iris_bsdf())
+            extra["colors"] = materials.iris_vertex_colors(v[part.gather], head.eye_axes)
+        else:
+            spec = _cycles_material(fixed[part.name])
+        np.savez(folder / f"{part.name}.npz", **extra)
+        parts.append({"name": part.name, "obj": f"{part.name}.obj", "extra": f"{part.name}.npz",
+                      "flat": bool(part.flat), "material": spec})
+    tex = {"diffuse": maps.diffuse, "specular": maps.specular, "roughness": maps.roughness}
+    if maps.normal is not None:
+        tex["normal"] = maps.normal
+    write_texture_set(folder / "skin", tex)
+    lights = []
+    for light in rig.area:
+        m = emitters.area_light_transform(light, rig.rotation_deg)  # [-1, 1]^2, faces +Z
+        a, b, c = m[:3, 0], m[:3, 1], m[:3, 2]
+        world = np.eye(4)  # Blender's area light: centred, size along x / y, emits along -Z
+        world[:3, :3] = np.stack([a / np.linalg.norm(a), -b / np.linalg.norm(b),
+                                  -c / np.linalg.norm(c)], axis=1)
+        world[:3, 3] = m[:3, 3]
+        lights.append({"matrix": world.tolist(),
+                       "size": [2 * float(np.linalg.norm(a)), 2 * float(np.linalg.norm(b))],
+                       "radiance": [float(x) * rig.scale for x in light.radiance]})
+    cam_world = np.eye(4)  # OpenCV (x right, y down, z forward) -> Blender (x right, y up)
+    cam_world[:3, :3] = cam.R.T @ np.diag([1.0, -1.0, -1.0])
+    cam_world[:3, 3] = cam.center
+    desc = {"width": settings.width, "height": settings.height,
+            "max_depth": settings.max_depth,
+            # Cycles' Gaussian of width w has sigma w / 4: 2 px matches Mitsuba's
+            # gaussian (sigma 0.5 px)
+            "filter_width": 2.0, "denoise_quality": "BALANCED",  # as render/denoise.py
+            "camera": {"matrix": cam_world.tolist(), "fov_x_deg": cam.fov_x_deg},
+            "lights": lights,
+            "environment": None if rig.env_constant is None else
+            [float(x) * rig.scale for x in rig.env_constant],
+            "skin": {"ior": 1.4, "lobe_roughness": list(skin_bsdf.LOBE_ROUGHNESS),
+                     "lobe_mix": skin_bsdf.LOBE_MIX},
+            "textures": {k: f"skin/{k}.exr" for k in tex}, "parts": parts}
+    path = folder / "scene.json"
+    path.write_text(json.dumps(desc, indent=1))
+    return path
+
+
+class CyclesWorker:
+    """``cycles_scene.py`` in Blender's Python, kept running: one render per request."""
+
+    def __init__(self, python: str, scene_dir: Path, log: Path):
+        import os
+        import subprocess
+
+        read, write = os.pipe()
+        self.log = log
+        with open(log, "w") as out:
+            self.proc = subprocess.Popen(
+                [python, str(Path(__file__).with_name("cycles_scene.py")), str(scene_dir),
+                 str(write)], stdin=subprocess.PIPE, stdout=out, stderr=subprocess.STDOUT,
+                text=True, pass_fds=(write,))
+        os.close(write)
+        self.replies = os.fdopen(read)
+        self.ready = self._reply()
+
+    def _reply(self) -> dict:
+        import json
+
+        line = self.replies.readline()
+        if not line:
+            tail = "\n".join(self.log.read_text().splitlines()[-15:])
+            raise SystemExit(f"cycles: Blender's Python stopped (rc {self.proc.wait()}):\n{tail}")
+        return json.loads(line)
+
+    def render(self, spp: int, seed: int, denoise: bool, out: Path) -> tuple[dict, np.ndarray]:
+        import json
+
+        from hack_render.render.image_io import read_exr
+
+        self.proc.stdin.write(json.dumps({"spp": spp, "seed": seed, "denoise": denoise,
+                                          "out": str(out)}) + "\n")
+        self.proc.stdin.flush()
+        reply = self._reply()
+        ch = read_exr(out)
+        return reply, np.stack([ch[c] for c in "RGBA"], axis=-1)
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+def time_at_psnr(rows: list[dict], level: float) -> float | None:
+    """CPU seconds a renderer's ladder needs for ``level`` dB: walking its rungs in time
+    order, the first segment that rises through the level, log(time) linear in PSNR
+    there; None when the cheapest rung is already above it or no rung reaches it."""
+    from itertools import pairwise
+
+    pts = sorted((r["cpu_s"], r["psnr"]) for r in rows)
+    if pts[0][1] >= level:
+        return None
+    for (t0, p0), (t1, p1) in pairwise(pts):
+        if p0 < level <= p1:
+            f = (level - p0) / (p1 - p0)
+            return float(np.exp(np.log(t0) + f * (np.log(t1) - np.log(t0))))
+    return None
+
+
+def psnr_at_time(rows: list[dict], seconds: float) -> float | None:
+    """A renderer's PSNR at ``seconds`` CPU s: linear in log(time) between rungs."""
+    pts = sorted((r["cpu_s"], r["psnr"]) for r in rows)
+    lt = [float(np.log(t)) for t, _ in pts]
+    s = float(np.log(seconds))
+    if not lt[0] <= s <= lt[-1]:
+        return None
+    return float(np.interp(s, lt, [p for _, p in pts]))
+
+
+def side_by_side(path: Path, panels: list[list[tuple[np.ndarray, str]]]) -> None:
+    """A grid of tone-mapped (sRGB 8-bit) panels, a caption under each."""
+    from PIL import Image, ImageDraw
+
+    h, w = panels[0][0][0].shape[:2]
+    cap = 30
+    grid = Image.new("RGB", (w * len(panels[0]), (h + cap) * len(panels)), (255, 255, 255))
+    draw = ImageDraw.Draw(grid)
+    for i, row in enumerate(panels):
+        for j, (img, text) in enumerate(row):
+            grid.paste(Image.fromarray(img), (j * w, i * (h + cap)))
+            for k, line in enumerate(text.split("\n")[:2]):
+                draw.text((j * w + 4, i * (h + cap) + h + 2 + 13 * k), line, fill=(0, 0, 0))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    grid.save(tmp)
+    tmp.replace(path)
+
+
+def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
+                     ref_spp: int, repeats: int, still: Path | None,
+                     out: str | None) -> None:
+    import os
+    import warnings
+
+    import mitsuba as mi
+    from skimage.metrics import structural_similarity
+
+    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.render.image_io import to_srgb8
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings, composite
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    mi.set_log_level(mi.LogLevel.Error)
+    warnings.simplefilter("ignore")
+    printed: list[str] = []
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        printed.extend(text.splitlines())
+
+    # hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE (portrait, studio, depth 8)
+    model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
+                                  None)
+    v = verts.astype(np.float64)
+    topo = Topology.from_model(model)
+    maps = skin_maps([0.8, -0.6, 0.4])
+    rig = lights.preset("studio")
+    cam = cameras.preset("portrait", size, size)[0]
+
+    def ours(spp: int) -> HeadScene:
+        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp), maps)
+
+    say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8; "
+        f"{os.cpu_count()} CPUs; Cycles {bpy_version} (CPU) in {bpy_python}")
+    rows: list[dict] = []
+    images: dict[tuple, np.ndarray] = {}
+    with tempfile.TemporaryDirectory() as tmp_:
+        tmp = Path(tmp_)
+        head = ours(1)
+        bg = head.backdrop()
+        write_cycles_scene(tmp, head, v, maps)
+        t0 = time.perf_counter()
+        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
+        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
+            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
+            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        try:
+            refs = {}
+            for name in ("ours", "cycles"):
+                c0 = time.process_time()
+                if name == "ours":
+                    h = ours(ref_spp)
+                    img = h.render(seed=12345, backdrop=False)
+                    cpu, spp = time.process_time() - c0, h.settings.effective_spp
+                    del h
+                else:
+                    rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
+                    cpu, spp = rep["cpu_s"], rep["spp"]
+                refs[name] = composite(img, bg)[..., :3]
+                images[(name, "ref")] = refs[name]
+                say(f"reference {name}: {spp} spp, {cpu:.0f} CPU s; mean linear RGB "
+                    f"{np.round(refs[name].mean((0, 1)), 4).tolist()}")
+            ref8 = {k: to_srgb8(r, 0.0, "aces") for k, r in refs.items()}
+
+            def score(name: str, img: np.ndarray) -> tuple[float, float]:
+                rgb = composite(img, bg)[..., :3]
+                mse = float(np.mean((rgb - refs[name]) ** 2))
+                ssim = structural_similarity(to_srgb8(rgb, 0.0, "aces"), ref8[name],
+                                             channel_axis=-1)
+                return 10.0 * np.log10(1.0 / mse), float(ssim)
+
+            say("renderer  denoise   spp   CPU s  wall s   PSNR dB   SSIM")
+            for denoise, spps in ((False, ladder), (True, dn_ladder)):
+                for spp in spps:  # interleaved: our rung, then Cycles' rung
+                    h = ours(spp)
+                    # Dr.Jit compiles the first render of a scene, and once more the first
+                    # with another seed (the seed becomes opaque): both before timing
+                    for seed in (1000, 1001):
+                        h.render(seed=seed, backdrop=False, denoise=denoise)
+                    for name in ("ours", "cycles"):
+                        cpu, wall, res = [], [], []
+                        for r in range(repeats):
+                            if name == "ours":
+                                c0, w0 = time.process_time(), time.perf_counter()
+                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
+                                cpu.append(time.process_time() - c0)
+                                wall.append(time.perf_counter() - w0)
+                                eff = h.settings.effective_spp
+                            else:
+                                rep, img = worker.render(spp, 1 + r, denoise,
+                                                         tmp / "img.exr")
+                                cpu.append(rep["cpu_s"])
+                                wall.append(rep["wall_s"])
+                                eff = rep["spp"]
+                            res.append(score(name, img))
+                        images[(name, eff, denoise)] = composite(img, bg)[..., :3]
+                        row = {"renderer": name, "denoise": denoise, "spp": eff,
+                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
+                               "wall_s": statistics.median(wall),
+                               "psnr": float(np.mean([p for p, _ in res])),
+                               "ssim": float(np.mean([s for _, s in res]))}
+                        rows.append(row)
+                        say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
+                            f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "
+                            f"{row['ssim']:7.4f}")
+                    del h
+        finally:
+            worker.close()
+
+    summary = {}
+    for denoise in (False, True):
+        tag = "OIDN" if denoise else "noisy"
+        o = [r for r in rows if r["renderer"] == "ours" and r["denoise"] == denoise]
+        c = [r for r in rows if r["renderer"] == "cycles" and r["denoise"] == denoise]
+        lo = max(min(r["psnr"] for r in o), min(r["psnr"] for r in c))
+        hi = min(max(r["psnr"] for r in o), max(r["psnr"] for r in c))
+        eq = []
+        for level in np.arange(np.ceil(lo), np.floor(hi) + 1e-9, 1.0):
+            to, tc = time_at_psnr(o, level), time_at_psnr(c, level)
+            if to and tc:
+                eq.append({"psnr": float(level), "ours_cpu_s": to, "cycles_cpu_s": tc,
+                           "ratio": to / tc})
+        times = [t for t in (0.25, 0.5, 1, 2, 4, 8, 16, 32, 64)
+                 if psnr_at_time(o, t) is not None and psnr_at_time(c, t) is not None]
+        et = [{"cpu_s": t, "ours_psnr": psnr_at_time(o, t), "cycles_psnr": psnr_at_time(c, t)}
+              for t in times]
+        summary[tag] = {"equal_psnr": eq, "equal_time": et}
+        say(f"time at equal PSNR, {tag} (ours / Cycles, CPU s; target <= 0.5x):")
+        for e in eq:
+            say(f"  {e['psnr']:5.1f} dB: {e['ours_cpu_s']:7.2f} / {e['cycles_cpu_s']:7.2f} "
+                f"= {e['ratio']:.2f}x")
+        if eq:
+            gm = float(np.exp(np.mean([np.log(e["ratio"]) for e in eq])))
+            summary[tag]["ratio_geomean"] = gm
+            say(f"  geometric mean {gm:.2f}x over {eq[0]['psnr']:.0f}-{eq[-1]['psnr']:.0f} dB")
+        else:
+            say("  the two curves share no PSNR range")
+        say(f"PSNR at equal time, {tag} (ours / Cycles, dB):")
+        for e in et:
+            say(f"  {e['cpu_s']:5.2f} CPU s: {e['ours_psnr']:6.2f} / {e['cycles_psnr']:6.2f} "
+                f"({e['ours_psnr'] - e['cycles_psnr']:+.2f} dB)")
+
+    if still is not None:
+        def near(name, denoise, seconds):
+            cand = [r for r in rows if r["renderer"] == name and r["denoise"] == denoise]
+            return min(cand, key=lambda r: abs(np.log(r["cpu_s"] / seconds)))
+
+        def caption(r):
+            return (f"{'ours' if r['renderer'] == 'ours' else 'Cycles'} {r['spp']} spp"
+                    f"{' + OIDN' if r['denoise'] else ''}\n{r['cpu_s']:.2f} CPU s, "
+                    f"{r['psnr']:.1f} dB")
+
+        panels = [[], []]
+        for denoise, cyc_spp in ((False, 16), (True, 16)):
+            c = [r for r in rows if r["renderer"] == "cycles" and r["denoise"] == denoise]
+            rc = min(c, key=lambda r: abs(r["spp"] - cyc_spp))
+            ro = near("ours", denoise, rc["cpu_s"])
+            for i, r in enumerate((ro, rc)):
+                panels[i].append((to_srgb8(images[(r["renderer"], r["spp"], denoise)], 0.0,
+                                           "aces"), caption(r)))
+        for i, name in enumerate(("ours", "cycles")):
+            panels[i].append((to_srgb8(images[(name, "ref")], 0.0, "aces"),
+                              (f"{'ours' if name == 'ours' else 'Cycles'} reference\n"
+                               f"{ref_spp} spp")))
+        side_by_side(still, panels)
+        say(f"wrote {still}")
+    if out:
+        write_result(out, {"title": "Rendering: against Blender Cycles, equal noise and time",
+                           "settings": {"size": size, "ref_spp": ref_spp, "repeats": repeats,
+                                        "ladder": list(ladder), "denoise_ladder": list(dn_ladder),
+                                        "bpy": bpy_version},
+                           "rows": rows, "summary": summary, "printed": printed})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -398,13 +806,24 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames"),
+    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles"),
                     default="all")
+    ap.add_argument("--blender-python", default=None, help="cycles: a Python with bpy "
+                    f"(default ${BPY_ENV})")
+    ap.add_argument("--c-size", type=int, default=256)
+    ap.add_argument("--c-ref-spp", type=int, default=4096)
+    ap.add_argument("--c-ladder", default="4,8,16,32,64,128,256")
+    ap.add_argument("--c-denoise-ladder", default="4,8,16,32,64")
+    ap.add_argument("--c-repeats", type=int, default=2)
+    ap.add_argument("--c-still", default="docs/images/cycles_side_by_side.png",
+                    help="cycles: the side-by-side still ('' for none)")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
                     "date, machine and command, e.g. bench/results/render.json")
     args = ap.parse_args()
+    if args.only == "cycles":  # refused before anything heavy when bpy is missing
+        exe, version = blender_python(args.blender_python)
     from hack_render.render.engine import ensure_variant
 
     variant = ensure_variant(args.variant)
@@ -424,6 +843,14 @@ def main() -> None:
     if args.only == "e2e":
         with recorded(args.out, "Rendering: end-to-end `hack-render render`"):
             e2e_benchmark(args.repeats)
+        return
+    if args.only == "cycles":
+        print(f"variant: {variant}")
+        cycles_benchmark(exe, version, args.c_size,
+                         [int(x) for x in args.c_ladder.split(",")],
+                         [int(x) for x in args.c_denoise_ladder.split(",") if x],
+                         args.c_ref_spp, args.c_repeats,
+                         Path(args.c_still) if args.c_still else None, args.out)
         return
     if args.only == "quality":
         with recorded(args.out, "Rendering: equal-quality time"):

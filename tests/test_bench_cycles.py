@@ -1,0 +1,103 @@
+"""bench_render.py's Cycles section: its arithmetic and refusals (fast, no Blender), and,
+where a Python with bpy is set ($HACK_RENDER_BPY_PYTHON, opt-in, slow), the same scene
+rendered by both renderers at equal brightness and framing."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(ROOT / "bench"))  # bench_render imports bench/provenance.py
+    try:
+        spec = importlib.util.spec_from_file_location("bench_render",
+                                                      ROOT / "bench" / "bench_render.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+
+
+def test_time_at_psnr_interpolates_log_time_on_the_first_rise(bench):
+    rows = [{"cpu_s": 1.0, "psnr": 30.0}, {"cpu_s": 4.0, "psnr": 34.0},
+            {"cpu_s": 2.0, "psnr": 29.0}, {"cpu_s": 8.0, "psnr": 36.0}]
+    # time order: (1, 30), (2, 29), (4, 34), (8, 36): 32 dB lies 3/5 of the way 2 -> 4 s
+    assert bench.time_at_psnr(rows, 32.0) == pytest.approx(2.0 * 2.0 ** 0.6)
+    assert bench.time_at_psnr(rows, 35.0) == pytest.approx(4.0 * 2.0 ** 0.5)
+    assert bench.time_at_psnr(rows, 30.0) is None  # the cheapest rung is already there
+    assert bench.time_at_psnr(rows, 37.0) is None  # no rung reaches it
+    assert bench.psnr_at_time(rows, 2.0 ** 2.5) == pytest.approx(35.0)
+    assert bench.psnr_at_time(rows, 0.5) is None
+
+
+def test_part_materials_carry_the_renderer_numbers(bench):
+    from hack_render.render import materials
+
+    fixed = materials.fixed_bsdfs()
+    teeth = bench._cycles_material(fixed["teeth"])
+    assert teeth["kind"] == "principled" and teeth["roughness"] == pytest.approx(0.15 ** 0.5)
+    assert teeth["ior"] == 1.5 and teeth["base"] == [0.78, 0.72, 0.60]
+    lashes = bench._cycles_material(fixed["eyelashes"])
+    assert lashes["opacity"] == materials.EYELASH_OPACITY
+    assert bench._cycles_material(fixed["bust_cap"])["kind"] == "diffuse"
+    iris = bench._cycles_material(materials.iris_bsdf())
+    f0 = ((iris["ior"] - 1) / (iris["ior"] + 1)) ** 2
+    assert f0 == pytest.approx(0.08 * 0.3) and iris["vertex_color"] == "vertex_color"
+
+
+def test_missing_blender_python_exits_2_with_the_fix(bench, monkeypatch, capsys, tmp_path):
+    monkeypatch.delenv(bench.BPY_ENV, raising=False)
+    with pytest.raises(SystemExit) as err:
+        bench.blender_python(None)
+    assert err.value.code == 2
+    assert "pip install 'bpy" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as err:
+        bench.blender_python(str(tmp_path / "no-python"))
+    assert err.value.code == 2 and "missing" in capsys.readouterr().err
+
+
+BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not BPY or not Path(BPY).is_file(),
+                    reason="set HACK_RENDER_BPY_PYTHON to a Python with bpy")
+def test_cycles_renders_the_same_scene(bench, tmp_path):
+    """At 64 px and 64 spp both see the head in the same pixels with the same brightness
+    (lights, camera and materials carried over; the materials differ in detail)."""
+    import warnings
+
+    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    warnings.simplefilter("ignore")
+    model, _, v = posed_model(None, None, None, None, None, None, LimitPolicy("warn"), None)
+    maps = skin_maps([0.8, -0.6, 0.4])
+    head = HeadScene(Topology.from_model(model), v, lights.preset("studio"),
+                     cameras.preset("portrait", 64, 64)[0], RenderSettings(64, 64, 64), maps)
+    ours = head.render(seed=1, backdrop=False)
+    exe, _ = bench.blender_python(BPY)
+    bench.write_cycles_scene(tmp_path, head, v, maps)
+    worker = bench.CyclesWorker(exe, tmp_path, tmp_path / "cycles.log")
+    try:
+        reply, theirs = worker.render(64, 1, False, tmp_path / "c.exr")
+    finally:
+        worker.close()
+    assert reply["spp"] == 64 and reply["cpu_s"] > 0
+    cover_o, cover_c = ours[..., 3] > 0.5, theirs[..., 3] > 0.5
+    assert (cover_o == cover_c).mean() > 0.98  # same framing
+    mean_o, mean_c = ours[..., :3].mean((0, 1)), theirs[..., :3].mean((0, 1))
+    assert np.all(np.abs(mean_c / mean_o - 1) < 0.1), (mean_o, mean_c)
