@@ -152,6 +152,46 @@ def test_07_dual_lobe_is_the_mixture_of_its_single_lobes():
         skin(lobe_mix=1.5)
 
 
+def test_08_lobe_weights_split_the_bsdf_exactly():
+    """HeadScene.render(sss=True) renders the skin's diffuse and specular lobes apart with
+    the lobe weights (1, 0) and (0, 1): the two evaluate to the whole BSDF, each lobe's
+    sampling matches its evaluation, and a lobe weighted 0 is never sampled."""
+    b = skin(0.8, 1.0, 0.4)
+    wi = mi.Vector3f(float(np.sin(0.7)), 0.0, float(np.cos(0.7)))
+    s = sampler(11)
+    wo = mi.warp.square_to_uniform_hemisphere(s.next_2d())
+    ctx = mi.BSDFContext()
+
+    def weights(d, sp):
+        w = (mi.Float(d), mi.Float(sp))
+        dr.make_opaque(*w)
+        b.lobe_weights = w
+
+    def ev():
+        v, p = b.eval_pdf(ctx, interaction(wi), wo)
+        return np.asarray(v.x), np.asarray(p)
+
+    whole, _ = ev()
+    weights(1.0, 0.0)
+    diffuse, pdf_d = ev()
+    _, w_d = b.sample(ctx, interaction(wi), s.next_1d(), s.next_2d())
+    bs_d, _ = b.sample(ctx, interaction(wi), s.next_1d(), s.next_2d())
+    weights(0.0, 1.0)
+    specular, pdf_s = ev()
+    bs_s, w_s = b.sample(ctx, interaction(wi), s.next_1d(), s.next_2d())
+    weights(1.0, 1.0)
+    np.testing.assert_allclose(diffuse + specular, whole, rtol=1e-5, atol=1e-7)
+    assert diffuse.min() > 0 and specular.max() > 0
+    # each lobe's sampling estimates its own albedo (uniform hemisphere estimate)
+    assert abs(float(dr.mean(w_d.x)[0]) - diffuse.mean() * 2 * np.pi) < 0.01
+    assert abs(float(dr.mean(w_s.x)[0]) - specular.mean() * 2 * np.pi) < 0.01
+    for pdf in (pdf_d, pdf_s):
+        assert abs(pdf.mean() * 2 * np.pi - 1.0) < 0.02
+    # the lobe weighted 0 is never the sampled component
+    assert np.all(np.asarray(bs_d.sampled_component) == 0)
+    assert np.all(np.asarray(bs_s.sampled_component) == 1)
+
+
 def uv_sphere(n_lat=24, n_lon=48, r=0.5):
     """A closed UV sphere with per-vertex texture coordinates (seam duplicated)."""
     lat = np.linspace(0, np.pi, n_lat + 1)

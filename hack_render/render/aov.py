@@ -67,16 +67,15 @@ def emitter_pixels(head) -> np.ndarray:
     return np.asarray(hit, dtype=bool).reshape(h, w)
 
 
-def denoise_features(head, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """The denoiser's auxiliary images: albedo and world-space shading normal, each
-    (H, W, 3) float32, averaged over k x k stratified primary rays per pixel (the pixel's
-    footprint, so edges are antialiased like the render's), looking through the lights;
-    0 where nothing is hit. One kernel."""
+def _footprint_hits(head, k: int):
+    """k x k stratified primary rays per pixel (the pixel's footprint, so edges are
+    antialiased like the render's), looking through the lights: (pixel index of each ray,
+    the ray, its hit, valid)."""
     import drjit as dr
     import mitsuba as mi
 
     if not 1 <= k <= 16:
-        raise HackError(f"denoise features: expected 1 <= k <= 16 rays per side, found {k}.")
+        raise HackError(f"footprint features: expected 1 <= k <= 16 rays per side, found {k}.")
     cam = head.camera
     w, h, kk = cam.width, cam.height, k * k
     j = dr.arange(mi.UInt32, w * h * kk)
@@ -86,18 +85,85 @@ def denoise_features(head, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
     sensor = head.scene.sensors()[0]
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
     si = camera_hit(head, ray, coherent=True)
-    valid = si.is_valid()
+    return pix, ray, si, si.is_valid()
+
+
+def _pixel_means(head, k: int, pix, channels) -> list[np.ndarray]:
+    """Sum each JIT value over its pixel's k x k rays, divided by k^2: (H, W) arrays."""
+    import drjit as dr
+    import mitsuba as mi
+
+    w, h = head.camera.width, head.camera.height
+    acc = [dr.zeros(mi.Float, w * h) for _ in channels]
+    for a, value in zip(acc, channels, strict=True):
+        dr.scatter_reduce(dr.ReduceOp.Add, a, value, pix)
+    dr.eval(acc)
+    return [np.asarray(a, np.float32).reshape(h, w) / np.float32(k * k) for a in acc]
+
+
+def denoise_features(head, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The denoiser's auxiliary images: albedo and world-space shading normal, each
+    (H, W, 3) float32, averaged over k x k stratified primary rays per pixel
+    (:func:`_footprint_hits`); 0 where nothing is hit. One kernel."""
+    import drjit as dr
+
+    pix, ray, si, valid = _footprint_hits(head, k)
     albedo = dr.select(valid, si.bsdf(ray).eval_diffuse_reflectance(si, valid), 0.0)
     normal = dr.select(valid, si.sh_frame.n, 0.0)
-    out = []
-    for value in (albedo, normal):
-        acc = [dr.zeros(mi.Float, w * h) for _ in range(3)]
-        for c in range(3):
-            dr.scatter_reduce(dr.ReduceOp.Add, acc[c], value[c], pix)
-        out.append(acc)
-    dr.eval(out)
-    return tuple(np.stack([np.asarray(a, np.float32) for a in acc], -1).reshape(h, w, 3) / kk
-                 for acc in out)
+    m = _pixel_means(head, k, pix, [albedo[c] for c in range(3)] + [normal[c] for c in range(3)])
+    return np.stack(m[:3], -1), np.stack(m[3:], -1)
+
+
+#: How many see-through cards :func:`sss_features` follows a ray through.
+CARD_LAYERS = 6
+
+
+def sss_features(head, skin_bsdf, see_through=(), k: int = 4) -> dict[str, np.ndarray]:
+    """What :func:`hack_render.render.sss.scatter` needs, over each pixel's k x k rays:
+    ``albedo`` (H, W, 3) of every hit, ``skin_albedo`` (H, W, 3) of the hits on
+    ``skin_bsdf`` only (0 elsewhere), ``skin`` (H, W) the fraction of the pixel's light
+    that comes from it, and ``depth`` (H, W) the mean distance from the camera to those
+    hits, metres (0 where none). ``see_through``: (bsdf, opacity) pairs of cards the
+    renderer sees through (the eyelashes): a ray that meets one counts it with weight
+    ``opacity`` and what lies behind it with the rest. One kernel."""
+    import drjit as dr
+    import mitsuba as mi
+
+    def bsdf_id(b):
+        return dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b))
+
+    pix, ray, si, valid = _footprint_hits(head, k)
+    skin_id = bsdf_id(skin_bsdf)
+    cards = [(bsdf_id(card), float(opacity)) for card, opacity in see_through]
+    # cards overlap (the lashes are several layers deep): follow a ray through up to
+    # CARD_LAYERS of them; what lies behind more is dropped (0.5^6 of the light)
+    hits, hit, ok, trans = [], si, valid, mi.Float(1.0)
+    for _ in range(CARD_LAYERS if cards else 1):
+        ids = dr.reinterpret_array(mi.UInt32, hit.bsdf(ray))
+        on_card, opacity = mi.Bool(False), mi.Float(1.0)
+        for cid, op in cards:
+            this = ok & (ids == cid)
+            on_card |= this
+            opacity = dr.select(this, op, opacity)
+        hits.append((hit, ok, trans * opacity))
+        trans = trans * (1.0 - opacity)
+        nxt = camera_hit(head, hit.spawn_ray(ray.d), on_card, coherent=True)
+        hit, ok = nxt, on_card & nxt.is_valid()
+    albedo, skin_albedo = mi.Color3f(0.0), mi.Color3f(0.0)
+    skin, dist = mi.Float(0.0), mi.Float(0.0)
+    for hit, ok, w in hits:
+        b = hit.bsdf(ray)
+        on = ok & (dr.reinterpret_array(mi.UInt32, b) == skin_id)
+        a = dr.select(ok, b.eval_diffuse_reflectance(hit, ok), 0.0) * w
+        albedo += a
+        skin_albedo += dr.select(on, a, 0.0)
+        skin += dr.select(on, w, 0.0)
+        dist += dr.select(on, w * dr.norm(hit.p - ray.o), 0.0)
+    m = _pixel_means(head, k, pix, [albedo[c] for c in range(3)]
+                     + [skin_albedo[c] for c in range(3)] + [skin, dist])
+    depth = np.where(m[6] > 0, m[7] / np.maximum(m[6], 1e-12), 0.0).astype(np.float32)
+    return {"albedo": np.stack(m[:3], -1), "skin_albedo": np.stack(m[3:6], -1),
+            "skin": m[6], "depth": depth}
 
 
 def gbuffer(head) -> dict[str, np.ndarray]:

@@ -11,6 +11,7 @@ the kernels it compiled for the first frame.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -189,6 +190,9 @@ class HeadScene:
         jit = is_jit(self.variant)
 
         skin = mi.load_dict(materials.skin_bsdf(maps, jit))
+        # the hack_skin plugin (JIT variants): render(sss=True) weights its lobes
+        self._skin_bsdf = skin if hasattr(skin, "lobe_weights") else None
+        self._see_through: list[tuple[object, float]] = []
         fixed = materials.fixed_bsdfs()
         normals = vertex_normals(v, topology.faces)
         # hide_emitters: camera rays pass through the area lights' rectangles and do not
@@ -209,6 +213,8 @@ class HeadScene:
                 bsdf = mi.load_dict(materials.iris_bsdf())
             else:
                 bsdf = mi.load_dict(fixed[part.name])
+            if part.name == "eyelashes":  # see-through cards (render(sss=True) looks past)
+                self._see_through.append((bsdf, materials.EYELASH_OPACITY))
             mesh = self._mesh(part, v, normals, bsdf)
             if part.name == "iris":
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
@@ -378,7 +384,7 @@ class HeadScene:
 
     # --- rendering -------------------------------------------------------------------
     def render(self, seed: int | None = None, progress: bool = False,
-               backdrop=True, denoise: bool = False) -> np.ndarray:
+               backdrop=True, denoise: bool = False, sss: bool = False) -> np.ndarray:
         """Render the image: (H, W, 4) float32 linear Rec.709 RGB + alpha (coverage).
 
         Samples are split into equal passes of at most ``SAMPLES_PER_PASS`` samples with
@@ -391,25 +397,69 @@ class HeadScene:
         compositing); or an (H, W, 3) linear image composited behind the subject.
         ``denoise``: run Intel Open Image Denoise on the subject before compositing
         (:meth:`denoise`; raises ``denoise.DenoiserUnavailable`` without pyoidn).
+        ``sss``: subsurface scattering in the skin (:mod:`hack_render.render.sss`: the
+        skin's diffuse and specular light rendered apart, so twice the render time, then
+        the diffuse light diffused by the skin profile); JIT variants only (the scalar
+        variant's stand-in skin material renders without it, with a warning).
         """
+        release_parked()
+        base = self.settings.seed if seed is None else int(seed)
+        if sss and self._skin_bsdf is None:
+            warnings.warn("sss: subsurface scattering needs the hack_skin material of a JIT "
+                          "variant (llvm_ad_rgb or cuda_ad_rgb); rendering without it.",
+                          stacklevel=2)
+            sss = False
+        img = self._render_sss(base, progress) if sss else self._render_passes(base, progress)
+        if denoise:
+            img = self.denoise(img)
+        return composite(img, self._backdrop_of(backdrop))
+
+    def _render_passes(self, base: int, progress: bool, desc: str = "render passes"):
+        """The premultiplied film averaged over the settings' passes (see :meth:`render`)."""
         import mitsuba as mi
 
-        release_parked()
         n, _ = self.settings.passes
-        base = self.settings.seed if seed is None else int(seed)
         acc = None
         steps = range(n)
         if progress and n > 1:
             from tqdm import tqdm
 
-            steps = tqdm(steps, desc="render passes", unit="pass")
+            steps = tqdm(steps, desc=desc, unit="pass")
         for i in steps:
             img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31)))
             acc = img if acc is None else acc + img
-        img = (acc / n).astype(np.float32)
-        if denoise:
-            img = self.denoise(img)
-        return composite(img, self._backdrop_of(backdrop))
+        return (acc / n).astype(np.float32)
+
+    def set_lobe_weights(self, diffuse: float, specular: float) -> None:
+        """Weight the skin material's diffuse and specular lobes (1, 1: the material as
+        it is; a lobe weighted 0 is neither evaluated nor sampled). No recompilation."""
+        import drjit as dr
+        import mitsuba as mi
+
+        if self._skin_bsdf is None:
+            raise HackError("lobe weights: this scene's skin is not the hack_skin material "
+                            "(a JIT variant's); found the scalar variant's stand-in.")
+        w = (mi.Float(float(diffuse)), mi.Float(float(specular)))
+        dr.make_opaque(*w)
+        self._skin_bsdf.lobe_weights = w
+
+    def _render_sss(self, base: int, progress: bool) -> np.ndarray:
+        """Render with subsurface scattering in the skin (:mod:`hack_render.render.sss`)."""
+        from hack_render.render import sss
+        from hack_render.render.aov import sss_features
+
+        try:
+            self.set_lobe_weights(1.0, 0.0)
+            diffuse = self._render_passes(base, progress, "render passes (skin diffuse)")
+            self.set_lobe_weights(0.0, 1.0)
+            rest = self._render_passes(base, progress, "render passes (specular, rest)")
+        finally:
+            self.set_lobe_weights(1.0, 1.0)
+        f = sss_features(self, self._skin_bsdf, self._see_through)
+        out = diffuse.copy()
+        out[..., :3] = sss.combine(diffuse[..., :3], rest[..., :3], f,
+                                   float(self.camera.K[0, 0]))
+        return out
 
     def denoise(self, image: np.ndarray, fallback: bool = False, k: int = 4) -> np.ndarray:
         """A premultiplied render (H, W, 4) of this scene's current state (camera, mesh),

@@ -85,6 +85,10 @@ def _make_class():
             if not (0.0 <= self.mix <= 1.0 and min(self.lobe_r) > 0.0):
                 raise ValueError(f"hack_skin: expected 0 <= lobe_mix <= 1 and positive lobe "
                                  f"roughness multipliers, found {self.mix}, {self.lobe_r}.")
+            # lobe weights (diffuse, specular): 1, 1 but for HeadScene.render(sss=True),
+            # which renders the two apart; opaque, so changing them compiles nothing
+            self.lobe_weights = (mi.Float(1.0), mi.Float(1.0))
+            dr.make_opaque(*self.lobe_weights)
             sv = mi.BSDFFlags.SpatiallyVarying | mi.BSDFFlags.FrontSide
             diffuse = mi.BSDFFlags.DiffuseReflection | sv
             glossy = mi.BSDFFlags.GlossyReflection | sv
@@ -132,6 +136,16 @@ def _make_class():
             p = ws / dr.maximum(ws + wd, 1e-8)
             return dr.select(ws > 0.0, dr.clip(p, 0.15, 0.9), 0.0)
 
+        def _pick_prob(self, si, s, cos_i, has_d, has_s, active):
+            """Probability of sampling the specular lobe, given the enabled components
+            and the lobe weights (a lobe weighted 0 is never sampled)."""
+            if not has_s:
+                return mi.Float(0.0)
+            kd, ks = self.lobe_weights
+            p_s = dr.select(ks > 0.0, self._lobe_prob(si, s, cos_i, active), 0.0)
+            only_s = dr.select(p_s > 0.0, 1.0, 0.0)
+            return only_s if not has_d else dr.select(kd > 0.0, p_s, only_s)
+
         def _local(self, si, frame, wo):
             """(wi, wo) in the perturbed frame, and whether both lie above both surfaces."""
             wi_p = frame.to_local(si.to_world(si.wi))
@@ -151,10 +165,11 @@ def _make_class():
             has_s = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1)
 
             value = mi.Color3f(0.0)
+            kd, ks = self.lobe_weights
             if has_d:
                 rho = self.albedo.eval(si, active)
                 att = (1.0 - s * schlick(self.f0, cos_i)) * (1.0 - s * schlick(self.f0, cos_o))
-                value += rho * (att * cos_o * dr.inv_pi)
+                value += rho * (kd * att * cos_o * dr.inv_pi)
             h = dr.normalize(wi + wo_p)
             jac = 1.0 / dr.maximum(4.0 * dr.dot(wo_p, h), 1e-8)
             pdf_s, dg = mi.Float(0.0), mi.Float(0.0)
@@ -164,12 +179,8 @@ def _make_class():
                     dg += w * distr.eval(h) * distr.G(wi, wo_p, h)
             if has_s:
                 spec = s * schlick(self.f0, dr.dot(wi, h)) * dg / dr.maximum(4.0 * cos_i, 1e-8)
-                value += mi.Color3f(spec)
-            p_s = self._lobe_prob(si, s, cos_i, active)
-            if not has_d:
-                p_s = dr.select(p_s > 0.0, 1.0, 0.0)
-            if not has_s:
-                p_s = 0.0
+                value += mi.Color3f(ks * spec)
+            p_s = self._pick_prob(si, s, cos_i, has_d, has_s, active)
             pdf = p_s * pdf_s + (1.0 - p_s) * mi.warp.square_to_cosine_hemisphere_pdf(wo_p)
             return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
 
@@ -189,11 +200,7 @@ def _make_class():
             s, alphas = self._params(si, active)
             has_d = ctx.is_enabled(mi.BSDFFlags.DiffuseReflection, 0)
             has_s = ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 1)
-            p_s = self._lobe_prob(si, s, mi.Frame3f.cos_theta(wi), active)
-            if not has_d:
-                p_s = dr.select(p_s > 0.0, 1.0, 0.0)
-            if not has_s:
-                p_s = mi.Float(0.0)
+            p_s = self._pick_prob(si, s, mi.Frame3f.cos_theta(wi), has_d, has_s, active)
             pick_s = sample1 < p_s
             # which specular lobe: sample1 reused, rescaled within [0, p_s)
             u = sample1 / dr.maximum(p_s, 1e-8)
