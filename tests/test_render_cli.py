@@ -165,3 +165,24 @@ def test_20_alpha_drives_the_appearance_model(tmp_path):
     diff = np.abs(exrs[0]["albedo.R"][skin] - exrs[1]["albedo.R"][skin]).mean()
     assert diff > 0.01, diff
     assert run(["render", "-o", str(tmp_path / "c.png"), *FAST, "--alpha", ",".join(["0.1"] * 500)]) == 2
+
+
+def test_21_sss_is_on_by_default_and_says_so(tmp_path, capsys):
+    """`render` scatters light in the skin unless --no-sss; the EXR header records which,
+    the line printed per view says so, and the two images differ only a little (the
+    light is moved, not made)."""
+    import OpenEXR
+
+    out = {}
+    for flag in ([], ["--no-sss"]):
+        exr = tmp_path / f"head{len(flag)}.exr"
+        assert run(["render", "-o", str(exr), "--resolution", "48", "--spp", "4",
+                    "--denoise", "off", *flag]) == 0
+        hdr = OpenEXR.File(str(exr)).header()
+        out[bool(flag)] = (str(hdr["hack_sss"]), read_exr(exr))
+        line = [x for x in capsys.readouterr().out.splitlines() if "spp (" in x][0]
+        assert ("sss" in line) != bool(flag)
+    assert out[False][0] == "yes" and out[True][0] == "no"
+    a, b = (np.stack([out[k][1][c] for c in "RGB"], -1) for k in (False, True))
+    assert not np.array_equal(a, b)
+    assert abs(a.sum() / b.sum() - 1.0) < 0.03

@@ -28,6 +28,7 @@ DEFAULTS: dict[str, Any] = {
         "sampler": "multijitter",  # Mitsuba sampler (render/scene.py SAMPLERS)
         "denoise": "off",         # OIDN (extra 'denoise'): off, auto (noisy if missing), on
         "keep_noisy": False,      # with denoise: also write rgb_noisy.exr
+        "sss": False,             # subsurface scattering in the skin (2x render time)
     },
     "identity": {
         "components": 20,         # beta ~ N(0, I) in the first k shape components
@@ -189,8 +190,9 @@ def check_config(cfg: dict) -> dict:
         _fail("render.sampler", f"one of {', '.join(SAMPLERS)}", cfg["render"]["sampler"])
     if cfg["render"]["denoise"] not in ("off", "auto", "on"):
         _fail("render.denoise", "off, auto or on", cfg["render"]["denoise"])
-    if not isinstance(cfg["render"]["keep_noisy"], bool):
-        _fail("render.keep_noisy", "true or false", cfg["render"]["keep_noisy"])
+    for key in ("keep_noisy", "sss"):
+        if not isinstance(cfg["render"][key], bool):
+            _fail(f"render.{key}", "true or false", cfg["render"][key])
     _number(cfg, "camera", "views", 1, 1024, integer=True)
     _range(cfg, "camera", "yaw_deg", -360.0, 360.0)
     _range(cfg, "camera", "pitch_deg", -89.0, 89.0)

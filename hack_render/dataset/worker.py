@@ -235,7 +235,7 @@ class SampleRenderer:
                                  larynx)
         writes += [put(_write_json, vdir / "landmarks.json", lm),
                    put(_write_json, vdir / "camera.json", cam.to_dict())]
-        bare = head.render(seed=spec["render_seed"] + v, backdrop=False)
+        bare = head.render(seed=spec["render_seed"] + v, backdrop=False, sss=r["sss"])
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
         gain = np.float32(2.0 ** spec["lighting"]["exposure"])

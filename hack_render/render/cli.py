@@ -27,6 +27,9 @@ SamplerOpt = typer.Option("multijitter", "--sampler", help="Mitsuba sampler: mul
 DenoiseOpt = typer.Option("auto", "--denoise", help="Intel Open Image Denoise with albedo "
                           "and normal AOVs: auto (if the 'denoise' extra is installed, else "
                           "the noisy image with a warning), on (refuse without it), off.")
+SssOpt = typer.Option(True, "--sss/--no-sss", help="Subsurface scattering in the skin "
+                      "(the skin profile diffuses its light in screen space; twice the "
+                      "render time; JIT variants): see docs/render.md.")
 KeepNoisyOpt = typer.Option(False, "--keep-noisy", help="Also keep the image before "
                             "denoising (render: <name>.noisy.<ext>; turntable: noisy/).")
 
@@ -166,6 +169,7 @@ def render(
     sampler: str = SamplerOpt,
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
+    sss: bool = SssOpt,
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
@@ -222,7 +226,7 @@ def render(
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
         _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
-                      use_denoise, keep_noisy)
+                      use_denoise, keep_noisy, sss)
     cam_json = output.with_name(f"{output.stem}.cameras.json")
     cams.save_cameras(cam_json, views_)
     for target in outputs + [cam_json]:
@@ -230,7 +234,8 @@ def render(
 
 
 def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
-                  use_denoise: bool = False, keep_noisy: bool = False) -> None:
+                  use_denoise: bool = False, keep_noisy: bool = False,
+                  sss: bool = False) -> None:
     """Render each camera of ``views_`` to ``output`` (and ``exr``), appending the paths
     written to ``outputs``; denoised when ``use_denoise`` (the noisy image kept as
     ``<name>.noisy.<ext>`` with ``keep_noisy``)."""
@@ -241,7 +246,7 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
     for cam in views_:
         head.set_camera(cam)
         t0 = time.perf_counter()
-        bare = head.render(progress=not quiet, backdrop=False)
+        bare = head.render(progress=not quiet, backdrop=False, sss=sss)
         images = {"": head.composite(bare)}
         if use_denoise:
             images = {"": head.composite(head.denoise(bare)),
@@ -258,13 +263,14 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                     meta = {"hack_camera": json.dumps(cam.to_dict()),
                             "hack_regions": ",".join(head.region_names),
                             "hack_variant": head.variant,
-                            "hack_denoised": "yes" if use_denoise and not tag else "no"}
+                            "hack_denoised": "yes" if use_denoise and not tag else "no",
+                            "hack_sss": "yes" if sss else "no"}
                     write_exr(target, exr_channels(image, aovs, aov_names), meta)
                 outputs.append(target)
         st = head.settings
+        extras = (", denoised" if use_denoise else "") + (", sss" if sss else "")
         typer.echo(f"{cam.name}: {st.width}x{st.height}, {st.effective_spp} spp "
-                   f"({st.sampler}{', denoised' if use_denoise else ''}), {dt:.1f} s "
-                   f"({head.variant})")
+                   f"({st.sampler}{extras}), {dt:.1f} s ({head.variant})")
 
 
 def turntable(
@@ -311,6 +317,7 @@ def turntable(
     sampler: str = SamplerOpt,
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
+    sss: bool = SssOpt,
 ) -> None:
     """Render a seamless looping turntable of the head to MP4 (H.264) / GIF / PNG frames.
 
@@ -377,7 +384,7 @@ def turntable(
         "env_rotation": env_rotation, "exposure": exposure, "focal_mm": focal_mm,
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
         "variant": variant, "limits": limits, "frames": frames, "mode": mode,
-        "sampler": sampler, "denoise": use_denoise,
+        "sampler": sampler, "denoise": use_denoise, "sss": sss,
         "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 
@@ -422,7 +429,7 @@ def turntable(
         if todo:
             typer.echo(f"turntable: {len(todo)} of {frames} frames to render, {w}x{h}, "
                        f"{settings.effective_spp} spp ({sampler}"
-                       f"{', denoised' if use_denoise else ''})")
+                       f"{', denoised' if use_denoise else ''}{', sss' if sss else ''})")
             if settings.spp_note():
                 typer.echo(settings.spp_note(), err=True)
             head = HeadScene(topo, vertices_at(0), rig, camera_at(0), settings,
@@ -445,7 +452,7 @@ def turntable(
                     head.sync_environment()
                 if i not in pending:
                     continue
-                bare = head.render(seed=seed + i, backdrop=False)
+                bare = head.render(seed=seed + i, backdrop=False, sss=sss)
                 img = head.composite(head.denoise(bare) if use_denoise else bare)
                 if use_denoise and keep_noisy:
                     noisy = tt.frame_path(output, i, "noisy")

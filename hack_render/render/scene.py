@@ -414,11 +414,15 @@ class HeadScene:
             img = self.denoise(img)
         return composite(img, self._backdrop_of(backdrop))
 
-    def _render_passes(self, base: int, progress: bool, desc: str = "render passes"):
-        """The premultiplied film averaged over the settings' passes (see :meth:`render`)."""
+    def _render_passes(self, base: int, progress: bool, desc: str = "render passes",
+                       spp: int | None = None):
+        """The premultiplied film averaged over the settings' passes (see :meth:`render`);
+        ``spp``: samples per pixel of each pass instead of the settings' (rounded as the
+        sampler takes them)."""
         import mitsuba as mi
 
         n, _ = self.settings.passes
+        kw = {} if spp is None else {"spp": sampler_spp(self.settings.sampler, max(1, int(spp)))}
         acc = None
         steps = range(n)
         if progress and n > 1:
@@ -426,7 +430,7 @@ class HeadScene:
 
             steps = tqdm(steps, desc=desc, unit="pass")
         for i in steps:
-            img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31)))
+            img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31), **kw))
             acc = img if acc is None else acc + img
         return (acc / n).astype(np.float32)
 
