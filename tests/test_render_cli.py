@@ -180,7 +180,7 @@ def test_21_sss_is_on_by_default_and_says_so(tmp_path, capsys):
                     "--denoise", "off", *flag]) == 0
         hdr = OpenEXR.File(str(exr)).header()
         out[bool(flag)] = (str(hdr["hack_sss"]), read_exr(exr))
-        line = [x for x in capsys.readouterr().out.splitlines() if "spp (" in x][0]
+        line = next(x for x in capsys.readouterr().out.splitlines() if "spp (" in x)
         assert ("sss" in line) != bool(flag)
     assert out[False][0] == "yes" and out[True][0] == "no"
     a, b = (np.stack([out[k][1][c] for c in "RGB"], -1) for k in (False, True))
