@@ -170,6 +170,81 @@ def test_label_atlas_places_regions_where_the_template_has_them():
     assert len(labels) >= 5 and labels.count("neck_skin") >= 0.9 * len(labels)
 
 
+@pytest.fixture(scope="module")
+def label_texels():
+    """The label atlas with its template layout: (atlas, layout, template mesh)."""
+    from appearance.uv import _template, rasterize_layout
+
+    return lab.skin_label_atlas(), rasterize_layout(lab.ATLAS_HEIGHT), _template()
+
+
+def test_ears_are_the_pinna_on_both_atlas_tiles(label_texels):
+    """The pinna's outer side lies on the face tile (it was `cheeks`, so face skin), and the
+    appearance `ears` box covered the head skin behind the ear (issue 28)."""
+    atlas, lay, mesh = label_texels
+    v = mesh.vertices
+    # EAR_VERTICES: one run of vertices beside the head per side, ids next to it elsewhere
+    for (first, last), side in zip(lab.EAR_VERTICES, (1, -1)):
+        assert (side * v[first:last + 1, 0] > 6.0).all()
+    assert abs(v[lab.EAR_VERTICES[0][0] - 1, 0]) < 6 and abs(v[lab.EAR_VERTICES[1][1] + 1, 0]) < 6
+    ears = atlas == lab.LABEL_ID["ears"]
+    x, y, z = (lay.position[..., k] for k in range(3))
+    face, back = lay.mask & (lay.tile == 0), lay.mask & (lay.tile == 1)
+    tri = mesh.faces[np.where(lay.mask, lay.face, 0)]
+    patch = np.zeros(lay.mask.shape, bool)
+    for first, last in lab.EAR_VERTICES:
+        patch |= ((tri >= first) & (tri <= last)).all(-1)
+    # outer side: every face-tile texel of an ear patch more than 8 cm from the midline
+    # (helix, antihelix, lobe; the head is at most 7.9 cm wide there) is `ears` (0 % before)
+    outer = face & patch & (np.abs(x) > 8.0)
+    assert outer.sum() > 500 and ears[outer].all()
+    # cranial side: the back tile beyond 8.1 cm at ear height is the back of the pinna
+    cranial = back & (np.abs(x) > 8.1) & (y > -3) & (y < 5)
+    assert cranial.sum() > 50 and ears[cranial].all()
+    # and nothing else: not the patches' cheek in front of the tragus, not the head skin
+    # behind the ear (facing outwards on the back tile: 1350 texels before), nor elsewhere
+    facing_out = lay.normal[..., 0] * np.sign(x) > 0.5
+    assert not ears[face & (z > 2.0)].any()
+    assert not ears[back & facing_out].any()
+    assert not ears[lay.mask & (np.abs(x) < 6.0)].any()
+
+
+def test_no_neck_label_on_the_face_above_the_jaw(label_texels):
+    """A `neck` spot sat on the jaw below each ear (issue 28): on the face tile, neck skin
+    is one region (the throat), all of it below the jaw contour's landmarks 4 and 12."""
+    from scipy import ndimage
+
+    from appearance.regions import LANDMARK_VERTICES
+
+    atlas, lay, mesh = label_texels
+    jaw_y = mesh.vertices[LANDMARK_VERTICES[[4, 12]], 1].max()
+    face = lay.mask & (lay.tile == 0)
+    neck = face & (atlas == lab.LABEL_ID["neck_skin"])
+    assert neck.sum() > 1000
+    assert not neck[lay.position[..., 1] > jaw_y].any()  # 216 texels before
+    assert ndimage.label(neck)[1] == 1  # 3 regions before
+
+
+def test_socket_texels_are_never_neck(label_texels):
+    """The back tile's socket rims (triangles with a socket vertex whose nearest corner is
+    a lip or lid vertex) were `neck` (issue 28): every texel of a triangle with a
+    socket vertex is gums/tongue (mouth socket) or eyes (eye sockets)."""
+    from appearance.regions import SOCKET_VERTICES
+    from hack_render.geometry import load_default_model
+
+    atlas, lay, mesh = label_texels
+    model = load_default_model()
+    groups, names = model.vertex_group.numpy(), model.group_names
+    tri = mesh.faces[np.where(lay.mask, lay.face, 0)]
+    corner = (tri >= SOCKET_VERTICES[0]) & (tri <= SOCKET_VERTICES[1])
+    socket = lay.mask & (lay.tile == 1) & corner.any(-1)
+    mouth = socket & (groups[np.where(corner, tri, 0)] == names.index("mouth_socket")).any(-1)
+    assert socket.sum() > 1000 and mouth.sum() > 500
+    # before: 206 rim texels of the three sockets were neck
+    assert (atlas[mouth] == lab.LABEL_ID["gums_tongue"]).all()
+    assert (atlas[socket & ~mouth] == lab.LABEL_ID["eyes"]).all()
+
+
 def test_larynx_peak_follows_tau_and_sits_at_c4_c5(monkeypatch):
     import torch
 

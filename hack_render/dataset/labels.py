@@ -5,9 +5,14 @@ reports a coarse region per hit (``render.parts.REGIONS``: skin of the face / ba
 tile, mouth, teeth, sclera, iris, lacrimal film, lashes) and the model UV of the hit. Skin
 hits are refined by looking their UV up in a label atlas built once from the appearance
 layer's geometric region labels (``appearance.regions.region_labels``): lips, brows,
-scalp, ears, neck; everything else on the skin (forehead, lids, nose, cheeks, chin, jaw)
-is face skin; the mouth and eye sockets (skin inside the lips and lids) count as
-gums/tongue and eyes. The labels are geometric approximations, not painted masks.
+scalp, neck; everything else on the skin (forehead, lids, nose, cheeks, chin, jaw) is
+face skin; the mouth and eye sockets (skin inside the lips and lids) count as
+gums/tongue and eyes. The atlas corrects three of those regions for the labels only
+(:func:`skin_label_atlas`; the appearance model's regions stay as they are): the ears are
+the pinnae themselves (:func:`pinna_texels`; the appearance ``ears`` box is the head skin
+behind the ear), the socket rims are socket, and the face tile's neck is the throat's
+region alone (no spot on the jaw). The labels are geometric approximations, not painted
+masks.
 
 Soft masks (``masks.exr``, one channel per label): the fraction of each pixel covered
 by each class, from k x k sub-pixel rays. A ray that hits the half-transparent lash cards
@@ -33,7 +38,7 @@ LABEL_DESCRIPTIONS = {
     "face_skin": "skin of the face: forehead, eyelids, nose, cheeks, philtrum, chin, jaw",
     "neck_skin": "skin below the jaw line: neck, nape, and the top of chest and shoulders",
     "scalp": "skin above the hairline (no hair geometry is rendered)",
-    "ears": "pinnae",
+    "ears": "pinnae, outer and cranial sides (tragus and lobe included)",
     "lips": "red of the lips, inside the outer lip contour",
     "eyebrows": "the brow region (skin; brow hair is not modelled)",
     "eyes": "sclera, lacrimal film, and the eye-socket skin inside the lids",
@@ -43,7 +48,8 @@ LABEL_DESCRIPTIONS = {
     "eyelashes": "eyelash cards (rendered 50 % opaque)",
     "bust_cap": "the matte grey cap closing the cut of the chest and shoulders (not anatomy)",
 }
-#: Appearance atlas region -> dataset label (sockets are split by vertex group).
+#: Appearance atlas region -> dataset label, before :func:`skin_label_atlas`'s corrections
+#: (the ``ears`` box is replaced by the pinna, the sockets are split by vertex group).
 _ATLAS_TO_LABEL = {"none": "face_skin", "forehead": "face_skin", "brows": "eyebrows",
                    "eyelids": "face_skin", "nose": "face_skin", "cheeks": "face_skin",
                    "lips": "lips", "upper_lip": "face_skin", "chin": "face_skin",
@@ -56,6 +62,15 @@ _RENDER_TO_LABEL = {"background": "background", "mouth": "gums_tongue", "teeth":
 SKIN_RENDER_REGIONS = ("face", "back_head")
 #: Atlas height of the label lookup (texel ~ 1 mm on the face).
 ATLAS_HEIGHT = 256
+#: ICT-FaceKit's ear patches, template vertex ids (inclusive): left ear (x > 0), right
+#: ear. Each is the run of face-group vertices at |x| > 6 cm (the neighbouring ids are
+#: elsewhere on the face): the pinna's outer side and about 1 cm of cheek in front of it.
+EAR_VERTICES = ((6706, 7432), (7433, 8167))
+#: The pinna's outline (:func:`pinna_texels`) is spanned by the patch vertices that stand
+#: out from the pre-auricular skin's surface by more than this (cm), and grown by
+#: :data:`PINNA_MARGIN` (cm).
+PINNA_STAND_OUT = 0.15
+PINNA_MARGIN = 0.1
 #: Neck-front window for the larynx peak: half height (m) around the C4-C5 level and
 #: half width (m) about the midline. ANATOMY.md: laryngeal prominence at C4-C5.
 LARYNX_WINDOW = (0.015, 0.012)
@@ -63,23 +78,143 @@ LARYNX_WINDOW = (0.015, 0.012)
 
 @lru_cache(maxsize=2)
 def skin_label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
-    """(H, 2H) uint8 dataset label per texel of the skin atlas, filled past the islands."""
+    """(H, 2H) uint8 dataset label per texel of the skin atlas, filled past the islands.
+
+    The appearance regions (:func:`appearance.regions.region_labels`) through
+    :data:`_ATLAS_TO_LABEL`, then three label-only corrections (the appearance regions, and
+    so the generator's statistics, are left as they are):
+
+    - ears: the pinna, :func:`pinna_texels` (the appearance ``ears`` box lies on the head
+      skin behind the ear; its texels take the back tile's own rule, scalp above the
+      hairline, else neck);
+    - sockets: every back-tile texel of a triangle with a socket vertex (the rims of the
+      mouth and eye sockets, whose nearest vertex is a lip or lid vertex, were ``neck``),
+      split into gums/tongue and eyes by that socket vertex's group;
+    - neck: on the face tile only the throat's region below the jaw line is neck; smaller
+      islands of the appearance rule (a spot on the jaw below each ear, where the
+      surface dips under the rule's width limit) are face skin.
+    """
+    from scipy import ndimage
+
+    from appearance.regions import (
+        LANDMARK_VERTICES,
+        SOCKET_VERTICES,
+        hairline_y,
+        nape_y,
+        region_labels,
+    )
     from appearance.regions import REGIONS as ATLAS_REGIONS
-    from appearance.regions import region_labels
-    from appearance.uv import rasterize_layout
+    from appearance.uv import _template, rasterize_layout
     from hack_render.geometry import load_default_model
 
     lay = rasterize_layout(height)
+    mesh = _template()
     atlas = region_labels(lay)
     lut = np.array([LABEL_ID[_ATLAS_TO_LABEL[n]] for n in ATLAS_REGIONS], np.uint8)
     out = lut[atlas]
+    face = lay.mask & (lay.tile == 0)
+    back = lay.mask & (lay.tile == 1)
+    x, y, z = (lay.position[..., k] for k in range(3))
+    # ears: the appearance box (head skin behind the ear) -> the back tile's hairline rule
+    box = atlas == ATLAS_REGIONS.index("ears")
+    brow_y = float(mesh.vertices[LANDMARK_VERTICES[17:27], 1].max())
+    hair = y > np.minimum(hairline_y(x, z, brow_y), nape_y(z))
+    out[box] = np.where(hair, LABEL_ID["scalp"], LABEL_ID["neck_skin"])[box]
+    out[pinna_texels(lay)] = LABEL_ID["ears"]
+    # sockets: every back-tile triangle with a socket vertex, by that vertex's group
     model = load_default_model()
     groups = model.vertex_group.numpy()
-    sockets = (atlas == ATLAS_REGIONS.index("sockets")) & lay.mask
-    vert = np.clip(lay.vertex[sockets], 0, len(groups) - 1)
+    tri = mesh.faces[np.where(lay.mask, lay.face, 0)]
+    in_socket = (tri >= SOCKET_VERTICES[0]) & (tri <= SOCKET_VERTICES[1])
+    sockets = back & in_socket.any(-1)
+    vert = np.take_along_axis(tri, in_socket.argmax(-1)[..., None], -1)[..., 0][sockets]
     mouth = model.group_names.index("mouth_socket") if "mouth_socket" in model.group_names else -1
     out[sockets] = np.where(groups[vert] == mouth, LABEL_ID["gums_tongue"], LABEL_ID["eyes"])
+    # neck on the face tile: the largest connected region (the throat); islands -> face
+    neck = face & (out == LABEL_ID["neck_skin"])
+    parts, n = ndimage.label(neck)
+    if n > 1:
+        keep = 1 + int(np.argmax(ndimage.sum(neck, parts, np.arange(1, n + 1))))
+        out[neck & (parts != keep)] = LABEL_ID["face_skin"]
     return out.ravel()[lay.fill].reshape(out.shape)
+
+
+def pinna_texels(lay) -> np.ndarray:
+    """(H, 2H) bool: texels of the pinnae, both sides of each ear, on a :class:`UVLayout`.
+
+    Outer side (face tile): ICT-FaceKit's ear patches (:data:`EAR_VERTICES`, triangles with
+    at least two corners in one) inside the pinna's outline in side view. The patches
+    reach about 1 cm in front of the ear onto the cheek; the outline is the convex hull,
+    in the (z, y) plane, of the patch vertices that stand out by more than
+    :data:`PINNA_STAND_OUT` from the pre-auricular skin (a quadratic x(y, z) fitted to
+    the face-tile vertices just in front of the patch: helix, antihelix, tragus,
+    antitragus, lobe; the concha lies inside), grown by :data:`PINNA_MARGIN`.
+    Cranial side (back tile): the back-tile UV islands that touch an ear patch and lie
+    wholly beside the head (every vertex at |x| > 6 cm), where their surface faces the
+    head (the island's rim on the head itself, in the retro-auricular fold, is not pinna).
+    """
+    from scipy.spatial import ConvexHull
+
+    from appearance.uv import _template
+
+    mesh = _template()
+    v, f = mesh.vertices, mesh.faces
+    face_mat, back_mat = (mesh.materials.index(m) for m in ("M_Face", "M_BackHead"))
+    h, w = lay.mask.shape
+    pos = lay.position.reshape(-1, 3).astype(np.float64)
+    tri = f[np.where(lay.mask, lay.face, 0)].reshape(-1, 3)
+    tile = lay.tile.reshape(-1)
+    valid = lay.mask.reshape(-1)
+    out = np.zeros(h * w, bool)
+    face_verts = np.unique(f[mesh.face_material == face_mat])
+
+    def basis(p):
+        yy, zz = p[:, 1], p[:, 2]
+        return np.stack([np.ones_like(yy), yy, zz, yy * yy, zz * zz, yy * zz], -1)
+
+    in_any = np.zeros(len(v), bool)
+    for first, last in EAR_VERTICES:
+        patch = np.arange(first, last + 1)
+        in_any[patch] = True
+        side = float(np.sign(v[patch, 0].mean()))
+        lo, hi = v[patch].min(0), v[patch].max(0)
+        cheek = face_verts[((face_verts < first) | (face_verts > last))
+                           & (side * v[face_verts, 0] > 0)
+                           & (v[face_verts, 1] > lo[1]) & (v[face_verts, 1] < hi[1])
+                           & (v[face_verts, 2] > hi[2] - 1.5) & (v[face_verts, 2] < hi[2] + 1.0)]
+        coef = np.linalg.lstsq(basis(v[cheek]), side * v[cheek, 0], rcond=None)[0]
+        stand_out = side * v[patch, 0] - basis(v[patch]) @ coef > PINNA_STAND_OUT
+        hull = ConvexHull(v[patch[stand_out]][:, [2, 1]])
+        # the hull's facets n . p + c <= 0 inside (unit normals): grown by the margin
+        inside = (pos[:, [2, 1]] @ hull.equations[:, :2].T + hull.equations[:, 2]
+                  <= PINNA_MARGIN).all(-1)
+        corners = ((tri >= first) & (tri <= last)).sum(-1)
+        out |= valid & (tile == 0) & (corners >= 2) & inside & (side * pos[:, 0] > 0)
+    # cranial side: small back-tile islands beside the head that touch an ear patch
+    sel = np.flatnonzero(mesh.face_material == back_mat)
+    island = _uv_islands(mesh.uv_faces[sel], len(mesh.uvs))
+    ear_islands = [k for k in np.unique(island)
+                   if in_any[f[sel[island == k]]].any()
+                   and (np.abs(v[f[sel[island == k]], 0]) > 6.0).all()]
+    island_of = np.full(len(f), -1)
+    island_of[sel] = island
+    on_island = np.isin(island_of[np.where(lay.mask, lay.face, 0)].reshape(-1), ear_islands)
+    normal = lay.normal.reshape(-1, 3)
+    facing_head = normal[:, 0] * np.sign(pos[:, 0]) < 0.0
+    out |= valid & (tile == 1) & on_island & facing_head
+    return out.reshape(h, w)
+
+
+def _uv_islands(uv_faces: np.ndarray, num_uvs: int) -> np.ndarray:
+    """(F,) connected-component id of each triangle over shared UV corners."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    a = uv_faces.ravel()
+    b = np.roll(uv_faces, 1, axis=1).ravel()
+    graph = sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(num_uvs, num_uvs))
+    _, comp = connected_components(graph, directed=False)
+    return comp[uv_faces[:, 0]]
 
 
 def to_labels(region: np.ndarray, uv: np.ndarray, atlas: np.ndarray | None = None) -> np.ndarray:
