@@ -24,6 +24,11 @@
     ``volpath`` against the same sphere with ``hack_skin`` (albedo: the same model's
     two-layer Kubelka-Munk albedo) under the studio rig: CPU seconds at equal spp.
 
+(e2) Screen-space subsurface scattering (``--only sss``, after (e)): what final renders
+    use (``HeadScene.render(sss=True)``): CPU seconds against the plain render at equal
+    spp, with and without OIDN; PSNR of each against its own 1,024-spp reference; how
+    well its two passes add up per pixel class; ``docs/images/sss_side_by_side.png``.
+
 (f) Turntable frame cost before and after (``--only frames``): CPU seconds per frame
     (process time, after the first) of the README's turntable settings (256 px, --spp 32,
     studio, look-around + swallow) with the previous renderer (independent sampler,
@@ -290,18 +295,19 @@ def e2e_benchmark(repeats: int = 3) -> None:
     import sys
 
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = ["hack-render", "render", "-o", f"{tmp}/a.png", "--resolution", "256",
-               "--spp", "16", "--denoise", "off"]
-        subprocess.run(cmd, check=True, capture_output=True)  # warm the disk caches
-        cpu = []
-        for _ in range(repeats):
-            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            subprocess.run(cmd, check=True, capture_output=True)
-            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
-        print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, --denoise off: median "
-              f"{statistics.median(cpu):.2f} CPU s (user + system) of {repeats} runs")
-        print("  one in-process run by phase:")
+        base = ["hack-render", "render", "-o", f"{tmp}/a.png", "--resolution", "256",
+                "--spp", "16", "--denoise", "off"]
+        subprocess.run(base, check=True, capture_output=True)  # warm the disk caches
+        for extra in ([], ["--no-sss"]):  # the default (subsurface scattering) and without
+            cmd, cpu = base + extra, []
+            for _ in range(repeats):
+                r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                subprocess.run(cmd, check=True, capture_output=True)
+                r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
+            print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, {' '.join(cmd[8:])}: median "
+                  f"{statistics.median(cpu):.2f} CPU s (user + system) of {repeats} runs")
+        print("  one in-process run by phase (plain render):")
         out = subprocess.run([sys.executable, "-c", E2E_PHASES, f"{tmp}/b.png"], check=True,
                              capture_output=True, text=True, env=dict(os.environ))
         print(out.stdout.rstrip())
@@ -358,6 +364,86 @@ def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
         write_png(f"/tmp/sss_{name.split()[0]}.png", img[..., :3])
     (a, _), (b, _) = results.values()
     print(f"(e) {size}^2 {spp} spp: volumetric SSS / hack_skin = {b / a:.0f}x the CPU time")
+
+
+def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
+                         still: str | None = "docs/images/sss_side_by_side.png") -> None:
+    """(e2) The screen-space subsurface scattering of final renders (``render(sss=True)``,
+    hack_render/render/sss.py) on the default head, three-quarter view, window light:
+    CPU seconds against the plain render at the same spp (denoiser off and on); each
+    image's PSNR against its own high-spp reference; how well the two passes add up
+    (unscattered: against a one-pass render of equal spp sum, per pixel class); a
+    side-by-side still at 768 px."""
+    from hack_render.geometry import load_default_model
+    from hack_render.render import sss
+    from hack_render.render.aov import sss_features
+    from hack_render.render.image_io import to_srgb8
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    model = load_default_model()
+    with torch.no_grad():
+        v = model().vertices[0].double().numpy()
+    topo, maps = Topology.from_model(model), skin_maps([0.8, -0.6, 0.4])
+
+    def scene(res, n):
+        cam = cameras.preset("three_quarter", res, res, 85.0)[0]
+        return HeadScene(topo, v, lights.preset("window"), cam, RenderSettings(res, res, n),
+                         maps)
+
+    head = scene(size, spp)
+    refs = {}
+    for flag in (False, True):
+        head.settings = RenderSettings(size, size, ref_spp)
+        refs[flag] = head.render(seed=99, backdrop=False, sss=flag)
+        head.settings = RenderSettings(size, size, spp)
+    mask = refs[False][..., 3] > 0.5
+
+    def psnr(img, ref):
+        err = float(((img[..., :3] - ref[..., :3]) ** 2)[mask].mean())
+        return 10.0 * np.log10(1.0 / err)
+
+    print(f"(e2) screen-space SSS, {size}^2 three-quarter, window light, {spp} spp "
+          f"(multijitter; each image against its own {ref_spp}-spp reference):")
+    for flag in (False, True):
+        head.render(seed=0, backdrop=False, sss=flag)  # compile
+        for den in (False, True):
+            cpu, img = [], None
+            for rep in range(3):
+                t0 = time.process_time()
+                img = head.render(seed=1 + rep, backdrop=False, sss=flag, denoise=den)
+                cpu.append(time.process_time() - t0)
+            print(f"  {'sss' if flag else 'plain':5s} {'+ OIDN' if den else '      '} "
+                  f"{statistics.median(cpu):5.2f} CPU s (median of 3)  "
+                  f"PSNR {psnr(img, refs[flag]):5.2f} dB")
+    # the passes add up: skin diffuse + specular, unscattered, against one pass
+    one = head.render(seed=5, backdrop=False)
+    head.set_lobe_weights(1.0, 0.0)
+    d = head.render(seed=5, backdrop=False)
+    head.set_lobe_weights(0.0, 1.0)
+    s = head.render(seed=5, backdrop=False)
+    head.set_lobe_weights(1.0, 1.0)
+    f = sss_features(head, head._skin_bsdf, head._see_through)
+    rgb = sss.combine(d[..., :3], s[..., :3], f, float(head.camera.K[0, 0]), scale=0.0)
+    m, cover = f["skin"], one[..., 3] > 0.99
+    for name, sel in (("skin", m > 0.99), ("other materials", (m < 0.01) & cover),
+                      ("mixed (lashes over skin)", (m >= 0.01) & (m <= 0.99) & cover)):
+        ratio = rgb[sel].sum() / one[..., :3][sel].sum()
+        print(f"  passes unscattered / one pass, {name:25s} {ratio:.4f} ({int(sel.sum())} px)")
+    print(f"  profile mean radius (mm, R G B): "
+          f"{np.round(sss.SKIN.mean_radius_mm(), 3).tolist()} ({sss.SKIN.source})")
+    if still:
+        import imageio.v3 as iio
+
+        big = scene(768, 64)
+        a = big.render(seed=3, denoise=True)
+        b = big.render(seed=3, denoise=True, sss=True)
+        crop = (slice(150, 630), slice(170, 650))
+        iio.imwrite(still, np.concatenate([to_srgb8(a[crop][..., :3], 0.0, "aces"),
+                                           to_srgb8(b[crop][..., :3], 0.0, "aces")], 1))
+        print(f"  wrote {still} (left: plain, right: sss; 768 px, 64 spp + OIDN, cropped)")
 
 
 def frame_cost_benchmark(size: int = 256, spp: int = 32, frames: int = 6) -> None:
@@ -836,9 +922,11 @@ def main() -> None:
             frame_cost_benchmark()
         return
     if args.only == "sss":
-        with recorded(args.out, "Rendering: volumetric subsurface scattering cost"):
+        with recorded(args.out, "Rendering: subsurface scattering, volumetric and "
+                      "screen-space"):
             print(f"variant: {variant}")
             sss_benchmark()
+            sss_screen_benchmark()
         return
     if args.only == "e2e":
         with recorded(args.out, "Rendering: end-to-end `hack-render render`"):
