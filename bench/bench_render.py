@@ -45,7 +45,9 @@
     high-spp reference (PSNR on linear RGB with peak 1, SSIM on the tone-mapped sRGB
     image), CPU seconds of the render call (process time, all threads), the two renderers
     interleaved rung by rung; time at equal PSNR is interpolated on each renderer's
-    PSNR-log(time) curve. Writes ``bench/results/render_cycles.json`` and
+    PSNR-log(time) curve: both noisy, both denoised, each at its best (noisy or denoised)
+    and, as a diagnostic, ours with a box pixel filter + OIDN (against a box-filter
+    reference of its own). Writes ``bench/results/render_cycles.json`` (``--out``) and
     ``docs/images/cycles_side_by_side.png``.
 
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
@@ -704,6 +706,52 @@ def side_by_side(path: Path, panels: list[list[tuple[np.ndarray, str]]]) -> None
     tmp.replace(path)
 
 
+def compare_curves(o: list[dict], c: list[dict], say) -> dict:
+    """Time at equal PSNR (every whole dB both ladders span) and PSNR at equal time (half
+    octaves of CPU seconds both span) of two ladders, ``o`` ours and ``c`` Cycles'."""
+    lo = max(min(r["psnr"] for r in o), min(r["psnr"] for r in c))
+    hi = min(max(r["psnr"] for r in o), max(r["psnr"] for r in c))
+    eq = []
+    for level in np.arange(np.ceil(lo), np.floor(hi) + 1e-9, 1.0):
+        to, tc = time_at_psnr(o, level), time_at_psnr(c, level)
+        if to and tc:
+            eq.append({"psnr": float(level), "ours_cpu_s": to, "cycles_cpu_s": tc,
+                       "ratio": to / tc})
+    et = []
+    for t in 2.0 ** (np.arange(-6, 13) / 2.0):
+        po, pc = psnr_at_time(o, t), psnr_at_time(c, t)
+        if po is not None and pc is not None:
+            et.append({"cpu_s": float(t), "ours_psnr": po, "cycles_psnr": pc})
+    out: dict = {"equal_psnr": eq, "equal_time": et}
+    say("  time at equal PSNR (ours / Cycles, CPU s; target <= 0.5x):")
+    for e in eq:
+        say(f"    {e['psnr']:5.1f} dB: {e['ours_cpu_s']:6.2f} / {e['cycles_cpu_s']:6.2f} "
+            f"= {e['ratio']:.2f}x")
+    if eq:
+        out["ratio_geomean"] = float(np.exp(np.mean([np.log(e["ratio"]) for e in eq])))
+        out["ratio_range"] = [min(e["ratio"] for e in eq), max(e["ratio"] for e in eq)]
+        say(f"    geometric mean {out['ratio_geomean']:.2f}x (range {out['ratio_range'][0]:.2f}"
+            f"-{out['ratio_range'][1]:.2f}x) over {eq[0]['psnr']:.0f}-{eq[-1]['psnr']:.0f} dB")
+    else:
+        say("    the two ladders share no PSNR range")
+    say("  PSNR at equal time (ours / Cycles, dB):")
+    for e in et:
+        say(f"    {e['cpu_s']:6.2f} CPU s: {e['ours_psnr']:6.2f} / {e['cycles_psnr']:6.2f} "
+            f"({e['ours_psnr'] - e['cycles_psnr']:+.2f} dB)")
+    return out
+
+
+def lower_envelope(*ladders: list[dict]) -> list[dict]:
+    """The rungs of several ladders that no cheaper rung beats in PSNR (each renderer's
+    best setting at every time: noisy or denoised, whichever wins there)."""
+    out, best = [], -np.inf
+    for r in sorted((r for lad in ladders for r in lad), key=lambda r: r["cpu_s"]):
+        if r["psnr"] > best:
+            out.append(r)
+            best = r["psnr"]
+    return out
+
+
 def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
                      ref_spp: int, repeats: int, still: Path | None,
                      out: str | None) -> None:
@@ -736,9 +784,13 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
     maps = skin_maps([0.8, -0.6, 0.4])
     rig = lights.preset("studio")
     cam = cameras.preset("portrait", size, size)[0]
+    # "ours_box": a diagnostic, our renderer with a box pixel filter (each sample in one
+    # pixel, as Cycles' filter importance sampling), denoised, against its own reference
+    filters = {"ours": "gaussian", "ours_box": "box"}
 
-    def ours(spp: int) -> HeadScene:
-        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp), maps)
+    def ours(spp: int, name: str = "ours") -> HeadScene:
+        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp,
+                                                           pixel_filter=filters[name]), maps)
 
     say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8; "
         f"{os.cpu_count()} CPUs; Cycles {bpy_version} (CPU) in {bpy_python}")
@@ -756,16 +808,16 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
             f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
         try:
             refs = {}
-            for name in ("ours", "cycles"):
+            for name in ("ours", "cycles", "ours_box"):
                 c0 = time.process_time()
-                if name == "ours":
-                    h = ours(ref_spp)
+                if name == "cycles":
+                    rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
+                    cpu, spp = rep["cpu_s"], rep["spp"]
+                else:
+                    h = ours(ref_spp, name)
                     img = h.render(seed=12345, backdrop=False)
                     cpu, spp = time.process_time() - c0, h.settings.effective_spp
                     del h
-                else:
-                    rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
-                    cpu, spp = rep["cpu_s"], rep["spp"]
                 refs[name] = composite(img, bg)[..., :3]
                 images[(name, "ref")] = refs[name]
                 say(f"reference {name}: {spp} spp, {cpu:.0f} CPU s; mean linear RGB "
@@ -782,26 +834,28 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
             say("renderer  denoise   spp   CPU s  wall s   PSNR dB   SSIM")
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
                 for spp in spps:  # interleaved: our rung, then Cycles' rung
-                    h = ours(spp)
-                    # Dr.Jit compiles the first render of a scene, and once more the first
-                    # with another seed (the seed becomes opaque): both before timing
-                    for seed in (1000, 1001):
-                        h.render(seed=seed, backdrop=False, denoise=denoise)
-                    for name in ("ours", "cycles"):
+                    for name in ("ours", "cycles") + (("ours_box",) if denoise else ()):
+                        if name != "cycles":
+                            h = ours(spp, name)
+                            # Dr.Jit compiles the first render of a scene, and once more
+                            # the first with another seed (the seed becomes opaque): both
+                            # before timing
+                            for seed in (1000, 1001):
+                                h.render(seed=seed, backdrop=False, denoise=denoise)
                         cpu, wall, res = [], [], []
                         for r in range(repeats):
-                            if name == "ours":
-                                c0, w0 = time.process_time(), time.perf_counter()
-                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
-                                cpu.append(time.process_time() - c0)
-                                wall.append(time.perf_counter() - w0)
-                                eff = h.settings.effective_spp
-                            else:
+                            if name == "cycles":
                                 rep, img = worker.render(spp, 1 + r, denoise,
                                                          tmp / "img.exr")
                                 cpu.append(rep["cpu_s"])
                                 wall.append(rep["wall_s"])
                                 eff = rep["spp"]
+                            else:
+                                c0, w0 = time.process_time(), time.perf_counter()
+                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
+                                cpu.append(time.process_time() - c0)
+                                wall.append(time.perf_counter() - w0)
+                                eff = h.settings.effective_spp
                             res.append(score(name, img))
                         images[(name, eff, denoise)] = composite(img, bg)[..., :3]
                         row = {"renderer": name, "denoise": denoise, "spp": eff,
@@ -813,47 +867,32 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                         say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
                             f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "
                             f"{row['ssim']:7.4f}")
-                    del h
+                        h = None
         finally:
             worker.close()
 
+    def ladder_of(name: str, denoise: bool) -> list[dict]:
+        return [r for r in rows if r["renderer"] == name and r["denoise"] == denoise]
+
     summary = {}
-    for denoise in (False, True):
-        tag = "OIDN" if denoise else "noisy"
-        o = [r for r in rows if r["renderer"] == "ours" and r["denoise"] == denoise]
-        c = [r for r in rows if r["renderer"] == "cycles" and r["denoise"] == denoise]
-        lo = max(min(r["psnr"] for r in o), min(r["psnr"] for r in c))
-        hi = min(max(r["psnr"] for r in o), max(r["psnr"] for r in c))
-        eq = []
-        for level in np.arange(np.ceil(lo), np.floor(hi) + 1e-9, 1.0):
-            to, tc = time_at_psnr(o, level), time_at_psnr(c, level)
-            if to and tc:
-                eq.append({"psnr": float(level), "ours_cpu_s": to, "cycles_cpu_s": tc,
-                           "ratio": to / tc})
-        times = [t for t in (0.25, 0.5, 1, 2, 4, 8, 16, 32, 64)
-                 if psnr_at_time(o, t) is not None and psnr_at_time(c, t) is not None]
-        et = [{"cpu_s": t, "ours_psnr": psnr_at_time(o, t), "cycles_psnr": psnr_at_time(c, t)}
-              for t in times]
-        summary[tag] = {"equal_psnr": eq, "equal_time": et}
-        say(f"time at equal PSNR, {tag} (ours / Cycles, CPU s; target <= 0.5x):")
-        for e in eq:
-            say(f"  {e['psnr']:5.1f} dB: {e['ours_cpu_s']:7.2f} / {e['cycles_cpu_s']:7.2f} "
-                f"= {e['ratio']:.2f}x")
-        if eq:
-            gm = float(np.exp(np.mean([np.log(e["ratio"]) for e in eq])))
-            summary[tag]["ratio_geomean"] = gm
-            say(f"  geometric mean {gm:.2f}x over {eq[0]['psnr']:.0f}-{eq[-1]['psnr']:.0f} dB")
-        else:
-            say("  the two curves share no PSNR range")
-        say(f"PSNR at equal time, {tag} (ours / Cycles, dB):")
-        for e in et:
-            say(f"  {e['cpu_s']:5.2f} CPU s: {e['ours_psnr']:6.2f} / {e['cycles_psnr']:6.2f} "
-                f"({e['ours_psnr'] - e['cycles_psnr']:+.2f} dB)")
+    for tag, o, c, what in (
+            ("noisy", ladder_of("ours", False), ladder_of("cycles", False),
+             "both noisy"),
+            ("oidn", ladder_of("ours", True), ladder_of("cycles", True),
+             "both denoised by OIDN"),
+            ("best", lower_envelope(ladder_of("ours", False), ladder_of("ours", True)),
+             lower_envelope(ladder_of("cycles", False), ladder_of("cycles", True)),
+             "each at its best, noisy or denoised, at each time"),
+            ("oidn_box_diagnostic", ladder_of("ours_box", True), ladder_of("cycles", True),
+             ("diagnostic: ours with a box pixel filter + OIDN (against its box-filter "
+              "reference) against Cycles + OIDN"))):
+        say(f"{tag}: {what}")
+        summary[tag] = compare_curves(o, c, say)
 
     if still is not None:
         def near(name, denoise, seconds):
-            cand = [r for r in rows if r["renderer"] == name and r["denoise"] == denoise]
-            return min(cand, key=lambda r: abs(np.log(r["cpu_s"] / seconds)))
+            return min(ladder_of(name, denoise),
+                       key=lambda r: abs(np.log(r["cpu_s"] / seconds)))
 
         def caption(r):
             return (f"{'ours' if r['renderer'] == 'ours' else 'Cycles'} {r['spp']} spp"
@@ -862,8 +901,7 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
 
         panels = [[], []]
         for denoise, cyc_spp in ((False, 16), (True, 16)):
-            c = [r for r in rows if r["renderer"] == "cycles" and r["denoise"] == denoise]
-            rc = min(c, key=lambda r: abs(r["spp"] - cyc_spp))
+            rc = min(ladder_of("cycles", denoise), key=lambda r: abs(r["spp"] - cyc_spp))
             ro = near("ours", denoise, rc["cpu_s"])
             for i, r in enumerate((ro, rc)):
                 panels[i].append((to_srgb8(images[(r["renderer"], r["spp"], denoise)], 0.0,

@@ -40,6 +40,14 @@ def test_time_at_psnr_interpolates_log_time_on_the_first_rise(bench):
     assert bench.psnr_at_time(rows, 0.5) is None
 
 
+def test_lower_envelope_keeps_the_rungs_no_cheaper_one_beats(bench):
+    noisy = [{"cpu_s": 1.0, "psnr": 30.0}, {"cpu_s": 3.0, "psnr": 36.0}]
+    denoised = [{"cpu_s": 1.5, "psnr": 34.0}, {"cpu_s": 2.5, "psnr": 35.0}]
+    best = bench.lower_envelope(noisy, denoised)
+    assert [r["cpu_s"] for r in best] == [1.0, 1.5, 2.5, 3.0]
+    assert bench.lower_envelope(noisy, [{"cpu_s": 2.0, "psnr": 29.0}]) == noisy
+
+
 def test_part_materials_carry_the_renderer_numbers(bench):
     from hack_render.render import materials
 
