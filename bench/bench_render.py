@@ -300,16 +300,21 @@ def e2e_benchmark(repeats: int = 3) -> None:
         base = ["hack-render", "render", "-o", f"{tmp}/a.png", "--resolution", "256",
                 "--spp", "16", "--denoise", "off"]
         subprocess.run(base, check=True, capture_output=True)  # warm the disk caches
-        for extra in ([], ["--no-sss"]):  # the default (subsurface scattering) and without
+        # the default (subsurface scattering) and without; the posed mesh from the disk
+        # cache (render/posed_cache.py, warm after the first call) and computed anew
+        for extra, cache in (([], True), (["--no-sss"], True), ([], False),
+                             (["--no-sss"], False)):
             cmd, cpu = base + extra, []
+            env = dict(os.environ, **({} if cache else {"HACK_RENDER_NO_CACHE": "1"}))
             for _ in range(repeats):
                 r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                subprocess.run(cmd, check=True, capture_output=True)
+                subprocess.run(cmd, check=True, capture_output=True, env=env)
                 r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
-            print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, {' '.join(cmd[8:])}: median "
-                  f"{statistics.median(cpu):.2f} CPU s (user + system) of {repeats} runs")
-        print("  one in-process run by phase (plain render):")
+            print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, {' '.join(cmd[8:])}, posed mesh "
+                  f"{'cached' if cache else 'computed'}: median {statistics.median(cpu):.2f} "
+                  f"CPU s (user + system) of {repeats} runs")
+        print("  one in-process run by phase (plain render, mesh computed):")
         out = subprocess.run([sys.executable, "-c", E2E_PHASES, f"{tmp}/b.png"], check=True,
                              capture_output=True, text=True, env=dict(os.environ))
         print(out.stdout.rstrip())

@@ -1,11 +1,20 @@
 """Shared test options: slow and GPU checks are opt-in, never deleted."""
 
+import os
+import tempfile
+
 import pytest
 
 
 def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", help="also run tests marked slow")
     parser.addoption("--rungpu", action="store_true", help="also run tests marked gpu")
+
+
+def pytest_configure(config):
+    # the package's disk caches (posed meshes, sRGB thresholds) go to a folder of this
+    # session, so that tests neither read nor fill the user's ~/.cache
+    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="hack-render-test-cache-")
 
 
 def pytest_collection_modifyitems(config, items):

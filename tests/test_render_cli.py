@@ -186,3 +186,50 @@ def test_21_sss_is_on_by_default_and_says_so(tmp_path, capsys):
     a, b = (np.stack([out[k][1][c] for c in "RGB"], -1) for k in (False, True))
     assert not np.array_equal(a, b)
     assert abs(a.sum() / b.sum() - 1.0) < 0.03
+
+
+def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, capsys):
+    """`render` keeps each posed mesh in $XDG_CACHE_HOME/hack-render/posed: the second
+    render of a pose reads it (same bytes out, its limit warning printed again, no torch
+    import in a fresh process); another pose, an edited parameter file or a damaged
+    cache file are computed anew; HACK_RENDER_NO_CACHE=1 leaves no file."""
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    folder = tmp_path / "cache" / "hack-render" / "posed"
+    pose = ["--head-rotation", "0,95,0", "--limits", "warn"]  # beyond the axial limit
+    outs = []
+    for i in range(2):
+        outs.append(tmp_path / f"a{i}.png")
+        assert run(["render", "-o", str(outs[-1]), *FAST, "--no-sss", *pose]) == 0
+        assert "outside the anatomical limits" in capsys.readouterr().err
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    assert len(list(folder.glob("*.npz"))) == 1
+    # a parameter file: edited, it is a new pose
+    pf = tmp_path / "p.json"
+    pf.write_text('{"head_rotation_deg": [0, 10, 0]}')
+    assert run(["render", "-o", str(tmp_path / "b.png"), *FAST, "--params", str(pf)]) == 0
+    pf.write_text('{"head_rotation_deg": [0, 20, 0]}  ')
+    assert run(["render", "-o", str(tmp_path / "c.png"), *FAST, "--params", str(pf)]) == 0
+    assert len(list(folder.glob("*.npz"))) == 3
+    # damaged: ignored, recomputed and rewritten
+    for f in folder.glob("*.npz"):
+        f.write_bytes(b"not an npz")
+    assert run(["render", "-o", str(tmp_path / "d.png"), *FAST, "--no-sss", *pose]) == 0
+    assert (tmp_path / "d.png").read_bytes() == outs[0].read_bytes()
+    # a fresh process hitting the cache never imports torch
+    code = ("import sys\nfrom hack_render.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code\n"
+            "print('torch' in sys.modules)")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    # (--denoise off: pyoidn imports torch itself)
+    res = subprocess.run([sys.executable, "-c", code, "render", "-o", str(tmp_path / "e.png"),
+                          *FAST, "--no-sss", "--denoise", "off", *pose], capture_output=True,
+                         text=True, env=env, check=True)
+    assert res.stdout.strip().splitlines()[-1] == "False"
+    assert "outside the anatomical limits" in res.stderr
+    monkeypatch.setenv("HACK_RENDER_NO_CACHE", "1")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "other"))
+    assert run(["render", "-o", str(tmp_path / "f.png"), *FAST, "--no-sss"]) == 0
+    assert not (tmp_path / "other").exists()

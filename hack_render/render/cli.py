@@ -210,8 +210,14 @@ def render(
     except ValueError as err:
         raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
 
-    _, _, topo, verts = _model_vertices(params, beta, expression, head_rotation, eta, tau,
-                                        policy, model_path)
+    from hack_render.render import posed_cache
+
+    # a repeated pose comes from the disk cache: no torch import, no model evaluation
+    topo, verts = posed_cache.posed(
+        {"params_file": params, "beta": beta, "expression": expression,
+         "head_rotation": head_rotation, "eta": eta, "tau": tau, "limits": limits},
+        model_path, lambda: _model_vertices(params, beta, expression, head_rotation, eta,
+                                            tau, policy, model_path)[2:])
     from hack_render.render.scene import HeadScene
     from hack_render.render.skin_maps import skin_maps
 
