@@ -474,10 +474,13 @@ def frame_cost_benchmark(size: int = 256, spp: int = 32, frames: int = 6) -> Non
                          tau=torch.tensor([tt.swallow_tau(i / 36)])).vertices[0].numpy()
 
     lobes = (skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS)
-    for name, sampler, single, cap, denoise in (
-            ("before: independent 32 spp, one lobe, no cap", "independent", True, False, False),
-            ("after: multijitter 35 spp, dual lobe, cap", "multijitter", False, True, False),
-            ("after, + OIDN", "multijitter", False, True, True)):
+    for name, sampler, single, cap, denoise, sss in (
+            ("before: independent 32 spp, one lobe, no cap", "independent", True, False, False,
+             False),
+            ("after: multijitter 35 spp, dual lobe, cap", "multijitter", False, True, False,
+             False),
+            ("after, + OIDN", "multijitter", False, True, True, False),
+            ("after, + OIDN + SSS (the default now)", "multijitter", False, True, True, True)):
         skin_bsdf.LOBE_MIX, skin_bsdf.LOBE_ROUGHNESS = (1.0, (1.0, 1.0)) if single else lobes
         head = HeadScene(topo, verts(0), lights.preset("studio"),
                          cameras.orbit(size, size, 85.0, 0.0, 5.0),
@@ -488,7 +491,7 @@ def frame_cost_benchmark(size: int = 256, spp: int = 32, frames: int = 6) -> Non
             t0 = time.process_time()
             head.set_vertices(verts(i), update=False)
             head.set_camera(cameras.orbit(size, size, 85.0, 10.0 * i, 5.0))
-            head.render(seed=i, denoise=denoise)
+            head.render(seed=i, denoise=denoise, sss=sss)
             cpu.append(time.process_time() - t0)
         print(f"(f) {name:48s} {statistics.mean(cpu[1:]):.2f} CPU s per frame "
               f"(mean of frames 2..{frames})")
