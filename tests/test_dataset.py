@@ -761,3 +761,26 @@ def test_defaults_are_valid():
     assert load_config() == load_config(overrides={})
     assert set(DEFAULTS) == {"render", "identity", "expression", "neck", "larynx",
                              "appearance", "lighting", "background", "camera"}
+
+
+def test_render_sss_option(tmp_path):
+    """render.sss: subsurface scattering in the skin of the RGB images (off by default);
+    the labels do not change with it, and a non-boolean value is a clear error."""
+    import imageio.v3 as iio
+
+    from hack_render.render.image_io import read_exr
+
+    assert load_config()["render"]["sss"] is False
+    outs = {}
+    for flag in (False, True):
+        cfg = load_config(overrides=dict(TINY, render=dict(TINY["render"], sss=flag)))
+        out = tmp_path / f"sss{int(flag)}"
+        assert run(Job(out, 1, 5, cfg), progress=False)["rendered"] == 1
+        outs[flag] = out / "samples" / "0000000" / "view_00"
+    a, b = (read_exr(outs[k] / "rgb.exr") for k in (False, True))
+    assert not np.array_equal(a["R"], b["R"])
+    np.testing.assert_allclose(b["R"].sum(), a["R"].sum(), rtol=0.05)
+    assert np.array_equal(iio.imread(outs[False] / "segmentation.png"),
+                          iio.imread(outs[True] / "segmentation.png"))
+    with pytest.raises(HackError, match="render.sss"):
+        load_config(overrides={"render": {"sss": "yes"}})
