@@ -208,17 +208,23 @@ def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
     maps = skin_maps([0.8, -0.6, 0.4])
     cam = cameras.orbit(size, size, 85.0, 20.0, 5.0)
 
-    def scene(spp, sampler):
+    def scene(spp, sampler, pixel_filter="gaussian"):
         return HeadScene(topo, v, lights.preset("studio"), cam,
-                         RenderSettings(size, size, spp, sampler=sampler), maps)
+                         RenderSettings(size, size, spp, sampler=sampler,
+                                        pixel_filter=pixel_filter), maps)
 
-    t0 = time.process_time()
-    ref = scene(ref_spp, "multijitter").render(seed=12345)[..., :3]
-    print(f"  reference: {size}^2, {ref_spp} spp multijitter, {time.process_time() - t0:.0f} "
-          "CPU s")
-    ref8 = to_srgb8(ref, 0.0, "aces")
+    # each pixel filter against its own reference (the box filter's image is a little
+    # sharper, so it is never scored against the Gaussian's)
+    refs = {}
+    for pf in ("gaussian", "box"):
+        t0 = time.process_time()
+        ref = scene(ref_spp, "multijitter", pf).render(seed=12345)[..., :3]
+        refs[pf] = (ref, to_srgb8(ref, 0.0, "aces"))
+        print(f"  reference: {size}^2, {ref_spp} spp multijitter, {pf} pixel filter, "
+              f"{time.process_time() - t0:.0f} CPU s")
 
-    def score(img):
+    def score(img, pf):
+        ref, ref8 = refs[pf]
         mse = float(np.mean((img[..., :3] - ref) ** 2))
         psnr = 10 * np.log10(float(ref.max()) ** 2 / mse)
         ssim = structural_similarity(to_srgb8(img[..., :3], 0.0, "aces"), ref8,
@@ -226,20 +232,23 @@ def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
         return psnr, float(ssim)
 
     rows = {}
-    for sampler, spps, denoise in (("independent", (16, 32, 64, 128, 256, 512), False),
-                                   ("multijitter", (16, 32, 64, 128, 256), False),
-                                   ("multijitter", (4, 8, 16, 32), True)):
+    for sampler, spps, denoise, pf in (
+            ("independent", (16, 32, 64, 128, 256, 512), False, "gaussian"),
+            ("multijitter", (16, 32, 64, 128, 256), False, "gaussian"),
+            ("multijitter", (4, 8, 16, 32), True, "gaussian"),
+            ("multijitter", (4, 8, 16, 32), True, "box")):
         for spp in spps:
-            head = scene(spp, sampler)
+            head = scene(spp, sampler, pf)
             head.render(seed=0, denoise=denoise)  # compile
             cpu, res = [], []
             for r in range(repeats):
                 t0 = time.process_time()
                 img = head.render(seed=1 + r, denoise=denoise)
                 cpu.append(time.process_time() - t0)
-                res.append(score(img))
+                res.append(score(img, pf))
             psnr, ssim = np.mean(res, axis=0)
-            name = f"{sampler} {head.settings.effective_spp} spp" + (" + OIDN" if denoise else "")
+            name = (f"{sampler} {head.settings.effective_spp} spp" + (" + OIDN" if denoise else "")
+                    + (" (box filter)" if pf == "box" else ""))
             rows[name] = (statistics.median(cpu), psnr, ssim, sampler, denoise,
                           head.settings.effective_spp)
             print(f"  {name:32s} {rows[name][0]:6.2f} CPU s  PSNR {psnr:5.2f} dB  "

@@ -183,6 +183,14 @@ def test_21_sss_is_on_by_default_and_says_so(tmp_path, capsys):
         line = next(x for x in capsys.readouterr().out.splitlines() if "spp (" in x)
         assert ("sss" in line) != bool(flag)
     assert out[False][0] == "yes" and out[True][0] == "no"
+    # denoised images come from a box-filtered render (OIDN keeps the noise a Gaussian
+    # filter correlates between pixels); undenoised ones keep the Gaussian
+    assert str(OpenEXR.File(str(tmp_path / "head0.exr")).header()["hack_pixel_filter"]) == \
+        "gaussian"
+    exr = tmp_path / "denoised.exr"
+    assert run(["render", "-o", str(exr), "--resolution", "48", "--spp", "4",
+                "--denoise", "on", "--no-sss"]) == 0
+    assert str(OpenEXR.File(str(exr)).header()["hack_pixel_filter"]) == "box"
     a, b = (np.stack([out[k][1][c] for c in "RGB"], -1) for k in (False, True))
     assert not np.array_equal(a, b)
     assert abs(a.sum() / b.sum() - 1.0) < 0.03

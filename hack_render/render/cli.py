@@ -49,6 +49,17 @@ def check_denoise(denoise: str) -> bool:
     return use
 
 
+def denoise_settings(settings, use_denoise: bool):
+    """The render settings for a denoised image: a box pixel filter, each sample in one
+    pixel. Mitsuba's Gaussian filter spreads samples over neighbours, and OIDN keeps the
+    noise that is correlated between pixels: on the studio portrait at 128 px, 4 / 8 spp
+    denoised reach 35.7 / 36.6 dB from a box-filtered render against 33.3 / 31.5 dB
+    (``bench_render.py --only quality``, each against its own filter's reference)."""
+    import dataclasses
+
+    return dataclasses.replace(settings, pixel_filter="box") if use_denoise else settings
+
+
 def _resolution(text: str) -> tuple[int, int]:
     try:
         parts = [int(x) for x in text.lower().replace("x", ",").split(",") if x.strip()]
@@ -193,6 +204,7 @@ def render(
     settings = named("--sampler", RenderSettings, w, h, spp, max_depth, seed,
                      sampler=sampler)
     use_denoise = check_denoise(denoise)
+    settings = denoise_settings(settings, use_denoise)
     aov_names = _aov_list(aov)
     boundary.output_file(output, "-o/--output", (".png", ".exr"))
     if exr is not None:
@@ -270,7 +282,8 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                             "hack_regions": ",".join(head.region_names),
                             "hack_variant": head.variant,
                             "hack_denoised": "yes" if use_denoise and not tag else "no",
-                            "hack_sss": "yes" if sss else "no"}
+                            "hack_sss": "yes" if sss else "no",
+                            "hack_pixel_filter": head.settings.pixel_filter}
                     write_exr(target, exr_channels(image, aovs, aov_names), meta)
                 outputs.append(target)
         st = head.settings
@@ -354,6 +367,7 @@ def turntable(
     boundary.number(seed, "--seed", 0, 2 ** 31 - 1 - frames, integer=True)
     settings = named("--sampler", RenderSettings, w, h, spp, 8, seed, sampler=sampler)
     use_denoise = check_denoise(denoise)
+    settings = denoise_settings(settings, use_denoise)
     fmt = [f.strip() for f in formats.split(",") if f.strip()]
     bad = [f for f in fmt if f not in tt.FORMATS]
     if bad or not fmt:
