@@ -436,11 +436,7 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
                   f"PSNR {psnr(img, refs[flag]):5.2f} dB")
     # the passes add up: skin diffuse + specular, unscattered, against one pass
     one = head.render(seed=5, backdrop=False)
-    head.set_lobe_weights(1.0, 0.0)
-    d = head.render(seed=5, backdrop=False)
-    head.set_lobe_weights(0.0, 1.0)
-    s = head.render(seed=5, backdrop=False)
-    head.set_lobe_weights(1.0, 1.0)
+    d, s = head.lobe_passes(seed=5)
     f = sss_features(head, head._skin_bsdf, head._see_through)
     rgb = sss.combine(d[..., :3], s[..., :3], f, float(head.camera.K[0, 0]), scale=0.0)
     m, cover = f["skin"], one[..., 3] > 0.99

@@ -123,11 +123,7 @@ def test_06_the_passes_add_up_to_the_render(head):
     from hack_render.render.aov import sss_features
 
     one = head.render(seed=1, backdrop=False)
-    head.set_lobe_weights(1.0, 0.0)
-    d = head.render(seed=2, backdrop=False)
-    head.set_lobe_weights(0.0, 1.0)
-    s = head.render(seed=2, backdrop=False)
-    head.set_lobe_weights(1.0, 1.0)
+    d, s = head.lobe_passes(seed=2)
     f = sss_features(head, head._skin_bsdf, head._see_through)
     focal = float(head.camera.K[0, 0])
     plain = sss.combine(d[..., :3], s[..., :3], f, focal, scale=0.0)

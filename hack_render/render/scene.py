@@ -447,11 +447,13 @@ class HeadScene:
         dr.make_opaque(*w)
         self._skin_bsdf.lobe_weights = w
 
-    def _render_sss(self, base: int, progress: bool) -> np.ndarray:
-        """Render with subsurface scattering in the skin (:mod:`hack_render.render.sss`)."""
-        from hack_render.render import sss
-        from hack_render.render.aov import sss_features
-
+    def lobe_passes(self, seed: int | None = None,
+                    progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The two passes of ``render(sss=True)``, premultiplied (H, W, 4) each: the skin's
+        diffuse lobe alone, then its specular lobe alone (other materials in both); the
+        lobe weights are restored afterwards."""
+        release_parked()
+        base = self.settings.seed if seed is None else int(seed)
         try:
             self.set_lobe_weights(1.0, 0.0)
             diffuse = self._render_passes(base, progress, "render passes (skin diffuse)")
@@ -459,6 +461,14 @@ class HeadScene:
             rest = self._render_passes(base, progress, "render passes (specular, rest)")
         finally:
             self.set_lobe_weights(1.0, 1.0)
+        return diffuse, rest
+
+    def _render_sss(self, base: int, progress: bool) -> np.ndarray:
+        """Render with subsurface scattering in the skin (:mod:`hack_render.render.sss`)."""
+        from hack_render.render import sss
+        from hack_render.render.aov import sss_features
+
+        diffuse, rest = self.lobe_passes(base, progress)
         f = sss_features(self, self._skin_bsdf, self._see_through)
         out = diffuse.copy()
         out[..., :3] = sss.combine(diffuse[..., :3], rest[..., :3], f,
