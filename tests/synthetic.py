@@ -140,3 +140,44 @@ def synthetic_target(model, res=96, rig=None):
     img = head.render()[..., :3]
     lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
     return img, lm, dict(beta=beta, angles=angles, vertices=out.vertices[0])
+
+
+def appearance_photo(model, app, alpha, res: int = 64, light: str = "light_stage",
+                     spp: int = 32, angles_deg=(5.0, 15.0, 0.0), seed: int = 7):
+    """A photo of known skin: ``model`` with a seeded identity (beta ~ N(0, I), 20
+    components), the head turned by ``angles_deg``, the skin maps ``app.maps(alpha)``, lit
+    by the ``light`` preset (default ``light_stage``: uniform grey light of unit
+    radiance), rendered by the path tracer (``spp``, depth 4) through the frontal camera of
+    :func:`landmark_view` over a grey backdrop. Returns (Photo (sRGB), Detection of the
+    true landmark vertices, the truth: beta, alpha, vertices). Needs Mitsuba."""
+    import colour
+    import torch
+
+    from hack_render.fit.fitter import R0
+    from hack_render.fit.landmarks import Detection
+    from hack_render.fit.photo import Photo
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render.materials import SkinMaps
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from scenes.cameras import Camera
+    from scenes.lights import preset
+
+    alpha = torch.as_tensor(alpha, dtype=torch.float32).reshape(1, -1)
+    beta = torch.randn(1, 20, generator=torch.Generator().manual_seed(seed))
+    ang = torch.deg2rad(torch.tensor([float(a) for a in angles_deg]))
+    with torch.no_grad():
+        out = model(beta=beta, theta=distribute_head_rotation(ang)[None])
+        maps = app.maps(alpha)
+    f = 50.0 / 36.0 * res * 2.2
+    K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
+    cam = Camera(K, R0.numpy().astype(np.float64), np.array([0.0, -0.03, 1.0]), res, res, "v")
+    head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(), preset(light), cam,
+                     RenderSettings(res, res, spp, 4, 0), SkinMaps.from_appearance(maps))
+    rgba = head.render(backdrop=False)
+    rgb = rgba[..., :3] + (1.0 - rgba[..., 3:4]) * 0.5
+    srgb = np.clip(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"), 0, 1)
+    lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
+    return (Photo(srgb.astype(np.float32), "skin"),
+            Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth"),
+            {"beta": beta, "alpha": alpha, "vertices": out.vertices[0]})

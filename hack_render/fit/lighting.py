@@ -101,6 +101,26 @@ class Lighting(torch.nn.Module):
             if self.mode == "sg":
                 self.lobe_log_amplitude.add_(torch.log(s)[None])
 
+    def colour_cast(self, gain: torch.Tensor | None = None,
+                    reach: torch.Tensor | None = None) -> torch.Tensor:
+        """The light's colour cast (a scalar, 0 for grey light): the squared
+        log-chromaticity of each direction's radiance (its log per channel less the mean of
+        the three logs), summed over the channels and averaged over the directions weighted
+        by their share of the light (solid angle times radiance, held fixed; times
+        ``reach`` (h, 2h), how much of each direction reaches the skin, e.g. the mean
+        clamped cosine over its normals), so no coloured light hides in directions that
+        carry little. A uniform tint of log-chromaticity c gives |c|^2. ``gain`` (3,): the
+        cast of the radiance times these per-channel factors."""
+        env = self.env_map()
+        if gain is not None:
+            env = env * gain
+        log = torch.log(env.clamp_min(1e-8))
+        cast = ((log - log.mean(-1, keepdim=True)) ** 2).sum(-1)
+        w = torch.sqrt((1.0 - self.dirs[..., 1] ** 2).clamp_min(0.0)) * env.detach().mean(-1)
+        if reach is not None:
+            w = w * reach
+        return (w * cast).sum() / w.sum().clamp_min(1e-12)
+
     def smoothness(self) -> torch.Tensor:
         """Regulariser: higher SH bands / texel differences (keeps lighting low-frequency;
         the lobes are left free: they are the high frequencies)."""

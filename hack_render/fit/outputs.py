@@ -58,6 +58,14 @@ def camera_dict(v) -> dict:
             "convention": "OpenCV: x_cam = R @ X_world + t; x right, y down, z forward"}
 
 
+def _colour_cast(v) -> float | None:
+    """The view's fitted light's colour cast (``Lighting.colour_cast`` on the skin of its
+    last photometric level), as an rms log-chromaticity."""
+    reach = v.level.reach if v.level is not None else None
+    with torch.no_grad():
+        return round(float(v.lighting.colour_cast(reach=reach)) ** 0.5, 4)
+
+
 def _refiner_shift(det) -> float | None:
     """Mean distance the landmark refiner moved the chin and inner points, in units of
     dlib's inter-ocular distance (None: not refined)."""
@@ -182,11 +190,15 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v),
                          "pose_deg": _pose_entry(fitter, v),
-                         # "sg" lighting: the lobes fitted, and how init_lobes started them
+                         # "sg" lighting: the lobes fitted, and how init_lobes started them;
+                         # colour_cast: the light's rms log-chromaticity on the skin
                          "lighting": ({"mode": v.lighting.mode, **v.lighting.summary(),
-                                       "lobe_start": v.lighting_init}
+                                       "lobe_start": v.lighting_init,
+                                       "colour_cast": _colour_cast(v)}
                                       if v.lighting is not None else None)}
                         for v in res.views],
+              # photometric.balance_albedo: the skin's colour moved from the light to alpha
+              "albedo_balance": getattr(fitter, "albedo_balance", None) or None,
               "final": final.report if final is not None else None,
               "landmark_embedding": (fitter.embedding.meta.get("provenance")
                                      if getattr(fitter, "embedding", None) is not None

@@ -6,7 +6,8 @@ K' Rv K^-1 after an anti-aliasing blur, a skin mask (the landmark face polygon w
 eyes and mouth opening, intersected with the rendered face region, eroded), and a
 :class:`~hack_render.render.bridge.DiffRenderer` over a scene lit only by the learnable
 environment. The loss is a Charbonnier (robust L1) over the masked linear-RGB pixels
-plus the landmark term and the priors. Stage 5 adds a per-texel albedo delta with
+plus the landmark term and the priors, among them a grey light's (the skin's colour and
+the light's are one ambiguity: :func:`balance_albedo`). Stage 5 adds a per-texel albedo delta with
 smoothness (neighbour differences), symmetry (mirror-vertex pairs in UV) and magnitude
 penalties.
 """
@@ -160,11 +161,18 @@ def update_mask(view) -> None:
     from scipy.ndimage import binary_erosion
 
     lv = view.level
-    seg = lv.renderer.head.aovs()["segmentation"]
+    gb = lv.renderer.head.aovs()
+    seg, lv.uv = gb["segmentation"], gb["uv"]
     m = lv.photo_mask & (seg == 1)
     if lv.erode > 0:
         m = binary_erosion(m, iterations=lv.erode)
     lv.mask = torch.from_numpy(m)
+    if view.lighting is not None and m.any():
+        n = gb["normal"][m][:: max(1, int(m.sum()) // 2000)] @ lv.camera.R  # world frame
+        d = view.lighting.dirs.reshape(-1, 3).numpy()
+        reach = np.clip(n @ d.T, 0.0, None).mean(0)
+        lv.reach = torch.from_numpy(reach.reshape(view.lighting.dirs.shape[:2]).astype(
+            np.float32))
 
 
 def render_view(view: View, maps: dict, verts: torch.Tensor, seed: int,
@@ -264,6 +272,102 @@ def init_lobes(state: FitState, cfg: FitConfig, view: View,
     return report
 
 
+def balance_albedo(state: FitState, cfg: FitConfig, spp: int = 16) -> dict:
+    """Move the skin's colour from the lighting into alpha where the photo cannot tell the
+    two apart (after the lighting's start; returns what it did).
+
+    The skin's diffuse light is linear in the albedo and in the light, so a factor g per
+    channel on the light and 1 / g on the albedo leave the photo unchanged; and the
+    appearance model's leading components nearly are such factors (the shipped model's
+    first three: 99.6-99.8 % of their diffuse variance over the face is a per-channel
+    scale of the mean skin). The lighting's start (:func:`init_lobes`,
+    :func:`match_exposure`) fits the photo with the current alpha, so the skin's colour
+    starts in the light, and Adam's noisy steps barely move along that valley (the
+    photo term is flat along it). This solves the objective's own priors along it: alpha
+    minimising ``w_alpha |alpha|^2 + w_alpha / light_cast_sigma^2 sum_v cast_v(g_v)``,
+    where ``g_v`` keeps the view's mean render over the photo term's pixels as it was:
+    per channel, ``g = F / (D m(alpha) / m + S s(alpha) / s)``, with F the mean render, S
+    its specular share (a render with no albedo; it takes the light's colour, not the
+    skin's), D = F - S, and m, s the mean albedo and specular maps over the pixels'
+    texels. Alpha and each view's light (scaled by its g) are then set."""
+    pc = cfg.photometric
+    if (state.appearance is None or not state.alpha.shape[1] or pc.light_cast_sigma <= 0
+            or not pc.balance_albedo):
+        return {}
+    views = [v for v in state.views if v.level is not None and v.level.uv is not None
+             and int(v.level.mask.sum()) >= 8]
+    if not views:
+        return {}
+    height = views[0].level.map_height
+    h = height or state.appearance.height
+
+    def texels(v):
+        """Atlas (row, column) of the view's photo-term pixels at the level's atlas size."""
+        uv = v.level.uv[v.level.mask.numpy()]
+        x = np.clip((uv[:, 0] * h).astype(int), 0, 2 * h - 1)
+        y = np.clip(((1.0 - uv[:, 1]) * h).astype(int), 0, h - 1)
+        return torch.from_numpy(y), torch.from_numpy(x)
+
+    idx = [texels(v) for v in views]
+
+    def means(alpha):
+        """Per view: (mean albedo (3,), mean specular map (1,)) over its pixels' texels."""
+        mp = state.maps(with_delta=False, height=height, alpha=alpha)
+        return [(mp["albedo"][y, x].mean(0).clamp_min(1e-4),
+                 mp["specular"][y, x].mean(0).clamp_min(1e-4)) for y, x in idx]
+
+    a0 = state.alpha.detach().clone()
+    shares = []
+    with torch.no_grad():
+        m0 = means(a0)
+        maps = level_maps(state, views[0], with_delta=False)
+        for v in views:
+            verts = state.forward(v).vertices[0]
+            env = v.lighting.env_map()
+            kw = {"seed": cfg.seed * 1000 + 555, "spp": spp, "vertices": verts,
+                  "specular": maps["specular"], "roughness": maps["roughness"],
+                  "normal": maps["normal"], "env": env}
+            m = v.level.mask
+            full = v.renderer.render(albedo=maps["albedo"], **kw)[..., :3][m].mean(0)
+            spec = v.renderer.render(albedo=torch.zeros_like(maps["albedo"]),
+                                     **kw)[..., :3][m].mean(0)
+            spec = torch.minimum(spec, 0.9 * full)
+            shares.append((full, full - spec, spec))
+
+    def gains(ms):
+        return [f / (d * mv / mv0 + sp * sv / sv0)
+                for (f, d, sp), (mv, sv), (mv0, sv0) in zip(shares, ms, m0)]
+
+    w_cast = pc.w_alpha / pc.light_cast_sigma ** 2
+    a = a0.clone().requires_grad_(True)
+    opt = torch.optim.LBFGS([a], lr=1.0, max_iter=100, line_search_fn="strong_wolfe")
+
+    def objective():
+        return pc.w_alpha * (a ** 2).sum() + w_cast * sum(
+            v.lighting.colour_cast(g, v.level.reach) for v, g in zip(views, gains(means(a))))
+
+    def closure():
+        opt.zero_grad()
+        loss = objective()
+        loss.backward()
+        return loss
+
+    with torch.no_grad():
+        before = float(objective())
+    opt.step(closure)
+    with torch.no_grad():
+        after = float(objective())
+        if not (math.isfinite(after) and after < before):
+            return {"applied": False, "objective": [before, after]}
+        g = [x.numpy() for x in gains(means(a))]
+        state.alpha.copy_(a.detach())
+        for v, gv in zip(views, g):
+            v.lighting.scale_(gv)
+    return {"applied": True, "objective": [before, after],
+            "specular_share": [round(float((sp / f).mean()), 4) for f, _, sp in shares],
+            "light_gain": [gv.round(4).tolist() for gv in g]}
+
+
 def symmetry_pairs(model) -> tuple[torch.Tensor, torch.Tensor]:
     """Grid coordinates (P, 2) of mirror-vertex pairs (x -> -x) of the face, in [-1, 1]."""
     from scipy.spatial import cKDTree
@@ -341,6 +445,9 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
                 total = total + x
                 parts_sum[k] = parts_sum.get(k, 0.0) + float(x.detach())
         extra = {} if texel else {"alpha_prior": pc.w_alpha * (state.alpha ** 2).sum()}
+        if not texel and pc.light_cast_sigma > 0:
+            extra["light_cast"] = pc.w_alpha / pc.light_cast_sigma ** 2 * sum(
+                v.lighting.colour_cast(reach=v.level.reach) for v in state.views)
         if refine:
             extra["beta_prior"] = pc.w_landmarks * terms.beta_prior(state, cfg)
             extra["larynx_prior"] = 1e-3 * (state.eta ** 2).sum() + 10.0 * (state.tau ** 2).sum()
@@ -388,6 +495,7 @@ def run(state: FitState, cfg: FitConfig, log: StageLog, texel: bool = False
         h = state.appearance.height
         state.albedo_delta = torch.zeros(h, 2 * h, 3, requires_grad=True)
     pairs = symmetry_pairs(state.model) if texel else None
+    started = False  # the lighting started at the first level: balance the albedo
     threads = torch.get_num_threads()
     torch.set_num_threads(pc.torch_threads)
     try:
@@ -401,6 +509,10 @@ def run(state: FitState, cfg: FitConfig, log: StageLog, texel: bool = False
                             v.lighting_init = init_lobes(state, cfg, v)
                         else:
                             match_exposure(state, v)
+                        started = True
+            if not texel and started:
+                state.albedo_balance = balance_albedo(state, cfg)
+                started = False
             groups, loss = level_objective(state, cfg, texel, pairs)
             name = f"texel@{res}" if texel else f"photometric@{res}"
             reports.append(log.run(name, groups, loss, int(iters), after_step=state.clamp_,

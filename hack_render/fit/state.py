@@ -48,6 +48,10 @@ class Level:
     renderer: object
     mask: torch.Tensor | None = None
     erode: int = 1
+    uv: np.ndarray | None = None  # (res, res, 2) the model's UV per pixel (update_mask)
+    # (h, 2h) how much light from each of the lighting's directions reaches the photo
+    # term's skin: the mean clamped cosine over its normals (update_mask)
+    reach: torch.Tensor | None = None
 
 
 @dataclass
@@ -111,6 +115,7 @@ class FitState:
     views: list = field(default_factory=list)
     albedo_delta: torch.Tensor | None = None   # (H, 2H, 3) per-texel refinement
     coarse_appearance: dict = field(default_factory=dict)  # (height, n_alpha) -> model
+    albedo_balance: dict = field(default_factory=dict)  # photometric.balance_albedo's report
 
     @property
     def faces(self) -> torch.Tensor:
@@ -148,12 +153,14 @@ class FitState:
             self.eta.clamp_(*ETA_RANGE)
             self.tau.clamp_(*TAU_RANGE_M)
 
-    def maps(self, with_delta: bool = True, height: int | None = None) -> dict:
+    def maps(self, with_delta: bool = True, height: int | None = None,
+             alpha: torch.Tensor | None = None) -> dict:
         """Current skin maps: torch (H, 2H, C) diffuse, specular, roughness, normal
         (``with_delta``: the per-texel albedo refinement added, when there is one).
         ``height``: a coarser atlas (the appearance model's height / 2^k, see
         :meth:`~appearance.model.AppearanceModel.downsampled`) for coarse photometric
-        levels; None: the model's own."""
+        levels; None: the model's own. ``alpha``: the maps of these coefficients (1, A)
+        instead of the state's."""
         if self.appearance is None:
             h = 16
             d = self.const_albedo.clamp(0, 1).expand(h, 2 * h, 3)
@@ -168,7 +175,7 @@ class FitState:
             if key not in self.coarse_appearance:
                 self.coarse_appearance[key] = app.downsampled(*key)
             app = self.coarse_appearance[key]
-        m = app.maps(self.alpha)
+        m = app.maps(self.alpha if alpha is None else alpha)
         d = m.diffuse[0]
         if with_delta and self.albedo_delta is not None:
             d = (d + self.albedo_delta).clamp(0.0, 1.0)
