@@ -93,6 +93,20 @@ def test_01_colour_cast():
         assert float(two.colour_cast()) == pytest.approx(0.08, rel=1e-3)
 
 
+def _run_and_check_skin(f, app, truth) -> None:
+    """Run the fit; its albedo is at least twice as close to the truth as the mean skin,
+    and alpha's leading component has the truth's sign and is the largest."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f.run()
+    a = f.alpha.detach()
+    de_fit = albedo_de2000(app, a, truth["alpha"])
+    de_mean = albedo_de2000(app, torch.zeros(1, 20), truth["alpha"])
+    print(f"albedo CIEDE2000 {de_fit:.2f} (mean skin {de_mean:.2f}), alpha {a[0, :3]}")
+    assert de_fit < 0.5 * de_mean, (de_fit, de_mean, a[0, :3])
+    assert float(a[0, 0]) > 0.3 and int(a[0].abs().argmax()) == 0, a
+
+
 def test_02_fit_recovers_the_skin_colour(subject):
     """The whole fit (landmark stages on the true points, one photometric level of 64 px):
     the fitted albedo is at least twice as close to the truth as the mean skin (measured:
@@ -101,14 +115,7 @@ def test_02_fit_recovers_the_skin_colour(subject):
     largest, and the fitted light is near grey (rms cast 0.02; 0.13 without the prior)."""
     _, app, _, _, truth = subject
     f = _fitter(subject)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        f.run()
-    a = f.alpha.detach()
-    de_fit = albedo_de2000(app, a, truth["alpha"])
-    de_mean = albedo_de2000(app, torch.zeros(1, 20), truth["alpha"])
-    assert de_fit < 0.5 * de_mean, (de_fit, de_mean, a[0, :3])
-    assert float(a[0, 0]) > 0.3 and int(a[0].abs().argmax()) == 0, a
+    _run_and_check_skin(f, app, truth)
     v = f.views[0]
     assert f.state.albedo_balance.get("applied"), f.state.albedo_balance
     assert math.sqrt(float(v.lighting.colour_cast(reach=v.level.reach))) < 0.1
@@ -158,12 +165,4 @@ def test_04_whole_fit_at_128px(subject):
     model, app, _, _, truth = subject
     photo, det, _ = appearance_photo(model, app, truth["alpha"], res=128, spp=64)
     f = Fitter([photo], [det], load_config(), model=model, appearance=app, progress=False)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        f.run()
-    a = f.alpha.detach()
-    de_fit = albedo_de2000(app, a, truth["alpha"])
-    de_mean = albedo_de2000(app, torch.zeros(1, 20), truth["alpha"])
-    print(f"albedo CIEDE2000 {de_fit:.2f} (mean skin {de_mean:.2f}), alpha {a[0, :3]}")
-    assert de_fit < 0.5 * de_mean, (de_fit, de_mean, a[0, :3])
-    assert float(a[0, 0]) > 0.3 and int(a[0].abs().argmax()) == 0, a
+    _run_and_check_skin(f, app, truth)
