@@ -139,7 +139,7 @@ def synthetic_target(model, res=96, rig=None):
                      cam, RenderSettings(res, res, 16, 4, 0))
     img = head.render()[..., :3]
     lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
-    return img, lm, dict(beta=beta, angles=angles, vertices=out.vertices[0])
+    return img, lm, {"beta": beta, "angles": angles, "vertices": out.vertices[0]}
 
 
 def appearance_photo(model, app, alpha, res: int = 64, light: str = "light_stage",

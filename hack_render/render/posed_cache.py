@@ -20,7 +20,7 @@ import json
 import os
 import sys
 from collections.abc import Callable
-from contextlib import redirect_stderr
+from contextlib import redirect_stderr, suppress
 from pathlib import Path
 
 import numpy as np
@@ -85,10 +85,8 @@ def posed(inputs: dict, model_path, compute: Callable[[], tuple[Topology, np.nda
         topo, verts, printed = hit
         if printed:
             sys.stderr.write(printed)
-        try:
+        with suppress(OSError):  # a read-only cache still serves; it just ages
             os.utime(path)  # most recently used
-        except OSError:
-            pass
         return topo, verts
     buf = io.StringIO()
     with redirect_stderr(_Tee(sys.stderr, buf)):
