@@ -492,9 +492,9 @@ def test_denoised_samples_keep_the_noisy_image(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("k", [0, 2, 3])
 def test_one_batch_labels_match_the_per_pass_reference(tmp_path, k):
-    """label_images (one ray batch, labels looked up in Dr.Jit) gives exactly the G-buffer,
-    segmentation and soft masks of the reference: a pixel-centre pass plus one pass per
-    sub-pixel point, labels in numpy."""
+    """label_images (one ray batch, labels looked up in Dr.Jit) gives exactly the G-buffer
+    and segmentation, and the soft masks to rounding, of the reference: a pixel-centre pass
+    plus one pass per sub-pixel point, labels in numpy."""
     from hack_render.dataset.worker import SampleRenderer
 
     cfg = load_config(overrides=dict(TINY, render={"resolution": 48, "spp": 1}))
@@ -509,7 +509,9 @@ def test_one_batch_labels_match_the_per_pass_reference(tmp_path, k):
     for key in ref_aov:
         assert np.array_equal(aov[key], ref_aov[key]), key
     assert np.array_equal(seg, ref_seg)
-    assert np.array_equal(masks, ref_masks), np.argwhere(masks != ref_masks)[:5]
+    # the lash cards' opacity varies along the strands: float32 sums in the kernel against
+    # float64 ones in numpy, so equal to rounding
+    np.testing.assert_allclose(masks, ref_masks, rtol=0, atol=1e-6)
     assert np.allclose(masks.sum(-1), 1.0, atol=1e-6)
     if k:  # the lash layer (rays continued behind the cards) is exercised
         lash = masks[..., lab.LABEL_ID["eyelashes"]]

@@ -15,9 +15,10 @@ region alone (no spot on the jaw). The labels are geometric approximations, not 
 masks.
 
 Soft masks (``masks.exr``, one channel per label): the fraction of each pixel covered
-by each class, from k x k sub-pixel rays. A ray that hits the half-transparent lash cards
-gives the lashes their opacity and the surface behind them the rest, so overlaps (eye
-under lashes) are not lost. The channels sum to 1 (background included).
+by each class, from k x k sub-pixel rays. A ray that hits the see-through lash cards
+gives the lashes the cards' opacity at the hit (the renderer's procedural strand texture)
+and the surface behind them the rest, so overlaps (eye under lashes) are not lost. The
+channels sum to 1 (background included).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ LABEL_DESCRIPTIONS = {
     "iris": "iris and pupil (visible cornea)",
     "teeth": "teeth",
     "gums_tongue": "gums, tongue and the mouth socket",
-    "eyelashes": "eyelash cards (rendered 50 % opaque)",
+    "eyelashes": "eyelash cards, weighted by their strand opacity",
     "bust_cap": "the matte grey cap closing the cut of the chest and shoulders (not anatomy)",
 }
 #: Appearance atlas region -> dataset label, before :func:`skin_label_atlas`'s corrections
@@ -255,15 +256,12 @@ def label_images(head, k: int, atlas: np.ndarray | None = None):
         (aov, seg, masks): ``aov`` the pixel-centre G-buffer (``render.aov.gbuffer``'s
         keys), ``seg`` (H, W) uint8 labels at the pixel centres, ``masks`` (H, W, L)
         float32 coverage over k x k sub-pixel rays (one-hot ``seg`` for k = 0); a ray that
-        meets the lash cards counts EYELASH_OPACITY for the lashes and the rest for what is
-        behind them.
+        meets the lash cards counts the cards' opacity at the hit (the renderer's strand
+        texture) for the lashes and the rest for what is behind them.
     """
-    from hack_render.render.materials import EYELASH_OPACITY
-
     atlas = skin_label_atlas() if atlas is None else atlas
     out = head.label_pass(k, render_region_labels(), atlas, SKIN_RENDER_REGIONS,
-                          see_through=("eyelashes",), num_labels=len(LABELS),
-                          see_through_opacity=EYELASH_OPACITY)
+                          see_through=("eyelashes",), num_labels=len(LABELS))
     seg = out.pop("centre_label")
     masks = out.pop("coverage")
     if k == 0:
@@ -282,8 +280,6 @@ def soft_masks(head, k: int, atlas: np.ndarray | None = None) -> np.ndarray:
     The slow reference of :func:`label_images` (one ray pass per sub-pixel point, labels
     in numpy); the dataset uses :func:`label_images`.
     """
-    from hack_render.render.materials import EYELASH_OPACITY
-
     h, w = head.camera.height, head.camera.width
     n_lab = len(LABELS)
     acc = np.zeros(h * w * n_lab, np.float64)
@@ -292,12 +288,12 @@ def soft_masks(head, k: int, atlas: np.ndarray | None = None) -> np.ndarray:
         hits = head.region_hits(off, see_through=("eyelashes",))
         front = to_labels(hits["region"], hits["uv"], atlas).ravel()
         lash = front == LABEL_ID["eyelashes"]
+        opacity = np.where(lash, hits["opacity"].ravel(), 1.0)  # the cards' at the hit
         # bincount is the fast scatter-add (np.add.at is several times slower)
-        acc += np.bincount(base + front, np.where(lash, EYELASH_OPACITY, 1.0), len(acc))
+        acc += np.bincount(base + front, opacity, len(acc))
         if lash.any():
             behind = to_labels(hits["region_behind"], hits["uv_behind"], atlas).ravel()
-            acc += np.bincount(base[lash] + behind[lash],
-                               np.full(int(lash.sum()), 1.0 - EYELASH_OPACITY), len(acc))
+            acc += np.bincount(base[lash] + behind[lash], 1.0 - opacity[lash], len(acc))
     return (acc / k ** 2).reshape(h, w, n_lab).astype(np.float32)
 
 

@@ -51,6 +51,33 @@ def camera_hit(head, ray, active=True, coherent: bool = False):
     return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
 
 
+def _opacity_at(opacity, si, active):
+    """A see-through card's opacity at intersections ``si``: a number, or a texture plugin
+    looked up at the hit's UV (``eval_1``, what the ``mask`` BSDF does), clipped to [0, 1]."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if isinstance(opacity, (int, float)):
+        return mi.Float(float(opacity))
+    return dr.clip(opacity.eval_1(si, active), 0.0, 1.0)
+
+
+def card_opacity(head, si, active):
+    """Opacity of the scene's see-through cards (``head._see_through``: the lash cards'
+    strand texture) at intersections ``si``; 1 where the hit is on no card or not
+    ``active``. A Dr.Jit Float."""
+    import drjit as dr
+    import mitsuba as mi
+
+    ids = dr.reinterpret_array(mi.UInt32, si.bsdf())
+    out = dr.full(mi.Float, 1.0, dr.width(si.t))
+    for bsdf, opacity in getattr(head, "_see_through", ()):
+        on = mi.Bool(active) & si.is_valid() & (
+            ids == dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf)))
+        out = dr.select(on, _opacity_at(opacity, si, on), out)
+    return out
+
+
 def emitter_pixels(head) -> np.ndarray:
     """(H, W) bool: pixels whose centre ray meets an emitter's shape before any surface
     of the subject (where a light would show in frame if camera rays saw emitters)."""
@@ -125,7 +152,8 @@ def sss_features(head, skin_bsdf, see_through=(), k: int = 4) -> dict[str, np.nd
     that comes from it, and ``depth`` (H, W) the mean distance from the camera to those
     hits, metres (0 where none). ``see_through``: (bsdf, opacity) pairs of cards the
     renderer sees through (the eyelashes): a ray that meets one counts it with weight
-    ``opacity`` and what lies behind it with the rest. One kernel."""
+    ``opacity`` at the hit (a number or a texture plugin looked up at the hit's UV, as the
+    card's ``mask`` BSDF does) and what lies behind it with the rest. One kernel."""
     import drjit as dr
     import mitsuba as mi
 
@@ -134,9 +162,9 @@ def sss_features(head, skin_bsdf, see_through=(), k: int = 4) -> dict[str, np.nd
 
     pix, ray, si, valid = _footprint_hits(head, k)
     skin_id = bsdf_id(skin_bsdf)
-    cards = [(bsdf_id(card), float(opacity)) for card, opacity in see_through]
+    cards = [(bsdf_id(card), opacity) for card, opacity in see_through]
     # cards overlap (the lashes are several layers deep): follow a ray through up to
-    # CARD_LAYERS of them; what lies behind more is dropped (0.5^6 of the light)
+    # CARD_LAYERS of them; what lies behind more is dropped (under 0.5^6 of the light)
     hits, hit, ok, trans = [], si, valid, mi.Float(1.0)
     for _ in range(CARD_LAYERS if cards else 1):
         ids = dr.reinterpret_array(mi.UInt32, hit.bsdf(ray))
@@ -144,7 +172,7 @@ def sss_features(head, skin_bsdf, see_through=(), k: int = 4) -> dict[str, np.nd
         for cid, op in cards:
             this = ok & (ids == cid)
             on_card |= this
-            opacity = dr.select(this, op, opacity)
+            opacity = dr.select(this, _opacity_at(op, hit, this), opacity)
         hits.append((hit, ok, trans * opacity))
         trans = trans * (1.0 - opacity)
         nxt = camera_hit(head, hit.spawn_ray(ray.d), on_card, coherent=True)
@@ -249,15 +277,17 @@ def _region_uv_jit(head, si, active):
 
 def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions=(),
                see_through=("eyelashes",), num_labels: int | None = None,
-               see_through_opacity: float = 0.5) -> dict[str, np.ndarray]:
+               see_through_opacity: float | None = None) -> dict[str, np.ndarray]:
     """Label coverage of k x k sub-pixel rays per pixel and the pixel-centre G-buffer, in
     one ray batch and one kernel.
 
     A ray's label is ``region_labels[region]`` of the surface it meets (``parts.REGIONS``
     ids), except in ``uv_regions``, where it is the texel of ``uv_label_map`` (Hm, 2 Hm)
     at the hit's model UV (u in [0, 2] across, v up; row 0 is v = 1). A ray whose first
-    surface is in a ``see_through`` region is continued once: it counts
-    ``see_through_opacity`` for its own label and the rest for the label behind. Sub-pixel
+    surface is in a ``see_through`` region is continued once: it counts the card's opacity
+    at the hit for its own label and the rest for the label behind; the opacity is the
+    renderer's (:func:`card_opacity`: the lash cards' strand texture at the hit's UV), or
+    the number ``see_through_opacity`` when one is given. Sub-pixel
     point s = b k + a is ((a + 0.5) / k, (b + 0.5) / k); the pixel centre is one of them
     for odd k and an extra ray (not counted in the coverage) otherwise. Coverage is
     accumulated in the kernel (scatter-add of 1 and the opacity per ray: exact sums), and
@@ -341,10 +371,13 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
             "valid": to_pixels(valid, mi.Bool), "label": to_pixels(label, mi.UInt32)}
     if kk:
         counted = ~centre | odd  # the even-k centre ray is not a sub-pixel point
-        alpha = dr.select(through, see_through_opacity, 1.0)
+        if see_through_opacity is None:
+            alpha = dr.select(through, card_opacity(head, si, through), 1.0)
+        else:
+            alpha = dr.select(through, float(see_through_opacity), 1.0)
         cov = dr.zeros(mi.Float, n * L)
         dr.scatter_reduce(dr.ReduceOp.Add, cov, alpha, pix * L + label, counted)
-        dr.scatter_reduce(dr.ReduceOp.Add, cov, 1.0 - see_through_opacity, pix * L + behind,
+        dr.scatter_reduce(dr.ReduceOp.Add, cov, 1.0 - alpha, pix * L + behind,
                           counted & through)
         outs["coverage"] = cov
     dr.eval(outs)
@@ -375,12 +408,14 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
 
     Used for soft (coverage) segmentation masks: call it for a grid of offsets in
     [0, 1)^2 and average. Rays that hit a region named in ``see_through`` (the
-    half-transparent lash cards) are continued once, so the surface behind is known too.
+    see-through lash cards) are continued once, so the surface behind is known too.
 
     Returns:
         ``region`` (H, W) int32 id (``parts.REGIONS``, 0 = nothing), ``uv`` (H, W, 2) model
         UVs of that hit; ``region_behind`` / ``uv_behind``: the same for the next surface
-        behind a see-through hit (0 elsewhere).
+        behind a see-through hit (0 elsewhere); ``opacity`` (H, W) float32: the card's
+        opacity at a see-through hit as the renderer sees it (:func:`card_opacity`), 1
+        elsewhere.
     """
     import drjit as dr
     import mitsuba as mi
@@ -397,11 +432,12 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
     si = camera_hit(head, ray)
     region, uv = _hit_region_uv(head, si, si.is_valid(), h, w)
     out = {"region": region, "uv": uv, "region_behind": np.zeros_like(region),
-           "uv_behind": np.zeros_like(uv)}
+           "uv_behind": np.zeros_like(uv), "opacity": np.ones(region.shape, np.float32)}
     through = [REGIONS.index(n) for n in see_through if n in REGIONS]
     if through and np.isin(region, through).any():
         si2 = camera_hit(head, si.spawn_ray(ray.d))
         mask = mi.Bool(np.isin(region, through).ravel())
+        out["opacity"] = np.asarray(card_opacity(head, si, mask), np.float32).reshape(h, w)
         r2, uv2 = _hit_region_uv(head, si2, si2.is_valid() & mask, h, w)
         out["region_behind"], out["uv_behind"] = r2, uv2
     return out

@@ -9,7 +9,8 @@
   the iris colour, dark limbal ring); its glossy clearcoat is the cornea's gloss, because the outer shell is opened over the cornea (``parts.py``).
 - bust cap (closing the cut of the chest): matte grey (a sculpted bust's base), two-sided.
 - lacrimal film: two-sided (a thin shell). eyelashes: dark brown, slightly glossy,
-  two-sided and 50 % opaque (ICT's lash cards expect an alpha texture).
+  two-sided, their opacity a procedural strand texture (:func:`lash_opacity_map`; ICT's
+  lash cards expect an alpha texture that is not shipped), or 50 % where none is drawn.
 """
 
 from __future__ import annotations
@@ -98,8 +99,78 @@ def skin_bsdf(maps: SkinMaps, jit: bool) -> dict:
     return {"type": "normalmap", "normalmap": bitmap(0.5 * maps.normal + 0.5), "bsdf": base}
 
 
-#: Opacity of the lash cards (no alpha texture is shipped; see fixed_bsdfs).
+#: Uniform opacity of the lash cards where no strand texture can be built (see
+#: :func:`fixed_bsdfs`; HeadScene uses :func:`lash_opacity_map` on ICT's cards).
 EYELASH_OPACITY = 0.5
+#: Side (texels) and seed of the procedural lash opacity texture.
+LASH_MAP_SIZE = 512
+LASH_SEED = 28
+
+
+def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+    t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def lash_opacity_map(cards: np.ndarray, size: int = LASH_MAP_SIZE, seed: int = LASH_SEED,
+                     density: float = 85.0) -> np.ndarray:
+    """A procedural opacity texture of lash strands for the lash cards (not a captured or
+    shipped texture: ICT's lash alpha map is not distributed, so it is drawn here).
+
+    Each card (``parts.lash_cards``: u0, u1, v_root, v_tip in Mitsuba texture
+    coordinates) gets ``density`` strands per unit of u (about 40 per ICT card, three
+    cards per lid), jittered along the lid. A strand is a thin strip from the root
+    towards the tip: 1.2-2.0 texels wide at the root (at 512 texels), narrowing by 65 %,
+    fully opaque over its first half and fading out (smoothstep) to its length, which is
+    0.6-1 of the card (shorter towards the lid's corners), with a slight outward lean and
+    a random curl. Coverage across a strip is box-filtered per texel, and strands combine
+    as 1 - prod(1 - a). Between strands and beyond the tips the opacity is 0.
+
+    Deterministic: numpy's PCG64 seeded with ``seed``. Returns (size, size) float32 in
+    [0, 1]; row r covers v in [r, r + 1) / size, column c covers u in [c, c + 1) / size.
+    """
+    cards = np.asarray(cards, np.float64).reshape(-1, 4)
+    if not 16 <= size <= 8192:
+        raise HackError(f"lash texture: expected a size of 16..8192 texels, found {size}.")
+    rng = np.random.default_rng(seed)
+    keep = np.ones((size, size))  # 1 - opacity
+    centre = (np.arange(size) + 0.5) / size  # texel centres, texture units
+    unit = size / 512.0  # strand widths are given in texels of a 512 texture
+    for u0, u1, v_root, v_tip in cards:
+        span = v_tip - v_root
+        n = max(1, round(density * float(u1 - u0)))
+        s = (np.arange(n) + 0.5 + rng.uniform(-0.35, 0.35, n)) / n  # across the lid
+        length = (0.6 + 0.4 * np.sin(np.pi * s) ** 0.5) * rng.uniform(0.65, 1.0, n)
+        width = rng.uniform(1.2, 2.0, n) * unit / size  # at the root, texture units
+        lean = ((s - 0.5) * 0.3 + rng.normal(0.0, 0.06, n)) * abs(span)
+        curl = rng.normal(0.0, 0.05, n) * abs(span)
+        rows = np.nonzero((centre - v_root) * np.sign(span) >= 0)[0]
+        t = (centre[rows] - v_root) / span
+        rows, t = rows[t <= 1.0], t[t <= 1.0]
+        for i in range(n):
+            on = t <= length[i]
+            r, ti = rows[on], t[on]
+            mid = u0 + s[i] * (u1 - u0) + lean[i] * ti + curl[i] * ti ** 2
+            half = 0.5 * width[i] * (1.0 - 0.65 * ti / length[i])
+            fade = 1.0 - _smoothstep(0.5 * length[i], length[i], ti)
+            lo = int(np.floor((mid - half).min() * size))
+            hi = int(np.ceil((mid + half).max() * size))
+            cols = np.arange(max(lo, 0), min(hi, size - 1) + 1)
+            edges = cols / size
+            cover = np.clip(np.minimum((mid + half)[:, None], edges + 1.0 / size)
+                            - np.maximum((mid - half)[:, None], edges), 0.0, None) * size
+            keep[np.ix_(r, cols)] *= 1.0 - np.clip(cover, 0.0, 1.0) * fade[:, None]
+    return (1.0 - keep).astype(np.float32)
+
+
+def eyelash_bsdf(opacity) -> dict:
+    """The lash cards' BSDF: dark brown, slightly glossy, two-sided, behind a ``mask`` whose
+    opacity is ``opacity`` (a texture dict or object, e.g. :func:`bitmap` of
+    :func:`lash_opacity_map`, or a number)."""
+    if isinstance(opacity, (int, float)):
+        opacity = {"type": "uniform", "value": float(opacity)}
+    return {"type": "mask", "opacity": opacity,
+            "bsdf": {"type": "twosided", "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}}
 
 
 def _plastic(rgb, alpha: float, ior: float = 1.4) -> dict:
@@ -115,14 +186,12 @@ def fixed_bsdfs() -> dict[str, dict]:
         "sclera": _plastic(SCLERA_RGB, 0.05, 1.376),
         # thin shells, seen from either side
         "lacrimal": {"type": "twosided", "bsdf": _plastic((0.62, 0.45, 0.42), 0.03, 1.336)},
-        # lash cards without their alpha texture: half-transparent, so they read as
-        # lashes rather than as a painted line
         # the cap over the cut of the chest: matte grey, as the base of a sculpted bust
         "bust_cap": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
             "type": "rgb", "value": [0.40, 0.40, 0.42]}}},
-        "eyelashes": {"type": "mask", "opacity": {"type": "uniform", "value": EYELASH_OPACITY},
-                      "bsdf": {"type": "twosided",
-                               "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}},
+        # lash cards without a strand texture (HeadScene draws one, lash_opacity_map):
+        # uniformly half-transparent
+        "eyelashes": eyelash_bsdf(EYELASH_OPACITY),
     }
 
 

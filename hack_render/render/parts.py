@@ -268,3 +268,58 @@ def split_parts(topo: Topology, vertices: np.ndarray,
         if part is not None:
             parts.append(part)
     return parts, axes
+
+
+def uv_islands(faces: np.ndarray, n: int) -> np.ndarray:
+    """Connected components of a triangle mesh (F, 3) over ``n`` vertices: (n,) island id
+    of each vertex (0, 1, ..., in order of first vertex; unused vertices get their own)."""
+    label = np.arange(n)
+    while True:  # propagate the smallest label across faces until nothing changes
+        low = label[faces].min(axis=1)
+        new = label.copy()
+        np.minimum.at(new, faces.ravel(), np.repeat(low, 3))
+        new = new[new]  # pointer jumping: converges in a few dozen rounds for lash cards
+        if np.array_equal(new, label):
+            break
+        label = new
+    return np.unique(label, return_inverse=True)[1].reshape(-1)
+
+
+def lash_cards(part: Part, vertices: np.ndarray, axes) -> np.ndarray:
+    """The lash cards' rectangles in texture space, from the ``eyelashes`` part.
+
+    ICT's lash part is 12 cards (three layers per lid), each its own UV island: one
+    texture direction (Mitsuba's v) runs from the lid margin (the root) to the lash tips,
+    the other (u) along the lid. The root is the island's v end nearer the eyeball's
+    centre (``axes``); without eye axes it is the lower v, as in ICT's layout.
+
+    Args:
+        part: the ``eyelashes`` part. vertices: (N, 3) model vertices, metres.
+        axes: the eye axes of :func:`split_parts` ([(centre (3,), axis (3,)), ...]).
+    Returns:
+        (C, 4) float64: u0, u1 (u0 < u1), v_root, v_tip in Mitsuba texture coordinates; (0, 4)
+        when the UVs are degenerate (an island thinner than 1e-3 in u or v).
+    """
+    tc = part.texcoords
+    island = uv_islands(part.faces, len(tc))
+    p = vertices[part.gather]
+    centres = np.stack([c for c, _ in axes]) if axes else None
+    cards = []
+    for i in range(island.max() + 1):
+        sel = island == i
+        if sel.sum() < 3:
+            continue
+        u, v = tc[sel, 0], tc[sel, 1]
+        lo, hi = v.min(), v.max()
+        if u.max() - u.min() < 1e-3 or hi - lo < 1e-3:
+            return np.zeros((0, 4))
+        root, tip = lo, hi
+        if centres is not None:
+            q = p[sel]
+            c = centres[np.argmin(np.linalg.norm(centres - q.mean(0), axis=1))]
+            r = np.linalg.norm(q - c, axis=1)
+            end = 0.1 * (hi - lo)
+            if r[v > hi - end].mean() < r[v < lo + end].mean():
+                root, tip = hi, lo
+        cards.append((u.min(), u.max(), root, tip))
+    return np.array(cards, np.float64).reshape(-1, 4)

@@ -192,7 +192,10 @@ class HeadScene:
         skin = mi.load_dict(materials.skin_bsdf(maps, jit))
         # the hack_skin plugin (JIT variants): render(sss=True) weights its lobes
         self._skin_bsdf = skin if hasattr(skin, "lobe_weights") else None
-        self._see_through: list[tuple[object, float]] = []
+        #: (BSDF, opacity) of the see-through cards (the lashes): the opacity is a loaded
+        #: texture plugin (its ``eval_1`` at a hit) or a number
+        self._see_through: list[tuple[object, object]] = []
+        self.lash_opacity: np.ndarray | None = None
         fixed = materials.fixed_bsdfs()
         normals = vertex_normals(v, topology.faces)
         # hide_emitters: camera rays pass through the area lights' rectangles and do not
@@ -211,10 +214,14 @@ class HeadScene:
                 bsdf = skin
             elif part.name == "iris":
                 bsdf = mi.load_dict(materials.iris_bsdf())
+            elif part.name == "eyelashes":
+                opacity = self._lash_opacity(part, v)
+                bsdf = mi.load_dict(materials.eyelash_bsdf(opacity))
+                # see-through cards: the label and AOV passes (and render(sss=True)) look
+                # up the same opacity at their hits
+                self._see_through.append((bsdf, opacity))
             else:
                 bsdf = mi.load_dict(fixed[part.name])
-            if part.name == "eyelashes":  # see-through cards (render(sss=True) looks past)
-                self._see_through.append((bsdf, materials.EYELASH_OPACITY))
             mesh = self._mesh(part, v, normals, bsdf)
             if part.name == "iris":
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
@@ -245,6 +252,22 @@ class HeadScene:
         if rig.env_file is not None:
             return read_hdr_image(rig.env_file)
         return None
+
+    def _lash_opacity(self, part, v: np.ndarray):
+        """The lash cards' opacity: a ``bitmap`` texture plugin of the procedural strand
+        map (``materials.lash_opacity_map``, kept in :attr:`lash_opacity`) over the cards
+        found in the part's UVs (``parts.lash_cards``), or ``EYELASH_OPACITY`` where the
+        UVs hold no cards (degenerate UVs): strands need a root-to-tip direction."""
+        import mitsuba as mi
+
+        from hack_render.render import materials
+        from hack_render.render.parts import lash_cards
+
+        cards = lash_cards(part, v, self.eye_axes)
+        if len(cards) == 0:
+            return materials.EYELASH_OPACITY
+        self.lash_opacity = materials.lash_opacity_map(cards)
+        return mi.load_dict(materials.bitmap(self.lash_opacity[..., None]))
 
     @staticmethod
     def _mesh(part, v, normals, bsdf):
@@ -545,7 +568,7 @@ class HeadScene:
 
     def label_pass(self, k: int, region_labels, uv_label_map, uv_regions=(),
                    see_through=("eyelashes",), num_labels: int | None = None,
-                   see_through_opacity: float = 0.5) -> dict:
+                   see_through_opacity: float | None = None) -> dict:
         """Label coverage of k x k sub-pixel rays and the pixel-centre G-buffer in one
         batch: see :func:`aov.label_pass`."""
         from hack_render.render.aov import label_pass
