@@ -155,7 +155,9 @@ def lash_opacity_map(cards: np.ndarray, size: int = LASH_MAP_SIZE, seed: int = L
             fade = 1.0 - _smoothstep(0.5 * length[i], length[i], ti)
             lo = int(np.floor((mid - half).min() * size))
             hi = int(np.ceil((mid + half).max() * size))
-            cols = np.arange(max(lo, 0), min(hi, size - 1) + 1)
+            # kept to the card's columns (a strand leaning off the card is cut there)
+            cols = np.arange(max(lo, int(np.floor(u0 * size))),
+                             min(hi, int(np.ceil(u1 * size)) - 1, size - 1) + 1)
             edges = cols / size
             cover = np.clip(np.minimum((mid + half)[:, None], edges + 1.0 / size)
                             - np.maximum((mid - half)[:, None], edges), 0.0, None) * size
