@@ -125,14 +125,17 @@ def test_04_closeup_lashes_are_strands_not_a_band(head_model):
     strands). 64 spp: the skin under the cards is noisy (their shadow rays)."""
     topo, v = head_model
     cam = eye_closeup(96)
-    head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(96, 96, 64))
-    assert head.lash_opacity is not None
-    hits = head.region_hits()
-    band = hits["region"] == REGIONS.index("eyelashes")
-    skin = hits["region"] == REGIONS.index("face")
-    assert band.sum() > 500
-    dark = lash_band_darkness(head.render(), band, skin)
-    assert 0.02 < dark < 0.4, dark
+    dark = {}
+    for strands in (True, False):
+        head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(96, 96, 64),
+                         lash_strands=strands)
+        assert (head.lash_opacity is not None) == strands
+        hits = head.region_hits()
+        band = hits["region"] == REGIONS.index("eyelashes")
+        skin = hits["region"] == REGIONS.index("face")
+        assert band.sum() > 500
+        dark[strands] = lash_band_darkness(head.render(), band, skin)
+    assert 0.02 < dark[True] < 0.4 and dark[False] > 0.7, dark
 
 
 def test_05_label_passes_follow_the_render_opacity(head_model):

@@ -162,11 +162,15 @@ class HeadScene:
         variant: Mitsuba variant; chosen automatically when None.
         bust_cap: close the cut of the chest and shoulders (``parts.bust_cap``), so that
             it never shows its black inside.
+        lash_strands: give the lash cards the procedural strand opacity texture
+            (``materials.lash_opacity_map``); False: the uniform ``EYELASH_OPACITY`` of
+            earlier versions (a grey band around the eyes in close-ups).
     """
 
     def __init__(self, topology: Topology, vertices, lights: LightRig, camera: Camera,
                  settings: RenderSettings | None = None, maps=None,
-                 iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True):
+                 iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True,
+                 lash_strands: bool = True):
         settings = settings or RenderSettings(camera.width, camera.height)
         if (camera.width, camera.height) != (settings.width, settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
@@ -215,7 +219,8 @@ class HeadScene:
             elif part.name == "iris":
                 bsdf = mi.load_dict(materials.iris_bsdf())
             elif part.name == "eyelashes":
-                opacity = self._lash_opacity(part, v)
+                opacity = self._lash_opacity(part, v) if lash_strands \
+                    else materials.EYELASH_OPACITY
                 bsdf = mi.load_dict(materials.eyelash_bsdf(opacity))
                 # see-through cards: the label and AOV passes (and render(sss=True)) look
                 # up the same opacity at their hits
