@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.render.cornea import CorneaRig
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
 from scenes.cameras import Camera
@@ -165,12 +166,16 @@ class HeadScene:
         lash_strands: give the lash cards the procedural strand opacity texture
             (``materials.lash_opacity_map``); False: the uniform ``EYELASH_OPACITY`` of
             earlier versions (a grey band around the eyes in close-ups).
+        cornea: show the iris as the camera sees it through the cornea (``cornea.py``:
+            the iris vertices are moved for each camera, by :meth:`set_camera` and
+            :meth:`set_vertices`); False keeps the plain iris (earlier versions). The
+            fitter's ``bridge.DiffRenderer`` writes all positions itself: a plain iris.
     """
 
     def __init__(self, topology: Topology, vertices, lights: LightRig, camera: Camera,
                  settings: RenderSettings | None = None, maps=None,
                  iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True,
-                 lash_strands: bool = True):
+                 lash_strands: bool = True, cornea: bool = True):
         settings = settings or RenderSettings(camera.width, camera.height)
         if (camera.width, camera.height) != (settings.width, settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
@@ -189,6 +194,11 @@ class HeadScene:
             raise HackError(f"vertices: expected ({topology.num_vertices}, 3) for this "
                             f"topology, found {v.shape}.")
         self.parts, self.eye_axes = split_parts(topology, v, cap=bust_cap)
+        self._vertices = v
+        iris = [p for p in self.parts if p.name == "iris"]
+        #: the corneas refracting the iris for the camera (None: a plain iris)
+        self.cornea = CorneaRig.from_topology(topology, v, self.eye_axes, iris[0].gather) \
+            if cornea and iris else None
         maps = maps if maps is not None else materials.SkinMaps.constant()
         env = self._env_image(lights)
         jit = is_jit(self.variant)
@@ -227,7 +237,8 @@ class HeadScene:
                 self._see_through.append((bsdf, opacity))
             else:
                 bsdf = mi.load_dict(fixed[part.name])
-            mesh = self._mesh(part, v, normals, bsdf)
+            mesh = self._mesh(part, self._positions(part, v, camera), normals[part.gather],
+                              bsdf)
             if part.name == "iris":
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
                                                        iris_rgb or materials.DEFAULT_IRIS_RGB)
@@ -274,16 +285,25 @@ class HeadScene:
         self.lash_opacity = materials.lash_opacity_map(cards)
         return mi.load_dict(materials.bitmap(self.lash_opacity[..., None]))
 
+    def _positions(self, part, v: np.ndarray, camera: Camera) -> np.ndarray:
+        """(n, 3) positions of ``part``'s vertices in the posed mesh ``v`` (N, 3): the
+        model's, but for the iris seen by ``camera`` through the cornea (``cornea.py``).
+        The iris keeps its true normals, so it is shaded as before where it appears."""
+        if part.name == "iris" and self.cornea is not None:
+            return self.cornea.iris_positions(v, camera.center)
+        return v[part.gather]
+
     @staticmethod
-    def _mesh(part, v, normals, bsdf):
+    def _mesh(part, positions, normals, bsdf):
+        """A Mitsuba mesh of ``part`` at ``positions`` (n, 3) with ``normals`` (n, 3)."""
         import mitsuba as mi
 
         mesh = mi.Mesh(part.name, len(part.gather), len(part.faces),
                        has_vertex_normals=not part.flat, has_vertex_texcoords=True)
         p = mi.traverse(mesh)
-        p["vertex_positions"] = mi.Float(v[part.gather].ravel().astype(np.float32))
+        p["vertex_positions"] = mi.Float(positions.ravel().astype(np.float32))
         if not part.flat:
-            p["vertex_normals"] = mi.Float(normals[part.gather].ravel().astype(np.float32))
+            p["vertex_normals"] = mi.Float(normals.ravel().astype(np.float32))
         p["vertex_texcoords"] = mi.Float(part.texcoords.ravel().astype(np.float32))
         p["faces"] = mi.UInt32(part.faces.ravel().astype(np.uint32))
         p.update()
@@ -324,9 +344,10 @@ class HeadScene:
             raise HackError(f"vertices: expected finite ({self.topology.num_vertices}, 3), "
                             f"found {v.shape} (finite: {bool(np.all(np.isfinite(v)))}).")
         n = vertex_normals(v, self.topology.faces)
+        self._vertices = v
         for part in self.parts:
             self.params[f"{part.name}.vertex_positions"] = mi.Float(
-                v[part.gather].ravel().astype(np.float32))
+                self._positions(part, v, self.camera).ravel().astype(np.float32))
             if not part.flat:
                 self.params[f"{part.name}.vertex_normals"] = mi.Float(
                     n[part.gather].ravel().astype(np.float32))
@@ -363,6 +384,10 @@ class HeadScene:
         check_intrinsics(camera)
         self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(camera).tolist())
         self.params["sensor.x_fov"] = camera.fov_x_deg
+        if self.cornea is not None:  # the iris as the new camera sees it through the cornea
+            self.params["iris.vertex_positions"] = mi.Float(
+                self.cornea.iris_positions(self._vertices, camera.center).ravel()
+                .astype(np.float32))
         self._backdrop = None
         if update:
             self.params.update()
