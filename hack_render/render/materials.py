@@ -6,7 +6,10 @@
 - mouth (gums, tongue), teeth, sclera, lacrimal film: ``roughplastic`` (a diffuse base
   under a GGX dielectric coat), wet and glossy where the tissue is.
 - iris: ``principled`` over per-vertex colours (pupil, iris with radial striations in
-  the iris colour, dark limbal ring); its glossy clearcoat is the cornea's gloss, because the outer shell is opened over the cornea (``parts.py``).
+  the iris colour, dark limbal ring); its glossy clearcoat is the cornea's gloss, because
+  the outer shell is opened over the cornea (``parts.py``); the cornea's refraction moves
+  the iris's vertices for each camera (``cornea.py``), so the gloss sits where the iris
+  appears.
 - bust cap (closing the cut of the chest): matte grey (a sculpted bust's base), two-sided.
 - lacrimal film: two-sided (a thin shell). eyelashes: dark brown, slightly glossy,
   two-sided, their opacity a procedural strand texture (:func:`lash_opacity_map`; ICT's
