@@ -118,3 +118,70 @@ def test_02_occluder_is_rejected(model):
     xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
     yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
     assert bk.diffuse[yi, xi].mean() > 0.6 * truth[yi, xi].mean()
+
+
+def _photo_of(rgb):
+    import colour
+
+    from hack_render.fit.photo import Photo
+
+    return Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
+                            np.float32), "syn")
+
+
+def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
+    """A grey photo (the synthetic photo's luminance in all three channels) says nothing
+    of the skin's colour: the bake keeps the model's chromaticity on the seen texels and
+    takes the pattern's luminance from the photo (a colour ratio would have made the
+    seen skin grey)."""
+    from hack_render.fit import texture
+
+    f, cfg, true_maps, prior, truth = _fitter(model)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    v.photo = _photo_of(np.repeat(lum[..., None], 3, -1))
+    assert v.photo.is_grey and not _photo_of(rgb).is_grey
+    pr = texture.render_at_photo(f.state, cfg, v)
+    bk = texture.bake_diffuse(f.state, cfg, [pr])
+    seen = bk.confidence > 0.9
+    assert seen.sum() > 2000
+
+    def chroma(x):
+        return x / np.maximum(x.sum(-1, keepdims=True), 1e-6)
+
+    # the model's colour kept: the baked texels' chromaticity is the prior's
+    assert np.abs(chroma(bk.diffuse) - chroma(prior))[seen].max(-1).mean() < 0.01
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    err_bake = np.abs(bk.diffuse @ luma - truth @ luma)[seen].mean()
+    err_prior = np.abs(prior @ luma - truth @ luma)[seen].mean()
+    assert err_bake < 0.45 * err_prior, (err_bake, err_prior)
+
+
+def test_04_brows_are_baked(model):
+    """Dark brows painted over the photo (their colour is not the skin's, so the skin
+    test and the robust rejection drop them) are baked where ``final.features`` is on,
+    and left out where it is off."""
+    from hack_render.fit import texture
+
+    f, cfg, true_maps, _, truth = _fitter(model, yaw=0.0)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    band = texture._feature_bands(v.detection.points, rgb.shape[:2])
+    brows = band & (np.arange(rgb.shape[0])[:, None] < v.detection.points[27, 1])
+    assert brows.sum() > 30
+    rgb[brows] = [0.03, 0.02, 0.015]
+    v.photo = _photo_of(rgb)
+    pr = texture.render_at_photo(f.state, cfg, v)
+    uv = pr.gbuffer["uv"][brows & (pr.rgba[..., 3] > 0.99)]
+    H = cfg.final.atlas_height
+    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+    yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    on = texture.bake_diffuse(f.state, cfg, [pr])
+    cfg.final.features = False
+    off = texture.bake_diffuse(f.state, cfg, [pr])
+    assert (on.pixel_weights[0][brows] > 0).mean() > 0.5
+    assert (off.pixel_weights[0][brows] > 0).mean() < 0.2
+    assert on.diffuse[yi, xi].mean() < 0.6 * off.diffuse[yi, xi].mean()

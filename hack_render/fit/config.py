@@ -273,6 +273,10 @@ class FinalConfig:
     # robust rejection of pixels the render cannot explain (occluders, clothes): the log
     # ratio photo / render and the chromaticity beyond this many MADs of the skin's
     reject_sigma: float = 3.0
+    # bake the brows and lips (bands about their landmarks) as the photo has them: the
+    # skin test and the robust rejection above would drop them (their colour is not the
+    # skin's), leaving the model's browless mean skin there
+    features: bool = True
 
 
 @dataclass
@@ -292,7 +296,7 @@ class FitConfig:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
-    def validate(self) -> "FitConfig":
+    def validate(self) -> FitConfig:
         lm = self.landmarks
         if lm.point_weights is not None:
             w = np.asarray(lm.point_weights, dtype=float)

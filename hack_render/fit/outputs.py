@@ -262,7 +262,8 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     """``render.png`` (the fit re-rendered with the baked skin at the photo's size, over a
     transparent background), ``render_over_photo.png`` (over the photo), and
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
-    skin, e.g. occluders, clothes, the silhouette's edge), one set per view."""
+    skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
+    gets grey renders (their luminance): it says nothing of the skin's colour."""
     from PIL import Image
     from skimage.transform import resize
 
@@ -272,6 +273,9 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
         sfx = "" if i == 0 else f"_view{i}"
         rgba = r.rgba
+        if v.photo.is_grey:
+            lum = rgba[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+            rgba = np.concatenate([np.repeat(lum[..., None], 3, -1), rgba[..., 3:]], -1)
         a = np.clip(rgba[..., 3:4], 0.0, 1.0)
         rgb = rgba[..., :3] / np.maximum(a, 1e-6)  # straight (not premultiplied) colour
         rgb8 = to_srgb8(np.where(a > 0, rgb, 0.0), 0.0, "clip")

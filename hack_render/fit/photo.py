@@ -51,6 +51,15 @@ class Photo:
     def width(self) -> int:
         return self.rgb.shape[1]
 
+    @property
+    def is_grey(self) -> bool:
+        """True for a photo without colour (its three channels equal to 1/255: a grey
+        photo, or one converted from grey): the fit then compares luminance only and
+        ``render.png`` is grey (the photo says nothing of the skin's colour)."""
+        if "_grey" not in self.__dict__:
+            self.__dict__["_grey"] = bool(np.ptp(self.rgb, axis=2).max() <= 1.0 / 255)
+        return self.__dict__["_grey"]
+
     def linear(self) -> np.ndarray:
         """(H, W, 3) float32 linear Rec.709 (the inverse sRGB transfer function)."""
         import colour

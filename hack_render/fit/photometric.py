@@ -30,6 +30,8 @@ from hack_render.geometry.larynx import larynx_limit_penalty
 
 FACE_OUTLINE = list(range(0, 17)) + list(range(26, 16, -1))
 HOLES = (list(range(36, 42)), list(range(42, 48)), list(range(60, 68)))
+#: Rec.709 luminance of linear RGB (a grey photo's term compares luminance only)
+LUMA = torch.tensor([0.2126, 0.7152, 0.0722])
 
 
 def rotation_to_axis(d: np.ndarray) -> np.ndarray:
@@ -195,6 +197,9 @@ def match_exposure(state: FitState, view: View) -> None:
         if int(m.sum()) < 4:
             return
         ratio = (view.level.target[m].mean(0) / img[m].mean(0).clamp_min(1e-4)).numpy()
+        if view.photo.is_grey:   # a grey photo: a grey light, scaled to its luminance
+            ratio = np.full(3, float((view.level.target[m] @ LUMA).mean()
+                                     / (img[m] @ LUMA).mean().clamp_min(1e-4)))
         view.lighting.scale_(np.clip(ratio, 1e-3, 1e3))
 
 
@@ -238,10 +243,17 @@ def init_lobes(state: FitState, cfg: FitConfig, view: View,
         A = [shot(one * L.lobe_map(torch.as_tensor(d, dtype=torch.float32), lam)[..., None])
              for d in dirs]
     T = view.level.target.numpy()[m].astype(np.float64)
+    grey = view.photo.is_grey
+    luma = LUMA.numpy().astype(np.float64)
 
     def solve(cols):
-        """Per channel NNLS; (coefficients (len(cols), 3), residual norm)."""
+        """Per channel NNLS; (coefficients (len(cols), 3), residual norm). A grey photo:
+        one NNLS on luminance, the same coefficients for every channel (a grey light)."""
         x, r = np.zeros((len(cols), 3)), 0.0
+        if grey:
+            x[:, 0], r = nnls(np.stack([col @ luma for col in cols], 1), T @ luma)
+            x[:] = x[:, :1]
+            return x, float(r)
         for c in range(3):
             x[:, c], rc = nnls(np.stack([col[:, c] for col in cols], 1), T[:, c])
             r += rc * rc
@@ -429,7 +441,10 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
             img = render_view(v, maps, verts, cfg.seed * 1000 + it, light_grad=not texel)[..., :3]
             m = v.level.mask
             n = m.sum().clamp_min(1)
-            ph = charbonnier(img - v.level.target, pc.charbonnier_eps)
+            diff = img - v.level.target
+            if v.photo.is_grey:  # no colour in the photo: compare luminance only
+                diff = (diff @ LUMA).unsqueeze(-1).expand_as(diff)
+            ph = charbonnier(diff, pc.charbonnier_eps)
             parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
             if not texel:
                 parts["light_smooth"] = 1e-3 * v.lighting.smoothness()

@@ -164,15 +164,24 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     photo = view.photo.linear()
     if photo.shape[:2] != (h, w):
         photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
-    skin = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
-    skin &= ~_feature_holes(view.detection.points * (w / view.photo.width), (h, w))
+    rendered = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
+    points = view.detection.points * (w / view.photo.width)
+    skin = rendered & ~_feature_holes(points, (h, w))
+    occluded = np.zeros((h, w), bool)
     for mask, keep in ((view.skin, True), (view.occluder, False)):
         if mask is not None:  # the segmentation's skin, without its occluders
             mk = np.asarray(mask, bool)
             if mk.shape != (h, w):
                 mk = resize(mk.astype(np.float32), (h, w), order=0) > 0.5
             skin &= mk if keep else ~mk
-    skin = binary_erosion(skin, iterations=max(1, round(fc.edge_px * w / view.photo.width)))
+            if not keep:
+                occluded = mk
+    edge = max(1, round(fc.edge_px * w / view.photo.width))
+    skin = binary_erosion(skin, iterations=edge)
+    features = np.zeros((h, w), bool)
+    if fc.features:
+        features = (_feature_bands(points, (h, w)) & binary_erosion(rendered, iterations=edge)
+                    & ~_feature_holes(points, (h, w), eye_scale=1.25) & ~occluded)
     # cosine between the normal and the direction to the camera (camera frame, z forward)
     f = w / view.photo.width * float(view.focal.detach())
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
@@ -180,7 +189,11 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     cos = np.clip(-(gb["normal"] * d).sum(-1), 0.0, 1.0)
     rgb = rgba[..., :3]
-    ratio = photo / np.maximum(rgb, 1e-4)
+    if view.photo.is_grey:  # no colour in the photo: its luminance over the render's,
+        luma = np.array([0.2126, 0.7152, 0.0722], np.float32)   # the skin's colour kept
+        ratio = np.repeat(((photo @ luma) / np.maximum(rgb @ luma, 1e-4))[..., None], 3, -1)
+    else:
+        ratio = photo / np.maximum(rgb, 1e-4)
     obs = gb["albedo"] * ratio
     lum = rgb.mean(-1)
     ok = skin & (lum > 0.1 * np.median(lum[skin])) if skin.any() else skin
@@ -196,23 +209,49 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         cd = np.linalg.norm(chroma - cm, axis=-1)
         cmad = 1.4826 * np.median(cd[ok]) + 1e-3
         ok &= cd < max(fc.reject_sigma * cmad, 0.03)
+    ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
 
 
-def _feature_holes(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(h, w) bool: the eyes (their landmark rings scaled 1.8 about their centres: lashes,
-    lids and the sockets' shadow, which the model's eyes do not match) and the mouth's
-    opening (scaled 1.2), left out of the bake."""
+def _feature_holes(points: np.ndarray, shape: tuple[int, int],
+                   eye_scale: float = 1.8) -> np.ndarray:
+    """(h, w) bool: the eyes (their landmark rings scaled ``eye_scale`` about their
+    centres: lashes, lids and the sockets' shadow, which the model's eyes do not match)
+    and the mouth's opening (scaled 1.2), left out of the bake."""
     from skimage.draw import polygon
 
     m = np.zeros(shape, bool)
-    for ring, k in ((range(36, 42), 1.8), (range(42, 48), 1.8), (range(60, 68), 1.2)):
+    for ring, k in ((range(36, 42), eye_scale), (range(42, 48), eye_scale),
+                    (range(60, 68), 1.2)):
         p = points[list(ring)]
         c = p.mean(0)
         p = c + k * (p - c)
         rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
         m[rr, cc] = True
+    return m
+
+
+def _feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: the brows (a band from 0.3 above to 0.5 below each brow's five
+    points, in units of the brow-to-eye distance, towards the eye) and the lips (the
+    outer lip ring), whose colour the bake keeps as the photo has it."""
+    from skimage.draw import polygon
+
+    m = np.zeros(shape, bool)
+    for brow, eye in ((range(17, 22), range(36, 42)), (range(22, 27), range(42, 48))):
+        b = points[list(brow)]
+        down = points[list(eye)].mean(0) - b.mean(0)
+        d = float(np.linalg.norm(down))
+        if d < 1e-6:
+            continue
+        down /= d
+        band = np.r_[b - 0.3 * d * down, (b + 0.5 * d * down)[::-1]]
+        rr, cc = polygon(band[:, 1] - 0.5, band[:, 0] - 0.5, shape)
+        m[rr, cc] = True
+    lips = points[48:60]
+    rr, cc = polygon(lips[:, 1] - 0.5, lips[:, 0] - 0.5, shape)
+    m[rr, cc] = True
     return m
 
 
