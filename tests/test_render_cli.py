@@ -79,6 +79,7 @@ def test_03_turntable_mp4_has_n_frames_and_resume_skips_done_frames(tmp_path):
     (["--camera", "fisheye"], "camera preset"),
     (["--lighting", "env:/nonexistent/sky.exr"], "expected an existing"),
     (["--aov", "depth,colour"], "--aov"),
+    (["--integrator", "bdpt"], "--integrator: integrator: expected one of volpath, path"),
 ])
 def test_04_bad_input_exits_2_with_a_message(tmp_path, capsys, args, message):
     out = tmp_path / "x.png"
@@ -241,3 +242,20 @@ def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, cap
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "other"))
     assert run(["render", "-o", str(tmp_path / "f.png"), *FAST, "--no-sss"]) == 0
     assert not (tmp_path / "other").exists()
+
+
+def test_23_integrator_flag_lands_in_the_exr_header(tmp_path):
+    """`render --integrator path|volpath` (default volpath) is written to the EXR header
+    as ``hack_integrator``; the two render the same image up to noise."""
+    import OpenEXR
+
+    img = {}
+    for flag in ([], ["--integrator", "path"]):
+        exr = tmp_path / f"head{len(flag)}.exr"
+        assert run(["render", "-o", str(exr), "--resolution", "48", "--spp", "8",
+                    "--denoise", "off", "--no-sss", *flag]) == 0
+        name = str(OpenEXR.File(str(exr)).header()["hack_integrator"])
+        ch = read_exr(exr)
+        img[name] = np.stack([ch[c] for c in "RGB"], -1)
+    assert sorted(img) == ["path", "volpath"]
+    assert abs(img["volpath"].sum() / img["path"].sum() - 1.0) < 0.03

@@ -26,6 +26,7 @@ DEFAULTS: dict[str, Any] = {
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
         "variant": None,          # Mitsuba variant (None: automatic)
         "sampler": "multijitter",  # Mitsuba sampler (render/scene.py SAMPLERS)
+        "integrator": "volpath",  # volpath or path (render/scene.py INTEGRATORS)
         "denoise": "off",         # OIDN (extra 'denoise'): off, auto (noisy if missing), on
         "keep_noisy": False,      # with denoise: also write rgb_noisy.exr
         "sss": False,             # subsurface scattering in the skin (2x render time)
@@ -184,10 +185,13 @@ def check_config(cfg: dict) -> dict:
     from hack_render.dataset.backgrounds import check_background_config
 
     check_background_config(cfg, _fail)
-    from hack_render.render.scene import SAMPLERS
+    from hack_render.render.scene import INTEGRATORS, SAMPLERS
 
     if cfg["render"]["sampler"] not in SAMPLERS:
         _fail("render.sampler", f"one of {', '.join(SAMPLERS)}", cfg["render"]["sampler"])
+    if cfg["render"]["integrator"] not in INTEGRATORS:
+        _fail("render.integrator", f"one of {', '.join(INTEGRATORS)}",
+              cfg["render"]["integrator"])
     if cfg["render"]["denoise"] not in ("off", "auto", "on"):
         _fail("render.denoise", "off, auto or on", cfg["render"]["denoise"])
     for key in ("keep_noisy", "sss"):

@@ -150,7 +150,8 @@ class SampleRenderer:
 
         r = self.cfg["render"]
         settings = RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
-                                  pixel_filter="box", sampler=r["sampler"])
+                                  pixel_filter="box", sampler=r["sampler"],
+                                  integrator=r["integrator"])
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,

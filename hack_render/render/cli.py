@@ -24,6 +24,10 @@ _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 SamplerOpt = typer.Option("multijitter", "--sampler", help="Mitsuba sampler: multijitter, "
                           "stratified, orthogonal, ldsampler or independent. All but "
                           "independent round --spp (said when they do); see docs/render.md.")
+IntegratorOpt = typer.Option("volpath", "--integrator", help="Mitsuba integrator: volpath "
+                             "(shadow rays see through the lashes' transparent parts: less "
+                             "noise around the eyes) or path (faster per sample); see "
+                             "docs/render.md.")
 DenoiseOpt = typer.Option("auto", "--denoise", help="Intel Open Image Denoise with albedo "
                           "and normal AOVs: auto (if the 'denoise' extra is installed, else "
                           "the noisy image with a warning), on (refuse without it), off.")
@@ -178,6 +182,7 @@ def render(
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
     sampler: str = SamplerOpt,
+    integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
     sss: bool = SssOpt,
@@ -201,8 +206,9 @@ def render(
     boundary.number(seed, "--seed", 0, 2 ** 31 - 1, integer=True)
     boundary.number(max_depth, "--max-depth", 1, 64, integer=True)
     boundary.number(views, "--views", 1, 1024, integer=True)
+    named("--integrator", RenderSettings, integrator=integrator)
     settings = named("--sampler", RenderSettings, w, h, spp, max_depth, seed,
-                     sampler=sampler)
+                     sampler=sampler, integrator=integrator)
     use_denoise = check_denoise(denoise)
     settings = denoise_settings(settings, use_denoise)
     aov_names = _aov_list(aov)
@@ -283,7 +289,8 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                             "hack_variant": head.variant,
                             "hack_denoised": "yes" if use_denoise and not tag else "no",
                             "hack_sss": "yes" if sss else "no",
-                            "hack_pixel_filter": head.settings.pixel_filter}
+                            "hack_pixel_filter": head.settings.pixel_filter,
+                            "hack_integrator": head.settings.integrator}
                     write_exr(target, exr_channels(image, aovs, aov_names), meta)
                 outputs.append(target)
         st = head.settings
@@ -334,6 +341,7 @@ def turntable(
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
     sampler: str = SamplerOpt,
+    integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
     sss: bool = SssOpt,
@@ -365,7 +373,9 @@ def turntable(
     w, h = _resolution(resolution)
     boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
     boundary.number(seed, "--seed", 0, 2 ** 31 - 1 - frames, integer=True)
-    settings = named("--sampler", RenderSettings, w, h, spp, 8, seed, sampler=sampler)
+    named("--integrator", RenderSettings, integrator=integrator)
+    settings = named("--sampler", RenderSettings, w, h, spp, 8, seed, sampler=sampler,
+                     integrator=integrator)
     use_denoise = check_denoise(denoise)
     settings = denoise_settings(settings, use_denoise)
     fmt = [f.strip() for f in formats.split(",") if f.strip()]
@@ -404,7 +414,7 @@ def turntable(
         "env_rotation": env_rotation, "exposure": exposure, "focal_mm": focal_mm,
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
         "variant": variant, "limits": limits, "frames": frames, "mode": mode,
-        "sampler": sampler, "denoise": use_denoise, "sss": sss,
+        "sampler": sampler, "integrator": integrator, "denoise": use_denoise, "sss": sss,
         "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 

@@ -35,6 +35,13 @@ SAMPLES_PER_PASS = 1 << 24
 #: multijitter (35) 36.7 dB, orthogonal (49) 40.5 dB, independent at 64 spp 33.8 dB.
 SAMPLERS = ("multijitter", "stratified", "orthogonal", "ldsampler", "independent")
 DEFAULT_SAMPLER = "multijitter"
+#: Mitsuba integrators of final renders. ``path`` treats every surface as opaque to
+#: shadow rays, so the lash cards' whole area blocks direct light from the lights' point
+#: of view and what lies under them is lit by BSDF-sampled paths alone (speckled);
+#: ``volpath`` traces shadow rays through null-transmissive surfaces, weighted by the
+#: ``mask`` BSDF's transparency (see docs/render.md, "Integrator").
+INTEGRATORS = ("volpath", "path")
+DEFAULT_INTEGRATOR = "volpath"
 
 
 def _next_prime(n: int) -> int:
@@ -83,9 +90,15 @@ class RenderSettings:
     #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
     pixel_filter: str = "gaussian"
     sampler: str = DEFAULT_SAMPLER
+    #: ``volpath`` (shadow rays see through the lash cards' transparent parts: less noise
+    #: under the lashes) or ``path`` (every surface blocks shadow rays; earlier versions)
+    integrator: str = DEFAULT_INTEGRATOR
 
     def __post_init__(self):
         validate_size(self.width, self.height, self.spp)
+        if self.integrator not in INTEGRATORS:
+            raise HackError(f"integrator: expected one of {', '.join(INTEGRATORS)}, found "
+                            f"{self.integrator!r}.")
         if self.sampler not in SAMPLERS:
             raise HackError(f"sampler: expected one of {', '.join(SAMPLERS)}, found "
                             f"{self.sampler!r}.")
@@ -218,7 +231,8 @@ class HeadScene:
         # backdrop (:meth:`backdrop`), lights and shading unchanged (only depth-0 emission
         # is hidden)
         scene: dict = {"type": "scene",
-                       "integrator": {"type": "path", "max_depth": settings.max_depth,
+                       "integrator": {"type": settings.integrator,
+                                      "max_depth": settings.max_depth,
                                       "hide_emitters": True},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter,
