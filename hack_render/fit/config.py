@@ -69,9 +69,10 @@ class LandmarkConfig:
     # --landmarks files follow "detector" (dlib's convention: the embedding above) or
     # "vertices" (they mark the model's own landmark vertices)
     files_follow: str = "detector"
-    # where dlib finds no face: "mesh" (the vision package's face mesh, any angle: its
-    # hidden points get no weight) or "off" (the fit stops, exit 2)
-    fallback: str = "mesh"
+    # where dlib finds no face: "auto" (the vision package's auto detector, any angle: the
+    # face mesh near frontal, the yaw-ranged shape predictors past 40 degrees), "mesh"
+    # (the face mesh alone) or "off" (the fit stops, exit 2); hidden points get no weight
+    fallback: str = "auto"
 
 
 @dataclass
@@ -304,8 +305,8 @@ class FitConfig:
                 raise HackError("config landmarks.point_weights: expected 68 finite weights "
                                 f">= 0 with a positive sum, found shape {w.shape}, min "
                                 f"{w.min() if w.size else 'n/a'}.")
-        if lm.fallback not in ("mesh", "off"):
-            raise HackError(f"config landmarks.fallback: expected 'mesh' or 'off', found "
+        if lm.fallback not in ("auto", "mesh", "off"):
+            raise HackError(f"config landmarks.fallback: expected 'auto', 'mesh' or 'off', found "
                             f"{lm.fallback!r}.")
         if lm.files_follow not in ("detector", "vertices"):
             raise HackError(f"config landmarks.files_follow: expected 'detector' or 'vertices', "

