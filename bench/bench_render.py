@@ -50,10 +50,15 @@
     reference of its own). Writes ``bench/results/render_cycles.json`` (``--out``) and
     ``docs/images/cycles_side_by_side.png``.
 
+(h) Integrators (``--only integrator``): volpath against path on the README's still at
+    256 px and an eye close-up at 192 px, equal time, each against its own high-spp
+    reference (:func:`integrator_benchmark`); ``bench/results/render_integrator.json``.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
        python bench/bench_render.py --only sss
+       python bench/bench_render.py --only integrator [--i-ref-spp 1024]
        python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
@@ -933,6 +938,87 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                            "rows": rows, "summary": summary, "printed": printed})
 
 
+def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
+                         repeats: int = 2) -> dict:
+    """(h) volpath against path (``RenderSettings.integrator``) on (a) the README's still
+    (alpha 0.8,-0.6,0.4, AU12 0.5, head rotation 5,-20,0, three-quarter camera, studio) at
+    256 px and (b) a close-up of the left eye at 192 px: each rung's PSNR (linear RGB,
+    peak 1) over the subject (reference alpha > 0.5) and over the eyes (sclera, iris and
+    lash pixels, dilated 3 px) against a ``ref_spp`` reference of the same integrator;
+    CPU seconds (process time) of ``render``, median of ``repeats`` seeds; CPU time
+    volpath needs for path's PSNR at each rung (log(time) interpolated)."""
+    from scipy.ndimage import binary_dilation
+
+    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.scene import INTEGRATORS, HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    model, _, v = posed_model(None, None, "AU12=0.5", "5,-20,0", None, None,
+                              LimitPolicy("warn"), None)
+    topo, maps = Topology.from_model(model), skin_maps([0.8, -0.6, 0.4])
+    R, t = cameras.look_at([0.036, 0.040, 0.200], [0.034, 0.033, 0.092])
+    views = {"head 256 px": cameras.preset("three_quarter", 256, 256)[0],
+             "eye close-up 192 px": cameras.Camera(cameras.intrinsics(192, 192, 90.0), R, t,
+                                                   192, 192, "eye")}
+    with torch.no_grad():  # the close-up: the head at rest, looking ahead
+        v_rest = model().vertices[0].numpy()
+    result, printed = {}, []
+
+    def say(text: str) -> None:  # printed, and kept for the result file
+        printed.append(text)
+        print(text, flush=True)
+
+    for view, cam in views.items():
+        verts = v if view.startswith("head") else v_rest
+        say(f"  {view} (each integrator against its own {ref_spp}-spp reference):")
+        rows = {}
+        for name in INTEGRATORS:
+            def scene(spp, name=name, cam=cam, verts=verts):
+                return HeadScene(topo, verts, lights.preset("studio"), cam,
+                                 RenderSettings(cam.width, cam.height, spp, integrator=name),
+                                 maps)
+            ref_head = scene(ref_spp)
+            ref = ref_head.render(seed=99, backdrop=False)
+            reg = ref_head.region_hits(see_through=())["region"]
+            eye = binary_dilation(np.isin(reg, [REGIONS.index(r) for r in
+                                                ("sclera", "iris", "eyelashes")]), iterations=3)
+            masks = {"psnr": ref[..., 3] > 0.5, "psnr_eye": eye}
+            rows[name] = []
+            for spp in ladder:
+                head = scene(spp)
+                head.render(seed=0, backdrop=False)  # compile
+                cpu, scores = [], []
+                for r in range(repeats):
+                    t0 = time.process_time()
+                    img = head.render(seed=1 + r, backdrop=False)
+                    cpu.append(time.process_time() - t0)
+                    err = (img[..., :3] - ref[..., :3]) ** 2
+                    scores.append([10 * np.log10(1.0 / float(err[m].mean()))
+                                   for m in masks.values()])
+                row = {"spp": spp, "cpu_s": statistics.median(cpu),
+                       **dict(zip(masks, np.mean(scores, axis=0).tolist()))}
+                rows[name].append(row)
+                say(f"    {name:8s} {spp:4d} spp {row['cpu_s']:6.2f} CPU s  PSNR subject "
+                      f"{row['psnr']:5.2f} dB, eyes {row['psnr_eye']:5.2f} dB")
+        ratio = statistics.median(b["cpu_s"] / a["cpu_s"]
+                                  for a, b in zip(rows["path"], rows["volpath"]))
+        say(f"    CPU time volpath / path at equal spp: {ratio:.2f} (median over rungs)")
+        for key in ("psnr", "psnr_eye"):  # equal PSNR, either way round
+            for src, dst in (("path", "volpath"), ("volpath", "path")):
+                for a in rows[src]:
+                    tv = time_at_psnr([{"cpu_s": r["cpu_s"], "psnr": r[key]}
+                                       for r in rows[dst]], a[key])
+                    if tv is not None:
+                        speed = a["cpu_s"] / tv if src == "path" else tv / a["cpu_s"]
+                        say(f"    {key}: {src} {a['spp']} spp ({a[key]:.2f} dB, "
+                            f"{a['cpu_s']:.2f} CPU s) = {dst} in {tv:.2f} CPU s "
+                            f"(volpath {speed:.2f}x faster)")
+        result[view] = {"rows": rows, "cpu_ratio": ratio}
+    return {"printed": printed, "views": result}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -943,7 +1029,8 @@ def main() -> None:
     ap.add_argument("--tt-spp", type=int, default=32)
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles"),
+    ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles",
+                                       "integrator"),
                     default="all")
     ap.add_argument("--blender-python", default=None, help="cycles: a Python with bpy "
                     f"(default ${BPY_ENV})")
@@ -954,6 +1041,7 @@ def main() -> None:
     ap.add_argument("--c-repeats", type=int, default=2)
     ap.add_argument("--c-still", default="docs/images/cycles_side_by_side.png",
                     help="cycles: the side-by-side still ('' for none)")
+    ap.add_argument("--i-ref-spp", type=int, default=1024)
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -978,6 +1066,13 @@ def main() -> None:
             print(f"variant: {variant}")
             sss_benchmark()
             sss_screen_benchmark()
+        return
+    if args.only == "integrator":
+        print(f"variant: {variant}")
+        res = integrator_benchmark(ref_spp=args.i_ref_spp)
+        write_result(args.out or "bench/results/render_integrator.json",
+                     {"title": "Rendering: volpath against path, equal time",
+                      "variant": variant, **res})
         return
     if args.only == "e2e":
         with recorded(args.out, "Rendering: end-to-end `hack-render render`"):

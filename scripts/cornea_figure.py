@@ -8,7 +8,8 @@ pupil in each view (geometry, no render needed): the apparent pupil's area in th
 over the plain one's (the magnification squared) and the shift of its centre, in pixels
 and in millimetres at the eye.
 
-    python scripts/cornea_figure.py [--spp 128] [--res 256] [--side 50] [--out ...]
+    python scripts/cornea_figure.py [--spp 128] [--res 256] [--integrator volpath]
+        [--side 50] [--out ...]
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--integrator", default="volpath", help="volpath or path (earlier)")
     ap.add_argument("--side", type=float, default=50.0)
     ap.add_argument("--out", default="docs/images/cornea_before_after.png")
     args = ap.parse_args()
@@ -92,12 +94,14 @@ def main() -> None:
         row = []
         for cornea in (False, True):
             head = HeadScene(topo, v, lights.preset("studio"), cam,
-                             RenderSettings(args.res, args.res, args.spp), cornea=cornea)
+                             RenderSettings(args.res, args.res, args.spp,
+                                            integrator=args.integrator), cornea=cornea)
             row.append(srgb8(head.render(sss=True)))
         rows.append(np.concatenate(row, 1))
     Image.fromarray(np.concatenate(rows, 0)).save(args.out, optimize=True)
     print(f"wrote {args.out} (left: plain iris, right: through the cornea; top: frontal, "
-          f"bottom: {args.side:g} deg to the side; {args.res} px, {args.spp} spp, sss)")
+          f"bottom: {args.side:g} deg to the side; {args.res} px, {args.spp} spp, sss, "
+          f"{args.integrator})")
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ procedural strand texture (``materials.lash_opacity_map``), two views of the lef
 (from above, from below), studio light, ``render(sss=True)``. Prints each render's share
 of dark pixels in the lash cards' footprint (darker than half the median skin luminance).
 
-    python scripts/lashes_figure.py [--spp 128] [--res 256] [--out docs/images/...]
+    python scripts/lashes_figure.py [--spp 128] [--res 256] [--integrator volpath]
+        [--out docs/images/...]
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spp", type=int, default=128)
     ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--integrator", default="volpath", help="volpath or path (earlier)")
     ap.add_argument("--out", default="docs/images/lashes_before_after.png")
     args = ap.parse_args()
     model = load_default_model()
@@ -49,7 +51,8 @@ def main() -> None:
         row = []
         for strands in (False, True):
             head = HeadScene(topo, v, lights.preset("studio"), cam,
-                             RenderSettings(args.res, args.res, args.spp), lash_strands=strands)
+                             RenderSettings(args.res, args.res, args.spp,
+                                            integrator=args.integrator), lash_strands=strands)
             img = head.render(sss=True)
             hits = head.region_hits()
             band = hits["region"] == REGIONS.index("eyelashes")
@@ -62,7 +65,7 @@ def main() -> None:
         rows.append(np.concatenate(row, 1))
     Image.fromarray(np.concatenate(rows, 0)).save(args.out, optimize=True)
     print(f"wrote {args.out} (left: uniform 50 % cards, right: strand texture; "
-          f"{args.res} px, {args.spp} spp, sss)")
+          f"{args.res} px, {args.spp} spp, sss, {args.integrator})")
 
 
 if __name__ == "__main__":
