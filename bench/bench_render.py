@@ -810,7 +810,10 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
         return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp,
                                                            pixel_filter=filters[name]), maps)
 
-    say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8; "
+    # ours: the default integrator (volpath: shadow rays pass the lash cards' transparent
+    # parts, as Cycles' transparent shadows do)
+    say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8, "
+        f"ours {RenderSettings().integrator}; "
         f"{os.cpu_count()} CPUs; Cycles {bpy_version} (CPU) in {bpy_python}")
     rows: list[dict] = []
     images: dict[tuple, np.ndarray] = {}

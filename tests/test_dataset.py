@@ -94,6 +94,7 @@ def test_sampled_values_respect_the_config(au_names):
     ({"background": {"luminance": [0.5, 0.1]}}, "background.luminance"),
     ({"render": {"denoise": "yes"}}, "render.denoise"),
     ({"render": {"sampler": "sobol"}}, "render.sampler"),
+    ({"render": {"integrator": "bdpt"}}, "render.integrator"),
 ])
 def test_bad_config_names_the_key(override, key):
     with pytest.raises(HackError, match=key.replace(".", r"\.")):

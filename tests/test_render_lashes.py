@@ -120,9 +120,9 @@ def lash_band_darkness(img, band, skin):
 
 def test_04_closeup_lashes_are_strands_not_a_band(head_model):
     """In a close-up of the eye the lash cards' footprint is mostly skin and eye seen
-    between strands: few of its pixels are dark (16 % here; uniform 50 % cards, three
-    layers deep, made 86 % of them dark, a grey band around the eye), yet some are (the
-    strands). 64 spp: the skin under the cards is noisy (their shadow rays)."""
+    between strands: few of its pixels are dark (8 % here; uniform 50 % cards, three
+    layers deep, made 88 % of them dark, a grey band around the eye), yet some are (the
+    strands). 64 spp, volpath: shadow rays pass between the strands."""
     topo, v = head_model
     cam = eye_closeup(96)
     dark = {}
