@@ -23,3 +23,18 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.skip(reason="slow: run with --runslow"))
         if "gpu" in item.keywords and not config.getoption("--rungpu"):
             item.add_marker(pytest.mark.skip(reason="gpu: run with --rungpu"))
+
+
+@pytest.fixture(scope="module")
+def head_model():
+    """(Topology, rest vertices (V, 3) float64) of the default model: the render tests'
+    head (module scope: a test that edits the vertices affects its own module only)."""
+    import torch
+
+    from hack_render.geometry import load_default_model
+    from hack_render.render.parts import Topology
+
+    model = load_default_model()
+    with torch.no_grad():
+        v = model().vertices[0].double().numpy()
+    return Topology.from_model(model), v

@@ -4,13 +4,11 @@ oblique view, the switch, and a render of the eye."""
 
 import numpy as np
 import pytest
-import torch
 
 from hack_render.render.engine import ensure_variant
 
 ensure_variant()
 
-from hack_render.geometry import load_default_model
 from hack_render.render.cornea import (
     CORNEA_IOR,
     CORNEA_RADIUS,
@@ -23,20 +21,11 @@ from hack_render.render.parts import (
     LIMBUS_RADIUS,
     PUPIL_RADIUS,
     REGIONS,
-    Topology,
     radial_eye_distance,
     split_parts,
 )
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
-
-
-@pytest.fixture(scope="module")
-def head_model():
-    model = load_default_model()
-    with torch.no_grad():
-        v = model().vertices[0].double().numpy()
-    return Topology.from_model(model), v
 
 
 @pytest.fixture(scope="module")

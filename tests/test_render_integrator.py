@@ -4,25 +4,15 @@ at every card; same image in the mean, less noise under the lashes."""
 
 import numpy as np
 import pytest
-import torch
 
 from hack_render.errors import HackError
 from hack_render.render.engine import ensure_variant
 
 ensure_variant()
 
-from hack_render.geometry import load_default_model
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import REGIONS
 from hack_render.render.scene import DEFAULT_INTEGRATOR, INTEGRATORS, HeadScene, RenderSettings
 from scenes import cameras, lights
-
-
-@pytest.fixture(scope="module")
-def head_model():
-    model = load_default_model()
-    with torch.no_grad():
-        v = model().vertices[0].double().numpy()
-    return Topology.from_model(model), v
 
 
 def eye_closeup(res: int) -> cameras.Camera:

@@ -3,7 +3,6 @@ render of the eye, and the label passes' agreement with the renderer's opacity."
 
 import numpy as np
 import pytest
-import torch
 
 from hack_render.render.engine import ensure_variant
 
@@ -12,20 +11,11 @@ ensure_variant()
 import drjit as dr
 import mitsuba as mi
 
-from hack_render.geometry import load_default_model
 from hack_render.render import materials
 from hack_render.render.aov import camera_hit, card_opacity
-from hack_render.render.parts import REGIONS, Part, Topology, lash_cards, split_parts
+from hack_render.render.parts import REGIONS, Part, lash_cards, split_parts
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
-
-
-@pytest.fixture(scope="module")
-def head_model():
-    model = load_default_model()
-    with torch.no_grad():
-        v = model().vertices[0].double().numpy()
-    return Topology.from_model(model), v
 
 
 @pytest.fixture(scope="module")

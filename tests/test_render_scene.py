@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import torch
 
 from hack_render.render.engine import ensure_variant, is_jit
 
@@ -11,19 +10,10 @@ ensure_variant()
 import drjit as dr
 import mitsuba as mi
 
-from hack_render.geometry import load_default_model
 from hack_render.render.emitters import camera_to_world
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import REGIONS
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
-
-
-@pytest.fixture(scope="module")
-def head_model():
-    model = load_default_model()
-    with torch.no_grad():
-        v = model().vertices[0].double().numpy()
-    return Topology.from_model(model), v
 
 
 def make(head_model, cam, spp=4, rig="studio"):
