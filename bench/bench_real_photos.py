@@ -26,9 +26,13 @@ Segmentation: person IoU (selfie segmentation > 0.7 against the render's coverag
 0.5), face IoU (the mesh's face oval against the render's face region), occluder recall
 and precision on the composites with one.
 
-``--fit``: runs ``hack-render fit PHOTO --no-photometric`` on each real photo and records
-its exit code, seconds and the report's landmark figures (the fit's PSNR and time columns
-come with the fitter's own work).
+``--fit``: runs ``hack-render fit PHOTO`` (its defaults: every stage; ``--fit landmarks``:
+``--no-photometric``) on each real photo and records its exit code, seconds, per-stage
+timings and, from its ``render.png`` at the photo's size, the face-region PSNR and SSIM
+against the photo (the region: the vision package's face oval without its occluders,
+where the render covers it; ``skin_*``: its skin only, without eyes, brows, lips and
+hair; ``baked_*``: the region's pixels the bake took from the photo, its
+``occlusion.png`` > 0). ``--real-only`` skips the composites.
 """
 
 from __future__ import annotations
@@ -199,7 +203,7 @@ def run_composites(args, detectors) -> dict:
     return out
 
 
-def run_real(detectors, fit: bool) -> dict:
+def run_real(detectors, fit, keep=None) -> dict:
     from hack_render.vision.detect import detect_faces
 
     out = {}
@@ -219,31 +223,81 @@ def run_real(detectors, fit: bool) -> dict:
                 iod = ref.interocular
                 row[f"{d}_vs_mesh_nme_iod_inner"] = nme(f.points, ref.points, iod, slice(17, 68))
         if fit:
-            row["fit"] = run_fit(name, img)
+            row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep)
         out[name] = row
     return out
 
 
-def run_fit(name: str, img: np.ndarray) -> dict:
-    """``hack-render fit`` on one photo (landmark stages): exit code, seconds, report."""
+def face_region(img: np.ndarray):
+    """The photo's face region for scoring a fit's render: the vision package's face oval
+    (soft mask > 0.5) with its occluders removed, and its skin (the segmentation's skin
+    there: no eyes, brows, lips or hair); None where no face is found."""
+    from hack_render.vision.detect import detect_faces
+    from hack_render.vision.segment import segment
+
+    faces = detect_faces(img, "mesh")   # the segmentation needs the mesh's dense points
+    if not faces:
+        return None
+    seg = segment(img, faces[0])
+    face = (seg.face > 0.5) & ~seg.occluder
+    return face, face & seg.skin
+
+
+def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray) -> dict:
+    """Face-region PSNR (dB, 8-bit sRGB) and mean SSIM of a fit's ``render.png`` against
+    the photo, over the face region's pixels the render covers (alpha > 0.5)."""
+    from skimage.metrics import structural_similarity
+
+    a = photo.astype(np.float64)
+    b = render_rgba[..., :3].astype(np.float64)
+    m = region & (render_rgba[..., 3] > 127)
+    if m.sum() < 50:
+        return {"face_pixels": int(m.sum())}
+    mse = float(np.mean((a[m] - b[m]) ** 2))
+    _, ssim_map = structural_similarity(a, b, channel_axis=2, data_range=255, full=True)
+    return {"face_pixels": int(m.sum()), "face_covered": float(m.sum() / max(region.sum(), 1)),
+            "face_psnr_db": 10 * np.log10(255.0 ** 2 / max(mse, 1e-12)),
+            "face_ssim": float(ssim_map.mean(axis=2)[m].mean())}
+
+
+def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> dict:
+    """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
+    stages only): exit code, seconds, per-stage timings, the report's landmark figures and
+    the face-region PSNR/SSIM of its ``render.png`` at the photo's size. ``keep``: a folder
+    the fit's outputs are kept in (``keep/name``), else they go with a temporary one."""
     import imageio.v3 as iio
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"{name}.png"
         iio.imwrite(path, img)
+        out = Path(keep) / name if keep else Path(tmp) / "out"
         t = time.time()
-        p = subprocess.run([sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
-                            str(Path(tmp) / "out"), "--no-photometric"],
-                           capture_output=True, text=True, check=False)
-        row = {"exit": p.returncode, "seconds": round(time.time() - t, 1)}
+        cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
+               str(out)] + ([] if photometric else ["--no-photometric"])
+        p = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        row = {"exit": p.returncode, "seconds": round(time.time() - t, 1),
+               "photometric": photometric}
         if p.returncode:
             row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
         for out_name in ("fit_report.json", "timings.json"):   # the fitter's outputs
-            f = Path(tmp) / "out" / out_name
+            f = out / out_name
             if f.is_file():
                 data = json.loads(f.read_text())
                 row[f.stem] = {k: v for k, v in data.items()
-                               if isinstance(v, (int, float, str))}
+                               if isinstance(v, (int, float, str)) or k == "timings_s"}
+        render = out / "render.png"
+        if render.is_file():
+            regions = face_region(img)
+            if regions is not None:
+                rgba = np.asarray(iio.imread(render))
+                row.update(score_render(img, rgba, regions[0]))
+                row.update({f"skin_{k}": v
+                            for k, v in score_render(img, rgba, regions[1]).items()})
+                occ = out / "occlusion.png"   # the bake's weights: > 0 where it used the photo
+                if occ.is_file():
+                    used = np.asarray(iio.imread(occ)) > 0
+                    row.update({f"baked_{k}": v for k, v in
+                                score_render(img, rgba, regions[0] & used).items()})
     return row
 
 
@@ -253,7 +307,13 @@ def main(argv=None) -> None:
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--no-cnn", action="store_true", help="leave out dlib's CNN (slow)")
-    ap.add_argument("--fit", action="store_true", help="run hack-render fit on the real photos")
+    ap.add_argument("--fit", nargs="?", const="all", choices=("all", "landmarks"),
+                    help="run hack-render fit on each real photo: all stages (default) or "
+                         "the landmark stages only; scores render.png's face region")
+    ap.add_argument("--fit-out", default=None,
+                    help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")
+    ap.add_argument("--real-only", action="store_true",
+                    help="the real photos only (no composites)")
     ap.add_argument("--out", default="bench/results/real_photos.json")
     a = ap.parse_args(argv)
     warnings.filterwarnings("ignore")
@@ -263,8 +323,8 @@ def main(argv=None) -> None:
     detectors = ["auto", "mesh", "ert", "dlib_hog"] + ([] if a.no_cnn else ["dlib_cnn"])
     t0 = time.time()
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
-              "seed": SEED, "real": run_real(detectors, a.fit),
-              "composites": run_composites(a, detectors),
+              "seed": SEED, "real": run_real(detectors, a.fit, a.fit_out),
+              "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
                            "backgrounds": "scikit-image coffee (CC0), rocket (public domain), "
@@ -272,7 +332,15 @@ def main(argv=None) -> None:
                                           "(public domain)"}}
     result["seconds"] = round(time.time() - t0, 1)
     write_result(a.out, result)
+    for name, row in result["real"].items():
+        if "fit" in row:
+            f = row["fit"]
+            print(name, "fit exit", f["exit"], f["seconds"], "s", "face PSNR",
+                  round(f.get("face_psnr_db", float("nan")), 2), "SSIM",
+                  round(f.get("face_ssim", float("nan")), 3))
     comp = result["composites"]
+    if not comp:
+        return
     for d in detectors:
         print(d, "detection", round(comp[d]["detection_rate"], 3), "roll",
               round(comp[d]["detection_rate_roll"], 3), comp[d]["median"])

@@ -334,7 +334,7 @@ def _ert_face(rgb8: np.ndarray, box, score: float, kp=None) -> tuple[FaceLandmar
     from hack_render.vision import ert
     from hack_render.vision.pose import fit_pose, visible_from_pose
 
-    pts, yaw = ert.landmarks(rgb8, box, kp)
+    pts, yaw = ert.landmarks(rgb8, box, kp, check_upside_down=False)
     d = pts[45] - pts[36]
     pose = fit_pose(pts)
     return FaceLandmarks(pts, tuple(float(v) for v in box), 0, "ert", score=score,
@@ -352,6 +352,10 @@ def _mesh_faces(rgb8: np.ndarray, method: str, min_presence: float) -> list[Face
     for x0, y0, x1, y1, score, kp in _boxes(rgb8, method == "auto"):
         box = (x0, y0, x1, y1)
         if method != "mesh":
+            if kp is not None:   # BlazeFace's keypoints, the right way up (for both)
+                from hack_render.vision.ert import upright_keypoints
+
+                kp = upright_keypoints(rgb8, box, kp)
             ert_face, yaw = _ert_face(rgb8, box, score, kp)
             if method == "ert" or abs(yaw) >= ERT_FROM_YAW:
                 faces.append(ert_face)
