@@ -113,7 +113,7 @@ def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: i
 
 def synthetic_target(model, res=96, rig=None):
     """A render of known parameters (lit by ``rig``, default the ``light_stage`` preset) of
-    the full model: returns the photo (res, res, 3) linear RGB, its 68 landmarks (68, 2) in
+    the full model, by the path integrator: returns the photo (res, res, 3) linear RGB, its 68 landmarks (68, 2) in
     pixels and the truth (beta, head angles, vertices). Needs Mitsuba."""
     import torch
 
@@ -134,9 +134,12 @@ def synthetic_target(model, res=96, rig=None):
     K = np.array([[f, 0, res / 2], [0, f, res / 2], [0, 0, 1.0]])
     t = np.array([0.0, -0.03, 1.0])
     cam = Camera(K, R0.numpy().astype(np.float64), t, res, res, "synthetic")
+    # the path integrator: the fitter's prb (the same light transport) is what has to
+    # reproduce this photo; volpath lights the skin under the lash cards that path's
+    # shadow rays do not reach
     head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
                      preset("light_stage") if rig is None else rig,
-                     cam, RenderSettings(res, res, 16, 4, 0))
+                     cam, RenderSettings(res, res, 16, 4, 0, integrator="path"))
     img = head.render()[..., :3]
     lm = cam.project(out.landmarks[0].numpy().astype(np.float64))
     return img, lm, {"beta": beta, "angles": angles, "vertices": out.vertices[0]}

@@ -85,7 +85,7 @@ def test_02_lights_still_light_the_head(head):
     head.set_camera(cameras.orbit(RES, RES, 85.0, 0.0, 5.0, name="front"))
     hidden = head.render(seed=3)
     shown = np.asarray(mi.render(head.scene, seed=(3 * 7919) % 2 ** 31, integrator=mi.load_dict(
-        {"type": "path", "max_depth": head.settings.max_depth})))
+        {"type": head.settings.integrator, "max_depth": head.settings.max_depth})))
     hit = head.aovs()["depth"] > 0
     interior = ~_far_from_subject(~hit * 1.0, 1) & hit  # head pixels away from the outline
     ratio = hidden[interior, :3].mean() / shown[interior, :3].mean()
