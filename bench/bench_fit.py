@@ -126,8 +126,11 @@ def render_subject(k: int, res: int, model, app, expressions: bool = False,
         rig = preset(name, rotation_deg=float(90.0 * torch.rand(1, generator=gl) - 45.0))
     else:
         rig = preset(lighting)
+    # the path integrator, as in the published figures: the fitter's prb has its light
+    # transport (volpath, the final renders' default, also lights the skin under the lash
+    # cards, which prb's shadow rays do not reach)
     head = HeadScene(Topology.from_model(model), out.vertices[0].numpy(),
-                     rig, cam, RenderSettings(res, res, 64, 4, 0),
+                     rig, cam, RenderSettings(res, res, 64, 4, 0, integrator="path"),
                      SkinMaps.from_appearance(tmaps))
     img = head.render()[..., :3]
     srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)
