@@ -165,7 +165,7 @@ def test_04_brows_are_baked(model):
     and left out where it is off."""
     from hack_render.fit import texture
 
-    f, cfg, true_maps, _, truth = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
