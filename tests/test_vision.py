@@ -264,3 +264,60 @@ def test_upside_down_face_keypoints_turned():
     assert np.dot(up, up_true) > 0, (up, up_true)
     face = detect_face(c.image, "auto")
     assert _nme_box(face, c) < 0.05, _nme_box(face, c)
+
+
+def test_head_region_and_on_person():
+    """The head region is the square at the top of the person's silhouette (a head on a
+    neck on shoulders: the head's centre and width); a box's share on the person is the
+    mean probability inside it, what lies outside the image counting as off."""
+    from hack_render.vision.verify import head_region, on_person
+
+    yy, xx = np.mgrid[0:200, 0:160]
+    prob = np.zeros((200, 160), np.float32)
+    prob[(xx - 80) ** 2 + (yy - 60) ** 2 < 30 ** 2] = 1.0     # the head
+    prob[85:110, 68:92] = 1.0                                   # the neck
+    prob[110:, 10:150] = 1.0                                    # the shoulders
+    centre, side = head_region(prob)
+    assert abs(centre[0] - 80) < 2 and abs(centre[1] - 60) < 2 and abs(side - 59) < 3, \
+        (centre, side)
+    assert abs(on_person(prob, (50, 30, 110, 90)) - np.pi / 4) < 0.03
+    assert on_person(prob, (0, 0, 40, 40)) == 0.0
+    assert abs(on_person(prob, (40, 180, 120, 220)) - 0.5) < 0.01    # half outside
+    assert head_region(np.zeros((64, 64), np.float32)) is None
+    tiny = np.zeros((200, 200), np.float32)
+    tiny[:5, :5] = 1.0
+    assert head_region(tiny) is None
+
+
+def test_auto_rejects_a_box_off_the_person(shots, monkeypatch):
+    """BlazeFace's only box on the background (as on the benchmark's composite at yaw 75,
+    pitch 45): ``auto`` drops it (off the person) and its head search finds the face; a
+    box on the head that is weak and too large (head and neck, as BlazeFace gave at pitch
+    -45) gives way to the head search's; a box off the person that BlazeFace is sure of
+    is kept (a face the segmentation missed)."""
+    from hack_render.vision import detect, verify
+
+    c = shots["frontal"]
+    prob = verify.person_probability(c.image)
+    off = (4.0, 4.0, 44.0, 44.0, 0.62, np.zeros((6, 2)))
+    assert verify.on_person(prob, off[:4]) < verify.ON_PERSON
+    (box,) = verify.verified_boxes(c.image, [off])
+    x0, y0, x1, y1 = box[:4]
+    cx, cy = c.points.mean(0)
+    assert box is not off and x0 < cx < x1 and y0 < cy < y1, (box[:4], (cx, cy))
+    # end to end: BlazeFace's boxes replaced by the one on the background
+    monkeypatch.setattr(detect, "find_boxes", lambda rgb8: [off])
+    face = detect_face(c.image, "auto")
+    assert _nme_box(face, c) < 0.05, _nme_box(face, c)
+    assert not detect_faces(c.image, "ert") or \
+        _nme_box(detect_faces(c.image, "ert")[0], c) > 0.3   # unchecked, it is lost
+    # a weak box twice the face's size, reaching down the neck
+    tx0, ty0 = c.points.min(0)
+    tx1, ty1 = c.points.max(0)
+    w = tx1 - tx0
+    big = (tx0 - w / 2, ty0, tx1 + w / 2, ty1 + 1.5 * w, 0.52, np.zeros((6, 2)))
+    (box,) = verify.verified_boxes(c.image, [big])
+    truth = (tx0, ty0, tx1, ty1)
+    assert detect._iou(box[:4], truth) > detect._iou(big[:4], truth) + 0.2
+    sure = (*off[:4], 0.9, off[5])
+    assert any(b is sure for b in verify.verified_boxes(c.image, [sure]))

@@ -308,6 +308,10 @@ def mesh_landmarks(rgb8: np.ndarray, box, keypoints=None, passes: int = 2):
 def _boxes(rgb8: np.ndarray, cnn_fallback: bool) -> list:
     """BlazeFace's boxes at any quarter turn, else (``cnn_fallback``) dlib CNN's."""
     boxes = find_boxes(rgb8)
+    if cnn_fallback:           # auto: the boxes checked against the person
+        from hack_render.vision.verify import verified_boxes
+
+        boxes = verified_boxes(rgb8, boxes)
     if boxes or not cnn_fallback:
         return boxes
     return [(*b, s, None) for b, s in _dlib_cnn_boxes(rgb8)]

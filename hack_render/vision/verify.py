@@ -1,0 +1,138 @@
+"""Face boxes checked against the person: ``auto``'s detector on hard views.
+
+BlazeFace (:func:`hack_render.vision.detect.find_boxes`) loses faces seen from 45
+degrees above or below at 30-90 degrees of yaw: it boxes a patch of background, or the
+head and neck together (a box twice the face's size, found only in the image turned by a
+quarter turn), or nothing. MediaPipe's selfie segmentation still outlines the person
+there, and a face lies on the person, in the head at the top of the silhouette. So:
+
+1. **Person**: the selfie segmentation's probability (:func:`person_probability`); its
+   largest connected part above 0.5 is the person. No person (under ``MIN_PERSON`` of
+   the image): BlazeFace's boxes are returned unchecked.
+2. **Head region**: the top of the person's silhouette: a square of side the
+   silhouette's width near its top (:func:`head_region`).
+3. **Head search**: BlazeFace again on square crops of that region (``HEAD_CROPS``
+   times its side), each resampled to ``CROP_PX`` pixels, so the face fills more of
+   BlazeFace's input; the most confident box on the person is the head's candidate.
+4. **Verification**: a BlazeFace box of the whole image mostly off the person (under
+   ``ON_PERSON`` of the box's mean person probability) is dropped unless BlazeFace is
+   sure of it (``SURE``: a face the segmentation missed, someone small in a crowd).
+   The boxes on the head region compete with the head search's candidate: the higher
+   BlazeFace score is kept (each crop is a different view for BlazeFace; the score is
+   its confidence in that view).
+
+The head region assumes an upright person (the head at the top of the silhouette):
+faces turned in the image plane keep BlazeFace's boxes from the turned image.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: the least share of the image the person must cover for the boxes to be checked
+MIN_PERSON = 0.01
+#: a box is on the person where the mean person probability inside it is at least this
+ON_PERSON = 0.5
+#: BlazeFace's score from which a box off the person is kept all the same
+SURE = 0.8
+#: BlazeFace's score under which a box on the head is weak: the head search is run and
+#: its candidate replaces the box where it scores higher
+WEAK = 0.6
+#: the head search's crops: sides in head-region sides (the silhouette's width near its
+#: top misses the head's size both ways: a shoulder, hair or a background the
+#: segmentation spreads into)
+HEAD_CROPS = (1.0, 1.5, 2.0)
+CROP_PX = 192               # the head search's crop side, pixels
+
+
+def person_probability(rgb8: np.ndarray) -> np.ndarray:
+    from hack_render.vision.segment import person_probability as prob
+
+    return prob(rgb8)
+
+
+def on_person(prob: np.ndarray, box) -> float:
+    """Mean person probability inside ``box`` (left, top, right, bottom; pixels); 0 for
+    a box wholly outside the image."""
+    h, w = prob.shape
+    x0, y0 = max(int(np.floor(box[0])), 0), max(int(np.floor(box[1])), 0)
+    x1, y1 = min(int(np.ceil(box[2])), w), min(int(np.ceil(box[3])), h)
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
+    inside = float(prob[y0:y1, x0:x1].sum())
+    area = max((box[2] - box[0]) * (box[3] - box[1]), 1.0)
+    return inside / area          # the part outside the image counts as off the person
+
+
+def head_region(prob: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(centre (x, y), side) of the square at the top of the person's silhouette (its
+    largest part above 0.5), side its width over the top 30 % of its height; None where
+    the person covers under ``MIN_PERSON`` of the image."""
+    from scipy import ndimage
+
+    mask = prob > 0.5
+    lab, n = ndimage.label(mask)
+    if n == 0:
+        return None
+    sizes = ndimage.sum(mask, lab, range(1, n + 1))
+    if sizes.max() < MIN_PERSON * mask.size:
+        return None
+    mask = lab == 1 + int(np.argmax(sizes))
+    ys = np.nonzero(mask.any(1))[0]
+    y0, y1 = int(ys[0]), int(ys[-1])
+    top = mask[y0:y0 + max(int(0.3 * (y1 - y0)), 1)]
+    cols = np.nonzero(top.any(0))[0]
+    side = float(cols[-1] - cols[0] + 1)
+    xs = np.nonzero(mask[y0:y0 + int(side)])[1]
+    return np.array([xs.mean() + 0.5, y0 + side / 2]), side
+
+
+def crop_boxes(rgb8: np.ndarray, centre, side: float) -> list:
+    """BlazeFace on the square crop of ``side`` px around ``centre`` resampled to
+    ``CROP_PX``: boxes as :func:`~hack_render.vision.detect.blazeface_boxes`, in the
+    image's pixels."""
+    import cv2
+
+    from hack_render.vision.detect import blazeface_boxes
+
+    k = CROP_PX / side
+    to_crop = np.array([[k, 0.0, CROP_PX / 2 - k * centre[0]],
+                        [0.0, k, CROP_PX / 2 - k * centre[1]]])
+    crop = cv2.warpAffine(rgb8, to_crop, (CROP_PX, CROP_PX), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+    return [((x0 - to_crop[0, 2]) / k, (y0 - to_crop[1, 2]) / k, (x1 - to_crop[0, 2]) / k,
+             (y1 - to_crop[1, 2]) / k, s, (kp - to_crop[:, 2]) / k)
+            for x0, y0, x1, y1, s, kp in blazeface_boxes(crop)]
+
+
+def head_box(rgb8: np.ndarray, prob: np.ndarray, region) -> tuple | None:
+    """The head search's candidate: BlazeFace's most confident box on the person over
+    the crops of the head region (``HEAD_CROPS``), or None."""
+    centre, side = region
+    found = [b for f in HEAD_CROPS for b in crop_boxes(rgb8, centre, f * side)
+             if on_person(prob, b[:4]) >= ON_PERSON]
+    return max(found, key=lambda b: b[4], default=None)
+
+
+def _in_square(box, centre, side: float) -> bool:
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    return abs(cx - centre[0]) <= side and abs(cy - centre[1]) <= side
+
+
+def verified_boxes(rgb8: np.ndarray, boxes: list) -> list:
+    """``boxes`` (BlazeFace's, of the whole image) checked against the person and
+    competing with the head search's candidate (the module docstring)."""
+    prob = person_probability(rgb8)
+    region = head_region(prob)
+    if region is None:
+        return boxes
+    kept = [b for b in boxes if b[4] >= SURE or on_person(prob, b[:4]) >= ON_PERSON]
+    centre, side = region
+    on_head = [b for b in kept if _in_square(b, centre, side)]
+    best = max((b[4] for b in on_head), default=None)
+    if best is not None and best >= WEAK:
+        return kept
+    cand = head_box(rgb8, prob, region)
+    if cand is None or (best is not None and best >= cand[4]):
+        return kept
+    return [cand] + [b for b in kept if not any(b is o for o in on_head)]
