@@ -4,7 +4,10 @@ Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py
 
 - Boxes: MediaPipe's BlazeFace (both of its models, short and full range, from the
   ``mediapipe`` wheel), the image also turned by 90, 270 and 180 degrees when none is
-  found upright (:func:`find_boxes`); ``auto`` falls back to dlib's CNN detector.
+  found upright (:func:`find_boxes`). ``auto`` checks them against the person (selfie
+  segmentation): a box off the person is dropped, and where the box on the head is weak
+  or missing BlazeFace runs again on upscaled crops of the silhouette's head region
+  (:mod:`hack_render.vision.verify`); with no box left it falls back to dlib's CNN.
 - ``"mesh"``: MediaPipe's 468-point face-mesh model run directly (``ai-edge-litert``) on
   a square region around the box turned upright by the eyes, twice (the second region
   from the first pass's points). The dense points become the 68 Multi-PIE points
@@ -306,7 +309,8 @@ def mesh_landmarks(rgb8: np.ndarray, box, keypoints=None, passes: int = 2):
 
 
 def _boxes(rgb8: np.ndarray, cnn_fallback: bool) -> list:
-    """BlazeFace's boxes at any quarter turn, else (``cnn_fallback``) dlib CNN's."""
+    """BlazeFace's boxes at any quarter turn; ``cnn_fallback`` (``auto``): checked against
+    the person (:func:`hack_render.vision.verify.verified_boxes`), else dlib CNN's."""
     boxes = find_boxes(rgb8)
     if cnn_fallback:           # auto: the boxes checked against the person
         from hack_render.vision.verify import verified_boxes
