@@ -268,8 +268,9 @@ def test_upside_down_face_keypoints_turned():
 
 def test_head_region_and_on_person():
     """The head region is the square at the top of the person's silhouette (a head on a
-    neck on shoulders: the head's centre and width); a box's share on the person is the
-    mean probability inside it, what lies outside the image counting as off."""
+    neck on shoulders: the head's centre and width), none where the frame cuts the
+    silhouette at the top or a side more than at the bottom; a box's share on the person
+    is the mean probability inside it, what lies outside the image counting as off."""
     from hack_render.vision.verify import head_region, on_person
 
     yy, xx = np.mgrid[0:200, 0:160]
@@ -283,6 +284,8 @@ def test_head_region_and_on_person():
     assert abs(on_person(prob, (50, 30, 110, 90)) - np.pi / 4) < 0.03
     assert on_person(prob, (0, 0, 40, 40)) == 0.0
     assert abs(on_person(prob, (40, 180, 120, 220)) - 0.5) < 0.01    # half outside
+    # the same silhouette upside down or sideways: its head is not at its top
+    assert head_region(prob[::-1]) is None and head_region(prob.T) is None
     assert head_region(np.zeros((64, 64), np.float32)) is None
     tiny = np.zeros((200, 200), np.float32)
     tiny[:5, :5] = 1.0
@@ -321,3 +324,18 @@ def test_auto_rejects_a_box_off_the_person(shots, monkeypatch):
     assert detect._iou(box[:4], truth) > detect._iou(big[:4], truth) + 0.2
     sure = (*off[:4], 0.9, off[5])
     assert any(b is sure for b in verify.verified_boxes(c.image, [sure]))
+
+
+def test_auto_on_a_turned_real_photo_adds_no_face():
+    """The astronaut turned by a quarter turn (public domain, 256 px): her silhouette's
+    top is a shoulder, not her head, and BlazeFace finds her face confidently, so the
+    head search is not run: one face, the mesh's (an earlier head search took the
+    shoulder for a second, larger face)."""
+    import skimage.data
+
+    img = np.ascontiguousarray(np.rot90(skimage.data.astronaut()[::2, ::2]))
+    faces = detect_faces(img, "auto")
+    mesh = detect_face(img, "mesh")
+    assert len(faces) == 1
+    err = np.mean(np.linalg.norm(faces[0].points[17:] - mesh.points[17:], axis=1))
+    assert err / mesh.interocular < 0.15, err / mesh.interocular

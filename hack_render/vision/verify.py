@@ -14,17 +14,18 @@ silhouette. So:
    person probability under ``ON_PERSON``) is dropped, unless BlazeFace is sure of it
    (``SURE``: a face the segmentation missed, someone small in a crowd).
 3. **Head region**: the top of the person's silhouette: a square of side the
-   silhouette's width over its top 30 % (:func:`head_region`).
-4. **Head search**, where no box is left on the head region or the best there is weak
-   (scores under ``WEAK``): BlazeFace again on square crops of the region
-   (``HEAD_CROPS`` times its side) resampled to ``CROP_PX`` pixels, so the face fills
-   more of BlazeFace's input; its most confident box on the person replaces the weak
-   ones of its face (on the head region, or overlapping it) where it scores higher. (Replacing strong boxes too, wherever the head search
-   scores higher, changed the points of faces found either way for the worse: a box of
-   the same place from another view gives other keypoints, docs/vision.md.)
-
-The head region assumes an upright person (the head at the top of the silhouette):
-faces turned in the image plane keep BlazeFace's boxes from the turned image.
+   silhouette's width over its top 30 % (:func:`head_region`), where the person stands
+   upright (:func:`upright`: the frame cuts the silhouette at the bottom at least as
+   much as at the top or a side; a photo turned sideways or upside down has its head
+   elsewhere, and there is no head search).
+4. **Head search**, where no box is left, or every box left is weak (scores under
+   ``WEAK``): BlazeFace again on square crops of the head region (``HEAD_CROPS`` times
+   its side) resampled to ``CROP_PX`` pixels, so the face fills more of BlazeFace's
+   input; its most confident box on the person replaces the weak boxes of its face (on
+   the head region, or overlapping it) where it scores higher. (Replacing strong boxes
+   too, wherever the head search scores higher, changed the points of faces found
+   either way for the worse: a box of the same place from another view gives other
+   keypoints, docs/vision.md.)
 """
 
 from __future__ import annotations
@@ -69,10 +70,9 @@ def on_person(prob: np.ndarray, box) -> float:
     return inside / area          # the part outside the image counts as off the person
 
 
-def head_region(prob: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """(centre (x, y), side) of the square at the top of the person's silhouette (its
-    largest part above 0.5), side its width over the top 30 % of its height; None where
-    the person covers under ``MIN_PERSON`` of the image."""
+def person_part(prob: np.ndarray) -> np.ndarray | None:
+    """The person's largest connected part above 0.5 (bool), or None where it covers
+    under ``MIN_PERSON`` of the image."""
     from scipy import ndimage
 
     mask = prob > 0.5
@@ -82,7 +82,23 @@ def head_region(prob: np.ndarray) -> tuple[np.ndarray, float] | None:
     sizes = ndimage.sum(mask, lab, range(1, n + 1))
     if sizes.max() < MIN_PERSON * mask.size:
         return None
-    mask = lab == 1 + int(np.argmax(sizes))
+    return lab == 1 + int(np.argmax(sizes))
+
+
+def upright(mask: np.ndarray) -> bool:
+    """Whether a silhouette stands upright: the frame cuts it at the bottom at least as
+    much as at the top or a side (a portrait's shoulders), or nowhere (a whole bust)."""
+    edges = [mask[-1].mean(), mask[0].mean(), mask[:, 0].mean(), mask[:, -1].mean()]
+    return bool(edges[0] >= max(edges[1:]))
+
+
+def head_region(prob: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(centre (x, y), side) of the square at the top of the person's silhouette
+    (:func:`person_part`), side its width over the top 30 % of its height; None where
+    there is no person or it is not :func:`upright`."""
+    mask = person_part(prob)
+    if mask is None or not upright(mask):
+        return None
     ys = np.nonzero(mask.any(1))[0]
     y0, y1 = int(ys[0]), int(ys[-1])
     top = mask[y0:y0 + max(int(0.3 * (y1 - y0)), 1)]
@@ -127,16 +143,16 @@ def _on_head(box, centre, side: float) -> bool:
 
 
 def verified_boxes(rgb8: np.ndarray, boxes: list) -> list:
-    """``boxes`` (BlazeFace's, of the whole image) checked against the person and
-    competing with the head search's candidate (the module docstring)."""
+    """``boxes`` (BlazeFace's, of the whole image) checked against the person, a weak or
+    missing face searched for in the head region (the module docstring)."""
     prob = person_probability(rgb8)
-    region = head_region(prob)
-    if region is None:
+    if person_part(prob) is None:
         return boxes
     kept = [b for b in boxes if b[4] >= SURE or on_person(prob, b[:4]) >= ON_PERSON]
-    centre, side = region
-    on_head = [b for b in kept if _on_head(b, centre, side)]
-    if any(b[4] >= WEAK for b in on_head):
+    if any(b[4] >= WEAK for b in kept):    # a confident face: no search
+        return kept
+    region = head_region(prob)
+    if region is None:
         return kept
     cand = head_box(rgb8, prob, region)
     if cand is None:
@@ -144,7 +160,7 @@ def verified_boxes(rgb8: np.ndarray, boxes: list) -> list:
     from hack_render.vision.detect import _iou
 
     # the boxes of the candidate's face: on the head region, or overlapping the candidate
-    same = [b for b in kept if any(b is o for o in on_head) or _iou(b[:4], cand[:4]) >= 0.3]
-    if any(b[4] >= min(WEAK, cand[4]) for b in same):
+    same = [b for b in kept if _on_head(b, *region) or _iou(b[:4], cand[:4]) >= 0.3]
+    if any(b[4] >= cand[4] for b in same):
         return kept
     return [cand] + [b for b in kept if not any(b is o for o in same)]
