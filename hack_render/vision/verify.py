@@ -41,8 +41,9 @@ MIN_PERSON = 0.01
 ON_PERSON = 0.25
 #: BlazeFace's score from which a box off the person is kept all the same
 SURE = 0.8
-#: BlazeFace's score under which a box on the head is weak: the head search is run and
-#: its candidate replaces the box where it scores higher
+#: BlazeFace's score under which a box is weak: where every box left is, the head search
+#: runs and its candidate replaces the weak boxes of its face where it scores higher (set
+#: on the benchmark's composites: docs/vision.md)
 WEAK = 0.6
 #: the head search's crops: sides in head-region sides (the silhouette's width near its
 #: top misses the head's size both ways: a shoulder, hair or a background the
@@ -52,6 +53,7 @@ CROP_PX = 192               # the head search's crop side, pixels
 
 
 def person_probability(rgb8: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the selfie segmentation's person probability."""
     from hack_render.vision.segment import person_probability as prob
 
     return prob(rgb8)
