@@ -156,6 +156,11 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         (tmp_path / "s.toml").write_text(f"[silhouette]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"silhouette.{key}"):
             load_config(tmp_path / "s.toml")
+    for key, val in (("refine", "5"), ("refine", "true"), ("eye_hole", "0"),
+                     ("eye_hole", '"wide"')):
+        (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")
+        with pytest.raises(HackError, match=f"final.{key}"):
+            load_config(tmp_path / "f.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
 

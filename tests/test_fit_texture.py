@@ -185,3 +185,35 @@ def test_04_brows_are_baked(model):
     assert (on.pixel_weights[0][brows] > 0).mean() > 0.5
     assert (off.pixel_weights[0][brows] > 0).mean() < 0.2
     assert on.diffuse[yi, xi].mean() < 0.6 * off.diffuse[yi, xi].mean()
+
+
+def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):
+    """``final.refine``: the photo baked once more over the re-render of the first bake
+    (prior: that bake, weights: its pixel weights) brings the re-render closer to the
+    photo on the baked pixels, and leaves the unseen texels at the first bake."""
+    from hack_render.fit import texture
+
+    f, cfg, true_maps, _, _ = _fitter(model)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    v.photo = _photo_of(rgb)
+    bk1 = texture.bake_diffuse(f.state, cfg, [texture.render_at_photo(f.state, cfg, v)])
+    maps1 = dataclasses.replace(true_maps, diffuse=bk1.diffuse)
+    pr1 = texture.render_at_photo(f.state, cfg, v, maps=maps1)
+    bk2 = texture.bake_diffuse(f.state, cfg, [pr1], prior=bk1.diffuse,
+                               weights=bk1.pixel_weights)
+    pr2 = texture.render_at_photo(f.state, cfg, v,
+                                  maps=dataclasses.replace(true_maps, diffuse=bk2.diffuse))
+    np.testing.assert_array_equal(bk2.pixel_weights[0], bk1.pixel_weights[0])
+    sel = bk1.pixel_weights[0] > 0.5
+    assert sel.sum() > 1000
+
+    def err(pr):
+        return float(np.abs(pr.rgba[..., :3] - rgb)[sel].mean())
+
+    e1, e2 = err(pr1), err(pr2)
+    assert e2 < 0.85 * e1, (e1, e2)
+    keep = bk2.confidence == 0
+    assert keep.any()
+    np.testing.assert_allclose(bk2.diffuse[keep], bk1.diffuse[keep], atol=1e-5)

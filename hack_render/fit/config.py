@@ -278,6 +278,13 @@ class FinalConfig:
     # skin test and the robust rejection above would drop them (their colour is not the
     # skin's), leaving the model's browless mean skin there
     features: bool = True
+    # passes that bake the photo over the re-render once more (render.png's own light
+    # transport, pixel filter and denoiser divided out): 0 bakes against the fitted maps'
+    # render only
+    refine: int = 1
+    # the eyes left out of the bake: their landmark rings scaled by this about their
+    # centres (1.8 also leaves out the lids, lashes and the sockets' shadow)
+    eye_hole: float = 1.8
 
 
 @dataclass
@@ -378,6 +385,12 @@ class FitConfig:
         if not 64 <= fc.atlas_height <= 4096 or not 16 <= fc.max_side <= 8192:
             raise HackError(f"config final: expected atlas_height 64..4096 and max_side "
                             f"16..8192, found {fc.atlas_height} and {fc.max_side}.")
+        if isinstance(fc.refine, bool) or not isinstance(fc.refine, int) or not 0 <= fc.refine <= 4:
+            raise HackError(f"config final.refine: expected 0..4 passes, found {fc.refine!r}.")
+        if not (isinstance(fc.eye_hole, (int, float)) and math.isfinite(fc.eye_hole)
+                and 0 < fc.eye_hole <= 4):
+            raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "
+                            f"{fc.eye_hole!r}.")
         for name in ("camera", "shape", "texel"):
             if getattr(self, name).iterations < 0:
                 raise HackError(f"config {name}.iterations: expected >= 0.")

@@ -47,7 +47,8 @@ def view_params(res: FitResult, i: int) -> dict:
         psi = (v.psi if v.psi is not None else res.psi)[0]
     return {"beta": res.beta[0].detach().tolist(), "psi": psi.detach().tolist(),
             "theta": theta.detach().tolist(), "global_orient": v.global_orient.detach().tolist(),
-            "transl": [0.0, 0.0, 0.0], "eta": float(res.eta), "tau": float(res.tau)}
+            "transl": [0.0, 0.0, 0.0], "eta": float(torch.as_tensor(res.eta).detach()),
+            "tau": float(torch.as_tensor(res.tau).detach())}
 
 
 def camera_dict(v) -> dict:
@@ -225,8 +226,9 @@ class FinalRenders:
         from hack_render.fit import texture
 
         st, cfg = fitter.state, fitter.cfg
-        bar = tqdm(total=2 * len(st.views) + 1, desc="fit final (renders, bake)",
-                   unit="step", disable=not fitter.progress, leave=False)
+        bar = tqdm(total=2 * len(st.views) + 1 + int(cfg.final.refine),
+                   desc="fit final (renders, bake)", unit="step",
+                   disable=not fitter.progress, leave=False)
         t0 = time.perf_counter()
         self.fitted = []
         for v in st.views:
@@ -242,6 +244,16 @@ class FinalRenders:
         for v in st.views:
             self.renders.append(texture.render_at_photo(st, cfg, v, maps=self.maps,
                                                         max_side=cfg.final.max_side))
+            bar.update()
+        # refinement: the photo over the re-render, divided out again (what the renderer's
+        # lighting, filter and denoiser change in the baked skin is corrected)
+        for _ in range(int(cfg.final.refine)):
+            self.baked = texture.bake_diffuse(st, cfg, self.renders, prior=self.baked.diffuse,
+                                              weights=self.baked.pixel_weights)
+            self.maps = dataclasses.replace(self.maps, diffuse=self.baked.diffuse)
+            self.renders = [texture.render_at_photo(st, cfg, v, maps=self.maps,
+                                                    max_side=cfg.final.max_side)
+                            for v in st.views]
             bar.update()
         bar.close()
         self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,

@@ -166,7 +166,7 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
     rendered = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
     points = view.detection.points * (w / view.photo.width)
-    skin = rendered & ~_feature_holes(points, (h, w))
+    skin = rendered & ~_feature_holes(points, (h, w), eye_scale=fc.eye_hole)
     occluded = np.zeros((h, w), bool)
     for mask, keep in ((view.skin, True), (view.occluder, False)):
         if mask is not None:  # the segmentation's skin, without its occluders
@@ -255,18 +255,24 @@ def _feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
-def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) -> BakedSkin:
+def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
+                 prior: np.ndarray | None = None, weights: list | None = None) -> BakedSkin:
     """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
-    (see the module's docstring)."""
+    (see the module's docstring). ``prior``: the map unseen texels fall back to (default
+    A(alpha)); ``weights``: each view's pixel weights (default :func:`pixel_weights`'),
+    as the refinement passes of ``FinalRenders`` keep the first bake's."""
     from scipy.ndimage import gaussian_filter
 
     H = int(cfg.final.atlas_height)
     W = 2 * H
     num = np.zeros((H, W, 3), np.float64)
     den = np.zeros((H, W), np.float64)
+    given = weights
     weights, footprints = [], []
-    for v, pr in zip(state.views, renders):
+    for i, (v, pr) in enumerate(zip(state.views, renders)):
         wgt, obs = pixel_weights(v, pr, cfg)
+        if given is not None:
+            wgt = given[i]
         weights.append(wgt)
         sel = wgt > 0
         if not sel.any():
@@ -301,7 +307,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender]) ->
     conf = np.clip(den_b / full, 0.0, 1.0)
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
-    prior = _skin_maps(state, H).diffuse.astype(np.float64)
+    prior = (_skin_maps(state, H).diffuse if prior is None else prior).astype(np.float64)
     c1 = conf
     c2 = (1.0 - conf) * conf_m
     c3 = 1.0 - c1 - c2
