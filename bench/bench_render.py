@@ -37,7 +37,7 @@
 
 (g) Against Blender Cycles (``--only cycles``): the default head as ``hack-render render``
     builds it (``--alpha 0.8,-0.6,0.4``, portrait camera, studio rig, 256 px, depth 8)
-    rendered by ``HeadScene.render`` (multijitter, with and without OIDN) and by Cycles
+    rendered by ``HeadScene.render`` (the default ``auto`` sampler, with and without OIDN) and by Cycles
     (CPU, with and without its OIDN) in a bpy interpreter of its own
     (``bench/cycles_scene.py``; ``--blender-python`` or ``HACK_RENDER_BPY_PYTHON``), on
     the same parts (``obj_io.write_mesh``), normals, skin maps (``texture_io``), camera,
@@ -54,11 +54,19 @@
     256 px and an eye close-up at 192 px, equal time, each against its own high-spp
     reference (:func:`integrator_benchmark`); ``bench/results/render_integrator.json``.
 
+(i) Samplers (``--only samplers``): multijitter against the orthogonal array sampler (what
+    ``auto`` picks near 49, 121, 169, ... spp) on the Cycles comparison's still (portrait)
+    and a three-quarter view with the README's pose, 256 px, volpath, depth 8: PSNR over
+    the image (linear RGB, peak 1) against a 2,048-spp multijitter reference, CPU seconds
+    (median of 2 seeds), and the CPU time multijitter needs for each orthogonal rung's
+    PSNR (log-log interpolated); ``bench/results/render_samplers.json``.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
        python bench/bench_render.py --only sss
        python bench/bench_render.py --only integrator [--i-ref-spp 1024]
+       python bench/bench_render.py --only samplers
        python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
@@ -1022,6 +1030,71 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
     return {"printed": printed, "views": result}
 
 
+def samplers_benchmark(ref_spp: int = 2048, repeats: int = 2) -> dict:
+    """(i) multijitter against the orthogonal array sampler (see the module docstring)."""
+    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings, composite
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    printed: list[str] = []
+
+    def say(text: str) -> None:
+        printed.append(text)
+        print(text, flush=True)
+
+    maps = skin_maps([0.8, -0.6, 0.4])
+    ladders = {"multijitter": (9, 16, 25, 49, 64, 121, 169, 256),
+               "orthogonal": (9, 25, 49, 121, 169)}
+    views = {}
+    for view, pose, cam in (
+            ("portrait (the Cycles still)", (None, None), "portrait"),
+            ("three-quarter (README pose)", ("AU12=0.5", "5,-20,0"), "three_quarter")):
+        model, _, v = posed_model(None, None, pose[0], pose[1], None, None,
+                                  LimitPolicy("warn"), None)
+        topo = Topology.from_model(model)
+        camera = cameras.preset(cam, 256, 256)[0]
+
+        def scene(spp, sampler, topo=topo, v=v, camera=camera):
+            return HeadScene(topo, v.astype(np.float64), lights.preset("studio"), camera,
+                             RenderSettings(256, 256, spp, sampler=sampler), maps)
+
+        bg = scene(1, "multijitter").backdrop()
+        c0 = time.process_time()
+        ref = composite(scene(ref_spp, "multijitter").render(seed=777, backdrop=False),
+                        bg)[..., :3]
+        say(f"  {view}: reference {ref_spp} multijitter spp, "
+            f"{time.process_time() - c0:.0f} CPU s")
+        rows: dict[str, list] = {}
+        for sampler, ladder in ladders.items():
+            rows[sampler] = []
+            for spp in ladder:
+                head = scene(spp, sampler)
+                for seed in (1000, 1001):  # compile, then the opaque seed
+                    head.render(seed=seed, backdrop=False)
+                cpu, ps = [], []
+                for r in range(repeats):
+                    t0 = time.process_time()
+                    img = head.render(seed=1 + r, backdrop=False)
+                    cpu.append(time.process_time() - t0)
+                    rgb = composite(img, bg)[..., :3]
+                    ps.append(10 * np.log10(1.0 / float(np.mean((rgb - ref) ** 2))))
+                row = {"spp": head.settings.effective_spp, "cpu_s": statistics.median(cpu),
+                       "psnr": float(np.mean(ps))}
+                rows[sampler].append(row)
+                say(f"    {sampler:12s} {row['spp']:4d} spp {row['cpu_s']:6.2f} CPU s "
+                    f"{row['psnr']:6.2f} dB")
+        for o in rows["orthogonal"]:
+            tm = time_at_psnr(rows["multijitter"], o["psnr"])
+            o["multijitter_cpu_s_at_psnr"] = tm
+            if tm is not None:
+                say(f"    orthogonal {o['spp']} spp ({o['psnr']:.2f} dB): multijitter needs "
+                    f"{tm:.2f} CPU s, {tm / o['cpu_s']:.2f}x the time")
+        views[view] = rows
+    return {"printed": printed, "ref_spp": ref_spp, "views": views}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -1033,7 +1106,7 @@ def main() -> None:
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles",
-                                       "integrator"),
+                                       "integrator", "samplers"),
                     default="all")
     ap.add_argument("--blender-python", default=None, help="cycles: a Python with bpy "
                     f"(default ${BPY_ENV})")
@@ -1075,6 +1148,13 @@ def main() -> None:
         res = integrator_benchmark(ref_spp=args.i_ref_spp)
         write_result(args.out or "bench/results/render_integrator.json",
                      {"title": "Rendering: volpath against path, equal time",
+                      "variant": variant, **res})
+        return
+    if args.only == "samplers":
+        print(f"variant: {variant}")
+        res = samplers_benchmark()
+        write_result(args.out or "bench/results/render_samplers.json",
+                     {"title": "Rendering: multijitter against orthogonal arrays",
                       "variant": variant, **res})
         return
     if args.only == "e2e":

@@ -11,7 +11,7 @@ from hack_render.cli import main
 from hack_render.errors import HackError
 from hack_render.render import denoise as dn
 from hack_render.render.engine import ensure_variant
-from hack_render.render.scene import SAMPLERS, RenderSettings, sampler_spp
+from hack_render.render.scene import SAMPLERS, RenderSettings, auto_sampler, sampler_spp
 
 ensure_variant()
 
@@ -55,16 +55,46 @@ def test_01_spp_rounding_is_mitsubas():
     try:
         for s in SAMPLERS:
             for n in list(range(1, 70)) + [100, 128, 250, 1000]:
+                if s == "auto":  # what auto picks is a count its sampler takes as it is
+                    name, count = auto_sampler(n)
+                    assert count == sampler_spp("auto", n)
+                    assert 0.7 * n <= count <= 1.3 * n or name == "multijitter", (n, count)
+                    s, n = name, count
                 got = mi.load_dict({"type": s, "sample_count": n}).sample_count()
                 assert sampler_spp(s, n) == got, (s, n, got)
     finally:
         mi.set_log_level(level)
     st = RenderSettings(64, 64, 32, sampler="multijitter")
     assert st.effective_spp == 35 and "35 rendered" in st.spp_note()
+    # auto: multijitter below 40 spp, the orthogonal array at 49, 121, 169, ... near them,
+    # never over a pass's sample budget (2^24 samples: 16 spp at 1024 x 1024)
+    assert RenderSettings(64, 64, 32).effective_spp == 35
+    assert RenderSettings(64, 64, 32).mitsuba_sampler == "multijitter"
+    st = RenderSettings(64, 64, 64)
+    assert (st.mitsuba_sampler, st.effective_spp) == ("orthogonal", 49)
+    assert "49 rendered" in st.spp_note() and "auto: orthogonal" in st.spp_note()
+    assert RenderSettings(64, 64, 128).effective_spp == 121
+    assert RenderSettings(1024, 1024, 64).mitsuba_sampler == "multijitter"
     assert RenderSettings(64, 64, 36, sampler="stratified").spp_note() is None
     assert RenderSettings(64, 64, 32, sampler="independent").effective_spp == 32
     with pytest.raises(HackError, match="sampler"):
         RenderSettings(64, 64, 32, sampler="sobol")
+
+
+def test_01b_auto_sampler_beats_multijitter_with_fewer_samples(rest):
+    """``auto`` at --spp 64 renders the orthogonal array's 49 samples, less noisy than
+    multijitter's 64 against a 1,024-spp reference (docs/render.md, "Samplers")."""
+    cam = cameras.orbit(48, 48, 85.0, 20.0, 5.0)
+
+    def img(spp, sampler, seed):
+        h = HeadScene(*rest, lights.preset("studio"), cam,
+                      RenderSettings(48, 48, spp, sampler=sampler))
+        return h.render(seed=seed, backdrop=False)
+
+    ref = img(1024, "multijitter", 99)
+    mse = {s: np.mean([np.mean((img(64, s, k) - ref) ** 2) for k in (1, 2)])
+           for s in ("multijitter", "auto")}
+    assert mse["auto"] < 0.8 * mse["multijitter"], mse
 
 
 def test_02_missing_denoiser_refuses_or_warns(no_pyoidn):

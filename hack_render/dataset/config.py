@@ -25,7 +25,7 @@ DEFAULTS: dict[str, Any] = {
         "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
         "variant": None,          # Mitsuba variant (None: automatic)
-        "sampler": "multijitter",  # Mitsuba sampler (render/scene.py SAMPLERS)
+        "sampler": "auto",        # Mitsuba sampler (render/scene.py SAMPLERS)
         "integrator": "volpath",  # volpath or path (render/scene.py INTEGRATORS)
         "denoise": "off",         # OIDN (extra 'denoise'): off, auto (noisy if missing), on
         "keep_noisy": False,      # with denoise: also write rgb_noisy.exr

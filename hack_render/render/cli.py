@@ -21,7 +21,8 @@ if TYPE_CHECKING:
 
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
-SamplerOpt = typer.Option("multijitter", "--sampler", help="Mitsuba sampler: multijitter, "
+SamplerOpt = typer.Option("auto", "--sampler", help="Mitsuba sampler: auto (orthogonal "
+                          "arrays near 49, 121, 169... spp, else multijitter), multijitter, "
                           "stratified, orthogonal, ldsampler or independent. All but "
                           "independent round --spp (said when they do); see docs/render.md.")
 IntegratorOpt = typer.Option("volpath", "--integrator", help="Mitsuba integrator: volpath "
@@ -296,7 +297,7 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
         st = head.settings
         extras = (", denoised" if use_denoise else "") + (", sss" if sss else "")
         typer.echo(f"{cam.name}: {st.width}x{st.height}, {st.effective_spp} spp "
-                   f"({st.sampler}{extras}), {dt:.1f} s ({head.variant})")
+                   f"({st.sampler_label}{extras}), {dt:.1f} s ({head.variant})")
 
 
 def turntable(
@@ -458,7 +459,7 @@ def turntable(
         todo = tt.pending_frames(output, frames, resume)
         if todo:
             typer.echo(f"turntable: {len(todo)} of {frames} frames to render, {w}x{h}, "
-                       f"{settings.effective_spp} spp ({sampler}"
+                       f"{settings.effective_spp} spp ({settings.sampler_label}"
                        f"{', denoised' if use_denoise else ''}{', sss' if sss else ''})")
             if settings.spp_note():
                 typer.echo(settings.spp_note(), err=True)
