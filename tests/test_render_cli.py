@@ -246,7 +246,8 @@ def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, cap
 
 def test_23_integrator_flag_lands_in_the_exr_header(tmp_path):
     """`render --integrator path|volpath` (default volpath) is written to the EXR header
-    as ``hack_integrator``; the two render the same image up to noise."""
+    as ``hack_integrator`` (with the sampler and count rendered, ``hack_sampler`` and
+    ``hack_spp``); the two render the same image up to noise."""
     import OpenEXR
 
     img = {}
@@ -254,7 +255,10 @@ def test_23_integrator_flag_lands_in_the_exr_header(tmp_path):
         exr = tmp_path / f"head{len(flag)}.exr"
         assert run(["render", "-o", str(exr), "--resolution", "48", "--spp", "8",
                     "--denoise", "off", "--no-sss", *flag]) == 0
-        name = str(OpenEXR.File(str(exr)).header()["hack_integrator"])
+        header = OpenEXR.File(str(exr)).header()
+        name = str(header["hack_integrator"])
+        # what auto rendered at --spp 8: multijitter's 8 (the sampler Mitsuba ran)
+        assert (str(header["hack_sampler"]), str(header["hack_spp"])) == ("multijitter", "8")
         ch = read_exr(exr)
         img[name] = np.stack([ch[c] for c in "RGB"], -1)
     assert sorted(img) == ["path", "volpath"]

@@ -291,7 +291,9 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                             "hack_denoised": "yes" if use_denoise and not tag else "no",
                             "hack_sss": "yes" if sss else "no",
                             "hack_pixel_filter": head.settings.pixel_filter,
-                            "hack_integrator": head.settings.integrator}
+                            "hack_integrator": head.settings.integrator,
+                            "hack_sampler": head.settings.mitsuba_sampler,
+                            "hack_spp": str(head.settings.effective_spp)}
                     write_exr(target, exr_channels(image, aovs, aov_names), meta)
                 outputs.append(target)
         st = head.settings
