@@ -50,7 +50,7 @@
     reference of its own). Writes ``bench/results/render_cycles.json`` (``--out``) and
     ``docs/images/cycles_side_by_side.png``.
 
-(h) Integrators (``--only integrator``): volpath against path on the README's still at
+(h) Integrators (``--only integrator``): hack_path, volpath and path on the README's still at
     256 px and an eye close-up at 192 px, equal time, each against its own high-spp
     reference (:func:`integrator_benchmark`); ``bench/results/render_integrator.json``.
 
@@ -323,20 +323,29 @@ def e2e_benchmark(repeats: int = 3) -> None:
                 "--spp", "16", "--denoise", "off"]
         subprocess.run(base, check=True, capture_output=True)  # warm the disk caches
         # the default (subsurface scattering) and without; the posed mesh from the disk
-        # cache (render/posed_cache.py, warm after the first call) and computed anew
-        for extra, cache in (([], True), (["--no-sss"], True), ([], False),
-                             (["--no-sss"], False)):
-            cmd, cpu = base + extra, []
-            env = dict(os.environ, **({} if cache else {"HACK_RENDER_NO_CACHE": "1"}))
+        # cache (render/posed_cache.py, warm after the first call) or a new pose each run
+        # (a head rotation not rendered before: the model evaluated, its unpacked file
+        # mapped from geometry/model_file.py's cache), and a new pose with both caches
+        # off (HACK_RENDER_NO_CACHE=1: the model file unpacked from the .npz)
+        runs = 0
+        for extra, mode in (([], "cached"), (["--no-sss"], "cached"), ([], "new"),
+                            (["--no-sss"], "new"), ([], "off"), (["--no-sss"], "off")):
+            cpu = []
+            env = dict(os.environ, **({"HACK_RENDER_NO_CACHE": "1"} if mode == "off" else {}))
             for _ in range(repeats):
+                runs += 1
+                pose = [] if mode == "cached" else ["--head-rotation", f"0,{runs * 0.37:.2f},0"]
                 r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                subprocess.run(cmd, check=True, capture_output=True, env=env)
+                subprocess.run(base + extra + pose, check=True, capture_output=True, env=env)
                 r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
                 cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
-            print(f"(d) {' '.join(cmd[:2])} 256 px, 16 spp, {' '.join(cmd[8:])}, posed mesh "
-                  f"{'cached' if cache else 'computed'}: median {statistics.median(cpu):.2f} "
-                  f"CPU s (user + system) of {repeats} runs")
-        print("  one in-process run by phase (plain render, mesh computed):")
+            what = {"cached": "posed mesh cached", "new": "a new pose (model file cached)",
+                    "off": "a new pose, caches off"}[mode]
+            print(f"(d) {' '.join(base[:2])} 256 px, 16 spp, {' '.join(base[8:] + extra)}, "
+                  f"{what}: median {statistics.median(cpu):.2f} CPU s (user + system) of "
+                  f"{repeats} runs")
+        print("  one in-process run by phase (plain render, mesh computed, model file "
+              "cached):")
         out = subprocess.run([sys.executable, "-c", E2E_PHASES, f"{tmp}/b.png"], check=True,
                              capture_output=True, text=True, env=dict(os.environ))
         print(out.stdout.rstrip())
@@ -951,13 +960,14 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
 
 def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
                          repeats: int = 2) -> dict:
-    """(h) volpath against path (``RenderSettings.integrator``) on (a) the README's still
+    """(h) hack_path and volpath against path, and hack_path against volpath
+    (``RenderSettings.integrator``) on (a) the README's still
     (alpha 0.8,-0.6,0.4, AU12 0.5, head rotation 5,-20,0, three-quarter camera, studio) at
     256 px and (b) a close-up of the left eye at 192 px: each rung's PSNR (linear RGB,
     peak 1) over the subject (reference alpha > 0.5) and over the eyes (sclera, iris and
     lash pixels, dilated 3 px) against a ``ref_spp`` reference of the same integrator;
-    CPU seconds (process time) of ``render``, median of ``repeats`` seeds; CPU time
-    volpath needs for path's PSNR at each rung (log(time) interpolated)."""
+    CPU seconds (process time) of ``render``, median of ``repeats`` seeds; CPU time each
+    needs for the other's PSNR at each rung (log(time) interpolated)."""
     from scipy.ndimage import binary_dilation
 
     from hack_render.geometry.cli import LimitPolicy, posed_model
@@ -1011,21 +1021,28 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
                 row = {"spp": spp, "cpu_s": statistics.median(cpu),
                        **dict(zip(masks, np.mean(scores, axis=0).tolist()))}
                 rows[name].append(row)
-                say(f"    {name:8s} {spp:4d} spp {row['cpu_s']:6.2f} CPU s  PSNR subject "
+                say(f"    {name:9s} {spp:4d} spp {row['cpu_s']:6.2f} CPU s  PSNR subject "
                       f"{row['psnr']:5.2f} dB, eyes {row['psnr_eye']:5.2f} dB")
-        ratio = statistics.median(b["cpu_s"] / a["cpu_s"]
-                                  for a, b in zip(rows["path"], rows["volpath"]))
-        say(f"    CPU time volpath / path at equal spp: {ratio:.2f} (median over rungs)")
-        for key in ("psnr", "psnr_eye"):  # equal PSNR, either way round
-            for src, dst in (("path", "volpath"), ("volpath", "path")):
-                for a in rows[src]:
-                    tv = time_at_psnr([{"cpu_s": r["cpu_s"], "psnr": r[key]}
-                                       for r in rows[dst]], a[key])
-                    if tv is not None:
-                        speed = a["cpu_s"] / tv if src == "path" else tv / a["cpu_s"]
-                        say(f"    {key}: {src} {a['spp']} spp ({a[key]:.2f} dB, "
-                            f"{a['cpu_s']:.2f} CPU s) = {dst} in {tv:.2f} CPU s "
-                            f"(volpath {speed:.2f}x faster)")
+        ratio = {}
+        for name in INTEGRATORS[:-1] if INTEGRATORS[-1] == "path" else ():
+            ratio[name] = statistics.median(b["cpu_s"] / a["cpu_s"]
+                                            for a, b in zip(rows["path"], rows[name]))
+            say(f"    CPU time {name} / path at equal spp: {ratio[name]:.2f} (median over "
+                "rungs)")
+        # equal PSNR, either way round: each see-through integrator against path, and
+        # hack_path against volpath
+        for key in ("psnr", "psnr_eye"):
+            for x, y in (("path", "volpath"), ("path", "hack_path"),
+                         ("volpath", "hack_path")):
+                for src, dst in ((x, y), (y, x)):
+                    for a in rows[src]:
+                        tv = time_at_psnr([{"cpu_s": r["cpu_s"], "psnr": r[key]}
+                                           for r in rows[dst]], a[key])
+                        if tv is not None:
+                            speed = a["cpu_s"] / tv if src == x else tv / a["cpu_s"]
+                            say(f"    {key}: {src} {a['spp']} spp ({a[key]:.2f} dB, "
+                                f"{a['cpu_s']:.2f} CPU s) = {dst} in {tv:.2f} CPU s "
+                                f"({y} {speed:.2f}x faster than {x})")
         result[view] = {"rows": rows, "cpu_ratio": ratio}
     return {"printed": printed, "views": result}
 
@@ -1147,7 +1164,7 @@ def main() -> None:
         print(f"variant: {variant}")
         res = integrator_benchmark(ref_spp=args.i_ref_spp)
         write_result(args.out or "bench/results/render_integrator.json",
-                     {"title": "Rendering: volpath against path, equal time",
+                     {"title": "Rendering: hack_path, volpath and path, equal time",
                       "variant": variant, **res})
         return
     if args.only == "samplers":

@@ -79,7 +79,7 @@ def test_03_turntable_mp4_has_n_frames_and_resume_skips_done_frames(tmp_path):
     (["--camera", "fisheye"], "camera preset"),
     (["--lighting", "env:/nonexistent/sky.exr"], "expected an existing"),
     (["--aov", "depth,colour"], "--aov"),
-    (["--integrator", "bdpt"], "--integrator: integrator: expected one of volpath, path"),
+    (["--integrator", "bdpt"], "--integrator: integrator: expected one of hack_path, volpath, path"),
 ])
 def test_04_bad_input_exits_2_with_a_message(tmp_path, capsys, args, message):
     out = tmp_path / "x.png"
@@ -245,14 +245,14 @@ def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, cap
 
 
 def test_23_integrator_flag_lands_in_the_exr_header(tmp_path):
-    """`render --integrator path|volpath` (default volpath) is written to the EXR header
+    """`render --integrator path|volpath|hack_path` (default hack_path) is written to the EXR header
     as ``hack_integrator`` (with the sampler and count rendered, ``hack_sampler`` and
     ``hack_spp``); the two render the same image up to noise."""
     import OpenEXR
 
     img = {}
-    for flag in ([], ["--integrator", "path"]):
-        exr = tmp_path / f"head{len(flag)}.exr"
+    for flag in ([], ["--integrator", "path"], ["--integrator", "volpath"]):
+        exr = tmp_path / f"head{'_'.join(flag)}.exr"
         assert run(["render", "-o", str(exr), "--resolution", "48", "--spp", "8",
                     "--denoise", "off", "--no-sss", *flag]) == 0
         header = OpenEXR.File(str(exr)).header()
@@ -261,5 +261,6 @@ def test_23_integrator_flag_lands_in_the_exr_header(tmp_path):
         assert (str(header["hack_sampler"]), str(header["hack_spp"])) == ("multijitter", "8")
         ch = read_exr(exr)
         img[name] = np.stack([ch[c] for c in "RGB"], -1)
-    assert sorted(img) == ["path", "volpath"]
-    assert abs(img["volpath"].sum() / img["path"].sum() - 1.0) < 0.03
+    assert sorted(img) == ["hack_path", "path", "volpath"]
+    for name in ("volpath", "hack_path"):
+        assert abs(img[name].sum() / img["path"].sum() - 1.0) < 0.03, name

@@ -126,9 +126,10 @@ def ensure_variant(requested: str | None = None) -> str:
     variant = choose_variant(requested)
     if variant != current:
         mi.set_variant(variant)
-        from hack_render.render import skin_bsdf  # registers plugins for this variant
+        from hack_render.render import integrator, skin_bsdf  # this variant's plugins
 
         skin_bsdf.register()
+        integrator.register()
     return variant
 
 

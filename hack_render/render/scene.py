@@ -37,18 +37,19 @@ SAMPLES_PER_PASS = 1 << 24
 #: prime of at least 7 (49, 121, 169, ...), else multijitter (:func:`auto_sampler`).
 SAMPLERS = ("auto", "multijitter", "stratified", "orthogonal", "ldsampler", "independent")
 DEFAULT_SAMPLER = "auto"
-#: ``auto``'s smallest orthogonal count (7^2). On two 256 px stills (volpath, depth 8;
-#: docs/render.md, "Samplers and denoising") the orthogonal array at 49, 121 and 169 spp
-#: is 3.1-4.5 dB less noisy than multijitter at the same count, at 25 spp (5^2) 2.6-2.7 dB
-#: worse, at 9 spp about 1 dB better.
-AUTO_ORTHOGONAL_MIN = 49
-#: Mitsuba integrators of final renders. ``path`` treats every surface as opaque to
-#: shadow rays, so the lash cards' whole area blocks direct light from the lights' point
-#: of view and what lies under them is lit by BSDF-sampled paths alone (speckled);
-#: ``volpath`` traces shadow rays through null-transmissive surfaces, weighted by the
-#: ``mask`` BSDF's transparency (see docs/render.md, "Integrator").
-INTEGRATORS = ("volpath", "path")
-DEFAULT_INTEGRATOR = "volpath"
+#: ``auto``'s smallest orthogonal count (5^2). On two 256 px stills (hack_path, depth 8;
+#: docs/render.md, "Samplers and denoising") the orthogonal array at 25-169 spp is
+#: 2.4-4.8 dB less noisy than multijitter at the same count, at 9 spp about 1 dB better.
+#: (Under volpath, whose samples lay out their dimensions otherwise, 25 was 2.6 dB worse.)
+AUTO_ORTHOGONAL_MIN = 25
+#: Integrators of final renders. ``path`` treats every surface as opaque to shadow rays,
+#: so the lash cards' whole area blocks direct light from the lights' point of view and
+#: what lies under them is lit by BSDF-sampled paths alone (speckled); ``volpath`` and
+#: ``hack_path`` (render/integrator.py: ``path`` plus volpath's null surfaces, at about
+#: 0.75x volpath's cost per sample) trace shadow rays through null-transmissive surfaces,
+#: weighted by the ``mask`` BSDF's transparency (see docs/render.md, "Integrator").
+INTEGRATORS = ("hack_path", "volpath", "path")
+DEFAULT_INTEGRATOR = "hack_path"
 
 
 def _next_prime(n: int) -> int:
@@ -62,8 +63,8 @@ def auto_sampler(spp: int, cap: int | None = None) -> tuple[str, int]:
     """(Mitsuba sampler, sample count) that ``auto`` renders for a requested ``spp``: the
     orthogonal array at the prime square nearest to ``spp`` in ratio, where that is at
     least :data:`AUTO_ORTHOGONAL_MIN`, at most ``cap`` (a pass's sample budget) and
-    within 0.7-1.3x of ``spp`` (64 -> 49, 100 -> 121), else multijitter (rounded as it
-    rounds: 32 -> 35)."""
+    within 0.7-1.3x of ``spp`` (32 -> 25, 64 -> 49, 100 -> 121), else multijitter (rounded
+    as it rounds: 16 -> 16, 36 -> 36)."""
     best = None
     p = _next_prime(math.isqrt(AUTO_ORTHOGONAL_MIN))
     while p * p <= max(4 * spp, AUTO_ORTHOGONAL_MIN):
@@ -119,8 +120,10 @@ class RenderSettings:
     #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
     pixel_filter: str = "gaussian"
     sampler: str = DEFAULT_SAMPLER
-    #: ``volpath`` (shadow rays see through the lash cards' transparent parts: less noise
-    #: under the lashes) or ``path`` (every surface blocks shadow rays; earlier versions)
+    #: ``hack_path`` or ``volpath`` (shadow rays see through the lash cards' transparent
+    #: parts: less noise under the lashes; the same image, hack_path the cheaper; non-JIT
+    #: variants render ``hack_path`` as ``volpath``) or ``path`` (every surface blocks
+    #: shadow rays; earlier versions)
     integrator: str = DEFAULT_INTEGRATOR
 
     def __post_init__(self):
@@ -280,8 +283,12 @@ class HeadScene:
         # subject's coverage; the environment is put back behind the subject as a
         # backdrop (:meth:`backdrop`), lights and shading unchanged (only depth-0 emission
         # is hidden)
+        #: the Mitsuba integrator rendering this scene (``settings.integrator``, but
+        #: ``volpath`` for ``hack_path`` in a non-JIT variant)
+        self.integrator_name = settings.integrator if jit or \
+            settings.integrator != "hack_path" else "volpath"
         scene: dict = {"type": "scene",
-                       "integrator": {"type": settings.integrator,
+                       "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
                                       "hide_emitters": True},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
