@@ -527,3 +527,47 @@ def test_shipped_model_has_the_facs_table(default):
     assert psi[default.expression_names.index("jawOpen")] == 1 and psi.abs().sum() == 1
     with pytest.raises(HackError, match="mouth stretch.*AU26"):
         default.expression_vector("AU27=1")
+
+
+def test_model_file_cache_maps_the_same_arrays(tmp_path, monkeypatch):
+    """The first load of a model file keeps its validated arrays unpacked in
+    $XDG_CACHE_HOME/hack-render/models; the next load maps them (no pickle) and returns
+    the same keys, dtypes and values as the file, writable without touching the cache; a
+    rewritten file (new size or time) gets a new entry; a damaged entry is unpacked and
+    written anew; only the newest CACHE_KEEP entries stay; HACK_RENDER_NO_CACHE=1 writes
+    nothing."""
+    from hack_render.geometry import model_file
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.delenv("HACK_RENDER_NO_CACHE", raising=False)
+    root = tmp_path / "cache" / "hack-render" / "models"
+    path = tmp_path / "m.npz"
+    save_model_file(path, synthetic_arrays(seed=5), {"provenance": {"all": "synthetic"}})
+    first, meta1 = load_model_file(path)
+    (entry,) = root.iterdir()
+    assert sorted(p.name for p in entry.iterdir()) == sorted(
+        [f"{k}.npy" for k in first] + ["index.json"])
+    second, meta2 = load_model_file(path)
+    assert meta2 == meta1 and sorted(second) == sorted(first)
+    for k, v in first.items():
+        assert isinstance(second[k], np.memmap) and second[k].dtype == v.dtype, k
+        assert np.array_equal(second[k], v), k
+    # copy-on-write: a caller's change stays in its arrays
+    second["template_vertices"][0, 0] += 1.0
+    assert np.array_equal(load_model_file(path)[0]["template_vertices"],
+                          first["template_vertices"])
+    # a damaged entry: unpacked again, rewritten
+    (entry / "faces.npy").write_bytes(b"\x93NUMPY broken")
+    again, _ = load_model_file(path)
+    assert np.array_equal(again["faces"], first["faces"])
+    assert isinstance(load_model_file(path)[0]["faces"], np.memmap)
+    # a changed file is a new entry; the oldest go beyond CACHE_KEEP
+    for i in range(model_file.CACHE_KEEP + 1):
+        other = tmp_path / f"m{i}.npz"
+        save_model_file(other, synthetic_arrays(seed=6 + i), {})
+        load_model_file(other)
+    assert len(list(root.iterdir())) == model_file.CACHE_KEEP
+    monkeypatch.setenv("HACK_RENDER_NO_CACHE", "1")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "off"))
+    load_model_file(path)
+    assert not (tmp_path / "off").exists()
