@@ -126,11 +126,27 @@ def ensure_variant(requested: str | None = None) -> str:
     variant = choose_variant(requested)
     if variant != current:
         mi.set_variant(variant)
-        from hack_render.render import integrator, skin_bsdf  # this variant's plugins
-
-        skin_bsdf.register()
-        integrator.register()
+        register_plugins()
     return variant
+
+
+_registered: set[str] = set()
+
+
+def register_plugins() -> None:
+    """Register the project's Python plugins, the ``hack_skin`` BSDF and the ``hack_path``
+    integrator, for the active variant (JIT variants only; idempotent)."""
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant in _registered or not is_jit(variant):
+        return
+    from hack_render.render import integrator, skin_bsdf
+
+    bsdf, integ = skin_bsdf.make_class(), integrator.make_class()
+    mi.register_bsdf(skin_bsdf.NAME, lambda props: bsdf(props))
+    mi.register_integrator(integrator.NAME, lambda props: integ(props))
+    _registered.add(variant)
 
 
 def is_jit(variant: str | None = None) -> bool:

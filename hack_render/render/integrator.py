@@ -38,18 +38,6 @@ NAME = "hack_path"
 #: lids crosses at most two cards of each lid in practice).
 MAX_NULL_CROSSINGS = 6
 
-_registered: set[str] = set()
-
-
-def register() -> None:
-    """Register ``hack_path`` for the active variant (JIT variants only; idempotent)."""
-    variant = mi.variant()
-    if variant in _registered or not variant.startswith(("llvm", "cuda")):
-        return
-    cls = _make_class()
-    mi.register_integrator(NAME, lambda props: cls(props))
-    _registered.add(variant)
-
 
 def mis_weight(pdf_a, pdf_b):
     """The power heuristic (as Mitsuba's integrators): 0 where undefined."""
@@ -58,7 +46,9 @@ def mis_weight(pdf_a, pdf_b):
     return dr.select(dr.isfinite(w), w, 0.0)
 
 
-def _make_class():
+def make_class():
+    """Define the integrator class against the active variant's ``mi.SamplingIntegrator``
+    (registered by ``engine.register_plugins``)."""
     class HackPathIntegrator(mi.SamplingIntegrator):
         """See the module docstring. Properties: ``max_depth`` (8; -1: unbounded),
         ``rr_depth`` (5), ``hide_emitters`` (false)."""

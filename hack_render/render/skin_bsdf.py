@@ -42,23 +42,10 @@ LOBE_MIX = 0.85
 SKIN_F0 = 0.028
 MIN_ALPHA = 1e-3
 
-_registered: set[str] = set()
 
-
-def register() -> None:
-    """Register ``hack_skin`` for the active variant (JIT variants only; idempotent)."""
-    import mitsuba as mi
-
-    variant = mi.variant()
-    if variant in _registered or not variant.startswith(("llvm", "cuda")):
-        return
-    cls = _make_class()
-    mi.register_bsdf(NAME, lambda props: cls(props))
-    _registered.add(variant)
-
-
-def _make_class():
-    """Define the plugin class against the active variant's ``mi.BSDF``."""
+def make_class():
+    """Define the plugin class against the active variant's ``mi.BSDF`` (registered by
+    ``engine.register_plugins``)."""
     import drjit as dr
     import mitsuba as mi
 
