@@ -150,8 +150,12 @@ class CompositeRenderer:
         rig = preset(str(rng.choice(list(PRESETS))), rotation_deg=float(rng.uniform(-40, 40)))
         skin = SkinMaps.from_appearance(maps)
         if self._scene is None:
+            # volpath: the composites the detectors were calibrated and benchmarked on
+            # (docs/vision.md); hack_path, the default since, renders the same image in
+            # the mean but other noise, which would move every figure a little
             self._scene = HeadScene(Topology.from_model(self.model), V, rig, cam,
-                                    RenderSettings(self.res, self.res, self.spp, 4, 0), skin)
+                                    RenderSettings(self.res, self.res, self.spp, 4, 0,
+                                                   integrator="volpath"), skin)
         else:
             self._scene.set_camera(cam, update=False)
             self._scene.set_maps(skin, update=False)
