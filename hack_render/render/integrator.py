@@ -1,11 +1,11 @@
 """``hack_path``: the path tracer of final renders, whose shadow rays pass the lash cards.
 
 Mitsuba's ``path`` stops a shadow ray at the first surface it meets, so a ``mask`` BSDF's
-transparent part (the lash cards: strands on a 3 % to 100 % transparent card) blocks the
-lights as if it were opaque, and what lies under the cards is lit by BSDF-sampled paths
-alone (speckled). ``volpath`` passes null-transmissive surfaces in its shadow rays, but it
-pays for its medium machinery on every sample: 1.45-1.55x ``path``'s CPU time per sample
-on the README's still, with or without the cards in the scene.
+transparent part (the lash cards: opaque strands on a card that is transparent between
+them) blocks the lights as if it were opaque, and what lies under the cards is lit by
+BSDF-sampled paths alone (speckled). ``volpath`` passes null-transmissive surfaces in its
+shadow rays, but it pays for its medium machinery on every sample: 1.3-1.55x ``path``'s
+CPU time per sample on the README's still, with or without the cards in the scene.
 
 ``hack_path`` is ``path`` with ``volpath``'s treatment of null surfaces and nothing else
 (there are no participating media in a :class:`~hack_render.render.scene.HeadScene`):
@@ -20,8 +20,10 @@ on the README's still, with or without the cards in the scene.
 - ``hide_emitters``: camera rays do not see emitters and pass the area lights' shapes
   (as ``path`` and ``volpath`` do), so the film's alpha is the subject's coverage.
 
-It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at about
-1.15x ``path``'s cost per sample (``python bench/bench_render.py --only integrator``).
+It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at 1.11x
+``path``'s cost per sample on the README's still, against volpath's 1.29x (on an eye
+close-up, where most shadow rays cross cards, 1.95x against 1.84x; ``python
+bench/bench_render.py --only integrator``).
 JIT variants only (a Python integrator in a scalar variant would run per sample in
 Python): :class:`~hack_render.render.scene.HeadScene` uses ``volpath`` there.
 """
