@@ -55,7 +55,8 @@ keeps its validated arrays, uncompressed, in ``$XDG_CACHE_HOME/hack-render/model
 (one ``.npy`` each and ``index.json``; the key is the file's resolved path, size and
 modification time), and later loads map them copy-on-write (``np.load(mmap_mode="c")``,
 no pickle): ~0.01 s. The newest :data:`CACHE_KEEP` models are kept; a cache that cannot
-be read is ignored and rewritten; ``HACK_RENDER_NO_CACHE=1`` turns it off.
+be read is ignored and rewritten, one that cannot be written warns
+(:class:`CacheWarning`); ``HACK_RENDER_NO_CACHE=1`` turns it off.
 """
 
 from __future__ import annotations
@@ -64,6 +65,7 @@ import hashlib
 import json
 import os
 import shutil
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -76,6 +78,10 @@ FORMAT_VERSION = 2
 SUPPORTED_VERSIONS = (1, 2)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
+class CacheWarning(UserWarning):
+    """The unpacked model file could not be cached (the load itself went through)."""
+
+
 #: Unpacked model files kept in the cache (~0.15 GB each for the default model).
 CACHE_KEEP = 3
 _CACHE_FORMAT = 1
@@ -251,8 +257,11 @@ def _write_cache(folder: Path, arrays: dict[str, np.ndarray], meta: dict[str, An
                          key=lambda p: p.stat().st_mtime_ns, reverse=True)
         for old in entries[CACHE_KEEP:]:
             shutil.rmtree(old, ignore_errors=True)
-    except OSError:
-        pass
+    except OSError as err:  # a full disk, a read-only cache: loads stay slower, no more
+        warnings.warn(f"could not cache the unpacked model file in {folder.parent} ({err}); "
+                      "every load unpacks the file again (~0.5 s). Free space there, set "
+                      "XDG_CACHE_HOME, or HACK_RENDER_NO_CACHE=1 to skip the cache.",
+                      CacheWarning, stacklevel=3)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
