@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
 SamplerOpt = typer.Option("auto", "--sampler", help="Mitsuba sampler: auto (orthogonal "
-                          "arrays near 49, 121, 169... spp, else multijitter), multijitter, "
+                          "arrays near 25, 49, 121... spp, else multijitter), multijitter, "
                           "stratified, orthogonal, ldsampler or independent. All but "
                           "independent round --spp (said when they do); see docs/render.md.")
 IntegratorOpt = typer.Option("hack_path", "--integrator", help="Integrator: hack_path or "

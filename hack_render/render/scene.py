@@ -34,7 +34,7 @@ SAMPLES_PER_PASS = 1 << 24
 #: a 2,048-spp reference (docs/render.md): independent 30.5 dB, stratified (36) 35.3 dB,
 #: multijitter (35) 36.7 dB, orthogonal (49) 40.5 dB, independent at 64 spp 33.8 dB.
 #: ``auto``: Mitsuba's orthogonal array sampler where the count is near the square of a
-#: prime of at least 7 (49, 121, 169, ...), else multijitter (:func:`auto_sampler`).
+#: prime of at least 5 (25, 49, 121, 169, ...), else multijitter (:func:`auto_sampler`).
 SAMPLERS = ("auto", "multijitter", "stratified", "orthogonal", "ldsampler", "independent")
 DEFAULT_SAMPLER = "auto"
 #: ``auto``'s smallest orthogonal count (5^2). On two 256 px stills (hack_path, depth 8;
