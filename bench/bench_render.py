@@ -414,7 +414,7 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     side-by-side still at 768 px."""
     from hack_render.geometry import load_default_model
     from hack_render.render import sss
-    from hack_render.render.aov import sss_features
+    from hack_render.render.footprint import sss_features
     from hack_render.render.image_io import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings

@@ -164,3 +164,50 @@ def test_05_label_passes_follow_the_render_opacity(head_model):
     np.testing.assert_allclose(cov[single], ours[single], atol=1e-6)
     np.testing.assert_allclose(cov[front & ~single], 1.0, atol=1e-6)
     np.testing.assert_allclose(out["coverage"].sum(-1), 1.0, atol=1e-6)
+
+
+def test_06_denoiser_features_look_through_the_cards(head_model):
+    """The denoiser's albedo and normal follow a footprint ray through the lash cards as
+    the film does (each card by its opacity, what lies behind by the rest): every ray's
+    weights add up to 1 (a ray crosses up to 7 cards here), those on surfaces to no more
+    than the first hits' coverage; the lash band's albedo is the skin and eye seen
+    between strands, not a dark ring (measured: 2 % of its pixels dark, against 96 %
+    when the features stop at the first card); and OIDN given these features lands
+    closer to a 1,024-spp reference over the band (measured 0.64x the squared error)."""
+    pytest.importorskip("pyoidn")
+    from hack_render.render import denoise as dn
+    from hack_render.render.footprint import denoise_features, footprint_means
+
+    topo, v = head_model
+    cam = eye_closeup(48)
+    head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(48, 48, 16))
+    see = head._see_through
+    hits = head.region_hits()
+    band = hits["region"] == REGIONS.index("eyelashes")
+    skin = hits["region"] == REGIONS.index("face")
+    assert band.sum() > 200
+
+    def weight(layer):  # every hit's weight, and those on a surface (not the background)
+        return [layer.weight + 0.0, dr.select(layer.ok, layer.weight, 0.0)]
+
+    _, coverage = footprint_means(head, 4, (), weight)
+    total, through = footprint_means(head, 4, see, weight)
+    np.testing.assert_allclose(total, 1.0, atol=1e-5)
+    assert np.all(through <= coverage + 1e-6)
+    assert np.abs(through - coverage)[skin].max() < 1e-6  # skin in front: nothing passed
+
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    dark = {}
+    feats = {}
+    for name, cards in (("through", see), ("first hit", ())):
+        feats[name] = denoise_features(head, 4, cards)
+        a = feats[name][0] @ lum
+        dark[name] = float((a[band] < 0.5 * np.median(a[skin & ~band])).mean())
+    assert dark["through"] < 0.05 and dark["first hit"] > 0.5, dark
+
+    ref = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(48, 48, 1024))
+    reference = ref.render(seed=5, backdrop=False)[..., :3]
+    bare = head.render(seed=1, backdrop=False)
+    err = {name: float(np.mean((dn.denoise(bare[..., :3], *f) - reference)[band] ** 2))
+           for name, f in feats.items()}
+    assert err["through"] < 0.8 * err["first hit"], err

@@ -120,7 +120,7 @@ def test_06_the_passes_add_up_to_the_render(head):
     without scattering, match a one-pass render; render(sss=True) is those passes
     combined with scattering, which keeps the light (within 1 %) and smooths the skin;
     the lobe weights are restored."""
-    from hack_render.render.aov import sss_features
+    from hack_render.render.footprint import sss_features
 
     one = head.render(seed=1, backdrop=False)
     d, s = head.lobe_passes(seed=2)

@@ -130,9 +130,8 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                      RenderSettings(w, h, spp, cfg.final.max_depth, cfg.seed), maps)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs()
-    if denoised:
-        rgba = rgba.copy()
-        rgba[..., :3] = dn.denoise(rgba[..., :3], gb["albedo"], gb["normal"], fallback=True)
+    if denoised:  # with the renderer's own footprint features (through the lashes)
+        rgba = head.denoise(rgba, fallback=True)
     return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)
 
 

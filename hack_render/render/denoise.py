@@ -1,8 +1,9 @@
 """Denoising renders with Intel Open Image Denoise (PyPI ``pyoidn``, the ``denoise`` extra).
 
 OIDN's ``RT`` filter takes the noisy linear colour with two auxiliary images of the same
-pixel footprint, albedo and normal (:func:`hack_render.render.aov.denoise_features`:
-k x k primary rays per pixel, box-averaged, looking through the lights like the camera),
+pixel footprint, albedo and normal (:func:`hack_render.render.footprint.denoise_features`:
+k x k primary rays per pixel, box-averaged, looking through the lights like the camera
+and through the lash cards' gaps like the film),
 which keep edges and texture sharp. It runs on the premultiplied subject (the film
 without a backdrop), so a backdrop or photo composited afterwards is not blurred.
 

@@ -592,7 +592,7 @@ class HeadScene:
     def _render_sss(self, base: int, progress: bool) -> np.ndarray:
         """Render with subsurface scattering in the skin (:mod:`hack_render.render.sss`)."""
         from hack_render.render import sss
-        from hack_render.render.aov import sss_features
+        from hack_render.render.footprint import sss_features
 
         diffuse, rest = self.lobe_passes(base, progress)
         f = sss_features(self, self._skin_bsdf, self._see_through)
@@ -603,13 +603,13 @@ class HeadScene:
 
     def denoise(self, image: np.ndarray, fallback: bool = False, k: int = 4) -> np.ndarray:
         """A premultiplied render (H, W, 4) of this scene's current state (camera, mesh),
-        denoised by OIDN with albedo and normal from :func:`aov.denoise_features`; alpha
-        kept. ``fallback``: a missing or failing denoiser returns the image unchanged
+        denoised by OIDN with albedo and normal from :func:`footprint.denoise_features`
+        (through the lash cards, as the film sees them); alpha kept. ``fallback``: a missing or failing denoiser returns the image unchanged
         with a warning instead of raising (see ``hack_render.render.denoise``)."""
         from hack_render.render import denoise as dn
-        from hack_render.render.aov import denoise_features
+        from hack_render.render.footprint import denoise_features
 
-        albedo, normal = denoise_features(self, k)
+        albedo, normal = denoise_features(self, k, self._see_through)
         out = image.copy()
         den = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
         # premultiplied: no coverage, no colour (OIDN leaves ~1e-6 residues there)

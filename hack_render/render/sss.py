@@ -13,7 +13,7 @@ Real-Time Skin Rendering", GPU Gems 3, ch. 14, table 14-1):
 1. ``HeadScene.render(sss=True)`` renders the skin's diffuse and specular light apart
    (the ``hack_skin`` BSDF's lobe weights (1, 0), then (0, 1); the other materials go
    with the specular pass), same samples per pixel each.
-2. The diffuse image is divided by the albedo (:func:`hack_render.render.aov.sss_features`,
+2. The diffuse image is divided by the albedo (:func:`hack_render.render.footprint.sss_features`,
    averaged over each pixel's footprint), so the profile diffuses light, not the
    texture: the albedo is applied after the scattering ("post-scatter texturing").
 3. Each Gaussian of the profile is applied in two 1-D passes. The distance between two
@@ -92,7 +92,7 @@ def combine(diffuse: np.ndarray, specular: np.ndarray, features: dict, focal_px:
 
     Args:
         diffuse, specular: (H, W, 3) the passes (premultiplied, linear).
-        features: :func:`hack_render.render.aov.sss_features` of the same view.
+        features: :func:`hack_render.render.footprint.sss_features` of the same view.
         focal_px, profile, scale: see :func:`scatter`.
     """
     a, sa, m = features["albedo"], features["skin_albedo"], features["skin"]

@@ -1,0 +1,160 @@
+"""Per-pixel features over each pixel's footprint, for the denoiser and the skin's
+subsurface scattering.
+
+Unlike :mod:`hack_render.render.aov` (one ray through each pixel centre, crisp ids),
+these average k x k stratified primary rays per pixel, so edges are antialiased like the
+render's film. Both follow a ray through the see-through cards the renderer sees through
+(the eyelashes, ``HeadScene._see_through``): a ray that meets one counts the card with
+weight ``opacity`` at the hit (a number, or the strand texture looked up at the hit's UV,
+as the card's ``mask`` BSDF does) and what lies behind it with the rest, up to
+``CARD_LAYERS`` cards deep. The film sees the skin through the lashes' gaps, so features
+that stopped at the first card (a dark ring of lash albedo over the eyelids) would not
+explain the image the denoiser is given.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.render.aov import _opacity_at, camera_hit
+
+#: How many see-through cards a footprint ray is followed through: the lashes are three
+#: cards deep on each lid, and a ray grazing the lids crosses up to 7 where the strands'
+#: gaps let it (tests/test_render_lashes.py::test_06: with 6, 0.6 % of an eye close-up's
+#: pixels lost up to a third of their weight; with 8, none).
+CARD_LAYERS = 8
+
+
+def _footprint_rays(head, k: int, lanes):
+    """The primary rays of footprint lanes ``lanes`` (a Dr.Jit UInt32 of lane indices,
+    k x k stratified rays per pixel, pixel-major): (pixel index of each, the ray)."""
+    import mitsuba as mi
+
+    if not 1 <= k <= 16:
+        raise HackError(f"footprint features: expected 1 <= k <= 16 rays per side, found {k}.")
+    w, h, kk = head.camera.width, head.camera.height, k * k
+    pix, sub = lanes // kk, lanes % kk
+    x = mi.Float(pix % w) + (mi.Float(sub % k) + 0.5) / k
+    y = mi.Float(pix // w) + (mi.Float(sub // k) + 0.5) / k
+    sensor = head.scene.sensors()[0]
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
+    return pix, ray
+
+
+class Layer(NamedTuple):
+    """Footprint hits at one depth of cards: each ray's pixel index, the ray, its hit,
+    whether the hit counts, and its weight (what the cards in front of it let through,
+    times its own opacity where it is a card)."""
+    pix: object
+    ray: object
+    hit: object
+    ok: object
+    weight: object
+
+
+def footprint_means(head, k: int, see_through, values) -> list[np.ndarray]:
+    """Per-pixel means over k x k stratified primary rays per pixel (each pixel's
+    footprint, so edges are antialiased like the render's), looking through the lights,
+    of the Floats ``values(layer)`` returns for the hits of each :class:`Layer`: the first
+    hit and, behind each see-through card (``see_through``: (bsdf, opacity) pairs), the
+    next, weighted by what the cards in front let through (weights of a ray sum to 1
+    where it ends within ``CARD_LAYERS`` cards). (H, W) float32
+    arrays, one per value.
+
+    Two kernels: the first hits of all rays; then the rays on a card (a few per cent of a
+    portrait's), compacted, traced again from the camera and on through the cards."""
+    import drjit as dr
+    import mitsuba as mi
+
+    cards = [(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(card)), opacity)
+             for card, opacity in see_through]
+
+    def card_at(hit, ray, ok):  # (on a card, the opacity there: 1 elsewhere)
+        ids = dr.reinterpret_array(mi.UInt32, hit.bsdf(ray))
+        on_card, opacity = mi.Bool(False), mi.Float(1.0)
+        for cid, op in cards:
+            this = ok & (ids == cid)
+            on_card |= this
+            opacity = dr.select(this, _opacity_at(op, hit, this), opacity)
+        return on_card, opacity
+
+    w, h = head.camera.width, head.camera.height
+    acc = None
+
+    def add(layer):
+        nonlocal acc
+        vals = values(layer)
+        if acc is None:
+            acc = [dr.zeros(mi.Float, w * h) for _ in vals]
+        for a, value in zip(acc, vals, strict=True):
+            dr.scatter_reduce(dr.ReduceOp.Add, a, value, layer.pix)
+
+    lanes = dr.arange(mi.UInt32, w * h * k * k)
+    pix, ray = _footprint_rays(head, k, lanes)
+    hit = camera_hit(head, ray, coherent=True)
+    ok = hit.is_valid()
+    on_card, opacity = card_at(hit, ray, ok)
+    add(Layer(pix, ray, hit, ok, opacity))
+    dr.eval(acc, on_card)
+    idx = dr.compress(on_card) if cards else None
+    if idx is not None and dr.width(idx) > 0:
+        pix, ray = _footprint_rays(head, k, dr.gather(mi.UInt32, lanes, idx))
+        hit = camera_hit(head, ray, coherent=True)  # the first card, again
+        ok = hit.is_valid()
+        on_card, opacity = card_at(hit, ray, ok)
+        trans = 1.0 - opacity
+        for _ in range(CARD_LAYERS - 1):
+            hit = camera_hit(head, hit.spawn_ray(ray.d), on_card, coherent=True)
+            ok = on_card & hit.is_valid()
+            on_card, opacity = card_at(hit, ray, ok)
+            add(Layer(pix, ray, hit, ok, trans * opacity))
+            trans = trans * (1.0 - opacity)
+    dr.eval(acc)
+    return [np.asarray(a, np.float32).reshape(h, w) / np.float32(k * k) for a in acc]
+
+
+def denoise_features(head, k: int = 4, see_through=()) -> tuple[np.ndarray, np.ndarray]:
+    """The denoiser's auxiliary images: albedo and world-space shading normal, each
+    (H, W, 3) float32, averaged over k x k stratified primary rays per pixel and through
+    the ``see_through`` cards (see the module's notes; as Cycles' denoising features pass
+    transparent surfaces); 0 where nothing is hit."""
+    import drjit as dr
+
+    def values(layer):
+        hit, ok, w = layer.hit, layer.ok, layer.weight
+        albedo = dr.select(ok, hit.bsdf(layer.ray).eval_diffuse_reflectance(hit, ok) * w, 0.0)
+        normal = dr.select(ok, hit.sh_frame.n * w, 0.0)
+        return [albedo[c] for c in range(3)] + [normal[c] for c in range(3)]
+
+    m = footprint_means(head, k, see_through, values)
+    return np.stack(m[:3], -1), np.stack(m[3:], -1)
+
+
+def sss_features(head, skin_bsdf, see_through=(), k: int = 4) -> dict[str, np.ndarray]:
+    """What :func:`hack_render.render.sss.scatter` needs, over each pixel's k x k rays:
+    ``albedo`` (H, W, 3) of every hit, ``skin_albedo`` (H, W, 3) of the hits on
+    ``skin_bsdf`` only (0 elsewhere), ``skin`` (H, W) the fraction of the pixel's light
+    that comes from it, and ``depth`` (H, W) the mean distance from the camera to those
+    hits, metres (0 where none). ``see_through``: (bsdf, opacity) pairs of cards the
+    renderer sees through (the eyelashes; see the module's notes)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    skin_id = dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(skin_bsdf))
+
+    def values(layer):
+        hit, ok, w = layer.hit, layer.ok, layer.weight
+        b = hit.bsdf(layer.ray)
+        on = ok & (dr.reinterpret_array(mi.UInt32, b) == skin_id)
+        a = dr.select(ok, b.eval_diffuse_reflectance(hit, ok), 0.0) * w
+        skin_a = dr.select(on, a, 0.0)
+        return ([a[c] for c in range(3)] + [skin_a[c] for c in range(3)]
+                + [dr.select(on, w, 0.0), dr.select(on, w * dr.norm(hit.p - layer.ray.o), 0.0)])
+
+    m = footprint_means(head, k, see_through, values)
+    depth = np.where(m[6] > 0, m[7] / np.maximum(m[6], 1e-12), 0.0).astype(np.float32)
+    return {"albedo": np.stack(m[:3], -1), "skin_albedo": np.stack(m[3:6], -1),
+            "skin": m[6], "depth": depth}
