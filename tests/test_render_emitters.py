@@ -123,3 +123,54 @@ def test_03_dataset_views_show_no_light_and_labels_agree(tmp_path):
             assert (masks[..., 0][g["depth"] > 0] < 1).all()
             _check_view(head, head.render(seed=v), g, seen)
     assert sum(n > 0 for n in seen) >= 2, seen
+
+
+def test_04_lights_are_picked_by_the_irradiance_they_give(monkeypatch):
+    """Next-event estimation picks the studio rig's emitters in proportion to their
+    irradiance at the subject (key, fill, rim, environment), not a quarter each; the image
+    keeps its mean (unbiased) and, at 25 orthogonal samples, has under 0.85x the squared
+    error of equal picking against a 1,024-spp reference (measured 0.75x over 4 seeds,
+    48 px; 0.54x on the README still at 256 px)."""
+    from hack_render.render import emitters
+
+    rig = lights.preset("studio")
+    w = np.array(emitters.sampling_weights(rig, None))
+    assert len(w) == 4 and np.all(w > 0)
+    key = rig.area[0]
+    d2 = float(np.sum(np.subtract(key.position, key.target) ** 2))
+    assert w[0] == pytest.approx(np.mean(key.radiance) * 0.36 / d2)
+    assert w[3] == pytest.approx(np.pi * 0.04)
+    # a lat-long map of a uniform sky weighs as the same constant environment
+    sky = np.full((16, 32, 3), 0.04)
+    assert emitters.sampling_weights(rig, sky)[3] == pytest.approx(w[3], rel=1e-6)
+    # a black light keeps a positive weight (Mitsuba takes no 0)
+    dark = lights.LightRig("dark", area=(lights.AreaLight((0, 0, 1), (0, 0, 0), (1, 1),
+                                                          (0.0, 0.0, 0.0)),),
+                           env_constant=(1.0, 1.0, 1.0))
+    assert 0 < emitters.sampling_weights(dark, None)[0] < 1e-5
+
+    model = load_default_model()
+    with torch.no_grad():
+        v = model().vertices[0].double().numpy()
+    topo = Topology.from_model(model)
+    cam = cameras.orbit(48, 48, 85.0, 20.0, 5.0)
+
+    def scene(spp):
+        return HeadScene(topo, v, rig, cam, RenderSettings(48, 48, spp, pixel_filter="box"))
+
+    head = scene(25)
+    pdf = np.array([head.scene.pdf_emitter(i)[0] for i in range(4)])
+    np.testing.assert_allclose(pdf, w / w.sum(), rtol=1e-5)
+    ref = scene(1024).render(seed=99, backdrop=False)
+    weighted = [head.render(seed=k, backdrop=False) for k in (1, 2, 3, 4)]
+    monkeypatch.setattr(emitters, "sampling_weights", lambda r, e: [1.0] * 4)
+    equal = scene(25)
+    assert equal.scene.pdf_emitter(0)[0] == pytest.approx(0.25)
+    uniform = [equal.render(seed=k, backdrop=False) for k in (1, 2, 3, 4)]
+
+    def mse(imgs):
+        return float(np.mean([np.mean((i - ref) ** 2) for i in imgs]))
+
+    np.testing.assert_allclose(np.mean(weighted, 0)[..., :3].mean((0, 1)),
+                               ref[..., :3].mean((0, 1)), rtol=0.01)
+    assert mse(weighted) < 0.85 * mse(uniform), (mse(weighted), mse(uniform))

@@ -86,8 +86,40 @@ def area_light_transform(light, rotation_deg: float = 0.0) -> np.ndarray:
     return rotation_y(rotation_deg) @ _look_at(light.position, light.target) @ scale
 
 
+def sampling_weights(rig: LightRig, env_image: np.ndarray | None) -> list[float]:
+    """How often next-event estimation picks each emitter of ``emitter_dicts`` (area
+    lights in order, then the environment): in proportion to the irradiance each gives
+    the subject, as a surface at the light's target facing it would receive it. An area
+    light: its mean radiance times its solid angle there (area / distance^2, small-light
+    approximation); the environment: pi times its mean radiance over the sphere (a
+    lat-long map's rows weighted by sin theta), as a uniform sky gives a facing surface.
+
+    Mitsuba's default picks every emitter equally often. The studio rig's dim
+    environment (4 % of the irradiance) then took a quarter of the shadow rays, and the
+    image's noise depended on whether the sample count divided among the four emitters:
+    25 orthogonal samples were noisier than 16 multijitter ones. With these weights they
+    are 2 dB less noisy (docs/render.md, "Light sampling")."""
+    out = []
+    for light in rig.area:
+        d = np.subtract(light.position, light.target, dtype=np.float64)
+        solid = light.size[0] * light.size[1] / max(float(d @ d), 1e-12)
+        out.append(float(np.mean(light.radiance)) * rig.scale * solid)
+    if env_image is not None:
+        img = np.asarray(env_image, np.float64)
+        theta = (np.arange(img.shape[0]) + 0.5) / img.shape[0] * np.pi
+        row_w = np.sin(theta)[:, None]
+        mean = float((img.mean(-1) * row_w).sum() / (row_w.sum() * img.shape[1]))
+        out.append(np.pi * mean * rig.scale)
+    elif rig.env_constant is not None:
+        out.append(np.pi * float(np.mean(rig.env_constant)) * rig.scale)
+    # a dark emitter keeps a little: Mitsuba takes positive weights only
+    top = max(out, default=1.0)
+    return [max(w, 1e-6 * top, 1e-12) for w in out]
+
+
 def emitter_dicts(rig: LightRig, env_image: np.ndarray | None) -> dict[str, dict]:
-    """Mitsuba emitters of a rig, keyed ``light_<i>`` and ``environment``.
+    """Mitsuba emitters of a rig, keyed ``light_<i>`` and ``environment``, each picked by
+    next-event estimation in proportion to :func:`sampling_weights`.
 
     Args:
         env_image: the rig's lat-long map (H, 2H, 3), already read (from ``env_map`` or
@@ -97,17 +129,20 @@ def emitter_dicts(rig: LightRig, env_image: np.ndarray | None) -> dict[str, dict
 
     out: dict[str, dict] = {}
     s = rig.scale
+    weights = sampling_weights(rig, env_image)
     for i, light in enumerate(rig.area):
         out[f"light_{i}"] = {
             "type": "rectangle",
             "to_world": mi.ScalarTransform4f(area_light_transform(light, rig.rotation_deg).tolist()),
-            "emitter": {"type": "area", "radiance": {"type": "rgb",
-                                                     "value": [float(c) * s for c in light.radiance]}},
+            "emitter": {"type": "area", "sampling_weight": weights[i],
+                        "radiance": {"type": "rgb",
+                                     "value": [float(c) * s for c in light.radiance]}},
         }
     if env_image is not None:
         out["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(env_image), "scale": s,
+                              "sampling_weight": weights[-1],
                               "to_world": mi.ScalarTransform4f(rotation_y(rig.rotation_deg).tolist())}
     elif rig.env_constant is not None:
-        out["environment"] = {"type": "constant", "radiance": {
+        out["environment"] = {"type": "constant", "sampling_weight": weights[-1], "radiance": {
             "type": "rgb", "value": [float(c) * s for c in rig.env_constant]}}
     return out
