@@ -593,6 +593,7 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
     from appearance.texture_io import write_texture_set
     from hack_render.geometry.obj_io import write_mesh
     from hack_render.render import emitters, materials, skin_bsdf
+    from hack_render.render.image_io import rgb_channels, write_exr
     from hack_render.render.parts import vertex_normals
 
     rig, cam, settings = head.lights, head.camera, head.settings
@@ -614,6 +615,12 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
             extra["colors"] = materials.iris_vertex_colors(v[part.gather], head.eye_axes)
         else:
             spec = _cycles_material(fixed[part.name])
+            if part.name == "eyelashes" and head.lash_opacity is not None:
+                # the strand texture the mask BSDF reads, in the same (Mitsuba) rows as
+                # the skin maps, so the flipped v reads it as Mitsuba does
+                a = np.repeat(np.asarray(head.lash_opacity, np.float32)[..., None], 3, -1)
+                write_exr(folder / "lash_opacity.exr", rgb_channels(a))
+                spec["opacity_map"] = "lash_opacity.exr"
         np.savez(folder / f"{part.name}.npz", **extra)
         parts.append({"name": part.name, "obj": f"{part.name}.obj", "extra": f"{part.name}.npz",
                       "flat": bool(part.flat), "material": spec})

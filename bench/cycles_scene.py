@@ -102,8 +102,9 @@ def skin_material(textures: dict, spec: dict):
     return mat
 
 
-def part_material(name: str, spec: dict):
-    """The other parts: principled (roughplastic, iris), diffuse (bust cap), masked lashes."""
+def part_material(name: str, spec: dict, root: Path):
+    """The other parts: principled (roughplastic, iris), diffuse (bust cap), masked lashes
+    (a constant opacity, or the strand texture ``opacity_map`` in ``root``)."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     t = mat.node_tree
@@ -123,8 +124,11 @@ def part_material(name: str, spec: dict):
             shader.inputs["Coat Roughness"].default_value = spec["coat_roughness"]
             shader.inputs["Coat IOR"].default_value = 1.5
     opacity = spec.get("opacity", 1.0)
-    if opacity < 1.0:
+    if opacity < 1.0 or "opacity_map" in spec:
         mix = _node(t, "ShaderNodeMixShader", {"Fac": opacity})
+        if "opacity_map" in spec:  # the strand texture, as Mitsuba's mask BSDF reads it
+            tex = _image(t, root / spec["opacity_map"], True)
+            t.links.new(tex.outputs["Color"], mix.inputs["Fac"])
         clear = t.nodes.new("ShaderNodeBsdfTransparent")
         t.links.new(clear.outputs[0], mix.inputs[1])
         t.links.new(shader.outputs[0], mix.inputs[2])
@@ -220,8 +224,8 @@ def build(root: Path, desc: dict) -> None:
     textures = {k: root / v for k, v in desc["textures"].items()}
     skin = skin_material(textures, desc["skin"])
     for part in desc["parts"]:
-        mat = skin if part["material"]["kind"] == "skin" else part_material(part["name"],
-                                                                            part["material"])
+        mat = skin if part["material"]["kind"] == "skin" else \
+            part_material(part["name"], part["material"], root)
         import_part(root, part, mat)
 
 
