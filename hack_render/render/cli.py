@@ -27,7 +27,7 @@ SamplerOpt = typer.Option("auto", "--sampler", help="Mitsuba sampler: auto (orth
                           "independent round --spp (said when they do); see docs/render.md.")
 IntegratorOpt = typer.Option("hack_path", "--integrator", help="Integrator: hack_path or "
                              "volpath (shadow rays see through the lashes' transparent parts: "
-                             "less noise around the eyes; the same image, hack_path 1.1-1.6x "
+                             "less noise around the eyes; the same image, hack_path 1.3-2.9x "
                              "faster at equal noise on a head) or path (faster per sample, grainy under the "
                              "lashes); see docs/render.md.")
 DenoiseOpt = typer.Option("auto", "--denoise", help="Intel Open Image Denoise with albedo "

@@ -95,10 +95,11 @@ def sampling_weights(rig: LightRig, env_image: np.ndarray | None) -> list[float]
     lat-long map's rows weighted by sin theta), as a uniform sky gives a facing surface.
 
     Mitsuba's default picks every emitter equally often. The studio rig's dim
-    environment (4 % of the irradiance) then took a quarter of the shadow rays, and the
+    environment (3 % of the irradiance) then took a quarter of the shadow rays, and the
     image's noise depended on whether the sample count divided among the four emitters:
-    25 orthogonal samples were noisier than 16 multijitter ones. With these weights they
-    are 2 dB less noisy (docs/render.md, "Light sampling")."""
+    25 orthogonal samples were noisier than 16 multijitter ones. With these weights the
+    README still's 25 and 49 samples are 2.7 and 3.4 dB less noisy (docs/render.md,
+    "Light sampling")."""
     out = []
     for light in rig.area:
         d = np.subtract(light.position, light.target, dtype=np.float64)

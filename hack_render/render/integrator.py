@@ -20,10 +20,10 @@ CPU time per sample on the README's still, with or without the cards in the scen
 - ``hide_emitters``: camera rays do not see emitters and pass the area lights' shapes
   (as ``path`` and ``volpath`` do), so the film's alpha is the subject's coverage.
 
-It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at 1.11x
-``path``'s cost per sample on the README's still, against volpath's 1.29x (on an eye
-close-up, where most shadow rays cross cards, 1.95x against 1.84x; ``python
-bench/bench_render.py --only integrator``).
+It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at 0.98x
+``path``'s cost per sample on the README's still, against volpath's 1.33x (on an eye
+close-up, where most shadow rays cross cards, 1.56x against 1.67x; ``python
+bench/bench_render.py --only integrator``, docs/render.md).
 JIT variants only (a Python integrator in a scalar variant would run per sample in
 Python): :class:`~hack_render.render.scene.HeadScene` uses ``volpath`` there.
 """

@@ -45,7 +45,7 @@ AUTO_ORTHOGONAL_MIN = 25
 #: Integrators of final renders. ``path`` treats every surface as opaque to shadow rays,
 #: so the lash cards' whole area blocks direct light from the lights' point of view and
 #: what lies under them is lit by BSDF-sampled paths alone (speckled); ``volpath`` and
-#: ``hack_path`` (render/integrator.py: ``path`` plus volpath's null surfaces, 0.86x
+#: ``hack_path`` (render/integrator.py: ``path`` plus volpath's null surfaces, 0.74x
 #: volpath's cost per sample on the README still) trace shadow rays through
 #: null-transmissive surfaces, weighted by the ``mask`` BSDF's transparency (see
 #: docs/render.md, "Integrator").
