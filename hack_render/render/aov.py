@@ -43,12 +43,14 @@ def camera_hit(head, ray, active=True, coherent: bool = False):
     if layers == 0:
         return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
     ray = mi.Ray3f(ray)
+    pi = head.scene.ray_intersect_preliminary(ray, coherent, active)
     for _ in range(layers):
-        pi = head.scene.ray_intersect_preliminary(ray, coherent, active)
+        # only the rays that met a light's rectangle are traced again, from just past it
+        # (10 um; the head is metres away from it)
         skip = active & pi.is_valid() & pi.shape.is_emitter()
-        # continue from just past the rectangle (10 um; the head is metres away from it)
         ray.o = dr.select(skip, ray(pi.t + 1e-5), ray.o)
-    return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
+        pi = dr.select(skip, head.scene.ray_intersect_preliminary(ray, coherent, skip), pi)
+    return pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
 
 
 def _opacity_at(opacity, si, active):
