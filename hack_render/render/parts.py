@@ -152,8 +152,10 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     an array of vertex indices in order. Assumes a manifold boundary (two boundary edges
     per boundary vertex), as ICT's skin has."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    pair = np.sort(e, axis=1).astype(np.int64)
+    # one integer per undirected edge: a 1-D unique, ~10x faster than unique rows
+    key = pair[:, 0] * (int(pair.max(initial=0)) + 1) + pair[:, 1]
+    _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
     directed = e[counts[inv.ravel()] == 1]  # boundary edges, in their face's winding
     nxt = dict(zip(directed[:, 0].tolist(), directed[:, 1].tolist()))
     loops, seen = [], set()
@@ -257,8 +259,12 @@ def split_parts(topo: Topology, vertices: np.ndarray,
         if not mats or not sel.any():
             continue
         f, tf = topo.faces[sel], topo.uv_faces[sel]
-        pairs = np.stack([f.ravel(), tf.ravel()], axis=1)
-        uniq, inverse = np.unique(pairs, axis=0, return_inverse=True)
+        # (vertex, uv vertex) pairs as one integer each, ordered as the pairs (a 1-D
+        # unique: ~10x faster than unique rows)
+        stride = np.int64(len(topo.uvs))
+        key, inverse = np.unique(f.ravel().astype(np.int64) * stride + tf.ravel(),
+                                 return_inverse=True)
+        uniq = np.stack([key // stride, key % stride], axis=1)
         uv = topo.uvs[uniq[:, 1]]
         tc = np.stack([(uv[:, 0] - u_off) * u_scale, 1.0 - uv[:, 1]], axis=1)
         parts.append(Part(pname, REGIONS.index(region), uniq[:, 0],
