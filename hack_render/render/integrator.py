@@ -26,6 +26,18 @@ close-up, where most shadow rays cross cards, 1.56x against 1.67x; ``python
 bench/bench_render.py --only integrator``, docs/render.md).
 JIT variants only (a Python integrator in a scalar variant would run per sample in
 Python): :class:`~hack_render.render.scene.HeadScene` uses ``volpath`` there.
+
+**Skin split** (``split_skin`` true, then :meth:`set_skin`): the same image, and two AOVs
+that split it by the path's first real scattering event (null crossings aside): the
+light that leaves the skin BSDF's diffuse lobe there (``skin_diffuse.R/G/B``) and its
+specular lobe (``skin_specular.R/G/B``); the rest of the image is light whose first
+event is on another material. The next-event estimate at that vertex is evaluated per
+lobe (the BSDF context's component 0, the diffuse lobe), and the path sampled from it
+carries the diffuse lobe's share f_d / f of its BSDF value in its direction into
+everything it gathers later: each AOV is an unbiased estimate of its part, and the two
+add up to the skin's light exactly. Subsurface scattering (``render/sss.py``) needs the
+diffuse part apart; one pass gives it, where weighting the lobes in two renders took
+twice the samples.
 """
 
 from __future__ import annotations
@@ -53,7 +65,7 @@ def make_class():
     (registered by ``engine.register_plugins``)."""
     class HackPathIntegrator(mi.SamplingIntegrator):
         """See the module docstring. Properties: ``max_depth`` (8; -1: unbounded),
-        ``rr_depth`` (5), ``hide_emitters`` (false)."""
+        ``rr_depth`` (5), ``hide_emitters`` (false), ``split_skin`` (false)."""
 
         def __init__(self, props):
             super().__init__(props)
@@ -64,9 +76,19 @@ def make_class():
             self.rr_depth = int(props.get("rr_depth", 5))
             if self.rr_depth <= 0:
                 raise ValueError(f"{NAME}: rr_depth must be positive, found {self.rr_depth}")
+            self.split = bool(props.get("split_skin", False))
+            self.skin_id = mi.UInt32(0)
+
+        def set_skin(self, bsdf):
+            """The BSDF whose first-event light the AOVs split by lobe (``split_skin``);
+            its pointer is a kernel parameter, so the kernel is cached across scenes."""
+            self.skin_id = dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))
+            dr.make_opaque(self.skin_id)
 
         def aov_names(self):
-            return []
+            if not self.split:
+                return []
+            return [f"skin_{lobe}.{c}" for lobe in ("diffuse", "specular") for c in "RGB"]
 
         def to_string(self):
             return (f"HackPathIntegrator[max_depth = {self.max_depth}, "
@@ -106,6 +128,13 @@ def make_class():
             # the last real (non-null) scattering event, for MIS at emitter hits
             last_si = dr.zeros(mi.Interaction3f)
             last_pdf, last_delta = mi.Float(1.0), mi.Bool(True)
+            # skin split: the first real event's class (0 none yet, 1 skin, 2 other), the
+            # diffuse lobe's share of the path's throughput after it, the two parts
+            ctx_d = mi.BSDFContext()
+            ctx_d.component = 0
+            first_cls = mi.UInt32(0)
+            frac_d = mi.Spectrum(0.0)
+            res_d, res_s = mi.Spectrum(0.0), mi.Spectrum(0.0)
             while active:
                 si = scene.ray_intersect(ray, mi.RayFlags.All, depth == 0, active)
                 emitter = si.emitter(scene)
@@ -115,7 +144,12 @@ def make_class():
                 ds = mi.DirectionSample3f(scene, si, last_si)
                 em_pdf = scene.pdf_emitter_direction(last_si, ds, active_e & ~last_delta)
                 w = dr.select(last_delta, 1.0, mis_weight(last_pdf, em_pdf))
-                result[active_e] = result + throughput * w * emitter.eval(si, active_e)
+                c_e = throughput * w * emitter.eval(si, active_e)
+                result[active_e] = result + c_e
+                if self.split:
+                    on_skin_path = active_e & (first_cls == 1)
+                    res_d[on_skin_path] = res_d + frac_d * c_e
+                    res_s[on_skin_path] = res_s + (1.0 - frac_d) * c_e
                 # camera rays pass the hidden area lights' shapes
                 skip = active & hidden & si.is_valid() & (emitter != None)
                 active &= si.is_valid() & ~skip
@@ -129,11 +163,29 @@ def make_class():
                 em_weight *= self.transmittance(scene, si, ds.p, active_em)
                 bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_em)
                 mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-                result[active_em] = result + throughput * bsdf_val * em_weight * mis_em
+                c_em = throughput * bsdf_val * em_weight * mis_em
+                result[active_em] = result + c_em
+                if self.split:
+                    on_skin = dr.reinterpret_array(mi.UInt32, bsdf) == self.skin_id
+                    at_first = active_em & (first_cls == 0) & on_skin
+                    val_d = bsdf.eval(ctx_d, si, si.to_local(ds.d), at_first)
+                    c_d = dr.select(at_first, throughput * val_d * em_weight * mis_em,
+                                    frac_d * c_em)
+                    skin_em = active_em & (at_first | (first_cls == 1))
+                    res_d[skin_em] = res_d + c_d
+                    res_s[skin_em] = res_s + (c_em - c_d)
                 # ---- BSDF sampling; a null sample is no bounce
                 bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(),
                                               active)
                 real = active & ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null)
+                if self.split:
+                    on_skin = dr.reinterpret_array(mi.UInt32, bsdf) == self.skin_id
+                    classify = real & (first_cls == 0)
+                    at_skin = classify & on_skin
+                    f_all = bsdf.eval(ctx, si, bs.wo, at_skin)
+                    f_d = bsdf.eval(ctx_d, si, bs.wo, at_skin)
+                    frac_d[at_skin] = dr.select(f_all > 0.0, f_d / f_all, 0.0)
+                    first_cls[classify] = dr.select(on_skin, mi.UInt32(1), mi.UInt32(2))
                 throughput[active] = throughput * bsdf_weight
                 eta[active] = eta * bs.eta
                 ray[active] = si.spawn_ray(si.to_world(bs.wo))
@@ -151,6 +203,10 @@ def make_class():
                 throughput[rr_active] = throughput * dr.rcp(rr_prob)
                 active = (active | skip) & (depth < self.max_depth) & \
                     (~rr_active | rr_continue) & (t_max != 0.0)
-            return dr.select(valid_ray, result, 0.0), valid_ray, []
+            aovs = []
+            if self.split:
+                aovs = [dr.select(valid_ray, part[c], 0.0) for part in (res_d, res_s)
+                        for c in range(3)]
+            return dr.select(valid_ray, result, 0.0), valid_ray, aovs
 
     return HackPathIntegrator

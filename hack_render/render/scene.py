@@ -288,6 +288,7 @@ class HeadScene:
         #: ``volpath`` for ``hack_path`` in a non-JIT variant)
         self.integrator_name = settings.integrator if jit or \
             settings.integrator != "hack_path" else "volpath"
+        self._split = None  # hack_path with the skin split, for render(sss=True)
         scene: dict = {"type": "scene",
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
@@ -384,8 +385,8 @@ class HeadScene:
         return mesh
 
     def _find_skin_key(self) -> str | None:
-        for key in self.params.keys():
-            if key.endswith(".albedo.data") or key.endswith(".base_color.data"):
+        for key in self.params.keys():  # noqa: SIM118 (SceneParameters: keys() lists them)
+            if key.endswith((".albedo.data", ".base_color.data")):
                 return key.rsplit(".", 2)[0]
         return None
 
@@ -523,9 +524,10 @@ class HeadScene:
         ``denoise``: run Intel Open Image Denoise on the subject before compositing
         (:meth:`denoise`; raises ``denoise.DenoiserUnavailable`` without pyoidn).
         ``sss``: subsurface scattering in the skin (:mod:`hack_render.render.sss`: the
-        skin's diffuse and specular light rendered apart, so twice the render time, then
-        the diffuse light diffused by the skin profile); JIT variants only (the scalar
-        variant's stand-in skin material renders without it, with a warning).
+        skin's diffuse light rendered apart, in the same pass with ``hack_path``, in a
+        second with the other integrators, then diffused by the skin profile); JIT
+        variants only (the scalar variant's stand-in skin material renders without it,
+        with a warning).
         """
         release_parked()
         base = self.settings.seed if seed is None else int(seed)
@@ -540,15 +542,18 @@ class HeadScene:
         return composite(img, self._backdrop_of(backdrop))
 
     def _render_passes(self, base: int, progress: bool, desc: str = "render passes",
-                       spp: int | None = None):
+                       spp: int | None = None, integrator=None):
         """The premultiplied film averaged over the settings' passes (see :meth:`render`);
         ``spp``: samples per pixel of each pass instead of the settings' (rounded as the
-        sampler takes them)."""
+        sampler takes them); ``integrator``: a Mitsuba integrator instead of the scene's
+        (its AOVs follow the RGBA channels)."""
         import mitsuba as mi
 
         n, _ = self.settings.passes
         kw = {} if spp is None else {"spp": sampler_spp(self.settings.mitsuba_sampler,
                                                         max(1, int(spp)))}
+        if integrator is not None:
+            kw["integrator"] = integrator
         acc = None
         steps = range(n)
         if progress and n > 1:
@@ -594,12 +599,30 @@ class HeadScene:
         from hack_render.render import sss
         from hack_render.render.footprint import sss_features
 
+        focal = float(self.camera.K[0, 0])
+        if self.integrator_name == "hack_path":  # one pass, the skin's diffuse as an AOV
+            img = self._render_passes(base, progress, integrator=self._split_integrator())
+            f = sss_features(self, self._skin_bsdf, self._see_through)
+            out = img[..., :4].copy()
+            out[..., :3] = sss.combine_split(img[..., :3], img[..., 4:7], f, focal)
+            return out
         diffuse, rest = self.lobe_passes(base, progress)
         f = sss_features(self, self._skin_bsdf, self._see_through)
         out = diffuse.copy()
-        out[..., :3] = sss.combine(diffuse[..., :3], rest[..., :3], f,
-                                   float(self.camera.K[0, 0]))
+        out[..., :3] = sss.combine(diffuse[..., :3], rest[..., :3], f, focal)
         return out
+
+    def _split_integrator(self):
+        """This scene's ``hack_path`` with the skin split (AOVs skin_diffuse.RGB,
+        skin_specular.RGB after RGBA; ``render/integrator.py``), made once."""
+        if self._split is None:
+            import mitsuba as mi
+
+            self._split = mi.load_dict({"type": "hack_path", "hide_emitters": True,
+                                        "max_depth": self.settings.max_depth,
+                                        "split_skin": True})
+            self._split.set_skin(self._skin_bsdf)
+        return self._split
 
     def denoise(self, image: np.ndarray, fallback: bool = False, k: int = 4) -> np.ndarray:
         """A premultiplied render (H, W, 4) of this scene's current state (camera, mesh),

@@ -10,9 +10,12 @@ Space Perceptual Rendering of Human Skin", 2009), with d'Eon and Luebke's sum-of
 Gaussians fit of the three-layer skin profile ("Advanced Techniques for Realistic
 Real-Time Skin Rendering", GPU Gems 3, ch. 14, table 14-1):
 
-1. ``HeadScene.render(sss=True)`` renders the skin's diffuse and specular light apart
-   (the ``hack_skin`` BSDF's lobe weights (1, 0), then (0, 1); the other materials go
-   with the specular pass), same samples per pixel each.
+1. ``HeadScene.render(sss=True)`` renders the skin's diffuse light apart: with
+   ``hack_path`` (the default) in the same pass as the image, as an AOV of the light whose
+   first scattering event is the skin's diffuse lobe (:func:`combine_split`); with the
+   other integrators in two renders, the ``hack_skin`` BSDF's lobe weights (1, 0), then
+   (0, 1) (the other materials go with both; :func:`combine`), same samples per pixel
+   each.
 2. The diffuse image is divided by the albedo (:func:`hack_render.render.footprint.sss_features`,
    averaged over each pixel's footprint), so the profile diffuses light, not the
    texture: the albedo is applied after the scattering ("post-scatter texturing").
@@ -101,6 +104,21 @@ def combine(diffuse: np.ndarray, specular: np.ndarray, features: dict, focal_px:
     m = np.clip(m, 0.0, 1.0)[..., None]
     return (scattered + m * specular + np.maximum(diffuse - unscattered, 0.0)).astype(
         np.float32)
+
+
+def combine_split(total: np.ndarray, skin_diffuse: np.ndarray, features: dict,
+                  focal_px: float, profile: Profile = SKIN, scale: float = 1.0) -> np.ndarray:
+    """The final RGB (H, W, 3) from one ``hack_path`` render with its skin split
+    (``render/integrator.py``): ``total`` (H, W, 3), the image, less the skin's diffuse
+    light ``skin_diffuse`` (H, W, 3, its AOV), plus that light scattered (:func:`scatter`,
+    its irradiance taken over the skin's own albedo). Light the scattering cannot carry
+    (skin albedo under 1e-4) is kept as it was."""
+    sa = features["skin_albedo"]
+    d = np.asarray(skin_diffuse, np.float32)
+    scattered = scatter(d, sa, sa, features["skin"], features["depth"], focal_px, profile,
+                        scale)
+    kept = np.where(sa > 1e-4, 0.0, d)
+    return (np.asarray(total, np.float32) - d + scattered + kept).astype(np.float32)
 
 
 def scatter(diffuse: np.ndarray, albedo: np.ndarray, skin_albedo: np.ndarray,
