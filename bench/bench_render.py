@@ -409,9 +409,9 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     """(e2) The screen-space subsurface scattering of final renders (``render(sss=True)``,
     hack_render/render/sss.py) on the default head, three-quarter view, window light:
     CPU seconds against the plain render at the same spp (denoiser off and on); each
-    image's PSNR against its own high-spp reference; how well the two passes add up
-    (unscattered: against a one-pass render of equal spp sum, per pixel class); a
-    side-by-side still at 768 px."""
+    image's PSNR against its own high-spp reference; how well the parts add up
+    (unscattered, against a plain render, per pixel class: the one-pass skin split and
+    the two lobe-weighted passes); a side-by-side still at 768 px."""
     from hack_render.geometry import load_default_model
     from hack_render.render import sss
     from hack_render.render.footprint import sss_features
@@ -443,8 +443,9 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
         err = float(((img[..., :3] - ref[..., :3]) ** 2)[mask].mean())
         return 10.0 * np.log10(1.0 / err)
 
-    print(f"(e2) screen-space SSS, {size}^2 three-quarter, window light, {spp} spp "
-          f"(multijitter; each image against its own {ref_spp}-spp reference):")
+    print(f"(e2) screen-space SSS, {size}^2 three-quarter, window light, "
+          f"{head.settings.effective_spp} spp ({head.settings.mitsuba_sampler}; each image "
+          f"against its own {ref_spp}-spp reference):")
     for flag in (False, True):
         head.render(seed=0, backdrop=False, sss=flag)  # compile
         for den in (False, True):
@@ -456,16 +457,24 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
             print(f"  {'sss' if flag else 'plain':5s} {'+ OIDN' if den else '      '} "
                   f"{statistics.median(cpu):5.2f} CPU s (median of 3)  "
                   f"PSNR {psnr(img, refs[flag]):5.2f} dB")
-    # the passes add up: skin diffuse + specular, unscattered, against one pass
+    # the parts add up, unscattered, against a plain render: hack_path's one-pass skin
+    # split (what render(sss=True) uses), and the two lobe-weighted passes of the other
+    # integrators
     one = head.render(seed=5, backdrop=False)
+    split = head._render_passes(5, False, integrator=head._split_integrator())
     d, s = head.lobe_passes(seed=5)
     f = sss_features(head, head._skin_bsdf, head._see_through)
-    rgb = sss.combine(d[..., :3], s[..., :3], f, float(head.camera.K[0, 0]), scale=0.0)
+    focal = float(head.camera.K[0, 0])
     m, cover = f["skin"], one[..., 3] > 0.99
-    for name, sel in (("skin", m > 0.99), ("other materials", (m < 0.01) & cover),
-                      ("mixed (lashes over skin)", (m >= 0.01) & (m <= 0.99) & cover)):
-        ratio = rgb[sel].sum() / one[..., :3][sel].sum()
-        print(f"  passes unscattered / one pass, {name:25s} {ratio:.4f} ({int(sel.sum())} px)")
+    for label, rgb in (
+            ("one pass, skin split", sss.combine_split(split[..., :3], split[..., 4:7], f,
+                                                       focal, scale=0.0)),
+            ("two lobe passes", sss.combine(d[..., :3], s[..., :3], f, focal, scale=0.0))):
+        for name, sel in (("skin", m > 0.99), ("other materials", (m < 0.01) & cover),
+                          ("mixed (lashes over skin)", (m >= 0.01) & (m <= 0.99) & cover)):
+            ratio = rgb[sel].sum() / one[..., :3][sel].sum()
+            print(f"  {label}, unscattered / plain render, {name:25s} {ratio:.4f} "
+                  f"({int(sel.sum())} px)")
     print(f"  profile mean radius (mm, R G B): "
           f"{np.round(sss.SKIN.mean_radius_mm(), 3).tolist()} ({sss.SKIN.source})")
     if still:
