@@ -179,3 +179,29 @@ def test_06_cli_keeps_the_noisy_image_and_says_when_spp_is_rounded(tmp_path, cap
     assert run(["render", "-o", str(tmp_path / "b.png"), "--resolution", "32", "--spp", "4",
                 "--denoise", "off", "--keep-noisy"]) == 0
     assert not (tmp_path / "b.noisy.png").exists()  # nothing denoised, nothing kept twice
+
+
+def test_07_the_denoiser_loads_without_torch():
+    """pyoidn imports torch (1.1 CPU s) only to take tensors; loaded through this module
+    in a process without torch, it leaves torch unloaded, denoises NumPy arrays, and
+    torch still imports afterwards (a fresh interpreter: this one has torch)."""
+    import subprocess
+
+    pytest.importorskip("pyoidn")
+    code = (
+        "import sys, numpy as np\n"
+        "from hack_render.render import denoise as dn\n"
+        "assert dn.resolve('on') and 'torch' not in sys.modules\n"
+        "rng = np.random.default_rng(0)\n"
+        "img = rng.random((32, 32, 3)).astype(np.float32)\n"
+        "albedo = np.full_like(img, 0.5)\n"
+        "normal = np.zeros_like(img); normal[..., 2] = 1\n"
+        "out = dn.denoise(img, albedo, normal)\n"
+        "assert out.shape == img.shape and np.isfinite(out).all()\n"
+        "assert out.std() < 0.5 * img.std(), (out.std(), img.std())\n"
+        "assert 'torch' not in sys.modules\n"
+        "import torch\n"
+        "print('ok', torch.__version__)\n")
+    run_ = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True,
+                          text=True, timeout=120)
+    assert run_.returncode == 0 and run_.stdout.startswith("ok"), run_.stderr[-2000:]

@@ -37,10 +37,28 @@ class DenoiserWarning(UserWarning):
     """The noisy image is kept because the denoiser is missing or failed."""
 
 
+def _import_pyoidn():
+    """``import pyoidn``, without torch where torch is not loaded yet: pyoidn imports it
+    (1.1 CPU s) only to accept torch tensors, and this module passes it NumPy arrays. A
+    render of a cached pose so never loads torch (docs/render.md, "Fixed cost")."""
+    import sys
+
+    if "torch" in sys.modules or "pyoidn" in sys.modules:
+        import pyoidn
+        return pyoidn
+    sys.modules["torch"] = None  # pyoidn's `import torch` raises ImportError: no tensors
+    try:
+        import pyoidn
+    finally:
+        if sys.modules.get("torch", 0) is None:
+            del sys.modules["torch"]
+    return pyoidn
+
+
 def _load():
     """Import pyoidn; DenoiserUnavailable (naming the extra) when it cannot load."""
     try:
-        import pyoidn
+        pyoidn = _import_pyoidn()
     except Exception as err:  # ImportError, or a broken shared library (OSError)
         raise DenoiserUnavailable(
             f"denoiser: expected the Intel Open Image Denoise bindings (pyoidn), found them "
