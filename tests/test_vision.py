@@ -100,9 +100,16 @@ def test_roll_found_and_measured(shots):
     assert abs(face.roll_deg - 90) < 15, face.roll_deg
 
 
-def test_visibility_frontal_all_seen(shots):
-    face = detect_face(shots["frontal"].image, "mesh")
-    assert face.visible.mean() > 0.9
+def test_visibility_frontal_agrees_with_the_truth(shots):
+    """A frontal face (yaw 0, pitch 5): most landmarks seen, and the detector's visibility
+    agrees with the render's truth on at least 90 % of them (the truth hides 3 jaw points
+    at this pitch; measured: 0.90 seen, agreement 0.94, the detector hiding 4 more of the
+    jaw's right end from its pose estimate)."""
+    c = shots["frontal"]
+    face = detect_face(c.image, "mesh")
+    assert face.visible.mean() > 0.85 and c.visible.mean() > 0.9
+    assert (face.visible == c.visible).mean() >= 0.9, (np.nonzero(~face.visible)[0],
+                                                        np.nonzero(~c.visible)[0])
 
 
 def test_pose_from_true_points(shots):
