@@ -69,7 +69,7 @@ class Topology:
         return int(self.faces.max()) + 1
 
     @staticmethod
-    def from_model(model) -> "Topology":
+    def from_model(model) -> Topology:
         """From the geometry model (``faces``, ``uvs``, ``uv_faces``, ``face_material``,
         ``material_names``) or an ``ObjMesh`` (``materials``); torch tensors accepted."""
         def arr(x):
