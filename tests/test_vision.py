@@ -346,3 +346,52 @@ def test_auto_on_a_turned_real_photo_adds_no_face():
     assert len(faces) == 1
     err = np.mean(np.linalg.norm(faces[0].points[17:] - mesh.points[17:], axis=1))
     assert err / mesh.interocular < 0.15, err / mesh.interocular
+
+
+def _paint_blond_hair(c, face):
+    """The composite with skin-coloured hair painted on: over the scalp (the person above
+    the brows, outside the face oval) and a fringe over the upper forehead inside it;
+    the fringe's mask."""
+    from scipy import ndimage
+
+    from hack_render.vision.segment import _polygon_mask, _upright_rows, ring
+
+    img = c.image.astype(np.float64)
+    h, w = img.shape[:2]
+    oval = _polygon_mask(face.dense[ring("FACEMESH_FACE_OVAL"), :2], (h, w)) > 0.5
+    up = _upright_rows(face, h, w)
+    top, brow = up[oval].min(), face.points[17:27, 1].min()
+    person = ndimage.binary_dilation(c.person > 0.5, iterations=2)
+    fringe = oval & (up < top + 0.6 * (brow - top))
+    scalp = person & ~oval & (up < brow)
+    skin_rgb = np.median(img[oval & (up > brow)], 0)
+    yy, xx = np.mgrid[0:h, 0:w]
+    rng = np.random.default_rng(0)
+    strands = 0.55 + 0.25 * np.sin(xx * 1.7 + 3 * np.sin(yy / 9.0)) \
+        + 0.1 * rng.standard_normal((h, w))
+    out = img.copy()
+    hair = fringe | scalp
+    out[hair] = np.clip(skin_rgb[None] * strands[hair][:, None], 0, 255)
+    return out.astype(np.uint8), fringe
+
+
+def test_hair_of_skin_colour_is_an_occluder(shots):
+    """Blond or grey hair has the skin's chromaticity: the colour test keeps a fringe
+    over the forehead as skin; the photo's own hair-against-skin model (colour,
+    brightness, texture) takes it out. A bald head adds nothing (the model is not used
+    where the scalp's samples are the skin's)."""
+    from hack_render.vision.segment import segment
+
+    c = shots["frontal"]
+    face = detect_face(c.image, "mesh")
+    bald = [segment(c.image, face, hands=False, hair_model=m).occluder for m in (False, True)]
+    assert (bald[0] == bald[1]).all()
+    img, fringe = _paint_blond_hair(c, face)
+    face = detect_face(img, "mesh")
+    segs = [segment(img, face, hands=False, hair_model=m) for m in (False, True)]
+    fringe &= segs[1].face > 0.5      # the oval found on the painted photo sits lower
+    assert fringe.sum() > 150
+    recall = [(s.occluder & fringe).sum() / fringe.sum() for s in segs]
+    assert recall[0] < 0.3, recall
+    assert recall[1] > 0.6, recall
+    assert (segs[1].occluder & fringe).sum() / segs[1].occluder.sum() > 0.8

@@ -8,10 +8,12 @@
   points), anti-aliased, inside the person.
 - **skin / hair / clothes** (bool, heuristic): skin is the person's pixels whose
   chromaticity lies within the face's own skin distribution (a Gaussian estimated from
-  the cheeks, forehead and nose of the face mesh); the rest of the person is hair above
-  the mouth's line and clothes below the chin's.
+  the cheeks, forehead and nose of the face mesh) and that do not look like the
+  person's own hair (:func:`hair_like`: colour, brightness and texture against samples
+  of this photo's hair and cheeks, for hair of the skin's chromaticity); the rest of the
+  person is hair above the mouth's line and clothes below the chin's.
 - **occluder** (bool): what covers the face: inside the face oval, pixels that are not
-  skin-coloured (hair strands, glasses, a scarf) outside the eyes, brows and lips, and
+  skin (hair strands and fringes, glasses, a scarf) outside the eyes, brows and lips, and
   hands (MediaPipe's hand landmarks' outline, dilated) wherever they overlap the face.
   The photometric loss leaves these pixels out.
 
@@ -44,6 +46,12 @@ PERSON_THRESHOLD = 0.7
 #: chromaticity (r and b shares of r + g + b, sRGB) of skin across tones: the prior that
 #: picks the skin's cluster among the colour samples
 SKIN_CHROMA_PRIOR = np.array([0.43, 0.25])
+#: the hair-against-skin test (:func:`hair_like`): the least samples of each, the mean
+#: share of each set's own pixels that must fall on its side for the test to be used, and
+#: the per-feature variance floor (r and b shares, log luminance, texture)
+HAIR_MIN_SAMPLES = 100
+HAIR_SEPARABLE = 0.85
+HAIR_FEATURE_FLOOR = (1e-4, 1e-4, 1e-3, 1e-4)
 
 
 @dataclass
@@ -180,6 +188,82 @@ def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
     return within & (maha < k) & (img.mean(-1) > 0.06)
 
 
+def _pixel_features(rgb8: np.ndarray, win: int) -> np.ndarray:
+    """(H, W, 4): chromaticity (r and b shares), log luminance, and the luminance's
+    local texture (its standard deviation over ``win`` x ``win``: hair is strands, skin
+    smooth)."""
+    from scipy import ndimage
+
+    img = rgb8.astype(np.float32) / 255.0
+    share = img[..., [0, 2]] / np.maximum(img.sum(-1, keepdims=True), 1e-6)
+    lum = np.log(np.maximum(img.mean(-1), 0.02))
+    m = ndimage.uniform_filter(lum, win)
+    tex = np.sqrt(np.maximum(ndimage.uniform_filter(lum * lum, win) - m * m, 0.0))
+    return np.concatenate([share, lum[..., None], tex[..., None]], -1)
+
+
+def _gaussian_loglik(x: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    mu = np.median(samples, 0)
+    dev = samples - mu
+    cov = dev.T @ dev / max(len(dev) - 1, 1) + np.diag(HAIR_FEATURE_FLOOR)
+    d = x - mu
+    return -0.5 * (np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov), d)
+                   + np.log(np.linalg.det(cov)))
+
+
+def hair_like(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: np.ndarray,
+              skin: np.ndarray, features: np.ndarray) -> np.ndarray | None:
+    """(H, W) bool: pixels that look more like the person's own hair (or headwear) than
+    their own skin, by two Gaussians in colour, brightness and texture
+    (:func:`_pixel_features`) fitted to this photo alone: the hair's from the person's
+    pixels above the brows and well outside the face oval, the skin's from the
+    skin-coloured cheeks between the eyes and the mouth. Blond or grey hair has the
+    skin's chromaticity, so the colour test alone keeps a fringe over the forehead as
+    skin. None where the two are not told apart (a bald head, a scalp the colour of the
+    face: the hair samples are skin), too few samples, or the photo is grey (brightness
+    and texture alone take a shadowed cheek for dark hair)."""
+    from scipy import ndimage
+
+    test = hair_ratio(rgb8, face, person, oval, skin, features)
+    if test is None or test[2] < HAIR_SEPARABLE:
+        return None
+    lr, hair_seed, _ = test
+    # hair reaches the face from the hair: only the parts joined to the hair samples
+    lab, _ = ndimage.label(ndimage.binary_opening(lr > 0, iterations=1) & (person | (oval > 0.5)))
+    ids = np.unique(lab[hair_seed])
+    return np.isin(lab, ids[ids > 0])
+
+
+def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: np.ndarray,
+               skin: np.ndarray, features: np.ndarray):
+    """:func:`hair_like`'s test: (log likelihood ratio hair : skin (H, W), the hair
+    samples (H, W) bool, how well it tells its own samples apart: the mean of the shares
+    of hair and skin samples on their side), or None (grey photo, too few samples)."""
+    from scipy import ndimage
+
+    if int(np.ptp(rgb8, axis=2).max()) <= 1:
+        return None
+    h, w = rgb8.shape[:2]
+    pts = face.points
+    iod = float(np.linalg.norm(pts[36] - pts[45]))
+    up = _upright_rows(face, h, w)
+    brow_y = float(pts[17:27, 1].min())
+    eye_y, mouth_y = float(pts[36:48, 1].mean()), float(pts[48:68, 1].mean())
+    far = ~ndimage.binary_dilation(oval > 0.05, iterations=max(2, round(iod / 15)))
+    # the person's own pixels, away from its outline (the segmentation spreads into the
+    # background by a few pixels)
+    inside = ndimage.binary_erosion(person, iterations=max(2, round(iod / 10)))
+    hair_seed = inside & far & (up < brow_y)
+    span = mouth_y - eye_y
+    cheek = (oval > 0.5) & (features < 0.5) & skin & (up > eye_y + 0.15 * span) \
+        & (up < mouth_y - 0.1 * span)
+    if hair_seed.sum() < HAIR_MIN_SAMPLES or cheek.sum() < HAIR_MIN_SAMPLES:
+        return None
+    f = _pixel_features(rgb8, max(3, round(iod / 25) | 1))
+    lr = _gaussian_loglik(f, f[hair_seed]) - _gaussian_loglik(f, f[cheek])
+    return lr, hair_seed, 0.5 * float((lr[hair_seed] > 0).mean() + (lr[cheek] < 0).mean())
+
+
 def hand_mask(rgb8: np.ndarray, dilate: float = 0.08) -> np.ndarray:
     """(H, W) bool: the convex hull of each hand's 21 landmarks (MediaPipe hands),
     dilated by ``dilate`` of the hand's size (the landmarks are joints, not the outline)."""
@@ -199,7 +283,7 @@ def hand_mask(rgb8: np.ndarray, dilate: float = 0.08) -> np.ndarray:
 
 
 def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
-            name: str = "photo") -> Segmentation:
+            name: str = "photo", hair_model: bool = True) -> Segmentation:
     """All masks of ``image`` (see the module docstring). ``face``: a detection with
     dense points (:func:`hack_render.vision.detect.detect_face`, mesh); detected here
     when None. ``hands``: look for hands over the face (MediaPipe hands, ~30 ms)."""
@@ -230,6 +314,9 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
             poly = c + 1.6 * (poly - c)
         features = np.maximum(features, _polygon_mask(poly, (h, w), soft=False))
     inner = (oval > 0.5) & (features < 0.5)
+    like_hair = hair_like(rgb8, face, person_bin, oval, skin, features) if hair_model else None
+    if like_hair is not None:   # the person's hair is not skin, whatever its colour
+        skin &= ~like_hair
     occluder = inner & ~skin
     occluder = ndimage.binary_opening(occluder, iterations=1)
     if hands:
