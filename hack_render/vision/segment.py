@@ -247,8 +247,9 @@ def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: 
     pts = face.points
     iod = float(np.linalg.norm(pts[36] - pts[45]))
     up = _upright_rows(face, h, w)
-    brow_y = float(pts[17:27, 1].min())
-    eye_y, mouth_y = float(pts[36:48, 1].mean()), float(pts[48:68, 1].mean())
+    brow_y = float(_upright_y(face, slice(17, 27)).min())
+    eye_y = float(_upright_y(face, slice(36, 48)).mean())
+    mouth_y = float(_upright_y(face, slice(48, 68)).mean())
     far = ~ndimage.binary_dilation(oval > 0.05, iterations=max(2, round(iod / 15)))
     # the person's own pixels, away from its outline (the segmentation spreads into the
     # background by a few pixels)
@@ -323,8 +324,9 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
         occluder |= hand_mask(rgb8) & (oval > 0.5)
     skin_all = skin & person_bin
     rest = person_bin & ~skin_all
-    mouth_y = float(face.points[48:68, 1].mean())
-    chin_y = float(face.points[8, 1])
+    # (in the upright frame: for a tilted head the image's rows are not the face's)
+    mouth_y = float(_upright_y(face, slice(48, 68)).mean())
+    chin_y = float(_upright_y(face, 8))
     up = _upright_rows(face, h, w)
     hair = rest & (up < mouth_y) & (oval < 0.5)
     clothes = rest & (up > chin_y)
@@ -336,12 +338,22 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
 def _upright_rows(face: FaceLandmarks, h: int, w: int) -> np.ndarray:
     """(H, W) each pixel's row in the face's upright frame (the image turned by the
     face's roll about the nose), so 'above the mouth' holds for a tilted head."""
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    return _upright(face, xx, yy)
+
+
+def _upright_y(face: FaceLandmarks, idx) -> np.ndarray:
+    """The upright rows (as :func:`_upright_rows`) of the landmarks ``idx``."""
+    p = face.points[idx]
+    return _upright(face, p[..., 0], p[..., 1])
+
+
+def _upright(face: FaceLandmarks, x, y):
     import math
 
     a = math.radians(face.roll_deg)
     c = face.points[30]
-    yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    return c[1] + (xx - c[0]) * math.sin(a) + (yy - c[1]) * math.cos(a)
+    return c[1] + (x - c[0]) * math.sin(a) + (y - c[1]) * math.cos(a)
 
 
 def _holding_face(mask: np.ndarray, points: np.ndarray) -> np.ndarray:
