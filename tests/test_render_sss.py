@@ -140,7 +140,7 @@ def test_06_one_pass_splits_the_skin_light(head):
 
     h = head["hack_path"]
     one = h.render(seed=1, backdrop=False)
-    img = h._render_passes(1, False, integrator=h._split_integrator())
+    img = h._render_passes(1, False, integrator=sss.split_integrator(h))
     assert img.shape == one.shape[:2] + (10,)
     np.testing.assert_allclose(img[..., :4], one, rtol=1e-5, atol=1e-7)
     d, s = img[..., 4:7], img[..., 7:10]
@@ -149,7 +149,7 @@ def test_06_one_pass_splits_the_skin_light(head):
     f = sss_features(h, h._skin_bsdf, h._see_through)
     skin = f["skin"] > 0.99
     assert skin.sum() > 4000
-    dd, ss = h.lobe_passes(seed=1)
+    dd, ss = sss.lobe_passes(h, seed=1)
     np.testing.assert_allclose(d[skin].mean(0), dd[..., :3][skin].mean(0), rtol=0.02)
     np.testing.assert_allclose(s[skin].mean(0), ss[..., :3][skin].mean(0), rtol=0.25)
     scattered = h.render(seed=1, backdrop=False, sss=True)
@@ -174,7 +174,7 @@ def test_06b_two_passes_add_up_to_the_render(head):  # the other integrators
 
     head = head["volpath"]
     one = head.render(seed=1, backdrop=False)
-    d, s = head.lobe_passes(seed=2)
+    d, s = sss.lobe_passes(head, seed=2)
     f = sss_features(head, head._skin_bsdf, head._see_through)
     focal = float(head.camera.K[0, 0])
     plain = sss.combine(d[..., :3], s[..., :3], f, focal, scale=0.0)

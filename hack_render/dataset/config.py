@@ -25,8 +25,8 @@ DEFAULTS: dict[str, Any] = {
         "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
         "variant": None,          # Mitsuba variant (None: automatic)
-        "sampler": "auto",        # Mitsuba sampler (render/scene.py SAMPLERS)
-        "integrator": "hack_path",  # hack_path, volpath or path (render/scene.py INTEGRATORS)
+        "sampler": "auto",        # Mitsuba sampler (render/settings.py SAMPLERS)
+        "integrator": "hack_path",  # hack_path, volpath or path (render/settings.py INTEGRATORS)
         "denoise": "off",         # OIDN (extra 'denoise'): off, auto (noisy if missing), on
         "keep_noisy": False,      # with denoise: also write rgb_noisy.exr
         "sss": False,             # subsurface scattering in the skin (2x render time)

@@ -96,6 +96,26 @@ def emitter_pixels(head) -> np.ndarray:
     return np.asarray(hit, dtype=bool).reshape(h, w)
 
 
+def environment_backdrop(head) -> np.ndarray:
+    """(H, W, 3) float32: the environment's radiance along each pixel-centre camera ray
+    of ``head`` (zeros without an environment), lights excluded."""
+    import drjit as dr
+    import mitsuba as mi
+
+    w, h = head.settings.width, head.settings.height
+    env = head.scene.environment()
+    if env is None:
+        return np.zeros((h, w, 3), np.float32)
+    idx = dr.arange(mi.UInt32, w * h)
+    xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    ray, _ = head.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5))
+    si = dr.zeros(mi.SurfaceInteraction3f, w * h)
+    si.wi = -ray.d
+    rgb = env.eval(si)
+    return np.stack([np.broadcast_to(np.asarray(rgb[c], np.float32), (w * h,))
+                     for c in range(3)], -1).reshape(h, w, 3)
+
+
 def gbuffer(head) -> dict[str, np.ndarray]:
     """Compute every AOV of a :class:`~hack_render.render.scene.HeadScene`'s current state."""
     import drjit as dr

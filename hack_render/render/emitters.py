@@ -43,7 +43,7 @@ def sensor_dict(cam: Camera, spp: int, pixel_format: str = "rgba",
     image is then bit-identical from run to run (the wider ``gaussian`` filter adds
     samples into neighbouring pixels from several threads, in no fixed order).
     ``sampler``: a Mitsuba sampler plugin; ``spp`` must be a count it takes unrounded
-    (``scene.sampler_spp``)."""
+    (``settings.sampler_spp``)."""
     import mitsuba as mi
 
     check_intrinsics(cam)

@@ -6,13 +6,15 @@
 and call ``params.update()``: the scene is never reloaded, the BVH is refit/rebuilt by
 Mitsuba, and since resolution, spp and the scene's structure stay fixed, Dr.Jit reuses
 the kernels it compiled for the first frame.
+
+Its settings (size, samples and sampler, integrator) are ``render/settings.py``'s, whose
+names this module re-exports; the skin's passes of ``render(sss=True)`` are
+``render/sss.py``'s (:func:`hack_render.render.sss.render_scattered`).
 """
 
 from __future__ import annotations
 
-import math
 import warnings
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,185 +22,28 @@ from hack_render.errors import HackError
 from hack_render.render.cornea import CorneaRig
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
+from hack_render.render.settings import (
+    AUTO_ORTHOGONAL_MIN,
+    DEFAULT_INTEGRATOR,
+    DEFAULT_SAMPLER,
+    INTEGRATORS,
+    MAX_PIXELS,
+    MAX_SIDE,
+    MAX_SPP,
+    SAMPLERS,
+    SAMPLES_PER_PASS,
+    RenderSettings,
+    auto_sampler,
+    sampler_spp,
+    validate_size,
+)
 from scenes.cameras import Camera
 from scenes.lights import LightRig
 
-MAX_SIDE = 8192
-MAX_PIXELS = 8192 * 8192
-MAX_SPP = 1 << 16
-#: Samples per render pass (one kernel launch); more spp are split into equal passes.
-SAMPLES_PER_PASS = 1 << 24
-
-
-#: Mitsuba samplers offered. Measured at about 32 spp on a 128 px studio portrait against
-#: a 2,048-spp reference (docs/render.md): independent 30.5 dB, stratified (36) 35.3 dB,
-#: multijitter (35) 36.7 dB, orthogonal (49) 40.5 dB, independent at 64 spp 33.8 dB.
-#: ``auto``: Mitsuba's orthogonal array sampler where the count is near the square of a
-#: prime of at least 5 (25, 49, 121, 169, ...), else multijitter (:func:`auto_sampler`).
-SAMPLERS = ("auto", "multijitter", "stratified", "orthogonal", "ldsampler", "independent")
-DEFAULT_SAMPLER = "auto"
-#: ``auto``'s smallest orthogonal count (5^2). On two 256 px stills (hack_path, depth 8;
-#: docs/render.md, "Samplers and denoising") the orthogonal array at 25-169 spp is
-#: 2.4-4.8 dB less noisy than multijitter at the same count, at 9 spp about 1 dB better.
-#: (Under volpath, whose samples lay out their dimensions otherwise, 25 was 2.6 dB worse.)
-AUTO_ORTHOGONAL_MIN = 25
-#: Integrators of final renders. ``path`` treats every surface as opaque to shadow rays,
-#: so the lash cards' whole area blocks direct light from the lights' point of view and
-#: what lies under them is lit by BSDF-sampled paths alone (speckled); ``volpath`` and
-#: ``hack_path`` (render/integrator.py: ``path`` plus volpath's null surfaces, 0.74x
-#: volpath's cost per sample on the README still) trace shadow rays through
-#: null-transmissive surfaces, weighted by the ``mask`` BSDF's transparency (see
-#: docs/render.md, "Integrator").
-INTEGRATORS = ("hack_path", "volpath", "path")
-DEFAULT_INTEGRATOR = "hack_path"
-
-
-def _next_prime(n: int) -> int:
-    n = max(n, 2)
-    while any(n % d == 0 for d in range(2, math.isqrt(n) + 1)):
-        n += 1
-    return n
-
-
-def auto_sampler(spp: int, cap: int | None = None) -> tuple[str, int]:
-    """(Mitsuba sampler, sample count) that ``auto`` renders for a requested ``spp``: the
-    orthogonal array at the prime square nearest to ``spp`` in ratio, where that is at
-    least :data:`AUTO_ORTHOGONAL_MIN`, at most ``cap`` (a pass's sample budget) and
-    within 0.7-1.3x of ``spp`` (32 -> 25, 64 -> 49, 100 -> 121), else multijitter (rounded
-    as it rounds: 16 -> 16, 36 -> 36)."""
-    best = None
-    p = _next_prime(math.isqrt(AUTO_ORTHOGONAL_MIN))
-    while p * p <= max(4 * spp, AUTO_ORTHOGONAL_MIN):
-        if (cap is None or p * p <= cap) and 0.7 <= p * p / spp <= 1.3:
-            r = abs(math.log(p * p / spp))
-            if best is None or r < best[0]:
-                best = (r, p * p)
-        p = _next_prime(p + 1)
-    if best is not None:
-        return "orthogonal", best[1]
-    return "multijitter", sampler_spp("multijitter", spp)
-
-
-def sampler_spp(sampler: str, spp: int) -> int:
-    """The sample count Mitsuba's ``sampler`` actually takes for a requested ``spp``
-    (its own rounding, checked against Mitsuba in the tests): stratified rounds up to a
-    square, multijitter to floor(sqrt n) x ceil(n / floor(sqrt n)), orthogonal to the
-    square of a prime (at least 4), ldsampler to a power of 4 (at least 4); ``auto`` as
-    :func:`auto_sampler` chooses."""
-    if sampler == "auto":
-        return auto_sampler(spp)[1]
-    if sampler == "independent":
-        return spp
-    if sampler == "stratified":
-        return math.ceil(math.sqrt(spp)) ** 2 if math.isqrt(spp) ** 2 != spp else spp
-    if sampler == "multijitter":
-        rx = max(1, math.isqrt(spp))
-        return rx * math.ceil(spp / rx)
-    if sampler == "orthogonal":
-        p = math.isqrt(spp)
-        p = p if p * p == spp else p + 1
-        return _next_prime(p) ** 2
-    if sampler == "ldsampler":
-        k = 4
-        while k < spp:
-            k *= 4
-        return k
-    raise HackError(f"sampler: expected one of {', '.join(SAMPLERS)}, found {sampler!r}.")
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """Image size, samples per pixel, path depth, seed and sampler, validated on creation.
-
-    Every sampler but ``independent`` rounds the sample count (:func:`sampler_spp`):
-    :attr:`effective_spp` is what is rendered."""
-
-    width: int = 512
-    height: int = 512
-    spp: int = 64
-    max_depth: int = 8
-    seed: int = 0
-    #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
-    pixel_filter: str = "gaussian"
-    sampler: str = DEFAULT_SAMPLER
-    #: ``hack_path`` or ``volpath`` (shadow rays see through the lash cards' transparent
-    #: parts: less noise under the lashes; the same image, hack_path the cheaper; non-JIT
-    #: variants render ``hack_path`` as ``volpath``) or ``path`` (every surface blocks
-    #: shadow rays; earlier versions)
-    integrator: str = DEFAULT_INTEGRATOR
-
-    def __post_init__(self):
-        validate_size(self.width, self.height, self.spp)
-        if self.integrator not in INTEGRATORS:
-            raise HackError(f"integrator: expected one of {', '.join(INTEGRATORS)}, found "
-                            f"{self.integrator!r}.")
-        if self.sampler not in SAMPLERS:
-            raise HackError(f"sampler: expected one of {', '.join(SAMPLERS)}, found "
-                            f"{self.sampler!r}.")
-        if self.pixel_filter not in ("gaussian", "box"):
-            raise HackError(f"pixel filter: expected 'gaussian' or 'box', found "
-                            f"{self.pixel_filter!r}.")
-        if not 1 <= self.max_depth <= 64:
-            raise HackError(f"max depth: expected 1..64 bounces, found {self.max_depth}.")
-        if not 0 <= self.seed < 2 ** 31:
-            raise HackError(f"seed: expected 0 <= seed < 2^31, found {self.seed}.")
-
-    @property
-    def passes(self) -> tuple[int, int]:
-        """(number of passes, spp per pass) covering at least ``spp`` samples; the spp per
-        pass is rounded as the sampler takes it."""
-        n = max(1, math.ceil(self.width * self.height * self.spp / SAMPLES_PER_PASS))
-        n = min(n, self.spp)
-        return n, self._plan(n)[1]
-
-    def _plan(self, n: int) -> tuple[str, int]:
-        per = math.ceil(self.spp / n)
-        if self.sampler == "auto":
-            return auto_sampler(per, cap=max(per, SAMPLES_PER_PASS // (self.width
-                                                                         * self.height)))
-        return self.sampler, sampler_spp(self.sampler, per)
-
-    @property
-    def mitsuba_sampler(self) -> str:
-        """The Mitsuba sampler rendered (``auto`` resolved for this size and count)."""
-        return self._plan(self.passes[0])[0]
-
-    @property
-    def sampler_label(self) -> str:
-        """The sampler as the commands report it (``auto`` with what it chose)."""
-        if self.sampler == "auto":
-            return f"auto: {self.mitsuba_sampler}"
-        return self.sampler
-
-    @property
-    def effective_spp(self) -> int:
-        """Samples per pixel actually rendered (passes x the sampler's rounded count)."""
-        n, per = self.passes
-        return n * per
-
-    def spp_note(self) -> str | None:
-        """One line when the sampler rounded the requested spp, else None."""
-        if self.effective_spp == self.spp:
-            return None
-        how = ("prime square" if self.mitsuba_sampler == "orthogonal"
-               else "count it rounds to")
-        return (f"spp: {self.spp} requested, {self.effective_spp} rendered (the "
-                f"{self.sampler_label} sampler takes {self.passes[1]} per pass, the "
-                f"{how}; --sampler independent takes any count)")
-
-
-def validate_size(width: int, height: int, spp: int) -> None:
-    """Refuse zero, negative or absurd resolutions and sample counts (before allocating)."""
-    for name, v in (("width", width), ("height", height)):
-        if not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SIDE:
-            raise HackError(f"image {name}: expected an integer in 1..{MAX_SIDE} pixels, found "
-                            f"{v!r}. Pass e.g. --resolution 512.")
-    if width * height > MAX_PIXELS:
-        raise HackError(f"image size: expected at most {MAX_PIXELS} pixels, found "
-                        f"{width}x{height}. Render a smaller image.")
-    if not isinstance(spp, (int, np.integer)) or not 1 <= spp <= MAX_SPP:
-        raise HackError(f"samples per pixel: expected an integer in 1..{MAX_SPP}, found "
-                        f"{spp!r}. 16-64 spp is plenty for previews, 256+ for finals.")
+#: the settings' names are re-exported (``scene.RenderSettings`` and the rest)
+__all__ = ["AUTO_ORTHOGONAL_MIN", "DEFAULT_INTEGRATOR", "DEFAULT_SAMPLER", "INTEGRATORS",
+           "MAX_PIXELS", "MAX_SIDE", "MAX_SPP", "SAMPLERS", "SAMPLES_PER_PASS", "HeadScene",
+           "RenderSettings", "auto_sampler", "composite", "sampler_spp", "validate_size"]
 
 
 def composite(image: np.ndarray, backdrop: np.ndarray | None) -> np.ndarray:
@@ -536,7 +381,12 @@ class HeadScene:
                           "variant (llvm_ad_rgb or cuda_ad_rgb); rendering without it.",
                           stacklevel=2)
             sss = False
-        img = self._render_sss(base, progress) if sss else self._render_passes(base, progress)
+        if sss:
+            from hack_render.render.sss import render_scattered
+
+            img = render_scattered(self, base, progress)
+        else:
+            img = self._render_passes(base, progress)
         if denoise:
             img = self.denoise(img)
         return composite(img, self._backdrop_of(backdrop))
@@ -564,65 +414,6 @@ class HeadScene:
             img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31), **kw))
             acc = img if acc is None else acc + img
         return (acc / n).astype(np.float32)
-
-    def set_lobe_weights(self, diffuse: float, specular: float) -> None:
-        """Weight the skin material's diffuse and specular lobes (1, 1: the material as
-        it is; a lobe weighted 0 is neither evaluated nor sampled). No recompilation."""
-        import drjit as dr
-        import mitsuba as mi
-
-        if self._skin_bsdf is None:
-            raise HackError("lobe weights: this scene's skin is not the hack_skin material "
-                            "(a JIT variant's); found the scalar variant's stand-in.")
-        w = (mi.Float(float(diffuse)), mi.Float(float(specular)))
-        dr.make_opaque(*w)
-        self._skin_bsdf.lobe_weights = w
-
-    def lobe_passes(self, seed: int | None = None,
-                    progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """The two passes of ``render(sss=True)``, premultiplied (H, W, 4) each: the skin's
-        diffuse lobe alone, then its specular lobe alone (other materials in both); the
-        lobe weights are restored afterwards."""
-        release_parked()
-        base = self.settings.seed if seed is None else int(seed)
-        try:
-            self.set_lobe_weights(1.0, 0.0)
-            diffuse = self._render_passes(base, progress, "render passes (skin diffuse)")
-            self.set_lobe_weights(0.0, 1.0)
-            rest = self._render_passes(base, progress, "render passes (specular, rest)")
-        finally:
-            self.set_lobe_weights(1.0, 1.0)
-        return diffuse, rest
-
-    def _render_sss(self, base: int, progress: bool) -> np.ndarray:
-        """Render with subsurface scattering in the skin (:mod:`hack_render.render.sss`)."""
-        from hack_render.render import sss
-        from hack_render.render.footprint import sss_features
-
-        focal = float(self.camera.K[0, 0])
-        if self.integrator_name == "hack_path":  # one pass, the skin's diffuse as an AOV
-            img = self._render_passes(base, progress, integrator=self._split_integrator())
-            f = sss_features(self, self._skin_bsdf, self._see_through)
-            out = img[..., :4].copy()
-            out[..., :3] = sss.combine_split(img[..., :3], img[..., 4:7], f, focal)
-            return out
-        diffuse, rest = self.lobe_passes(base, progress)
-        f = sss_features(self, self._skin_bsdf, self._see_through)
-        out = diffuse.copy()
-        out[..., :3] = sss.combine(diffuse[..., :3], rest[..., :3], f, focal)
-        return out
-
-    def _split_integrator(self):
-        """This scene's ``hack_path`` with the skin split (AOVs skin_diffuse.RGB,
-        skin_specular.RGB after RGBA; ``render/integrator.py``), made once."""
-        if self._split is None:
-            import mitsuba as mi
-
-            self._split = mi.load_dict({"type": "hack_path", "hide_emitters": True,
-                                        "max_depth": self.settings.max_depth,
-                                        "split_skin": True})
-            self._split.set_skin(self._skin_bsdf)
-        return self._split
 
     def denoise(self, image: np.ndarray, fallback: bool = False, k: int = 4) -> np.ndarray:
         """A premultiplied render (H, W, 4) of this scene's current state (camera, mesh),
@@ -661,23 +452,9 @@ class HeadScene:
         ray (zeros without an environment); what the camera would see behind the
         subject, lights excluded. Cached until the camera or the rig moves."""
         if self._backdrop is None:
-            import drjit as dr
-            import mitsuba as mi
+            from hack_render.render.aov import environment_backdrop
 
-            w, h = self.settings.width, self.settings.height
-            env = self.scene.environment()
-            if env is None:
-                self._backdrop = np.zeros((h, w, 3), np.float32)
-            else:
-                idx = dr.arange(mi.UInt32, w * h)
-                xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
-                ray, _ = self.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5))
-                si = dr.zeros(mi.SurfaceInteraction3f, w * h)
-                si.wi = -ray.d
-                rgb = env.eval(si)
-                self._backdrop = np.stack([np.broadcast_to(np.asarray(rgb[c], np.float32),
-                                                           (w * h,)) for c in range(3)],
-                                          -1).reshape(h, w, 3)
+            self._backdrop = environment_backdrop(self)
         return self._backdrop
 
     def aovs(self) -> dict[str, np.ndarray]:

@@ -10,12 +10,12 @@ Space Perceptual Rendering of Human Skin", 2009), with d'Eon and Luebke's sum-of
 Gaussians fit of the three-layer skin profile ("Advanced Techniques for Realistic
 Real-Time Skin Rendering", GPU Gems 3, ch. 14, table 14-1):
 
-1. ``HeadScene.render(sss=True)`` renders the skin's diffuse light apart: with
-   ``hack_path`` (the default) in the same pass as the image, as an AOV of the light whose
-   first scattering event is the skin's diffuse lobe (:func:`combine_split`); with the
-   other integrators in two renders, the ``hack_skin`` BSDF's lobe weights (1, 0), then
-   (0, 1) (the other materials go with both; :func:`combine`), same samples per pixel
-   each.
+1. ``HeadScene.render(sss=True)`` (:func:`render_scattered`) renders the skin's diffuse
+   light apart: with ``hack_path`` (the default) in the same pass as the image, as an AOV
+   of the light whose first scattering event is the skin's diffuse lobe
+   (:func:`combine_split`); with the other integrators in two renders, the ``hack_skin``
+   BSDF's lobe weights (1, 0), then (0, 1) (the other materials go with both;
+   :func:`combine`), same samples per pixel each.
 2. The diffuse image is divided by the albedo (:func:`hack_render.render.footprint.sss_features`,
    averaged over each pixel's footprint), so the profile diffuses light, not the
    texture: the albedo is applied after the scattering ("post-scatter texturing").
@@ -203,3 +203,71 @@ def _gauss_pass(img, m, z, px, var, radius, axis):
 
 def _shift(s: slice, axis: int):
     return (slice(None), s) if axis == 1 else (s, slice(None))
+
+
+# --- the skin's passes of a HeadScene ----------------------------------------------------
+def render_scattered(head, base: int, progress: bool = False) -> np.ndarray:
+    """``head`` (a :class:`hack_render.render.scene.HeadScene`) rendered with subsurface
+    scattering in the skin, premultiplied (H, W, 4): ``hack_path``'s one-pass skin split
+    (:func:`combine_split`), else the two lobe passes (:func:`combine`); seeds from
+    ``base`` as ``HeadScene.render``'s."""
+    from hack_render.render.footprint import sss_features
+
+    focal = float(head.camera.K[0, 0])
+    if head.integrator_name == "hack_path":  # one pass, the skin's diffuse as an AOV
+        img = head._render_passes(base, progress, integrator=split_integrator(head))
+        f = sss_features(head, head._skin_bsdf, head._see_through)
+        out = img[..., :4].copy()
+        out[..., :3] = combine_split(img[..., :3], img[..., 4:7], f, focal)
+        return out
+    diffuse, rest = lobe_passes(head, base, progress)
+    f = sss_features(head, head._skin_bsdf, head._see_through)
+    out = diffuse.copy()
+    out[..., :3] = combine(diffuse[..., :3], rest[..., :3], f, focal)
+    return out
+
+
+def set_lobe_weights(head, diffuse: float, specular: float) -> None:
+    """Weight ``head``'s skin material's diffuse and specular lobes (1, 1: the material
+    as it is; a lobe weighted 0 is neither evaluated nor sampled). No recompilation."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if head._skin_bsdf is None:
+        raise HackError("lobe weights: this scene's skin is not the hack_skin material "
+                        "(a JIT variant's); found the scalar variant's stand-in.")
+    w = (mi.Float(float(diffuse)), mi.Float(float(specular)))
+    dr.make_opaque(*w)
+    head._skin_bsdf.lobe_weights = w
+
+
+def lobe_passes(head, seed: int | None = None,
+                progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The two passes of ``render(sss=True)`` with ``volpath`` or ``path``, premultiplied
+    (H, W, 4) each: the skin's diffuse lobe alone, then its specular lobe alone (other
+    materials in both); the lobe weights are restored afterwards."""
+    from hack_render.render.engine import release_parked
+
+    release_parked()
+    base = head.settings.seed if seed is None else int(seed)
+    try:
+        set_lobe_weights(head, 1.0, 0.0)
+        diffuse = head._render_passes(base, progress, "render passes (skin diffuse)")
+        set_lobe_weights(head, 0.0, 1.0)
+        rest = head._render_passes(base, progress, "render passes (specular, rest)")
+    finally:
+        set_lobe_weights(head, 1.0, 1.0)
+    return diffuse, rest
+
+
+def split_integrator(head):
+    """``head``'s ``hack_path`` with the skin split (AOVs skin_diffuse.RGB,
+    skin_specular.RGB after RGBA; ``render/integrator.py``), made once per scene."""
+    if head._split is None:
+        import mitsuba as mi
+
+        head._split = mi.load_dict({"type": "hack_path", "hide_emitters": True,
+                                    "max_depth": head.settings.max_depth,
+                                    "split_skin": True})
+        head._split.set_skin(head._skin_bsdf)
+    return head._split
