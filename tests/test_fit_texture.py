@@ -217,3 +217,27 @@ def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):
     keep = bk2.confidence == 0
     assert keep.any()
     np.testing.assert_allclose(bk2.diffuse[keep], bk1.diffuse[keep], atol=1e-5)
+
+
+def test_07_overlay_shows_render_png_in_the_level_frame(model):
+    """The overlay sheet's render panels show ``render.png`` (the final render at the
+    photo's size) resampled into the last photometric level's frame: it lands where that
+    level's own render of the same state does, with the same light."""
+    from types import SimpleNamespace
+
+    from hack_render.fit import outputs, texture
+    from hack_render.fit.photometric import setup_level
+
+    f, cfg, _, _, _ = _fitter(model)
+    v = f.views[0]
+    setup_level(f.state, cfg, v, 64)
+    final = SimpleNamespace(renders=[texture.render_at_photo(f.state, cfg, v)])
+    warped = outputs._final_in_level(final, 0, v)
+    own = outputs._final_render(f, v)
+    assert warped.shape == own.shape == (64, 64, 4)
+    a, b = warped[..., 3] > 0.5, own[..., 3] > 0.5
+    assert (a & b).sum() / (a | b).sum() > 0.95
+    inner = a & b & (warped[..., 3] > 0.99) & (own[..., 3] > 0.99)
+    luma = np.array([0.2126, 0.7152, 0.0722])   # (a grey photo gets a grey render.png)
+    ratio = (warped[..., :3][inner] @ luma).mean() / (own[..., :3][inner] @ luma).mean()
+    assert abs(ratio - 1.0) < 0.1, ratio

@@ -174,7 +174,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                 written.append(outdir / f"{stem}.mtl")
     if final is not None:
         written += write_photo_renders(fitter, final, outdir)
-    written += write_overlays(fitter, outdir)
+    written += write_overlays(fitter, outdir, final)
     written += write_losses(res, outdir)
     report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),
               "failures": res.failures, "config": res.config.to_dict(),
@@ -348,9 +348,29 @@ def _final_render(fitter, v):
     return img.numpy()
 
 
-def write_overlays(fitter, outdir: Path) -> list[Path]:
+def _final_in_level(final, i: int, v) -> np.ndarray:
+    """View ``i``'s ``render.png`` (the final render: baked skin, denoised or at the final
+    spp; premultiplied linear RGBA at the photo's size or below) resampled into the
+    view's last level, as that level's own renders are."""
+    from hack_render.fit.photometric import warp_photo
+
+    rgba = final.renders[i].rgba
+    lv = v.level
+    s = rgba.shape[1] / v.photo.width            # render pixels per photo pixel
+    Hr = np.diag([s, s, 1.0]) @ lv.H              # level pixel -> render pixel
+    scale = float(np.sqrt(abs(np.linalg.det(Hr[:2, :2]) / Hr[2, 2] ** 2)))
+    img = warp_photo(rgba.astype(np.float32), Hr, lv.res, scale, mode="constant")
+    if v.photo.is_grey:   # as render.png: a grey photo gets a grey render
+        lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+        img[..., :3] = lum[..., None]
+    return img
+
+
+def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
-    render over photo, error map."""
+    render over photo, error map. With ``final`` (:class:`FinalRenders`) the render
+    panels show ``render.png`` (the baked skin, no visible noise); else a render of the
+    last photometric level with the fitted maps."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -364,7 +384,7 @@ def write_overlays(fitter, outdir: Path) -> list[Path]:
         if v.renderer is None:  # photometric stage off: build a level for the sheet
             setup_level(fitter.state, fitter.cfg, v, int(fitter.cfg.photometric.resolutions[-1]))
         lv = v.level
-        img = _final_render(fitter, v)
+        img = _final_in_level(final, i, v) if final is not None else _final_render(fitter, v)
         target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
         rend8 = to_srgb8(img[..., :3], 0.0, "clip")
@@ -375,13 +395,14 @@ def write_overlays(fitter, outdir: Path) -> list[Path]:
         with torch.no_grad():
             verts = fitter.forward(v).vertices[0]
             fit_px = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()
-        def to_v(p):
+        def to_v(p, H=H):
             q = np.c_[p, np.ones(len(p))] @ H.T
             return q[:, :2] / q[:, 2:3]
         det_v, fit_v = to_v(v.detection.points), to_v(fit_px)
         fig, ax = plt.subplots(1, 5, figsize=(15, 3.4))
         panels = [(photo8, "photo"), (photo8, "landmarks: detected (g) / fitted (r)"),
-                  (rend8, "render"), (over, "render over photo"), (err, "|error| (skin mask)")]
+                  (rend8, "render" + (" (render.png)" if final is not None else "")),
+                  (over, "render over photo"), (err, "|error| (skin mask)")]
         for k, (im, title) in enumerate(panels):
             ax[k].imshow(im, cmap="magma" if im.ndim == 2 else None,
                          extent=(0, im.shape[1], im.shape[0], 0))
@@ -391,7 +412,7 @@ def write_overlays(fitter, outdir: Path) -> list[Path]:
         ax[1].scatter(fit_v[:, 0], fit_v[:, 1], s=4, c="red")
         fig.tight_layout()
         path = outdir / ("overlay.png" if i == 0 else f"overlay_view{i}.png")
-        _atomic_bytes(path, lambda t: fig.savefig(t, dpi=100))
+        _atomic_bytes(path, lambda t, fig=fig: fig.savefig(t, dpi=100))
         plt.close(fig)
         out.append(path)
     return out

@@ -67,8 +67,10 @@ def virtual_camera(view: View, res: int):
     return Camera(Kv, R, t, res, res, f"{ph.name}_{res}"), H, side / res
 
 
-def warp_photo(img: np.ndarray, H: np.ndarray, res: int, scale: float) -> np.ndarray:
-    """Resample the photo (h, w, C) into the virtual view (res, res, C), pre-blurred."""
+def warp_photo(img: np.ndarray, H: np.ndarray, res: int, scale: float,
+               mode: str = "edge") -> np.ndarray:
+    """Resample the photo (h, w, C) into the virtual view (res, res, C), pre-blurred;
+    beyond its border the edge pixels repeat (``mode="constant"``: zeros)."""
     from scipy.ndimage import gaussian_filter
     from skimage.transform import ProjectiveTransform, warp
 
@@ -78,7 +80,7 @@ def warp_photo(img: np.ndarray, H: np.ndarray, res: int, scale: float) -> np.nda
     T = np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1.0]])
     Ti = np.array([[1, 0, -0.5], [0, 1, -0.5], [0, 0, 1.0]])
     return warp(src, ProjectiveTransform(Ti @ H @ T), output_shape=(res, res), order=1,
-                mode="edge").astype(np.float32)
+                mode=mode, cval=0.0).astype(np.float32)
 
 
 def face_mask(points_v: np.ndarray, res: int) -> np.ndarray:
