@@ -339,13 +339,15 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
     return out
 
 
-def _final_render(fitter, v):
-    """A clean render of the view at its last level: more spp, the fitted maps."""
+def _final_render(fitter, v, passes: int = 16):
+    """A render of the view at its last level with the fitted maps: ``passes`` renders
+    of the level's spp (4 by default) with their own seeds, averaged (64 spp)."""
     from hack_render.fit.photometric import level_maps, render_view
 
     with torch.no_grad():
-        img = render_view(v, level_maps(fitter.state, v), fitter.forward(v).vertices[0], 12345)
-    return img.numpy()
+        maps, verts = level_maps(fitter.state, v), fitter.forward(v).vertices[0]
+        img = sum(render_view(v, maps, verts, 12345 + k).numpy() for k in range(passes))
+    return img / passes
 
 
 def _final_in_level(final, i: int, v) -> np.ndarray:
