@@ -354,7 +354,7 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     """View ``i``'s ``render.png`` (the final render: baked skin, denoised or at the final
     spp; premultiplied linear RGBA at the photo's size or below) resampled into the
     view's last level, as that level's own renders are."""
-    from hack_render.fit.photometric import warp_photo
+    from hack_render.fit.virtual_view import warp_photo
 
     rgba = final.renders[i].rgba
     lv = v.level
