@@ -476,9 +476,9 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     # split (what render(sss=True) uses), and the two lobe-weighted passes of the other
     # integrators
     one = head.render(seed=5, backdrop=False)
-    split = head._render_passes(5, False, integrator=sss.split_integrator(head))
+    split = head.render_passes(5, False, integrator=sss.split_integrator(head))
     d, s = sss.lobe_passes(head, seed=5)
-    f = sss_features(head, head._skin_bsdf, head._see_through)
+    f = sss_features(head, head.skin_bsdf, head.see_through_cards)
     focal = float(head.camera.K[0, 0])
     m, cover = f["skin"], one[..., 3] > 0.99
     for label, rgb in (

@@ -139,7 +139,7 @@ def test_05_label_passes_follow_the_render_opacity(head_model):
     xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
     ray, _ = head.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5))
     si = camera_hit(head, ray)
-    bsdf, _ = head._see_through[0]
+    bsdf, _ = head.see_through_cards[0]
     on = si.is_valid() & (dr.reinterpret_array(mi.UInt32, si.bsdf())
                           == dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf)))
     ours = np.asarray(card_opacity(head, si, on))
@@ -181,7 +181,7 @@ def test_06_denoiser_features_look_through_the_cards(head_model):
     topo, v = head_model
     cam = eye_closeup(48)
     head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(48, 48, 16))
-    see = head._see_through
+    see = head.see_through_cards
     hits = head.region_hits()
     band = hits["region"] == REGIONS.index("eyelashes")
     skin = hits["region"] == REGIONS.index("face")

@@ -140,13 +140,13 @@ def test_06_one_pass_splits_the_skin_light(head):
 
     h = head["hack_path"]
     one = h.render(seed=1, backdrop=False)
-    img = h._render_passes(1, False, integrator=sss.split_integrator(h))
+    img = h.render_passes(1, False, integrator=sss.split_integrator(h))
     assert img.shape == one.shape[:2] + (10,)
     np.testing.assert_allclose(img[..., :4], one, rtol=1e-5, atol=1e-7)
     d, s = img[..., 4:7], img[..., 7:10]
     assert d.min() >= 0 and s.min() >= 0
     assert np.all(d + s <= img[..., :3] + 1e-5)
-    f = sss_features(h, h._skin_bsdf, h._see_through)
+    f = sss_features(h, h.skin_bsdf, h.see_through_cards)
     skin = f["skin"] > 0.99
     assert skin.sum() > 4000
     dd, ss = sss.lobe_passes(h, seed=1)
@@ -175,7 +175,7 @@ def test_06b_two_passes_add_up_to_the_render(head):  # the other integrators
     head = head["volpath"]
     one = head.render(seed=1, backdrop=False)
     d, s = sss.lobe_passes(head, seed=2)
-    f = sss_features(head, head._skin_bsdf, head._see_through)
+    f = sss_features(head, head.skin_bsdf, head.see_through_cards)
     focal = float(head.camera.K[0, 0])
     plain = sss.combine(d[..., :3], s[..., :3], f, focal, scale=0.0)
     skin = f["skin"] > 0.99
@@ -185,7 +185,7 @@ def test_06b_two_passes_add_up_to_the_render(head):  # the other integrators
     np.testing.assert_allclose(scattered[..., :3], sss.combine(d[..., :3], s[..., :3], f, focal),
                                rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(scattered[..., 3], d[..., 3], rtol=1e-5, atol=1e-7)
-    assert [float(w[0]) for w in head._skin_bsdf.lobe_weights] == [1.0, 1.0]
+    assert [float(w[0]) for w in head.skin_bsdf.lobe_weights] == [1.0, 1.0]
     np.testing.assert_allclose(scattered[..., :3].sum((0, 1)), plain.sum((0, 1)), rtol=0.01)
 
     _assert_red_smoothed(scattered, plain, skin)

@@ -65,7 +65,7 @@ def _opacity_at(opacity, si, active):
 
 
 def card_opacity(head, si, active):
-    """Opacity of the scene's see-through cards (``head._see_through``: the lash cards'
+    """Opacity of the scene's see-through cards (``head.see_through_cards``: the lash cards'
     strand texture) at intersections ``si``; 1 where the hit is on no card or not
     ``active``. A Dr.Jit Float."""
     import drjit as dr
@@ -73,7 +73,7 @@ def card_opacity(head, si, active):
 
     ids = dr.reinterpret_array(mi.UInt32, si.bsdf())
     out = dr.full(mi.Float, 1.0, dr.width(si.t))
-    for bsdf, opacity in getattr(head, "_see_through", ()):
+    for bsdf, opacity in getattr(head, "see_through_cards", ()):
         on = mi.Bool(active) & si.is_valid() & (
             ids == dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf)))
         out = dr.select(on, _opacity_at(opacity, si, on), out)

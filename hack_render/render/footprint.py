@@ -4,7 +4,7 @@ subsurface scattering.
 Unlike :mod:`hack_render.render.aov` (one ray through each pixel centre, crisp ids),
 these average k x k stratified primary rays per pixel, so edges are antialiased like the
 render's film. Both follow a ray through the see-through cards the renderer sees through
-(the eyelashes, ``HeadScene._see_through``): a ray that meets one counts the card with
+(the eyelashes, ``HeadScene.see_through_cards``): a ray that meets one counts the card with
 weight ``opacity`` at the hit (a number, or the strand texture looked up at the hit's UV,
 as the card's ``mask`` BSDF does) and what lies behind it with the rest, up to
 ``CARD_LAYERS`` cards deep. The film sees the skin through the lashes' gaps, so features

@@ -117,10 +117,10 @@ class HeadScene:
 
         skin = mi.load_dict(materials.skin_bsdf(maps, jit))
         # the hack_skin plugin (JIT variants): render(sss=True) weights its lobes
-        self._skin_bsdf = skin if hasattr(skin, "lobe_weights") else None
+        self.skin_bsdf = skin if hasattr(skin, "lobe_weights") else None
         #: (BSDF, opacity) of the see-through cards (the lashes): the opacity is a loaded
         #: texture plugin (its ``eval_1`` at a hit) or a number
-        self._see_through: list[tuple[object, object]] = []
+        self.see_through_cards: list[tuple[object, object]] = []
         self.lash_opacity: np.ndarray | None = None
         fixed = materials.fixed_bsdfs()
         normals = vertex_normals(v, topology.faces)
@@ -133,7 +133,6 @@ class HeadScene:
         #: ``volpath`` for ``hack_path`` in a non-JIT variant)
         self.integrator_name = settings.integrator if jit or \
             settings.integrator != "hack_path" else "volpath"
-        self._split = None  # hack_path with the skin split, for render(sss=True)
         scene: dict = {"type": "scene",
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
@@ -152,7 +151,7 @@ class HeadScene:
                 bsdf = mi.load_dict(materials.eyelash_bsdf(opacity))
                 # see-through cards: the label and AOV passes (and render(sss=True)) look
                 # up the same opacity at their hits
-                self._see_through.append((bsdf, opacity))
+                self.see_through_cards.append((bsdf, opacity))
             else:
                 bsdf = mi.load_dict(fixed[part.name])
             mesh = self._mesh(part, self._positions(part, v, camera), normals[part.gather],
@@ -376,7 +375,7 @@ class HeadScene:
         """
         release_parked()
         base = self.settings.seed if seed is None else int(seed)
-        if sss and self._skin_bsdf is None:
+        if sss and self.skin_bsdf is None:
             warnings.warn("sss: subsurface scattering needs the hack_skin material of a JIT "
                           "variant (llvm_ad_rgb or cuda_ad_rgb); rendering without it.",
                           stacklevel=2)
@@ -386,12 +385,12 @@ class HeadScene:
 
             img = render_scattered(self, base, progress)
         else:
-            img = self._render_passes(base, progress)
+            img = self.render_passes(base, progress)
         if denoise:
             img = self.denoise(img)
         return composite(img, self._backdrop_of(backdrop))
 
-    def _render_passes(self, base: int, progress: bool, desc: str = "render passes",
+    def render_passes(self, base: int, progress: bool, desc: str = "render passes",
                        spp: int | None = None, integrator=None):
         """The premultiplied film averaged over the settings' passes (see :meth:`render`);
         ``spp``: samples per pixel of each pass instead of the settings' (rounded as the
@@ -423,7 +422,7 @@ class HeadScene:
         from hack_render.render import denoise as dn
         from hack_render.render.footprint import denoise_features
 
-        albedo, normal = denoise_features(self, k, self._see_through)
+        albedo, normal = denoise_features(self, k, self.see_through_cards)
         out = image.copy()
         den = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
         # premultiplied: no coverage, no colour (OIDN leaves ~1e-6 residues there)

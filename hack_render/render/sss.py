@@ -39,6 +39,7 @@ pass carries the few paths that bounce from one lobe into the other.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,13 +216,13 @@ def render_scattered(head, base: int, progress: bool = False) -> np.ndarray:
 
     focal = float(head.camera.K[0, 0])
     if head.integrator_name == "hack_path":  # one pass, the skin's diffuse as an AOV
-        img = head._render_passes(base, progress, integrator=split_integrator(head))
-        f = sss_features(head, head._skin_bsdf, head._see_through)
+        img = head.render_passes(base, progress, integrator=split_integrator(head))
+        f = sss_features(head, head.skin_bsdf, head.see_through_cards)
         out = img[..., :4].copy()
         out[..., :3] = combine_split(img[..., :3], img[..., 4:7], f, focal)
         return out
     diffuse, rest = lobe_passes(head, base, progress)
-    f = sss_features(head, head._skin_bsdf, head._see_through)
+    f = sss_features(head, head.skin_bsdf, head.see_through_cards)
     out = diffuse.copy()
     out[..., :3] = combine(diffuse[..., :3], rest[..., :3], f, focal)
     return out
@@ -233,12 +234,12 @@ def set_lobe_weights(head, diffuse: float, specular: float) -> None:
     import drjit as dr
     import mitsuba as mi
 
-    if head._skin_bsdf is None:
+    if head.skin_bsdf is None:
         raise HackError("lobe weights: this scene's skin is not the hack_skin material "
                         "(a JIT variant's); found the scalar variant's stand-in.")
     w = (mi.Float(float(diffuse)), mi.Float(float(specular)))
     dr.make_opaque(*w)
-    head._skin_bsdf.lobe_weights = w
+    head.skin_bsdf.lobe_weights = w
 
 
 def lobe_passes(head, seed: int | None = None,
@@ -252,22 +253,26 @@ def lobe_passes(head, seed: int | None = None,
     base = head.settings.seed if seed is None else int(seed)
     try:
         set_lobe_weights(head, 1.0, 0.0)
-        diffuse = head._render_passes(base, progress, "render passes (skin diffuse)")
+        diffuse = head.render_passes(base, progress, "render passes (skin diffuse)")
         set_lobe_weights(head, 0.0, 1.0)
-        rest = head._render_passes(base, progress, "render passes (specular, rest)")
+        rest = head.render_passes(base, progress, "render passes (specular, rest)")
     finally:
         set_lobe_weights(head, 1.0, 1.0)
     return diffuse, rest
 
 
+#: each scene's split integrator, made once (dropped with the scene)
+_SPLIT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def split_integrator(head):
     """``head``'s ``hack_path`` with the skin split (AOVs skin_diffuse.RGB,
     skin_specular.RGB after RGBA; ``render/integrator.py``), made once per scene."""
-    if head._split is None:
+    if head not in _SPLIT:
         import mitsuba as mi
 
-        head._split = mi.load_dict({"type": "hack_path", "hide_emitters": True,
-                                    "max_depth": head.settings.max_depth,
-                                    "split_skin": True})
-        head._split.set_skin(head._skin_bsdf)
-    return head._split
+        integ = mi.load_dict({"type": "hack_path", "hide_emitters": True,
+                              "max_depth": head.settings.max_depth, "split_skin": True})
+        integ.set_skin(head.skin_bsdf)
+        _SPLIT[head] = integ
+    return _SPLIT[head]
