@@ -223,10 +223,10 @@ class FinalRenders:
 
         from tqdm import tqdm
 
-        from hack_render.fit import texture
+        from hack_render.fit import iris, texture
 
         st, cfg = fitter.state, fitter.cfg
-        bar = tqdm(total=2 * len(st.views) + 1 + int(cfg.final.refine),
+        bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine),
                    desc="fit final (renders, bake)", unit="step",
                    disable=not fitter.progress, leave=False)
         t0 = time.perf_counter()
@@ -236,10 +236,14 @@ class FinalRenders:
                                                        max_side=cfg.final.max_side))
             bar.update()
         self.baked = texture.bake_diffuse(st, cfg, self.fitted)
+        # the person's iris colour (fit/iris.py): not under the photo's occluders
+        allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
+                   for v in st.views]
+        rgb, self.iris = iris.fit_colour(st, cfg, allowed)
         bar.update()
         t1 = time.perf_counter()
         self.maps = dataclasses.replace(texture._skin_maps(st, cfg.final.atlas_height),
-                                        diffuse=self.baked.diffuse)
+                                        diffuse=self.baked.diffuse, iris_rgb=rgb)
         self.renders = []
         for v in st.views:
             self.renders.append(texture.render_at_photo(st, cfg, v, maps=self.maps,
@@ -256,11 +260,17 @@ class FinalRenders:
                             for v in st.views]
             bar.update()
         bar.close()
+        # photo / render.png over the iris's pixels (luminance; 1: matched)
+        self.iris["residual"] = iris.residual(
+            [texture.photo_at(v, *r.rgba.shape[:2]) for v, r in zip(st.views, self.renders)],
+            self.renders, [None if a is None else texture.mask_at(a, *r.rgba.shape[:2])
+                           for a, r in zip(allowed, self.renders)])
         self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
                        "atlas_height": cfg.final.atlas_height,
                        "seen_fraction": self.baked.seen_fraction,
                        "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
                        "size": [list(r.rgba.shape[1::-1]) for r in self.renders],
+                       "iris": self.iris,
                        "diffuse": "derived: the photo(s) with the fitted lighting divided "
                                   "out where seen (confidence.png), the mirrored face or "
                                   "the appearance model A(alpha) elsewhere"}
@@ -336,6 +346,14 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
         write_png(folder / f"{name}.png", png if png.shape[2] > 1 else png[..., 0],
                   srgb=name.startswith("diffuse"))
         out.append(folder / f"{name}.png")
+    if final is not None and final.maps.iris_rgb is not None:  # read by --textures
+        from hack_render.render.skin_maps import IRIS_FILE
+
+        doc = {"iris_rgb": list(final.maps.iris_rgb),
+               "derived": "linear Rec.709; the photo over a render of the fit, over the "
+                          "iris's pixels (hack_render/fit/iris.py)", **final.iris}
+        out.append(_atomic_bytes(folder / IRIS_FILE,
+                                 lambda t: t.write_text(json.dumps(doc, indent=1))))
     return out
 
 

@@ -150,28 +150,43 @@ def _mirror(a: np.ndarray) -> np.ndarray:
     return np.concatenate([a[:, :h][:, ::-1], a[:, h:][:, ::-1]], axis=1)
 
 
+def photo_at(view: View, h: int, w: int) -> np.ndarray:
+    """The view's photo, linear RGB, resampled to (h, w) (a render's size)."""
+    from skimage.transform import resize
+
+    photo = view.photo.linear()
+    if photo.shape[:2] != (h, w):
+        photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
+    return photo
+
+
+def mask_at(mask, h: int, w: int) -> np.ndarray:
+    """A photo-size mask (the segmentation's) as bool at (h, w), nearest neighbour."""
+    from skimage.transform import resize
+
+    mk = np.asarray(mask, bool)
+    if mk.shape != (h, w):
+        mk = resize(mk.astype(np.float32), (h, w), order=0) > 0.5
+    return mk
+
+
 def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarray, np.ndarray]:
     """(weights (h, w) in [0, 1], albedo observations (h, w, 3)) of one view's pixels:
     skin hits away from the silhouette, cos^2 of the view angle, and robust rejection of
     what the render cannot explain (see the module's docstring)."""
     from scipy.ndimage import binary_erosion
-    from skimage.transform import resize
 
     fc = cfg.final
     gb, rgba = pr.gbuffer, pr.rgba
     h, w = rgba.shape[:2]
-    photo = view.photo.linear()
-    if photo.shape[:2] != (h, w):
-        photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
+    photo = photo_at(view, h, w)
     rendered = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
     points = view.detection.points * (w / view.photo.width)
     skin = rendered & ~_feature_holes(points, (h, w), eye_scale=fc.eye_hole)
     occluded = np.zeros((h, w), bool)
     for mask, keep in ((view.skin, True), (view.occluder, False)):
         if mask is not None:  # the segmentation's skin, without its occluders
-            mk = np.asarray(mask, bool)
-            if mk.shape != (h, w):
-                mk = resize(mk.astype(np.float32), (h, w), order=0) > 0.5
+            mk = mask_at(mask, h, w)
             skin &= mk if keep else ~mk
             if not keep:
                 occluded = mk

@@ -37,12 +37,16 @@ class SkinMaps:
         diffuse: (H, 2H, 3) linear Rec.709 albedo. specular: (H, 2H, 1) intensity in [0, 1].
         roughness: (H, 2H, 1) perceptual roughness. normal: (H, 2H, 3) unit tangent-space
         normals (OpenGL, +Y along +v), or None for the interpolated mesh normal.
+        iris_rgb: the iris's linear RGB (``fit``'s estimate from the photo, a texture
+        folder's ``iris.json``), or None for the renderer's default
+        (:data:`DEFAULT_IRIS_RGB`).
     """
 
     diffuse: np.ndarray
     specular: np.ndarray
     roughness: np.ndarray
     normal: np.ndarray | None = None
+    iris_rgb: tuple[float, float, float] | None = None
 
     def __post_init__(self):
         h = self.diffuse.shape[0]

@@ -71,7 +71,7 @@ class HeadScene:
         lights: a light rig (``scenes.lights.preset``).
         camera: the camera (``scenes.cameras``); later cameras must keep its size.
         settings: resolution, spp, depth, seed (resolution must match the camera).
-        iris_rgb: linear RGB of the iris.
+        iris_rgb: linear RGB of the iris; None: ``maps.iris_rgb``, else the default.
         variant: Mitsuba variant; chosen automatically when None.
         bust_cap: close the cut of the chest and shoulders (``parts.bust_cap``), so that
             it never shows its black inside.
@@ -158,7 +158,8 @@ class HeadScene:
                               bsdf)
             if part.name == "iris":
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
-                                                       iris_rgb or materials.DEFAULT_IRIS_RGB)
+                                                       iris_rgb or maps.iris_rgb
+                                                       or materials.DEFAULT_IRIS_RGB)
                 mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
             scene[part.name] = mesh
         scene.update(emitters.emitter_dicts(lights, env))

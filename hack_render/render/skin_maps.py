@@ -16,7 +16,8 @@ TEXTURE_FILES = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
 def read_texture_folder(folder: str | Path) -> SkinMaps:
     """Read ``diffuse.exr`` (RGB, linear), ``specular.exr``, ``roughness.exr`` (one channel,
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
-    from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1."""
+    from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
+    there (:func:`read_iris_file`) gives the iris's colour."""
     from hack_render.render.image_io import read_exr
 
     folder = Path(folder)
@@ -39,7 +40,31 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
             raise HackError(f"{path}: expected channels {'R, G, B' if c == 3 else 'Y or R'}, "
                             f"found {sorted(ch)}.")
         maps[name] = np.stack([ch[k] for k in keys], axis=-1)
-    return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"])
+    return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"],
+                    read_iris_file(folder / IRIS_FILE))
+
+
+#: The iris colour beside the skin maps (``fit`` writes it: its estimate from the photo).
+IRIS_FILE = "iris.json"
+
+
+def read_iris_file(path: Path) -> tuple[float, float, float] | None:
+    """``iris_rgb`` (3 linear RGB values in [0, 1]) of a texture folder's ``iris.json``;
+    None where the file is absent (the renderer's default iris)."""
+    import json
+
+    if not path.is_file():
+        return None
+    try:
+        rgb = json.loads(path.read_text())["iris_rgb"]
+        rgb = tuple(float(x) for x in rgb)
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise HackError(f"{path}: expected JSON with \"iris_rgb\": [r, g, b] (linear, 0..1), "
+                        f"found it unreadable ({err}).") from err
+    if len(rgb) != 3 or not all(np.isfinite(x) and 0.0 <= x <= 1.0 for x in rgb):
+        raise HackError(f"{path}: expected \"iris_rgb\" as 3 linear RGB values in [0, 1], "
+                        f"found {list(rgb)}.")
+    return rgb
 
 
 def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 512) -> SkinMaps:

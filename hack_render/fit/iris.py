@@ -1,0 +1,124 @@
+"""The person's iris colour from the photo(s), for the fit's renders and texture folder.
+
+The renderer's iris (``render.materials.iris_vertex_colors``) is one linear RGB colour
+``c`` shaped by a fixed pattern (pupil, striations, limbal ring). Its radiance is linear in
+``c`` (diffuse light transport), so a render with colour ``c0`` and the photo over the
+same pixels give ``c = c0 * photo / render`` per channel: one step of inverse rendering,
+with the fitted geometry, camera and lighting held. Which pixels:
+
+- the render's iris, as its G-buffer labels it (region ``iris``, fully covered), without
+  its pupil and its sclera ring (by the G-buffer's albedo there);
+- of those, the photo's pixels between the 10th and 75th percentile of luminance: the
+  brighter quarter is where the model's iris falls on her sclera, lids or a catchlight
+  (a gaze or aperture the model does not share), the darkest tenth her pupil;
+- the same pixels of the render, so that the ratio compares like with like.
+
+The corneal gloss (the iris's clearcoat) is in both and left in the ratio: a small bias
+towards the light's colour, reported by the next render's residual ratio. A grey photo
+says nothing of the colour: the luminance is matched, the hue kept. Too few pixels
+(closed or tiny eyes): the colour is kept and the report says so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Fewer iris pixels than this (over all views) and the colour is left as it was.
+MIN_PIXELS = 8
+#: Luminance percentiles of the photo's iris pixels kept (see the module docstring).
+KEEP_PERCENTILES = (10.0, 75.0)
+#: The colour's bounds, linear RGB (a black or white iris is a failed estimate).
+RGB_BOUNDS = (0.005, 0.6)
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
+    from hack_render.render.materials import SCLERA_RGB
+    from hack_render.render.parts import REGIONS
+
+    seg = gbuffer["segmentation"] == REGIONS.index("iris")
+    lum = gbuffer["albedo"][..., :3] @ _LUMA
+    sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
+    return seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
+
+
+def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
+             grey: bool = False, allowed: list | None = None
+             ) -> tuple[tuple[float, float, float], dict]:
+    """The iris colour that makes the renders match ``photos`` (linear RGB, each at its
+    render's size) over the iris pixels (and ``allowed``'s, e.g. not the photo's
+    occluders). ``renders`` (``texture.PhotoRender``) have the iris colour ``current``,
+    ``zero_renders`` the same with a black iris and the same seed: their difference is the
+    iris's own share of each pixel, the rest (the corneal gloss, the neighbours a pixel's
+    filter mixes in) is left out of the ratio. Returns (rgb, report)."""
+    current = np.asarray(current, np.float64)
+    num, den, n = np.zeros(3), np.zeros(3), 0
+    for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
+        m = iris_mask(r.gbuffer, r.rgba)
+        if allowed is not None and allowed[i] is not None:
+            m &= allowed[i]
+        if not m.any():
+            continue
+        p = photo[m].astype(np.float64)
+        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
+        lum = p @ _LUMA
+        lo, hi = np.percentile(lum, KEEP_PERCENTILES)
+        keep = (lum >= lo) & (lum <= hi)
+        num += (p - q0)[keep].sum(0)
+        den += (q - q0)[keep].sum(0)
+        n += int(keep.sum())
+    report = {"pixels": n, "start": current.tolist()}
+    if n < MIN_PIXELS or not np.all(den > 0):
+        report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
+        return tuple(float(x) for x in current), report
+    ratio = num / den
+    if grey:  # the luminance only
+        ratio = np.full(3, float(num @ _LUMA / (den @ _LUMA)))
+    rgb = np.clip(current * ratio, *RGB_BOUNDS)
+    report.update(source="photo (grey: luminance only)" if grey else "photo",
+                  rgb=rgb.tolist())
+    return tuple(float(x) for x in rgb), report
+
+
+def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
+               ) -> tuple[tuple[float, float, float], dict]:
+    """The iris colour of the state's views (:func:`estimate`), from two renders per view
+    at the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
+    default iris and a black one, with ``maps`` (default: the fitted skin maps)."""
+    import dataclasses
+
+    from hack_render.fit import texture
+    from hack_render.render.materials import DEFAULT_IRIS_RGB
+
+    maps = maps if maps is not None else texture._skin_maps(state)
+    photos, renders, zeros = [], [], []
+    for v in state.views:
+        for rgb, out in ((DEFAULT_IRIS_RGB, renders), ((0.0, 0.0, 0.0), zeros)):
+            out.append(texture.render_at_photo(state, cfg, v, spp=spp,
+                                               max_side=cfg.final.max_side,
+                                               maps=dataclasses.replace(maps, iris_rgb=rgb)))
+        photos.append(texture.photo_at(v, *renders[-1].rgba.shape[:2]))
+    grey = all(v.photo.is_grey for v in state.views)
+    if allowed is not None:
+        allowed = [None if a is None else texture.mask_at(a, *r.rgba.shape[:2])
+                   for a, r in zip(allowed, renders)]
+    return estimate(photos, renders, zeros, DEFAULT_IRIS_RGB, grey, allowed)
+
+
+def residual(photos: list[np.ndarray], renders: list, allowed: list | None = None
+             ) -> float | None:
+    """photo / render luminance over the kept iris pixels of ``renders`` (1: matched)."""
+    luma = [0.0, 0.0]
+    for i, (photo, r) in enumerate(zip(photos, renders)):
+        m = iris_mask(r.gbuffer, r.rgba)
+        if allowed is not None and allowed[i] is not None:
+            m &= allowed[i]
+        if m.sum() < MIN_PIXELS:
+            continue
+        p, q = photo[m] @ _LUMA, r.rgba[..., :3][m] @ _LUMA
+        lo, hi = np.percentile(p, KEEP_PERCENTILES)
+        keep = (p >= lo) & (p <= hi)
+        luma[0] += float(p[keep].sum())
+        luma[1] += float(q[keep].sum())
+    return luma[0] / luma[1] if luma[1] > 0 else None
