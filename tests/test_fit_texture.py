@@ -248,7 +248,8 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     """A photo of eyes bluer or redder than the default brown: fit/iris.py recovers the
     colour (within 10 % per channel; from 16-spp renders of ~13-24 iris pixels), the
     final render matches the photo's iris, and the texture folder carries it to
-    ``--textures`` (iris.json, read back; a malformed one is a clear error)."""
+    ``--textures`` (iris.json, read back; a malformed one is a clear error). No iris
+    pixels, or an estimate beyond its bounds: the default is kept."""
     from hack_render.errors import HackError
     from hack_render.fit import iris, outputs, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB
@@ -276,6 +277,13 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     rgb2, rep2 = iris.fit_colour(f.state, cfg, maps=true_maps,
                                  allowed=[np.zeros((v.photo.height, v.photo.width), bool)])
     assert rgb2 == pytest.approx(DEFAULT_IRIS_RGB) and rep2["pixels"] == 0
+    # an iris darker than the render's corneal gloss alone (the estimate would be beyond
+    # black): a failed estimate, the default kept and the report says why
+    rgb3 = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    rgb3[iris.iris_mask(shot.gbuffer, shot.rgba)] = 0.0
+    v.photo = _photo_of(rgb3)
+    rgb3, rep3 = iris.fit_colour(f.state, cfg, maps=true_maps)
+    assert rgb3 == pytest.approx(DEFAULT_IRIS_RGB) and rep3["source"].startswith("kept")
     bad = tmp_path / "bad.json"
     bad.write_text('{"iris_rgb": [0.1, 2.0, 0.1]}')
     with pytest.raises(HackError, match="iris_rgb"):

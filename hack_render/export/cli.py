@@ -160,7 +160,7 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
         written.append(path)
     mats = ObjMaterials(model.material_names, model.face_material.numpy(),
                         {k: f"{folder.name}/{k}.png" for k in images},
-                        colours=material_base_colours(model.material_names))
+                        colours=material_base_colours(model.material_names, maps.iris_rgb))
     return written + [write_mesh(output, *args, mats), output.with_suffix(".mtl")]
 
 

@@ -1,9 +1,12 @@
 """The person's iris colour from the photo(s), for the fit's renders and texture folder.
 
 The renderer's iris (``render.materials.iris_vertex_colors``) is one linear RGB colour
-``c`` shaped by a fixed pattern (pupil, striations, limbal ring). Its radiance is linear in
-``c`` (diffuse light transport), so a render with colour ``c0`` and the photo over the
-same pixels give ``c = c0 * photo / render`` per channel: one step of inverse rendering,
+``c`` shaped by a fixed pattern (pupil, striations, limbal ring). A pixel's radiance is
+affine in ``c``: ``L(c) = c * D + S``, where ``S`` is what does not come from the iris's
+diffuse reflection (the corneal gloss, the neighbours the pixel filter mixes in). Two
+renders with one seed, the default colour ``c0`` and a black iris, give ``S = L(0)`` and
+``D = (L(c0) - S) / c0``; then ``c = c0 * sum(photo - S) / sum(L(c0) - S)`` per channel
+over the pixels below: one step of inverse rendering, exact for this light transport,
 with the fitted geometry, camera and lighting held. Which pixels:
 
 - the render's iris, as its G-buffer labels it (region ``iris``, fully covered), without
@@ -11,12 +14,14 @@ with the fitted geometry, camera and lighting held. Which pixels:
 - of those, the photo's pixels between the 10th and 75th percentile of luminance: the
   brighter quarter is where the model's iris falls on her sclera, lids or a catchlight
   (a gaze or aperture the model does not share), the darkest tenth her pupil;
-- the same pixels of the render, so that the ratio compares like with like.
+- the same pixels of the renders, so that the ratio compares like with like.
 
-The corneal gloss (the iris's clearcoat) is in both and left in the ratio: a small bias
-towards the light's colour, reported by the next render's residual ratio. A grey photo
-says nothing of the colour: the luminance is matched, the hue kept. Too few pixels
-(closed or tiny eyes): the colour is kept and the report says so.
+``render.png``'s residual (photo over render, luminance, the same pixels) is reported. A
+grey photo says nothing of the colour: the luminance is matched, the hue kept. Too few
+pixels (closed or tiny eyes), or an estimate beyond :data:`RGB_BOUNDS` (e.g. a photo's iris
+darker than the render's corneal gloss alone: the fitted light is smooth, so the cornea
+reflects it as a veil where the photo has a dark iris and one catchlight): the colour is
+kept and the report says so.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import numpy as np
 MIN_PIXELS = 8
 #: Luminance percentiles of the photo's iris pixels kept (see the module docstring).
 KEEP_PERCENTILES = (10.0, 75.0)
-#: The colour's bounds, linear RGB (a black or white iris is a failed estimate).
+#: The colour's bounds, linear RGB: an estimate beyond them is a failed one (kept as it was).
 RGB_BOUNDS = (0.005, 0.6)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -75,7 +80,13 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     ratio = num / den
     if grey:  # the luminance only
         ratio = np.full(3, float(num @ _LUMA / (den @ _LUMA)))
-    rgb = np.clip(current * ratio, *RGB_BOUNDS)
+    rgb = current * ratio
+    if not np.all((rgb >= RGB_BOUNDS[0]) & (rgb <= RGB_BOUNDS[1])):
+        # e.g. the photo's iris darker than the render's corneal gloss alone: the fitted
+        # light (smooth) reflects as a veil where the photo has a dark iris and a catchlight
+        report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
+                            f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
+        return tuple(float(x) for x in current), report
     report.update(source="photo (grey: luminance only)" if grey else "photo",
                   rgb=rgb.tolist())
     return tuple(float(x) for x in rgb), report

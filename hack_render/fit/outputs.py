@@ -162,7 +162,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     # the OBJs' .mtl names the fitted maps written just above (PNG, relative paths)
     mats = ObjMaterials(m.material_names, m.face_material.numpy(),
                         {t.stem: f"textures/{t.name}" for t in textures if t.suffix == ".png"},
-                        colours=material_base_colours(m.material_names))
+                        colours=material_base_colours(
+                            m.material_names, final.maps.iris_rgb if final else None))
     for i, v in enumerate(res.views):
         with torch.no_grad():
             verts = fitter.forward(v).vertices[0].numpy()

@@ -63,7 +63,7 @@ class SkinMaps:
 
     @staticmethod
     def constant(height: int = 16, albedo=(0.46, 0.29, 0.22), specular: float = 0.6,
-                 roughness: float = 0.5) -> "SkinMaps":
+                 roughness: float = 0.5) -> SkinMaps:
         """Uniform maps (a stand-in where no appearance model is given)."""
         shape = (height, 2 * height)
         return SkinMaps(np.broadcast_to(np.float32(albedo), shape + (3,)).copy(),
@@ -71,7 +71,7 @@ class SkinMaps:
                         np.full(shape + (1,), roughness, np.float32), None)
 
     @staticmethod
-    def from_appearance(maps, index: int = 0) -> "SkinMaps":
+    def from_appearance(maps, index: int = 0) -> SkinMaps:
         """From ``AppearanceModel.maps(alpha)`` output (batched torch tensors): item ``index``."""
         def get(name):
             x = getattr(maps, name, None)
@@ -240,12 +240,14 @@ def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB) -> n
     return np.where((r < PUPIL_RADIUS)[:, None], 0.01, out).astype(np.float32)
 
 
-def material_base_colours(material_names) -> dict[str, tuple[float, float, float]]:
+def material_base_colours(material_names, iris_rgb=None) -> dict[str, tuple[float, float, float]]:
     """Linear RGB base colour of each non-skin model material (``M_Teeth`` ...), from the
-    parts' BSDFs above, for formats that carry one colour per material (MTL, glTF)."""
+    parts' BSDFs above, for formats that carry one colour per material (MTL, glTF); the
+    iris's is ``iris_rgb`` (e.g. ``SkinMaps.iris_rgb``), else the default."""
     from hack_render.render.parts import PART_SPECS
 
-    fixed = {**fixed_bsdfs(), "iris": {"diffuse_reflectance": {"value": DEFAULT_IRIS_RGB}}}
+    iris = tuple(iris_rgb) if iris_rgb is not None else DEFAULT_IRIS_RGB
+    fixed = {**fixed_bsdfs(), "iris": {"diffuse_reflectance": {"value": iris}}}
     out = {}
     for part, (mats, *_) in PART_SPECS.items():
         d = fixed.get(part)
