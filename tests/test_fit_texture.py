@@ -76,11 +76,19 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     err_bake = np.abs(bk.diffuse - truth)[seen].mean()
     # the pattern (+-30 %) is recovered where the photo sees the skin
     assert err_bake < 0.45 * err_prior, (err_bake, err_prior)
-    # unseen texels keep A(alpha) exactly; mirrored ones come from the photo's side
+    # unseen texels: A(alpha) tone-matched by a smooth gain (final.tone_match), or
+    # A(alpha) exactly with it off; mirrored ones come from the photo's side
     unseen = bk.source == 0
     assert unseen.any()
-    np.testing.assert_allclose(bk.diffuse[unseen & (bk.confidence == 0)],
-                               prior[unseen & (bk.confidence == 0)], atol=1e-5)
+    dark = unseen & (bk.confidence == 0)
+    gain = np.log(np.clip(bk.diffuse, 1e-3, None) / np.clip(prior, 1e-3, None))
+    assert np.abs(np.diff(gain, axis=1))[dark[:, 1:] & dark[:, :-1]].max() < 0.02
+    cfg.final.tone_match = "off"
+    off = texture.bake_diffuse(f.state, cfg, [pr])
+    np.testing.assert_allclose(off.diffuse[dark], prior[dark], atol=1e-5)
+    full = bk.confidence >= 1.0 - 1e-6      # seen at full weight: the photo's alone
+    assert full.sum() > 1000
+    np.testing.assert_allclose(off.diffuse[full], bk.diffuse[full], atol=1e-6)
     mirrored = bk.source == 2
     assert mirrored.sum() > 500
     # the weights mark the photo's skin pixels only
@@ -291,3 +299,74 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     bad.write_text("not json")
     with pytest.raises(HackError, match="iris_rgb"):
         read_iris_file(bad)
+
+
+def test_09_fallback_skin_is_tone_matched_without_a_seam():
+    """texture.tone_matched_prior: A(alpha) where the photo does not see takes the baked
+    skin's tone through a smooth gain field, so the face does not end in a seam; far from
+    the face one gain (the seen texels' median) holds, on both UV tiles; the holes the
+    seen texels enclose (eyes, mouth) keep A(alpha) unless asked."""
+    from hack_render.fit.texture import tone_matched_prior
+
+    H = 128
+    prior = np.broadcast_to(np.float64([0.50, 0.30, 0.30]), (H, 2 * H, 3)).copy()
+    yy, xx = np.mgrid[0:H, 0:2 * H]
+    r = np.hypot(yy - H / 2, xx - H / 2)
+    seen = (r < 30) & ~(np.hypot(yy - H / 2, xx - H / 2 + 12) < 5)   # a face with an eye hole
+    hole = np.hypot(yy - H / 2, xx - H / 2 + 12) < 4
+    # the photo's skin: beige, a little darker on one side (its tone varies)
+    photo = np.float64([0.60, 0.45, 0.33]) * np.where(xx < H / 2, 1.1, 0.9)[..., None]
+    photo = np.where(seen[..., None], photo, 0.0)
+    out = tone_matched_prior(prior, photo, seen.astype(float))
+    ring = (r > 31) & (r < 34)      # just outside the face
+    err_before = np.abs(np.log(prior[ring]) - np.log(photo[(r > 27) & (r < 29) & seen].mean(0)))
+    err_after = np.abs(np.log(out[ring]) - np.log(photo[(r > 27) & (r < 29) & seen].mean(0)))
+    assert err_after.mean() < 0.35 * err_before.mean(), (err_after.mean(), err_before.mean())
+    # the seam's step in log colour across the face's edge: a fraction of the old one
+    step = np.abs(np.diff(np.log(np.where(seen[..., None], photo, out)), axis=1))
+    edge = seen[:, 1:] != seen[:, :-1]
+    old = np.abs(np.diff(np.log(np.where(seen[..., None], photo, prior)), axis=1))
+    assert np.median(step[edge]) < 0.35 * np.median(old[edge])
+    # far away and on the other tile: one gain, the median's
+    far = out[5:20, H + 20:2 * H - 20].reshape(-1, 3)
+    assert np.ptp(far, axis=0).max() < 1e-6
+    g0 = np.median(np.log(photo[seen]) - np.log(prior[seen]), axis=0)
+    np.testing.assert_allclose(far[0], prior[0, 0] * np.exp(g0), rtol=1e-6)
+    # the eye hole keeps A(alpha) ("outside"), or is tone-matched too ("all")
+    np.testing.assert_array_equal(out[hole], prior[hole])
+    inside = tone_matched_prior(prior, photo, seen.astype(float), inside=True)
+    assert np.abs(np.log(inside[hole]) - np.log(photo[seen].mean(0))).mean() < 0.15
+    # almost nothing seen: A(alpha) as it is
+    few = np.zeros_like(seen)
+    few[0, :8] = True
+    assert tone_matched_prior(prior, photo, few.astype(float)) is prior
+
+
+def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
+    """final.occluder_margin grows the segmentation's occluders before the bake leaves
+    them out: the ring around an occluder loses its weight, the rest of the face keeps
+    it; 0 (the default) leaves the ring in."""
+    from scipy.ndimage import binary_dilation
+
+    from hack_render.fit import texture
+
+    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    pts = v.detection.points
+    occ = np.zeros((v.photo.height, v.photo.width), bool)
+    x0, y0 = int(pts[2, 0]) + 4, int(pts[29, 1])
+    occ[y0:y0 + 10, x0:x0 + 10] = True
+    v.occluder = occ
+    pr = texture.render_at_photo(f.state, cfg, v)
+    w0, _ = texture.pixel_weights(v, pr, cfg)
+    iod = float(np.linalg.norm(pts[45] - pts[36]))
+    cfg.final.occluder_margin = 5.0 / iod      # five pixels
+    w3, _ = texture.pixel_weights(v, pr, cfg)
+    # (the bake's own 2-pixel erosion at every edge already takes the first two)
+    ring = binary_dilation(occ, iterations=5) & ~binary_dilation(occ, iterations=3)
+    assert (w0[occ] == 0).all() and (w3[occ] == 0).all()
+    assert (w0[ring] > 0).mean() > 0.5 and (w3[ring] == 0).all()
+    far = ~binary_dilation(occ, iterations=8)
+    assert ((w3 > 0) == (w0 > 0))[far].mean() > 0.99

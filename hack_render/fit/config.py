@@ -285,6 +285,17 @@ class FinalConfig:
     # the eyes left out of the bake: their landmark rings scaled by this about their
     # centres (1.8 also leaves out the lids, lashes and the sockets' shadow)
     eye_hole: float = 1.8
+    # the fallback map (A(alpha)) where the photo does not see, tone-matched to the baked
+    # skin by a smooth gain field (texture.tone_matched_prior): "outside" the seen face
+    # (scalp, neck, ears: no seam at the face's edge), "all" (the holes inside too: eyes,
+    # mouth, nostrils) or "off" (A(alpha) as it is)
+    tone_match: str = "outside"
+    # the occluders (hair, hands, glasses) grown by this share of the eyes' outer-corner
+    # distance before the bake leaves them out: the strands and shadows at a fringe's edge,
+    # outside the segmentation's mask, are baked as a dark rim a turntable shows. 0 by
+    # default: 0.08 takes the astronaut's rim away but costs her face region 0.4 dB and
+    # Grace Hopper's 1.1 dB (her glasses' surroundings leave the bake; docs/fit.md)
+    occluder_margin: float = 0.0
 
 
 @dataclass
@@ -391,6 +402,13 @@ class FitConfig:
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "
                             f"{fc.eye_hole!r}.")
+        if not (isinstance(fc.occluder_margin, (int, float))
+                and math.isfinite(fc.occluder_margin) and 0 <= fc.occluder_margin <= 1):
+            raise HackError(f"config final.occluder_margin: expected 0..1 (of the eyes' "
+                            f"corner distance), found {fc.occluder_margin!r}.")
+        if fc.tone_match not in ("outside", "all", "off"):
+            raise HackError(f"config final.tone_match: expected 'outside', 'all' or 'off', "
+                            f"found {fc.tone_match!r}.")
         for name in ("camera", "shape", "texel"):
             if getattr(self, name).iterations < 0:
                 raise HackError(f"config {name}.iterations: expected >= 0.")

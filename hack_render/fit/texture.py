@@ -19,7 +19,9 @@ model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
   the atlas bilinearly and spread by a normalised Gaussian whose width is the photo
   pixel's footprint in texels.
 - unseen texels: the same texel of the mirrored face (the atlas is left-right symmetric
-  within each tile: u -> 1 - u), else the appearance model's A(alpha).
+  within each tile: u -> 1 - u), else the appearance model's A(alpha), tone-matched to
+  the baked skin by a smooth gain field (:func:`tone_matched_prior`, ``final.tone_match``)
+  so that the face does not end in a seam.
 - the confidence (H, 2H) in [0, 1]: 1 where the photo(s) saw the texel at full weight,
   half the mirrored confidence where the mirror image fills it, 0 where A(alpha) does.
 """
@@ -174,7 +176,7 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     """(weights (h, w) in [0, 1], albedo observations (h, w, 3)) of one view's pixels:
     skin hits away from the silhouette, cos^2 of the view angle, and robust rejection of
     what the render cannot explain (see the module's docstring)."""
-    from scipy.ndimage import binary_erosion
+    from scipy.ndimage import binary_dilation, binary_erosion
 
     fc = cfg.final
     gb, rgba = pr.gbuffer, pr.rgba
@@ -184,9 +186,13 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     points = view.detection.points * (w / view.photo.width)
     skin = rendered & ~_feature_holes(points, (h, w), eye_scale=fc.eye_hole)
     occluded = np.zeros((h, w), bool)
+    iod = float(np.linalg.norm(points[45] - points[36]))
     for mask, keep in ((view.skin, True), (view.occluder, False)):
         if mask is not None:  # the segmentation's skin, without its occluders
             mk = mask_at(mask, h, w)
+            margin = round(fc.occluder_margin * iod)
+            if not keep and margin > 0 and mk.any():  # and the strands at their edge
+                mk = binary_dilation(mk, iterations=margin)
             skin &= mk if keep else ~mk
             if not keep:
                 occluded = mk
@@ -321,16 +327,63 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     conf = np.clip(den_b / full, 0.0, 1.0)
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
+    # (a refinement pass's prior, the first bake, is tone-matched already)
+    tone = cfg.final.tone_match != "off" and prior is None
     prior = (_skin_maps(state, H).diffuse if prior is None else prior).astype(np.float64)
     c1 = conf
     c2 = (1.0 - conf) * conf_m
     c3 = 1.0 - c1 - c2
+    if tone:
+        photo = (c1[..., None] * obs + c2[..., None] * obs_m) / np.maximum(c1 + c2, 1e-9)[..., None]
+        prior = tone_matched_prior(prior, photo, c1 + c2,
+                                   inside=cfg.final.tone_match == "all")
     diffuse = c1[..., None] * obs + c2[..., None] * obs_m + c3[..., None] * prior
     source = np.argmax(np.stack([c3, c1, c2]), 0).astype(np.uint8)
     confidence = (c1 + 0.5 * c2).astype(np.float32)
     seen_fraction = _seen_fraction(state, conf)
     return BakedSkin(np.clip(diffuse, 0.0, 1.0).astype(np.float32), confidence, source,
                      weights, seen_fraction)
+
+
+#: The gain field's Gaussian width, a share of the atlas's height (~40 texels at 1,024).
+TONE_SIGMA = 0.04
+
+
+def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
+                       inside: bool = False) -> np.ndarray:
+    """``prior`` (the fallback map, A(alpha)) tone-matched to the photo's texels, so the
+    baked face does not end in a seam: prior * exp(g), g a smooth per-channel log gain.
+    Where the photo saw the skin (``weight`` > 0.5), g = log(photo / prior); it is spread
+    by normalised Gaussian convolution (``TONE_SIGMA``) and blends, with the share of
+    seen texels around, into the seen texels' median gain far away (the scalp, the back
+    of the head, the other UV tile: one tone, no new seam). ``inside`` False: the holes
+    the seen texels enclose (eyes, mouth, nostrils) keep ``prior``. Seen texels are
+    unchanged by this (the bake takes the photo there)."""
+    from scipy.ndimage import binary_fill_holes, gaussian_filter
+
+    H = prior.shape[0]
+    seen = weight > 0.5
+    if seen.sum() < 16:
+        return prior
+    eps = 1e-3
+    g = np.log(np.clip(photo, eps, None)) - np.log(np.clip(prior, eps, None))
+    g = np.where(seen[..., None], g, 0.0)
+    g0 = np.median(g[seen], axis=0)
+    sigma = TONE_SIGMA * H
+    w = seen.astype(np.float64)
+    wb = gaussian_filter(w, sigma, mode="constant")
+    local = np.stack([gaussian_filter(g[..., c] * w, sigma, mode="constant")
+                      for c in range(3)], -1) / np.maximum(wb, 1e-9)[..., None]
+    # the share of seen texels around (half the kernel's mass: the seen face's edge) -> 1
+    a = np.clip(wb / 0.5, 0.0, 1.0)[..., None]
+    gain = a * np.where(wb[..., None] > 1e-6, local, g0) + (1.0 - a) * g0
+    out = prior * np.exp(np.clip(gain, np.log(0.25), np.log(4.0)))
+    if not inside:  # the enclosed holes keep the prior (per UV tile)
+        holes = np.zeros_like(seen)
+        for t in (slice(0, H), slice(H, 2 * H)):
+            holes[:, t] = binary_fill_holes(seen[:, t]) & ~seen[:, t]
+        out = np.where(holes[..., None], prior, out)
+    return out
 
 
 def _seen_fraction(state: FitState, conf: np.ndarray) -> float:
