@@ -293,12 +293,10 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     rgb3, rep3 = iris.fit_colour(f.state, cfg, maps=true_maps)
     assert rgb3 == pytest.approx(DEFAULT_IRIS_RGB) and rep3["source"].startswith("kept")
     bad = tmp_path / "bad.json"
-    bad.write_text('{"iris_rgb": [0.1, 2.0, 0.1]}')
-    with pytest.raises(HackError, match="iris_rgb"):
-        read_iris_file(bad)
-    bad.write_text("not json")
-    with pytest.raises(HackError, match="iris_rgb"):
-        read_iris_file(bad)
+    for text in ('{"iris_rgb": [0.1, 2.0, 0.1]}', '{"iris_rgb": [0.1]}', "not json"):
+        bad.write_text(text)
+        with pytest.raises(HackError, match="iris_rgb"):
+            read_iris_file(bad)
 
 
 def test_09_fallback_skin_is_tone_matched_without_a_seam():
