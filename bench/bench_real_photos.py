@@ -285,6 +285,10 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
                 data = json.loads(f.read_text())
                 row[f.stem] = {k: v for k, v in data.items()
                                if isinstance(v, (int, float, str)) or k == "timings_s"}
+                iris = (data.get("final") or {}).get("iris")
+                if iris:   # the iris's colour estimate (fit/iris.py): what it gave, and why
+                    row["iris"] = {k: iris.get(k) for k in ("source", "pixels", "rgb",
+                                                             "residual")}
         render = out / "render.png"
         if render.is_file():
             regions = face_region(img)
