@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -16,29 +15,29 @@ def export(
                                 "beside it): a rigged, animatable glTF 2.0; or person.obj / "
                                 "person.ply: the posed mesh in the model's vertex order (OBJ: "
                                 "with an .mtl and PNG skin maps)."),
-    params: Optional[Path] = typer.Option(None, "--params", help="JSON/YAML parameter file "
+    params: Path | None = typer.Option(None, "--params", help="JSON/YAML parameter file "
                                           "(keys: beta, psi, expression, head_rotation_deg, "
                                           "theta, global_orient, transl, eta, tau): the identity "
                                           "and larynx size baked in, and the pose at rest."),
-    sequence: Optional[Path] = typer.Option(None, "--sequence", help="Parameter sequence, "
+    sequence: Path | None = typer.Option(None, "--sequence", help="Parameter sequence, "
                                             ".npz or .jsonl (per-frame theta, psi, tau, "
                                             "global_orient, transl at an fps): becomes the "
                                             "glTF animation. `hack-render turntable --sequence` "
                                             "writes one."),
-    beta: Optional[str] = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
-    expression: Optional[str] = typer.Option(None, "--expr", help="FACS AUs and/or shape "
+    beta: str | None = typer.Option(None, help="Identity, comma-separated, e.g. '1.0,-0.5'."),
+    expression: str | None = typer.Option(None, "--expr", help="FACS AUs and/or shape "
                                              "names, e.g. 'AU12=0.7,jawOpen=0.3'."),
-    head_rotation: Optional[str] = typer.Option(None, "--head-rotation", help="Whole-head "
+    head_rotation: str | None = typer.Option(None, "--head-rotation", help="Whole-head "
                                                 "'flexion,axial,lateral' in degrees."),
-    eta: Optional[float] = typer.Option(None, help="Larynx size."),
-    tau: Optional[float] = typer.Option(None, help="Larynx vertical slide, metres."),
-    model_path: Optional[Path] = typer.Option(None, "--model", help="Model file (default: "
+    eta: float | None = typer.Option(None, help="Larynx size."),
+    tau: float | None = typer.Option(None, help="Larynx vertical slide, metres."),
+    model_path: Path | None = typer.Option(None, "--model", help="Model file (default: "
                                               "built-in)."),
-    alpha: Optional[str] = typer.Option(None, help="Appearance coefficients, comma-separated "
+    alpha: str | None = typer.Option(None, help="Appearance coefficients, comma-separated "
                                         "(default: the mean appearance, alpha = 0)."),
-    appearance_seed: Optional[int] = typer.Option(None, "--appearance-seed",
+    appearance_seed: int | None = typer.Option(None, "--appearance-seed",
                                                   help="Random appearance from this seed."),
-    textures: Optional[Path] = typer.Option(None, help="Folder with diffuse/specular/"
+    textures: Path | None = typer.Option(None, help="Folder with diffuse/specular/"
                                             "roughness(, normal).exr skin maps (a fit's "
                                             "textures/)."),
     limits: str = typer.Option("warn", "--limits", help="Values beyond the anatomical "
