@@ -48,6 +48,19 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     return seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
 
 
+def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) -> np.ndarray:
+    """(h, w) bool: ``render``'s iris pixels (:func:`iris_mask`, within ``allowed``) whose
+    photo luminance lies within ``KEEP_PERCENTILES`` (see the module docstring)."""
+    m = iris_mask(render.gbuffer, render.rgba)
+    if allowed is not None:
+        m &= allowed
+    if m.any():
+        lum = photo[m] @ _LUMA
+        lo, hi = np.percentile(lum, KEEP_PERCENTILES)
+        m[m] = (lum >= lo) & (lum <= hi)
+    return m
+
+
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None
              ) -> tuple[tuple[float, float, float], dict]:
@@ -59,19 +72,12 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     filter mixes in) is left out of the ratio. Returns (rgb, report)."""
     current = np.asarray(current, np.float64)
     num, den, n = np.zeros(3), np.zeros(3), 0
-    for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
-        m = iris_mask(r.gbuffer, r.rgba)
-        if allowed is not None and allowed[i] is not None:
-            m &= allowed[i]
-        if not m.any():
-            continue
-        p = photo[m].astype(np.float64)
-        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
-        lum = p @ _LUMA
-        lo, hi = np.percentile(lum, KEEP_PERCENTILES)
-        keep = (lum >= lo) & (lum <= hi)
-        num += (p - q0)[keep].sum(0)
-        den += (q - q0)[keep].sum(0)
+    for photo, r, r0, ok in zip(photos, renders, zero_renders, allowed or [None] * len(photos)):
+        keep = kept_pixels(photo, r, ok)
+        p, q, q0 = (x[keep].astype(np.float64) for x in (photo, r.rgba[..., :3],
+                                                         r0.rgba[..., :3]))
+        num += (p - q0).sum(0)
+        den += (q - q0).sum(0)
         n += int(keep.sum())
     report = {"pixels": n, "start": current.tolist()}
     if n < MIN_PIXELS or not np.all(den > 0):
@@ -92,44 +98,48 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     return tuple(float(x) for x in rgb), report
 
 
+def _at_render_size(state, renders: list, allowed: list | None):
+    """The views' photos and ``allowed`` masks (photo-size, or None) at each render's size."""
+    from hack_render.fit import texture
+
+    sizes = [r.rgba.shape[:2] for r in renders]
+    photos = [texture.photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
+    masks = [None if a is None else texture.mask_at(a, *hw)
+             for a, hw in zip(allowed or [None] * len(sizes), sizes)]
+    return photos, masks
+
+
 def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
                ) -> tuple[tuple[float, float, float], dict]:
     """The iris colour of the state's views (:func:`estimate`), from two renders per view
     at the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
-    default iris and a black one, with ``maps`` (default: the fitted skin maps)."""
+    default iris and a black one, with ``maps`` (default: the fitted skin maps).
+    ``allowed``: per view a photo-size bool mask of the pixels it may use, or None."""
     import dataclasses
 
     from hack_render.fit import texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB
 
     maps = maps if maps is not None else texture._skin_maps(state)
-    photos, renders, zeros = [], [], []
+    renders, zeros = [], []
     for v in state.views:
         for rgb, out in ((DEFAULT_IRIS_RGB, renders), ((0.0, 0.0, 0.0), zeros)):
             out.append(texture.render_at_photo(state, cfg, v, spp=spp,
                                                max_side=cfg.final.max_side,
                                                maps=dataclasses.replace(maps, iris_rgb=rgb)))
-        photos.append(texture.photo_at(v, *renders[-1].rgba.shape[:2]))
+    photos, masks = _at_render_size(state, renders, allowed)
     grey = all(v.photo.is_grey for v in state.views)
-    if allowed is not None:
-        allowed = [None if a is None else texture.mask_at(a, *r.rgba.shape[:2])
-                   for a, r in zip(allowed, renders)]
-    return estimate(photos, renders, zeros, DEFAULT_IRIS_RGB, grey, allowed)
+    return estimate(photos, renders, zeros, DEFAULT_IRIS_RGB, grey, masks)
 
 
-def residual(photos: list[np.ndarray], renders: list, allowed: list | None = None
-             ) -> float | None:
-    """photo / render luminance over the kept iris pixels of ``renders`` (1: matched)."""
-    luma = [0.0, 0.0]
-    for i, (photo, r) in enumerate(zip(photos, renders)):
-        m = iris_mask(r.gbuffer, r.rgba)
-        if allowed is not None and allowed[i] is not None:
-            m &= allowed[i]
-        if m.sum() < MIN_PIXELS:
-            continue
-        p, q = photo[m] @ _LUMA, r.rgba[..., :3][m] @ _LUMA
-        lo, hi = np.percentile(p, KEEP_PERCENTILES)
-        keep = (p >= lo) & (p <= hi)
-        luma[0] += float(p[keep].sum())
-        luma[1] += float(q[keep].sum())
-    return luma[0] / luma[1] if luma[1] > 0 else None
+def residual(state, renders: list, allowed: list | None = None) -> float | None:
+    """photo / render luminance over the kept iris pixels of ``renders`` (the state's
+    views, e.g. ``render.png``'s; 1: matched); ``allowed`` as :func:`fit_colour`'s."""
+    photos, masks = _at_render_size(state, renders, allowed)
+    num = den = 0.0
+    for photo, r, ok in zip(photos, renders, masks):
+        keep = kept_pixels(photo, r, ok)
+        if keep.sum() >= MIN_PIXELS:
+            num += float((photo[keep] @ _LUMA).sum())
+            den += float((r.rgba[..., :3][keep] @ _LUMA).sum())
+    return num / den if den > 0 else None

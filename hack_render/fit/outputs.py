@@ -262,10 +262,7 @@ class FinalRenders:
             bar.update()
         bar.close()
         # photo / render.png over the iris's pixels (luminance; 1: matched)
-        self.iris["residual"] = iris.residual(
-            [texture.photo_at(v, *r.rgba.shape[:2]) for v, r in zip(st.views, self.renders)],
-            self.renders, [None if a is None else texture.mask_at(a, *r.rgba.shape[:2])
-                           for a, r in zip(allowed, self.renders)])
+        self.iris["residual"] = iris.residual(st, self.renders, allowed)
         self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
                        "atlas_height": cfg.final.atlas_height,
                        "seen_fraction": self.baked.seen_fraction,
