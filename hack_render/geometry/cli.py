@@ -63,10 +63,10 @@ BETA_PLAUSIBLE = 5.0
 
 
 def beta_messages(beta) -> list[str]:
-    """Shape coefficients beyond :data:`BETA_PLAUSIBLE`, as phrases."""
-    import torch
+    """Shape coefficients beyond :data:`BETA_PLAUSIBLE`, as phrases (a tensor or an array)."""
+    import numpy as np
 
-    b = torch.as_tensor(beta).reshape(-1)
+    b = np.asarray(beta.detach().cpu() if hasattr(beta, "detach") else beta).reshape(-1)
     return [f"beta[{i}] = {float(v):.3g} (plausible identities lie within "
             f"+-{BETA_PLAUSIBLE:g} standard deviations; clamped to "
             f"{max(-BETA_PLAUSIBLE, min(BETA_PLAUSIBLE, float(v))):g})"
@@ -88,7 +88,7 @@ def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) ->
                         "or use --limits clamp (clamp and warn) or --limits warn.")
     kw, messages = enforce_limits(kw, policy, head_rotation_deg)
     if ident and policy_name == "clamp":
-        kw = dict(kw, beta=kw["beta"].clamp(-BETA_PLAUSIBLE, BETA_PLAUSIBLE))
+        kw = dict(kw, beta=kw["beta"].clip(-BETA_PLAUSIBLE, BETA_PLAUSIBLE))
     elif ident:
         ident = [m.split("; clamped to")[0] + "; kept, use --limits clamp to clamp)"
                  for m in ident]
@@ -150,10 +150,12 @@ def mesh(
                                               else ".obj")] if both else [])
     for target in targets[1:]:
         boundary.output_file(target, "--both")
-    model, _, verts = posed_model(params, beta, expression, head_rotation, eta, tau, limits,
+    from hack_render.geometry.posing import posed_vertices
+
+    model, verts = posed_vertices(params, beta, expression, head_rotation, eta, tau, limits,
                                   model_path)
     for target in targets:
-        write_mesh(target, verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())
+        write_mesh(target, verts, model.faces, model.uvs, model.uv_faces)
         typer.echo(f"wrote {target.resolve()}")
 
 

@@ -41,12 +41,12 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-#: Vertical slide tau, metres (up positive): (min, max). See the module docstring.
-TAU_RANGE_M: tuple[float, float] = (-0.01, 0.02)
-#: Larynx size eta (1 = the identity's own larynx): (min, max). See the module docstring.
-ETA_RANGE: tuple[float, float] = (0.0, 1.5)
-#: The default eta everywhere (Python API, parameter files, CLI): the identity's own larynx.
-ETA_DEFAULT = 1.0
+from hack_render.geometry.anatomy import (  # noqa: F401  (the ranges and check, re-exported)
+    ETA_DEFAULT,
+    ETA_RANGE,
+    TAU_RANGE_M,
+    larynx_outside_limits,
+)
 
 
 def larynx_limit_penalty(eta: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
@@ -63,17 +63,6 @@ def larynx_limit_penalty(eta: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
 def clamp_larynx(eta: torch.Tensor, tau: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """eta and tau clamped to ``ETA_RANGE`` and ``TAU_RANGE_M`` (any shapes)."""
     return eta.clamp(*ETA_RANGE), tau.clamp(*TAU_RANGE_M)
-
-
-def larynx_outside_limits(eta: torch.Tensor | float, tau: torch.Tensor | float,
-                          tol: float = 1e-9) -> list[tuple[str, float, float, float]]:
-    """The values beyond the ranges: (name, value, min, max) per offending entry."""
-    bad = []
-    for name, x, (lo, hi) in (("eta", eta, ETA_RANGE), ("tau", tau, TAU_RANGE_M)):
-        for val in torch.as_tensor(x, dtype=torch.float64).detach().flatten().tolist():
-            if val < lo - tol or val > hi + tol:
-                bad.append((name, val, lo, hi))
-    return bad
 
 
 def larynx_coefficients(beta: torch.Tensor, coef_matrix: torch.Tensor,

@@ -18,9 +18,17 @@ from __future__ import annotations
 
 from typing import Any
 
-import torch
+import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.anatomy import (
+    ETA_RANGE,
+    TAU_RANGE_M,
+    clamp_theta,
+    head_rotation_outside_limits,
+    larynx_outside_limits,
+    outside_limits,
+)
 
 POLICIES = ("warn", "clamp", "error")
 
@@ -31,17 +39,13 @@ def _fmt(x: float) -> str:
 
 def head_rotation_messages(angles_deg) -> list[str]:
     """Whole-head rotation axes beyond the neck's range, as phrases (empty when inside)."""
-    from hack_render.geometry.skeleton import head_rotation_outside_limits
-
     return [f"head rotation {axis} {val:.1f} deg (whole-neck range {lo:.1f}..{hi:.1f} deg; "
             f"clamped to {min(max(val, lo), hi):.1f} deg)"
             for axis, val, lo, hi in head_rotation_outside_limits(angles_deg)]
 
 
-def joint_messages(theta: torch.Tensor) -> list[str]:
+def joint_messages(theta) -> list[str]:
     """Joint rotations of a (B, 8, 3) or (8, 3) pose beyond the limits, as phrases."""
-    from hack_render.geometry.skeleton import outside_limits
-
     return [f"joint {name} axis {axis} = {deg:.1f} deg (limits {lo:.1f}..{hi:.1f} deg; "
             f"clamped to {min(max(deg, lo), hi):.1f} deg)"
             for _, name, axis, deg, lo, hi in outside_limits(theta)]
@@ -49,8 +53,6 @@ def joint_messages(theta: torch.Tensor) -> list[str]:
 
 def larynx_messages(eta, tau) -> list[str]:
     """eta / tau values beyond their ranges, as phrases."""
-    from hack_render.geometry.larynx import larynx_outside_limits
-
     unit = {"eta": "", "tau": " m"}
     return [f"larynx {name} = {_fmt(val)}{unit[name]} (range {_fmt(lo)}..{_fmt(hi)}{unit[name]}; "
             f"clamped to {_fmt(min(max(val, lo), hi))}{unit[name]})"
@@ -76,9 +78,6 @@ def enforce_limits(kw: dict[str, Any], policy: str,
     Raises:
         HackError: under "error", naming every value beyond its limit.
     """
-    from hack_render.geometry.larynx import clamp_larynx
-    from hack_render.geometry.skeleton import clamp_to_limits
-
     policy = str(getattr(policy, "value", policy))
     if policy not in POLICIES:
         raise HackError(f"--limits: expected one of {', '.join(POLICIES)}, found {policy!r}.")
@@ -96,15 +95,22 @@ def enforce_limits(kw: dict[str, Any], policy: str,
     out = dict(kw)
     if policy == "clamp":
         if joints:
-            out["theta"] = clamp_to_limits(kw["theta"])
+            out["theta"] = _clamp_theta(kw["theta"])
         if lar:
-            e, t = clamp_larynx(torch.as_tensor(eta if eta is not None else 1.0),
-                                torch.as_tensor(tau if tau is not None else 0.0))
-            if eta is not None:
-                out["eta"] = e
-            if tau is not None:
-                out["tau"] = t
+            for name, (lo, hi) in (("eta", ETA_RANGE), ("tau", TAU_RANGE_M)):
+                x = kw.get(name)
+                if x is not None:  # a tensor's or an array's own clip; a number's min/max
+                    out[name] = x.clip(lo, hi) if hasattr(x, "clip") else min(max(x, lo), hi)
         return out, head + joints + lar
     keep = [m.split("; clamped to")[0] + "; kept, use --limits clamp to clamp)"
             for m in joints + lar]
     return out, head + keep
+
+
+def _clamp_theta(theta):
+    """``theta`` with each joint clamped to its limits, of the kind it came as."""
+    if isinstance(theta, np.ndarray):
+        return clamp_theta(theta).astype(theta.dtype)
+    from hack_render.geometry.skeleton import clamp_to_limits
+
+    return clamp_to_limits(theta)

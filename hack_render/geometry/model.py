@@ -15,7 +15,6 @@ vertex), kept beside it for teaching and as the reference the tests compare it w
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,18 +33,7 @@ from hack_render.geometry.lbs import (
     skin,
 )
 from hack_render.geometry.model_file import load_model_file
-
-#: FACS action units that no shape of the ARKit set (ICT-FaceKit's expressions) makes, and
-#: why: the expression parser names them instead of calling them unknown. The AU table
-#: itself is built by :func:`hack_render.learn.ict_default.facs_au_table`.
-FACS_WITHOUT_SHAPES: dict[str, str] = {
-    "AU11": "nasolabial deepener: no ARKit shape deepens the nasolabial furrow alone",
-    "AU13": "sharp lip puller: no ARKit shape; AU12 (mouthSmile) is the nearest",
-    "AU23": "lip tightener: no ARKit shape narrows the lips' red margins",
-    "AU25": "lips part: no shape parts the lips without the jaw (mouthClose is its opposite)",
-    "AU27": "mouth stretch: no ARKit shape stretches the mouth open beyond a jaw drop; AU26 "
-            "(jawOpen, jaw drop) is the nearest",
-}
+from hack_render.geometry.params import FACS_WITHOUT_SHAPES  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -453,40 +441,11 @@ class HackModel(nn.Module):
         their shapes (table ``au_names`` / ``au_matrix``), shape names add themselves. For a
         batch, pass a list of specs (one per row) as ``psi`` to the forward.
         """
-        if isinstance(spec, str):
-            items = {}
-            for part in filter(None, (p.strip() for p in re.split(r"[,;]", spec))):
-                if "=" not in part:
-                    raise HackError(f"expression '{part}': expected NAME=VALUE, e.g. AU12=0.7 or jawOpen=0.4.")
-                k, v = part.split("=", 1)
-                try:
-                    items[k.strip()] = float(v)
-                except ValueError as exc:
-                    raise HackError(f"expression '{part}': value {v!r} is not a number.") from exc
-            spec = items
-        if not isinstance(spec, dict):
-            raise HackError(f"expression: expected a string like 'AU12=0.7, jawOpen=0.4' or a "
-                            f"mapping of names to weights, found {type(spec).__name__}.")
-        psi = torch.zeros(self.num_expressions, dtype=self.template.dtype, device=self.template.device)
-        for name, value in spec.items():
-            value = float(value)
-            if not np.isfinite(value):
-                raise HackError(f"expression '{name}': value {value} is not finite.")
-            if name in self.au_names:
-                psi = psi + value * self.au_matrix[self.au_names.index(name)]
-            elif name in self.expression_names:
-                psi[self.expression_names.index(name)] += value
-            elif name.upper() in FACS_WITHOUT_SHAPES and name.upper() not in self.au_names:
-                raise HackError(f"expression '{name}': FACS {name.upper()} "
-                                f"({FACS_WITHOUT_SHAPES[name.upper()]}). Known AUs: "
-                                f"{', '.join(self.au_names)}.")
-            else:
-                close = [n for n in self.au_names + self.expression_names if n.lower() == name.lower()]
-                hint = f" Did you mean {close[0]!r}?" if close else ""
-                raise HackError(f"expression '{name}': unknown action unit or shape name.{hint} "
-                                f"Known AUs: {', '.join(self.au_names)}; shape names: "
-                                f"`hack-render model info` lists them.")
-        return psi
+        from hack_render.geometry.params import expression_weights
+
+        psi = expression_weights(spec, self.expression_names, self.au_names,
+                                 self.au_matrix.detach().cpu().numpy())
+        return torch.as_tensor(psi, dtype=self.template.dtype, device=self.template.device)
 
     # ---------------------------------------------------------------------------- forward
     def rest_joints(self, beta: torch.Tensor) -> torch.Tensor:

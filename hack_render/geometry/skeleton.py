@@ -17,44 +17,28 @@ from __future__ import annotations
 import torch
 
 from hack_render.errors import expect
+from hack_render.geometry.anatomy import (  # noqa: F401  (the tables and checks, re-exported)
+    HEAD_AXES,
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    head_rotation_outside_limits,
+    limits_deg,
+    outside_limits,
+)
 from hack_render.geometry.rotations import (
     axis_angle_to_euler,
     euler_to_axis_angle,
 )
 
-JOINT_NAMES: tuple[str, ...] = ("c7-t1", "c6-c7", "c5-c6", "c4-c5", "c3-c4", "c2-c3", "c1-c2", "o-c1")
-NUM_JOINTS = len(JOINT_NAMES)
-#: Parent of each joint in JOINT_NAMES order; -1 is the root (thorax).
-PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 3, 4, 5, 6)
-
-# (flexion + extension combined, lateral bending one side, axial rotation one side), degrees.
-# White & Panjabi (1990), representative values; see ANATOMY.md.
-_RANGES_DEG = {
-    "o-c1": (25.0, 5.0, 5.0),
-    "c1-c2": (20.0, 5.0, 40.0),
-    "c2-c3": (10.0, 10.0, 3.0),
-    "c3-c4": (15.0, 11.0, 7.0),
-    "c4-c5": (20.0, 11.0, 7.0),
-    "c5-c6": (20.0, 8.0, 7.0),
-    "c6-c7": (17.0, 7.0, 6.0),
-    "c7-t1": (9.0, 4.0, 2.0),
-}
-# Share of the combined flexion/extension range that is flexion: o-c1 extends more than it
-# flexes (ANATOMY.md, 40/60); 50/50 elsewhere.
-_FLEXION_SHARE = {"o-c1": 0.4}
-
 
 def rotation_limits_deg() -> torch.Tensor:
-    """Per-joint Euler limits in degrees, shape (8, 3, 2): [joint, axis (x, y, z), (min, max)].
+    """Per-joint Euler limits in degrees, shape (8, 3, 2): [joint, axis (x, y, z), (min, max)]
+    (float64; the table is :func:`hack_render.geometry.anatomy.limits_deg`).
 
     Axis x: (-extension, +flexion); y: (-axial, +axial); z: (-lateral, +lateral).
     """
-    rows = []
-    for name in JOINT_NAMES:
-        fe, lat, axial = _RANGES_DEG[name]
-        share = _FLEXION_SHARE.get(name, 0.5)
-        rows.append([[-(1 - share) * fe, share * fe], [-axial, axial], [-lat, lat]])
-    return torch.tensor(rows, dtype=torch.float64)
+    return torch.from_numpy(limits_deg())
 
 
 def rotation_limits(dtype=torch.float32, device=None) -> torch.Tensor:
@@ -102,42 +86,11 @@ def clamp_to_limits(theta: torch.Tensor) -> torch.Tensor:
     return euler_to_axis_angle(torch.maximum(torch.minimum(e, lim[..., 1]), lim[..., 0]))
 
 
-def outside_limits(theta: torch.Tensor, tol_deg: float = 1e-3) -> list[tuple[int, str, str, float, float, float]]:
-    """List the angles beyond the limits of a single pose (8, 3): (joint, name, axis, deg, min, max)."""
-    _check_theta(theta)
-    e = torch.rad2deg(axis_angle_to_euler(theta.detach().double().reshape(-1, NUM_JOINTS, 3)))
-    lim = rotation_limits_deg()
-    bad = []
-    for b in range(e.shape[0]):
-        for j in range(NUM_JOINTS):
-            for a, axis in enumerate("xyz"):
-                lo, hi = lim[j, a].tolist()
-                val = float(e[b, j, a])
-                if val < lo - tol_deg or val > hi + tol_deg:
-                    bad.append((j, JOINT_NAMES[j], axis, val, lo, hi))
-    return bad
-
-
 def head_rotation_range_deg() -> torch.Tensor:
     """The whole neck's range for a head rotation, degrees, shape (3, 2): [axis (flexion X,
     axial Y, lateral Z), (min, max)], the sums of the joints' limits (float64). A request
     beyond it is what :func:`distribute_head_rotation` clamps."""
     return rotation_limits_deg().sum(0)
-
-
-def head_rotation_outside_limits(angles_deg, tol_deg: float = 1e-6
-                                 ) -> list[tuple[str, float, float, float]]:
-    """Axes of a whole-head rotation (3,) degrees beyond :func:`head_rotation_range_deg`:
-    (axis name, requested deg, min, max) each."""
-    a = torch.as_tensor(angles_deg, dtype=torch.float64).reshape(3)
-    rng = head_rotation_range_deg()
-    return [(HEAD_AXES[i], float(a[i]), float(rng[i, 0]), float(rng[i, 1])) for i in range(3)
-            if a[i] < rng[i, 0] - tol_deg or a[i] > rng[i, 1] + tol_deg]
-
-
-#: Names of the Euler axes (x, y, z) of a joint or of a whole-head rotation.
-HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)",
-                                   "lateral bending (z)")
 
 
 def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.Tensor:

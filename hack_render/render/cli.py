@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 import typer
 
@@ -91,15 +91,15 @@ def named(option: str, fn, *args, **kwargs):
         raise HackError(f"{option}: {err}") from err
 
 
-def _floats(text: Optional[str], name: str, n: Optional[int] = None, lo: float = -1e3,
-            hi: float = 1e3) -> Optional[list[float]]:
+def _floats(text: str | None, name: str, n: int | None = None, lo: float = -1e3,
+            hi: float = 1e3) -> list[float] | None:
     from hack_render.boundary import numbers
 
     return numbers(text, f"--{name}", n, lo, hi)
 
 
-def check_look(env_rotation: float, exposure: float, focal_mm: Optional[float],
-               alpha: Optional[str], appearance_seed: Optional[int]) -> Optional[list[float]]:
+def check_look(env_rotation: float, exposure: float, focal_mm: float | None,
+               alpha: str | None, appearance_seed: int | None) -> list[float] | None:
     """The lighting, lens and skin options that `render` and `turntable` share, checked
     (finite, in range) before anything heavy; returns alpha as numbers."""
     from hack_render import boundary as b
@@ -113,7 +113,7 @@ def check_look(env_rotation: float, exposure: float, focal_mm: Optional[float],
                      example="0.8,-0.6,0.4")
 
 
-def _aov_list(text: Optional[str]) -> list[str]:
+def _aov_list(text: str | None) -> list[str]:
     if not text:
         return []
     names = list(_AOVS) if text.strip() == "all" else [s.strip() for s in text.split(",") if s.strip()]
@@ -142,20 +142,21 @@ def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str
 
 
 def _model_vertices(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
-    from hack_render.geometry.cli import posed_model
+    """(topology, posed vertices) of the pose flags, posed with NumPy (no torch import)."""
+    from hack_render.geometry.posing import posed_vertices
     from hack_render.render.parts import Topology
 
-    model, kw, verts = posed_model(params_file, beta, expression, head_rotation, eta, tau,
-                                   limits, model_path)
-    return model, kw, Topology.from_model(model), verts
+    model, verts = posed_vertices(params_file, beta, expression, head_rotation, eta, tau,
+                                  limits, model_path)
+    return Topology.from_model(model), verts
 
 
 def render(
     output: Path = typer.Option(Path("out/render.png"), "-o", "--output",
                                 help="Image to write: .png (sRGB, tone mapped) or .exr (linear "
                                      "float32 with optional AOV channels)."),
-    exr: Optional[Path] = typer.Option(None, "--exr", help="Also write a linear EXR here."),
-    aov: Optional[str] = typer.Option(None, "--aov", help="AOV channels for the EXR: "
+    exr: Path | None = typer.Option(None, "--exr", help="Also write a linear EXR here."),
+    aov: str | None = typer.Option(None, "--aov", help="AOV channels for the EXR: "
                                       "depth,normal,albedo,uv,segmentation or 'all'."),
     params: opts.Params = None,
     beta: opts.Beta = None,
@@ -172,14 +173,14 @@ def render(
     env_rotation: opts.EnvRotation = 0.0,
     exposure: opts.Exposure = 0.0,
     camera: str = typer.Option("portrait", help="portrait, three_quarter, profile or ring."),
-    focal_mm: Optional[float] = typer.Option(None, "--focal-mm", help="Focal length (36 mm "
+    focal_mm: float | None = typer.Option(None, "--focal-mm", help="Focal length (36 mm "
                                              "sensor width); default 85 (ring: 50)."),
     views: int = typer.Option(8, help="Number of cameras of the ring preset."),
     resolution: opts.Resolution = "512",
     spp: opts.Spp = 64,
     seed: opts.Seed = 0,
     max_depth: int = typer.Option(8, help="Maximum path length."),
-    iris_color: Optional[str] = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
+    iris_color: str | None = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
@@ -237,7 +238,7 @@ def render(
         {"params_file": params, "beta": beta, "expression": expression,
          "head_rotation": head_rotation, "eta": eta, "tau": tau, "limits": limits},
         model_path, lambda: _model_vertices(params, beta, expression, head_rotation, eta,
-                                            tau, policy, model_path)[2:])
+                                            tau, policy, model_path))
     from hack_render.render.scene import HeadScene
     from hack_render.render.skin_maps import skin_maps
 
@@ -318,7 +319,7 @@ def turntable(
     resume: bool = typer.Option(False, "--resume", help="Skip frames already in <out>/frames "
                                 "(refused when the arguments differ from theirs: "
                                 "<out>/turntable.json)."),
-    sequence: Optional[Path] = typer.Option(None, "--sequence", help="Also write the head "
+    sequence: Path | None = typer.Option(None, "--sequence", help="Also write the head "
                                             "motion (look-around, swallow) as a parameter "
                                             "sequence, .npz or .jsonl, for `hack-render export "
                                             "--sequence`."),

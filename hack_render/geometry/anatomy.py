@@ -1,0 +1,140 @@
+"""The skeleton's and the larynx's ranges as plain data, and the checks against them,
+without torch.
+
+The tables (the joints and their White & Panjabi ranges, the larynx's ``tau`` and ``eta``
+ranges; sources in :mod:`hack_render.geometry.skeleton` and
+:mod:`hack_render.geometry.larynx`, which re-export them) and the range checks that report
+out-of-range input (:mod:`hack_render.geometry.limits`) are NumPy only, so a command that
+poses one mesh without torch (:mod:`hack_render.geometry.posing`) warns, clamps and refuses
+exactly as the torch path does. Angles follow :mod:`hack_render.geometry.rotations`.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from hack_render.errors import expect
+from hack_render.geometry import np_rotations
+
+JOINT_NAMES: tuple[str, ...] = ("c7-t1", "c6-c7", "c5-c6", "c4-c5", "c3-c4", "c2-c3", "c1-c2", "o-c1")
+NUM_JOINTS = len(JOINT_NAMES)
+#: Parent of each joint in JOINT_NAMES order; -1 is the root (thorax).
+PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 3, 4, 5, 6)
+
+# (flexion + extension combined, lateral bending one side, axial rotation one side), degrees.
+# White & Panjabi (1990), representative values; see ANATOMY.md.
+RANGES_DEG = {
+    "o-c1": (25.0, 5.0, 5.0),
+    "c1-c2": (20.0, 5.0, 40.0),
+    "c2-c3": (10.0, 10.0, 3.0),
+    "c3-c4": (15.0, 11.0, 7.0),
+    "c4-c5": (20.0, 11.0, 7.0),
+    "c5-c6": (20.0, 8.0, 7.0),
+    "c6-c7": (17.0, 7.0, 6.0),
+    "c7-t1": (9.0, 4.0, 2.0),
+}
+# Share of the combined flexion/extension range that is flexion: o-c1 extends more than it
+# flexes (ANATOMY.md, 40/60); 50/50 elsewhere.
+FLEXION_SHARE = {"o-c1": 0.4}
+
+#: Names of the Euler axes (x, y, z) of a joint or of a whole-head rotation.
+HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)",
+                                   "lateral bending (z)")
+
+#: Vertical slide tau, metres (up positive): (min, max). See :mod:`~hack_render.geometry.larynx`.
+TAU_RANGE_M: tuple[float, float] = (-0.01, 0.02)
+#: Larynx size eta (1 = the identity's own larynx): (min, max).
+ETA_RANGE: tuple[float, float] = (0.0, 1.5)
+#: The default eta everywhere (Python API, parameter files, CLI): the identity's own larynx.
+ETA_DEFAULT = 1.0
+
+
+@lru_cache(maxsize=1)
+def _limits_deg() -> np.ndarray:
+    rows = []
+    for name in JOINT_NAMES:
+        fe, lat, axial = RANGES_DEG[name]
+        share = FLEXION_SHARE.get(name, 0.5)
+        rows.append([[-(1 - share) * fe, share * fe], [-axial, axial], [-lat, lat]])
+    out = np.array(rows, dtype=np.float64)
+    out.flags.writeable = False
+    return out
+
+
+def limits_deg() -> np.ndarray:
+    """Per-joint Euler limits in degrees, (8, 3, 2) float64: [joint, axis (x, y, z), (min,
+    max)]. Axis x: (-extension, +flexion); y: (-axial, +axial); z: (-lateral, +lateral)."""
+    return _limits_deg().copy()
+
+
+def head_rotation_range_deg() -> np.ndarray:
+    """The whole neck's range for a head rotation, degrees, (3, 2): the sums of the joints'
+    limits per axis."""
+    return _limits_deg().sum(0)
+
+
+def _numpy(x) -> np.ndarray:
+    """A float64 array of ``x`` (a number, a sequence, an array or a torch tensor)."""
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=np.float64)
+
+
+def outside_limits(theta, tol_deg: float = 1e-3) -> list[tuple[int, str, str, float, float, float]]:
+    """The joint angles of a pose (8, 3) or poses (B, 8, 3) (axis-angle, radians) beyond the
+    limits: (joint, name, axis, deg, min, max) each."""
+    theta = _numpy(theta)
+    expect(theta.ndim >= 2 and theta.shape[-2:] == (NUM_JOINTS, 3), "theta",
+           f"shape (..., {NUM_JOINTS}, 3) axis-angle per joint", f"shape {theta.shape}")
+    e = np.rad2deg(np_rotations.axis_angle_to_euler(theta.reshape(-1, NUM_JOINTS, 3)))
+    lim = _limits_deg()
+    bad = []
+    for b in range(e.shape[0]):
+        for j in range(NUM_JOINTS):
+            for a, axis in enumerate("xyz"):
+                lo, hi = float(lim[j, a, 0]), float(lim[j, a, 1])
+                val = float(e[b, j, a])
+                if val < lo - tol_deg or val > hi + tol_deg:
+                    bad.append((j, JOINT_NAMES[j], axis, val, lo, hi))
+    return bad
+
+
+def head_rotation_outside_limits(angles_deg, tol_deg: float = 1e-6
+                                 ) -> list[tuple[str, float, float, float]]:
+    """Axes of a whole-head rotation (3,) degrees beyond :func:`head_rotation_range_deg`:
+    (axis name, requested deg, min, max) each."""
+    a = _numpy(angles_deg).reshape(3)
+    rng = head_rotation_range_deg()
+    return [(HEAD_AXES[i], float(a[i]), float(rng[i, 0]), float(rng[i, 1])) for i in range(3)
+            if a[i] < rng[i, 0] - tol_deg or a[i] > rng[i, 1] + tol_deg]
+
+
+def larynx_outside_limits(eta, tau, tol: float = 1e-9) -> list[tuple[str, float, float, float]]:
+    """The eta and tau values beyond their ranges: (name, value, min, max) per entry."""
+    bad = []
+    for name, x, (lo, hi) in (("eta", eta, ETA_RANGE), ("tau", tau, TAU_RANGE_M)):
+        for val in _numpy(x).flatten().tolist():
+            if val < lo - tol or val > hi + tol:
+                bad.append((name, val, lo, hi))
+    return bad
+
+
+def clamp_theta(theta: np.ndarray) -> np.ndarray:
+    """Each joint's Euler angles clamped to its limits (NumPy; the torch twin, for
+    gradients, is :func:`hack_render.geometry.skeleton.clamp_to_limits`). (..., 8, 3)."""
+    lim = np.deg2rad(_limits_deg())
+    e = np_rotations.axis_angle_to_euler(theta)
+    return np_rotations.euler_to_axis_angle(np.clip(e, lim[..., 0], lim[..., 1]))
+
+
+def distribute_head_rotation(angles: np.ndarray) -> np.ndarray:
+    """A whole-head rotation (3,) radians shared over the 8 joints in proportion to their
+    ranges, each clamped to its limits: (8, 3) axis-angle (NumPy; the torch twin, for
+    gradients, is :func:`hack_render.geometry.skeleton.distribute_head_rotation`)."""
+    lim = np.deg2rad(_limits_deg())
+    lo, hi = lim[..., 0], lim[..., 1]
+    a = np.asarray(angles, dtype=np.float64)[None]
+    e = np.where(a >= 0, a * (hi / hi.sum(0)), a * (lo / lo.sum(0)))
+    return np_rotations.euler_to_axis_angle(np.clip(e, lo, hi))
