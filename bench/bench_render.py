@@ -14,8 +14,10 @@
     PSNR-log(spp) curve.
 
 (d) End to end (``--only e2e``): ``hack-render render`` of a 256 px image at 16 spp
-    (no denoiser) as a user runs it, CPU seconds of the child process (user + system,
-    median of 3), and a breakdown of one in-process run by phase (CPU seconds). As on a
+    (no denoiser, and the defaults) as a user runs it, CPU seconds of the child process
+    (user + system) and wall seconds, medians of 3, and a breakdown of one in-process run
+    by phase (CPU seconds), with the pose's cost by NumPy (``geometry/posing.py``, what
+    `render` runs) against torch's import, model load and forward in the same run. As on a
     user's machine, Python caches this package's bytecode (the child runs without
     ``PYTHONDONTWRITEBYTECODE``, which some sandboxes set: an editable install's modules
     are then compiled from source on every run, about 0.17 CPU s).
@@ -293,13 +295,13 @@ E2E_PHASES = """
 import time, sys
 t = [time.process_time()]
 def lap(): t.append(time.process_time())
-import torch; lap()
 import mitsuba, drjit; lap()
 from hack_render.render.engine import ensure_variant; ensure_variant(); lap()
-from hack_render.geometry import load_default_model
+from hack_render.geometry import default_model_path
+from hack_render.geometry.posing import PosingModel
 from hack_render.render.parts import Topology
-m = load_default_model()
-with torch.no_grad(): v = m().vertices[0].double().numpy()
+m = PosingModel.from_file(default_model_path())
+v = m.vertices(theta=[[0.0, 0.01, 0.0]] * 8).astype("float64")
 topo = Topology.from_model(m); lap()
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
@@ -308,11 +310,23 @@ head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(256, 256,
 img = head.render(); lap()
 from hack_render.render.image_io import write_png
 write_png(sys.argv[1], img[..., :3]); lap()
-names = ["import torch", "import mitsuba + drjit", "variant + plugins",
-         "model load + forward", "scene build", "render 16 spp (kernels from disk cache)",
-         "tone map + PNG write"]
+# what the pose cost before geometry/posing.py: torch's import, its model and forward
+import torch; lap()
+from hack_render.geometry import load_default_model
+tm = load_default_model()
+with torch.no_grad(): tv = tm(theta=torch.tensor([[[0.0, 0.01, 0.0]] * 8])).vertices[0]
+lap()
+names = ["import mitsuba + drjit", "variant + plugins",
+         "model map + pose (NumPy, geometry/posing.py)", "scene build",
+         "render 16 spp (kernels from disk cache)", "tone map + PNG write",
+         "for comparison: import torch", "for comparison: torch model load + forward"]
 for n, a, b in zip(names, t, t[1:]):
-    print(f"    {n:40s} {b - a:5.2f} CPU s")
+    print(f"    {n:48s} {b - a:5.2f} CPU s")
+pose_np = t[3] - t[2]
+pose_torch = t[8] - t[6]
+print(f"    posing: NumPy / torch (import, load, forward) = {pose_np:.2f} / {pose_torch:.2f} "
+      f"CPU s = {pose_np / pose_torch:.2f}x; max vertex difference "
+      f"{abs(tv.double().numpy() - v).max():.1e} m")
 """
 
 
@@ -340,25 +354,26 @@ def e2e_benchmark(repeats: int = 3) -> None:
         runs, fresh = 0, (time.time_ns() // 1000) % 10 ** 6 / 10 ** 7  # < 0.1 degree
         # (and the command's defaults as a user runs it: OIDN on, where installed)
         for extra, mode in ((off, "cached"), (off + ["--no-sss"], "cached"), ([], "cached"),
-                            (off, "new"), (off + ["--no-sss"], "new"), (off, "off"),
-                            (off + ["--no-sss"], "off")):
-            cpu = []
+                            (off, "new"), (off + ["--no-sss"], "new"), ([], "new"),
+                            (off, "off"), (off + ["--no-sss"], "off")):
+            cpu, wall = [], []
             env = dict(user_env, **({"HACK_RENDER_NO_CACHE": "1"} if mode == "off" else {}))
             for _ in range(repeats):
                 runs += 1
                 # a rotation no earlier run rendered (the posed-mesh cache outlives runs)
                 pose = [] if mode == "cached" else \
                     ["--head-rotation", f"0,{runs * 0.37 + fresh:.6f},0"]
-                r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                r0, w0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
                 subprocess.run(base + extra + pose, check=True, capture_output=True, env=env)
-                r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                r1, w1 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
                 cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
+                wall.append(w1 - w0)
             what = {"cached": "posed mesh cached", "new": "a new pose (model file cached)",
                     "off": "a new pose, caches off"}[mode]
             flags = " ".join(extra) or "the defaults (--denoise auto, SSS)"
             print(f"(d) {' '.join(base[:2])} 256 px, 16 spp, {flags}, "
-                  f"{what}: median {statistics.median(cpu):.2f} CPU s (user + system) of "
-                  f"{repeats} runs")
+                  f"{what}: median {statistics.median(cpu):.2f} CPU s (user + system), "
+                  f"{statistics.median(wall):.2f} s wall, of {repeats} runs")
         print("  one in-process run by phase (plain render, mesh computed, model file "
               "cached):")
         out = subprocess.run([sys.executable, "-c", E2E_PHASES, f"{tmp}/b.png"], check=True,
