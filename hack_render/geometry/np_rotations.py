@@ -39,13 +39,19 @@ def axis_angle_to_euler(r: np.ndarray) -> np.ndarray:
     return matrix_to_euler(axis_angle_to_matrix(r))
 
 
+def quat_product(a, b) -> tuple:
+    """The Hamilton product's components (w, x, y, z) of quaternions ``a`` and ``b``
+    (..., 4): NumPy arrays or torch tensors alike (the torch module stacks them too)."""
+    aw, ax, ay, az = (a[..., i] for i in range(4))
+    bw, bx, by, bz = (b[..., i] for i in range(4))
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], -1)
+    return np.stack(quat_product(a, b), -1)
 
 
 def _axis_quat(angle: np.ndarray, axis: int) -> np.ndarray:

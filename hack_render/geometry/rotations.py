@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import torch
 
+from hack_render.geometry.np_rotations import quat_product
+
 # Below this squared angle the closed forms lose precision; Taylor series are used instead.
 _SMALL = 1e-6
 
@@ -91,12 +93,7 @@ def matrix_to_axis_angle(m: torch.Tensor) -> torch.Tensor:
 
 
 def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
-                        aw * bx + ax * bw + ay * bz - az * by,
-                        aw * by - ax * bz + ay * bw + az * bx,
-                        aw * bz + ax * by - ay * bx + az * bw], -1)
+    return torch.stack(quat_product(a, b), -1)
 
 
 def _axis_quat(angle: torch.Tensor, axis: int) -> torch.Tensor:
