@@ -48,6 +48,14 @@ def test_01_rotations_equal_torch():
     e = g.uniform(-1.2, 1.2, size=(200, 3))
     assert np.allclose(NR.euler_to_axis_angle(e), R.euler_to_axis_angle(torch.tensor(e)).numpy(),
                        atol=1e-12)
+    # against the elementary rotations composed Rx(e_x) Rz(e_z) Ry(e_y), independently
+    c, s_ = np.cos(e), np.sin(e)
+    o, i = np.zeros(len(e)), np.ones(len(e))
+    rx = np.stack([i, o, o, o, c[:, 0], -s_[:, 0], o, s_[:, 0], c[:, 0]], -1).reshape(-1, 3, 3)
+    ry = np.stack([c[:, 1], o, s_[:, 1], o, i, o, -s_[:, 1], o, c[:, 1]], -1).reshape(-1, 3, 3)
+    rz = np.stack([c[:, 2], -s_[:, 2], o, s_[:, 2], c[:, 2], o, o, o, i], -1).reshape(-1, 3, 3)
+    assert np.allclose(NR.axis_angle_to_matrix(NR.euler_to_axis_angle(e)), rx @ rz @ ry,
+                       atol=1e-12)
     # the round trip away from gimbal lock (lateral, the middle axis, inside +-69 degrees)
     assert np.allclose(NR.axis_angle_to_euler(NR.euler_to_axis_angle(e)), e, atol=1e-9)
 

@@ -41,7 +41,8 @@ def axis_angle_to_euler(r: np.ndarray) -> np.ndarray:
 
 def quat_product(a, b) -> tuple:
     """The Hamilton product's components (w, x, y, z) of quaternions ``a`` and ``b``
-    (..., 4): NumPy arrays or torch tensors alike (the torch module stacks them too)."""
+    (..., 4): NumPy arrays or torch tensors alike (:mod:`~hack_render.geometry.rotations`
+    stacks them too)."""
     aw, ax, ay, az = (a[..., i] for i in range(4))
     bw, bx, by, bz = (b[..., i] for i in range(4))
     return (aw * bw - ax * bx - ay * by - az * bz,
@@ -50,15 +51,16 @@ def quat_product(a, b) -> tuple:
             aw * bz + ax * by - ay * bx + az * bw)
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.stack(quat_product(a, b), -1)
-
-
-def _axis_quat(angle: np.ndarray, axis: int) -> np.ndarray:
-    h = angle / 2
-    parts = [np.cos(h), np.zeros_like(h), np.zeros_like(h), np.zeros_like(h)]
-    parts[1 + axis] = np.sin(h)
-    return np.stack(parts, -1)
+def euler_quaternion(e, cos, sin) -> tuple:
+    """The components (w, x, y, z) of the quaternion of ``Rx(e_x) @ Rz(e_z) @ Ry(e_y)``,
+    for anatomical Euler angles ``e`` (..., 3) = (flexion X, axial Y, lateral Z): NumPy
+    arrays (pass ``np.cos, np.sin``) or torch tensors (``torch.cos, torch.sin``) alike.
+    The product qx qz qy written out."""
+    cx, sx = cos(e[..., 0] / 2), sin(e[..., 0] / 2)
+    cy, sy = cos(e[..., 1] / 2), sin(e[..., 1] / 2)
+    cz, sz = cos(e[..., 2] / 2), sin(e[..., 2] / 2)
+    pw, px, py, pz = cx * cz, sx * cz, -sx * sz, cx * sz  # qx qz
+    return (pw * cy - py * sy, px * cy - pz * sy, pw * sy + py * cy, px * sy + pz * cy)
 
 
 def quaternion_to_axis_angle(q: np.ndarray) -> np.ndarray:
@@ -75,6 +77,4 @@ def quaternion_to_axis_angle(q: np.ndarray) -> np.ndarray:
 def euler_to_axis_angle(e: np.ndarray) -> np.ndarray:
     """(flexion X, axial Y, lateral Z) radians (..., 3) -> axis-angle (..., 3)."""
     e = np.asarray(e, dtype=np.float64)
-    q = _quat_mul(_quat_mul(_axis_quat(e[..., 0], 0), _axis_quat(e[..., 2], 2)),
-                  _axis_quat(e[..., 1], 1))
-    return quaternion_to_axis_angle(q)
+    return quaternion_to_axis_angle(np.stack(euler_quaternion(e, np.cos, np.sin), -1))

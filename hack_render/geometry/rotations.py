@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from hack_render.geometry.np_rotations import quat_product
+from hack_render.geometry.np_rotations import euler_quaternion, quat_product
 
 # Below this squared angle the closed forms lose precision; Taylor series are used instead.
 _SMALL = 1e-6
@@ -96,22 +96,13 @@ def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack(quat_product(a, b), -1)
 
 
-def _axis_quat(angle: torch.Tensor, axis: int) -> torch.Tensor:
-    h = angle / 2
-    parts = [torch.cos(h), torch.zeros_like(h), torch.zeros_like(h), torch.zeros_like(h)]
-    parts[1 + axis] = torch.sin(h)
-    return torch.stack(parts, -1)
-
-
 def euler_to_axis_angle(e: torch.Tensor) -> torch.Tensor:
     """Anatomical Euler angles (..., 3) = (flexion X, axial Y, lateral Z), radians -> axis-angle.
 
     The component order of ``e`` follows the axes (x, y, z); the composition order is the
     module's convention ``Rx(e_x) @ Rz(e_z) @ Ry(e_y)``.
     """
-    q = _quat_mul(_quat_mul(_axis_quat(e[..., 0], 0), _axis_quat(e[..., 2], 2)),
-                  _axis_quat(e[..., 1], 1))
-    return quaternion_to_axis_angle(q)
+    return quaternion_to_axis_angle(torch.stack(euler_quaternion(e, torch.cos, torch.sin), -1))
 
 
 def matrix_to_euler(m: torch.Tensor) -> torch.Tensor:
