@@ -25,6 +25,7 @@ from torch import nn
 
 from hack_render.errors import HackError
 from hack_render.geometry import larynx as _larynx
+from hack_render.geometry.expressions import FACS_WITHOUT_SHAPES  # noqa: F401  (re-exported)
 from hack_render.geometry.lbs import (
     chain_parents,
     local_rotations,
@@ -33,7 +34,6 @@ from hack_render.geometry.lbs import (
     skin,
 )
 from hack_render.geometry.model_file import load_model_file
-from hack_render.geometry.params import FACS_WITHOUT_SHAPES  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -441,7 +441,7 @@ class HackModel(nn.Module):
         their shapes (table ``au_names`` / ``au_matrix``), shape names add themselves. For a
         batch, pass a list of specs (one per row) as ``psi`` to the forward.
         """
-        from hack_render.geometry.params import expression_weights
+        from hack_render.geometry.expressions import expression_weights
 
         psi = expression_weights(spec, self.expression_names, self.au_names,
                                  self.au_matrix.detach().cpu().numpy())

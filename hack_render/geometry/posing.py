@@ -58,7 +58,7 @@ class PosingModel:
         return cls(load_model_file(path)[0])
 
     def expression_vector(self, spec) -> np.ndarray:
-        from hack_render.geometry.params import expression_weights
+        from hack_render.geometry.expressions import expression_weights
 
         return expression_weights(spec, self.expression_names, self.au_names,
                                   np.asarray(self.arrays["au_matrix"], dtype=np.float32))

@@ -86,7 +86,7 @@ AU_TABLE: dict[str, tuple[str, ...]] = {
     "AU64": ("eyeLookDown_L", "eyeLookDown_R"),     # eyes down
 }
 # FACS AUs without an ARKit shape (AU11, AU13, AU23, AU25, AU27) are listed, with why, in
-# hack_render.geometry.model.FACS_WITHOUT_SHAPES, so the expression parser can name them.
+# hack_render.geometry.expressions.FACS_WITHOUT_SHAPES, so the expression parser can name them.
 
 
 def facs_au_table(expression_names) -> tuple[np.ndarray, np.ndarray]:
