@@ -10,8 +10,8 @@ Lav Varshney; grey), matplotlib's ``grace_hopper`` sample (US Navy photograph, p
 domain). No truth: each detector's landmarks against the mesh detector's (inner 51
 points, normalised by the outer-eye distance).
 
-Composites (:mod:`hack_render.vision.synthetic`, seed 9000; the dense-to-68 map was
-calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at
+Composites (:mod:`hack_render.vision.synthetic`, seed 9000, or the sets ``--seeds`` names,
+pooled; the dense-to-68 map was calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at
 camera yaw 0-90 and pitch -45..45 degrees about the head, both sides, over scikit-image's
 public-domain/CC0 photographs; every third with a synthetic occluder (a hand-like
 ellipse or a hair strand cut from another photograph); a second set turned in the image
@@ -121,11 +121,12 @@ def score_segmentation(c, face) -> dict:
     return row
 
 
-def composites(per_cell: int, res: int, spp: int):
-    """The benchmark's composites, in a fixed order (yaw/pitch grid, then rolls)."""
+def composites(per_cell: int, res: int, spp: int, seed: int = SEED):
+    """The benchmark's composites, in a fixed order (yaw/pitch grid, then rolls); another
+    ``seed`` draws other subjects, backgrounds and occluders on the same grid."""
     from hack_render.vision.synthetic import CompositeRenderer
 
-    ren = CompositeRenderer(res, spp, SEED)
+    ren = CompositeRenderer(res, spp, seed)
     k = 0
     for yaw in YAWS:
         for pitch in PITCHES:
@@ -162,10 +163,12 @@ def run_composites(args, detectors) -> dict:
     from hack_render.vision.detect import detect_faces
 
     rows, seg_rows = [], []
-    n = len(YAWS) * len(PITCHES) * args.per_cell + len(ROLLS) * 3
+    n = (len(YAWS) * len(PITCHES) * args.per_cell + len(ROLLS) * 3) * len(args.seeds)
     times = {d: 0.0 for d in detectors}
-    for c in tqdm(composites(args.per_cell, args.res, args.spp), total=n, desc="composites"):
-        row = {"yaw": abs(c.yaw), "pitch": c.pitch, "roll": c.roll,
+    sets = ((seed, c) for seed in args.seeds
+            for c in composites(args.per_cell, args.res, args.spp, seed))
+    for seed, c in tqdm(sets, total=n, desc="composites"):
+        row = {"seed": seed, "yaw": abs(c.yaw), "pitch": c.pitch, "roll": c.roll,
                "occluder": bool(c.occluder.any())}
         mesh_face = None
         for d in detectors:
@@ -191,6 +194,7 @@ def run_composites(args, detectors) -> dict:
                                  "nme_iod_inner", "visibility_agreement")
                        if any(m in r for r in all_found)},
             "by_yaw": _summary(grid, "yaw", d), "by_pitch": _summary(grid, "pitch", d),
+            "by_seed": _summary(grid, "seed", d),
             "by_roll": _summary([r for r in rows if r["roll"]], "roll", d),
             "occluded": _summary([dict(r, occ=r["occluder"]) for r in grid], "occ", d)}
     keys = ("person_iou", "face_iou", "occluder_recall", "occluder_precision")
@@ -318,8 +322,16 @@ def main(argv=None) -> None:
                     help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")
     ap.add_argument("--real-only", action="store_true",
                     help="the real photos only (no composites)")
+    ap.add_argument("--seeds", default=str(SEED),
+                    help="composite sets, comma-separated (each seed draws other subjects, "
+                         "backgrounds and occluders on the same grid; figures pooled, and "
+                         "per seed under by_seed)")
     ap.add_argument("--out", default="bench/results/real_photos.json")
     a = ap.parse_args(argv)
+    try:
+        a.seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
+    except ValueError:
+        ap.error(f"--seeds: expected integers like 9000,9001, found {a.seeds!r}")
     warnings.filterwarnings("ignore")
     import torch
 
@@ -327,7 +339,8 @@ def main(argv=None) -> None:
     detectors = ["auto", "mesh", "ert", "dlib_hog"] + ([] if a.no_cnn else ["dlib_cnn"])
     t0 = time.time()
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
-              "seed": SEED, "real": run_real(detectors, a.fit, a.fit_out),
+              "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
+              "real": run_real(detectors, a.fit, a.fit_out),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
