@@ -36,6 +36,7 @@ from hack_render.geometry import cli as _geometry_cli
 _geometry_cli.register(app)
 from appearance import cli as _appearance_cli; app.add_typer(_appearance_cli.app, name="appearance")
 from hack_render.render import cli as _render_cli; _render_cli.register(app)
+from hack_render.render import turntable_cli as _turntable_cli; _turntable_cli.register(app)
 from hack_render.fit import cli as _fit_cli; _fit_cli.register(app)
 from hack_render.learn import cli as _learn_cli; _learn_cli.register(app)
 from hack_render.dataset import cli as _dataset_cli; _dataset_cli.register(app)
