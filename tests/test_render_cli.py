@@ -197,9 +197,20 @@ def test_21_sss_is_on_by_default_and_says_so(tmp_path, capsys):
     assert abs(a.sum() / b.sum() - 1.0) < 0.03
 
 
+def same_image(a, b, codes: int = 2, share: float = 0.01):
+    """Two PNGs of the same scene: every 8-bit code within ``codes``, and at most
+    ``share`` of them different at all."""
+    import imageio.v3 as iio
+
+    x, y = (np.asarray(iio.imread(p), np.int16) for p in (a, b))
+    assert x.shape == y.shape and np.abs(x - y).max() <= codes
+    assert (x != y).mean() <= share
+
+
 def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, capsys):
     """`render` keeps each posed mesh in $XDG_CACHE_HOME/hack-render/posed: the second
-    render of a pose reads it (same bytes out, its limit warning printed again, no torch
+    render of a pose reads it (the same mesh, bit for bit, and so the same image up to
+    the renderer's own run-to-run rounding; its limit warning printed again; no torch
     import in a fresh process); another pose, an edited parameter file or a damaged
     cache file are computed anew; HACK_RENDER_NO_CACHE=1 leaves no file."""
     import subprocess
@@ -213,8 +224,20 @@ def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, cap
         outs.append(tmp_path / f"a{i}.png")
         assert run(["render", "-o", str(outs[-1]), *FAST, "--no-sss", *pose]) == 0
         assert "outside the anatomical limits" in capsys.readouterr().err
-    assert outs[0].read_bytes() == outs[1].read_bytes()
+    # one clean-clone run under load saw an 8-bit code flip between two renders of the
+    # same mesh (the renderer's sums may follow thread order): near, not bytes, equality
+    same_image(outs[0], outs[1])
     assert len(list(folder.glob("*.npz"))) == 1
+    entry = next(folder.glob("*.npz"))
+    with np.load(entry) as z:
+        cached = z["vertices"]
+    from hack_render.geometry import default_model_path
+    from hack_render.geometry.anatomy import distribute_head_rotation
+    from hack_render.geometry.posing import PosingModel
+
+    theta = distribute_head_rotation(np.deg2rad([0.0, 95.0, 0.0])).astype(np.float32)
+    assert np.array_equal(cached, PosingModel.from_file(default_model_path()).vertices(
+        theta=theta, eta=1.0))
     # a parameter file: edited, it is a new pose
     pf = tmp_path / "p.json"
     pf.write_text('{"head_rotation_deg": [0, 10, 0]}')
@@ -226,7 +249,9 @@ def test_22_a_repeated_pose_comes_from_the_disk_cache(tmp_path, monkeypatch, cap
     for f in folder.glob("*.npz"):
         f.write_bytes(b"not an npz")
     assert run(["render", "-o", str(tmp_path / "d.png"), *FAST, "--no-sss", *pose]) == 0
-    assert (tmp_path / "d.png").read_bytes() == outs[0].read_bytes()
+    same_image(tmp_path / "d.png", outs[0])
+    with np.load(entry) as z:   # rewritten, the same mesh
+        assert np.array_equal(z["vertices"], cached)
     # a fresh process hitting the cache never imports torch
     code = ("import sys\nfrom hack_render.cli import main\n"
             "try:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n    assert not e.code\n"
