@@ -235,42 +235,16 @@ def save_params(path: str | Path, params: dict[str, Any]) -> Path:
 
 
 def model_inputs(model, params: dict[str, Any]) -> dict[str, torch.Tensor]:
-    """Forward-pass keyword arguments (batch 1) for ``model`` from a checked parameter mapping."""
+    """Forward-pass keyword arguments (batch 1) for ``model`` from a checked parameter
+    mapping: :func:`hack_render.geometry.posing.forward_inputs` as tensors of the model's
+    dtype."""
     import torch
 
-    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.geometry.posing import forward_inputs
 
     dtype = model.template.dtype
-    kw: dict[str, torch.Tensor] = {}
-    if "beta" in params:
-        if len(params["beta"]) > model.num_shape:
-            raise HackError(f"beta: {len(params['beta'])} values given, the model has {model.num_shape} components.")
-        kw["beta"] = torch.tensor([params["beta"]], dtype=dtype)
-    psi = torch.zeros(model.num_expressions, dtype=dtype)
-    if "psi" in params:
-        if len(params["psi"]) != model.num_expressions:
-            raise HackError(f"psi: expected {model.num_expressions} values, found {len(params['psi'])}.")
-        psi = psi + torch.tensor(params["psi"], dtype=dtype)
-    if "expression" in params:
-        psi = psi + model.expression_vector(params["expression"])
-    kw["psi"] = psi[None]
-    theta = torch.zeros(8, 3, dtype=dtype)
-    if "head_rotation_deg" in params:
-        theta = theta + distribute_head_rotation(torch.deg2rad(torch.tensor(params["head_rotation_deg"], dtype=dtype)))
-    if "theta" in params:
-        theta = theta + torch.tensor(params["theta"], dtype=dtype)
-    kw["theta"] = theta[None]
-    for key in ("global_orient", "transl"):
-        if key in params:
-            kw[key] = torch.tensor([params[key]], dtype=dtype)
-    for key in ("eta", "tau"):
-        if key in params:
-            kw[key] = torch.tensor([params[key]], dtype=dtype)
-    if "eta" not in kw and getattr(model, "has_larynx", False):
-        from hack_render.geometry.larynx import ETA_DEFAULT
-
-        kw["eta"] = torch.full((1,), ETA_DEFAULT, dtype=dtype)  # the API's default too
-    return kw
+    arrays = forward_inputs(model, params, np.float64 if dtype == torch.float64 else np.float32)
+    return {k: torch.as_tensor(v, dtype=dtype)[None] for k, v in arrays.items()}
 
 
 # ------------------------------------------------------------------ parameter sequences

@@ -47,6 +47,7 @@ class PosingModel:
         self.num_shape = a["shape_components"].shape[0]
         self.num_expressions = len(self.expression_names)
         self.parents = tuple(int(p) for p in a["joint_parents"])
+        self.has_larynx = "larynx_maps" in a
         if len(self.parents) != NUM_JOINTS:
             raise HackError(f"model: posing without torch takes {NUM_JOINTS} joints, found "
                             f"{len(self.parents)}.")
@@ -63,39 +64,10 @@ class PosingModel:
         return expression_weights(spec, self.expression_names, self.au_names,
                                   np.asarray(self.arrays["au_matrix"], dtype=np.float32))
 
-    # ------------------------------------------------------------------------ inputs
     def inputs(self, params: dict[str, Any]) -> dict[str, np.ndarray]:
-        """One row of forward inputs from a checked parameter mapping, as
-        :func:`hack_render.geometry.params.model_inputs` makes them (unbatched, float32)."""
-        f32 = np.float32
-        kw: dict[str, np.ndarray] = {}
-        if "beta" in params:
-            if len(params["beta"]) > self.num_shape:
-                raise HackError(f"beta: {len(params['beta'])} values given, the model has "
-                                f"{self.num_shape} components.")
-            kw["beta"] = np.asarray(params["beta"], dtype=f32)
-        psi = np.zeros(self.num_expressions, dtype=f32)
-        if "psi" in params:
-            if len(params["psi"]) != self.num_expressions:
-                raise HackError(f"psi: expected {self.num_expressions} values, found "
-                                f"{len(params['psi'])}.")
-            psi = psi + np.asarray(params["psi"], dtype=f32)
-        if "expression" in params:
-            psi = psi + self.expression_vector(params["expression"])
-        kw["psi"] = psi
-        theta = np.zeros((NUM_JOINTS, 3), dtype=f32)
-        if "head_rotation_deg" in params:
-            angles = np.deg2rad(np.asarray(params["head_rotation_deg"], dtype=f32))
-            theta = theta + distribute_head_rotation(angles).astype(f32)
-        if "theta" in params:
-            theta = theta + np.asarray(params["theta"], dtype=f32)
-        kw["theta"] = theta
-        for key in ("global_orient", "transl", "eta", "tau"):
-            if key in params:
-                kw[key] = np.asarray(params[key], dtype=f32)
-        if "eta" not in kw and "larynx_maps" in self.arrays:
-            kw["eta"] = np.asarray(ETA_DEFAULT, dtype=f32)
-        return kw
+        """One row of forward inputs from a checked parameter mapping (float32):
+        :func:`forward_inputs`, as the torch path's."""
+        return forward_inputs(self, params)
 
     # ----------------------------------------------------------------------- forward
     def vertices(self, beta=None, psi=None, theta=None, global_orient=None, transl=None,
@@ -129,7 +101,7 @@ class PosingModel:
         for prefix, coeffs in (("expr", psi), ("pose", feat)):
             if f"{prefix}_pca_vertices" in a:
                 rest[a[f"{prefix}_pca_vertices"]] += self._personal(prefix, coeffs, beta_full)
-        if "larynx_maps" in a:
+        if self.has_larynx:
             rest[a["larynx_vertices"]] += self._larynx(beta_full, eta, tau)
         joints = a["joint_regressor"] @ shaped.reshape(n, 3)  # J(beta): (K, 3)
         rel = _rigid_transforms(rot, np.concatenate([joints[:1], joints]),
@@ -174,6 +146,40 @@ class PosingModel:
             ok = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H)  # zero padding outside
             out[ok] += (wgt[ok, None] * maps[:, yi[ok], xi[ok]].T).astype(maps.dtype)
         return eta * out
+
+
+def forward_inputs(model, params: dict[str, Any], dtype=np.float32) -> dict[str, np.ndarray]:
+    """One row of forward inputs (unbatched NumPy arrays of ``dtype``) for ``model`` from a
+    checked parameter mapping: ``psi`` and ``theta`` always, ``eta`` where the model has a
+    larynx, the others where given. ``model``: a :class:`~hack_render.geometry.model.HackModel`
+    or a :class:`~hack_render.geometry.posing.PosingModel` (``num_shape``,
+    ``num_expressions``, ``has_larynx``, ``expression_vector``)."""
+    kw: dict[str, np.ndarray] = {}
+    if "beta" in params:
+        if len(params["beta"]) > model.num_shape:
+            raise HackError(f"beta: {len(params['beta'])} values given, the model has {model.num_shape} components.")
+        kw["beta"] = np.asarray(params["beta"], dtype)
+    psi = np.zeros(model.num_expressions, dtype)
+    if "psi" in params:
+        if len(params["psi"]) != model.num_expressions:
+            raise HackError(f"psi: expected {model.num_expressions} values, found {len(params['psi'])}.")
+        psi = psi + np.asarray(params["psi"], dtype)
+    if "expression" in params:
+        e = model.expression_vector(params["expression"])
+        psi = psi + np.asarray(e.detach().cpu() if hasattr(e, "detach") else e, dtype)
+    kw["psi"] = psi
+    theta = np.zeros((8, 3), dtype)
+    if "head_rotation_deg" in params:
+        theta = theta + distribute_head_rotation(np.deg2rad(params["head_rotation_deg"])).astype(dtype)
+    if "theta" in params:
+        theta = theta + np.asarray(params["theta"], dtype)
+    kw["theta"] = theta
+    for key in ("global_orient", "transl", "eta", "tau"):
+        if key in params:
+            kw[key] = np.asarray(params[key], dtype)
+    if "eta" not in kw and getattr(model, "has_larynx", False):
+        kw["eta"] = np.asarray(ETA_DEFAULT, dtype)  # the API's default too
+    return kw
 
 
 def _rigid_transforms(rot: np.ndarray, nodes: np.ndarray, parents: tuple[int, ...]

@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 
 from hack_render.errors import expect
+from hack_render.geometry import anatomy
 from hack_render.geometry.anatomy import (  # noqa: F401  (the tables and checks, re-exported)
     HEAD_AXES,
     JOINT_NAMES,
@@ -90,7 +91,7 @@ def head_rotation_range_deg() -> torch.Tensor:
     """The whole neck's range for a head rotation, degrees, shape (3, 2): [axis (flexion X,
     axial Y, lateral Z), (min, max)], the sums of the joints' limits (float64). A request
     beyond it is what :func:`distribute_head_rotation` clamps."""
-    return rotation_limits_deg().sum(0)
+    return torch.from_numpy(anatomy.head_rotation_range_deg())
 
 
 def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.Tensor:
