@@ -333,6 +333,28 @@ def test_auto_rejects_a_box_off_the_person(shots, monkeypatch):
     assert any(b is sure for b in verify.verified_boxes(c.image, [sure]))
 
 
+def test_auto_takes_the_shape_predictor_where_the_mesh_sees_no_face(shots, monkeypatch):
+    """The keypoints' yaw read wrong on a profile (as on the benchmark's composites at yaw
+    75-90, pitch 45: it said under 40 degrees): the mesh runs, its face presence is near
+    nothing, and ``auto`` takes the shape predictor's points, which land on the face;
+    without the presence check it kept the mesh's. A face the mesh does see keeps its
+    points."""
+    from hack_render.vision import detect
+
+    c = shots["profile"]
+    real = detect._ert_face
+    monkeypatch.setattr(detect, "_ert_face", lambda *a, **k: (real(*a, **k)[0], 10.0))
+    face = detect_face(c.image, "auto", name="profile")
+    assert face.source == "ert", face.source
+    assert _nme_box(face, c) < 0.2, _nme_box(face, c)
+    monkeypatch.setattr(detect, "MESH_MIN_PRESENCE", 0.0)
+    mesh = detect_face(c.image, "auto", name="profile")
+    assert mesh.source == "mesh" and mesh.score < 0.05, (mesh.source, mesh.score)
+    assert _nme_box(mesh, c) > _nme_box(face, c), (_nme_box(mesh, c), _nme_box(face, c))
+    monkeypatch.setattr(detect, "MESH_MIN_PRESENCE", 0.05)
+    assert detect_face(shots["frontal"].image, "auto").source == "mesh"
+
+
 def test_auto_on_a_turned_real_photo_adds_no_face():
     """The astronaut turned by a quarter turn (public domain, 256 px): her silhouette's
     top is a shoulder, not her head, and BlazeFace finds her face confidently, so the

