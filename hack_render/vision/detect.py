@@ -3,8 +3,9 @@
 Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py``):
 
 - Boxes: MediaPipe's BlazeFace (both of its models, short and full range, from the
-  ``mediapipe`` wheel), the image also turned by 90, 270 and 180 degrees when none is
-  found upright (:func:`find_boxes`). ``auto`` checks them against the person (selfie
+  ``mediapipe`` wheel), the image also mirrored where no box or only weak ones are found
+  upright, and turned by 90, 270 and 180 degrees where none is found either way
+  (:func:`find_boxes`). ``auto`` checks them against the person (selfie
   segmentation): a box off the person is dropped, and where the box on the head is weak
   or missing BlazeFace runs again on upscaled crops of the silhouette's head region
   (:mod:`hack_render.vision.verify`); with no box left it falls back to dlib's CNN.
@@ -55,6 +56,8 @@ from hack_render.fit.landmarks import Detection
 METHODS = ("auto", "mesh", "ert", "dlib_hog", "dlib_cnn")
 #: MediaPipe BlazeFace keypoints: 0 the subject's right eye, 1 the left eye
 _KP_RIGHT_EYE, _KP_LEFT_EYE = 0, 1
+#: the keypoints' order in a mirrored image: right and left eye, and ear, swapped
+_KP_MIRROR = np.array([1, 0, 2, 3, 5, 4])
 #: face-mesh points at the outer eye corners (subject's right, left), for the roll
 _MESH_RIGHT_EYE, _MESH_LEFT_EYE = 33, 263
 _MESH_SIZE = 192            # the mesh model's input side, pixels
@@ -224,11 +227,31 @@ def _turn(rgb8: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return turned, np.array(maps[k % 4], float)
 
 
+def mirrored_boxes(rgb8: np.ndarray) -> list:
+    """BlazeFace on the image mirrored left to right, its boxes and keypoints mapped back
+    to the image (the eyes' and ears' keypoints swapped, so that keypoint 0 is still the
+    subject's right eye). BlazeFace is not mirror-symmetric: it finds some faces only
+    mirrored (docs/vision.md)."""
+    w = rgb8.shape[1]
+    return [(w - x1, y0, w - x0, y1, s, np.c_[w - kp[:, 0], kp[:, 1]][_KP_MIRROR])
+            for x0, y0, x1, y1, s, kp in blazeface_boxes(np.ascontiguousarray(rgb8[:, ::-1]))]
+
+
 def find_boxes(rgb8: np.ndarray) -> list:
-    """Face boxes at any in-plane angle: BlazeFace upright, else with the image turned by
-    quarter turns (the first turn that finds a face). Boxes and keypoints in the
-    original image's pixels (a turned box as the axis-aligned box of its corners)."""
-    for k in (0, 1, 3, 2):
+    """Face boxes at any in-plane angle: BlazeFace upright, and where it finds none or
+    only weak ones (every score under ``verify.WEAK``) on the image mirrored too
+    (:func:`mirrored_boxes`; overlapping boxes merged, the more confident kept); else
+    with the image turned by quarter turns (the first turn that finds a face). Boxes and
+    keypoints in the original image's pixels (a turned box as the axis-aligned box of its
+    corners)."""
+    from hack_render.vision.verify import WEAK
+
+    found = blazeface_boxes(rgb8)
+    if not found or max(b[4] for b in found) < WEAK:
+        found = _nms(found + mirrored_boxes(rgb8))
+    if found:
+        return found
+    for k in (1, 3, 2):
         img, back = _turn(rgb8, k)
         found = blazeface_boxes(img)
         if not found:
