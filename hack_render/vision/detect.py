@@ -3,9 +3,8 @@
 Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py``):
 
 - Boxes: MediaPipe's BlazeFace (both of its models, short and full range, from the
-  ``mediapipe`` wheel), the image also mirrored where no box or only weak ones are found
-  upright, and turned by 90, 270 and 180 degrees where none is found either way
-  (:func:`find_boxes`). ``auto`` checks them against the person (selfie
+  ``mediapipe`` wheel), the image also mirrored where no box is found upright, and
+  turned by 90, 270 and 180 degrees where none is found either way (:func:`find_boxes`). ``auto`` checks them against the person (selfie
   segmentation): a box off the person is dropped, and where the box on the head is weak
   or missing BlazeFace runs again on upscaled crops of the silhouette's head region
   (:mod:`hack_render.vision.verify`); with no box left it falls back to dlib's CNN.
@@ -238,17 +237,14 @@ def mirrored_boxes(rgb8: np.ndarray) -> list:
 
 
 def find_boxes(rgb8: np.ndarray) -> list:
-    """Face boxes at any in-plane angle: BlazeFace upright, and where it finds none or
-    only weak ones (every score under ``verify.WEAK``) on the image mirrored too
-    (:func:`mirrored_boxes`; overlapping boxes merged, the more confident kept); else
-    with the image turned by quarter turns (the first turn that finds a face). Boxes and
-    keypoints in the original image's pixels (a turned box as the axis-aligned box of its
-    corners)."""
-    from hack_render.vision.verify import WEAK
-
-    found = blazeface_boxes(rgb8)
-    if not found or max(b[4] for b in found) < WEAK:
-        found = _nms(found + mirrored_boxes(rgb8))
+    """Face boxes at any in-plane angle: BlazeFace upright, else on the image mirrored
+    (:func:`mirrored_boxes`), else with the image turned by quarter turns: the first of
+    these passes that finds a face. Boxes and keypoints in the original image's pixels (a
+    turned box as the axis-aligned box of its corners). (Also mirroring where the upright
+    boxes are only weak found a false, larger face on the astronaut turned upside down;
+    taking the most confident pass rather than the first lost faces seen from steeply
+    above or below, which BlazeFace scores higher turned by 180 degrees: docs/vision.md.)"""
+    found = blazeface_boxes(rgb8) or mirrored_boxes(rgb8)
     if found:
         return found
     for k in (1, 3, 2):
