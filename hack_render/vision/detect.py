@@ -55,8 +55,6 @@ from hack_render.fit.landmarks import Detection
 METHODS = ("auto", "mesh", "ert", "dlib_hog", "dlib_cnn")
 #: MediaPipe BlazeFace keypoints: 0 the subject's right eye, 1 the left eye
 _KP_RIGHT_EYE, _KP_LEFT_EYE = 0, 1
-#: the keypoints' order in a mirrored image: right and left eye, and ear, swapped
-_KP_MIRROR = np.array([1, 0, 2, 3, 5, 4])
 #: face-mesh points at the outer eye corners (subject's right, left), for the roll
 _MESH_RIGHT_EYE, _MESH_LEFT_EYE = 33, 263
 _MESH_SIZE = 192            # the mesh model's input side, pixels
@@ -228,8 +226,10 @@ def _turn(rgb8: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 def mirrored_boxes(rgb8: np.ndarray) -> list:
     """BlazeFace (not mirror-symmetric) on the image mirrored, mapped back: keypoint 0 is
     still the subject's right eye (the eyes' and ears' keypoints swapped)."""
+    from hack_render.vision.ert import KP_MIRROR
+
     w = rgb8.shape[1]
-    return [(w - x1, y0, w - x0, y1, s, np.c_[w - kp[:, 0], kp[:, 1]][_KP_MIRROR])
+    return [(w - x1, y0, w - x0, y1, s, np.c_[w - kp[:, 0], kp[:, 1]][KP_MIRROR])
             for x0, y0, x1, y1, s, kp in blazeface_boxes(np.ascontiguousarray(rgb8[:, ::-1]))]
 
 
