@@ -114,7 +114,10 @@ class CompositeRenderer:
         emb = load_default(self.model)
         self.emb = emb if emb is not None else LandmarkEmbedding.from_vertices(
             self.model.landmark_indices.numpy(), self.model.faces.numpy())
-        self._scene = None
+        #: one scene per lighting preset, built at its first use and then changed per
+        #: sample (camera, vertices, maps, the rig's rotation): a scene's lights are fixed
+        #: when it is built, so a single scene would light every sample like the first
+        self._scenes: dict = {}
 
     def _subject(self):
         import torch
@@ -133,9 +136,11 @@ class CompositeRenderer:
         return out.vertices[0].numpy().astype(np.float64), maps
 
     def render(self, yaw: float, pitch: float, roll: float = 0.0, occluder: bool = False,
-               bg: str | None = None) -> Composite:
+               bg: str | None = None, light: str | None = None) -> Composite:
         """One composite at camera ``yaw``/``pitch`` (degrees, about the head), turned by
-        ``roll`` degrees in the image plane, with an occluder when asked."""
+        ``roll`` degrees in the image plane, with an occluder when asked. ``bg`` and
+        ``light`` name the background photograph and the lighting preset (default: drawn
+        at random; the draws are made either way, so the sample stream stays the same)."""
         from hack_render.render.materials import SkinMaps
         from hack_render.render.parts import REGIONS, Topology
         from hack_render.render.scene import HeadScene, RenderSettings
@@ -147,28 +152,34 @@ class CompositeRenderer:
         target = lm3[27:36].mean(0) - np.array([0.0, 0.0, 0.07])   # inside the head
         cam = _camera(self.res, float(rng.uniform(50, 100)), yaw, pitch, target,
                       float(rng.uniform(0.35, 0.5)))
-        rig = preset(str(rng.choice(list(PRESETS))), rotation_deg=float(rng.uniform(-40, 40)))
+        name, rotation = str(rng.choice(list(PRESETS))), float(rng.uniform(-40, 40))
+        name = light or name
+        rig = preset(name, rotation_deg=rotation)
         skin = SkinMaps.from_appearance(maps)
-        if self._scene is None:
+        head = self._scenes.get(name)
+        if head is None:
             # volpath: the composites the detectors were calibrated and benchmarked on
             # (docs/vision.md); hack_path, the default since, renders the same image in
             # the mean but other noise, which would move every figure a little
-            self._scene = HeadScene(Topology.from_model(self.model), V, rig, cam,
-                                    RenderSettings(self.res, self.res, self.spp, 4, 0,
-                                                   integrator="volpath"), skin)
+            head = self._scenes[name] = HeadScene(
+                Topology.from_model(self.model), V, rig, cam,
+                RenderSettings(self.res, self.res, self.spp, 4, 0, integrator="volpath"), skin)
         else:
-            self._scene.set_camera(cam, update=False)
-            self._scene.set_maps(skin, update=False)
-            self._scene.set_vertices(V, update=True)
-        head = self._scene
-        rgba = head.render(seed=int(rng.integers(2 ** 20)))
+            head.set_camera(cam, update=False)
+            head.set_maps(skin, update=False)
+            head.set_light_rotation(rotation, update=False)
+            head.set_vertices(V, update=True)
+            head.sync_environment()     # the render a function of this sample alone
+        # backdrop=False: the subject alone (premultiplied), so the background is the
+        # photograph's and not the photograph plus the rig's environment
+        rgba = head.render(seed=int(rng.integers(2 ** 20)), backdrop=False)
         aov = head.aovs()
         alpha = np.clip(rgba[..., 3], 0, 1)
         face = aov["segmentation"] == REGIONS.index("face")
         _, vis = head.visibility(lm3)
         pts = cam.project(lm3)
-        img = _composite(rgba[..., :3], alpha, background(bg or str(rng.choice(BACKGROUNDS)),
-                                                          self.res, rng), rig.name)
+        drawn = str(rng.choice(BACKGROUNDS))
+        img = _composite(rgba[..., :3], alpha, background(bg or drawn, self.res, rng), rig.name)
         occ = np.zeros(alpha.shape, bool)
         if occluder:
             img, occ = _occlude(img, pts, rng, self.res)
