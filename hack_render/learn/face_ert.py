@@ -9,8 +9,8 @@ MediaPipe's face mesh, dlib's and most public 68-point models are trained on fac
 within about 45 degrees of frontal; past that (profiles, heads tilted far back) they
 give up or guess. The project's renderer gives faces at any angle with exact landmarks,
 so this trains them (one per range of yaw, :mod:`hack_render.vision.ert`): composites
-(:mod:`hack_render.vision.synthetic`; seeds 5301-5320 of 200 each, apart from the dense
-map's 7100, the benchmark's 9000 and the tests' 31-33) at yaw U(-90, 90), pitch
+(:mod:`hack_render.vision.synthetic`; seeds 5301-5325 of 200 each, apart from the dense
+map's 7100, the benchmark's 9000-9019 and the tests' 31-33 and 43) at yaw U(-90, 90), pitch
 U(-50, 50), roll U(-25, 25) degrees, a third of them with an occluder; each face's box and
 keypoints are BlazeFace's (as at run time: :func:`hack_render.vision.detect.find_boxes`),
 the targets the true 68 landmarks (3-D convention: hidden points where they project).
