@@ -12,8 +12,8 @@ first normalised, then handed to a predictor trained on its own range of yaw:
    ``CROP_PX`` pixels, the box becoming the crop's central square.
 2. **Yaw from the keypoints**: a ridge regression (linear and quadratic terms of the
    keypoints in the crop's frame) fitted on the training composites; 7.9 degrees median
-   error, the sign right in 99 % of the faces turned more than 20 degrees (330 held-out
-   composites, docs/vision.md).
+   error, the sign right in 99 % of the faces turned more than 20 degrees (the 330 faces
+   BlazeFace boxes in the held-out benchmark sets 9015-9019, docs/vision.md).
 3. **Mirror**: a face turned to the other side (negative yaw) is mirrored, so the
    predictors only learn one side; the points come back mirrored and relabelled.
 4. **Range**: the predictor of the yaw range holding the estimate (``YAW_BINS``; each
