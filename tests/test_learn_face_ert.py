@@ -60,3 +60,41 @@ def test_training_bins_overlap_and_cover():
         bins = ert.training_bins(y)
         assert ert.choose_bin(y) in bins
     assert ert.training_bins(35.0) == [0, 1] and ert.training_bins(89.0) == [2]
+
+
+def test_collect_writes_whole_or_nothing(tmp_path, monkeypatch):
+    """A collection stopped while its file is written leaves no file (a half-written
+    .npz would stop the training that reads it), and a finished one reads back."""
+    from types import SimpleNamespace
+
+    from hack_render.vision import detect, synthetic
+
+    rng = np.random.default_rng(5)
+    img, box, kps, pts, _ = _sample(rng)
+
+    class Renderer:
+        def __init__(self, *a):
+            pass
+
+        def render(self, yaw, *a, **k):
+            return SimpleNamespace(image=img, points=pts, yaw=yaw)
+
+    monkeypatch.setattr(synthetic, "CompositeRenderer", Renderer)
+    monkeypatch.setattr(detect, "find_boxes", lambda im: [(*box, 0.9, kps)])
+    out = tmp_path / "ert_1.npz"
+    real = np.savez_compressed
+
+    def stopped(f, **arrays):
+        real(f, **{k: v[:1] for k, v in arrays.items()})    # part of it on disk, then
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        face_ert.collect(3, seed=1, out=out)
+    assert not out.exists()
+    monkeypatch.setattr(np, "savez_compressed", real)
+    face_ert.collect(3, seed=1, out=out)
+    with np.load(out) as z:
+        assert z["images"].shape == (3, *img.shape)
+        assert np.allclose(z["points"][2], pts) and np.allclose(z["boxes"][0], box)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ert_1.npz"]

@@ -55,8 +55,11 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -
         data["points"].append(c.points)
         data["yaw"].append(c.yaw)
     arrays = {k: np.asarray(v) for k, v in data.items()}
-    if out is not None:
-        np.savez_compressed(out, **arrays)
+    if out is not None:       # whole or not at all: a run stopped mid-write leaves no file
+        out = Path(out)
+        tmp = out.with_name(f".{out.stem}.tmp.npz")
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(out)
     return arrays
 
 
