@@ -72,9 +72,11 @@ def test_collect_writes_whole_or_nothing(tmp_path, monkeypatch):
     rng = np.random.default_rng(5)
     img, box, kps, pts, _ = _sample(rng)
 
-    class Renderer:
-        def __init__(self, *a):
-            pass
+    made = []
+
+    class Renderer:               # the composite renderer's stand-in: one known sample
+        def __init__(self, res, spp, seed):
+            made.append((res, spp, seed))
 
         def render(self, yaw, *a, **k):
             return SimpleNamespace(image=img, points=pts, yaw=yaw)
@@ -98,3 +100,4 @@ def test_collect_writes_whole_or_nothing(tmp_path, monkeypatch):
         assert z["images"].shape == (3, *img.shape)
         assert np.allclose(z["points"][2], pts) and np.allclose(z["boxes"][0], box)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ert_1.npz"]
+    assert made == [(256, 16, 1), (256, 16, 1)]      # the seed reaches the renderer
