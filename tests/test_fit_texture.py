@@ -257,7 +257,7 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     colour (within 10 % per channel; from 16-spp renders of ~13-24 iris pixels), the
     final render matches the photo's iris, and the texture folder carries it to
     ``--textures`` (iris.json, read back; a malformed one is a clear error). No iris
-    pixels, or an estimate beyond its bounds: the default is kept."""
+    pixels: the default is kept; an estimate beyond its bounds is held there."""
     from hack_render.errors import HackError
     from hack_render.fit import iris, outputs, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB
@@ -286,17 +286,69 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
                                  allowed=[np.zeros((v.photo.height, v.photo.width), bool)])
     assert rgb2 == pytest.approx(DEFAULT_IRIS_RGB) and rep2["pixels"] == 0
     # an iris darker than the render's corneal gloss alone (the estimate would be beyond
-    # black): a failed estimate, the default kept and the report says why
+    # black): held at the darkest allowed, and the report says so
     rgb3 = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     rgb3[iris.iris_mask(shot.gbuffer, shot.rgba)] = 0.0
     v.photo = _photo_of(rgb3)
     rgb3, rep3 = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rgb3 == pytest.approx(DEFAULT_IRIS_RGB) and rep3["source"].startswith("kept")
+    assert rgb3 == pytest.approx([iris.RGB_BOUNDS[0]] * 3) and "held" in rep3["source"]
     bad = tmp_path / "bad.json"
     for text in ('{"iris_rgb": [0.1, 2.0, 0.1]}', '{"iris_rgb": [0.1]}', "not json"):
         bad.write_text(text)
         with pytest.raises(HackError, match="iris_rgb"):
             read_iris_file(bad)
+
+
+@pytest.mark.parametrize("yaw, k, truth", [(0.0, 0.4, None), (30.0, 1.0, (0.85, 0.85, 0.82))])
+def test_08b_eye_whites_are_recovered_from_the_photo(model, tmp_path, yaw, k, truth):
+    """A photo whose eyes are lit at 0.4 of the fitted light (whites, iris and wet gloss
+    all at 0.4: the fitted light's scale is the skin albedo's, which the photo cannot
+    tell apart) or whose whites are whiter than the default: fit/iris.py recovers the
+    whites' colour (within 10 % per channel, from 16-spp renders) and the gloss (within
+    0.1) with the iris's, ``render.png`` matches the photo there, iris.json carries them
+    to ``--textures`` (read back; a malformed one is a clear error), and the lacrimal
+    film follows the whites. ``whites=False``: no estimate."""
+    from hack_render.errors import HackError
+    from hack_render.fit import iris, outputs, texture
+    from hack_render.render.materials import DEFAULT_IRIS_RGB, LACRIMAL_RGB, SCLERA_RGB, fixed_bsdfs
+    from hack_render.render.skin_maps import IRIS_FILE, read_eye_file, read_texture_folder
+
+    f, cfg, true_maps, _, _ = _fitter(model, yaw=yaw)
+    v = f.views[0]
+    truth = truth or tuple(k * np.asarray(SCLERA_RGB))
+    iris_truth = tuple(min(k, 1.0) * np.asarray(DEFAULT_IRIS_RGB))
+    shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
+        true_maps, sclera_rgb=truth, iris_rgb=iris_truth, eye_gloss=min(k, 1.0)))
+    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
+    assert rep["sclera_pixels"] >= iris.MIN_PIXELS and rep["sclera_source"].startswith("photo")
+    np.testing.assert_allclose(rep["sclera_rgb"], truth, rtol=0.1)
+    assert np.abs(np.log(np.asarray(SCLERA_RGB) / truth)).max() > 0.2   # the fit moved it
+    assert abs(rep["eye_gloss"] - min(k, 1.0)) < 0.1
+    np.testing.assert_allclose(rgb, iris_truth, rtol=0.25)
+    final = outputs.FinalRenders(f)
+    assert final.maps.sclera_rgb == pytest.approx(rep["sclera_rgb"], rel=0.05)
+    assert final.maps.eye_gloss == pytest.approx(rep["eye_gloss"], abs=0.05)
+    assert abs(final.report["iris"]["sclera_residual"] - 1.0) < 0.08
+    written = outputs.write_textures(f, tmp_path / "textures", final)
+    assert tmp_path / "textures" / IRIS_FILE in written
+    back = read_texture_folder(tmp_path / "textures")
+    assert (back.sclera_rgb, back.eye_gloss) == (final.maps.sclera_rgb, final.maps.eye_gloss)
+    lac = fixed_bsdfs(truth)["lacrimal"]["bsdf"]["diffuse_reflectance"]["value"]
+    np.testing.assert_allclose(lac, np.asarray(LACRIMAL_RGB) * truth / np.asarray(SCLERA_RGB))
+    _, rep2 = iris.fit_colour(f.state, cfg, maps=true_maps, whites=False)
+    assert "sclera_rgb" not in rep2
+    bad = tmp_path / "bad.json"
+    for text in ('{"iris_rgb": [0.1, 0.1, 0.1], "sclera_rgb": [0.5, 1.5, 0.5]}',
+                 '{"iris_rgb": [0.1, 0.1, 0.1], "sclera_rgb": [0.5]}'):
+        bad.write_text(text)
+        with pytest.raises(HackError, match="sclera_rgb"):
+            read_eye_file(bad)
+    bad.write_text('{"iris_rgb": [0.1, 0.1, 0.1], "eye_gloss": 2}')
+    with pytest.raises(HackError, match="eye_gloss"):
+        read_eye_file(bad)
+    bad.write_text('{"iris_rgb": [0.1, 0.1, 0.1]}')   # written before the whites were fitted
+    assert read_eye_file(bad) == ((0.1, 0.1, 0.1), None, None)
 
 
 def test_09_fallback_skin_is_tone_matched_without_a_seam():

@@ -159,7 +159,8 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
         written.append(path)
     mats = ObjMaterials(model.material_names, model.face_material.numpy(),
                         {k: f"{folder.name}/{k}.png" for k in images},
-                        colours=material_base_colours(model.material_names, maps.iris_rgb))
+                        colours=material_base_colours(model.material_names, maps.iris_rgb,
+                                                      maps.sclera_rgb))
     return written + [write_mesh(output, *args, mats), output.with_suffix(".mtl")]
 
 

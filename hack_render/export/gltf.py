@@ -227,7 +227,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
     parts, axes = split_parts(Topology.from_model(model), rig.base)
     normals = vertex_normals(rig.base, model.faces.numpy())
     iris_rgb = getattr(maps, "iris_rgb", None)  # a fit's texture folder: the person's
-    colours = material_base_colours(model.material_names, iris_rgb)
+    sclera_rgb = getattr(maps, "sclera_rgb", None)
+    colours = material_base_colours(model.material_names, iris_rgb, sclera_rgb)
     part_colour = {"mouth": colours.get("M_GumsTongue"), "teeth": colours.get("M_Teeth"),
                    "sclera": colours.get("M_ScleraLeft"), "iris": colours.get("M_IrisLeft"),
                    "lacrimal": colours.get("M_LacrimalFluid"),
@@ -251,8 +252,9 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
             attrs[f"WEIGHTS_{s}"] = g.accessor(rig.weights4[gi, 4 * s:4 * s + 4], FLOAT, "VEC4",
                                                ARRAY_BUFFER)
         if part.name == "iris" and axes:
-            attrs["COLOR_0"] = g.accessor(iris_vertex_colors(rig.base[gi], axes, *(
-                [iris_rgb] if iris_rgb is not None else [])), FLOAT, "VEC3", ARRAY_BUFFER)
+            attrs["COLOR_0"] = g.accessor(iris_vertex_colors(rig.base[gi], axes, iris_rgb,
+                                                             sclera_rgb),
+                                          FLOAT, "VEC3", ARRAY_BUFFER)
         ityp = USHORT if len(gi) < 65536 else UINT
         prim = {"attributes": attrs, "mode": 4,
                 "indices": g.accessor(part.faces.reshape(-1, 1), ityp, "SCALAR",

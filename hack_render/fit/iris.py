@@ -32,8 +32,12 @@ import numpy as np
 MIN_PIXELS = 8
 #: Luminance percentiles of the photo's iris pixels kept (see the module docstring).
 KEEP_PERCENTILES = (10.0, 75.0)
-#: The colour's bounds, linear RGB: an estimate beyond them is a failed one (kept as it was).
+#: The iris colour is held within these bounds (linear RGB, per channel).
 RGB_BOUNDS = (0.005, 0.6)
+#: The eye whites' colour is held within these bounds (linear RGB, per channel).
+SCLERA_BOUNDS = (0.02, 0.9)
+#: Luminance percentiles of the photo's pixels under the render's eye whites that are kept.
+SCLERA_PERCENTILES = (50.0, 95.0)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -61,40 +65,146 @@ def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) ->
     return m
 
 
+def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the render's eye whites (the sclera shell and the inner eye beyond the
+    limbus), fully covered."""
+    from hack_render.render.materials import SCLERA_RGB
+    from hack_render.render.parts import REGIONS
+
+    seg = gbuffer["segmentation"]
+    lum = gbuffer["albedo"][..., :3] @ _LUMA
+    sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
+    white = (seg == REGIONS.index("sclera")) | ((seg == REGIONS.index("iris"))
+                                                  & (lum >= 0.6 * sclera))
+    return white & (rgba[..., 3] > 0.999)
+
+
+def _kept(mask: np.ndarray, photo: np.ndarray, allowed, percentiles) -> np.ndarray:
+    m = mask if allowed is None else mask & allowed
+    if m.any():
+        lum = photo[m] @ _LUMA
+        lo, hi = np.percentile(lum, percentiles)
+        m = m.copy()
+        m[m] = (lum >= lo) & (lum <= hi)
+    return m
+
+
+def kept_sclera_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None
+                       ) -> np.ndarray:
+    """(h, w) bool: ``render``'s eye-white pixels (:func:`sclera_mask`, within ``allowed``)
+    whose photo luminance lies within ``SCLERA_PERCENTILES``: the brighter half of them
+    (where the model's sclera falls on the person's iris, lids or lashes the photo is
+    darker), without the brightest twentieth (catchlights)."""
+    return _kept(sclera_mask(render.gbuffer, render.rgba), photo, allowed, SCLERA_PERCENTILES)
+
+
+def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np.ndarray:
+    """Per channel, the gains x (k,) >= 0 within ``bounds`` (k pairs) that minimise
+    sum (p - s - sum_k x_k d_k)^2: p, s (n,), d (n, k)."""
+    from scipy.optimize import lsq_linear
+
+    lo, hi = zip(*bounds)
+    return lsq_linear(d, p - s, bounds=(np.asarray(lo), np.asarray(hi))).x
+
+
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
-             grey: bool = False, allowed: list | None = None
+             grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
+             sclera=None, matte_renders: list | None = None
              ) -> tuple[tuple[float, float, float], dict]:
-    """The iris colour that makes the renders match ``photos`` (linear RGB, each at its
-    render's size) over the iris pixels (and ``allowed``'s, e.g. not the photo's
-    occluders). ``renders`` (``texture.PhotoRender``) have the iris colour ``current``,
-    ``zero_renders`` the same with a black iris and the same seed: their difference is the
-    iris's own share of each pixel, the rest (the corneal gloss, the neighbours a pixel's
-    filter mixes in) is left out of the ratio. Returns (rgb, report)."""
+    """The iris colour, and with ``white_renders`` the eye whites' too, that make the
+    renders match ``photos`` (linear RGB, each at its render's size) over the iris's and
+    the whites' pixels (and ``allowed``'s, e.g. not the photo's occluders). ``renders``
+    (``texture.PhotoRender``) have the iris colour ``current`` and the sclera colour
+    ``sclera`` (default :data:`~hack_render.render.materials.SCLERA_RGB`),
+    ``zero_renders`` the same with a black iris, ``white_renders`` with a black sclera
+    (and lacrimal film), ``matte_renders`` without the eyes' wet gloss, one seed: the
+    differences are each part's own share of a pixel (radiance is affine in each), the
+    rest (the neighbours a pixel's filter mixes in) stays. Per channel, the two colour
+    gains solve one linear least-squares problem over both parts' pixels (the iris's at
+    least 0, the whites' within :data:`SCLERA_BOUNDS`); the iris is then held within
+    :data:`RGB_BOUNDS` (e.g. a photo's iris darker than the render's: the darkest
+    allowed). Too few pixels of a part keep its default. Where the whites come out darker than
+    the default (the fitted light, whose scale the photo cannot tell from the skin's
+    albedo, lights the eyes brighter than the photo's), the same light makes the eyes'
+    gloss too bright by as much: with ``matte_renders`` the gloss is scaled by the whites'
+    luminance gain (at most 1), solved in turn with the colours. Returns (rgb, report),
+    the report with ``sclera_rgb`` (and ``eye_gloss``) where the whites were estimated."""
+    from hack_render.render.materials import SCLERA_RGB
+
     current = np.asarray(current, np.float64)
-    num, den, n = np.zeros(3), np.zeros(3), 0
-    for photo, r, r0, ok in zip(photos, renders, zero_renders, allowed or [None] * len(photos)):
+    s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
+    whites = white_renders is not None
+    rows: dict[str, list] = {"p": [], "s": [], "di": [], "ds": [], "dg": []}
+    n = n_white = 0
+    for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
+        ok = (allowed or [None] * len(photos))[i]
         keep = kept_pixels(photo, r, ok)
-        p, q, q0 = (x[keep].astype(np.float64) for x in (photo, r.rgba[..., :3],
-                                                         r0.rgba[..., :3]))
-        num += (p - q0).sum(0)
-        den += (q - q0).sum(0)
+        kw = kept_sclera_pixels(photo, r, ok) & ~keep if whites else np.zeros_like(keep)
+        m = keep | kw
+        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
+        ds = q - white_renders[i].rgba[..., :3][m] if whites else np.zeros_like(q)
+        rows["p"].append(photo[m].astype(np.float64))
+        rows["s"].append(q0 - ds)          # neither part's diffuse share
+        rows["di"].append(q - q0)
+        rows["ds"].append(ds)
+        rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
+                          else np.zeros_like(q))
         n += int(keep.sum())
+        n_white += int(kw.sum())
+    p, s_, di, ds, dg = (np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
+                         for k in ("p", "s", "di", "ds", "dg"))
     report = {"pixels": n, "start": current.tolist()}
-    if n < MIN_PIXELS or not np.all(den > 0):
+    if whites:
+        report.update(sclera_pixels=n_white, sclera_start=s0.tolist())
+    if grey:  # the luminance only: one gain per part for all channels
+        p, s_, di, ds, dg = (np.repeat((x @ _LUMA)[:, None], 3, 1)
+                             for x in (p, s_, di, ds, dg))
+    iris_ok = n >= MIN_PIXELS and np.all(di.sum(0) > 0)
+    white_ok = whites and n_white >= MIN_PIXELS and np.all(ds.sum(0) > 0)
+    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+
+    def solve(base, hold_iris: bool):
+        gi, gw = np.ones(3), np.ones(3)
+        for c in range(3):
+            if white_ok and not hold_iris:
+                gi[c], gw[c] = _affine_fit(p[:, c], base[:, c], np.stack(
+                    [di[:, c], ds[:, c]], 1), [(0.0, np.inf), (lo_w[c], hi_w[c])])
+            elif white_ok:
+                gw[c] = _affine_fit(p[:, c], base[:, c] + di[:, c], ds[:, [c]],
+                                    [(lo_w[c], hi_w[c])])[0]
+            elif iris_ok:
+                gi[c] = max(0.0, (p[:, c] - base[:, c] - ds[:, c]).sum() / di[:, c].sum())
+        return gi, gw
+
+    gloss = 1.0
+    for _ in range(4 if white_ok and matte_renders else 1):
+        base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
+        gain_i, gain_w = solve(base, not iris_ok)
+        if white_ok and matte_renders:
+            gloss = float(np.clip((s0 * gain_w) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
+    rgb = current * gain_i
+    if not iris_ok:
         report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
-        return tuple(float(x) for x in current), report
-    ratio = num / den
-    if grey:  # the luminance only
-        ratio = np.full(3, float(num @ _LUMA / (den @ _LUMA)))
-    rgb = current * ratio
-    if not np.all((rgb >= RGB_BOUNDS[0]) & (rgb <= RGB_BOUNDS[1])):
-        # e.g. the photo's iris darker than the render's corneal gloss alone: the fitted
-        # light (smooth) reflects as a veil where the photo has a dark iris and a catchlight
-        report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
-                            f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
-        return tuple(float(x) for x in current), report
-    report.update(source="photo (grey: luminance only)" if grey else "photo",
-                  rgb=rgb.tolist())
+        rgb = current
+    else:
+        # beyond the bounds, e.g. the photo's iris darker than the render's: held there
+        held = not np.all((rgb >= RGB_BOUNDS[0]) & (rgb <= RGB_BOUNDS[1]))
+        rgb = np.clip(rgb, *RGB_BOUNDS)
+        report.update(source=("photo (grey: luminance only)" if grey else "photo") + (
+            f"; held within {list(RGB_BOUNDS)} (the estimate "
+            f"{np.round(current * gain_i, 4).tolist()})" if held else ""), rgb=rgb.tolist())
+    if whites:
+        if white_ok:
+            sc = np.clip(s0 * gain_w, *SCLERA_BOUNDS)
+            held = np.any(np.isclose(sc, SCLERA_BOUNDS[0]) | np.isclose(sc, SCLERA_BOUNDS[1]))
+            report.update(sclera_rgb=sc.tolist(), sclera_source=(
+                "photo (grey: luminance only)" if grey else "photo") + (
+                f"; held within {list(SCLERA_BOUNDS)}" if held else ""))
+            if matte_renders:
+                report["eye_gloss"] = gloss
+        else:
+            report.update(sclera_rgb=s0.tolist(), sclera_source=(
+                f"kept: {n_white} eye-white pixels seen (fewer than {MIN_PIXELS})"))
     return tuple(float(x) for x in rgb), report
 
 
@@ -109,36 +219,47 @@ def _at_render_size(state, renders: list, allowed: list | None):
     return photos, masks
 
 
-def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
-               ) -> tuple[tuple[float, float, float], dict]:
-    """The iris colour of the state's views (:func:`estimate`), from two renders per view
-    at the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
-    default iris and a black one, with ``maps`` (default: the fitted skin maps).
-    ``allowed``: per view a photo-size bool mask of the pixels it may use, or None."""
+def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None,
+               whites: bool = True) -> tuple[tuple[float, float, float], dict]:
+    """The iris colour of the state's views (:func:`estimate`), from renders per view at
+    the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
+    default eyes, a black iris, and (``whites``) a black sclera and eyes without their wet
+    gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
+    photo-size bool mask of the pixels it may use, or None. The report's ``sclera_rgb``
+    and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
     import dataclasses
 
     from hack_render.fit import texture
-    from hack_render.render.materials import DEFAULT_IRIS_RGB
+    from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
 
     maps = maps if maps is not None else texture._skin_maps(state)
-    renders, zeros = [], []
+    black = (0.0, 0.0, 0.0)
+    variants = [(DEFAULT_IRIS_RGB, SCLERA_RGB, None), (black, SCLERA_RGB, None)]
+    if whites:
+        variants += [(DEFAULT_IRIS_RGB, black, None), (DEFAULT_IRIS_RGB, SCLERA_RGB, 0.0)]
+    out: list[list] = [[] for _ in variants]
     for v in state.views:
-        for rgb, out in ((DEFAULT_IRIS_RGB, renders), ((0.0, 0.0, 0.0), zeros)):
-            out.append(texture.render_at_photo(state, cfg, v, spp=spp,
-                                               max_side=cfg.final.max_side,
-                                               maps=dataclasses.replace(maps, iris_rgb=rgb)))
-    photos, masks = _at_render_size(state, renders, allowed)
+        for (rgb, white, gloss), o in zip(variants, out):
+            o.append(texture.render_at_photo(
+                state, cfg, v, spp=spp, max_side=cfg.final.max_side,
+                maps=dataclasses.replace(maps, iris_rgb=rgb, sclera_rgb=white,
+                                         eye_gloss=gloss)))
+    photos, masks = _at_render_size(state, out[0], allowed)
     grey = all(v.photo.is_grey for v in state.views)
-    return estimate(photos, renders, zeros, DEFAULT_IRIS_RGB, grey, masks)
+    return estimate(photos, out[0], out[1], DEFAULT_IRIS_RGB, grey, masks,
+                    out[2] if whites else None, SCLERA_RGB, out[3] if whites else None)
 
 
-def residual(state, renders: list, allowed: list | None = None) -> float | None:
-    """photo / render luminance over the kept iris pixels of ``renders`` (the state's
-    views, e.g. ``render.png``'s; 1: matched); ``allowed`` as :func:`fit_colour`'s."""
+def residual(state, renders: list, allowed: list | None = None, part: str = "iris"
+             ) -> float | None:
+    """photo / render luminance over the kept iris (``part="iris"``) or eye-white
+    (``"sclera"``) pixels of ``renders`` (the state's views, e.g. ``render.png``'s; 1:
+    matched); ``allowed`` as :func:`fit_colour`'s."""
     photos, masks = _at_render_size(state, renders, allowed)
+    kept = kept_pixels if part == "iris" else kept_sclera_pixels
     num = den = 0.0
     for photo, r, ok in zip(photos, renders, masks):
-        keep = kept_pixels(photo, r, ok)
+        keep = kept(photo, r, ok)
         if keep.sum() >= MIN_PIXELS:
             num += float((photo[keep] @ _LUMA).sum())
             den += float((r.rgba[..., :3][keep] @ _LUMA).sum())

@@ -163,7 +163,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     mats = ObjMaterials(m.material_names, m.face_material.numpy(),
                         {t.stem: f"textures/{t.name}" for t in textures if t.suffix == ".png"},
                         colours=material_base_colours(
-                            m.material_names, final.maps.iris_rgb if final else None))
+                            m.material_names, final.maps.iris_rgb if final else None,
+                            final.maps.sclera_rgb if final else None))
     for i, v in enumerate(res.views):
         with torch.no_grad():
             verts = fitter.forward(v).vertices[0].numpy()
@@ -237,14 +238,16 @@ class FinalRenders:
                                                        max_side=cfg.final.max_side))
             bar.update()
         self.baked = texture.bake_diffuse(st, cfg, self.fitted)
-        # the person's iris colour (fit/iris.py): not under the photo's occluders
+        # the person's iris and eye-white colours (fit/iris.py): not under the photo's occluders
         allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
                    for v in st.views]
         rgb, self.iris = iris.fit_colour(st, cfg, allowed)
         bar.update()
         t1 = time.perf_counter()
         self.maps = dataclasses.replace(texture._skin_maps(st, cfg.final.atlas_height),
-                                        diffuse=self.baked.diffuse, iris_rgb=rgb)
+                                        diffuse=self.baked.diffuse, iris_rgb=rgb,
+                                        sclera_rgb=tuple(self.iris["sclera_rgb"]),
+                                        eye_gloss=self.iris.get("eye_gloss"))
         self.renders = []
         for v in st.views:
             self.renders.append(texture.render_at_photo(st, cfg, v, maps=self.maps,
@@ -263,6 +266,7 @@ class FinalRenders:
         bar.close()
         # photo / render.png over the iris's pixels (luminance; 1: matched)
         self.iris["residual"] = iris.residual(st, self.renders, allowed)
+        self.iris["sclera_residual"] = iris.residual(st, self.renders, allowed, "sclera")
         self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
                        "atlas_height": cfg.final.atlas_height,
                        "seen_fraction": self.baked.seen_fraction,
@@ -347,9 +351,11 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
     if final is not None and final.maps.iris_rgb is not None:  # read by --textures
         from hack_render.render.skin_maps import IRIS_FILE
 
-        doc = {"iris_rgb": list(final.maps.iris_rgb),
-               "derived": "linear Rec.709; the photo over a render of the fit, over the "
-                          "iris's pixels (hack_render/fit/iris.py)", **final.iris}
+        doc = {**final.iris, "iris_rgb": list(final.maps.iris_rgb),
+               "sclera_rgb": None if final.maps.sclera_rgb is None
+               else list(final.maps.sclera_rgb), "eye_gloss": final.maps.eye_gloss,
+               "derived": "linear Rec.709; the photo over renders of the fit, over the "
+                          "iris's and the eye whites' pixels (hack_render/fit/iris.py)"}
         out.append(_atomic_bytes(folder / IRIS_FILE,
                                  lambda t: t.write_text(json.dumps(doc, indent=1))))
     return out

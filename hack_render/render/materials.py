@@ -27,6 +27,9 @@ from hack_render.render.parts import LIMBUS_RADIUS, PUPIL_RADIUS, radial_eye_dis
 
 DEFAULT_IRIS_RGB = (0.16, 0.09, 0.04)  # a brown iris, linear Rec.709
 SCLERA_RGB = (0.70, 0.64, 0.60)
+#: the lacrimal film's (caruncle, tear line) base colour; it follows a fitted sclera's
+#: colour by the same per-channel ratio (:func:`fixed_bsdfs`)
+LACRIMAL_RGB = (0.62, 0.45, 0.42)
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,10 @@ class SkinMaps:
         iris_rgb: the iris's linear RGB (``fit``'s estimate from the photo, a texture
         folder's ``iris.json``), or None for the renderer's default
         (:data:`DEFAULT_IRIS_RGB`).
+        sclera_rgb: the eye whites' linear RGB, as the iris's (``iris.json``'s
+        ``sclera_rgb``), or None for :data:`SCLERA_RGB`.
+        eye_gloss: the eyes' wet gloss (the sclera's and lacrimal film's coat, the
+        cornea's clearcoat) as a share of the default's, in [0, 1]; None for 1.
     """
 
     diffuse: np.ndarray
@@ -47,6 +54,8 @@ class SkinMaps:
     roughness: np.ndarray
     normal: np.ndarray | None = None
     iris_rgb: tuple[float, float, float] | None = None
+    sclera_rgb: tuple[float, float, float] | None = None
+    eye_gloss: float | None = None
 
     def __post_init__(self):
         h = self.diffuse.shape[0]
@@ -187,14 +196,39 @@ def _plastic(rgb, alpha: float, ior: float = 1.4) -> dict:
             "diffuse_reflectance": {"type": "rgb", "value": list(map(float, rgb))}}
 
 
-def fixed_bsdfs() -> dict[str, dict]:
-    """BSDF dicts of the non-skin parts, keyed by part name (iris: see :func:`iris_bsdf`)."""
+def _checked_rgb(rgb, what: str) -> np.ndarray:
+    a = np.asarray(rgb, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > 1):
+        raise HackError(f"{what} colour: expected 3 linear RGB values in [0, 1], found "
+                        f"{tuple(np.ravel(rgb))}.")
+    return a
+
+
+def _gloss(gloss) -> float:
+    g = 1.0 if gloss is None else float(gloss)
+    if not (np.isfinite(g) and 0.0 <= g <= 1.0):
+        raise HackError(f"eye gloss: expected a share in [0, 1], found {gloss}.")
+    return g
+
+
+def fixed_bsdfs(sclera_rgb=None, eye_gloss=None) -> dict[str, dict]:
+    """BSDF dicts of the non-skin parts, keyed by part name (iris: see :func:`iris_bsdf`).
+    ``sclera_rgb``: the eye whites' colour (e.g. ``SkinMaps.sclera_rgb``, fitted to a
+    photo), else :data:`SCLERA_RGB`; the lacrimal film follows it by the same ratio.
+    ``eye_gloss``: their coat's share of its default reflection (None: 1)."""
+    sclera = np.asarray(SCLERA_RGB) if sclera_rgb is None else _checked_rgb(sclera_rgb,
+                                                                            "sclera")
+    lacrimal = np.clip(np.asarray(LACRIMAL_RGB) * sclera / np.asarray(SCLERA_RGB), 0.0, 1.0)
+    wet = {"sclera": _plastic(sclera, 0.05, 1.376), "lacrimal": _plastic(lacrimal, 0.03, 1.336)}
+    if eye_gloss is not None and _gloss(eye_gloss) != 1.0:
+        for d in wet.values():
+            d["specular_reflectance"] = {"type": "rgb", "value": [_gloss(eye_gloss)] * 3}
     return {
         "mouth": _plastic((0.42, 0.12, 0.11), 0.2),
         "teeth": _plastic((0.78, 0.72, 0.60), 0.15, 1.5),
-        "sclera": _plastic(SCLERA_RGB, 0.05, 1.376),
+        "sclera": wet["sclera"],
         # thin shells, seen from either side
-        "lacrimal": {"type": "twosided", "bsdf": _plastic((0.62, 0.45, 0.42), 0.03, 1.336)},
+        "lacrimal": {"type": "twosided", "bsdf": wet["lacrimal"]},
         # the cap over the cut of the chest: matte grey, as the base of a sculpted bust
         "bust_cap": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
             "type": "rgb", "value": [0.40, 0.40, 0.42]}}},
@@ -204,25 +238,28 @@ def fixed_bsdfs() -> dict[str, dict]:
     }
 
 
-def iris_bsdf() -> dict:
-    """Iris with a glossy corneal coat over per-vertex colours (attribute ``vertex_color``)."""
+def iris_bsdf(eye_gloss=None) -> dict:
+    """Iris with a glossy corneal coat over per-vertex colours (attribute ``vertex_color``);
+    ``eye_gloss`` scales the coat and the iris's own gloss (None: 1)."""
     # principled, not roughplastic: roughplastic needs Texture::mean(), which
     # mesh_attribute textures do not implement. The clearcoat is the corneal gloss.
-    return {"type": "principled", "roughness": 0.6, "specular": 0.3, "clearcoat": 1.0,
+    return {"type": "principled", "roughness": 0.6, "specular": 0.3 * _gloss(eye_gloss),
+            "clearcoat": _gloss(eye_gloss),
             "clearcoat_gloss": 0.97,
             "base_color": {"type": "mesh_attribute", "name": "vertex_color"}}
 
 
-def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB) -> np.ndarray:
+def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB,
+                       sclera_rgb=None) -> np.ndarray:
     """Colours (n, 3) of inner-eye vertices (n, 3) from their distance to the optical axis.
 
     Pupil (r < 1.7 mm) near black; iris in ``iris_rgb`` with 40 radial striations and a
-    lighter collarette; a dark limbal ring towards r = 5.8 mm; sclera colour beyond.
+    lighter collarette; a dark limbal ring towards r = 5.8 mm; the sclera's colour
+    (``sclera_rgb``, else :data:`SCLERA_RGB`) beyond.
     """
-    rgb = np.asarray(iris_rgb, dtype=np.float64)
-    if rgb.shape != (3,) or np.any(rgb < 0) or np.any(rgb > 1):
-        raise HackError(f"iris colour: expected 3 linear RGB values in [0, 1], found "
-                        f"{tuple(np.ravel(iris_rgb))}.")
+    rgb = _checked_rgb(DEFAULT_IRIS_RGB if iris_rgb is None else iris_rgb, "iris")
+    sclera = np.asarray(SCLERA_RGB) if sclera_rgb is None else _checked_rgb(sclera_rgb,
+                                                                            "sclera")
     r, _ = radial_eye_distance(points, axes)
     centres = np.stack([c for c, _ in axes])
     ax = np.stack([a for _, a in axes])
@@ -236,18 +273,20 @@ def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB) -> n
     collarette = 1.0 + 0.5 * np.exp(-0.5 * ((t - 0.3) / 0.08) ** 2)
     limbal = 1.0 - 0.7 * np.clip((t - 0.8) / 0.2, 0.0, 1.0)
     iris = rgb[None] * (striation * collarette * limbal)[:, None]
-    out = np.where((r < LIMBUS_RADIUS)[:, None], iris, np.asarray(SCLERA_RGB)[None])
+    out = np.where((r < LIMBUS_RADIUS)[:, None], iris, sclera[None])
     return np.where((r < PUPIL_RADIUS)[:, None], 0.01, out).astype(np.float32)
 
 
-def material_base_colours(material_names, iris_rgb=None) -> dict[str, tuple[float, float, float]]:
+def material_base_colours(material_names, iris_rgb=None, sclera_rgb=None
+                          ) -> dict[str, tuple[float, float, float]]:
     """Linear RGB base colour of each non-skin model material (``M_Teeth`` ...), from the
     parts' BSDFs above, for formats that carry one colour per material (MTL, glTF); the
-    iris's is ``iris_rgb`` (e.g. ``SkinMaps.iris_rgb``), else the default."""
+    iris's is ``iris_rgb`` and the sclera's ``sclera_rgb`` (e.g. ``SkinMaps``'), else the
+    defaults."""
     from hack_render.render.parts import PART_SPECS
 
     iris = tuple(iris_rgb) if iris_rgb is not None else DEFAULT_IRIS_RGB
-    fixed = {**fixed_bsdfs(), "iris": {"diffuse_reflectance": {"value": iris}}}
+    fixed = {**fixed_bsdfs(sclera_rgb), "iris": {"diffuse_reflectance": {"value": iris}}}
     out = {}
     for part, (mats, *_) in PART_SPECS.items():
         d = fixed.get(part)

@@ -122,7 +122,7 @@ class HeadScene:
         #: texture plugin (its ``eval_1`` at a hit) or a number
         self.see_through_cards: list[tuple[object, object]] = []
         self.lash_opacity: np.ndarray | None = None
-        fixed = materials.fixed_bsdfs()
+        fixed = materials.fixed_bsdfs(maps.sclera_rgb, maps.eye_gloss)
         normals = vertex_normals(v, topology.faces)
         # hide_emitters: camera rays pass through the area lights' rectangles and do not
         # see the environment, so no light is ever in frame and the film's alpha is the
@@ -144,7 +144,7 @@ class HeadScene:
             if part.name.startswith("skin"):
                 bsdf = skin
             elif part.name == "iris":
-                bsdf = mi.load_dict(materials.iris_bsdf())
+                bsdf = mi.load_dict(materials.iris_bsdf(maps.eye_gloss))
             elif part.name == "eyelashes":
                 opacity = self._lash_opacity(part, v) if lash_strands \
                     else materials.EYELASH_OPACITY
@@ -159,7 +159,8 @@ class HeadScene:
             if part.name == "iris":
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
                                                        iris_rgb or maps.iris_rgb
-                                                       or materials.DEFAULT_IRIS_RGB)
+                                                       or materials.DEFAULT_IRIS_RGB,
+                                                       maps.sclera_rgb)
                 mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
             scene[part.name] = mesh
         scene.update(emitters.emitter_dicts(lights, env))

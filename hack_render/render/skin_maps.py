@@ -17,7 +17,7 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     """Read ``diffuse.exr`` (RGB, linear), ``specular.exr``, ``roughness.exr`` (one channel,
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
     from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
-    there (:func:`read_iris_file`) gives the iris's colour."""
+    there (:func:`read_eye_file`) gives the iris's colour and the eye whites'."""
     from hack_render.render.image_io import read_exr
 
     folder = Path(folder)
@@ -41,30 +41,46 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
                             f"found {sorted(ch)}.")
         maps[name] = np.stack([ch[k] for k in keys], axis=-1)
     return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"],
-                    read_iris_file(folder / IRIS_FILE))
+                    *read_eye_file(folder / IRIS_FILE))
 
 
-#: The iris colour beside the skin maps (``fit`` writes it: its estimate from the photo).
+#: The iris's and the eye whites' colours beside the skin maps (``fit`` writes it: its
+#: estimates from the photo).
 IRIS_FILE = "iris.json"
 
 
 def read_iris_file(path: Path) -> tuple[float, float, float] | None:
     """``iris_rgb`` (3 linear RGB values in [0, 1]) of a texture folder's ``iris.json``;
     None where the file is absent (the renderer's default iris)."""
+    return read_eye_file(path)[0]
+
+
+def read_eye_file(path: Path) -> tuple:
+    """(``iris_rgb``, ``sclera_rgb``, ``eye_gloss``) of a texture folder's ``iris.json``
+    (3 linear RGB values in [0, 1] each, and a share in [0, 1]; the last two are optional:
+    files written before them have none); Nones where the file is absent (the renderer's
+    defaults)."""
     import json
 
     if not path.is_file():
-        return None
+        return None, None, None
     try:
-        rgb = json.loads(path.read_text())["iris_rgb"]
-        rgb = tuple(float(x) for x in rgb)
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise HackError(f"{path}: expected JSON with \"iris_rgb\": [r, g, b] (linear, 0..1), "
-                        f"found it unreadable ({err}).") from err
-    if len(rgb) != 3 or not all(np.isfinite(x) and 0.0 <= x <= 1.0 for x in rgb):
-        raise HackError(f"{path}: expected \"iris_rgb\" as 3 linear RGB values in [0, 1], "
-                        f"found {list(rgb)}.")
-    return rgb
+        doc = json.loads(path.read_text())
+        out = [tuple(float(x) for x in doc["iris_rgb"])]
+        out.append(tuple(float(x) for x in doc["sclera_rgb"]) if doc.get("sclera_rgb")
+                   is not None else None)
+        gloss = None if doc.get("eye_gloss") is None else float(doc["eye_gloss"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as err:
+        raise HackError(f"{path}: expected JSON with \"iris_rgb\": [r, g, b] (linear, 0..1) "
+                        f"and optionally \"sclera_rgb\", found it unreadable ({err}).") from err
+    for key, rgb in zip(("iris_rgb", "sclera_rgb"), out):
+        if rgb is not None and (len(rgb) != 3 or not all(np.isfinite(x) and 0.0 <= x <= 1.0
+                                                         for x in rgb)):
+            raise HackError(f"{path}: expected \"{key}\" as 3 linear RGB values in [0, 1], "
+                            f"found {list(rgb)}.")
+    if gloss is not None and not (np.isfinite(gloss) and 0.0 <= gloss <= 1.0):
+        raise HackError(f"{path}: expected \"eye_gloss\" as a share in [0, 1], found {gloss}.")
+    return out[0], out[1], gloss
 
 
 def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 512) -> SkinMaps:
