@@ -257,7 +257,8 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     colour (within 10 % per channel; from 16-spp renders of ~13-24 iris pixels), the
     final render matches the photo's iris, and the texture folder carries it to
     ``--textures`` (iris.json, read back; a malformed one is a clear error). No iris
-    pixels: the default is kept; an estimate beyond its bounds is held there."""
+    pixels, or an estimate above its bounds: the default is kept; one below them is held
+    at the lower bound."""
     from hack_render.errors import HackError
     from hack_render.fit import iris, outputs, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB
@@ -292,6 +293,12 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     v.photo = _photo_of(rgb3)
     rgb3, rep3 = iris.fit_colour(f.state, cfg, maps=true_maps)
     assert rgb3 == pytest.approx([iris.RGB_BOUNDS[0]] * 3) and "held" in rep3["source"]
+    # brighter than any iris (the model's iris on the photo's sclera or a glint): kept
+    rgb4 = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    rgb4[iris.iris_mask(shot.gbuffer, shot.rgba)] = 1.0
+    v.photo = _photo_of(rgb4)
+    rgb4, rep4 = iris.fit_colour(f.state, cfg, maps=true_maps)
+    assert rgb4 == pytest.approx(DEFAULT_IRIS_RGB) and rep4["source"].startswith("kept")
     bad = tmp_path / "bad.json"
     for text in ('{"iris_rgb": [0.1, 2.0, 0.1]}', '{"iris_rgb": [0.1]}', "not json"):
         bad.write_text(text)

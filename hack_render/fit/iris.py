@@ -32,7 +32,8 @@ import numpy as np
 MIN_PIXELS = 8
 #: Luminance percentiles of the photo's iris pixels kept (see the module docstring).
 KEEP_PERCENTILES = (10.0, 75.0)
-#: The iris colour is held within these bounds (linear RGB, per channel).
+#: The iris colour's bounds (linear RGB, per channel): an estimate below is held at the
+#: lower one, one above is a failed estimate (the default is kept).
 RGB_BOUNDS = (0.005, 0.6)
 #: The eye whites' colour is held within these bounds (linear RGB, per channel).
 SCLERA_BOUNDS = (0.02, 0.9)
@@ -121,9 +122,10 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     differences are each part's own share of a pixel (radiance is affine in each), the
     rest (the neighbours a pixel's filter mixes in) stays. Per channel, the two colour
     gains solve one linear least-squares problem over both parts' pixels (the iris's at
-    least 0, the whites' within :data:`SCLERA_BOUNDS`); the iris is then held within
-    :data:`RGB_BOUNDS` (e.g. a photo's iris darker than the render's: the darkest
-    allowed). Too few pixels of a part keep its default. Where the whites come out darker than
+    least 0, the whites' within :data:`SCLERA_BOUNDS`); an iris darker than
+    :data:`RGB_BOUNDS` allows is held at its lower bound (the photo's eyes in shadow), one
+    brighter keeps the default (the model's iris fell on the photo's sclera, lids or a
+    glint). Too few pixels of a part keep its default. Where the whites come out darker than
     the default (the fitted light, whose scale the photo cannot tell from the skin's
     albedo, lights the eyes brighter than the photo's), the same light makes the eyes'
     gloss too bright by as much: with ``matte_renders`` the gloss is scaled by the whites'
@@ -186,12 +188,18 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     if not iris_ok:
         report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
         rgb = current
+    elif np.any(rgb > RGB_BOUNDS[1]):
+        # brighter than any iris: the model's iris on the photo's sclera, lids or a glint
+        report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
+                            f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
+        rgb = current
     else:
-        # beyond the bounds, e.g. the photo's iris darker than the render's: held there
-        held = not np.all((rgb >= RGB_BOUNDS[0]) & (rgb <= RGB_BOUNDS[1]))
-        rgb = np.clip(rgb, *RGB_BOUNDS)
+        # darker than the darkest allowed (the photo's eyes in shadow, or darker than the
+        # render's gloss alone): held there
+        held = bool(np.any(rgb < RGB_BOUNDS[0]))
+        rgb = np.maximum(rgb, RGB_BOUNDS[0])
         report.update(source=("photo (grey: luminance only)" if grey else "photo") + (
-            f"; held within {list(RGB_BOUNDS)} (the estimate "
+            f"; held at {RGB_BOUNDS[0]} (the estimate "
             f"{np.round(current * gain_i, 4).tolist()})" if held else ""), rgb=rgb.tolist())
     if whites:
         if white_ok:
