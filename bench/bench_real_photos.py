@@ -290,9 +290,10 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
                 row[f.stem] = {k: v for k, v in data.items()
                                if isinstance(v, (int, float, str)) or k == "timings_s"}
                 iris = (data.get("final") or {}).get("iris")
-                if iris:   # the iris's colour estimate (fit/iris.py): what it gave, and why
-                    row["iris"] = {k: iris.get(k) for k in ("source", "pixels", "rgb",
-                                                             "residual")}
+                if iris:   # the eyes' estimates (fit/iris.py): what they gave, and why
+                    row["iris"] = {k: iris.get(k) for k in (
+                        "source", "pixels", "rgb", "residual", "sclera_source",
+                        "sclera_pixels", "sclera_rgb", "sclera_residual", "eye_gloss")}
         render = out / "render.png"
         if render.is_file():
             regions = face_region(img)
