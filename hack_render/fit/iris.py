@@ -1,27 +1,39 @@
-"""The person's iris colour from the photo(s), for the fit's renders and texture folder.
+"""The person's eyes from the photo(s): the iris's colour, the whites' colour and the
+eyes' wet gloss, for the fit's renders and texture folder.
 
 The renderer's iris (``render.materials.iris_vertex_colors``) is one linear RGB colour
-``c`` shaped by a fixed pattern (pupil, striations, limbal ring). A pixel's radiance is
-affine in ``c``: ``L(c) = c * D + S``, where ``S`` is what does not come from the iris's
-diffuse reflection (the corneal gloss, the neighbours the pixel filter mixes in). Two
-renders with one seed, the default colour ``c0`` and a black iris, give ``S = L(0)`` and
-``D = (L(c0) - S) / c0``; then ``c = c0 * sum(photo - S) / sum(L(c0) - S)`` per channel
+``c`` shaped by a fixed pattern (pupil, striations, limbal ring), the eye whites (the
+sclera, and the lacrimal film by the same ratio) one colour ``s``, and the eyes' wet
+gloss (the whites' coat, the cornea's clearcoat, the iris's own gloss) one share ``g``
+of its default. A pixel's radiance is affine in each: ``L = S + c D_i + s D_s + g G``,
+``S`` what comes from none of them (the neighbours the pixel filter mixes in). Four
+renders with one seed (the defaults, a black iris, black whites, no gloss) give the
+three shares; per channel ``c`` and ``s`` then solve one linear least-squares problem
 over the pixels below: one step of inverse rendering, exact for this light transport,
 with the fitted geometry, camera and lighting held. Which pixels:
 
 - the render's iris, as its G-buffer labels it (region ``iris``, fully covered), without
-  its pupil and its sclera ring (by the G-buffer's albedo there);
-- of those, the photo's pixels between the 10th and 75th percentile of luminance: the
-  brighter quarter is where the model's iris falls on her sclera, lids or a catchlight
-  (a gaze or aperture the model does not share), the darkest tenth her pupil;
-- the same pixels of the renders, so that the ratio compares like with like.
+  its pupil and its sclera ring (by the G-buffer's albedo there), and of those the
+  photo's pixels between the 10th and 75th percentile of luminance: the brighter quarter
+  is where the model's iris falls on her sclera, lids or a catchlight (a gaze or aperture
+  the model does not share), the darkest tenth her pupil;
+- the render's whites (the sclera shell, the inner eye beyond the limbus), and of those
+  the photo's brighter half without the brightest twentieth: where the model's whites
+  fall on her iris, lids or lashes the photo is darker, the brightest are catchlights;
+- the same pixels of the renders, so that the fit compares like with like.
 
-``render.png``'s residual (photo over render, luminance, the same pixels) is reported. A
-grey photo says nothing of the colour: the luminance is matched, the hue kept. Too few
-pixels (closed or tiny eyes), or an estimate beyond :data:`RGB_BOUNDS` (e.g. a photo's iris
-darker than the render's corneal gloss alone: the fitted light is smooth, so the cornea
-reflects it as a veil where the photo has a dark iris and one catchlight): the colour is
-kept and the report says so.
+Why the gloss: the photo cannot tell the light's scale from the skin albedo's, and a fit
+may take a bright light and a dark skin; the eyes' fixed colours then glow under that
+light. Where the whites come out darker than the default, the light over-lights the
+eyes' gloss by as much, so ``g`` is the whites' luminance gain (at most 1), solved in
+turn with the colours.
+
+``render.png``'s residuals (photo over render, luminance, the same pixels) are reported.
+A grey photo says nothing of the colours: the luminance is matched, the hue kept. Too few
+pixels of a part (closed or tiny eyes) keep its default; an iris brighter than
+:data:`RGB_BOUNDS` allows keeps the default (the model's iris fell on the photo's
+sclera or a glint), one darker is held at the lower bound (the photo's eyes in shadow);
+the whites are held within :data:`SCLERA_BOUNDS`. The report says which.
 """
 
 from __future__ import annotations
@@ -56,14 +68,7 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
 def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) -> np.ndarray:
     """(h, w) bool: ``render``'s iris pixels (:func:`iris_mask`, within ``allowed``) whose
     photo luminance lies within ``KEEP_PERCENTILES`` (see the module docstring)."""
-    m = iris_mask(render.gbuffer, render.rgba)
-    if allowed is not None:
-        m &= allowed
-    if m.any():
-        lum = photo[m] @ _LUMA
-        lo, hi = np.percentile(lum, KEEP_PERCENTILES)
-        m[m] = (lum >= lo) & (lum <= hi)
-    return m
+    return _kept(iris_mask(render.gbuffer, render.rgba), photo, allowed, KEEP_PERCENTILES)
 
 
 def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
@@ -178,13 +183,20 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
                 gi[c] = max(0.0, (p[:, c] - base[:, c] - ds[:, c]).sum() / di[:, c].sum())
         return gi, gw
 
-    gloss = 1.0
-    for _ in range(4 if white_ok and matte_renders else 1):
-        base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
-        gain_i, gain_w = solve(base, not iris_ok)
-        if white_ok and matte_renders:
-            gloss = float(np.clip((s0 * gain_w) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
+    def rounds(hold_iris: bool):
+        """The gains, the gloss solved in turn with them (four rounds where it is)."""
+        gloss = 1.0
+        for _ in range(4 if white_ok and matte_renders else 1):
+            base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
+            gi, gw = solve(base, hold_iris)
+            if white_ok and matte_renders:
+                gloss = float(np.clip((s0 * gw) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
+        return gi, gw, gloss
+
+    gain_i, gain_w, gloss = rounds(not iris_ok)
     rgb = current * gain_i
+    if iris_ok and np.any(rgb > RGB_BOUNDS[1]):   # the iris kept: the whites without it
+        _, gain_w, gloss = rounds(True)
     if not iris_ok:
         report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
         rgb = current
