@@ -113,6 +113,58 @@ def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np
     return lsq_linear(d, p - s, bounds=(np.asarray(lo), np.asarray(hi))).x
 
 
+def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed):
+    """The kept iris and eye-white pixels of every view (see :func:`estimate`): (photo,
+    the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), and
+    the two pixel counts."""
+    rows: dict[str, list] = {k: [] for k in ("p", "s", "di", "ds", "dg")}
+    n = n_white = 0
+    for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
+        ok = (allowed or [None] * len(photos))[i]
+        keep = kept_pixels(photo, r, ok)
+        kw = kept_sclera_pixels(photo, r, ok) & ~keep if white_renders \
+            else np.zeros_like(keep)
+        m = keep | kw
+        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
+        ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
+        rows["p"].append(photo[m].astype(np.float64))
+        rows["s"].append(q0 - ds)          # neither part's diffuse share
+        rows["di"].append(q - q0)
+        rows["ds"].append(ds)
+        rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
+                          else np.zeros_like(q))
+        n += int(keep.sum())
+        n_white += int(kw.sum())
+    arrays = [np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
+              for k in ("p", "s", "di", "ds", "dg")]
+    return arrays, n, n_white
+
+
+def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool,
+           hold_iris: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """(the iris's gains, the whites' gains, the gloss): per channel one bounded linear
+    least-squares solve (``hold_iris``: the iris at its colour), the gloss (where
+    ``gloss_tied``) the whites' luminance gain, at most 1, solved in turn (four rounds)."""
+    p, s_, di, ds, dg = rows
+    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+    gloss, gi, gw = 1.0, np.ones(3), np.ones(3)
+    for _ in range(4 if white_ok and gloss_tied else 1):
+        base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
+        gi, gw = np.ones(3), np.ones(3)
+        for c in range(3):
+            if white_ok and not hold_iris:
+                gi[c], gw[c] = _affine_fit(p[:, c], base[:, c], np.stack(
+                    [di[:, c], ds[:, c]], 1), [(0.0, np.inf), (lo_w[c], hi_w[c])])
+            elif white_ok:
+                gw[c] = _affine_fit(p[:, c], base[:, c] + di[:, c], ds[:, [c]],
+                                    [(lo_w[c], hi_w[c])])[0]
+            elif iris_ok:
+                gi[c] = max(0.0, (p[:, c] - base[:, c] - ds[:, c]).sum() / di[:, c].sum())
+        if white_ok and gloss_tied:
+            gloss = float(np.clip((s0 * gw) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
+    return gi, gw, gloss
+
+
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
              sclera=None, matte_renders: list | None = None
@@ -141,86 +193,43 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     current = np.asarray(current, np.float64)
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
-    rows: dict[str, list] = {"p": [], "s": [], "di": [], "ds": [], "dg": []}
-    n = n_white = 0
-    for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
-        ok = (allowed or [None] * len(photos))[i]
-        keep = kept_pixels(photo, r, ok)
-        kw = kept_sclera_pixels(photo, r, ok) & ~keep if whites else np.zeros_like(keep)
-        m = keep | kw
-        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
-        ds = q - white_renders[i].rgba[..., :3][m] if whites else np.zeros_like(q)
-        rows["p"].append(photo[m].astype(np.float64))
-        rows["s"].append(q0 - ds)          # neither part's diffuse share
-        rows["di"].append(q - q0)
-        rows["ds"].append(ds)
-        rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
-                          else np.zeros_like(q))
-        n += int(keep.sum())
-        n_white += int(kw.sum())
-    p, s_, di, ds, dg = (np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
-                         for k in ("p", "s", "di", "ds", "dg"))
-    report = {"pixels": n, "start": current.tolist()}
-    if whites:
-        report.update(sclera_pixels=n_white, sclera_start=s0.tolist())
+    rows, n, n_white = _eye_rows(photos, renders, zero_renders, white_renders, matte_renders,
+                                 allowed)
     if grey:  # the luminance only: one gain per part for all channels
-        p, s_, di, ds, dg = (np.repeat((x @ _LUMA)[:, None], 3, 1)
-                             for x in (p, s_, di, ds, dg))
-    iris_ok = n >= MIN_PIXELS and np.all(di.sum(0) > 0)
-    white_ok = whites and n_white >= MIN_PIXELS and np.all(ds.sum(0) > 0)
-    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
-
-    def solve(base, hold_iris: bool):
-        gi, gw = np.ones(3), np.ones(3)
-        for c in range(3):
-            if white_ok and not hold_iris:
-                gi[c], gw[c] = _affine_fit(p[:, c], base[:, c], np.stack(
-                    [di[:, c], ds[:, c]], 1), [(0.0, np.inf), (lo_w[c], hi_w[c])])
-            elif white_ok:
-                gw[c] = _affine_fit(p[:, c], base[:, c] + di[:, c], ds[:, [c]],
-                                    [(lo_w[c], hi_w[c])])[0]
-            elif iris_ok:
-                gi[c] = max(0.0, (p[:, c] - base[:, c] - ds[:, c]).sum() / di[:, c].sum())
-        return gi, gw
-
-    def rounds(hold_iris: bool):
-        """The gains, the gloss solved in turn with them (four rounds where it is)."""
-        gloss = 1.0
-        for _ in range(4 if white_ok and matte_renders else 1):
-            base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
-            gi, gw = solve(base, hold_iris)
-            if white_ok and matte_renders:
-                gloss = float(np.clip((s0 * gw) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
-        return gi, gw, gloss
-
-    gain_i, gain_w, gloss = rounds(not iris_ok)
+        rows = [np.repeat((x @ _LUMA)[:, None], 3, 1) for x in rows]
+    iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
+    white_ok = whites and n_white >= MIN_PIXELS and bool(np.all(rows[3].sum(0) > 0))
+    tied = bool(matte_renders)
+    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok)
     rgb = current * gain_i
-    if iris_ok and np.any(rgb > RGB_BOUNDS[1]):   # the iris kept: the whites without it
-        _, gain_w, gloss = rounds(True)
+    report = {"pixels": n, "start": current.tolist()}
+    how = "photo (grey: luminance only)" if grey else "photo"
     if not iris_ok:
         report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
         rgb = current
     elif np.any(rgb > RGB_BOUNDS[1]):
-        # brighter than any iris: the model's iris on the photo's sclera, lids or a glint
+        # brighter than any iris: the model's iris on the photo's sclera, lids or a glint;
+        # the whites solved again with the iris held
         report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
                             f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
         rgb = current
+        _, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, True)
     else:
         # darker than the darkest allowed (the photo's eyes in shadow, or darker than the
         # render's gloss alone): held there
         held = bool(np.any(rgb < RGB_BOUNDS[0]))
         rgb = np.maximum(rgb, RGB_BOUNDS[0])
-        report.update(source=("photo (grey: luminance only)" if grey else "photo") + (
-            f"; held at {RGB_BOUNDS[0]} (the estimate "
-            f"{np.round(current * gain_i, 4).tolist()})" if held else ""), rgb=rgb.tolist())
+        report.update(source=how + (f"; held at {RGB_BOUNDS[0]} (the estimate "
+                                    f"{np.round(current * gain_i, 4).tolist()})"
+                                    if held else ""), rgb=rgb.tolist())
     if whites:
+        report.update(sclera_pixels=n_white, sclera_start=s0.tolist())
         if white_ok:
             sc = np.clip(s0 * gain_w, *SCLERA_BOUNDS)
             held = np.any(np.isclose(sc, SCLERA_BOUNDS[0]) | np.isclose(sc, SCLERA_BOUNDS[1]))
-            report.update(sclera_rgb=sc.tolist(), sclera_source=(
-                "photo (grey: luminance only)" if grey else "photo") + (
+            report.update(sclera_rgb=sc.tolist(), sclera_source=how + (
                 f"; held within {list(SCLERA_BOUNDS)}" if held else ""))
-            if matte_renders:
+            if tied:
                 report["eye_gloss"] = gloss
         else:
             report.update(sclera_rgb=s0.tolist(), sclera_source=(
