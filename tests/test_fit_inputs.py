@@ -203,3 +203,24 @@ def test_11_exif_focal_length_sets_the_focal_prior(tmp_path, astro):
     assert float(fitter.focal_prior(v)) == pytest.approx((math.log(85 / 50) / 0.05) ** 2, rel=1e-4)
     with pytest.raises(HackError, match="--focal-mm"):
         fit_photos([tmp_path / "f50.jpg"], tmp_path / "out", focal_mm=1.0)
+
+
+def test_a_turned_face_is_sized_by_its_box_not_its_points(monkeypatch):
+    """The cameraman (public domain, 512 px, grey, turned about 45 degrees; dlib finds no
+    face, the vision package's does): his 68 points span 59 px, his face box 76; the
+    fitter's 64 px minimum takes him (his points alone had refused him since the shape
+    predictors were retrained). A face whose box and points are both small is refused."""
+    pytest.importorskip("mediapipe")
+    pytest.importorskip("ai_edge_litert")
+    import skimage.data
+
+    from hack_render.vision import detect
+
+    img = np.repeat(skimage.data.camera()[..., None], 3, axis=2)
+    face = detect.detect_face(img, "auto", min_face_px=64, name="camera.png")
+    x0, y0, x1, y1 = face.box
+    assert face.size < 64 <= min(x1 - x0, y1 - y0) and face.side >= 64
+    small = detect.FaceLandmarks(face.points * 0.5, (0.0, 0.0, 30.0, 30.0), 1, "ert")
+    monkeypatch.setattr(detect, "detect_faces", lambda *a, **k: [small])
+    with pytest.raises(HackError, match="30 px across"):
+        detect.detect_face(img, "auto", min_face_px=64, name="camera.png")

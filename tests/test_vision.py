@@ -428,26 +428,6 @@ def test_auto_on_a_turned_real_photo_adds_no_face():
     assert err / mesh.interocular < 0.15, err / mesh.interocular
 
 
-def test_a_turned_face_is_sized_by_its_box_not_its_points(monkeypatch):
-    """The cameraman (public domain, 512 px, grey, turned about 45 degrees): his 68 points
-    span 59 px, his face box 76; the fitter's 64 px minimum takes him (his points alone
-    had refused him since the shape predictors were retrained). A face whose box and
-    points are both small is still refused."""
-    import skimage.data
-
-    from hack_render.vision import detect
-
-    img = np.repeat(skimage.data.camera()[..., None], 3, axis=2)
-    face = detect_face(img, "auto", min_face_px=64, name="camera.png")
-    x0, y0, x1, y1 = face.box
-    assert face.size < 64 <= min(x1 - x0, y1 - y0)
-    assert detect.face_side(face) >= 64
-    small = detect.FaceLandmarks(face.points * 0.5, (0.0, 0.0, 30.0, 30.0), 1, "ert")
-    monkeypatch.setattr(detect, "detect_faces", lambda *a, **k: [small])
-    with pytest.raises(HackError, match="30 px across"):
-        detect_face(img, "auto", min_face_px=64, name="camera.png")
-
-
 def _paint_blond_hair(c, face):
     """The composite with skin-coloured hair painted on: over the scalp (the person above
     the brows, outside the face oval) and a fringe over the upper forehead inside it;

@@ -30,7 +30,7 @@ JAW_SUBSTITUTES = {0: 1278, 1: 1272, 2: 12, 3: 1834, 4: 243, 5: 781, 6: 2199, 7:
                    16: 3496}
 JAW = tuple(range(17))
 #: Landmark groups for weights and overlays.
-GROUPS = {"jaw": range(0, 17), "brows": range(17, 27), "nose": range(27, 36),
+GROUPS = {"jaw": range(17), "brows": range(17, 27), "nose": range(27, 36),
           "eyes": range(36, 48), "mouth": range(48, 68)}
 
 
@@ -66,6 +66,14 @@ class Detection:
         return float(np.linalg.norm(span) / np.sqrt(2.0))
 
     @property
+    def side(self) -> float:
+        """The face's size for the minimum face: its box's side (the geometric mean of
+        width and height), or :attr:`size` where the landmarks span more (a turned face's
+        points span less than its face: a profile has half of them on the far side)."""
+        x0, y0, x1, y1 = self.box
+        return max(self.size, float(np.sqrt(max(x1 - x0, 0.0) * max(y1 - y0, 0.0))))
+
+    @property
     def interocular(self) -> float:
         """Distance between the outer eye corners (landmarks 36 and 45), pixels."""
         return float(np.linalg.norm(self.points[36] - self.points[45]))
@@ -98,7 +106,7 @@ def _predictor_path() -> Path:
     spec = importlib.util.find_spec("face_recognition_models")
     if spec is None or not spec.submodule_search_locations:
         raise ImportError("face-recognition-models is not installed")
-    path = Path(list(spec.submodule_search_locations)[0]) / "models" / \
+    path = Path(next(iter(spec.submodule_search_locations))) / "models" / \
         "shape_predictor_68_face_landmarks.dat"
     if not path.is_file():
         raise ImportError(f"{path} is missing")

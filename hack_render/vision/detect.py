@@ -483,10 +483,8 @@ def detect_face(image, method: str = "auto", min_face_px: int = 32,
                 name: str = "photo") -> FaceLandmarks:
     """The largest face of ``image`` ((H, W, 3) uint8, or float in [0, 1]) with its 68
     landmarks. Several faces: the largest, with a :class:`FaceWarning` naming the count.
-    No face, or one smaller than ``min_face_px``: HackError. A face's size is its box's
-    side (as dlib's rectangle is the fitter's), or its landmarks' where they span more:
-    a turned face's 68 points span less than its face (a profile has half of them on
-    the far side), and a 60-degree view of a face dlib would take was refused."""
+    No face, or one smaller than ``min_face_px`` (``Detection.side``: its box's side, as
+    dlib's rectangle is the fitter's, or its landmarks' span where larger): HackError."""
     faces = detect_faces(as_rgb8(image, name), method)
     if not faces:
         raise HackError(f"{name}: no face found (detector {method}). Use a photo where the "
@@ -496,15 +494,7 @@ def detect_face(image, method: str = "auto", min_face_px: int = 32,
         warnings.warn(f"{name}: {len(faces)} faces found; using the largest.", FaceWarning,
                       stacklevel=2)
     face = faces[0]
-    side = face_side(face)
-    if side < min_face_px:
-        raise HackError(f"{name}: the face is {side:.0f} px across; expected at least "
+    if face.side < min_face_px:
+        raise HackError(f"{name}: the face is {face.side:.0f} px across; expected at least "
                         f"{min_face_px} px. Use a larger or closer photo.")
     return face
-
-
-def face_side(face: FaceLandmarks) -> float:
-    """A face's size in pixels: its box's side (the geometric mean of width and height),
-    or its landmarks' size (``Detection.size``) where that is larger."""
-    x0, y0, x1, y1 = face.box
-    return max(float(face.size), math.sqrt(max(x1 - x0, 0.0) * max(y1 - y0, 0.0)))
