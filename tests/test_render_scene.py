@@ -191,3 +191,31 @@ def test_07_scene_dropped_on_another_thread_dies_on_the_rendering_thread(head_mo
     finally:
         if was:
             gc.enable()
+
+
+def test_08_eye_colours_changed_in_place_render_as_a_scene_built_with_them(head_model):
+    """set_eyes (the fit's eye estimates render four variants from one scene): each
+    variant's image is the image of a scene built with those maps, and each changes it."""
+    import dataclasses
+
+    from hack_render.render.materials import SkinMaps
+
+    topo, v = head_model
+    probe = make(head_model, cameras.preset("portrait", 16, 16)[0], spp=1)
+    eyes = np.mean([c for c, _ in probe.eye_axes], axis=0)
+    R, t = cameras.look_at(eyes + [0.0, 0.0, 0.25], eyes)
+    cam = cameras.Camera(cameras.intrinsics(40, 24, 60.0), R, t, 40, 24, "eyes")
+    settings = RenderSettings(40, 24, 8)
+    rig, base = lights.preset("studio"), SkinMaps.constant()
+    head = HeadScene(topo, v, rig, cam, settings, base)
+    default = head.render(seed=3, backdrop=False)
+    for iris, sclera, gloss in [((0.0, 0.0, 0.0), None, None), (None, (0.0, 0.0, 0.0), None),
+                                (None, None, 0.0), ((0.3, 0.2, 0.1), (0.5, 0.3, 0.2), 0.4),
+                                (None, None, None)]:
+        head.set_eyes(iris, sclera, gloss)
+        img = head.render(seed=3, backdrop=False)
+        maps = dataclasses.replace(base, iris_rgb=iris, sclera_rgb=sclera, eye_gloss=gloss)
+        built = HeadScene(topo, v, rig, cam, settings, maps).render(seed=3, backdrop=False)
+        np.testing.assert_allclose(img, built, atol=1e-4)
+        changed = float(np.abs(img - default).max())
+        assert changed > 0.01 or (iris, sclera, gloss) == (None, None, None), changed

@@ -256,8 +256,6 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
     photo-size bool mask of the pixels it may use, or None. The report's ``sclera_rgb``
     and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
-    import dataclasses
-
     from hack_render.fit import texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
 
@@ -266,13 +264,9 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     variants = [(DEFAULT_IRIS_RGB, SCLERA_RGB, None), (black, SCLERA_RGB, None)]
     if whites:
         variants += [(DEFAULT_IRIS_RGB, black, None), (DEFAULT_IRIS_RGB, SCLERA_RGB, 0.0)]
-    out: list[list] = [[] for _ in variants]
-    for v in state.views:
-        for (rgb, white, gloss), o in zip(variants, out):
-            o.append(texture.render_at_photo(
-                state, cfg, v, spp=spp, max_side=cfg.final.max_side,
-                maps=dataclasses.replace(maps, iris_rgb=rgb, sclera_rgb=white,
-                                         eye_gloss=gloss)))
+    per_view = [texture.render_eye_variants(state, cfg, v, maps, variants, spp,
+                                            cfg.final.max_side) for v in state.views]
+    out = [list(r) for r in zip(*per_view)]       # per variant, the views' renders
     photos, masks = _at_render_size(state, out[0], allowed)
     grey = all(v.photo.is_grey for v in state.views)
     return estimate(photos, out[0], out[1], DEFAULT_IRIS_RGB, grey, masks,

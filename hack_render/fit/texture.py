@@ -110,15 +110,46 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     ``final.spp_denoised`` denoised by OIDN where it is installed (``final.denoise``)."""
     import time
 
+    t0 = time.perf_counter()
+    dn = _denoiser() if spp is None and cfg.final.denoise == "auto" else None
+    denoised = dn is not None
+    spp = int(spp or (cfg.final.spp_denoised if denoised else cfg.final.spp))
+    head = _photo_scene(state, cfg, view, maps, spp, max_side)
+    rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
+    gb = head.aovs()
+    if denoised:  # with the renderer's own footprint features (through the lashes)
+        rgba = head.denoise(rgba, fallback=True)
+    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)
+
+
+def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes: list,
+                        spp: int, max_side: int | None = None) -> list[PhotoRender]:
+    """:func:`render_at_photo` (``spp`` samples, not denoised) once per ``eyes`` entry
+    (iris, sclera, gloss: as ``maps.iris_rgb``, ``sclera_rgb``, ``eye_gloss``), from one
+    scene whose eyes are changed in place (``HeadScene.set_eyes``), with one seed: the
+    eye estimates' renders differ by the eyes alone. Each render's G-buffer is the first
+    one's (the same geometry)."""
+    import time
+
+    t0 = time.perf_counter()
+    head = _photo_scene(state, cfg, view, maps, spp, max_side)
+    gb, out = None, []
+    for iris, sclera, gloss in eyes:
+        head.set_eyes(iris, sclera, gloss)
+        rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
+        gb = gb if gb is not None else head.aovs()
+        out.append(PhotoRender(rgba, gb, spp, time.perf_counter() - t0))
+        t0 = time.perf_counter()
+    return out
+
+
+def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
+                 max_side: int | None):
+    """The HeadScene of :func:`render_at_photo`."""
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from scenes.lights import LightRig
 
-    t0 = time.perf_counter()
-    fc = cfg.final
-    dn = _denoiser() if spp is None and fc.denoise == "auto" else None
-    denoised = dn is not None
-    spp = int(spp or (fc.spp_denoised if denoised else fc.spp))
     ph = view.photo
     s = 1.0 if max_side is None else min(1.0, max_side / max(ph.width, ph.height))
     w, h = max(1, round(ph.width * s)), max(1, round(ph.height * s))
@@ -128,13 +159,8 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
         env = view.lighting.env_map().detach().numpy().astype(np.float32)
     maps = maps if maps is not None else _skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
-    head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
+    return HeadScene(Topology.from_model(state.model), verts, rig, cam,
                      RenderSettings(w, h, spp, cfg.final.max_depth, cfg.seed), maps)
-    rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
-    gb = head.aovs()
-    if denoised:  # with the renderer's own footprint features (through the lashes)
-        rgba = head.denoise(rgba, fallback=True)
-    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)
 
 
 def _denoiser():

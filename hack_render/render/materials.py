@@ -215,14 +215,14 @@ def fixed_bsdfs(sclera_rgb=None, eye_gloss=None) -> dict[str, dict]:
     """BSDF dicts of the non-skin parts, keyed by part name (iris: see :func:`iris_bsdf`).
     ``sclera_rgb``: the eye whites' colour (e.g. ``SkinMaps.sclera_rgb``, fitted to a
     photo), else :data:`SCLERA_RGB`; the lacrimal film follows it by the same ratio.
-    ``eye_gloss``: their coat's share of its default reflection (None: 1)."""
+    ``eye_gloss``: their coat's share of its default reflection (None: 1), the
+    ``specular_reflectance`` of both (:meth:`HeadScene.set_eyes` changes it in place)."""
     sclera = np.asarray(SCLERA_RGB) if sclera_rgb is None else _checked_rgb(sclera_rgb,
                                                                             "sclera")
     lacrimal = np.clip(np.asarray(LACRIMAL_RGB) * sclera / np.asarray(SCLERA_RGB), 0.0, 1.0)
     wet = {"sclera": _plastic(sclera, 0.05, 1.376), "lacrimal": _plastic(lacrimal, 0.03, 1.336)}
-    if eye_gloss is not None and _gloss(eye_gloss) != 1.0:
-        for d in wet.values():
-            d["specular_reflectance"] = {"type": "rgb", "value": [_gloss(eye_gloss)] * 3}
+    for d in wet.values():   # always given (1: the plugin's default), so a scene can change
+        d["specular_reflectance"] = {"type": "rgb", "value": [_gloss(eye_gloss)] * 3}
     return {
         "mouth": _plastic((0.42, 0.12, 0.11), 0.2),
         "teeth": _plastic((0.78, 0.72, 0.60), 0.15, 1.5),
@@ -275,6 +275,33 @@ def iris_vertex_colors(points: np.ndarray, axes, iris_rgb=DEFAULT_IRIS_RGB,
     iris = rgb[None] * (striation * collarette * limbal)[:, None]
     out = np.where((r < LIMBUS_RADIUS)[:, None], iris, sclera[None])
     return np.where((r < PUPIL_RADIUS)[:, None], 0.01, out).astype(np.float32)
+
+
+def set_eye_parameters(params, iris_points, eye_axes, iris_rgb=None, sclera_rgb=None,
+                       eye_gloss=None) -> None:
+    """Set a ``HeadScene``'s eye parameters (``params``: its ``mitsuba.traverse``) to these
+    colours and gloss, as :func:`fixed_bsdfs`, :func:`iris_bsdf` and
+    :func:`iris_vertex_colors` (of ``iris_points``, the iris part's vertices; None: none)
+    build them; parts the scene lacks are skipped. The image is a scene's built with them,
+    within 1e-4 where the gloss changes (the coat's share of the sampling stays the first
+    one's; tests/test_render_scene.py). ``params.update()`` is the caller's."""
+    import mitsuba as mi
+
+    fixed = fixed_bsdfs(sclera_rgb, eye_gloss)
+    coat = iris_bsdf(eye_gloss)
+    values: dict = {"iris.bsdf.specular": float(coat["specular"]),
+                    "iris.bsdf.clearcoat.value": float(coat["clearcoat"])}
+    for key, bsdf in (("sclera.bsdf", fixed["sclera"]),
+                      ("lacrimal.bsdf.brdf_0", fixed["lacrimal"]["bsdf"])):
+        for attr in ("diffuse_reflectance", "specular_reflectance"):
+            values[f"{key}.{attr}.value"] = mi.Color3f(*map(float, bsdf[attr]["value"]))
+    if iris_points is not None:
+        values["iris.vertex_color"] = mi.Float(iris_vertex_colors(
+            iris_points, eye_axes, DEFAULT_IRIS_RGB if iris_rgb is None else iris_rgb,
+            sclera_rgb).ravel())
+    for key, value in values.items():
+        if key in params:
+            params[key] = value
 
 
 def material_base_colours(material_names, iris_rgb=None, sclera_rgb=None

@@ -19,6 +19,7 @@ import warnings
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.render import materials
 from hack_render.render.cornea import CorneaRig
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
@@ -97,7 +98,7 @@ class HeadScene:
         release_parked()  # dropped scenes die here, on the thread that renders
         import mitsuba as mi
 
-        from hack_render.render import emitters, materials
+        from hack_render.render import emitters
 
         self.settings, self.camera, self.lights = settings, camera, lights
         self.topology = topology
@@ -287,6 +288,14 @@ class HeadScene:
             self.params[f"{k}.specular.data"] = mi.TensorXf(maps.specular)
             if maps.normal is not None and f"{k}.normalmap.data" in self.params:
                 self.params[f"{k}.normalmap.data"] = mi.TensorXf(maps.normal)
+        if update:
+            self.params.update()
+
+    def set_eyes(self, iris_rgb=None, sclera_rgb=None, eye_gloss=None, *, update=True):
+        """Eye colours and gloss (``materials.set_eye_parameters``), without a new scene."""
+        iris = [p.gather for p in self.parts if p.name == "iris"]
+        materials.set_eye_parameters(self.params, self._vertices[iris[0]] if iris else None,
+                                     self.eye_axes, iris_rgb, sclera_rgb, eye_gloss)
         if update:
             self.params.update()
 
