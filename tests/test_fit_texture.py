@@ -427,3 +427,44 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     assert (w0[ring] > 0).mean() > 0.5 and (w3[ring] == 0).all()
     far = ~binary_dilation(occ, iterations=8)
     assert ((w3 > 0) == (w0 > 0))[far].mean() > 0.99
+
+
+def test_11_pixel_footprints_and_a_bake_without_gaps_where_pixels_are_wide(model):
+    """Each pixel's footprint is its uv extent (the larger axis; across a UV seam the
+    other neighbour's distance); the bake spreads wider pixels wider (footprint bands):
+    where a photo's pixels span four times the median footprint (oblique skin, stretched
+    UVs) the seen texels are filled without gaps, as where they span the median."""
+    from hack_render.fit import texture
+
+    jj, ii = np.meshgrid(np.arange(12.0), np.arange(10.0))
+    x, y = 3.0 * jj, 2.0 * ii
+    x[:, 6:] += 500.0                           # a seam between columns 5 and 6
+    sel = np.ones(x.shape, bool)
+    sel[0, 0] = False
+    f = texture.pixel_footprints(x, y, sel)
+    np.testing.assert_allclose(f[1:, :], 3.0)   # seam pixels take their other neighbour
+    assert np.isnan(f[0, 0]) or f[0, 0] == 3.0
+
+    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = fitter.views[0]
+    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
+    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
+    h, w = pr.rgba.shape[:2]
+    H = cfg.final.atlas_height
+    # a synthetic uv layout: 1.5 texels per pixel on the left half, 6 on the right
+    jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    half = w // 2
+    xt = 20.0 + np.where(jj < half, 1.5 * jj, 1.5 * half + 6.0 * (jj - half))
+    yt = 20.0 + 1.5 * ii
+    uv = np.stack([(xt + 0.5) / H, 1.0 - (yt + 0.5) / H], -1)
+    gb = dict(pr.gbuffer, uv=uv)
+    wgt = np.zeros((h, w), np.float32)
+    wgt[h // 4:3 * h // 4, w // 8:7 * w // 8] = 1.0
+    flat = texture.PhotoRender(pr.rgba, gb, pr.spp, 0.0)
+    bk = texture.bake_diffuse(fitter.state, cfg, [flat], weights=[wgt])
+    # the texels inside each half's splat (a margin of a few pixels' footprints)
+    rows = slice(int(20 + 1.5 * h / 4) + 12, int(20 + 1.5 * 3 * h / 4) - 12)
+    narrow = bk.confidence[rows, int(20 + 1.5 * w / 8) + 12:int(20 + 1.5 * half) - 12]
+    wide = bk.confidence[rows, int(20 + 1.5 * half) + 30:int(20 + 1.5 * half + 6 * (
+        7 * w // 8 - half)) - 30]
+    assert narrow.min() > 0.9 and wide.min() > 0.9, (narrow.min(), wide.min())

@@ -16,8 +16,11 @@ model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
   (occluders: hair, hands, glasses, where the render cannot explain the photo) and where
   their chromaticity is far from the face's skin (clothes, lips' edges, hair); each
   view's per-pixel weight is written out as its occlusion mask. They are splatted into
-  the atlas bilinearly and spread by a normalised Gaussian whose width is the photo
-  pixel's footprint in texels.
+  the atlas bilinearly and spread by a normalised Gaussian of half the pixel's footprint
+  in texels, by bands of footprint (``FOOTPRINT_BANDS``: the median footprint, twice it,
+  four and eight times: oblique skin and stretched UVs take wider pixels, which a single
+  width left as stripes of gaps); a pixel's weight counts for the confidence by its area
+  in median pixels.
 - unseen texels: the same texel of the mirrored face (the atlas is left-right symmetric
   within each tile: u -> 1 - u), else the appearance model's A(alpha), tone-matched to
   the baked skin by a smooth gain field (:func:`tone_matched_prior`, ``final.tone_match``)
@@ -301,6 +304,31 @@ def _feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
+#: footprint bands of the bake's splat (:func:`bake_diffuse`): pixels up to 2^(n-1) times
+#: the median footprint and beyond go to the last
+FOOTPRINT_BANDS = 4
+
+
+def pixel_footprints(x: np.ndarray, y: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """(h, w) each selected pixel's footprint in texels: the larger of its horizontal and
+    vertical extents, each the smaller of the uv distances to its two neighbours on that
+    axis that are selected too (a neighbour across a UV seam is far: the other is taken);
+    NaN where a pixel has no selected neighbour on an axis."""
+    out = []
+    for axis in (1, 0):
+        d = np.hypot(np.diff(x, axis=axis), np.diff(y, axis=axis))
+        pair = sel[:, :-1] & sel[:, 1:] if axis == 1 else sel[:-1] & sel[1:]
+        d = np.where(pair, d, np.inf)
+        fwd, bwd = np.full(x.shape, np.inf), np.full(x.shape, np.inf)
+        if axis == 1:
+            fwd[:, :-1], bwd[:, 1:] = d, d
+        else:
+            fwd[:-1], bwd[1:] = d, d
+        out.append(np.minimum(fwd, bwd))
+    f = np.maximum(out[0], out[1])
+    return np.where(np.isfinite(f), f, np.nan)
+
+
 def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
                  prior: np.ndarray | None = None, weights: list | None = None) -> BakedSkin:
     """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
@@ -311,10 +339,12 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
 
     H = int(cfg.final.atlas_height)
     W = 2 * H
-    num = np.zeros((H, W, 3), np.float64)
-    den = np.zeros((H, W), np.float64)
+    # per footprint band b (a pixel spanning fp 2^b texels and more): weighted sums
+    num = np.zeros((FOOTPRINT_BANDS, H, W, 3), np.float32)
+    den = np.zeros((FOOTPRINT_BANDS, H, W), np.float32)
+    area = np.zeros((FOOTPRINT_BANDS, H, W), np.float32)   # den x (footprint / median)^2
     given = weights
-    weights, footprints = [], []
+    weights, footprints, views = [], [], []
     for i, (v, pr) in enumerate(zip(state.views, renders)):
         wgt, obs = pixel_weights(v, pr, cfg)
         if given is not None:
@@ -326,31 +356,48 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
         uv = pr.gbuffer["uv"]
         x = uv[..., 0] * H - 0.5          # atlas pixel coordinates (centres at +0.5)
         y = (1.0 - uv[..., 1]) * H - 0.5
-        # the photo pixel's footprint in texels (median over skin: neighbours' uv distance)
-        dx = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1))[:-1]
-        both = sel[:-1, :-1] & sel[:-1, 1:] & sel[1:, :-1]
-        if both.any():
-            footprints.append(float(np.median(dx[both[:, :dx.shape[1]]])))
-        xs, ys, ws, os_ = x[sel], y[sel], wgt[sel], obs[sel]
+        f = pixel_footprints(x, y, sel)
+        footprints.append(float(np.median(f[sel & np.isfinite(f)]))
+                          if np.isfinite(f[sel]).any() else 1.0)
+        views.append((x[sel], y[sel], wgt[sel], obs[sel], f[sel]))
+    # the photo pixel's footprint in texels: the views' median (neighbours' uv distance)
+    fp = float(np.median(footprints)) if footprints else 1.0
+    for xs, ys, ws, os_, f in views:
+        rel = np.clip(np.nan_to_num(f, nan=fp) / fp, 1.0, 2.0 ** FOOTPRINT_BANDS)
+        band = np.minimum(np.floor(np.log2(rel)), FOOTPRINT_BANDS - 1).astype(int)
         x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
         fx, fy = xs - x0, ys - y0
         for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
                           (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            flat = np.clip(y0 + oy, 0, H - 1) * W + np.clip(x0 + ox, 0, W - 1)
+            flat = band * (H * W) + np.clip(y0 + oy, 0, H - 1) * W + np.clip(x0 + ox, 0, W - 1)
             kw = ws * k
-            den += np.bincount(flat, kw, H * W).reshape(H, W)
+            den += np.bincount(flat, kw, FOOTPRINT_BANDS * H * W).reshape(den.shape)
+            area += np.bincount(flat, kw * rel * rel, FOOTPRINT_BANDS * H * W
+                                ).reshape(den.shape)
             for c in range(3):
-                num[..., c] += np.bincount(flat, kw * os_[:, c], H * W).reshape(H, W)
-    fp = float(np.median(footprints)) if footprints else 1.0
-    sigma = max(0.7, 0.5 * fp)
-    den_b = gaussian_filter(den, sigma)
-    num_b = np.stack([gaussian_filter(num[..., c], sigma) for c in range(3)], -1)
+                num[..., c] += np.bincount(flat, kw * os_[:, c],
+                                           FOOTPRINT_BANDS * H * W).reshape(den.shape)
+    # each band spread by a normalised Gaussian of half its footprint, so that wider
+    # pixels (oblique skin, stretched UVs) leave no gaps between their splats; for the
+    # confidence each pixel's weight counts by its area (in median pixels), so a texel
+    # seen by fewer, wider pixels is as sure as one seen by more, narrower ones
+    den_b = np.zeros((H, W))
+    num_b = np.zeros((H, W, 3))
+    dens = np.zeros((H, W))
+    for b in range(FOOTPRINT_BANDS):
+        if not den[b].any():
+            continue
+        sigma = max(0.7, 0.5 * fp * 2 ** b)
+        den_b += gaussian_filter(den[b].astype(np.float64), sigma)
+        dens += gaussian_filter(area[b].astype(np.float64), sigma)
+        num_b += np.stack([gaussian_filter(num[b, ..., c].astype(np.float64), sigma)
+                           for c in range(3)], -1)
     seen = den_b > 1e-8
     obs = np.where(seen[..., None], num_b / np.maximum(den_b, 1e-12)[..., None], 0.0)
     # full confidence: the density a fully seen texel gets at cos = 1 (a pixel's unit
     # weight spread over fp^2 texels), reached at half of it
     full = 0.5 / max(fp * fp, 1.0)
-    conf = np.clip(den_b / full, 0.0, 1.0)
+    conf = np.clip(dens / full, 0.0, 1.0)
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
     # (a refinement pass's prior, the first bake, is tone-matched already)
