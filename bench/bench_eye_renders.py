@@ -5,8 +5,8 @@ black iris, black whites, no gloss) from one scene whose eyes change in place
 
     python bench/bench_eye_renders.py --out bench/results/eye_renders.json
 
-The state: the astronaut (scikit-image, public domain) after the fit's landmark stages;
-renders at the photo's size (512 px), 16 spp, as ``fit_colour`` makes them. The two
+The state: the astronaut (scikit-image, public domain) after the fit's landmark stages,
+under a uniform light; renders at the photo's size (512 px), 16 spp, as ``fit_colour`` makes them. The two
 paths alternate ``--reps`` times; the medians and their ratio are reported, and the
 largest pixel difference between the two paths' images.
 """
@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -40,6 +41,7 @@ def main(argv=None) -> None:
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.fit.lighting import Lighting
     from hack_render.fit.photo import from_array
     from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
 
@@ -51,6 +53,9 @@ def main(argv=None) -> None:
     fitter.fit_camera()
     fitter.fit_shape()
     state, cfg, v = fitter.state, fitter.cfg, fitter.views[0]
+    v.lighting = Lighting("env", 8)       # uniform light (the photometric stage's start)
+    with torch.no_grad():
+        v.lighting.log_texels.fill_(0.0)
     maps = texture._skin_maps(state)
     black = (0.0, 0.0, 0.0)
     eyes = [(DEFAULT_IRIS_RGB, SCLERA_RGB, None), (black, SCLERA_RGB, None),
