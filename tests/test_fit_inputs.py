@@ -157,7 +157,8 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         with pytest.raises(HackError, match=f"silhouette.{key}"):
             load_config(tmp_path / "s.toml")
     for key, val in (("refine", "5"), ("refine", "true"), ("eye_hole", "0"),
-                     ("eye_hole", '"wide"')):
+                     ("eye_hole", '"wide"'), ("occluder_shadow", "2"),
+                     ("occluder_shadow", '"on"')):
         (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"final.{key}"):
             load_config(tmp_path / "f.toml")

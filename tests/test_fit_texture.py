@@ -468,3 +468,72 @@ def test_11_pixel_footprints_and_a_bake_without_gaps_where_pixels_are_wide(model
     wide = bk.confidence[rows, int(20 + 1.5 * half) + 30:int(20 + 1.5 * half + 6 * (
         7 * w // 8 - half)) - 30]
     assert narrow.min() > 0.9 and wide.min() > 0.9, (narrow.min(), wide.min())
+
+
+def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
+    """fit/occluder_shadow.py: a known contact shadow beside an occluder (a fringe over
+    skin with a freckled texture) is divided out to within the floor; the strands in the
+    first pixel leave the bake; a speck's dark ring, a brighter rim or no occluder change
+    nothing. Through pixel_weights: a photo darkened next to an occluder bakes as without
+    the shadow."""
+    from scipy.ndimage import distance_transform_edt
+
+    from hack_render.fit import texture
+    from hack_render.fit.occluder_shadow import FLOOR, occluder_shadow
+
+    rng = np.random.default_rng(3)
+    h, w = 140, 160
+    occ = np.zeros((h, w), bool)
+    occ[:30] = True
+    occ[30:34, 40:70] = True                 # a ragged edge
+    d = distance_transform_edt(~occ)
+    texture_lr = 0.05 * rng.standard_normal((h, w)) + 0.1
+    true = np.where(d <= 12, -0.25 * np.exp(-(d - 1) / 3.0), 0.0)
+    lr = texture_lr + true + np.where(d <= 1, -0.6, 0.0)       # strands in the first pixel
+    ok = ~occ
+    speck = np.zeros_like(occ)     # a dark feature the segmentation calls an occluder
+    speck[100:103, 100:103] = True
+    ring = (distance_transform_edt(~speck) <= 3) & ~speck
+    lr[ring] -= 0.5
+    gain, mixed, prof = occluder_shadow(lr, ok & ~speck, occ | speck, 15.0)
+    assert (gain[ring] == 0).all() and not mixed[ring].any()
+    assert mixed[(d > 0) & (d <= 1)].all() and not mixed[d > 1.5].any()
+    far_level = lr[ok & ~speck & ~ring & (d > 15)].mean()
+    for k in range(2, 8):       # to half the reach: the shadow divided out, but the floor
+        sel = ok & (np.ceil(d) == k)
+        assert abs((lr - gain)[sel].mean() - far_level) < FLOOR + 0.01, k
+    assert lr[ok & (np.ceil(d) == 2)].mean() < far_level - 0.15   # (what it was)
+    assert (gain[d > 15] == 0).all() and prof[2] < prof[6] < 0
+    # a brighter rim is not a shadow (only the texture's darker pixels below the floor
+    # move); no occluder, no change
+    g2, m2, _ = occluder_shadow(texture_lr - true, ok, occ, 15.0)
+    assert g2[ok & (d <= 15)].mean() > -0.005 and not m2.any()
+    g3, m3, _ = occluder_shadow(lr, ok, np.zeros_like(occ), 15.0)
+    assert (g3 == 0).all() and not m3.any()
+
+    # through the bake's pixel weights: the photo of the truth, darkened beside a
+    # rectangle of occluder on the forehead as a fringe's shadow would
+    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    pts = v.detection.points
+    occ = np.zeros((v.photo.height, v.photo.width), bool)
+    y0 = int(pts[19, 1]) - 12
+    occ[y0 - 6:y0, int(pts[17, 0]):int(pts[26, 0])] = True
+    d = distance_transform_edt(~occ)
+    shade = np.exp(np.where(d <= 8, -0.3 * np.exp(-(d - 1) / 2.5), 0.0))
+    clean = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    v.occluder = occ
+    v.photo = _photo_of(clean)
+    pr = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    w_ref, obs_ref = texture.pixel_weights(v, pr, cfg)
+    v.photo = _photo_of(clean * shade[..., None])
+    cfg.final.occluder_shadow = 0.0
+    w0, obs0 = texture.pixel_weights(v, pr, cfg)
+    cfg.final.occluder_shadow = 0.2
+    w1, obs1 = texture.pixel_weights(v, pr, cfg)
+    band = (d >= 2) & (d <= 5) & (w0 > 0) & (w1 > 0) & (w_ref > 0)
+    assert band.sum() > 20, band.sum()
+    err0 = np.abs(np.log(obs0[band].mean(-1) / obs_ref[band].mean(-1))).mean()
+    err1 = np.abs(np.log(obs1[band].mean(-1) / obs_ref[band].mean(-1))).mean()
+    assert err0 > 0.05 and err1 < FLOOR + 0.01, (err0, err1)   # the floor stays

@@ -296,6 +296,11 @@ class FinalConfig:
     # default: 0.08 takes the astronaut's rim away but costs her face region 0.4 dB and
     # Grace Hopper's 1.1 dB (her glasses' surroundings leave the bake; docs/fit.md)
     occluder_margin: float = 0.0
+    # the shadow the occluders cast on the skin beside them (a fringe's on the forehead),
+    # looked for up to this share of the eyes' outer-corner distance and divided out of the
+    # bake (fit/occluder_shadow.py): the hairless render has no such shadow, so baked it
+    # is a dark rim along the fringe; 0 bakes it as the photo has it
+    occluder_shadow: float = 0.15
 
 
 @dataclass
@@ -402,6 +407,10 @@ class FitConfig:
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "
                             f"{fc.eye_hole!r}.")
+        if not (isinstance(fc.occluder_shadow, (int, float))
+                and math.isfinite(fc.occluder_shadow) and 0 <= fc.occluder_shadow <= 1):
+            raise HackError(f"config final.occluder_shadow: expected 0..1 (of the eyes' "
+                            f"corner distance), found {fc.occluder_shadow!r}.")
         if not (isinstance(fc.occluder_margin, (int, float))
                 and math.isfinite(fc.occluder_margin) and 0 <= fc.occluder_margin <= 1):
             raise HackError(f"config final.occluder_margin: expected 0..1 (of the eyes' "

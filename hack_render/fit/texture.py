@@ -38,6 +38,7 @@ import torch
 
 from hack_render.fit.camera import R0
 from hack_render.fit.config import FitConfig
+from hack_render.fit.occluder_shadow import occluder_shadow
 from hack_render.fit.state import FitState, View
 
 SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REGIONS)
@@ -243,12 +244,19 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         ratio = np.repeat(((photo @ luma) / np.maximum(rgb @ luma, 1e-4))[..., None], 3, -1)
     else:
         ratio = photo / np.maximum(rgb, 1e-4)
-    obs = gb["albedo"] * ratio
     lum = rgb.mean(-1)
     ok = skin & (lum > 0.1 * np.median(lum[skin])) if skin.any() else skin
+    lr = np.log(np.clip(ratio.mean(-1), 1e-3, 1e3))
+    if fc.occluder_shadow > 0:  # the occluders' shadow on the skin beside them divided
+        # out (not on the brows and lips: their darkness is theirs)
+        gain, mixed, _ = occluder_shadow(lr, ok & ~features, occluded,
+                                         fc.occluder_shadow * iod)
+        ratio = ratio * np.exp(-gain)[..., None]
+        lr = lr - gain
+        ok &= ~mixed
+    obs = gb["albedo"] * ratio
     # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
     # render does not have) or the observation's chromaticity far from the skin's
-    lr = np.log(np.clip(ratio.mean(-1), 1e-3, 1e3))
     if ok.sum() >= 16:
         med = np.median(lr[ok])
         mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
