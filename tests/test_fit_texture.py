@@ -474,8 +474,8 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     """fit/occluder_shadow.py: a known contact shadow beside an occluder (a fringe over
     skin with a freckled texture) is divided out to within the floor; the strands in the
     first pixel leave the bake; a speck's dark ring, a brighter rim or no occluder change
-    nothing. Through pixel_weights: a photo darkened next to an occluder bakes as without
-    the shadow."""
+    nothing. Through pixel_weights: a photo darkened next to an occluder (or hair) bakes
+    as without the shadow."""
     from scipy.ndimage import distance_transform_edt
 
     from hack_render.fit import texture
@@ -537,3 +537,10 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     err0 = np.abs(np.log(obs0[band].mean(-1) / obs_ref[band].mean(-1))).mean()
     err1 = np.abs(np.log(obs1[band].mean(-1) / obs_ref[band].mean(-1))).mean()
     assert err0 > 0.05 and err1 < FLOOR + 0.01, (err0, err1)   # the floor stays
+    # the segmentation's hair casts its shadow too (a fringe it calls hair, not occluder)
+    v.occluder, v.hair = None, occ
+    w2, obs2 = texture.pixel_weights(v, pr, cfg)
+    band2 = band & (w2 > 0)
+    assert band2.sum() > 20
+    err2 = np.abs(np.log(obs2[band2].mean(-1) / obs_ref[band2].mean(-1))).mean()
+    assert err2 < FLOOR + 0.01, err2

@@ -164,6 +164,7 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # the skin inside the face mesh's oval: hair of a skin-like colour and the
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
+        view.hair = seg.hair
     if m is None and cfg.silhouette.segment:
         if seg is not None:
             person = seg.person > 0.5

@@ -77,6 +77,9 @@ class View:
     # (h, w) bool: the segmentation's skin inside the face oval (no hair, clothes,
     # occluders); the bake takes its pixels only; None: no segmentation
     skin: np.ndarray | None = None
+    # (h, w) bool: the segmentation's hair (its shadow on the skin beside it leaves the
+    # bake: texture.pixel_weights); None: no segmentation
+    hair: np.ndarray | None = None
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     # the jawline's contour vertices (17,) matched at the last re-match, None before
     jaw: np.ndarray | None = None

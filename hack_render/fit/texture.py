@@ -249,7 +249,8 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     lr = np.log(np.clip(ratio.mean(-1), 1e-3, 1e3))
     if fc.occluder_shadow > 0:  # the occluders' shadow on the skin beside them divided
         # out (not on the brows and lips: their darkness is theirs)
-        gain, mixed, _ = occluder_shadow(lr, ok & ~features, occluded,
+        casters = occluded | (mask_at(view.hair, h, w) if view.hair is not None else False)
+        gain, mixed, _ = occluder_shadow(lr, ok & ~features, casters,
                                          fc.occluder_shadow * iod)
         ratio = ratio * np.exp(-gain)[..., None]
         lr = lr - gain
