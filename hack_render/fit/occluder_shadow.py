@@ -1,6 +1,7 @@
 """The shadow an occluder casts on the skin next to it, for the bake.
 
-Hair over the forehead, a hand or glasses darken the skin just beside them: a contact
+Hair over the forehead (the segmentation's occluders and its hair: the caller passes
+both), a hat's brim, a hand or glasses darken the skin just beside them: a contact
 shadow (and, within a pixel or two, the occluder's own strands mixed into the pixel). The
 fitted render has no hair, so the photo / render ratio reads that shadow as darker skin,
 and the bake writes it into the albedo: a dark rim along the fringe's edge, which
