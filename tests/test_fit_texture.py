@@ -279,6 +279,7 @@ def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     # mixes a little skin into the iris's border)
     assert final.maps.iris_rgb == pytest.approx(rgb, rel=0.02)
     assert abs(final.report["iris"]["residual"] - 1.0) < 0.05
+    assert "final.occluder_shadow 0.1" in final.report["diffuse"]   # (the provenance)
     written = outputs.write_textures(f, tmp_path / "textures", final)
     assert tmp_path / "textures" / IRIS_FILE in written
     assert read_texture_folder(tmp_path / "textures").iris_rgb == final.maps.iris_rgb

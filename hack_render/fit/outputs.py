@@ -274,8 +274,12 @@ class FinalRenders:
                        "size": [list(r.rgba.shape[1::-1]) for r in self.renders],
                        "iris": self.iris,
                        "diffuse": "derived: the photo(s) with the fitted lighting divided "
-                                  "out where seen (confidence.png), the mirrored face or "
-                                  "the appearance model A(alpha) elsewhere"}
+                                  "out where seen (confidence.png)"
+                                  + (", and the shadow of occluders and hair beside them "
+                                     f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
+                                     if cfg.final.occluder_shadow > 0 else "")
+                                  + ", the mirrored face or the appearance model A(alpha) "
+                                  "elsewhere"}
 
 
 def final_renders(fitter) -> FinalRenders:
