@@ -158,7 +158,7 @@ def test_10_config_rejects_unknown_keys(tmp_path):
             load_config(tmp_path / "s.toml")
     for key, val in (("refine", "5"), ("refine", "true"), ("eye_hole", "0"),
                      ("eye_hole", '"wide"'), ("occluder_shadow", "2"),
-                     ("occluder_shadow", '"on"')):
+                     ("occluder_shadow", '"on"'), ("edge_feather", "-1")):
         (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"final.{key}"):
             load_config(tmp_path / "f.toml")

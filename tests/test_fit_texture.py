@@ -86,6 +86,10 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     cfg.final.tone_match = "off"
     off = texture.bake_diffuse(f.state, cfg, [pr])
     np.testing.assert_allclose(off.diffuse[dark], prior[dark], atol=1e-5)
+    cfg.final.edge_feather = 0.0            # (a hard edge: more texels at full weight)
+    off = texture.bake_diffuse(f.state, cfg, [pr])
+    cfg.final.tone_match = "outside"
+    bk = texture.bake_diffuse(f.state, cfg, [pr])
     full = bk.confidence >= 1.0 - 1e-6      # seen at full weight: the photo's alone
     assert full.sum() > 1000
     np.testing.assert_allclose(off.diffuse[full], bk.diffuse[full], atol=1e-6)
@@ -545,3 +549,43 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     assert band2.sum() > 20
     err2 = np.abs(np.log(obs2[band2].mean(-1) / obs_ref[band2].mean(-1))).mean()
     assert err2 < FLOOR + 0.01, err2
+
+
+def test_13_edge_feather_smooths_the_bakes_outline_and_keeps_its_inside(model):
+    """final.edge_feather: the bake's confidence is held under itself blurred, so at a
+    jagged segmentation edge (a fringe's) the teeth fade towards the fallback and the
+    diffuse map does not draw the edge as a jagged line at full contrast; texels well
+    inside keep their confidence exactly."""
+    from hack_render.fit import texture
+
+    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = fitter.views[0]
+    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
+    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
+    h, w = pr.rgba.shape[:2]
+    H = cfg.final.atlas_height
+    # a uv layout of 1.5 texels per pixel, and a weight mask whose top edge is jagged
+    jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    xt, yt = 20.0 + 1.5 * jj, 20.0 + 1.5 * ii
+    uv = np.stack([(xt + 0.5) / H, 1.0 - (yt + 0.5) / H], -1)
+    flat = texture.PhotoRender(pr.rgba, dict(pr.gbuffer, uv=uv), pr.spp, 0.0)
+    top = h // 4 + np.where(np.arange(w) % 10 < 5, 0, 6)      # a 6-pixel comb
+    wgt = np.zeros((h, w), np.float32)
+    for j in range(w // 8, 7 * w // 8):
+        wgt[top[j]:3 * h // 4, j] = 1.0
+    conf = {}
+    for fe in (0.0, 4.0):
+        cfg.final.edge_feather = fe
+        conf[fe] = texture.bake_diffuse(fitter.state, cfg, [flat], weights=[wgt]).confidence
+    cols = slice(int(20 + 1.5 * w / 8) + 20, int(20 + 1.5 * 7 * w / 8) - 20)
+
+    # the comb's band of texel rows (the teeth's 6 pixels): its confidence per column,
+    # between teeth and gaps, is the jagged line a render would show
+    band = slice(int(20 + 1.5 * (h // 4)), int(20 + 1.5 * (h // 4 + 6)))
+    rough0, rough4 = (np.std(conf[fe][band, cols].mean(0)) for fe in (0.0, 4.0))
+    assert rough0 > 0.3 and rough4 < 0.75 * rough0, (rough0, rough4)   # (0.40 -> 0.26)
+    # (well inside: beyond the blur's support, 4 sigma = 4 x 4 x 1.5 texels, and more)
+    inside = (slice(int(20 + 1.5 * (h // 4 + 6)) + 40, int(20 + 1.5 * 3 * h / 4) - 40),
+              slice(int(20 + 1.5 * w / 8) + 40, int(20 + 1.5 * 7 * w / 8) - 40))
+    assert conf[0.0][inside].min() > 0.9
+    np.testing.assert_array_equal(conf[4.0][inside], conf[0.0][inside])

@@ -302,6 +302,10 @@ class FinalConfig:
     # shadow, so baked it is a dark rim along the fringe; 0 bakes it as the photo has it
     # (the same view's PSNR is higher so: docs/fit.md)
     occluder_shadow: float = 0.1
+    # the bake's confidence at its edges faded (min with itself blurred by a Gaussian of
+    # this many photo pixels' footprints), so the photo's skin meets the tone-matched
+    # fallback over a few pixels, not along the segmentation's jagged edge; 0: a hard edge
+    edge_feather: float = 4.0
 
 
 @dataclass
@@ -408,6 +412,10 @@ class FitConfig:
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "
                             f"{fc.eye_hole!r}.")
+        if not (isinstance(fc.edge_feather, (int, float)) and math.isfinite(fc.edge_feather)
+                and 0 <= fc.edge_feather <= 32):
+            raise HackError(f"config final.edge_feather: expected 0..32 (photo pixels' "
+                            f"footprints), found {fc.edge_feather!r}.")
         if not (isinstance(fc.occluder_shadow, (int, float))
                 and math.isfinite(fc.occluder_shadow) and 0 <= fc.occluder_shadow <= 1):
             raise HackError(f"config final.occluder_shadow: expected 0..1 (of the eyes' "

@@ -407,6 +407,10 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     # weight spread over fp^2 texels), reached at half of it
     full = 0.5 / max(fp * fp, 1.0)
     conf = np.clip(dens / full, 0.0, 1.0)
+    if cfg.final.edge_feather > 0:  # the bake's edge faded into the fallback over a few
+        # pixels' widths (the confidence held under itself blurred): the segmentation's
+        # jagged edge (hair, occluders) is not drawn as a jagged line
+        conf = np.minimum(conf, gaussian_filter(conf, cfg.final.edge_feather * fp))
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
     # (a refinement pass's prior, the first bake, is tone-matched already)
