@@ -26,7 +26,10 @@ model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
   the baked skin by a smooth gain field (:func:`tone_matched_prior`, ``final.tone_match``)
   so that the face does not end in a seam.
 - the confidence (H, 2H) in [0, 1]: 1 where the photo(s) saw the texel at full weight,
-  half the mirrored confidence where the mirror image fills it, 0 where A(alpha) does.
+  half the mirrored confidence where the mirror image fills it, 0 where A(alpha) does;
+  held under itself blurred (``final.edge_feather``) so that the bake's edge fades.
+- the occluders' and the hair's shadow on the skin beside them is divided out of the
+  observations first (:mod:`hack_render.fit.occluder_shadow`, ``final.occluder_shadow``).
 """
 
 from __future__ import annotations
