@@ -141,6 +141,19 @@ def _photo_of(rgb):
                             np.float32), "syn")
 
 
+def _frontal_truth_photo(model):
+    """A frontal fitter whose photo is the render of its true maps (over grey): (fitter,
+    cfg, that render, its height and width, the atlas's height)."""
+    from hack_render.fit import texture
+
+    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = fitter.views[0]
+    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
+    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
+    h, w = pr.rgba.shape[:2]
+    return fitter, cfg, pr, h, w, cfg.final.atlas_height
+
+
 def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
     """A grey photo (the synthetic photo's luminance in all three channels) says nothing
     of the skin's colour: the bake keeps the model's chromaticity on the seen texels and
@@ -450,12 +463,7 @@ def test_11_pixel_footprints_and_a_bake_without_gaps_where_pixels_are_wide(model
     np.testing.assert_allclose(f[1:, :], 3.0)   # seam pixels take their other neighbour
     assert np.isnan(f[0, 0]) or f[0, 0] == 3.0
 
-    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
-    v = fitter.views[0]
-    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
-    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
-    h, w = pr.rgba.shape[:2]
-    H = cfg.final.atlas_height
+    fitter, cfg, pr, h, w, H = _frontal_truth_photo(model)
     # a synthetic uv layout: 1.5 texels per pixel on the left half, 6 on the right
     jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     half = w // 2
@@ -558,12 +566,7 @@ def test_13_edge_feather_smooths_the_bakes_outline_and_keeps_its_inside(model):
     inside keep their confidence exactly."""
     from hack_render.fit import texture
 
-    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
-    v = fitter.views[0]
-    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
-    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
-    h, w = pr.rgba.shape[:2]
-    H = cfg.final.atlas_height
+    fitter, cfg, pr, h, w, H = _frontal_truth_photo(model)
     # a uv layout of 1.5 texels per pixel, and a weight mask whose top edge is jagged
     jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     xt, yt = 20.0 + 1.5 * jj, 20.0 + 1.5 * ii
