@@ -32,7 +32,10 @@ timings and, from its ``render.png`` at the photo's size, the face-region PSNR a
 against the photo (the region: the vision package's face oval without its occluders,
 where the render covers it; ``skin_*``: its skin only, without eyes, brows, lips and
 hair; ``baked_*``: the region's pixels the bake took from the photo, its
-``occlusion.png`` > 0). ``--real-only`` skips the composites.
+``occlusion.png`` > 0), and where the fit's points lie: ``landmark_residual_iod`` (the
+report's, against the points it fitted) and ``fit_vs_mesh_iod`` (against the face mesh
+detector's, independent of dlib; chin and inner points, outer-eye distance).
+``--real-only`` skips the composites.
 """
 
 from __future__ import annotations
@@ -264,6 +267,25 @@ def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray)
             "face_ssim": float(ssim_map.mean(axis=2)[m].mean())}
 
 
+def fit_against_mesh(img: np.ndarray, npz) -> dict:
+    """The fit's projected points (``params.npz``'s ``view0_landmarks_fitted``) against
+    the face mesh detector's, an independent detector (the fit's points are dlib's or the
+    shape predictors'): mean over the chin and the 51 inner points, in units of the mesh
+    detector's outer-eye distance."""
+    from hack_render.vision.detect import detect_faces
+
+    if "view0_landmarks_fitted" not in npz:
+        return {}
+    faces = detect_faces(img, "mesh")
+    if not faces:
+        return {}
+    ref = np.asarray(faces[0].points, np.float64)
+    idx = [8] + list(range(17, 68))
+    iod = np.linalg.norm(ref[36] - ref[45])
+    d = np.linalg.norm(npz["view0_landmarks_fitted"][idx] - ref[idx], axis=1)
+    return {"fit_vs_mesh_iod": float(d.mean() / iod)}
+
+
 def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> dict:
     """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
     stages only): exit code, seconds, per-stage timings, the report's landmark figures and
@@ -289,11 +311,16 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
                 data = json.loads(f.read_text())
                 row[f.stem] = {k: v for k, v in data.items()
                                if isinstance(v, (int, float, str)) or k == "timings_s"}
+                if data.get("views"):   # the fit's points against the detected ones
+                    row["landmark_residual_iod"] = data["views"][0].get("landmark_residual_iod")
                 iris = (data.get("final") or {}).get("iris")
                 if iris:   # the eyes' estimates (fit/iris.py): what they gave, and why
                     row["iris"] = {k: iris.get(k) for k in (
                         "source", "pixels", "rgb", "residual", "sclera_source",
                         "sclera_pixels", "sclera_rgb", "sclera_residual", "eye_gloss")}
+        npz = out / "params.npz"
+        if npz.is_file():
+            row.update(fit_against_mesh(img, np.load(npz)))
         render = out / "render.png"
         if render.is_file():
             regions = face_region(img)

@@ -123,6 +123,11 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     det = npz["view0_landmarks_detected"]
     nme = np.linalg.norm(px[17:] - det[17:], axis=1).mean() / np.linalg.norm(det[36] - det[45])
     assert nme < 0.05
+    # params.npz carries the fitted points, the report their distance to the detected ones
+    idx = [8] + list(range(17, 68))
+    assert np.abs(npz["view0_landmarks_fitted"][idx] - px[idx]).max() < 0.1
+    own = np.linalg.norm(px[idx] - det[idx], axis=1).mean() / np.linalg.norm(det[36] - det[45])
+    assert report["views"][0]["landmark_residual_iod"] == pytest.approx(own, abs=3e-4)
     # the fit re-renders through `hack-render render --params`
     r2 = subprocess.run([sys.executable, "-m", "hack_render.cli", "render", "--params",
                          str(out / "params.json"), "-o", str(tmp_path / "re.png"),

@@ -77,6 +77,26 @@ def _refiner_shift(det) -> float | None:
     return float(np.linalg.norm(det.points[idx] - det.raw[idx], axis=1).mean() / iod)
 
 
+def fitted_landmarks(fitter, v) -> np.ndarray:
+    """(68, 2) the fitted model's landmark points (the jawline on its contour) projected
+    into the view's photo, in pixels."""
+    with torch.no_grad():
+        verts = fitter.forward(v).vertices[0]
+        return fitter.project(v, fitter.model_landmarks(v, verts, 0)).numpy()
+
+
+def _landmark_residual(fitter, v) -> float | None:
+    """Mean distance between the fitted and the detected points (the chin and the 51
+    inner points the detector sees), in units of the detected outer-eye distance."""
+    det = v.detection
+    idx = np.array([8] + list(range(17, 68)))
+    if det.visible is not None:
+        idx = idx[np.asarray(det.visible, bool)[idx]]
+    iod = max(float(np.linalg.norm(det.points[36] - det.points[45])), 1e-9)
+    d = np.linalg.norm(fitted_landmarks(fitter, v)[idx] - det.points[idx], axis=1)
+    return round(float(d.mean() / iod), 4) if len(idx) else None
+
+
 def _refiner_provenance(res) -> str | None:
     """The landmark refiner's provenance when a view's points were refined."""
     if not any(v.detection.refined for v in res.views):
@@ -140,6 +160,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
         arrays[f"view{i}_R"] = np.asarray(cam["R"])
         arrays[f"view{i}_t"] = np.asarray(cam["t"])
         arrays[f"view{i}_landmarks_detected"] = v.detection.points  # refined, if so
+        arrays[f"view{i}_landmarks_fitted"] = fitted_landmarks(fitter, v)
         if v.detection.refined:  # dlib's own points, before the landmark refiner
             arrays[f"view{i}_landmarks_dlib"] = v.detection.raw
         if v.lighting is not None:
@@ -189,6 +210,9 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "landmark_source": v.detection.source,
                          "landmarks_refined": v.detection.refined,
                          "refiner_shift_iod": _refiner_shift(v.detection),
+                         # the fit's points against the detected ones (drift: a fit
+                         # the photo term pulled off the landmarks)
+                         "landmark_residual_iod": _landmark_residual(fitter, v),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v),
