@@ -215,10 +215,19 @@ class PhotometricConfig:
     # Adam's noisy steps barely move along (photometric.balance_albedo)
     balance_albedo: bool = True
     # the shape stage's objective (landmarks + priors) is kept, scaled by this, beside
-    # the photo term; on 8 synthetic subjects 0.1 and 1.0 left the geometry where the
-    # landmarks put it (the photo term's gradients are small), 0.001 let the photo term
-    # refine it: landmark NME 2.43 % -> 1.93 %, vertex error 2.30 -> 2.23 mm (CHANGELOG.md)
-    w_landmarks: float = 0.001
+    # the photo term, where the points are dlib's (refined) or a landmark file's. On 8
+    # synthetic subjects 0.1 and 1.0 left the geometry where the landmarks put it, 0.01
+    # and 0.001 let the photo term refine it (vertex error 2.30 / 2.24 / 2.23 mm). On a
+    # real photo the photo term also pulls where the model cannot follow: at 0.001 the
+    # astronaut's head tipped 2.4 deg forward in this stage, her features 3-5 px (5.6-6.3 %
+    # of the outer-eye distance) below dlib's points, against the independent face mesh's
+    # points 4.4-4.6 %; at 0.01 2.2 % and 3.4-3.6 % (CHANGELOG.md, docs/fit.md)
+    w_landmarks: float = 0.01
+    # the same where the points are the vision package's, when dlib finds no face (face
+    # mesh, shape predictors: turned faces, their points less sure: 6 % of the box on the
+    # composites); there the photo term's pull is worth more (the cameraman at 0.01:
+    # 14.2 -> 18.3 % from the face mesh's points)
+    w_landmarks_fallback: float = 0.001
     # the silhouette term's scale in this stage (the shape stage's weights times this)
     w_silhouette: float = 0.001
     charbonnier_eps: float = 0.01    # robust loss scale (linear RGB)
@@ -375,6 +384,11 @@ class FitConfig:
             raise HackError(f"config photometric.light_cast_sigma: expected a finite number "
                             f">= 0 (0: no prior on the light's colour), found "
                             f"{p.light_cast_sigma}.")
+        for key in ("w_landmarks", "w_landmarks_fallback", "w_silhouette"):
+            x = getattr(p, key)
+            if not (math.isfinite(x) and x >= 0):
+                raise HackError(f"config photometric.{key}: expected a finite number >= 0, "
+                                f"found {x}.")
         if p.torch_threads < 1:
             raise HackError(f"config photometric.torch_threads: expected >= 1, found "
                             f"{p.torch_threads}.")

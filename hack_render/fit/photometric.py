@@ -387,7 +387,8 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
                 # whole by w_landmarks: the priors keep their balance with the landmarks
                 # (an unscaled prior against the scaled landmarks would pull beta and
                 # psi toward zero while the photo term's gradients are small)
-                parts.update({k: (pc.w_silhouette if k == "silhouette" else pc.w_landmarks)
+                wl = terms.landmark_scale(cfg, v)
+                parts.update({k: (pc.w_silhouette if k == "silhouette" else wl)
                               * x for k, x in terms.shape_terms(state, cfg, v, verts,
                                                                 it).items()})
             for k, x in parts.items():
@@ -398,7 +399,8 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
             extra["light_cast"] = pc.w_alpha / pc.light_cast_sigma ** 2 * sum(
                 v.lighting.colour_cast(reach=v.level.reach) for v in state.views)
         if refine:
-            extra["beta_prior"] = pc.w_landmarks * terms.beta_prior(state, cfg)
+            extra["beta_prior"] = (sum(terms.landmark_scale(cfg, v) for v in state.views)
+                                   / len(state.views) * terms.beta_prior(state, cfg))
             extra["larynx_prior"] = 1e-3 * (state.eta ** 2).sum() + 10.0 * (state.tau ** 2).sum()
             # E_larynx: eta and tau beyond their anatomical ranges, as E_rot for the joints
             extra["E_larynx"] = cfg.shape.w_rot * larynx_limit_penalty(state.eta,
