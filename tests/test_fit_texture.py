@@ -376,6 +376,29 @@ def test_08b_eye_whites_are_recovered_from_the_photo(model, tmp_path, yaw, k, tr
     assert read_eye_file(bad) == ((0.1, 0.1, 0.1), None, None)
 
 
+def test_08c_a_dark_iris_under_a_duller_gloss_keeps_its_colour(model):
+    """A dark brown iris (0.08, 0.04, 0.02) whose eyes are less glossy than the model's
+    (gloss 0.2, the whites as the model's): with the gloss tied to the whites' gain (1),
+    the gloss's veil alone was brighter than the photo's iris, so the iris came out
+    black, held at the lower bound, and rendered as the veil's grey-blue (measured:
+    (0.031, 0.005, 0.005), gloss 0.92). The gloss is capped where the iris needs it:
+    measured (0.059, 0.019, 0.005), gloss 0.50 (the affine model of the renders is not
+    exact in the gloss: the coat dims what lies under it)."""
+    from hack_render.fit import iris, texture
+    from hack_render.render.materials import SCLERA_RGB
+
+    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    v = f.views[0]
+    brown = (0.08, 0.04, 0.02)
+    shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
+        true_maps, sclera_rgb=tuple(SCLERA_RGB), iris_rgb=brown, eye_gloss=0.2))
+    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
+    assert rep["eye_gloss"] < 0.65
+    assert abs(rgb[0] / brown[0] - 1) < 0.3 and rgb[1] > 0.012   # brown, not black
+    np.testing.assert_allclose(rep["sclera_rgb"], SCLERA_RGB, rtol=0.1)
+
+
 def test_09_fallback_skin_is_tone_matched_without_a_seam():
     """texture.tone_matched_prior: A(alpha) where the photo does not see takes the baked
     skin's tone through a smooth gain field, so the face does not end in a seam; far from

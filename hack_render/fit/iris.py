@@ -115,10 +115,11 @@ def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np
 
 def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed):
     """The kept iris and eye-white pixels of every view (see :func:`estimate`): (photo,
-    the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), and
-    the two pixel counts."""
+    the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), the
+    two pixel counts and which rows are the iris's (n,)."""
     rows: dict[str, list] = {k: [] for k in ("p", "s", "di", "ds", "dg")}
     n = n_white = 0
+    iris_rows = []
     for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
         ok = (allowed or [None] * len(photos))[i]
         keep = kept_pixels(photo, r, ok)
@@ -135,20 +136,43 @@ def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allow
                           else np.zeros_like(q))
         n += int(keep.sum())
         n_white += int(kw.sum())
+        iris_rows.append(keep[m])
     arrays = [np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
               for k in ("p", "s", "di", "ds", "dg")]
-    return arrays, n, n_white
+    return arrays, n, n_white, (np.concatenate(iris_rows) if iris_rows
+                                else np.zeros(0, bool))
+
+
+def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray) -> float:
+    """The gloss (0..1) that, with the iris's three gains (>= 0), best explains the iris's
+    pixels: one bounded least-squares solve over the three channels together (p, rest,
+    di, dg (n, 3): the photo, the render without the iris's and the gloss's shares, and
+    those shares)."""
+    from scipy.optimize import lsq_linear
+
+    n = len(p)
+    a = np.zeros((3 * n, 4))
+    for c in range(3):
+        a[c * n:(c + 1) * n, c] = di[:, c]
+        a[c * n:(c + 1) * n, 3] = dg[:, c]
+    b = (p - rest).T.reshape(-1)
+    return float(lsq_linear(a, b, bounds=(np.zeros(4), [np.inf] * 3 + [1.0])).x[3])
 
 
 def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool,
-           hold_iris: bool) -> tuple[np.ndarray, np.ndarray, float]:
+           hold_iris: bool, iris_rows=None) -> tuple[np.ndarray, np.ndarray, float]:
     """(the iris's gains, the whites' gains, the gloss): per channel one bounded linear
-    least-squares solve (``hold_iris``: the iris at its colour), the gloss (where
-    ``gloss_tied``) the whites' luminance gain, at most 1, solved in turn (four rounds)."""
+    least-squares solve (``hold_iris``: the iris at its colour); the gloss (where
+    ``gloss_tied``) the whites' luminance gain, at most 1 (the same light that makes the
+    whites too bright makes the gloss so), solved in turn with them (eight rounds). Where
+    the iris comes out black in a channel, the gloss alone is brighter than the photo's
+    iris (a broad light's veil over a dark iris): the gloss is then capped at its least
+    squares over the iris's pixels (``iris_rows``), the colours held; the cap only comes
+    down."""
     p, s_, di, ds, dg = rows
     lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
-    gloss, gi, gw = 1.0, np.ones(3), np.ones(3)
-    for _ in range(4 if white_ok and gloss_tied else 1):
+    gloss, cap, gi, gw = 1.0, 1.0, np.ones(3), np.ones(3)
+    for _ in range(8 if white_ok and gloss_tied else 1):
         base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
         gi, gw = np.ones(3), np.ones(3)
         for c in range(3):
@@ -161,7 +185,10 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
             elif iris_ok:
                 gi[c] = max(0.0, (p[:, c] - base[:, c] - ds[:, c]).sum() / di[:, c].sum())
         if white_ok and gloss_tied:
-            gloss = float(np.clip((s0 * gw) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0))
+            k = np.ones(len(p), bool) if iris_rows is None else iris_rows
+            if not hold_iris and np.any(gi <= 1e-6) and (dg[k] ** 2).sum() > 0:
+                cap = min(cap, _iris_gloss(p[k], s_[k] - dg[k] + ds[k] * gw, di[k], dg[k]))
+            gloss = min(cap, float(np.clip((s0 * gw) @ _LUMA / (s0 @ _LUMA), 0.0, 1.0)))
     return gi, gw, gloss
 
 
@@ -186,21 +213,23 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     the default (the fitted light, whose scale the photo cannot tell from the skin's
     albedo, lights the eyes brighter than the photo's), the same light makes the eyes'
     gloss too bright by as much: with ``matte_renders`` the gloss is scaled by the whites'
-    luminance gain (at most 1), solved in turn with the colours. Returns (rgb, report),
+    luminance gain (at most 1), solved in turn with the colours, and capped where the
+    iris comes out black in a channel (the gloss's veil alone brighter than the photo's
+    iris: a broad light over a dark iris; :func:`_iris_gloss`). Returns (rgb, report),
     the report with ``sclera_rgb`` (and ``eye_gloss``) where the whites were estimated."""
     from hack_render.render.materials import SCLERA_RGB
 
     current = np.asarray(current, np.float64)
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
-    rows, n, n_white = _eye_rows(photos, renders, zero_renders, white_renders, matte_renders,
-                                 allowed)
+    rows, n, n_white, iris_rows = _eye_rows(photos, renders, zero_renders, white_renders,
+                                            matte_renders, allowed)
     if grey:  # the luminance only: one gain per part for all channels
         rows = [np.repeat((x @ _LUMA)[:, None], 3, 1) for x in rows]
     iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
     white_ok = whites and n_white >= MIN_PIXELS and bool(np.all(rows[3].sum(0) > 0))
     tied = bool(matte_renders)
-    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok)
+    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
     rgb = current * gain_i
     report = {"pixels": n, "start": current.tolist()}
     how = "photo (grey: luminance only)" if grey else "photo"
