@@ -214,19 +214,13 @@ class PhotometricConfig:
     # start the photometric stage at the two priors' optimum along that ambiguity, which
     # Adam's noisy steps barely move along (photometric.balance_albedo)
     balance_albedo: bool = True
-    # the shape stage's objective (landmarks + priors) is kept, scaled by this, beside
-    # the photo term, where the points are dlib's (refined) or a landmark file's. On 8
-    # synthetic subjects 0.1 and 1.0 left the geometry where the landmarks put it, 0.01
-    # and 0.001 let the photo term refine it (vertex error 2.30 / 2.24 / 2.23 mm). On a
-    # real photo the photo term also pulls where the model cannot follow: at 0.001 the
-    # astronaut's head tipped 2.4 deg forward in this stage, her features 3-5 px (5.6-6.3 %
-    # of the outer-eye distance) below dlib's points, against the independent face mesh's
-    # points 4.4-4.6 %; at 0.01 2.2 % and 3.4-3.6 % (CHANGELOG.md, docs/fit.md)
+    # the shape stage's objective (landmarks + priors), scaled by this beside the photo
+    # term, for dlib's points or a file's: at 0.001 the photo term tipped the astronaut's
+    # head 2.4 deg, her features 5.6-6.3 % of the eyes' distance off dlib's points (2.2 %
+    # at 0.01; the face mesh's points: 4.4-4.6 -> 3.4-3.6 %; docs/fit.md)
     w_landmarks: float = 0.01
-    # the same where the points are the vision package's, when dlib finds no face (face
-    # mesh, shape predictors: turned faces, their points less sure: 6 % of the box on the
-    # composites); there the photo term's pull is worth more (the cameraman at 0.01:
-    # 14.2 -> 18.3 % from the face mesh's points)
+    # the same for the vision package's less sure points (dlib found no face), where the
+    # photo's pull is worth more (the cameraman at 0.01: 14.2 -> 18.3 % off the mesh's)
     w_landmarks_fallback: float = 0.001
     # the silhouette term's scale in this stage (the shape stage's weights times this)
     w_silhouette: float = 0.001
@@ -426,18 +420,12 @@ class FitConfig:
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "
                             f"{fc.eye_hole!r}.")
-        if not (isinstance(fc.edge_feather, (int, float)) and math.isfinite(fc.edge_feather)
-                and 0 <= fc.edge_feather <= 32):
-            raise HackError(f"config final.edge_feather: expected 0..32 (photo pixels' "
-                            f"footprints), found {fc.edge_feather!r}.")
-        if not (isinstance(fc.occluder_shadow, (int, float))
-                and math.isfinite(fc.occluder_shadow) and 0 <= fc.occluder_shadow <= 1):
-            raise HackError(f"config final.occluder_shadow: expected 0..1 (of the eyes' "
-                            f"corner distance), found {fc.occluder_shadow!r}.")
-        if not (isinstance(fc.occluder_margin, (int, float))
-                and math.isfinite(fc.occluder_margin) and 0 <= fc.occluder_margin <= 1):
-            raise HackError(f"config final.occluder_margin: expected 0..1 (of the eyes' "
-                            f"corner distance), found {fc.occluder_margin!r}.")
+        for key, hi, unit in (("edge_feather", 32, "photo pixels' footprints"),
+                              ("occluder_shadow", 1, "of the eyes' corner distance"),
+                              ("occluder_margin", 1, "of the eyes' corner distance")):
+            x = getattr(fc, key)
+            if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
+                raise HackError(f"config final.{key}: expected 0..{hi} ({unit}), found {x!r}.")
         if fc.tone_match not in ("outside", "all", "off"):
             raise HackError(f"config final.tone_match: expected 'outside', 'all' or 'off', "
                             f"found {fc.tone_match!r}.")
