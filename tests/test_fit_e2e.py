@@ -82,6 +82,7 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
                         check=False)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "2 faces found; fitting the largest" in r.stderr
+    assert "the fitted landmarks lie" not in r.stderr   # a fit near its points: no warning
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",
                  "textures/diffuse.png", "overlay.png", "losses.png", "losses.json",
                  "timings.json", "cameras.json"):

@@ -227,3 +227,19 @@ def test_a_turned_face_is_sized_by_its_box_not_its_points(monkeypatch):
     monkeypatch.setattr(detect, "detect_faces", lambda *a, **k: [small])
     with pytest.raises(HackError, match="30 px across"):
         detect.detect_face(img, "auto", min_face_px=64, name="camera.png")
+
+
+def test_a_fit_far_from_its_landmarks_is_warned_about():
+    """`hack-render fit` warns where a view's fitted points lie further from the detected
+    ones than FAR_FROM_LANDMARKS (the report's landmark_residual_iod): the cameraman's
+    benchmark fit (11.8 %) would be named, the frontal portraits (2-3 %) and views without
+    the figure not."""
+    from hack_render.fit.cli import FAR_FROM_LANDMARKS, far_from_landmarks
+
+    report = {"views": [{"photo": "camera.png", "landmark_residual_iod": 0.118},
+                        {"photo": "astronaut.png", "landmark_residual_iod": 0.021},
+                        {"photo": "old.png"}]}
+    warned = far_from_landmarks(report)
+    assert len(warned) == 1 and warned[0].startswith("camera.png") and "11.8 %" in warned[0]
+    assert 0.03 < FAR_FROM_LANDMARKS < 0.118
+    assert far_from_landmarks(report, limit=0.2) == [] and far_from_landmarks({}) == []
