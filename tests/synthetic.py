@@ -184,3 +184,47 @@ def appearance_photo(model, app, alpha, res: int = 64, light: str = "light_stage
     return (Photo(srgb.astype(np.float32), "skin"),
             Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth"),
             {"beta": beta, "alpha": alpha, "vertices": out.vertices[0]})
+
+
+def texture_fitter(model, yaw=30.0, res=160):
+    """A fitter whose state is the truth of a synthetic photo: the head turned by ``yaw``
+    (one cheek away from the camera), lit by a uniform environment, the photo rendered
+    from the state itself with a patterned diffuse map the appearance model lacks."""
+    import dataclasses
+
+    import torch
+
+    from hack_render.fit import texture
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.lighting import Lighting
+
+    photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
+    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res}})
+    f = Fitter([photo], [det], cfg, model=model, progress=False)
+    v = f.views[0]
+    with torch.no_grad():
+        # the truth pose: landmark_view's head rotation, shared by the anatomical prior
+        v.head_angles.copy_(torch.deg2rad(torch.tensor([0.0, yaw, 0.0])))
+        v.transl.copy_(torch.tensor([0.0, -0.03, 1.0]))
+        v.log_focal.fill_(float(np.log(50.0 / 36.0 * res * 2.2)))
+    v.lighting = Lighting("env", 8)
+    with torch.no_grad():
+        v.lighting.log_texels.fill_(0.0)  # uniform unit radiance
+    H = 256
+    prior = texture._skin_maps(f.state, H)
+    yy, xx = np.mgrid[0:H, 0:2 * H]
+    pat = 1.0 + 0.3 * np.sign(np.sin(xx / 5.0) * np.sin(yy / 5.0))
+    truth = np.clip(prior.diffuse * pat[..., None], 0, 1).astype(np.float32)
+    true_maps = dataclasses.replace(prior, diffuse=truth)
+    return f, cfg, true_maps, prior.diffuse, truth
+
+
+def photo_of(rgb):
+    """A fit Photo of linear RGB ``rgb`` (sRGB-encoded, clipped to 0..1)."""
+    import colour
+
+    from hack_render.fit.photo import Photo
+
+    return Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
+                            np.float32), "syn")

@@ -9,9 +9,10 @@ import dataclasses
 
 import numpy as np
 import pytest
-import torch
 
 pytest.importorskip("mitsuba")
+
+from synthetic import photo_of, texture_fitter
 
 
 @pytest.fixture(scope="module")
@@ -21,45 +22,13 @@ def model():
     return load_default_model()
 
 
-def _fitter(model, yaw=30.0, res=160):
-    """A fitter whose state is the truth of a synthetic photo: the head turned by ``yaw``
-    (one cheek away from the camera), lit by a uniform environment, the photo rendered
-    from the state itself with a patterned diffuse map the appearance model lacks."""
-    from synthetic import landmark_view
-
-    from hack_render.fit import texture
-    from hack_render.fit.config import load_config
-    from hack_render.fit.fitter import Fitter
-    from hack_render.fit.lighting import Lighting
-
-    photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
-    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res}})
-    f = Fitter([photo], [det], cfg, model=model, progress=False)
-    v = f.views[0]
-    with torch.no_grad():
-        # the truth pose: landmark_view's head rotation, shared by the anatomical prior
-        v.head_angles.copy_(torch.deg2rad(torch.tensor([0.0, yaw, 0.0])))
-        v.transl.copy_(torch.tensor([0.0, -0.03, 1.0]))
-        v.log_focal.fill_(float(np.log(50.0 / 36.0 * res * 2.2)))
-    v.lighting = Lighting("env", 8)
-    with torch.no_grad():
-        v.lighting.log_texels.fill_(0.0)  # uniform unit radiance
-    H = 256
-    prior = texture._skin_maps(f.state, H)
-    yy, xx = np.mgrid[0:H, 0:2 * H]
-    pat = 1.0 + 0.3 * np.sign(np.sin(xx / 5.0) * np.sin(yy / 5.0))
-    truth = np.clip(prior.diffuse * pat[..., None], 0, 1).astype(np.float32)
-    true_maps = dataclasses.replace(prior, diffuse=truth)
-    return f, cfg, true_maps, prior.diffuse, truth
-
-
 def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     import colour
 
     from hack_render.fit import texture
     from hack_render.fit.photo import Photo
 
-    f, cfg, true_maps, prior, truth = _fitter(model)
+    f, cfg, true_maps, prior, truth = texture_fitter(model)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5  # a grey backdrop
@@ -110,7 +79,7 @@ def test_02_occluder_is_rejected(model):
     from hack_render.fit import texture
     from hack_render.fit.photo import Photo
 
-    f, cfg, true_maps, _, truth = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, truth = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
@@ -132,24 +101,15 @@ def test_02_occluder_is_rejected(model):
     assert bk.diffuse[yi, xi].mean() > 0.6 * truth[yi, xi].mean()
 
 
-def _photo_of(rgb):
-    import colour
-
-    from hack_render.fit.photo import Photo
-
-    return Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
-                            np.float32), "syn")
-
-
 def _frontal_truth_photo(model):
     """A frontal fitter whose photo is the render of its true maps (over grey): (fitter,
     cfg, that render, its height and width, the atlas's height)."""
     from hack_render.fit import texture
 
-    fitter, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    fitter, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = fitter.views[0]
     pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
-    v.photo = _photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
+    v.photo = photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
     h, w = pr.rgba.shape[:2]
     return fitter, cfg, pr, h, w, cfg.final.atlas_height
 
@@ -161,13 +121,13 @@ def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
     seen skin grey)."""
     from hack_render.fit import texture
 
-    f, cfg, true_maps, prior, truth = _fitter(model)
+    f, cfg, true_maps, prior, truth = texture_fitter(model)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
-    v.photo = _photo_of(np.repeat(lum[..., None], 3, -1))
-    assert v.photo.is_grey and not _photo_of(rgb).is_grey
+    v.photo = photo_of(np.repeat(lum[..., None], 3, -1))
+    assert v.photo.is_grey and not photo_of(rgb).is_grey
     pr = texture.render_at_photo(f.state, cfg, v)
     bk = texture.bake_diffuse(f.state, cfg, [pr])
     seen = bk.confidence > 0.9
@@ -190,7 +150,7 @@ def test_04_brows_are_baked(model):
     and left out where it is off."""
     from hack_render.fit import texture
 
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
@@ -198,7 +158,7 @@ def test_04_brows_are_baked(model):
     brows = band & (np.arange(rgb.shape[0])[:, None] < v.detection.points[27, 1])
     assert brows.sum() > 30
     rgb[brows] = [0.03, 0.02, 0.015]
-    v.photo = _photo_of(rgb)
+    v.photo = photo_of(rgb)
     pr = texture.render_at_photo(f.state, cfg, v)
     uv = pr.gbuffer["uv"][brows & (pr.rgba[..., 3] > 0.99)]
     H = cfg.final.atlas_height
@@ -218,11 +178,11 @@ def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):
     photo on the baked pixels, and leaves the unseen texels at the first bake."""
     from hack_render.fit import texture
 
-    f, cfg, true_maps, _, _ = _fitter(model)
+    f, cfg, true_maps, _, _ = texture_fitter(model)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
-    v.photo = _photo_of(rgb)
+    v.photo = photo_of(rgb)
     bk1 = texture.bake_diffuse(f.state, cfg, [texture.render_at_photo(f.state, cfg, v)])
     maps1 = dataclasses.replace(true_maps, diffuse=bk1.diffuse)
     pr1 = texture.render_at_photo(f.state, cfg, v, maps=maps1)
@@ -253,7 +213,7 @@ def test_07_overlay_shows_render_png_in_the_level_frame(model):
     from hack_render.fit import outputs, texture
     from hack_render.fit.photometric import setup_level
 
-    f, cfg, _, _, _ = _fitter(model)
+    f, cfg, _, _, _ = texture_fitter(model)
     v = f.views[0]
     setup_level(f.state, cfg, v, 64)
     final = SimpleNamespace(renders=[texture.render_at_photo(f.state, cfg, v)])
@@ -266,137 +226,6 @@ def test_07_overlay_shows_render_png_in_the_level_frame(model):
     luma = np.array([0.2126, 0.7152, 0.0722])   # (a grey photo gets a grey render.png)
     ratio = (warped[..., :3][inner] @ luma).mean() / (own[..., :3][inner] @ luma).mean()
     assert abs(ratio - 1.0) < 0.1, ratio
-
-
-@pytest.mark.parametrize("yaw, truth", [(0.0, (0.03, 0.08, 0.18)), (30.0, (0.25, 0.12, 0.05))])
-def test_08_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth):
-    """A photo of eyes bluer or redder than the default brown: fit/iris.py recovers the
-    colour (within 10 % per channel; from 16-spp renders of ~13-24 iris pixels), the
-    final render matches the photo's iris, and the texture folder carries it to
-    ``--textures`` (iris.json, read back; a malformed one is a clear error). No iris
-    pixels, or an estimate above its bounds: the default is kept; one below them is held
-    at the lower bound."""
-    from hack_render.errors import HackError
-    from hack_render.fit import iris, outputs, texture
-    from hack_render.render.materials import DEFAULT_IRIS_RGB
-    from hack_render.render.skin_maps import IRIS_FILE, read_iris_file, read_texture_folder
-
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=yaw)
-    v = f.views[0]
-    shot = texture.render_at_photo(f.state, cfg, v,
-                                   maps=dataclasses.replace(true_maps, iris_rgb=truth))
-    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
-    rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rep["pixels"] >= iris.MIN_PIXELS and rep["source"] == "photo"
-    np.testing.assert_allclose(rgb, truth, rtol=0.1)
-    # the default colour is far from the truth: the fit moved it
-    assert np.abs(np.log(np.asarray(DEFAULT_IRIS_RGB) / truth)).max() > 0.4
-    final = outputs.FinalRenders(f)
-    # (the final stage renders with the fitted skin, not the true one: a pixel's filter
-    # mixes a little skin into the iris's border)
-    assert final.maps.iris_rgb == pytest.approx(rgb, rel=0.02)
-    assert abs(final.report["iris"]["residual"] - 1.0) < 0.05
-    assert "final.occluder_shadow 0.1" in final.report["diffuse"]   # (the provenance)
-    written = outputs.write_textures(f, tmp_path / "textures", final)
-    assert tmp_path / "textures" / IRIS_FILE in written
-    assert read_texture_folder(tmp_path / "textures").iris_rgb == final.maps.iris_rgb
-    # an occluder over the eyes (glasses, hair): no pixel is used, the default is kept
-    rgb2, rep2 = iris.fit_colour(f.state, cfg, maps=true_maps,
-                                 allowed=[np.zeros((v.photo.height, v.photo.width), bool)])
-    assert rgb2 == pytest.approx(DEFAULT_IRIS_RGB) and rep2["pixels"] == 0
-    # an iris darker than the render's corneal gloss alone (the estimate would be beyond
-    # black): held at the darkest allowed, and the report says so
-    rgb3 = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
-    rgb3[iris.iris_mask(shot.gbuffer, shot.rgba)] = 0.0
-    v.photo = _photo_of(rgb3)
-    rgb3, rep3 = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rgb3 == pytest.approx([iris.RGB_BOUNDS[0]] * 3) and "held" in rep3["source"]
-    # brighter than any iris (the model's iris on the photo's sclera or a glint): kept
-    rgb4 = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
-    rgb4[iris.iris_mask(shot.gbuffer, shot.rgba)] = 1.0
-    v.photo = _photo_of(rgb4)
-    rgb4, rep4 = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rgb4 == pytest.approx(DEFAULT_IRIS_RGB) and rep4["source"].startswith("kept")
-    bad = tmp_path / "bad.json"
-    for text in ('{"iris_rgb": [0.1, 2.0, 0.1]}', '{"iris_rgb": [0.1]}', "not json"):
-        bad.write_text(text)
-        with pytest.raises(HackError, match="iris_rgb"):
-            read_iris_file(bad)
-
-
-@pytest.mark.parametrize("yaw, k, truth", [(0.0, 0.4, None), (30.0, 1.0, (0.85, 0.85, 0.82))])
-def test_08b_eye_whites_are_recovered_from_the_photo(model, tmp_path, yaw, k, truth):
-    """A photo whose eyes are lit at 0.4 of the fitted light (whites, iris and wet gloss
-    all at 0.4: the fitted light's scale is the skin albedo's, which the photo cannot
-    tell apart) or whose whites are whiter than the default: fit/iris.py recovers the
-    whites' colour (within 10 % per channel, from 16-spp renders) and the gloss (within
-    0.1) with the iris's, ``render.png`` matches the photo there, iris.json carries them
-    to ``--textures`` (read back; a malformed one is a clear error), and the lacrimal
-    film follows the whites. ``whites=False``: no estimate."""
-    from hack_render.errors import HackError
-    from hack_render.fit import iris, outputs, texture
-    from hack_render.render.materials import DEFAULT_IRIS_RGB, LACRIMAL_RGB, SCLERA_RGB, fixed_bsdfs
-    from hack_render.render.skin_maps import IRIS_FILE, read_eye_file, read_texture_folder
-
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=yaw)
-    v = f.views[0]
-    truth = truth or tuple(k * np.asarray(SCLERA_RGB))
-    iris_truth = tuple(min(k, 1.0) * np.asarray(DEFAULT_IRIS_RGB))
-    shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
-        true_maps, sclera_rgb=truth, iris_rgb=iris_truth, eye_gloss=min(k, 1.0)))
-    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
-    rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rep["sclera_pixels"] >= iris.MIN_PIXELS and rep["sclera_source"].startswith("photo")
-    np.testing.assert_allclose(rep["sclera_rgb"], truth, rtol=0.1)
-    assert np.abs(np.log(np.asarray(SCLERA_RGB) / truth)).max() > 0.2   # the fit moved it
-    assert abs(rep["eye_gloss"] - min(k, 1.0)) < 0.1
-    np.testing.assert_allclose(rgb, iris_truth, rtol=0.25)
-    final = outputs.FinalRenders(f)
-    assert final.maps.sclera_rgb == pytest.approx(rep["sclera_rgb"], rel=0.05)
-    assert final.maps.eye_gloss == pytest.approx(rep["eye_gloss"], abs=0.05)
-    assert abs(final.report["iris"]["sclera_residual"] - 1.0) < 0.08
-    written = outputs.write_textures(f, tmp_path / "textures", final)
-    assert tmp_path / "textures" / IRIS_FILE in written
-    back = read_texture_folder(tmp_path / "textures")
-    assert (back.sclera_rgb, back.eye_gloss) == (final.maps.sclera_rgb, final.maps.eye_gloss)
-    lac = fixed_bsdfs(truth)["lacrimal"]["bsdf"]["diffuse_reflectance"]["value"]
-    np.testing.assert_allclose(lac, np.asarray(LACRIMAL_RGB) * truth / np.asarray(SCLERA_RGB))
-    _, rep2 = iris.fit_colour(f.state, cfg, maps=true_maps, whites=False)
-    assert "sclera_rgb" not in rep2
-    bad = tmp_path / "bad.json"
-    for text in ('{"iris_rgb": [0.1, 0.1, 0.1], "sclera_rgb": [0.5, 1.5, 0.5]}',
-                 '{"iris_rgb": [0.1, 0.1, 0.1], "sclera_rgb": [0.5]}'):
-        bad.write_text(text)
-        with pytest.raises(HackError, match="sclera_rgb"):
-            read_eye_file(bad)
-    bad.write_text('{"iris_rgb": [0.1, 0.1, 0.1], "eye_gloss": 2}')
-    with pytest.raises(HackError, match="eye_gloss"):
-        read_eye_file(bad)
-    bad.write_text('{"iris_rgb": [0.1, 0.1, 0.1]}')   # written before the whites were fitted
-    assert read_eye_file(bad) == ((0.1, 0.1, 0.1), None, None)
-
-
-def test_08c_a_dark_iris_under_a_duller_gloss_keeps_its_colour(model):
-    """A dark brown iris (0.08, 0.04, 0.02) whose eyes are less glossy than the model's
-    (gloss 0.2, the whites as the model's): with the gloss tied to the whites' gain (1),
-    the gloss's veil alone was brighter than the photo's iris, so the iris came out
-    black, held at the lower bound, and rendered as the veil's grey-blue (measured:
-    (0.031, 0.005, 0.005), gloss 0.92). The gloss is capped where the iris needs it:
-    measured (0.059, 0.019, 0.005), gloss 0.50 (the affine model of the renders is not
-    exact in the gloss: the coat dims what lies under it)."""
-    from hack_render.fit import iris, texture
-    from hack_render.render.materials import SCLERA_RGB
-
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
-    v = f.views[0]
-    brown = (0.08, 0.04, 0.02)
-    shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
-        true_maps, sclera_rgb=tuple(SCLERA_RGB), iris_rgb=brown, eye_gloss=0.2))
-    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
-    rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
-    assert rep["eye_gloss"] < 0.65
-    assert abs(rgb[0] / brown[0] - 1) < 0.3 and rgb[1] > 0.012   # brown, not black
-    np.testing.assert_allclose(rep["sclera_rgb"], SCLERA_RGB, rtol=0.1)
 
 
 def test_09_fallback_skin_is_tone_matched_without_a_seam():
@@ -448,10 +277,10 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
 
     from hack_render.fit import texture
 
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
-    v.photo = _photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
     x0, y0 = int(pts[2, 0]) + 4, int(pts[29, 1])
@@ -549,7 +378,7 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
 
     # through the bake's pixel weights: the photo of the truth, darkened beside a
     # rectangle of occluder on the forehead as a fringe's shadow would
-    f, cfg, true_maps, _, _ = _fitter(model, yaw=0.0)
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     pts = v.detection.points
@@ -560,10 +389,10 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     shade = np.exp(np.where(d <= 8, -0.3 * np.exp(-(d - 1) / 2.5), 0.0))
     clean = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     v.occluder = occ
-    v.photo = _photo_of(clean)
+    v.photo = photo_of(clean)
     pr = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     w_ref, obs_ref = texture.pixel_weights(v, pr, cfg)
-    v.photo = _photo_of(clean * shade[..., None])
+    v.photo = photo_of(clean * shade[..., None])
     cfg.final.occluder_shadow = 0.0
     w0, obs0 = texture.pixel_weights(v, pr, cfg)
     cfg.final.occluder_shadow = 0.2
