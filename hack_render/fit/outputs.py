@@ -85,15 +85,16 @@ def fitted_landmarks(fitter, v) -> np.ndarray:
         return fitter.project(v, fitter.model_landmarks(v, verts, 0)).numpy()
 
 
-def _landmark_residual(fitter, v) -> float | None:
-    """Mean distance between the fitted and the detected points (the chin and the 51
-    inner points the detector sees), in units of the detected outer-eye distance."""
+def _landmark_residual(v, fitted: np.ndarray) -> float | None:
+    """Mean distance between the fitted points (:func:`fitted_landmarks`) and the detected
+    ones (the chin and the 51 inner points the detector sees), in units of the detected
+    outer-eye distance."""
     det = v.detection
     idx = np.array([8] + list(range(17, 68)))
     if det.visible is not None:
         idx = idx[np.asarray(det.visible, bool)[idx]]
     iod = max(float(np.linalg.norm(det.points[36] - det.points[45])), 1e-9)
-    d = np.linalg.norm(fitted_landmarks(fitter, v)[idx] - det.points[idx], axis=1)
+    d = np.linalg.norm(fitted[idx] - det.points[idx], axis=1)
     return round(float(d.mean() / iod), 4) if len(idx) else None
 
 
@@ -147,6 +148,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     for i, v in enumerate(res.views):
         name = "params.json" if i == 0 else f"params_view{i}.json"
         written.append(save_params(outdir / name, view_params(res, i)))
+    fitted = [fitted_landmarks(fitter, v) for v in res.views]   # the npz's and the report's
     arrays = {"beta": res.beta.detach().numpy(), "psi": res.psi.detach().numpy(),
               "alpha": res.alpha.detach().numpy(), "eta": res.eta.detach().numpy(),
               "tau": res.tau.detach().numpy()}
@@ -160,7 +162,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
         arrays[f"view{i}_R"] = np.asarray(cam["R"])
         arrays[f"view{i}_t"] = np.asarray(cam["t"])
         arrays[f"view{i}_landmarks_detected"] = v.detection.points  # refined, if so
-        arrays[f"view{i}_landmarks_fitted"] = fitted_landmarks(fitter, v)
+        arrays[f"view{i}_landmarks_fitted"] = fitted[i]
         if v.detection.refined:  # dlib's own points, before the landmark refiner
             arrays[f"view{i}_landmarks_dlib"] = v.detection.raw
         if v.lighting is not None:
@@ -212,7 +214,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "refiner_shift_iod": _refiner_shift(v.detection),
                          # the fit's points against the detected ones (drift: a fit
                          # the photo term pulled off the landmarks)
-                         "landmark_residual_iod": _landmark_residual(fitter, v),
+                         "landmark_residual_iod": _landmark_residual(v, fitted[i]),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v),
@@ -223,7 +225,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                        "lobe_start": v.lighting_init,
                                        "colour_cast": _colour_cast(v)}
                                       if v.lighting is not None else None)}
-                        for v in res.views],
+                        for i, v in enumerate(res.views)],
               # photometric.balance_albedo: the skin's colour moved from the light to alpha
               "albedo_balance": getattr(fitter, "albedo_balance", None) or None,
               "final": final.report if final is not None else None,
