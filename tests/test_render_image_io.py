@@ -34,3 +34,25 @@ def test_02_cache_is_written_reused_and_repaired(fresh_cache):
     fresh_cache.write_bytes(b"not a numpy file")
     assert np.array_equal(io.srgb8_thresholds(), t)
     assert np.array_equal(np.load(fresh_cache), t)
+
+
+def test_03_straight_colour_pads_the_thin_edge_with_the_covered_colour():
+    """A disc of one colour over a transparent background, its edge pixels' premultiplied
+    colour noisy: where alpha is tiny, colour / alpha is a saturated speck; the straight
+    colour takes the nearest mostly covered pixel's there, is exact where alpha >= 0.5
+    and 0 where alpha is 0."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:32, 0:32] + 0.5
+    r = np.hypot(yy - 16, xx - 16)
+    alpha = np.clip(10.5 - r, 0.0, 1.0)
+    alpha[(r >= 10.5) & (r < 11.5)] = 0.002   # a ring the samples barely touched
+    colour = np.array([0.6, 0.4, 0.3])
+    pre = alpha[..., None] * colour + rng.normal(0, 0.01, (32, 32, 3)) * (alpha > 0)[..., None]
+    naive = np.where((alpha > 0)[..., None], pre / np.maximum(alpha, 1e-6)[..., None], 0.0)
+    assert np.abs(naive - colour)[alpha > 0].max() > 1.0   # the specks the padding removes
+    out = io.straight_colour(pre, alpha)
+    solid = alpha >= 0.5
+    assert np.allclose(out[solid], pre[solid] / alpha[solid][:, None])
+    edge = (alpha > 0) & ~solid
+    assert edge.sum() > 20 and np.abs(out[edge] - colour).max() < 0.1
+    assert (out[alpha == 0] == 0).all()

@@ -321,7 +321,7 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     from PIL import Image
     from skimage.transform import resize
 
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.render.image_io import straight_colour, to_srgb8
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -331,8 +331,7 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
             lum = rgba[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
             rgba = np.concatenate([np.repeat(lum[..., None], 3, -1), rgba[..., 3:]], -1)
         a = np.clip(rgba[..., 3:4], 0.0, 1.0)
-        rgb = rgba[..., :3] / np.maximum(a, 1e-6)  # straight (not premultiplied) colour
-        rgb8 = to_srgb8(np.where(a > 0, rgb, 0.0), 0.0, "clip")
+        rgb8 = to_srgb8(straight_colour(rgba[..., :3], a[..., 0]), 0.0, "clip")
         img = np.concatenate([rgb8, np.round(a * 255).astype(np.uint8)], -1)
         h, w = rgba.shape[:2]
         photo = v.photo.linear()

@@ -221,3 +221,19 @@ def read_hdr_image(path: str | Path) -> np.ndarray:
     if not np.all(np.isfinite(img)):
         raise HackError(f"{path}: expected finite radiance values, found NaN or Inf.")
     return img.astype(np.float32)
+
+
+def straight_colour(premultiplied: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """(H, W, 3) straight (not premultiplied) colour of a render over a transparent
+    background: colour / alpha where the pixel is mostly covered (alpha >= 0.5); at the
+    silhouette's thin edge, where that division amplifies the samples' noise into
+    saturated specks (a pixel at alpha 0.001 became pure red), the nearest mostly
+    covered pixel's colour (edge padding, as texture tools do); 0 where alpha is 0."""
+    from scipy.ndimage import distance_transform_edt
+
+    solid = alpha >= 0.5
+    rgb = premultiplied / np.maximum(alpha, 1e-6)[..., None]
+    if solid.any() and not solid.all():
+        iy, ix = distance_transform_edt(~solid, return_distances=False, return_indices=True)
+        rgb = np.where(solid[..., None], rgb, rgb[iy, ix])
+    return np.where((alpha > 0)[..., None], rgb, 0.0)
