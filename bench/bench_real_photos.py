@@ -32,7 +32,10 @@ timings and, from its ``render.png`` at the photo's size, the face-region PSNR a
 against the photo (the region: the vision package's face oval without its occluders,
 where the render covers it; ``skin_*``: its skin only, without eyes, brows, lips and
 hair; ``baked_*``: the region's pixels the bake took from the photo, its
-``occlusion.png`` > 0), and where the fit's points lie: ``landmark_residual_iod`` (the
+``occlusion.png`` > 0; ``inner_*``: the region without its outer 2 px, whose pixels mix
+the face with the hair or background beside it; ``eyes_*``, ``mouth_*``: the fitted
+points' eye rings scaled 1.8 and inner mouth ring scaled 1.3 within the region, their
+PSNR and share of its squared error), and where the fit's points lie: ``landmark_residual_iod`` (the
 report's, against the points it fitted) and ``fit_vs_mesh_iod`` (against the face mesh
 detector's, independent of dlib; chin and inner points, outer-eye distance).
 ``--real-only`` skips the composites.
@@ -267,6 +270,40 @@ def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray)
             "face_ssim": float(ssim_map.mean(axis=2)[m].mean())}
 
 
+def feature_regions(points: np.ndarray, shape) -> dict:
+    """The eyes (their landmark rings scaled 1.8 about their centres: lids, lashes and
+    the sockets' shadow too, as the fit's bake leaves out) and the mouth (its inner ring
+    scaled 1.3) of 68 points, as (H, W) bool masks."""
+    from skimage.draw import polygon
+
+    out = {}
+    for name, rings in (("eyes", ((range(36, 42), 1.8), (range(42, 48), 1.8))),
+                        ("mouth", ((range(60, 68), 1.3),))):
+        m = np.zeros(shape, bool)
+        for idx, k in rings:
+            p = points[list(idx)]
+            c = p.mean(0)
+            p = c + k * (p - c)
+            rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
+            m[rr, cc] = True
+        out[name] = m
+    return out
+
+
+def share_of_error(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray,
+                   part: np.ndarray, name: str) -> dict:
+    """A part of the face region (covered by the render): its pixels, its PSNR and its
+    share of the region's squared error."""
+    m = region & (render_rgba[..., 3] > 127)
+    se = ((photo.astype(np.float64) - render_rgba[..., :3]) ** 2).mean(-1)
+    k = m & part
+    if not k.any() or not m.any():
+        return {f"{name}_pixels": int(k.sum())}
+    return {f"{name}_pixels": int(k.sum()),
+            f"{name}_psnr_db": 10 * np.log10(255.0 ** 2 / max(float(se[k].mean()), 1e-12)),
+            f"{name}_share_of_error": float(se[k].sum() / max(se[m].sum(), 1e-12))}
+
+
 def fit_against_mesh(img: np.ndarray, npz) -> dict:
     """The fit's projected points (``params.npz``'s ``view0_landmarks_fitted``) against
     the face mesh detector's, an independent detector (the fit's points are dlib's or the
@@ -292,6 +329,7 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
     the face-region PSNR/SSIM of its ``render.png`` at the photo's size. ``keep``: a folder
     the fit's outputs are kept in (``keep/name``), else they go with a temporary one."""
     import imageio.v3 as iio
+    from scipy.ndimage import binary_erosion
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"{name}.png"
@@ -329,6 +367,17 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
                 row.update(score_render(img, rgba, regions[0]))
                 row.update({f"skin_{k}": v
                             for k, v in score_render(img, rgba, regions[1]).items()})
+                # without the region's outer 2 px: its pixels mix the face with the hair
+                # or background beside it, which a hairless model cannot match
+                inner = binary_erosion(regions[0], iterations=2)
+                row.update({f"inner_{k}": v
+                            for k, v in score_render(img, rgba, inner).items()})
+                npz_path, cams = out / "params.npz", out / "cameras.json"
+                if npz_path.is_file() and cams.is_file():   # the eyes' and mouth's share
+                    size = json.loads(cams.read_text())["cameras"][0]["width"]
+                    pts = np.load(npz_path)["view0_landmarks_fitted"] * img.shape[1] / size
+                    for part, m in feature_regions(pts, img.shape[:2]).items():
+                        row.update(share_of_error(img, rgba, regions[0], m, part))
                 occ = out / "occlusion.png"   # the bake's weights: > 0 where it used the photo
                 if occ.is_file():
                     used = np.asarray(iio.imread(occ)) > 0

@@ -44,3 +44,30 @@ def test_score_render_psnr_over_the_covered_region(bench):
     assert same["face_ssim"] == pytest.approx(1.0) and same["face_psnr_db"] > 100
     assert "face_psnr_db" not in bench.score_render(photo, render.astype(np.uint8),
                                                     np.zeros((64, 64), bool))
+
+
+def test_the_eyes_share_of_the_region_error(bench):
+    """feature_regions: the eye rings scaled 1.8 and the mouth's scaled 1.3 about their
+    centres; share_of_error: a part's PSNR and its share of the region's squared error
+    (an error of 20 levels on the eyes, 5 elsewhere: by pixel counts)."""
+    pytest.importorskip("skimage")
+    pts = np.zeros((68, 2))
+    ang = np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    ring = np.stack([10 * np.cos(ang), 5 * np.sin(ang)], -1)
+    pts[36:42], pts[42:48] = ring + (30, 40), ring + (70, 40)
+    ang8 = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    pts[60:68] = np.stack([12 * np.cos(ang8), 4 * np.sin(ang8)], -1) + (50, 75)
+    parts = bench.feature_regions(pts, (100, 100))
+    eyes, mouth = parts["eyes"], parts["mouth"]
+    area = 2 * 0.5 * 6 * 18 * 9 * np.sin(2 * np.pi / 6)   # two hexagons of radii 18, 9
+    assert abs(eyes.sum() - area) < 0.15 * area
+    assert mouth[75, 50] and not mouth[75, 67] and mouth[75, 64] and not eyes[40, 50]
+    photo = np.full((100, 100, 3), 100, np.uint8)
+    render = np.concatenate([np.full((100, 100, 3), 105), np.full((100, 100, 1), 255)], -1)
+    render[eyes, :3] = 120
+    region = np.ones((100, 100), bool)
+    s = bench.share_of_error(photo, render.astype(np.uint8), region, eyes, "eyes")
+    n = eyes.sum()
+    want = n * 400 / (n * 400 + (10000 - n) * 25)
+    assert s["eyes_pixels"] == n and s["eyes_share_of_error"] == pytest.approx(want)
+    assert s["eyes_psnr_db"] == pytest.approx(20 * np.log10(255 / 20))
