@@ -165,6 +165,7 @@ class SilhouetteConfig:
     # segmentation (hack_render.vision.segment; MediaPipe selfie segmentation), and its
     # occluders (hair, hands over the face) left out of the photometric term
     segment: bool = True
+    check: bool = True   # a mask pulling the points off is dropped (fit_shape_checked)
 
 
 @dataclass
@@ -305,9 +306,8 @@ class FinalConfig:
     # shadow, so baked it is a dark rim along the fringe; 0 bakes it as the photo has it
     # (the same view's PSNR is higher so: docs/fit.md)
     occluder_shadow: float = 0.1
-    # the bake's confidence at its edges faded (min with itself blurred by a Gaussian of
-    # this many photo pixels' footprints), so the photo's skin meets the tone-matched
-    # fallback over a few pixels, not along the segmentation's jagged edge; 0: a hard edge
+    # the bake's confidence at its edges faded (min with itself blurred by a Gaussian of this
+    # many pixel footprints): the skin meets the fallback softly, not along a jagged edge
     edge_feather: float = 4.0
 
 

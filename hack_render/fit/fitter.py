@@ -271,7 +271,7 @@ class Fitter:
         return geometric.fit_camera(self.state, self.cfg, self.log)
 
     def fit_shape(self) -> StageReport:
-        return geometric.fit_shape(self.state, self.cfg, self.log)
+        return geometric.fit_shape_checked(self.state, self.cfg, self.log)
 
     def photometric(self, texel: bool = False) -> list[StageReport]:
         return photometric.run(self.state, self.cfg, self.log, texel)

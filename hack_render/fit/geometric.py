@@ -11,6 +11,8 @@ and the stage log, updates the state's parameters and returns its report.
 
 from __future__ import annotations
 
+import torch
+
 from hack_render.fit import terms
 from hack_render.fit.config import FitConfig
 from hack_render.fit.stages import StageLog, StageReport
@@ -50,3 +52,80 @@ def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
             groups.append({"params": [v.psi], "lr": s.lr})
     return log.run("shape", groups, lambda it: terms.shape_objective(state, cfg, it),
                    s.iterations, after_step=state.clamp_)
+
+
+#: a view's person mask is dropped from the silhouette term when, with it, the shape
+#: stage's fitted points end more than this many outer-eye distances further from the
+#: detected ones than without it: its border beside the face is then not the face's
+#: outline (an object held in front of the face, hair or a hat around it). The
+#: cameraman's mask (his camera over his face's front) took his points from 1.1 % to
+#: 8.4 %; the astronaut's and Grace Hopper's moved them -0.2 and +0.8 % (docs/fit.md)
+SILHOUETTE_MARGIN_IOD = 0.02
+
+
+def fit_shape_checked(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
+    """:func:`fit_shape`, and where a view has a person mask, the stage once more without
+    the silhouette term: a view whose fitted points the term pulls further than
+    ``SILHOUETTE_MARGIN_IOD`` from the detected ones loses its mask (for the photometric
+    stage too; its ``silhouette_note`` says why), and the stage is kept as run with the
+    masks that remain."""
+    masked = [v.silhouette is not None for v in state.views]
+    if state.silhouette is None or not any(masked) or not cfg.silhouette.check:
+        return fit_shape(state, cfg, log)
+    start = _snapshot(state)
+    rep = fit_shape(state, cfg, log)
+    with_mask = [terms.landmark_residual_iod(v, terms.fitted_points(state, cfg, v))
+                 for v in state.views]
+    after = _snapshot(state)
+    _restore(state, start)
+    masks = [v.silhouette for v in state.views]
+    for v in state.views:
+        v.silhouette = None
+    rep_without = fit_shape(state, cfg, log)
+    rep_without.name = "shape (no silhouette, not kept)"   # the report named "shape" is
+    # the run whose parameters are kept
+    without = [terms.landmark_residual_iod(v, terms.fitted_points(state, cfg, v))
+               for v in state.views]
+    drop = [m and a is not None and b is not None and a > b + SILHOUETTE_MARGIN_IOD
+            for m, a, b in zip(masked, with_mask, without)]
+    for v, m, d, a, b in zip(state.views, masks, drop, with_mask, without):
+        v.silhouette = None if d else m
+        if d:
+            v.silhouette_note = (f"dropped ({v.silhouette_note}): with it the fitted points "
+                                 f"ended {a:.3f} of the outer-eye distance from the "
+                                 f"detected ones, {b:.3f} without; its border beside the "
+                                 "face is not the face's outline (an object in front of "
+                                 "the face, hair)")
+    if not any(drop):
+        _restore(state, after)
+        return rep
+    rep.name = "shape (with the masks, not kept)"
+    if all(d or not m for d, m in zip(drop, masked)):
+        rep_without.name = "shape"
+        return rep_without
+    _restore(state, start)
+    return fit_shape(state, cfg, log)
+
+
+def _snapshot(state: FitState) -> dict:
+    """The shape stage's parameters and matched contours, copied (see :func:`_restore`)."""
+    views = [{k: getattr(v, k).detach().clone() for k in _VIEW_PARAMS
+              if getattr(v, k) is not None} | {"jaw": v.jaw, "sil_contour": v.sil_contour}
+             for v in state.views]
+    return {"beta": state.beta.detach().clone(), "psi": state.psi.detach().clone(),
+            "jaw_current": state.jaw.current.copy(), "views": views}
+
+
+_VIEW_PARAMS = ("log_focal", "transl", "head_angles", "dtheta", "global_orient", "psi")
+
+
+def _restore(state: FitState, snap: dict) -> None:
+    with torch.no_grad():
+        state.beta.copy_(snap["beta"])
+        state.psi.copy_(snap["psi"])
+        for v, saved in zip(state.views, snap["views"]):
+            for k in _VIEW_PARAMS:
+                if k in saved:
+                    getattr(v, k).copy_(saved[k])
+            v.jaw, v.sil_contour = saved["jaw"], saved["sil_contour"]
+    state.jaw.current = snap["jaw_current"].copy()

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from hack_render.fit.fitter import R0, FitResult
+from hack_render.fit.terms import landmark_residual_iod
 
 #: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
 TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
@@ -83,19 +84,6 @@ def fitted_landmarks(fitter, v) -> np.ndarray:
     with torch.no_grad():
         verts = fitter.forward(v).vertices[0]
         return fitter.project(v, fitter.model_landmarks(v, verts, 0)).numpy()
-
-
-def _landmark_residual(v, fitted: np.ndarray) -> float | None:
-    """Mean distance between the fitted points (:func:`fitted_landmarks`) and the detected
-    ones (the chin and the 51 inner points the detector sees), in units of the detected
-    outer-eye distance."""
-    det = v.detection
-    idx = np.array([8] + list(range(17, 68)))
-    if det.visible is not None:
-        idx = idx[np.asarray(det.visible, bool)[idx]]
-    iod = max(float(np.linalg.norm(det.points[36] - det.points[45])), 1e-9)
-    d = np.linalg.norm(fitted[idx] - det.points[idx], axis=1)
-    return round(float(d.mean() / iod), 4) if len(idx) else None
 
 
 def _refiner_provenance(res) -> str | None:
@@ -214,7 +202,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "refiner_shift_iod": _refiner_shift(v.detection),
                          # the fit's points against the detected ones (drift: a fit
                          # the photo term pulled off the landmarks)
-                         "landmark_residual_iod": _landmark_residual(v, fitted[i]),
+                         "landmark_residual_iod": landmark_residual_iod(v, fitted[i]),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
                          "focal": _focal_entry(fitter, v),

@@ -194,3 +194,25 @@ def camera_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Te
         terms["landmarks"] += float(lm.detach())
         terms["focal_prior"] += float(fp.detach())
     return total, terms
+
+
+def landmark_residual_iod(v: View, fitted: np.ndarray) -> float | None:
+    """Mean distance between the fitted points (:func:`fitted_points`) and the detected
+    ones (the chin and the 51 inner points the detector sees), in units of the detected
+    outer-eye distance."""
+    det = v.detection
+    idx = np.array([8] + list(range(17, 68)))
+    if det.visible is not None:
+        idx = idx[np.asarray(det.visible, bool)[idx]]
+    iod = max(float(np.linalg.norm(det.points[36] - det.points[45])), 1e-9)
+    d = np.linalg.norm(fitted[idx] - det.points[idx], axis=1)
+    return round(float(d.mean() / iod), 4) if len(idx) else None
+
+
+def fitted_points(state: FitState, cfg: FitConfig, v: View) -> np.ndarray:
+    """(68, 2) the fitted model's landmark points projected into the view's photo (the
+    jawline where it was last matched), in pixels."""
+    with torch.no_grad():
+        verts = state.forward(v).vertices[0]
+        it = 1 if cfg.landmarks.contour_every > 1 else 0   # no re-match: no side effect
+        return state.project(v, model_landmarks(state, cfg, v, verts, it)).numpy()
