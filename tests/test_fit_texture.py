@@ -43,8 +43,9 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     assert seen.sum() > 2000 and 0.1 < bk.seen_fraction < 0.9
     err_prior = np.abs(prior - truth)[seen].mean()
     err_bake = np.abs(bk.diffuse - truth)[seen].mean()
-    # the pattern (+-30 %) is recovered where the photo sees the skin
-    assert err_bake < 0.45 * err_prior, (err_bake, err_prior)
+    # the pattern (+-30 %) is recovered where the photo sees the skin (0.34 of the prior's
+    # error; 0.37 with the splat's earlier bands of 2x, texture.FOOTPRINT_STEP)
+    assert err_bake < 0.36 * err_prior, (err_bake, err_prior)
     # unseen texels: A(alpha) tone-matched by a smooth gain (final.tone_match), or
     # A(alpha) exactly with it off; mirrored ones come from the photo's side
     unseen = bk.source == 0

@@ -16,11 +16,11 @@ model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
   (occluders: hair, hands, glasses, where the render cannot explain the photo) and where
   their chromaticity is far from the face's skin (clothes, lips' edges, hair); each
   view's per-pixel weight is written out as its occlusion mask. They are splatted into
-  the atlas bilinearly and spread by a normalised Gaussian of half the pixel's footprint
-  in texels, by bands of footprint (``FOOTPRINT_BANDS``: the median footprint, twice it,
-  four and eight times: oblique skin and stretched UVs take wider pixels, which a single
-  width left as stripes of gaps); a pixel's weight counts for the confidence by its area
-  in median pixels.
+  the atlas bilinearly and spread by a normalised Gaussian of a quarter of the widest
+  footprint in texels of the pixel's band of footprint (``FOOTPRINT_BANDS`` bands, each
+  ``FOOTPRINT_STEP`` = sqrt(2) wide, from the median footprint to 16 times it: oblique
+  skin and stretched UVs take wider pixels, which a single width left as stripes of
+  gaps); a pixel's weight counts for the confidence by its area in median pixels.
 - unseen texels: the same texel of the mirrored face (the atlas is left-right symmetric
   within each tile: u -> 1 - u), else the appearance model's A(alpha), tone-matched to
   the baked skin by a smooth gain field (:func:`tone_matched_prior`, ``final.tone_match``)
@@ -316,15 +316,18 @@ def _feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
-#: the bake's splat spread: a Gaussian of this share of a band's footprint, at least
-#: SPLAT_MIN texels. Narrower is sharper in the photo's own view (the astronaut's baked
-#: pixels 33.4 -> 35.3 dB at 0.25 and 0.5 texels) but leaves each wide pixel a disc of
-#: its own in the atlas, a dotted pattern other views show (docs/fit.md)
-SPLAT_SIGMA = 0.5
+#: footprint bands of the bake's splat (:func:`bake_diffuse`): band b holds the pixels
+#: FOOTPRINT_STEP^b to ^(b+1) times the median footprint, the last those beyond
+FOOTPRINT_BANDS = 8
+FOOTPRINT_STEP = 2.0 ** 0.5
+#: each band's splat: a Gaussian of this share of its widest footprint (its widest
+#: pixels leave no gaps), at least SPLAT_MIN texels. Bands of 2x and a Gaussian of half
+#: the narrowest footprint (the same at the widest) blurred the photo's densest pixels:
+#: bands of sqrt(2) bake the astronaut's pixels 33.3 -> 34.7 dB; narrower splats are
+#: sharper still in the photo's own view but leave wide pixels as discs in the atlas,
+#: which other views show (docs/fit.md)
+SPLAT_SIGMA = 0.25
 SPLAT_MIN = 0.7
-#: footprint bands of the bake's splat (:func:`bake_diffuse`): pixels up to 2^(n-1) times
-#: the median footprint and beyond go to the last
-FOOTPRINT_BANDS = 4
 
 
 def pixel_footprints(x: np.ndarray, y: np.ndarray, sel: np.ndarray) -> np.ndarray:
@@ -381,8 +384,9 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     # the photo pixel's footprint in texels: the views' median (neighbours' uv distance)
     fp = float(np.median(footprints)) if footprints else 1.0
     for xs, ys, ws, os_, f in views:
-        rel = np.clip(np.nan_to_num(f, nan=fp) / fp, 1.0, 2.0 ** FOOTPRINT_BANDS)
-        band = np.minimum(np.floor(np.log2(rel)), FOOTPRINT_BANDS - 1).astype(int)
+        rel = np.clip(np.nan_to_num(f, nan=fp) / fp, 1.0, FOOTPRINT_STEP ** FOOTPRINT_BANDS)
+        band = np.minimum(np.floor(np.log(rel) / np.log(FOOTPRINT_STEP)),
+                          FOOTPRINT_BANDS - 1).astype(int)
         x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
         fx, fy = xs - x0, ys - y0
         for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
@@ -405,7 +409,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     for b in range(FOOTPRINT_BANDS):
         if not den[b].any():
             continue
-        sigma = max(SPLAT_MIN, SPLAT_SIGMA * fp * 2 ** b)
+        sigma = max(SPLAT_MIN, SPLAT_SIGMA * fp * FOOTPRINT_STEP ** (b + 1))
         den_b += gaussian_filter(den[b].astype(np.float64), sigma)
         dens += gaussian_filter(area[b].astype(np.float64), sigma)
         num_b += np.stack([gaussian_filter(num[b, ..., c].astype(np.float64), sigma)
