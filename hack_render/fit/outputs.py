@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from hack_render.fit.fitter import R0, FitResult
-from hack_render.fit.terms import landmark_residual_iod
+from hack_render.fit.terms import fitted_points, landmark_residual_iod
 
 #: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
 TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
@@ -81,9 +81,7 @@ def _refiner_shift(det) -> float | None:
 def fitted_landmarks(fitter, v) -> np.ndarray:
     """(68, 2) the fitted model's landmark points (the jawline on its contour) projected
     into the view's photo, in pixels."""
-    with torch.no_grad():
-        verts = fitter.forward(v).vertices[0]
-        return fitter.project(v, fitter.model_landmarks(v, verts, 0)).numpy()
+    return fitted_points(fitter.state, fitter.cfg, v, rematch=True)
 
 
 def _refiner_provenance(res) -> str | None:

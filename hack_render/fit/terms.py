@@ -209,10 +209,12 @@ def landmark_residual_iod(v: View, fitted: np.ndarray) -> float | None:
     return round(float(d.mean() / iod), 4) if len(idx) else None
 
 
-def fitted_points(state: FitState, cfg: FitConfig, v: View) -> np.ndarray:
-    """(68, 2) the fitted model's landmark points projected into the view's photo (the
-    jawline where it was last matched), in pixels."""
+def fitted_points(state: FitState, cfg: FitConfig, v: View, rematch: bool = False
+                  ) -> np.ndarray:
+    """(68, 2) the fitted model's landmark points projected into the view's photo, in
+    pixels: dlib's jawline where it was last matched, or (``rematch``) matched again to
+    the contour (which updates the view's matched jawline)."""
     with torch.no_grad():
         verts = state.forward(v).vertices[0]
-        it = 1 if cfg.landmarks.contour_every > 1 else 0   # no re-match: no side effect
+        it = 0 if rematch or cfg.landmarks.contour_every <= 1 else 1
         return state.project(v, model_landmarks(state, cfg, v, verts, it)).numpy()

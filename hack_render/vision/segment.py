@@ -234,12 +234,23 @@ def hair_like(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: n
     return np.isin(lab, ids[ids > 0])
 
 
+def hair_samples(person: np.ndarray, oval: np.ndarray, up: np.ndarray, brow_y: float,
+                 iod: float) -> np.ndarray:
+    """(H, W) bool: where the hair test samples the person's hair: above the brows (in
+    the upright frame ``up``), well outside the face oval, and inside the person away
+    from its outline (the segmentation spreads into the background by a few pixels)."""
+    from scipy import ndimage
+
+    far = ~ndimage.binary_dilation(oval > 0.05, iterations=max(2, round(iod / 15)))
+    inside = ndimage.binary_erosion(person, iterations=max(2, round(iod / 10)))
+    return inside & far & (up < brow_y)
+
+
 def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: np.ndarray,
                skin: np.ndarray, features: np.ndarray):
     """:func:`hair_like`'s test: (log likelihood ratio hair : skin (H, W), the hair
     samples (H, W) bool, how well it tells its own samples apart: the mean of the shares
     of hair and skin samples on their side), or None (grey photo, too few samples)."""
-    from scipy import ndimage
 
     if int(np.ptp(rgb8, axis=2).max()) <= 1:
         return None
@@ -250,11 +261,7 @@ def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: 
     brow_y = float(_upright_y(face, slice(17, 27)).min())
     eye_y = float(_upright_y(face, slice(36, 48)).mean())
     mouth_y = float(_upright_y(face, slice(48, 68)).mean())
-    far = ~ndimage.binary_dilation(oval > 0.05, iterations=max(2, round(iod / 15)))
-    # the person's own pixels, away from its outline (the segmentation spreads into the
-    # background by a few pixels)
-    inside = ndimage.binary_erosion(person, iterations=max(2, round(iod / 10)))
-    hair_seed = inside & far & (up < brow_y)
+    hair_seed = hair_samples(person, oval, up, brow_y, iod)
     span = mouth_y - eye_y
     cheek = (oval > 0.5) & (features < 0.5) & skin & (up > eye_y + 0.15 * span) \
         & (up < mouth_y - 0.1 * span)
@@ -301,11 +308,9 @@ def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person:
     brow_y = float(_upright_y(face, slice(17, 27)).min())
     core = ndimage.binary_erosion(skin & (oval > 0.5) & (features < 0.5),
                                   iterations=max(1, round(iod / 12)))
-    far = ~ndimage.binary_dilation(oval > 0.05, iterations=max(2, round(iod / 15)))
-    inside = ndimage.binary_erosion(person, iterations=max(2, round(iod / 10)))
     label = np.where(skin, cv2.GC_PR_FGD, cv2.GC_PR_BGD).astype(np.uint8)
     label[~person & (oval < 0.05)] = cv2.GC_BGD
-    label[inside & far & (up < brow_y) & ~skin] = cv2.GC_BGD   # the hair test's samples
+    label[hair_samples(person, oval, up, brow_y, iod) & ~skin] = cv2.GC_BGD
     label[core & (up > eye_y)] = cv2.GC_FGD
     sub = np.ascontiguousarray(label[y0:y1, x0:x1])
     if not ((sub == cv2.GC_FGD).any() and np.isin(sub, (cv2.GC_BGD, cv2.GC_PR_BGD)).any()):
