@@ -149,13 +149,13 @@ def test_04_brows_are_baked(model):
     """Dark brows painted over the photo (their colour is not the skin's, so the skin
     test and the robust rejection drop them) are baked where ``final.features`` is on,
     and left out where it is off."""
-    from hack_render.fit import texture
+    from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
-    band = texture._feature_bands(v.detection.points, rgb.shape[:2])
+    band = bake_weights.feature_bands(v.detection.points, rgb.shape[:2])
     brows = band & (np.arange(rgb.shape[0])[:, None] < v.detection.points[27, 1])
     assert brows.sum() > 30
     rgb[brows] = [0.03, 0.02, 0.015]
@@ -276,7 +276,7 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     it; 0 (the default) leaves the ring in."""
     from scipy.ndimage import binary_dilation
 
-    from hack_render.fit import texture
+    from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
@@ -288,10 +288,10 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     occ[y0:y0 + 10, x0:x0 + 10] = True
     v.occluder = occ
     pr = texture.render_at_photo(f.state, cfg, v)
-    w0, _ = texture.pixel_weights(v, pr, cfg)
+    w0, _ = bake_weights.pixel_weights(v, pr, cfg)
     iod = float(np.linalg.norm(pts[45] - pts[36]))
     cfg.final.occluder_margin = 5.0 / iod      # five pixels
-    w3, _ = texture.pixel_weights(v, pr, cfg)
+    w3, _ = bake_weights.pixel_weights(v, pr, cfg)
     # (the bake's own 2-pixel erosion at every edge already takes the first two)
     ring = binary_dilation(occ, iterations=5) & ~binary_dilation(occ, iterations=3)
     assert (w0[occ] == 0).all() and (w3[occ] == 0).all()
@@ -344,7 +344,7 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     as without the shadow."""
     from scipy.ndimage import distance_transform_edt
 
-    from hack_render.fit import texture
+    from hack_render.fit import bake_weights, texture
     from hack_render.fit.occluder_shadow import FLOOR, occluder_shadow
 
     rng = np.random.default_rng(3)
@@ -392,12 +392,12 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     v.occluder = occ
     v.photo = photo_of(clean)
     pr = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
-    w_ref, obs_ref = texture.pixel_weights(v, pr, cfg)
+    w_ref, obs_ref = bake_weights.pixel_weights(v, pr, cfg)
     v.photo = photo_of(clean * shade[..., None])
     cfg.final.occluder_shadow = 0.0
-    w0, obs0 = texture.pixel_weights(v, pr, cfg)
+    w0, obs0 = bake_weights.pixel_weights(v, pr, cfg)
     cfg.final.occluder_shadow = 0.2
-    w1, obs1 = texture.pixel_weights(v, pr, cfg)
+    w1, obs1 = bake_weights.pixel_weights(v, pr, cfg)
     band = (d >= 2) & (d <= 5) & (w0 > 0) & (w1 > 0) & (w_ref > 0)
     assert band.sum() > 20, band.sum()
     err0 = np.abs(np.log(obs0[band].mean(-1) / obs_ref[band].mean(-1))).mean()
@@ -405,7 +405,7 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     assert err0 > 0.05 and err1 < FLOOR + 0.01, (err0, err1)   # the floor stays
     # the segmentation's hair casts its shadow too (a fringe it calls hair, not occluder)
     v.occluder, v.hair = None, occ
-    w2, obs2 = texture.pixel_weights(v, pr, cfg)
+    w2, obs2 = bake_weights.pixel_weights(v, pr, cfg)
     band2 = band & (w2 > 0)
     assert band2.sum() > 20
     err2 = np.abs(np.log(obs2[band2].mean(-1) / obs_ref[band2].mean(-1))).mean()

@@ -268,11 +268,11 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
 
 def _at_render_size(state, renders: list, allowed: list | None):
     """The views' photos and ``allowed`` masks (photo-size, or None) at each render's size."""
-    from hack_render.fit import texture
+    from hack_render.fit.bake_weights import mask_at, photo_at
 
     sizes = [r.rgba.shape[:2] for r in renders]
-    photos = [texture.photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
-    masks = [None if a is None else texture.mask_at(a, *hw)
+    photos = [photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
+    masks = [None if a is None else mask_at(a, *hw)
              for a, hw in zip(allowed or [None] * len(sizes), sizes)]
     return photos, masks
 

@@ -78,7 +78,7 @@ class View:
     # occluders); the bake takes its pixels only; None: no segmentation
     skin: np.ndarray | None = None
     # (h, w) bool: the segmentation's hair (its shadow on the skin beside it leaves the
-    # bake: texture.pixel_weights); None: no segmentation
+    # bake: bake_weights.pixel_weights); None: no segmentation
     hair: np.ndarray | None = None
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     # the jawline's contour vertices (17,) matched at the last re-match, None before

@@ -8,14 +8,10 @@ G-buffer of the same camera (model UV, normal, albedo and region per pixel).
 :func:`bake_diffuse` makes a per-texel diffuse map of ``final.atlas_height`` rows (the
 model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
 
-- seen texels: every skin pixel of every view is the fitted albedo there times the ratio
-  photo / render, i.e. the photo with the fitted lighting divided out (the render holds
-  the same lighting, geometry and BSDF, so shading, shadows and the specular sheen cancel
-  to first order). Pixels are weighted by the cosine of the view angle (squared: grazing
-  pixels smear), dropped near the render's silhouette, where the ratio is far from 1
-  (occluders: hair, hands, glasses, where the render cannot explain the photo) and where
-  their chromaticity is far from the face's skin (clothes, lips' edges, hair); each
-  view's per-pixel weight is written out as its occlusion mask. They are splatted into
+- seen texels: every skin pixel of every view, with its weight and the albedo it
+  observes (the photo with the fitted lighting divided out), as
+  :mod:`hack_render.fit.bake_weights` chooses them; each view's per-pixel weight is
+  written out as its occlusion mask. They are splatted into
   the atlas bilinearly and spread by a normalised Gaussian of a quarter of the widest
   footprint in texels of the pixel's band of footprint (``FOOTPRINT_BANDS`` bands, each
   ``FOOTPRINT_STEP`` = sqrt(2) wide, from the median footprint to 16 times it: oblique
@@ -39,25 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from hack_render.fit.bake_weights import PhotoRender, pixel_weights
 from hack_render.fit.camera import R0
 from hack_render.fit.config import FitConfig
-from hack_render.fit.occluder_shadow import occluder_shadow
 from hack_render.fit.state import FitState, View
-
-SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REGIONS)
-
-
-@dataclass
-class PhotoRender:
-    """A view rendered through its fitted camera at the photo's size: premultiplied
-    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``), the spp, seconds, and
-    whether it was denoised."""
-
-    rgba: np.ndarray
-    gbuffer: dict
-    spp: int
-    seconds: float
-    denoised: bool = False
 
 
 @dataclass
@@ -183,137 +164,6 @@ def _mirror(a: np.ndarray) -> np.ndarray:
     """The atlas mirrored left-right within each of its two tiles (u -> 1 - u)."""
     h = a.shape[0]
     return np.concatenate([a[:, :h][:, ::-1], a[:, h:][:, ::-1]], axis=1)
-
-
-def photo_at(view: View, h: int, w: int) -> np.ndarray:
-    """The view's photo, linear RGB, resampled to (h, w) (a render's size)."""
-    from skimage.transform import resize
-
-    photo = view.photo.linear()
-    if photo.shape[:2] != (h, w):
-        photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
-    return photo
-
-
-def mask_at(mask, h: int, w: int) -> np.ndarray:
-    """A photo-size mask (the segmentation's) as bool at (h, w), nearest neighbour."""
-    from skimage.transform import resize
-
-    mk = np.asarray(mask, bool)
-    if mk.shape != (h, w):
-        mk = resize(mk.astype(np.float32), (h, w), order=0) > 0.5
-    return mk
-
-
-def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(weights (h, w) in [0, 1], albedo observations (h, w, 3)) of one view's pixels:
-    skin hits away from the silhouette, cos^2 of the view angle, and robust rejection of
-    what the render cannot explain (see the module's docstring)."""
-    from scipy.ndimage import binary_dilation, binary_erosion
-
-    fc = cfg.final
-    gb, rgba = pr.gbuffer, pr.rgba
-    h, w = rgba.shape[:2]
-    photo = photo_at(view, h, w)
-    rendered = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
-    points = view.detection.points * (w / view.photo.width)
-    skin = rendered & ~_feature_holes(points, (h, w), eye_scale=fc.eye_hole)
-    occluded = np.zeros((h, w), bool)
-    iod = float(np.linalg.norm(points[45] - points[36]))
-    for mask, keep in ((view.skin, True), (view.occluder, False)):
-        if mask is not None:  # the segmentation's skin, without its occluders
-            mk = mask_at(mask, h, w)
-            margin = round(fc.occluder_margin * iod)
-            if not keep and margin > 0 and mk.any():  # and the strands at their edge
-                mk = binary_dilation(mk, iterations=margin)
-            skin &= mk if keep else ~mk
-            if not keep:
-                occluded = mk
-    edge = max(1, round(fc.edge_px * w / view.photo.width))
-    skin = binary_erosion(skin, iterations=edge)
-    features = np.zeros((h, w), bool)
-    if fc.features:
-        features = (_feature_bands(points, (h, w)) & binary_erosion(rendered, iterations=edge)
-                    & ~_feature_holes(points, (h, w), eye_scale=1.25) & ~occluded)
-    # cosine between the normal and the direction to the camera (camera frame, z forward)
-    f = w / view.photo.width * float(view.focal.detach())
-    yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    d = np.stack([(xx - w / 2) / f, (yy - h / 2) / f, np.ones_like(xx)], -1)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    cos = np.clip(-(gb["normal"] * d).sum(-1), 0.0, 1.0)
-    rgb = rgba[..., :3]
-    if view.photo.is_grey:  # no colour in the photo: its luminance over the render's,
-        luma = np.array([0.2126, 0.7152, 0.0722], np.float32)   # the skin's colour kept
-        ratio = np.repeat(((photo @ luma) / np.maximum(rgb @ luma, 1e-4))[..., None], 3, -1)
-    else:
-        ratio = photo / np.maximum(rgb, 1e-4)
-    lum = rgb.mean(-1)
-    ok = skin & (lum > 0.1 * np.median(lum[skin])) if skin.any() else skin
-    lr = np.log(np.clip(ratio.mean(-1), 1e-3, 1e3))
-    if fc.occluder_shadow > 0:  # the occluders' shadow on the skin beside them divided
-        # out (not on the brows and lips: their darkness is theirs)
-        casters = occluded | (mask_at(view.hair, h, w) if view.hair is not None else False)
-        gain, mixed, _ = occluder_shadow(lr, ok & ~features, casters,
-                                         fc.occluder_shadow * iod)
-        ratio = ratio * np.exp(-gain)[..., None]
-        lr = lr - gain
-        ok &= ~mixed
-    obs = gb["albedo"] * ratio
-    # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
-    # render does not have) or the observation's chromaticity far from the skin's
-    if ok.sum() >= 16:
-        med = np.median(lr[ok])
-        mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
-        ok &= np.abs(lr - med) < max(fc.reject_sigma * mad, np.log(1.4))
-        chroma = obs / np.maximum(obs.sum(-1, keepdims=True), 1e-4)
-        cm = np.median(chroma[ok], 0)
-        cd = np.linalg.norm(chroma - cm, axis=-1)
-        cmad = 1.4826 * np.median(cd[ok]) + 1e-3
-        ok &= cd < max(fc.reject_sigma * cmad, 0.03)
-    ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
-    wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
-    return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
-
-
-def _feature_holes(points: np.ndarray, shape: tuple[int, int],
-                   eye_scale: float = 1.8) -> np.ndarray:
-    """(h, w) bool: the eyes (their landmark rings scaled ``eye_scale`` about their
-    centres: lashes, lids and the sockets' shadow, which the model's eyes do not match)
-    and the mouth's opening (scaled 1.2), left out of the bake."""
-    from skimage.draw import polygon
-
-    m = np.zeros(shape, bool)
-    for ring, k in ((range(36, 42), eye_scale), (range(42, 48), eye_scale),
-                    (range(60, 68), 1.2)):
-        p = points[list(ring)]
-        c = p.mean(0)
-        p = c + k * (p - c)
-        rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
-        m[rr, cc] = True
-    return m
-
-
-def _feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(h, w) bool: the brows (a band from 0.3 above to 0.5 below each brow's five
-    points, in units of the brow-to-eye distance, towards the eye) and the lips (the
-    outer lip ring), whose colour the bake keeps as the photo has it."""
-    from skimage.draw import polygon
-
-    m = np.zeros(shape, bool)
-    for brow, eye in ((range(17, 22), range(36, 42)), (range(22, 27), range(42, 48))):
-        b = points[list(brow)]
-        down = points[list(eye)].mean(0) - b.mean(0)
-        d = float(np.linalg.norm(down))
-        if d < 1e-6:
-            continue
-        down /= d
-        band = np.r_[b - 0.3 * d * down, (b + 0.5 * d * down)[::-1]]
-        rr, cc = polygon(band[:, 1] - 0.5, band[:, 0] - 0.5, shape)
-        m[rr, cc] = True
-    lips = points[48:60]
-    rr, cc = polygon(lips[:, 1] - 0.5, lips[:, 0] - 0.5, shape)
-    m[rr, cc] = True
-    return m
 
 
 #: footprint bands of the bake's splat (:func:`bake_diffuse`): band b holds the pixels
