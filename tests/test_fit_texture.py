@@ -292,7 +292,7 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     iod = float(np.linalg.norm(pts[45] - pts[36]))
     cfg.final.occluder_margin = 5.0 / iod      # five pixels
     w3, _ = bake_weights.pixel_weights(v, pr, cfg)
-    # (the bake's own 2-pixel erosion at every edge already takes the first two)
+    # (the ring from 3 to 5 pixels: the occluder's own edge pixels are mixed in the render)
     ring = binary_dilation(occ, iterations=5) & ~binary_dilation(occ, iterations=3)
     assert (w0[occ] == 0).all() and (w3[occ] == 0).all()
     assert (w0[ring] > 0).mean() > 0.5 and (w3[ring] == 0).all()
@@ -445,3 +445,32 @@ def test_13_edge_feather_smooths_the_bakes_outline_and_keeps_its_inside(model):
               slice(int(20 + 1.5 * w / 8) + 40, int(20 + 1.5 * 7 * w / 8) - 40))
     assert conf[0.0][inside].min() > 0.9
     np.testing.assert_array_equal(conf[4.0][inside], conf[0.0][inside])
+
+
+def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(model):
+    """final.edge_px drops the pixels next to the render's silhouette (the skin's edge
+    there mixes in the background), not those next to the segmentation's occluders: a
+    crease or a frame left out of the bake keeps the skin beside it, which is the
+    photo's skin (eroding it as well had left a 2-pixel band of A(alpha) around every
+    one of Grace Hopper's creases)."""
+    from scipy.ndimage import binary_dilation, binary_erosion
+
+    from hack_render.fit import bake_weights, texture
+
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
+    v = f.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    pts = v.detection.points
+    occ = np.zeros((v.photo.height, v.photo.width), bool)
+    x0, y0 = int(pts[2, 0]) + 6, int(pts[29, 1]) - 4
+    occ[y0:y0 + 16, x0:x0 + 2] = True          # a crease two pixels wide down the cheek
+    v.occluder = occ
+    pr = texture.render_at_photo(f.state, cfg, v)
+    wgt, _ = bake_weights.pixel_weights(v, pr, cfg)
+    beside = binary_dilation(occ, iterations=2) & ~occ
+    assert (wgt[occ] == 0).all()
+    assert (wgt[beside] > 0).mean() > 0.9
+    rendered = pr.rgba[..., 3] > 0.999
+    rim = rendered & ~binary_erosion(rendered, iterations=2)
+    assert (wgt[rim] == 0).all()

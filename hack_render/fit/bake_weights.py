@@ -73,7 +73,11 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     photo = photo_at(view, h, w)
     rendered = np.isin(gb["segmentation"], SKIN_REGIONS) & (rgba[..., 3] > 0.999)
     points = view.detection.points * (w / view.photo.width)
-    skin = rendered & ~feature_holes(points, (h, w), eye_scale=fc.eye_hole)
+    # (the render's silhouette and the eyes' and mouth's holes eroded, not the
+    # segmentation's masks: their edges are the skin's, a crease or a frame beside it)
+    edge = max(1, round(fc.edge_px * w / view.photo.width))
+    skin = binary_erosion(rendered & ~feature_holes(points, (h, w), eye_scale=fc.eye_hole),
+                          iterations=edge)
     occluded = np.zeros((h, w), bool)
     iod = float(np.linalg.norm(points[45] - points[36]))
     for mask, keep in ((view.skin, True), (view.occluder, False)):
@@ -85,8 +89,6 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
             skin &= mk if keep else ~mk
             if not keep:
                 occluded = mk
-    edge = max(1, round(fc.edge_px * w / view.photo.width))
-    skin = binary_erosion(skin, iterations=edge)
     features = np.zeros((h, w), bool)
     if fc.features:
         features = (feature_bands(points, (h, w)) & binary_erosion(rendered, iterations=edge)
@@ -117,7 +119,7 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     obs = gb["albedo"] * ratio
     # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
     # render does not have) or the observation's chromaticity far from the skin's
-    ok &= robust_keep(lr, obs, ok, fc.reject_sigma, REJECT_SCALE * iod)
+    ok &= robust_keep(lr, obs, ok, fc.reject_sigma)
     ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
@@ -164,47 +166,20 @@ def feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
-#: the robust rejection's scale, a share of the eyes' outer-corner distance: the ratio's
-#: log and the chromaticity are tested averaged over a Gaussian of this width (0: per
-#: pixel), each pixel alone against REJECT_PIXEL times the threshold
-REJECT_SCALE = 0.0
-REJECT_PIXEL = 1.0
-
-
-def robust_keep(lr: np.ndarray, obs: np.ndarray, ok: np.ndarray, k: float,
-                scale_px: float = 0.0) -> np.ndarray:
+def robust_keep(lr: np.ndarray, obs: np.ndarray, ok: np.ndarray, k: float) -> np.ndarray:
     """(h, w) bool: the pixels of ``ok`` whose log ratio ``lr`` (photo over render) is
-    within ``k`` MADs of the skin's median (at least log 1.4) and whose observation's
-    chromaticity (``obs``) is within ``k`` MADs of the skin's (at least 0.03). Over
-    ``scale_px`` > 0 pixels the test is on the two averaged over a Gaussian of that
-    width (the kept pixels' normalised convolution), each pixel alone held to
-    ``REJECT_PIXEL`` times the threshold: a crease or a wrinkle's shadow, thin and
-    darker than the skin around it, is the person's skin; a shadow or an occluder that
-    the render does not have is as wide as the Gaussian or wider."""
-    from scipy.ndimage import gaussian_filter
-
+    within ``k`` MADs of the skin's median (at least log 1.4), and of those the ones
+    whose observation's chromaticity (``obs``) is within ``k`` MADs of theirs (at least
+    0.03)."""
     if ok.sum() < 16:
         return ok
-    chroma = obs / np.maximum(obs.sum(-1, keepdims=True), 1e-4)
     med = np.median(lr[ok])
     mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
-    t_lr = max(k * mad, np.log(1.4))
-    if scale_px > 0:
-        w = ok.astype(np.float64)
-        wb = np.maximum(gaussian_filter(w, scale_px), 1e-9)
-        lr_s = gaussian_filter(np.where(ok, lr, 0.0), scale_px) / wb
-        ch_s = np.stack([gaussian_filter(np.where(ok, chroma[..., c], 0.0), scale_px)
-                         for c in range(3)], -1) / wb[..., None]
-        keep = ok & (np.abs(lr_s - med) < t_lr) & (np.abs(lr - med) < REJECT_PIXEL * t_lr)
-    else:
-        keep = ok & (np.abs(lr - med) < t_lr)
+    keep = ok & (np.abs(lr - med) < max(k * mad, np.log(1.4)))
     if not keep.any():
         return keep
+    chroma = obs / np.maximum(obs.sum(-1, keepdims=True), 1e-4)
     cm = np.median(chroma[keep], 0)
     cd = np.linalg.norm(chroma - cm, axis=-1)
     cmad = 1.4826 * np.median(cd[keep]) + 1e-3
-    t_cd = max(k * cmad, 0.03)
-    if scale_px > 0:
-        cd_s = np.linalg.norm(ch_s - cm, axis=-1)
-        return keep & (cd_s < t_cd) & (cd < REJECT_PIXEL * t_cd)
-    return keep & (cd < t_cd)
+    return keep & (cd < max(k * cmad, 0.03))
