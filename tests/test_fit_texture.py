@@ -457,10 +457,8 @@ def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(mod
 
     from hack_render.fit import bake_weights, texture
 
-    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
+    f, cfg, _, _, _, _ = _frontal_truth_photo(model)
     v = f.views[0]
-    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
-    v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
     x0, y0 = int(pts[2, 0]) + 6, int(pts[29, 1]) - 4
