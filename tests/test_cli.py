@@ -37,7 +37,7 @@ def _command_tree():
 
 
 def test_every_learner_is_under_learn_and_old_names_are_hidden():
-    tree = dict((" ".join(p), c) for p, c in _command_tree())
+    tree = {" ".join(p): c for p, c in _command_tree()}
     learn = tree["learn"]
     assert {"model", "base-model", "joints", "appearance", "landmark-embedding",
             "landmark-refiner"} <= set(learn.commands)
@@ -109,12 +109,20 @@ def test_help_imports_no_heavy_module():
 @pytest.mark.parametrize("args", [[], ["render"], ["fit"], ["learn"], ["learn", "model"],
                                   ["dataset"], ["appearance", "sample"]])
 def test_help_is_fast(args):
-    """Target 0.5 s (measured 0.3-0.45 s on the 2-core development machine); the bound is
-    twice that, for a loaded CI machine, and still fails if torch (2-5 s) comes back."""
-    times = []
+    """`--help` costs little more than starting any command line built on typer and rich:
+    its time over that of a bare interpreter importing typer, rich and numpy, both timed
+    in turn five times, has a median of at most 3.5 (measured 1.5-2.2 for these seven,
+    alone or beside two busy processes; with torch imported 7.3-7.6). A ratio taken in one run, not a time: on a slow or loaded machine both
+    stretch (the earlier bound of 1.0 s failed at 1.01 s on an Intel 2-core machine with
+    a fit running beside the suite, where `fit --help` alone takes 0.8-1.0 s)."""
+    floor = [sys.executable, "-c", "import typer, rich.console, rich.traceback, numpy"]
+    ratios = []
     for _ in range(5):
         t0 = time.perf_counter()
         res = _cli(*args, "--help")
-        times.append(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        subprocess.run(floor, check=True, capture_output=True)
+        t2 = time.perf_counter()
         assert res.returncode == 0, res.stderr
-    assert statistics.median(times) <= 1.0, (args, times)
+        ratios.append((t1 - t0) / (t2 - t1))
+    assert statistics.median(ratios) <= 3.5, (args, ratios)
