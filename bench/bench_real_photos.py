@@ -272,22 +272,11 @@ def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray)
 
 def feature_regions(points: np.ndarray, shape) -> dict:
     """The eyes (their landmark rings scaled 1.8 about their centres: lids, lashes and
-    the sockets' shadow too, as the fit's bake leaves out) and the mouth (its inner ring
+    the sockets' shadow, as the fit's bake leaves out) and the mouth (its inner ring
     scaled 1.3) of 68 points, as (H, W) bool masks."""
-    from skimage.draw import polygon
+    from hack_render.fit.bake_weights import feature_rings
 
-    out = {}
-    for name, rings in (("eyes", ((range(36, 42), 1.8), (range(42, 48), 1.8))),
-                        ("mouth", ((range(60, 68), 1.3),))):
-        m = np.zeros(shape, bool)
-        for idx, k in rings:
-            p = points[list(idx)]
-            c = p.mean(0)
-            p = c + k * (p - c)
-            rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
-            m[rr, cc] = True
-        out[name] = m
-    return out
+    return feature_rings(points, shape, eye_scale=1.8, mouth_scale=1.3)
 
 
 def share_of_error(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray,

@@ -125,22 +125,34 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
 
 
+def feature_rings(points: np.ndarray, shape: tuple[int, int], eye_scale: float = 1.8,
+                  mouth_scale: float = 1.2) -> dict[str, np.ndarray]:
+    """{"eyes", "mouth"}: (h, w) bool masks of the two eyes' landmark rings scaled
+    ``eye_scale`` about their centres and of the inner mouth's ring scaled
+    ``mouth_scale`` (68 points; also the real-photo benchmark's eye and mouth parts)."""
+    from skimage.draw import polygon
+
+    out = {}
+    for name, rings in (("eyes", ((range(36, 42), eye_scale), (range(42, 48), eye_scale))),
+                        ("mouth", ((range(60, 68), mouth_scale),))):
+        m = np.zeros(shape, bool)
+        for ring, k in rings:
+            p = points[list(ring)]
+            c = p.mean(0)
+            p = c + k * (p - c)
+            rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
+            m[rr, cc] = True
+        out[name] = m
+    return out
+
+
 def feature_holes(points: np.ndarray, shape: tuple[int, int],
-                   eye_scale: float = 1.8) -> np.ndarray:
+                  eye_scale: float = 1.8) -> np.ndarray:
     """(h, w) bool: the eyes (their landmark rings scaled ``eye_scale`` about their
     centres: lashes, lids and the sockets' shadow, which the model's eyes do not match)
     and the mouth's opening (scaled 1.2), left out of the bake."""
-    from skimage.draw import polygon
-
-    m = np.zeros(shape, bool)
-    for ring, k in ((range(36, 42), eye_scale), (range(42, 48), eye_scale),
-                    (range(60, 68), 1.2)):
-        p = points[list(ring)]
-        c = p.mean(0)
-        p = c + k * (p - c)
-        rr, cc = polygon(p[:, 1] - 0.5, p[:, 0] - 0.5, shape)
-        m[rr, cc] = True
-    return m
+    rings = feature_rings(points, shape, eye_scale)
+    return rings["eyes"] | rings["mouth"]
 
 
 def feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
