@@ -305,7 +305,7 @@ def test_11_pixel_footprints_and_a_bake_without_gaps_where_pixels_are_wide(model
     other neighbour's distance); the bake spreads wider pixels wider (footprint bands):
     where a photo's pixels span four times the median footprint (oblique skin, stretched
     UVs) the seen texels are filled without gaps, as where they span the median."""
-    from hack_render.fit import texture
+    from hack_render.fit import bake_weights, texture
 
     jj, ii = np.meshgrid(np.arange(12.0), np.arange(10.0))
     x, y = 3.0 * jj, 2.0 * ii
@@ -326,7 +326,7 @@ def test_11_pixel_footprints_and_a_bake_without_gaps_where_pixels_are_wide(model
     gb = dict(pr.gbuffer, uv=uv)
     wgt = np.zeros((h, w), np.float32)
     wgt[h // 4:3 * h // 4, w // 8:7 * w // 8] = 1.0
-    flat = texture.PhotoRender(pr.rgba, gb, pr.spp, 0.0)
+    flat = bake_weights.PhotoRender(pr.rgba, gb, pr.spp, 0.0)
     bk = texture.bake_diffuse(fitter.state, cfg, [flat], weights=[wgt])
     # the texels inside each half's splat (a margin of a few pixels' footprints)
     rows = slice(int(20 + 1.5 * h / 4) + 12, int(20 + 1.5 * 3 * h / 4) - 12)
@@ -417,14 +417,14 @@ def test_13_edge_feather_smooths_the_bakes_outline_and_keeps_its_inside(model):
     jagged segmentation edge (a fringe's) the teeth fade towards the fallback and the
     diffuse map does not draw the edge as a jagged line at full contrast; texels well
     inside keep their confidence exactly."""
-    from hack_render.fit import texture
+    from hack_render.fit import bake_weights, texture
 
     fitter, cfg, pr, h, w, H = _frontal_truth_photo(model)
     # a uv layout of 1.5 texels per pixel, and a weight mask whose top edge is jagged
     jj, ii = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     xt, yt = 20.0 + 1.5 * jj, 20.0 + 1.5 * ii
     uv = np.stack([(xt + 0.5) / H, 1.0 - (yt + 0.5) / H], -1)
-    flat = texture.PhotoRender(pr.rgba, dict(pr.gbuffer, uv=uv), pr.spp, 0.0)
+    flat = bake_weights.PhotoRender(pr.rgba, dict(pr.gbuffer, uv=uv), pr.spp, 0.0)
     top = h // 4 + np.where(np.arange(w) % 10 < 5, 0, 6)      # a 6-pixel comb
     wgt = np.zeros((h, w), np.float32)
     for j in range(w // 8, 7 * w // 8):

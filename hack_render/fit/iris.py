@@ -199,7 +199,7 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     """The iris colour, and with ``white_renders`` the eye whites' too, that make the
     renders match ``photos`` (linear RGB, each at its render's size) over the iris's and
     the whites' pixels (and ``allowed``'s, e.g. not the photo's occluders). ``renders``
-    (``texture.PhotoRender``) have the iris colour ``current`` and the sclera colour
+    (``bake_weights.PhotoRender``) have the iris colour ``current`` and the sclera colour
     ``sclera`` (default :data:`~hack_render.render.materials.SCLERA_RGB`),
     ``zero_renders`` the same with a black iris, ``white_renders`` with a black sclera
     (and lacrimal film), ``matte_renders`` without the eyes' wet gloss, one seed: the

@@ -251,7 +251,6 @@ def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: 
     """:func:`hair_like`'s test: (log likelihood ratio hair : skin (H, W), the hair
     samples (H, W) bool, how well it tells its own samples apart: the mean of the shares
     of hair and skin samples on their side), or None (grey photo, too few samples)."""
-
     if int(np.ptp(rgb8, axis=2).max()) <= 1:
         return None
     h, w = rgb8.shape[:2]
