@@ -209,8 +209,7 @@ class PhotometricConfig:
     # 0.097, window 0.128, light_stage 0; rms 0.085 over 2 axes), about 2.8 deg rms of
     # white-balance error. Synthetic skin alpha (1.5, -1.0, 0.8) under grey light, whole
     # fit at 128 px: albedo CIEDE2000 5.6-5.8 against the mean skin's 13.8 (13.2 without the
-    # prior; sigma 0.1: 8.2, 0.05: 4.9); it costs a mean-skin subject under a tinted
-    # light the cast: 0.3 -> 3.3 under studio (tests/test_fit_alpha.py, CHANGELOG.md)
+    # prior; sigma 0.1: 8.2, 0.05: 4.9; tests/test_fit_alpha.py, CHANGELOG.md)
     light_cast_sigma: float = 0.06
     # start the photometric stage at the two priors' optimum along that ambiguity, which
     # Adam's noisy steps barely move along (photometric.balance_albedo)
@@ -295,10 +294,8 @@ class FinalConfig:
     # mouth, nostrils) or "off" (A(alpha) as it is)
     tone_match: str = "outside"
     # the occluders (hair, hands, glasses) grown by this share of the eyes' outer-corner
-    # distance before the bake leaves them out: the strands and shadows at a fringe's edge,
-    # outside the segmentation's mask, are baked as a dark rim a turntable shows. 0 by
-    # default: 0.08 takes the astronaut's rim away but costs her face region 0.4 dB and
-    # Grace Hopper's 1.1 dB (her glasses' surroundings leave the bake; docs/fit.md)
+    # distance before the bake leaves them out (a fringe's strands and shadow). 0: 0.08
+    # costs the astronaut's face region 0.4 dB, Grace Hopper's 1.1 dB (docs/fit.md)
     occluder_margin: float = 0.0
     # the shadow the occluders and the hair cast on the skin beside them (a fringe's on
     # the forehead), looked for up to this share of the eyes' outer-corner distance and
@@ -309,6 +306,9 @@ class FinalConfig:
     # the bake's confidence at its edges faded (min with itself blurred by a Gaussian of this
     # many pixel footprints): the skin meets the fallback softly, not along a jagged edge
     edge_feather: float = 4.0
+    # the specular map times a per-texel gain where the photo's highlights identify it
+    # (fit/specular_bake.py); off: the fitted map A(alpha) gives
+    specular: bool = True
 
 
 @dataclass

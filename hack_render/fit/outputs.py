@@ -250,14 +250,29 @@ class FinalRenders:
                                                        max_side=cfg.final.max_side))
             bar.update()
         self.baked = texture.bake_diffuse(st, cfg, self.fitted)
+        base = texture._skin_maps(st, cfg.final.atlas_height)
+        spec = base.specular
+        self.specular = {"source": "the fitted map (final.specular off)"}
+        self.specular_confidence = None
+        if cfg.final.specular and not all(v.photo.is_grey for v in st.views):
+            # the highlights' gain on the fitted specular map (fit/specular_bake.py): each
+            # view rendered once more without specular
+            from hack_render.fit.specular_bake import bake_specular
+
+            m0 = texture._skin_maps(st)
+            m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
+            flat = [texture.render_at_photo(st, cfg, v, maps=m0, max_side=cfg.final.max_side)
+                    for v in st.views]
+            spec, self.specular_confidence, self.specular = bake_specular(st, cfg, self.fitted, flat,
+                                                   self.baked.pixel_weights, spec)
         # the person's iris and eye-white colours (fit/iris.py): not under the photo's occluders
         allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
                    for v in st.views]
         rgb, self.iris = iris.fit_colour(st, cfg, allowed)
         bar.update()
         t1 = time.perf_counter()
-        self.maps = dataclasses.replace(texture._skin_maps(st, cfg.final.atlas_height),
-                                        diffuse=self.baked.diffuse, iris_rgb=rgb,
+        self.maps = dataclasses.replace(base, diffuse=self.baked.diffuse, specular=spec,
+                                        iris_rgb=rgb,
                                         sclera_rgb=tuple(self.iris["sclera_rgb"]),
                                         eye_gloss=self.iris.get("eye_gloss"))
         self.renders = []
@@ -284,7 +299,7 @@ class FinalRenders:
                        "seen_fraction": self.baked.seen_fraction,
                        "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
                        "size": [list(r.rgba.shape[1::-1]) for r in self.renders],
-                       "iris": self.iris,
+                       "iris": self.iris, "specular": self.specular,
                        "diffuse": "derived: the photo(s) with the fitted lighting divided "
                                   "out where seen (confidence.png)"
                                   + (", and the shadow of occluders and hair beside them "
@@ -347,6 +362,8 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
         fm = final.maps
         extra = [("diffuse_model", maps["albedo"]),
                  ("confidence", final.baked.confidence[..., None])]
+        if final.specular_confidence is not None:
+            extra.append(("specular_confidence", final.specular_confidence[..., None]))
         maps = {"albedo": fm.diffuse, "specular": fm.specular, "roughness": fm.roughness,
                 "normal": fm.normal}
     out = []

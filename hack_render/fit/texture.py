@@ -200,40 +200,39 @@ def pixel_footprints(x: np.ndarray, y: np.ndarray, sel: np.ndarray) -> np.ndarra
     return np.where(np.isfinite(f), f, np.nan)
 
 
-def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
-                 prior: np.ndarray | None = None, weights: list | None = None) -> BakedSkin:
-    """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
-    (see the module's docstring). ``prior``: the map unseen texels fall back to (default
-    A(alpha)); ``weights``: each view's pixel weights (default :func:`pixel_weights`'),
-    as the refinement passes of ``FinalRenders`` keep the first bake's."""
+def atlas_samples(pr: PhotoRender, wgt: np.ndarray, obs: np.ndarray, H: int):
+    """One view's pixels of weight > 0 as atlas samples for :func:`splat`: (x, y) in the
+    atlas's pixels (H rows), weight, observation (n, C) and footprint in texels; None
+    where no pixel has weight."""
+    sel = wgt > 0
+    if not sel.any():
+        return None
+    uv = pr.gbuffer["uv"]
+    x = uv[..., 0] * H - 0.5          # atlas pixel coordinates (centres at +0.5)
+    y = (1.0 - uv[..., 1]) * H - 0.5
+    f = pixel_footprints(x, y, sel)
+    obs = obs.reshape(*wgt.shape, -1)
+    return x[sel], y[sel], wgt[sel], obs[sel], f[sel]
+
+
+def splat(samples: list, H: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The views' atlas samples (:func:`atlas_samples`; None entries skipped) splatted
+    into an (H, 2H) atlas (see the module's docstring): the weighted mean observation
+    (H, 2H, C) (0 where unseen), the spread weight, the spread area-weighted density
+    (the confidence's), and the median photo pixel's footprint in texels."""
     from scipy.ndimage import gaussian_filter
 
-    H = int(cfg.final.atlas_height)
     W = 2 * H
+    samples = [s for s in samples if s is not None]
+    C = samples[0][3].shape[1] if samples else 1
+    # the photo pixel's footprint in texels: the views' median (neighbours' uv distance)
+    fps = [float(np.median(f[np.isfinite(f)])) for *_, f in samples if np.isfinite(f).any()]
+    fp = float(np.median(fps)) if fps else 1.0
     # per footprint band b (a pixel spanning fp 2^b texels and more): weighted sums
-    num = np.zeros((FOOTPRINT_BANDS, H, W, 3), np.float32)
+    num = np.zeros((FOOTPRINT_BANDS, H, W, C), np.float32)
     den = np.zeros((FOOTPRINT_BANDS, H, W), np.float32)
     area = np.zeros((FOOTPRINT_BANDS, H, W), np.float32)   # den x (footprint / median)^2
-    given = weights
-    weights, footprints, views = [], [], []
-    for i, (v, pr) in enumerate(zip(state.views, renders)):
-        wgt, obs = pixel_weights(v, pr, cfg)
-        if given is not None:
-            wgt = given[i]
-        weights.append(wgt)
-        sel = wgt > 0
-        if not sel.any():
-            continue
-        uv = pr.gbuffer["uv"]
-        x = uv[..., 0] * H - 0.5          # atlas pixel coordinates (centres at +0.5)
-        y = (1.0 - uv[..., 1]) * H - 0.5
-        f = pixel_footprints(x, y, sel)
-        footprints.append(float(np.median(f[sel & np.isfinite(f)]))
-                          if np.isfinite(f[sel]).any() else 1.0)
-        views.append((x[sel], y[sel], wgt[sel], obs[sel], f[sel]))
-    # the photo pixel's footprint in texels: the views' median (neighbours' uv distance)
-    fp = float(np.median(footprints)) if footprints else 1.0
-    for xs, ys, ws, os_, f in views:
+    for xs, ys, ws, os_, f in samples:
         rel = np.clip(np.nan_to_num(f, nan=fp) / fp, 1.0, FOOTPRINT_STEP ** FOOTPRINT_BANDS)
         band = np.minimum(np.floor(np.log(rel) / np.log(FOOTPRINT_STEP)),
                           FOOTPRINT_BANDS - 1).astype(int)
@@ -246,7 +245,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
             den += np.bincount(flat, kw, FOOTPRINT_BANDS * H * W).reshape(den.shape)
             area += np.bincount(flat, kw * rel * rel, FOOTPRINT_BANDS * H * W
                                 ).reshape(den.shape)
-            for c in range(3):
+            for c in range(C):
                 num[..., c] += np.bincount(flat, kw * os_[:, c],
                                            FOOTPRINT_BANDS * H * W).reshape(den.shape)
     # each band spread by a normalised Gaussian of half its footprint, so that wider
@@ -254,7 +253,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     # confidence each pixel's weight counts by its area (in median pixels), so a texel
     # seen by fewer, wider pixels is as sure as one seen by more, narrower ones
     den_b = np.zeros((H, W))
-    num_b = np.zeros((H, W, 3))
+    num_b = np.zeros((H, W, C))
     dens = np.zeros((H, W))
     for b in range(FOOTPRINT_BANDS):
         if not den[b].any():
@@ -263,17 +262,43 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
         den_b += gaussian_filter(den[b].astype(np.float64), sigma)
         dens += gaussian_filter(area[b].astype(np.float64), sigma)
         num_b += np.stack([gaussian_filter(num[b, ..., c].astype(np.float64), sigma)
-                           for c in range(3)], -1)
+                           for c in range(C)], -1)
     seen = den_b > 1e-8
     obs = np.where(seen[..., None], num_b / np.maximum(den_b, 1e-12)[..., None], 0.0)
-    # full confidence: the density a fully seen texel gets at cos = 1 (a pixel's unit
-    # weight spread over fp^2 texels), reached at half of it
-    full = 0.5 / max(fp * fp, 1.0)
-    conf = np.clip(dens / full, 0.0, 1.0)
-    if cfg.final.edge_feather > 0:  # the bake's edge faded into the fallback over a few
-        # pixels' widths (the confidence held under itself blurred): the segmentation's
-        # jagged edge (hair, occluders) is not drawn as a jagged line
-        conf = np.minimum(conf, gaussian_filter(conf, cfg.final.edge_feather * fp))
+    return obs, den_b, dens, fp
+
+
+def splat_confidence(dens: np.ndarray, fp: float, feather: float) -> np.ndarray:
+    """(H, 2H) in [0, 1] from :func:`splat`'s density: full where a texel gets half the
+    density a fully seen texel gets at cos = 1 (a pixel's unit weight spread over fp^2
+    texels); with ``feather`` > 0 held under itself blurred by a Gaussian of that many
+    footprints, so the bake's edge fades into the fallback (the segmentation's jagged
+    edge, hair and occluders, is not drawn as a jagged line)."""
+    from scipy.ndimage import gaussian_filter
+
+    conf = np.clip(dens / (0.5 / max(fp * fp, 1.0)), 0.0, 1.0)
+    if feather > 0:
+        conf = np.minimum(conf, gaussian_filter(conf, feather * fp))
+    return conf
+
+
+def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
+                 prior: np.ndarray | None = None, weights: list | None = None) -> BakedSkin:
+    """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
+    (see the module's docstring). ``prior``: the map unseen texels fall back to (default
+    A(alpha)); ``weights``: each view's pixel weights (default :func:`pixel_weights`'),
+    as the refinement passes of ``FinalRenders`` keep the first bake's."""
+    H = int(cfg.final.atlas_height)
+    given = weights
+    weights, samples = [], []
+    for i, (v, pr) in enumerate(zip(state.views, renders)):
+        wgt, obs = pixel_weights(v, pr, cfg)
+        if given is not None:
+            wgt = given[i]
+        weights.append(wgt)
+        samples.append(atlas_samples(pr, wgt, obs, H))
+    obs, _, dens, fp = splat(samples, H)
+    conf = splat_confidence(dens, fp, cfg.final.edge_feather)
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
     # (a refinement pass's prior, the first bake, is tone-matched already)
@@ -289,7 +314,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     diffuse = c1[..., None] * obs + c2[..., None] * obs_m + c3[..., None] * prior
     source = np.argmax(np.stack([c3, c1, c2]), 0).astype(np.uint8)
     confidence = (c1 + 0.5 * c2).astype(np.float32)
-    seen_fraction = _seen_fraction(state, conf)
+    seen_fraction = face_seen_fraction(state, conf)
     return BakedSkin(np.clip(diffuse, 0.0, 1.0).astype(np.float32), confidence, source,
                      weights, seen_fraction)
 
@@ -335,7 +360,7 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
     return out
 
 
-def _seen_fraction(state: FitState, conf: np.ndarray) -> float:
+def face_seen_fraction(state: FitState, conf: np.ndarray) -> float:
     """The share of the face material's vertices (at their UV) whose texel the photo(s)
     saw (confidence > 0.5)."""
     m = state.model
