@@ -45,7 +45,7 @@ def test_01_gain_is_recovered_where_the_highlight_is_and_unweighted_elsewhere():
     assert w.max() == 0.0
 
 
-def test_02_a_known_specular_map_is_recovered_where_the_photo_identifies_it():
+def test_02_a_known_specular_map_is_recovered_where_the_photo_identifies_it(tmp_path):
     pytest.importorskip("mitsuba")
     import torch
     from synthetic import photo_of, texture_fitter
@@ -91,3 +91,16 @@ def test_02_a_known_specular_map_is_recovered_where_the_photo_identifies_it():
     # (measured 1.11; the truth is twice the fitted map clipped at 1: 1.5 in the median
     # over the highlights' pixels, the true over the fitted specular contribution)
     assert 1.05 < rep["median_gain"] < 2.0, rep
+    # the fit's final stage with final.specular: the map, its confidence, the report
+    from hack_render.fit import outputs
+
+    cfg.final.specular = True
+    final = outputs.FinalRenders(f)
+    rep = final.report["specular"]
+    assert rep["identified_fraction"] > 0.5 and rep["median_gain"] > 1.0, rep
+    sure = final.specular_confidence > 0.5
+    assert np.abs(final.maps.specular - fitted.specular)[sure].mean() > 0.02
+    written = outputs.write_textures(f, tmp_path / "textures", final)
+    assert tmp_path / "textures" / "specular_confidence.exr" in written
+    cfg.final.specular = False                     # (the default) the fitted map
+    assert outputs.FinalRenders(f).specular_confidence is None

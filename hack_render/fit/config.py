@@ -306,9 +306,9 @@ class FinalConfig:
     # the bake's confidence at its edges faded (min with itself blurred by a Gaussian of this
     # many pixel footprints): the skin meets the fallback softly, not along a jagged edge
     edge_feather: float = 4.0
-    # the specular map times a per-texel gain where the photo's highlights identify it
-    # (fit/specular_bake.py); off: the fitted map A(alpha) gives
-    specular: bool = True
+    # the specular map times a gain per region where the photo's highlights identify it
+    # (fit/specular_bake.py). Off: the fitted light's error is read as gloss (docs/fit.md)
+    specular: bool = False
 
 
 @dataclass
