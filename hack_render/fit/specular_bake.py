@@ -44,8 +44,11 @@ FULL_SHARE = 0.1
 SE_FULL = 0.25
 #: The photo's noise floor, a share of the pixel's value, added to the model's residual.
 NOISE = 0.01
+#: The share of a white highlight orthogonal to a typical skin's colour (linear RGB
+#: about (0.45, 0.25, 0.15): 0.16).
+SKIN_ORTHO = 0.15
 #: The pull of the gain towards 1, as a share of what a pixel whose specular is
-#: :data:`FULL_SHARE` of it, at a typical skin's colour, knows of it (0: none).
+#: :data:`FULL_SHARE` of it, at :data:`SKIN_ORTHO`, knows of it (0: none).
 SHRINK = 0.1
 #: The gain's bounds (the map is clipped to [0, 1] after).
 GAIN_BOUNDS = (0.0, 4.0)
@@ -70,9 +73,8 @@ def gain_observations(photo: np.ndarray, rgb: np.ndarray, rgb0: np.ndarray,
     wf = ok.astype(np.float64)
     gg = (g * g).sum(-1)
     rr = (rgb * rgb).sum(-1)
-    # mu: the pull towards 1, a SHRINK share of what a pixel that identifies k fully
-    # knows of it
-    mu = SHRINK * 0.15 * FULL_SHARE ** 2 * rr
+    # mu: the pull towards 1 (SHRINK)
+    mu = SHRINK * SKIN_ORTHO * FULL_SHARE ** 2 * rr
     den = np.stack([gaussian_filter(wf * rgb0[..., c], sigma_px) for c in range(3)], -1)
     k = np.ones(wgt.shape)
     for _ in range(COLOUR_PASSES):
@@ -125,8 +127,9 @@ def bake_specular(state, cfg, renders: list, renders0: list, weights: list,
                                   wgt, sigma)
         samples.append(texture.atlas_samples(pr, wk, k[..., None], H))
     if not any(s is not None for s in samples):
+        why = "no colour photo" if not samples else "no pixel identifies it"
         return specular, np.zeros(specular.shape[:2], np.float32), \
-            {"identified_fraction": 0.0, "source": "the fitted map (no colour photo)"}
+            {"identified_fraction": 0.0, "source": f"the fitted map ({why})"}
     gain, _, dens, fp = texture.splat(samples, H)
     conf = texture.splat_confidence(dens, fp, cfg.final.edge_feather)
     gain = np.where(conf[..., None] > 0, gain, 1.0)
