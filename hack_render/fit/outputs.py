@@ -240,7 +240,8 @@ class FinalRenders:
         from hack_render.fit import iris, texture
 
         st, cfg = fitter.state, fitter.cfg
-        bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine),
+        specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
+        bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular),
                    desc="fit final (renders, bake)", unit="step",
                    disable=not fitter.progress, leave=False)
         t0 = time.perf_counter()
@@ -254,17 +255,16 @@ class FinalRenders:
         spec = base.specular
         self.specular = {"source": "the fitted map (final.specular off)"}
         self.specular_confidence = None
-        if cfg.final.specular and not all(v.photo.is_grey for v in st.views):
-            # the highlights' gain on the fitted specular map (fit/specular_bake.py): each
-            # view rendered once more without specular
+        if specular:  # the highlights' gain (fit/specular_bake.py): a render without specular
             from hack_render.fit.specular_bake import bake_specular
 
             m0 = texture._skin_maps(st)
             m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
             flat = [texture.render_at_photo(st, cfg, v, maps=m0, max_side=cfg.final.max_side)
                     for v in st.views]
-            spec, self.specular_confidence, self.specular = bake_specular(st, cfg, self.fitted, flat,
-                                                   self.baked.pixel_weights, spec)
+            spec, self.specular_confidence, self.specular = bake_specular(
+                st, cfg, self.fitted, flat, self.baked.pixel_weights, spec)
+            bar.update()
         # the person's iris and eye-white colours (fit/iris.py): not under the photo's occluders
         allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
                    for v in st.views]

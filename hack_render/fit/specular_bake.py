@@ -130,7 +130,7 @@ def bake_specular(state, cfg, renders: list, renders0: list, weights: list,
         why = "no colour photo" if not samples else "no pixel identifies it"
         return specular, np.zeros(specular.shape[:2], np.float32), \
             {"identified_fraction": 0.0, "source": f"the fitted map ({why})"}
-    gain, _, dens, fp = texture.splat(samples, H)
+    gain, dens, fp = texture.splat(samples, H)
     conf = texture.splat_confidence(dens, fp, cfg.final.edge_feather)
     gain = np.where(conf[..., None] > 0, gain, 1.0)
     full = specular.shape[0]        # the gain field, bilinear, at the map's size

@@ -215,11 +215,11 @@ def atlas_samples(pr: PhotoRender, wgt: np.ndarray, obs: np.ndarray, H: int):
     return x[sel], y[sel], wgt[sel], obs[sel], f[sel]
 
 
-def splat(samples: list, H: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def splat(samples: list, H: int) -> tuple[np.ndarray, np.ndarray, float]:
     """The views' atlas samples (:func:`atlas_samples`; None entries skipped) splatted
     into an (H, 2H) atlas (see the module's docstring): the weighted mean observation
-    (H, 2H, C) (0 where unseen), the spread weight, the spread area-weighted density
-    (the confidence's), and the median photo pixel's footprint in texels."""
+    (H, 2H, C) (0 where unseen), the spread area-weighted density (the confidence's,
+    :func:`splat_confidence`), and the median photo pixel's footprint in texels."""
     from scipy.ndimage import gaussian_filter
 
     W = 2 * H
@@ -265,7 +265,7 @@ def splat(samples: list, H: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, fl
                            for c in range(C)], -1)
     seen = den_b > 1e-8
     obs = np.where(seen[..., None], num_b / np.maximum(den_b, 1e-12)[..., None], 0.0)
-    return obs, den_b, dens, fp
+    return obs, dens, fp
 
 
 def splat_confidence(dens: np.ndarray, fp: float, feather: float) -> np.ndarray:
@@ -297,7 +297,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
             wgt = given[i]
         weights.append(wgt)
         samples.append(atlas_samples(pr, wgt, obs, H))
-    obs, _, dens, fp = splat(samples, H)
+    obs, dens, fp = splat(samples, H)
     conf = splat_confidence(dens, fp, cfg.final.edge_feather)
     conf_m = _mirror(conf)
     obs_m = _mirror(obs)
