@@ -145,32 +145,48 @@ def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
     assert err_bake < 0.45 * err_prior, (err_bake, err_prior)
 
 
-def test_04_brows_are_baked(model):
-    """Dark brows painted over the photo (their colour is not the skin's, so the skin
-    test and the robust rejection drop them) are baked where ``final.features`` is on,
-    and left out where it is off."""
+def test_04_brows_and_lids_are_baked(model):
+    """Dark brows and dark lids (eye shadow over the band from ``LID_INNER`` to
+    ``final.eye_hole`` of each eye's ring) painted over the photo (their colour is not
+    the skin's, so the skin test and the robust rejection drop them) are baked where
+    ``final.features`` is on, and left out where it is off; the lids' skin behind the
+    lash cards' gaps counts (the bake's G-buffer sees through the cards)."""
+    from scipy.ndimage import binary_erosion
+
     from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
     v = f.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
-    band = bake_weights.feature_bands(v.detection.points, rgb.shape[:2])
-    brows = band & (np.arange(rgb.shape[0])[:, None] < v.detection.points[27, 1])
-    assert brows.sum() > 30
+    assert rgb.shape[:2] == (160, 160)
+    pts, shape = v.detection.points, rgb.shape[:2]
+    band = bake_weights.feature_bands(pts, shape)
+    brows = band & (np.arange(rgb.shape[0])[:, None] < pts[27, 1])
+    lids = (bake_weights.feature_rings(pts, shape, cfg.final.eye_hole)["eyes"]
+            & ~bake_weights.feature_holes(pts, shape, bake_weights.LID_INNER) & ~band)
+    assert brows.sum() > 30 and lids.sum() > 30
     rgb[brows] = [0.03, 0.02, 0.015]
+    rgb[lids] = [0.06, 0.03, 0.03]
     v.photo = photo_of(rgb)
     pr = texture.render_at_photo(f.state, cfg, v)
-    uv = pr.gbuffer["uv"][brows & (pr.rgba[..., 3] > 0.99)]
+    assert pr.gbuffer["through"][lids].any()
     H = cfg.final.atlas_height
-    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
-    yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
     on = texture.bake_diffuse(f.state, cfg, [pr])
     cfg.final.features = False
     off = texture.bake_diffuse(f.state, cfg, [pr])
-    assert (on.pixel_weights[0][brows] > 0).mean() > 0.5
-    assert (off.pixel_weights[0][brows] > 0).mean() < 0.2
-    assert on.diffuse[yi, xi].mean() < 0.6 * off.diffuse[yi, xi].mean()
+    # the bake's own guard: skin pixels at least final.edge_px inside the render's skin
+    # (at 160 px that leaves a third of the thin lid band, beside the model's eye opening)
+    skin = binary_erosion(np.isin(pr.gbuffer["segmentation"], bake_weights.SKIN_REGIONS),
+                          iterations=round(cfg.final.edge_px * 160 / v.photo.width))
+    for part in (brows, lids & skin):
+        assert part.sum() > 30
+        uv = pr.gbuffer["uv"][part]
+        xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+        yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+        assert (on.pixel_weights[0][part] > 0).mean() > 0.9
+        assert (off.pixel_weights[0][part] > 0).mean() < 0.2
+        assert on.diffuse[yi, xi].mean() < 0.6 * off.diffuse[yi, xi].mean()
 
 
 def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):

@@ -211,3 +211,30 @@ def test_06_denoiser_features_look_through_the_cards(head_model):
     err = {name: float(np.mean((dn.denoise(bare[..., :3], *f) - reference)[band] ** 2))
            for name, f in feats.items()}
     assert err["through"] < 0.8 * err["first hit"], err
+
+
+def test_07_gbuffer_sees_through_the_cards(head_model):
+    """``gbuffer(see_through=("eyelashes",))``: off the lash cards every AOV is the first
+    hit's; on them (``through``: exactly the first hits on a card) it is the surface
+    behind all the layered cards, the skin or the eye, deeper than the card, and
+    ``card_opacity`` is the first card's opacity there (``region_hits``')."""
+    from hack_render.render.aov import gbuffer
+
+    topo, v = head_model
+    cam = eye_closeup(48)
+    head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(48, 48, 4))
+    first = gbuffer(head)
+    seen = gbuffer(head, ("eyelashes",))
+    lash = first["segmentation"] == REGIONS.index("eyelashes")
+    assert lash.sum() > 100 and "through" not in first
+    np.testing.assert_array_equal(seen["through"], lash)
+    for key in ("depth", "normal", "albedo", "uv", "segmentation"):
+        np.testing.assert_array_equal(seen[key][~lash], first[key][~lash])
+    behind = seen["segmentation"][lash]
+    assert not np.any(behind == REGIONS.index("eyelashes"))
+    ids = [REGIONS.index(r) for r in ("face", "sclera", "iris", "lacrimal")]
+    assert np.isin(behind, ids).mean() > 0.95 and (behind == ids[0]).mean() > 0.5
+    assert np.all(seen["depth"][lash] > first["depth"][lash])
+    hits = head.region_hits()
+    np.testing.assert_allclose(seen["card_opacity"][lash], hits["opacity"][lash], atol=1e-6)
+    assert np.all(seen["card_opacity"][~lash] == 0.0)

@@ -11,8 +11,10 @@ skin pixel of a view, and its weight (:func:`pixel_weights`, used by
   order); its weight is the cosine of the view angle, squared (grazing pixels smear);
 - robust rejection: where the ratio's log or the observation's chromaticity is far from
   the skin's (occluders the segmentation missed, shadows the render does not have,
-  clothes, hair), the pixel is dropped. The brows and lips (:func:`feature_bands`) are
-  kept as the photo has them.
+  clothes, hair), the pixel is dropped. The brows and lips (:func:`feature_bands`) and
+  the lids (the band of :data:`LID_INNER`) are kept as the photo has them.
+- the skin behind the lash cards' gaps counts (the G-buffer of
+  :func:`hack_render.fit.texture.render_at_photo` sees through them).
 """
 
 from __future__ import annotations
@@ -26,13 +28,18 @@ from hack_render.fit.occluder_shadow import occluder_shadow
 from hack_render.fit.state import View
 
 SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REGIONS)
+#: The lids' band, baked as the photo has them with the brows and lips (``final.features``):
+#: each eye's landmark ring scaled from this to ``final.eye_hole`` about its centre (the
+#: opening itself, scale 1, and a margin for the lash line's detection left out).
+LID_INNER = 1.1
 
 
 @dataclass
 class PhotoRender:
     """A view rendered through its fitted camera at the photo's size: premultiplied
-    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``), the spp, seconds, and
-    whether it was denoised."""
+    linear RGBA (h, w, 4), the G-buffer (``render.aov.gbuffer``; through the lash cards,
+    ``through`` marking their pixels, in :func:`~hack_render.fit.texture.render_at_photo`),
+    the spp, seconds, and whether it was denoised."""
 
     rgba: np.ndarray
     gbuffer: dict
@@ -89,10 +96,12 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
             skin &= mk if keep else ~mk
             if not keep:
                 occluded = mk
-    features = np.zeros((h, w), bool)
+    features = lids = np.zeros((h, w), bool)
     if fc.features:
-        features = (feature_bands(points, (h, w)) & binary_erosion(rendered, iterations=edge)
-                    & ~feature_holes(points, (h, w), eye_scale=1.25) & ~occluded)
+        inside = (binary_erosion(rendered, iterations=edge) & ~occluded
+                  & ~feature_holes(points, (h, w), eye_scale=LID_INNER))
+        features = feature_bands(points, (h, w)) & inside
+        lids = feature_rings(points, (h, w), eye_scale=fc.eye_hole)["eyes"] & inside & ~features
     # cosine between the normal and the direction to the camera (camera frame, z forward)
     f = w / view.photo.width * float(view.focal.detach())
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
@@ -120,6 +129,11 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
     # render does not have) or the observation's chromaticity far from the skin's
     ok &= robust_keep(lr, obs, ok, fc.reject_sigma)
+    if lids.any() and ok.sum() >= 16:  # the lids' band: not brighter than the skin (the
+        # photo's eye white or a glint where the detected ring is off), darker is theirs
+        med = np.median(lr[ok])
+        mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
+        features = features | lids & (lr < med + max(fc.reject_sigma * mad, np.log(1.4)))
     ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)

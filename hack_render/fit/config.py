@@ -277,8 +277,8 @@ class FinalConfig:
     # robust rejection of pixels the render cannot explain (occluders, clothes): the log
     # ratio photo / render and the chromaticity beyond this many MADs of the skin's
     reject_sigma: float = 3.0
-    # bake the brows and lips (bands about their landmarks) as the photo has them: the
-    # skin test and the robust rejection above would drop them (their colour is not the
+    # bake the brows, lips and lids (bands about their landmarks) as the photo has them:
+    # the skin test and the robust rejection would drop them (their colour is not the
     # skin's), leaving the model's browless mean skin there
     features: bool = True
     # passes that bake the photo over the re-render once more (render.png's own light
@@ -286,7 +286,7 @@ class FinalConfig:
     # render only
     refine: int = 1
     # the eyes left out of the bake: their landmark rings scaled by this about their
-    # centres (1.8 also leaves out the lids, lashes and the sockets' shadow)
+    # centres; with features, the lids' band from bake_weights.LID_INNER to it is baked
     eye_hole: float = 1.8
     # the fallback map (A(alpha)) where the photo does not see, tone-matched to the baked
     # skin by a smooth gain field (texture.tone_matched_prior): "outside" the seen face

@@ -62,7 +62,15 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
     lum = gbuffer["albedo"][..., :3] @ _LUMA
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
-    return seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
+    return (seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
+            & ~_through(gbuffer))
+
+
+def _through(gbuffer: dict):
+    """(h, w) bool: the pixels a G-buffer saw through a lash card (``render.aov.gbuffer``'s
+    ``see_through``), or False: the eyes' estimates take the first surface's pixels."""
+    t = gbuffer.get("through")
+    return np.zeros(gbuffer["segmentation"].shape, bool) if t is None else t
 
 
 def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) -> np.ndarray:
@@ -82,7 +90,7 @@ def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
     white = (seg == REGIONS.index("sclera")) | ((seg == REGIONS.index("iris"))
                                                   & (lum >= 0.6 * sclera))
-    return white & (rgba[..., 3] > 0.999)
+    return white & (rgba[..., 3] > 0.999) & ~_through(gbuffer)
 
 
 def _kept(mask: np.ndarray, photo: np.ndarray, allowed, percentiles) -> np.ndarray:

@@ -90,6 +90,12 @@ def resize_atlas(img: np.ndarray, height: int) -> np.ndarray:
                   anti_aliasing=img.shape[0] > height).astype(np.float32)
 
 
+#: What the final renders' G-buffer sees through (:func:`render_at_photo`): the lash cards,
+#: so that the skin behind their gaps is baked (their first hits hid a band of lid skin
+#: around each eye from the bake).
+SEE_THROUGH = ("eyelashes",)
+
+
 def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                     spp: int | None = None, max_side: int | None = None) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
@@ -104,7 +110,7 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     spp = int(spp or (cfg.final.spp_denoised if denoised else cfg.final.spp))
     head = _photo_scene(state, cfg, view, maps, spp, max_side)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
-    gb = head.aovs()
+    gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
         rgba = head.denoise(rgba, fallback=True)
     return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)

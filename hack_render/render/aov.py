@@ -116,10 +116,18 @@ def environment_backdrop(head) -> np.ndarray:
                      for c in range(3)], -1).reshape(h, w, 3)
 
 
-def gbuffer(head) -> dict[str, np.ndarray]:
-    """Compute every AOV of a :class:`~hack_render.render.scene.HeadScene`'s current state."""
+def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
+    """Compute every AOV of a :class:`~hack_render.render.scene.HeadScene`'s current state:
+    ``depth``, ``normal`` (camera frame), ``albedo``, ``uv`` (model UV) and
+    ``segmentation`` (``parts.REGIONS`` ids) of each pixel centre's first surface. With
+    ``see_through`` (region names, e.g. ``("eyelashes",)``) a centre ray whose first
+    surface is in one of them is continued once and the AOVs are the surface's behind;
+    ``card_opacity`` (H, W) is then the card's opacity at the first hit (0 where the ray
+    met none) and ``through`` (H, W) bool where the ray went through one."""
     import drjit as dr
     import mitsuba as mi
+
+    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     w, h = cam.width, cam.height
@@ -130,6 +138,24 @@ def gbuffer(head) -> dict[str, np.ndarray]:
     ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(x / w, y / h), mi.Point2f(0.5, 0.5))
     si = camera_hit(head, ray)
     valid = si.is_valid()
+    see = [REGIONS.index(name) for name in see_through if name in REGIONS]
+    opacity = through = None
+    if see:
+        from hack_render.render.footprint import CARD_LAYERS
+
+        through = mi.Bool(False)
+        on = mi.Bool(True)
+        for layer in range(CARD_LAYERS):  # the cards are layered: on to the first other
+            region, _, _ = _region_uv_jit(head, si, valid)
+            card = mi.Bool(False)
+            for r_ in see:
+                card |= valid & on & (region == r_)
+            if layer == 0:
+                opacity = dr.select(card, card_opacity(head, si, card), 0.0)
+            through |= card
+            si = dr.select(card, camera_hit(head, si.spawn_ray(ray.d), card), si)
+            valid = si.is_valid()
+            on = card
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
     region, u_model, v_model = _region_uv_jit(head, si, valid)
     dr.eval(si.p, si.sh_frame.n, albedo, region, u_model, v_model, valid)
@@ -152,7 +178,12 @@ def gbuffer(head) -> dict[str, np.ndarray]:
         "uv": np.where(zero[..., None], 0.0, uv_model),
         "segmentation": region,
     }
-    return {k: v.astype(np.float32) if k != "segmentation" else v for k, v in out.items()}
+    if opacity is not None:
+        out["card_opacity"] = np.asarray(opacity, dtype=np.float64).reshape(h, w)
+    out = {k: v.astype(np.float32) if k != "segmentation" else v for k, v in out.items()}
+    if through is not None:
+        out["through"] = np.asarray(through, dtype=bool).reshape(h, w)
+    return out
 
 
 def _hit_region_uv(head, si, valid, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:

@@ -467,11 +467,11 @@ class HeadScene:
             self._backdrop = environment_backdrop(self)
         return self._backdrop
 
-    def aovs(self) -> dict[str, np.ndarray]:
+    def aovs(self, see_through=()) -> dict[str, np.ndarray]:
         """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
         from hack_render.render.aov import gbuffer
 
-        return gbuffer(self)
+        return gbuffer(self, see_through)
 
     def region_hits(self, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict:
         """Region ids and model UVs at one sub-pixel point: see :func:`aov.region_hits`."""
