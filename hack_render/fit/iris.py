@@ -68,7 +68,8 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
 
 def _through(gbuffer: dict):
     """(h, w) bool: the pixels a G-buffer saw through a lash card (``render.aov.gbuffer``'s
-    ``see_through``), or False: the eyes' estimates take the first surface's pixels."""
+    ``see_through``; none where it has no ``through``): the eyes' estimates take only
+    the pixels whose first surface is the eye."""
     t = gbuffer.get("through")
     return np.zeros(gbuffer["segmentation"].shape, bool) if t is None else t
 
