@@ -121,7 +121,9 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
     ``depth``, ``normal`` (camera frame), ``albedo``, ``uv`` (model UV) and
     ``segmentation`` (``parts.REGIONS`` ids) of each pixel centre's first surface. With
     ``see_through`` (region names, e.g. ``("eyelashes",)``) a centre ray whose first
-    surface is in one of them is continued once and the AOVs are the surface's behind;
+    surface is in one of them is continued past them (through up to
+    ``footprint.CARD_LAYERS`` layered cards, as the footprint rays) and the AOVs are
+    the first other surface's behind;
     ``card_opacity`` (H, W) is then the card's opacity at the first hit (0 where the ray
     met none) and ``through`` (H, W) bool where the ray went through one."""
     import drjit as dr
