@@ -39,3 +39,33 @@ def test_the_graph_cut_takes_the_fringe_away_from_the_skin():
     assert np.median(lum[taken]) < 0.75 * np.median(lum[forehead]), (
         np.median(lum[taken]), np.median(lum[forehead]))
     assert (cut.occluder & taken).sum() > 0.8 * taken.sum()   # the fit leaves them out
+
+
+def test_a_grey_photos_dark_hair_is_an_occluder():
+    """The cameraman (skimage, public domain; grey): his dark fringe reaches down to his
+    brows. A grey photo's chromaticity is the same everywhere, so the colour test calls
+    all of the face oval skin; brightness and texture tell his hair from his cheeks
+    (well past ``GREY_HAIR_SEPARABLE``), and the hair test and the graph cut take it out
+    above the eyes' line. Below it nothing is taken: there a shadowed chin or a dark
+    collar looks as much like dark hair."""
+    import skimage.data
+    from skimage.color import gray2rgb
+
+    from hack_render.vision.segment import _upright_rows, _upright_y, segment
+
+    img = np.ascontiguousarray(gray2rgb(skimage.data.camera()))
+    face = detect_face(img, "mesh")
+    before, seg = [segment(img, face, hands=False, hair_model=m) for m in (False, True)]
+    h, w = img.shape[:2]
+    up = _upright_rows(face, h, w)
+    oval = seg.face > 0.5
+    lum = img.mean(-1)
+    dark = oval & (up < _upright_y(face, slice(17, 27)).min()) & (lum < 50)
+    assert dark.sum() > 100, dark.sum()
+    assert (before.occluder & dark).sum() < 0.2 * dark.sum()
+    assert (seg.occluder & dark).sum() > 0.9 * dark.sum()
+    taken = seg.occluder & oval
+    assert taken.sum() > 400, taken.sum()
+    assert np.median(lum[taken]) < 0.6 * np.median(lum[seg.skin & oval & ~seg.occluder])
+    below = oval & (up > _upright_y(face, slice(36, 48)).mean())
+    assert (seg.occluder & below).sum() <= (before.occluder & below).sum() + 5

@@ -51,6 +51,13 @@ SKIN_CHROMA_PRIOR = np.array([0.43, 0.25])
 #: the per-feature variance floor (r and b shares, log luminance, texture)
 HAIR_MIN_SAMPLES = 100
 HAIR_SEPARABLE = 0.85
+#: the same test's threshold in a grey photo, where it has brightness and texture alone:
+#: a shadowed cheek can look like dark hair, so only hair told apart this well is taken
+#: (the cameraman's dark hair 0.97; bald composites in grey up to 0.94, docs/vision.md),
+#: and only hair of strands: its samples' median texture this many times the cheeks'
+#: (real hair in grey 3.2-5.3; a bald scalp's smooth skin on the composites up to 2.5)
+GREY_HAIR_SEPARABLE = 0.95
+GREY_HAIR_TEXTURE = 3.0
 HAIR_FEATURE_FLOOR = (1e-4, 1e-4, 1e-3, 1e-4)
 
 
@@ -220,16 +227,25 @@ def hair_like(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: n
     skin-coloured cheeks between the eyes and the mouth. Blond or grey hair has the
     skin's chromaticity, so the colour test alone keeps a fringe over the forehead as
     skin. None where the two are not told apart (a bald head, a scalp the colour of the
-    face: the hair samples are skin), too few samples, or the photo is grey (brightness
-    and texture alone take a shadowed cheek for dark hair)."""
+    face: the hair samples are skin) or too few samples; in a grey photo, where
+    brightness and texture alone can take a shadowed cheek for dark hair, unless they
+    are told apart by ``GREY_HAIR_SEPARABLE`` and the hair is strands
+    (``GREY_HAIR_TEXTURE``)."""
     from scipy import ndimage
 
     test = hair_ratio(rgb8, face, person, oval, skin, features)
-    if test is None or test[2] < HAIR_SEPARABLE:
+    grey = _grey(rgb8)
+    if test is None or test[2] < (GREY_HAIR_SEPARABLE if grey else HAIR_SEPARABLE) \
+            or (grey and test[3] < GREY_HAIR_TEXTURE):
         return None
-    lr, hair_seed, _ = test
+    lr, hair_seed = test[:2]
+    like = ndimage.binary_opening(lr > 0, iterations=1) & (person | (oval > 0.5))
+    if _grey(rgb8):   # brightness alone: below the eyes a shadowed chin or a dark collar
+        # joins the hair; a fringe reaches down from above
+        h, w = rgb8.shape[:2]
+        like &= _upright_rows(face, h, w) < _upright_y(face, slice(36, 48)).mean()
     # hair reaches the face from the hair: only the parts joined to the hair samples
-    lab, _ = ndimage.label(ndimage.binary_opening(lr > 0, iterations=1) & (person | (oval > 0.5)))
+    lab, _ = ndimage.label(like)
     ids = np.unique(lab[hair_seed])
     return np.isin(lab, ids[ids > 0])
 
@@ -250,9 +266,9 @@ def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: 
                skin: np.ndarray, features: np.ndarray):
     """:func:`hair_like`'s test: (log likelihood ratio hair : skin (H, W), the hair
     samples (H, W) bool, how well it tells its own samples apart: the mean of the shares
-    of hair and skin samples on their side), or None (grey photo, too few samples)."""
-    if int(np.ptp(rgb8, axis=2).max()) <= 1:
-        return None
+    of hair and skin samples on their side, the hair samples' median texture over the
+    cheeks'), or None (too few samples). In a grey photo the chromaticity is the same
+    everywhere: brightness and texture tell them apart."""
     h, w = rgb8.shape[:2]
     pts = face.points
     iod = float(np.linalg.norm(pts[36] - pts[45]))
@@ -268,15 +284,22 @@ def hair_ratio(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: 
         return None
     f = _pixel_features(rgb8, max(3, round(iod / 25) | 1))
     lr = _gaussian_loglik(f, f[hair_seed]) - _gaussian_loglik(f, f[cheek])
-    return lr, hair_seed, 0.5 * float((lr[hair_seed] > 0).mean() + (lr[cheek] < 0).mean())
+    texture = float(np.median(f[hair_seed][:, 3]) / max(np.median(f[cheek][:, 3]), 1e-6))
+    return (lr, hair_seed, 0.5 * float((lr[hair_seed] > 0).mean() + (lr[cheek] < 0).mean()),
+            texture)
 
 
 #: :func:`segment` refines the skin by :func:`refine_skin` (a graph cut) by default
 GRAPH_CUT = True
 
 
+def _grey(rgb8: np.ndarray) -> bool:
+    return int(np.ptp(rgb8, axis=2).max()) <= 1
+
+
 def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person: np.ndarray,
-                oval: np.ndarray, features: np.ndarray, iterations: int = 5) -> np.ndarray:
+                oval: np.ndarray, features: np.ndarray, iterations: int = 5,
+                hair_found: bool = False) -> np.ndarray:
     """(H, W) bool: ``skin`` (the per-pixel colour and hair tests) refined by a graph cut
     (OpenCV's GrabCut: a mixture of five Gaussians in colour for skin and for the rest,
     and a smoothness term that puts the boundary on the image's edges) in a box about the
@@ -287,11 +310,13 @@ def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person:
     nose (skin below the eyes, away from its edge) surely skin, the rest keeps the tests'
     answer as a likely one. The cut only takes skin away: what the tests call not skin
     stays so (glasses' frames of the skin's colour, which the cut's smoothness would
-    join to the face). A grey photo (no colour to model) keeps ``skin``."""
+    join to the face). A grey photo keeps ``skin`` unless :func:`hair_like` found its hair
+    (``hair_found``): the cut then models brightness alone, seeded by that hair; without
+    hair seeds it took 3-5 % of bald faces for occluders (docs/vision.md)."""
     import cv2
     from scipy import ndimage
 
-    if int(np.ptp(rgb8, axis=2).max()) <= 1:
+    if _grey(rgb8) and not hair_found:
         return skin
     h, w = skin.shape
     pts = face.points
@@ -321,6 +346,12 @@ def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person:
     out = skin.copy()   # only taken away: what the tests call no skin (a frame of the
     # skin's colour between dark rims, a shadowed fold) stays out of the bake
     out[y0:y1, x0:x1] &= (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
+    if hair_found and _grey(rgb8):   # brightness alone: a shadowed chin goes with the
+        # hair; only what the cut takes joined to the hair is taken
+        lab, _ = ndimage.label(skin & ~out)
+        seeds = ndimage.binary_dilation(label == cv2.GC_BGD, iterations=1)
+        ids = np.unique(lab[seeds & (lab > 0)])
+        out |= skin & ~np.isin(lab, ids)
     return out
 
 
@@ -379,7 +410,8 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     if like_hair is not None:   # the person's hair is not skin, whatever its colour
         skin &= ~like_hair
     if GRAPH_CUT if graph_cut is None else graph_cut:
-        skin = refine_skin(rgb8, face, skin, person_bin, oval, features)
+        skin = refine_skin(rgb8, face, skin, person_bin, oval, features,
+                           hair_found=like_hair is not None)
     occluder = inner & ~skin
     occluder = ndimage.binary_opening(occluder, iterations=1)
     if hands:
