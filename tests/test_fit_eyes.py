@@ -42,6 +42,9 @@ def test_01_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     rgb, rep = iris.fit_colour(f.state, cfg, maps=true_maps)
     assert rep["pixels"] >= iris.MIN_PIXELS and rep["source"] == "photo"
     np.testing.assert_allclose(rgb, truth, rtol=0.1)
+    # the iris behind the lash cards is the iris's too (its radiance affine in the colour)
+    behind = iris.iris_mask(shot.gbuffer, shot.rgba) & shot.gbuffer["through"]
+    assert behind.any()
     # the default colour is far from the truth: the fit moved it
     assert np.abs(np.log(np.asarray(DEFAULT_IRIS_RGB) / truth)).max() > 0.4
     final = outputs.FinalRenders(f)

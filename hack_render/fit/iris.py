@@ -12,7 +12,8 @@ three shares; per channel ``c`` and ``s`` then solve one linear least-squares pr
 over the pixels below: one step of inverse rendering, exact for this light transport,
 with the fitted geometry, camera and lighting held. Which pixels:
 
-- the render's iris, as its G-buffer labels it (region ``iris``, fully covered), without
+- the render's iris, as its G-buffer labels it (region ``iris``, fully covered; seen
+  through the lash cards: a pixel behind a card is still affine in ``c``), without
   its pupil and its sclera ring (by the G-buffer's albedo there), and of those the
   photo's pixels between the 10th and 75th percentile of luminance: the brighter quarter
   is where the model's iris falls on her sclera, lids or a catchlight (a gaze or aperture
@@ -62,16 +63,7 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
     lum = gbuffer["albedo"][..., :3] @ _LUMA
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
-    return (seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
-            & ~_through(gbuffer))
-
-
-def _through(gbuffer: dict):
-    """(h, w) bool: the pixels a G-buffer saw through a lash card (``render.aov.gbuffer``'s
-    ``see_through``; none where it has no ``through``): the eyes' estimates take only
-    the pixels whose first surface is the eye."""
-    t = gbuffer.get("through")
-    return np.zeros(gbuffer["segmentation"].shape, bool) if t is None else t
+    return seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
 
 
 def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) -> np.ndarray:
@@ -91,7 +83,7 @@ def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
     white = (seg == REGIONS.index("sclera")) | ((seg == REGIONS.index("iris"))
                                                   & (lum >= 0.6 * sclera))
-    return white & (rgba[..., 3] > 0.999) & ~_through(gbuffer)
+    return white & (rgba[..., 3] > 0.999)
 
 
 def _kept(mask: np.ndarray, photo: np.ndarray, allowed, percentiles) -> np.ndarray:

@@ -122,7 +122,9 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     (iris, sclera, gloss: as ``maps.iris_rgb``, ``sclera_rgb``, ``eye_gloss``), from one
     scene whose eyes are changed in place (``HeadScene.set_eyes``), with one seed: the
     eye estimates' renders differ by the eyes alone. Each render's G-buffer is the first
-    one's (the same geometry)."""
+    one's (the same geometry), seen through the lash cards (``SEE_THROUGH``): the eye
+    behind a card is the eye's pixel too, its radiance still affine in the eye's colours
+    (the card's share is in what comes from neither)."""
     import time
 
     t0 = time.perf_counter()
@@ -131,7 +133,7 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     for iris, sclera, gloss in eyes:
         head.set_eyes(iris, sclera, gloss)
         rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
-        gb = gb if gb is not None else head.aovs()
+        gb = gb if gb is not None else head.aovs(see_through=SEE_THROUGH)
         out.append(PhotoRender(rgba, gb, spp, time.perf_counter() - t0))
         t0 = time.perf_counter()
     return out
