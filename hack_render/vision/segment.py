@@ -240,7 +240,7 @@ def hair_like(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: n
         return None
     lr, hair_seed = test[:2]
     like = ndimage.binary_opening(lr > 0, iterations=1) & (person | (oval > 0.5))
-    if _grey(rgb8):   # brightness alone: below the eyes a shadowed chin or a dark collar
+    if grey:   # brightness alone: below the eyes a shadowed chin or a dark collar
         # joins the hair; a fringe reaches down from above
         h, w = rgb8.shape[:2]
         like &= _upright_rows(face, h, w) < _upright_y(face, slice(36, 48)).mean()
@@ -311,8 +311,9 @@ def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person:
     answer as a likely one. The cut only takes skin away: what the tests call not skin
     stays so (glasses' frames of the skin's colour, which the cut's smoothness would
     join to the face). A grey photo keeps ``skin`` unless :func:`hair_like` found its hair
-    (``hair_found``): the cut then models brightness alone, seeded by that hair; without
-    hair seeds it took 3-5 % of bald faces for occluders (docs/vision.md)."""
+    (``hair_found``): the cut then models brightness alone, seeded by that hair, and
+    takes only what joins its seeds (the hair's samples, the background); without hair
+    seeds it took 2.7-4.7 % of bald faces for occluders (docs/vision.md)."""
     import cv2
     from scipy import ndimage
 
@@ -347,7 +348,7 @@ def refine_skin(rgb8: np.ndarray, face: FaceLandmarks, skin: np.ndarray, person:
     # skin's colour between dark rims, a shadowed fold) stays out of the bake
     out[y0:y1, x0:x1] &= (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
     if hair_found and _grey(rgb8):   # brightness alone: a shadowed chin goes with the
-        # hair; only what the cut takes joined to the hair is taken
+        # hair; only what the cut takes joined to its seeds (hair, background) is taken
         lab, _ = ndimage.label(skin & ~out)
         seeds = ndimage.binary_dilation(label == cv2.GC_BGD, iterations=1)
         ids = np.unique(lab[seeds & (lab > 0)])
