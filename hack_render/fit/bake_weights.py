@@ -131,9 +131,8 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     ok &= robust_keep(lr, obs, ok, fc.reject_sigma)
     if lids.any() and ok.sum() >= 16:  # the lids' band: not brighter than the skin (the
         # photo's eye white or a glint where the detected ring is off), darker is theirs
-        med = np.median(lr[ok])
-        mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
-        features = features | lids & (lr < med + max(fc.reject_sigma * mad, np.log(1.4)))
+        med, tol = _log_ratio_band(lr, ok, fc.reject_sigma)
+        features = features | lids & (lr < med + tol)
     ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
@@ -192,6 +191,14 @@ def feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
+def _log_ratio_band(lr: np.ndarray, ok: np.ndarray, k: float) -> tuple[float, float]:
+    """The skin's log ratio over ``ok``: its median and the rejection's half-width, ``k``
+    MADs of it, at least log 1.4."""
+    med = float(np.median(lr[ok]))
+    mad = 1.4826 * float(np.median(np.abs(lr[ok] - med))) + 1e-3
+    return med, max(k * mad, float(np.log(1.4)))
+
+
 def robust_keep(lr: np.ndarray, obs: np.ndarray, ok: np.ndarray, k: float) -> np.ndarray:
     """(h, w) bool: the pixels of ``ok`` whose log ratio ``lr`` (photo over render) is
     within ``k`` MADs of the skin's median (at least log 1.4), and of those the ones
@@ -199,9 +206,8 @@ def robust_keep(lr: np.ndarray, obs: np.ndarray, ok: np.ndarray, k: float) -> np
     0.03)."""
     if ok.sum() < 16:
         return ok
-    med = np.median(lr[ok])
-    mad = 1.4826 * np.median(np.abs(lr[ok] - med)) + 1e-3
-    keep = ok & (np.abs(lr - med) < max(k * mad, np.log(1.4)))
+    med, tol = _log_ratio_band(lr, ok, k)
+    keep = ok & (np.abs(lr - med) < tol)
     if not keep.any():
         return keep
     chroma = obs / np.maximum(obs.sum(-1, keepdims=True), 1e-4)
