@@ -69,3 +69,77 @@ def test_a_grey_photos_dark_hair_is_an_occluder():
     assert np.median(lum[taken]) < 0.6 * np.median(lum[seg.skin & oval & ~seg.occluder])
     below = oval & (up > _upright_y(face, slice(36, 48)).mean())
     assert (seg.occluder & below).sum() <= (before.occluder & below).sum() + 5
+
+
+def _face_points() -> np.ndarray:
+    """68 points of an upright face: eyes' corners and lids at rows 40-50, nose at 60."""
+    p = np.zeros((68, 2))
+    p[[36, 37, 38, 39]] = [[10, 50], [14, 46], [18, 46], [22, 50]]
+    p[[42, 43, 44, 45]] = [[38, 50], [42, 46], [46, 46], [50, 50]]
+    p[30] = [30, 60]
+    return p
+
+
+def test_frames_in_brows_needs_an_occluder_under_the_lids():
+    """glasses.frames_in_brows on masks drawn by hand: a brow's dark strip joined to an
+    occluder under the lid between the eye's corners (a frame's rim) is taken; joined to
+    a fringe above the brows, or to hair beside the eye (outside its corners) reaching as
+    low, it is not; skin in the brows is never taken."""
+    from hack_render.vision.detect import FaceLandmarks
+    from hack_render.vision.glasses import frames_in_brows
+
+    face = FaceLandmarks(_face_points(), (0, 0, 64, 80), 1)
+    shape = (80, 64)
+    brows = np.zeros(shape, bool)
+    brows[36:40, 8:24] = True
+    skin = ~brows
+    skin[37:39, 8:14] = True          # part of the brow is skin
+    rim = np.zeros(shape, bool)
+    rim[40:56, 6:8] = True            # down the eye's outer side ...
+    rim[54:56, 6:20] = True           # ... and under it, between the corners
+    fringe = np.zeros(shape, bool)
+    fringe[20:36, 10:14] = True       # from above, stops at the brow
+    temple = np.zeros(shape, bool)
+    temple[36:60, 3:8] = True         # beside the eye, outside its corners
+    for occ, taken in ((rim, True), (fringe, False), (temple, False)):
+        skin_here = skin & ~occ
+        add = frames_in_brows(face, skin_here, occ, brows)
+        assert not (add & skin_here).any() and not (add & ~brows).any()
+        assert add.any() == taken, (taken, add.sum())
+        if taken:
+            assert add.sum() == (brows & ~skin_here & ~occ).sum()
+
+
+def test_a_glasses_frame_across_the_brows_is_an_occluder(monkeypatch):
+    """Grace Hopper (matplotlib's sample, public domain): her glasses' dark top bar runs
+    along her brows, where the skin test does not look; the part of it inside the brows
+    joins her frames' rims under the eyes and is taken as an occluder, far darker than
+    her skin. The astronaut's dark brows, joined to her hair at the temple, stay."""
+    import matplotlib.cbook
+    import skimage.data
+    from PIL import Image
+
+    import hack_render.vision.segment as seg_mod
+
+    seen = {}
+    real = seg_mod.frames_in_brows
+
+    def spy(face, skin, occluder, brows):
+        seen.update(skin=skin, brows=brows, added=real(face, skin, occluder, brows))
+        return seen["added"]
+
+    monkeypatch.setattr(seg_mod, "frames_in_brows", spy)
+    with matplotlib.cbook.get_sample_data("grace_hopper.jpg") as f:
+        grace = np.asarray(Image.open(f).convert("RGB"))
+    seg = seg_mod.segment(grace, detect_face(grace, "mesh"), hands=False)
+    added = seen["added"]
+    assert added.sum() > 80, added.sum()
+    assert (seg.occluder & added).sum() == added.sum()
+    lum = grace.mean(-1)
+    skin = seg.skin & (seg.face > 0.5) & ~seg.occluder
+    assert np.median(lum[added]) < 0.6 * np.median(lum[skin])
+
+    img = np.ascontiguousarray(skimage.data.astronaut())
+    seg_mod.segment(img, detect_face(img, "mesh"), hands=False)
+    assert (~seen["skin"] & seen["brows"]).sum() > 20       # her brows are not skin ...
+    assert not seen["added"].any()                          # ... and are kept

@@ -14,8 +14,9 @@
   person is hair above the mouth's line and clothes below the chin's.
 - **occluder** (bool): what covers the face: inside the face oval, pixels that are not
   skin (hair strands and fringes, glasses, a scarf) outside the eyes, brows and lips, and
-  hands (MediaPipe's hand landmarks' outline, dilated) wherever they overlap the face.
-  The photometric loss leaves these pixels out.
+  hands (MediaPipe's hand landmarks' outline, dilated) wherever they overlap the face;
+  inside the brows, a glasses frame's pixels joined to an occluder under the lids
+  (:mod:`hack_render.vision.glasses`). The photometric loss leaves these pixels out.
 
 :func:`segment` returns all of them as :class:`Segmentation`; :func:`person_mask` is the
 silhouette term's entry point (same contract as ``fit.silhouette.segment_plain_background``:
@@ -32,6 +33,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.vision.detect import FaceLandmarks, as_rgb8
+from hack_render.vision.glasses import frames_in_brows
 
 #: face-mesh point rings (MediaPipe's FACEMESH_* connection sets, as ordered loops)
 _RINGS = ("FACEMESH_FACE_OVAL", "FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE", "FACEMESH_LIPS",
@@ -400,12 +402,16 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     face_soft = np.minimum(oval, np.maximum(person, person_bin.astype(np.float32)))
     skin = skin_colour_mask(rgb8, face.dense, person_bin | (oval > 0.5))
     features = np.zeros((h, w), np.float32)
+    brows = np.zeros((h, w), bool)
     for nm in _RINGS[1:]:
         poly = face.dense[ring(nm), :2]
         if nm.endswith("EYEBROW"):      # a brow is a thin loop: widen it
             c = poly.mean(0)
             poly = c + 1.6 * (poly - c)
-        features = np.maximum(features, _polygon_mask(poly, (h, w), soft=False))
+        m = _polygon_mask(poly, (h, w), soft=False)
+        features = np.maximum(features, m)
+        if nm.endswith("EYEBROW"):
+            brows |= m > 0.5
     inner = (oval > 0.5) & (features < 0.5)
     like_hair = hair_like(rgb8, face, person_bin, oval, skin, features) if hair_model else None
     if like_hair is not None:   # the person's hair is not skin, whatever its colour
@@ -415,6 +421,7 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
                            hair_found=like_hair is not None)
     occluder = inner & ~skin
     occluder = ndimage.binary_opening(occluder, iterations=1)
+    occluder |= frames_in_brows(face, skin, occluder, brows & (oval > 0.5))
     if hands:
         occluder |= hand_mask(rgb8) & (oval > 0.5)
     skin_all = skin & person_bin
