@@ -72,36 +72,45 @@ def test_a_grey_photos_dark_hair_is_an_occluder():
 
 
 def _face_points() -> np.ndarray:
-    """68 points of an upright face: eyes' corners and lids at rows 40-50, nose at 60."""
+    """68 points of an upright face: eyes' corners and lids at rows 46-50 (eyes at
+    columns 10-22 and 38-50), the nose's line at column 30."""
     p = np.zeros((68, 2))
     p[[36, 37, 38, 39]] = [[10, 50], [14, 46], [18, 46], [22, 50]]
     p[[42, 43, 44, 45]] = [[38, 50], [42, 46], [46, 46], [50, 50]]
-    p[30] = [30, 60]
+    p[27:31] = [[30, 48], [30, 52], [30, 56], [30, 60]]
     return p
 
 
-def test_frames_in_brows_needs_an_occluder_under_the_lids():
-    """glasses.frames_in_brows on masks drawn by hand: a brow's dark strip joined to an
-    occluder under the lid between the eye's corners (a frame's rim) is taken; joined to
-    a fringe above the brows, or to hair beside the eye (outside its corners) reaching as
-    low, it is not; skin in the brows is never taken."""
+def test_frames_in_brows_needs_thin_occluders_under_both_eyes():
+    """glasses.frames_in_brows on masks drawn by hand: both brows' dark strips joined to
+    thin occluders under the lids between the eyes' corners (a frame's rims) are taken;
+    a rim on one side only, a blob instead of a rim, a fringe above the brows, or hair
+    beside the eyes (outside their corners) reaching as low take nothing; skin in the
+    brows is never taken."""
     from hack_render.vision.detect import FaceLandmarks
     from hack_render.vision.glasses import frames_in_brows
 
-    face = FaceLandmarks(_face_points(), (0, 0, 64, 80), 1)
+    face = FaceLandmarks(_face_points(), (0, 0, 64, 80), 1)   # outer-eye distance 40
     shape = (80, 64)
     brows = np.zeros(shape, bool)
-    brows[36:40, 8:24] = True
+    brows[36:40, 8:24] = brows[36:40, 36:52] = True
     skin = ~brows
-    skin[37:39, 8:14] = True          # part of the brow is skin
-    rim = np.zeros(shape, bool)
-    rim[40:56, 6:8] = True            # down the eye's outer side ...
-    rim[54:56, 6:20] = True           # ... and under it, between the corners
+    skin[37:39, 8:12] = True          # part of a brow is skin
+
+    def rim(x0, x1):                  # down the eye's outer side and under it
+        m = np.zeros(shape, bool)
+        m[40:56, x0:x0 + 2] = m[54:56, min(x0, x1):max(x0, x1)] = True
+        return m
+
+    rims = rim(6, 20) | rim(52, 40)
+    blob = np.zeros(shape, bool)
+    blob[40:64, 4:24] = blob[40:64, 36:56] = True     # 20 px wide: not thin at 0.08 x 40
     fringe = np.zeros(shape, bool)
-    fringe[20:36, 10:14] = True       # from above, stops at the brow
+    fringe[20:36, 10:14] = fringe[20:36, 40:44] = True
     temple = np.zeros(shape, bool)
-    temple[36:60, 3:8] = True         # beside the eye, outside its corners
-    for occ, taken in ((rim, True), (fringe, False), (temple, False)):
+    temple[36:60, 3:8] = temple[36:60, 53:58] = True
+    for occ, taken in ((rims, True), (rim(6, 20), False), (blob, False), (fringe, False),
+                       (temple, False)):
         skin_here = skin & ~occ
         add = frames_in_brows(face, skin_here, occ, brows)
         assert not (add & skin_here).any() and not (add & ~brows).any()
