@@ -36,7 +36,7 @@ THIN = 0.08
 
 def upright_xy(face, x, y) -> tuple[np.ndarray, np.ndarray]:
     """``(x, y)`` turned into the face's upright frame (its roll undone about the nose
-    tip, landmark 30), as :func:`hack_render.vision.segment._upright` (rows)."""
+    tip, landmark 30); its rows are :func:`hack_render.vision.segment._upright_rows`'."""
     a = math.radians(face.roll_deg)
     c = face.points[30]
     dx, dy = np.asarray(x) - c[0], np.asarray(y) - c[1]

@@ -33,7 +33,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.vision.detect import FaceLandmarks, as_rgb8
-from hack_render.vision.glasses import frames_in_brows
+from hack_render.vision.glasses import frames_in_brows, upright_xy
 
 #: face-mesh point rings (MediaPipe's FACEMESH_* connection sets, as ordered loops)
 _RINGS = ("FACEMESH_FACE_OVAL", "FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE", "FACEMESH_LIPS",
@@ -451,11 +451,7 @@ def _upright_y(face: FaceLandmarks, idx) -> np.ndarray:
 
 
 def _upright(face: FaceLandmarks, x, y):
-    import math
-
-    a = math.radians(face.roll_deg)
-    c = face.points[30]
-    return c[1] + (x - c[0]) * math.sin(a) + (y - c[1]) * math.cos(a)
+    return upright_xy(face, x, y)[1]
 
 
 def _holding_face(mask: np.ndarray, points: np.ndarray) -> np.ndarray:
