@@ -152,3 +152,31 @@ def test_a_glasses_frame_across_the_brows_is_an_occluder(monkeypatch):
     seg_mod.segment(img, detect_face(img, "mesh"), hands=False)
     assert (~seen["skin"] & seen["brows"]).sum() > 20       # her brows are not skin ...
     assert not seen["added"].any()                          # ... and are kept
+
+
+def test_a_turned_photos_person_is_segmented_upright():
+    """Grace Hopper turned a quarter turn (a phone photo whose rotation was not applied):
+    MediaPipe's selfie segmentation expects an upright person, and on the turned photo
+    its mask turned back agrees with the upright photo's at IoU 0.8 only; run on the
+    photo turned upright by the face's roll (``person_probability(..., roll_deg)``) it
+    is the upright photo's mask, turned."""
+    import matplotlib.cbook
+    from PIL import Image
+
+    from hack_render.vision.segment import PERSON_THRESHOLD, person_probability
+
+    with matplotlib.cbook.get_sample_data("grace_hopper.jpg") as f:
+        grace = np.asarray(Image.open(f).convert("RGB"))
+    upright = person_probability(grace) > PERSON_THRESHOLD
+
+    def iou(a, b):
+        return (a & b).sum() / (a | b).sum()
+
+    for k in (1, 3):
+        turned = np.ascontiguousarray(np.rot90(grace, k))
+        face = detect_face(turned, "mesh")
+        assert abs(abs(face.roll_deg) - 90) < 10, face.roll_deg
+        as_is = np.rot90(person_probability(turned), -k) > PERSON_THRESHOLD
+        fixed = np.rot90(person_probability(turned, face.roll_deg), -k) > PERSON_THRESHOLD
+        assert iou(as_is, upright) < 0.9
+        assert iou(fixed, upright) > 0.99

@@ -130,10 +130,14 @@ def ring(name: str) -> np.ndarray:
     return _CACHE[name]
 
 
-def person_probability(rgb8: np.ndarray) -> np.ndarray:
-    """(H, W) float32: MediaPipe selfie segmentation's person probability."""
-    res = _selfie().process(rgb8)
-    return np.asarray(res.segmentation_mask, np.float32)
+def person_probability(rgb8: np.ndarray, roll_deg: float = 0.0) -> np.ndarray:
+    """(H, W) float32: MediaPipe selfie segmentation's person probability, run on the
+    image turned by the quarter turn nearest ``roll_deg`` (the face's in-plane angle)
+    so the person stands upright (the model's person IoU with its upright answer falls
+    to 0.80 / 0.44 / 0.38 at a quarter, half and three-quarter turn), turned back."""
+    k = -round(roll_deg / 90.0) % 4
+    res = _selfie().process(np.ascontiguousarray(np.rot90(rgb8, k)))
+    return np.ascontiguousarray(np.rot90(np.asarray(res.segmentation_mask, np.float32), -k))
 
 
 def _polygon_mask(poly: np.ndarray, shape, soft: bool = True) -> np.ndarray:
@@ -393,7 +397,7 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
         raise HackError(f"{name}: segmentation needs the face mesh's dense points; expected "
                         f"a 'mesh' detection, found one from {face.source}.")
     h, w = rgb8.shape[:2]
-    prob = person_probability(rgb8)
+    prob = person_probability(rgb8, face.roll_deg)
     person_bin = _holding_face(prob > PERSON_THRESHOLD, face.points)
     person = np.where(ndimage.binary_dilation(person_bin, iterations=2), prob, 0.0)
     oval = _polygon_mask(face.dense[ring("FACEMESH_FACE_OVAL"), :2], (h, w))
@@ -481,7 +485,9 @@ def person_mask(rgb, points: np.ndarray, threshold: float = PERSON_THRESHOLD,
         nose, eye and mouth landmarks fall inside it (the model missed the person).
     """
     rgb8 = as_rgb8(rgb)
-    m = _holding_face(person_probability(rgb8) > threshold, np.asarray(points))
+    d = np.asarray(points)[45] - np.asarray(points)[36]     # the face's roll (its eyes)
+    roll = float(np.degrees(np.arctan2(-d[1], d[0])))
+    m = _holding_face(person_probability(rgb8, roll) > threshold, np.asarray(points))
     h, w = m.shape
     p = np.clip(np.floor(np.asarray(points)[27:]).astype(int), 0, [w - 1, h - 1])
     inside = float(m[p[:, 1], p[:, 0]].mean())
