@@ -36,7 +36,8 @@ THIN = 0.08
 
 def upright_xy(face, x, y) -> tuple[np.ndarray, np.ndarray]:
     """``(x, y)`` turned into the face's upright frame (its roll undone about the nose
-    tip, landmark 30); its rows are :func:`hack_render.vision.segment._upright_rows`'."""
+    tip, landmark 30); its rows are those of
+    :func:`hack_render.vision.segment._upright_rows`."""
     a = math.radians(face.roll_deg)
     c = face.points[30]
     dx, dy = np.asarray(x) - c[0], np.asarray(y) - c[1]
@@ -71,7 +72,7 @@ def frames_in_brows(face, skin: np.ndarray, occluder: np.ndarray,
     on both sides of the face (left and right of the nose's line); else none."""
     from scipy import ndimage
 
-    none = np.zeros_like(occluder)
+    out = np.zeros_like(occluder)
     iod = float(np.linalg.norm(face.points[36] - face.points[45]))
     # the work is done in a box about the brows and eyes, 0.6 outer-eye distances wide
     # of them (the opening's cost grows with the image; the frames are there)
@@ -81,7 +82,7 @@ def frames_in_brows(face, skin: np.ndarray, occluder: np.ndarray,
     box = (slice(lo[1], hi[1]), slice(lo[0], hi[0]))
     occ, skin, brows = occluder[box], skin[box], brows[box]
     if not occ.any():
-        return none
+        return out
     r = max(round(THIN * iod), 1)
     opened = ndimage.binary_opening(np.pad(occ, r, mode="edge"), structure=_disk(r))
     thin = occ & ~opened[r:-r, r:-r]
@@ -90,7 +91,7 @@ def frames_in_brows(face, skin: np.ndarray, occluder: np.ndarray,
     ids = np.unique(lab[thin & under_lids(face, occluder.shape)[box] & ~brows])
     beside = np.isin(lab, ids[ids > 0])
     if not beside.any():
-        return none
+        return out
     cand = ~skin & brows & ~occ
     lab, _ = ndimage.label(cand | beside, structure=eight)
     ids = np.unique(lab[beside])
@@ -98,6 +99,6 @@ def frames_in_brows(face, skin: np.ndarray, occluder: np.ndarray,
     ux, _ = upright_xy(face, xs + lo[0] + 0.5, ys + lo[1] + 0.5)
     mid, _ = upright_xy(face, face.points[27:31, 0], face.points[27:31, 1])
     if not ((ux < mid.mean()).any() and (ux > mid.mean()).any()):
-        return none
-    none[ys + lo[1], xs + lo[0]] = True
-    return none
+        return out
+    out[ys + lo[1], xs + lo[0]] = True
+    return out
