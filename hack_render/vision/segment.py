@@ -385,15 +385,17 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
             name: str = "photo", hair_model: bool = True,
             graph_cut: bool | None = None) -> Segmentation:
     """All masks of ``image`` (see the module docstring). ``face``: a detection with
-    dense points (:func:`hack_render.vision.detect.detect_face`, mesh); detected here
-    when None. ``hands``: look for hands over the face (MediaPipe hands, ~30 ms)."""
+    dense points (:func:`hack_render.vision.detect.detect_face`); where None, ``auto``'s
+    mesh face, else ``mesh``'s. ``hands``: look for hands over the face (~30 ms)."""
     from scipy import ndimage
 
     from hack_render.vision.detect import detect_face
 
     rgb8 = as_rgb8(image, name)
-    if face is None:
-        face = detect_face(rgb8, "mesh", name=name)
+    if face is None:   # auto turns BlazeFace's keypoints the right way up (mesh does not)
+        face = detect_face(rgb8, "auto", name=name)
+        if face.dense is None:       # auto took the shape predictor's points: no mesh
+            face = detect_face(rgb8, "mesh", name=name)
     if face.dense is None:
         raise HackError(f"{name}: segmentation needs the face mesh's dense points; expected "
                         f"a 'mesh' detection, found one from {face.source}.")
