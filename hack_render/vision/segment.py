@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import os
 import warnings
+from contextlib import suppress
 from dataclasses import dataclass
 
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.vision import detect as vision_detect
 from hack_render.vision.detect import FaceLandmarks, as_rgb8
 from hack_render.vision.glasses import frames_in_brows, upright_xy
 
@@ -103,9 +105,8 @@ def _hands():
             warnings.simplefilter("ignore")
             import mediapipe as mp
 
-            _CACHE["hands"] = mp.solutions.hands.Hands(static_image_mode=True,
-                                                      max_num_hands=2,
-                                                      min_detection_confidence=0.5)
+            _CACHE["hands"] = mp.solutions.hands.Hands(
+                static_image_mode=True, max_num_hands=2, min_detection_confidence=0.5)
     return _CACHE["hands"]
 
 
@@ -389,13 +390,12 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     mesh face, else ``mesh``'s. ``hands``: look for hands over the face (~30 ms)."""
     from scipy import ndimage
 
-    from hack_render.vision.detect import detect_face
-
     rgb8 = as_rgb8(image, name)
     if face is None:   # auto turns BlazeFace's keypoints the right way up (mesh does not)
-        face = detect_face(rgb8, "auto", name=name)
-        if face.dense is None:       # auto took the shape predictor's points: no mesh
-            face = detect_face(rgb8, "mesh", name=name)
+        with suppress(HackError):    # (auto drops boxes off the person: then mesh's)
+            face = vision_detect.detect_face(rgb8, "auto", name=name)
+        if face is None or face.dense is None:   # or took the shape predictor's points
+            face = vision_detect.detect_face(rgb8, "mesh", name=name)
     if face.dense is None:
         raise HackError(f"{name}: segmentation needs the face mesh's dense points; expected "
                         f"a 'mesh' detection, found one from {face.source}.")
