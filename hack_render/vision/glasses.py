@@ -45,11 +45,13 @@ def upright_xy(face, x, y) -> tuple[np.ndarray, np.ndarray]:
             c[1] + dx * math.sin(a) + dy * math.cos(a))
 
 
-def under_lids(face, shape) -> np.ndarray:
+def under_lids(face, shape, origin=(0, 0)) -> np.ndarray:
     """(H, W) bool: below each eye's upper lid (landmarks 37-38, 43-44) and between its
-    corners (36-39, 42-45), in the face's upright frame."""
+    corners (36-39, 42-45), in the face's upright frame; for the image's window of
+    ``shape`` whose top-left pixel is ``origin`` (x, y)."""
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    xx, yy = xx + origin[0], yy + origin[1]
     ux, uy = upright_xy(face, xx, yy)
     px, py = upright_xy(face, face.points[:, 0], face.points[:, 1])
     out = np.zeros((h, w), bool)
@@ -88,7 +90,7 @@ def frames_in_brows(face, skin: np.ndarray, occluder: np.ndarray,
     thin = occ & ~opened[r:-r, r:-r]
     eight = np.ones((3, 3), bool)
     lab, _ = ndimage.label(thin, structure=eight)
-    ids = np.unique(lab[thin & under_lids(face, occluder.shape)[box] & ~brows])
+    ids = np.unique(lab[thin & under_lids(face, occ.shape, lo) & ~brows])
     beside = np.isin(lab, ids[ids > 0])
     if not beside.any():
         return out
