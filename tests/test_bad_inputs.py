@@ -138,6 +138,7 @@ CASES: list[tuple[str, str, str]] = [
      "--iterations"),
     ("fit-levels-8", "fit {i}/face.png -o {o}/f --levels 8", "--levels"),
     ("fit-spp-0", "fit {i}/face.png -o {o}/f --spp 0", "--spp"),
+    ("fit-detector-mesh", "fit {i}/face.png -o {o}/f --detector mesh", "--detector"),
     ("fit-focal-1", "fit {i}/face.png -o {o}/f --focal-mm 1", "--focal-mm"),
     ("fit-focal-nan", "fit {i}/face.png -o {o}/f --focal-mm nan", "--focal-mm"),
     ("fit-landmarks-3-columns", "fit {i}/face.png -o {o}/f --landmarks {i}/lm3.txt",

@@ -95,6 +95,54 @@ def test_06_no_face_tiny_face_and_several_faces(astro):
     assert det.n_faces >= 2 and det.interocular > 30
 
 
+def test_the_auto_detector_is_asked_first_and_alone(astro, monkeypatch):
+    """``landmarks.detector = "auto"``: the vision package's face, its points and
+    visibility as they are (no refiner, no warning), without asking dlib; where it finds
+    none the fit stops with its error, not dlib's."""
+    from hack_render.fit import landmarks
+    from hack_render.fit.config import LandmarkConfig
+    from hack_render.vision import detect as vd
+
+    def no_dlib(*a, **k):
+        raise AssertionError("dlib asked")
+
+    monkeypatch.setattr(landmarks, "detect_landmarks", no_dlib)
+    face = vd.detect_face(astro, "auto", 64, "photo")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", landmarks.FaceWarning)
+        det = landmarks.detect(astro, LandmarkConfig(detector="auto"))
+    assert det.source == face.source == "mesh" and not det.refined
+    assert np.array_equal(det.points, face.points) and np.array_equal(det.visible, face.visible)
+    with pytest.raises(HackError, match="no face") as err:
+        landmarks.detect(np.full((200, 200, 3), 128, np.uint8), LandmarkConfig(detector="auto"))
+    assert "fallback" not in str(err.value)
+
+
+def test_both_detectors_average_their_inner_points(astro, monkeypatch):
+    """``landmarks.detector = "both"``: dlib's refined inner points averaged with the
+    vision package's, the jawline, source, refinement and dlib's own points kept; a face
+    the two disagree on (more than FUSE_MAX_IOD apart) or none from the vision package
+    leaves dlib's detection as it was."""
+    from hack_render.fit import landmarks
+    from hack_render.fit.config import LandmarkConfig
+    from hack_render.vision import detect as vd
+
+    dlib = landmarks.detect(astro, LandmarkConfig())
+    iod = dlib.interocular
+    for shift, fused in ((0.1, True), (landmarks.FUSE_MAX_IOD + 0.02, False), (None, False)):
+        def fake(*a, shift=shift, **k):
+            if shift is None:
+                raise HackError("photo: no face found (detector auto).")
+            return vd.FaceLandmarks(dlib.points + [shift * iod, 0.0], dlib.box, 1, "mesh")
+
+        monkeypatch.setattr(vd, "detect_face", fake)
+        got = landmarks.detect(astro, LandmarkConfig(detector="both"))
+        assert got.source == "dlib" and got.refined and np.array_equal(got.raw, dlib.raw)
+        assert np.array_equal(got.points[:17], dlib.points[:17])
+        want = dlib.points[17:] + [0.5 * shift * iod, 0.0] if fused else dlib.points[17:]
+        assert np.allclose(got.points[17:], want) and (got.fused is not None) == fused
+
+
 def test_07_cli_no_face_exit_code_2(tmp_path):
     import subprocess
     import sys
@@ -164,6 +212,10 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"final.{key}"):
             load_config(tmp_path / "f.toml")
+    for key, val in (("detector", '"mesh"'), ("fallback", '"dlib"'), ("files_follow", "1")):
+        (tmp_path / "m.toml").write_text(f"[landmarks]\n{key} = {val}\n")
+        with pytest.raises(HackError, match=f"landmarks.{key}: expected one of"):
+            load_config(tmp_path / "m.toml")
     (tmp_path / "d.yaml").write_text("photometric:\n  spp: 8\n")
     assert load_config(tmp_path / "d.yaml").photometric.spp == 8
 

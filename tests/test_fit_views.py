@@ -143,9 +143,12 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
         v.detection.points[hidden] += 3.0
         b = float(terms.landmark_loss(f.state, f.cfg, v, verts, 0))
     assert a == pytest.approx(b) and v.jaw is None
-    # the photometric stage holds the fallback's less sure points more loosely than dlib's
+    # the photometric stage holds the shape predictors' less sure points more loosely
+    # than the face mesh's and dlib's
     pc = f.cfg.photometric
     assert pc.w_landmarks_fallback < pc.w_landmarks
+    assert terms.landmark_scale(f.cfg, v) == pc.w_landmarks
+    v.detection.source = "ert"
     assert terms.landmark_scale(f.cfg, v) == pc.w_landmarks_fallback
     v.detection.source = "dlib"
     assert terms.landmark_scale(f.cfg, v) == pc.w_landmarks

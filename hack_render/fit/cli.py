@@ -211,6 +211,12 @@ def fit(
                                               "term; default: segmented when the background "
                                               "is plain, else no silhouette term."),
     no_silhouette: bool = typer.Option(False, "--no-silhouette", help="No silhouette term."),
+    detector: Optional[str] = typer.Option(None, "--detector", help="Landmark detector: "
+                                           "dlib (default; its points refined), auto (the "
+                                           "vision package's face mesh and shape predictors: "
+                                           "real backgrounds, any angle) or both (their inner "
+                                           "points averaged). Measured in docs/fit.md, 'The "
+                                           "detectors'; config landmarks.detector."),
     no_refine: bool = typer.Option(False, "--no-refine", help="Fit dlib's points as dlib "
                                    "places them, without the landmark refiner (trained on "
                                    "synthetic renders; config landmarks.refiner)."),
@@ -270,8 +276,11 @@ def fit(
         over["per_view_expression"] = True
     if no_silhouette:
         over["silhouette"] = {"mode": "off"}
-    if no_refine:
-        over["landmarks"] = {"refiner": "off"}
+    over["landmarks"] = {"refiner": "off"} if no_refine else {}
+    if detector is not None:
+        if detector not in ("dlib", "auto", "both"):
+            raise HackError(f"--detector: expected dlib, auto or both, found {detector!r}.")
+        over["landmarks"]["detector"] = detector
     if config is not None:
         _refuse_duplicate_keys(config)
     cfg = load_config(config, over)

@@ -8,8 +8,6 @@ section, e.g.::
     [photometric]
     resolutions = [64, 128]
     iterations = [40, 30]
-    [texel]
-    enabled = true
 
 Unknown sections or keys are errors (a misspelt key must not be silently ignored).
 """
@@ -69,6 +67,9 @@ class LandmarkConfig:
     # --landmarks files follow "detector" (dlib's convention: the embedding above) or
     # "vertices" (they mark the model's own landmark vertices)
     files_follow: str = "detector"
+    # the 68 points' detector: "dlib" (refined as above; the fallback below where it finds
+    # no face), "auto" (the vision package's) or "both" (their inner points averaged)
+    detector: str = "dlib"
     # where dlib finds no face: "auto" (the vision package's auto detector, any angle: the
     # face mesh near frontal, the yaw-ranged shape predictors past 40 degrees), "mesh"
     # (the face mesh alone) or "off" (the fit stops, exit 2); hidden points get no weight
@@ -219,8 +220,8 @@ class PhotometricConfig:
     # head 2.4 deg, her features 5.6-6.3 % of the eyes' distance off dlib's points (2.2 %
     # at 0.01; the face mesh's points: 4.4-4.6 -> 3.4-3.6 %; docs/fit.md)
     w_landmarks: float = 0.01
-    # the same for the vision package's less sure points (dlib found no face), where the
-    # photo's pull is worth more (the cameraman at 0.01: 14.2 -> 18.3 % off the mesh's)
+    # the same for the shape predictors' less sure points (profiles), where the photo's
+    # pull is worth more (the cameraman at 0.01: 14.2 -> 18.3 % off the mesh's)
     w_landmarks_fallback: float = 0.001
     # the silhouette term's scale in this stage (the shape stage's weights times this)
     w_silhouette: float = 0.001
@@ -336,12 +337,12 @@ class FitConfig:
                 raise HackError("config landmarks.point_weights: expected 68 finite weights "
                                 f">= 0 with a positive sum, found shape {w.shape}, min "
                                 f"{w.min() if w.size else 'n/a'}.")
-        if lm.fallback not in ("auto", "mesh", "off"):
-            raise HackError(f"config landmarks.fallback: expected 'auto', 'mesh' or 'off', found "
-                            f"{lm.fallback!r}.")
-        if lm.files_follow not in ("detector", "vertices"):
-            raise HackError(f"config landmarks.files_follow: expected 'detector' or 'vertices', "
-                            f"found {lm.files_follow!r}.")
+        for key, ok in (("detector", ("dlib", "auto", "both")),
+                        ("fallback", ("auto", "mesh", "off")),
+                        ("files_follow", ("detector", "vertices"))):
+            if getattr(lm, key) not in ok:
+                raise HackError(f"config landmarks.{key}: expected one of "
+                                f"{', '.join(map(repr, ok))}, found {getattr(lm, key)!r}.")
         if not isinstance(lm.embedding, str) or not lm.embedding:
             raise HackError(f"config landmarks.embedding: expected 'dlib', 'vertices' or an "
                             f"embedding file path, found {lm.embedding!r}.")

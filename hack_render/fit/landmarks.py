@@ -54,6 +54,9 @@ class Detection:
     # (68,) bool: False where the detector says the point is hidden (the far side of a
     # profile; the face mesh's fallback detections); None: all seen
     visible: np.ndarray | None = None
+    # (68, 2) the vision package's points whose inner ones were averaged into ``points``
+    # (landmarks.detector "both", :func:`fuse_detection`); None: not fused
+    fused: np.ndarray | None = None
 
     @property
     def refined(self) -> bool:
@@ -160,31 +163,68 @@ def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
         from hack_render.fit.config import LandmarkConfig
 
         config = LandmarkConfig()
+    if config.detector == "auto":
+        return _mesh_detection(rgb8, config.min_face_px, name, None, "auto")
     try:
         det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
     except HackError as err:
         if config.fallback == "off" or "no face found" not in str(err):
             raise
-        det = _mesh_detection(rgb8, config.min_face_px, name, err, config.fallback)
-    return refine_detection(rgb8, det, config.refiner)
+        return _mesh_detection(rgb8, config.min_face_px, name, err, config.fallback)
+    det = refine_detection(rgb8, det, config.refiner)
+    return fuse_detection(rgb8, det, name) if config.detector == "both" else det
+
+
+#: the most the two detectors' inner points may differ, on average in units of dlib's
+#: outer-eye distance, to be averaged (beyond it they are taken to be on different faces,
+#: or one of them wrong, and dlib's are kept)
+FUSE_MAX_IOD = 0.25
+
+
+def fuse_detection(rgb8: np.ndarray, det: Detection, name: str = "photo") -> Detection:
+    """dlib's (refined) detection with its 51 inner points averaged with the vision
+    package's ``auto`` detector's (:func:`hack_render.vision.detect.detect_face`), both
+    estimates of the calibrated embedding's points with errors of their own (docs/fit.md,
+    "The detectors"). The jawline stays dlib's (contour points); where the vision package
+    is unavailable, finds no face, or one whose points are more than :data:`FUSE_MAX_IOD`
+    from dlib's, dlib's detection is returned as it is."""
+    try:
+        from hack_render.vision.detect import detect_face
+
+        with warnings.catch_warnings():   # dlib has warned of several faces already
+            warnings.simplefilter("ignore", FaceWarning)
+            other = np.asarray(detect_face(rgb8, "auto", 1, name).points, np.float64)
+    except (ImportError, OSError, HackError):
+        return det
+    gap = np.linalg.norm(other[17:] - det.points[17:], axis=1).mean() / det.interocular
+    if not gap <= FUSE_MAX_IOD:
+        return det
+    pts = np.array(det.points, np.float64)
+    pts[17:] = 0.5 * (pts[17:] + other[17:])
+    return Detection(pts, det.box, det.n_faces, det.source, det.raw, det.weights, det.visible,
+                     fused=other)
 
 
 def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err,
                     method: str = "auto") -> Detection:
-    """dlib found no face (profiles, heads tilted far back): the vision package's
-    detection (:func:`hack_render.vision.detect.detect_face` with ``method``, any angle),
-    its hidden points marked; dlib's error when the vision package is unavailable or finds
-    nothing either."""
+    """The vision package's detection (:func:`hack_render.vision.detect.detect_face` with
+    ``method``, any angle), its hidden points marked: the ``auto`` detector's, or dlib's
+    fallback where it found no face (``dlib_err``; profiles, heads tilted far back), which
+    is raised with the vision package's when it is unavailable or finds nothing either."""
     try:
         from hack_render.vision.detect import detect_face
 
         f = detect_face(rgb8, method, min_face_px, name)
     except (ImportError, OSError, HackError) as err:
+        if dlib_err is None:
+            raise HackError(str(err)) from err
         raise HackError(f"{dlib_err} (The {method} detector's fallback: {err})") from err
-    what = {"mesh": "the face mesh's", "ert": "the shape predictor's"}.get(f.source, f.source)
-    warnings.warn(f"{name}: dlib found no face; using {what} landmarks"
-                  + (f" (yaw {f.pose[0]:.0f} deg)" if f.pose else ""),
-                  FaceWarning, stacklevel=3)
+    if dlib_err is not None:
+        what = {"mesh": "the face mesh's", "ert": "the shape predictor's"}.get(f.source,
+                                                                             f.source)
+        warnings.warn(f"{name}: dlib found no face; using {what} landmarks"
+                      + (f" (yaw {f.pose[0]:.0f} deg)" if f.pose else ""),
+                      FaceWarning, stacklevel=3)
     return Detection(np.asarray(f.points, np.float64), tuple(f.box), f.n_faces, f.source,
                      visible=np.asarray(f.visible, bool))
 

@@ -69,8 +69,8 @@ def _colour_cast(v) -> float | None:
 
 
 def _refiner_shift(det) -> float | None:
-    """Mean distance the landmark refiner moved the chin and inner points, in units of
-    dlib's inter-ocular distance (None: not refined)."""
+    """Mean distance the landmark refiner (and the fusion, ``landmarks_fused``) moved the
+    chin and inner points, in units of dlib's inter-ocular distance (None: not refined)."""
     if not det.refined:
         return None
     iod = max(float(np.linalg.norm(det.raw[36] - det.raw[45])), 1e-9)
@@ -197,6 +197,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "faces_found": v.detection.n_faces,
                          "landmark_source": v.detection.source,
                          "landmarks_refined": v.detection.refined,
+                         "landmarks_fused": v.detection.fused is not None,
                          "refiner_shift_iod": _refiner_shift(v.detection),
                          # the fit's points against the detected ones (drift: a fit
                          # the photo term pulled off the landmarks)

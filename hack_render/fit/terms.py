@@ -57,12 +57,11 @@ def model_landmarks(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
 
 def landmark_scale(cfg: FitConfig, v: View) -> float:
     """The shape stage's objective's scale beside the photo term for a view:
-    ``photometric.w_landmarks`` where its points are dlib's or a file's,
-    ``w_landmarks_fallback`` where they are the vision package's (face mesh, shape
-    predictors: dlib found no face), which are less sure."""
+    ``photometric.w_landmarks`` where its points are dlib's, a file's or the face mesh's,
+    ``w_landmarks_fallback`` where they are the shape predictors' (the vision package's
+    points past 40 degrees of yaw, or where the mesh sees no face), which are less sure."""
     pc = cfg.photometric
-    return pc.w_landmarks_fallback if v.detection.source in ("mesh", "ert") \
-        else pc.w_landmarks
+    return pc.w_landmarks_fallback if v.detection.source == "ert" else pc.w_landmarks
 
 
 def view_landmark_weights(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:
