@@ -213,7 +213,7 @@ def run_composites(args, detectors) -> dict:
     return out
 
 
-def run_real(detectors, fit, keep=None) -> dict:
+def run_real(detectors, fit, keep=None, fit_detector=None) -> dict:
     from hack_render.vision.detect import detect_faces
 
     out = {}
@@ -233,7 +233,8 @@ def run_real(detectors, fit, keep=None) -> dict:
                 iod = ref.interocular
                 row[f"{d}_vs_mesh_nme_iod_inner"] = nme(f.points, ref.points, iod, slice(17, 68))
         if fit:
-            row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep)
+            row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep,
+                                 detector=fit_detector)
         out[name] = row
     return out
 
@@ -295,28 +296,41 @@ def share_of_error(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarra
 
 def fit_against_mesh(img: np.ndarray, npz) -> dict:
     """The fit's projected points (``params.npz``'s ``view0_landmarks_fitted``) against
-    the face mesh detector's, an independent detector (the fit's points are dlib's or the
-    shape predictors'): mean over the chin and the 51 inner points, in units of the mesh
-    detector's outer-eye distance."""
+    the face mesh detector's (``fit_vs_mesh_iod``: an independent detector where the fit's
+    points are dlib's or the shape predictors') and dlib's, refined (``fit_vs_dlib_iod``,
+    where dlib finds the face: the independent one for ``--detector auto``): mean over the
+    chin and the 51 inner points, in units of the reference's outer-eye distance."""
+    from hack_render.fit.config import LandmarkConfig
+    from hack_render.fit.landmarks import detect
     from hack_render.vision.detect import detect_faces
 
     if "view0_landmarks_fitted" not in npz:
         return {}
+    out = {}
     faces = detect_faces(img, "mesh")
-    if not faces:
-        return {}
-    ref = np.asarray(faces[0].points, np.float64)
+    refs = {"mesh": faces[0].points if faces else None}
+    try:   # and against dlib's (refined) points: the independent ones for --detector auto
+        refs["dlib"] = detect(img, LandmarkConfig(fallback="off")).points
+    except Exception:  # noqa: BLE001 - dlib finds no face
+        refs["dlib"] = None
     idx = [8] + list(range(17, 68))
-    iod = np.linalg.norm(ref[36] - ref[45])
-    d = np.linalg.norm(npz["view0_landmarks_fitted"][idx] - ref[idx], axis=1)
-    return {"fit_vs_mesh_iod": float(d.mean() / iod)}
+    for name, ref in refs.items():
+        if ref is None:
+            continue
+        ref = np.asarray(ref, np.float64)
+        iod = np.linalg.norm(ref[36] - ref[45])
+        d = np.linalg.norm(npz["view0_landmarks_fitted"][idx] - ref[idx], axis=1)
+        out[f"fit_vs_{name}_iod"] = float(d.mean() / iod)
+    return out
 
 
-def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> dict:
+def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
+            detector=None) -> dict:
     """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
-    stages only): exit code, seconds, per-stage timings, the report's landmark figures and
-    the face-region PSNR/SSIM of its ``render.png`` at the photo's size. ``keep``: a folder
-    the fit's outputs are kept in (``keep/name``), else they go with a temporary one."""
+    stages only; ``detector``: its ``--detector``): exit code, seconds, per-stage timings,
+    the report's landmark figures and the face-region PSNR/SSIM of its ``render.png`` at
+    the photo's size. ``keep``: a folder the fit's outputs are kept in (``keep/name``),
+    else they go with a temporary one."""
     import imageio.v3 as iio
     from scipy.ndimage import binary_erosion
 
@@ -326,7 +340,8 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None) -> 
         out = Path(keep) / name if keep else Path(tmp) / "out"
         t = time.time()
         cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
-               str(out)] + ([] if photometric else ["--no-photometric"])
+               str(out)] + ([] if photometric else ["--no-photometric"]) + (
+            ["--detector", detector] if detector else [])
         p = subprocess.run(cmd, capture_output=True, text=True, check=False)
         row = {"exit": p.returncode, "seconds": round(time.time() - t, 1),
                "photometric": photometric}
@@ -384,6 +399,8 @@ def main(argv=None) -> None:
     ap.add_argument("--fit", nargs="?", const="all", choices=("all", "landmarks"),
                     help="run hack-render fit on each real photo: all stages (default) or "
                          "the landmark stages only; scores render.png's face region")
+    ap.add_argument("--fit-detector", choices=("dlib", "auto", "both"), default=None,
+                    help="the fits' --detector (default: the fit's own default)")
     ap.add_argument("--fit-out", default=None,
                     help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")
     ap.add_argument("--real-only", action="store_true",
@@ -406,7 +423,8 @@ def main(argv=None) -> None:
     t0 = time.time()
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
-              "real": run_real(detectors, a.fit, a.fit_out),
+              "fit_detector": a.fit_detector or "default",
+              "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
