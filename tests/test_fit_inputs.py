@@ -117,6 +117,13 @@ def test_the_auto_detector_is_asked_first_and_alone(astro, monkeypatch):
         landmarks.detect(np.full((200, 200, 3), 128, np.uint8), LandmarkConfig(detector="auto"))
     assert "fallback" not in str(err.value)
 
+    def no_mediapipe(*a, **k):
+        raise ImportError("No module named 'mediapipe'")
+
+    monkeypatch.setattr(vd, "detect_face", no_mediapipe)
+    with pytest.raises(HackError, match="needs mediapipe.*--detector dlib"):
+        landmarks.detect(astro, LandmarkConfig(detector="auto"))
+
 
 def test_both_detectors_average_their_inner_points(astro, monkeypatch):
     """``landmarks.detector = "both"``: dlib's refined inner points averaged with the

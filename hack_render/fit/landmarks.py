@@ -216,8 +216,10 @@ def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err,
 
         f = detect_face(rgb8, method, min_face_px, name)
     except (ImportError, OSError, HackError) as err:
-        if dlib_err is None:
-            raise HackError(str(err)) from err
+        if dlib_err is None:   # --detector auto: its own error, or why it cannot run
+            raise HackError(str(err) if isinstance(err, HackError) else (
+                f"{name}: --detector auto needs mediapipe 0.10.14 (pip install "
+                f"'hack-render[fit]', Python < 3.13): {err}. Use --detector dlib.")) from err
         raise HackError(f"{dlib_err} (The {method} detector's fallback: {err})") from err
     if dlib_err is not None:
         what = {"mesh": "the face mesh's", "ert": "the shape predictor's"}.get(f.source,
