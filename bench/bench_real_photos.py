@@ -391,6 +391,8 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
 
 
 def main(argv=None) -> None:
+    from hack_render.fit.config import DETECTORS
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--per-cell", type=int, default=2, help="composites per yaw x pitch cell")
     ap.add_argument("--res", type=int, default=256)
@@ -399,7 +401,7 @@ def main(argv=None) -> None:
     ap.add_argument("--fit", nargs="?", const="all", choices=("all", "landmarks"),
                     help="run hack-render fit on each real photo: all stages (default) or "
                          "the landmark stages only; scores render.png's face region")
-    ap.add_argument("--fit-detector", choices=("dlib", "auto", "both"), default=None,
+    ap.add_argument("--fit-detector", choices=DETECTORS, default=None,
                     help="the fits' --detector (default: the fit's own default)")
     ap.add_argument("--fit-out", default=None,
                     help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")

@@ -238,7 +238,7 @@ def fit(
     Example: hack-render fit face.jpg -o out/fit && hack-render render --params out/fit/params.json
     """
     from hack_render.cli_options import renamed
-    from hack_render.fit.config import load_config
+    from hack_render.fit.config import DETECTORS, load_config
 
     # `--resolution` means an image size (W or WxH) in every other command; `--lighting` a
     # lighting preset: their old meanings here live on as hidden, deprecated spellings
@@ -278,8 +278,9 @@ def fit(
         over["silhouette"] = {"mode": "off"}
     over["landmarks"] = {"refiner": "off"} if no_refine else {}
     if detector is not None:
-        if detector not in ("dlib", "auto", "both"):
-            raise HackError(f"--detector: expected dlib, auto or both, found {detector!r}.")
+        if detector not in DETECTORS:
+            raise HackError(f"--detector: expected one of {', '.join(DETECTORS)}, found "
+                            f"{detector!r}.")
         over["landmarks"]["detector"] = detector
     if config is not None:
         _refuse_duplicate_keys(config)

@@ -25,6 +25,8 @@ import numpy as np
 
 from hack_render.errors import HackError
 
+DETECTORS = ("dlib", "auto", "both")  # landmarks.detector (fit --detector)
+
 
 @dataclass
 class LandmarkConfig:
@@ -41,9 +43,7 @@ class LandmarkConfig:
     # noisier still: on synthetic subjects 20-39 (disjoint from the benchmark's 0-19),
     # landmark stages, 0.1 gave 1.69 mm (15 of 20 better), 0.05 1.72, 0.2 1.75, 0.3 1.79
     jaw_weight: float = 0.1
-    # weight of the 10 brow landmarks (dlib's brows are its least certain inner points:
-    # 3.8 % NME against the calibrated embedding's truth, CHANGELOG.md)
-    brow_weight: float = 1.0
+    brow_weight: float = 1.0   # of the 10 brow points (dlib's least certain: CHANGELOG.md)
     # 68 per-landmark multipliers on top of the two weights above (None: all 1), e.g.
     # inverse variances of the detector's scatter (CHANGELOG.md, fitting history)
     point_weights: list | None = None
@@ -64,11 +64,10 @@ class LandmarkConfig:
     # missing), "off", or the path of a refiner file (hack-render learn landmark-refiner).
     # Landmark files are never refined
     refiner: str = "dlib"
-    # --landmarks files follow "detector" (dlib's convention: the embedding above) or
-    # "vertices" (they mark the model's own landmark vertices)
+    # --landmarks files follow "detector" (dlib's convention) or "vertices" (ICT's own)
     files_follow: str = "detector"
-    # the 68 points' detector: "dlib" (refined as above; the fallback below where it finds
-    # no face), "auto" (the vision package's) or "both" (their inner points averaged)
+    # the 68 points' detector, one of DETECTORS: "dlib" (refined as above; the fallback
+    # below where it finds no face), "auto" (the vision package's), "both" (averaged)
     detector: str = "dlib"
     # where dlib finds no face: "auto" (the vision package's auto detector, any angle: the
     # face mesh near frontal, the yaw-ranged shape predictors past 40 degrees), "mesh"
@@ -337,7 +336,7 @@ class FitConfig:
                 raise HackError("config landmarks.point_weights: expected 68 finite weights "
                                 f">= 0 with a positive sum, found shape {w.shape}, min "
                                 f"{w.min() if w.size else 'n/a'}.")
-        for key, ok in (("detector", ("dlib", "auto", "both")),
+        for key, ok in (("detector", DETECTORS),
                         ("fallback", ("auto", "mesh", "off")),
                         ("files_follow", ("detector", "vertices"))):
             if getattr(lm, key) not in ok:
