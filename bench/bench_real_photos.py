@@ -8,7 +8,15 @@ Real photos (every openly licensed portrait in the installed packages): scikit-i
 ``astronaut`` (Eileen Collins, NASA, public domain) and ``camera`` (the cameraman, CC0,
 Lav Varshney; grey), matplotlib's ``grace_hopper`` sample (US Navy photograph, public
 domain). No truth: each detector's landmarks against the mesh detector's (inner 51
-points, normalised by the outer-eye distance).
+points, normalised by the outer-eye distance). ``--more-photos SDIST``: also the four
+distinct test photos in face_recognition 1.3.0's source distribution on PyPI (fetch it with
+``pip download face_recognition==1.3.0 --no-deps --no-binary :all: -d DIR``; read from the
+archive, nothing extracted): official White House photographs by Pete Souza (US government
+works, public domain; their EXIF notice asks that they not be manipulated or used to suggest
+endorsement, so the benchmark keeps scores only, no renders or crops of them): a portrait
+(``obama``, 910 x 1137), a speech with the mouth open behind a microphone
+(``obama_speech``), and two full-length shots whose faces are about 100 px tall
+(``biden_full``, ``obama_full``, cut from one group photo).
 
 Composites (:mod:`hack_render.vision.synthetic`, seed 9000, or the sets ``--seeds`` names,
 pooled; the dense-to-68 map was calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at
@@ -61,7 +69,35 @@ ROLLS = (30, 60, 90, 135, 180)
 SEED = 9000
 
 
-def real_photos() -> dict[str, np.ndarray]:
+#: --more-photos: name -> file in face_recognition 1.3.0's sdist (tests/test_images)
+MORE_PHOTOS = {"obama": "obama.jpg", "obama_speech": "obama2.jpg",
+               "biden_full": "biden.jpg", "obama_full": "obama3.jpg"}
+MORE_LICENCE = ("public domain (official White House photograph by Pete Souza, a US "
+                "government work; its EXIF notice asks that it not be manipulated or used to "
+                "suggest endorsement: scores only, nothing of it kept)")
+
+
+def more_photos(sdist: str | Path) -> dict[str, np.ndarray]:
+    """The photos of :data:`MORE_PHOTOS`, read from the source distribution's archive."""
+    import io
+    import tarfile
+
+    from PIL import Image, ImageOps
+
+    out = {}
+    with tarfile.open(sdist) as tar:
+        members = {Path(m.name).name: m for m in tar.getmembers()
+                   if "/tests/test_images/" in m.name}
+        for name, file in MORE_PHOTOS.items():
+            if file not in members:
+                raise SystemExit(f"--more-photos: expected {file} under tests/test_images in "
+                                 f"{sdist}, found it missing (face_recognition 1.3.0's sdist?)")
+            with Image.open(io.BytesIO(tar.extractfile(members[file]).read())) as im:
+                out[name] = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+    return out
+
+
+def real_photos(sdist=None) -> dict[str, np.ndarray]:
     import matplotlib.cbook
     import skimage.data
     from skimage.color import gray2rgb
@@ -70,8 +106,9 @@ def real_photos() -> dict[str, np.ndarray]:
         import imageio.v3 as iio
 
         hopper = np.asarray(iio.imread(f))
-    return {"astronaut": skimage.data.astronaut(), "grace_hopper": hopper,
-            "camera": gray2rgb(skimage.data.camera())}
+    photos = {"astronaut": skimage.data.astronaut(), "grace_hopper": hopper,
+              "camera": gray2rgb(skimage.data.camera())}
+    return photos | (more_photos(sdist) if sdist else {})
 
 
 def _box(p):
@@ -213,11 +250,11 @@ def run_composites(args, detectors) -> dict:
     return out
 
 
-def run_real(detectors, fit, keep=None, fit_detector=None) -> dict:
+def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None) -> dict:
     from hack_render.vision.detect import detect_faces
 
     out = {}
-    for name, img in real_photos().items():
+    for name, img in real_photos(sdist).items():
         row: dict = {"size": list(img.shape[:2])}
         found = {}
         for d in detectors:
@@ -405,6 +442,8 @@ def main(argv=None) -> None:
                     help="the fits' --detector (default: the fit's own default)")
     ap.add_argument("--fit-out", default=None,
                     help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")
+    ap.add_argument("--more-photos", metavar="SDIST", default=None,
+                    help="also the test photos of face_recognition-1.3.0.tar.gz (see above)")
     ap.add_argument("--real-only", action="store_true",
                     help="the real photos only (no composites)")
     ap.add_argument("--seeds", default=str(SEED),
@@ -426,13 +465,14 @@ def main(argv=None) -> None:
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
               "fit_detector": a.fit_detector or "default",
-              "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector),
+              "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
                            "backgrounds": "scikit-image coffee (CC0), rocket (public domain), "
                                           "brick, grass, gravel (CC0), hubble_deep_field "
-                                          "(public domain)"}}
+                                          "(public domain)"}
+                           | ({n: MORE_LICENCE for n in MORE_PHOTOS} if a.more_photos else {})}
     result["seconds"] = round(time.time() - t0, 1)
     write_result(a.out, result)
     for name, row in result["real"].items():
