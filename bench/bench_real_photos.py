@@ -61,54 +61,13 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from photo_sets import MORE_LICENCE, MORE_PHOTOS, real_photos  # bench/: sys.path[0]
 from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 YAWS = (0, 15, 30, 45, 60, 75, 90)
 PITCHES = (-45, -20, 0, 20, 45)
 ROLLS = (30, 60, 90, 135, 180)
 SEED = 9000
-
-
-#: --more-photos: name -> file in face_recognition 1.3.0's sdist (tests/test_images)
-MORE_PHOTOS = {"obama": "obama.jpg", "obama_speech": "obama2.jpg",
-               "biden_full": "biden.jpg", "obama_full": "obama3.jpg"}
-MORE_LICENCE = ("public domain (official White House photograph by Pete Souza, a US "
-                "government work; its EXIF notice asks that it not be manipulated or used to "
-                "suggest endorsement: scores only, nothing of it kept)")
-
-
-def more_photos(sdist: str | Path) -> dict[str, np.ndarray]:
-    """The photos of :data:`MORE_PHOTOS`, read from the source distribution's archive."""
-    import io
-    import tarfile
-
-    from PIL import Image, ImageOps
-
-    out = {}
-    with tarfile.open(sdist) as tar:
-        members = {Path(m.name).name: m for m in tar.getmembers()
-                   if "/tests/test_images/" in m.name}
-        for name, file in MORE_PHOTOS.items():
-            if file not in members:
-                raise SystemExit(f"--more-photos: expected {file} under tests/test_images in "
-                                 f"{sdist}, found it missing (face_recognition 1.3.0's sdist?)")
-            with Image.open(io.BytesIO(tar.extractfile(members[file]).read())) as im:
-                out[name] = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
-    return out
-
-
-def real_photos(sdist=None) -> dict[str, np.ndarray]:
-    import matplotlib.cbook
-    import skimage.data
-    from skimage.color import gray2rgb
-
-    with matplotlib.cbook.get_sample_data("grace_hopper.jpg") as f:
-        import imageio.v3 as iio
-
-        hopper = np.asarray(iio.imread(f))
-    photos = {"astronaut": skimage.data.astronaut(), "grace_hopper": hopper,
-              "camera": gray2rgb(skimage.data.camera())}
-    return photos | (more_photos(sdist) if sdist else {})
 
 
 def _box(p):
@@ -250,7 +209,8 @@ def run_composites(args, detectors) -> dict:
     return out
 
 
-def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None) -> dict:
+def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
+             score_only=False) -> dict:
     from hack_render.vision.detect import detect_faces
 
     out = {}
@@ -271,7 +231,7 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None) -> dict:
                 row[f"{d}_vs_mesh_nme_iod_inner"] = nme(f.points, ref.points, iod, slice(17, 68))
         if fit:
             row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep,
-                                 detector=fit_detector)
+                                 detector=fit_detector, score_only=score_only)
         out[name] = row
     return out
 
@@ -362,68 +322,92 @@ def fit_against_mesh(img: np.ndarray, npz) -> dict:
 
 
 def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
-            detector=None) -> dict:
+            detector=None, score_only: bool = False) -> dict:
     """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
-    stages only; ``detector``: its ``--detector``): exit code, seconds, per-stage timings,
-    the report's landmark figures and the face-region PSNR/SSIM of its ``render.png`` at
-    the photo's size. ``keep``: a folder the fit's outputs are kept in (``keep/name``),
-    else they go with a temporary one."""
+    stages only; ``detector``: its ``--detector``): exit code, seconds, and
+    :func:`score_fit`'s figures. ``keep``: a folder the fit's outputs are kept in
+    (``keep/name``), else they go with a temporary one; ``score_only``: score the fit
+    already in ``keep/name`` (no exit code or wall time: its ``timings.json`` has the
+    stages')."""
     import imageio.v3 as iio
-    from scipy.ndimage import binary_erosion
 
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / f"{name}.png"
-        iio.imwrite(path, img)
         out = Path(keep) / name if keep else Path(tmp) / "out"
-        t = time.time()
-        cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
-               str(out)] + ([] if photometric else ["--no-photometric"]) + (
-            ["--detector", detector] if detector else [])
-        p = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        row = {"exit": p.returncode, "seconds": round(time.time() - t, 1),
-               "photometric": photometric}
-        if p.returncode:
-            row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
-        for out_name in ("fit_report.json", "timings.json"):   # the fitter's outputs
-            f = out / out_name
-            if f.is_file():
-                data = json.loads(f.read_text())
-                row[f.stem] = {k: v for k, v in data.items()
-                               if isinstance(v, (int, float, str)) or k == "timings_s"}
-                if data.get("views"):   # the fit's points against the detected ones
-                    row["landmark_residual_iod"] = data["views"][0].get("landmark_residual_iod")
-                iris = (data.get("final") or {}).get("iris")
-                if iris:   # the eyes' estimates (fit/iris.py): what they gave, and why
-                    row["iris"] = {k: iris.get(k) for k in (
-                        "source", "pixels", "rgb", "residual", "sclera_source",
-                        "sclera_pixels", "sclera_rgb", "sclera_residual", "eye_gloss")}
-        npz = out / "params.npz"
-        if npz.is_file():
-            row.update(fit_against_mesh(img, np.load(npz)))
-        render = out / "render.png"
-        if render.is_file():
-            regions = face_region(img)
-            if regions is not None:
-                rgba = np.asarray(iio.imread(render))
-                row.update(score_render(img, rgba, regions[0]))
-                row.update({f"skin_{k}": v
-                            for k, v in score_render(img, rgba, regions[1]).items()})
-                # without the region's outer 2 px: its pixels mix the face with the hair
-                # or background beside it, which a hairless model cannot match
-                inner = binary_erosion(regions[0], iterations=2)
-                row.update({f"inner_{k}": v
-                            for k, v in score_render(img, rgba, inner).items()})
-                npz_path, cams = out / "params.npz", out / "cameras.json"
-                if npz_path.is_file() and cams.is_file():   # the eyes' and mouth's share
-                    size = json.loads(cams.read_text())["cameras"][0]["width"]
-                    pts = np.load(npz_path)["view0_landmarks_fitted"] * img.shape[1] / size
-                    for part, m in feature_regions(pts, img.shape[:2]).items():
-                        row.update(share_of_error(img, rgba, regions[0], m, part))
-                occ = out / "occlusion.png"   # the bake's weights: > 0 where it used the photo
-                if occ.is_file():
-                    used = np.asarray(iio.imread(occ)) > 0
-                    row.update({f"baked_{k}": v for k, v in
-                                score_render(img, rgba, regions[0] & used).items()})
+        row: dict = {"photometric": photometric}
+        if score_only:
+            row["rescored"] = str(out)
+        else:
+            path = Path(tmp) / f"{name}.png"
+            iio.imwrite(path, img)
+            t = time.time()
+            cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
+                   str(out)] + ([] if photometric else ["--no-photometric"]) + (
+                ["--detector", detector] if detector else [])
+            p = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            row.update({"exit": p.returncode, "seconds": round(time.time() - t, 1)})
+            if p.returncode:
+                row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
+        row.update(score_fit(img, out))
+    return row
+
+
+def score_fit(img: np.ndarray, out: Path) -> dict:
+    """A fit's outputs in ``out`` against its photo: the report's figures, where its
+    points lie (:func:`fit_against_mesh`) and the face region's PSNR/SSIM of its
+    ``render.png`` at that image's size (the photo's, its long side capped by the fit's
+    ``final.max_side``; a larger photo and its region are resampled to it)."""
+    import imageio.v3 as iio
+    from scipy.ndimage import binary_erosion
+    from skimage.transform import resize
+
+    row: dict = {}
+    for out_name in ("fit_report.json", "timings.json"):   # the fitter's outputs
+        f = out / out_name
+        if f.is_file():
+            data = json.loads(f.read_text())
+            row[f.stem] = {k: v for k, v in data.items()
+                           if isinstance(v, (int, float, str)) or k == "timings_s"}
+            if data.get("views"):   # the fit's points against the detected ones
+                row["landmark_residual_iod"] = data["views"][0].get("landmark_residual_iod")
+            iris = (data.get("final") or {}).get("iris")
+            if iris:   # the eyes' estimates (fit/iris.py): what they gave, and why
+                row["iris"] = {k: iris.get(k) for k in (
+                    "source", "pixels", "rgb", "residual", "sclera_source",
+                    "sclera_pixels", "sclera_rgb", "sclera_residual", "eye_gloss")}
+    npz = out / "params.npz"
+    if npz.is_file():
+        row.update(fit_against_mesh(img, np.load(npz)))
+    render = out / "render.png"
+    regions = face_region(img) if render.is_file() else None
+    if regions is None:
+        return row
+    rgba = np.asarray(iio.imread(render))
+    h, w = rgba.shape[:2]
+    photo = img
+    if (h, w) != img.shape[:2]:   # render.png capped by final.max_side
+        photo = (resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+                 .round().astype(np.uint8))
+        regions = tuple(resize(r.astype(float), (h, w), order=0) > 0.5 for r in regions)
+        row["scored_at"] = [h, w]
+    row.update(score_render(photo, rgba, regions[0]))
+    row.update({f"skin_{k}": v for k, v in score_render(photo, rgba, regions[1]).items()})
+    # without the region's outer 2 px: its pixels mix the face with the hair or
+    # background beside it, which a hairless model cannot match
+    inner = binary_erosion(regions[0], iterations=2)
+    row.update({f"inner_{k}": v for k, v in score_render(photo, rgba, inner).items()})
+    npz_path, cams = out / "params.npz", out / "cameras.json"
+    if npz_path.is_file() and cams.is_file():   # the eyes' and mouth's share
+        size = json.loads(cams.read_text())["cameras"][0]["width"]
+        pts = np.load(npz_path)["view0_landmarks_fitted"] * w / size
+        for part, m in feature_regions(pts, (h, w)).items():
+            row.update(share_of_error(photo, rgba, regions[0], m, part))
+    occ = out / "occlusion.png"   # the bake's weights: > 0 where it used the photo
+    if occ.is_file():
+        used = np.asarray(iio.imread(occ)) > 0
+        used = used[..., 0] if used.ndim == 3 else used
+        if used.shape == (h, w):
+            row.update({f"baked_{k}": v for k, v in
+                        score_render(photo, rgba, regions[0] & used).items()})
     return row
 
 
@@ -442,6 +426,8 @@ def main(argv=None) -> None:
                     help="the fits' --detector (default: the fit's own default)")
     ap.add_argument("--fit-out", default=None,
                     help="keep each fit's outputs in this folder (FIT_OUT/<photo>)")
+    ap.add_argument("--score-only", action="store_true",
+                    help="with --fit and --fit-out: score the fits already there (no fitting)")
     ap.add_argument("--more-photos", metavar="SDIST", default=None,
                     help="also the test photos of face_recognition-1.3.0.tar.gz (see above)")
     ap.add_argument("--real-only", action="store_true",
@@ -456,6 +442,8 @@ def main(argv=None) -> None:
         a.seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
     except ValueError:
         ap.error(f"--seeds: expected integers like 9000,9001, found {a.seeds!r}")
+    if a.score_only and not (a.fit and a.fit_out):
+        ap.error("--score-only: expected --fit and --fit-out (the fits to score)")
     warnings.filterwarnings("ignore")
     import torch
 
@@ -465,7 +453,8 @@ def main(argv=None) -> None:
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
               "fit_detector": a.fit_detector or "default",
-              "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos),
+              "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos,
+                               a.score_only),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
@@ -478,7 +467,7 @@ def main(argv=None) -> None:
     for name, row in result["real"].items():
         if "fit" in row:
             f = row["fit"]
-            print(name, "fit exit", f["exit"], f["seconds"], "s", "face PSNR",
+            print(name, "fit exit", f.get("exit"), f.get("seconds"), "s", "face PSNR",
                   round(f.get("face_psnr_db", float("nan")), 2), "SSIM",
                   round(f.get("face_ssim", float("nan")), 3))
     comp = result["composites"]
