@@ -196,7 +196,7 @@ def apparent_points(points: np.ndarray, camera_centre: np.ndarray,
     return np.where(ok[:, None], out, p), ok
 
 
-def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation R (3, 3) and translation t (3,) with dst ~ src @ R.T + t (least squares)."""
     a, b = src.mean(0), dst.mean(0)
     u, _, vt = np.linalg.svd((src - a).T @ (dst - b))
@@ -271,7 +271,7 @@ class CorneaRig:
         out = []
         for idx, rest, (centre, axis) in zip(self.eye_vertices, self.rest_eyes,
                                              self.rest_spheres):
-            r, t = _kabsch(rest, vertices[idx])
+            r, t = kabsch(rest, vertices[idx])
             out.append(CorneaSphere(r @ centre + t, r @ axis, self.radius, LIMBUS_RADIUS,
                                     self.ior))
         return out

@@ -21,7 +21,7 @@ other parts; it is flat-shaded matte grey (``materials.py``), not anatomy.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,7 +55,8 @@ class Topology:
     """What the renderer needs of a head model besides its vertices.
 
     Attributes: faces (F, 3), uvs (T, 2) OpenGL convention (v up), uv_faces (F, 3),
-    face_material (F,), material_names (M,).
+    face_material (F,), material_names (M,), rest (N, 3): the model's rest vertices
+    (``template``; None for an OBJ), where the eyes' axes are found (:func:`eye_axes`).
     """
 
     faces: np.ndarray
@@ -63,6 +64,7 @@ class Topology:
     uv_faces: np.ndarray
     face_material: np.ndarray
     material_names: tuple[str, ...]
+    rest: np.ndarray | None = field(default=None, compare=False)
 
     @property
     def num_vertices(self) -> int:
@@ -79,9 +81,11 @@ class Topology:
         if names is None:
             raise HackError("head model: expected 'material_names' (or 'materials'), found "
                             "neither. Pass the geometry model or an ObjMesh.")
+        rest = getattr(model, "template", None)   # the geometry model's rest vertices
         return Topology(arr(model.faces).astype(np.int64), arr(model.uvs).astype(np.float64),
                         arr(model.uv_faces).astype(np.int64),
-                        arr(model.face_material).astype(np.int64), tuple(names))
+                        arr(model.face_material).astype(np.int64), tuple(names),
+                        None if rest is None else arr(rest).astype(np.float64))
 
 
 @dataclass(frozen=True)
@@ -119,19 +123,44 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return n / np.where(length > 0, length, 1.0)
 
 
-def _eye_axes(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(centre, forward axis) of each eyeball from a least-squares sphere fit of its vertices."""
-    v = vertices[np.unique(faces)]
+EYE_SHELLS = ("M_ScleraLeft", "M_ScleraRight")
+EYE_INNER = ("M_IrisLeft", "M_IrisRight")
+
+
+def _sphere_axis(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, forward axis) of one eye's shell vertices: a least-squares sphere fit,
+    and the direction to its front-most (+z) vertex."""
+    sol = np.linalg.lstsq(np.c_[2 * v, np.ones(len(v))], (v ** 2).sum(1), rcond=None)[0]
+    centre = sol[:3]
+    front = v[np.argmax(v[:, 2])]
+    return centre, (front - centre) / np.linalg.norm(front - centre)
+
+
+def eye_axes(topo: Topology, vertices: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(centre, forward axis) of each eyeball (its ``M_Sclera*`` shell, one material per
+    eye) in ``vertices`` (N, 3). Found where the head faces +z, on the model's rest
+    vertices (``topo.rest``: a turned head's front-most shell vertex is not its cornea),
+    and carried to ``vertices`` by the rigid (Kabsch) fit of that eye's shell and inner
+    eye; without rest vertices (an OBJ), on ``vertices`` themselves."""
+    from hack_render.render.cornea import kabsch
+
+    names = topo.material_names
     out = []
-    for side in (v[v[:, 0] > 0], v[v[:, 0] <= 0]):
-        if len(side) < 4:
+    for shell, inner in zip(EYE_SHELLS, EYE_INNER):
+        if shell not in names:
             continue
-        A = np.c_[2 * side, np.ones(len(side))]
-        sol = np.linalg.lstsq(A, (side ** 2).sum(1), rcond=None)[0]
-        centre = sol[:3]
-        front = side[np.argmax(side[:, 2])]
-        axis = (front - centre) / np.linalg.norm(front - centre)
-        out.append((centre, axis))
+        idx = np.unique(topo.faces[topo.face_material == names.index(shell)])
+        if len(idx) < 4:
+            continue
+        if topo.rest is None:
+            out.append(_sphere_axis(vertices[idx]))
+            continue
+        rest = np.asarray(topo.rest, np.float64)
+        centre, axis = _sphere_axis(rest[idx])
+        mats = [names.index(m) for m in (shell, inner) if m in names]
+        eye = np.unique(topo.faces[np.isin(topo.face_material, mats)])
+        r, t = kabsch(rest[eye], np.asarray(vertices, np.float64)[eye])
+        out.append((r @ centre + t, r @ axis))
     return out
 
 
@@ -245,9 +274,7 @@ def split_parts(topo: Topology, vertices: np.ndarray,
     if len(missing_skin) == 2:
         raise HackError(f"head model: expected ICT materials M_Face/M_BackHead, found "
                         f"{', '.join(names)}. Use the HACK default model or its OBJ.")
-    sclera_ids = [names.index(m) for m in ("M_ScleraLeft", "M_ScleraRight") if m in names]
-    axes = _eye_axes(vertices, topo.faces[np.isin(topo.face_material, sclera_ids)]) \
-        if sclera_ids else []
+    axes = eye_axes(topo, vertices)
     parts = []
     for pname, (mats, region, u_off, u_scale) in PART_SPECS.items():
         ids = [names.index(m) for m in mats if m in names]

@@ -101,7 +101,8 @@ def _load(path: Path):
     try:
         with np.load(path, allow_pickle=False) as z:
             topo = Topology(z["faces"], z["uvs"], z["uv_faces"], z["face_material"],
-                            tuple(str(n) for n in z["material_names"]))
+                            tuple(str(n) for n in z["material_names"]),
+                            z["rest"] if "rest" in z.files else None)
             return topo, z["vertices"], str(z["printed"])
     except (OSError, KeyError, ValueError):
         return None
@@ -114,7 +115,8 @@ def _store(path: Path, topo: Topology, verts: np.ndarray, printed: str) -> None:
         np.savez(tmp, faces=topo.faces, uvs=topo.uvs, uv_faces=topo.uv_faces,
                  face_material=topo.face_material,
                  material_names=np.array(topo.material_names, dtype=str),
-                 vertices=np.asarray(verts), printed=np.array(printed))
+                 vertices=np.asarray(verts), printed=np.array(printed),
+                 **({} if topo.rest is None else {"rest": np.asarray(topo.rest)}))
         tmp.replace(path)
         old = sorted(path.parent.glob("*.npz"), key=lambda p: p.stat().st_mtime_ns)
         for stale in old[:-KEEP]:
