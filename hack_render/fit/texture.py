@@ -108,12 +108,13 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     dn = _denoiser() if spp is None and cfg.final.denoise == "auto" else None
     denoised = dn is not None
     spp = int(spp or (cfg.final.spp_denoised if denoised else cfg.final.spp))
-    head = _photo_scene(state, cfg, view, maps, spp, max_side)
+    head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
         rgba = head.denoise(rgba, fallback=True)
-    return PhotoRender(rgba, gb, spp, time.perf_counter() - t0, denoised)
+    return PhotoRender(_paste(rgba, window), _paste(gb, window), spp,
+                       time.perf_counter() - t0, denoised)
 
 
 def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes: list,
@@ -128,20 +129,33 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     import time
 
     t0 = time.perf_counter()
-    head = _photo_scene(state, cfg, view, maps, spp, max_side)
+    head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
     gb, out = None, []
     for iris, sclera, gloss in eyes:
         head.set_eyes(iris, sclera, gloss)
         rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
-        gb = gb if gb is not None else head.aovs(see_through=SEE_THROUGH)
-        out.append(PhotoRender(rgba, gb, spp, time.perf_counter() - t0))
+        gb = gb if gb is not None else _paste(head.aovs(see_through=SEE_THROUGH), window)
+        out.append(PhotoRender(_paste(rgba, window), gb, spp, time.perf_counter() - t0))
         t0 = time.perf_counter()
     return out
 
 
+#: the window rendered of a photo (:func:`_photo_scene`): the model's projected box
+#: grown by this many pixels (the pixel filter's reach, the lash cards' tips) and by
+#: CROP_GROW of its size
+CROP_MARGIN_PX = 8
+CROP_GROW = 0.02
+
+
 def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
                  max_side: int | None):
-    """The HeadScene of :func:`render_at_photo`."""
+    """The HeadScene of :func:`render_at_photo` and the window of the image it renders:
+    only the model's projected box (with a margin), where it covers under 90 % of the
+    image: (x0, y0, width, height, image width, image height), else None. The rays
+    through its pixels are the whole image's (``render.emitters.cropped``); the rest
+    of the image is background, so renders and G-buffers are pasted into it
+    (:func:`_paste`): a full-length photo renders its head, not its frame."""
+    from hack_render.render.emitters import cropped
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from scenes.lights import LightRig
@@ -153,10 +167,35 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     with torch.no_grad():
         verts = state.forward(view).vertices[0].numpy()
         env = view.lighting.env_map().detach().numpy().astype(np.float32)
+    window = None
+    front = (verts @ cam.R.T + cam.t)[:, 2] > 1e-3
+    if front.all():   # (a vertex behind the camera: no box; the whole image)
+        xy = cam.project(verts.astype(np.float64))
+        grow = CROP_MARGIN_PX + CROP_GROW * float((xy.max(0) - xy.min(0)).max())
+        x0, y0 = np.floor(np.maximum(xy.min(0) - grow, 0)).astype(int)
+        x1, y1 = np.ceil(np.minimum(xy.max(0) + grow, (w, h))).astype(int)
+        if x1 > x0 and y1 > y0 and (x1 - x0) * (y1 - y0) < 0.9 * w * h:
+            window = (int(x0), int(y0), int(x1 - x0), int(y1 - y0), w, h)
+            cam = cropped(cam, *window[:4])
     maps = maps if maps is not None else _skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
-    return HeadScene(Topology.from_model(state.model), verts, rig, cam,
-                     RenderSettings(w, h, spp, cfg.final.max_depth, cfg.seed), maps)
+    head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
+                     RenderSettings(cam.width, cam.height, spp, cfg.final.max_depth,
+                                    cfg.seed), maps)
+    return head, window
+
+
+def _paste(x, window):
+    """A window's render (H', W', C) or G-buffer (a dict of them) in its whole image:
+    zeros (the background's values: no coverage, region 0) outside the window."""
+    if window is None:
+        return x
+    if isinstance(x, dict):
+        return {k: _paste(v, window) for k, v in x.items()}
+    x0, y0, ww, hh, w, h = window
+    out = np.zeros((h, w) + x.shape[2:], x.dtype)
+    out[y0:y0 + hh, x0:x0 + ww] = x
+    return out
 
 
 def _denoiser():

@@ -24,15 +24,48 @@ def camera_to_world(cam: Camera) -> np.ndarray:
 
 
 def check_intrinsics(cam: Camera) -> None:
-    """Mitsuba's ``perspective`` models square pixels; we also keep the principal point
-    centred, so that K round-trips exactly."""
+    """Mitsuba's ``perspective`` models square pixels and a principal point at the film's
+    centre. An off-centre principal point is taken where it sits on the pixel grid's
+    half-pixels: the camera is then a window of a larger film centred on it
+    (:func:`film_window`), e.g. a crop of a centred camera's image."""
     K = cam.K
-    ok = (abs(K[0, 0] - K[1, 1]) < 1e-6 * K[0, 0] and abs(K[0, 2] - cam.width / 2) < 1e-6
-          and abs(K[1, 2] - cam.height / 2) < 1e-6 and K[0, 1] == 0)
+    twice = 2.0 * np.array([K[0, 2], K[1, 2]])
+    ok = (abs(K[0, 0] - K[1, 1]) < 1e-6 * K[0, 0] and K[0, 1] == 0
+          and np.all(np.abs(twice - np.round(twice)) < 1e-6))
     if not ok:
         raise HackError(f"camera {cam.name!r}: expected K with fx == fy, no skew and the "
-                        f"principal point at the image centre, found K = {K.tolist()}. Use "
-                        "scenes.cameras.intrinsics().")
+                        f"principal point on the pixel grid's half-pixels, found K = "
+                        f"{K.tolist()}. Use scenes.cameras.intrinsics().")
+
+
+def film_window(cam: Camera) -> tuple[int, int, int, int] | None:
+    """(film width, film height, crop x, crop y) of a camera whose principal point is
+    off its image's centre: the smallest film centred on the principal point that holds
+    the image, the image its crop window at that offset; None for a centred one."""
+    cx2, cy2 = (round(2.0 * float(cam.K[i, 2])) for i in (0, 1))
+    if (cx2, cy2) == (cam.width, cam.height):
+        return None
+    fw, fh = max(cx2, 2 * cam.width - cx2), max(cy2, 2 * cam.height - cy2)
+    return fw, fh, (fw - cx2) // 2, (fh - cy2) // 2
+
+
+def check_centred(cam: Camera) -> None:
+    """:func:`check_intrinsics`, and the principal point at the image's centre (a scene's
+    camera moved in place keeps its film: a crop's window needs a new scene)."""
+    check_intrinsics(cam)
+    if film_window(cam) is not None:
+        raise HackError(f"camera {cam.name!r}: expected the principal point at the image "
+                        f"centre to move a scene's camera, found K = {cam.K.tolist()} (a "
+                        "crop's camera: build a new scene for it).")
+
+
+def cropped(cam: Camera, x0: int, y0: int, width: int, height: int) -> Camera:
+    """The camera of the window (x0, y0, width, height) of ``cam``'s image (pixels): the
+    same rays through the same pixels, rendered alone (:func:`film_window`)."""
+    K = np.array(cam.K, dtype=np.float64)
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return Camera(K, cam.R, cam.t, int(width), int(height), cam.name)
 
 
 def sensor_dict(cam: Camera, spp: int, pixel_format: str = "rgba",
@@ -47,13 +80,21 @@ def sensor_dict(cam: Camera, spp: int, pixel_format: str = "rgba",
     import mitsuba as mi
 
     check_intrinsics(cam)
+    film = {"type": "hdrfilm", "width": cam.width, "height": cam.height,
+            "pixel_format": pixel_format, "component_format": "float32",
+            "rfilter": {"type": pixel_filter}}
+    fov = cam.fov_x_deg
+    window = film_window(cam)
+    if window is not None:   # a crop: the film centred on the principal point, its window
+        fw, fh, x0, y0 = window
+        film.update(width=fw, height=fh, crop_offset_x=x0, crop_offset_y=y0,
+                    crop_width=cam.width, crop_height=cam.height)
+        fov = math.degrees(2.0 * math.atan(0.5 * fw / float(cam.K[0, 0])))
     return {
-        "type": "perspective", "fov_axis": "x", "fov": cam.fov_x_deg,
+        "type": "perspective", "fov_axis": "x", "fov": fov,
         "near_clip": 0.01, "far_clip": 100.0,
         "to_world": mi.ScalarTransform4f(camera_to_world(cam).tolist()),
-        "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
-                 "pixel_format": pixel_format, "component_format": "float32",
-                 "rfilter": {"type": pixel_filter}},
+        "film": film,
         "sampler": {"type": sampler, "sample_count": spp},
     }
 

@@ -82,12 +82,12 @@ class MeshViews:
     def _set_camera(self, cam: Camera) -> None:
         import mitsuba as mi
 
-        from hack_render.render.emitters import camera_to_world, check_intrinsics
+        from hack_render.render.emitters import camera_to_world, check_centred
 
         if (cam.width, cam.height) != (self.width, self.height):
             raise ValueError(f"camera size {cam.width}x{cam.height}, views are "
                              f"{self.width}x{self.height}")
-        check_intrinsics(cam)
+        check_centred(cam)
         self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(cam).tolist())
         self.params["sensor.x_fov"] = cam.fov_x_deg
         self.params.update()

@@ -303,13 +303,13 @@ class HeadScene:
         """Move the camera (and change its focal length); the image size must stay."""
         import mitsuba as mi
 
-        from hack_render.render.emitters import camera_to_world, check_intrinsics
+        from hack_render.render.emitters import camera_to_world, check_centred
 
         if (camera.width, camera.height) != (self.settings.width, self.settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {self.settings.width}x"
                             f"{self.settings.height}, found {camera.width}x{camera.height}. "
                             "Build a new HeadScene for another resolution.")
-        check_intrinsics(camera)
+        check_centred(camera)
         self.params["sensor.to_world"] = mi.Transform4f(camera_to_world(camera).tolist())
         self.params["sensor.x_fov"] = camera.fov_x_deg
         if self.cornea is not None:  # the iris as the new camera sees it through the cornea
