@@ -15,8 +15,8 @@ archive, nothing extracted): official White House photographs by Pete Souza (US 
 works, public domain; their EXIF notice asks that they not be manipulated or used to suggest
 endorsement, so the benchmark keeps scores only, no renders or crops of them): a portrait
 (``obama``, 910 x 1137), a speech with the mouth open behind a microphone
-(``obama_speech``), and two full-length shots whose faces are about 100 px tall
-(``biden_full``, ``obama_full``, cut from one group photo).
+(``obama_speech``, 626 x 1200), and two full-length shots cut from one group photo
+(``biden_full``, 970 x 2204; ``obama_full``, 1434 x 2333; faces about 280 px across).
 
 Composites (:mod:`hack_render.vision.synthetic`, seed 9000, or the sets ``--seeds`` names,
 pooled; the dense-to-68 map was calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at

@@ -71,3 +71,53 @@ def test_the_eyes_share_of_the_region_error(bench):
     want = n * 400 / (n * 400 + (10000 - n) * 25)
     assert s["eyes_pixels"] == n and s["eyes_share_of_error"] == pytest.approx(want)
     assert s["eyes_psnr_db"] == pytest.approx(20 * np.log10(255 / 20))
+
+
+def test_more_photos_are_read_from_the_sdist_archive(bench, tmp_path):
+    """--more-photos: each MORE_PHOTOS file under tests/test_images of the archive, as
+    RGB arrays (a grey JPEG comes back RGB); a missing one stops the run with its name."""
+    import tarfile
+
+    from PIL import Image
+
+    src = tmp_path / "face_recognition-1.3.0" / "tests" / "test_images"
+    src.mkdir(parents=True)
+    for i, file in enumerate(bench.MORE_PHOTOS.values()):
+        mode = "L" if i == 0 else "RGB"
+        Image.new(mode, (40 + i, 30), 90 + 10 * i).save(src / file)
+    sdist = tmp_path / "face_recognition-1.3.0.tar.gz"
+    with tarfile.open(sdist, "w:gz") as tar:
+        tar.add(tmp_path / "face_recognition-1.3.0", arcname="face_recognition-1.3.0")
+    photos = bench.real_photos(sdist)
+    assert list(photos)[:3] == ["astronaut", "grace_hopper", "camera"]
+    for i, name in enumerate(bench.MORE_PHOTOS):
+        assert photos[name].shape == (30, 40 + i, 3) and photos[name].dtype == np.uint8
+        assert abs(int(photos[name][0, 0, 0]) - (90 + 10 * i)) <= 2   # JPEG's rounding
+    (src / "obama2.jpg").unlink()
+    with tarfile.open(tmp_path / "short.tar.gz", "w:gz") as tar:
+        tar.add(tmp_path / "face_recognition-1.3.0", arcname="face_recognition-1.3.0")
+    with pytest.raises(SystemExit, match="obama2.jpg"):
+        bench.real_photos(tmp_path / "short.tar.gz")
+
+
+def test_a_render_capped_by_max_side_is_scored_at_its_own_size(bench, tmp_path,
+                                                              monkeypatch):
+    """score_fit: a photo larger than render.png (final.max_side) is resampled to the
+    render's size, and so is its face region: a render equal to the photo's downscaled
+    pixels scores as a perfect match there (an offset of 10 levels: 20 log10(25.5))."""
+    pytest.importorskip("skimage")
+    import imageio.v3 as iio
+    from skimage.transform import resize
+
+    y, x = np.mgrid[0:128, 0:96]
+    photo = np.stack([x * 2, y * 1.5, 100 + 0 * x], -1).astype(np.uint8)
+    region = np.zeros((128, 96), bool)
+    region[32:96, 24:72] = True
+    monkeypatch.setattr(bench, "face_region", lambda img: (region, region))
+    small = resize(photo, (64, 48), order=1, anti_aliasing=True, preserve_range=True)
+    rgba = np.concatenate([small.round() + 10, np.full((64, 48, 1), 255)], -1)
+    iio.imwrite(tmp_path / "render.png", rgba.clip(0, 255).astype(np.uint8))
+    row = bench.score_fit(photo, tmp_path)
+    assert row["scored_at"] == [64, 48]
+    assert row["face_pixels"] == 32 * 24 and row["face_covered"] == pytest.approx(1.0)
+    assert row["face_psnr_db"] == pytest.approx(20 * np.log10(25.5), abs=0.05)
