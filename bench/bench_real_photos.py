@@ -76,7 +76,13 @@ from types import SimpleNamespace
 
 import numpy as np
 from photo_sets import (  # bench/ is sys.path[0]
-    ANNOTATED, ANNOTATED_LICENCE, MORE_LICENCE, MORE_PHOTOS, annotated_photos, real_photos)
+    ANNOTATED,
+    ANNOTATED_LICENCE,
+    MORE_LICENCE,
+    MORE_PHOTOS,
+    annotated_photos,
+    real_photos,
+)
 from provenance import write_result  # bench/ is sys.path[0] when run as a script
 
 YAWS = (0, 15, 30, 45, 60, 75, 90)
@@ -281,16 +287,18 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
                 row[f"{d}_vs_mesh_nme_iod_inner"] = nme(f.points, ref.points, iod, slice(17, 68))
         if truth is not None:
             row["truth_iod_px"] = float(np.linalg.norm(truth[36] - truth[45]))
-            try:   # the fit's own detection: dlib's points, refined (no fallback)
-                from hack_render.fit.config import LandmarkConfig
+            from hack_render.errors import HackError
+            from hack_render.fit.config import LandmarkConfig
 
+            try:   # the fit's own detection: dlib's points, refined (no fallback)
                 det = detect(img, LandmarkConfig(fallback="off"))
+            except HackError as err:   # dlib finds no face (of the fit's minimum size)
+                row["dlib_refined_error"] = str(err)
+            else:
                 if _iou(_box(det.points), _box(truth)) >= 0.3:
                     found["dlib_refined"] = det
                     if det.raw is not None:
                         found["dlib_raw"] = SimpleNamespace(points=det.raw)
-            except Exception:  # noqa: BLE001 - dlib finds no face
-                pass
             for d, f in found.items():
                 row.update({f"{d}_vs_truth_{k}": v
                             for k, v in truth_scores(f.points, truth).items()})
