@@ -81,6 +81,7 @@ from photo_sets import (  # bench/ is sys.path[0]
     MORE_LICENCE,
     MORE_PHOTOS,
     annotated_photos,
+    mirrored,
     real_photos,
 )
 from provenance import write_result  # bench/ is sys.path[0] when run as a script
@@ -251,15 +252,8 @@ def run_real(detectors, fit, keep=None, fit_detector=None, sdist=None,
     from hack_render.vision.detect import detect_faces
 
     photos = {n: (img, None) for n, img in real_photos(sdist).items()}
-    photos |= annotated_photos(annotated) if annotated else {}
-    if mirror:   # the annotated photos mirrored too, their points renumbered left for right
-        from hack_render.vision.detect import _mirror_68
-
-        for name, (img, truth) in list(photos.items()):
-            if truth is not None:
-                t = truth.copy()
-                t[:, 0] = img.shape[1] - t[:, 0]
-                photos[f"{name}_mirrored"] = (np.ascontiguousarray(img[:, ::-1]), t[_mirror_68()])
+    truths = annotated_photos(annotated) if annotated else {}
+    photos |= truths | (mirrored(truths) if mirror else {})
     if only:
         unknown = sorted(set(only) - set(photos))
         if unknown:
@@ -461,8 +455,9 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
                     "sclera_pixels", "sclera_rgb", "sclera_residual", "eye_gloss")}
     npz = out / "params.npz"
     if npz.is_file():
-        row.update(fit_against_mesh(img, np.load(npz)))
-        fitted = np.load(npz).get("view0_landmarks_fitted")
+        params = np.load(npz)
+        row.update(fit_against_mesh(img, params))
+        fitted = params.get("view0_landmarks_fitted")
         if truth is not None and fitted is not None:
             row.update({f"fit_vs_truth_{k}": v for k, v in truth_scores(fitted, truth).items()})
     render = out / "render.png"

@@ -187,3 +187,25 @@ def test_points_and_a_fit_are_scored_against_hand_placed_ones(bench, tmp_path, m
                                                      tmp_path, truth)
     assert not any(k.startswith("fit_vs_truth") for k in
                    bench.score_fit(np.zeros((64, 64, 3), np.uint8), tmp_path))
+
+
+def test_mirrored_photos_renumber_their_points(bench):
+    """--mirror: the image flipped, each point at width - x under its mirrored label (the
+    subject's right outer eye corner, 36, where the left one, 45, was); twice is the
+    original."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    try:
+        from photo_sets import mirrored
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+    rng = np.random.default_rng(2)
+    img = rng.integers(0, 255, (20, 30, 3)).astype(np.uint8)
+    pts = rng.uniform(0, 20, (68, 2))
+    (name, (m_img, m_pts)), = mirrored({"a": (img, pts)}).items()
+    assert name == "a_mirrored" and np.array_equal(m_img, img[:, ::-1])
+    assert np.allclose(m_pts[36], (30 - pts[45, 0], pts[45, 1]))
+    assert np.allclose(m_pts[8], (30 - pts[8, 0], pts[8, 1]))          # the chin: itself
+    (_, (back_img, back_pts)), = mirrored({"b": (m_img, m_pts)}).items()
+    assert np.array_equal(back_img, img) and np.allclose(back_pts, pts)

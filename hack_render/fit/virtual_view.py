@@ -64,6 +64,13 @@ def warp_photo(img: np.ndarray, H: np.ndarray, res: int, scale: float,
                 mode=mode, cval=0.0).astype(np.float32)
 
 
+def on_photo(h: int, w: int, H: np.ndarray, res: int) -> np.ndarray:
+    """(res, res) bool: the virtual view's pixels that lie on an (h, w) photo (``H``: view
+    pixel -> photo pixel, as :func:`warp_photo` takes it); beyond it ``warp_photo``'s
+    default repeats the photo's edge pixels."""
+    return warp_photo(np.ones((h, w, 1), np.float32), H, res, 1.0, mode="constant")[..., 0] > 0.5
+
+
 def face_mask(points_v: np.ndarray, res: int) -> np.ndarray:
     """Skin polygon from 68 landmarks in virtual pixels: face outline minus eyes, mouth."""
     from skimage.draw import polygon
