@@ -187,3 +187,8 @@ def report(model: Path = typer.Argument(..., help="model file (.npz)"),
                                rep["cumulative_explained_variance"][rep["n_components"] - 1],
                            "heldout": ho}, indent=1))
     typer.echo(f"wrote {png}")
+
+
+def register(main_app: typer.Typer) -> None:
+    """Add the `appearance` group to the main app."""
+    main_app.add_typer(app, name="appearance")

@@ -417,6 +417,37 @@ def estimate_line(what: str, seconds_each: float, remaining: int, unit: str = "s
 # --------------------------------------------------------------------- interruptions
 
 _CAUGHT: list[str] = []
+_SIGNALS: list[int] = []
+
+
+def note_signal(signum: int) -> None:
+    """Record that an interrupting signal (SIGINT, SIGTERM) arrived: whatever exception
+    the interruption surfaces as from then on counts as the interruption."""
+    _SIGNALS.append(signum)
+
+
+def signals_received() -> tuple[int, ...]:
+    return tuple(_SIGNALS)
+
+
+def forget_signals() -> None:
+    _SIGNALS.clear()
+
+
+def is_interruption(err: BaseException) -> bool:
+    """True if ``err`` is, wraps or follows an interruption: a KeyboardInterrupt anywhere
+    in its chain (a Dr.Jit loop raises ``RuntimeError: dr.while_loop(): encountered an
+    exception`` from it; an interrupted native import an ImportError), or any exception
+    after a signal was recorded by :func:`note_signal`."""
+    if _SIGNALS:
+        return True
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
 
 
 def _evaluate(note: Callable[[], str] | str) -> str:
@@ -430,13 +461,14 @@ def _evaluate(note: Callable[[], str] | str) -> str:
 
 @contextlib.contextmanager
 def on_interrupt(note: Callable[[], str] | str) -> Iterator[None]:
-    """While the block runs, an interruption (Ctrl-C) is reported by ``note``: what was
-    kept and how to resume (a string, or a function called when the interruption comes).
-    The innermost block's note wins."""
+    """While the block runs, an interruption (Ctrl-C, SIGTERM; also when it surfaces as
+    another exception, see :func:`is_interruption`) is reported by ``note``: what was kept
+    and how to resume (a string, or a function called when the interruption comes). The
+    innermost block's note wins."""
     try:
         yield
-    except KeyboardInterrupt:
-        if not _CAUGHT:
+    except BaseException as err:
+        if is_interruption(err) and not _CAUGHT:
             _CAUGHT.append(_evaluate(note))
         raise
 

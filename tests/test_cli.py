@@ -21,18 +21,17 @@ def _cli(*args):
 
 def _command_tree():
     """[(path, click command)] for every command and group of the app, hidden ones included."""
-    import typer.main
+    from hack_render.cli import load_commands
 
-    from hack_render.cli import app
-
-    out = []
+    out = [([], None)]
 
     def walk(cmd, path):
         out.append((path, cmd))
         for name, sub in getattr(cmd, "commands", {}).items():
             walk(sub, path + [name])
 
-    walk(typer.main.get_command(app), [])
+    for name, cmd in load_commands().items():
+        walk(cmd, [name])
     return out
 
 
@@ -89,12 +88,11 @@ def test_help_imports_no_heavy_module():
     code = (
         "import json, sys\n"
         "from hack_render.cli import main\n"
-        "import typer.main\n"
-        "from hack_render.cli import app\n"
+        "from hack_render.cli import load_commands\n"
         "def walk(c, p):\n"
         "    yield p\n"
         "    for n, s in getattr(c, 'commands', {}).items(): yield from walk(s, p + [n])\n"
-        "paths = list(walk(typer.main.get_command(app), []))\n"
+        "paths = [[]] + [p for n, c in load_commands().items() for p in walk(c, [n])]\n"
         "for p in paths:\n"
         "    try: main(p + ['--help'])\n"
         "    except SystemExit as e: assert e.code in (0, None), p\n"
@@ -126,3 +124,32 @@ def test_help_is_fast(args):
         assert res.returncode == 0, res.stderr
         ratios.append((t1 - t0) / (t2 - t1))
     assert statistics.median(ratios) <= 3.5, (args, ratios)
+
+
+def test_the_lazy_command_table_matches_the_commands():
+    """`hack-render --help` lists the commands from hack_render.cli.COMMANDS without
+    importing them: every command there exists with that help, every command that exists
+    is there, and the hidden (deprecated) ones are listed as hidden."""
+    import inspect
+
+    from hack_render.cli import COMMANDS, load_commands
+
+    loaded = load_commands()
+    assert set(loaded) == set(COMMANDS)
+    for name, cmd in loaded.items():
+        text, _ = COMMANDS[name]
+        first = " ".join(inspect.cleandoc(cmd.help or "").split("\n\n")[0].split())
+        assert (text == "") == bool(cmd.hidden), name
+        if text:
+            assert text == first, (name, text, first)
+
+
+def test_version_names_the_package_and_the_default_model():
+    res = _cli("--version")
+    assert res.returncode == 0, res.stderr
+    lines = res.stdout.strip().splitlines()
+    from hack_render import __version__
+
+    assert lines[0] == f"hack-render {__version__}"
+    assert lines[1].startswith("default model: hack-default-ict, model version ")
+    assert "file format 2" in lines[1]

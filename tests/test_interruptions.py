@@ -227,6 +227,60 @@ def test_ctrl_c_in_render_exits_130_with_a_line(tmp_path, capsys, monkeypatch):
     assert not list(tmp_path.iterdir())
 
 
+def _drjit_loop_interrupted():
+    """What Ctrl-C inside a Dr.Jit loop surfaces as: dr.while_loop() re-raises the
+    KeyboardInterrupt its body met as a RuntimeError (issue 65)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from hack_render.render.engine import ensure_variant
+
+    ensure_variant()
+
+    def body(i):
+        raise KeyboardInterrupt
+
+    dr.while_loop(state=(mi.Int32(0),), cond=lambda i: i < 3, body=body)
+
+
+def test_ctrl_c_inside_a_drjit_loop_exits_130_with_the_line(tmp_path, capsys, monkeypatch):
+    from hack_render.render import scene
+
+    monkeypatch.setattr(scene.HeadScene, "render", lambda self, *a, **k: _drjit_loop_interrupted())
+    code, err = run(["render", "-o", tmp_path / "x.png", "--resolution", "16", "--spp", "1"],
+                    capsys)
+    assert code == 130, err
+    assert "Traceback" not in err and "RuntimeError" not in err
+    assert err.strip().splitlines()[-1].startswith("interrupted: kept 0 finished image(s)")
+
+
+def test_sigterm_that_surfaces_as_another_error_exits_143(tmp_path, capsys, monkeypatch):
+    """SIGTERM during a native import or loop can come out as an ImportError or a
+    RuntimeError with no KeyboardInterrupt in its chain: once the signal was received the
+    interruption wins (143, the kept-work line, no traceback)."""
+    import os
+    import signal
+
+    from hack_render.geometry import obj_io
+
+    def terminated_in_native_code(*a, **k):
+        os.kill(os.getpid(), signal.SIGTERM)  # the handler raises KeyboardInterrupt here
+        raise AssertionError("not reached")
+
+    def wrapped(*a, **k):
+        try:
+            terminated_in_native_code()
+        except KeyboardInterrupt:
+            pass  # a native layer that swallows it and fails otherwise
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(obj_io, "write_mesh", wrapped)
+    code, err = run(["mesh", "-o", tmp_path / "x.obj"], capsys)
+    assert code == 143, err
+    assert err.strip().splitlines()[-1].startswith("terminated (SIGTERM): ")
+    assert "Traceback" not in err and not list(tmp_path.iterdir())
+
+
 def test_ctrl_c_in_mesh_exits_130(tmp_path, capsys, monkeypatch):
     from hack_render.geometry import obj_io
 

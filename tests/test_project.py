@@ -70,16 +70,14 @@ def test_theta_beyond_limits_policy(tmp_path):
 
 def test_every_command_has_working_help():
     """`--help` teaches on every command and sub-command (and never crashes)."""
-    import typer.main
-
-    from hack_render.cli import app, main
+    from hack_render.cli import load_commands, main
 
     def walk(cmd, path):
         yield path
         for name, sub in getattr(cmd, "commands", {}).items():
             yield from walk(sub, path + [name])
 
-    paths = list(walk(typer.main.get_command(app), []))
+    paths = [[]] + [p for n, c in load_commands().items() for p in walk(c, [n])]
     assert len(paths) >= 8
     for path in paths:
         try:

@@ -218,6 +218,23 @@ def load_model_file(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
     return arrays, meta
 
 
+def file_header(path: str | Path) -> tuple[int, dict[str, Any]]:
+    """(format version, metadata) of a model file, read without its arrays (for
+    ``hack-render --version`` and ``model info``)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "format_version" not in z.files:
+                raise HackError(f"{path}: missing key 'format_version'; this is not a HACK "
+                                f"model file. {_FIX}")
+            version = int(z["format_version"])
+            meta = json.loads(str(z["meta_json"])) if "meta_json" in z.files else {}
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise HackError(f"{path}: not a readable .npz model file ({exc}); it may be truncated "
+                        f"or corrupt. {_FIX}") from exc
+    return version, meta
+
+
 def _cache_entry(path: Path) -> Path | None:
     """The cache folder of ``path`` (None when the cache is off)."""
     if os.environ.get(_CACHE_OFF, "") not in ("", "0"):
