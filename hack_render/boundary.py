@@ -21,22 +21,21 @@ One module, used by every command, for what a user can get wrong or cut short:
   stored with the partial output, a resume with other arguments is refused, a completion
   marker is written last, one writer at a time holds a folder, and a killed run's
   temporaries are removed.
-- **Interruptions** (:func:`on_interrupt`, :func:`interrupt_message`): Ctrl-C exits 130
-  (:func:`hack_render.cli.main`) with one line saying what was kept and how to resume.
+- **Interruptions** live in :mod:`hack_render.interrupts` (``on_interrupt``: what a block of
+  work keeps when Ctrl-C or SIGTERM ends it; exit 130 / 143 with one line).
 
-Imports nothing heavy (``--help`` imports it).
+Imports nothing heavy.
 """
 
 from __future__ import annotations
 
 import contextlib
-import errno
 import hashlib
 import json
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -256,19 +255,6 @@ def parse_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
 
 
-def os_error_message(err: OSError) -> str:
-    """One line for an OS error met while writing (disk full, permissions, ...)."""
-    where = err.filename or "an output file"
-    if err.errno == errno.ENOSPC:
-        return (f"{where}: no space left on the device. Free some space or write elsewhere "
-                f"with -o; the files already complete were kept.")
-    if err.errno == errno.EDQUOT:
-        return f"{where}: disk quota exceeded. Free some space or write elsewhere with -o."
-    if err.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
-        return f"{where}: not writable ({err.strerror}). Choose another path with -o."
-    return f"{where}: {err.strerror or err}."
-
-
 # ------------------------------------------------------------------- resumable runs
 
 
@@ -414,69 +400,3 @@ def estimate_line(what: str, seconds_each: float, remaining: int, unit: str = "s
     return f"{what}: {seconds_each:.1f} s per {unit}; about {total:.0f} s for the rest"
 
 
-# --------------------------------------------------------------------- interruptions
-
-_CAUGHT: list[str] = []
-_SIGNALS: list[int] = []
-
-
-def note_signal(signum: int) -> None:
-    """Record that an interrupting signal (SIGINT, SIGTERM) arrived: whatever exception
-    the interruption surfaces as from then on counts as the interruption."""
-    _SIGNALS.append(signum)
-
-
-def signals_received() -> tuple[int, ...]:
-    return tuple(_SIGNALS)
-
-
-def forget_signals() -> None:
-    _SIGNALS.clear()
-
-
-def is_interruption(err: BaseException) -> bool:
-    """True if ``err`` is, wraps or follows an interruption: a KeyboardInterrupt anywhere
-    in its chain (a Dr.Jit loop raises ``RuntimeError: dr.while_loop(): encountered an
-    exception`` from it; an interrupted native import an ImportError), or any exception
-    after a signal was recorded by :func:`note_signal`."""
-    if _SIGNALS:
-        return True
-    seen = set()
-    while err is not None and id(err) not in seen:
-        if isinstance(err, KeyboardInterrupt):
-            return True
-        seen.add(id(err))
-        err = err.__cause__ or err.__context__
-    return False
-
-
-def _evaluate(note: Callable[[], str] | str) -> str:
-    if not callable(note):
-        return note
-    try:
-        return note()
-    except Exception:  # noqa: BLE001 - the report of an interruption must not fail
-        return "the output may be partial"
-
-
-@contextlib.contextmanager
-def on_interrupt(note: Callable[[], str] | str) -> Iterator[None]:
-    """While the block runs, an interruption (Ctrl-C, SIGTERM; also when it surfaces as
-    another exception, see :func:`is_interruption`) is reported by ``note``: what was kept
-    and how to resume (a string, or a function called when the interruption comes). The
-    innermost block's note wins."""
-    try:
-        yield
-    except BaseException as err:
-        if is_interruption(err) and not _CAUGHT:
-            _CAUGHT.append(_evaluate(note))
-        raise
-
-
-def interrupt_message() -> str:
-    """The line printed on Ctrl-C (``interrupted: ...``); forgets the note."""
-    note = _CAUGHT[0] if _CAUGHT else (
-        "no file was left half-written (each is written whole under a temporary name, then "
-        "renamed); run the command again")
-    _CAUGHT.clear()
-    return f"interrupted: {note}."

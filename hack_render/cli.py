@@ -9,7 +9,6 @@ resume. What a user can get wrong is checked by :mod:`hack_render.boundary`.
 
 from __future__ import annotations
 
-import errno
 import importlib
 import signal
 import sys
@@ -20,8 +19,8 @@ import typer
 from typer.core import TyperGroup
 from typer.main import get_group
 
-from hack_render import __version__, boundary
-from hack_render.errors import HackError
+from hack_render import __version__, interrupts
+from hack_render.errors import USER_OS_ERRORS, HackError, os_error_message
 
 #: every command of `hack-render`: its name, the first paragraph of its help (shown by
 #: `hack-render --help` without importing anything heavy; tests/test_cli.py checks it
@@ -161,24 +160,19 @@ def _root(version: bool = typer.Option(False, "--version", callback=_print_versi
     pass
 
 
-#: OS errors that are the user's environment, not a bug: a clean message and exit 2
-_USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
-                   errno.EISDIR, errno.ENOTDIR, errno.EEXIST, errno.ENOENT, errno.ENAMETOOLONG}
-
-
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: runs the app; exit codes: 0 done, 2 a user error (a
     :class:`~hack_render.errors.HackError`, a usage error, a disk full or unwritable
     output), 130 interrupted (Ctrl-C) and 143 terminated (SIGTERM, e.g. a Slurm time
     limit), each with one line saying what was kept and how to resume
-    (:func:`hack_render.boundary.on_interrupt`). An interruption wins over whatever
+    (:func:`hack_render.interrupts.on_interrupt`). An interruption wins over whatever
     exception it surfaces as (a native loop or import wraps it in a RuntimeError or an
     ImportError)."""
-    boundary.interrupt_message()  # forget a note left by an earlier in-process call
-    boundary.forget_signals()
+    interrupts.interrupt_message()  # forget a note left by an earlier in-process call
+    interrupts.forget_signals()
 
     def on_signal(signum, frame):  # as Ctrl-C: complete what is queued, say what is kept
-        boundary.note_signal(signum)
+        interrupts.note_signal(signum)
         raise KeyboardInterrupt
 
     previous = {}
@@ -192,8 +186,8 @@ def main(argv: list[str] | None = None) -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     if code == 130:
-        line = boundary.interrupt_message()
-        if signal.SIGTERM in boundary.signals_received():
+        line = interrupts.interrupt_message()
+        if signal.SIGTERM in interrupts.signals_received():
             line, code = line.replace("interrupted:", "terminated (SIGTERM):", 1), 143
         typer.secho(line, err=True, fg=typer.colors.YELLOW)
     if isinstance(code, int) and not isinstance(code, bool) and code != 0:
@@ -214,10 +208,10 @@ def _run(argv: list[str] | None) -> int | None:
     except SystemExit:
         raise
     except Exception as err:  # noqa: BLE001 - sorted below; what is not ours is re-raised
-        if boundary.is_interruption(err):  # Ctrl-C / SIGTERM inside a native loop or import
+        if interrupts.is_interruption(err):  # Ctrl-C / SIGTERM inside a native loop or import
             return 130
-        if isinstance(err, OSError) and err.errno in _USER_OS_ERRORS:
-            typer.secho(f"error: {boundary.os_error_message(err)}", err=True,
+        if isinstance(err, OSError) and err.errno in USER_OS_ERRORS:
+            typer.secho(f"error: {os_error_message(err)}", err=True,
                         fg=typer.colors.RED)
             return 2
         # click usage errors carry their own exit code; by what they do, not their class:

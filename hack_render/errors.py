@@ -7,6 +7,8 @@ it. The CLI turns it into a one-paragraph message and exit code 2, never a trace
 
 from __future__ import annotations
 
+import errno
+
 
 class HackError(ValueError):
     """A problem with user input (file, parameter, image), with a message that says the fix."""
@@ -26,3 +28,21 @@ def expect(cond: bool, what: str, expected: str, found: str, fix: str = "") -> N
         if fix:
             msg += f" {fix}"
         raise HackError(msg)
+
+
+#: OS errors that are the user's environment, not a bug: a clean message and exit 2
+USER_OS_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM,
+                  errno.EISDIR, errno.ENOTDIR, errno.EEXIST, errno.ENOENT, errno.ENAMETOOLONG}
+
+
+def os_error_message(err: OSError) -> str:
+    """One line for an OS error met while writing (disk full, permissions, ...)."""
+    where = err.filename or "an output file"
+    if err.errno == errno.ENOSPC:
+        return (f"{where}: no space left on the device. Free some space or write elsewhere "
+                f"with -o; the files already complete were kept.")
+    if err.errno == errno.EDQUOT:
+        return f"{where}: disk quota exceeded. Free some space or write elsewhere with -o."
+    if err.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        return f"{where}: not writable ({err.strerror}). Choose another path with -o."
+    return f"{where}: {err.strerror or err}."

@@ -39,8 +39,8 @@ FIT = ROOT / "hack_render" / "fit"
 #: import its own layer's packages or lower ones, never a higher layer's. The ground floor
 #: holds what every package shares (errors, file writing, the command line's checks).
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("hack_render", "hack_render.errors", "hack_render.io", "hack_render.boundary",
-     "hack_render.cli_options"),
+    ("hack_render", "hack_render.errors", "hack_render.interrupts", "hack_render.io",
+     "hack_render.boundary", "hack_render.cli_options"),
     ("hack_render.geometry",),
     ("appearance", "scenes"),
     ("hack_render.render",),
@@ -339,7 +339,7 @@ def test_06_help_imports_no_command_module_and_nothing_heavy():
     heavy = [m for m in loaded if m.split(".")[0] in LIGHT_AT_HELP]
     assert heavy == [], heavy
     assert set(loaded) <= {"hack_render", "hack_render.cli", "hack_render.errors",
-                           "hack_render.boundary"}, loaded
+                           "hack_render.interrupts"}, loaded
 
 
 # --------------------------------------------------------------------------- the fitter

@@ -28,6 +28,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 EXECUTORS = ("serial", "ray")
@@ -402,7 +403,7 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
                     f"{k}/{m} in {job.out}; run the same command with --resume to render the "
                     "rest")
 
-        with boundary.on_interrupt(kept):
+        with interrupts.on_interrupt(kept):
             if executor == "ray":
                 done = run_ray(job, todo, address, workers, progress, tally)
             else:

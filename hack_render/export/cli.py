@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 
@@ -181,7 +182,7 @@ def view(
 
     boundary.input_file(file, "FILE", (".glb", ".gltf"), "exported person")
     boundary.number(port, "--port", 0, 65535, integer=True)
-    with boundary.on_interrupt("the viewer stopped (it writes no files)"):
+    with interrupts.on_interrupt("the viewer stopped (it writes no files)"):
         serve(file, port, open_browser)
 
 

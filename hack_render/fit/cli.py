@@ -8,6 +8,7 @@ from typing import List, Optional
 
 import typer
 
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 
@@ -45,14 +46,14 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     old = record.check_resume(resume, (outdir / "params.json").exists())
     if resume and old is not None and old.get("complete"):
         return None, []
-    with boundary.on_interrupt(f"nothing was written to {outdir} (interrupted while "
+    with interrupts.on_interrupt(f"nothing was written to {outdir} (interrupted while "
                                "fitting); run the same command again"):
         result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
     from hack_render.fit.outputs import write_all
 
     # the files are written under the folder's lock, after a record that says the folder
     # holds no complete fit (what an earlier fit left there is being replaced)
-    with boundary.folder_lock(outdir), boundary.on_interrupt(
+    with boundary.folder_lock(outdir), interrupts.on_interrupt(
             f"the fit in {outdir} is incomplete ({record.path.name} says complete: false; "
             "files from an earlier fit there may remain); run the same command again"):
         record.write(complete=False)
@@ -402,7 +403,7 @@ def train_landmark_refiner(
     typer.echo(f"learn landmark-refiner: {subjects} synthetic subjects to render and detect "
                f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min, "
                "less for those already in --cache)", err=True)
-    with boundary.on_interrupt(note):
+    with interrupts.on_interrupt(note):
         _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache,
                                 command=cmd, progress=not quiet)
     typer.echo(json.dumps({k: v for k, v in report.items() if k != "left_out"}))

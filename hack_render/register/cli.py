@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from hack_render import cli_options as opts
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 
@@ -142,7 +143,7 @@ def register_cmd(
                 "model": str(model_path) if model_path else "default",
                 "landmarks": _fingerprint(landmarks, {}) if landmarks else None}
     finished = lambda: sum(1 for p in output.glob("*/report.json"))
-    with boundary.on_interrupt(lambda: f"{finished()} finished registration(s) kept in "
+    with interrupts.on_interrupt(lambda: f"{finished()} finished registration(s) kept in "
                                f"{output} (a folder with report.json is complete); run the "
                                "same command again to go on"):
         done, failed, skipped = _register_all(files, output, model, cfg, settings, units,

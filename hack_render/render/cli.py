@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from hack_render import cli_options as opts
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 if TYPE_CHECKING:
@@ -251,7 +252,7 @@ def render(
     outputs = []
     if len(views_) > 1:
         typer.echo(f"render: {len(views_)} views of {w}x{h} at {spp} spp", err=True)
-    with boundary.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
+    with interrupts.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
         _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,

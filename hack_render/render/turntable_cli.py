@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from hack_render import cli_options as opts
+from hack_render import interrupts
 from hack_render.errors import HackError
 from hack_render.render.cli import (
     DenoiseOpt,
@@ -173,7 +174,7 @@ def turntable(
         return (f"kept {tt.frames_on_disk(output)} of {frames} frames in {output / 'frames'}; "
                 "run the same command with --resume to finish")
 
-    with boundary.folder_lock(output), boundary.on_interrupt(kept):
+    with boundary.folder_lock(output), interrupts.on_interrupt(kept):
         record.check_resume(resume, tt.frames_on_disk(output) > 0)
         if not resume:  # frames of another run must not be taken for this one's later
             for old in (output / "frames").glob("frame_*.png"):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from hack_render import interrupts
 from hack_render.errors import HackError
 
 
@@ -62,13 +63,13 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
         if landmarks is None:
             from hack_render.track.detect import FrameDetector, detect_frames
 
-            with boundary.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
+            with interrupts.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
                                        "landmarks); run the same command again"), \
                     _timed(timings, "landmarks"):
                 landmarks = detect_frames(clip.read(), FrameDetector(
                     refiner=cfg.landmarks.refiner), progress, clip.frames)
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
-        with boundary.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
+        with interrupts.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
             result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx,
                                     outline)
