@@ -9,6 +9,7 @@ Public API:
 This package never imports Mitsuba or Dr.Jit.
 """
 
+import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
@@ -17,18 +18,20 @@ if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not impo
     from appearance.uv import UVLayout, rasterize_layout  # noqa: F401
 
 
-def __getattr__(name):  # lazy imports keep `import appearance` light
-    lazy = {"AppearanceMaps": "appearance.model", "AppearanceModel": "appearance.model",
-            "REGIONS": "appearance.regions", "region_labels": "appearance.regions",
-            "UVLayout": "appearance.uv", "rasterize_layout": "appearance.uv",
-            "compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
-            "build_model": "appearance.builder", "generate_subject": "appearance.generator",
-            "TextureSet": "appearance.generator", "read_exr": "appearance.texture_io",
-            "write_exr": "appearance.texture_io", "read_png": "appearance.texture_io",
-            "write_png": "appearance.texture_io", "read_texture_set": "appearance.texture_io",
-            "write_texture_set": "appearance.texture_io"}
-    if name in lazy:
-        import importlib
+#: the public names, imported on first use: `import appearance.texture_io` (the render's
+#: mesh-cache path) must not import torch through appearance.model
+_LAZY = {"AppearanceMaps": "appearance.model", "AppearanceModel": "appearance.model",
+         "REGIONS": "appearance.regions", "region_labels": "appearance.regions",
+         "UVLayout": "appearance.uv", "rasterize_layout": "appearance.uv",
+         "compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
+         "build_model": "appearance.builder", "generate_subject": "appearance.generator",
+         "TextureSet": "appearance.generator", "read_exr": "appearance.texture_io",
+         "write_exr": "appearance.texture_io", "read_png": "appearance.texture_io",
+         "write_png": "appearance.texture_io", "read_texture_set": "appearance.texture_io",
+         "write_texture_set": "appearance.texture_io"}
 
-        return getattr(importlib.import_module(lazy[name]), name)
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(name)
