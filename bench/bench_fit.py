@@ -426,7 +426,6 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
     from hack_render.fit.photometric import (
         init_lobes,
@@ -435,6 +434,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
         render_view,
         setup_level,
     )
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():

@@ -142,8 +142,8 @@ def test_05_validation_refuses_broken_files(tmp_path, model):
 def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.vision.detection import Detection
 
     photo = Photo(np.full((64, 64, 3), 0.5, np.float32), "grey")
     pts = np.random.default_rng(0).uniform(10, 50, (68, 2))
@@ -191,8 +191,8 @@ def test_07_detector_weights_are_inverse_variances(tmp_path, model):
     from hack_render.errors import HackError
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.vision.detection import Detection
 
     li = model.landmark_indices.numpy()
     emb = le.LandmarkEmbedding.from_vertices(li, model.faces.numpy())

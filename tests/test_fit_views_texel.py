@@ -79,10 +79,10 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     from hack_render.fit import photometric as ph
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.fit.robust import charbonnier
     from hack_render.geometry import load_default_model
+    from hack_render.vision.detection import Detection
 
     torch.set_num_threads(1)
     model = load_default_model()

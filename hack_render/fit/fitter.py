@@ -44,10 +44,11 @@ from hack_render.errors import HackError
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
-from hack_render.fit.landmarks import Detection, JawContour, landmark_weights
+from hack_render.fit.landmarks import JawContour, landmark_weights
 from hack_render.fit.photo import Photo
 from hack_render.fit.stages import StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
+from hack_render.vision.detection import Detection
 
 __all__ = ["R0", "SENSOR_MM", "FitResult", "FitState", "Fitter", "Level", "View",
            "init_state"]
@@ -130,7 +131,7 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
     psi = torch.zeros(1, state.psi.shape[1], requires_grad=True) \
         if cfg.per_view_expression else None
     # dlib's points, the vision package's (face mesh and shape predictors: calibrated
-    # and trained on the embedding's points, hack_render.vision.synthetic) and landmark
+    # and trained on the embedding's points, hack_render.dataset.composites) and landmark
     # files in dlib's convention go through the embedding; files marked as the model's
     # vertices and any other source (e.g. projections of the true landmark vertices,
     # source "truth") through the landmark vertices

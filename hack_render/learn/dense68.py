@@ -3,7 +3,7 @@
     python -m hack_render.learn.dense68 [--samples 240] [--seed 7100] [--out FILE]
     python -m hack_render.learn.dense68 --from ert_5301.npz ert_5302.npz ... [--trim 0.1]
 
-Composites of the model (:mod:`hack_render.vision.synthetic`, its own seed, so they share
+Composites of the model (:mod:`hack_render.dataset.composites`, its own seed, so they share
 no subject with the benchmark's or the tests') at yaw U(-90, 90) and pitch U(-45, 45)
 degrees are run through the face-mesh model (BlazeFace's box, two passes); those where
 it reports a face (presence >= 0.9) are kept. ``--from``: the composites the shape
@@ -34,8 +34,9 @@ def collect(n: int, seed: int, res: int = 256, spp: int = 16, min_presence: floa
     ``min_presence``."""
     from tqdm import tqdm
 
-    from hack_render.vision.detect import find_boxes, mesh_landmarks
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.dataset.composites import CompositeRenderer
+    from hack_render.vision.boxes import find_boxes
+    from hack_render.vision.detect import mesh_landmarks
 
     rng = np.random.default_rng(seed)
     ren = CompositeRenderer(res, spp, seed)

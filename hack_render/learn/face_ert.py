@@ -9,10 +9,10 @@ MediaPipe's face mesh, dlib's and most public 68-point models are trained on fac
 within about 45 degrees of frontal; past that (profiles, heads tilted far back) they
 give up or guess. The project's renderer gives faces at any angle with exact landmarks,
 so this trains them (one per range of yaw, :mod:`hack_render.vision.ert`): composites
-(:mod:`hack_render.vision.synthetic`; seeds 5301-5325 of 200 each, apart from the dense
+(:mod:`hack_render.dataset.composites`; seeds 5301-5325 of 200 each, apart from the dense
 map's 7100, the benchmark's 9000-9019 and the tests' 31-33 and 43) at yaw U(-90, 90), pitch
 U(-50, 50), roll U(-25, 25) degrees, a third of them with an occluder; each face's box and
-keypoints are BlazeFace's (as at run time: :func:`hack_render.vision.detect.find_boxes`),
+keypoints are BlazeFace's (as at run time: :func:`hack_render.vision.boxes.find_boxes`),
 the targets the true 68 landmarks (3-D convention: hidden points where they project).
 Derived data: the model learns the model's renders; docs/vision.md gives its accuracy on
 other subjects and backgrounds, and on real photos against the mesh detector.
@@ -32,8 +32,8 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -
     boxes (S, 4), kps (S, 6, 2) BlazeFace's keypoints, points (S, 68, 2), yaw (S,)."""
     from tqdm import tqdm
 
-    from hack_render.vision.detect import find_boxes
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.dataset.composites import CompositeRenderer
+    from hack_render.vision.boxes import find_boxes
 
     rng = np.random.default_rng(seed)
     ren = CompositeRenderer(res, spp, seed)

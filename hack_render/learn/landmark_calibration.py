@@ -28,8 +28,9 @@ from hack_render.fit.landmark_embedding import (
     CALIBRATION_SEED,
     LandmarkEmbedding,
 )
-from hack_render.fit.landmarks import JawContour, detect_landmarks
+from hack_render.fit.landmarks import JawContour
 from hack_render.fit.robust import pseudo_huber
+from hack_render.vision.landmarks68 import detect_landmarks
 
 
 # --- calibration data -----------------------------------------------------------------

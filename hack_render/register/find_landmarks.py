@@ -29,6 +29,7 @@ import numpy as np
 from hack_render.errors import HackError
 from hack_render.register.align import INNER
 from hack_render.register.scan import Scan, vertex_colors
+from hack_render.vision import dlib_models
 from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 ROTATION_STEP_DEG = 45
@@ -63,9 +64,7 @@ def _detect(rgb8: np.ndarray, upsample: int = 1) -> tuple[float, np.ndarray | No
     """(best detector score, (68, 2) points in this image's pixels) or (-inf, None)."""
     import dlib
 
-    from hack_render.fit.landmarks import _dlib
-
-    detector, predictor = _dlib()
+    detector, predictor = dlib_models.frontal_detector(), dlib_models.shape_predictor()
     rects, scores, _ = detector.run(np.ascontiguousarray(rgb8), upsample, -0.3)
     if not len(rects):
         return -math.inf, None

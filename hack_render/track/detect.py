@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.vision import dlib_models
 
 
 @dataclass
@@ -58,9 +59,8 @@ class FrameDetector:
 
     def __init__(self, min_face_px: int = 48, refiner: str = "dlib", max_jump: float = 0.5,
                  fallback: bool = True):
-        from hack_render.fit.landmarks import _dlib
-
-        self.detector, self.predictor = _dlib()
+        self.detector = dlib_models.frontal_detector()
+        self.predictor = dlib_models.shape_predictor()
         self.min_face_px, self.max_jump = min_face_px, max_jump
         self.refiner = None
         if refiner != "off":

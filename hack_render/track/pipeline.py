@@ -93,8 +93,8 @@ def fit_identity(clip: Clip, lm: FrameLandmarks, keyframes: list[int], config,
                  progress: bool = True):
     """The photo fit on the keyframes (one expression per view): (FitResult, fitter)."""
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import from_array
+    from hack_render.vision.detection import Detection
 
     want = set(keyframes)
     photos, dets = [], []
