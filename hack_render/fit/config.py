@@ -79,8 +79,8 @@ class LandmarkConfig:
     # the 68 points' detector, one of DETECTORS: "dlib" (refined as above; the fallback
     # below where it finds no face), "auto" (the vision package's), "both" (averaged).
     # "dlib" fits the synthetic benchmark best (1.67 vs 2.06 mm with "auto") and is the
-    # fastest; "auto" fitted the real portraits better (face region +0.5-1.1 dB), some of
-    # them over a minute slower (docs/fit.md, "The detectors")
+    # fastest; "auto" fitted most real portraits better (face region up to +1.1 dB, one
+    # 1.0 dB worse) and took up to 38 s longer a fit (docs/fit.md, "The detectors")
     detector: str = "dlib"
     # where dlib finds no face: "auto" (the vision package's auto detector, any angle: the
     # face mesh near frontal, the yaw-ranged shape predictors past 40 degrees), "mesh"
@@ -93,9 +93,9 @@ class LandmarkConfig:
 class CameraConfig:
     """Stage 2: focal length, camera translation and head rotation from landmarks."""
 
-    # fewer: a faster stage (each iteration a model forward and backward per view; the
-    # astronaut's 150 took 5.1-5.7 s, docs/fit.md), the pose and focal less converged
-    # before the shape stage takes over (the tests run 40-80)
+    # fewer: a faster stage (each iteration a model forward and backward per view; Grace
+    # Hopper's 150 took 5.1-5.7 s, docs/fit.md), the pose and focal less converged before
+    # the shape stage takes over (the tests run 40-80)
     iterations: int = 150
     # prior centre, 36 mm sensor width equivalent, where the photo has no focal length of its
     # own: 85 mm, the classic portrait focal length. A single view barely constrains the
