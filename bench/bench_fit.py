@@ -268,7 +268,6 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         # the automatic person mask (as the fitter makes it) against the true coverage
         fcfg = load_config(None, cfg_over)
         auto, _ = segment_plain_background(photo.rgb, det.points,
-                                           max_spread=fcfg.silhouette.max_spread,
                                            chroma=fcfg.silhouette.chroma)
         cov = subj["coverage"] > 0.5
         if auto is not None:

@@ -231,7 +231,7 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         load_config(tmp_path / "t.toml")
     for key, val in (("lighting", '"disco"'), ("lobes", "0"), ("sg_height", "2"),
                      ("w_landmarks", "-0.01"), ("w_landmarks_fallback", "nan"),
-                     ("w_silhouette", "inf")):
+                     ("light_cast_sigma", "inf")):
         (tmp_path / "l.toml").write_text(f"[photometric]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"photometric.{key}"):
             load_config(tmp_path / "l.toml")

@@ -152,7 +152,7 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
     lc = cfg.landmarks
-    imgs = [load_photo(p, lc.max_side_px, lc.working_side_px) for p in photos]
+    imgs = [load_photo(p) for p in photos]
     if focal_mm is not None:
         for ph in imgs:
             ph.focal_mm, ph.focal_source = float(focal_mm), "--focal-mm"

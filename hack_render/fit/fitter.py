@@ -73,6 +73,11 @@ class FitResult:
     failures: list
 
 
+#: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
+#: calibrated embedding's per-point weights already hold them at 0.26-0.51)
+BROW_WEIGHT = 1.0
+
+
 def init_state(photos: list[Photo], detections: list[Detection], config: FitConfig,
                model=None, appearance=None, masks: list | None = None) -> FitState:
     """The state a fit starts from: zero identity and expression, the mean larynx, each
@@ -98,7 +103,7 @@ def init_state(photos: list[Photo], detections: list[Detection], config: FitConf
         if appearance is not None else 0
     alpha = torch.zeros(1, n_alpha, requires_grad=True)
     const_albedo = torch.tensor([0.46, 0.29, 0.22], requires_grad=True)
-    lmk_w = landmark_weights(config.landmarks.jaw_weight, config.landmarks.brow_weight)
+    lmk_w = landmark_weights(config.landmarks.jaw_weight, BROW_WEIGHT)
     if config.landmarks.point_weights is not None:
         lmk_w = lmk_w * torch.tensor(config.landmarks.point_weights, dtype=torch.float32)
     silhouette = None
@@ -158,7 +163,6 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         view.shoulders = shows_shoulders(np.asarray(mask) > 0.5, view.detection.points)
         return
     m, why = segment_plain_background(view.photo.rgb, view.detection.points,
-                                      max_spread=cfg.silhouette.max_spread,
                                       chroma=cfg.silhouette.chroma)
     seg, err = _segment(view) if cfg.silhouette.segment else (None, "off")
     if seg is not None:  # skin and occluders whichever mask the silhouette takes

@@ -63,7 +63,7 @@ def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
     if config.detector == "auto":
         return mesh_detection(rgb8, config.min_face_px, name, None, "auto")
     try:
-        det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
+        det = detect_landmarks(rgb8, min_face_px=config.min_face_px, name=name)
     except HackError as err:
         if config.fallback == "off" or "no face found" not in str(err):
             raise

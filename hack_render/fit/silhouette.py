@@ -87,8 +87,13 @@ class PhotoSilhouette:
         return d / s, valid.detach()
 
 
+#: a border pixel within this colour distance (sRGB) of the border's median is background;
+#: under 60 % of the border so: a cluttered background, no automatic mask
+MAX_SPREAD = 0.06
+
+
 def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: float = 0.03,
-                             max_spread: float = 0.06, max_side: int = 512,
+                             max_spread: float = MAX_SPREAD, max_side: int = 512,
                              chroma: bool = True) -> tuple[np.ndarray | None, str]:
     """Person mask of a photo on a plain background, or (None, why) when it is not.
 

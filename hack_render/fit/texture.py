@@ -90,6 +90,14 @@ def resize_atlas(img: np.ndarray, height: int) -> np.ndarray:
                   anti_aliasing=img.shape[0] > height).astype(np.float32)
 
 
+#: render.png's (and the bake's render's) denoiser: "auto" (Intel OIDN, the denoise extra,
+#: with the render's albedo and normals, where it is installed) or "off"; denoised, the
+#: render takes SPP_DENOISED samples instead of final.spp
+DENOISE = "auto"
+SPP_DENOISED = 64
+#: the final renders' path depth: the photometric stage's (direct light)
+MAX_DEPTH = 2
+
 #: What the final renders' G-buffer sees through (:func:`render_at_photo`): the lash cards,
 #: so that the skin behind their gaps is baked (their first hits hid a band of lid skin
 #: around each eye from the bake).
@@ -101,13 +109,13 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
-    ``final.spp_denoised`` denoised by OIDN where it is installed (``final.denoise``)."""
+    :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`)."""
     import time
 
     t0 = time.perf_counter()
-    dn = _denoiser() if spp is None and cfg.final.denoise == "auto" else None
+    dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
-    spp = int(spp or (cfg.final.spp_denoised if denoised else cfg.final.spp))
+    spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
     head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
@@ -180,8 +188,7 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     maps = maps if maps is not None else _skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
-                     RenderSettings(cam.width, cam.height, spp, cfg.final.max_depth,
-                                    cfg.seed), maps)
+                     RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps)
     return head, window
 
 

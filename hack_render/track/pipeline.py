@@ -197,7 +197,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         sc = cfg.silhouette
         with _timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
-                                max_spread=sc.max_spread, chroma=sc.chroma)
+                                chroma=sc.chroma)
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
                                             tcfg, state.model, fit.beta.detach(), eta, tau,
                                             masks, progress=progress)
