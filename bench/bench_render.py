@@ -842,7 +842,8 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
     import mitsuba as mi
     from skimage.metrics import structural_similarity
 
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.posing import posed_model
     from hack_render.render.image_io import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
@@ -1016,7 +1017,8 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
     needs for the other's PSNR at each rung (log(time) interpolated)."""
     from scipy.ndimage import binary_dilation
 
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.posing import posed_model
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import INTEGRATORS, HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1095,7 +1097,8 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
 
 def samplers_benchmark(ref_spp: int = 2048, repeats: int = 2) -> dict:
     """(i) multijitter against the orthogonal array sampler (see the module docstring)."""
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.posing import posed_model
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps

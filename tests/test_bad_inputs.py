@@ -573,8 +573,7 @@ if hypothesis is not None:
         """The flags of mesh/render/turntable/export: a clean refusal or finite values
         inside their bounds, whatever the text."""
         from hack_render.errors import HackError
-        from hack_render.geometry.cli import check_flags
-        from hack_render.geometry.params import check_params
+        from hack_render.geometry.params import check_flags, check_params
 
         try:
             flags = check_flags(beta, expression, head, eta, tau)

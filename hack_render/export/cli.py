@@ -55,8 +55,7 @@ def export(
     """
     from hack_render import boundary
     from hack_render.geometry import load_model
-    from hack_render.geometry.cli import gather_params
-    from hack_render.geometry.params import load_sequence
+    from hack_render.geometry.params import gather_params, load_sequence
 
     suffix = output.suffix.lower()
     boundary.output_file(output, "-o/--output", (".glb", ".gltf", ".obj", ".ply"))
@@ -97,13 +96,9 @@ def export(
 
 
 def apply_limits(kw: dict, limits: str, head_rotation_deg) -> dict:
-    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
+    from hack_render.geometry.limits import apply_limit_policy, limit_policy
 
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
-    return apply_limit_policy(kw, policy, head_rotation_deg)
+    return apply_limit_policy(kw, limit_policy(limits), head_rotation_deg)
 
 
 def _limited(p: dict, kw: dict, limits: str) -> dict:

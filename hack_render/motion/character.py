@@ -10,7 +10,7 @@ character from the template.
 The character is animated like HACK (:func:`character_rig`): the person's targets
 (personalised expressions, larynx slide in-betweens, pose correctives; ``export.rig``) are
 moved onto the character's rest shape by deformation transfer (Sumner & Popovic 2004;
-``geometry.deformation_transfer``), and its skeleton is its own joints, posed by HACK's
+``motion.deformation_transfer``), and its skeleton is its own joints, posed by HACK's
 per-joint rotations.
 """
 
@@ -190,7 +190,7 @@ def _transfer_targets(model, src_base: np.ndarray, dst_base: np.ndarray,
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-    from hack_render.geometry.deformation_transfer import TargetSolver, source_gradients
+    from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
     faces = model.faces.numpy()
     n = len(dst_base)

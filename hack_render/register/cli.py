@@ -1,4 +1,5 @@
-"""`hack-render register SCAN... -o OUTDIR` and `hack-render learn shape`."""
+"""`hack-render register SCAN... -o OUTDIR` (`hack-render learn shape`, which learns a
+shape space from registrations, is hack_render.learn.cli's)."""
 
 from __future__ import annotations
 
@@ -240,7 +241,3 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
 
 def register(app: typer.Typer) -> None:
     app.command("register")(register_cmd)
-    from hack_render.learn.cli import learn_app
-    from hack_render.learn.shape import learn_shape_cmd
-
-    learn_app.command("shape")(learn_shape_cmd)

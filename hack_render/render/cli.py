@@ -200,7 +200,7 @@ def render(
     import numpy as np
 
     from hack_render import boundary
-    from hack_render.geometry.cli import LimitPolicy
+    from hack_render.geometry.limits import limit_policy
     from hack_render.render.image_io import tone_map
     from hack_render.render.scene import MAX_SPP, RenderSettings
     from scenes import cameras as cams
@@ -229,10 +229,7 @@ def render(
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
     views_ = named("--camera", cams.preset, camera, w, h, focal_mm, n=views)
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    policy = limit_policy(limits)
 
     from hack_render.render import posed_cache
 

@@ -90,8 +90,7 @@ def turntable(
     from tqdm import tqdm
 
     from hack_render import boundary
-    from hack_render.geometry.cli import gather_params
-    from hack_render.geometry.params import model_inputs
+    from hack_render.geometry.params import gather_params, model_inputs
     from hack_render.geometry.skeleton import distribute_head_rotation
     from hack_render.render import turntable as tt
     from hack_render.render.image_io import atomic_path, to_srgb8
@@ -128,13 +127,10 @@ def turntable(
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
 
     from hack_render.geometry import load_model
-    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
+    from hack_render.geometry.limits import apply_limit_policy, limit_policy
     from hack_render.render.parts import Topology
 
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    policy = limit_policy(limits)
     model = load_model(model_path)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
     base = apply_limit_policy(model_inputs(model, p), policy, p.get("head_rotation_deg"))
