@@ -66,7 +66,7 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
                    "appearance` builds one).", ("appearance.cli", "hack_render.learn.cli")),
     "learn": ("Learn HACK's components from data: the model, its joints, the appearance "
               "model, the fitter's landmark embedding and refiner.",
-              ("hack_render.learn.cli", "hack_render.motion.cli", "hack_render.register.cli")),
+              ("hack_render.learn.cli",)),
     "dataset": ("Render labelled datasets (docs/datasets.md).", ("hack_render.dataset.cli",)),
 }
 
