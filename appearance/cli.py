@@ -154,7 +154,7 @@ def sample(
     from appearance.report import preview_sheet
 
     preview_sheet(arrays, out / "preview.png", title=f"alpha[:4]={a[0, :4].tolist()}")
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(out / "alpha.json") as tmp:
         tmp.write_text(json.dumps({"alpha": a[0].tolist()}))

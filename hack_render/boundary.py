@@ -8,7 +8,7 @@ One module, used by every command, for what a user can get wrong or cut short:
   for writability (by creating and removing a probe file, which also catches read-only
   mounts and immutable folders) *before* the work starts. Nothing is created by a check:
   a refused command leaves no file or folder behind; writers create the parents and write
-  atomically (:func:`hack_render.render.image_io.atomic_path`).
+  atomically (:func:`hack_render.io.atomic_path`).
 - **Input files** (:func:`input_file`, :func:`input_dir`, :func:`parse_json`,
   :func:`parse_yaml`): present, of the right kind; JSON and YAML with a key given twice
   (the parsers keep the last one silently) or YAML aliases refused.
@@ -326,7 +326,7 @@ class RunRecord:
         return old
 
     def write(self, complete: bool) -> None:
-        from hack_render.render.image_io import atomic_path
+        from hack_render.io import atomic_path
 
         data = {"command": self.command, "fingerprint": self.fingerprint, "args": self.args,
                 "complete": complete}

@@ -160,7 +160,7 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
 
 def save_cameras(path, cameras: list[Camera]) -> None:
     """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps({"cameras": [c.to_dict() for c in cameras]}, indent=1))

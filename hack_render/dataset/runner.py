@@ -225,7 +225,7 @@ def prepare(job: Job) -> tuple[object, int]:
 
 
 def _write_manifest_lines(job: Job, records: list[dict]) -> Path:
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(job.manifest_path) as tmp:
         tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))

@@ -50,7 +50,7 @@ def camera_of(view: dict, width: int, name: str):
 
 
 def _write_json(path: Path, data) -> None:
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
@@ -59,7 +59,7 @@ def _write_json(path: Path, data) -> None:
 def _write_png(path: Path, array: np.ndarray) -> None:
     import imageio.v3 as iio
 
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(path) as tmp:
         # zlib level 1: several times faster than the default, files ~10 % larger
@@ -206,7 +206,7 @@ class SampleRenderer:
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
         from hack_render.dataset.backgrounds import background_image
-        from hack_render.render.image_io import rgb_channels, write_exr
+        from hack_render.io import rgb_channels, write_exr
         from hack_render.render.scene import composite
 
         r = self.cfg["render"]
@@ -265,7 +265,7 @@ class SampleRenderer:
 
 
 def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io import to_srgb8
 
     _write_png(path, to_srgb8(linear, 0.0, tonemap))
 

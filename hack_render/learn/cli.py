@@ -204,7 +204,7 @@ def learn_joints(
     if not np.isfinite(reg).all():
         raise HackError(f"{data}: the regressor came out non-finite; check 'meshes' and "
                         "'joints' (metres, the same people in the same order).")
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(output) as tmp:
         np.save(tmp, reg.astype(np.float32))

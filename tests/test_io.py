@@ -1,9 +1,10 @@
-"""The sRGB 8-bit encoder: colour-science's rounding, from cached thresholds."""
+"""hack_render.io: atomic writes (one temporary beside the target, renamed; none left on a
+failure), and the sRGB 8-bit encoder: colour-science's rounding, from cached thresholds."""
 
 import numpy as np
 import pytest
 
-from hack_render.render import image_io as io
+from hack_render import io
 
 
 @pytest.fixture
