@@ -27,6 +27,7 @@ import numpy as np
 from scipy import ndimage
 
 from hack_render.errors import HackError
+from hack_render.io import write_npz
 
 #: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
 #: ``appearance/data/LICENSE-ICT-FaceKit``), shipped as package data: vertices (cm, as in
@@ -74,17 +75,13 @@ def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -
                           "vertices in centimetres, larynx included",
             "obj_sha256": hashlib.sha256(obj_path.read_bytes()).hexdigest(),
             "command": "hack-render learn template --ict ICT_FACEKIT_DIR"}
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp.npz")
-    np.savez_compressed(
-        tmp, format_version=np.int32(TEMPLATE_FORMAT), meta_json=np.array(json.dumps(meta)),
+    return write_npz(out, dict(
+        format_version=np.int32(TEMPLATE_FORMAT), meta_json=np.array(json.dumps(meta)),
         vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32),
         uvs=mesh.uvs.astype(np.float64), uv_faces=mesh.uv_faces.astype(np.int32),
         face_material=mesh.face_material.astype(np.int16),
-        materials=np.array(mesh.materials), polygon_of_face=mesh.polygon_of_face.astype(np.int32))
-    tmp.replace(out)
-    return out
+        materials=np.array(mesh.materials), polygon_of_face=mesh.polygon_of_face.astype(np.int32)),
+        compressed=True)
 
 
 def load_template(path: str | Path = TEMPLATE_FILE):

@@ -1,5 +1,6 @@
-"""Files, on the ground floor: atomic writes (bytes, text, JSON, anything a writer puts
-at a path), linear float32 EXR with named channels, sRGB PNG with an explicit tone map.
+"""Files, on the ground floor: atomic writes (bytes, text, JSON, ``.npz`` arrays, anything
+a writer puts at a path), linear float32 EXR with named channels, sRGB PNG with an explicit
+tone map.
 
 Every package writes its files through :func:`atomic_path`: the data goes to a temporary
 name in the target folder, which is renamed over the target only when it is complete, so
@@ -143,6 +144,16 @@ def write_json(path: str | Path, obj: Any, indent: int | None = 1, sort_keys: bo
     atomically (:func:`atomic_path`); returns ``path``."""
     return atomic_write_text(path, json.dumps(obj, indent=indent, sort_keys=sort_keys,
                                               default=default))
+
+
+def write_npz(path: str | Path, arrays: dict[str, Any], compressed: bool = False) -> Path:
+    """Write named arrays as ``.npz`` (``np.savez``, or ``np.savez_compressed``) atomically
+    (:func:`atomic_path`); returns ``path``. Written through a file object, so NumPy adds
+    no ``.npz`` to a path that lacks it."""
+    save = np.savez_compressed if compressed else np.savez
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        save(f, **arrays)
+    return Path(path)
 
 
 # ------------------------------------------------------------------------------- images

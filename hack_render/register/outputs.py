@@ -123,7 +123,7 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
     """Write every file of one registration into ``outdir``; ``report.json`` last."""
     from hack_render.geometry.obj_io import write_mesh
     from hack_render.geometry.params import save_params
-    from hack_render.io import atomic_path
+    from hack_render.io import atomic_path, write_json
 
     outdir.mkdir(parents=True, exist_ok=True)
     faces = model.faces.numpy()
@@ -142,15 +142,11 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
              f"p95 {err.get('p95', float('nan')):.2f} mm ({reg.report['status']})")
     written.append(write_heat_map(outdir / "error.png", _model_frame(reg), faces,
                                   reg.vertex_error, title))
-    with atomic_path(outdir / "landmarks.json") as tmp:
-        tmp.write_text(json.dumps(landmarks, indent=1))
-    written.append(outdir / "landmarks.json")
+    written.append(write_json(outdir / "landmarks.json", landmarks, indent=1))
     written += list((extra_files or {}).values())
     report = dict(reg.report)
     report["files"] = sorted(str(p.relative_to(outdir)) for p in written)
-    with atomic_path(outdir / "report.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
-    written.append(outdir / "report.json")
+    written.append(write_json(outdir / "report.json", report, indent=1))
     return written
 
 
