@@ -235,7 +235,8 @@ def rasterize_uv(uv_tris: np.ndarray, height: int, chunk: int = 4096):
 
 
 @lru_cache(maxsize=1)
-def _template():
+def default_template():
+    """The packaged template (:data:`TEMPLATE_FILE`), loaded once per process."""
     return load_template()
 
 
@@ -248,7 +249,7 @@ def rasterize_layout(height: int) -> UVLayout:
     if not (isinstance(height, (int, np.integer)) and 16 <= height <= 8192):
         raise HackError(f"UV atlas height: expected an integer in [16, 8192], found "
                         f"{height!r}.")
-    mesh = _template()
+    mesh = default_template()
     mats = [mesh.materials.index(m) for m in SKIN_MATERIALS]
     sel = np.isin(mesh.face_material, mats)
     faces, uv_faces = mesh.faces[sel], mesh.uv_faces[sel]

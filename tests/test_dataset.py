@@ -174,9 +174,9 @@ def test_label_atlas_places_regions_where_the_template_has_them():
 @pytest.fixture(scope="module")
 def label_texels():
     """The label atlas with its template layout: (atlas, layout, template mesh)."""
-    from appearance.uv import _template, rasterize_layout
+    from appearance.uv import default_template, rasterize_layout
 
-    return lab.skin_label_atlas(), rasterize_layout(lab.ATLAS_HEIGHT), _template()
+    return lab.skin_label_atlas(), rasterize_layout(lab.ATLAS_HEIGHT), default_template()
 
 
 def test_ears_are_the_pinna_on_both_atlas_tiles(label_texels):

@@ -123,9 +123,9 @@ def check_job(job: Job) -> None:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
     if app["source"] in ("seed", "alpha"):
-        from appearance.uv import _template
+        from appearance.uv import default_template
 
-        _template()  # the skin atlas needs the packaged template (raises with the fix)
+        default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
     for sub in ("samples", "manifest"):
         boundary.output_dir(job.out / sub)

@@ -31,7 +31,7 @@ from scipy.sparse.linalg import splu
 
 from hack_render.errors import HackError
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
-from hack_render.geometry.rotations import _quat_mul, matrix_to_quaternion
+from hack_render.geometry.rotations import matrix_to_quaternion, quat_mul
 from hack_render.geometry.skeleton import distribute_head_rotation
 
 #: (name, whole-head Euler target in degrees (flexion, axial, lateral), frames), after Sec. 4.2.
@@ -47,7 +47,7 @@ def dqs(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
     """Dual-quaternion skinning. vertices (B, N, 3), weights (N, K), rel (B, K, 4, 4) -> (B, N, 3)."""
     qr = matrix_to_quaternion(rel[..., :3, :3])  # (B, K, 4), w >= 0
     t = torch.cat([torch.zeros_like(rel[..., :1, 3]), rel[..., :3, 3]], -1)  # (B, K, 4)
-    qd = 0.5 * _quat_mul(t, qr)
+    qd = 0.5 * quat_mul(t, qr)
     br = torch.einsum("nk,bkc->bnc", weights, qr)
     bd = torch.einsum("nk,bkc->bnc", weights, qd)
     norm = br.norm(dim=-1, keepdim=True)
@@ -58,7 +58,7 @@ def dqs(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
     c1 = torch.cross(xyz, v, dim=-1)
     rotated = v + 2 * w * c1 + 2 * torch.cross(xyz, c1, dim=-1)
     conj = torch.cat([br[..., :1], -br[..., 1:]], -1)
-    trans = 2 * _quat_mul(bd, conj)[..., 1:]
+    trans = 2 * quat_mul(bd, conj)[..., 1:]
     return rotated + trans
 
 

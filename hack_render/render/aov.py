@@ -13,8 +13,8 @@ traces its own primary rays (one per pixel centre, no filter) and reads the hit:
 - ``segmentation``: (H, W) region id (``parts.REGIONS``; 0 = background).
 
 Like the path tracer (``hide_emitters``), every pass here looks through the area lights'
-rectangles (:func:`hack_render.render.footprint.camera_hit`): a pixel is background, depth 0, exactly where no
-surface of the subject is met, so segmentation and depth agree.
+rectangles (:func:`hack_render.render.footprint.camera_hit`): a pixel is background,
+depth 0, exactly where no surface of the subject is met, so segmentation and depth agree.
 """
 
 from __future__ import annotations
