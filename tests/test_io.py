@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from hack_render import io
+from hack_render.errors import HackError
 
 
 @pytest.fixture
@@ -57,3 +58,63 @@ def test_03_straight_colour_pads_the_thin_edge_with_the_covered_colour():
     edge = (alpha > 0) & ~solid
     assert edge.sum() > 20 and np.abs(out[edge] - colour).max() < 0.1
     assert (out[alpha == 0] == 0).all()
+
+
+# ------------------------------------------------------------------------ atomic writes
+
+
+def test_04_atomic_writers_leave_the_file_whole_and_no_temporary(tmp_path):
+    """Bytes, text, JSON and .npz land whole; a failed write keeps the old file and leaves
+    no temporary; the folder is created."""
+    d = tmp_path / "a" / "b"
+    assert io.atomic_write_bytes(d / "x.bin", b"\x00\x01") == d / "x.bin"
+    assert (d / "x.bin").read_bytes() == b"\x00\x01"
+    io.atomic_write_text(d / "x.txt", "héllo\n")
+    assert (d / "x.txt").read_text(encoding="utf-8") == "héllo\n"
+    io.write_json(d / "x.json", {"b": 1, "a": [1.5]}, indent=None, sort_keys=True)
+    assert (d / "x.json").read_text() == '{"a": [1.5], "b": 1}'
+    io.write_npz(d / "arrays.dat", {"a": np.arange(3)}, compressed=True)  # no .npz added
+    assert np.array_equal(np.load(d / "arrays.dat")["a"], np.arange(3))
+    with pytest.raises(ZeroDivisionError):
+        with io.atomic_path(d / "x.txt") as tmp:
+            tmp.write_text("partial")
+            1 / 0
+    assert (d / "x.txt").read_text(encoding="utf-8") == "héllo\n"
+    assert sorted(p.name for p in d.iterdir()) == ["arrays.dat", "x.bin", "x.json", "x.txt"]
+
+
+def test_05_temporaries_are_short_hidden_and_found_by_their_target(tmp_path):
+    """Any legal name (255 bytes) can be written; a temporary keeps the target's suffix
+    (writers choose formats by it) and matches temp_glob of its target, not another's."""
+    long = "n" * 250 + ".json"
+    io.write_json(tmp_path / long, [1])
+    assert (tmp_path / long).read_text() == "[\n 1\n]"
+    with io.atomic_path(tmp_path / "frame_0001.png") as tmp:
+        assert tmp.parent == tmp_path and tmp.suffix == ".png" and len(tmp.name) < 30
+        assert tmp.name.startswith(io.TEMP_PREFIX) and tmp.match(io.TEMP_GLOB)
+        assert tmp.match(io.temp_glob(tmp_path / "frame_0001.png"))
+        assert not tmp.match(io.temp_glob("frame_0002.png"))
+    assert io.temp_glob("frame_0001.png") == io.temp_glob(tmp_path / "frame_0001.png")
+
+
+def test_06_a_full_disk_at_the_rename_keeps_the_old_file(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    io.atomic_write_text(tmp_path / "x.txt", "old")
+
+    def full(src, dst, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+
+    monkeypatch.setattr(os, "replace", full)
+    with pytest.raises(OSError, match="No space"):
+        io.atomic_write_text(tmp_path / "x.txt", "new")
+    monkeypatch.undo()
+    assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]
+    assert (tmp_path / "x.txt").read_text() == "old"
+
+
+def test_07_an_unwritable_folder_is_named(tmp_path):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(HackError, match="cannot be created"):
+        io.atomic_write_text(tmp_path / "file" / "x.txt", "x")
