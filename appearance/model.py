@@ -42,7 +42,7 @@ import torch
 
 from appearance.uv import fill_index
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-appearance-model"
 VERSION = 1

@@ -27,7 +27,7 @@ import numpy as np
 from scipy import ndimage
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 #: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
 #: ``appearance/data/LICENSE-ICT-FaceKit``), shipped as package data: vertices (cm, as in

@@ -381,7 +381,7 @@ def rendered(tmp_path_factory):
 def test_sample_files_and_labels(rendered):
     import imageio.v3 as iio
 
-    from hack_render.io import read_exr
+    from hack_render.io.image import read_exr
 
     out, _cfg, summary = rendered
     assert summary == {"rendered": 3, "skipped": 0, "total": 3,
@@ -438,7 +438,7 @@ def test_background_photo_is_behind_the_subject_only(rendered, tmp_path):
     pixels: where the matte is 0 the RGB is the photo; where it is 1 the RGB and every
     label are those of the same sample rendered over its environment instead."""
     from hack_render.dataset.backgrounds import PHOTOS, background_image
-    from hack_render.io import read_exr
+    from hack_render.io.image import read_exr
 
     out, _cfg, _ = rendered
     env_cfg = load_config(overrides=dict(TINY, camera={"views": 2},
@@ -474,7 +474,7 @@ def test_denoised_samples_keep_the_noisy_image(tmp_path, monkeypatch):
     """render.denoise on + keep_noisy: rgb.exr is OIDN's output over the same background,
     rgb_noisy.exr the path tracer's; without pyoidn 'on' is refused naming the extra."""
     pytest.importorskip("pyoidn")
-    from hack_render.io import read_exr
+    from hack_render.io.image import read_exr
 
     cfg = load_config(overrides=dict(TINY, render=dict(TINY["render"], denoise="on",
                                                        keep_noisy=True)))
@@ -624,18 +624,18 @@ def test_inline_and_background_writes_give_the_same_files(rendered, tmp_path):
 def test_failed_write_leaves_the_sample_incomplete(tmp_path, monkeypatch):
     """A write that fails on the writer thread surfaces in the sample's result and
     ``sample.json`` is not written, so --resume redoes the sample."""
-    from hack_render import io
     from hack_render.dataset import worker
     from hack_render.dataset.worker import SampleRenderer
+    from hack_render.io import image
 
-    real = io.write_exr
+    real = image.write_exr
 
     def disk_full(path, *a, **k):
         if Path(path).name == "masks.exr":
             raise OSError("No space left on device")
         return real(path, *a, **k)
 
-    monkeypatch.setattr(io, "write_exr", disk_full)
+    monkeypatch.setattr(image, "write_exr", disk_full)
     monkeypatch.setattr(worker, "write_exr", disk_full, raising=False)  # imported at the top
     r = SampleRenderer(load_config(overrides=TINY), tmp_path, 0, background_writes=True)
     with pytest.raises(OSError, match="No space"):
@@ -773,7 +773,7 @@ def test_render_sss_option(tmp_path):
     the labels do not change with it, and a non-boolean value is a clear error."""
     import imageio.v3 as iio
 
-    from hack_render.io import read_exr
+    from hack_render.io.image import read_exr
 
     assert load_config()["render"]["sss"] is False
     outs = {}

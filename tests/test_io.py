@@ -1,40 +1,43 @@
 """hack_render.io: atomic writes (one temporary beside the target, renamed; none left on a
-failure), and the sRGB 8-bit encoder: colour-science's rounding, from cached thresholds."""
+failure), and (io.image) the sRGB 8-bit encoder: colour-science's rounding, from cached
+thresholds."""
 
 import numpy as np
 import pytest
 
 from hack_render import io
 from hack_render.errors import HackError
+from hack_render.io import image
+from hack_render.io.npz import write_npz
 
 
 @pytest.fixture
 def fresh_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    io.srgb8_thresholds.cache_clear()
-    yield tmp_path / "hack-render" / io.SRGB8_CACHE
-    io.srgb8_thresholds.cache_clear()
+    image.srgb8_thresholds.cache_clear()
+    yield tmp_path / "hack-render" / image.SRGB8_CACHE
+    image.srgb8_thresholds.cache_clear()
 
 
 def test_01_thresholds_give_colour_sciences_codes(fresh_cache):
     colour = pytest.importorskip("colour")
     rng = np.random.default_rng(0)
-    t = io.srgb8_thresholds()
+    t = image.srgb8_thresholds()
     x = np.concatenate([rng.random(200_000) * 1.2 - 0.1, t + 1e-9, t - 1e-9, [0.0, 1.0]])
     want = np.round(np.clip(colour.cctf_encoding(np.clip(x, 0, 1), function="sRGB"), 0, 1)
                     * 255).astype(np.uint8)
-    assert np.array_equal(io.to_srgb8(x, 0.0, "clip"), want)
+    assert np.array_equal(image.to_srgb8(x, 0.0, "clip"), want)
 
 
 def test_02_cache_is_written_reused_and_repaired(fresh_cache):
-    t = io.srgb8_thresholds()
+    t = image.srgb8_thresholds()
     assert fresh_cache.is_file() and np.array_equal(np.load(fresh_cache), t)
-    io.srgb8_thresholds.cache_clear()
+    image.srgb8_thresholds.cache_clear()
     np.save(fresh_cache, np.zeros(255))  # not increasing: recomputed
-    assert np.array_equal(io.srgb8_thresholds(), t)
-    io.srgb8_thresholds.cache_clear()
+    assert np.array_equal(image.srgb8_thresholds(), t)
+    image.srgb8_thresholds.cache_clear()
     fresh_cache.write_bytes(b"not a numpy file")
-    assert np.array_equal(io.srgb8_thresholds(), t)
+    assert np.array_equal(image.srgb8_thresholds(), t)
     assert np.array_equal(np.load(fresh_cache), t)
 
 
@@ -52,7 +55,7 @@ def test_03_straight_colour_pads_the_thin_edge_with_the_covered_colour():
     pre = alpha[..., None] * colour + rng.normal(0, 0.01, (32, 32, 3)) * (alpha > 0)[..., None]
     naive = np.where((alpha > 0)[..., None], pre / np.maximum(alpha, 1e-6)[..., None], 0.0)
     assert np.abs(naive - colour)[alpha > 0].max() > 1.0   # the specks the padding removes
-    out = io.straight_colour(pre, alpha)
+    out = image.straight_colour(pre, alpha)
     solid = alpha >= 0.5
     assert np.allclose(out[solid], pre[solid] / alpha[solid][:, None])
     edge = (alpha > 0) & ~solid
@@ -73,7 +76,7 @@ def test_04_atomic_writers_leave_the_file_whole_and_no_temporary(tmp_path):
     assert (d / "x.txt").read_text(encoding="utf-8") == "héllo\n"
     io.write_json(d / "x.json", {"b": 1, "a": [1.5]}, indent=None, sort_keys=True)
     assert (d / "x.json").read_text() == '{"a": [1.5], "b": 1}'
-    io.write_npz(d / "arrays.dat", {"a": np.arange(3)}, compressed=True)  # no .npz added
+    write_npz(d / "arrays.dat", {"a": np.arange(3)}, compressed=True)  # no .npz added
     assert np.array_equal(np.load(d / "arrays.dat")["a"], np.arange(3))
     with pytest.raises(ZeroDivisionError):
         with io.atomic_path(d / "x.txt") as tmp:
@@ -118,3 +121,17 @@ def test_07_an_unwritable_folder_is_named(tmp_path):
     (tmp_path / "file").write_text("")
     with pytest.raises(HackError, match="cannot be created"):
         io.atomic_write_text(tmp_path / "file" / "x.txt", "x")
+
+
+def test_08_the_atomic_writers_import_the_standard_library_only():
+    """hack_render.boundary writes its run records through hack_render.io and is imported
+    by ``hack-render --help``: io's package imports nothing heavy (image.py and npz.py do)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, hack_render.io\n"
+            "print(sorted(m for m in ('numpy', 'OpenEXR', 'imageio', 'torch', "
+            "'hack_render.io.image') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]", out.stdout

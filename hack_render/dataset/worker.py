@@ -200,7 +200,7 @@ class SampleRenderer:
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
         from hack_render.dataset.backgrounds import background_image
-        from hack_render.io import rgb_channels, write_exr
+        from hack_render.io.image import rgb_channels, write_exr
         from hack_render.render.scene import composite
 
         r = self.cfg["render"]
@@ -260,7 +260,7 @@ class SampleRenderer:
 
 
 def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
-    from hack_render.io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     _write_png(path, to_srgb8(linear, 0.0, tonemap))
 

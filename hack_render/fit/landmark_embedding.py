@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_embedding_dlib.npz"
 #: Landmarks calibrated by default: all but the jawline contours (0-7, 9-16); the chin

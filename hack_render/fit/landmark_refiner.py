@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 from hack_render.fit.metrics import similarity_transform
 
 DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_refiner_dlib.npz"

@@ -314,7 +314,7 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     from PIL import Image
     from skimage.transform import resize
 
-    from hack_render.io import straight_colour, to_srgb8
+    from hack_render.io.image import straight_colour, to_srgb8
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -426,7 +426,7 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
 
     from hack_render.fit.photometric import setup_level
     from hack_render.fit.virtual_view import on_photo
-    from hack_render.io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     out = []
     for i, v in enumerate(fitter.views):

@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 FORMAT_VERSION = 2
 SUPPORTED_VERSIONS = (1, 2)

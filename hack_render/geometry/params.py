@@ -38,7 +38,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import atomic_write_text, write_json, write_npz
+from hack_render.io import atomic_write_text, write_json
+from hack_render.io.npz import write_npz
 
 if TYPE_CHECKING:  # torch is imported where tensors are made: parsing and checking need none
     import torch

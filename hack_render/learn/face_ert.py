@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 
 def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -> dict:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 from hack_render.fit.landmark_refiner import (
     INNER,
     LandmarkRefiner,

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-character"
 

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-head-to-neck"
 HIDDEN = 512

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 
 #: Samples of an averaged curve (rise and fall together).
 CURVE_SAMPLES = 96

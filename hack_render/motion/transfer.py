@@ -111,7 +111,8 @@ def _orbit(folder: Path, frames: int, size: int, target: np.ndarray, extent: flo
     import imageio.v3 as iio
     from tqdm import tqdm
 
-    from hack_render.io import atomic_path, to_srgb8
+    from hack_render.io import atomic_path
+    from hack_render.io.image import to_srgb8
     from hack_render.render.video import write_gif, write_mp4
     from scenes import cameras as cams
 

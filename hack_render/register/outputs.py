@@ -70,7 +70,7 @@ def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.nda
                    size: int = 384) -> list[np.ndarray]:
     """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
     from hack_render.register.scan import srgb_to_linear
-    from hack_render.io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.mesh_views import MeshViews
     from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 

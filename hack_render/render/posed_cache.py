@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io import write_npz
+from hack_render.io.npz import write_npz
 from hack_render.render.parts import Topology
 
 #: How many posed meshes are kept (~2 MB each).

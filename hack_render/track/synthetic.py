@@ -71,7 +71,7 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
     from hack_render.fit.camera import R0, SENSOR_MM
     from hack_render.fit.landmark_embedding import load_default
     from hack_render.geometry import load_default_model
-    from hack_render.io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
