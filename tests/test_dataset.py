@@ -709,6 +709,7 @@ def test_kill_midway_then_resume_gives_the_uninterrupted_files(rendered, tmp_pat
     partial.mkdir(parents=True, exist_ok=True)
     (partial / "rgb.png").write_bytes(b"\x89PNG truncated")
     (partial / ".depth.x1y2.exr").write_bytes(b"half")
+    (partial / ".tmp-0a1b2c-x1y2z3w4.exr").write_bytes(b"half")  # hack_render.io's name
     # a complete sample with a damaged file is redone too
     if (target / "samples" / "0000001" / "sample.json").is_file():
         (target / "samples" / "0000001" / "view_00" / "depth.exr").write_bytes(b"bad")
