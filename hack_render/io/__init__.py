@@ -36,9 +36,6 @@ TEMP_GLOB = TEMP_PREFIX + "*"
 _MAX_SUFFIX = 32
 
 
-# ------------------------------------------------------------------------ atomic writes
-
-
 def _writable_folder(folder: Path) -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
