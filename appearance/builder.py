@@ -23,7 +23,6 @@ k: RMSE of linear RGB, mean CIEDE2000 of the diffuse map, mean angular error of 
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
@@ -34,9 +33,10 @@ import numpy as np
 import torch
 
 from appearance.model import BLOCKS, N_CHANNELS, normals_to_slopes, save_model
-from appearance.texture_io import _atomic, read_texture_set
+from appearance.texture_io import read_texture_set
 from appearance.uv import rasterize_layout
 from hack_render.errors import HackError
+from hack_render.io import atomic_path, write_json
 
 DEFAULT_ROUGHNESS = 0.6  # perceptual; used only when no subject has a roughness map
 
@@ -333,7 +333,7 @@ def build_model(root, out, height: int = 256, n_components: int | None = None,
 
 def write_report(report: dict, json_path: Path, png_path: Path) -> None:
     """Write the report JSON and its plot (explained variance; held-out errors vs k)."""
-    _atomic(Path(json_path), lambda tmp: Path(tmp).write_text(json.dumps(report, indent=1)))
+    write_json(json_path, report, indent=1)
     plot_report(report, png_path)
 
 
@@ -360,9 +360,6 @@ def plot_report(report: dict, png_path) -> None:
                    title=f"held-out ({ho['n_test']} of {ho['n_test'] + ho['n_train']})")
             ax.grid(alpha=0.3)
     fig.tight_layout()
-
-    def save(tmp):
+    with atomic_path(png_path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-
-    _atomic(Path(png_path), save)
     plt.close(fig)

@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
 import time
 
 import numpy as np
@@ -35,6 +33,7 @@ from appearance.population import (
     subject_uniforms,
 )
 from appearance.skin_optics import OpticsConstants, skin_albedo
+from hack_render.io import write_json
 
 #: Measured targets (DATA.md, Textures): linear sRGB diffuse albedo, D65, CIE 1931 2 deg.
 TARGETS = {
@@ -145,11 +144,7 @@ def verify(cal: Calibration, n: int, height: int) -> dict:
 
 def write_calibration(cal: Calibration, path=CALIBRATION_FILE) -> None:
     """Write the calibration JSON atomically (temp file, then rename)."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(cal.to_json(), fh, indent=1)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    write_json(path, cal.to_json(), indent=1)
 
 
 def main(argv=None) -> dict:

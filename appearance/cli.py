@@ -154,10 +154,9 @@ def sample(
     from appearance.report import preview_sheet
 
     preview_sheet(arrays, out / "preview.png", title=f"alpha[:4]={a[0, :4].tolist()}")
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import write_json
 
-    with atomic_path(out / "alpha.json") as tmp:
-        tmp.write_text(json.dumps({"alpha": a[0].tolist()}))
+    write_json(out / "alpha.json", {"alpha": a[0].tolist()}, indent=None)
     typer.echo(f"wrote {len(written)} maps and preview.png to {out}")
 
 

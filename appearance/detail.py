@@ -33,9 +33,9 @@ PORES = {"nose": (0.35, 0.05), "cheeks": (0.30, 0.035), "forehead": (0.25, 0.03)
 
 def _texel_mm(height: int) -> np.ndarray:
     """Surface size of one texel per tile (mm) at atlas height H (template scale)."""
-    from appearance.generator import _context
+    from appearance.generator import atlas_context
 
-    return _context(256).texel_cm * 10.0 * 256.0 / height
+    return atlas_context(256).texel_cm * 10.0 * 256.0 / height
 
 
 @lru_cache(maxsize=4)

@@ -97,10 +97,10 @@ def region_labels(layout: UVLayout | int) -> np.ndarray:
     Args:
         layout: a :class:`UVLayout` or an atlas height H.
     """
-    from appearance.uv import _template
+    from appearance.uv import default_template
 
     lay = rasterize_layout(layout) if isinstance(layout, (int, np.integer)) else layout
-    lm = _template().vertices[LANDMARK_VERTICES]
+    lm = default_template().vertices[LANDMARK_VERTICES]
     lab = np.zeros(lay.mask.shape, np.uint8)
     p = lay.position[lay.mask].astype(np.float64)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]

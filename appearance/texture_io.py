@@ -18,35 +18,18 @@ place, so an interrupted run never leaves a half-written file.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from appearance.colour_space import srgb_decode, srgb_encode
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 MAP_CHANNELS = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
 REQUIRED_MAPS = ("diffuse", "specular", "normal")
 EXTENSIONS = (".exr", ".png")
 _DEFAULT_NAMES = {1: ["Y"], 2: ["X", "Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}
-
-
-def _atomic(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary readable files
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
 
 
 def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
@@ -70,12 +53,8 @@ def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
     dt = np.float16 if half else np.float32
     chans = {n: np.ascontiguousarray(img[..., i].astype(dt)) for i, n in enumerate(names)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-
-    def write(tmp):
-        with OpenEXR.File(header, chans) as f:
-            f.write(tmp)
-
-    _atomic(Path(path), write)
+    with atomic_path(path) as tmp, OpenEXR.File(header, chans) as f:
+        f.write(str(tmp))
 
 
 def read_exr(path) -> tuple[np.ndarray, list[str]]:
@@ -121,15 +100,12 @@ def write_png(path, image: np.ndarray, bits: int = 8, srgb: bool = True) -> None
         except ImportError as exc:
             raise HackError(f"{path}: 16-bit {q.shape[2]}-channel PNG needs the pypng package "
                             f"(not installed). Use EXR, or bits=8.") from exc
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                pypng.Writer(q.shape[1], q.shape[0], greyscale=False, alpha=q.shape[2] == 4,
-                             bitdepth=16).write(fh, q.reshape(q.shape[0], -1).tolist())
-
-        _atomic(Path(path), write)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            pypng.Writer(q.shape[1], q.shape[0], greyscale=False, alpha=q.shape[2] == 4,
+                         bitdepth=16).write(fh, q.reshape(q.shape[0], -1).tolist())
         return
-    _atomic(Path(path), lambda tmp: iio.imwrite(tmp, q, extension=".png"))
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, q, extension=".png")
 
 
 def read_png(path, srgb: bool = True) -> np.ndarray:

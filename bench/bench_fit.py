@@ -149,7 +149,7 @@ def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) ->
     import math
 
     from hack_render.render.emitters import area_light_transform, rotation_y
-    from hack_render.render.image_io import read_hdr_image
+    from hack_render.io.image import read_hdr_image
     from scenes.lights import latlong_directions
 
     hs = height * ss

@@ -211,7 +211,7 @@ def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
     from skimage.metrics import structural_similarity
 
     from hack_render.geometry import load_default_model
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -308,7 +308,7 @@ from scenes import cameras, lights
 cam = cameras.preset("portrait", 256, 256)[0]
 head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(256, 256, 16)); lap()
 img = head.render(); lap()
-from hack_render.render.image_io import write_png
+from hack_render.io.image import write_png
 write_png(sys.argv[1], img[..., :3]); lap()
 # what the pose cost before geometry/posing.py: torch's import, its model and forward
 import torch; lap()
@@ -391,7 +391,7 @@ def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
         skin_albedo,
     )
     from hack_render.render import emitters, materials
-    from hack_render.render.image_io import write_png
+    from hack_render.io.image import write_png
     from scenes import cameras, lights
 
     wl = np.array([610.0, 550.0, 465.0])
@@ -445,7 +445,7 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     from hack_render.geometry import load_default_model
     from hack_render.render import sss
     from hack_render.render.footprint import sss_features
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -632,7 +632,7 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
     from appearance.texture_io import write_texture_set
     from hack_render.geometry.obj_io import write_mesh
     from hack_render.render import emitters, materials, skin_bsdf
-    from hack_render.render.image_io import rgb_channels, write_exr
+    from hack_render.io.image import rgb_channels, write_exr
     from hack_render.render.parts import vertex_normals
 
     rig, cam, settings = head.lights, head.camera, head.settings
@@ -728,7 +728,7 @@ class CyclesWorker:
     def render(self, spp: int, seed: int, denoise: bool, out: Path) -> tuple[dict, np.ndarray]:
         import json
 
-        from hack_render.render.image_io import read_exr
+        from hack_render.io.image import read_exr
 
         self.proc.stdin.write(json.dumps({"spp": spp, "seed": seed, "denoise": denoise,
                                           "out": str(out)}) + "\n")
@@ -844,7 +844,7 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
 
     from hack_render.geometry.limits import LimitPolicy
     from hack_render.geometry.posing import posed_model
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps

@@ -8,7 +8,7 @@ One module, used by every command, for what a user can get wrong or cut short:
   for writability (by creating and removing a probe file, which also catches read-only
   mounts and immutable folders) *before* the work starts. Nothing is created by a check:
   a refused command leaves no file or folder behind; writers create the parents and write
-  atomically (:func:`hack_render.render.image_io.atomic_path`).
+  atomically (:func:`hack_render.io.atomic_path`).
 - **Input files** (:func:`input_file`, :func:`input_dir`, :func:`parse_json`,
   :func:`parse_yaml`): present, of the right kind; JSON and YAML with a key given twice
   (the parsers keep the last one silently) or YAML aliases refused.
@@ -326,12 +326,11 @@ class RunRecord:
         return old
 
     def write(self, complete: bool) -> None:
-        from hack_render.render.image_io import atomic_path
+        from hack_render.io import write_json
 
         data = {"command": self.command, "fingerprint": self.fingerprint, "args": self.args,
                 "complete": complete}
-        with atomic_path(self.path) as tmp:
-            tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+        write_json(self.path, data, indent=1, sort_keys=True, default=str)
 
 
 @contextlib.contextmanager
@@ -376,8 +375,10 @@ def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
 
 def clean_temporaries(folder: str | Path, pattern: str = ".*",
                       recursive: bool = False) -> int:
-    """Remove the hidden temporaries a killed run left (``atomic_path`` writes
-    ``.<stem>.XXXX<suffix>``); the lock file is kept. Returns how many were removed."""
+    """Remove the hidden temporaries a killed run left that match ``pattern``
+    (:func:`hack_render.io.atomic_path` writes ``.tmp-*``, :data:`hack_render.io.TEMP_GLOB`;
+    :func:`hack_render.io.temp_glob` matches one target's); the lock file is kept. Returns
+    how many were removed."""
     folder = Path(folder)
     if not folder.is_dir():
         return 0

@@ -13,7 +13,6 @@ vertical axis).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -160,7 +159,6 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
 
 def save_cameras(path, cameras: list[Camera]) -> None:
     """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import write_json
 
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({"cameras": [c.to_dict() for c in cameras]}, indent=1))
+    write_json(path, {"cameras": [c.to_dict() for c in cameras]}, indent=1)

@@ -118,7 +118,7 @@ def overcast_sky_file() -> Path:
     Prefers ``scenes/data/overcast_sun.exr``; falls back to ``$XDG_CACHE_HOME/hack-render``
     when the package folder is read-only.
     """
-    from hack_render.render.image_io import rgb_channels, write_exr
+    from hack_render.io.image import rgb_channels, write_exr
 
     name = "overcast_sun.exr"
     for folder in (DATA_DIR, Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))

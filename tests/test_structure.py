@@ -330,7 +330,7 @@ def _reach(g, start):
 def test_04_no_private_name_crosses_modules(imports):
     bad = private_imports(imports)
     assert bad == [], "private names imported from another module:\n" + "\n".join(bad)
-    src = "from hack_render.render.image_io import _UMASK\n"
+    src = "from hack_render.io import _UMASK\n"
     planted = {"scenes.lights": parse_imports(src, "scenes.lights", False, modules())}
     assert private_imports(planted)
 

@@ -32,7 +32,7 @@ def rig_setup(model):
 def test_01_rig_equals_the_model_forward(model, rig_setup):
     """The closed-form landmarks equal the embedding's points on the full forward, for
     random poses, torsos, translations and expressions."""
-    from hack_render.track.rig import _points
+    from hack_render.track.rig import landmark_points
 
     rig, emb, beta = rig_setup
     g = torch.Generator().manual_seed(0)
@@ -44,7 +44,7 @@ def test_01_rig_equals_the_model_forward(model, rig_setup):
     with torch.no_grad():
         out = model(beta=beta, psi=psi, theta=distribute_head_rotation(h, clamp=False),
                     global_orient=go, transl=t)
-    want = _points(out.vertices.double(), emb, model)
+    want = landmark_points(out.vertices.double(), emb, model)
     got = rig.points(psi.double(), h.double(), go.double(), t.double())
     assert float((want - got).abs().max()) < 1e-6
 

@@ -128,7 +128,7 @@ def _range(cfg, section, name, lo=-math.inf, hi=math.inf):
 
 def check_config(cfg: dict) -> dict:
     """Validate a full config (defaults merged); returns it with ranges as float lists."""
-    from hack_render.render.image_io import TONE_MAPS
+    from hack_render.io.image import TONE_MAPS
     from hack_render.render.scene import MAX_SIDE, MAX_SPP
     from scenes import lights
 

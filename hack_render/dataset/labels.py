@@ -105,11 +105,11 @@ def skin_label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
         region_labels,
     )
     from appearance.regions import REGIONS as ATLAS_REGIONS
-    from appearance.uv import _template, rasterize_layout
+    from appearance.uv import default_template, rasterize_layout
     from hack_render.geometry import load_default_model
 
     lay = rasterize_layout(height)
-    mesh = _template()
+    mesh = default_template()
     atlas = region_labels(lay)
     lut = np.array([LABEL_ID[_ATLAS_TO_LABEL[n]] for n in ATLAS_REGIONS], np.uint8)
     out = lut[atlas]
@@ -156,9 +156,9 @@ def pinna_texels(lay) -> np.ndarray:
     """
     from scipy.spatial import ConvexHull
 
-    from appearance.uv import _template
+    from appearance.uv import default_template
 
-    mesh = _template()
+    mesh = default_template()
     v, f = mesh.vertices, mesh.faces
     face_mat, back_mat = (mesh.materials.index(m) for m in ("M_Face", "M_BackHead"))
     h, w = lay.mask.shape

@@ -58,7 +58,7 @@ def tile(view: Path, blend: float = 0.35) -> np.ndarray:
 def contact_sheet(folder: str | Path, output: str | Path | None = None, count: int = 16,
                   columns: int = 4) -> Path:
     """Write a grid of the first ``count`` views as PNG (default ``DIR/preview.png``)."""
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     folder = Path(folder)
     if count < 1 or columns < 1:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from hack_render import interrupts
 from hack_render.errors import HackError
+from hack_render.io import temp_glob, write_json
 
 EXECUTORS = ("serial", "ray")
 #: The most samples one dataset folder holds (sample folders are named by a 7-digit index
@@ -122,9 +123,9 @@ def check_job(job: Job) -> None:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
     if app["source"] in ("seed", "alpha"):
-        from appearance.uv import _template
+        from appearance.uv import default_template
 
-        _template()  # the skin atlas needs the packaged template (raises with the fix)
+        default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
     for sub in ("samples", "manifest"):
         boundary.output_dir(job.out / sub)
@@ -170,7 +171,8 @@ def read_record(out: Path, index: int) -> dict | None:
 
 
 def _clean_temporaries(folder: Path, pattern: str = ".*") -> None:
-    """Remove temporary files a killed run left behind (``atomic_path``: ``.<stem>.*``)."""
+    """Remove the temporary files a killed run left behind (``hack_render.io.atomic_path``'s
+    ``.tmp-*``; ``.<stem>.*`` from older versions) that match ``pattern``."""
     for p in folder.rglob(pattern):
         if p.is_file():
             p.unlink()
@@ -204,13 +206,15 @@ def prepare(job: Job) -> tuple[object, int]:
     Without ``resume`` the shard must have no samples in the folder yet (a re-run would
     redo complete samples and could be killed half-way through one); with it, partial
     samples are cleaned and redone, complete ones kept."""
-    from hack_render.dataset.worker import _write_json, sample_dir
+    from hack_render.dataset.worker import sample_dir
 
     existing = existing_samples(job)
     _refuse_rerun(job, existing)  # again, under the lock
-    _write_json(job.out / "config.json", run_info(job))
+    write_json(job.out / "config.json", run_info(job), indent=1, sort_keys=True)
     (job.out / "manifest").mkdir(parents=True, exist_ok=True)
     job.complete_path.unlink(missing_ok=True)
+    for own in (job.manifest_path, job.complete_path):  # the other shards' are theirs
+        _clean_temporaries(job.out / "manifest", temp_glob(own))
     _clean_temporaries(job.out / "manifest", f".{job.manifest_path.stem}.*")
     done: dict[int, dict] = {}
     for i in existing:
@@ -225,7 +229,7 @@ def prepare(job: Job) -> tuple[object, int]:
 
 
 def _write_manifest_lines(job: Job, records: list[dict]) -> Path:
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(job.manifest_path) as tmp:
         tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))
@@ -386,7 +390,6 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
             raise HackError("--executor ray: expected Ray, found it not installed. Install "
                             "the extra: pip install 'hack-render[ray]'.") from err
     from hack_render import boundary
-    from hack_render.dataset.worker import _write_json
 
     check_job(job)
     total = len(job.indices())
@@ -409,7 +412,7 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
             else:
                 done = run_serial(job, todo, progress, n_todo, tally)
             manifest = write_manifest(job)
-            _write_json(job.complete_path, {"complete": True, "n": job.n,
-                                            "shard": [k, m], "samples": total})
+            write_json(job.complete_path, {"complete": True, "n": job.n, "shard": [k, m],
+                                           "samples": total}, indent=1, sort_keys=True)
     return {"rendered": done, "skipped": total - n_todo, "total": total,
             "manifest": str(manifest)}

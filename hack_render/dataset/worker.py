@@ -31,6 +31,7 @@ import numpy as np
 
 from hack_render.dataset import labels as lab
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
+from hack_render.io import write_json
 
 SAMPLE_RECORD = "sample.json"
 
@@ -49,17 +50,10 @@ def camera_of(view: dict, width: int, name: str):
                       name=name, distance=d)
 
 
-def _write_json(path: Path, data) -> None:
-    from hack_render.render.image_io import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-
-
 def _write_png(path: Path, array: np.ndarray) -> None:
     import imageio.v3 as iio
 
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     with atomic_path(path) as tmp:
         # zlib level 1: several times faster than the default, files ~10 % larger
@@ -194,8 +188,8 @@ class SampleRenderer:
         head.set_vertices(verts, update=False)
         head.set_maps(self.skin_maps(spec["appearance"]), update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
-        writes = [self.writer.submit(_write_json, folder / "params.json",
-                                     params_file(self.model, spec))]
+        writes = [self.writer.submit(write_json, folder / "params.json",
+                                     params_file(self.model, spec), indent=1, sort_keys=True)]
         views = []
         for v, view in enumerate(spec["cameras"]):
             cam = camera_of(view, self.cfg["render"]["resolution"], f"view_{v:02d}")
@@ -206,7 +200,7 @@ class SampleRenderer:
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
         from hack_render.dataset.backgrounds import background_image
-        from hack_render.render.image_io import rgb_channels, write_exr
+        from hack_render.io.image import rgb_channels, write_exr
         from hack_render.render.scene import composite
 
         r = self.cfg["render"]
@@ -234,8 +228,9 @@ class SampleRenderer:
                 {f"mask.{n}": masks[..., i] for i, n in enumerate(lab.LABELS)})]
         lm = lab.landmark_record(head, cam, out.landmarks[0].numpy(), out.joints[0].numpy(),
                                  larynx)
-        writes += [put(_write_json, vdir / "landmarks.json", lm),
-                   put(_write_json, vdir / "camera.json", cam.to_dict())]
+        writes += [put(write_json, vdir / "landmarks.json", lm, indent=1, sort_keys=True),
+                   put(write_json, vdir / "camera.json", cam.to_dict(), indent=1,
+                       sort_keys=True)]
         bare = head.render(seed=spec["render_seed"] + v, backdrop=False, sss=r["sss"])
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
@@ -265,7 +260,7 @@ class SampleRenderer:
 
 
 def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     _write_png(path, to_srgb8(linear, 0.0, tonemap))
 
@@ -278,7 +273,7 @@ def _write_record(out: Path, folder: Path, spec: dict, writes: list) -> dict:
         w.result()
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     spec["files"] = {str(p.relative_to(out)): p.stat().st_size for p in files}
-    _write_json(folder / SAMPLE_RECORD, spec)
+    write_json(folder / SAMPLE_RECORD, spec, indent=1, sort_keys=True)
     return spec
 
 
@@ -298,13 +293,13 @@ class FileWriter:
     def background(self) -> bool:
         return self._pool is not None
 
-    def submit(self, fn, *args) -> Future:
+    def submit(self, fn, *args, **kwargs) -> Future:
         if self._pool is not None:
-            fut = self._pool.submit(fn, *args)
+            fut = self._pool.submit(fn, *args, **kwargs)
         else:
             fut = Future()
             try:
-                fut.set_result(fn(*args))
+                fut.set_result(fn(*args, **kwargs))
             except Exception as err:  # noqa: BLE001 - kept in the future, as a thread would
                 fut.set_exception(err)
         if fn is _write_record:

@@ -9,6 +9,7 @@ import typer
 
 from hack_render import interrupts
 from hack_render.errors import HackError
+from hack_render.io import atomic_write_bytes
 
 
 def export(
@@ -148,11 +149,7 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
         images["normal"] = (0.5 * maps.normal + 0.5, False)
     written = []
     for key, (img, srgb) in images.items():
-        path = folder / f"{key}.png"
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_bytes(png_bytes(img, srgb))
-        tmp.replace(path)
-        written.append(path)
+        written.append(atomic_write_bytes(folder / f"{key}.png", png_bytes(img, srgb)))
     mats = ObjMaterials(model.material_names, model.face_material.numpy(),
                         {k: f"{folder.name}/{k}.png" for k in images},
                         colours=material_base_colours(model.material_names, maps.iris_rgb,

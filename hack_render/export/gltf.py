@@ -23,6 +23,7 @@ Layout of the file:
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import struct
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -337,18 +339,14 @@ def write_document(g: GltfBuilder, path: str | Path) -> list[Path]:
     else:
         text, data = g.gltf(path.with_suffix(".bin").name)
         files = [(path.with_suffix(".bin"), data), (path, text.encode())]
-    tmps = []
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        for target, data in files:
-            tmp = target.with_name(f".{target.name}.tmp")
-            tmps.append(tmp)
-            tmp.write_bytes(data)
-        for (target, _), tmp in zip(files, tmps, strict=True):
-            tmp.replace(target)
+        # every file written under its temporary name, then renamed in order (the .bin
+        # before the .gltf that names it): the stack renames the last entered first
+        with contextlib.ExitStack() as stack:
+            tmps = [stack.enter_context(atomic_path(t)) for t, _ in reversed(files)][::-1]
+            for tmp, (_, data) in zip(tmps, files, strict=True):
+                tmp.write_bytes(data)
     except OSError as exc:
-        for tmp in tmps:
-            tmp.unlink(missing_ok=True)
         raise HackError(f"-o {path}: cannot write ({exc.strerror or exc}). Choose a writable "
                         "output path.") from exc
     return [t for t, _ in files]

@@ -5,7 +5,6 @@ report. Every file is written under a temporary name and renamed."""
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
@@ -13,20 +12,12 @@ import torch
 
 from hack_render.fit.fitter import R0, FitResult
 from hack_render.fit.terms import fitted_points, landmark_residual_iod
+from hack_render.io import TEMP_GLOB, atomic_path, write_json
 
-#: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
-TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
-               ".overlay*", ".mesh*", ".fit_run.*", ".render*", ".occlusion*")
-
-
-def _atomic_bytes(path: Path, write) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)  # interrupted or failed: no temporary left
-    return path
+#: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
+#: the names older versions gave them (one pattern per output).
+TEMPORARIES = (TEMP_GLOB, ".params*", ".cameras.*", ".fit_report.*", ".timings.*",
+               ".losses.*", ".overlay*", ".mesh*", ".fit_run.*", ".render*", ".occlusion*")
 
 
 def clean_temporaries(outdir: Path) -> None:
@@ -157,10 +148,11 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                 arrays[f"view{i}_sh"] = v.lighting.coeffs.detach().numpy()
             for key, val in v.lighting.summary().items():  # "sg": the lobes
                 arrays[f"view{i}_{key}"] = np.asarray(val, np.float32)
-    written.append(_atomic_bytes(outdir / "params.npz", lambda t: np.savez(t, **arrays)))
+    with atomic_path(outdir / "params.npz") as tmp:
+        np.savez(tmp, **arrays)
+    written.append(outdir / "params.npz")
     cams = [camera_dict(v) for v in res.views]
-    written.append(_atomic_bytes(outdir / "cameras.json",
-                                 lambda t: t.write_text(json.dumps({"cameras": cams}, indent=1))))
+    written.append(write_json(outdir / "cameras.json", {"cameras": cams}, indent=1))
     m = res.model
     # the photo-size renders and the baked skin need the fitted lighting (the photometric
     # stage's); without it the textures are the model's own maps
@@ -221,10 +213,9 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                      else None),
               "landmark_refiner": _refiner_provenance(res)}
     report.update(extra or {})
-    written.append(_atomic_bytes(outdir / "fit_report.json",
-                                 lambda t: t.write_text(json.dumps(report, indent=1))))
-    written.append(_atomic_bytes(outdir / "timings.json", lambda t: t.write_text(
-        json.dumps({"stages_s": res.timings, "total_s": report["total_s"]}, indent=1))))
+    written.append(write_json(outdir / "fit_report.json", report, indent=1))
+    written.append(write_json(outdir / "timings.json", {"stages_s": res.timings,
+                                                        "total_s": report["total_s"]}, indent=1))
     return written
 
 
@@ -323,7 +314,7 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     from PIL import Image
     from skimage.transform import resize
 
-    from hack_render.render.image_io import straight_colour, to_srgb8
+    from hack_render.io.image import straight_colour, to_srgb8
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -343,8 +334,9 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
         occ = np.round(255 * np.clip(final.baked.pixel_weights[i], 0, 1)).astype(np.uint8)
         for name, arr in ((f"render{sfx}.png", img), (f"render_over_photo{sfx}.png", over),
                           (f"occlusion{sfx}.png", occ)):
-            out.append(_atomic_bytes(outdir / name,
-                                     lambda t, arr=arr: Image.fromarray(arr).save(t, "PNG")))
+            with atomic_path(outdir / name) as tmp:
+                Image.fromarray(arr).save(tmp, "PNG")
+            out.append(outdir / name)
     return out
 
 
@@ -389,8 +381,7 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
                else list(final.maps.sclera_rgb), "eye_gloss": final.maps.eye_gloss,
                "derived": "linear Rec.709; the photo over renders of the fit, over the "
                           "iris's and the eye whites' pixels (hack_render/fit/iris.py)"}
-        out.append(_atomic_bytes(folder / IRIS_FILE,
-                                 lambda t: t.write_text(json.dumps(doc, indent=1))))
+        out.append(write_json(folder / IRIS_FILE, doc, indent=1))
     return out
 
 
@@ -435,7 +426,7 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
 
     from hack_render.fit.photometric import setup_level
     from hack_render.fit.virtual_view import on_photo
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     out = []
     for i, v in enumerate(fitter.views):
@@ -472,7 +463,8 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
         ax[1].scatter(fit_v[:, 0], fit_v[:, 1], s=4, c="red")
         fig.tight_layout()
         path = outdir / ("overlay.png" if i == 0 else f"overlay_view{i}.png")
-        _atomic_bytes(path, lambda t, fig=fig: fig.savefig(t, dpi=100))
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=100)
         plt.close(fig)
         out.append(path)
     return out
@@ -485,8 +477,7 @@ def write_losses(res: FitResult, outdir: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     data = {r.name: r.history for r in res.reports}
-    p_json = _atomic_bytes(outdir / "losses.json",
-                           lambda t: t.write_text(json.dumps(data, indent=1)))
+    p_json = write_json(outdir / "losses.json", data, indent=1)
     n = max(1, len(data))
     fig, ax = plt.subplots(1, n, figsize=(4 * n, 3))
     ax = np.atleast_1d(ax)
@@ -498,6 +489,8 @@ def write_losses(res: FitResult, outdir: Path) -> list[Path]:
         ax[k].set_xlabel("iteration")
         ax[k].legend(fontsize=6)
     fig.tight_layout()
-    p_png = _atomic_bytes(outdir / "losses.png", lambda t: fig.savefig(t, dpi=90))
+    p_png = outdir / "losses.png"
+    with atomic_path(p_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return [p_json, p_png]

@@ -73,6 +73,7 @@ from typing import Any
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT_VERSION = 2
 SUPPORTED_VERSIONS = (1, 2)
@@ -192,10 +193,7 @@ def save_model_file(path: str | Path, arrays: dict[str, Any], meta: dict[str, An
             errors[k] = float(np.abs(dequantise(q, s) - v).max())
         else:
             out[k] = v
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez_compressed(tmp, **out)
-    os.replace(tmp, path)
+    write_npz(path, out, compressed=True)
     return errors
 
 

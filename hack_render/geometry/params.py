@@ -45,6 +45,8 @@ import numpy as np
 from hack_render import boundary
 from hack_render.errors import HackError
 from hack_render.geometry.anatomy import ETA_DEFAULT, distribute_head_rotation
+from hack_render.io import atomic_write_text, write_json
+from hack_render.io.npz import write_npz
 
 if TYPE_CHECKING:  # torch is imported where tensors are made: parsing and checking need none
     import torch
@@ -253,16 +255,11 @@ def save_params(path: str | Path, params: dict[str, Any]) -> Path:
     """Write a parameter mapping as JSON (or YAML by suffix), atomically."""
     path = Path(path)
     params = check_params(params, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
     if path.suffix.lower() in (".yaml", ".yml"):
         import yaml
 
-        tmp.write_text(yaml.safe_dump(params, sort_keys=False))
-    else:
-        tmp.write_text(json.dumps(params, indent=2))
-    tmp.replace(path)
-    return path
+        return atomic_write_text(path, yaml.safe_dump(params, sort_keys=False))
+    return write_json(path, params, indent=2)
 
 
 def forward_inputs(model, params: dict[str, Any], dtype=np.float32) -> dict[str, np.ndarray]:
@@ -508,23 +505,14 @@ def save_sequence(path: str | Path, seq: ParamSequence) -> Path:
     if suffix not in (".npz", ".jsonl", ".ndjson"):
         raise HackError(f"{path}: expected a .npz or .jsonl sequence file, found "
                         f"{suffix or 'no suffix'}.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{suffix}")
-    try:
-        if suffix == ".npz":
-            np.savez(tmp, fps=np.float64(seq.fps), format=np.str_(SEQUENCE_FORMAT),
-                     **seq.arrays())
-        else:
-            arrays = seq.arrays()
-            lines = [json.dumps({"format": SEQUENCE_FORMAT, "version": 1, "fps": seq.fps})]
-            lines += [json.dumps({k: a[i].tolist() for k, a in arrays.items()})
-                      for i in range(seq.frames)]
-            tmp.write_text("\n".join(lines) + "\n")
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    if suffix == ".npz":
+        return write_npz(path, {"fps": np.float64(seq.fps), "format": np.str_(SEQUENCE_FORMAT),
+                                **seq.arrays()})
+    arrays = seq.arrays()
+    lines = [json.dumps({"format": SEQUENCE_FORMAT, "version": 1, "fps": seq.fps})]
+    lines += [json.dumps({k: a[i].tolist() for k, a in arrays.items()})
+              for i in range(seq.frames)]
+    return atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def sequence_inputs(model, seq: ParamSequence) -> dict[str, torch.Tensor]:

@@ -93,7 +93,7 @@ def matrix_to_axis_angle(m: torch.Tensor) -> torch.Tensor:
 
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of quaternions (..., 4) (w, x, y, z)."""
+    """Hamilton product of quaternions (..., 4), scalar first (w, x, y, z)."""
     return torch.stack(quat_product(a, b), -1)
 
 

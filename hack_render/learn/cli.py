@@ -33,10 +33,10 @@ from hack_render.geometry import cli as geometry_cli
 from hack_render.geometry import default_model_path
 from hack_render.geometry.model_file import load_model_file, save_model_file
 from hack_render.geometry.params import load_sequence
+from hack_render.io import atomic_path
 from hack_render.learn import landmark_refiner_training
 from hack_render.learn.report import write_report
 from hack_render.learn.shape import learn_shape_cmd
-from hack_render.render.image_io import atomic_path
 
 # The learners that import torch or SciPy when imported (landmark_calibration, ict_default,
 # full_model, pose_energy, joint_regressor, fit.landmark_embedding, motion.head_to_neck,
@@ -233,6 +233,7 @@ def learn_joints(
     if not np.isfinite(reg).all():
         raise HackError(f"{data}: the regressor came out non-finite; check 'meshes' and "
                         "'joints' (metres, the same people in the same order).")
+
     with atomic_path(output) as tmp:
         np.save(tmp, reg.astype(np.float32))
     err = joint_errors(reg, meshes, joints) * 1e3

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hack_render.io.npz import write_npz
+
 
 def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -> dict:
     """Composites with BlazeFace's box nearest the truth: images (S, res, res, 3) uint8,
@@ -56,10 +58,7 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -
         data["yaw"].append(c.yaw)
     arrays = {k: np.asarray(v) for k, v in data.items()}
     if out is not None:       # whole or not at all: a run stopped mid-write leaves no file
-        out = Path(out)
-        tmp = out.with_name(f".{out.stem}.tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(out)
+        write_npz(out, arrays, compressed=True)
     return arrays
 
 

@@ -74,7 +74,7 @@ def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None
     from hack_render.dataset.config import load_config
     from hack_render.dataset.sampling import model_kwargs
     from hack_render.dataset.worker import SampleRenderer, camera_of
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     cfg = load_config(None, _merge_dict(CALIBRATION_DATASET, overrides or {}))
     r = SampleRenderer(cfg, out="/nonexistent-not-written", seed=seed)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 from hack_render.fit.landmark_refiner import (
     INNER,
     LandmarkRefiner,
@@ -169,10 +170,7 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
 
 
 def _save_chunk(path: Path, arrays: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    write_npz(path, arrays, compressed=True)
 
 
 def inner_nme(points: np.ndarray, targets: np.ndarray, iod: np.ndarray) -> np.ndarray:

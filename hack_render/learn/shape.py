@@ -152,7 +152,7 @@ def plot_curves(curves: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     fig, ax = plt.subplots(1, 2, figsize=(8, 3.2))
     ax[0].plot(curves["k"], np.asarray(curves["compactness"]) * 100)

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-character"
 
@@ -50,15 +51,11 @@ class Character:
         return str(self.meta.get("name", "character"))
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, vertices=self.vertices.astype(np.float64),
-                 joints=self.joints.astype(np.float64),
-                 skinning_weights=self.weights.astype(np.float32),
-                 meta=np.str_(json.dumps({"format": FORMAT, "version": 1, **self.meta})))
-        tmp.replace(path)
-        return path
+        return write_npz(path, {
+            "vertices": self.vertices.astype(np.float64),
+            "joints": self.joints.astype(np.float64),
+            "skinning_weights": self.weights.astype(np.float32),
+            "meta": np.str_(json.dumps({"format": FORMAT, "version": 1, **self.meta}))})
 
 
 def check_character(ch: Character, model, where: str = "character") -> Character:

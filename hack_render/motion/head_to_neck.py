@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-head-to-neck"
 HIDDEN = 512
@@ -94,12 +95,8 @@ class HeadToNeck:
         if path.suffix.lower() != ".npz":
             raise HackError(f"-o {path}: expected an .npz output, found "
                             f"{path.suffix or 'no suffix'}.")
-        path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {k: v.detach().numpy() for k, v in self.mlp.state_dict().items()}
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, meta=np.str_(json.dumps(self.meta)), **arrays)
-        tmp.replace(path)
-        return path
+        return write_npz(path, {"meta": np.str_(json.dumps(self.meta)), **arrays})
 
     @classmethod
     def load(cls, path: str | Path) -> HeadToNeck:

@@ -32,6 +32,7 @@ import torch
 from torch import nn
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-larynx-motion"
 #: tau is learned in centimetres (numbers of order 1).
@@ -182,10 +183,7 @@ def save_checkpoint(path: Path, model: LarynxTransformer, opt, step: int, meta: 
             for k, v in st.items():
                 arrays[f"adam/{i}/{k}"] = np.asarray(v.detach().numpy() if torch.is_tensor(v) else v)
     meta = {**meta, "step": step, "config": model.cfg.__dict__}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(tmp, meta=np.str_(json.dumps(meta)), **arrays)
-    tmp.replace(path)
+    write_npz(path, {"meta": np.str_(json.dumps(meta)), **arrays})
 
 
 def _read_npz(path: Path) -> tuple[dict, dict[str, np.ndarray]]:

@@ -59,11 +59,11 @@ class GltfCharacter:
 
 
 def _local(node: dict) -> np.ndarray:
-    from hack_render.export.reference import _local as ref_local
+    from hack_render.export.reference import node_matrix
 
     if "matrix" in node:
         return np.asarray(node["matrix"], np.float64).reshape(4, 4).T
-    return ref_local(node)
+    return node_matrix(node)
 
 
 def load_gltf_character(path: str | Path) -> GltfCharacter:

@@ -62,14 +62,14 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
     ``maps``: skin maps in the model's UV atlas (the character shares it), for both."""
     from hack_render.export import rig as R
     from hack_render.export.gltf import Animation, Pose, person_document, write_document
-    from hack_render.export.person import _frames_from
+    from hack_render.export.person import frames_from
     from hack_render.geometry.params import model_inputs
     from hack_render.motion.character import character_rig, lbs_only, pose_checks
 
     t0 = time.perf_counter()
     kw = model_inputs(model, params)
     eta = float(kw["eta"][0]) if "eta" in kw else 0.0
-    frames = _frames_from(kw, seq, model)
+    frames = frames_from(kw, seq, model)
     tau_max = float(np.abs(frames["tau"]).max())
     tau_range = max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP)
     if tau_range > 0.1:  # as the export: in-betweens cover the sequence's slides
@@ -111,7 +111,8 @@ def _orbit(folder: Path, frames: int, size: int, target: np.ndarray, extent: flo
     import imageio.v3 as iio
     from tqdm import tqdm
 
-    from hack_render.render.image_io import atomic_path, to_srgb8
+    from hack_render.io import atomic_path
+    from hack_render.io.image import to_srgb8
     from hack_render.render.video import write_gif, write_mp4
     from scenes import cameras as cams
 
@@ -284,7 +285,7 @@ def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: P
     UV atlas added where a primitive had none); written as a copy with the animation
     added, and a turntable."""
     from hack_render.export import rig as R
-    from hack_render.export.person import _frames_from
+    from hack_render.export.person import frames_from
     from hack_render.geometry.params import model_inputs
     from hack_render.geometry.skeleton import JOINT_NAMES
     from hack_render.motion import retarget as RT
@@ -292,7 +293,7 @@ def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: P
     t0 = time.perf_counter()
     kw = model_inputs(model, params or {})
     eta = float(kw["eta"][0]) if "eta" in kw else 1.0
-    fr = _frames_from(kw, seq, model)
+    fr = frames_from(kw, seq, model)
     tau_max = float(np.abs(fr["tau"]).max())
     rig = R.build_rig(model, kw.get("beta"), eta,
                       max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP))

@@ -55,7 +55,7 @@ def _any_up(d: np.ndarray) -> np.ndarray:
 
 
 def _to_rgb8(img: np.ndarray) -> np.ndarray:
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
 
     return to_srgb8(img[..., :3], operator="clip")
 

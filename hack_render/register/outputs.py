@@ -42,7 +42,7 @@ def heat_colors(err_mm: np.ndarray, vmax: float = HEAT_MAX_MM) -> np.ndarray:
 def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray
                     ) -> Path:
     """Binary PLY: positions, uchar RGB from :func:`heat_colors`, float ``quality`` (mm)."""
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     rgb = np.round(heat_colors(err_mm) * 255).astype(np.uint8)
     vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
@@ -70,7 +70,7 @@ def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.nda
                    size: int = 384) -> list[np.ndarray]:
     """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
     from hack_render.register.scan import srgb_to_linear
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.mesh_views import MeshViews
     from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
@@ -99,7 +99,7 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path
 
     tiles = heat_map_views(model_vertices, faces, err_mm)
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.9))
@@ -123,7 +123,7 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
     """Write every file of one registration into ``outdir``; ``report.json`` last."""
     from hack_render.geometry.obj_io import write_mesh
     from hack_render.geometry.params import save_params
-    from hack_render.render.image_io import atomic_path
+    from hack_render.io import atomic_path, write_json
 
     outdir.mkdir(parents=True, exist_ok=True)
     faces = model.faces.numpy()
@@ -142,15 +142,11 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
              f"p95 {err.get('p95', float('nan')):.2f} mm ({reg.report['status']})")
     written.append(write_heat_map(outdir / "error.png", _model_frame(reg), faces,
                                   reg.vertex_error, title))
-    with atomic_path(outdir / "landmarks.json") as tmp:
-        tmp.write_text(json.dumps(landmarks, indent=1))
-    written.append(outdir / "landmarks.json")
+    written.append(write_json(outdir / "landmarks.json", landmarks, indent=1))
     written += list((extra_files or {}).values())
     report = dict(reg.report)
     report["files"] = sorted(str(p.relative_to(outdir)) for p in written)
-    with atomic_path(outdir / "report.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
-    written.append(outdir / "report.json")
+    written.append(write_json(outdir / "report.json", report, indent=1))
     return written
 
 

@@ -130,7 +130,7 @@ def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str
     """EXR channel dict: R, G, B, A then the requested AOV layers."""
     import numpy as np
 
-    from hack_render.render.image_io import rgb_channels
+    from hack_render.io.image import rgb_channels
 
     ch = rgb_channels(image[..., :3])
     ch["A"] = image[..., 3]
@@ -201,7 +201,7 @@ def render(
 
     from hack_render import boundary
     from hack_render.geometry.limits import limit_policy
-    from hack_render.render.image_io import tone_map
+    from hack_render.io.image import tone_map
     from hack_render.render.scene import MAX_SPP, RenderSettings
     from scenes import cameras as cams
     from scenes import lights
@@ -268,7 +268,7 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
     ``<name>.noisy.<ext>`` with ``keep_noisy``)."""
     import json
 
-    from hack_render.render.image_io import write_exr, write_png
+    from hack_render.io.image import write_exr, write_png
 
     for cam in views_:
         head.set_camera(cam)

@@ -181,7 +181,7 @@ class HeadScene:
     # --- construction helpers ------------------------------------------------------
     @staticmethod
     def _env_image(rig: LightRig) -> np.ndarray | None:
-        from hack_render.render.image_io import read_hdr_image
+        from hack_render.io.image import read_hdr_image
 
         if rig.env_map is not None:
             return np.asarray(rig.env_map, dtype=np.float32)

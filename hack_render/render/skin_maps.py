@@ -18,7 +18,7 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
     from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
     there (:func:`read_eye_file`) gives the iris's colour and the eye whites'."""
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     folder = Path(folder)
     if not folder.is_dir():

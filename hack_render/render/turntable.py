@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import TEMP_GLOB, temp_glob
 
 FORMATS = ("mp4", "gif", "frames")
 
@@ -126,10 +127,14 @@ def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
     ``<folder>/frames`` and ``<folder>`` are removed first."""
     from hack_render.boundary import clean_temporaries
 
-    clean_temporaries(Path(folder) / "frames", ".frame_*")
-    if (Path(folder) / "noisy").is_dir():
-        clean_temporaries(Path(folder) / "noisy", ".frame_*")
-    for stem in ("turntable", "cameras", "run"):  # the video, GIF, cameras and run record
+    for kind in ("frames", "noisy"):  # hack_render.io's, and older versions' names
+        if (Path(folder) / kind).is_dir():
+            for pattern in (TEMP_GLOB, ".frame_*"):
+                clean_temporaries(Path(folder) / kind, pattern)
+    # the video, GIF, cameras and run record (the folder's other files are not ours)
+    for name in ("turntable.mp4", "turntable.gif", "cameras.json", "turntable.json"):
+        clean_temporaries(Path(folder), temp_glob(name))
+    for stem in ("turntable", "cameras", "run"):  # as older versions named them
         clean_temporaries(Path(folder), f".{stem}.*")
     return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
 

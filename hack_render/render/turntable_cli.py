@@ -92,8 +92,9 @@ def turntable(
     from hack_render import boundary
     from hack_render.geometry.params import gather_params, model_inputs
     from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.io import atomic_path
+    from hack_render.io.image import to_srgb8
     from hack_render.render import turntable as tt
-    from hack_render.render.image_io import atomic_path, to_srgb8
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
     from hack_render.render.video import write_gif, write_mp4

@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.render.image_io import atomic_path
+from hack_render.io import atomic_path
 
 
 def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24,

@@ -50,7 +50,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     if resume and old is not None and old.get("complete"):
         return None, []
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
-    from hack_render.track.pipeline import _timed
+    from hack_render.track.pipeline import timed
 
     landmarks, timings = None, {}
     if resume and lm_path.is_file():
@@ -65,7 +65,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
 
             with interrupts.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
                                        "landmarks); run the same command again"), \
-                    _timed(timings, "landmarks"):
+                    timed(timings, "landmarks"):
                 landmarks = detect_frames(clip.read(), FrameDetector(
                     refiner=cfg.landmarks.refiner), progress, clip.frames)
             landmarks.save(lm_path)  # a resumed run starts after the landmarks

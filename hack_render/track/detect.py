@@ -36,7 +36,7 @@ class FrameLandmarks:
             self.source = ["dlib" if f else "" for f in self.found]
 
     def save(self, path) -> None:
-        from hack_render.render.image_io import atomic_path
+        from hack_render.io import atomic_path
 
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, points=self.points, found=self.found, boxes=self.boxes,

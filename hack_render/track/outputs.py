@@ -3,12 +3,12 @@ landmarks, the overlay video and the report."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from hack_render.io import atomic_path, write_json
 from hack_render.track.pipeline import TrackResult, sequence_of
 
 
@@ -259,8 +259,6 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hack_render.fit.outputs import _atomic_bytes
-
     lt = result.larynx
     T = len(lt.tau)
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True,
@@ -280,7 +278,8 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
     bx.set_ylabel("confidence")
     bx.set_xlabel("frame")
     fig.tight_layout()
-    _atomic_bytes(path, lambda t: fig.savefig(t, dpi=90))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
 
@@ -290,7 +289,6 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     """Everything; the report last. Returns the paths written."""
     from hack_render.fit.outputs import write_all
     from hack_render.geometry.params import save_params, save_sequence
-    from hack_render.render.image_io import atomic_path
 
     written = []
     written += write_all(result.fit, fitter, outdir / "identity")
@@ -299,15 +297,11 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
     result.landmarks.save(outdir / "landmarks.npz")
     written.append(outdir / "landmarks.npz")
-    with atomic_path(outdir / "camera.json") as tmp:
-        tmp.write_text(json.dumps(result.camera.to_dict(), indent=1))
-    written.append(outdir / "camera.json")
+    written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
     if overlay:
         written.append(write_overlay(result, outdir / "overlay.mp4", progress))
     if result.larynx is not None:
         written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
     rep = report_dict(result, truth)
-    with atomic_path(outdir / "report.json") as tmp:
-        tmp.write_text(json.dumps(rep, indent=1))
-    written.append(outdir / "report.json")
+    written.append(write_json(outdir / "report.json", rep, indent=1))
     return written

@@ -50,7 +50,7 @@ class TrackResult:
     outline: object = None         # the outline stage's OutlineResult (None: not run)
 
 
-class _timed:
+class timed:
     """Adds ``<name>_s`` (wall) and ``<name>_cpu_s`` (this process's CPU time, all
     threads) to ``timings`` for the block."""
 
@@ -151,7 +151,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
     timings, notes = {}, list(clip.notes)
     if landmarks is None:
-        with _timed(timings, "landmarks"):
+        with timed(timings, "landmarks"):
             landmarks = detect_frames(clip.read(), FrameDetector(
                 refiner=cfg.landmarks.refiner), progress, clip.frames)
     if landmarks.found.sum() < 2:
@@ -162,7 +162,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     by_dlib = landmarks.found & np.array([src == "dlib" for src in landmarks.source])
     keys = pick_keyframes(by_dlib if by_dlib.any() else landmarks.found, keyframes,
                           landmarks.points)
-    with _timed(timings, "identity_fit"):
+    with timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     state = fitter.state
     rig = LandmarkRig.build(state.model, fit.beta.detach(), state.embedding)
@@ -182,10 +182,10 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                        (R.T @ (v0.transl.detach().double().numpy() - cam_t))[None], psi0)
     obs, found = landmarks.points, landmarks.found.copy()
     point_w = landmarks.weights[None] * landmarks.mask  # (T, 68): the mesh's jaw left out
-    with _timed(timings, "per_frame"):
+    with timed(timings, "per_frame"):
         seq = warm_started(rig, camera, obs, found, point_w, init, keys[0], tcfg,
                            progress)
-    with _timed(timings, "smoothing"):
+    with timed(timings, "smoothing"):
         params = solve_clip(rig, camera, obs, found, point_w, seq, g_ref, tcfg,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
@@ -195,7 +195,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         from hack_render.track.outline import frame_masks, refine_outline
 
         sc = cfg.silhouette
-        with _timed(timings, "outline"):
+        with timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
                                 chroma=sc.chroma)
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
@@ -208,7 +208,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     if larynx:
         from hack_render.track.larynx import track_tau
 
-        with _timed(timings, "larynx"):
+        with timed(timings, "larynx"):
             track = track_tau(clip.read, state.model, fit.beta.detach(), eta, params, camera,
                               found, clip.fps, progress=progress)
         tau = track.tau

@@ -71,11 +71,11 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
     from hack_render.fit.camera import R0, SENSOR_MM
     from hack_render.fit.landmark_embedding import load_default
     from hack_render.geometry import load_default_model
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
-    from hack_render.track.rig import _points
+    from hack_render.track.rig import landmark_points
     from scenes.cameras import Camera
     from scenes.lights import preset
 
@@ -95,7 +95,7 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
                   tau=torch.as_tensor(truth["tau"]).float())
     verts = o.vertices.numpy()
     emb = load_default(model)
-    lm = _points(o.vertices.double(), emb, model).numpy()
+    lm = landmark_points(o.vertices.double(), emb, model).numpy()
     lm2d = np.stack([cam.project(x) for x in lm])
     head = HeadScene(Topology.from_model(model), verts[0], preset("studio"), cam,
                      RenderSettings(w, h, spp, 6, seed), skin_maps(seed=seed))

@@ -128,7 +128,7 @@ class Mp4Writer:
     def __init__(self, path: str | Path, size: tuple[int, int], fps: float, quality: int = 7):
         import imageio_ffmpeg
 
-        from hack_render.render.image_io import atomic_path
+        from hack_render.io import atomic_path
 
         self.path = Path(path)
         self._ctx = atomic_path(self.path)
