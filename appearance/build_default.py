@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from appearance.builder import build_model
 from appearance.generator import generate_subject
@@ -52,7 +53,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--workdir", type=Path, default=None, help="where the population is written")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
-    from tqdm import tqdm
 
     cal = load_calibration()
     t0 = time.perf_counter()

@@ -31,7 +31,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from appearance.colour_space import delta_e2000
 from appearance.model import BLOCKS, N_CHANNELS, normals_to_slopes, save_model
 from appearance.texture_io import read_texture_set
 from appearance.uv import rasterize_layout
@@ -193,8 +195,6 @@ def subject_folders(root) -> list[Path]:
 
 def load_training_matrix(folders: list[Path], height: int, workdir: Path, progress=True):
     """Encode every subject into an on-disk (S, D) float32 matrix; returns it and the mask."""
-    from tqdm import tqdm
-
     lay = rasterize_layout(height)
     valid = np.flatnonzero(lay.mask)
     d = len(valid) * N_CHANNELS
@@ -218,8 +218,6 @@ def load_training_matrix(folders: list[Path], height: int, workdir: Path, progre
 def heldout_errors(store: GramStore, train: np.ndarray, test: np.ndarray, ks: list[int],
                    mask_valid: int) -> dict:
     """Generalisation errors of the PCA on ``train`` for the ``test`` subjects, per k."""
-    from appearance.colour_space import delta_e2000
-
     pca = pca_from_gram(store.gram, train)
     ks = [k for k in ks if k <= len(pca.eigvals)]
     kmax = max(ks)

@@ -23,8 +23,10 @@ import time
 
 import numpy as np
 from scipy.optimize import least_squares
+from tqdm import tqdm
 
 from appearance.colour_space import ita_degrees
+from appearance.generator import generate_subject, representative_albedo
 from appearance.population import (
     CALIBRATION_FILE,
     Calibration,
@@ -133,9 +135,6 @@ def _reachability(cal: Calibration) -> dict:
 
 def verify(cal: Calibration, n: int, height: int) -> dict:
     """Generate ``n`` subjects' maps and compare their forehead medians with the targets."""
-    from tqdm import tqdm
-
-    from appearance.generator import generate_subject, representative_albedo
 
     rgb = np.stack([representative_albedo(generate_subject(s, height, cal), height)
                     for s in tqdm(range(n), desc="verify (generated maps)", leave=False)])

@@ -38,8 +38,8 @@ from appearance.population import (
     load_calibration,
     subject_uniforms,
 )
-from appearance.regions import REGION_ID, REGIONS, region_labels
-from appearance.uv import UVLayout, rasterize_layout
+from appearance.regions import LANDMARK_VERTICES, REGION_ID, REGIONS, region_labels
+from appearance.uv import UVLayout, default_template, rasterize_layout
 
 # Regional multipliers of (C_m, C_h) and base (specular, roughness); specular scales the
 # F0 = 0.028 lobe (1 = full skin Fresnel), roughness is perceptual (GGX alpha = r^2).
@@ -276,9 +276,6 @@ def generate_subject(seed: int, height: int = 256, calibration: Calibration | No
         seed: non-negative subject id.
         height: atlas height H (maps are H x 2H).
     """
-    from appearance.regions import LANDMARK_VERTICES
-    from appearance.uv import default_template
-
     cal = calibration or load_calibration()
     ctx = atlas_context(int(height))
     prm = subject_params(seed, cal)

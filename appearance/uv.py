@@ -19,6 +19,8 @@ no colour bleeds between the two tiles).
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -27,6 +29,7 @@ import numpy as np
 from scipy import ndimage
 
 from hack_render.errors import HackError
+from hack_render.geometry.obj_io import ObjMesh, read_obj
 from hack_render.io.npz import write_npz
 
 #: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
@@ -51,10 +54,6 @@ def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -
         The path written. Vertices and UVs are kept in float64, exactly as parsed, so the
         atlas rasterised from the file is identical to one rasterised from the OBJ.
     """
-    import hashlib
-    import json
-
-    from hack_render.geometry.obj_io import read_obj
 
     obj_path = Path(obj_path)
     if obj_path.is_dir():
@@ -91,8 +90,6 @@ def load_template(path: str | Path = TEMPLATE_FILE):
     Raises:
         HackError: the file is missing, truncated or lacks a key.
     """
-    from hack_render.geometry.obj_io import ObjMesh
-
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:

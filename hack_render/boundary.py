@@ -30,6 +30,7 @@ Imports nothing heavy.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import json
 import math
@@ -39,7 +40,10 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from hack_render.errors import HackError
+from hack_render.io import write_json
 
 # --------------------------------------------------------------------------- numbers
 
@@ -203,8 +207,6 @@ class _UniqueKeyLoader:
     @classmethod
     def get(cls):
         if cls._cls is None:
-            import yaml
-
             class Loader(yaml.SafeLoader):
                 def compose_node(self, parent, index):
                     # aliases (*name) can nest a few lines into billions of values
@@ -250,8 +252,6 @@ def parse_json(text: str) -> Any:
 def parse_yaml(text: str) -> Any:
     """YAML (safe) with duplicate keys and aliases refused (HackError); syntax errors are
     ``yaml.YAMLError``."""
-    import yaml
-
     return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
 
 
@@ -326,8 +326,6 @@ class RunRecord:
         return old
 
     def write(self, complete: bool) -> None:
-        from hack_render.io import write_json
-
         data = {"command": self.command, "fingerprint": self.fingerprint, "args": self.args,
                 "complete": complete}
         write_json(self.path, data, indent=1, sort_keys=True, default=str)
@@ -342,8 +340,6 @@ def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
     The lock is the operating system's (``flock`` on ``<folder>/<name>``): it ends with
     the process, even on SIGKILL (a stale file is then taken over). The file is removed
     on release; a lock taken on a file that was meanwhile removed is retried."""
-    import fcntl
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / name

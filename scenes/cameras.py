@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import write_json
 
 #: Sensor width that focal lengths refer to (full-frame 35 mm).
 SENSOR_WIDTH_MM = 36.0
@@ -159,6 +160,4 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
 
 def save_cameras(path, cameras: list[Camera]) -> None:
     """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
-    from hack_render.io import write_json
-
     write_json(path, {"cameras": [c.to_dict() for c in cameras]}, indent=1)

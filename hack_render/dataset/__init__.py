@@ -7,6 +7,7 @@ Public API:
 CLI: ``hack-render dataset`` and ``hack-render dataset preview`` (cli.py); docs/datasets.md.
 """
 
+import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
@@ -24,7 +25,5 @@ _LAZY = {"DEFAULTS": "config", "check_config": "config", "load_config": "config"
 def __getattr__(name: str):
     """Public names of the submodules, imported on first use."""
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f"hack_render.dataset.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'hack_render.dataset' has no attribute {name!r}")

@@ -17,7 +17,9 @@ to them.
 from __future__ import annotations
 
 from functools import lru_cache
+from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
 from hack_render.errors import HackError
@@ -36,8 +38,6 @@ SOURCES = ("photos", "environment")
 
 
 def _data_dir():
-    from pathlib import Path
-
     try:
         import skimage
     except ImportError as err:
@@ -51,7 +51,6 @@ def _data_dir():
 def photo(name: str) -> np.ndarray:
     """(h, w, 3) float32 linear Rec.709 of a shipped photo, mean luminance 1."""
     import colour
-    import imageio.v3 as iio
 
     if name not in PHOTOS:
         raise HackError(f"background photo: expected one of {', '.join(PHOTOS)}, found "

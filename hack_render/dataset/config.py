@@ -14,7 +14,12 @@ import math
 from pathlib import Path
 from typing import Any
 
+from hack_render.boundary import parse_yaml
+from hack_render.dataset.backgrounds import check_background_config
 from hack_render.errors import HackError
+from hack_render.io.image import TONE_MAPS
+from hack_render.render.scene import INTEGRATORS, MAX_SIDE, MAX_SPP, SAMPLERS
+from scenes import lights
 
 #: Every key, with its default. Ranges are [min, max] (uniform unless said otherwise).
 DEFAULTS: dict[str, Any] = {
@@ -128,10 +133,6 @@ def _range(cfg, section, name, lo=-math.inf, hi=math.inf):
 
 def check_config(cfg: dict) -> dict:
     """Validate a full config (defaults merged); returns it with ranges as float lists."""
-    from hack_render.io.image import TONE_MAPS
-    from hack_render.render.scene import MAX_SIDE, MAX_SPP
-    from scenes import lights
-
     _number(cfg, "render", "resolution", 8, MAX_SIDE, integer=True)
     _number(cfg, "render", "spp", 1, MAX_SPP, integer=True)
     _number(cfg, "render", "max_depth", 1, 64, integer=True)
@@ -182,10 +183,8 @@ def check_config(cfg: dict) -> dict:
             raise HackError(f"config key 'lighting.presets': {err}") from err
     _range(cfg, "lighting", "rotation_deg", -3600.0, 3600.0)
     _range(cfg, "lighting", "exposure", -20.0, 20.0)
-    from hack_render.dataset.backgrounds import check_background_config
 
     check_background_config(cfg, _fail)
-    from hack_render.render.scene import INTEGRATORS, SAMPLERS
 
     if cfg["render"]["sampler"] not in SAMPLERS:
         _fail("render.sampler", f"one of {', '.join(SAMPLERS)}", cfg["render"]["sampler"])
@@ -216,7 +215,6 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         path = Path(path)
         if not path.is_file():
             raise HackError(f"--config {path}: file not found.")
-        from hack_render.boundary import parse_yaml
 
         try:
             data = parse_yaml(path.read_text()) or {}

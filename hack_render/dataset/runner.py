@@ -24,13 +24,22 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from hack_render import interrupts
+from tqdm import tqdm
+
+from appearance.uv import default_template
+from hack_render import boundary, interrupts
+from hack_render.boundary import estimate_line
+from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
+from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
-from hack_render.io import temp_glob, write_json
+from hack_render.geometry import load_default_model
+from hack_render.io import atomic_path, temp_glob, write_json
+from hack_render.render.engine import set_thread_count
 
 EXECUTORS = ("serial", "ray")
 #: The most samples one dataset folder holds (sample folders are named by a 7-digit index
@@ -88,9 +97,6 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def check_job(job: Job) -> None:
     """Everything that can be checked before rendering: N, seed, model-dependent config
     values, the output folder, an existing folder's config. Raises HackError."""
-    from hack_render import boundary
-    from hack_render.geometry import load_default_model
-
     if isinstance(job.n, bool) or not isinstance(job.n, int) or not 1 <= job.n <= MAX_SAMPLES:
         raise HackError(f"--n: expected a number of samples in 1..{MAX_SAMPLES:,}, found "
                         f"{job.n!r}. Larger datasets: several folders with different --seed.")
@@ -123,8 +129,6 @@ def check_job(job: Job) -> None:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
     if app["source"] in ("seed", "alpha"):
-        from appearance.uv import default_template
-
         default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
     for sub in ("samples", "manifest"):
@@ -146,8 +150,6 @@ def check_job(job: Job) -> None:
 
 def run_info(job: Job) -> dict:
     """What ``config.json`` records: config, seed and the label table."""
-    from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
-
     return {"format": "hack-render-dataset", "version": 1, "seed": job.seed, "config": job.cfg,
             "labels": [{"id": i, "name": n, "description": LABEL_DESCRIPTIONS[n]}
                        for i, n in enumerate(LABELS)]}
@@ -156,8 +158,6 @@ def run_info(job: Job) -> dict:
 def read_record(out: Path, index: int) -> dict | None:
     """A sample's record if the sample is complete (record and every listed file of the
     recorded size), else None."""
-    from hack_render.dataset.worker import SAMPLE_RECORD, sample_dir
-
     path = sample_dir(out, index) / SAMPLE_RECORD
     try:
         rec = json.loads(path.read_text())
@@ -189,8 +189,6 @@ def existing_samples(job: Job) -> list[int]:
 
 
 def _refuse_rerun(job: Job, existing: list[int]) -> None:
-    from hack_render.dataset.worker import sample_dir
-
     if existing and not job.resume:
         raise HackError(f"-o/--output {job.out}: expected no samples of this shard yet, found "
                         f"{len(existing)} (e.g. {sample_dir(job.out, existing[0])}). Add "
@@ -206,8 +204,6 @@ def prepare(job: Job) -> tuple[object, int]:
     Without ``resume`` the shard must have no samples in the folder yet (a re-run would
     redo complete samples and could be killed half-way through one); with it, partial
     samples are cleaned and redone, complete ones kept."""
-    from hack_render.dataset.worker import sample_dir
-
     existing = existing_samples(job)
     _refuse_rerun(job, existing)  # again, under the lock
     write_json(job.out / "config.json", run_info(job), indent=1, sort_keys=True)
@@ -229,8 +225,6 @@ def prepare(job: Job) -> tuple[object, int]:
 
 
 def _write_manifest_lines(job: Job, records: list[dict]) -> Path:
-    from hack_render.io import atomic_path
-
     with atomic_path(job.manifest_path) as tmp:
         tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))
     return job.manifest_path
@@ -264,12 +258,7 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                tally: dict | None = None) -> int:
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
     many. ``tally["complete"]`` counts the shard's complete samples as they land."""
-    import time
 
-    from tqdm import tqdm
-
-    from hack_render.boundary import estimate_line
-    from hack_render.dataset.worker import SampleRenderer
 
     if total is None:
         todo = list(todo)
@@ -321,7 +310,6 @@ def run_ray(job: Job, todo, address: str | None = None,
     except ImportError as err:
         raise HackError("--executor ray: expected Ray, found it not installed. Install the "
                         "extra: pip install 'hack-render[ray]'.") from err
-    from tqdm import tqdm
 
     todo = list(todo)
     if not todo:
@@ -359,9 +347,6 @@ class _LazyRayActor:
             @ray.remote(num_cpus=1)
             class RayRenderer:
                 def __init__(self, cfg, out, seed):
-                    from hack_render.dataset.worker import SampleRenderer
-                    from hack_render.render.engine import set_thread_count
-
                     set_thread_count(1)  # one core per actor: no oversubscription
                     self.renderer = SampleRenderer(cfg, out, seed)
 
@@ -389,7 +374,6 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         except ImportError as err:
             raise HackError("--executor ray: expected Ray, found it not installed. Install "
                             "the extra: pip install 'hack-render[ray]'.") from err
-    from hack_render import boundary
 
     check_job(job)
     total = len(job.indices())

@@ -24,14 +24,25 @@ from __future__ import annotations
 import json
 import shutil
 from collections import deque
-from concurrent.futures import Future, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
+from appearance.generator import generate_subject
+from appearance.model import AppearanceModel
 from hack_render.dataset import labels as lab
+from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
-from hack_render.io import write_json
+from hack_render.geometry import load_default_model
+from hack_render.io import atomic_path, write_json
+from hack_render.io.image import rgb_channels, to_srgb8, write_exr
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings, composite
+from scenes import cameras as cams
+from scenes import lights
 
 SAMPLE_RECORD = "sample.json"
 
@@ -42,8 +53,6 @@ def sample_dir(out: Path, index: int) -> Path:
 
 def camera_of(view: dict, width: int, name: str):
     """The OpenCV camera of a sampled view description (square images)."""
-    from scenes import cameras as cams
-
     K = cams.intrinsics(width, width, view["focal_mm"])
     d = cams.framing_distance(K, width, width, cams.DEFAULT_EXTENT) * view["distance_scale"]
     return cams.orbit(width, width, view["focal_mm"], view["yaw_deg"], view["pitch_deg"],
@@ -51,9 +60,6 @@ def camera_of(view: dict, width: int, name: str):
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:
-    import imageio.v3 as iio
-
-    from hack_render.io import atomic_path
 
     with atomic_path(path) as tmp:
         # zlib level 1: several times faster than the default, files ~10 % larger
@@ -67,9 +73,6 @@ class SampleRenderer:
     max_pending = 2
 
     def __init__(self, cfg: dict, out: str | Path, seed: int, background_writes: bool = False):
-        from hack_render.geometry import load_default_model
-        from hack_render.render.parts import Topology
-
         self.cfg, self.out, self.seed = cfg, Path(out), int(seed)
         self.model = load_default_model()
         self.topology = Topology.from_model(self.model)
@@ -90,19 +93,13 @@ class SampleRenderer:
         return sample_spec(self.cfg, self.seed, index, self.model.au_names)
 
     def skin_maps(self, appearance: dict):
-        from hack_render.render.materials import SkinMaps
-
         h = self.cfg["appearance"]["height"]
         if appearance["source"] == "seed":
-            from appearance.generator import generate_subject
-
             return SkinMaps.from_appearance(generate_subject(appearance["subject"], height=h))
         if appearance["source"] == "alpha":
             import torch
 
             if self._appearance_model is None:
-                from appearance.model import AppearanceModel
-
                 self._appearance_model = AppearanceModel.load()
             a = torch.tensor([appearance["alpha"]], dtype=torch.float32)
             with torch.no_grad():
@@ -110,8 +107,6 @@ class SampleRenderer:
         return self._flat_maps()
 
     def _flat_maps(self):
-        from hack_render.render.materials import SkinMaps
-
         c = SkinMaps.constant(self.cfg["appearance"]["height"])
         flat = np.zeros(c.diffuse.shape, np.float32)
         flat[..., 2] = 1.0
@@ -139,9 +134,6 @@ class SampleRenderer:
                 self.scenes[preset] = self._build_scene(preset)
 
     def _build_scene(self, preset: str):
-        from hack_render.render.scene import HeadScene, RenderSettings
-        from scenes import lights
-
         r = self.cfg["render"]
         settings = RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
                                   pixel_filter="box", sampler=r["sampler"],
@@ -199,10 +191,6 @@ class SampleRenderer:
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
-        from hack_render.dataset.backgrounds import background_image
-        from hack_render.io.image import rgb_channels, write_exr
-        from hack_render.render.scene import composite
-
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"
         vdir.mkdir()
@@ -260,8 +248,6 @@ class SampleRenderer:
 
 
 def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
-    from hack_render.io.image import to_srgb8
-
     _write_png(path, to_srgb8(linear, 0.0, tonemap))
 
 
@@ -283,8 +269,6 @@ class FileWriter:
     write's exception is raised by its future."""
 
     def __init__(self, background: bool = False):
-        from concurrent.futures import ThreadPoolExecutor
-
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-writer") \
             if background else None
         self._records: deque[Future] = deque()

@@ -30,10 +30,15 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
+from appearance.colour_space import srgb_encode
 from hack_render.errors import HackError
+from hack_render.export.rig import pose_split
 from hack_render.io import atomic_path
+from hack_render.render.materials import EYELASH_OPACITY, iris_vertex_colors, material_base_colours
+from hack_render.render.parts import Topology, split_parts, vertex_normals
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -141,9 +146,6 @@ class Animation:
 
 def png_bytes(img: np.ndarray, srgb: bool) -> bytes:
     """An 8-bit PNG of a [0, 1] float image (H, W[, C]), sRGB-encoded if ``srgb``."""
-    import imageio.v3 as iio
-
-    from appearance.colour_space import srgb_encode
 
     img = np.clip(np.asarray(img, np.float64), 0.0, 1.0)
     if srgb:
@@ -186,8 +188,6 @@ def part_material(g: GltfBuilder, part: str, rgb) -> int:
     if part in ("lacrimal", "eyelashes"):  # thin shells and cards, seen from both sides
         mat["doubleSided"] = True
     if part == "eyelashes":
-        from hack_render.render.materials import EYELASH_OPACITY
-
         mat["pbrMetallicRoughness"]["baseColorFactor"][3] = EYELASH_OPACITY
         mat["alphaMode"] = "BLEND"
     return g._add("materials", mat)
@@ -221,10 +221,6 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         maps: skin maps (``render.materials.SkinMaps``) or None (a plain skin colour).
         animation: the clip, or None.
     """
-    from hack_render.export.rig import pose_split
-    from hack_render.render.materials import iris_vertex_colors, material_base_colours
-    from hack_render.render.parts import Topology, split_parts, vertex_normals
-
     g = GltfBuilder()
     parts, axes = split_parts(Topology.from_model(model), rig.base)
     normals = vertex_normals(rig.base, model.faces.numpy())

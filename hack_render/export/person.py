@@ -12,6 +12,7 @@ import numpy as np
 from hack_render.errors import HackError
 from hack_render.export import rig as R
 from hack_render.export.gltf import Animation, Pose, person_document, write_document
+from hack_render.geometry.params import model_inputs
 
 
 def _pose_arrays(rig, theta, psi, global_orient, transl, tau):
@@ -51,8 +52,6 @@ def export_person(model, params: dict, output: str | Path, sequence=None, maps=N
         maps: skin maps or None.
         influences: skin weights per vertex, 4 or 8.
     """
-    from hack_render.geometry.params import model_inputs
-
     t0 = time.perf_counter()
     kw = model_inputs(model, params)
     frames = frames_from(kw, sequence, model)

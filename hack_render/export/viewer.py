@@ -12,10 +12,14 @@ from __future__ import annotations
 import json
 import signal
 import threading
+import time
+import webbrowser
 from functools import partial
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
+
+import typer
 
 from hack_render.errors import HackError
 
@@ -101,16 +105,11 @@ def start(model: str | Path, port: int = 0) -> tuple[ThreadingHTTPServer, str]:
 
 def serve(model: str | Path, port: int = 8023, open_browser: bool = True) -> None:
     """Serve until interrupted (Ctrl-C), printing the URL; open it in a browser if asked."""
-    import time
-
-    import typer
 
     server, url = start(model, port)
     typer.echo(f"serving {Path(model).name} at {url} (127.0.0.1 only; Ctrl-C to stop)",
                err=False)
     if open_browser:
-        import webbrowser
-
         webbrowser.open(url)
     try:
         while True:

@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import List, Optional
 
+import numpy as np
 import typer
 
-from hack_render import interrupts
+from hack_render import boundary, interrupts
+from hack_render.cli_options import renamed
 from hack_render.errors import HackError
+from hack_render.fit.config import DETECTORS, FitConfig, load_config
+from hack_render.fit.fitter import Fitter
+from hack_render.fit.landmarks import detect, read_landmark_file
+from hack_render.fit.outputs import write_all
+from hack_render.fit.photo import load_photo
+from hack_render.fit.silhouette import load_mask
 
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
@@ -19,8 +28,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     (None, []) when ``resume`` and ``outdir`` already holds a complete fit of these inputs
     (``fit_run.json``; other inputs there are refused).
     ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
-    from hack_render.fit.config import FitConfig
-
     cfg = config or FitConfig()
     if landmarks and len(landmarks) != len(photos):
         raise HackError(f"--landmarks: expected one file per photo ({len(photos)}), found "
@@ -28,7 +35,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     if masks and len(masks) != len(photos):
         raise HackError(f"--mask: expected one mask per photo ({len(photos)}), found "
                         f"{len(masks)}.")
-    from hack_render import boundary
 
     boundary.number(focal_mm, "--focal-mm", 5.0, 2000.0, unit=" mm (35 mm-equivalent)")
     for p in photos:
@@ -49,7 +55,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     with interrupts.on_interrupt(f"nothing was written to {outdir} (interrupted while "
                                "fitting); run the same command again"):
         result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
-    from hack_render.fit.outputs import write_all
 
     # the files are written under the folder's lock, after a record that says the folder
     # holds no complete fit (what an earlier fit left there is being replaced)
@@ -87,8 +92,6 @@ def far_from_landmarks(report: dict, limit: float = FAR_FROM_LANDMARKS) -> list[
 def _refuse_duplicate_keys(config: Path) -> None:
     """A JSON/YAML config with a key twice is refused (the parsers keep the last one);
     TOML refuses them itself. Other problems are left to ``load_config``'s messages."""
-    from hack_render import boundary
-
     suffix = config.suffix.lower()
     if suffix not in (".json", ".yaml", ".yml") or not config.is_file():
         return
@@ -107,9 +110,6 @@ def _refuse_duplicate_keys(config: Path) -> None:
 def check_landmark_file(path: Path) -> None:
     """A landmark file holds 68 rows of exactly two finite numbers (x, y pixels); checked
     before the photos are read (a 3-column file is not 2-D points, an empty one no file)."""
-    import numpy as np
-
-    from hack_render import boundary
 
     boundary.input_file(path, "--landmarks", (".pts", ".txt", ".csv", ".json", ".npy"),
                         "landmark file")
@@ -145,9 +145,6 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     """Read, detect and fit (nothing written); returns (result, fitter)."""
     import torch
 
-    from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect, read_landmark_file
-    from hack_render.fit.photo import load_photo
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
@@ -167,8 +164,6 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     t_detect = time.perf_counter() - t0
     person = None
     if masks:
-        from hack_render.fit.silhouette import load_mask
-
         person = [load_mask(p, (ph.height, ph.width),
                             (round(ph.height / ph.scale), round(ph.width / ph.scale)))
                   for p, ph in zip(masks, imgs)]
@@ -238,16 +233,12 @@ def fit(
 
     Example: hack-render fit face.jpg -o out/fit && hack-render render --params out/fit/params.json
     """
-    from hack_render.cli_options import renamed
-    from hack_render.fit.config import DETECTORS, load_config
-
     # `--resolution` means an image size (W or WxH) in every other command; `--lighting` a
     # lighting preset: their old meanings here live on as hidden, deprecated spellings
     resolution = renamed(levels, levels_old, "fit --resolution", "--levels")
     lighting = renamed(light_model, lighting_old, "fit --lighting", "--light-model")
     over: dict = {"photometric": {}, "texel": {}}
 
-    from hack_render import boundary
 
     if resolution is not None:
         over["photometric"]["resolutions"] = boundary.numbers(
@@ -292,7 +283,6 @@ def fit(
         typer.echo(f"{output} already holds a complete fit of these inputs (--resume): "
                    "nothing to do")
         return
-    import json
 
     rep = output / "fit_report.json"
     far = far_from_landmarks(json.loads(rep.read_text())) if rep.is_file() else []

@@ -19,12 +19,14 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from hack_render.errors import HackError
 
@@ -594,12 +596,8 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         text = path.read_text()
         try:
             if path.suffix.lower() == ".toml":
-                import tomllib
-
                 data = tomllib.loads(text)
             elif path.suffix.lower() in (".yaml", ".yml"):
-                import yaml
-
                 data = yaml.safe_load(text) or {}
             else:
                 data = json.loads(text)

@@ -44,11 +44,16 @@ from hack_render.errors import HackError
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
+from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
 from hack_render.fit.landmarks import JawContour, landmark_weights
 from hack_render.fit.photo import Photo
+from hack_render.fit.silhouette import ModelSilhouette, PhotoSilhouette, segment_plain_background
 from hack_render.fit.stages import StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
+from hack_render.geometry import load_default_model
 from hack_render.vision.detection import Detection
+from hack_render.vision import segment as vision_segment
+from appearance.model import AppearanceModel
 
 __all__ = ["R0", "SENSOR_MM", "FitResult", "FitState", "Fitter", "Level", "View",
            "init_state"]
@@ -83,8 +88,6 @@ def init_state(photos: list[Photo], detections: list[Detection], config: FitConf
     """The state a fit starts from: zero identity and expression, the mean larynx, each
     view's camera placed from its landmarks' size and centre at the prior focal length,
     and its person mask (given, or segmented from a plain background)."""
-    from hack_render.geometry import load_default_model
-
     if len(photos) != len(detections) or not photos:
         raise HackError("fit: expected one detection per photo and at least one photo.")
     if masks is not None and len(masks) != len(photos):
@@ -108,8 +111,6 @@ def init_state(photos: list[Photo], detections: list[Detection], config: FitConf
         lmk_w = lmk_w * torch.tensor(config.landmarks.point_weights, dtype=torch.float32)
     silhouette = None
     if config.silhouette.mode != "off":
-        from hack_render.fit.silhouette import ModelSilhouette
-
         silhouette = ModelSilhouette(m, scalp=config.silhouette.scalp,
                                      border_depth=config.silhouette.border_depth)
     state = FitState(m, appearance, beta, psi, eta, tau, alpha, const_albedo,
@@ -152,8 +153,6 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
 
 def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     """The view's person mask: the given one, else a plain background's (or none)."""
-    from hack_render.fit.silhouette import PhotoSilhouette, segment_plain_background
-
     if state.silhouette is None:
         view.silhouette_note = "off (config silhouette.mode)"
         return
@@ -203,9 +202,7 @@ def shows_shoulders(mask: np.ndarray, points: np.ndarray) -> bool:
 def _segment(view: View):
     """(Segmentation, None) of the view's photo by the vision package, or (None, why)."""
     try:
-        from hack_render.vision.segment import segment
-
-        return segment(view.photo.uint8(), name=view.photo.name), None
+        return vision_segment.segment(view.photo.uint8(), name=view.photo.name), None
     except (ImportError, OSError, HackError) as err:
         return None, str(err)
 
@@ -298,8 +295,6 @@ def _landmark_embedding(name: str, model):
     """The landmark embedding of ``landmarks.embedding`` ("dlib", "vertices" or a path), or
     None for the model's vertices. The shipped "dlib" file falls back to the vertices with
     a warning when it is missing or does not fit the model; a named file must load."""
-    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
-
     if name == "vertices":
         return None
     if name == "dlib":
@@ -310,8 +305,6 @@ def _landmark_embedding(name: str, model):
 def _load_appearance():
     """The appearance PCA model, or None (constant albedo) when it is unavailable."""
     try:
-        from appearance.model import AppearanceModel
-
         return AppearanceModel.load()
     except (ImportError, OSError, HackError):
         return None

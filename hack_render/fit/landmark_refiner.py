@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.io.npz import write_npz
 from hack_render.fit.metrics import similarity_transform
+from hack_render.io.npz import write_npz
 
 DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_refiner_dlib.npz"
 #: The points the refiner moves: the chin and the 51 inner points (dlib's 9, 18-68).

@@ -5,14 +5,30 @@ report. Every file is written under a temporary name and renamed."""
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image
+from tqdm import tqdm
 
-from hack_render.fit.fitter import R0, FitResult
+from appearance.texture_io import write_exr, write_png
+from hack_render.boundary import clean_temporaries as clean
+from hack_render.fit import iris, texture
+from hack_render.fit.fitter import R0, SENSOR_MM, FitResult
+from hack_render.fit.landmark_refiner import load_refiner
+from hack_render.fit.photometric import level_maps, render_view, setup_level
+from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.terms import fitted_points, landmark_residual_iod
+from hack_render.fit.virtual_view import on_photo, warp_photo
+from hack_render.geometry.obj_io import ObjMaterials, write_mesh
+from hack_render.geometry.params import save_params
+from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import TEMP_GLOB, atomic_path, write_json
+from hack_render.io.image import straight_colour, to_srgb8
+from hack_render.render.materials import material_base_colours
+from hack_render.render.skin_maps import IRIS_FILE
 
 #: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
 #: the names older versions gave them (one pattern per output).
@@ -22,8 +38,6 @@ TEMPORARIES = (TEMP_GLOB, ".params*", ".cameras.*", ".fit_report.*", ".timings.*
 
 def clean_temporaries(outdir: Path) -> None:
     """Remove what a killed fit left half-written in ``outdir`` (its own names only)."""
-    from hack_render.boundary import clean_temporaries as clean
-
     for pattern in TEMPORARIES:
         clean(outdir, pattern)
     clean(outdir / "textures", ".*")
@@ -31,8 +45,6 @@ def clean_temporaries(outdir: Path) -> None:
 
 def view_params(res: FitResult, i: int) -> dict:
     """Parameter mapping of view ``i`` in the format of `hack-render render --params`."""
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     v = res.views[i]
     with torch.no_grad():
         theta = distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta
@@ -79,7 +91,6 @@ def _refiner_provenance(res) -> str | None:
     """The landmark refiner's provenance when a view's points were refined."""
     if not any(v.detection.refined for v in res.views):
         return None
-    from hack_render.fit.landmark_refiner import load_refiner
 
     ref = load_refiner(res.config.landmarks.refiner)
     return None if ref is None else ref.meta.get("provenance")
@@ -105,8 +116,6 @@ def _pose_entry(fitter, v) -> dict:
 def _focal_entry(fitter, v) -> dict:
     """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
     prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
-    from hack_render.fit.fitter import SENSOR_MM
-
     mm = SENSOR_MM / max(v.photo.width, v.photo.height)
     f0, sigma, source = fitter.focal_prior_px(v.photo)
     return {"fitted_mm": float(v.focal.detach()) * mm, "prior_mm": f0 * mm,
@@ -115,10 +124,6 @@ def _focal_entry(fitter, v) -> dict:
 
 def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
     """Write everything; returns the paths written."""
-    from hack_render.geometry.obj_io import ObjMaterials, write_mesh
-    from hack_render.geometry.params import save_params
-    from hack_render.render.materials import material_base_colours
-
     outdir.mkdir(parents=True, exist_ok=True)
     clean_temporaries(outdir)
     written = []
@@ -225,11 +230,7 @@ class FinalRenders:
     (``render.png``), and what it cost."""
 
     def __init__(self, fitter):
-        import time
 
-        from tqdm import tqdm
-
-        from hack_render.fit import iris, texture
 
         st, cfg = fitter.state, fitter.cfg
         specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
@@ -248,7 +249,6 @@ class FinalRenders:
         self.specular = {"source": "the fitted map (final.specular off)"}
         self.specular_confidence = None
         if specular:  # the highlights' gain (fit/specular_bake.py): a render without specular
-            from hack_render.fit.specular_bake import bake_specular
 
             m0 = texture._skin_maps(st)
             m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
@@ -311,10 +311,8 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
     skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
     gets grey renders (their luminance): it says nothing of the skin's colour."""
-    from PIL import Image
     from skimage.transform import resize
 
-    from hack_render.io.image import straight_colour, to_srgb8
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -344,8 +342,6 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
     """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise).
     With ``final``: the baked diffuse map at ``final.atlas_height`` (the other maps
     resampled to its size), its ``confidence`` and the model's own ``diffuse_model``."""
-    from appearance.texture_io import write_exr, write_png
-
     folder.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         maps = {k: (x.detach().numpy() if x is not None else None)
@@ -374,7 +370,6 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
                   srgb=name.startswith("diffuse"))
         out.append(folder / f"{name}.png")
     if final is not None and final.maps.iris_rgb is not None:  # read by --textures
-        from hack_render.render.skin_maps import IRIS_FILE
 
         doc = {**final.iris, "iris_rgb": list(final.maps.iris_rgb),
                "sclera_rgb": None if final.maps.sclera_rgb is None
@@ -388,8 +383,6 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
 def _final_render(fitter, v, passes: int = 16):
     """A render of the view at its last level with the fitted maps: ``passes`` renders
     of the level's spp (4 by default) with their own seeds, averaged (64 spp)."""
-    from hack_render.fit.photometric import level_maps, render_view
-
     with torch.no_grad():
         maps, verts = level_maps(fitter.state, v), fitter.forward(v).vertices[0]
         img = sum(render_view(v, maps, verts, 12345 + k).numpy() for k in range(passes))
@@ -400,8 +393,6 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     """View ``i``'s ``render.png`` (the final render: baked skin, denoised or at the final
     spp; premultiplied linear RGBA at the photo's size or below) resampled into the
     view's last level, as that level's own renders are."""
-    from hack_render.fit.virtual_view import warp_photo
-
     rgba = final.renders[i].rgba
     lv = v.level
     s = rgba.shape[1] / v.photo.width            # render pixels per photo pixel
@@ -424,9 +415,6 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hack_render.fit.photometric import setup_level
-    from hack_render.fit.virtual_view import on_photo
-    from hack_render.io.image import to_srgb8
 
     out = []
     for i, v in enumerate(fitter.views):

@@ -14,7 +14,9 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
 
 from hack_render.errors import HackError
 
@@ -110,8 +112,6 @@ def load_photo(path: str | Path, max_side: int = MAX_SIDE_PX,
     Raises:
         HackError: the file is missing, unreadable, truncated or has no pixels.
     """
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
     path = Path(path)
     if not path.is_file():
         raise HackError(f"photo {path}: file not found.")
@@ -191,8 +191,6 @@ def exif_focal_35mm(exif) -> float | None:
 def _maybe_16bit_rgb(path: Path) -> np.ndarray | None:
     """Pillow reads 16-bit RGB PNGs as 8 bits; imageio keeps the 16 bits (None otherwise)."""
     try:
-        import imageio.v3 as iio
-
         a = iio.imread(path)
     except Exception:  # noqa: BLE001 - Pillow already read it; this is a refinement
         return None

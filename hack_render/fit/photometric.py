@@ -21,12 +21,17 @@ import torch
 
 from hack_render.fit import terms
 from hack_render.fit.config import FitConfig
-from hack_render.fit.lighting import Lighting
+from hack_render.fit.lighting import Lighting, candidate_directions
 from hack_render.fit.robust import charbonnier
 from hack_render.fit.stages import StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
 from hack_render.fit.virtual_view import face_mask, virtual_camera, warp_photo
 from hack_render.geometry.larynx import larynx_limit_penalty
+from hack_render.render.bridge import DiffRenderer
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes.lights import LightRig
 
 #: Rec.709 luminance of linear RGB (a grey photo's term compares luminance only)
 LUMA = torch.tensor([0.2126, 0.7152, 0.0722])
@@ -85,12 +90,6 @@ def setup_level(state: FitState, cfg: FitConfig, view: View, res: int,
                 full_maps: bool = False) -> Level:
     """Build the view's scene, renderer, target and masks for one resolution
     (``full_maps``: the appearance model's own atlas size, e.g. for per-texel work)."""
-    from hack_render.render.bridge import DiffRenderer
-    from hack_render.render.materials import SkinMaps
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from scenes.lights import LightRig
-
     pc = cfg.photometric
     cam, H, scale = virtual_camera(view, res)
     target = warp_photo(view.photo.linear(), H, res, scale)
@@ -181,7 +180,6 @@ def init_lobes(state: FitState, cfg: FitConfig, view: View,
     """
     from scipy.optimize import nnls
 
-    from hack_render.fit.lighting import candidate_directions
 
     L = view.lighting
     m = view.level.mask.numpy()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import imageio.v3 as iio
 import numpy as np
 import torch
 
@@ -263,8 +264,6 @@ def load_mask(path, shape: tuple[int, int], original: tuple[int, int] | None = N
     """A user's person mask (PNG/JPEG/..., nonzero = person: head, hair, neck, clothes)
     as (h, w) bool at the working ``shape`` of its photo. The file has the photo's
     working size or its ``original`` size (a downscaled photo: the mask follows it)."""
-    import imageio.v3 as iio
-
     try:
         m = np.asarray(iio.imread(path))
     except Exception as err:  # every reader error becomes one message

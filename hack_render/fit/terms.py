@@ -17,6 +17,7 @@ from hack_render.fit.config import FitConfig
 from hack_render.fit.robust import huber
 from hack_render.fit.state import FitState, View
 from hack_render.geometry.skeleton import adjacent_similarity_penalty, rotation_limit_penalty
+from hack_render.render.bridge import vertex_normals_torch
 
 #: dlib's jawline points are re-matched to the occluding contour every this many iterations
 JAW_REMATCH_EVERY = 10
@@ -51,8 +52,6 @@ W_NECK = 0.5
 
 
 def _normals(state: FitState, verts: torch.Tensor) -> np.ndarray:
-    from hack_render.render.bridge import vertex_normals_torch
-
     return vertex_normals_torch(verts, state.faces).numpy()
 
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import copy
+import importlib
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hack_render.errors import HackError
+from hack_render.geometry.model import HackModel
 
 if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
     from hack_render.geometry.model import HackModel, HackOutput, PersonalizedHack
@@ -30,8 +33,6 @@ def __getattr__(name: str):
     """The public names of model.py and skeleton.py, imported on first use (they import
     torch, which takes seconds; the CLI imports this package for every `--help`)."""
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(f"hack_render.geometry.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'hack_render.geometry' has no attribute {name!r}")
 
@@ -68,8 +69,6 @@ def default_model_path() -> Path:
 def _load_cached(path: str, stamp: tuple[int, int]) -> HackModel:
     """The model file at ``path`` as loaded once per (modification time, size) ``stamp``:
     the prototype that :func:`load_model` hands out independent copies of."""
-    from hack_render.geometry.model import HackModel
-
     return HackModel.from_file(path)
 
 
@@ -78,8 +77,6 @@ def _independent_copy(model: HackModel) -> HackModel:
     the prototype's tensors: no memory is copied, and ``.double()`` / ``.to()`` / attribute
     changes on one copy replace that copy's tensors only. Treat the buffers as read-only:
     an in-place change (``model.template.add_(...)``) would show in every copy."""
-    import copy
-
     return copy.deepcopy(model, {id(t): t for t in model.buffers()})
 
 

@@ -36,6 +36,7 @@ from hack_render.geometry.anatomy import (
     larynx_outside_limits,
     outside_limits,
 )
+from hack_render.geometry.skeleton import clamp_to_limits
 
 POLICIES = ("warn", "clamp", "error")
 
@@ -140,7 +141,6 @@ def _clamp_theta(theta):
     if isinstance(theta, np.ndarray):
         return clamp_theta(theta).astype(theta.dtype)
     # skeleton imports torch, which posing with NumPy alone (posing.py) must not import
-    from hack_render.geometry.skeleton import clamp_to_limits
 
     return clamp_to_limits(theta)
 

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import yaml
 
 from hack_render import boundary
 from hack_render.errors import HackError
@@ -256,8 +257,6 @@ def save_params(path: str | Path, params: dict[str, Any]) -> Path:
     path = Path(path)
     params = check_params(params, str(path))
     if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
-
         return atomic_write_text(path, yaml.safe_dump(params, sort_keys=False))
     return write_json(path, params, indent=2)
 

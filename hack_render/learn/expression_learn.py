@@ -18,10 +18,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 from hack_render.learn.mesh_ops import ring
 from hack_render.learn.pca import compactness, generalisation
-from hack_render.learn.personal import PersonalSpace, learn_personal_space, mlp_forward, personal_arrays
+from hack_render.learn.personal import (
+    PersonalSpace,
+    learn_personal_space,
+    mlp_forward,
+    personal_arrays,
+)
+from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
 SKIN_LAST = 11247
 

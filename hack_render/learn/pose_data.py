@@ -25,14 +25,13 @@ import math
 
 import numpy as np
 import torch
-
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
 from hack_render.errors import HackError
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
-from hack_render.geometry.rotations import matrix_to_quaternion, quat_mul
-from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.geometry.rotations import euler_to_axis_angle, matrix_to_quaternion, quat_mul
+from hack_render.geometry.skeleton import JOINT_NAMES, distribute_head_rotation, rotation_limits
 
 #: (name, whole-head Euler target in degrees (flexion, axial, lateral), frames), after Sec. 4.2.
 ACTIONS = (
@@ -78,9 +77,6 @@ def single_joint_sweeps(frames: int = 8) -> list[tuple[str, torch.Tensor]]:
     """Per joint, axis and side, theta (F, 8, 3) easing that one angle to its anatomical
     limit and back: the range of motion of each segment alone, which the whole-head actions
     never reach (they share a rotation over all joints)."""
-    from hack_render.geometry.rotations import euler_to_axis_angle
-    from hack_render.geometry.skeleton import JOINT_NAMES, rotation_limits
-
     lim = rotation_limits(torch.float64)
     s = torch.tensor([math.sin(math.pi * i / (frames - 1)) ** 2 for i in range(frames)], dtype=torch.float64)
     out = []

@@ -25,7 +25,22 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.export import rig as R
+from hack_render.export.gltf import (
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    UBYTE,
+    UINT,
+    GltfBuilder,
+    write_document,
+)
+from hack_render.export.rig import frame_weights, top_weights
+from hack_render.geometry.deformation import SkinTopology, deformation_stats, skin_topology
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
 from hack_render.io.npz import write_npz
+from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
+from hack_render.motion.surface_transfer import skin_faces
 
 FORMAT = "hack-character"
 
@@ -154,14 +169,6 @@ class CharacterRig:
              ) -> tuple[np.ndarray, np.ndarray]:
         """Posed vertices (T, N, 3) and node rotations (T, 9, 3, 3) for T frames
         (theta (T, 8, 3) required; psi (T, E), tau (T,), global_orient, transl (T, 3))."""
-        from hack_render.export.rig import frame_weights
-        from hack_render.geometry.lbs import (
-            chain_parents,
-            local_rotations,
-            rigid_transforms,
-            skin,
-        )
-
         theta = np.asarray(theta, np.float64)
         t = len(theta)
         r = self.rig
@@ -187,7 +194,6 @@ def _transfer_targets(model, src_base: np.ndarray, dst_base: np.ndarray,
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-    from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
     faces = model.faces.numpy()
     n = len(dst_base)
@@ -217,8 +223,6 @@ def character_rig(model, character: Character, beta=None, eta: float = 1.0,
                   influences: int = 4, tau_range: float | None = None) -> CharacterRig:
     """The person (``beta``, ``eta``) rigged for export, then moved onto ``character``:
     targets by deformation transfer, the skeleton at the character's joints, its weights."""
-    from hack_render.export import rig as R
-
     tau_range = R.TAU_RANGE if tau_range is None else tau_range
     human = R.build_rig(model, beta, eta, tau_range, R.TAU_STEP, influences)
     targets = np.zeros_like(human.targets)
@@ -248,8 +252,6 @@ def pose_checks(crig: CharacterRig, model, theta: np.ndarray, psi=None) -> dict:
     """The pose-space stress test's measures (``geometry.deformation``) on a character:
     per pose, the largest skin-edge stretch and compression and the folded skin triangles,
     against the character at zero pose with the same expression. theta (P, 8, 3)."""
-    from hack_render.geometry.deformation import SkinTopology, deformation_stats, skin_topology
-
     topo = skin_topology(model)
     topo = SkinTopology(topo.faces, topo.edges,
                         torch.as_tensor(crig.weights)[topo.faces].mean(1))
@@ -283,18 +285,6 @@ def long_neck_gltf(model, path: str | Path, character: Character | None = None,
     o-c1) and 4 skin weights per vertex summed from HACK's onto them (:data:`GLTF_BONES`);
     ``_HACK_VERTEX`` holds each vertex's template index (as the export's), for tests.
     A test target for the glTF path; labelled procedural in ``asset.extras``."""
-    from hack_render.export.gltf import (
-        ARRAY_BUFFER,
-        ELEMENT_ARRAY_BUFFER,
-        FLOAT,
-        UBYTE,
-        UINT,
-        GltfBuilder,
-        write_document,
-    )
-    from hack_render.export.rig import top_weights
-    from hack_render.motion.surface_transfer import skin_faces
-
     ch = long_neck_character(model) if character is None else character
     faces, _ = skin_faces(model)
     used = np.unique(faces)

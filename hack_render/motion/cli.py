@@ -11,8 +11,13 @@ from pathlib import Path
 
 import typer
 
+from hack_render import boundary as B
 from hack_render import cli_options as opts
 from hack_render.errors import HackError
+from hack_render.geometry import load_model
+from hack_render.geometry.params import gather_params, parse_floats
+from hack_render.motion.transfer import run_transfer, target_kind
+from hack_render.render.skin_maps import skin_maps
 
 
 def transfer(
@@ -49,11 +54,6 @@ def transfer(
 
     Example: hack-render transfer --motion anim.npz --target procedural:long-neck -o out/giraffe
     """
-    from hack_render import boundary as B
-    from hack_render.geometry import load_model
-    from hack_render.geometry.params import gather_params
-    from hack_render.motion.transfer import run_transfer, target_kind
-
     B.input_file(motion, "--motion", (".npz", ".jsonl", ".ndjson"), "parameter sequence")
     kind = target_kind(target)
     if kind != "procedural":
@@ -79,8 +79,6 @@ def transfer(
     model = load_model(model_path)
     tt = ({"frames": frames, "resolution": resolution, "spp": spp, "variant": variant}
           if turntable else None)
-    from hack_render.geometry.params import parse_floats
-    from hack_render.render.skin_maps import skin_maps
 
     a = parse_floats(alpha, "alpha")  # the skin maps in the model's atlas (default: A(0))
     maps = skin_maps([0.0] if a is None and appearance_seed is None and textures is None

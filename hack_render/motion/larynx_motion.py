@@ -24,12 +24,13 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
+from tqdm import tqdm
 
 from hack_render.errors import HackError
 from hack_render.io.npz import write_npz
@@ -217,8 +218,6 @@ def train(pairs, cfg: LarynxConfig, output: str | Path, resume: bool = False,
     end; with ``resume``, training continues from it (weights, Adam's moments, the batch
     generator, step) as if never stopped. ``stop_after`` ends the run early at that step
     (checkpointed), as an interruption would."""
-    from tqdm import tqdm
-
     output = Path(output)
     psis, taus = _check_pairs(pairs, "training sequence")
     if psis[0].shape[1] != cfg.num_expressions:
@@ -281,8 +280,6 @@ def predict(model: LarynxTransformer, psi: np.ndarray) -> np.ndarray:
 def fill_tau(model: LarynxTransformer, seq):
     """A parameter sequence (``geometry.params.ParamSequence``) with its tau predicted from
     its psi (an expression-only sequence, e.g. from an ARKit capture, gains a larynx)."""
-    from dataclasses import replace
-
     if seq.psi is None:
         raise HackError("sequence: key 'psi' is missing; the larynx is predicted from the "
                         "per-frame expressions.")

@@ -24,7 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
+from hack_render.geometry.obj_io import write_mesh
+from hack_render.geometry.params import save_params
+from hack_render.io import atomic_path, write_json
+from hack_render.io.image import to_srgb8
 from hack_render.register.pipeline import Registration
+from hack_render.register.scan import srgb_to_linear
+from hack_render.render.mesh_views import MeshViews
+from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 HEAT_MAX_MM = 3.0
 
@@ -42,8 +49,6 @@ def heat_colors(err_mm: np.ndarray, vmax: float = HEAT_MAX_MM) -> np.ndarray:
 def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray
                     ) -> Path:
     """Binary PLY: positions, uchar RGB from :func:`heat_colors`, float ``quality`` (mm)."""
-    from hack_render.io import atomic_path
-
     rgb = np.round(heat_colors(err_mm) * 255).astype(np.uint8)
     vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
                     ("blue", "u1"), ("quality", "<f4")])
@@ -69,11 +74,6 @@ def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm:
 def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
                    size: int = 384) -> list[np.ndarray]:
     """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
-    from hack_render.register.scan import srgb_to_linear
-    from hack_render.io.image import to_srgb8
-    from hack_render.render.mesh_views import MeshViews
-    from scenes.cameras import Camera, framing_distance, intrinsics, look_at
-
     v = np.asarray(model_vertices, np.float64)
     centre = 0.5 * (v.min(0) + v.max(0))
     views = MeshViews(v, faces, srgb_to_linear(heat_colors(err_mm)), size, size)
@@ -99,7 +99,6 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
-    from hack_render.io import atomic_path
 
     tiles = heat_map_views(model_vertices, faces, err_mm)
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.9))
@@ -121,10 +120,6 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
 def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
                        extra_files: dict | None = None) -> list[Path]:
     """Write every file of one registration into ``outdir``; ``report.json`` last."""
-    from hack_render.geometry.obj_io import write_mesh
-    from hack_render.geometry.params import save_params
-    from hack_render.io import atomic_path, write_json
-
     outdir.mkdir(parents=True, exist_ok=True)
     faces = model.faces.numpy()
     uvs, uv_faces = model.uvs.numpy(), model.uv_faces.numpy()

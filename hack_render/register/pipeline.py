@@ -8,7 +8,7 @@ measured errors); :mod:`hack_render.register.outputs` writes it.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -18,6 +18,7 @@ from hack_render.register.align import INNER, umeyama
 from hack_render.register.fitting import (
     RegisterConfig,
     RegisterState,
+    faces_within,
     initial_state,
     model_subsets,
     posed_vertices,
@@ -87,7 +88,6 @@ def measure(model, scan: Scan, verts_model: np.ndarray, to_scan) -> tuple[np.nda
     ``to_scan``: model frame -> scan metres."""
     skin, cand = model_subsets(model)
     faces = model.faces.numpy()
-    from hack_render.register.fitting import faces_within
 
     f_eval = faces_within(faces, cand)
     v_scan = to_scan(verts_model)
@@ -128,7 +128,6 @@ def register(model, scan: Scan, landmarks: np.ndarray | None, landmark_ids: tupl
     if landmark_source != "file":
         # found landmarks are a few millimetres off (a detector on renders of the scan):
         # they start the alignment and the rigid stage, the surface does the rest
-        from dataclasses import replace
 
         cfg = replace(cfg, w_lmk=cfg.w_lmk * AUTO_LANDMARK_WEIGHT)
     num_shape = min(cfg.num_shape, model.num_shape)

@@ -14,6 +14,7 @@ Every error a user can cause is a :class:`~hack_render.errors.HackError` naming 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -285,8 +286,6 @@ def load_scan(path: str | Path, units: str | None = None, max_points: int = 5_00
 
 def transformed(scan: Scan, scale: float, R: np.ndarray, t: np.ndarray) -> Scan:
     """The scan moved by x -> scale * R x + t (normals rotated)."""
-    import dataclasses
-
     return dataclasses.replace(scan, points=scale * scan.points @ R.T + t,
                                normals=scan.normals @ R.T)
 

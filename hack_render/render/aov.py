@@ -23,6 +23,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.render.footprint import CARD_LAYERS, camera_hit, emitter_layers, opacity_at
+from hack_render.render.parts import REGIONS
 
 AOV_NAMES = ("depth", "normal", "albedo", "uv", "segmentation")
 
@@ -92,7 +93,6 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     w, h = cam.width, cam.height
@@ -218,7 +218,6 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     w, h, kk = cam.width, cam.height, k * k
@@ -336,7 +335,6 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     w, h = cam.width, cam.height
@@ -375,7 +373,6 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)

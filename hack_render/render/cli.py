@@ -8,15 +8,31 @@ commands, so `--help` stays fast.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import typer
 
+from hack_render import boundary, interrupts
+from hack_render import boundary as b
 from hack_render import cli_options as opts
-from hack_render import interrupts
+from hack_render.boundary import numbers
 from hack_render.errors import HackError
+from hack_render.geometry.limits import limit_policy
+from hack_render.geometry.posing import posed_vertices
+from hack_render.io.image import rgb_channels, tone_map, write_exr, write_png
+from hack_render.render import denoise as dn
+from hack_render.render import posed_cache
+from hack_render.render.parts import Topology
+from hack_render.render.scene import MAX_SIDE, MAX_SPP, HeadScene, RenderSettings
+from hack_render.render.skin_maps import skin_maps
+from scenes import cameras as cams
+from scenes import lights
 
 if TYPE_CHECKING:
     import numpy as np
@@ -45,9 +61,6 @@ KeepNoisyOpt = typer.Option(False, "--keep-noisy", help="Also keep the image bef
 def check_denoise(denoise: str) -> bool:
     """--denoise resolved to yes/no (HackError naming the extra when 'on' cannot run; a
     one-line warning on stderr when 'auto' falls back to the noisy image)."""
-    import warnings
-
-    from hack_render.render import denoise as dn
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.DenoiserWarning)
@@ -63,8 +76,6 @@ def denoise_settings(settings, use_denoise: bool):
     noise that is correlated between pixels: on the studio portrait at 128 px, 4 / 8 spp
     denoised reach 35.7 / 36.6 dB from a box-filtered render against 33.3 / 31.5 dB
     (``bench_render.py --only quality``, each against its own filter's reference)."""
-    import dataclasses
-
     return dataclasses.replace(settings, pixel_filter="box") if use_denoise else settings
 
 
@@ -76,7 +87,6 @@ def parse_resolution(text: str) -> tuple[int, int]:
         raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
     if len(parts) not in (1, 2):
         raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
-    from hack_render.render.scene import MAX_SIDE
 
     if not all(1 <= p <= MAX_SIDE for p in parts):
         raise HackError(f"--resolution: expected sides of 1..{MAX_SIDE} pixels, found "
@@ -96,8 +106,6 @@ def named(option: str, fn, *args, **kwargs):
 
 def _floats(text: str | None, name: str, n: int | None = None, lo: float = -1e3,
             hi: float = 1e3) -> list[float] | None:
-    from hack_render.boundary import numbers
-
     return numbers(text, f"--{name}", n, lo, hi)
 
 
@@ -105,8 +113,6 @@ def check_look(env_rotation: float, exposure: float, focal_mm: float | None,
                alpha: str | None, appearance_seed: int | None) -> list[float] | None:
     """The lighting, lens and skin options that `render` and `turntable` share, checked
     (finite, in range) before anything heavy; returns alpha as numbers."""
-    from hack_render import boundary as b
-
     b.number(env_rotation, "--env-rotation", -3600.0, 3600.0, unit=" degrees")
     b.number(exposure, "--exposure", -20.0, 20.0, unit=" stops",
              fix="Each stop doubles the light; -3..3 covers most uses.")
@@ -128,9 +134,6 @@ def _aov_list(text: str | None) -> list[str]:
 
 def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str]) -> dict:
     """EXR channel dict: R, G, B, A then the requested AOV layers."""
-    import numpy as np
-
-    from hack_render.io.image import rgb_channels
 
     ch = rgb_channels(image[..., :3])
     ch["A"] = image[..., 3]
@@ -146,9 +149,6 @@ def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str
 
 def _model_vertices(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
     """(topology, posed vertices) of the pose flags, posed with NumPy (no torch import)."""
-    from hack_render.geometry.posing import posed_vertices
-    from hack_render.render.parts import Topology
-
     model, verts = posed_vertices(params_file, beta, expression, head_rotation, eta, tau,
                                   limits, model_path)
     return Topology.from_model(model), verts
@@ -197,14 +197,6 @@ def render(
 
     Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 64
     """
-    import numpy as np
-
-    from hack_render import boundary
-    from hack_render.geometry.limits import limit_policy
-    from hack_render.io.image import tone_map
-    from hack_render.render.scene import MAX_SPP, RenderSettings
-    from scenes import cameras as cams
-    from scenes import lights
 
     # every cheap check before anything heavy is loaded or allocated
     w, h = parse_resolution(resolution)
@@ -231,7 +223,6 @@ def render(
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     policy = limit_policy(limits)
 
-    from hack_render.render import posed_cache
 
     # a repeated pose comes from the disk cache: no torch import, no model evaluation
     topo, verts = posed_cache.posed(
@@ -239,8 +230,6 @@ def render(
          "head_rotation": head_rotation, "eta": eta, "tau": tau, "limits": limits},
         model_path, lambda: _model_vertices(params, beta, expression, head_rotation, eta,
                                             tau, policy, model_path))
-    from hack_render.render.scene import HeadScene
-    from hack_render.render.skin_maps import skin_maps
 
     maps = skin_maps(alpha_, appearance_seed, textures)
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
@@ -266,9 +255,6 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
     """Render each camera of ``views_`` to ``output`` (and ``exr``), appending the paths
     written to ``outputs``; denoised when ``use_denoise`` (the noisy image kept as
     ``<name>.noisy.<ext>`` with ``keep_noisy``)."""
-    import json
-
-    from hack_render.io.image import write_exr, write_png
 
     for cam in views_:
         head.set_camera(cam)

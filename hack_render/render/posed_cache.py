@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry import default_model_path
 from hack_render.io.npz import write_npz
 from hack_render.render.parts import Topology
 
@@ -65,8 +66,6 @@ def _code_digest() -> str:
 def key(inputs: dict, model_path) -> str:
     """The cache key of a posed mesh: ``inputs`` (the pose flags and options as given,
     JSON-serialisable; paths among them under keys ending in ``_file``) and the model."""
-    from hack_render.geometry import default_model_path
-
     doc = {"format": FORMAT, "code": _code_digest(),
            "model": _identity(model_path if model_path is not None else default_model_path()),
            "inputs": {k: (_identity(v) if k.endswith("_file") else v)

@@ -11,11 +11,21 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import imageio.v3 as iio
+import numpy as np
 import typer
+from tqdm import tqdm
 
+from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render import interrupts
 from hack_render.errors import HackError
+from hack_render.geometry import load_model
+from hack_render.geometry.limits import apply_limit_policy, limit_policy
+from hack_render.geometry.params import gather_params, model_inputs, save_sequence
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io import atomic_path
+from hack_render.io.image import to_srgb8
+from hack_render.render import turntable as tt
 from hack_render.render.cli import (
     DenoiseOpt,
     IntegratorOpt,
@@ -28,6 +38,12 @@ from hack_render.render.cli import (
     named,
     parse_resolution,
 )
+from hack_render.render.parts import Topology
+from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
+from hack_render.render.skin_maps import skin_maps
+from hack_render.render.video import write_gif, write_mp4
+from scenes import cameras as cams
+from scenes import lights
 
 if TYPE_CHECKING:
     import numpy as np
@@ -84,25 +100,10 @@ def turntable(
 
     Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
     """
-    import imageio.v3 as iio
-    import numpy as np
     import torch
-    from tqdm import tqdm
 
-    from hack_render import boundary
-    from hack_render.geometry.params import gather_params, model_inputs
-    from hack_render.geometry.skeleton import distribute_head_rotation
-    from hack_render.io import atomic_path
-    from hack_render.io.image import to_srgb8
-    from hack_render.render import turntable as tt
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.skin_maps import skin_maps
-    from hack_render.render.video import write_gif, write_mp4
-    from scenes import cameras as cams
-    from scenes import lights
 
     spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
-    from hack_render.render.scene import MAX_SPP
 
     w, h = parse_resolution(resolution)
     boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
@@ -127,9 +128,6 @@ def turntable(
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
 
-    from hack_render.geometry import load_model
-    from hack_render.geometry.limits import apply_limit_policy, limit_policy
-    from hack_render.render.parts import Topology
 
     policy = limit_policy(limits)
     model = load_model(model_path)
@@ -178,8 +176,6 @@ def turntable(
                 old.unlink()
         record.write(complete=False)
         if sequence is not None:
-            from hack_render.geometry.params import save_sequence
-
             tau0 = float(base["tau"][0]) if "tau" in base else 0.0
             motion = tt.motion_sequence(spec, base["theta"][0].numpy(), base["psi"][0].numpy(),
                                         tau0)

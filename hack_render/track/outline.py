@@ -30,10 +30,18 @@ Per frame with a face:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+
+from hack_render.fit.camera import R0
+from hack_render.fit.silhouette import ModelSilhouette, PhotoSilhouette, segment_plain_background
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.render.bridge import vertex_normals_torch
+from hack_render.track.solve import solve_clip
 
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
@@ -68,8 +76,6 @@ class FrameMasks:
         """From (H, W) bool masks, one per frame (None: no mask for that frame); each is
         turned into its distance map as it comes (stored as float16 at ``max_side``: a
         long clip's masks are not kept)."""
-        from hack_render.fit.silhouette import PhotoSilhouette
-
         sdfs, has, kinds, scale = [], [], [], 1.0
         for i, m in enumerate(masks):
             kind = (source[i] if source is not None else "given") if m is not None else ""
@@ -114,8 +120,6 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
         max_side: the distance maps' size (long side, px).
         max_spread, chroma: the plain-background key's (``fit.silhouette``).
     """
-    from hack_render.fit.silhouette import segment_plain_background
-
     T = len(found)
     source = [""] * T
 
@@ -163,9 +167,6 @@ class OutlineTerm:
 
     def __init__(self, model, person, eta: float, tau: np.ndarray, camera, masks: FrameMasks,
                  scale: np.ndarray, cfg: OutlineConfig, robust_knee: float):
-        from hack_render.fit.silhouette import ModelSilhouette
-        from hack_render.geometry.lbs import chain_parents
-
         self.model, self.person, self.camera, self.masks = model, person, camera, masks
         self.eta, self.tau = float(eta), np.asarray(tau, np.float64)
         self.cfg, self.knee = cfg, float(robust_knee)
@@ -179,7 +180,6 @@ class OutlineTerm:
         self.weights_all = model.skinning_weights.double()
         joints = person.joints.double()[None]
         self.nodes = torch.cat([joints[:, :1], joints], 1)
-        from hack_render.fit.camera import R0
 
         self.centre = -(R0.double().T @ torch.as_tensor(camera.cam_t, dtype=torch.float64)).numpy()
         self.rest = self.pairs = self.S = None
@@ -187,9 +187,6 @@ class OutlineTerm:
     def select(self, params) -> None:
         """Re-select every frame's contour and rest mesh at ``params``
         (:class:`~hack_render.track.solve.FrameParams`)."""
-        from hack_render.geometry.skeleton import distribute_head_rotation
-        from hack_render.render.bridge import vertex_normals_torch
-
         T = params.frames
         rest_all, pairs, ts = [None] * T, [np.zeros((0, 2), np.int64)] * T, [np.zeros(0)] * T
         h, w = self.camera.height, self.camera.width
@@ -242,9 +239,6 @@ class OutlineTerm:
 
     def points(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
         """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D)."""
-        from hack_render.geometry.lbs import local_rotations, rigid_transforms, skin
-        from hack_render.geometry.skeleton import distribute_head_rotation
-
         h, g, t = x[:, :3], x[:, 3:6], x[:, 6:9]
         rot = local_rotations(distribute_head_rotation(h, clamp=False), g)
         _, rel = rigid_transforms(rot, self.nodes.expand(len(x), -1, -1), self.parents)
@@ -315,9 +309,6 @@ def refine_outline(rig, camera, obs, found, weights, params, g_ref, tcfg, model,
     """The tracked parameters with the neck placed on the person's outline: the joint
     solve (:func:`~hack_render.track.solve.solve_clip`) with :class:`OutlineTerm` added,
     ``cfg.rounds`` times. Returns (FrameParams, :class:`OutlineResult`)."""
-    import dataclasses
-
-    from hack_render.track.solve import solve_clip
 
     cfg = cfg or OutlineConfig()
     if not masks.has.any():

@@ -7,9 +7,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image, ImageDraw
+from tqdm import tqdm
 
+from hack_render.fit.camera import R0
+from hack_render.fit.outputs import write_all
+from hack_render.geometry.params import save_params, save_sequence
+from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
+from hack_render.render.mesh_views import MeshViews
 from hack_render.track.pipeline import TrackResult, sequence_of
+from hack_render.track.solve import landmark_error
+from hack_render.track.video import Mp4Writer
+from scenes.cameras import Camera
 
 
 def jitter(x: np.ndarray) -> float:
@@ -26,8 +36,6 @@ def jitter(x: np.ndarray) -> float:
 
 def frame_vertices(result: TrackResult, start: int, stop: int) -> np.ndarray:
     """The fitted model's vertices (stop - start, N, 3) for frames start .. stop - 1."""
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     fit, p = result.fit, result.params
     model = result.fit.model
     sl = slice(start, stop)
@@ -54,14 +62,6 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
     """MP4 at the clip's rate: each frame with the fitted model ray cast over it (shaded,
     60 % opacity), the detected landmarks (green) and the model's (red); lost frames say
     so in a red band."""
-    from PIL import Image, ImageDraw
-    from tqdm import tqdm
-
-    from hack_render.fit.camera import R0
-    from hack_render.render.mesh_views import MeshViews
-    from hack_render.track.solve import landmark_error
-    from hack_render.track.video import Mp4Writer
-    from scenes.cameras import Camera
 
     clip, cam = result.clip, result.camera
     w, h = clip.work
@@ -103,8 +103,6 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
 def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
     """The report: per-frame landmark error, jitter, lost frames, timings (and errors
     against ``truth`` when given: theta, psi, tau per frame)."""
-    from hack_render.track.solve import landmark_error
-
     lm = result.landmarks
     err_px, nme, uv = landmark_error(result.rig, result.camera, result.params, lm.points,
                                      lm.found)
@@ -226,9 +224,6 @@ def neck_offset_px(result: TrackResult, truth: dict) -> np.ndarray:
     the mean image offset (px) of the larynx region's vertices, the tracked model through
     the tracked camera against the true model (``truth``: beta, theta, psi, tau, K,
     cam_t; torso and translation zero) through the true camera."""
-    from hack_render.fit.camera import R0
-    from scenes.cameras import Camera
-
     model = result.fit.model
     T = result.clip.frames
     w, h = result.clip.work
@@ -287,9 +282,6 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
-    from hack_render.fit.outputs import write_all
-    from hack_render.geometry.params import save_params, save_sequence
-
     written = []
     written += write_all(result.fit, fitter, outdir / "identity")
     person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}

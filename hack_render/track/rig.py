@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from hack_render.errors import HackError
+from hack_render.fit.landmark_embedding import embedded_points
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.skeleton import distribute_head_rotation
 
@@ -96,7 +97,6 @@ def landmark_points(vertices: torch.Tensor, embedding, model) -> torch.Tensor:
     embedding's barycentric points, or the model's landmark vertices without one."""
     if embedding is None:
         return vertices[:, model.landmark_indices]
-    from hack_render.fit.landmark_embedding import embedded_points
 
     return embedded_points(vertices, torch.as_tensor(embedding.vertex_ids),
                            torch.as_tensor(embedding.bary))
