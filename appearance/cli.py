@@ -108,7 +108,6 @@ def sample(
     """Write diffuse/specular/roughness/normal maps for one alpha, plus preview.png."""
     import torch
 
-
     out = renamed(output, out_old, "--out", "-o/--output")
     model = renamed(model, model_old, "appearance sample --model", "--appearance-model")
 

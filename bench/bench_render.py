@@ -843,7 +843,7 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
     from skimage.metrics import structural_similarity
 
     from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.posing import posed_model
+    from hack_render.geometry.loading import posed_model
     from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
@@ -1018,7 +1018,7 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
     from scipy.ndimage import binary_dilation
 
     from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.posing import posed_model
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import INTEGRATORS, HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1098,7 +1098,7 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
 def samplers_benchmark(ref_spp: int = 2048, repeats: int = 2) -> dict:
     """(i) multijitter against the orthogonal array sampler (see the module docstring)."""
     from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.posing import posed_model
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps

@@ -86,7 +86,7 @@ def test_cycles_renders_the_same_scene(bench, tmp_path):
     import warnings
 
     from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.posing import posed_model
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps

@@ -78,7 +78,22 @@ DEFERRABLE = {
 #: package's ``_LAZY`` table of re-exported names), each for its reason: all of them keep
 #: torch (2.2 s) off a path that runs without it (`hack-render mesh` poses in NumPy,
 #: `render` reads its mesh cache). Counted in the issue's note; keep it short.
-DEFERRED_OWN: dict[tuple[str, str], str] = {}
+DEFERRED_OWN: dict[tuple[str, str], str] = {
+    ("hack_render.geometry", "hack_render.geometry.model"):
+        "torch: the package's re-exported names (_LAZY), so that importing its NumPy "
+        "modules (posing, params, limits, model_file) never loads torch",
+    ("hack_render.geometry", "hack_render.geometry.skeleton"): "torch: as for model",
+    ("hack_render.geometry", "hack_render.geometry.loading"): "torch: as for model",
+    ("hack_render.geometry.limits", "hack_render.geometry.skeleton"):
+        "torch: clamping a tensor theta; NumPy posing shares apply_limit_policy",
+    ("hack_render.geometry.cli", "hack_render.geometry.loading"):
+        "torch: `model info` loads the torch model; `mesh`, in the same module, poses in NumPy",
+    ("hack_render.render.skin_maps", "appearance.model"):
+        "torch: only --alpha needs the PCA model; renders from texture files or the mesh "
+        "cache run without torch",
+    ("hack_render.render.skin_maps", "appearance.generator"):
+        "torch: only --appearance-seed needs the generator (as for appearance.model)",
+}
 
 #: what ``hack_render.cli`` may import before a command runs (``hack-render --help``)
 LIGHT_AT_HELP = ("torch", "mitsuba", "drjit", "numpy", "scipy", "colour", "trimesh",

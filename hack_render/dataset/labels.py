@@ -102,7 +102,6 @@ def skin_label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
     """
     from scipy import ndimage
 
-
     lay = rasterize_layout(height)
     mesh = default_template()
     atlas = region_labels(lay)
@@ -150,7 +149,6 @@ def pinna_texels(lay) -> np.ndarray:
     head (the island's rim on the head itself, in the retro-auricular fold, is not pinna).
     """
     from scipy.spatial import ConvexHull
-
 
     mesh = default_template()
     v, f = mesh.vertices, mesh.faces

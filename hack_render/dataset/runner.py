@@ -259,7 +259,6 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
     many. ``tally["complete"]`` counts the shard's complete samples as they land."""
 
-
     if total is None:
         todo = list(todo)
         total = len(todo)

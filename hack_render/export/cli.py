@@ -130,7 +130,6 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
     """The posed mesh as OBJ (+ .mtl + PNG maps in <stem>_maps/) or PLY."""
     import torch
 
-
     with torch.no_grad():
         verts = model(**model_inputs(model, params)).vertices[0].numpy()
     args = (verts, model.faces.numpy(), model.uvs.numpy(), model.uv_faces.numpy())

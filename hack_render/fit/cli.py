@@ -145,7 +145,6 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     """Read, detect and fit (nothing written); returns (result, fitter)."""
     import torch
 
-
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()
     lc = cfg.landmarks
@@ -238,7 +237,6 @@ def fit(
     resolution = renamed(levels, levels_old, "fit --resolution", "--levels")
     lighting = renamed(light_model, lighting_old, "fit --lighting", "--light-model")
     over: dict = {"photometric": {}, "texel": {}}
-
 
     if resolution is not None:
         over["photometric"]["resolutions"] = boundary.numbers(

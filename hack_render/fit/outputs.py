@@ -231,7 +231,6 @@ class FinalRenders:
 
     def __init__(self, fitter):
 
-
         st, cfg = fitter.state, fitter.cfg
         specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
         bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular),
@@ -312,7 +311,6 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
     gets grey renders (their luminance): it says nothing of the skin's colour."""
     from skimage.transform import resize
-
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -414,7 +412,6 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     out = []
     for i, v in enumerate(fitter.views):

@@ -180,7 +180,6 @@ def init_lobes(state: FitState, cfg: FitConfig, view: View,
     """
     from scipy.optimize import nnls
 
-
     L = view.lighting
     m = view.level.mask.numpy()
     if int(m.sum()) < 8:

@@ -14,7 +14,6 @@ import typer
 
 from hack_render import boundary
 from hack_render import cli_options as opts
-from hack_render.geometry import load_model
 from hack_render.geometry.limits import LimitPolicy
 from hack_render.geometry.obj_io import write_mesh
 from hack_render.geometry.posing import posed_vertices
@@ -61,6 +60,9 @@ def info(model_path: Path | None = typer.Argument(None, help="Model file (defaul
     """Print a model's sizes, joints, action units, expression names and provenance."""
     if model_path is not None:
         boundary.input_file(model_path, "MODEL", (".npz",), "model file")
+    # torch's model (2.2 s to import): `mesh`, in this module too, poses without torch
+    from hack_render.geometry.loading import load_model  # noqa: PLC0415 - listed deferral
+
     m = load_model(model_path)
     typer.echo(f"vertices {m.num_vertices}, triangles {len(m.faces)}, shape components {m.num_shape}, "
                f"expressions {m.num_expressions}, joints {', '.join(m.joint_names)}")

@@ -36,7 +36,6 @@ from hack_render.geometry.anatomy import (
     larynx_outside_limits,
     outside_limits,
 )
-from hack_render.geometry.skeleton import clamp_to_limits
 
 POLICIES = ("warn", "clamp", "error")
 
@@ -140,7 +139,10 @@ def _clamp_theta(theta):
     """``theta`` with each joint clamped to its limits, of the kind it came as."""
     if isinstance(theta, np.ndarray):
         return clamp_theta(theta).astype(theta.dtype)
-    # skeleton imports torch, which posing with NumPy alone (posing.py) must not import
+    # a tensor's clamp; skeleton imports torch, which posing with NumPy alone (posing.py:
+    # `hack-render mesh`, the render's mesh cache) must not import (a listed deferral,
+    # tests/test_structure.py DEFERRED_OWN)
+    from hack_render.geometry.skeleton import clamp_to_limits  # noqa: PLC0415
 
     return clamp_to_limits(theta)
 

@@ -14,7 +14,8 @@ in float32 like the torch model, for one row. It takes the same inputs from a ch
 parameter mapping (:func:`posed_vertices`; :func:`hack_render.geometry.params.forward_inputs`),
 applies ``--limits`` through :mod:`hack_render.geometry.limits`, and prints the same
 warnings. It is not differentiable: fitting, batches and gradients use :class:`HackModel`
-(:func:`posed_model` poses one mesh with it, as :func:`posed_vertices` does without).
+(:func:`hack_render.geometry.loading.posed_model` poses one mesh with it, as
+:func:`posed_vertices` does without).
 ``tests/test_posing.py`` holds the two equal (to 2e-6 m on vertices) over random
 identities, expressions, eta, tau and joint poses within and beyond the limits.
 """
@@ -28,12 +29,12 @@ import numpy as np
 
 from hack_render import boundary
 from hack_render.errors import HackError
-from hack_render.geometry import default_model_path, load_model, np_rotations
+from hack_render.geometry import default_model_path, np_rotations
 from hack_render.geometry.anatomy import ETA_DEFAULT, NUM_JOINTS
 from hack_render.geometry.expressions import expression_weights
 from hack_render.geometry.limits import apply_limit_policy
 from hack_render.geometry.model_file import load_model_file
-from hack_render.geometry.params import forward_inputs, gather_params, model_inputs
+from hack_render.geometry.params import forward_inputs, gather_params
 
 
 class PosingModel:
@@ -178,29 +179,10 @@ def _skin(rest: np.ndarray, weights: np.ndarray, rel: np.ndarray) -> np.ndarray:
 def posed_vertices(params_file, beta, expression, head_rotation, eta, tau, limits,
                    model_path) -> tuple[PosingModel, np.ndarray]:
     """The model and its posed vertices (N, 3) from a parameter file and flags, as
-    :func:`posed_model` gives them, without torch."""
+    :func:`hack_render.geometry.loading.posed_model` gives them, without torch."""
     if model_path is not None:
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = PosingModel.from_file(model_path if model_path is not None else default_model_path())
     p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
     kw = apply_limit_policy(model.inputs(p), limits, p.get("head_rotation_deg"))
     return model, model.vertices(**kw)
-
-
-def posed_model(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
-    """Load a model and pose it from a parameter file and flags, with torch (the
-    differentiable :class:`~hack_render.geometry.model.HackModel`; :func:`posed_vertices`
-    gives the same vertices without torch).
-
-    Returns (model, forward keyword arguments, posed vertices (N, 3) numpy).
-    """
-    import torch
-
-    if model_path is not None:
-        boundary.input_file(model_path, "--model", (".npz",), "model file")
-    model = load_model(model_path)
-    p = gather_params(params_file, beta, expression, head_rotation, eta, tau)
-    kw = apply_limit_policy(model_inputs(model, p), limits, p.get("head_rotation_deg"))
-    with torch.no_grad():
-        out = model(**kw)
-    return model, kw, out.vertices[0].numpy()

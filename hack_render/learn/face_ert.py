@@ -131,7 +131,6 @@ def train(data: dict, out_dir=None, trees: int = 50, depth: int = 4, cascade: in
     (:data:`hack_render.vision.ert.YAW_BINS`), on the prepared upright, one-sided crops."""
     import dlib
 
-
     out_dir = Path(out_dir) if out_dir is not None else ert.DATA
     prep = prepare(data, augment=augment)
     np.savez_compressed(out_dir / ert.YAW_FILE.name, weights=prep["weights"],

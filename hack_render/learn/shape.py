@@ -148,7 +148,6 @@ def plot_curves(curves: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     fig, ax = plt.subplots(1, 2, figsize=(8, 3.2))
     ax[0].plot(curves["k"], np.asarray(curves["compactness"]) * 100)
     ax[0].set(xlabel="components", ylabel="variance explained (%)", title="compactness")

@@ -194,7 +194,6 @@ def _transfer_targets(model, src_base: np.ndarray, dst_base: np.ndarray,
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
 
-
     faces = model.faces.numpy()
     n = len(dst_base)
     free = np.any(targets != 0, axis=(0, 2))

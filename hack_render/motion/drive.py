@@ -200,7 +200,6 @@ def head_to_theta(head: np.ndarray, limits: str = "clamp") -> tuple[np.ndarray, 
     frames beyond the neck's range (clamped)."""
     import torch
 
-
     # (flexion about x, axial about y, lateral about z) = (pitch, yaw, roll)
     angles = torch.as_tensor(head[:, [1, 0, 2]], dtype=torch.float64)
     rng = torch.deg2rad(head_rotation_range_deg().double())  # (3, 2)

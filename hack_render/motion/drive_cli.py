@@ -35,7 +35,6 @@ def drive_cmd(
     """
 
 
-
     boundary.output_file(output, suffixes=(".npz", ".jsonl"))
     if limits not in ("warn", "clamp", "error"):
         raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.")

@@ -218,7 +218,6 @@ def _quat(m: np.ndarray) -> np.ndarray:
     """(…, 3, 3) -> (…, 4) xyzw, w >= 0."""
     import torch
 
-
     q = matrix_to_quaternion(torch.as_tensor(m)).numpy()  # wxyz
     return np.concatenate([q[..., 1:], q[..., :1]], -1)
 
@@ -255,7 +254,6 @@ def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
 
 def _matrices(r: np.ndarray) -> np.ndarray:
     import torch
-
 
     return axis_angle_to_matrix(torch.as_tensor(np.array(r, np.float64))).numpy()
 

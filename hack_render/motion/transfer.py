@@ -187,7 +187,6 @@ def prepare_gltf(model, path: Path, chain: list[str] | None = None,
     output is written): (character, bones, assignment)."""
     import torch
 
-
     ch = RT.load_gltf_character(path)
     with torch.no_grad():
         hack_joints = model(beta=torch.zeros(1, 0, dtype=model.template.dtype)).rest_joints[0]

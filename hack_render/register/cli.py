@@ -222,7 +222,6 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
         return pts, ids, {"source": "file"}
     import torch
 
-
     with torch.no_grad():
         reference = model().landmarks[0].double().numpy()
 

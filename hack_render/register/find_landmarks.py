@@ -177,7 +177,6 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
     if reference is None:
         import torch
 
-
         with torch.no_grad():
             reference = load_default_model()().landmarks[0].double().numpy()
     # rendered and lifted on the scan smoothed a little (a few tenths of a millimetre):

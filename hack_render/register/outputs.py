@@ -99,7 +99,6 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
-
     tiles = heat_map_views(model_vertices, faces, err_mm)
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.9))
     for ax, img, name in zip(axes, tiles, ("front", "left", "right"), strict=True):

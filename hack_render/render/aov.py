@@ -93,7 +93,6 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
     import drjit as dr
     import mitsuba as mi
 
-
     cam = head.camera
     w, h = cam.width, cam.height
     idx = dr.arange(mi.UInt32, w * h)
@@ -218,7 +217,6 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     import drjit as dr
     import mitsuba as mi
 
-
     cam = head.camera
     w, h, kk = cam.width, cam.height, k * k
     n = w * h
@@ -335,7 +333,6 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
     import drjit as dr
     import mitsuba as mi
 
-
     cam = head.camera
     w, h = cam.width, cam.height
     idx = dr.arange(mi.UInt32, w * h)
@@ -372,7 +369,6 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     """
     import drjit as dr
     import mitsuba as mi
-
 
     cam = head.camera
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)

@@ -223,7 +223,6 @@ def render(
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     policy = limit_policy(limits)
 
-
     # a repeated pose comes from the disk cache: no torch import, no model evaluation
     topo, verts = posed_cache.posed(
         {"params_file": params, "beta": beta, "expression": expression,

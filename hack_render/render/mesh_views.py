@@ -24,7 +24,6 @@ def _mesh(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None,
           normals: np.ndarray | None):
     import mitsuba as mi
 
-
     v = np.asarray(vertices, np.float64)
     n = vertex_normals(v, faces) if normals is None else np.asarray(normals, np.float64)
     mesh = mi.Mesh("mesh", len(v), len(faces), has_vertex_normals=True)
@@ -53,7 +52,6 @@ class MeshViews:
         release_parked()
         import mitsuba as mi
 
-
         self.width, self.height = width, height
         K = intrinsics(width, height, 50.0)
         R, t = look_at((0, 0, 1), (0, 0, 0))
@@ -71,7 +69,6 @@ class MeshViews:
         """Move the mesh (same topology): new positions and their vertex normals."""
         import mitsuba as mi
 
-
         v = np.asarray(vertices, np.float64)
         self.params["mesh.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
         self.params["mesh.vertex_normals"] = mi.Float(
@@ -80,7 +77,6 @@ class MeshViews:
 
     def _set_camera(self, cam: Camera) -> None:
         import mitsuba as mi
-
 
         if (cam.width, cam.height) != (self.width, self.height):
             raise ValueError(f"camera size {cam.width}x{cam.height}, views are "

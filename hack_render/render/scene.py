@@ -123,7 +123,6 @@ class HeadScene:
         release_parked()  # dropped scenes die here, on the thread that renders
         import mitsuba as mi
 
-
         self.settings, self.camera, self.lights = settings, camera, lights
         self.topology = topology
         v = _np(vertices).reshape(-1, 3)
@@ -217,7 +216,6 @@ class HeadScene:
         found in the part's UVs (``parts.lash_cards``), or ``EYELASH_OPACITY`` where the
         UVs hold no cards (degenerate UVs): strands need a root-to-tip direction."""
         import mitsuba as mi
-
 
         cards = lash_cards(part, v, self.eye_axes)
         if len(cards) == 0:
@@ -323,7 +321,6 @@ class HeadScene:
         """Move the camera (and change its focal length); the image size must stay."""
         import mitsuba as mi
 
-
         if (camera.width, camera.height) != (self.settings.width, self.settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {self.settings.width}x"
                             f"{self.settings.height}, found {camera.width}x{camera.height}. "
@@ -344,7 +341,6 @@ class HeadScene:
         """Rotate the whole rig (environment and area lights) about +Y."""
         import drjit as dr
         import mitsuba as mi
-
 
         def opaque(m: np.ndarray):
             # a transform built from Python numbers is a set of literals that Dr.Jit bakes

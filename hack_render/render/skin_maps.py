@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from appearance import AppearanceModel
 from hack_render.errors import HackError
 from hack_render.io.image import read_exr
 from hack_render.render.materials import SkinMaps
@@ -85,17 +84,16 @@ def read_eye_file(path: Path) -> tuple:
 def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 512) -> SkinMaps:
     """Maps from the appearance layer: a procedural subject for ``seed``
     (``appearance.generator.generate_subject``), or the PCA model's ``maps(alpha)``."""
+    # the appearance model and generator import torch (2.2 s): a render from texture files
+    # or constant maps (and from the mesh cache) runs without it; listed deferrals
+    from appearance.generator import generate_subject  # noqa: PLC0415
+    from appearance.model import AppearanceModel  # noqa: PLC0415
+
     if alpha is None:
-        try:
-            from appearance.generator import generate_subject
-        except ImportError as err:
-            raise HackError(f"--appearance-seed: expected the appearance package, found it "
-                            f"unavailable ({err}). Use --textures DIR.") from err
         if seed is None or seed < 0:
             raise HackError(f"--appearance-seed: expected a non-negative integer, found {seed}.")
         return SkinMaps.from_appearance(generate_subject(int(seed), height=height))
     import torch
-
 
     model = AppearanceModel.load()  # the shipped default; HackError if unusable
     a = torch.tensor([alpha], dtype=torch.float32)  # k <= n_components, checked by maps()

@@ -153,7 +153,6 @@ def motion_sequence(spec: TurntableSpec, base_theta: np.ndarray | None = None,
     orbit and the subject turn are not head motion and are not in it."""
     import torch
 
-
     n = spec.frames
     theta = np.zeros((n, 8, 3)) + (0.0 if base_theta is None else np.asarray(base_theta))
     if spec.look_around:

@@ -102,7 +102,6 @@ def turntable(
     """
     import torch
 
-
     spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
 
     w, h = parse_resolution(resolution)
@@ -127,7 +126,6 @@ def turntable(
     boundary.number(pitch, "--pitch", -89.0, 89.0, unit=" degrees")
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
-
 
     policy = limit_policy(limits)
     model = load_model(model_path)

@@ -28,7 +28,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     on the person's outline in every frame (the outline stage)."""
     import torch
 
-
     boundary.number(keyframes, "--keyframes", 1, 50)
     boundary.number(max_side, "--max-side", 64, 4096, unit=" px")
     if max_frames is not None:

@@ -41,7 +41,6 @@ def clip_truth(model, frames: int, fps: float, seed: int = 0, swallow: bool = Tr
     (T,) degrees."""
     import torch
 
-
     rng = np.random.default_rng(seed)
     t = np.arange(frames) / fps
     dur = max(frames / fps, 1e-6)
@@ -78,7 +77,6 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
     ``outdir/truth.npz`` (the per-frame parameters, the true 2-D landmarks of the
     calibrated embedding and the camera). Returns the truth."""
     import torch
-
 
     out = Path(outdir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
