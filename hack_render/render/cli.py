@@ -8,6 +8,7 @@ commands, so `--help` stays fast.
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -67,14 +68,18 @@ def denoise_settings(settings, use_denoise: bool):
     return dataclasses.replace(settings, pixel_filter="box") if use_denoise else settings
 
 
+#: 'W' or 'WxH' (also 'W,H', as before)
+_RESOLUTION = re.compile(r"(\d+)\s*(?:[xX,]\s*(\d+))?")
+
+
 def parse_resolution(text: str) -> tuple[int, int]:
-    """``--resolution`` 'W' or 'WxH' as (width, height), checked."""
-    try:
-        parts = [int(x) for x in text.lower().replace("x", ",").split(",") if x.strip()]
-    except ValueError as err:
-        raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
-    if len(parts) not in (1, 2):
-        raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
+    """``--resolution`` 'W' or 'WxH' as (width, height), checked: whole numbers only, one
+    or two of them ('64x', 'x64' and '64x64x' are refused, not read as a square)."""
+    match = _RESOLUTION.fullmatch(text.strip())
+    if match is None:
+        raise HackError(f"--resolution: expected 'W' or 'WxH' in whole pixels (e.g. 512 or "
+                        f"640x480), found {text!r}.")
+    parts = [int(x) for x in match.groups() if x is not None]
     from hack_render.render.scene import MAX_SIDE
 
     if not all(1 <= p <= MAX_SIDE for p in parts):
