@@ -158,9 +158,13 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
     return PRESETS[name](width, height, **kw)
 
 
-def save_cameras(path, cameras: list[Camera]) -> None:
-    """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
+def save_cameras(path, cameras: list[Camera], render: dict | None = None) -> None:
+    """Write cameras as JSON (OpenCV K, R, t) through a temporary file; ``render``: what
+    the images were rendered with (``render.cli.rendered``: sampler, spp), as ``render``."""
     from hack_render.render.image_io import atomic_path
 
+    data = {"cameras": [c.to_dict() for c in cameras]}
+    if render is not None:
+        data["render"] = render
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({"cameras": [c.to_dict() for c in cameras]}, indent=1))
+        tmp.write_text(json.dumps(data, indent=1))

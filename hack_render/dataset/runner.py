@@ -28,6 +28,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from hack_render.dataset.config import render_settings
 from hack_render.errors import HackError
 
 EXECUTORS = ("serial", "ray")
@@ -146,7 +147,11 @@ def run_info(job: Job) -> dict:
     """What ``config.json`` records: config, seed and the label table."""
     from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
 
+    st = render_settings(job.cfg)
     return {"format": "hack-render-dataset", "version": 1, "seed": job.seed, "config": job.cfg,
+            # what the images are rendered with (the sampler rounds render.spp up): a
+            # folder made by a version that rendered otherwise is not resumed into
+            "rendered": {"sampler": st.mitsuba_sampler, "spp": st.effective_spp},
             "labels": [{"id": i, "name": n, "description": LABEL_DESCRIPTIONS[n]}
                        for i, n in enumerate(LABELS)]}
 
@@ -394,8 +399,9 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         todo, n_todo = prepare(job)
         tally = {"complete": total - n_todo}
         print(f"dataset: {n_todo:,} of the {total:,} samples of shard {k}/{m} to render into "
-              f"{job.out} ({job.cfg['render']['resolution']} px, {job.cfg['render']['spp']} "
-              f"spp, {job.cfg['camera']['views']} view(s) each)", file=sys.stderr)
+              f"{job.out} ({job.cfg['render']['resolution']} px, "
+              f"{render_settings(job.cfg).effective_spp} spp, {job.cfg['camera']['views']} "
+              f"view(s) each)", file=sys.stderr)
 
         def kept() -> str:
             return (f"kept {tally['complete']:,} complete samples of the {total:,} of shard "
