@@ -105,7 +105,7 @@ class RenderSettings:
 
     width: int = 512
     height: int = 512
-    spp: int = 64
+    spp: int = 49  # the orthogonal array's count (auto renders it as it is)
     max_depth: int = 8
     seed: int = 0
     #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
