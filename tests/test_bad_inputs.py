@@ -355,6 +355,7 @@ CASES += [
     ("view-text-as-glb", "view {i}/person.glb --no-open", "person.glb"),
     ("view-glb-without-asset", "view {i}/noasset.glb --no-open", "noasset.glb"),
     ("view-gltf-without-its-bin", "view {i}/lonely.gltf --no-open", "lonely.gltf"),
+    ("register-obj-cut-short", "register {i}/cut.obj -o {o}/r", "cut.obj:"),
 ]
 
 
@@ -418,6 +419,9 @@ def make_inputs(folder: Path) -> Path:
     whole = _glb({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 8}]}, bytes(8))
     (folder / "cut.glb").write_bytes(whole[:len(whole) - 6])
     (folder / "noasset.glb").write_bytes(_glb({"buffers": []}))
+    grid = [f"v {x} {y} 0" for y in range(11) for x in range(11)]  # a 121-vertex scan...
+    grid += [f"f {k + 1} {k + 2} {k + 13}" for k in range(0, 108) if (k + 1) % 11]
+    (folder / "cut.obj").write_text("\n".join(grid)[:-4])  # ...cut inside its last face
     (folder / "empty.npy").write_bytes(b"")
     with open(folder / "huge_file.json", "wb") as f:  # sparse: no disk used
         f.truncate(20 * 1024 * 1024)

@@ -114,6 +114,49 @@ def test_unreadable_scans_are_refused(tmp_path, content, match):
         load_scan(path)
 
 
+def _textured_ball_obj(path):
+    """An OBJ of a textured ball (v, vt, f v/vt lines), as scanners write them."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=120.0)
+    uv = (mesh.vertices[:, :2] / 240.0 + 0.5).round(6)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+    lines += [f"vt {u} {v}" for u, v in uv]
+    lines += ["f " + " ".join(f"{i + 1}/{i + 1}" for i in f) for f in mesh.faces]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("frac", [0.2, 0.45, 0.6, 0.8, 0.97])
+def test_an_obj_cut_short_is_refused_naming_the_line(tmp_path, frac):
+    """A scan cut off mid-file (an interrupted copy) was read without a word: faces cut to
+    two corners dropped, a file cut among its texture coordinates read as a point cloud;
+    the registration then reported "ok" (issue 65)."""
+    data = _textured_ball_obj(tmp_path / "whole.obj").read_bytes()
+    assert load_scan(tmp_path / "whole.obj").notes == ["units detected: mm (pass --units to "
+                                                        "override)"]
+    cut = len(data) * frac
+    cut = int(cut) + 2 if data[int(cut)] in b" \n" else int(cut)  # inside a number or word
+    (tmp_path / "scan.obj").write_bytes(data[:cut])
+    n = data[:cut].count(b"\n") + 1
+    with pytest.raises(HackError, match=rf"scan\.obj:{n}: expected .*cut short"):
+        load_scan(tmp_path / "scan.obj")
+
+
+def test_an_obj_cut_between_numbers_is_read_with_a_note(tmp_path):
+    """Cut right after a whole number, a file cannot be told from a shorter one but for
+    its missing last newline: read, and the report's notes say so and how much was read."""
+    data = _textured_ball_obj(tmp_path / "whole.obj").read_bytes()
+    (tmp_path / "scan.obj").write_bytes(data.rstrip(b"\n")[:-1] + b"1")
+    scan = load_scan(tmp_path / "scan.obj", units="mm")
+    assert scan.notes == ["scan.obj does not end with a newline: it may be cut short; read "
+                          "642 vertices and 1,280 faces"]
+    for text, match in [("v 1 2 3\nf 1 2 4\n", r"bad\.obj:2: a face refers to vertex 4"),
+                        ("v 1 2 3\nv 1 2 x\n", r"bad\.obj:2: expected numbers after 'v'"),
+                        ("v 1 2 3\nf 1/1 1/1 1//1\n", r"bad\.obj:2: .*one form")]:
+        (tmp_path / "bad.obj").write_text(text)
+        with pytest.raises(HackError, match=match):
+            load_scan(tmp_path / "bad.obj")
+
+
 def test_non_finite_scans_are_refused(tmp_path):
     v = np.random.default_rng(0).normal(size=(500, 3)) * 0.1
     v[7] = np.nan
