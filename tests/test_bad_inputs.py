@@ -420,7 +420,7 @@ def make_inputs(folder: Path) -> Path:
     (folder / "cut.glb").write_bytes(whole[:len(whole) - 6])
     (folder / "noasset.glb").write_bytes(_glb({"buffers": []}))
     grid = [f"v {x} {y} 0" for y in range(11) for x in range(11)]  # a 121-vertex scan...
-    grid += [f"f {k + 1} {k + 2} {k + 13}" for k in range(0, 108) if (k + 1) % 11]
+    grid += [f"f {k + 1} {k + 2} {k + 13}" for k in range(108) if (k + 1) % 11]
     (folder / "cut.obj").write_text("\n".join(grid)[:-4])  # ...cut inside its last face
     (folder / "empty.npy").write_bytes(b"")
     with open(folder / "huge_file.json", "wb") as f:  # sparse: no disk used

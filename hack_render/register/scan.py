@@ -203,8 +203,9 @@ def check_obj_text(path: Path) -> list[str]:
                         f"and {count[b'vt']:,} texture coordinates, found the end of the file. "
                         "The file looks cut short; export the scan again.")
     if last and not last.endswith(b"\n"):
-        return [f"{path.name} does not end with a newline: it may be cut short; read "
-                f"{count[b'v']:,} vertices and {count[b'f']:,} faces"]
+        note = (f"{path.name} does not end with a newline: it may be cut short; read "
+                f"{count[b'v']:,} vertices and {count[b'f']:,} faces")
+        return [note]
     return []
 
 
