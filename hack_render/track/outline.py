@@ -68,10 +68,12 @@ class FrameMasks:
         """From (H, W) bool masks, one per frame (None: no mask for that frame); each is
         turned into its distance map as it comes (stored as float16 at ``max_side``: a
         long clip's masks are not kept)."""
-        from hack_render.fit.silhouette import PhotoSilhouette
+        from hack_render.fit.silhouette import PhotoSilhouette, mask_problem
 
         sdfs, has, kinds, scale = [], [], [], 1.0
         for i, m in enumerate(masks):
+            if m is not None and mask_problem(m) is not None:
+                m = None  # all person or none (a tight crop): no outline in this frame
             kind = (source[i] if source is not None else "given") if m is not None else ""
             if m is None:
                 sdfs.append(None)
