@@ -150,20 +150,28 @@ def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
 
 
 def _non_number(value) -> tuple[Any] | None:
-    """``(element,)``: the first element of a (nested) list or array that is not a number
-    (booleans and strings are not), or None when all are."""
+    """``(element,)``: the first element of a (nested) list, array or tensor that is not a
+    number (booleans and strings are not), or None when all are."""
     stack = [value]
     while stack:
         v = stack.pop()
-        if isinstance(v, np.ndarray):
-            if v.dtype.kind in "iuf":
-                continue
-            items = v.ravel().tolist() if v.dtype.kind in "bOUS" else []
-            stack.extend(reversed(items))
-        elif isinstance(v, (list, tuple)):
+        if isinstance(v, (list, tuple)):
             stack.extend(reversed(v))
-        elif isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.number)):
+            continue
+        if v is None or isinstance(v, (bool, np.bool_, str, bytes, dict)):
             return (v,)
+        if isinstance(v, (int, float, np.number)):
+            continue
+        try:
+            a = np.asarray(v)  # an array, a tensor
+        except Exception:  # noqa: BLE001 - whatever it is, it is not a number
+            return (v,)
+        if a.dtype.kind in "iuf":
+            continue
+        if a.dtype.kind == "O" and a.ndim:
+            stack.extend(reversed(a.ravel().tolist()))
+            continue
+        return (a.ravel()[0].item() if a.size and a.dtype.kind != "O" else v,)
     return None
 
 
