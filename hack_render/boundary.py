@@ -173,7 +173,7 @@ def output_file(path: str | Path, option: str = "-o/--output",
         raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
                         f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
     if as_folder:
-        raise HackError(f"{option} {path}{os.sep}: expected a file name, found a folder's "
+        raise HackError(f"{option} {path}{os.sep}: expected a file name, found a folder's name "
                         f"(it ends in {os.sep!r}). Drop the {os.sep!r} to write the file "
                         f"{path}, or name a file inside the folder, e.g. "
                         f"{path / ('out' + (suffixes[0] if suffixes else ''))}.")

@@ -716,3 +716,21 @@ def test_background_values_of_the_wrong_type_name_the_key(over):
     key = next(iter(over["background"]))
     with pytest.raises(HackError, match=f"background.{key}"):
         load_config(None, over)
+
+
+def test_a_folders_spelling_is_refused_for_a_file_output(tmp_path, monkeypatch):
+    """`-o x.obj/` wrote x.obj (issue 65): the slash names a folder. A Path has lost it by
+    the time a command sees it, so the words typed are looked at; a string keeps it."""
+    from hack_render import boundary
+    from hack_render.errors import HackError
+
+    target = tmp_path / "x.obj"
+    with pytest.raises(HackError, match="expected a file name, found a folder's"):
+        boundary.output_file(f"{target}/", "-o/--output", (".obj",))
+    for typed in (["-o", f"{target}/"], [f"--output={target}/"], [f"-o{target}/"]):
+        monkeypatch.setattr(sys, "argv", ["hack-render", "mesh", *typed])
+        with pytest.raises(HackError, match=r"-o/--output .*x\.obj/: expected a file name"):
+            boundary.output_file(target, "-o/--output", (".obj",))
+    monkeypatch.setattr(sys, "argv", ["hack-render", "mesh", "-o", str(target)])
+    assert boundary.output_file(target, "-o/--output", (".obj",)) == target
+    assert not target.exists()
