@@ -138,16 +138,30 @@ def _check_folder_chain(folder: Path, option: str, target: Path) -> None:
     _probe_writable(existing if existing.exists() else Path.cwd(), option, target)
 
 
+#: the words of the command line being run, when its caller passed them (see
+#: :func:`set_command_words`); None: ``sys.argv[1:]``
+_COMMAND_WORDS: list[str] | None = None
+
+
+def set_command_words(argv: Sequence[str] | None) -> None:
+    """Tell the checks the words of the command line being run (``hack_render.cli.main``
+    with an ``argv``; None: ``sys.argv[1:]``, as the console script has them)."""
+    global _COMMAND_WORDS
+    _COMMAND_WORDS = None if argv is None else [str(w) for w in argv]
+
+
 def spelt_as_folder(path: str | Path) -> bool:
     """Whether ``path`` was given with a trailing slash, a folder's spelling (``-o x.obj/``).
 
     A string keeps the slash; a Path (what the command line's parser hands a command)
-    has dropped it, so the words typed on the command line (``sys.argv``: ``x.obj/``,
-    ``--output=x.obj/``, ``-ox.obj/``) are looked at for one that names ``path`` so."""
+    has dropped it, so the words typed on the command line (:func:`set_command_words`,
+    else ``sys.argv``: ``x.obj/``, ``--output=x.obj/``, ``-ox.obj/``) are looked at for
+    one that names ``path`` so."""
     seps = tuple({"/", os.sep})
     if isinstance(path, str):
         return path.endswith(seps)
-    for word in sys.argv[1:]:
+    words = sys.argv[1:] if _COMMAND_WORDS is None else _COMMAND_WORDS
+    for word in words:
         values = [word]
         if word.startswith("--"):
             values.append(word.partition("=")[2])

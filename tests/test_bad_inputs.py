@@ -734,3 +734,9 @@ def test_a_folders_spelling_is_refused_for_a_file_output(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["hack-render", "mesh", "-o", str(target)])
     assert boundary.output_file(target, "-o/--output", (".obj",)) == target
     assert not target.exists()
+    try:  # an in-process caller of main(argv) hands its words over
+        boundary.set_command_words(["mesh", "-o", f"{target}/"])
+        with pytest.raises(HackError, match="x.obj/: expected a file name"):
+            boundary.output_file(target, "-o/--output", (".obj",))
+    finally:
+        boundary.set_command_words(None)
