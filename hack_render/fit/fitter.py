@@ -47,6 +47,7 @@ from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
 from hack_render.fit.landmarks import Detection, JawContour, landmark_weights
 from hack_render.fit.photo import Photo
+from hack_render.fit.silhouette import mask_problem
 from hack_render.fit.stages import FitWarning, StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
 
@@ -147,11 +148,7 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
 
 def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     """The view's person mask: the given one, else a plain background's (or none)."""
-    from hack_render.fit.silhouette import (
-        PhotoSilhouette,
-        mask_problem,
-        segment_plain_background,
-    )
+    from hack_render.fit.silhouette import PhotoSilhouette, segment_plain_background
 
     if state.silhouette is None:
         view.silhouette_note = "off (config silhouette.mode)"

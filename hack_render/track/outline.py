@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from hack_render.fit.silhouette import mask_problem
+
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
 
@@ -68,7 +70,7 @@ class FrameMasks:
         """From (H, W) bool masks, one per frame (None: no mask for that frame); each is
         turned into its distance map as it comes (stored as float16 at ``max_side``: a
         long clip's masks are not kept)."""
-        from hack_render.fit.silhouette import PhotoSilhouette, mask_problem
+        from hack_render.fit.silhouette import PhotoSilhouette
 
         sdfs, has, kinds, scale = [], [], [], 1.0
         for i, m in enumerate(masks):
