@@ -1,7 +1,9 @@
-"""`hack-render appearance ...`: sample texture sets, re-plot a report, rebuild the template.
+"""`hack-render appearance ...`: sample texture sets, re-plot a report.
 
 Building a model is `hack-render learn appearance` (this module's :func:`build`,
-registered by hack_render.learn.cli; `appearance build` is its deprecated old name)."""
+registered by hack_render.learn.cli; `appearance build` is its deprecated old name), and
+rebuilding the skin template is `hack-render learn template` (:func:`template`, registered
+there too)."""
 
 from __future__ import annotations
 
@@ -22,8 +24,9 @@ from hack_render.cli_options import renamed
 from hack_render.errors import HackError
 from hack_render.io import write_json
 
-app = typer.Typer(help="Appearance model A(alpha): sample, report, template "
-                  "(`hack-render learn appearance` builds one).",
+app = typer.Typer(help="Appearance model A(alpha): sample, report (`hack-render learn "
+                  "appearance` builds one, `hack-render learn template` rebuilds its skin "
+                  "template).",
                   no_args_is_help=True, add_completion=False)
 
 

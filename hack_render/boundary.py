@@ -35,6 +35,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -140,18 +141,59 @@ def _check_folder_chain(folder: Path, option: str, target: Path) -> None:
     _probe_writable(existing if existing.exists() else Path.cwd(), option, target)
 
 
+#: the words of the command line being run, when its caller passed them (see
+#: :func:`set_command_words`); None: ``sys.argv[1:]``
+_COMMAND_WORDS: list[str] | None = None
+
+
+def set_command_words(argv: Sequence[str] | None) -> None:
+    """Tell the checks the words of the command line being run (``hack_render.cli.main``
+    with an ``argv``; None: ``sys.argv[1:]``, as the console script has them)."""
+    global _COMMAND_WORDS
+    _COMMAND_WORDS = None if argv is None else [str(w) for w in argv]
+
+
+def spelt_as_folder(path: str | Path) -> bool:
+    """Whether ``path`` was given with a trailing slash, a folder's spelling (``-o x.obj/``).
+
+    A string keeps the slash; a Path (what the command line's parser hands a command)
+    has dropped it, so the words typed on the command line (:func:`set_command_words`,
+    else ``sys.argv``: ``x.obj/``, ``--output=x.obj/``, ``-ox.obj/``) are looked at for
+    one that names ``path`` so."""
+    seps = tuple({"/", os.sep})
+    if isinstance(path, str):
+        return path.endswith(seps)
+    words = sys.argv[1:] if _COMMAND_WORDS is None else _COMMAND_WORDS
+    for word in words:
+        values = [word]
+        if word.startswith("--"):
+            values.append(word.partition("=")[2])
+        elif word.startswith("-"):
+            values.append(word[2:])
+        if any(v.endswith(seps) and Path(v) == path for v in values if v):
+            return True
+    return False
+
+
 def output_file(path: str | Path, option: str = "-o/--output",
                 suffixes: Sequence[str] | None = None) -> Path:
     """Check an output file's path before the work starts; returns it as a Path.
 
     The suffix must be one of ``suffixes`` (lower case, with the dot) when given; an
-    existing directory at ``path``, or a file among its parents, is refused; the nearest
+    existing directory at ``path``, a path spelt as a folder's (``x.obj/``: see
+    :func:`spelt_as_folder`), or a file among its parents, is refused; the nearest
     existing parent must be writable. Nothing is created.
     """
+    as_folder = spelt_as_folder(path)
     path = Path(path)
     if path.is_dir():
         raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
                         f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
+    if as_folder:
+        raise HackError(f"{option} {path}{os.sep}: expected a file name, found a folder's name "
+                        f"(it ends in {os.sep!r}). Drop the {os.sep!r} to write the file "
+                        f"{path}, or name a file inside the folder, e.g. "
+                        f"{path / ('out' + (suffixes[0] if suffixes else ''))}.")
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise HackError(f"{option} {path}: expected a {_one_of(suffixes)} file, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}. Give the "

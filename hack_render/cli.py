@@ -114,14 +114,14 @@ class LazyGroup(TyperGroup):
 
 
 #: what `hack-render --version` imports (numpy, to read the model file's header)
-VERSION_MODULES = ("hack_render.geometry", "hack_render.geometry.model_file")
+VERSION_MODULES = ("hack_render.geometry.model_file",)
 
 
 def _model_version() -> str:
     """The built-in default model's name and versions, read from its file's header."""
-    geometry, model_file = (importlib.import_module(m) for m in VERSION_MODULES)
+    model_file = importlib.import_module(VERSION_MODULES[0])
     try:
-        version, meta = model_file.file_header(geometry.default_model_path())
+        version, meta = model_file.file_header(model_file.default_model_path())
     except HackError as err:
         return f"default model: unreadable ({err})"
     return (f"default model: {meta.get('name', '?')}, model version "

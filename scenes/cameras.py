@@ -158,6 +158,10 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
     return PRESETS[name](width, height, **kw)
 
 
-def save_cameras(path, cameras: list[Camera]) -> None:
-    """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
-    write_json(path, {"cameras": [c.to_dict() for c in cameras]}, indent=1)
+def save_cameras(path, cameras: list[Camera], render: dict | None = None) -> None:
+    """Write cameras as JSON (OpenCV K, R, t) through a temporary file; ``render``: what
+    the images were rendered with (``render.cli.rendered``: sampler, spp), as ``render``."""
+    data = {"cameras": [c.to_dict() for c in cameras]}
+    if render is not None:
+        data["render"] = render
+    write_json(path, data, indent=1)

@@ -84,6 +84,11 @@ DEFERRED_OWN: dict[tuple[str, str], str] = {
         "modules (posing, params, limits, model_file) never loads torch",
     ("hack_render.geometry", "hack_render.geometry.skeleton"): "torch: as for model",
     ("hack_render.geometry", "hack_render.geometry.loading"): "torch: as for model",
+    ("appearance", "appearance.model"):
+        "torch: the package's re-exported names (_LAZY), so that importing its NumPy "
+        "modules (texture_io, uv, regions) never loads torch",
+    ("appearance", "appearance.detail"): "torch: as for appearance.model",
+    ("appearance", "appearance.builder"): "torch: as for appearance.model",
     ("hack_render.geometry.limits", "hack_render.geometry.skeleton"):
         "torch: clamping a tensor theta; NumPy posing shares apply_limit_policy",
     ("hack_render.geometry.cli", "hack_render.geometry.loading"):

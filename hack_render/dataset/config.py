@@ -19,13 +19,14 @@ from hack_render.dataset.backgrounds import check_background_config
 from hack_render.errors import HackError
 from hack_render.io.image import TONE_MAPS
 from hack_render.render.scene import INTEGRATORS, MAX_SIDE, MAX_SPP, SAMPLERS
+from hack_render.render.settings import RenderSettings
 from scenes import lights
 
 #: Every key, with its default. Ranges are [min, max] (uniform unless said otherwise).
 DEFAULTS: dict[str, Any] = {
     "render": {
         "resolution": 256,        # pixels, square
-        "spp": 32,                # samples per pixel
+        "spp": 25,                # samples per pixel (auto: 25 is the orthogonal array's)
         "max_depth": 8,
         "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
@@ -235,3 +236,12 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
 def canonical(cfg: dict) -> str:
     """The config as canonical JSON (sorted keys): equal strings mean equal datasets."""
     return json.dumps(cfg, sort_keys=True)
+
+
+def render_settings(cfg: dict[str, Any]) -> RenderSettings:
+    """The render settings of a config's ``render`` section, as every sample is rendered
+    (a box pixel filter: each sample in one pixel, for the labels' and the denoiser's
+    sake; seed 0, each view's seed set when it renders)."""
+    r = cfg["render"]
+    return RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
+                          pixel_filter="box", sampler=r["sampler"], integrator=r["integrator"])

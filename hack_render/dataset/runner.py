@@ -31,9 +31,11 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from appearance.model import AppearanceModel
 from appearance.uv import default_template
 from hack_render import boundary, interrupts
 from hack_render.boundary import estimate_line
+from hack_render.dataset.config import render_settings
 from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
 from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
@@ -119,8 +121,6 @@ def check_job(job: Job) -> None:
     app = job.cfg["appearance"]
     if app["source"] == "alpha":
         try:
-            from appearance.model import AppearanceModel
-
             k = AppearanceModel.load().n_components
         except (ImportError, OSError) as err:
             raise HackError(f"config key 'appearance.source': 'alpha' needs the appearance "
@@ -150,7 +150,12 @@ def check_job(job: Job) -> None:
 
 def run_info(job: Job) -> dict:
     """What ``config.json`` records: config, seed and the label table."""
+
+    st = render_settings(job.cfg)
     return {"format": "hack-render-dataset", "version": 1, "seed": job.seed, "config": job.cfg,
+            # what the images are rendered with (the sampler rounds render.spp up): a
+            # folder made by a version that rendered otherwise is not resumed into
+            "rendered": {"sampler": st.mitsuba_sampler, "spp": st.effective_spp},
             "labels": [{"id": i, "name": n, "description": LABEL_DESCRIPTIONS[n]}
                        for i, n in enumerate(LABELS)]}
 
@@ -381,8 +386,9 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         todo, n_todo = prepare(job)
         tally = {"complete": total - n_todo}
         print(f"dataset: {n_todo:,} of the {total:,} samples of shard {k}/{m} to render into "
-              f"{job.out} ({job.cfg['render']['resolution']} px, {job.cfg['render']['spp']} "
-              f"spp, {job.cfg['camera']['views']} view(s) each)", file=sys.stderr)
+              f"{job.out} ({job.cfg['render']['resolution']} px, "
+              f"{render_settings(job.cfg).effective_spp} spp, {job.cfg['camera']['views']} "
+              f"view(s) each)", file=sys.stderr)
 
         def kept() -> str:
             return (f"kept {tally['complete']:,} complete samples of the {total:,} of shard "

@@ -34,13 +34,14 @@ from appearance.generator import generate_subject
 from appearance.model import AppearanceModel
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
+from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 from hack_render.geometry import load_default_model
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.materials import SkinMaps
 from hack_render.render.parts import Topology
-from hack_render.render.scene import HeadScene, RenderSettings, composite
+from hack_render.render.scene import HeadScene, composite
 from scenes import cameras as cams
 from scenes import lights
 
@@ -134,10 +135,9 @@ class SampleRenderer:
                 self.scenes[preset] = self._build_scene(preset)
 
     def _build_scene(self, preset: str):
+
         r = self.cfg["render"]
-        settings = RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
-                                  pixel_filter="box", sampler=r["sampler"],
-                                  integrator=r["integrator"])
+        settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
@@ -204,6 +204,9 @@ class SampleRenderer:
         # labels first: their files are written while the path tracer runs
         aov, seg, masks = lab.label_images(head, r["soft_mask_samples"], self.atlas)
         meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
+        # the image's own sampling, in its headers (the labels are not path traced)
+        rgb_meta = dict(meta, hack_sampler=head.settings.mitsuba_sampler,
+                        hack_spp=str(head.settings.effective_spp))
         writes += [
             put(write_exr, vdir / "depth.exr", {"Z": aov["depth"]}, meta),
             put(write_exr, vdir / "normal.exr",
@@ -229,14 +232,14 @@ class SampleRenderer:
         if mode != "off" and r["keep_noisy"]:
             noisy = composite(bare * np.float32([gain, gain, gain, 1.0]), backdrop)
             writes.append(put(write_exr, vdir / "rgb_noisy.exr", rgb_channels(noisy[..., :3]),
-                              meta))
+                              rgb_meta))
         img = composite(img * np.float32([gain, gain, gain, 1.0]), backdrop)
         # the matte is the geometric coverage of the label rays (the soft masks); the
         # film's alpha (coverage of the path tracer's own samples) agrees up to noise
         alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)
         ch = rgb_channels(img[..., :3])
         ch["A"] = alpha
-        writes += [put(write_exr, vdir / "rgb.exr", ch, meta),
+        writes += [put(write_exr, vdir / "rgb.exr", ch, rgb_meta),
                    put(_write_rgb_png, vdir / "rgb.png", img[..., :3], r["tonemap"]),
                    put(_write_png, vdir / "alpha.png", np.round(alpha * 255).astype(np.uint8))]
         return {"name": cam.name, "camera": cam.to_dict(), "sampled": spec["cameras"][v]}

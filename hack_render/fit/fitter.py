@@ -35,11 +35,13 @@ the exact homography K' Rv K^-1 (so the crop needs no off-centre principal point
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from appearance.model import AppearanceModel
 from hack_render.errors import HackError
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
@@ -47,13 +49,17 @@ from hack_render.fit.config import FitConfig
 from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
 from hack_render.fit.landmarks import JawContour, landmark_weights
 from hack_render.fit.photo import Photo
-from hack_render.fit.silhouette import ModelSilhouette, PhotoSilhouette, segment_plain_background
-from hack_render.fit.stages import StageLog, StageReport
+from hack_render.fit.silhouette import (
+    ModelSilhouette,
+    PhotoSilhouette,
+    mask_problem,
+    segment_plain_background,
+)
+from hack_render.fit.stages import FitWarning, StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
 from hack_render.geometry import load_default_model
-from hack_render.vision.detection import Detection
 from hack_render.vision import segment as vision_segment
-from appearance.model import AppearanceModel
+from hack_render.vision.detection import Detection
 
 __all__ = ["R0", "SENSOR_MM", "FitResult", "FitState", "Fitter", "Level", "View",
            "init_state"]
@@ -169,14 +175,21 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
         view.hair = seg.hair
+    if m is not None and mask_problem(m) is not None:  # no outline in the photo to fit
+        m, why = None, f"the plain background's mask has {mask_problem(m)}"
     if m is None and cfg.silhouette.segment:
-        if seg is not None:
-            person = seg.person > 0.5
+        person = seg.person > 0.5 if seg is not None else None
+        if person is not None and mask_problem(person) is None:
             view.silhouette = PhotoSilhouette.from_mask(person, "segmentation")
             view.shoulders = shows_shoulders(person, view.detection.points)
             view.silhouette_note = (f"segmented by {seg.source} ({100 * person.mean():.0f} % "
                                     f"of the photo; occluders {100 * seg.occluder.mean():.1f} %)")
             return
+        if person is not None:  # a tight face crop: fit on without the outline, and say so
+            err = (f"{mask_problem(person)}: no outline to fit (a tight face crop?); "
+                   "fitting without the silhouette term")
+            warnings.warn(f"{view.photo.name}: the person segmentation found {err}.",
+                          FitWarning, stacklevel=2)
         why = f"{why}; segmentation: {err}"
     if m is None:
         view.silhouette_note = f"none: {why}"

@@ -54,7 +54,7 @@ class PhotoSilhouette:
         from scipy.ndimage import distance_transform_edt, zoom
 
         mask = np.asarray(mask, bool)
-        if mask.ndim != 2 or not mask.any() or mask.all():
+        if mask_problem(mask) is not None:
             raise HackError(f"silhouette mask ({source}): expected a 2-D mask with both "
                             f"person and background pixels, found shape {mask.shape} with "
                             f"{int(mask.sum())} person pixels.")
@@ -91,6 +91,21 @@ class PhotoSilhouette:
 #: a border pixel within this colour distance (sRGB) of the border's median is background;
 #: under 60 % of the border so: a cluttered background, no automatic mask
 MAX_SPREAD = 0.06
+
+
+def mask_problem(mask: np.ndarray) -> str | None:
+    """Why a person mask can make no silhouette term (None: it can): it is not 2-D, or it
+    has no person pixels or no background ones (nothing of the outline is in the photo:
+    a tight face crop, as face datasets hold, whose person fills the frame or is not
+    found at all)."""
+    mask = np.asarray(mask, bool)
+    if mask.ndim != 2:
+        return f"a mask of shape {mask.shape}, not 2-D"
+    if not mask.any():
+        return f"no person pixels (of {mask.shape[1]} x {mask.shape[0]})"
+    if mask.all():
+        return f"no background pixels (the person fills all {mask.shape[1]} x {mask.shape[0]})"
+    return None
 
 
 def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: float = 0.03,

@@ -40,13 +40,13 @@ from hack_render.fit.bake_weights import PhotoRender, pixel_weights
 from hack_render.fit.camera import R0
 from hack_render.fit.config import FitConfig
 from hack_render.fit.state import FitState, View
+from hack_render.render import denoise as dn
 from hack_render.render.emitters import cropped
 from hack_render.render.materials import SkinMaps
 from hack_render.render.parts import Topology
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes.cameras import Camera
 from scenes.lights import LightRig
-from hack_render.render import denoise as dn
 
 
 @dataclass

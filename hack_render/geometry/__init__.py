@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import importlib
-from importlib import resources
-from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hack_render.errors import HackError
+from hack_render.geometry.model_file import DEFAULT_MODEL_NAME, default_model_path
 
 if TYPE_CHECKING:  # imported lazily (below): the NumPy posing path must not import torch
     from hack_render.geometry.loading import load_default_model, load_model
@@ -36,9 +34,9 @@ def __getattr__(name: str):
         return getattr(importlib.import_module(f"hack_render.geometry.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'hack_render.geometry' has no attribute {name!r}")
 
-DEFAULT_MODEL_NAME = "hack_default.npz"
 
 __all__ = [
+    "DEFAULT_MODEL_NAME",
     "JOINT_NAMES",
     "HackModel",
     "HackOutput",
@@ -52,14 +50,3 @@ __all__ = [
     "rotation_limit_penalty",
     "rotation_limits",
 ]
-
-
-def default_model_path() -> Path:
-    """Path of the built-in default model shipped as package data."""
-    path = Path(str(resources.files("hack_render") / "data" / DEFAULT_MODEL_NAME))
-    if not path.is_file():
-        raise HackError(f"the built-in default model {path} is missing: reinstall "
-                        f"hack-render, or rebuild it from ICT-FaceKit (public, MIT licence; "
-                        f"github.com/ICT-VGL/ICT-FaceKit) with `hack-render model build-v2 "
-                        f"--ict ICT_FACEKIT_DIR -o {path}`.")
-    return path

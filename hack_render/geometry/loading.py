@@ -12,9 +12,9 @@ from pathlib import Path
 import torch
 
 from hack_render import boundary
-from hack_render.geometry import default_model_path
 from hack_render.geometry.limits import apply_limit_policy
 from hack_render.geometry.model import HackModel
+from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.params import gather_params, model_inputs
 
 

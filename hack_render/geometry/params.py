@@ -109,7 +109,17 @@ def load_params(path: str | Path) -> dict[str, Any]:
     except OSError as exc:
         raise HackError(f"--params {path}: not readable ({exc.strerror}).") from exc
     data = parse_params_text(text, path.suffix, str(path))
+    if data is None and _has_content(text):  # `null` (or YAML's `~`): not a mapping
+        raise HackError(f"--params {path}: expected a mapping of parameter names to values, "
+                        f"e.g. {{\"beta\": [0.5, -1.0]}} ({{}} for none), found null.")
     return check_params({} if data is None else data, str(path))
+
+
+def _has_content(text: str) -> bool:
+    """Whether a parameter file says something: a line other than blanks, comments and
+    YAML's document markers (an empty file, or one of comments, reads as no parameters)."""
+    return any(ln.strip() and not ln.lstrip().startswith("#") and ln.strip() not in ("---", "...")
+               for ln in text.splitlines())
 
 
 def _bound_text(key: str) -> tuple[float, float, str]:
@@ -122,13 +132,18 @@ def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
     """``value`` as a finite float64 array of ``shape`` (None: any length) inside the key's
     hard bounds, else a HackError naming the key."""
     ok = not isinstance(value, (str, bytes, dict, bool)) and value is not None
+    shown = repr(value) if len(repr(value)) < 80 else repr(value)[:77] + "..."
+    bad = _non_number(value) if ok else None
+    if bad is not None:  # NumPy would read true as 1.0 and "2" as 2.0
+        found = (f"{str(bool(bad[0])).lower()} (true and false are not numbers)"
+                 if isinstance(bad[0], (bool, np.bool_)) else f"{bad[0]!r} in {shown}")
+        raise HackError(f"{where}: key '{key}' expected {want}, found {found}.")
     arr = None
     if ok:
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             arr = None
-    shown = repr(value) if len(repr(value)) < 80 else repr(value)[:77] + "..."
     if arr is None or arr.dtype == object:
         raise HackError(f"{where}: key '{key}' expected {want}, found {shown}.")
     if arr.ndim != len(shape) or any(d is not None and d != s for d, s in zip(shape, arr.shape)):
@@ -140,6 +155,32 @@ def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
         bad = arr.min() if arr.min() < lo else arr.max()
         raise HackError(f"{where}: key '{key}' expected values in {text}, found {bad:g}.")
     return arr
+
+
+def _non_number(value) -> tuple[Any] | None:
+    """``(element,)``: the first element of a (nested) list, array or tensor that is not a
+    number (booleans and strings are not), or None when all are."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, (list, tuple)):
+            stack.extend(reversed(v))
+            continue
+        if v is None or isinstance(v, (bool, np.bool_, str, bytes, dict)):
+            return (v,)
+        if isinstance(v, (int, float, np.number)):
+            continue
+        try:
+            a = np.asarray(v)  # an array, a tensor
+        except Exception:  # noqa: BLE001 - whatever it is, it is not a number
+            return (v,)
+        if a.dtype.kind in "iuf":
+            continue
+        if a.dtype.kind == "O" and a.ndim:
+            stack.extend(reversed(a.ravel().tolist()))
+            continue
+        return (a.ravel()[0].item() if a.size and a.dtype.kind != "O" else v,)
+    return None
 
 
 def _vector(value, name: str, where: str, length: int | None = None) -> list[float]:

@@ -29,11 +29,11 @@ import numpy as np
 
 from hack_render import boundary
 from hack_render.errors import HackError
-from hack_render.geometry import default_model_path, np_rotations
+from hack_render.geometry import np_rotations
 from hack_render.geometry.anatomy import ETA_DEFAULT, NUM_JOINTS
 from hack_render.geometry.expressions import expression_weights
 from hack_render.geometry.limits import apply_limit_policy
-from hack_render.geometry.model_file import load_model_file
+from hack_render.geometry.model_file import default_model_path, load_model_file
 from hack_render.geometry.params import forward_inputs, gather_params
 
 

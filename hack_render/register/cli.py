@@ -22,6 +22,7 @@ from hack_render.register.bake import bake_scan_colors
 from hack_render.register.find_landmarks import find_landmarks
 from hack_render.register.fitting import RegisterConfig
 from hack_render.register.outputs import write_registration
+from hack_render.register.pipeline import register as register_scan
 from hack_render.register.scan import MESH_SUFFIXES, POINT_SUFFIXES, UNITS, load_scan
 
 
@@ -159,8 +160,6 @@ def register_cmd(
 def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, texture_size,
                   quiet) -> tuple[int, int, int]:
     """Register every scan not already done; (registered, failed, skipped)."""
-    from hack_render.register.pipeline import register
-
     done = failed = skipped = 0
     for path in tqdm(files, desc="register", unit="scan", disable=quiet or len(files) < 2):
         outdir = output / path.stem
@@ -177,7 +176,7 @@ def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, te
             typer.secho(f"{path.name}: skipped: {err}", err=True, fg=typer.colors.RED)
             failed += 1
             continue
-        reg = register(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
+        reg = register_scan(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
                        landmark_source=lmk_info["source"])
         reg.report["fingerprint"] = fp
         if "seconds" in lmk_info:

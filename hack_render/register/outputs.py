@@ -8,8 +8,10 @@ last, so a folder with ``report.json`` is complete and one without it is not.
   (metres), for ``render --params``, ``turntable --params`` and ``export --params``.
 - ``offsets.npy``: (N, 3) free-form offsets, metres, model frame (zero off the skin).
 - ``error.ply``: the registered mesh coloured by each vertex's distance to the scan
-  (blue 0 mm, red >= 3 mm, grey where not measured), the distance also as a
-  ``quality`` property (millimetres).
+  (blue 0 mm, red >= 3 mm, grey where not measured: off the skin, and where the scan has
+  no surface for the vertex, e.g. the back of the head of a face scan:
+  :func:`hack_render.register.pipeline.measure`), the distance also as a ``quality``
+  property (millimetres; -1 not measured).
 - ``error.png``: that heat map ray cast from the front and both sides, with a labelled
   colour bar (matplotlib) and the scan's errors in the title.
 - ``landmarks.json``: the 3-D landmarks used (scan frame and units) and where they came from.
@@ -19,7 +21,6 @@ last, so a folder with ``report.json`` is complete and one without it is not.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -107,8 +108,8 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
         ax.axis("off")
     sm = plt.cm.ScalarMappable(norm=Normalize(0, HEAT_MAX_MM), cmap=colormaps["turbo"])
     bar = fig.colorbar(sm, ax=axes, fraction=0.025, pad=0.01)
-    bar.set_label(f"distance to the scan, mm (grey: not measured; >= {HEAT_MAX_MM:g} red)",
-                  fontsize=8)
+    bar.set_label(f"distance to the scan, mm (grey: not measured, no scan there; >= "
+                  f"{HEAT_MAX_MM:g} red)", fontsize=8)
     fig.suptitle(title, fontsize=10)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png", facecolor="white")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import time
 import warnings
 from pathlib import Path
@@ -40,9 +41,10 @@ if TYPE_CHECKING:
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
 SamplerOpt = typer.Option("auto", "--sampler", help="Mitsuba sampler: auto (orthogonal "
-                          "arrays near 25, 49, 121... spp, else multijitter), multijitter, "
-                          "stratified, orthogonal, ldsampler or independent. All but "
-                          "independent round --spp (said when they do); see docs/render.md.")
+                          "arrays at 25, 49, 121... spp and a little under, else "
+                          "multijitter), multijitter, stratified, orthogonal, ldsampler or "
+                          "independent. All but independent round --spp up, never down (said "
+                          "when they do); see docs/render.md.")
 IntegratorOpt = typer.Option("hack_path", "--integrator", help="Integrator: hack_path or "
                              "volpath (shadow rays see through the lashes' transparent parts: "
                              "less noise around the eyes; the same image, hack_path 1.3-2.9x "
@@ -79,14 +81,25 @@ def denoise_settings(settings, use_denoise: bool):
     return dataclasses.replace(settings, pixel_filter="box") if use_denoise else settings
 
 
+def rendered(settings) -> dict:
+    """What a render's metadata records of its sampling (the cameras JSON's ``render``):
+    the sampler and samples per pixel rendered, and the count asked for."""
+    return {"sampler": settings.mitsuba_sampler, "spp": settings.effective_spp,
+            "spp_requested": settings.spp}
+
+
+#: 'W' or 'WxH' (also 'W,H', as before)
+_RESOLUTION = re.compile(r"(\d+)\s*(?:[xX,]\s*(\d+))?")
+
+
 def parse_resolution(text: str) -> tuple[int, int]:
-    """``--resolution`` 'W' or 'WxH' as (width, height), checked."""
-    try:
-        parts = [int(x) for x in text.lower().replace("x", ",").split(",") if x.strip()]
-    except ValueError as err:
-        raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
-    if len(parts) not in (1, 2):
-        raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
+    """``--resolution`` 'W' or 'WxH' as (width, height), checked: whole numbers only, one
+    or two of them ('64x', 'x64' and '64x64x' are refused, not read as a square)."""
+    match = _RESOLUTION.fullmatch(text.strip())
+    if match is None:
+        raise HackError(f"--resolution: expected 'W' or 'WxH' in whole pixels (e.g. 512 or "
+                        f"640x480), found {text!r}.")
+    parts = [int(x) for x in match.groups() if x is not None]
 
     if not all(1 <= p <= MAX_SIDE for p in parts):
         raise HackError(f"--resolution: expected sides of 1..{MAX_SIDE} pixels, found "
@@ -180,7 +193,7 @@ def render(
                                              "sensor width); default 85 (ring: 50)."),
     views: int = typer.Option(8, help="Number of cameras of the ring preset."),
     resolution: opts.Resolution = "512",
-    spp: opts.Spp = 64,
+    spp: opts.Spp = 49,
     seed: opts.Seed = 0,
     max_depth: int = typer.Option(8, help="Maximum path length."),
     iris_color: str | None = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
@@ -195,7 +208,7 @@ def render(
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
-    Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 64
+    Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 121
     """
 
     # every cheap check before anything heavy is loaded or allocated
@@ -236,14 +249,15 @@ def render(
         typer.echo(settings.spp_note(), err=True)
     outputs = []
     if len(views_) > 1:
-        typer.echo(f"render: {len(views_)} views of {w}x{h} at {spp} spp", err=True)
+        typer.echo(f"render: {len(views_)} views of {w}x{h} at {settings.effective_spp} spp",
+                   err=True)
     with interrupts.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
         _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                       use_denoise, keep_noisy, sss)
     cam_json = output.with_name(f"{output.stem}.cameras.json")
-    cams.save_cameras(cam_json, views_)
+    cams.save_cameras(cam_json, views_, rendered(head.settings))
     for target in outputs + [cam_json]:
         typer.echo(f"wrote {target.resolve()}")
 

@@ -37,6 +37,7 @@ from hack_render.render.cli import (
     denoise_settings,
     named,
     parse_resolution,
+    rendered,
 )
 from hack_render.render.parts import Topology
 from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
@@ -85,7 +86,7 @@ def turntable(
     focal_mm: float = typer.Option(85.0, "--focal-mm", help="Focal length, mm."),
     pitch: float = typer.Option(5.0, help="Camera elevation, degrees."),
     resolution: opts.Resolution = "256",
-    spp: opts.Spp = 32,
+    spp: opts.Spp = 25,
     seed: opts.Seed = 0,
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
@@ -142,6 +143,7 @@ def turntable(
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
         "variant": variant, "limits": limits, "frames": frames, "mode": mode,
         "sampler": sampler, "integrator": integrator, "denoise": use_denoise, "sss": sss,
+        "rendered": rendered(settings),
         "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 
@@ -233,7 +235,8 @@ def turntable(
             written.append(write_mp4(output / "turntable.mp4", seq, fps))
         if "gif" in fmt:
             written.append(write_gif(output / "turntable.gif", seq, fps))
-        cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)])
+        cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)],
+                          rendered(settings))
         record.write(complete=True)  # the completion marker, last
     for path in written + [output / "cameras.json"]:
         typer.echo(f"wrote {path.resolve()}")

@@ -13,6 +13,7 @@ from tqdm import tqdm
 from hack_render.errors import HackError
 from hack_render.fit.landmark_refiner import load_refiner
 from hack_render.io import atomic_path
+from hack_render.vision import detect as vision_detect
 from hack_render.vision import dlib_models
 
 
@@ -99,9 +100,7 @@ class FrameDetector:
         """(points, visible (68,), box) of the face mesh's face nearest the last one, or
         None (no face, or the vision package's models are not installed)."""
         try:
-            from hack_render.vision.detect import detect_faces
-
-            faces = detect_faces(img, "mesh")
+            faces = vision_detect.detect_faces(img, "mesh")
         except (ImportError, HackError, OSError, RuntimeError):
             return None
         faces = [f for f in faces if f.size >= self.min_face_px]

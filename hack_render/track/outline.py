@@ -37,11 +37,17 @@ import numpy as np
 import torch
 
 from hack_render.fit.camera import R0
-from hack_render.fit.silhouette import ModelSilhouette, PhotoSilhouette, segment_plain_background
+from hack_render.fit.silhouette import (
+    ModelSilhouette,
+    PhotoSilhouette,
+    mask_problem,
+    segment_plain_background,
+)
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.render.bridge import vertex_normals_torch
 from hack_render.track.solve import solve_clip
+from hack_render.vision.segment import person_mask
 
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
@@ -78,6 +84,8 @@ class FrameMasks:
         long clip's masks are not kept)."""
         sdfs, has, kinds, scale = [], [], [], 1.0
         for i, m in enumerate(masks):
+            if m is not None and mask_problem(m) is not None:
+                m = None  # all person or none (a tight crop): no outline in this frame
             kind = (source[i] if source is not None else "given") if m is not None else ""
             if m is None:
                 sdfs.append(None)
@@ -143,13 +151,9 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
 
 
 def _segmented(img: np.ndarray, points: np.ndarray) -> np.ndarray | None:
-    try:
-        from hack_render.vision.segment import person_mask
-    except ImportError:  # mediapipe missing: frames on a cluttered background get no mask
-        return None
-    try:
-        m, _ = person_mask(img, points)
-    except Exception:  # noqa: BLE001  (a segmentation that fails leaves the frame to the landmarks)
+    try:  # mediapipe missing (ImportError) or a segmentation that fails: the frame is left
+        m, _ = person_mask(img, points)  # to the landmarks
+    except Exception:  # noqa: BLE001
         return None
     return m
 
