@@ -378,7 +378,8 @@ def test_06_help_imports_no_command_module_and_nothing_heavy():
     heavy = [m for m in loaded if m.split(".")[0] in LIGHT_AT_HELP]
     assert heavy == [], heavy
     assert set(loaded) <= {"hack_render", "hack_render.cli", "hack_render.errors",
-                           "hack_render.interrupts"}, loaded
+                           "hack_render.interrupts", "hack_render.boundary",
+                           "hack_render.io"}, loaded
 
 
 # --------------------------------------------------------------------------- the fitter
