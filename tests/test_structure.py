@@ -406,6 +406,16 @@ def test_08_training_code_is_off_the_runtime_path(imports):
         assert name not in src, name
 
 
+def test_11_the_docs_table_of_layers_is_the_tested_one():
+    text = (ROOT / "docs" / "index.md").read_text()
+    rows = [line for line in text.split("### Import layers")[1].splitlines()
+            if line.startswith("| ") and line[2].isdigit()]
+    assert len(rows) == len(LAYERS)
+    for row, names in zip(rows, LAYERS):
+        listed = {n.strip(" `") for n in row.split("|")[2].split("(")[0].split(",")}
+        assert listed == {n for n in names if n != "hack_render"}, (row, names)
+
+
 @pytest.mark.slow
 def test_09_each_module_imports_alone():
     names = sorted(modules())
