@@ -13,12 +13,6 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from appearance.builder import build_model, plot_report
-from appearance.detail import compose_detail
-from appearance.model import AppearanceModel, load_model_arrays
-from appearance.report import preview_sheet
-from appearance.texture_io import write_map, write_texture_set
-from appearance.uv import TEMPLATE_FILE, write_template_file
 from hack_render import boundary
 from hack_render.cli_options import renamed
 from hack_render.errors import HackError
@@ -48,6 +42,8 @@ def build(
     Registered as `hack-render learn appearance` by hack_render.learn.cli.
     Example: hack-render learn appearance captures/ -o appearance.npz --components 50
     """
+    from appearance.builder import build_model
+
     out = renamed(output, out_old, "--out", "-o/--output")
     if out is None:
         raise HackError("expected -o/--output MODEL.npz, found none.")
@@ -80,6 +76,8 @@ def template(
 
     Example: hack-render learn template --ict ICT_FACEKIT_DIR
     """
+    from appearance.uv import TEMPLATE_FILE, write_template_file
+
     if not Path(ict).exists():
         raise HackError(f"--ict {ict}: not found; pass the ICT-FaceKit folder or its "
                         "generic_neutral_mesh.obj.")
@@ -110,6 +108,11 @@ def sample(
 ):
     """Write diffuse/specular/roughness/normal maps for one alpha, plus preview.png."""
     import torch
+
+    from appearance.detail import compose_detail
+    from appearance.model import AppearanceModel
+    from appearance.report import preview_sheet
+    from appearance.texture_io import write_map, write_texture_set
 
     out = renamed(output, out_old, "--out", "-o/--output")
     model = renamed(model, model_old, "appearance sample --model", "--appearance-model")
@@ -162,6 +165,9 @@ def report(model: Path = typer.Argument(..., help="model file (.npz)"),
            out_old: Path | None = typer.Option(None, "--out", hidden=True,
                                                help="Deprecated: -o/--output.")):
     """Re-plot a model's explained-variance and held-out error curves."""
+    from appearance.builder import plot_report
+    from appearance.model import load_model_arrays
+
     out = renamed(output, out_old, "--out", "-o/--output")
     boundary.input_file(model, "MODEL", (".npz",), "appearance model file")
     boundary.output_file(out or model.with_suffix(".report.png"), "-o/--output", (".png",))

@@ -61,8 +61,9 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
               "(--no-outline: landmarks alone).", ("hack_render.track.cli",)),
     "model": ("Inspect HACK model files (`hack-render learn model` builds one).",
               ("hack_render.geometry.cli", "hack_render.learn.cli")),
-    "appearance": ("Appearance model A(alpha): sample, report, template (`hack-render learn "
-                   "appearance` builds one).", ("appearance.cli", "hack_render.learn.cli")),
+    "appearance": ("Appearance model A(alpha): sample, report (`hack-render learn appearance` "
+                   "builds one, `hack-render learn template` rebuilds its skin template).",
+                   ("appearance.cli", "hack_render.learn.cli")),
     "learn": ("Learn HACK's components from data: the model, its joints, the appearance "
               "model, the fitter's landmark embedding and refiner.",
               ("hack_render.learn.cli",)),

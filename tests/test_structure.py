@@ -79,16 +79,6 @@ DEFERRABLE = {
 #: torch (2.2 s) off a path that runs without it (`hack-render mesh` poses in NumPy,
 #: `render` reads its mesh cache). Counted in the issue's note; keep it short.
 DEFERRED_OWN: dict[tuple[str, str], str] = {
-    ("hack_render.geometry", "hack_render.geometry.model"):
-        "torch: the package's re-exported names (_LAZY), so that importing its NumPy "
-        "modules (posing, params, limits, model_file) never loads torch",
-    ("hack_render.geometry", "hack_render.geometry.skeleton"): "torch: as for model",
-    ("hack_render.geometry", "hack_render.geometry.loading"): "torch: as for model",
-    ("appearance", "appearance.model"):
-        "torch: the package's re-exported names (_LAZY), so that importing its NumPy "
-        "modules (texture_io, uv, regions) never loads torch",
-    ("appearance", "appearance.detail"): "torch: as for appearance.model",
-    ("appearance", "appearance.builder"): "torch: as for appearance.model",
     ("hack_render.geometry.limits", "hack_render.geometry.skeleton"):
         "torch: clamping a tensor theta; NumPy posing shares apply_limit_policy",
     ("hack_render.geometry.cli", "hack_render.geometry.loading"):
@@ -98,6 +88,24 @@ DEFERRED_OWN: dict[tuple[str, str], str] = {
         "cache run without torch",
     ("hack_render.render.skin_maps", "appearance.generator"):
         "torch: only --appearance-seed needs the generator (as for appearance.model)",
+}
+
+#: the engines that a command's ``--help`` must not import (tests/test_cli.py checks every
+#: ``--help`` in one process): a command module (``cli.py``, ``*_cli.py``) imports a
+#: module whose import loads one of them inside the command's function, where the command
+#: runs, and only such a module
+HEAVY_AT_HELP = ("torch", "mitsuba", "drjit", "scipy", "dlib", "ray", "skimage",
+                 "matplotlib", "colour", "trimesh", "cv2", "mediapipe")
+
+#: the packages that re-export their modules' names lazily (a ``_LAZY`` name -> module
+#: table and ``__getattr__``): importing any module of a package runs its ``__init__``, so
+#: these stay light for the reason given
+LAZY_PACKAGES = {
+    "hack_render.geometry": "its NumPy modules (posing, params, limits, model_file) run "
+                            "without torch: `hack-render mesh`, the render's mesh cache",
+    "appearance": "its texture IO and UV layout serve renders from texture files without "
+                  "torch, and `appearance --help` imports the package",
+    "hack_render.dataset": "`dataset --help` imports the package; its modules load Mitsuba",
 }
 
 #: what ``hack_render.cli`` may import before a command runs (``hack-render --help``)
@@ -125,10 +133,12 @@ class Import:
     standard-library top-level name), the name taken from it (None for a module), the
     line, and whether it stands inside a function."""
 
-    __slots__ = ("module", "name", "line", "in_function")
+    __slots__ = ("in_function", "lazy_table", "line", "module", "name", "type_only")
 
-    def __init__(self, module, name, line, in_function):
+    def __init__(self, module, name, line, in_function, type_only=False, lazy_table=False):
         self.module, self.name, self.line, self.in_function = module, name, line, in_function
+        self.type_only = type_only  # under `if TYPE_CHECKING:`: never run
+        self.lazy_table = lazy_table  # a package's `_LAZY` name -> module table
 
     def __repr__(self):
         where = "in a function" if self.in_function else "at the top"
@@ -143,6 +153,13 @@ def parse_imports(source: str, modname: str, is_package: bool,
     for node in ast.walk(tree):
         for child in ast.iter_child_nodes(node):
             parents[child] = node
+
+    def type_only(node):
+        while node in parents:
+            node = parents[node]
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+                return True
+        return False
 
     def in_function(node):
         while node in parents:
@@ -166,13 +183,13 @@ def parse_imports(source: str, modname: str, is_package: bool,
                 if isinstance(v, ast.Constant) and isinstance(v.value, str):
                     target = v.value if v.value.split(".")[0] in PACKAGES else \
                         f"{pkg_name}.{v.value}"
-                    out.append(Import(own(target), None, node.lineno, True))
+                    out.append(Import(own(target), None, node.lineno, True, lazy_table=True))
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for a in node.names:
                 top = a.name.split(".")[0]
                 mod = own(a.name) if top in PACKAGES else top
-                out.append(Import(mod, None, node.lineno, in_function(node)))
+                out.append(Import(mod, None, node.lineno, in_function(node), type_only(node)))
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
@@ -182,12 +199,28 @@ def parse_imports(source: str, modname: str, is_package: bool,
             top = base.split(".")[0]
             for a in node.names:
                 sub = f"{base}.{a.name}"
+                where = (node.lineno, in_function(node), type_only(node))
                 if top not in PACKAGES:
-                    out.append(Import(top, None, node.lineno, in_function(node)))
+                    out.append(Import(top, None, *where))
                 elif sub in mods:
-                    out.append(Import(sub, None, node.lineno, in_function(node)))
+                    out.append(Import(sub, None, *where))
                 else:
-                    out.append(Import(own(base), a.name, node.lineno, in_function(node)))
+                    out.append(Import(own(base), a.name, *where))
+    return out
+
+
+def lazy_tables(mods: dict[str, Path]) -> dict[str, dict[str, str]]:
+    """Each package's ``_LAZY`` table: {package: {name: module}}."""
+    out = {}
+    for m, p in mods.items():
+        if p.name != "__init__.py":
+            continue
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id == "_LAZY" for t in node.targets):
+                out[m] = {k.value: (v.value if v.value.split(".")[0] in PACKAGES
+                                    else f"{m}.{v.value}")
+                          for k, v in zip(node.value.keys, node.value.values)}
     return out
 
 
@@ -200,6 +233,12 @@ def all_imports(mods: dict[str, Path] | None = None) -> dict[str, list[Import]]:
     mods = mods or modules()
     out = {m: parse_imports(p.read_text(), m, p.name == "__init__.py", mods)
            for m, p in mods.items()}
+    # `from pkg import name` of a lazily re-exported name imports the module behind it
+    tables = lazy_tables(mods)
+    for imps in out.values():
+        for i in imps:
+            if i.module in tables and i.name in tables[i.module]:
+                i.module, i.name = tables[i.module][i.name], None
     lazy = {m for _, ms in cli.COMMANDS.values() for m in ms} | set(cli.VERSION_MODULES)
     out["hack_render.cli"] += [Import(m, None, 0, True) for m in sorted(lazy)]
     return out
@@ -277,9 +316,34 @@ def private_imports(imports: dict[str, list[Import]]) -> list[str]:
                   and i.name.startswith("_") and not i.name.startswith("__"))
 
 
+def is_command_module(module: str) -> bool:
+    last = module.rsplit(".", 1)[-1]
+    return last == "cli" or last.endswith("_cli")
+
+
+def heavy_at_import(imports: dict[str, list[Import]]) -> set[str]:
+    """The own modules whose import (their top-level imports, their packages' too, and so
+    on) loads one of :data:`HEAVY_AT_HELP`."""
+    deps = {}
+    for m, imps in imports.items():
+        d = {i.module for i in imps if not i.in_function and not i.type_only}
+        parts = m.split(".")
+        d |= {".".join(parts[:k]) for k in range(1, len(parts))}  # the packages run first
+        deps[m] = d - {m}
+    heavy, changed = set(), True
+    while changed:
+        changed = False
+        for m, d in deps.items():
+            if m not in heavy and any(x.split(".")[0] in HEAVY_AT_HELP or x in heavy for x in d):
+                heavy.add(m)
+                changed = True
+    return heavy
+
+
 def deferred(imports: dict[str, list[Import]]) -> tuple[list[str], dict[str, int]]:
     """(function-level imports that are not allowed, count of the allowed ones by module)."""
     bad, ok = [], defaultdict(int)
+    heavy = heavy_at_import(imports)
     for m, imps in imports.items():
         for i in imps:
             if not i.in_function or (m == "hack_render.cli" and i.line == 0):
@@ -289,6 +353,10 @@ def deferred(imports: dict[str, list[Import]]) -> tuple[list[str], dict[str, int
                 ok[top] += 1
             elif (m, i.module) in DEFERRED_OWN:
                 ok[i.module] += 1
+            elif i.lazy_table and m in LAZY_PACKAGES:
+                ok[f"{m} (lazy names)"] += 1
+            elif is_command_module(m) and is_own(i.module) and i.module in heavy:
+                ok["a command's implementation"] += 1
             else:
                 bad.append(f"{m} {i!r}")
     return sorted(bad), dict(ok)
@@ -359,12 +427,31 @@ def test_05_imports_at_the_top_except_the_heavy_engines(imports):
     bad, ok = deferred(imports)
     assert bad == [], ("imports inside functions (import them at the top of the file, or "
                        "add a heavy engine to DEFERRABLE with its reason):\n" + "\n".join(bad))
-    assert set(ok) <= set(DEFERRABLE) | {b for _, b in DEFERRED_OWN}
+    assert set(ok) <= set(DEFERRABLE) | {b for _, b in DEFERRED_OWN} | {
+        "a command's implementation"} | {f"{p} (lazy names)" for p in LAZY_PACKAGES}
     assert all(reason.strip() for reason in DEFERRED_OWN.values())
     src = "def f():\n    import json\n    from hack_render.errors import HackError\n" \
           "    import mitsuba as mi\n"
     bad, ok = deferred({"x": parse_imports(src, "x", False, modules())})
     assert len(bad) == 2 and ok == {"mitsuba": 1}
+    # a command module defers what loads a heavy engine, and only that
+    src = "def f():\n    from hack_render.render.scene import HeadScene\n" \
+          "    from hack_render.errors import HackError\n"
+    planted = dict(imports, **{"hack_render.render.cli": parse_imports(
+        src, "hack_render.render.cli", False, modules())})
+    bad, ok = deferred(planted)
+    assert bad == ["hack_render.render.cli line 3: hack_render.errors.HackError (in a function)"]
+    assert "hack_render.render.scene" in heavy_at_import(imports)
+
+
+def test_06b_command_modules_load_nothing_heavy_at_import(imports):
+    """Every command's --help stays fast: no command module imports (at its top, through
+    any chain) a module that loads torch, Mitsuba, SciPy, ... (tests/test_cli.py runs every
+    --help)."""
+    heavy = heavy_at_import(imports)
+    commands = sorted(m for m in imports if is_command_module(m) and m != "hack_render.cli")
+    assert len(commands) >= 10
+    assert [m for m in commands if m in heavy] == []
 
 
 def test_06_help_imports_no_command_module_and_nothing_heavy():

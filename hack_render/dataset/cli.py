@@ -9,9 +9,7 @@ import typer
 
 from hack_render import boundary
 from hack_render import cli_options as opts
-from hack_render.dataset.config import load_config
 from hack_render.dataset.preview import contact_sheet
-from hack_render.dataset.runner import Job, parse_shard, run
 from hack_render.errors import HackError
 
 app = typer.Typer(help="Render labelled datasets (docs/datasets.md).",
@@ -48,6 +46,8 @@ def dataset(
     """
     if ctx.invoked_subcommand is not None:
         return
+    from hack_render.dataset.config import load_config
+    from hack_render.dataset.runner import Job, parse_shard, run
 
     if n is None or output is None:
         raise HackError("dataset: expected --n N and -o DIR (or the `preview` subcommand), "
@@ -69,6 +69,7 @@ def preview(
     columns: int = typer.Option(4, "--columns", help="Tiles per row."),
 ) -> None:
     """Contact sheet of the first samples with segmentation and landmarks overlaid."""
+
     boundary.input_dir(folder, "FOLDER", "dataset folder")
     boundary.output_file(output or folder / "preview.png", "-o/--output", (".png",))
     boundary.number(count, "--count", 1, 4096, integer=True)

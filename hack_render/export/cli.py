@@ -9,10 +9,7 @@ import typer
 
 from hack_render import boundary, interrupts
 from hack_render.errors import HackError
-from hack_render.export.gltf import png_bytes
-from hack_render.export.person import export_person
 from hack_render.export.viewer import serve
-from hack_render.geometry import load_model
 from hack_render.geometry.limits import apply_limit_policy, limit_policy
 from hack_render.geometry.obj_io import ObjMaterials, write_mesh
 from hack_render.geometry.params import gather_params, load_sequence, model_inputs
@@ -63,6 +60,9 @@ def export(
 
     Example: hack-render export --params person.json --sequence motion.npz -o out/person.glb
     """
+    from hack_render.export.person import export_person
+    from hack_render.geometry import load_model
+
     suffix = output.suffix.lower()
     boundary.output_file(output, "-o/--output", (".glb", ".gltf", ".obj", ".ply"))
     if suffix in (".obj", ".ply") and sequence is not None:
@@ -129,6 +129,8 @@ def _skin_maps(alpha, seed, textures):
 def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
     """The posed mesh as OBJ (+ .mtl + PNG maps in <stem>_maps/) or PLY."""
     import torch
+
+    from hack_render.export.gltf import png_bytes
 
     with torch.no_grad():
         verts = model(**model_inputs(model, params)).vertices[0].numpy()

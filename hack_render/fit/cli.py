@@ -14,11 +14,7 @@ from hack_render import boundary, interrupts
 from hack_render.cli_options import renamed
 from hack_render.errors import HackError
 from hack_render.fit.config import DETECTORS, FitConfig, load_config
-from hack_render.fit.fitter import Fitter
-from hack_render.fit.landmarks import detect, read_landmark_file
-from hack_render.fit.outputs import write_all
 from hack_render.fit.photo import load_photo
-from hack_render.fit.silhouette import load_mask
 
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
@@ -28,6 +24,8 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     (None, []) when ``resume`` and ``outdir`` already holds a complete fit of these inputs
     (``fit_run.json``; other inputs there are refused).
     ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
+    from hack_render.fit.outputs import write_all
+
     cfg = config or FitConfig()
     if landmarks and len(landmarks) != len(photos):
         raise HackError(f"--landmarks: expected one file per photo ({len(photos)}), found "
@@ -144,6 +142,10 @@ def check_landmark_file(path: Path) -> None:
 def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     """Read, detect and fit (nothing written); returns (result, fitter)."""
     import torch
+
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import detect, read_landmark_file
+    from hack_render.fit.silhouette import load_mask
 
     torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
     t0 = time.perf_counter()

@@ -29,27 +29,13 @@ from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
 from hack_render.cli_options import add_deprecated, renamed
 from hack_render.errors import HackError
-from hack_render.fit import landmark_embedding as le
 from hack_render.geometry import cli as geometry_cli
 from hack_render.geometry import default_model_path
 from hack_render.geometry.model_file import load_model_file, save_model_file
 from hack_render.geometry.params import load_sequence
 from hack_render.io import atomic_path
-from hack_render.learn import landmark_calibration as lc
-from hack_render.learn import landmark_refiner_training
-from hack_render.learn.full_model import (
-    build_full_model,
-    learn_pose_energy,
-    pose_curves,
-    pose_provenance,
-)
-from hack_render.learn.ict_default import build_default_model
-from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
-from hack_render.learn.pose_energy import DEFAULTS
 from hack_render.learn.report import write_report
 from hack_render.learn.shape import learn_shape_cmd
-from hack_render.motion import head_to_neck as H
-from hack_render.motion import larynx_motion as L
 
 # The learners that import torch or SciPy when imported (landmark_calibration, ict_default,
 # full_model, pose_energy, joint_regressor, fit.landmark_embedding, motion.head_to_neck,
@@ -72,6 +58,8 @@ def build_base_model(
     Registered as `hack-render learn base-model` by hack_render.learn.cli.
     Example: hack-render learn base-model --ict ICT_FACEKIT_DIR -o base.npz
     """
+    from hack_render.learn.ict_default import build_default_model
+
     boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
     boundary.output_file(output, "-o/--output", (".npz",))
     arrays, meta = build_default_model(ict)
@@ -96,6 +84,8 @@ def build_v2(
 
     Example: hack-render learn model --ict ICT_FACEKIT_DIR -o model.npz
     """
+    from hack_render.learn.full_model import build_full_model
+
     boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
     boundary.output_file(output, "-o/--output", (".npz",))
     boundary.number(expression_identities, "--expression-identities", 20, 100000, integer=True)
@@ -121,6 +111,8 @@ def _command_line() -> str | None:
 
 def _loss_overrides(items: list[str]) -> dict:
     """``--loss KEY=VALUE`` items as a dict, keys checked against the learner's DEFAULTS."""
+    from hack_render.learn.pose_energy import DEFAULTS
+
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -169,6 +161,8 @@ def learn_pose(
 
     Example: hack-render learn pose -o model_pose.npz --iterations 700
     """
+    from hack_render.learn.full_model import learn_pose_energy, pose_curves, pose_provenance
+
     if model_path is not None:
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     boundary.output_file(output, "-o/--output", (".npz",))
@@ -227,6 +221,8 @@ def learn_joints(
     slab: float = typer.Option(0.012, help="Candidate ring half-height, metres."),
 ) -> None:
     """Train the joint regressor J (Eq. 6) from (mesh, joint) pairs, e.g. ultrasound labels."""
+    from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
+
     boundary.input_file(data, "DATA", (".npz",), "training data file")
     boundary.output_file(output, "-o/--output", (".npy",))
     boundary.number(slab, "--slab", 0.001, 0.1, unit=" metres")
@@ -299,6 +295,9 @@ def calibrate_landmarks(
 
     Example: hack-render learn landmark-embedding -o emb.npz --subjects 60
     """
+    from hack_render.fit import landmark_embedding as le
+    from hack_render.learn import landmark_calibration as lc
+
     resolution = renamed(resolution, resolution_old, "--res", "--resolution")
     boundary.output_file(output, "-o/--output", (".npz",))
     boundary.number(resolution, "--resolution", 64, 4096, integer=True, unit=" pixels")
@@ -347,6 +346,8 @@ def train_landmark_refiner(
 
     Example: hack-render learn landmark-refiner -o refiner.npz --subjects 1150 --cache renders/
     """
+    from hack_render.learn import landmark_refiner_training
+
     boundary.output_file(output, "-o/--output", (".npz",))
     boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
     boundary.number(lam, "--lambda", 0.0, 1e12)
@@ -400,6 +401,8 @@ def learn_head_to_neck(
 
     Example: hack-render learn head-to-neck takes/*.npz --held-out 2 -o head_to_neck.npz
     """
+    from hack_render.motion import head_to_neck as H
+
     boundary.output_file(output, "-o/--output", (".npz",))
     if len(sequences) < 2:
         raise HackError(f"SEQUENCES: expected at least 2 files (training and held-out), found "
@@ -456,6 +459,8 @@ def learn_larynx_motion(
 
     Example: hack-render learn larynx-motion talks/*.npz --held-out 2 -o larynx_motion.npz
     """
+    from hack_render.motion import larynx_motion as L
+
     boundary.output_file(output, "-o/--output", (".npz",))
     if not 0 <= held_out < len(sequences):
         raise HackError(f"--held-out: expected 0..{len(sequences) - 1}, found {held_out}.")
@@ -481,6 +486,7 @@ def learn_larynx_motion(
 def register(app: typer.Typer) -> None:
     """Add the `learn` group, `model report` and the learners' deprecated old names (on
     the groups that had them: `model`, `appearance` and the main app)."""
+
     learners = [("model", build_v2, "model build-v2", geometry_cli.model_app, "build-v2"),
                 ("base-model", build_base_model, "model build", geometry_cli.model_app,
                  "build"),

@@ -14,9 +14,7 @@ import typer
 from hack_render import boundary as B
 from hack_render import cli_options as opts
 from hack_render.errors import HackError
-from hack_render.geometry import load_model
 from hack_render.geometry.params import gather_params, parse_floats
-from hack_render.motion.transfer import run_transfer, target_kind
 from hack_render.render.skin_maps import skin_maps
 
 
@@ -54,6 +52,9 @@ def transfer(
 
     Example: hack-render transfer --motion anim.npz --target procedural:long-neck -o out/giraffe
     """
+    from hack_render.geometry import load_model
+    from hack_render.motion.transfer import run_transfer, target_kind
+
     B.input_file(motion, "--motion", (".npz", ".jsonl", ".ndjson"), "parameter sequence")
     kind = target_kind(target)
     if kind != "procedural":

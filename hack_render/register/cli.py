@@ -14,15 +14,8 @@ from tqdm import tqdm
 
 from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render.dataset.runner import parse_shard
 from hack_render.errors import HackError
-from hack_render.geometry import load_model
 from hack_render.register.align import read_landmarks_3d
-from hack_render.register.bake import bake_scan_colors
-from hack_render.register.find_landmarks import find_landmarks
-from hack_render.register.fitting import RegisterConfig
-from hack_render.register.outputs import write_registration
-from hack_render.register.pipeline import register as register_scan
 from hack_render.register.scan import MESH_SUFFIXES, POINT_SUFFIXES, UNITS, load_scan
 
 
@@ -117,6 +110,10 @@ def register_cmd(
     render/turntable/export --params), offsets.npy, error.ply, error.png, landmarks.json,
     textures/ (coloured scans) and report.json (written last).
     """
+    from hack_render.dataset.runner import parse_shard
+    from hack_render.geometry import load_model
+    from hack_render.register.fitting import RegisterConfig
+
     boundary.output_dir(output)
     if units is not None and units not in UNITS:
         raise HackError(f"--units: expected m, cm or mm, found {units!r}.")
@@ -160,6 +157,10 @@ def register_cmd(
 def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, texture_size,
                   quiet) -> tuple[int, int, int]:
     """Register every scan not already done; (registered, failed, skipped)."""
+    from hack_render.register.bake import bake_scan_colors
+    from hack_render.register.outputs import write_registration
+    from hack_render.register.pipeline import register as register_scan
+
     done = failed = skipped = 0
     for path in tqdm(files, desc="register", unit="scan", disable=quiet or len(files) < 2):
         outdir = output / path.stem
@@ -216,6 +217,8 @@ def _iterations(text: str) -> tuple[int, int, int]:
 
 def _landmarks(scan, lmk_file, quiet: bool, model):
     """(landmarks in scan units, Multi-PIE ids, info) from the file or found on the scan."""
+    from hack_render.register.find_landmarks import find_landmarks
+
     if lmk_file is not None:
         pts, ids = lmk_file
         return pts, ids, {"source": "file"}

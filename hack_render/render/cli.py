@@ -30,7 +30,6 @@ from hack_render.io.image import rgb_channels, tone_map, write_exr, write_png
 from hack_render.render import denoise as dn
 from hack_render.render import posed_cache
 from hack_render.render.parts import Topology
-from hack_render.render.scene import MAX_SIDE, MAX_SPP, HeadScene, RenderSettings
 from hack_render.render.skin_maps import skin_maps
 from scenes import cameras as cams
 from scenes import lights
@@ -95,6 +94,8 @@ _RESOLUTION = re.compile(r"(\d+)\s*(?:[xX,]\s*(\d+))?")
 def parse_resolution(text: str) -> tuple[int, int]:
     """``--resolution`` 'W' or 'WxH' as (width, height), checked: whole numbers only, one
     or two of them ('64x', 'x64' and '64x64x' are refused, not read as a square)."""
+    from hack_render.render.scene import MAX_SIDE
+
     match = _RESOLUTION.fullmatch(text.strip())
     if match is None:
         raise HackError(f"--resolution: expected 'W' or 'WxH' in whole pixels (e.g. 512 or "
@@ -210,6 +211,7 @@ def render(
 
     Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 121
     """
+    from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
 
     # every cheap check before anything heavy is loaded or allocated
     w, h = parse_resolution(resolution)

@@ -19,13 +19,10 @@ from tqdm import tqdm
 from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
 from hack_render.errors import HackError
-from hack_render.geometry import load_model
 from hack_render.geometry.limits import apply_limit_policy, limit_policy
 from hack_render.geometry.params import gather_params, model_inputs, save_sequence
-from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path
 from hack_render.io.image import to_srgb8
-from hack_render.render import turntable as tt
 from hack_render.render.cli import (
     DenoiseOpt,
     IntegratorOpt,
@@ -40,7 +37,6 @@ from hack_render.render.cli import (
     rendered,
 )
 from hack_render.render.parts import Topology
-from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
 from hack_render.render.skin_maps import skin_maps
 from hack_render.render.video import write_gif, write_mp4
 from scenes import cameras as cams
@@ -102,6 +98,11 @@ def turntable(
     Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
     """
     import torch
+
+    from hack_render.geometry import load_model
+    from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.render import turntable as tt
+    from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
 
     spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
 

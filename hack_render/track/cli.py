@@ -11,8 +11,6 @@ from hack_render import boundary, interrupts
 from hack_render.errors import HackError
 from hack_render.fit.config import FitConfig, load_config
 from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frames
-from hack_render.track.outputs import write_outputs
-from hack_render.track.pipeline import timed, track_clip
 from hack_render.track.video import open_clip
 
 
@@ -27,6 +25,9 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     neck's shading (else the keyframe fit's tau throughout); ``outline``: place the neck
     on the person's outline in every frame (the outline stage)."""
     import torch
+
+    from hack_render.track.outputs import write_outputs
+    from hack_render.track.pipeline import timed
 
     boundary.number(keyframes, "--keyframes", 1, 50)
     boundary.number(max_side, "--max-side", 64, 4096, unit=" px")
@@ -77,6 +78,8 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
 
 
 def _track(clip, cfg, keyframes, progress, landmarks, larynx=True, outline=True):
+    from hack_render.track.pipeline import track_clip
+
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
                         landmarks=landmarks, larynx=larynx, outline=outline)
     return result, result.fitter
