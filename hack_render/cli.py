@@ -175,8 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
-            if signal.getsignal(sig) in (signal.default_int_handler, signal.SIG_DFL):
-                previous[sig] = signal.signal(sig, on_signal)
+            previous[sig] = signal.signal(sig, on_signal)
     try:
         code = _run(argv)
     finally:

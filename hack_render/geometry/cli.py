@@ -14,8 +14,8 @@ import typer
 
 from hack_render import boundary
 from hack_render import cli_options as opts
+from hack_render.geometry import obj_io
 from hack_render.geometry.limits import LimitPolicy
-from hack_render.geometry.obj_io import write_mesh
 from hack_render.geometry.posing import posed_vertices
 
 model_app = typer.Typer(help="Inspect HACK model files (`hack-render learn model` builds one).",
@@ -51,7 +51,7 @@ def mesh(
     model, verts = posed_vertices(params, beta, expression, head_rotation, eta, tau, limits,
                                   model_path)
     for target in targets:
-        write_mesh(target, verts, model.faces, model.uvs, model.uv_faces)
+        obj_io.write_mesh(target, verts, model.faces, model.uvs, model.uv_faces)
         typer.echo(f"wrote {target.resolve()}")
 
 

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.dataset.composites import CompositeRenderer
-from hack_render.vision.boxes import find_boxes
+from hack_render.dataset import composites
+from hack_render.vision import boxes as vision_boxes
 from hack_render.vision.dense68 import DEFAULT_FILE, DenseMap, signed_areas, tessellation_triangles
 from hack_render.vision.detect import mesh_landmarks
 from hack_render.vision.ert import upright_keypoints
@@ -41,12 +41,12 @@ def collect(n: int, seed: int, res: int = 256, spp: int = 16, min_presence: floa
     ``min_presence``."""
 
     rng = np.random.default_rng(seed)
-    ren = CompositeRenderer(res, spp, seed)
+    ren = composites.CompositeRenderer(res, spp, seed)  # (looked up: tests patch it)
     dense, truth, yaws, sizes = [], [], [], []
     for _ in tqdm(range(n), desc="calibration composites", unit="sample"):
         yaw, pitch = rng.uniform(-90, 90), rng.uniform(-45, 45)
         c = ren.render(yaw, pitch)
-        boxes = find_boxes(c.image)
+        boxes = vision_boxes.find_boxes(c.image)
         if not boxes:
             continue
         # the box nearest the true face (a background may hold another)

@@ -27,13 +27,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.dataset.composites import CompositeRenderer
+from hack_render.dataset import composites
 from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
 from hack_render.geometry import load_default_model
 from hack_render.io.npz import write_npz
 from hack_render.render.parts import vertex_normals
+from hack_render.vision import boxes as vision_boxes
 from hack_render.vision import ert
-from hack_render.vision.boxes import find_boxes
 from hack_render.vision.pose import MEAN_FILE
 
 
@@ -42,12 +42,12 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -
     boxes (S, 4), kps (S, 6, 2) BlazeFace's keypoints, points (S, 68, 2), yaw (S,)."""
 
     rng = np.random.default_rng(seed)
-    ren = CompositeRenderer(res, spp, seed)
+    ren = composites.CompositeRenderer(res, spp, seed)  # (looked up: tests patch it)
     data = {"images": [], "boxes": [], "kps": [], "points": [], "yaw": []}
     for i in tqdm(range(n), desc="training composites", unit="sample"):
         c = ren.render(rng.uniform(-90, 90), rng.uniform(-50, 50), rng.uniform(-25, 25),
                        occluder=i % 3 == 0)
-        boxes = find_boxes(c.image)
+        boxes = vision_boxes.find_boxes(c.image)
         if not boxes:
             continue
         ctr = c.points.mean(0)
