@@ -11,6 +11,9 @@ This package never imports Mitsuba or Dr.Jit.
 
 from typing import TYPE_CHECKING
 
+# first, before any module here imports torch: the package sets the OpenMP wait policy
+import hack_render  # noqa: F401
+
 if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
     from appearance.model import AppearanceMaps, AppearanceModel  # noqa: F401
     from appearance.regions import REGIONS, region_labels  # noqa: F401

@@ -5,6 +5,22 @@ Layers (see README.md and docs/):
   appearance            A(alpha) texture model in torch
   hack_render.render    the only Mitsuba / Dr.Jit code
   hack_render.fit       inverse rendering
+
+Importing any ``hack_render`` module (and ``appearance``, which imports this package
+first) sets ``OMP_WAIT_POLICY=PASSIVE`` unless the environment already sets it: idle
+OpenMP threads (torch's intra-op pool, MKL) then sleep instead of spinning. OpenMP reads
+the variable once, when torch loads its runtime, so it takes effect only where this
+package is imported before torch (always in the ``hack-render`` command); a script that
+imports torch first sets it itself (``export OMP_WAIT_POLICY=PASSIVE``). Measured on two
+shared cores: a B = 1 forward took 150 ms spinning and 18 ms sleeping with one other
+job, 1-3 % slower sleeping on an otherwise idle machine; docs/benchmarks.md (Threads)
+and docs/troubleshooting.md (cluster jobs) give the figures and what to set on a cluster.
 """
 
+import os as _os
+
 __version__ = "0.1.0"
+
+#: The OpenMP wait policy the package chooses where the environment names none.
+OMP_WAIT_POLICY = "PASSIVE"
+_os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)
