@@ -9,6 +9,7 @@ import typer
 
 from hack_render import cli_options as opts
 from hack_render.errors import HackError
+from hack_render.threads import check_threads, command_threads
 
 app = typer.Typer(help="Render labelled datasets (docs/datasets.md).",
                   invoke_without_command=True, no_args_is_help=False)
@@ -35,6 +36,7 @@ def dataset(
     workers: Optional[int] = typer.Option(None, "--workers", help="Ray actors (default: "
                                           "one per CPU of the Ray instance)."),
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
 ) -> None:
     """Render N sampled people (identity, expression, neck pose, larynx, skin, light,
     cameras) with RGB, alpha, depth, normals, UV, segmentation, soft masks, landmarks
@@ -53,6 +55,9 @@ def dataset(
     from hack_render import boundary
 
     boundary.number(workers, "--workers", 1, 4096, integer=True)
+    if threads is not None:  # this process's engines (serial); each Ray actor: one thread
+        check_threads(threads)
+    command_threads(threads)
     job = Job(output, n, seed, load_config(config), parse_shard(shard), resume)
     summary = run(job, executor, address, workers, progress=not quiet)
     typer.echo(f"{summary['rendered']} rendered, {summary['skipped']} already complete, "

@@ -28,6 +28,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from appearance.projected import model_height, supports_height
 from hack_render import interrupts
 from hack_render.errors import HackError
 
@@ -121,6 +122,13 @@ def check_job(job: Job) -> None:
         if app["components"] > k:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
+    if app["source"] == "seed" and app["maps"] == "projected":
+        top = model_height()
+        if not supports_height(app["height"], top):
+            raise HackError(f"config key 'appearance.height': expected the appearance model's "
+                            f"{top} divided by a power of two with appearance.maps: projected, "
+                            f"found {app['height']}. Use one of {top}, {top // 2}, "
+                            f"{top // 4}, ..., or appearance.maps: generated.")
     if app["source"] in ("seed", "alpha"):
         from appearance.uv import _template
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 
@@ -87,6 +88,7 @@ class SampleRenderer:
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
+        self._projector: SubjectProjector | None = None
         #: encodes and writes the files; with ``background_writes`` on one thread of its
         #: own, so that a sample's files are written while the next one renders
         self.writer = FileWriter(background_writes)
@@ -99,6 +101,10 @@ class SampleRenderer:
         from hack_render.render.materials import SkinMaps
 
         h = self.cfg["appearance"]["height"]
+        if appearance["source"] == "seed" and self.cfg["appearance"]["maps"] == "projected":
+            if self._projector is None:
+                self._projector = SubjectProjector()
+            return SkinMaps.from_appearance(self._projector.maps(appearance["subject"], h))
         if appearance["source"] == "seed":
             from appearance.generator import generate_subject
 
@@ -156,7 +162,9 @@ class SampleRenderer:
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
                          settings, self._flat_maps(), None, r["variant"])
-        head.set_light_rotation(0.0)  # opaque transforms from the start
+        # opaque transforms from the start; applied by the first sample's update (each
+        # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
+        head.set_light_rotation(0.0, update=False)
         return head
 
     # --- one sample -----------------------------------------------------------------

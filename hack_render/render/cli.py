@@ -17,6 +17,7 @@ import typer
 from hack_render import cli_options as opts
 from hack_render import interrupts
 from hack_render.errors import HackError
+from hack_render.threads import check_threads, command_threads
 
 if TYPE_CHECKING:
     import numpy as np
@@ -187,6 +188,7 @@ def render(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
     sampler: str = SamplerOpt,
     integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
@@ -233,6 +235,9 @@ def render(
         policy = LimitPolicy(limits)
     except ValueError as err:
         raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
 
     from hack_render.render import posed_cache
 

@@ -28,6 +28,7 @@ from hack_render.render.cli import (
     named,
     parse_resolution,
 )
+from hack_render.threads import check_threads, command_threads
 
 if TYPE_CHECKING:
     import numpy as np
@@ -74,6 +75,7 @@ def turntable(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
     sampler: str = SamplerOpt,
     integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
@@ -126,6 +128,9 @@ def turntable(
     boundary.number(pitch, "--pitch", -89.0, 89.0, unit=" degrees")
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
 
     from hack_render.geometry import load_model
     from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
