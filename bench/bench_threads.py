@@ -154,15 +154,21 @@ def main() -> None:
     ap.add_argument("--hogs", type=int, default=1, help="CPU-bound processes of the loaded runs")
     ap.add_argument("--threads", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    ap.add_argument("--out", default=None, help="write the table with provenance, e.g. "
-                    "bench/results/threads.json")
+    ap.add_argument("--out", default=None, help="also write what it prints, with provenance, "
+                    "e.g. bench/results/threads.json")
     a = ap.parse_args()
     if a.child:
         print(json.dumps(child(a.repeats, a.threads)))
         return
     sys.path.insert(0, str(HERE))
-    from provenance import write_result
+    from provenance import recorded
 
+    with recorded(a.out, "Threads: OpenMP wait policy x torch threads x load (issue 65)"):
+        run_table(a)
+
+
+def run_table(a) -> None:
+    """The parent's run: every configuration in child processes, rounds rotating."""
     cores = os.cpu_count() or 1
     configs = [(p, t) for p in ("default", "PASSIVE") for t in sorted({1, cores})]
     loads = ("alone", f"+{a.hogs} CPU-bound")
@@ -202,8 +208,6 @@ def main() -> None:
         print("\nforward / smplx at B=1, S=20 (same process): " + ", ".join(
             f"{c}: {summary[c]['fwd B=1 S=20']['median_ms'] / summary[c]['smplx B=1 S=20']['median_ms']:.2f}x"
             for c in table))
-    if a.out:
-        print(f"wrote {write_result(a.out, {'title': 'Threads: OpenMP wait policy x torch threads x load', 'cores': cores, 'rounds': a.rounds, 'repeats': a.repeats, 'hogs': a.hogs, 'load_average_1min': [min(load_avg), max(load_avg)], 'configs': summary})}")
 
 
 if __name__ == "__main__":
