@@ -24,7 +24,8 @@ Issue 65, "datasets at render speed" (``--speed``; the dataset's default config:
 subjects, ``appearance.source: seed``):
 
 (d) Render speed: the steady state of the serial executor's pipeline (files on the writer
-    thread) with the subjects' skin maps projected (``appearance.maps: projected``, the
+    thread, the next sample's inputs prefetched within a block; a block's first sample
+    makes its own) with the subjects' skin maps projected (``appearance.maps: projected``, the
     default) and generated (``generated``, the full generator: the old path), blocks of
     ``--block`` samples of each alternating on the same sample indices, against the
     render call inside the same pipeline (``HeadScene.render``: the path tracer) and
@@ -277,6 +278,7 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     from hack_render.dataset import labels as lab
     from hack_render.dataset import worker as wk
     from hack_render.dataset.config import load_config
+    from hack_render.dataset.runner import with_next
     from hack_render.dataset.worker import SampleRenderer
     from hack_render.render.scene import HeadScene
 
@@ -306,7 +308,12 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
         js = list(range(j0, min(j0 + block, i + n)))
         for m, r in rs.items():
             t0 = time.perf_counter()
-            for f in [r.submit(j) for j in js]:
+            futures = []
+            for j, upcoming in with_next(js):  # as the serial executor runs them
+                if upcoming is not None:
+                    r.prefetch(upcoming)
+                futures.append(r.submit(j))
+            for f in futures:
                 f.result()
             rows[m]["wall"] += time.perf_counter() - t0
             for k, v in timer.take().items():
@@ -322,7 +329,8 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
         print(f"    skin maps {m:9s}: {w:.3f} s/sample; render call {rc:.3f} s "
               f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update {rc + up:.3f} s "
               f"(ratio {w / (rc + up):.2f}x); parts: skin maps {row.get('skin_maps', 0) / n:.3f} s, "
-              f"labels {row.get('label_images', 0) / n:.3f} s, update {up:.3f} s")
+              f"labels {row.get('label_images', 0) / n:.3f} s, update {up:.3f} s (skin maps: "
+              "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
     print(f"    projected / generated: {p_ / g:.2f}x the time per sample")
 

@@ -264,6 +264,16 @@ def _append_manifest(job: Job, rec: dict) -> None:
             raise
 
 
+def with_next(items):
+    """(item, the item after it or None) for each item of an iterable, read one ahead."""
+    it = iter(items)
+    cur = next(it, None)
+    while cur is not None:
+        nxt = next(it, None)
+        yield cur, nxt
+        cur = nxt
+
+
 def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                tally: dict | None = None) -> int:
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
@@ -292,7 +302,10 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
     pending: deque = deque()
     count, t0 = 0, time.perf_counter()
     try:
-        for i in tqdm(todo, total=total, desc="dataset", unit="sample", disable=not progress):
+        for i, upcoming in tqdm(with_next(todo), total=total, desc="dataset", unit="sample",
+                                disable=not progress):
+            if upcoming is not None:  # its inputs are made while sample i renders
+                renderer.prefetch(upcoming)
             pending.append(renderer.submit(i))
             count += 1
             if count == 1:

@@ -23,14 +23,16 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 from collections import deque
-from concurrent.futures import Future, wait
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
 
 from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
+from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 
 SAMPLE_RECORD = "sample.json"
@@ -89,6 +91,10 @@ class SampleRenderer:
         self.scenes: dict = {}
         self._appearance_model = None
         self._projector: SubjectProjector | None = None
+        self._skin_lock = threading.Lock()  # one projector / model, whichever thread asks
+        #: (index, future of :meth:`inputs`) started by :meth:`prefetch`
+        self._prefetched: tuple[int, Future] | None = None
+        self._prefetch_pool: ThreadPoolExecutor | None = None
         #: encodes and writes the files; with ``background_writes`` on one thread of its
         #: own, so that a sample's files are written while the next one renders
         self.writer = FileWriter(background_writes)
@@ -102,8 +108,9 @@ class SampleRenderer:
 
         h = self.cfg["appearance"]["height"]
         if appearance["source"] == "seed" and self.cfg["appearance"]["maps"] == "projected":
-            if self._projector is None:
-                self._projector = SubjectProjector()
+            with self._skin_lock:
+                if self._projector is None:
+                    self._projector = SubjectProjector()
             return SkinMaps.from_appearance(self._projector.maps(appearance["subject"], h))
         if appearance["source"] == "seed":
             from appearance.generator import generate_subject
@@ -112,10 +119,11 @@ class SampleRenderer:
         if appearance["source"] == "alpha":
             import torch
 
-            if self._appearance_model is None:
-                from appearance.model import AppearanceModel
+            with self._skin_lock:
+                if self._appearance_model is None:
+                    from appearance.model import AppearanceModel
 
-                self._appearance_model = AppearanceModel.load()
+                    self._appearance_model = AppearanceModel.load()
             a = torch.tensor([appearance["alpha"]], dtype=torch.float32)
             with torch.no_grad():
                 return SkinMaps.from_appearance(self._appearance_model.maps(a))
@@ -173,6 +181,35 @@ class SampleRenderer:
         every file, ``sample.json`` last, is on disk (see :meth:`submit`)."""
         return self.submit(index).result()
 
+    def inputs(self, index: int) -> dict:
+        """What sample ``index`` needs before its scene, each a pure function of the
+        config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
+        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps`` and
+        the ``background`` image (None: the rig's environment)."""
+        import torch
+
+        spec = self.spec(index)
+        with torch.no_grad():
+            out = self.model(**model_kwargs(self.model, spec))
+        larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
+                                                self.larynx_candidates, spec["beta"] or None)
+        res = self.cfg["render"]["resolution"]
+        return {"index": index, "spec": spec, "out": out,
+                "verts": out.vertices[0].numpy().astype(np.float64),
+                "larynx_vertex": larynx_vertex, "larynx": larynx,
+                "maps": self.skin_maps(spec["appearance"]),
+                "background": background_image(spec["background"], res, res)}
+
+    def prefetch(self, index: int) -> None:
+        """Start computing sample ``index``'s :meth:`inputs` on a helper thread, so that
+        they are ready when :meth:`submit` gets that index (the serial executor names the
+        next sample while the current one renders: the path tracer leaves the CPU idle
+        while it traces its kernels and while the acceleration structure is rebuilt).
+        The inputs are pure functions of the index: the files are the same either way."""
+        if self._prefetch_pool is None:
+            self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
+        self._prefetched = (int(index), self._prefetch_pool.submit(self.inputs, int(index)))
+
     def submit(self, index: int) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
         manifest record.
@@ -181,39 +218,39 @@ class SampleRenderer:
         Files are encoded and written by :attr:`writer` in the order they are queued
         (in the background when it has a thread, while this thread renders on), each
         under a temporary name then renamed; ``sample.json``, queued last and written only
-        if every other file of the sample was, marks the sample complete.
+        if every other file of the sample was, marks the sample complete. The sample's
+        :meth:`inputs` come from :meth:`prefetch` when it was given this index.
         """
-        import torch
-
         self.writer.wait_below(self.max_pending)
-        spec = self.spec(index)
+        if self._prefetched is not None and self._prefetched[0] == index:
+            inp = self._prefetched[1].result()
+            self._prefetched = None
+        else:
+            inp = self.inputs(index)
+        spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        with torch.no_grad():
-            out = self.model(**model_kwargs(self.model, spec))
-        verts = out.vertices[0].numpy().astype(np.float64)
-        larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
-                                                self.larynx_candidates, spec["beta"] or None)
         head = self.scene(spec["lighting"]["preset"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
-        head.set_vertices(verts, update=False)
-        head.set_maps(self.skin_maps(spec["appearance"]), update=False)
+        head.set_vertices(inp["verts"], update=False)
+        head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
         writes = [self.writer.submit(_write_json, folder / "params.json",
                                      params_file(self.model, spec))]
         views = []
+        larynx_vertex = inp["larynx_vertex"]
         for v, view in enumerate(spec["cameras"]):
             cam = camera_of(view, self.cfg["render"]["resolution"], f"view_{v:02d}")
-            views.append(self._render_view(head, cam, spec, v, folder, out, larynx, writes))
+            views.append(self._render_view(head, cam, spec, v, folder, out, larynx, writes,
+                                           inp["background"]))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
-    def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
-        from hack_render.dataset.backgrounds import background_image
+    def _render_view(self, head, cam, spec, v, folder, out, larynx, writes, backdrop) -> dict:
         from hack_render.render.image_io import rgb_channels, write_exr
         from hack_render.render.scene import composite
 
@@ -248,7 +285,6 @@ class SampleRenderer:
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
         gain = np.float32(2.0 ** spec["lighting"]["exposure"])
-        backdrop = background_image(spec["background"], cam.width, cam.height)
         if backdrop is None:  # the rig's environment, exposed like the lights
             backdrop = head.backdrop() * gain
         if mode != "off" and r["keep_noisy"]:
@@ -268,7 +304,11 @@ class SampleRenderer:
 
     def close(self) -> None:
         """Wait for every queued write (errors stay with their samples' futures) and stop
-        the writer thread."""
+        the writer and prefetch threads."""
+        if self._prefetch_pool is not None:
+            self._prefetch_pool.shutdown(wait=True)
+            self._prefetch_pool = None
+        self._prefetched = None
         self.writer.close()
 
 
