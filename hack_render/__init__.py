@@ -11,10 +11,11 @@ first) sets ``OMP_WAIT_POLICY=PASSIVE`` unless the environment already sets it: 
 OpenMP threads (torch's intra-op pool, MKL) then sleep instead of spinning. OpenMP reads
 the variable once, when torch loads its runtime, so it takes effect only where this
 package is imported before torch (always in the ``hack-render`` command); a script that
-imports torch first sets it itself (``export OMP_WAIT_POLICY=PASSIVE``). Measured on two
-shared cores: a B = 1 forward took 150 ms spinning and 18 ms sleeping with one other
-job, 1-3 % slower sleeping on an otherwise idle machine; docs/benchmarks.md (Threads)
-and docs/troubleshooting.md (cluster jobs) give the figures and what to set on a cluster.
+imports torch first sets it itself (``export OMP_WAIT_POLICY=PASSIVE``). Measured with two
+torch threads on two cores shared with other jobs (``bench/bench_threads.py``): a B = 1
+forward 53 ms with idle threads spinning, 6.7 ms sleeping (beside one more CPU-bound
+process: 80 and 15 ms); a fit's torch step 341 and 19 ms. docs/troubleshooting.md
+(Threads and cluster jobs) says what to set on a shared machine or a cluster.
 """
 
 import os as _os

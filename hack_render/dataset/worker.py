@@ -92,8 +92,8 @@ class SampleRenderer:
         self._appearance_model = None
         self._projector: SubjectProjector | None = None
         self._skin_lock = threading.Lock()  # one projector / model, whichever thread asks
-        #: (index, future of :meth:`inputs`) started by :meth:`prefetch`
-        self._prefetched: tuple[int, Future] | None = None
+        #: index -> future of its :meth:`inputs`, started by :meth:`prefetch`
+        self._prefetched: dict[int, Future] = {}
         self._prefetch_pool: ThreadPoolExecutor | None = None
         #: encodes and writes the files; with ``background_writes`` on one thread of its
         #: own, so that a sample's files are written while the next one renders
@@ -208,7 +208,11 @@ class SampleRenderer:
         The inputs are pure functions of the index: the files are the same either way."""
         if self._prefetch_pool is None:
             self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
-        self._prefetched = (int(index), self._prefetch_pool.submit(self.inputs, int(index)))
+        while len(self._prefetched) >= 2:  # never taken (an index skipped): dropped
+            self._prefetched.pop(next(iter(self._prefetched)))
+        index = int(index)
+        if index not in self._prefetched:
+            self._prefetched[index] = self._prefetch_pool.submit(self.inputs, index)
 
     def submit(self, index: int) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
@@ -222,11 +226,8 @@ class SampleRenderer:
         :meth:`inputs` come from :meth:`prefetch` when it was given this index.
         """
         self.writer.wait_below(self.max_pending)
-        if self._prefetched is not None and self._prefetched[0] == index:
-            inp = self._prefetched[1].result()
-            self._prefetched = None
-        else:
-            inp = self.inputs(index)
+        ahead = self._prefetched.pop(int(index), None)
+        inp = ahead.result() if ahead is not None else self.inputs(index)
         spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
         if folder.exists():
@@ -308,7 +309,7 @@ class SampleRenderer:
         if self._prefetch_pool is not None:
             self._prefetch_pool.shutdown(wait=True)
             self._prefetch_pool = None
-        self._prefetched = None
+        self._prefetched.clear()
         self.writer.close()
 
 
