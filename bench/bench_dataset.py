@@ -360,7 +360,8 @@ except SystemExit as err:
     if err.code:
         raise
 T["end"] = time.time()
-print(json.dumps({"T": T, "done": done}))
+import hack_render
+print(json.dumps({"T": T, "done": done, "code": hack_render.__file__}))
 """
 
 
@@ -371,12 +372,16 @@ def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
     cfg.write_text(json.dumps({"render": {"resolution": size, "spp": spp}}))
     env = dict(os.environ, PYTHONPATH=pythonpath)
     launch = time.time()
+    # cwd: a folder without the package (`python -c` puts the cwd before PYTHONPATH)
     res = subprocess.run([sys.executable, "-c", E2E_DRIVER, str(launch), "dataset", "--n", str(n),
                           "-o", str(out), "--config", str(cfg), "--quiet"], env=env,
-                         capture_output=True, text=True, timeout=3600, check=False)
+                         cwd=str(out.parent), capture_output=True, text=True, timeout=3600,
+                         check=False)
     if res.returncode:
         raise SystemExit(f"(e) run failed:\n{res.stderr[-3000:]}")
     d = json.loads(res.stdout.strip().splitlines()[-1])
+    if not d["code"].startswith(pythonpath):
+        raise SystemExit(f"(e) ran {d['code']}, expected the code under {pythonpath}")
     t, done = d["T"], d["done"]
     done.sort()
     return {"imports": t["imports"] - launch, "startup": t["scenes"] - launch,

@@ -139,3 +139,17 @@ def test_a_subject_needs_no_colour_science_once_cached(tmp_path):
     assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
     assert [json.loads(r.stdout.strip().splitlines()[-1]) for r in runs] == [True, False]
     assert any(Path(tmp_path, "hack-render").glob("albedo_lut-*.npz"))
+
+
+def test_a_dataset_made_before_maps_resumes_with_the_generator(tmp_path):
+    """A config.json without appearance.maps was made with the generator's maps: the same
+    config with `maps: generated` resumes it; the projected default is refused, saying so."""
+    from hack_render.dataset.runner import run_info
+
+    old_cfg = load_config(overrides={"appearance": {"maps": "generated"}})
+    info = json.loads(json.dumps(run_info(Job(tmp_path, 2, 0, old_cfg))))
+    del info["config"]["appearance"]["maps"]
+    (tmp_path / "config.json").write_text(json.dumps(info))
+    check_job(Job(tmp_path, 2, 0, old_cfg))
+    with pytest.raises(HackError, match="maps: generated"):
+        check_job(Job(tmp_path, 2, 0, load_config()))

@@ -143,11 +143,18 @@ def check_job(job: Job) -> None:
             old = json.loads(path.read_text())
         except (OSError, ValueError):
             old = None
+        app = old.get("config", {}).get("appearance") if isinstance(old, dict) else None
+        legacy = isinstance(app, dict) and "maps" not in app
+        if legacy:  # made before appearance.maps: with the generator's maps
+            app["maps"] = "generated"
         if old is not None and old != info:
             diff = [k for k in info if old.get(k) != info[k]]
+            hint = (" It was made before appearance.maps existed, with the generator's maps: "
+                    "add `appearance: {maps: generated}` to the config to resume it."
+                    if legacy and info["config"]["appearance"]["maps"] != "generated" else "")
             raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
                             f"the same config and seed, found a dataset that differs in "
-                            f"{diff}. Choose another folder.")
+                            f"{diff}.{hint} Choose another folder.")
     _refuse_rerun(job, existing_samples(job))
 
 
