@@ -9,29 +9,43 @@ Public API:
 This package never imports Mitsuba or Dr.Jit.
 """
 
+import importlib
 from typing import TYPE_CHECKING
 
 # first, before any module here imports torch: the package sets the OpenMP wait policy
 import hack_render  # noqa: F401
+from appearance.generator import TextureSet, generate_subject
+from appearance.regions import REGIONS, region_labels
+from appearance.texture_io import (
+    read_exr,
+    read_png,
+    read_texture_set,
+    write_exr,
+    write_png,
+    write_texture_set,
+)
+from appearance.uv import UVLayout, rasterize_layout
 
-if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
-    from appearance.model import AppearanceMaps, AppearanceModel  # noqa: F401
-    from appearance.regions import REGIONS, region_labels  # noqa: F401
-    from appearance.uv import UVLayout, rasterize_layout  # noqa: F401
+if TYPE_CHECKING:  # imported lazily (below)
+    from appearance.builder import build_model
+    from appearance.detail import compose_detail, detail_slopes
+    from appearance.model import AppearanceMaps, AppearanceModel
+
+#: the public names of the modules that import torch (2.2 s), imported on first use:
+#: `import appearance.texture_io` (the render from texture files, the mesh cache) must not
+#: load torch through the package (tests/test_structure.py lists this deferral)
+_LAZY = {"AppearanceMaps": "appearance.model", "AppearanceModel": "appearance.model",
+         "compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
+         "build_model": "appearance.builder"}
 
 
-def __getattr__(name):  # lazy imports keep `import appearance` light
-    lazy = {"AppearanceMaps": "appearance.model", "AppearanceModel": "appearance.model",
-            "REGIONS": "appearance.regions", "region_labels": "appearance.regions",
-            "UVLayout": "appearance.uv", "rasterize_layout": "appearance.uv",
-            "compose_detail": "appearance.detail", "detail_slopes": "appearance.detail",
-            "build_model": "appearance.builder", "generate_subject": "appearance.generator",
-            "TextureSet": "appearance.generator", "read_exr": "appearance.texture_io",
-            "write_exr": "appearance.texture_io", "read_png": "appearance.texture_io",
-            "write_png": "appearance.texture_io", "read_texture_set": "appearance.texture_io",
-            "write_texture_set": "appearance.texture_io"}
-    if name in lazy:
-        import importlib
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'appearance' has no attribute {name!r}")
 
-        return getattr(importlib.import_module(lazy[name]), name)
-    raise AttributeError(name)
+
+__all__ = ["REGIONS", "AppearanceMaps", "AppearanceModel", "TextureSet", "UVLayout",
+           "build_model", "compose_detail", "detail_slopes", "generate_subject", "rasterize_layout",
+           "read_exr", "read_png", "read_texture_set", "region_labels", "write_exr", "write_png",
+           "write_texture_set"]

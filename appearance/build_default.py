@@ -23,12 +23,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from appearance.builder import build_model
 from appearance.generator import generate_subject
 from appearance.model import DEFAULT_MODEL
 from appearance.population import CALIBRATION_FILE, load_calibration
-from appearance.texture_io import _atomic, write_texture_set
+from appearance.texture_io import write_texture_set
+from hack_render.io import write_json
 
 SIZE_LIMIT_MB = 30.0
 
@@ -51,7 +53,6 @@ def main(argv=None) -> dict:
     ap.add_argument("--workdir", type=Path, default=None, help="where the population is written")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
-    from tqdm import tqdm
 
     cal = load_calibration()
     t0 = time.perf_counter()
@@ -85,7 +86,7 @@ def main(argv=None) -> dict:
             "generate_seconds": round(t_gen, 1), "build_seconds": round(t_build, 1),
             "peak_rss_mb": round(peak_mb, 1), "git_commit": _git_commit(),
             "calibration_file": CALIBRATION_FILE.name, **meta}
-    _atomic(a.out.with_suffix(".json"), lambda t: Path(t).write_text(json.dumps(prov, indent=1)))
+    write_json(a.out.with_suffix(".json"), prov, indent=1)
     print(json.dumps({k: prov[k] for k in ("size_mb", "n_subjects", "height", "n_components",
                                            "explained_variance_at_k", "generate_seconds",
                                            "build_seconds", "peak_rss_mb")}, indent=1))

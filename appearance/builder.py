@@ -23,7 +23,6 @@ k: RMSE of linear RGB, mean CIEDE2000 of the diffuse map, mean angular error of 
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
@@ -32,11 +31,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from appearance.colour_space import delta_e2000
 from appearance.model import BLOCKS, N_CHANNELS, normals_to_slopes, save_model
-from appearance.texture_io import _atomic, read_texture_set
+from appearance.texture_io import read_texture_set
 from appearance.uv import rasterize_layout
 from hack_render.errors import HackError
+from hack_render.io import atomic_path, write_json
 
 DEFAULT_ROUGHNESS = 0.6  # perceptual; used only when no subject has a roughness map
 
@@ -193,8 +195,6 @@ def subject_folders(root) -> list[Path]:
 
 def load_training_matrix(folders: list[Path], height: int, workdir: Path, progress=True):
     """Encode every subject into an on-disk (S, D) float32 matrix; returns it and the mask."""
-    from tqdm import tqdm
-
     lay = rasterize_layout(height)
     valid = np.flatnonzero(lay.mask)
     d = len(valid) * N_CHANNELS
@@ -218,8 +218,6 @@ def load_training_matrix(folders: list[Path], height: int, workdir: Path, progre
 def heldout_errors(store: GramStore, train: np.ndarray, test: np.ndarray, ks: list[int],
                    mask_valid: int) -> dict:
     """Generalisation errors of the PCA on ``train`` for the ``test`` subjects, per k."""
-    from appearance.colour_space import delta_e2000
-
     pca = pca_from_gram(store.gram, train)
     ks = [k for k in ks if k <= len(pca.eigvals)]
     kmax = max(ks)
@@ -333,7 +331,7 @@ def build_model(root, out, height: int = 256, n_components: int | None = None,
 
 def write_report(report: dict, json_path: Path, png_path: Path) -> None:
     """Write the report JSON and its plot (explained variance; held-out errors vs k)."""
-    _atomic(Path(json_path), lambda tmp: Path(tmp).write_text(json.dumps(report, indent=1)))
+    write_json(json_path, report, indent=1)
     plot_report(report, png_path)
 
 
@@ -360,9 +358,6 @@ def plot_report(report: dict, png_path) -> None:
                    title=f"held-out ({ho['n_test']} of {ho['n_test'] + ho['n_train']})")
             ax.grid(alpha=0.3)
     fig.tight_layout()
-
-    def save(tmp):
+    with atomic_path(png_path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-
-    _atomic(Path(png_path), save)
     plt.close(fig)

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
 import time
 
 import numpy as np
 from scipy.optimize import least_squares
+from tqdm import tqdm
 
 from appearance.colour_space import ita_degrees
+from appearance.generator import generate_subject, representative_albedo
 from appearance.population import (
     CALIBRATION_FILE,
     Calibration,
@@ -35,6 +35,7 @@ from appearance.population import (
     subject_uniforms,
 )
 from appearance.skin_optics import OpticsConstants, skin_albedo
+from hack_render.io import write_json
 
 #: Measured targets (DATA.md, Textures): linear sRGB diffuse albedo, D65, CIE 1931 2 deg.
 TARGETS = {
@@ -134,9 +135,6 @@ def _reachability(cal: Calibration) -> dict:
 
 def verify(cal: Calibration, n: int, height: int) -> dict:
     """Generate ``n`` subjects' maps and compare their forehead medians with the targets."""
-    from tqdm import tqdm
-
-    from appearance.generator import generate_subject, representative_albedo
 
     rgb = np.stack([representative_albedo(generate_subject(s, height, cal), height)
                     for s in tqdm(range(n), desc="verify (generated maps)", leave=False)])
@@ -145,11 +143,7 @@ def verify(cal: Calibration, n: int, height: int) -> dict:
 
 def write_calibration(cal: Calibration, path=CALIBRATION_FILE) -> None:
     """Write the calibration JSON atomically (temp file, then rename)."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(cal.to_json(), fh, indent=1)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    write_json(path, cal.to_json(), indent=1)
 
 
 def main(argv=None) -> dict:

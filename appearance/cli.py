@@ -1,19 +1,32 @@
-"""`hack-render appearance ...`: sample texture sets, re-plot a report, rebuild the template.
+"""`hack-render appearance ...`: sample texture sets, re-plot a report.
 
 Building a model is `hack-render learn appearance` (this module's :func:`build`,
-registered by hack_render.learn.cli; `appearance build` is its deprecated old name)."""
+registered by hack_render.learn.cli; `appearance build` is its deprecated old name), and
+rebuilding the skin template is `hack-render learn template` (:func:`template`, registered
+there too)."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 import typer
 
+from appearance.builder import build_model, plot_report
+from appearance.detail import compose_detail
+from appearance.model import AppearanceModel, load_model_arrays
+from appearance.report import preview_sheet
+from appearance.texture_io import write_map, write_texture_set
+from appearance.uv import TEMPLATE_FILE, write_template_file
+from hack_render import boundary
+from hack_render.cli_options import renamed
 from hack_render.errors import HackError
+from hack_render.io import write_json
 
-app = typer.Typer(help="Appearance model A(alpha): sample, report, template "
-                  "(`hack-render learn appearance` builds one).",
+app = typer.Typer(help="Appearance model A(alpha): sample, report (`hack-render learn "
+                  "appearance` builds one, `hack-render learn template` rebuilds its skin "
+                  "template).",
                   no_args_is_help=True, add_completion=False)
 
 
@@ -35,16 +48,12 @@ def build(
     Registered as `hack-render learn appearance` by hack_render.learn.cli.
     Example: hack-render learn appearance captures/ -o appearance.npz --components 50
     """
-    from appearance.builder import build_model
-    from hack_render.cli_options import renamed
-
     out = renamed(output, out_old, "--out", "-o/--output")
     if out is None:
         raise HackError("expected -o/--output MODEL.npz, found none.")
 
     if basis_dtype not in ("float32", "float16", "int8"):
         raise HackError(f"--basis-dtype: expected float32, float16 or int8, found {basis_dtype!r}.")
-    from hack_render import boundary
 
     boundary.input_dir(data, "DATA", "folder of subjects")
     boundary.output_file(out, "-o/--output", (".npz",))
@@ -71,9 +80,6 @@ def template(
 
     Example: hack-render learn template --ict ICT_FACEKIT_DIR
     """
-    from appearance.uv import TEMPLATE_FILE, write_template_file
-    from hack_render import boundary
-
     if not Path(ict).exists():
         raise HackError(f"--ict {ict}: not found; pass the ICT-FaceKit folder or its "
                         "generic_neutral_mesh.obj.")
@@ -103,16 +109,10 @@ def sample(
                                "(pore layer), 0 = no"),
 ):
     """Write diffuse/specular/roughness/normal maps for one alpha, plus preview.png."""
-    import numpy as np
     import torch
-
-    from appearance.model import AppearanceModel
-    from appearance.texture_io import write_map, write_texture_set
-    from hack_render.cli_options import renamed
 
     out = renamed(output, out_old, "--out", "-o/--output")
     model = renamed(model, model_old, "appearance sample --model", "--appearance-model")
-    from hack_render import boundary
 
     if out is None:
         raise HackError("sample: expected -o/--output FOLDER, found none.")
@@ -145,19 +145,14 @@ def sample(
               for k in ("diffuse", "specular", "roughness", "normal")}
     detail_img = None
     if detail:
-        from appearance.detail import compose_detail
-
         detail_img = compose_detail(maps.normal, detail)[0].numpy()
     written = write_texture_set(out, arrays, fmt=fmt)
     if detail_img is not None:
         write_map(out / f"normal_detail.{fmt}", "normal", detail_img)
-    from appearance.report import preview_sheet
 
     preview_sheet(arrays, out / "preview.png", title=f"alpha[:4]={a[0, :4].tolist()}")
-    from hack_render.render.image_io import atomic_path
 
-    with atomic_path(out / "alpha.json") as tmp:
-        tmp.write_text(json.dumps({"alpha": a[0].tolist()}))
+    write_json(out / "alpha.json", {"alpha": a[0].tolist()}, indent=None)
     typer.echo(f"wrote {len(written)} maps and preview.png to {out}")
 
 
@@ -167,11 +162,6 @@ def report(model: Path = typer.Argument(..., help="model file (.npz)"),
            out_old: Path | None = typer.Option(None, "--out", hidden=True,
                                                help="Deprecated: -o/--output.")):
     """Re-plot a model's explained-variance and held-out error curves."""
-    from appearance.builder import plot_report
-    from appearance.model import load_model_arrays
-    from hack_render import boundary
-    from hack_render.cli_options import renamed
-
     out = renamed(output, out_old, "--out", "-o/--output")
     boundary.input_file(model, "MODEL", (".npz",), "appearance model file")
     boundary.output_file(out or model.with_suffix(".report.png"), "-o/--output", (".png",))

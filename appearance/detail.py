@@ -18,9 +18,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from appearance.generator import atlas_context
 from appearance.model import slopes_to_normals
 from appearance.noise import worley2
-from appearance.regions import REGION_ID
+from appearance.regions import REGION_ID, region_labels
 from hack_render.errors import HackError
 
 # (pore spacing mm, pore depth mm) per region; 0 depth: no pores.
@@ -33,9 +34,7 @@ PORES = {"nose": (0.35, 0.05), "cheeks": (0.30, 0.035), "forehead": (0.25, 0.03)
 
 def _texel_mm(height: int) -> np.ndarray:
     """Surface size of one texel per tile (mm) at atlas height H (template scale)."""
-    from appearance.generator import _context
-
-    return _context(256).texel_cm * 10.0 * 256.0 / height
+    return atlas_context(256).texel_cm * 10.0 * 256.0 / height
 
 
 @lru_cache(maxsize=4)
@@ -44,8 +43,6 @@ def detail_slopes(height: int, seed: int = 0) -> np.ndarray:
 
     Deterministic in (height, seed). H between 64 and 8192.
     """
-    from appearance.regions import region_labels
-
     if not 64 <= int(height) <= 8192:
         raise HackError(f"detail height: expected 64..8192, found {height}.")
     h = int(height)

@@ -38,8 +38,8 @@ from appearance.population import (
     load_calibration,
     subject_uniforms,
 )
-from appearance.regions import REGION_ID, REGIONS, region_labels
-from appearance.uv import UVLayout, rasterize_layout
+from appearance.regions import LANDMARK_VERTICES, REGION_ID, REGIONS, region_labels
+from appearance.uv import UVLayout, default_template, rasterize_layout
 
 # Regional multipliers of (C_m, C_h) and base (specular, roughness); specular scales the
 # F0 = 0.028 lobe (1 = full skin Fresnel), roughness is perceptual (GGX alpha = r^2).
@@ -84,7 +84,7 @@ class TextureSet:
 
 
 @dataclass(frozen=True)
-class _Context:
+class AtlasContext:
     """Per-resolution precomputation shared by all subjects."""
 
     layout: UVLayout
@@ -95,7 +95,9 @@ class _Context:
 
 
 @lru_cache(maxsize=4)
-def _context(height: int) -> _Context:
+def atlas_context(height: int) -> AtlasContext:
+    """The precomputation of atlas height ``height`` (cached): layout, region labels and
+    soft weights, texel positions and sizes."""
     lay = rasterize_layout(height)
     lab = region_labels(lay)
     m = lay.mask
@@ -115,7 +117,7 @@ def _context(height: int) -> _Context:
     soft = np.stack(soft)
     soft /= np.maximum(soft.sum(0, keepdims=True), 1e-6)
     soft = _blend_across_seams(lay, soft, SEAM_BLEND_CM)
-    return _Context(lay, lab, soft.astype(np.float32), lay.position[m].astype(np.float64), tcm)
+    return AtlasContext(lay, lab, soft.astype(np.float32), lay.position[m].astype(np.float64), tcm)
 
 
 def _blend_across_seams(lay: UVLayout, soft: np.ndarray, width_cm: float) -> np.ndarray:
@@ -154,13 +156,13 @@ def _blend_across_seams(lay: UVLayout, soft: np.ndarray, width_cm: float) -> np.
     return out
 
 
-def _regional(ctx: _Context, values: dict[str, float]) -> np.ndarray:
+def _regional(ctx: AtlasContext, values: dict[str, float]) -> np.ndarray:
     """(N,) smooth blend of per-region values."""
     v = np.array([values[n] for n in REGIONS[1:]], np.float64)
     return v @ ctx.soft
 
 
-def _spots(ctx: _Context, rng, density: np.ndarray, count: int, radius_cm: tuple[float, float]):
+def _spots(ctx: AtlasContext, rng, density: np.ndarray, count: int, radius_cm: tuple[float, float]):
     """(N,) sum of Gaussian spots (peak ~1) at ``count`` texels drawn with ``density``."""
     lay = ctx.layout
     out = np.zeros(lay.mask.shape, np.float32)
@@ -186,7 +188,7 @@ def _spots(ctx: _Context, rng, density: np.ndarray, count: int, radius_cm: tuple
     return np.clip(out[lay.mask], 0, 1.5)
 
 
-def _heights(ctx: _Context, rng, age: float, lm) -> np.ndarray:
+def _heights(ctx: AtlasContext, rng, age: float, lm) -> np.ndarray:
     """(N,) skin height field in mm: wrinkles, folds and mottling."""
     pos = ctx.pos
     x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
@@ -219,7 +221,7 @@ def _heights(ctx: _Context, rng, age: float, lm) -> np.ndarray:
     return h
 
 
-def _height_to_normals(ctx: _Context, h_valid: np.ndarray) -> np.ndarray:
+def _height_to_normals(ctx: AtlasContext, h_valid: np.ndarray) -> np.ndarray:
     """Tangent-space unit normals (H, 2H, 3) from a height field (mm) on valid texels."""
     lay = ctx.layout
     hh = np.zeros(lay.mask.shape, np.float64)
@@ -235,7 +237,7 @@ def _height_to_normals(ctx: _Context, h_valid: np.ndarray) -> np.ndarray:
     return (out / np.linalg.norm(out, axis=-1, keepdims=True)).astype(np.float32)
 
 
-def _fill(ctx: _Context, values: np.ndarray) -> np.ndarray:
+def _fill(ctx: AtlasContext, values: np.ndarray) -> np.ndarray:
     """(N, C) valid-texel values to a dilated (H, 2H, C) image."""
     lay = ctx.layout
     img = np.zeros((lay.mask.size, values.shape[1]), np.float32)
@@ -274,14 +276,11 @@ def generate_subject(seed: int, height: int = 256, calibration: Calibration | No
         seed: non-negative subject id.
         height: atlas height H (maps are H x 2H).
     """
-    from appearance.regions import LANDMARK_VERTICES
-    from appearance.uv import _template
-
     cal = calibration or load_calibration()
-    ctx = _context(int(height))
+    ctx = atlas_context(int(height))
     prm = subject_params(seed, cal)
     rng = np.random.default_rng([int(seed), 2])
-    lm = _template().vertices[LANDMARK_VERTICES]
+    lm = default_template().vertices[LANDMARK_VERTICES]
     pos = ctx.pos
     soft = {n: ctx.soft[i] for i, n in enumerate(REGIONS[1:])}
     jit = np.exp(np.asarray(prm["region_jitter"]))
@@ -329,6 +328,6 @@ def generate_subject(seed: int, height: int = 256, calibration: Calibration | No
 
 def representative_albedo(ts: TextureSet, height: int) -> np.ndarray:
     """(3,) median linear sRGB over the forehead texels (a standard measurement site)."""
-    ctx = _context(int(height))
+    ctx = atlas_context(int(height))
     sel = ctx.labels == REGION_ID["forehead"]
     return np.median(ts.diffuse[sel], axis=0)

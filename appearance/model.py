@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +42,7 @@ import torch
 
 from appearance.uv import fill_index
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-appearance-model"
 VERSION = 1
@@ -339,15 +339,4 @@ def save_model(path, *, height: int, mask: np.ndarray, mean: np.ndarray, basis: 
         arrays["basis_scale"] = scale.astype(np.float32)
     else:
         raise HackError(f"basis_dtype: expected float32, float16 or int8, found {basis_dtype!r}.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
-    os.close(fd)
-    try:
-        np.savez_compressed(tmp, **arrays)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
+    return write_npz(path, arrays, compressed=True)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.path import Path as MplPath
 
-from appearance.uv import UVLayout, rasterize_layout
+from appearance.uv import UVLayout, default_template, rasterize_layout
 
 #: label id -> name; 0 is "outside the skin islands".
 REGIONS = ("none", "forehead", "brows", "eyelids", "nose", "cheeks", "lips", "upper_lip",
@@ -97,10 +97,8 @@ def region_labels(layout: UVLayout | int) -> np.ndarray:
     Args:
         layout: a :class:`UVLayout` or an atlas height H.
     """
-    from appearance.uv import _template
-
     lay = rasterize_layout(layout) if isinstance(layout, (int, np.integer)) else layout
-    lm = _template().vertices[LANDMARK_VERTICES]
+    lm = default_template().vertices[LANDMARK_VERTICES]
     lab = np.zeros(lay.mask.shape, np.uint8)
     p = lay.position[lay.mask].astype(np.float64)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]

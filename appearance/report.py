@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from appearance.colour_space import srgb_encode
-from appearance.texture_io import _atomic
+from hack_render.io import atomic_path
 
 
 def preview_sheet(maps: dict[str, np.ndarray], path, title: str = "") -> None:
@@ -33,5 +31,6 @@ def preview_sheet(maps: dict[str, np.ndarray], path, title: str = "") -> None:
         a.set_yticks([])
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    _atomic(Path(path), lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)

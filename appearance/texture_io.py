@@ -18,35 +18,21 @@ place, so an interrupted run never leaves a half-written file.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+import OpenEXR
+import png as pypng
 
 from appearance.colour_space import srgb_decode, srgb_encode
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 MAP_CHANNELS = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
 REQUIRED_MAPS = ("diffuse", "specular", "normal")
 EXTENSIONS = (".exr", ".png")
 _DEFAULT_NAMES = {1: ["Y"], 2: ["X", "Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}
-
-
-def _atomic(path: Path, write) -> None:
-    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary readable files
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
 
 
 def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
@@ -56,8 +42,6 @@ def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
     Args:
         channels: names, one per channel (default Y / R,G,B / R,G,B,A).
     """
-    import OpenEXR
-
     img = np.asarray(image)
     if img.ndim == 2:
         img = img[..., None]
@@ -70,12 +54,8 @@ def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
     dt = np.float16 if half else np.float32
     chans = {n: np.ascontiguousarray(img[..., i].astype(dt)) for i, n in enumerate(names)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-
-    def write(tmp):
-        with OpenEXR.File(header, chans) as f:
-            f.write(tmp)
-
-    _atomic(Path(path), write)
+    with atomic_path(path) as tmp, OpenEXR.File(header, chans) as f:
+        f.write(str(tmp))
 
 
 def read_exr(path) -> tuple[np.ndarray, list[str]]:
@@ -83,8 +63,6 @@ def read_exr(path) -> tuple[np.ndarray, list[str]]:
 
     Channels come in file order for RGBA-like names (R, G, B, A first), else sorted.
     """
-    import OpenEXR
-
     path = Path(path)
     try:
         with OpenEXR.File(str(path), separate_channels=True) as f:
@@ -103,8 +81,6 @@ def read_exr(path) -> tuple[np.ndarray, list[str]]:
 
 def write_png(path, image: np.ndarray, bits: int = 8, srgb: bool = True) -> None:
     """Write a [0, 1] float image as 8 or 16-bit PNG, sRGB-encoded if ``srgb``."""
-    import imageio.v3 as iio
-
     if bits not in (8, 16):
         raise HackError(f"{path}: PNG bit depth expected 8 or 16, found {bits}.")
     img = np.clip(np.asarray(image, np.float64), 0.0, 1.0)
@@ -116,20 +92,12 @@ def write_png(path, image: np.ndarray, bits: int = 8, srgb: bool = True) -> None
     q = np.round(img * top).astype(np.uint8 if bits == 8 else np.uint16)
     if bits == 16 and q.ndim == 3:
         # Pillow (imageio's PNG plugin here) has no 16-bit RGB mode; pypng does.
-        try:
-            import png as pypng
-        except ImportError as exc:
-            raise HackError(f"{path}: 16-bit {q.shape[2]}-channel PNG needs the pypng package "
-                            f"(not installed). Use EXR, or bits=8.") from exc
-
-        def write(tmp):
-            with open(tmp, "wb") as fh:
-                pypng.Writer(q.shape[1], q.shape[0], greyscale=False, alpha=q.shape[2] == 4,
-                             bitdepth=16).write(fh, q.reshape(q.shape[0], -1).tolist())
-
-        _atomic(Path(path), write)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            pypng.Writer(q.shape[1], q.shape[0], greyscale=False, alpha=q.shape[2] == 4,
+                         bitdepth=16).write(fh, q.reshape(q.shape[0], -1).tolist())
         return
-    _atomic(Path(path), lambda tmp: iio.imwrite(tmp, q, extension=".png"))
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, q, extension=".png")
 
 
 def read_png(path, srgb: bool = True) -> np.ndarray:
@@ -138,8 +106,6 @@ def read_png(path, srgb: bool = True) -> np.ndarray:
     pypng reads every PNG flavour (palette, grey, alpha, interlaced) at its true bit depth;
     Pillow would silently reduce 16-bit RGB to 8 bits.
     """
-    import png as pypng
-
     path = Path(path)
     try:
         width, height, rows, info = pypng.Reader(filename=str(path)).asDirect()
@@ -193,21 +159,9 @@ def write_map(path: Path, name: str, img: np.ndarray, half: bool = False) -> Non
     if path.suffix.lower() == ".exr":
         write_exr(path, img, half=half)
     elif name == "normal":
-        write_png(path, (np.asarray(img) + 1.0) * 0.5, bits=_png_bits(img), srgb=False)
+        write_png(path, (np.asarray(img) + 1.0) * 0.5, bits=16, srgb=False)
     else:
-        write_png(path, img, bits=_png_bits(img), srgb=(name == "diffuse"))
-
-
-def _png_bits(img) -> int:
-    """16 bits for 1-channel maps (and RGB when pypng is installed), else 8."""
-    if np.asarray(img).ndim == 2 or np.asarray(img).shape[-1] == 1:
-        return 16
-    try:
-        import png  # noqa: F401
-
-        return 16
-    except ImportError:
-        return 8
+        write_png(path, img, bits=16, srgb=(name == "diffuse"))
 
 
 def read_texture_set(folder) -> dict[str, np.ndarray]:

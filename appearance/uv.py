@@ -19,6 +19,8 @@ no colour bleeds between the two tiles).
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -27,6 +29,8 @@ import numpy as np
 from scipy import ndimage
 
 from hack_render.errors import HackError
+from hack_render.geometry.obj_io import ObjMesh, read_obj
+from hack_render.io.npz import write_npz
 
 #: The template (ICT-FaceKit ``generic_neutral_mesh.obj``, MIT licence, see
 #: ``appearance/data/LICENSE-ICT-FaceKit``), shipped as package data: vertices (cm, as in
@@ -50,10 +54,6 @@ def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -
         The path written. Vertices and UVs are kept in float64, exactly as parsed, so the
         atlas rasterised from the file is identical to one rasterised from the OBJ.
     """
-    import hashlib
-    import json
-
-    from hack_render.geometry.obj_io import read_obj
 
     obj_path = Path(obj_path)
     if obj_path.is_dir():
@@ -74,17 +74,13 @@ def write_template_file(obj_path: str | Path, out: str | Path = TEMPLATE_FILE) -
                           "vertices in centimetres, larynx included",
             "obj_sha256": hashlib.sha256(obj_path.read_bytes()).hexdigest(),
             "command": "hack-render learn template --ict ICT_FACEKIT_DIR"}
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp.npz")
-    np.savez_compressed(
-        tmp, format_version=np.int32(TEMPLATE_FORMAT), meta_json=np.array(json.dumps(meta)),
+    return write_npz(out, dict(
+        format_version=np.int32(TEMPLATE_FORMAT), meta_json=np.array(json.dumps(meta)),
         vertices=mesh.vertices.astype(np.float64), faces=mesh.faces.astype(np.int32),
         uvs=mesh.uvs.astype(np.float64), uv_faces=mesh.uv_faces.astype(np.int32),
         face_material=mesh.face_material.astype(np.int16),
-        materials=np.array(mesh.materials), polygon_of_face=mesh.polygon_of_face.astype(np.int32))
-    tmp.replace(out)
-    return out
+        materials=np.array(mesh.materials), polygon_of_face=mesh.polygon_of_face.astype(np.int32)),
+        compressed=True)
 
 
 def load_template(path: str | Path = TEMPLATE_FILE):
@@ -94,8 +90,6 @@ def load_template(path: str | Path = TEMPLATE_FILE):
     Raises:
         HackError: the file is missing, truncated or lacks a key.
     """
-    from hack_render.geometry.obj_io import ObjMesh
-
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -238,7 +232,8 @@ def rasterize_uv(uv_tris: np.ndarray, height: int, chunk: int = 4096):
 
 
 @lru_cache(maxsize=1)
-def _template():
+def default_template():
+    """The packaged template (:data:`TEMPLATE_FILE`), loaded once per process."""
     return load_template()
 
 
@@ -251,7 +246,7 @@ def rasterize_layout(height: int) -> UVLayout:
     if not (isinstance(height, (int, np.integer)) and 16 <= height <= 8192):
         raise HackError(f"UV atlas height: expected an integer in [16, 8192], found "
                         f"{height!r}.")
-    mesh = _template()
+    mesh = default_template()
     mats = [mesh.materials.index(m) for m in SKIN_MATERIALS]
     sel = np.isin(mesh.face_material, mats)
     faces, uv_faces = mesh.faces[sel], mesh.uv_faces[sel]

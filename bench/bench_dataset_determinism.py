@@ -52,7 +52,7 @@ def tree(folder: Path) -> dict[str, bytes]:
 
 
 def exr_diff(a: Path, b: Path) -> str:
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     try:
         x, y = read_exr(a), read_exr(b)

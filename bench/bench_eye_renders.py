@@ -40,10 +40,10 @@ def main(argv=None) -> None:
     from hack_render.fit import texture
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.lighting import Lighting
     from hack_render.fit.photo import from_array
     from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():

@@ -149,7 +149,7 @@ def rig_env_map(rig, height: int = 64, centre=(0.0, 0.02, 0.05), ss: int = 4) ->
     import math
 
     from hack_render.render.emitters import area_light_transform, rotation_y
-    from hack_render.render.image_io import read_hdr_image
+    from hack_render.io.image import read_hdr_image
     from scenes.lights import latlong_directions
 
     hs = height * ss
@@ -268,7 +268,6 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
         # the automatic person mask (as the fitter makes it) against the true coverage
         fcfg = load_config(None, cfg_over)
         auto, _ = segment_plain_background(photo.rgb, det.points,
-                                           max_spread=fcfg.silhouette.max_spread,
                                            chroma=fcfg.silhouette.chroma)
         cov = subj["coverage"] > 0.5
         if auto is not None:
@@ -426,7 +425,6 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect_landmarks
     from hack_render.fit.photo import from_array
     from hack_render.fit.photometric import (
         init_lobes,
@@ -435,6 +433,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
         render_view,
         setup_level,
     )
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     ph = from_array(data.astronaut(), "astronaut")
     with warnings.catch_warnings():

@@ -135,9 +135,10 @@ def main():
     from appearance.model import AppearanceModel
     from hack_render.fit.fitter import SENSOR_MM
     from hack_render.fit.landmark_embedding import load_default
-    from hack_render.fit.landmarks import detect_landmarks, refine_detection
+    from hack_render.fit.landmarks import refine_detection
     from hack_render.fit.metrics import similarity_error
     from hack_render.geometry import load_default_model
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     model, app = load_default_model(), AppearanceModel.load()
     li = model.landmark_indices.numpy()

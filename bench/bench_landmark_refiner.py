@@ -46,8 +46,8 @@ def bench_subjects(n: int, res: int):
 
     from appearance.model import AppearanceModel
     from hack_render.fit.landmark_embedding import load_default
-    from hack_render.fit.landmarks import detect_landmarks
     from hack_render.geometry import load_default_model
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     model, app = load_default_model(), AppearanceModel.load()
     emb = load_default(model)
@@ -76,7 +76,7 @@ def mirror_consistency(rgb8: np.ndarray, ref) -> tuple[float, float, float]:
     the result on the image and the mirrored result on the mirrored image, and between
     the refined and dlib's points; % of dlib's inter-ocular distance."""
     from hack_render.fit.landmark_refiner import INNER, mirror_points
-    from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     w = rgb8.shape[1]
     im = np.ascontiguousarray(rgb8[:, ::-1])

@@ -31,7 +31,7 @@ each mirrored (``NAME_mirrored``); ``--fit-landmarks truth`` fits them with
 the hand-placed points (``fit --landmarks``), which tells the detector's share of a fit's
 error from the model's.
 
-Composites (:mod:`hack_render.vision.synthetic`, seed 9000, or the sets ``--seeds`` names,
+Composites (:mod:`hack_render.dataset.composites`, seed 9000, or the sets ``--seeds`` names,
 pooled; the dense-to-68 map was calibrated on seed 7100, the tests use 31-33): the model rendered (256 px, 16 spp) at
 camera yaw 0-90 and pitch -45..45 degrees about the head, both sides, over scikit-image's
 public-domain/CC0 photographs; every third with a synthetic occluder (a hand-like
@@ -148,7 +148,7 @@ def score_segmentation(c, face) -> dict:
 def composites(per_cell: int, res: int, spp: int, seed: int = SEED):
     """The benchmark's composites, in a fixed order (yaw/pitch grid, then rolls); another
     ``seed`` draws other subjects, backgrounds and occluders on the same grid."""
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.dataset.composites import CompositeRenderer
 
     ren = CompositeRenderer(res, spp, seed)
     k = 0

@@ -212,7 +212,7 @@ def quality_benchmark(size: int, ref_spp: int, repeats: int = 2) -> None:
     from skimage.metrics import structural_similarity
 
     from hack_render.geometry import load_default_model
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -309,7 +309,7 @@ from scenes import cameras, lights
 cam = cameras.preset("portrait", 256, 256)[0]
 head = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(256, 256, 16)); lap()
 img = head.render(); lap()
-from hack_render.render.image_io import write_png
+from hack_render.io.image import write_png
 write_png(sys.argv[1], img[..., :3]); lap()
 # what the pose cost before geometry/posing.py: torch's import, its model and forward
 import torch; lap()
@@ -392,7 +392,7 @@ def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
         skin_albedo,
     )
     from hack_render.render import emitters, materials
-    from hack_render.render.image_io import write_png
+    from hack_render.io.image import write_png
     from scenes import cameras, lights
 
     wl = np.array([610.0, 550.0, 465.0])
@@ -446,7 +446,7 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     from hack_render.geometry import load_default_model
     from hack_render.render import sss
     from hack_render.render.footprint import sss_features
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -633,7 +633,7 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
     from appearance.texture_io import write_texture_set
     from hack_render.geometry.obj_io import write_mesh
     from hack_render.render import emitters, materials, skin_bsdf
-    from hack_render.render.image_io import rgb_channels, write_exr
+    from hack_render.io.image import rgb_channels, write_exr
     from hack_render.render.parts import vertex_normals
 
     rig, cam, settings = head.lights, head.camera, head.settings
@@ -729,7 +729,7 @@ class CyclesWorker:
     def render(self, spp: int, seed: int, denoise: bool, out: Path) -> tuple[dict, np.ndarray]:
         import json
 
-        from hack_render.render.image_io import read_exr
+        from hack_render.io.image import read_exr
 
         self.proc.stdin.write(json.dumps({"spp": spp, "seed": seed, "denoise": denoise,
                                           "out": str(out)}) + "\n")
@@ -843,8 +843,9 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
     import mitsuba as mi
     from skimage.metrics import structural_similarity
 
-    from hack_render.geometry.cli import LimitPolicy, posed_model
-    from hack_render.render.image_io import to_srgb8
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps
@@ -1017,7 +1018,8 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
     needs for the other's PSNR at each rung (log(time) interpolated)."""
     from scipy.ndimage import binary_dilation
 
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import INTEGRATORS, HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1096,7 +1098,8 @@ def integrator_benchmark(ladder=(4, 8, 16, 32, 64, 128), ref_spp: int = 1024,
 
 def samplers_benchmark(ref_spp: int = 2048, repeats: int = 2) -> dict:
     """(i) multijitter against the orthogonal array sampler (see the module docstring)."""
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps

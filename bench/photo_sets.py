@@ -87,13 +87,13 @@ def annotated_photos(sdist: str | Path) -> dict[str, tuple[np.ndarray, np.ndarra
 def mirrored(photos: dict) -> dict:
     """Each annotated photo (name -> (image, points)) mirrored as ``NAME_mirrored``, its
     points renumbered left for right (pixel centres at +0.5: x -> width - x)."""
-    from hack_render.vision.detect import _mirror_68
+    from hack_render.vision.detection import MIRROR_68
 
     out = {}
     for name, (img, truth) in photos.items():
         t = np.array(truth, np.float64)
         t[:, 0] = img.shape[1] - t[:, 0]
-        out[f"{name}_mirrored"] = (np.ascontiguousarray(img[:, ::-1]), t[_mirror_68()])
+        out[f"{name}_mirrored"] = (np.ascontiguousarray(img[:, ::-1]), t[MIRROR_68])
     return out
 
 

@@ -8,7 +8,7 @@ One module, used by every command, for what a user can get wrong or cut short:
   for writability (by creating and removing a probe file, which also catches read-only
   mounts and immutable folders) *before* the work starts. Nothing is created by a check:
   a refused command leaves no file or folder behind; writers create the parents and write
-  atomically (:func:`hack_render.render.image_io.atomic_path`).
+  atomically (:func:`hack_render.io.atomic_path`).
 - **Input files** (:func:`input_file`, :func:`input_dir`, :func:`parse_json`,
   :func:`parse_yaml`): present, of the right kind; JSON and YAML with a key given twice
   (the parsers keep the last one silently) or YAML aliases refused.
@@ -30,16 +30,21 @@ Imports nothing heavy.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import json
 import math
 import os
+import sys
 import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from hack_render.errors import HackError
+from hack_render.io import write_json
 
 # --------------------------------------------------------------------------- numbers
 
@@ -136,18 +141,59 @@ def _check_folder_chain(folder: Path, option: str, target: Path) -> None:
     _probe_writable(existing if existing.exists() else Path.cwd(), option, target)
 
 
+#: the words of the command line being run, when its caller passed them (see
+#: :func:`set_command_words`); None: ``sys.argv[1:]``
+_COMMAND_WORDS: list[str] | None = None
+
+
+def set_command_words(argv: Sequence[str] | None) -> None:
+    """Tell the checks the words of the command line being run (``hack_render.cli.main``
+    with an ``argv``; None: ``sys.argv[1:]``, as the console script has them)."""
+    global _COMMAND_WORDS
+    _COMMAND_WORDS = None if argv is None else [str(w) for w in argv]
+
+
+def spelt_as_folder(path: str | Path) -> bool:
+    """Whether ``path`` was given with a trailing slash, a folder's spelling (``-o x.obj/``).
+
+    A string keeps the slash; a Path (what the command line's parser hands a command)
+    has dropped it, so the words typed on the command line (:func:`set_command_words`,
+    else ``sys.argv``: ``x.obj/``, ``--output=x.obj/``, ``-ox.obj/``) are looked at for
+    one that names ``path`` so."""
+    seps = tuple({"/", os.sep})
+    if isinstance(path, str):
+        return path.endswith(seps)
+    words = sys.argv[1:] if _COMMAND_WORDS is None else _COMMAND_WORDS
+    for word in words:
+        values = [word]
+        if word.startswith("--"):
+            values.append(word.partition("=")[2])
+        elif word.startswith("-"):
+            values.append(word[2:])
+        if any(v.endswith(seps) and Path(v) == path for v in values if v):
+            return True
+    return False
+
+
 def output_file(path: str | Path, option: str = "-o/--output",
                 suffixes: Sequence[str] | None = None) -> Path:
     """Check an output file's path before the work starts; returns it as a Path.
 
     The suffix must be one of ``suffixes`` (lower case, with the dot) when given; an
-    existing directory at ``path``, or a file among its parents, is refused; the nearest
+    existing directory at ``path``, a path spelt as a folder's (``x.obj/``: see
+    :func:`spelt_as_folder`), or a file among its parents, is refused; the nearest
     existing parent must be writable. Nothing is created.
     """
+    as_folder = spelt_as_folder(path)
     path = Path(path)
     if path.is_dir():
         raise HackError(f"{option} {path}: expected a file name, found a folder. Name a file "
                         f"inside it, e.g. {path / ('out' + (suffixes[0] if suffixes else ''))}.")
+    if as_folder:
+        raise HackError(f"{option} {path}{os.sep}: expected a file name, found a folder's name "
+                        f"(it ends in {os.sep!r}). Drop the {os.sep!r} to write the file "
+                        f"{path}, or name a file inside the folder, e.g. "
+                        f"{path / ('out' + (suffixes[0] if suffixes else ''))}.")
     if suffixes is not None and path.suffix.lower() not in suffixes:
         raise HackError(f"{option} {path}: expected a {_one_of(suffixes)} file, found "
                         f"{repr(path.suffix) if path.suffix else 'no suffix'}. Give the "
@@ -203,8 +249,6 @@ class _UniqueKeyLoader:
     @classmethod
     def get(cls):
         if cls._cls is None:
-            import yaml
-
             class Loader(yaml.SafeLoader):
                 def compose_node(self, parent, index):
                     # aliases (*name) can nest a few lines into billions of values
@@ -250,8 +294,6 @@ def parse_json(text: str) -> Any:
 def parse_yaml(text: str) -> Any:
     """YAML (safe) with duplicate keys and aliases refused (HackError); syntax errors are
     ``yaml.YAMLError``."""
-    import yaml
-
     return yaml.load(text, Loader=_UniqueKeyLoader.get())  # a SafeLoader subclass
 
 
@@ -326,12 +368,9 @@ class RunRecord:
         return old
 
     def write(self, complete: bool) -> None:
-        from hack_render.render.image_io import atomic_path
-
         data = {"command": self.command, "fingerprint": self.fingerprint, "args": self.args,
                 "complete": complete}
-        with atomic_path(self.path) as tmp:
-            tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+        write_json(self.path, data, indent=1, sort_keys=True, default=str)
 
 
 @contextlib.contextmanager
@@ -343,8 +382,6 @@ def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
     The lock is the operating system's (``flock`` on ``<folder>/<name>``): it ends with
     the process, even on SIGKILL (a stale file is then taken over). The file is removed
     on release; a lock taken on a file that was meanwhile removed is retried."""
-    import fcntl
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / name
@@ -376,8 +413,10 @@ def folder_lock(folder: str | Path, name: str = ".hack-render.lock",
 
 def clean_temporaries(folder: str | Path, pattern: str = ".*",
                       recursive: bool = False) -> int:
-    """Remove the hidden temporaries a killed run left (``atomic_path`` writes
-    ``.<stem>.XXXX<suffix>``); the lock file is kept. Returns how many were removed."""
+    """Remove the hidden temporaries a killed run left that match ``pattern``
+    (:func:`hack_render.io.atomic_path` writes ``.tmp-*``, :data:`hack_render.io.TEMP_GLOB`;
+    :func:`hack_render.io.temp_glob` matches one target's); the lock file is kept. Returns
+    how many were removed."""
     folder = Path(folder)
     if not folder.is_dir():
         return 0

@@ -13,13 +13,12 @@ import importlib
 import signal
 import sys
 import threading
-from importlib import metadata
 
 import typer
 from typer.core import TyperGroup
 from typer.main import get_group
 
-from hack_render import __version__, interrupts
+from hack_render import __version__, boundary, interrupts
 from hack_render.errors import USER_OS_ERRORS, HackError, os_error_message
 
 #: every command of `hack-render`: its name, the first paragraph of its help (shown by
@@ -66,7 +65,7 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
                    "appearance` builds one).", ("appearance.cli", "hack_render.learn.cli")),
     "learn": ("Learn HACK's components from data: the model, its joints, the appearance "
               "model, the fitter's landmark embedding and refiner.",
-              ("hack_render.learn.cli", "hack_render.motion.cli", "hack_render.register.cli")),
+              ("hack_render.learn.cli",)),
     "dataset": ("Render labelled datasets (docs/datasets.md).", ("hack_render.dataset.cli",)),
 }
 
@@ -114,14 +113,14 @@ class LazyGroup(TyperGroup):
 
 
 #: what `hack-render --version` imports (numpy, to read the model file's header)
-VERSION_MODULES = ("hack_render.geometry", "hack_render.geometry.model_file")
+VERSION_MODULES = ("hack_render.geometry.model_file",)
 
 
 def _model_version() -> str:
     """The built-in default model's name and versions, read from its file's header."""
-    geometry, model_file = (importlib.import_module(m) for m in VERSION_MODULES)
+    model_file = importlib.import_module(VERSION_MODULES[0])
     try:
-        version, meta = model_file.file_header(geometry.default_model_path())
+        version, meta = model_file.file_header(model_file.default_model_path())
     except HackError as err:
         return f"default model: unreadable ({err})"
     return (f"default model: {meta.get('name', '?')}, model version "
@@ -130,11 +129,7 @@ def _model_version() -> str:
 
 def _print_version(value: bool) -> None:
     if value:
-        try:
-            dist = metadata.version("hack-render")
-        except metadata.PackageNotFoundError:
-            dist = __version__
-        typer.echo(f"hack-render {dist}")
+        typer.echo(f"hack-render {__version__}")
         typer.echo(_model_version())
         raise typer.Exit()
 
@@ -170,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     ImportError)."""
     interrupts.interrupt_message()  # forget a note left by an earlier in-process call
     interrupts.forget_signals()
+    boundary.set_command_words(argv)  # the words as typed (`-o x.obj/`: a folder's spelling)
 
     def on_signal(signum, frame):  # as Ctrl-C: complete what is queued, say what is kept
         interrupts.note_signal(signum)
@@ -183,6 +179,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         code = _run(argv)
     finally:
+        boundary.set_command_words(None)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     if code == 130:

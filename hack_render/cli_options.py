@@ -98,7 +98,8 @@ EnvRotation = Annotated[float, typer.Option("--env-rotation", help="Rotate the l
 Exposure = Annotated[float, typer.Option("--exposure", help="Lighting exposure, stops.")]
 Resolution = Annotated[str, typer.Option("--resolution", help="Image size in pixels: 'W' "
                                          "or 'WxH'.")]
-Spp = Annotated[int, typer.Option("--spp", help="Samples per pixel.")]
+Spp = Annotated[int, typer.Option("--spp", help="Samples per pixel: at least this many are "
+                                  "rendered (a sampler may round up, and says so).")]
 Seed = Annotated[int, typer.Option("--seed", help="Sampler seed.")]
 Tonemap = Annotated[str, typer.Option("--tonemap", help="PNG tone map: aces, reinhard or "
                                       "clip.")]

@@ -13,7 +13,6 @@ vertical axis).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -21,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import write_json
 
 #: Sensor width that focal lengths refer to (full-frame 35 mm).
 SENSOR_WIDTH_MM = 36.0
@@ -158,9 +158,10 @@ def preset(name: str, width: int, height: int, focal_mm: float | None = None,
     return PRESETS[name](width, height, **kw)
 
 
-def save_cameras(path, cameras: list[Camera]) -> None:
-    """Write cameras as JSON (OpenCV K, R, t) through a temporary file."""
-    from hack_render.render.image_io import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps({"cameras": [c.to_dict() for c in cameras]}, indent=1))
+def save_cameras(path, cameras: list[Camera], render: dict | None = None) -> None:
+    """Write cameras as JSON (OpenCV K, R, t) through a temporary file; ``render``: what
+    the images were rendered with (``render.cli.rendered``: sampler, spp), as ``render``."""
+    data = {"cameras": [c.to_dict() for c in cameras]}
+    if render is not None:
+        data["render"] = render
+    write_json(path, data, indent=1)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.image import rgb_channels, write_exr
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 
@@ -118,8 +119,6 @@ def overcast_sky_file() -> Path:
     Prefers ``scenes/data/overcast_sun.exr``; falls back to ``$XDG_CACHE_HOME/hack-render``
     when the package folder is read-only.
     """
-    from hack_render.render.image_io import rgb_channels, write_exr
-
     name = "overcast_sun.exr"
     for folder in (DATA_DIR, Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
                    / "hack-render"):

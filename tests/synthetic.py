@@ -81,9 +81,9 @@ def landmark_view(model, beta=None, psi=None, angles_deg=(5.0, 0.0, 0.0), res: i
     import torch
 
     from hack_render.fit.fitter import R0
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.vision.detection import Detection
     from scenes.cameras import Camera
 
     ang = torch.deg2rad(torch.tensor([float(a) for a in angles_deg]))
@@ -157,12 +157,12 @@ def appearance_photo(model, app, alpha, res: int = 64, light: str = "light_stage
     import torch
 
     from hack_render.fit.fitter import R0
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.geometry.skeleton import distribute_head_rotation
     from hack_render.render.materials import SkinMaps
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.vision.detection import Detection
     from scenes.cameras import Camera
     from scenes.lights import preset
 

@@ -90,3 +90,20 @@ def test_shipped_default_model_is_procedural_and_valid():
     assert mp.diffuse.shape[1:] == (m.height, 2 * m.height, 3)
     prov = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
     assert prov["kind"] == "procedural"
+
+
+def test_help_lists_only_commands_that_exist(capsys):
+    """`hack-render appearance --help` (and the top level's line for it) named a
+    `template` command that is `hack-render learn template` (issue 65)."""
+    import re
+
+    from appearance import cli as appearance_cli
+
+    names = {c.name or c.callback.__name__ for c in appearance_cli.app.registered_commands
+             if not c.hidden}
+    listed = re.match(r"Appearance model A\(alpha\): ([\w, ]+?) \(", appearance_cli.app.info.help)
+    assert listed, appearance_cli.app.info.help
+    assert {w.strip() for w in listed.group(1).split(",")} == names == {"sample", "report"}
+    assert _run(["appearance", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "learn template" in out and "sample, report, template" not in out

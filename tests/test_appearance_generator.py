@@ -6,11 +6,11 @@ import torch
 from scipy.spatial import cKDTree
 
 from appearance.calibrate import TARGETS, TOLERANCE, population_albedo
-from appearance.generator import _context, generate_subject
+from appearance.generator import atlas_context, generate_subject
 from appearance.model import AppearanceModel
 from appearance.population import load_calibration
 from appearance.regions import LANDMARK_VERTICES, REGION_ID, region_labels
-from appearance.uv import _template, fill_index, rasterize_layout
+from appearance.uv import default_template, fill_index, rasterize_layout
 
 H = 64
 
@@ -36,7 +36,7 @@ def test_generated_maps_physically_plausible(seed):
 
 
 def test_regional_structure():
-    ctx = _context(128)
+    ctx = atlas_context(128)
     lab = ctx.labels
     red = []
     spec = {"nose": [], "cheeks": []}
@@ -64,7 +64,7 @@ def test_calibrated_population_meets_targets():
 def test_region_labels_at_landmarks():
     lay = rasterize_layout(256)
     lab = region_labels(lay)
-    lm = _template().vertices[LANDMARK_VERTICES]
+    lm = default_template().vertices[LANDMARK_VERTICES]
     face = lay.mask & (lay.tile == 0)
     pos = lay.position[face]
     labs = lab[face]
@@ -89,7 +89,7 @@ def test_scalp_agrees_across_uv_seam():
     """Where the face tile and the back tile meet on the surface (over the crown, down the
     temples), texels at the same 3-D point agree on scalp or not. Measured at H = 128:
     0.68 of the seam's scalp texels before the hairline was shared, 1.0 after."""
-    ctx = _context(128)
+    ctx = atlas_context(128)
     lay, lab = ctx.layout, ctx.labels
     face, back = lay.mask & (lay.tile == 0), lay.mask & (lay.tile == 1)
     dist, near = cKDTree(lay.position[face]).query(lay.position[back])
@@ -106,7 +106,7 @@ def test_region_weights_continuous_across_uv_seam():
     """The generator's soft region weights meet at the same value from both tiles where
     they touch on the surface (same-facing texel pairs at H = 128: half the L1 distance
     of the weight vectors 0.63 on average when blurred per tile only, 0.12 blended)."""
-    ctx = _context(128)
+    ctx = atlas_context(128)
     lay = ctx.layout
     pos, nrm, tile = (lay.position[lay.mask], lay.normal[lay.mask], lay.tile[lay.mask])
     face, back = np.flatnonzero(tile == 0), np.flatnonzero(tile == 1)
@@ -171,7 +171,7 @@ def test_fill_index_nearest_valid_same_tile():
 
 def test_uv_rasterisation_barycentrics_reproduce_uv():
     lay = rasterize_layout(64)
-    tm = _template()
+    tm = default_template()
     i, j = np.nonzero(lay.mask)
     uvf = tm.uv_faces[lay.face[i, j]]
     uv = np.einsum("nk,nkc->nc", lay.bary[i, j], tm.uvs[uvf])

@@ -337,6 +337,40 @@ CASES += [    ("register-out-is-file", "register {i}/scan.ply -o {o}/file", "-o/
      "none.npz"),
 ]
 
+# issue 65: the last bad inputs
+CASES += [
+    ("mesh-out-trailing-slash", "mesh -o {o}/x.obj/", "-o/--output"),
+    ("render-out-trailing-slash", "render -o {o}/x.png/", "-o/--output"),
+    ("export-out-trailing-slash", "export -o {o}/p.glb/", "-o/--output"),
+    ("render-resolution-trailing-x", "render -o {o}/x.png --resolution 64x", "--resolution"),
+    ("render-resolution-leading-x", "render -o {o}/x.png --resolution x64", "--resolution"),
+    ("turntable-resolution-three-sides", "turntable -o {o}/t --resolution 64x64x",
+     "--resolution"),
+    ("params-beta-booleans", "mesh -o {o}/x.obj --params {i}/bools.json", "beta"),
+    ("params-theta-text-inside", "mesh -o {o}/x.obj --params {i}/theta_text.json", "theta"),
+    ("params-null", "mesh -o {o}/x.obj --params {i}/null.json", "--params"),
+    ("params-null-yaml", "mesh -o {o}/x.obj --params {i}/null.yaml", "--params"),
+    ("view-empty-glb", "view {i}/empty.glb --no-open", "empty.glb"),
+    ("view-cut-glb", "view {i}/cut.glb --no-open", "cut.glb"),
+    ("view-text-as-glb", "view {i}/person.glb --no-open", "person.glb"),
+    ("view-glb-without-asset", "view {i}/noasset.glb --no-open", "noasset.glb"),
+    ("view-gltf-without-its-bin", "view {i}/lonely.gltf --no-open", "lonely.gltf"),
+    ("register-obj-cut-short", "register {i}/cut.obj -o {o}/r", "cut.obj:"),
+]
+
+
+def _glb(doc: dict, binary: bytes = b"") -> bytes:
+    """A .glb of a JSON document and a BIN chunk (each padded to 4 bytes)."""
+    import struct
+
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<II", len(js), 0x4E4F534A) + js
+    if binary:
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
 
 def make_inputs(folder: Path) -> Path:
     """The input files the cases name as ``{i}/...``."""
@@ -371,10 +405,23 @@ def make_inputs(folder: Path) -> Path:
                         "lighting: {presets: [studio]}\n",
         "joints_text.npz": "meshes, joints\n1, 2\n",
         "person.glb": "not really a glb",
+        "bools.json": json.dumps({"beta": [True, False]}),
+        "theta_text.json": json.dumps({"theta": [[0, 0, "1"]] + [[0, 0, 0]] * 7}),
+        "null.json": "null\n",
+        "null.yaml": "~\n",
+        "lonely.gltf": json.dumps({"asset": {"version": "2.0"},
+                                   "buffers": [{"byteLength": 8, "uri": "lonely.bin"}]}),
     }
     for name, text in files.items():
         (folder / name).write_text(text)
     (folder / "binary.json").write_bytes(b"\xff\xfe\x00\x81 binary")
+    (folder / "empty.glb").write_bytes(b"")
+    whole = _glb({"asset": {"version": "2.0"}, "buffers": [{"byteLength": 8}]}, bytes(8))
+    (folder / "cut.glb").write_bytes(whole[:len(whole) - 6])
+    (folder / "noasset.glb").write_bytes(_glb({"buffers": []}))
+    grid = [f"v {x} {y} 0" for y in range(11) for x in range(11)]  # a 121-vertex scan...
+    grid += [f"f {k + 1} {k + 2} {k + 13}" for k in range(108) if (k + 1) % 11]
+    (folder / "cut.obj").write_text("\n".join(grid)[:-4])  # ...cut inside its last face
     (folder / "empty.npy").write_bytes(b"")
     with open(folder / "huge_file.json", "wb") as f:  # sparse: no disk used
         f.truncate(20 * 1024 * 1024)
@@ -427,6 +474,7 @@ def stamps(folder: Path) -> dict[str, tuple[int, int]]:
 def run_case(args: str, i: Path, o: Path, capsys) -> tuple[object, str]:
     """(exit code, or the exception that escaped, and stderr) of one case."""
     argv = args.format(i=i, o=o).split()
+    saved, sys.argv = sys.argv, ["hack-render", *argv]  # as the console script sees them
     try:
         main(argv)
         code: object = 0
@@ -435,6 +483,8 @@ def run_case(args: str, i: Path, o: Path, capsys) -> tuple[object, str]:
     except BaseException as exc:  # noqa: BLE001 - a traceback is what the table counts
         code = exc
         traceback.print_exc()
+    finally:
+        sys.argv = saved
     return code, capsys.readouterr().err
 
 
@@ -573,8 +623,7 @@ if hypothesis is not None:
         """The flags of mesh/render/turntable/export: a clean refusal or finite values
         inside their bounds, whatever the text."""
         from hack_render.errors import HackError
-        from hack_render.geometry.cli import check_flags
-        from hack_render.geometry.params import check_params
+        from hack_render.geometry.params import check_flags, check_params
 
         try:
             flags = check_flags(beta, expression, head, eta, tau)
@@ -666,3 +715,27 @@ def test_background_values_of_the_wrong_type_name_the_key(over):
     key = next(iter(over["background"]))
     with pytest.raises(HackError, match=f"background.{key}"):
         load_config(None, over)
+
+
+def test_a_folders_spelling_is_refused_for_a_file_output(tmp_path, monkeypatch):
+    """`-o x.obj/` wrote x.obj (issue 65): the slash names a folder. A Path has lost it by
+    the time a command sees it, so the words typed are looked at; a string keeps it."""
+    from hack_render import boundary
+    from hack_render.errors import HackError
+
+    target = tmp_path / "x.obj"
+    with pytest.raises(HackError, match="expected a file name, found a folder's"):
+        boundary.output_file(f"{target}/", "-o/--output", (".obj",))
+    for typed in (["-o", f"{target}/"], [f"--output={target}/"], [f"-o{target}/"]):
+        monkeypatch.setattr(sys, "argv", ["hack-render", "mesh", *typed])
+        with pytest.raises(HackError, match=r"-o/--output .*x\.obj/: expected a file name"):
+            boundary.output_file(target, "-o/--output", (".obj",))
+    monkeypatch.setattr(sys, "argv", ["hack-render", "mesh", "-o", str(target)])
+    assert boundary.output_file(target, "-o/--output", (".obj",)) == target
+    assert not target.exists()
+    try:  # an in-process caller of main(argv) hands its words over
+        boundary.set_command_words(["mesh", "-o", f"{target}/"])
+        with pytest.raises(HackError, match="x.obj/: expected a file name"):
+            boundary.output_file(target, "-o/--output", (".obj",))
+    finally:
+        boundary.set_command_words(None)

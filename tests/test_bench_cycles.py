@@ -85,7 +85,8 @@ def test_cycles_renders_the_same_scene(bench, tmp_path):
     (lights, camera and materials carried over; the materials differ in detail)."""
     import warnings
 
-    from hack_render.geometry.cli import LimitPolicy, posed_model
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps

@@ -151,5 +151,10 @@ def test_version_names_the_package_and_the_default_model():
     from hack_render import __version__
 
     assert lines[0] == f"hack-render {__version__}"
+    import tomllib
+    from pathlib import Path
+
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert project["project"]["version"] == __version__  # one version, said twice
     assert lines[1].startswith("default model: hack-default-ict, model version ")
     assert "file format 2" in lines[1]

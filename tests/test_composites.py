@@ -1,4 +1,4 @@
-"""hack_render.vision.synthetic: the known-truth composites the detectors are trained and
+"""hack_render.dataset.composites: the known-truth composites the detectors are trained and
 benchmarked on light each sample by its own draw and keep the photograph as it is behind
 the subject."""
 
@@ -15,7 +15,7 @@ def test_a_sample_is_lit_by_its_own_preset_whatever_came_before():
     the first was lit by ``window`` or by ``studio``. (The renderer used to build its
     scene once, with the first sample's lights: every later sample of a stream was lit
     like the first, whatever its draw said.)"""
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.dataset.composites import CompositeRenderer
 
     a = CompositeRenderer(64, 4, 5)
     a.render(20, 0, light="window")
@@ -41,7 +41,7 @@ def test_the_background_is_the_photograph_where_the_subject_is_not(monkeypatch):
     """Where the subject covers nothing, the composite is the background photograph to
     the 8-bit level. (It used to carry the rig's environment on top: the top rows of
     seed 5331's first eight composites averaged 192-255 of 255, 19-154 since.)"""
-    from hack_render.vision import synthetic
+    from hack_render.dataset import composites as synthetic
 
     monkeypatch.setattr(synthetic, "background",
                         lambda name, res, rng: np.full((res, res, 3), 100, np.uint8))

@@ -174,9 +174,9 @@ def test_label_atlas_places_regions_where_the_template_has_them():
 @pytest.fixture(scope="module")
 def label_texels():
     """The label atlas with its template layout: (atlas, layout, template mesh)."""
-    from appearance.uv import _template, rasterize_layout
+    from appearance.uv import default_template, rasterize_layout
 
-    return lab.skin_label_atlas(), rasterize_layout(lab.ATLAS_HEIGHT), _template()
+    return lab.skin_label_atlas(), rasterize_layout(lab.ATLAS_HEIGHT), default_template()
 
 
 def test_ears_are_the_pinna_on_both_atlas_tiles(label_texels):
@@ -381,7 +381,7 @@ def rendered(tmp_path_factory):
 def test_sample_files_and_labels(rendered):
     import imageio.v3 as iio
 
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     out, _cfg, summary = rendered
     assert summary == {"rendered": 3, "skipped": 0, "total": 3,
@@ -438,7 +438,7 @@ def test_background_photo_is_behind_the_subject_only(rendered, tmp_path):
     pixels: where the matte is 0 the RGB is the photo; where it is 1 the RGB and every
     label are those of the same sample rendered over its environment instead."""
     from hack_render.dataset.backgrounds import PHOTOS, background_image
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     out, _cfg, _ = rendered
     env_cfg = load_config(overrides=dict(TINY, camera={"views": 2},
@@ -474,7 +474,7 @@ def test_denoised_samples_keep_the_noisy_image(tmp_path, monkeypatch):
     """render.denoise on + keep_noisy: rgb.exr is OIDN's output over the same background,
     rgb_noisy.exr the path tracer's; without pyoidn 'on' is refused naming the extra."""
     pytest.importorskip("pyoidn")
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     cfg = load_config(overrides=dict(TINY, render=dict(TINY["render"], denoise="on",
                                                        keep_noisy=True)))
@@ -624,17 +624,19 @@ def test_inline_and_background_writes_give_the_same_files(rendered, tmp_path):
 def test_failed_write_leaves_the_sample_incomplete(tmp_path, monkeypatch):
     """A write that fails on the writer thread surfaces in the sample's result and
     ``sample.json`` is not written, so --resume redoes the sample."""
+    from hack_render.dataset import worker
     from hack_render.dataset.worker import SampleRenderer
-    from hack_render.render import image_io
+    from hack_render.io import image
 
-    real = image_io.write_exr
+    real = image.write_exr
 
     def disk_full(path, *a, **k):
         if Path(path).name == "masks.exr":
             raise OSError("No space left on device")
         return real(path, *a, **k)
 
-    monkeypatch.setattr(image_io, "write_exr", disk_full)
+    monkeypatch.setattr(image, "write_exr", disk_full)
+    monkeypatch.setattr(worker, "write_exr", disk_full, raising=False)  # imported at the top
     r = SampleRenderer(load_config(overrides=TINY), tmp_path, 0, background_writes=True)
     with pytest.raises(OSError, match="No space"):
         r.render(0)
@@ -707,6 +709,7 @@ def test_kill_midway_then_resume_gives_the_uninterrupted_files(rendered, tmp_pat
     partial.mkdir(parents=True, exist_ok=True)
     (partial / "rgb.png").write_bytes(b"\x89PNG truncated")
     (partial / ".depth.x1y2.exr").write_bytes(b"half")
+    (partial / ".tmp-0a1b2c-x1y2z3w4.exr").write_bytes(b"half")  # hack_render.io's name
     # a complete sample with a damaged file is redone too
     if (target / "samples" / "0000001" / "sample.json").is_file():
         (target / "samples" / "0000001" / "view_00" / "depth.exr").write_bytes(b"bad")
@@ -771,7 +774,7 @@ def test_render_sss_option(tmp_path):
     the labels do not change with it, and a non-boolean value is a clear error."""
     import imageio.v3 as iio
 
-    from hack_render.render.image_io import read_exr
+    from hack_render.io.image import read_exr
 
     assert load_config()["render"]["sss"] is False
     outs = {}

@@ -5,6 +5,7 @@ a sequence, and the viewer's server (127.0.0.1, its own files only)."""
 from __future__ import annotations
 
 import json
+import re
 import urllib.error
 import urllib.request
 
@@ -177,11 +178,23 @@ def test_export_cli_obj_writes_mtl_and_maps(tmp_path, capsys):
     assert read_obj(out).vertices.shape == (load_default_model().num_vertices, 3)
 
 
+def _minimal_glb(path, doc=None, binary=b"", version=2):
+    """A .glb of a glTF JSON document (default: just the asset) and a BIN chunk."""
+    import struct
+
+    js = json.dumps({"asset": {"version": "2.0"}} if doc is None else doc).encode()
+    js += b" " * (-len(js) % 4)
+    chunks = struct.pack("<II", len(js), 0x4E4F534A) + js
+    if binary:
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    path.write_bytes(b"glTF" + struct.pack("<II", version, 12 + len(chunks)) + chunks)
+    return path
+
+
 def test_viewer_serves_only_its_own_files(tmp_path):
     from hack_render.export.viewer import routes, start
 
-    glb = tmp_path / "p.glb"
-    glb.write_bytes(b"glTF" + b"\0" * 16)
+    glb = _minimal_glb(tmp_path / "p.glb")
     (tmp_path / "secret.txt").write_text("not for the page")
     assert set(routes(glb)) == {"/", "/index.html", "/viewer.js", "/three.bundle.min.js",
                                 "/LICENSE-three.js.txt", "/model.glb", "/config.json"}
@@ -206,3 +219,35 @@ def test_viewer_serves_only_its_own_files(tmp_path):
 def test_view_bad_file_exits_2(tmp_path, capsys):
     code, _, err = run_cli(["view", str(tmp_path / "none.glb"), "--no-open"], capsys)
     assert code == 2 and "file not found" in err
+
+
+def test_view_checks_the_file_before_serving(tmp_path):
+    """`view` served an empty, truncated or non-glTF file and never said a word: the page
+    showed nothing (issue 65). Now each is refused before a server starts, saying what
+    is wrong; whole files (and a .gltf with its .bin) pass."""
+    from hack_render.export.viewer import check_model
+
+    doc = {"asset": {"version": "2.0"}, "buffers": [{"byteLength": 8}]}
+    whole = _minimal_glb(tmp_path / "whole.glb", doc, bytes(8)).read_bytes()
+    assert check_model(tmp_path / "whole.glb")["asset"] == {"version": "2.0"}
+    cases = {
+        "empty.glb": (b"", "found an empty file"),
+        "cut.glb": (whole[:-6], f"declares {len(whole)} bytes but the file holds {len(whole) - 6}"),
+        "header.glb": (whole[:8], "expected a 12-byte header"),
+        "text.glb": (b"not really a glb", "a .glb starts with b'glTF'"),
+        "v1.glb": (whole[:4] + (1).to_bytes(4, "little") + whole[8:], "version 2, found version 1"),
+        "nobin.glb": (_minimal_glb(tmp_path / "x.glb", doc).read_bytes(),
+                      "buffer 0 expects 8 bytes in the file's BIN chunk, found none"),
+        "noasset.glb": (_minimal_glb(tmp_path / "y.glb", {"scenes": []}).read_bytes(),
+                        "'asset' object"),
+        "list.gltf": (b"[1, 2]", "found an array"),
+        "empty.gltf": (b"", "expected glTF JSON, found an empty file"),
+        "lonely.gltf": (json.dumps(dict(doc, buffers=[{"byteLength": 8, "uri": "l.bin"}]))
+                        .encode(), "l.bin, found no such file"),
+    }
+    for name, (data, match) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(HackError, match=re.escape(match)):
+            check_model(tmp_path / name)
+    (tmp_path / "l.bin").write_bytes(bytes(8))
+    assert check_model(tmp_path / "lonely.gltf")["buffers"][0]["uri"] == "l.bin"

@@ -22,9 +22,9 @@ def test_01_synthetic_round_trip_moves_toward_truth():
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.geometry import load_default_model
+    from hack_render.vision.detection import Detection
 
     torch.set_num_threads(1)
     model = load_default_model()

@@ -83,7 +83,8 @@ def test_05_huge_is_downscaled(tmp_path):
 
 
 def test_06_no_face_tiny_face_and_several_faces(astro):
-    from hack_render.fit.landmarks import FaceWarning, detect_landmarks
+    from hack_render.vision.detection import FaceWarning
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     with pytest.raises(HackError, match="no face found"):
         detect_landmarks(np.full((200, 200, 3), 128, np.uint8))
@@ -102,14 +103,15 @@ def test_faces_under_the_minimum_are_no_candidates(astro, monkeypatch):
     jacket and misses his own, and the fit used to stop at "the face is 53 px across"."""
     from hack_render.fit import landmarks
     from hack_render.fit.config import LandmarkConfig
+    from hack_render.vision.detection import Detection
 
     asked = []
 
     def fallback(rgb8, min_face_px, name, err, method):
         asked.append((min_face_px, str(err), method))
-        return landmarks.Detection(np.zeros((68, 2)), (0, 0, 1, 1), 1, "mesh")
+        return Detection(np.zeros((68, 2)), (0, 0, 1, 1), 1, "mesh")
 
-    monkeypatch.setattr(landmarks, "_mesh_detection", fallback)
+    monkeypatch.setattr(landmarks, "mesh_detection", fallback)
     det = landmarks.detect(astro, LandmarkConfig(min_face_px=200, fallback="auto"))
     assert det.source == "mesh" and asked[0][0] == 200 and asked[0][2] == "auto"
     assert "no face found of at least 200 px" in asked[0][1]
@@ -124,6 +126,7 @@ def test_the_auto_detector_is_asked_first_and_alone(astro, monkeypatch):
     from hack_render.fit import landmarks
     from hack_render.fit.config import LandmarkConfig
     from hack_render.vision import detect as vd
+    from hack_render.vision.detection import FaceWarning
 
     def no_dlib(*a, **k):
         raise AssertionError("dlib asked")
@@ -131,7 +134,7 @@ def test_the_auto_detector_is_asked_first_and_alone(astro, monkeypatch):
     monkeypatch.setattr(landmarks, "detect_landmarks", no_dlib)
     face = vd.detect_face(astro, "auto", 64, "photo")
     with warnings.catch_warnings():
-        warnings.simplefilter("error", landmarks.FaceWarning)
+        warnings.simplefilter("error", FaceWarning)
         det = landmarks.detect(astro, LandmarkConfig(detector="auto"))
     assert det.source == face.source == "mesh" and not det.refined
     assert np.array_equal(det.points, face.points) and np.array_equal(det.visible, face.visible)
@@ -155,10 +158,11 @@ def test_both_detectors_average_their_inner_points(astro, monkeypatch):
     from hack_render.fit import landmarks
     from hack_render.fit.config import LandmarkConfig
     from hack_render.vision import detect as vd
+    from hack_render.vision.landmarks68 import FUSE_MAX_IOD
 
     dlib = landmarks.detect(astro, LandmarkConfig())
     iod = dlib.interocular
-    for shift, fused in ((0.1, True), (landmarks.FUSE_MAX_IOD + 0.02, False), (None, False)):
+    for shift, fused in ((0.1, True), (FUSE_MAX_IOD + 0.02, False), (None, False)):
         def fake(*a, shift=shift, **k):
             if shift is None:
                 raise HackError("photo: no face found (detector auto).")
@@ -227,7 +231,7 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         load_config(tmp_path / "t.toml")
     for key, val in (("lighting", '"disco"'), ("lobes", "0"), ("sg_height", "2"),
                      ("w_landmarks", "-0.01"), ("w_landmarks_fallback", "nan"),
-                     ("w_silhouette", "inf")):
+                     ("light_cast_sigma", "inf")):
         (tmp_path / "l.toml").write_text(f"[photometric]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"photometric.{key}"):
             load_config(tmp_path / "l.toml")
@@ -258,7 +262,7 @@ def test_11_exif_focal_length_sets_the_focal_prior(tmp_path, astro):
     from hack_render.fit.cli import fit_photos
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect_landmarks
+    from hack_render.vision.landmarks68 import detect_landmarks
 
     def save(name, focal):
         exif = Image.Exif()

@@ -142,8 +142,8 @@ def test_05_validation_refuses_broken_files(tmp_path, model):
 def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.vision.detection import Detection
 
     photo = Photo(np.full((64, 64, 3), 0.5, np.float32), "grey")
     pts = np.random.default_rng(0).uniform(10, 50, (68, 2))
@@ -184,15 +184,15 @@ def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
         mod.DEFAULT_FILE = old
 
 
-def test_07_detector_weights_are_inverse_variances(tmp_path, model):
+def test_07_detector_weights_are_inverse_variances(tmp_path, model, monkeypatch):
     """A point the fake detector scatters 3x more gets ~1/9 the weight of the others
     (clipped at 0.25 of the mean); the weights survive save/load, are validated, and the
     fitter applies them to embedded (dlib) views only."""
     from hack_render.errors import HackError
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.vision.detection import Detection
 
     li = model.landmark_indices.numpy()
     emb = le.LandmarkEmbedding.from_vertices(li, model.faces.numpy())
@@ -232,4 +232,7 @@ def test_07_detector_weights_are_inverse_variances(tmp_path, model):
     got, base = weights("dlib")
     torch.testing.assert_close(got, base * torch.as_tensor(shipped.weights, dtype=base.dtype))
     assert torch.equal(weights("truth")[0], weights("truth")[1])
-    assert torch.equal(*weights("dlib", calibrated_weights=False))
+    from hack_render.fit import terms
+
+    monkeypatch.setattr(terms, "CALIBRATED_WEIGHTS", False)
+    assert torch.equal(*weights("dlib"))

@@ -13,9 +13,10 @@ import torch
 
 from hack_render.errors import HackError
 from hack_render.fit import landmark_refiner as lr
-from hack_render.fit.landmarks import Detection, refine_detection
+from hack_render.fit.landmarks import refine_detection
 from hack_render.learn import landmark_calibration as lc
 from hack_render.learn import landmark_refiner_training as lt
+from hack_render.vision.detection import Detection
 
 
 def _face_points(rng, size=128, iod=40.0, roll=0.0, centre=None):

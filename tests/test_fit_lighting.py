@@ -69,8 +69,8 @@ def _fitter(model, rig, res=80):
 
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
+    from hack_render.vision.detection import Detection
 
     img, lm, _ = synthetic_target(model, res=res, rig=rig)
     srgb = np.clip(colour.cctf_encoding(np.clip(img, 0, 1), function="sRGB"), 0, 1)

@@ -66,7 +66,7 @@ def test_01_l1_prior_explains_a_smile_with_the_smile_units(smile):
                                                                _mouth_nme(l2, view))
 
 
-def test_02_shape_stage_first_steps_keep_the_camera_stage_fit(smile):
+def test_02_shape_stage_first_steps_keep_the_camera_stage_fit(smile, monkeypatch):
     model, _, view = smile
     f = _fit(model, view, {"iterations": 10})
     cam, shape = f.reports[0].history["landmarks"], f.reports[1].history["landmarks"]
@@ -77,5 +77,9 @@ def test_02_shape_stage_first_steps_keep_the_camera_stage_fit(smile):
     # psi's first steps), at 0.01 rad for joints and head 14x (the head turned by ~5
     # degrees in one step)
     assert max(shape[:10]) < 3.0 * shape[0], shape[:10]
-    fast = _fit(model, view, {"iterations": 10, "lr_joints": 0.01, "lr_head": 0.01})
+    from hack_render.fit import geometric
+
+    monkeypatch.setattr(geometric, "JOINTS_LR", 0.01)
+    monkeypatch.setattr(geometric, "HEAD_LR", 0.01)
+    fast = _fit(model, view, {"iterations": 10})
     assert max(fast.reports[1].history["landmarks"][:10]) > 6.0 * shape[0]

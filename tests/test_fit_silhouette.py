@@ -317,3 +317,51 @@ def test_06_cli_takes_a_mask_file(tmp_path, subject):
     assert rep["views"][0]["silhouette"] == "mask file", rep["views"][0]["silhouette"]
     stages = {s["name"]: s for s in rep["stages"]}
     assert stages["shape"]["iterations"] == 10
+
+
+def _tight_crop() -> np.ndarray:
+    """The astronaut's face, cropped tight (1.4 x dlib's box) and resized to 224 x 224:
+    the usual format of face datasets."""
+    from skimage import data, transform
+
+    face = data.astronaut()[50:177, 156:283]
+    return (transform.resize(face, (224, 224), anti_aliasing=True) * 255).round().astype(
+        np.uint8)
+
+
+@pytest.mark.parametrize("found", [0.0, 1.0], ids=["no-person", "all-person"])
+def test_07_a_tight_face_crop_fits_on_without_the_silhouette(monkeypatch, found):
+    """A segmentation with no person pixels, or no background ones, on a 224 x 224 tight
+    face crop stopped the fit with exit 2 ("silhouette mask (segmentation): expected a 2-D
+    mask with both person and background pixels, found shape (224, 224) with 0 person
+    pixels"; issue 65). Such a crop has no outline to fit: the fit goes on without the
+    term, the report's view says why, and a warning says so; only a photo without a face
+    is refused."""
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.fit.landmarks import detect
+    from hack_render.fit.photo import from_array
+    from hack_render.fit.stages import FitWarning
+    from hack_render.vision import segment as vision_segment
+
+    real = vision_segment.segment
+
+    def segment(rgb8, *args, **kwargs):  # the segmenter's answer on such crops
+        seg = real(rgb8, *args, **kwargs)
+        seg.person = np.full_like(seg.person, found)
+        return seg
+
+    monkeypatch.setattr(vision_segment, "segment", segment)
+    photo = from_array(_tight_crop(), "crop.png")
+    det = detect(photo.uint8(), None, photo.name)
+    cfg = load_config(None, {"camera": {"iterations": 3}, "shape": {"iterations": 3}})
+    with pytest.warns(FitWarning, match=r"crop.png: the person segmentation found no "
+                      r"(person|background) pixels.*fitting without the silhouette term"):
+        f = Fitter([photo], [det], cfg, appearance=None, progress=False)
+    view = f.state.views[0]
+    assert view.silhouette is None
+    note = view.silhouette_note  # the report's views[0].silhouette
+    assert note.startswith("none: ") and "segmentation: no" in note and "224 x 224" in note
+    f.fit_camera()
+    f.fit_shape()
+    assert np.isfinite(f.state.beta.detach().numpy()).all()

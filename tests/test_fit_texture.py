@@ -175,10 +175,10 @@ def test_04_brows_and_lids_are_baked(model):
     on = texture.bake_diffuse(f.state, cfg, [pr])
     cfg.final.features = False
     off = texture.bake_diffuse(f.state, cfg, [pr])
-    # the bake's own guard: skin pixels at least final.edge_px inside the render's skin
+    # the bake's own guard: skin pixels at least bake_weights.EDGE_PX inside the render's skin
     # (at 160 px that leaves a third of the thin lid band, beside the model's eye opening)
     skin = binary_erosion(np.isin(pr.gbuffer["segmentation"], bake_weights.SKIN_REGIONS),
-                          iterations=round(cfg.final.edge_px * 160 / v.photo.width))
+                          iterations=round(bake_weights.EDGE_PX * 160 / v.photo.width))
     for part in (brows, lids & skin):
         assert part.sum() > 30
         uv = pr.gbuffer["uv"][part]
@@ -478,7 +478,7 @@ def test_13_edge_feather_smooths_the_bakes_outline_and_keeps_its_inside(model):
 
 
 def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(model):
-    """final.edge_px drops the pixels next to the render's silhouette (the skin's edge
+    """bake_weights.EDGE_PX drops the pixels next to the render's silhouette (the skin's edge
     there mixes in the background), not those next to the segmentation's occluders: a
     crease or a frame left out of the bake keeps the skin beside it, which is the
     photo's skin (eroding it as well had left a 2-pixel band of A(alpha) around every

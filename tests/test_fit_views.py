@@ -28,9 +28,9 @@ def _view(model, beta=None, psi=None, head=(0.0, 0.0, 0.0), torso=(0.0, 0.0, 0.0
     frontal camera (110 mm equivalent, 1 m). A body turned by 30 deg before a frontal
     camera is a frontal body seen by a camera 30 deg to its side."""
     from hack_render.fit.fitter import R0
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.geometry.skeleton import distribute_head_rotation
+    from hack_render.vision.detection import Detection
     from scenes.cameras import Camera
 
     th = distribute_head_rotation(torch.deg2rad(torch.tensor(head, dtype=torch.float32)))[None]
@@ -119,6 +119,7 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
     from hack_render.errors import HackError
     from hack_render.fit import landmarks, terms
     from hack_render.vision import detect as vd
+    from hack_render.vision.detection import FaceWarning
 
     photo, det = _view(model, head=(0.0, 60.0, 0.0))
     hidden = np.zeros(68, bool)
@@ -131,7 +132,7 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
                             convention="3d")
     monkeypatch.setattr(landmarks, "detect_landmarks", no_face)
     monkeypatch.setattr(vd, "detect_face", lambda *a, **k: fake)
-    with pytest.warns(landmarks.FaceWarning, match="face mesh"):
+    with pytest.warns(FaceWarning, match="face mesh"):
         got = landmarks.detect(photo.uint8())
     assert got.source == "mesh" and (got.visible == ~hidden).all()
     f = _fit(model, [(photo, got)], {"camera": {"iterations": 0},

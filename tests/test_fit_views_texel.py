@@ -72,17 +72,17 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
         assert nme < 0.03, (v.photo.name, nme)
 
 
-def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
+def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers(monkeypatch):
     import colour
     from synthetic import synthetic_target
 
     from hack_render.fit import photometric as ph
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
     from hack_render.fit.photo import Photo
     from hack_render.fit.robust import charbonnier
     from hack_render.geometry import load_default_model
+    from hack_render.vision.detection import Detection
 
     torch.set_num_threads(1)
     model = load_default_model()
@@ -119,7 +119,7 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
                 im = v.renderer.render(seed=seed, spp=16, vertices=verts, albedo=maps["albedo"],
                                        specular=maps["specular"], roughness=maps["roughness"],
                                        normal=maps["normal"], env=v.lighting.env_map())[..., :3]
-                d = charbonnier(im - v.level.target, cfg.photometric.charbonnier_eps)
+                d = charbonnier(im - v.level.target, ph.CHARBONNIER_EPS)
                 out += float((d * m[..., None]).sum() / (3 * m.sum())) / 2
         return out
 
@@ -147,13 +147,13 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers():
     assert reg["smooth"] < 0.5 * free["smooth"], (reg, free)
     assert reg["symmetry"] < 0.5 * free["symmetry"], (reg, free)
 
-    # photometric.lr_psi_scale 0: the photometric stage refines the identity and pose but
+    # photometric.PSI_LR_SCALE 0: the photometric stage refines the identity and pose but
     # leaves the expressions where the landmark stages put them
     f.albedo_delta = None  # the photometric stage renders the PCA maps at coarser mips
     f.cfg.photometric.iterations = [8]
     moved = {}
     for scale in (1.0, 0.0):
-        f.cfg.photometric.lr_psi_scale = scale
+        monkeypatch.setattr(ph, "PSI_LR_SCALE", scale)
         before = [x.detach().clone() for x in (f.psi, f.beta, f.alpha)]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from hack_render.cli import main
+from hack_render.io import temp_glob
 
 TT = ["turntable", "--frames", "10", "--resolution", "16", "--spp", "1", "--look-around",
       "--formats", "frames,gif", "--quiet"]
@@ -99,8 +100,10 @@ def test_turntable_killed_then_resumed_is_byte_identical(turntable_reference, tm
     record = json.loads((out / "turntable.json").read_text())
     assert record["complete"] is (code == 0)
     # a kill between two writes leaves a temporary: resume removes it
-    (frames / ".frame_0009.abc123.png").write_bytes(b"half")
-    (out / ".turntable.x7k2q.gif").write_bytes(b"GIF89a half")  # killed while encoding
+    (frames / ".tmp-0a1b2c-abc123xy.png").write_bytes(b"half")
+    (frames / ".frame_0009.abc123.png").write_bytes(b"half")  # as older versions named it
+    # killed while encoding
+    (out / temp_glob("turntable.gif").replace("*", "x7k2q9zz.gif")).write_bytes(b"GIF89a half")
     assert run(TT + ["-o", out, "--resume"])[0] == 0
     assert json.loads((out / "turntable.json").read_text())["complete"] is True
     assert tree(out) == tree(turntable_reference)  # frames, GIF, cameras and the record

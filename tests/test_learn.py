@@ -32,7 +32,7 @@ def grid(nx=15, ny=15, size=0.06):
 
 # ------------------------------------------------------------------ 1 deformation transfer
 def test_01_deformation_transfer_onto_itself_is_exact():
-    from hack_render.geometry.deformation_transfer import TargetSolver, source_gradients
+    from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
     v, f = grid()
     rng = np.random.default_rng(0)
@@ -46,7 +46,7 @@ def test_01_deformation_transfer_onto_itself_is_exact():
 
 def test_02_deformation_transfer_follows_the_target_scale():
     """A bump transferred onto a target scaled by 2 comes out with twice the height."""
-    from hack_render.geometry.deformation_transfer import TargetSolver, source_gradients
+    from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
     v, f = grid(21, 21)
     r = np.linalg.norm(v[:, :2], axis=1)

@@ -10,7 +10,7 @@ pytest.importorskip("cv2", reason="opencv (from mediapipe, fit extra) is not ins
 
 from hack_render.learn import face_ert
 from hack_render.vision import ert
-from hack_render.vision.detect import MIRROR_68
+from hack_render.vision.detection import MIRROR_68
 
 
 def _sample(rng):
@@ -67,7 +67,8 @@ def test_collect_writes_whole_or_nothing(tmp_path, monkeypatch):
     .npz would stop the training that reads it), and a finished one reads back."""
     from types import SimpleNamespace
 
-    from hack_render.vision import detect, synthetic
+    from hack_render.dataset import composites
+    from hack_render.vision import boxes
 
     rng = np.random.default_rng(5)
     img, box, kps, pts, _ = _sample(rng)
@@ -81,8 +82,8 @@ def test_collect_writes_whole_or_nothing(tmp_path, monkeypatch):
         def render(self, yaw, *a, **k):
             return SimpleNamespace(image=img, points=pts, yaw=yaw)
 
-    monkeypatch.setattr(synthetic, "CompositeRenderer", Renderer)
-    monkeypatch.setattr(detect, "find_boxes", lambda im: [(*box, 0.9, kps)])
+    monkeypatch.setattr(composites, "CompositeRenderer", Renderer)
+    monkeypatch.setattr(boxes, "find_boxes", lambda im: [(*box, 0.9, kps)])
     out = tmp_path / "ert_1.npz"
     real = np.savez_compressed
 

@@ -17,8 +17,8 @@ from hack_render.geometry import np_rotations as NR
 from hack_render.geometry import rotations as R
 from hack_render.geometry.anatomy import clamp_theta, outside_limits
 from hack_render.geometry.anatomy import distribute_head_rotation as distribute_np
-from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
 from hack_render.geometry.deformation import sample_pose_space
+from hack_render.geometry.limits import LimitPolicy, apply_limit_policy
 from hack_render.geometry.params import model_inputs
 from hack_render.geometry.posing import PosingModel
 from hack_render.geometry.skeleton import clamp_to_limits, distribute_head_rotation
@@ -174,7 +174,7 @@ def test_06_mesh_command_poses_without_torch(tmp_path, models):
                          capture_output=True, text=True, env=env, check=True)
     assert res.stdout.strip().splitlines()[-1] == "False"
     torch_model = models[0]
-    from hack_render.geometry.cli import gather_params
+    from hack_render.geometry.params import gather_params
 
     p = gather_params(None, "1,-0.5", "AU12=0.8", "-20,35,10", None, 0.01)
     kw = apply_limit_policy(model_inputs(torch_model, p), LimitPolicy("warn"),

@@ -114,6 +114,49 @@ def test_unreadable_scans_are_refused(tmp_path, content, match):
         load_scan(path)
 
 
+def _textured_ball_obj(path):
+    """An OBJ of a textured ball (v, vt, f v/vt lines), as scanners write them."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=120.0)
+    uv = (mesh.vertices[:, :2] / 240.0 + 0.5).round(6)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+    lines += [f"vt {u} {v}" for u, v in uv]
+    lines += ["f " + " ".join(f"{i + 1}/{i + 1}" for i in f) for f in mesh.faces]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("frac", [0.2, 0.45, 0.6, 0.8, 0.97])
+def test_an_obj_cut_short_is_refused_naming_the_line(tmp_path, frac):
+    """A scan cut off mid-file (an interrupted copy) was read without a word: faces cut to
+    two corners dropped, a file cut among its texture coordinates read as a point cloud;
+    the registration then reported "ok" (issue 65)."""
+    data = _textured_ball_obj(tmp_path / "whole.obj").read_bytes()
+    assert load_scan(tmp_path / "whole.obj").notes == [
+        "units detected: mm (pass --units to override)"]
+    cut = len(data) * frac
+    cut = int(cut) + 2 if data[int(cut)] in b" \n" else int(cut)  # inside a number or word
+    (tmp_path / "scan.obj").write_bytes(data[:cut])
+    n = data[:cut].count(b"\n") + 1
+    with pytest.raises(HackError, match=rf"scan\.obj:{n}: expected .*cut short"):
+        load_scan(tmp_path / "scan.obj")
+
+
+def test_an_obj_cut_between_numbers_is_read_with_a_note(tmp_path):
+    """Cut right after a whole number, a file cannot be told from a shorter one but for
+    its missing last newline: read, and the report's notes say so and how much was read."""
+    data = _textured_ball_obj(tmp_path / "whole.obj").read_bytes()
+    (tmp_path / "scan.obj").write_bytes(data.rstrip(b"\n")[:-1] + b"1")
+    scan = load_scan(tmp_path / "scan.obj", units="mm")
+    note = "scan.obj does not end with a newline: it may be cut short; read 642 vertices"
+    assert scan.notes == [note + " and 1,280 faces"]
+    for text, match in [("v 1 2 3\nf 1 2 4\n", r"bad\.obj:2: a face refers to vertex 4"),
+                        ("v 1 2 3\nv 1 2 x\n", r"bad\.obj:2: expected numbers after 'v'"),
+                        ("v 1 2 3\nf 1/1 1/1 1//1\n", r"bad\.obj:2: .*one form")]:
+        (tmp_path / "bad.obj").write_text(text)
+        with pytest.raises(HackError, match=match):
+            load_scan(tmp_path / "bad.obj")
+
+
 def test_non_finite_scans_are_refused(tmp_path):
     v = np.random.default_rng(0).normal(size=(500, 3)) * 0.1
     v[7] = np.nan
@@ -373,3 +416,48 @@ def test_register_outputs_feed_the_appearance_builder(tmp_path):
     (tmp_path / "grey" / "registered.obj").write_text("")
     got = [p.relative_to(tmp_path).as_posix() for p in subject_folders(tmp_path)]
     assert got == ["a/textures", "b/textures", "c/textures"]
+
+
+def _front_of(v: np.ndarray, faces: np.ndarray, z0: float):
+    """The mesh's part in front of the plane z = z0 (a scan that stops there)."""
+    keep = faces[(v[faces, 2] > z0).all(1)]
+    used = np.unique(keep)
+    remap = np.full(len(v), -1)
+    remap[used] = np.arange(len(used))
+    return v[used], remap[keep]
+
+
+def test_error_map_greys_what_the_scan_does_not_cover(model):
+    """error.png's legend says grey for "not measured", but the skin beyond a scan's edge
+    (here: all behind the ears, the scan being the face and the front of the neck) was
+    measured to the scan's edge and drawn red (>= 3 mm) (issue 65). Now it is not
+    measured: nan in the vertex errors (and error.ply), grey in the picture; what the scan
+    covers keeps its colour."""
+    from hack_render.register.fitting import model_subsets
+    from hack_render.register.outputs import heat_map_views
+    from hack_render.register.pipeline import measure
+    from hack_render.register.scan import Scan
+
+    with torch.no_grad():
+        v = model().vertices[0].double().numpy()
+    faces = model.faces.numpy()
+    skin, _ = model_subsets(model)
+    z0 = float(np.median(v[skin, 2]))
+    scan = Scan.from_mesh("front", *_front_of(v, faces, z0))
+    _, err, stats = measure(model, scan, v, lambda x: x)
+    front, back = skin[v[skin, 2] > z0 + 0.005], skin[v[skin, 2] < z0 - 0.005]
+    assert np.isfinite(err[front]).all() and np.nanmax(err[front]) < 0.05  # on the scan
+    assert np.isnan(err[back]).all()
+    assert 0.3 < stats["skin_measured"] < 0.9
+    # the point cloud of the same front: the same verdict (its spacing: the mesh's edges)
+    cloud = Scan(scan.name, scan.points, scan.normals)
+    _, err_c, _ = measure(model, cloud, v, lambda x: x)
+    assert np.isnan(err_c[back[v[back, 2] < z0 - 0.02]]).all()
+    assert np.isfinite(err_c[front[v[front, 2] > z0 + 0.02]]).mean() > 0.95
+    # the picture: the side views show the uncovered back of the head in grey, no red
+    tiles = np.stack(heat_map_views(v, faces, err, size=96)).astype(int)
+    r, g, b = tiles[..., 0], tiles[..., 1], tiles[..., 2]
+    red = (r > 60) & (r > 2 * g + 20) & (r > 2 * b + 20)
+    grey = (np.abs(r - g) < 6) & (np.abs(g - b) < 6) & (r > 40)
+    assert red.sum() == 0, red.sum(axis=(1, 2))
+    assert grey[1:].sum(axis=(1, 2)).min() > 300, grey.sum(axis=(1, 2))

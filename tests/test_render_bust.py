@@ -19,7 +19,7 @@ import drjit as dr
 import mitsuba as mi
 
 from hack_render.geometry import load_default_model
-from hack_render.render import aov
+from hack_render.render import footprint
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
 
@@ -72,7 +72,7 @@ def _inside_pixels(head) -> int:
     idx = dr.arange(mi.UInt32, w * h)
     xy = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
     ray, _ = head.scene.sensors()[0].sample_ray(0.0, 0.5, xy, mi.Point2f(0.5))
-    si = aov.camera_hit(head, ray)
+    si = footprint.camera_hit(head, ray)
     back = si.is_valid() & (dr.dot(si.n, ray.d) > 0)
     g = head.aovs()
     skin = np.isin(g["segmentation"], [REGIONS.index("face"), REGIONS.index("back_head")])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hack_render.cli import main
-from hack_render.render.image_io import read_exr
+from hack_render.io.image import read_exr
 
 FAST = ["--resolution", "32", "--spp", "2"]
 
@@ -106,7 +106,7 @@ def test_06_unwritable_output_exits_2(tmp_path, capsys):
 
 
 def test_07_user_env_map_with_rotation_and_exposure(tmp_path):
-    from hack_render.render.image_io import rgb_channels, write_exr
+    from hack_render.io.image import rgb_channels, write_exr
 
     env = tmp_path / "env.exr"
     sky = np.zeros((16, 32, 3), np.float32)
@@ -125,7 +125,7 @@ def test_07_user_env_map_with_rotation_and_exposure(tmp_path):
 
 def test_08_texture_folder_drives_the_skin_albedo(tmp_path, capsys):
     """Brighter diffuse maps in a --textures folder give a brighter face (albedo AOV exact)."""
-    from hack_render.render.image_io import write_exr
+    from hack_render.io.image import write_exr
 
     h = 16
     means = []

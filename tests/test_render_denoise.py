@@ -58,24 +58,30 @@ def test_01_spp_rounding_is_mitsubas():
                 if s == "auto":  # what auto picks is a count its sampler takes as it is
                     name, count = auto_sampler(n)
                     assert count == sampler_spp("auto", n)
-                    assert 0.7 * n <= count <= 1.3 * n or name == "multijitter", (n, count)
+                    assert n <= count <= 1.3 * n or name == "multijitter", (n, count)
                     s, n = name, count
                 got = mi.load_dict({"type": s, "sample_count": n}).sample_count()
-                assert sampler_spp(s, n) == got, (s, n, got)
+                assert sampler_spp(s, n) == got >= n, (s, n, got)  # never fewer (issue 65)
     finally:
         mi.set_log_level(level)
     st = RenderSettings(64, 64, 32, sampler="multijitter")
     assert st.effective_spp == 35 and "35 rendered" in st.spp_note()
-    # auto: multijitter below 20 spp, the orthogonal array at 25, 49, 121, 169, ... near
-    # them, never over a pass's sample budget (2^24 samples: 16 spp at 1024 x 1024)
+    # auto: multijitter below 20 spp, the orthogonal array at 25, 49, 121, 169, ... and
+    # counts a little under them, never fewer samples than asked (issue 65: --spp 32
+    # rendered 25) and never over a pass's sample budget (2^24 samples: 16 spp at 1024^2)
     st = RenderSettings(64, 64, 32)
-    assert (st.mitsuba_sampler, st.effective_spp) == ("orthogonal", 25)
+    assert (st.mitsuba_sampler, st.effective_spp) == ("multijitter", 35)
+    assert "32 requested, 35 rendered" in st.spp_note()
     assert RenderSettings(64, 64, 16).mitsuba_sampler == "multijitter"
     assert RenderSettings(64, 64, 36).mitsuba_sampler == "multijitter"
-    st = RenderSettings(64, 64, 64)
+    st = RenderSettings(64, 64, 49)
+    assert (st.mitsuba_sampler, st.effective_spp, st.spp_note()) == ("orthogonal", 49, None)
+    st = RenderSettings(64, 64, 40)
     assert (st.mitsuba_sampler, st.effective_spp) == ("orthogonal", 49)
     assert "49 rendered" in st.spp_note() and "auto: orthogonal" in st.spp_note()
-    assert RenderSettings(64, 64, 128).effective_spp == 121
+    assert RenderSettings(64, 64, 64).effective_spp == 64
+    assert RenderSettings(64, 64, 100).effective_spp == 121
+    assert RenderSettings(64, 64, 128).effective_spp == 132
     assert RenderSettings(1024, 1024, 64).mitsuba_sampler == "multijitter"
     assert RenderSettings(64, 64, 36, sampler="stratified").spp_note() is None
     assert RenderSettings(64, 64, 32, sampler="independent").effective_spp == 32
@@ -84,9 +90,10 @@ def test_01_spp_rounding_is_mitsubas():
 
 
 def test_01b_auto_sampler_beats_multijitter_with_fewer_samples(rest):
-    """``auto`` at --spp 64 renders the orthogonal array's 49 samples, less noisy than
-    multijitter's 64 against a 1,024-spp reference (docs/render.md, "Samplers"): under
-    0.9x its MSE over four seeds (measured: 0.80 with hack_path, 0.78 with volpath)."""
+    """``auto`` at --spp 49 (render's default) renders the orthogonal array's 49 samples,
+    less noisy than multijitter's 64 against a 1,024-spp reference (docs/render.md,
+    "Samplers"): under 0.9x its MSE over four seeds (measured: 0.80 with hack_path, 0.78
+    with volpath). Before issue 65 this was ``auto`` at --spp 64, which rendered 49."""
     cam = cameras.orbit(48, 48, 85.0, 20.0, 5.0)
 
     def img(spp, sampler, seed):
@@ -95,8 +102,8 @@ def test_01b_auto_sampler_beats_multijitter_with_fewer_samples(rest):
         return h.render(seed=seed, backdrop=False)
 
     ref = img(1024, "multijitter", 99)
-    mse = {s: np.mean([np.mean((img(64, s, k) - ref) ** 2) for k in (1, 2, 3, 4)])
-           for s in ("multijitter", "auto")}
+    mse = {s: np.mean([np.mean((img(n, s, k) - ref) ** 2) for k in (1, 2, 3, 4)])
+           for s, n in (("multijitter", 64), ("auto", 49))}
     assert mse["auto"] < 0.9 * mse["multijitter"], mse
 
 

@@ -64,7 +64,7 @@ def test_atomic_outputs_are_ordinary_readable_files(tmp_path, monkeypatch):
     """Files written through a temporary name get the permissions the umask gives any new
     file (mkstemp alone would leave them 0600, unreadable to a user's group), and an
     interrupted write leaves neither the file nor the temporary."""
-    import hack_render.render.image_io as io
+    import hack_render.io as io
 
     assert io._UMASK == io._read_umask()  # read at import
     for umask, mode in ((0o022, 0o644), (0o027, 0o640)):

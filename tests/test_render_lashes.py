@@ -12,7 +12,8 @@ import drjit as dr
 import mitsuba as mi
 
 from hack_render.render import materials
-from hack_render.render.aov import camera_hit, card_opacity
+from hack_render.render.aov import card_opacity
+from hack_render.render.footprint import camera_hit
 from hack_render.render.parts import REGIONS, Part, lash_cards, split_parts
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights

@@ -31,7 +31,7 @@ def test_01_latlong_convention_matches_mitsuba_envmap():
 
 
 def test_02_overcast_sky_is_written_as_exr_and_brightest_at_the_sun(tmp_path, monkeypatch):
-    from hack_render.render.image_io import read_hdr_image
+    from hack_render.io.image import read_hdr_image
 
     monkeypatch.setattr(lights, "DATA_DIR", tmp_path)
     path = lights.overcast_sky_file()

@@ -32,7 +32,7 @@ def rig_setup(model):
 def test_01_rig_equals_the_model_forward(model, rig_setup):
     """The closed-form landmarks equal the embedding's points on the full forward, for
     random poses, torsos, translations and expressions."""
-    from hack_render.track.rig import _points
+    from hack_render.track.rig import landmark_points
 
     rig, emb, beta = rig_setup
     g = torch.Generator().manual_seed(0)
@@ -44,7 +44,7 @@ def test_01_rig_equals_the_model_forward(model, rig_setup):
     with torch.no_grad():
         out = model(beta=beta, psi=psi, theta=distribute_head_rotation(h, clamp=False),
                     global_orient=go, transl=t)
-    want = _points(out.vertices.double(), emb, model)
+    want = landmark_points(out.vertices.double(), emb, model)
     got = rig.points(psi.double(), h.double(), go.double(), t.double())
     assert float((want - got).abs().max()) < 1e-6
 
@@ -457,3 +457,14 @@ def test_14_a_detection_that_jumps_off_the_face_is_lost_not_taken():
     det._mesh = lambda _img: (moved, np.ones(68, bool), np.r_[moved.min(0), moved.max(0)])
     p, _, _, why, mask = det.detect(img)
     assert p is not None and why == "" and mask[:17].sum() == 0
+
+
+def test_frames_whose_mask_is_all_person_or_none_get_no_outline():
+    """A frame of a tight face crop segments to all person (or none): it has no outline;
+    it was a HackError that stopped the track, it is now a frame left to the landmarks,
+    as when the segmentation fails (issue 65)."""
+    from hack_render.track.outline import FrameMasks
+
+    disc = np.hypot(*np.mgrid[-8:8, -8:8] + 0.5) < 5
+    fm = FrameMasks.from_masks([np.ones((16, 16), bool), np.zeros((16, 16), bool), disc, None])
+    assert fm.has.tolist() == [False, False, True, False]

@@ -16,12 +16,8 @@ pytest.importorskip("ai_edge_litert", reason="ai-edge-litert (fit extra) is not 
 pytest.importorskip("mitsuba")
 
 from hack_render.vision.dense68 import DenseMap, load_map
-from hack_render.vision.detect import (
-    MIRROR_68,
-    FaceWarning,
-    detect_face,
-    detect_faces,
-)
+from hack_render.vision.detect import detect_face, detect_faces
+from hack_render.vision.detection import MIRROR_68, FaceWarning
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +25,7 @@ def shots():
     """Composites (192 px, 16 spp, seed 31: a subject stream the calibration and the
     benchmark do not use): frontal, three-quarter with a hair strand, a profile, a head
     seen from above, and a frontal face turned 90 degrees in the image plane."""
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.dataset.composites import CompositeRenderer
 
     ren = CompositeRenderer(192, 16, 31)
     out = {"frontal": ren.render(0, 5), "three_quarter": ren.render(40, 10),
@@ -167,7 +163,7 @@ def test_occluder_mask(shots):
 
 
 def test_no_face_is_a_clear_error():
-    from hack_render.vision.synthetic import background
+    from hack_render.dataset.composites import background
 
     bg = background("brick", 160, np.random.default_rng(0))
     with pytest.raises(HackError, match="no face found"):
@@ -217,35 +213,35 @@ def test_mirrored_boxes_map_back_onto_the_upright_ones(monkeypatch):
     (before turning the image); where one is, weak or not, no other pass runs."""
     import skimage.data
 
-    from hack_render.vision import detect
+    from hack_render.vision import boxes
 
     img = skimage.data.astronaut()
-    (up,) = detect.blazeface_boxes(img)
-    (mir,) = detect.mirrored_boxes(img)
+    (up,) = boxes.blazeface_boxes(img)
+    (mir,) = boxes.mirrored_boxes(img)
     width = up[2] - up[0]
-    assert detect._iou(up[:4], mir[:4]) > 0.85, (up[:4], mir[:4])
+    assert boxes.iou(up[:4], mir[:4]) > 0.85, (up[:4], mir[:4])
     err = np.linalg.norm(up[5] - mir[5], axis=1) / width
     assert err.max() < 0.12, err
     iod = np.linalg.norm(up[5][0] - up[5][1])
     unswapped = np.linalg.norm(up[5][:2] - mir[5][[1, 0]], axis=1)
     assert unswapped.min() > 0.5 * iod > np.linalg.norm(up[5][:2] - mir[5][:2], axis=1).max()
-    orig, calls = detect.blazeface_boxes, []
+    orig, calls = boxes.blazeface_boxes, []
 
     def blind_upright(rgb8):       # the upright pass finds nothing, the mirrored one runs
         calls.append(rgb8)
         return [] if len(calls) == 1 else orig(rgb8)
 
-    monkeypatch.setattr(detect, "blazeface_boxes", blind_upright)
-    found = detect.find_boxes(img)
+    monkeypatch.setattr(boxes, "blazeface_boxes", blind_upright)
+    found = boxes.find_boxes(img)
     assert len(calls) == 2 and np.array_equal(calls[1], img[:, ::-1])
-    assert len(found) == 1 and detect._iou(found[0][:4], mir[:4]) > 0.99
+    assert len(found) == 1 and boxes.iou(found[0][:4], mir[:4]) > 0.99
     # any box upright, weak or not: no mirrored pass (mirroring where every upright box
     # was weak boxed a false face on the astronaut turned upside down)
     weak = (4.0, 4.0, 44.0, 44.0, 0.3, np.zeros((6, 2)))
     calls.clear()
-    monkeypatch.setattr(detect, "blazeface_boxes",
+    monkeypatch.setattr(boxes, "blazeface_boxes",
                         lambda rgb8: calls.append(rgb8) or ([weak] if len(calls) == 1 else []))
-    assert detect.find_boxes(img) == [weak] and len(calls) == 1
+    assert boxes.find_boxes(img) == [weak] and len(calls) == 1
 
 
 def test_a_faded_photo_found_on_the_equalised_image():
@@ -254,14 +250,14 @@ def test_a_faded_photo_found_on_the_equalised_image():
     original's box is (IoU > 0.7; measured 0.76), before any quarter turn."""
     import skimage.data
 
-    from hack_render.vision import detect
+    from hack_render.vision import boxes
 
     img = skimage.data.astronaut()
     faded = np.clip(img * 0.05 + 128 * 0.95, 0, 255).astype(np.uint8)
-    assert not detect.blazeface_boxes(faded) and not detect.mirrored_boxes(faded)
-    (up,) = detect.blazeface_boxes(img)
-    found = detect.find_boxes(faded)
-    assert len(found) == 1 and detect._iou(found[0][:4], up[:4]) > 0.7, found
+    assert not boxes.blazeface_boxes(faded) and not boxes.mirrored_boxes(faded)
+    (up,) = boxes.blazeface_boxes(img)
+    found = boxes.find_boxes(faded)
+    assert len(found) == 1 and boxes.iou(found[0][:4], up[:4]) > 0.7, found
     assert np.linalg.norm(found[0][5][:2] - up[5][:2], axis=1).max() < 0.1 * (up[2] - up[0])
 
 
@@ -284,7 +280,7 @@ def test_ert_profile_and_three_quarters(shots):
     replace was at 0.05-0.19 on these draws and 0.19-0.27 of the box on the benchmark's
     composites at every yaw (docs/vision.md)."""
     from hack_render.vision import ert
-    from hack_render.vision.detect import find_boxes
+    from hack_render.vision.boxes import find_boxes
 
     errs = []
     for c in [shots["profile"]] + shots["three_quarters"]:
@@ -316,9 +312,9 @@ def test_upside_down_face_keypoints_turned():
     so the eyes' keypoints lie below the mouth's as the face's do (BlazeFace's own put
     them above), and auto's points are near the truth (on the benchmark's upside-down
     frontal composite they were at 0.70 of the box before the keypoints were turned)."""
+    from hack_render.dataset.composites import CompositeRenderer
     from hack_render.vision import ert
-    from hack_render.vision.detect import find_boxes
-    from hack_render.vision.synthetic import CompositeRenderer
+    from hack_render.vision.boxes import find_boxes
 
     c = CompositeRenderer(256, 16, 9000).render(0.0, 0.0, roll=180.0)
     x0, y0, x1, y1, _, kp = find_boxes(c.image)[0]
@@ -362,7 +358,7 @@ def test_auto_rejects_a_box_off_the_person(shots, monkeypatch):
     box on the head that is weak and too large (head and neck, as BlazeFace gave at pitch
     -45) gives way to the head search's; a box off the person that BlazeFace is sure of
     is kept (a face the segmentation missed)."""
-    from hack_render.vision import detect, verify
+    from hack_render.vision import boxes, detect, verify
 
     c = shots["frontal"]
     prob = verify.person_probability(c.image)
@@ -385,7 +381,7 @@ def test_auto_rejects_a_box_off_the_person(shots, monkeypatch):
     big = (tx0 - w / 2, ty0, tx1 + w / 2, ty1 + 1.5 * w, 0.52, np.zeros((6, 2)))
     (box,) = verify.verified_boxes(c.image, [big])
     truth = (tx0, ty0, tx1, ty1)
-    assert detect._iou(box[:4], truth) > detect._iou(big[:4], truth) + 0.2
+    assert boxes.iou(box[:4], truth) > boxes.iou(big[:4], truth) + 0.2
     sure = (*off[:4], 0.9, off[5])
     assert any(b is sure for b in verify.verified_boxes(c.image, [sure]))
 
@@ -396,8 +392,8 @@ def test_auto_takes_the_shape_predictor_where_the_mesh_sees_no_face(shots, monke
     nothing, and ``auto`` takes the shape predictor's points, which land on the face;
     without the presence check it kept the mesh's. A face the mesh does see keeps its
     points. (A profile of its own: the fixture's is seen by the mesh, presence 0.51.)"""
+    from hack_render.dataset.composites import CompositeRenderer
     from hack_render.vision import detect
-    from hack_render.vision.synthetic import CompositeRenderer
 
     c = CompositeRenderer(192, 16, 43).render(-90, 0)
     real = detect._ert_face

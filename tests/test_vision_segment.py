@@ -87,7 +87,7 @@ def test_frames_in_brows_needs_thin_occluders_under_both_eyes():
     a rim on one side only, a blob instead of a rim, a fringe above the brows, or hair
     beside the eyes (outside their corners) reaching as low take nothing; skin in the
     brows is never taken."""
-    from hack_render.vision.detect import FaceLandmarks
+    from hack_render.vision.detection import FaceLandmarks
     from hack_render.vision.glasses import frames_in_brows
 
     face = FaceLandmarks(_face_points(), (0, 0, 64, 80), 1)   # outer-eye distance 40

@@ -7,24 +7,10 @@ Public API:
 CLI: ``hack-render dataset`` and ``hack-render dataset preview`` (cli.py); docs/datasets.md.
 """
 
-from typing import TYPE_CHECKING
+from hack_render.dataset.config import DEFAULTS, check_config, load_config
+from hack_render.dataset.labels import LABELS
+from hack_render.dataset.runner import Job, parse_shard, read_record, run, write_manifest
+from hack_render.dataset.sampling import model_kwargs, sample_spec
 
-if TYPE_CHECKING:  # imported lazily (below): `hack-render --help` must not import torch
-    from hack_render.dataset.config import DEFAULTS, check_config, load_config  # noqa: F401
-    from hack_render.dataset.labels import LABELS  # noqa: F401
-    from hack_render.dataset.runner import Job, parse_shard, read_record, run, write_manifest  # noqa: F401
-    from hack_render.dataset.sampling import model_kwargs, sample_spec  # noqa: F401
-
-_LAZY = {"DEFAULTS": "config", "check_config": "config", "load_config": "config",
-         "LABELS": "labels", "Job": "runner", "parse_shard": "runner", "read_record": "runner",
-         "run": "runner", "write_manifest": "runner", "model_kwargs": "sampling",
-         "sample_spec": "sampling"}
-
-
-def __getattr__(name: str):
-    """Public names of the submodules, imported on first use."""
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(f"hack_render.dataset.{_LAZY[name]}"), name)
-    raise AttributeError(f"module 'hack_render.dataset' has no attribute {name!r}")
+__all__ = ["DEFAULTS", "LABELS", "Job", "check_config", "load_config", "model_kwargs",
+           "parse_shard", "read_record", "run", "sample_spec", "write_manifest"]

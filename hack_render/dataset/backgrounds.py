@@ -22,6 +22,7 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
 from hack_render.errors import HackError
@@ -40,8 +41,6 @@ SOURCES = ("photos", "environment")
 
 
 def _data_dir():
-    from pathlib import Path
-
     try:
         import skimage
     except ImportError as err:
@@ -87,7 +86,6 @@ def srgb_decode8() -> np.ndarray:
 @lru_cache(maxsize=len(PHOTOS))
 def photo(name: str) -> np.ndarray:
     """(h, w, 3) float32 linear Rec.709 of a shipped photo, mean luminance 1."""
-    import imageio.v3 as iio
 
     if name not in PHOTOS:
         raise HackError(f"background photo: expected one of {', '.join(PHOTOS)}, found "

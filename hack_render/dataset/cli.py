@@ -7,7 +7,11 @@ from typing import Optional
 
 import typer
 
+from hack_render import boundary
 from hack_render import cli_options as opts
+from hack_render.dataset.config import load_config
+from hack_render.dataset.preview import contact_sheet
+from hack_render.dataset.runner import Job, parse_shard, run
 from hack_render.errors import HackError
 from hack_render.threads import check_threads, command_threads
 
@@ -46,13 +50,10 @@ def dataset(
     """
     if ctx.invoked_subcommand is not None:
         return
-    from hack_render.dataset.config import load_config
-    from hack_render.dataset.runner import Job, parse_shard, run
 
     if n is None or output is None:
         raise HackError("dataset: expected --n N and -o DIR (or the `preview` subcommand), "
                         "found them missing. Example: hack-render dataset --n 100 -o out/ds")
-    from hack_render import boundary
 
     boundary.number(workers, "--workers", 1, 4096, integer=True)
     if threads is not None:  # this process's engines (serial); each Ray actor: one thread
@@ -73,9 +74,6 @@ def preview(
     columns: int = typer.Option(4, "--columns", help="Tiles per row."),
 ) -> None:
     """Contact sheet of the first samples with segmentation and landmarks overlaid."""
-    from hack_render import boundary
-    from hack_render.dataset.preview import contact_sheet
-
     boundary.input_dir(folder, "FOLDER", "dataset folder")
     boundary.output_file(output or folder / "preview.png", "-o/--output", (".png",))
     boundary.number(count, "--count", 1, 4096, integer=True)

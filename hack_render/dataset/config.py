@@ -14,13 +14,19 @@ import math
 from pathlib import Path
 from typing import Any
 
+from hack_render.boundary import parse_yaml
+from hack_render.dataset.backgrounds import check_background_config
 from hack_render.errors import HackError
+from hack_render.io.image import TONE_MAPS
+from hack_render.render.scene import INTEGRATORS, MAX_SIDE, MAX_SPP, SAMPLERS
+from hack_render.render.settings import RenderSettings
+from scenes import lights
 
 #: Every key, with its default. Ranges are [min, max] (uniform unless said otherwise).
 DEFAULTS: dict[str, Any] = {
     "render": {
         "resolution": 256,        # pixels, square
-        "spp": 32,                # samples per pixel
+        "spp": 25,                # samples per pixel (auto: 25 is the orthogonal array's)
         "max_depth": 8,
         "tonemap": "aces",        # rgb.png tone map: aces, reinhard, clip
         "soft_mask_samples": 3,   # soft masks: k x k sub-pixel rays per pixel (0: hard only)
@@ -137,10 +143,6 @@ def _range(cfg, section, name, lo=-math.inf, hi=math.inf):
 
 def check_config(cfg: dict) -> dict:
     """Validate a full config (defaults merged); returns it with ranges as float lists."""
-    from hack_render.render.image_io import TONE_MAPS
-    from hack_render.render.scene import MAX_SIDE, MAX_SPP
-    from scenes import lights
-
     _number(cfg, "render", "resolution", 8, MAX_SIDE, integer=True)
     _number(cfg, "render", "spp", 1, MAX_SPP, integer=True)
     _number(cfg, "render", "max_depth", 1, 64, integer=True)
@@ -193,10 +195,8 @@ def check_config(cfg: dict) -> dict:
             raise HackError(f"config key 'lighting.presets': {err}") from err
     _range(cfg, "lighting", "rotation_deg", -3600.0, 3600.0)
     _range(cfg, "lighting", "exposure", -20.0, 20.0)
-    from hack_render.dataset.backgrounds import check_background_config
 
     check_background_config(cfg, _fail)
-    from hack_render.render.scene import INTEGRATORS, SAMPLERS
 
     if cfg["render"]["sampler"] not in SAMPLERS:
         _fail("render.sampler", f"one of {', '.join(SAMPLERS)}", cfg["render"]["sampler"])
@@ -227,7 +227,6 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         path = Path(path)
         if not path.is_file():
             raise HackError(f"--config {path}: file not found.")
-        from hack_render.boundary import parse_yaml
 
         try:
             data = parse_yaml(path.read_text()) or {}
@@ -248,3 +247,12 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
 def canonical(cfg: dict) -> str:
     """The config as canonical JSON (sorted keys): equal strings mean equal datasets."""
     return json.dumps(cfg, sort_keys=True)
+
+
+def render_settings(cfg: dict[str, Any]) -> RenderSettings:
+    """The render settings of a config's ``render`` section, as every sample is rendered
+    (a box pixel filter: each sample in one pixel, for the labels' and the denoiser's
+    sake; seed 0, each view's seed set when it renders)."""
+    r = cfg["render"]
+    return RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
+                          pixel_filter="box", sampler=r["sampler"], integrator=r["integrator"])

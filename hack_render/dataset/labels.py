@@ -27,7 +27,12 @@ from functools import lru_cache
 
 import numpy as np
 
+from appearance.regions import LANDMARK_VERTICES, SOCKET_VERTICES, hairline_y, nape_y, region_labels
+from appearance.regions import REGIONS as ATLAS_REGIONS
+from appearance.uv import default_template, rasterize_layout
 from hack_render.errors import HackError
+from hack_render.geometry import load_default_model
+from hack_render.render.parts import REGIONS
 
 #: Dataset segmentation labels; the id is the index.
 LABELS: tuple[str, ...] = ("background", "face_skin", "neck_skin", "scalp", "ears", "lips",
@@ -97,19 +102,8 @@ def skin_label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
     """
     from scipy import ndimage
 
-    from appearance.regions import (
-        LANDMARK_VERTICES,
-        SOCKET_VERTICES,
-        hairline_y,
-        nape_y,
-        region_labels,
-    )
-    from appearance.regions import REGIONS as ATLAS_REGIONS
-    from appearance.uv import _template, rasterize_layout
-    from hack_render.geometry import load_default_model
-
     lay = rasterize_layout(height)
-    mesh = _template()
+    mesh = default_template()
     atlas = region_labels(lay)
     lut = np.array([LABEL_ID[_ATLAS_TO_LABEL[n]] for n in ATLAS_REGIONS], np.uint8)
     out = lut[atlas]
@@ -156,9 +150,7 @@ def pinna_texels(lay) -> np.ndarray:
     """
     from scipy.spatial import ConvexHull
 
-    from appearance.uv import _template
-
-    mesh = _template()
+    mesh = default_template()
     v, f = mesh.vertices, mesh.faces
     face_mat, back_mat = (mesh.materials.index(m) for m in ("M_Face", "M_BackHead"))
     h, w = lay.mask.shape
@@ -220,8 +212,6 @@ def _uv_islands(uv_faces: np.ndarray, num_uvs: int) -> np.ndarray:
 
 def to_labels(region: np.ndarray, uv: np.ndarray, atlas: np.ndarray | None = None) -> np.ndarray:
     """Dataset label ids (H, W) uint8 from render region ids (H, W) and model UVs (H, W, 2)."""
-    from hack_render.render.parts import REGIONS
-
     atlas = skin_label_atlas() if atlas is None else atlas
     h = atlas.shape[0]
     lut = np.zeros(len(REGIONS), np.uint8)
@@ -243,8 +233,6 @@ def to_labels(region: np.ndarray, uv: np.ndarray, atlas: np.ndarray | None = Non
 
 def render_region_labels() -> np.ndarray:
     """Dataset label of each render region (``parts.REGIONS``); skin regions use the atlas."""
-    from hack_render.render.parts import REGIONS
-
     return np.array([0 if n in SKIN_RENDER_REGIONS else LABEL_ID[_RENDER_TO_LABEL[n]]
                      for n in REGIONS], np.uint8)
 

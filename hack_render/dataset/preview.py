@@ -10,9 +10,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+from PIL import Image, ImageDraw
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 #: sRGB colour per segmentation label (index = label id).
 PALETTE = np.array([
@@ -34,9 +37,6 @@ def _views(folder: Path, count: int) -> list[Path]:
 
 def tile(view: Path, blend: float = 0.35) -> np.ndarray:
     """One annotated tile (H, W, 3) uint8 from a view folder."""
-    import imageio.v3 as iio
-    from PIL import Image, ImageDraw
-
     rgb = iio.imread(view / "rgb.png")[..., :3].astype(np.float64)
     seg = iio.imread(view / "segmentation.png")
     over = PALETTE[np.clip(seg, 0, len(PALETTE) - 1)].astype(np.float64)
@@ -58,8 +58,6 @@ def tile(view: Path, blend: float = 0.35) -> np.ndarray:
 def contact_sheet(folder: str | Path, output: str | Path | None = None, count: int = 16,
                   columns: int = 4) -> Path:
     """Write a grid of the first ``count`` views as PNG (default ``DIR/preview.png``)."""
-    from hack_render.render.image_io import atomic_path
-
     folder = Path(folder)
     if count < 1 or columns < 1:
         raise HackError(f"preview: expected --count and --columns >= 1, found {count}, "
@@ -77,7 +75,6 @@ def contact_sheet(folder: str | Path, output: str | Path | None = None, count: i
         r, c = divmod(k, cols)
         sheet[r * h:(r + 1) * h, c * w:(c + 1) * w] = t[:h, :w]
     output = Path(output) if output else folder / "preview.png"
-    import imageio.v3 as iio
 
     with atomic_path(output) as tmp:
         iio.imwrite(tmp, sheet, extension=".png")

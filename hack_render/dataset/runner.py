@@ -24,13 +24,25 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from tqdm import tqdm
+
+from appearance.model import AppearanceModel
 from appearance.projected import model_height, supports_height
-from hack_render import interrupts
+from appearance.uv import default_template
+from hack_render import boundary, interrupts
+from hack_render.boundary import estimate_line
+from hack_render.dataset.config import render_settings
+from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
+from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
+from hack_render.geometry import load_default_model
+from hack_render.io import atomic_path, temp_glob, write_json
+from hack_render.render.engine import set_thread_count
 
 EXECUTORS = ("serial", "ray")
 #: The most samples one dataset folder holds (sample folders are named by a 7-digit index
@@ -88,9 +100,6 @@ def parse_shard(text: str | None) -> tuple[int, int]:
 def check_job(job: Job) -> None:
     """Everything that can be checked before rendering: N, seed, model-dependent config
     values, the output folder, an existing folder's config. Raises HackError."""
-    from hack_render import boundary
-    from hack_render.geometry import load_default_model
-
     if isinstance(job.n, bool) or not isinstance(job.n, int) or not 1 <= job.n <= MAX_SAMPLES:
         raise HackError(f"--n: expected a number of samples in 1..{MAX_SAMPLES:,}, found "
                         f"{job.n!r}. Larger datasets: several folders with different --seed.")
@@ -113,8 +122,6 @@ def check_job(job: Job) -> None:
     app = job.cfg["appearance"]
     if app["source"] == "alpha":
         try:
-            from appearance.model import AppearanceModel
-
             k = AppearanceModel.load().n_components
         except (ImportError, OSError) as err:
             raise HackError(f"config key 'appearance.source': 'alpha' needs the appearance "
@@ -130,9 +137,7 @@ def check_job(job: Job) -> None:
                             f"found {app['height']}. Use one of {top}, {top // 2}, "
                             f"{top // 4}, ..., or appearance.maps: generated.")
     if app["source"] in ("seed", "alpha"):
-        from appearance.uv import _template
-
-        _template()  # the skin atlas needs the packaged template (raises with the fix)
+        default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
     for sub in ("samples", "manifest"):
         boundary.output_dir(job.out / sub)
@@ -143,10 +148,11 @@ def check_job(job: Job) -> None:
             old = json.loads(path.read_text())
         except (OSError, ValueError):
             old = None
-        app = old.get("config", {}).get("appearance") if isinstance(old, dict) else None
-        legacy = isinstance(app, dict) and "maps" not in app
+        old_cfg = old.get("config") if isinstance(old, dict) else None
+        old_app = old_cfg.get("appearance") if isinstance(old_cfg, dict) else None
+        legacy = isinstance(old_app, dict) and "maps" not in old_app
         if legacy:  # made before appearance.maps: with the generator's maps
-            app["maps"] = "generated"
+            old_app["maps"] = "generated"
         if old is not None and old != info:
             diff = [k for k in info if old.get(k) != info[k]]
             hint = (" It was made before appearance.maps existed, with the generator's maps: "
@@ -160,9 +166,12 @@ def check_job(job: Job) -> None:
 
 def run_info(job: Job) -> dict:
     """What ``config.json`` records: config, seed and the label table."""
-    from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
 
+    st = render_settings(job.cfg)
     return {"format": "hack-render-dataset", "version": 1, "seed": job.seed, "config": job.cfg,
+            # what the images are rendered with (the sampler rounds render.spp up): a
+            # folder made by a version that rendered otherwise is not resumed into
+            "rendered": {"sampler": st.mitsuba_sampler, "spp": st.effective_spp},
             "labels": [{"id": i, "name": n, "description": LABEL_DESCRIPTIONS[n]}
                        for i, n in enumerate(LABELS)]}
 
@@ -170,8 +179,6 @@ def run_info(job: Job) -> dict:
 def read_record(out: Path, index: int) -> dict | None:
     """A sample's record if the sample is complete (record and every listed file of the
     recorded size), else None."""
-    from hack_render.dataset.worker import SAMPLE_RECORD, sample_dir
-
     path = sample_dir(out, index) / SAMPLE_RECORD
     try:
         rec = json.loads(path.read_text())
@@ -185,7 +192,8 @@ def read_record(out: Path, index: int) -> dict | None:
 
 
 def _clean_temporaries(folder: Path, pattern: str = ".*") -> None:
-    """Remove temporary files a killed run left behind (``atomic_path``: ``.<stem>.*``)."""
+    """Remove the temporary files a killed run left behind (``hack_render.io.atomic_path``'s
+    ``.tmp-*``; ``.<stem>.*`` from older versions) that match ``pattern``."""
     for p in folder.rglob(pattern):
         if p.is_file():
             p.unlink()
@@ -202,8 +210,6 @@ def existing_samples(job: Job) -> list[int]:
 
 
 def _refuse_rerun(job: Job, existing: list[int]) -> None:
-    from hack_render.dataset.worker import sample_dir
-
     if existing and not job.resume:
         raise HackError(f"-o/--output {job.out}: expected no samples of this shard yet, found "
                         f"{len(existing)} (e.g. {sample_dir(job.out, existing[0])}). Add "
@@ -219,13 +225,13 @@ def prepare(job: Job) -> tuple[object, int]:
     Without ``resume`` the shard must have no samples in the folder yet (a re-run would
     redo complete samples and could be killed half-way through one); with it, partial
     samples are cleaned and redone, complete ones kept."""
-    from hack_render.dataset.worker import _write_json, sample_dir
-
     existing = existing_samples(job)
     _refuse_rerun(job, existing)  # again, under the lock
-    _write_json(job.out / "config.json", run_info(job))
+    write_json(job.out / "config.json", run_info(job), indent=1, sort_keys=True)
     (job.out / "manifest").mkdir(parents=True, exist_ok=True)
     job.complete_path.unlink(missing_ok=True)
+    for own in (job.manifest_path, job.complete_path):  # the other shards' are theirs
+        _clean_temporaries(job.out / "manifest", temp_glob(own))
     _clean_temporaries(job.out / "manifest", f".{job.manifest_path.stem}.*")
     done: dict[int, dict] = {}
     for i in existing:
@@ -240,8 +246,6 @@ def prepare(job: Job) -> tuple[object, int]:
 
 
 def _write_manifest_lines(job: Job, records: list[dict]) -> Path:
-    from hack_render.render.image_io import atomic_path
-
     with atomic_path(job.manifest_path) as tmp:
         tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))
     return job.manifest_path
@@ -285,12 +289,6 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                tally: dict | None = None) -> int:
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
     many. ``tally["complete"]`` counts the shard's complete samples as they land."""
-    import time
-
-    from tqdm import tqdm
-
-    from hack_render.boundary import estimate_line
-    from hack_render.dataset.worker import SampleRenderer
 
     if total is None:
         todo = list(todo)
@@ -345,7 +343,6 @@ def run_ray(job: Job, todo, address: str | None = None,
     except ImportError as err:
         raise HackError("--executor ray: expected Ray, found it not installed. Install the "
                         "extra: pip install 'hack-render[ray]'.") from err
-    from tqdm import tqdm
 
     todo = list(todo)
     if not todo:
@@ -383,9 +380,6 @@ class _LazyRayActor:
             @ray.remote(num_cpus=1)
             class RayRenderer:
                 def __init__(self, cfg, out, seed):
-                    from hack_render.dataset.worker import SampleRenderer
-                    from hack_render.render.engine import set_thread_count
-
                     set_thread_count(1)  # one core per actor: no oversubscription
                     self.renderer = SampleRenderer(cfg, out, seed)
 
@@ -413,8 +407,6 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         except ImportError as err:
             raise HackError("--executor ray: expected Ray, found it not installed. Install "
                             "the extra: pip install 'hack-render[ray]'.") from err
-    from hack_render import boundary
-    from hack_render.dataset.worker import _write_json
 
     check_job(job)
     total = len(job.indices())
@@ -423,8 +415,9 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         todo, n_todo = prepare(job)
         tally = {"complete": total - n_todo}
         print(f"dataset: {n_todo:,} of the {total:,} samples of shard {k}/{m} to render into "
-              f"{job.out} ({job.cfg['render']['resolution']} px, {job.cfg['render']['spp']} "
-              f"spp, {job.cfg['camera']['views']} view(s) each)", file=sys.stderr)
+              f"{job.out} ({job.cfg['render']['resolution']} px, "
+              f"{render_settings(job.cfg).effective_spp} spp, {job.cfg['camera']['views']} "
+              f"view(s) each)", file=sys.stderr)
 
         def kept() -> str:
             return (f"kept {tally['complete']:,} complete samples of the {total:,} of shard "
@@ -437,7 +430,7 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
             else:
                 done = run_serial(job, todo, progress, n_todo, tally)
             manifest = write_manifest(job)
-            _write_json(job.complete_path, {"complete": True, "n": job.n,
-                                            "shard": [k, m], "samples": total})
+            write_json(job.complete_path, {"complete": True, "n": job.n, "shard": [k, m],
+                                           "samples": total}, indent=1, sort_keys=True)
     return {"rendered": done, "skipped": total - n_todo, "total": total,
             "manifest": str(manifest)}

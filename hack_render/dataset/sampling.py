@@ -14,6 +14,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hack_render.dataset.backgrounds import sample_background
+from hack_render.geometry.rotations import axis_angle_to_euler, euler_to_axis_angle
+from hack_render.geometry.skeleton import clamp_to_limits, distribute_head_rotation, outside_limits
+from hack_render.render.turntable import swallow_tau
+
 #: Generator stream per component (never reorder: it would change every dataset).
 STREAMS = {"identity": 1, "expression": 2, "neck": 3, "larynx": 4, "appearance": 5,
            "lighting": 6, "camera": 7, "render": 8, "background": 9}
@@ -58,9 +63,6 @@ def sample_neck(cfg: dict, rng) -> tuple[list[float], list[list[float]]]:
     their ranges (``distribute_head_rotation``), each joint's Euler angles get independent
     noise, and the result is clamped to the anatomical limits (``clamp_to_limits``).
     """
-    from hack_render.geometry.rotations import axis_angle_to_euler, euler_to_axis_angle
-    from hack_render.geometry.skeleton import clamp_to_limits, distribute_head_rotation
-
     c = cfg["neck"]
     head = truncated_normal(rng, 3, 2.0, c["head_std_deg"])
     noise = rng.standard_normal((8, 3)) * c["joint_noise_deg"]
@@ -72,8 +74,6 @@ def sample_neck(cfg: dict, rng) -> tuple[list[float], list[list[float]]]:
 
 def sample_larynx(cfg: dict, rng) -> dict:
     """eta (size), tau (slide, metres) and the swallow phase in [0, 1) or None."""
-    from hack_render.render.turntable import swallow_tau
-
     c = cfg["larynx"]
     eta = float(rng.uniform(*c["eta"]))
     tau = float(rng.uniform(*c["tau_rest"]))
@@ -125,7 +125,6 @@ def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> 
     spec["lighting"] = sample_lighting(cfg, _rng(seed, index, "lighting"))
     spec["cameras"] = sample_cameras(cfg, _rng(seed, index, "camera"))
     spec["render_seed"] = int(_rng(seed, index, "render").integers(0, 2 ** 31 - 1024))
-    from hack_render.dataset.backgrounds import sample_background
 
     spec["background"] = sample_background(cfg, _rng(seed, index, "background"))
     return spec
@@ -157,8 +156,6 @@ def params_file(model, spec: dict) -> dict:
 
 def degrees_within_limits(theta) -> bool:
     """True when every joint angle of theta (8, 3) is inside the anatomical limits."""
-    from hack_render.geometry.skeleton import outside_limits
-
     return not outside_limits(torch.as_tensor(theta, dtype=torch.float64), tol_deg=1e-6)
 
 

@@ -28,12 +28,24 @@ from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
+from appearance.generator import generate_subject
+from appearance.model import AppearanceModel
 from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
+from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
+from hack_render.geometry import load_default_model
+from hack_render.io import atomic_path, write_json
+from hack_render.io.image import rgb_channels, to_srgb8, write_exr
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, composite
+from scenes import cameras as cams
+from scenes import lights
 
 SAMPLE_RECORD = "sample.json"
 
@@ -44,25 +56,13 @@ def sample_dir(out: Path, index: int) -> Path:
 
 def camera_of(view: dict, width: int, name: str):
     """The OpenCV camera of a sampled view description (square images)."""
-    from scenes import cameras as cams
-
     K = cams.intrinsics(width, width, view["focal_mm"])
     d = cams.framing_distance(K, width, width, cams.DEFAULT_EXTENT) * view["distance_scale"]
     return cams.orbit(width, width, view["focal_mm"], view["yaw_deg"], view["pitch_deg"],
                       name=name, distance=d)
 
 
-def _write_json(path: Path, data) -> None:
-    from hack_render.render.image_io import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-
-
 def _write_png(path: Path, array: np.ndarray) -> None:
-    import imageio.v3 as iio
-
-    from hack_render.render.image_io import atomic_path
 
     with atomic_path(path) as tmp:
         # zlib level 1: several times faster than the default, files ~10 % larger
@@ -76,9 +76,6 @@ class SampleRenderer:
     max_pending = 2
 
     def __init__(self, cfg: dict, out: str | Path, seed: int, background_writes: bool = False):
-        from hack_render.geometry import load_default_model
-        from hack_render.render.parts import Topology
-
         self.cfg, self.out, self.seed = cfg, Path(out), int(seed)
         self.model = load_default_model()
         self.topology = Topology.from_model(self.model)
@@ -104,8 +101,6 @@ class SampleRenderer:
         return sample_spec(self.cfg, self.seed, index, self.model.au_names)
 
     def skin_maps(self, appearance: dict):
-        from hack_render.render.materials import SkinMaps
-
         h = self.cfg["appearance"]["height"]
         if appearance["source"] == "seed" and self.cfg["appearance"]["maps"] == "projected":
             with self._skin_lock:
@@ -113,16 +108,12 @@ class SampleRenderer:
                     self._projector = SubjectProjector()
             return SkinMaps.from_appearance(self._projector.maps(appearance["subject"], h))
         if appearance["source"] == "seed":
-            from appearance.generator import generate_subject
-
             return SkinMaps.from_appearance(generate_subject(appearance["subject"], height=h))
         if appearance["source"] == "alpha":
             import torch
 
             with self._skin_lock:
                 if self._appearance_model is None:
-                    from appearance.model import AppearanceModel
-
                     self._appearance_model = AppearanceModel.load()
             a = torch.tensor([appearance["alpha"]], dtype=torch.float32)
             with torch.no_grad():
@@ -130,8 +121,6 @@ class SampleRenderer:
         return self._flat_maps()
 
     def _flat_maps(self):
-        from hack_render.render.materials import SkinMaps
-
         c = SkinMaps.constant(self.cfg["appearance"]["height"])
         flat = np.zeros(c.diffuse.shape, np.float32)
         flat[..., 2] = 1.0
@@ -159,13 +148,9 @@ class SampleRenderer:
                 self.scenes[preset] = self._build_scene(preset)
 
     def _build_scene(self, preset: str):
-        from hack_render.render.scene import HeadScene, RenderSettings
-        from scenes import lights
 
         r = self.cfg["render"]
-        settings = RenderSettings(r["resolution"], r["resolution"], r["spp"], r["max_depth"], 0,
-                                  pixel_filter="box", sampler=r["sampler"],
-                                  integrator=r["integrator"])
+        settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
@@ -239,8 +224,8 @@ class SampleRenderer:
         head.set_vertices(inp["verts"], update=False)
         head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
-        writes = [self.writer.submit(_write_json, folder / "params.json",
-                                     params_file(self.model, spec))]
+        writes = [self.writer.submit(write_json, folder / "params.json",
+                                     params_file(self.model, spec), indent=1, sort_keys=True)]
         views = []
         larynx_vertex = inp["larynx_vertex"]
         for v, view in enumerate(spec["cameras"]):
@@ -252,9 +237,6 @@ class SampleRenderer:
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes, backdrop) -> dict:
-        from hack_render.render.image_io import rgb_channels, write_exr
-        from hack_render.render.scene import composite
-
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"
         vdir.mkdir()
@@ -268,6 +250,9 @@ class SampleRenderer:
         # labels first: their files are written while the path tracer runs
         aov, seg, masks = lab.label_images(head, r["soft_mask_samples"], self.atlas)
         meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
+        # the image's own sampling, in its headers (the labels are not path traced)
+        rgb_meta = dict(meta, hack_sampler=head.settings.mitsuba_sampler,
+                        hack_spp=str(head.settings.effective_spp))
         writes += [
             put(write_exr, vdir / "depth.exr", {"Z": aov["depth"]}, meta),
             put(write_exr, vdir / "normal.exr",
@@ -280,8 +265,9 @@ class SampleRenderer:
                 {f"mask.{n}": masks[..., i] for i, n in enumerate(lab.LABELS)})]
         lm = lab.landmark_record(head, cam, out.landmarks[0].numpy(), out.joints[0].numpy(),
                                  larynx)
-        writes += [put(_write_json, vdir / "landmarks.json", lm),
-                   put(_write_json, vdir / "camera.json", cam.to_dict())]
+        writes += [put(write_json, vdir / "landmarks.json", lm, indent=1, sort_keys=True),
+                   put(write_json, vdir / "camera.json", cam.to_dict(), indent=1,
+                       sort_keys=True)]
         bare = head.render(seed=spec["render_seed"] + v, backdrop=False, sss=r["sss"])
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
@@ -291,14 +277,14 @@ class SampleRenderer:
         if mode != "off" and r["keep_noisy"]:
             noisy = composite(bare * np.float32([gain, gain, gain, 1.0]), backdrop)
             writes.append(put(write_exr, vdir / "rgb_noisy.exr", rgb_channels(noisy[..., :3]),
-                              meta))
+                              rgb_meta))
         img = composite(img * np.float32([gain, gain, gain, 1.0]), backdrop)
         # the matte is the geometric coverage of the label rays (the soft masks); the
         # film's alpha (coverage of the path tracer's own samples) agrees up to noise
         alpha = np.clip(1.0 - masks[..., lab.LABEL_ID["background"]], 0.0, 1.0)
         ch = rgb_channels(img[..., :3])
         ch["A"] = alpha
-        writes += [put(write_exr, vdir / "rgb.exr", ch, meta),
+        writes += [put(write_exr, vdir / "rgb.exr", ch, rgb_meta),
                    put(_write_rgb_png, vdir / "rgb.png", img[..., :3], r["tonemap"]),
                    put(_write_png, vdir / "alpha.png", np.round(alpha * 255).astype(np.uint8))]
         return {"name": cam.name, "camera": cam.to_dict(), "sampled": spec["cameras"][v]}
@@ -314,8 +300,6 @@ class SampleRenderer:
 
 
 def _write_rgb_png(path: Path, linear: np.ndarray, tonemap: str) -> None:
-    from hack_render.render.image_io import to_srgb8
-
     _write_png(path, to_srgb8(linear, 0.0, tonemap))
 
 
@@ -327,7 +311,7 @@ def _write_record(out: Path, folder: Path, spec: dict, writes: list) -> dict:
         w.result()
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     spec["files"] = {str(p.relative_to(out)): p.stat().st_size for p in files}
-    _write_json(folder / SAMPLE_RECORD, spec)
+    write_json(folder / SAMPLE_RECORD, spec, indent=1, sort_keys=True)
     return spec
 
 
@@ -337,8 +321,6 @@ class FileWriter:
     write's exception is raised by its future."""
 
     def __init__(self, background: bool = False):
-        from concurrent.futures import ThreadPoolExecutor
-
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-writer") \
             if background else None
         self._records: deque[Future] = deque()
@@ -347,13 +329,13 @@ class FileWriter:
     def background(self) -> bool:
         return self._pool is not None
 
-    def submit(self, fn, *args) -> Future:
+    def submit(self, fn, *args, **kwargs) -> Future:
         if self._pool is not None:
-            fut = self._pool.submit(fn, *args)
+            fut = self._pool.submit(fn, *args, **kwargs)
         else:
             fut = Future()
             try:
-                fut.set_result(fn(*args))
+                fut.set_result(fn(*args, **kwargs))
             except Exception as err:  # noqa: BLE001 - kept in the future, as a thread would
                 fut.set_exception(err)
         if fn is _write_record:

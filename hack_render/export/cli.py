@@ -7,8 +7,18 @@ from pathlib import Path
 
 import typer
 
-from hack_render import interrupts
+from hack_render import boundary, interrupts
 from hack_render.errors import HackError
+from hack_render.export.gltf import png_bytes
+from hack_render.export.person import export_person
+from hack_render.export.viewer import serve
+from hack_render.geometry import load_model
+from hack_render.geometry.limits import apply_limit_policy, limit_policy
+from hack_render.geometry.obj_io import ObjMaterials, write_mesh
+from hack_render.geometry.params import gather_params, load_sequence, model_inputs
+from hack_render.io import atomic_write_bytes
+from hack_render.render.materials import material_base_colours
+from hack_render.render.skin_maps import skin_maps
 
 
 def export(
@@ -53,11 +63,6 @@ def export(
 
     Example: hack-render export --params person.json --sequence motion.npz -o out/person.glb
     """
-    from hack_render import boundary
-    from hack_render.geometry import load_model
-    from hack_render.geometry.cli import gather_params
-    from hack_render.geometry.params import load_sequence
-
     suffix = output.suffix.lower()
     boundary.output_file(output, "-o/--output", (".glb", ".gltf", ".obj", ".ply"))
     if suffix in (".obj", ".ply") and sequence is not None:
@@ -73,7 +78,6 @@ def export(
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = load_model(model_path)
     seq = load_sequence(sequence, model.num_expressions) if sequence is not None else None
-    from hack_render.geometry.params import model_inputs
 
     # beta length, expression names: checked before anything heavy; then the limits
     p = _limited(p, apply_limits(model_inputs(model, p), limits, p.get("head_rotation_deg")),
@@ -83,7 +87,6 @@ def export(
         for path in _export_mesh(model, p, maps, output):
             typer.echo(f"wrote {path.resolve()}")
         return
-    from hack_render.export.person import export_person
 
     rep = export_person(model, p, output, seq, maps, influences)
     for f in rep["files"]:
@@ -97,13 +100,7 @@ def export(
 
 
 def apply_limits(kw: dict, limits: str, head_rotation_deg) -> dict:
-    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
-
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
-    return apply_limit_policy(kw, policy, head_rotation_deg)
+    return apply_limit_policy(kw, limit_policy(limits), head_rotation_deg)
 
 
 def _limited(p: dict, kw: dict, limits: str) -> dict:
@@ -124,8 +121,6 @@ def _limited(p: dict, kw: dict, limits: str) -> dict:
 
 def _skin_maps(alpha, seed, textures):
     """The skin maps: a texture folder, A(alpha) or a seeded subject; default A(0)."""
-    from hack_render.render.skin_maps import skin_maps
-
     if alpha is None and seed is None and textures is None:
         alpha = [0.0]
     return skin_maps(alpha, seed, textures)
@@ -134,11 +129,6 @@ def _skin_maps(alpha, seed, textures):
 def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
     """The posed mesh as OBJ (+ .mtl + PNG maps in <stem>_maps/) or PLY."""
     import torch
-
-    from hack_render.export.gltf import png_bytes
-    from hack_render.geometry.obj_io import ObjMaterials, write_mesh
-    from hack_render.geometry.params import model_inputs
-    from hack_render.render.materials import material_base_colours
 
     with torch.no_grad():
         verts = model(**model_inputs(model, params)).vertices[0].numpy()
@@ -153,11 +143,7 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
         images["normal"] = (0.5 * maps.normal + 0.5, False)
     written = []
     for key, (img, srgb) in images.items():
-        path = folder / f"{key}.png"
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_bytes(png_bytes(img, srgb))
-        tmp.replace(path)
-        written.append(path)
+        written.append(atomic_write_bytes(folder / f"{key}.png", png_bytes(img, srgb)))
     mats = ObjMaterials(model.material_names, model.face_material.numpy(),
                         {k: f"{folder.name}/{k}.png" for k in images},
                         colours=material_base_colours(model.material_names, maps.iris_rgb,
@@ -177,9 +163,6 @@ def view(
 
     Example: hack-render view out/person.glb
     """
-    from hack_render import boundary
-    from hack_render.export.viewer import serve
-
     boundary.input_file(file, "FILE", (".glb", ".gltf"), "exported person")
     boundary.number(port, "--port", 0, 65535, integer=True)
     with interrupts.on_interrupt("the viewer stopped (it writes no files)"):

@@ -23,15 +23,22 @@ Layout of the file:
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
 
+from appearance.colour_space import srgb_encode
 from hack_render.errors import HackError
+from hack_render.export.rig import pose_split
+from hack_render.io import atomic_path
+from hack_render.render.materials import EYELASH_OPACITY, iris_vertex_colors, material_base_colours
+from hack_render.render.parts import Topology, split_parts, vertex_normals
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -139,9 +146,6 @@ class Animation:
 
 def png_bytes(img: np.ndarray, srgb: bool) -> bytes:
     """An 8-bit PNG of a [0, 1] float image (H, W[, C]), sRGB-encoded if ``srgb``."""
-    import imageio.v3 as iio
-
-    from appearance.colour_space import srgb_encode
 
     img = np.clip(np.asarray(img, np.float64), 0.0, 1.0)
     if srgb:
@@ -184,8 +188,6 @@ def part_material(g: GltfBuilder, part: str, rgb) -> int:
     if part in ("lacrimal", "eyelashes"):  # thin shells and cards, seen from both sides
         mat["doubleSided"] = True
     if part == "eyelashes":
-        from hack_render.render.materials import EYELASH_OPACITY
-
         mat["pbrMetallicRoughness"]["baseColorFactor"][3] = EYELASH_OPACITY
         mat["alphaMode"] = "BLEND"
     return g._add("materials", mat)
@@ -219,10 +221,6 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         maps: skin maps (``render.materials.SkinMaps``) or None (a plain skin colour).
         animation: the clip, or None.
     """
-    from hack_render.export.rig import pose_split
-    from hack_render.render.materials import iris_vertex_colors, material_base_colours
-    from hack_render.render.parts import Topology, split_parts, vertex_normals
-
     g = GltfBuilder()
     parts, axes = split_parts(Topology.from_model(model), rig.base)
     normals = vertex_normals(rig.base, model.faces.numpy())
@@ -337,18 +335,14 @@ def write_document(g: GltfBuilder, path: str | Path) -> list[Path]:
     else:
         text, data = g.gltf(path.with_suffix(".bin").name)
         files = [(path.with_suffix(".bin"), data), (path, text.encode())]
-    tmps = []
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        for target, data in files:
-            tmp = target.with_name(f".{target.name}.tmp")
-            tmps.append(tmp)
-            tmp.write_bytes(data)
-        for (target, _), tmp in zip(files, tmps, strict=True):
-            tmp.replace(target)
+        # every file written under its temporary name, then renamed in order (the .bin
+        # before the .gltf that names it): the stack renames the last entered first
+        with contextlib.ExitStack() as stack:
+            tmps = [stack.enter_context(atomic_path(t)) for t, _ in reversed(files)][::-1]
+            for tmp, (_, data) in zip(tmps, files, strict=True):
+                tmp.write_bytes(data)
     except OSError as exc:
-        for tmp in tmps:
-            tmp.unlink(missing_ok=True)
         raise HackError(f"-o {path}: cannot write ({exc.strerror or exc}). Choose a writable "
                         "output path.") from exc
     return [t for t, _ in files]

@@ -12,6 +12,7 @@ import numpy as np
 from hack_render.errors import HackError
 from hack_render.export import rig as R
 from hack_render.export.gltf import Animation, Pose, person_document, write_document
+from hack_render.geometry.params import model_inputs
 
 
 def _pose_arrays(rig, theta, psi, global_orient, transl, tau):
@@ -20,7 +21,7 @@ def _pose_arrays(rig, theta, psi, global_orient, transl, tau):
     return rot, rig.rest_nodes[0] + transl, R.frame_weights(rig, psi, theta, tau)
 
 
-def _frames_from(kw: dict, seq, model) -> dict[str, np.ndarray]:
+def frames_from(kw: dict, seq, model) -> dict[str, np.ndarray]:
     """Per-frame arrays: the sequence's, or the parameter file's values where it has none."""
     t = 1 if seq is None else seq.frames
     out = {}
@@ -51,12 +52,10 @@ def export_person(model, params: dict, output: str | Path, sequence=None, maps=N
         maps: skin maps or None.
         influences: skin weights per vertex, 4 or 8.
     """
-    from hack_render.geometry.params import model_inputs
-
     t0 = time.perf_counter()
     kw = model_inputs(model, params)
-    frames = _frames_from(kw, sequence, model)
-    default = _frames_from(kw, None, model)
+    frames = frames_from(kw, sequence, model)
+    default = frames_from(kw, None, model)
     tau_max = max(np.abs(frames["tau"]).max(), np.abs(default["tau"]).max())
     tau_range = max(R.TAU_RANGE, math.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP)
     if tau_range > 0.1:

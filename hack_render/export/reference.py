@@ -67,7 +67,9 @@ def _quat_matrix(q: np.ndarray) -> np.ndarray:
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def _local(node: dict) -> np.ndarray:
+def node_matrix(node: dict) -> np.ndarray:
+    """A glTF node's local transform (4, 4) from its translation, rotation (quaternion
+    x, y, z, w) and scale (each optional)."""
     m = np.eye(4)
     m[:3, :3] = _quat_matrix(np.asarray(node.get("rotation", [0, 0, 0, 1]), np.float64))
     m[:3, :3] *= np.asarray(node.get("scale", [1, 1, 1]))[None]
@@ -97,7 +99,7 @@ def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | Non
     parent = {c: i for i, n in enumerate(nodes) for c in n.get("children", [])}
 
     def world(i: int) -> np.ndarray:
-        return world(parent[i]) @ _local(nodes[i]) if i in parent else _local(nodes[i])
+        return world(parent[i]) @ node_matrix(nodes[i]) if i in parent else node_matrix(nodes[i])
 
     skin = doc["skins"][nodes[mesh_node]["skin"]]
     ibm = accessor(doc, buf, skin["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1)

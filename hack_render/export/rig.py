@@ -34,7 +34,14 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
-from hack_render.geometry.lbs import local_rotations, pose_feature
+from hack_render.geometry.lbs import (
+    chain_parents,
+    local_rotations,
+    pose_feature,
+    rigid_transforms,
+    skin,
+)
+from hack_render.geometry.rotations import euler_to_axis_angle
 
 ROOT_NAME = "thorax"
 #: Larynx slide in-betweens: spacing and default half-range, metres.
@@ -237,8 +244,6 @@ def weight_truncation_error(model, rig: ExportRig, theta: torch.Tensor | None = 
     """Largest vertex displacement (m) between skinning with the model's weights and with
     the 4 kept, over poses ``theta`` (T, 8, 3) (default: each joint at its limits, one
     axis at a time, and the whole-head extremes of the turntable's look-around)."""
-    from hack_render.geometry.lbs import chain_parents, rigid_transforms, skin
-
     if theta is None:
         theta = limit_poses(model)
     rot = local_rotations(theta.double(), theta.new_zeros(len(theta), 3).double())
@@ -256,8 +261,6 @@ def weight_truncation_error(model, rig: ExportRig, theta: torch.Tensor | None = 
 def limit_poses(model) -> torch.Tensor:
     """Poses (T, 8, 3) at the anatomical limits: every joint at both ends of each axis
     together (flexion, extension, axial either way, lateral either way)."""
-    from hack_render.geometry.rotations import euler_to_axis_angle
-
     lim = torch.deg2rad(model.rotation_limits_deg.double())  # (8, 3, 2)
     poses = []
     for axis in range(3):

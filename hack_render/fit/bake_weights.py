@@ -3,7 +3,7 @@ skin pixel of a view, and its weight (:func:`pixel_weights`, used by
 :func:`hack_render.fit.texture.bake_diffuse`).
 
 - a pixel is baked where the render shows the skin (regions ``face`` and ``back_head``)
-  at full coverage, away from the render's silhouette (``final.edge_px``), outside the
+  at full coverage, away from the render's silhouette (:data:`EDGE_PX`), outside the
   eyes' and mouth's holes (:func:`feature_holes`) and the segmentation's occluders, and
   inside its skin;
 - it observes the fitted albedo times the ratio photo / render (the render holds the
@@ -28,6 +28,9 @@ from hack_render.fit.occluder_shadow import occluder_shadow
 from hack_render.fit.state import View
 
 SKIN_REGIONS = (1, 2)  # render regions "face" and "back_head" (render.parts.REGIONS)
+#: photo pixels dropped inside the render's silhouette (its edge mixes in the background)
+EDGE_PX = 2.0
+
 #: The lids' band, baked as the photo has them with the brows and lips (``final.features``):
 #: each eye's landmark ring scaled from this to ``final.eye_hole`` about its centre (the
 #: opening itself, scale 1, and a margin for the lash line's detection left out).
@@ -82,7 +85,7 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     points = view.detection.points * (w / view.photo.width)
     # (the render's silhouette and the eyes' and mouth's holes eroded, not the
     # segmentation's masks: their edges are the skin's, a crease or a frame beside it)
-    edge = max(1, round(fc.edge_px * w / view.photo.width))
+    edge = max(1, round(EDGE_PX * w / view.photo.width))
     skin = binary_erosion(rendered & ~feature_holes(points, (h, w), eye_scale=fc.eye_hole),
                           iterations=edge)
     occluded = np.zeros((h, w), bool)

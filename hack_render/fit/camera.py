@@ -9,6 +9,10 @@ import torch
 
 R0 = torch.tensor([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 SENSOR_MM = 36.0
+#: the focal prior's std of log focal length about camera.focal_mm_prior (no focal of the photo's)
+FOCAL_LOG_SIGMA = 0.35
+#: the same about the photo's own focal length (EXIF or --focal-mm): ~5 %, a zoom lens's rounding
+PHOTO_FOCAL_LOG_SIGMA = 0.05
 
 
 def focal_prior_px(camera_cfg, photo) -> tuple[float, float, str]:
@@ -19,5 +23,5 @@ def focal_prior_px(camera_cfg, photo) -> tuple[float, float, str]:
     c = camera_cfg
     side = max(photo.width, photo.height) / SENSOR_MM
     if c.use_photo_focal and photo.focal_mm:
-        return photo.focal_mm * side, c.photo_focal_log_sigma, photo.focal_source or "photo"
-    return c.focal_mm_prior * side, c.focal_log_sigma, "prior"
+        return photo.focal_mm * side, PHOTO_FOCAL_LOG_SIGMA, photo.focal_source or "photo"
+    return c.focal_mm_prior * side, FOCAL_LOG_SIGMA, "prior"

@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import List, Optional
 
+import numpy as np
 import typer
 
+from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render import interrupts
+from hack_render.cli_options import renamed
 from hack_render.errors import HackError
+from hack_render.fit.config import DETECTORS, FitConfig, load_config
+from hack_render.fit.fitter import Fitter
+from hack_render.fit.landmarks import detect, read_landmark_file
+from hack_render.fit.outputs import write_all
+from hack_render.fit.photo import load_photo
+from hack_render.fit.silhouette import load_mask
 from hack_render.threads import check_threads, command_threads, requested
 
 
@@ -21,8 +30,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     (None, []) when ``resume`` and ``outdir`` already holds a complete fit of these inputs
     (``fit_run.json``; other inputs there are refused).
     ``focal_mm``: every photo's 35 mm-equivalent focal length (replaces EXIF's)."""
-    from hack_render.fit.config import FitConfig
-
     cfg = config or FitConfig()
     if landmarks and len(landmarks) != len(photos):
         raise HackError(f"--landmarks: expected one file per photo ({len(photos)}), found "
@@ -30,7 +37,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     if masks and len(masks) != len(photos):
         raise HackError(f"--mask: expected one mask per photo ({len(photos)}), found "
                         f"{len(masks)}.")
-    from hack_render import boundary
 
     boundary.number(focal_mm, "--focal-mm", 5.0, 2000.0, unit=" mm (35 mm-equivalent)")
     for p in photos:
@@ -51,7 +57,6 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
     with interrupts.on_interrupt(f"nothing was written to {outdir} (interrupted while "
                                "fitting); run the same command again"):
         result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
-    from hack_render.fit.outputs import write_all
 
     # the files are written under the folder's lock, after a record that says the folder
     # holds no complete fit (what an earlier fit left there is being replaced)
@@ -89,8 +94,6 @@ def far_from_landmarks(report: dict, limit: float = FAR_FROM_LANDMARKS) -> list[
 def _refuse_duplicate_keys(config: Path) -> None:
     """A JSON/YAML config with a key twice is refused (the parsers keep the last one);
     TOML refuses them itself. Other problems are left to ``load_config``'s messages."""
-    from hack_render import boundary
-
     suffix = config.suffix.lower()
     if suffix not in (".json", ".yaml", ".yml") or not config.is_file():
         return
@@ -109,9 +112,6 @@ def _refuse_duplicate_keys(config: Path) -> None:
 def check_landmark_file(path: Path) -> None:
     """A landmark file holds 68 rows of exactly two finite numbers (x, y pixels); checked
     before the photos are read (a 3-column file is not 2-D points, an empty one no file)."""
-    import numpy as np
-
-    from hack_render import boundary
 
     boundary.input_file(path, "--landmarks", (".pts", ".txt", ".csv", ".json", ".npy"),
                         "landmark file")
@@ -146,15 +146,11 @@ def check_landmark_file(path: Path) -> None:
 def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     """Read, detect and fit (nothing written); returns (result, fitter)."""
 
-    from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import detect, read_landmark_file
-    from hack_render.fit.photo import load_photo
-
     if requested() is None:  # the command's --threads, else torch's default for commands
         command_threads(None)
     t0 = time.perf_counter()
     lc = cfg.landmarks
-    imgs = [load_photo(p, lc.max_side_px, lc.working_side_px) for p in photos]
+    imgs = [load_photo(p) for p in photos]
     if focal_mm is not None:
         for ph in imgs:
             ph.focal_mm, ph.focal_source = float(focal_mm), "--focal-mm"
@@ -169,8 +165,6 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     t_detect = time.perf_counter() - t0
     person = None
     if masks:
-        from hack_render.fit.silhouette import load_mask
-
         person = [load_mask(p, (ph.height, ph.width),
                             (round(ph.height / ph.scale), round(ph.width / ph.scale)))
                   for p, ph in zip(masks, imgs)]
@@ -241,16 +235,11 @@ def fit(
 
     Example: hack-render fit face.jpg -o out/fit && hack-render render --params out/fit/params.json
     """
-    from hack_render.cli_options import renamed
-    from hack_render.fit.config import DETECTORS, load_config
-
     # `--resolution` means an image size (W or WxH) in every other command; `--lighting` a
     # lighting preset: their old meanings here live on as hidden, deprecated spellings
     resolution = renamed(levels, levels_old, "fit --resolution", "--levels")
     lighting = renamed(light_model, lighting_old, "fit --lighting", "--light-model")
     over: dict = {"photometric": {}, "texel": {}}
-
-    from hack_render import boundary
 
     if resolution is not None:
         over["photometric"]["resolutions"] = boundary.numbers(
@@ -298,7 +287,6 @@ def fit(
         typer.echo(f"{output} already holds a complete fit of these inputs (--resume): "
                    "nothing to do")
         return
-    import json
 
     rep = output / "fit_report.json"
     far = far_from_landmarks(json.loads(rep.read_text())) if rep.is_file() else []
@@ -310,113 +298,8 @@ def fit(
     typer.echo(f"wrote {len(paths)} files to {output.resolve()}")
 
 
-def calibrate_landmarks(
-    output: Path = typer.Option(..., "-o", "--output", help="Embedding file to write (.npz), "
-                                "e.g. hack_render/data/landmark_embedding_dlib.npz."),
-    subjects: int = typer.Option(60, "--subjects", min=1, help="Synthetic subjects to render "
-                                 "(the detector's misses are left out and reported)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
-                             "(default 5150; bench/bench_fit.py's subjects are disjoint)."),
-    resolution: Optional[int] = typer.Option(None, "--resolution", help="Render size in "
-                                             "pixels (default 320)."),
-    resolution_old: Optional[int] = typer.Option(None, "--res", hidden=True,
-                                                 help="Deprecated: --resolution."),
-    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
-    radius: float = typer.Option(0.025, "--radius", help="Search radius around each model "
-                                 "landmark vertex, metres on the rest mesh."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
-) -> None:
-    """Calibrate the 68-landmark embedding (triangle + barycentrics per landmark) to dlib.
-
-    Renders synthetic subjects of the default model with known geometry and cameras (the
-    dataset sampler), runs dlib on each and picks, per landmark (18-68; the jawline stays
-    contour-matched), the skin point whose projections are nearest to dlib's points.
-    The fitter uses hack_render/data/landmark_embedding_dlib.npz by default.
-
-    Example: hack-render learn landmark-embedding -o emb.npz --subjects 60
-    """
-    import json
-    import sys
-
-    from hack_render import boundary
-    from hack_render.cli_options import renamed
-    from hack_render.fit import landmark_embedding as le
-    from hack_render.learn import landmark_calibration as lc
-
-    resolution = renamed(resolution, resolution_old, "--res", "--resolution")
-    boundary.output_file(output, "-o/--output", (".npz",))
-    boundary.number(resolution, "--resolution", 64, 4096, integer=True, unit=" pixels")
-    boundary.number(spp, "--spp", 1, 4096, integer=True)
-    boundary.number(radius, "--radius", 0.001, 0.2, unit=" metres")
-    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
-    seed = le.CALIBRATION_SEED if seed is None else seed
-    typer.echo(f"learn landmark-embedding: {subjects} synthetic subjects to render and detect "
-               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min)",
-               err=True)
-    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
-    emb, _report = lc.build(output, subjects, seed, resolution, spp, radius, command=cmd,
-                            progress=not quiet)
-    typer.echo(json.dumps({"used": emb.meta["subjects_used"],
-                           "left_out": len(emb.meta["left_out"]),
-                           "calibrated": int(emb.calibrated.sum()),
-                           "nme_median": emb.meta["calibration_nme_median"]}))
-    typer.echo(f"wrote {Path(output).resolve()}")
-
-
-def train_landmark_refiner(
-    output: Path = typer.Option(..., "-o", "--output", help="Refiner file to write (.npz), "
-                                "e.g. hack_render/data/landmark_refiner_dlib.npz."),
-    subjects: int = typer.Option(1150, "--subjects", min=20, help="Synthetic subjects to "
-                                 "render (dlib's misses are left out and counted)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the "
-                                       "subjects (default 5150, the calibration's)."),
-    stages: int = typer.Option(3, "--stages", min=1, max=8, help="SDM stages."),
-    lam: float = typer.Option(100.0, "--lambda", min=0.0, help="Ridge penalty."),
-    holdout: float = typer.Option(0.1, "--holdout", min=0.0, max=0.5, help="Share of the "
-                                  "subjects held out to measure the refiner and set its "
-                                  "loss weights."),
-    cache: Optional[Path] = typer.Option(None, "--cache", help="Folder for the renders, in "
-                                         "chunks of 50 subjects: an interrupted run resumes "
-                                         "from it."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
-) -> None:
-    """Train the landmark refiner: dlib's inner points moved toward the calibrated
-    embedding's points by a regression of the image (supervised descent, HOG-like patch
-    features), learned on synthetic renders of the default model with known geometry.
-
-    Renders the subjects (about 2 s each on 2 cores), runs dlib on each, trains on all but
-    the held-out share and reports dlib's and the refined points' error there (rms over the
-    inner points, % of the inter-ocular distance). The fitter uses
-    hack_render/data/landmark_refiner_dlib.npz by default (config landmarks.refiner).
-
-    Example: hack-render learn landmark-refiner -o refiner.npz --subjects 1150 --cache renders/
-    """
-    import json
-    import sys
-
-    from hack_render import boundary
-    from hack_render.learn import landmark_refiner_training as lr
-
-    boundary.output_file(output, "-o/--output", (".npz",))
-    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
-    boundary.number(lam, "--lambda", 0.0, 1e12)
-    if cache is not None:
-        boundary.output_dir(cache, "--cache")
-    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
-    note = (f"the renders done so far are kept in --cache {cache}; run the same command to "
-            "go on from them" if cache is not None else
-            "nothing was written (give --cache DIR to keep the renders of an interrupted run)")
-    typer.echo(f"learn landmark-refiner: {subjects} synthetic subjects to render and detect "
-               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min, "
-               "less for those already in --cache)", err=True)
-    with interrupts.on_interrupt(note):
-        _ref, report = lr.build(output, subjects, seed, stages, lam, holdout, cache,
-                                command=cmd, progress=not quiet)
-    typer.echo(json.dumps({k: v for k, v in report.items() if k != "left_out"}))
-    typer.echo(f"wrote {Path(output).resolve()}")
-
-
 def register(app: typer.Typer) -> None:
-    """Add `fit` to the main app (hack_render.learn.cli registers the two learners above
-    as `learn landmark-embedding` and `learn landmark-refiner`)."""
+    """Add `fit` to the main app (the learners of the fitter's landmark embedding and
+    refiner are hack_render.learn.cli's `learn landmark-embedding` and
+    `learn landmark-refiner`)."""
     app.command("fit")(fit)

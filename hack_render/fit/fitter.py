@@ -35,19 +35,31 @@ the exact homography K' Rv K^-1 (so the crop needs no off-centre principal point
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from appearance.model import AppearanceModel
 from hack_render.errors import HackError
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
-from hack_render.fit.landmarks import Detection, JawContour, landmark_weights
+from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
+from hack_render.fit.landmarks import JawContour, landmark_weights
 from hack_render.fit.photo import Photo
-from hack_render.fit.stages import StageLog, StageReport
+from hack_render.fit.silhouette import (
+    ModelSilhouette,
+    PhotoSilhouette,
+    mask_problem,
+    segment_plain_background,
+)
+from hack_render.fit.stages import FitWarning, StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
+from hack_render.geometry import load_default_model
+from hack_render.vision import segment as vision_segment
+from hack_render.vision.detection import Detection
 
 __all__ = ["R0", "SENSOR_MM", "FitResult", "FitState", "Fitter", "Level", "View",
            "init_state"]
@@ -72,13 +84,16 @@ class FitResult:
     failures: list
 
 
+#: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
+#: calibrated embedding's per-point weights already hold them at 0.26-0.51)
+BROW_WEIGHT = 1.0
+
+
 def init_state(photos: list[Photo], detections: list[Detection], config: FitConfig,
                model=None, appearance=None, masks: list | None = None) -> FitState:
     """The state a fit starts from: zero identity and expression, the mean larynx, each
     view's camera placed from its landmarks' size and centre at the prior focal length,
     and its person mask (given, or segmented from a plain background)."""
-    from hack_render.geometry import load_default_model
-
     if len(photos) != len(detections) or not photos:
         raise HackError("fit: expected one detection per photo and at least one photo.")
     if masks is not None and len(masks) != len(photos):
@@ -97,13 +112,11 @@ def init_state(photos: list[Photo], detections: list[Detection], config: FitConf
         if appearance is not None else 0
     alpha = torch.zeros(1, n_alpha, requires_grad=True)
     const_albedo = torch.tensor([0.46, 0.29, 0.22], requires_grad=True)
-    lmk_w = landmark_weights(config.landmarks.jaw_weight, config.landmarks.brow_weight)
+    lmk_w = landmark_weights(config.landmarks.jaw_weight, BROW_WEIGHT)
     if config.landmarks.point_weights is not None:
         lmk_w = lmk_w * torch.tensor(config.landmarks.point_weights, dtype=torch.float32)
     silhouette = None
     if config.silhouette.mode != "off":
-        from hack_render.fit.silhouette import ModelSilhouette
-
         silhouette = ModelSilhouette(m, scalp=config.silhouette.scalp,
                                      border_depth=config.silhouette.border_depth)
     state = FitState(m, appearance, beta, psi, eta, tau, alpha, const_albedo,
@@ -130,7 +143,7 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
     psi = torch.zeros(1, state.psi.shape[1], requires_grad=True) \
         if cfg.per_view_expression else None
     # dlib's points, the vision package's (face mesh and shape predictors: calibrated
-    # and trained on the embedding's points, hack_render.vision.synthetic) and landmark
+    # and trained on the embedding's points, hack_render.dataset.composites) and landmark
     # files in dlib's convention go through the embedding; files marked as the model's
     # vertices and any other source (e.g. projections of the true landmark vertices,
     # source "truth") through the landmark vertices
@@ -146,8 +159,6 @@ def _init_view(state: FitState, cfg: FitConfig, photo: Photo, det: Detection,
 
 def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     """The view's person mask: the given one, else a plain background's (or none)."""
-    from hack_render.fit.silhouette import PhotoSilhouette, segment_plain_background
-
     if state.silhouette is None:
         view.silhouette_note = "off (config silhouette.mode)"
         return
@@ -157,7 +168,6 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         view.shoulders = shows_shoulders(np.asarray(mask) > 0.5, view.detection.points)
         return
     m, why = segment_plain_background(view.photo.rgb, view.detection.points,
-                                      max_spread=cfg.silhouette.max_spread,
                                       chroma=cfg.silhouette.chroma)
     seg, err = _segment(view) if cfg.silhouette.segment else (None, "off")
     if seg is not None:  # skin and occluders whichever mask the silhouette takes
@@ -165,14 +175,21 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
         view.hair = seg.hair
+    if m is not None and mask_problem(m) is not None:  # no outline in the photo to fit
+        m, why = None, f"the plain background's mask has {mask_problem(m)}"
     if m is None and cfg.silhouette.segment:
-        if seg is not None:
-            person = seg.person > 0.5
+        person = seg.person > 0.5 if seg is not None else None
+        if person is not None and mask_problem(person) is None:
             view.silhouette = PhotoSilhouette.from_mask(person, "segmentation")
             view.shoulders = shows_shoulders(person, view.detection.points)
             view.silhouette_note = (f"segmented by {seg.source} ({100 * person.mean():.0f} % "
                                     f"of the photo; occluders {100 * seg.occluder.mean():.1f} %)")
             return
+        if person is not None:  # a tight face crop: fit on without the outline, and say so
+            err = (f"{mask_problem(person)}: no outline to fit (a tight face crop?); "
+                   "fitting without the silhouette term")
+            warnings.warn(f"{view.photo.name}: the person segmentation found {err}.",
+                          FitWarning, stacklevel=2)
         why = f"{why}; segmentation: {err}"
     if m is None:
         view.silhouette_note = f"none: {why}"
@@ -198,9 +215,7 @@ def shows_shoulders(mask: np.ndarray, points: np.ndarray) -> bool:
 def _segment(view: View):
     """(Segmentation, None) of the view's photo by the vision package, or (None, why)."""
     try:
-        from hack_render.vision.segment import segment
-
-        return segment(view.photo.uint8(), name=view.photo.name), None
+        return vision_segment.segment(view.photo.uint8(), name=view.photo.name), None
     except (ImportError, OSError, HackError) as err:
         return None, str(err)
 
@@ -293,8 +308,6 @@ def _landmark_embedding(name: str, model):
     """The landmark embedding of ``landmarks.embedding`` ("dlib", "vertices" or a path), or
     None for the model's vertices. The shipped "dlib" file falls back to the vertices with
     a warning when it is missing or does not fit the model; a named file must load."""
-    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
-
     if name == "vertices":
         return None
     if name == "dlib":
@@ -305,8 +318,6 @@ def _landmark_embedding(name: str, model):
 def _load_appearance():
     """The appearance PCA model, or None (constant albedo) when it is unavailable."""
     try:
-        from appearance.model import AppearanceModel
-
         return AppearanceModel.load()
     except (ImportError, OSError, HackError):
         return None

@@ -18,6 +18,18 @@ from hack_render.fit.config import FitConfig
 from hack_render.fit.stages import StageLog, StageReport
 from hack_render.fit.state import FitState
 
+#: the camera stage's Adam step (head turn and log focal; the translation's is 0.1 x)
+CAMERA_LR = 0.03
+#: the shape stage's Adam step for beta and psi (the translation's 0.05 x, the focal's 0.5 x)
+SHAPE_LR = 0.02
+#: the shape stage's steps (radians) for the head's rotation, the residual per-joint
+#: rotations (small: see fit_shape; at 0.01 rad for joints and head the landmark loss rose
+#: 14-fold in the first 10 iterations, tests/test_fit_priors.py) and the torso's ("torso"
+#: mode; "head" mode takes HEAD_LR for it)
+HEAD_LR = 0.002
+JOINTS_LR = 0.0004
+TORSO_LR = 0.005
+
 
 def fit_camera(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
     """Translation and head rotation (and focal, ``camera.fit_focal``) from landmarks."""
@@ -25,10 +37,10 @@ def fit_camera(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
     groups = []
     for v in state.views:
         turn = v.global_orient if c.rotate == "torso" else v.head_angles
-        groups += [{"params": [v.transl], "lr": c.lr * 0.1},
-                   {"params": [turn], "lr": c.lr}]
+        groups += [{"params": [v.transl], "lr": CAMERA_LR * 0.1},
+                   {"params": [turn], "lr": CAMERA_LR}]
         if c.fit_focal:
-            groups.append({"params": [v.log_focal], "lr": c.lr})
+            groups.append({"params": [v.log_focal], "lr": CAMERA_LR})
     return log.run("camera", groups, lambda it: terms.camera_objective(state, cfg, it),
                    c.iterations)
 
@@ -37,19 +49,19 @@ def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
     """Identity, expression and neck pose (and the camera, gently) from landmarks and the
     silhouette: :func:`~hack_render.fit.terms.shape_objective`."""
     s = cfg.shape
-    groups = [{"params": [state.beta], "lr": s.lr}, {"params": [state.psi], "lr": s.lr}]
+    groups = [{"params": [state.beta], "lr": SHAPE_LR}, {"params": [state.psi], "lr": SHAPE_LR}]
     for v in state.views:
         # the joints' residuals take small steps: Adam's first steps move every
         # coordinate by about its lr, and 8 joints' residuals add up (at 0.5 x lr the
         # first step turned the head by ~5 degrees and the landmark loss rose 20-fold)
-        groups += [{"params": [v.dtheta], "lr": s.lr_joints},
-                   {"params": [v.head_angles], "lr": s.lr_head},
+        groups += [{"params": [v.dtheta], "lr": JOINTS_LR},
+                   {"params": [v.head_angles], "lr": HEAD_LR},
                    {"params": [v.global_orient],
-                    "lr": s.lr_torso if cfg.camera.rotate == "torso" else s.lr_head},
-                   {"params": [v.transl], "lr": s.lr * 0.05},
-                   {"params": [v.log_focal], "lr": s.lr * 0.5}]
+                    "lr": TORSO_LR if cfg.camera.rotate == "torso" else HEAD_LR},
+                   {"params": [v.transl], "lr": SHAPE_LR * 0.05},
+                   {"params": [v.log_focal], "lr": SHAPE_LR * 0.5}]
         if v.psi is not None:
-            groups.append({"params": [v.psi], "lr": s.lr})
+            groups.append({"params": [v.psi], "lr": SHAPE_LR})
     return log.run("shape", groups, lambda it: terms.shape_objective(state, cfg, it),
                    s.iterations, after_step=state.clamp_)
 

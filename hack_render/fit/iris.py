@@ -41,6 +41,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from hack_render.fit import texture
+from hack_render.fit.bake_weights import mask_at, photo_at
+from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
+from hack_render.render.parts import REGIONS
+
 #: Fewer iris pixels than this (over all views) and the colour is left as it was.
 MIN_PIXELS = 8
 #: Luminance percentiles of the photo's iris pixels kept (see the module docstring).
@@ -57,9 +62,6 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
-    from hack_render.render.materials import SCLERA_RGB
-    from hack_render.render.parts import REGIONS
-
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
     lum = gbuffer["albedo"][..., :3] @ _LUMA
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
@@ -75,9 +77,6 @@ def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) ->
 def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's eye whites (the sclera shell and the inner eye beyond the
     limbus), fully covered."""
-    from hack_render.render.materials import SCLERA_RGB
-    from hack_render.render.parts import REGIONS
-
     seg = gbuffer["segmentation"]
     lum = gbuffer["albedo"][..., :3] @ _LUMA
     sclera = float(np.asarray(SCLERA_RGB) @ _LUMA)
@@ -218,8 +217,6 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     iris comes out black in a channel (the gloss's veil alone brighter than the photo's
     iris: a broad light over a dark iris; :func:`_iris_gloss`). Returns (rgb, report),
     the report with ``sclera_rgb`` (and ``eye_gloss``) where the whites were estimated."""
-    from hack_render.render.materials import SCLERA_RGB
-
     current = np.asarray(current, np.float64)
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
@@ -269,8 +266,6 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
 
 def _at_render_size(state, renders: list, allowed: list | None):
     """The views' photos and ``allowed`` masks (photo-size, or None) at each render's size."""
-    from hack_render.fit.bake_weights import mask_at, photo_at
-
     sizes = [r.rgba.shape[:2] for r in renders]
     photos = [photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
     masks = [None if a is None else mask_at(a, *hw)
@@ -286,9 +281,6 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
     photo-size bool mask of the pixels it may use, or None. The report's ``sclera_rgb``
     and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
-    from hack_render.fit import texture
-    from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
-
     maps = maps if maps is not None else texture._skin_maps(state)
     black = (0.0, 0.0, 0.0)
     variants = [(DEFAULT_IRIS_RGB, SCLERA_RGB, None), (black, SCLERA_RGB, None)]

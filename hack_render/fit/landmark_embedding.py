@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_embedding_dlib.npz"
 #: Landmarks calibrated by default: all but the jawline contours (0-7, 9-16); the chin
@@ -141,18 +142,14 @@ class LandmarkEmbedding:
         return self
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.stem}.tmp.npz")
-        np.savez_compressed(tmp, face_ids=self.face_ids.astype(np.int64),
-                            vertex_ids=self.vertex_ids.astype(np.int64),
-                            bary=self.bary.astype(np.float64),
-                            calibrated=self.calibrated.astype(bool),
-                            meta=np.array(json.dumps(self.meta, sort_keys=True)),
-                            **({} if self.weights is None else
-                               {"weights": np.asarray(self.weights, np.float64)}))
-        tmp.replace(path)
-        return path
+        return write_npz(path, dict(face_ids=self.face_ids.astype(np.int64),
+                                    vertex_ids=self.vertex_ids.astype(np.int64),
+                                    bary=self.bary.astype(np.float64),
+                                    calibrated=self.calibrated.astype(bool),
+                                    meta=np.array(json.dumps(self.meta, sort_keys=True)),
+                                    **({} if self.weights is None else
+                                       {"weights": np.asarray(self.weights, np.float64)})),
+                         compressed=True)
 
     @classmethod
     def load(cls, path: str | Path, model=None) -> LandmarkEmbedding:

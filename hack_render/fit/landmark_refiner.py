@@ -33,6 +33,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.fit.metrics import similarity_transform
+from hack_render.io.npz import write_npz
 
 DEFAULT_FILE = Path(__file__).resolve().parents[1] / "data" / "landmark_refiner_dlib.npz"
 #: The points the refiner moves: the chin and the 51 inner points (dlib's 9, 18-68).
@@ -173,20 +174,16 @@ class LandmarkRefiner:
         return self
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.stem}.tmp.npz")
         spec = json.dumps(self.spec.__dict__, sort_keys=True)
-        np.savez_compressed(tmp, W=self.W.astype(np.float16),
-                            feat_mean=self.feat_mean.astype(np.float32),
-                            delta_mean=self.delta_mean.astype(np.float32),
-                            mean_shape=self.mean_shape.astype(np.float64),
-                            spec=np.array(spec), meta=np.array(json.dumps(self.meta,
-                                                                          sort_keys=True)),
-                            **({} if self.weights is None else
-                               {"weights": np.asarray(self.weights, np.float64)}))
-        tmp.replace(path)
-        return path
+        return write_npz(path, dict(W=self.W.astype(np.float16),
+                                    feat_mean=self.feat_mean.astype(np.float32),
+                                    delta_mean=self.delta_mean.astype(np.float32),
+                                    mean_shape=self.mean_shape.astype(np.float64),
+                                    spec=np.array(spec),
+                                    meta=np.array(json.dumps(self.meta, sort_keys=True)),
+                                    **({} if self.weights is None else
+                                       {"weights": np.asarray(self.weights, np.float64)})),
+                         compressed=True)
 
     @classmethod
     def load(cls, path: str | Path) -> LandmarkRefiner:

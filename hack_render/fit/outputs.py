@@ -5,34 +5,39 @@ report. Every file is written under a temporary name and renamed."""
 from __future__ import annotations
 
 import dataclasses
-import json
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image
+from tqdm import tqdm
 
-from hack_render.fit.fitter import R0, FitResult
+from appearance.texture_io import write_exr, write_png
+from hack_render.boundary import clean_temporaries as clean
+from hack_render.fit import iris, texture
+from hack_render.fit.fitter import R0, SENSOR_MM, FitResult
+from hack_render.fit.landmark_refiner import load_refiner
+from hack_render.fit.photometric import level_maps, render_view, setup_level
+from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.terms import fitted_points, landmark_residual_iod
+from hack_render.fit.virtual_view import on_photo, warp_photo
+from hack_render.geometry.obj_io import ObjMaterials, write_mesh
+from hack_render.geometry.params import save_params
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io import TEMP_GLOB, atomic_path, write_json
+from hack_render.io.image import straight_colour, to_srgb8
+from hack_render.render.materials import material_base_colours
+from hack_render.render.skin_maps import IRIS_FILE
 
-#: The hidden temporaries a killed fit may leave in its folder (one pattern per output).
-TEMPORARIES = (".params*", ".cameras.*", ".fit_report.*", ".timings.*", ".losses.*",
-               ".overlay*", ".mesh*", ".fit_run.*", ".render*", ".occlusion*")
-
-
-def _atomic_bytes(path: Path, write) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)  # interrupted or failed: no temporary left
-    return path
+#: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
+#: the names older versions gave them (one pattern per output).
+TEMPORARIES = (TEMP_GLOB, ".params*", ".cameras.*", ".fit_report.*", ".timings.*",
+               ".losses.*", ".overlay*", ".mesh*", ".fit_run.*", ".render*", ".occlusion*")
 
 
 def clean_temporaries(outdir: Path) -> None:
     """Remove what a killed fit left half-written in ``outdir`` (its own names only)."""
-    from hack_render.boundary import clean_temporaries as clean
-
     for pattern in TEMPORARIES:
         clean(outdir, pattern)
     clean(outdir / "textures", ".*")
@@ -40,8 +45,6 @@ def clean_temporaries(outdir: Path) -> None:
 
 def view_params(res: FitResult, i: int) -> dict:
     """Parameter mapping of view ``i`` in the format of `hack-render render --params`."""
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     v = res.views[i]
     with torch.no_grad():
         theta = distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta
@@ -88,7 +91,6 @@ def _refiner_provenance(res) -> str | None:
     """The landmark refiner's provenance when a view's points were refined."""
     if not any(v.detection.refined for v in res.views):
         return None
-    from hack_render.fit.landmark_refiner import load_refiner
 
     ref = load_refiner(res.config.landmarks.refiner)
     return None if ref is None else ref.meta.get("provenance")
@@ -114,8 +116,6 @@ def _pose_entry(fitter, v) -> dict:
 def _focal_entry(fitter, v) -> dict:
     """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
     prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
-    from hack_render.fit.fitter import SENSOR_MM
-
     mm = SENSOR_MM / max(v.photo.width, v.photo.height)
     f0, sigma, source = fitter.focal_prior_px(v.photo)
     return {"fitted_mm": float(v.focal.detach()) * mm, "prior_mm": f0 * mm,
@@ -124,10 +124,6 @@ def _focal_entry(fitter, v) -> dict:
 
 def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
     """Write everything; returns the paths written."""
-    from hack_render.geometry.obj_io import ObjMaterials, write_mesh
-    from hack_render.geometry.params import save_params
-    from hack_render.render.materials import material_base_colours
-
     outdir.mkdir(parents=True, exist_ok=True)
     clean_temporaries(outdir)
     written = []
@@ -157,10 +153,11 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                 arrays[f"view{i}_sh"] = v.lighting.coeffs.detach().numpy()
             for key, val in v.lighting.summary().items():  # "sg": the lobes
                 arrays[f"view{i}_{key}"] = np.asarray(val, np.float32)
-    written.append(_atomic_bytes(outdir / "params.npz", lambda t: np.savez(t, **arrays)))
+    with atomic_path(outdir / "params.npz") as tmp:
+        np.savez(tmp, **arrays)
+    written.append(outdir / "params.npz")
     cams = [camera_dict(v) for v in res.views]
-    written.append(_atomic_bytes(outdir / "cameras.json",
-                                 lambda t: t.write_text(json.dumps({"cameras": cams}, indent=1))))
+    written.append(write_json(outdir / "cameras.json", {"cameras": cams}, indent=1))
     m = res.model
     # the photo-size renders and the baked skin need the fitted lighting (the photometric
     # stage's); without it the textures are the model's own maps
@@ -221,10 +218,9 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                      else None),
               "landmark_refiner": _refiner_provenance(res)}
     report.update(extra or {})
-    written.append(_atomic_bytes(outdir / "fit_report.json",
-                                 lambda t: t.write_text(json.dumps(report, indent=1))))
-    written.append(_atomic_bytes(outdir / "timings.json", lambda t: t.write_text(
-        json.dumps({"stages_s": res.timings, "total_s": report["total_s"]}, indent=1))))
+    written.append(write_json(outdir / "fit_report.json", report, indent=1))
+    written.append(write_json(outdir / "timings.json", {"stages_s": res.timings,
+                                                        "total_s": report["total_s"]}, indent=1))
     return written
 
 
@@ -234,11 +230,6 @@ class FinalRenders:
     (``render.png``), and what it cost."""
 
     def __init__(self, fitter):
-        import time
-
-        from tqdm import tqdm
-
-        from hack_render.fit import iris, texture
 
         st, cfg = fitter.state, fitter.cfg
         specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
@@ -257,7 +248,6 @@ class FinalRenders:
         self.specular = {"source": "the fitted map (final.specular off)"}
         self.specular_confidence = None
         if specular:  # the highlights' gain (fit/specular_bake.py): a render without specular
-            from hack_render.fit.specular_bake import bake_specular
 
             m0 = texture._skin_maps(st)
             m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
@@ -320,10 +310,7 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
     skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
     gets grey renders (their luminance): it says nothing of the skin's colour."""
-    from PIL import Image
     from skimage.transform import resize
-
-    from hack_render.render.image_io import straight_colour, to_srgb8
 
     out = []
     for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
@@ -343,8 +330,9 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
         occ = np.round(255 * np.clip(final.baked.pixel_weights[i], 0, 1)).astype(np.uint8)
         for name, arr in ((f"render{sfx}.png", img), (f"render_over_photo{sfx}.png", over),
                           (f"occlusion{sfx}.png", occ)):
-            out.append(_atomic_bytes(outdir / name,
-                                     lambda t, arr=arr: Image.fromarray(arr).save(t, "PNG")))
+            with atomic_path(outdir / name) as tmp:
+                Image.fromarray(arr).save(tmp, "PNG")
+            out.append(outdir / name)
     return out
 
 
@@ -352,8 +340,6 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
     """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise).
     With ``final``: the baked diffuse map at ``final.atlas_height`` (the other maps
     resampled to its size), its ``confidence`` and the model's own ``diffuse_model``."""
-    from appearance.texture_io import write_exr, write_png
-
     folder.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         maps = {k: (x.detach().numpy() if x is not None else None)
@@ -382,23 +368,19 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
                   srgb=name.startswith("diffuse"))
         out.append(folder / f"{name}.png")
     if final is not None and final.maps.iris_rgb is not None:  # read by --textures
-        from hack_render.render.skin_maps import IRIS_FILE
 
         doc = {**final.iris, "iris_rgb": list(final.maps.iris_rgb),
                "sclera_rgb": None if final.maps.sclera_rgb is None
                else list(final.maps.sclera_rgb), "eye_gloss": final.maps.eye_gloss,
                "derived": "linear Rec.709; the photo over renders of the fit, over the "
                           "iris's and the eye whites' pixels (hack_render/fit/iris.py)"}
-        out.append(_atomic_bytes(folder / IRIS_FILE,
-                                 lambda t: t.write_text(json.dumps(doc, indent=1))))
+        out.append(write_json(folder / IRIS_FILE, doc, indent=1))
     return out
 
 
 def _final_render(fitter, v, passes: int = 16):
     """A render of the view at its last level with the fitted maps: ``passes`` renders
     of the level's spp (4 by default) with their own seeds, averaged (64 spp)."""
-    from hack_render.fit.photometric import level_maps, render_view
-
     with torch.no_grad():
         maps, verts = level_maps(fitter.state, v), fitter.forward(v).vertices[0]
         img = sum(render_view(v, maps, verts, 12345 + k).numpy() for k in range(passes))
@@ -409,8 +391,6 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     """View ``i``'s ``render.png`` (the final render: baked skin, denoised or at the final
     spp; premultiplied linear RGBA at the photo's size or below) resampled into the
     view's last level, as that level's own renders are."""
-    from hack_render.fit.virtual_view import warp_photo
-
     rgba = final.renders[i].rgba
     lv = v.level
     s = rgba.shape[1] / v.photo.width            # render pixels per photo pixel
@@ -432,10 +412,6 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from hack_render.fit.photometric import setup_level
-    from hack_render.fit.virtual_view import on_photo
-    from hack_render.render.image_io import to_srgb8
 
     out = []
     for i, v in enumerate(fitter.views):
@@ -472,7 +448,8 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
         ax[1].scatter(fit_v[:, 0], fit_v[:, 1], s=4, c="red")
         fig.tight_layout()
         path = outdir / ("overlay.png" if i == 0 else f"overlay_view{i}.png")
-        _atomic_bytes(path, lambda t, fig=fig: fig.savefig(t, dpi=100))
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=100)
         plt.close(fig)
         out.append(path)
     return out
@@ -485,8 +462,7 @@ def write_losses(res: FitResult, outdir: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     data = {r.name: r.history for r in res.reports}
-    p_json = _atomic_bytes(outdir / "losses.json",
-                           lambda t: t.write_text(json.dumps(data, indent=1)))
+    p_json = write_json(outdir / "losses.json", data, indent=1)
     n = max(1, len(data))
     fig, ax = plt.subplots(1, n, figsize=(4 * n, 3))
     ax = np.atleast_1d(ax)
@@ -498,6 +474,8 @@ def write_losses(res: FitResult, outdir: Path) -> list[Path]:
         ax[k].set_xlabel("iteration")
         ax[k].legend(fontsize=6)
     fig.tight_layout()
-    p_png = _atomic_bytes(outdir / "losses.png", lambda t: fig.savefig(t, dpi=90))
+    p_png = outdir / "losses.png"
+    with atomic_path(p_png) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return [p_json, p_png]

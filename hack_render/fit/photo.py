@@ -2,8 +2,8 @@
 
 Handled: unreadable or truncated files (refused), grayscale and palette (to RGB), CMYK
 (to RGB), 16-bit and float images (scaled to [0, 1]), RGBA / LA (alpha composited over
-mid grey), EXIF orientation (applied), huge images (> ``max_side`` px: downscaled, with a
-warning). Faces that are too small are refused later, by the detector stage. The EXIF
+mid grey), EXIF orientation (applied), huge images (> ``MAX_SIDE_PX``: downscaled, with
+a warning). Faces that are too small are refused later, by the detector stage. The EXIF
 35 mm-equivalent focal length (tag 0xA405), when a camera wrote one, is kept
 (``Photo.focal_mm``): the fitter then centres its focal prior on it.
 """
@@ -14,13 +14,21 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
 
 from hack_render.errors import HackError
 
 
 class PhotoWarning(UserWarning):
     """A photo was converted or resized on the way in."""
+
+
+#: photos with a side above this (pixels) are downscaled to WORKING_SIDE_PX on reading
+MAX_SIDE_PX = 8000
+#: the long side a photo over MAX_SIDE_PX is downscaled to (pixels)
+WORKING_SIDE_PX = 2048
 
 
 @dataclass
@@ -97,14 +105,13 @@ def _to_float_rgb(arr: np.ndarray, mode: str, notes: list) -> np.ndarray:
     return np.ascontiguousarray(x[..., :3], dtype=np.float32)
 
 
-def load_photo(path: str | Path, max_side: int = 8000, working_side: int = 2048) -> Photo:
+def load_photo(path: str | Path, max_side: int = MAX_SIDE_PX,
+               working_side: int = WORKING_SIDE_PX) -> Photo:
     """Read a photo file into an sRGB float :class:`Photo`, handling odd formats.
 
     Raises:
         HackError: the file is missing, unreadable, truncated or has no pixels.
     """
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
     path = Path(path)
     if not path.is_file():
         raise HackError(f"photo {path}: file not found.")
@@ -184,8 +191,6 @@ def exif_focal_35mm(exif) -> float | None:
 def _maybe_16bit_rgb(path: Path) -> np.ndarray | None:
     """Pillow reads 16-bit RGB PNGs as 8 bits; imageio keeps the 16 bits (None otherwise)."""
     try:
-        import imageio.v3 as iio
-
         a = iio.imread(path)
     except Exception:  # noqa: BLE001 - Pillow already read it; this is a refinement
         return None
@@ -197,7 +202,8 @@ def _maybe_16bit_rgb(path: Path) -> np.ndarray | None:
     return np.ascontiguousarray(x, np.float32)
 
 
-def limit_size(photo: Photo, max_side: int = 8000, working_side: int = 2048) -> Photo:
+def limit_size(photo: Photo, max_side: int = MAX_SIDE_PX,
+               working_side: int = WORKING_SIDE_PX) -> Photo:
     """Downscale photos with a side above ``max_side`` to ``working_side`` (anti-aliased)."""
     h, w = photo.rgb.shape[:2]
     if max(h, w) <= max_side:

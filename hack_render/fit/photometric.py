@@ -21,24 +21,58 @@ import torch
 
 from hack_render.fit import terms
 from hack_render.fit.config import FitConfig
-from hack_render.fit.lighting import Lighting
+from hack_render.fit.lighting import Lighting, candidate_directions
 from hack_render.fit.robust import charbonnier
 from hack_render.fit.stages import StageLog, StageReport
 from hack_render.fit.state import FitState, Level, View
 from hack_render.fit.virtual_view import face_mask, virtual_camera, warp_photo
 from hack_render.geometry.larynx import larynx_limit_penalty
+from hack_render.render.bridge import DiffRenderer
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes.lights import LightRig
 
 #: Rec.709 luminance of linear RGB (a grey photo's term compares luminance only)
 LUMA = torch.tensor([0.2126, 0.7152, 0.0722])
+#: the differentiable renderer's integrator (Mitsuba prb: direct light with shadows)
+INTEGRATOR = "prb"
+#: the photo term's skin mask eroded by this many pixels at each level
+MASK_ERODE_PX = 1
+#: the photo term's robust (Charbonnier) scale, linear RGB
+CHARBONNIER_EPS = 0.01
+#: render each level with the coarsest mip of the skin maps that still has a texel per
+#: pixel (:func:`level_map_height`: 128 rows at 128 px); the torch maps' forward and
+#: backward cost falls with the texel count (CHANGELOG.md, the bridge's overhead)
+COARSE_MAPS = True
+#: refine beta, psi, theta, eta and tau in this stage (else lighting and alpha only, the
+#: geometry as the landmark stages left it)
+REFINE_GEOMETRY = True
+#: Adam steps of alpha (the constant albedo's, without an appearance model, 0.2 x)
+LR_ALPHA = 0.05
+#: the expressions' step relative to photometric.lr_geometry; 0 holds them where the
+#: landmark stages left them (random-preset benchmark: median 1.73 vs 1.71 mm, mean 1.66
+#: vs 1.69 mm on neutral subjects; CHANGELOG.md)
+PSI_LR_SCALE = 1.0
+#: alpha's N(0, I) prior (with photometric.light_cast_sigma, the light's colour prior:
+#: :func:`balance_albedo`)
+W_ALPHA = 1e-3
+#: start the stage at the two priors' optimum along the skin-light colour ambiguity, which
+#: Adam's noisy steps barely move along (:func:`balance_albedo`)
+BALANCE_ALBEDO = True
+#: the silhouette term's scale in this stage (the shape stage's weights times this)
+W_SILHOUETTE = 0.001
+#: the texel stage's magnitude penalty on the per-texel albedo delta
+TEXEL_W_MAGNITUDE = 0.1
 
 
 def level_map_height(state: FitState, cfg: FitConfig, res: int) -> int | None:
-    """Atlas height for a level of ``res`` px: with ``photometric.coarse_maps``, the
+    """Atlas height for a level of ``res`` px: with :data:`COARSE_MAPS`, the
     coarsest mip of the appearance model (its height / 2^k, at least 32) with at least
     ``res`` rows, so a texel never spans more than a pixel of the face (the face takes
     about half of the level's width, the face tile's whole height); None: full size."""
     app = state.appearance
-    if app is None or not cfg.photometric.coarse_maps:
+    if app is None or not COARSE_MAPS:
         return None
     h = app.height
     while h % 2 == 0 and h // 2 >= max(int(res), 32):
@@ -56,12 +90,6 @@ def setup_level(state: FitState, cfg: FitConfig, view: View, res: int,
                 full_maps: bool = False) -> Level:
     """Build the view's scene, renderer, target and masks for one resolution
     (``full_maps``: the appearance model's own atlas size, e.g. for per-texel work)."""
-    from hack_render.render.bridge import DiffRenderer
-    from hack_render.render.materials import SkinMaps
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from scenes.lights import LightRig
-
     pc = cfg.photometric
     cam, H, scale = virtual_camera(view, res)
     target = warp_photo(view.photo.linear(), H, res, scale)
@@ -81,13 +109,13 @@ def setup_level(state: FitState, cfg: FitConfig, view: View, res: int,
     rig = LightRig(name="fit", env_map=env.astype(np.float32))
     head = HeadScene(Topology.from_model(state.model), verts.numpy(), rig, cam,
                      RenderSettings(res, res, pc.spp, 8, cfg.seed), sm)
-    renderer = DiffRenderer(head, pc.integrator, max_depth=2, spp=pc.spp)
+    renderer = DiffRenderer(head, INTEGRATOR, max_depth=2, spp=pc.spp)
     photo_mask = face_mask(pts_v, res)
     if pc.occluders and view.occluder is not None:  # hair, hands: not the model's to explain
         occ = warp_photo(view.occluder.astype(np.float32)[..., None], H, res, scale)[..., 0]
         photo_mask &= occ < 0.5
     view.level = Level(res, cam, H, torch.from_numpy(target), photo_mask, pts_v,
-                       map_height, renderer, erode=pc.mask_erode_px)
+                       map_height, renderer, erode=MASK_ERODE_PX)
     update_mask(view)
     return view.level
 
@@ -151,8 +179,6 @@ def init_lobes(state: FitState, cfg: FitConfig, view: View,
     Returns, per lobe, the chosen direction and the residual before and after it.
     """
     from scipy.optimize import nnls
-
-    from hack_render.fit.lighting import candidate_directions
 
     L = view.lighting
     m = view.level.mask.numpy()
@@ -230,7 +256,7 @@ def balance_albedo(state: FitState, cfg: FitConfig, spp: int = 16) -> dict:
     :func:`match_exposure`) fits the photo with the current alpha, so the skin's colour
     starts in the light, and Adam's noisy steps barely move along that valley (the
     photo term is flat along it). This solves the objective's own priors along it: alpha
-    minimising ``w_alpha |alpha|^2 + w_alpha / light_cast_sigma^2 sum_v cast_v(g_v)``,
+    minimising ``W_ALPHA |alpha|^2 + W_ALPHA / light_cast_sigma^2 sum_v cast_v(g_v)``,
     where ``g_v`` keeps the view's mean render over the photo term's pixels as it was:
     per channel, ``g = F / (D m(alpha) / m + S s(alpha) / s)``, with F the mean render, S
     its specular share (a render with no albedo; it takes the light's colour, not the
@@ -238,7 +264,7 @@ def balance_albedo(state: FitState, cfg: FitConfig, spp: int = 16) -> dict:
     texels. Alpha and each view's light (scaled by its g) are then set."""
     pc = cfg.photometric
     if (state.appearance is None or not state.alpha.shape[1] or pc.light_cast_sigma <= 0
-            or not pc.balance_albedo):
+            or not BALANCE_ALBEDO):
         return {}
     views = [v for v in state.views if v.level is not None and v.level.uv is not None
              and int(v.level.mask.sum()) >= 8]
@@ -284,12 +310,12 @@ def balance_albedo(state: FitState, cfg: FitConfig, spp: int = 16) -> dict:
         return [f / (d * mv / mv0 + sp * sv / sv0)
                 for (f, d, sp), (mv, sv), (mv0, sv0) in zip(shares, ms, m0)]
 
-    w_cast = pc.w_alpha / pc.light_cast_sigma ** 2
+    w_cast = W_ALPHA / pc.light_cast_sigma ** 2
     a = a0.clone().requires_grad_(True)
     opt = torch.optim.LBFGS([a], lr=1.0, max_iter=100, line_search_fn="strong_wolfe")
 
     def objective():
-        return pc.w_alpha * (a ** 2).sum() + w_cast * sum(
+        return W_ALPHA * (a ** 2).sum() + w_cast * sum(
             v.lighting.colour_cast(g, v.level.reach) for v, g in zip(views, gains(means(a))))
 
     def closure():
@@ -347,11 +373,11 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
     minimises (``bench/bench_fit.py --overhead`` times it as the stage's iteration)."""
     pc, tcfg = cfg.photometric, cfg.texel
     groups = _groups(state, cfg, texel)
-    # Geometry is frozen in the texel stage and when refine_geometry is off: evaluate it
+    # Geometry is frozen in the texel stage and when REFINE_GEOMETRY is off: evaluate it
     # once per level (no model forward/backward per iteration; the bridge then uploads
     # the unchanged vertices once instead of rebuilding the scene every iteration), and
     # drop the terms that are constant then (landmarks, pose priors, mask refresh).
-    refine = pc.refine_geometry and not texel
+    refine = REFINE_GEOMETRY and not texel
     fixed = {}
     if not refine:
         with torch.no_grad():
@@ -378,7 +404,7 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
             diff = img - v.level.target
             if v.photo.is_grey:  # no colour in the photo: compare luminance only
                 diff = (diff @ LUMA).unsqueeze(-1).expand_as(diff)
-            ph = charbonnier(diff, pc.charbonnier_eps)
+            ph = charbonnier(diff, CHARBONNIER_EPS)
             parts = {"photo": (ph * m[..., None]).sum() / (3 * n)}
             if not texel:
                 parts["light_smooth"] = 1e-3 * v.lighting.smoothness()
@@ -388,27 +414,27 @@ def level_objective(state: FitState, cfg: FitConfig, texel: bool = False, pairs=
                 # (an unscaled prior against the scaled landmarks would pull beta and
                 # psi toward zero while the photo term's gradients are small)
                 wl = terms.landmark_scale(cfg, v)
-                parts.update({k: (pc.w_silhouette if k == "silhouette" else wl)
+                parts.update({k: (W_SILHOUETTE if k == "silhouette" else wl)
                               * x for k, x in terms.shape_terms(state, cfg, v, verts,
                                                                 it).items()})
             for k, x in parts.items():
                 total = total + x
                 parts_sum[k] = parts_sum.get(k, 0.0) + float(x.detach())
-        extra = {} if texel else {"alpha_prior": pc.w_alpha * (state.alpha ** 2).sum()}
+        extra = {} if texel else {"alpha_prior": W_ALPHA * (state.alpha ** 2).sum()}
         if not texel and pc.light_cast_sigma > 0:
-            extra["light_cast"] = pc.w_alpha / pc.light_cast_sigma ** 2 * sum(
+            extra["light_cast"] = W_ALPHA / pc.light_cast_sigma ** 2 * sum(
                 v.lighting.colour_cast(reach=v.level.reach) for v in state.views)
         if refine:
             extra["beta_prior"] = (sum(terms.landmark_scale(cfg, v) for v in state.views)
                                    / len(state.views) * terms.beta_prior(state, cfg))
             extra["larynx_prior"] = 1e-3 * (state.eta ** 2).sum() + 10.0 * (state.tau ** 2).sum()
             # E_larynx: eta and tau beyond their anatomical ranges, as E_rot for the joints
-            extra["E_larynx"] = cfg.shape.w_rot * larynx_limit_penalty(state.eta,
-                                                                       state.tau).sum()
+            extra["E_larynx"] = terms.W_ROT * larynx_limit_penalty(state.eta,
+                                                                  state.tau).sum()
         if texel:
             for k, x in texel_regularisers(state.albedo_delta, pairs).items():
                 w = {"smooth": tcfg.w_smooth, "symmetry": tcfg.w_symmetry,
-                     "magnitude": tcfg.w_magnitude}[k]
+                     "magnitude": TEXEL_W_MAGNITUDE}[k]
                 extra[f"texel_{k}"] = w * x
         for k, x in extra.items():
             total = total + x
@@ -480,18 +506,18 @@ def _groups(state: FitState, cfg: FitConfig, texel: bool) -> list[dict]:
     groups = [{"params": list(v.lighting.parameters()), "lr": pc.lr_light}
               for v in state.views]
     if state.appearance is not None and state.alpha.shape[1]:
-        groups.append({"params": [state.alpha], "lr": pc.lr_alpha})
+        groups.append({"params": [state.alpha], "lr": LR_ALPHA})
     elif state.appearance is None:
-        groups.append({"params": [state.const_albedo], "lr": pc.lr_alpha * 0.2})
-    if pc.refine_geometry:
+        groups.append({"params": [state.const_albedo], "lr": LR_ALPHA * 0.2})
+    if REFINE_GEOMETRY:
         lr = pc.lr_geometry
         groups += [{"params": [state.beta, state.eta], "lr": lr},
-                   {"params": [state.psi], "lr": lr * pc.lr_psi_scale},
+                   {"params": [state.psi], "lr": lr * PSI_LR_SCALE},
                    {"params": [state.tau], "lr": lr * 0.01}]
         for v in state.views:
             # the camera (translation, focal) stays as the landmark stages left it: the
             # level's scene camera is built from it; the head moves instead
             groups.append({"params": [v.dtheta, v.head_angles], "lr": lr * 0.2})
             if v.psi is not None:
-                groups.append({"params": [v.psi], "lr": lr * pc.lr_psi_scale})
+                groups.append({"params": [v.psi], "lr": lr * PSI_LR_SCALE})
     return groups

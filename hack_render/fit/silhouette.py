@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import imageio.v3 as iio
 import numpy as np
 import torch
 
@@ -53,7 +54,7 @@ class PhotoSilhouette:
         from scipy.ndimage import distance_transform_edt, zoom
 
         mask = np.asarray(mask, bool)
-        if mask.ndim != 2 or not mask.any() or mask.all():
+        if mask_problem(mask) is not None:
             raise HackError(f"silhouette mask ({source}): expected a 2-D mask with both "
                             f"person and background pixels, found shape {mask.shape} with "
                             f"{int(mask.sum())} person pixels.")
@@ -87,8 +88,28 @@ class PhotoSilhouette:
         return d / s, valid.detach()
 
 
+#: a border pixel within this colour distance (sRGB) of the border's median is background;
+#: under 60 % of the border so: a cluttered background, no automatic mask
+MAX_SPREAD = 0.06
+
+
+def mask_problem(mask: np.ndarray) -> str | None:
+    """Why a person mask can make no silhouette term (None: it can): it is not 2-D, or it
+    has no person pixels or no background ones (nothing of the outline is in the photo:
+    a tight face crop, as face datasets hold, whose person fills the frame or is not
+    found at all)."""
+    mask = np.asarray(mask, bool)
+    if mask.ndim != 2:
+        return f"a mask of shape {mask.shape}, not 2-D"
+    if not mask.any():
+        return f"no person pixels (of {mask.shape[1]} x {mask.shape[0]})"
+    if mask.all():
+        return f"no background pixels (the person fills all {mask.shape[1]} x {mask.shape[0]})"
+    return None
+
+
 def segment_plain_background(rgb: np.ndarray, points: np.ndarray, border_frac: float = 0.03,
-                             max_spread: float = 0.06, max_side: int = 512,
+                             max_spread: float = MAX_SPREAD, max_side: int = 512,
                              chroma: bool = True) -> tuple[np.ndarray | None, str]:
     """Person mask of a photo on a plain background, or (None, why) when it is not.
 
@@ -258,8 +279,6 @@ def load_mask(path, shape: tuple[int, int], original: tuple[int, int] | None = N
     """A user's person mask (PNG/JPEG/..., nonzero = person: head, hair, neck, clothes)
     as (h, w) bool at the working ``shape`` of its photo. The file has the photo's
     working size or its ``original`` size (a downscaled photo: the mask follows it)."""
-    import imageio.v3 as iio
-
     try:
         m = np.asarray(iio.imread(path))
     except Exception as err:  # every reader error becomes one message

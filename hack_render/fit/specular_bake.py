@@ -37,6 +37,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from hack_render.fit import texture
+from hack_render.fit.bake_weights import photo_at
+
 #: A pixel's specular share (|G| / |R|) of reference for the pull below.
 FULL_SHARE = 0.1
 #: A pixel whose gain's standard error is this counts fully (its weight falls as the
@@ -112,9 +115,6 @@ def bake_specular(state, cfg, renders: list, renders0: list, weights: list,
     maps (``renders``), without specular (``renders0``) and its bake weights; and a
     report (the face's texels identified, their median gain). Grey photos are skipped
     (no colour to tell the highlight from the skin)."""
-    from hack_render.fit import texture
-    from hack_render.fit.bake_weights import photo_at
-
     H = ATLAS_HEIGHT
     samples = []
     for v, pr, pr0, wgt in zip(state.views, renders, renders0, weights):

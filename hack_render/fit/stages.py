@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import torch
+from tqdm import tqdm
 
 
 class FitWarning(UserWarning):
@@ -47,8 +48,6 @@ def run_stage(name: str, groups: list[dict], loss_fn: Callable[[int], tuple[torc
             the minimum over iterations selects a lucky sample pattern, usually the
             first). A non-finite loss or gradient restores the best parameters either way.
     """
-    from tqdm import tqdm
-
     report = StageReport(name)
     params = [p for g in groups for p in g["params"]]
     if iterations <= 0 or not params:

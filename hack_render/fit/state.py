@@ -23,11 +23,12 @@ import torch
 
 from hack_render.errors import HackError
 from hack_render.fit.camera import R0
-from hack_render.fit.landmarks import Detection, JawContour
+from hack_render.fit.landmarks import JawContour
 from hack_render.fit.lighting import Lighting
 from hack_render.fit.photo import Photo
 from hack_render.geometry.larynx import ETA_RANGE, TAU_RANGE_M
 from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.vision.detection import Detection
 
 
 @dataclass

@@ -17,25 +17,55 @@ from hack_render.fit.config import FitConfig
 from hack_render.fit.robust import huber
 from hack_render.fit.state import FitState, View
 from hack_render.geometry.skeleton import adjacent_similarity_penalty, rotation_limit_penalty
+from hack_render.render.bridge import vertex_normals_torch
+
+#: dlib's jawline points are re-matched to the occluding contour every this many iterations
+JAW_REMATCH_EVERY = 10
+#: the landmark and silhouette terms' robust (Huber) knee, as a fraction of the face size
+#: (the terms' unit: 1 % of the face)
+HUBER_KNEE = 0.01
+#: weigh each point by the detector's inverse variance about the embedding (the refiner's
+#: weights for refined points, else the embedding file's): synthetic subjects 0-7, landmark
+#: stages, 1.66 mm against 1.74 mm unweighted
+CALIBRATED_WEIGHTS = True
+#: the silhouette term's two parts: the model's outer contour points off the mask's border,
+#: and skin vertices projected outside the mask
+SILHOUETTE_CONTOUR_WEIGHT = 1.0
+SILHOUETTE_INSIDE_WEIGHT = 1.0
+#: the model's outer contour for the silhouette term is re-selected every this many iterations
+SILHOUETTE_CONTOUR_EVERY = 10
+#: E_rot (paper Eq. 9: the joints beyond their anatomical ranges; the photometric stage's
+#: E_larynx for eta and tau too)
+W_ROT = 1.0
+#: E_sim (paper Eq. 10, normalised by the joints' ranges)
+W_SIM = 0.1
+#: the residual joint rotations beyond the anatomical share of the head's turn
+W_DTHETA = 0.5
+#: the torso's (global) rotation prior, camera.rotate "head"
+W_GLOBAL = 1.0
+#: camera.rotate "torso": a weak torso prior (the camera may stand anywhere about the body)
+#: and the neck's rotation (head_angles) costing W_NECK per rad^2, so a turn the landmarks
+#: cannot place goes to the torso (synthetic: camera yaw 30 deg, neck 3 deg -> fitted neck
+#: yaw ~7 deg, 32 deg in "head" mode; tests/test_fit_views.py)
+W_GLOBAL_TORSO = 0.01
+W_NECK = 0.5
 
 
 def _normals(state: FitState, verts: torch.Tensor) -> np.ndarray:
-    from hack_render.render.bridge import vertex_normals_torch
-
     return vertex_normals_torch(verts, state.faces).numpy()
 
 
 def model_landmarks(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
                     it: int) -> torch.Tensor:
     """(68, 3) landmark points with the jawline re-matched to the contour every
-    ``landmarks.contour_every`` iterations: the calibrated embedding's surface points
+    :data:`JAW_REMATCH_EVERY` iterations: the calibrated embedding's surface points
     (barycentric interpolation, differentiable) when the view uses it, else the model's
     landmark vertices."""
     # the vision package's points (face mesh, shape predictors) are fixed surface points
     # (3-D convention), dlib's jawline lies on the visible outline: only the latter is
     # re-matched to the contour
     if v.detection.source not in ("mesh", "ert") \
-            and it % max(1, cfg.landmarks.contour_every) == 0:
+            and it % max(1, JAW_REMATCH_EVERY) == 0:
         with torch.no_grad():
             vv = verts.detach()
             state.jaw.match(vv.numpy(), _normals(state, vv), state.camera_centre(v),
@@ -67,10 +97,10 @@ def landmark_scale(cfg: FitConfig, v: View) -> float:
 def view_landmark_weights(state: FitState, cfg: FitConfig, v: View) -> torch.Tensor:
     """(68,) the landmark loss's weights for a view: the configured ones, times the
     detector's weights when the view's points go through the embedding
-    (``landmarks.calibrated_weights``): the refiner's for refined points, else the
+    (:data:`CALIBRATED_WEIGHTS`): the refiner's for refined points, else the
     embedding file's."""
     emb = state.embedding
-    if not (v.embedded and cfg.landmarks.calibrated_weights and emb is not None):
+    if not (v.embedded and CALIBRATED_WEIGHTS and emb is not None):
         return state.lmk_w
     w = v.detection.weights if v.detection.weights is not None else emb.weights
     if w is None:
@@ -85,8 +115,7 @@ def landmark_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
     read naturally."""
     pred = state.project(v, model_landmarks(state, cfg, v, verts, it))
     tgt = torch.as_tensor(v.detection.points, dtype=pred.dtype)
-    r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size
-                                                         * cfg.landmarks.huber_px)
+    r = torch.linalg.vector_norm(pred - tgt, dim=-1) / (v.detection.size * HUBER_KNEE)
     w = view_landmark_weights(state, cfg, v)
     if v.detection.visible is not None:  # hidden points (a profile's far side) count 0
         w = w * torch.as_tensor(v.detection.visible, dtype=w.dtype)
@@ -103,9 +132,9 @@ def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
     """The silhouette term (``silhouette.py``): skin vertices outside the person mask
     (one-sided) plus the model's outer contour points off the mask's border, Huber, in
     the landmark term's units; the contour set is re-selected every
-    ``silhouette.contour_every`` iterations."""
-    sc, sil, ms = cfg.silhouette, v.silhouette, state.silhouette
-    if it % max(1, sc.contour_every) == 0 or v.sil_contour is None:
+    :data:`SILHOUETTE_CONTOUR_EVERY` iterations."""
+    sil, ms = v.silhouette, state.silhouette
+    if it % max(1, SILHOUETTE_CONTOUR_EVERY) == 0 or v.sil_contour is None:
         with torch.no_grad():
             vv = verts.detach()
             n = _normals(state, vv)
@@ -115,7 +144,7 @@ def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
                 sil.shape, max(v.detection.size / 60.0, 0.5))
         v.sil_contour = (torch.as_tensor(pairs, dtype=torch.long),
                          torch.as_tensor(t, dtype=verts.dtype))
-    knee = v.detection.size * cfg.landmarks.huber_px
+    knee = v.detection.size * HUBER_KNEE
     pairs, t = v.sil_contour
     n_c = max(len(t), 1)
     d, ok = sil.distance(state.project(v, verts.index_select(0, ms.inside)))
@@ -125,20 +154,19 @@ def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
         contour = (huber(d / knee) * ok).sum() / n_c
     else:
         contour = inside * 0.0
-    return sc.w_inside * inside + sc.weight * contour
+    return SILHOUETTE_INSIDE_WEIGHT * inside + SILHOUETTE_CONTOUR_WEIGHT * contour
 
 
 def pose_priors(state: FitState, cfg: FitConfig, v: View) -> dict[str, torch.Tensor]:
-    s = cfg.shape
     th = state.theta(v)
-    terms = {"E_rot": s.w_rot * rotation_limit_penalty(th).sum(),
-             "E_sim": s.w_sim * adjacent_similarity_penalty(th, normalized=True).sum(),
-             "dtheta": s.w_dtheta * (v.dtheta ** 2).sum()}
+    terms = {"E_rot": W_ROT * rotation_limit_penalty(th).sum(),
+             "E_sim": W_SIM * adjacent_similarity_penalty(th, normalized=True).sum(),
+             "dtheta": W_DTHETA * (v.dtheta ** 2).sum()}
     if cfg.camera.rotate == "torso":  # the turn to the torso, the neck held
-        terms["global"] = s.w_global_torso * (v.global_orient ** 2).sum()
-        terms["neck"] = s.w_neck * (v.head_angles ** 2).sum()
+        terms["global"] = W_GLOBAL_TORSO * (v.global_orient ** 2).sum()
+        terms["neck"] = W_NECK * (v.head_angles ** 2).sum()
     else:
-        terms["global"] = s.w_global * (v.global_orient ** 2).sum()
+        terms["global"] = W_GLOBAL * (v.global_orient ** 2).sum()
     return terms
 
 
@@ -215,5 +243,5 @@ def fitted_points(state: FitState, cfg: FitConfig, v: View, rematch: bool = Fals
     the contour (which updates the view's matched jawline)."""
     with torch.no_grad():
         verts = state.forward(v).vertices[0]
-        it = 0 if rematch or cfg.landmarks.contour_every <= 1 else 1
+        it = 0 if rematch or JAW_REMATCH_EVERY <= 1 else 1
         return state.project(v, model_landmarks(state, cfg, v, verts, it)).numpy()

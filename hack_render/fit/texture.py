@@ -30,6 +30,7 @@ model's UV layout, u in [0, 2] over two tiles, row 0 at v = 1):
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,13 @@ from hack_render.fit.bake_weights import PhotoRender, pixel_weights
 from hack_render.fit.camera import R0
 from hack_render.fit.config import FitConfig
 from hack_render.fit.state import FitState, View
+from hack_render.render import denoise as dn
+from hack_render.render.emitters import cropped
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes.cameras import Camera
+from scenes.lights import LightRig
 
 
 @dataclass
@@ -57,8 +65,6 @@ class BakedSkin:
 
 def photo_camera(view: View, width: int | None = None, height: int | None = None):
     """The view's fitted camera at the photo's size (or scaled to ``width`` x ``height``)."""
-    from scenes.cameras import Camera
-
     ph = view.photo
     w, h = width or ph.width, height or ph.height
     s = w / ph.width
@@ -70,8 +76,6 @@ def photo_camera(view: View, width: int | None = None, height: int | None = None
 
 def _skin_maps(state: FitState, height: int | None = None):
     """The fitted maps (torch -> numpy SkinMaps), resampled to ``height`` rows."""
-    from hack_render.render.materials import SkinMaps
-
     with torch.no_grad():
         m = {k: (x.detach().numpy().astype(np.float32) if x is not None else None)
              for k, x in state.maps().items()}
@@ -90,6 +94,14 @@ def resize_atlas(img: np.ndarray, height: int) -> np.ndarray:
                   anti_aliasing=img.shape[0] > height).astype(np.float32)
 
 
+#: render.png's (and the bake's render's) denoiser: "auto" (Intel OIDN, the denoise extra,
+#: with the render's albedo and normals, where it is installed) or "off"; denoised, the
+#: render takes SPP_DENOISED samples instead of final.spp
+DENOISE = "auto"
+SPP_DENOISED = 64
+#: the final renders' path depth: the photometric stage's (direct light)
+MAX_DEPTH = 2
+
 #: What the final renders' G-buffer sees through (:func:`render_at_photo`): the lash cards,
 #: so that the skin behind their gaps is baked (their first hits hid a band of lid skin
 #: around each eye from the bake).
@@ -101,13 +113,11 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
-    ``final.spp_denoised`` denoised by OIDN where it is installed (``final.denoise``)."""
-    import time
-
+    :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`)."""
     t0 = time.perf_counter()
-    dn = _denoiser() if spp is None and cfg.final.denoise == "auto" else None
+    dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
-    spp = int(spp or (cfg.final.spp_denoised if denoised else cfg.final.spp))
+    spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
     head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
@@ -126,8 +136,6 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     one's (the same geometry), seen through the lash cards (``SEE_THROUGH``): the eye
     behind a card is the eye's pixel too, its radiance still affine in the eye's colours
     (the card's share is in what comes from neither)."""
-    import time
-
     t0 = time.perf_counter()
     head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
     gb, out = None, []
@@ -155,11 +163,6 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     through its pixels are the whole image's (``render.emitters.cropped``); the rest
     of the image is background, so renders and G-buffers are pasted into it
     (:func:`_paste`): a full-length photo renders its head, not its frame."""
-    from hack_render.render.emitters import cropped
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from scenes.lights import LightRig
-
     ph = view.photo
     s = 1.0 if max_side is None else min(1.0, max_side / max(ph.width, ph.height))
     w, h = max(1, round(ph.width * s)), max(1, round(ph.height * s))
@@ -180,8 +183,7 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     maps = maps if maps is not None else _skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
-                     RenderSettings(cam.width, cam.height, spp, cfg.final.max_depth,
-                                    cfg.seed), maps)
+                     RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps)
     return head, window
 
 
@@ -200,10 +202,6 @@ def _paste(x, window):
 
 def _denoiser():
     """The render package's OIDN denoiser module where it and pyoidn are installed."""
-    try:
-        from hack_render.render import denoise as dn
-    except ImportError:
-        return None
     return dn if dn.available() else None
 
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from hack_render.fit.camera import R0
 from hack_render.fit.state import View
+from scenes.cameras import Camera
 
 FACE_OUTLINE = list(range(17)) + list(range(26, 16, -1))
 HOLES = (list(range(36, 42)), list(range(42, 48)), list(range(60, 68)))
@@ -30,8 +31,6 @@ def rotation_to_axis(d: np.ndarray) -> np.ndarray:
 
 def virtual_camera(view: View, res: int):
     """(Camera, H) for a view at ``res`` px: H maps virtual pixels to photo pixels."""
-    from scenes.cameras import Camera
-
     ph, det = view.photo, view.detection
     f = float(view.focal.detach())
     K = np.array([[f, 0, ph.width / 2], [0, f, ph.height / 2], [0, 0, 1.0]])

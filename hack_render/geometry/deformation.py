@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import torch
 
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.rotations import euler_to_axis_angle
 from hack_render.geometry.skeleton import distribute_head_rotation, rotation_limits
 
@@ -114,8 +115,6 @@ def model_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
         theta: (P, 8, 3) poses.
         psi: optional (E,) or (1, E) expression held over the poses (and in the reference).
     """
-    from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
-
     topo = topo or skin_topology(model)
     person = model.personalize(beta)
     out = {"stretch": [], "compression": [], "folded": []}
@@ -270,8 +269,6 @@ def model_stretch_bound(model, beta: torch.Tensor, theta: torch.Tensor, psi=None
     """(P,) :func:`stretch_lower_bound` of one identity (beta (1, S), expression psi held)
     over poses theta (P, 8, 3): what no corrective or neck weighting can get below while
     the face stays rigid with the skull and the chest rim with the thorax."""
-    from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
-
     topo = topo or skin_topology(model)
     anchors = anchors or rigid_anchors(model, topo)
     person = model.personalize(beta)

@@ -7,6 +7,8 @@ without torch (:mod:`hack_render.geometry.posing`); the text form is checked on 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from hack_render.errors import HackError
@@ -34,8 +36,6 @@ def expression_weights(spec: str | dict[str, float], expression_names, au_names,
     says what is known (:meth:`~hack_render.geometry.model.HackModel.expression_vector`
     and posing without torch, :mod:`hack_render.geometry.posing`, both use it).
     """
-    import re
-
     expression_names, au_names = list(expression_names), list(au_names)
     if isinstance(spec, str):
         items = {}

@@ -12,13 +12,20 @@ instead (``rotation_limit_penalty``, ``larynx_limit_penalty``).
 * ``warn``: joint rotations, eta and tau are kept as given and a warning names them; a
   whole-head rotation beyond the neck's range is still clamped (it is shared over joints
   that each stop at their limit), and the warning names the clamped value.
+
+The commands' side of the policy lives here too, so that every command applies it alike:
+:class:`LimitPolicy` (the ``--limits`` choice, :func:`limit_policy` parses it) and
+:func:`apply_limit_policy`, which adds the plausible identities (``beta`` within
+:data:`BETA_PLAUSIBLE`) to :func:`enforce_limits` and prints the warnings on stderr.
 """
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Any
 
 import numpy as np
+import typer
 
 from hack_render.errors import HackError
 from hack_render.geometry.anatomy import (
@@ -31,6 +38,27 @@ from hack_render.geometry.anatomy import (
 )
 
 POLICIES = ("warn", "clamp", "error")
+
+
+class LimitPolicy(str, Enum):
+    """The ``--limits`` choice of the commands that pose the model."""
+
+    warn = "warn"
+    clamp = "clamp"
+    error = "error"
+
+
+def limit_policy(value: str | LimitPolicy) -> LimitPolicy:
+    """``--limits``'s text as a :class:`LimitPolicy` (a user error when it is none)."""
+    try:
+        return LimitPolicy(value)
+    except ValueError as err:
+        raise HackError(f"--limits: expected warn, clamp or error, found {value!r}.") from err
+
+
+#: Identities beyond this many standard deviations (per component) are implausible: the
+#: shape space is N(0, I), and the dataset sampler truncates at 2.5 by default.
+BETA_PLAUSIBLE = 5.0
 
 
 def _fmt(x: float) -> str:
@@ -111,6 +139,42 @@ def _clamp_theta(theta):
     """``theta`` with each joint clamped to its limits, of the kind it came as."""
     if isinstance(theta, np.ndarray):
         return clamp_theta(theta).astype(theta.dtype)
-    from hack_render.geometry.skeleton import clamp_to_limits
+    # a tensor's clamp; skeleton imports torch, which posing with NumPy alone (posing.py:
+    # `hack-render mesh`, the render's mesh cache) must not import (a listed deferral,
+    # tests/test_structure.py DEFERRED_OWN)
+    from hack_render.geometry.skeleton import clamp_to_limits  # noqa: PLC0415
 
     return clamp_to_limits(theta)
+
+
+def beta_messages(beta) -> list[str]:
+    """Shape coefficients beyond :data:`BETA_PLAUSIBLE`, as phrases (a tensor or an array)."""
+    b = np.asarray(beta.detach().cpu() if hasattr(beta, "detach") else beta).reshape(-1)
+    return [f"beta[{i}] = {float(v):.3g} (plausible identities lie within "
+            f"+-{BETA_PLAUSIBLE:g} standard deviations; clamped to "
+            f"{max(-BETA_PLAUSIBLE, min(BETA_PLAUSIBLE, float(v))):g})"
+            for i, v in enumerate(b.tolist()) if abs(v) > BETA_PLAUSIBLE]
+
+
+def apply_limit_policy(kw: dict, policy: LimitPolicy, head_rotation_deg=None) -> dict:
+    """Warn about, clamp, or refuse (exit 2) out-of-range joint rotations, whole-head
+    rotations, larynx slide tau and size eta (:func:`enforce_limits`) and implausible
+    identities (``beta`` beyond :data:`BETA_PLAUSIBLE`); warnings name each value and its
+    limit, and go to stderr (once)."""
+    policy_name = str(getattr(policy, "value", policy))
+    ident = beta_messages(kw["beta"]) if kw.get("beta") is not None else []
+    if ident and policy_name == "error":
+        text = "; ".join(m.split("; clamped to")[0] + ")" for m in ident)
+        raise HackError(f"--beta: outside the plausible identities: {text}. Change the value, "
+                        "or use --limits clamp (clamp and warn) or --limits warn.")
+    kw, messages = enforce_limits(kw, policy, head_rotation_deg)
+    if ident and policy_name == "clamp":
+        kw = dict(kw, beta=kw["beta"].clip(-BETA_PLAUSIBLE, BETA_PLAUSIBLE))
+    elif ident:
+        ident = [m.split("; clamped to")[0] + "; kept, use --limits clamp to clamp)"
+                 for m in ident]
+    messages = messages + ident
+    if messages:
+        typer.secho(f"warning: outside the anatomical limits: {'; '.join(messages)}", err=True,
+                    fg="yellow")
+    return kw

@@ -25,7 +25,10 @@ from torch import nn
 
 from hack_render.errors import HackError
 from hack_render.geometry import larynx as _larynx
-from hack_render.geometry.expressions import FACS_WITHOUT_SHAPES  # noqa: F401  (re-exported)
+from hack_render.geometry.expressions import (
+    FACS_WITHOUT_SHAPES,  # noqa: F401  (re-exported)
+    expression_weights,
+)
 from hack_render.geometry.lbs import (
     chain_parents,
     local_rotations,
@@ -34,6 +37,7 @@ from hack_render.geometry.lbs import (
     skin,
 )
 from hack_render.geometry.model_file import load_model_file
+from hack_render.geometry.skeleton import clamp_to_limits
 
 
 @dataclass
@@ -457,8 +461,6 @@ class HackModel(nn.Module):
         their shapes (table ``au_names`` / ``au_matrix``), shape names add themselves. For a
         batch, pass a list of specs (one per row) as ``psi`` to the forward.
         """
-        from hack_render.geometry.expressions import expression_weights
-
         psi = expression_weights(spec, self.expression_names, self.au_names,
                                  self.au_matrix.detach().cpu().numpy())
         return torch.as_tensor(psi, dtype=self.template.dtype, device=self.template.device)
@@ -492,8 +494,6 @@ class HackModel(nn.Module):
         """
         p = self._params(beta, psi, theta, global_orient, transl, eta, tau)
         if clamp_limits:
-            from hack_render.geometry.skeleton import clamp_to_limits
-
             p["theta"] = clamp_to_limits(p["theta"])
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
@@ -639,8 +639,6 @@ class PersonalizedHack(nn.Module):
         m = self.model
         p = m._params(None, psi, theta, global_orient, transl, eta, tau)
         if clamp_limits:
-            from hack_render.geometry.skeleton import clamp_to_limits
-
             p["theta"] = clamp_to_limits(p["theta"])
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         B = p["theta"].shape[0]

@@ -67,14 +67,18 @@ import os
 import shutil
 import warnings
 import zipfile
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT_VERSION = 2
+#: the built-in default model's file name in the package data (``hack_render/data``)
+DEFAULT_MODEL_NAME = "hack_default.npz"
 SUPPORTED_VERSIONS = (1, 2)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
@@ -192,10 +196,7 @@ def save_model_file(path: str | Path, arrays: dict[str, Any], meta: dict[str, An
             errors[k] = float(np.abs(dequantise(q, s) - v).max())
         else:
             out[k] = v
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez_compressed(tmp, **out)
-    os.replace(tmp, path)
+    write_npz(path, out, compressed=True)
     return errors
 
 
@@ -360,3 +361,14 @@ def _check(key, arr, spec, kind, sizes, path):
     if kind == "f" and not np.isfinite(arr).all():
         bad = int((~np.isfinite(arr)).sum())
         raise HackError(f"{path}: key '{key}' has {bad} non-finite values (NaN or inf). {_FIX}")
+
+
+def default_model_path() -> Path:
+    """Path of the built-in default model shipped as package data."""
+    path = Path(str(resources.files("hack_render") / "data" / DEFAULT_MODEL_NAME))
+    if not path.is_file():
+        raise HackError(f"the built-in default model {path} is missing: reinstall "
+                        f"hack-render, or rebuild it from ICT-FaceKit (public, MIT licence; "
+                        f"github.com/ICT-VGL/ICT-FaceKit) with `hack-render model build-v2 "
+                        f"--ict ICT_FACEKIT_DIR -o {path}`.")
+    return path

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_write_bytes, atomic_write_text
 
 
 @dataclass(frozen=True)
@@ -180,19 +181,6 @@ def _ply_bytes(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray | None,
         np.ascontiguousarray(vertices, "<f4").tobytes() + rec.tobytes()
 
 
-def _atomic_write(path: Path, data: str | bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        if isinstance(data, str):
-            tmp.write_text(data)
-        else:
-            tmp.write_bytes(data)
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def write_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
                uvs: np.ndarray | None = None, uv_faces: np.ndarray | None = None,
                materials: ObjMaterials | None = None) -> Path:
@@ -227,13 +215,13 @@ def write_mesh(path: str | Path, vertices: np.ndarray, faces: np.ndarray,
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         if suffix == ".ply":
-            _atomic_write(path, _ply_bytes(vertices, faces, uvs, uv_faces))
+            atomic_write_bytes(path, _ply_bytes(vertices, faces, uvs, uv_faces))
             return path
         mtl = path.with_suffix(".mtl") if materials is not None else None
         if mtl is not None:
-            _atomic_write(mtl, _mtl_text(materials))
-        _atomic_write(path, _obj_text(vertices, faces, uvs, uv_faces,
-                                      mtl.name if mtl else None, materials))
+            atomic_write_text(mtl, _mtl_text(materials))
+        atomic_write_text(path, _obj_text(vertices, faces, uvs, uv_faces,
+                                          mtl.name if mtl else None, materials))
     except OSError as exc:
         raise HackError(f"{path}: cannot write ({exc.strerror or exc}). Choose a writable "
                         "output path.") from exc

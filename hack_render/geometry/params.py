@@ -20,6 +20,10 @@ A parameter file is a mapping with any of these keys (all optional; missing = ze
 Values beyond the anatomical limits (joints, head rotation, eta, tau) are governed by the
 commands' ``--limits`` (:mod:`hack_render.geometry.limits`).
 
+The commands that pose the model gather their parameters here: :func:`gather_params` reads
+``--params`` and lets the pose flags (:func:`check_flags`) override it, and
+:func:`forward_inputs` / :func:`model_inputs` turn the result into a forward pass's inputs.
+
 Unknown keys are errors (a misspelt key must not be silently ignored).
 
 A parameter *sequence* (:class:`ParamSequence`, :func:`load_sequence`) animates one person:
@@ -31,13 +35,19 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import yaml
 
+from hack_render import boundary
 from hack_render.errors import HackError
+from hack_render.geometry.anatomy import ETA_DEFAULT, distribute_head_rotation
+from hack_render.io import atomic_write_text, write_json
+from hack_render.io.npz import write_npz
 
 if TYPE_CHECKING:  # torch is imported where tensors are made: parsing and checking need none
     import torch
@@ -60,8 +70,6 @@ _UNITS = {"beta": " (standard deviations)", "psi": "", "expression": "",
 def parse_params_text(text: str, suffix: str, where: str) -> Any:
     """The data of a parameter file's text: JSON (duplicate keys and NaN refused) or YAML
     (``suffix`` .yaml/.yml; duplicate keys refused)."""
-    from hack_render import boundary
-
     try:
         if suffix.lower() in (".yaml", ".yml"):
             return boundary.parse_yaml(text)
@@ -101,7 +109,17 @@ def load_params(path: str | Path) -> dict[str, Any]:
     except OSError as exc:
         raise HackError(f"--params {path}: not readable ({exc.strerror}).") from exc
     data = parse_params_text(text, path.suffix, str(path))
+    if data is None and _has_content(text):  # `null` (or YAML's `~`): not a mapping
+        raise HackError(f"--params {path}: expected a mapping of parameter names to values, "
+                        f"e.g. {{\"beta\": [0.5, -1.0]}} ({{}} for none), found null.")
     return check_params({} if data is None else data, str(path))
+
+
+def _has_content(text: str) -> bool:
+    """Whether a parameter file says something: a line other than blanks, comments and
+    YAML's document markers (an empty file, or one of comments, reads as no parameters)."""
+    return any(ln.strip() and not ln.lstrip().startswith("#") and ln.strip() not in ("---", "...")
+               for ln in text.splitlines())
 
 
 def _bound_text(key: str) -> tuple[float, float, str]:
@@ -114,13 +132,18 @@ def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
     """``value`` as a finite float64 array of ``shape`` (None: any length) inside the key's
     hard bounds, else a HackError naming the key."""
     ok = not isinstance(value, (str, bytes, dict, bool)) and value is not None
+    shown = repr(value) if len(repr(value)) < 80 else repr(value)[:77] + "..."
+    bad = _non_number(value) if ok else None
+    if bad is not None:  # NumPy would read true as 1.0 and "2" as 2.0
+        found = (f"{str(bool(bad[0])).lower()} (true and false are not numbers)"
+                 if isinstance(bad[0], (bool, np.bool_)) else f"{bad[0]!r} in {shown}")
+        raise HackError(f"{where}: key '{key}' expected {want}, found {found}.")
     arr = None
     if ok:
         try:
             arr = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):
             arr = None
-    shown = repr(value) if len(repr(value)) < 80 else repr(value)[:77] + "..."
     if arr is None or arr.dtype == object:
         raise HackError(f"{where}: key '{key}' expected {want}, found {shown}.")
     if arr.ndim != len(shape) or any(d is not None and d != s for d, s in zip(shape, arr.shape)):
@@ -132,6 +155,32 @@ def _array(value, key: str, where: str, shape: tuple, want: str) -> np.ndarray:
         bad = arr.min() if arr.min() < lo else arr.max()
         raise HackError(f"{where}: key '{key}' expected values in {text}, found {bad:g}.")
     return arr
+
+
+def _non_number(value) -> tuple[Any] | None:
+    """``(element,)``: the first element of a (nested) list, array or tensor that is not a
+    number (booleans and strings are not), or None when all are."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, (list, tuple)):
+            stack.extend(reversed(v))
+            continue
+        if v is None or isinstance(v, (bool, np.bool_, str, bytes, dict)):
+            return (v,)
+        if isinstance(v, (int, float, np.number)):
+            continue
+        try:
+            a = np.asarray(v)  # an array, a tensor
+        except Exception:  # noqa: BLE001 - whatever it is, it is not a number
+            return (v,)
+        if a.dtype.kind in "iuf":
+            continue
+        if a.dtype.kind == "O" and a.ndim:
+            stack.extend(reversed(a.ravel().tolist()))
+            continue
+        return (a.ravel()[0].item() if a.size and a.dtype.kind != "O" else v,)
+    return None
 
 
 def _vector(value, name: str, where: str, length: int | None = None) -> list[float]:
@@ -148,8 +197,6 @@ def _scalar(value, key: str, where: str) -> float:
 def parse_expression(text: str, where: str) -> dict[str, float]:
     """``"AU12=0.7, jawOpen=0.4"`` -> {name: weight}, each weight finite and inside the
     hard bound; names are checked against the model later (``expression_vector``)."""
-    import re
-
     out: dict[str, float] = {}
     for part in filter(None, (p.strip() for p in re.split(r"[,;]", text))):
         name, eq, value = part.partition("=")
@@ -218,29 +265,84 @@ def check_params(data: dict[str, Any], where: str = "parameters") -> dict[str, A
     return out
 
 
+def parse_floats(text: str | None, name: str) -> list[float] | None:
+    """Comma-separated finite numbers of option ``--name`` (None passes through)."""
+    return boundary.numbers(text, f"--{name}")
+
+
+def check_flags(beta: str | None, expression: str | None, head_rotation: str | None,
+                eta: float | None, tau: float | None) -> dict:
+    """The pose flags of `mesh`, `render`, `turntable`, `export`, checked (finite, inside
+    the hard bounds of :data:`BOUNDS`) and named by option."""
+    b = boundary
+    return {"beta": b.numbers(beta, "--beta", None, -BOUNDS["beta"], BOUNDS["beta"],
+                              unit=" (standard deviations)", example="1.0,-0.5"),
+            "expression": None if expression is None else parse_expression(expression, "--expr"),
+            "head_rotation_deg": b.numbers(head_rotation, "--head-rotation", 3, -360, 360,
+                                           unit=" degrees", example="15,40,0"),
+            "eta": b.number(eta, "--eta", *BOUNDS["eta"]),
+            "tau": b.number(tau, "--tau", *BOUNDS["tau"], unit=" metres")}
+
+
+def gather_params(params_file: Path | None, beta: str | None, expression: str | None,
+                  head_rotation: str | None, eta: float | None, tau: float | None) -> dict:
+    """Parameters from a file, overridden by command-line flags (shared by several commands)."""
+    flags = check_flags(beta, expression, head_rotation, eta, tau)
+    params = load_params(params_file) if params_file else {}
+    params.update({k: v for k, v in flags.items() if v is not None})
+    return check_params(params, "command-line parameters")
+
+
 def save_params(path: str | Path, params: dict[str, Any]) -> Path:
     """Write a parameter mapping as JSON (or YAML by suffix), atomically."""
     path = Path(path)
     params = check_params(params, str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
     if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
+        return atomic_write_text(path, yaml.safe_dump(params, sort_keys=False))
+    return write_json(path, params, indent=2)
 
-        tmp.write_text(yaml.safe_dump(params, sort_keys=False))
-    else:
-        tmp.write_text(json.dumps(params, indent=2))
-    tmp.replace(path)
-    return path
+
+def forward_inputs(model, params: dict[str, Any], dtype=np.float32) -> dict[str, np.ndarray]:
+    """One row of forward inputs (unbatched NumPy arrays of ``dtype``) for ``model`` from a
+    checked parameter mapping: ``psi`` and ``theta`` always, ``eta`` where the model has a
+    larynx, the others where given. ``model``: a :class:`~hack_render.geometry.model.HackModel`
+    or a :class:`~hack_render.geometry.posing.PosingModel` (``num_shape``,
+    ``num_expressions``, ``has_larynx``, ``expression_vector``)."""
+    kw: dict[str, np.ndarray] = {}
+    if "beta" in params:
+        if len(params["beta"]) > model.num_shape:
+            raise HackError(f"beta: {len(params['beta'])} values given, the model has "
+                            f"{model.num_shape} components.")
+        kw["beta"] = np.asarray(params["beta"], dtype)
+    psi = np.zeros(model.num_expressions, dtype)
+    if "psi" in params:
+        if len(params["psi"]) != model.num_expressions:
+            raise HackError(f"psi: expected {model.num_expressions} values, found "
+                            f"{len(params['psi'])}.")
+        psi = psi + np.asarray(params["psi"], dtype)
+    if "expression" in params:
+        e = model.expression_vector(params["expression"])
+        psi = psi + np.asarray(e.detach().cpu() if hasattr(e, "detach") else e, dtype)
+    kw["psi"] = psi
+    theta = np.zeros((8, 3), dtype)
+    if "head_rotation_deg" in params:
+        share = distribute_head_rotation(np.deg2rad(params["head_rotation_deg"]))
+        theta = theta + share.astype(dtype)
+    if "theta" in params:
+        theta = theta + np.asarray(params["theta"], dtype)
+    kw["theta"] = theta
+    for key in ("global_orient", "transl", "eta", "tau"):
+        if key in params:
+            kw[key] = np.asarray(params[key], dtype)
+    if "eta" not in kw and getattr(model, "has_larynx", False):
+        kw["eta"] = np.asarray(ETA_DEFAULT, dtype)  # the API's default too
+    return kw
 
 
 def model_inputs(model, params: dict[str, Any]) -> dict[str, torch.Tensor]:
     """Forward-pass keyword arguments (batch 1) for ``model`` from a checked parameter
-    mapping: :func:`hack_render.geometry.posing.forward_inputs` as tensors of the model's
-    dtype."""
+    mapping: :func:`forward_inputs` as tensors of the model's dtype."""
     import torch
-
-    from hack_render.geometry.posing import forward_inputs
 
     dtype = model.template.dtype
     arrays = forward_inputs(model, params, np.float64 if dtype == torch.float64 else np.float32)
@@ -336,8 +438,6 @@ def check_sequence(data: dict[str, Any], fps: Any, where: str = "sequence",
 
 
 def _jsonl_frames(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    from hack_render import boundary
-
     header, frames = None, []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip():
@@ -445,23 +545,14 @@ def save_sequence(path: str | Path, seq: ParamSequence) -> Path:
     if suffix not in (".npz", ".jsonl", ".ndjson"):
         raise HackError(f"{path}: expected a .npz or .jsonl sequence file, found "
                         f"{suffix or 'no suffix'}.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{suffix}")
-    try:
-        if suffix == ".npz":
-            np.savez(tmp, fps=np.float64(seq.fps), format=np.str_(SEQUENCE_FORMAT),
-                     **seq.arrays())
-        else:
-            arrays = seq.arrays()
-            lines = [json.dumps({"format": SEQUENCE_FORMAT, "version": 1, "fps": seq.fps})]
-            lines += [json.dumps({k: a[i].tolist() for k, a in arrays.items()})
-                      for i in range(seq.frames)]
-            tmp.write_text("\n".join(lines) + "\n")
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    if suffix == ".npz":
+        return write_npz(path, {"fps": np.float64(seq.fps), "format": np.str_(SEQUENCE_FORMAT),
+                                **seq.arrays()})
+    arrays = seq.arrays()
+    lines = [json.dumps({"format": SEQUENCE_FORMAT, "version": 1, "fps": seq.fps})]
+    lines += [json.dumps({k: a[i].tolist() for k, a in arrays.items()})
+              for i in range(seq.frames)]
+    return atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def sequence_inputs(model, seq: ParamSequence) -> dict[str, torch.Tensor]:

@@ -11,9 +11,11 @@ model file's arrays (mapped from the unpacked cache of
     G = LBS(T, J(beta), theta, W)
 
 in float32 like the torch model, for one row. It takes the same inputs from a checked
-parameter mapping (:func:`posed_vertices`), applies ``--limits`` through
-:mod:`hack_render.geometry.limits`, and prints the same warnings. It is not
-differentiable: fitting, batches and gradients use :class:`HackModel`.
+parameter mapping (:func:`posed_vertices`; :func:`hack_render.geometry.params.forward_inputs`),
+applies ``--limits`` through :mod:`hack_render.geometry.limits`, and prints the same
+warnings. It is not differentiable: fitting, batches and gradients use :class:`HackModel`
+(:func:`hack_render.geometry.loading.posed_model` poses one mesh with it, as
+:func:`posed_vertices` does without).
 ``tests/test_posing.py`` holds the two equal (to 2e-6 m on vertices) over random
 identities, expressions, eta, tau and joint poses within and beyond the limits.
 """
@@ -25,9 +27,14 @@ from typing import Any
 
 import numpy as np
 
+from hack_render import boundary
 from hack_render.errors import HackError
 from hack_render.geometry import np_rotations
-from hack_render.geometry.anatomy import ETA_DEFAULT, NUM_JOINTS, distribute_head_rotation
+from hack_render.geometry.anatomy import ETA_DEFAULT, NUM_JOINTS
+from hack_render.geometry.expressions import expression_weights
+from hack_render.geometry.limits import apply_limit_policy
+from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.params import forward_inputs, gather_params
 
 
 class PosingModel:
@@ -54,13 +61,9 @@ class PosingModel:
 
     @classmethod
     def from_file(cls, path: str | Path) -> PosingModel:
-        from hack_render.geometry.model_file import load_model_file
-
         return cls(load_model_file(path)[0])
 
     def expression_vector(self, spec) -> np.ndarray:
-        from hack_render.geometry.expressions import expression_weights
-
         return expression_weights(spec, self.expression_names, self.au_names,
                                   np.asarray(self.arrays["au_matrix"], dtype=np.float32))
 
@@ -148,40 +151,6 @@ class PosingModel:
         return eta * out
 
 
-def forward_inputs(model, params: dict[str, Any], dtype=np.float32) -> dict[str, np.ndarray]:
-    """One row of forward inputs (unbatched NumPy arrays of ``dtype``) for ``model`` from a
-    checked parameter mapping: ``psi`` and ``theta`` always, ``eta`` where the model has a
-    larynx, the others where given. ``model``: a :class:`~hack_render.geometry.model.HackModel`
-    or a :class:`~hack_render.geometry.posing.PosingModel` (``num_shape``,
-    ``num_expressions``, ``has_larynx``, ``expression_vector``)."""
-    kw: dict[str, np.ndarray] = {}
-    if "beta" in params:
-        if len(params["beta"]) > model.num_shape:
-            raise HackError(f"beta: {len(params['beta'])} values given, the model has {model.num_shape} components.")
-        kw["beta"] = np.asarray(params["beta"], dtype)
-    psi = np.zeros(model.num_expressions, dtype)
-    if "psi" in params:
-        if len(params["psi"]) != model.num_expressions:
-            raise HackError(f"psi: expected {model.num_expressions} values, found {len(params['psi'])}.")
-        psi = psi + np.asarray(params["psi"], dtype)
-    if "expression" in params:
-        e = model.expression_vector(params["expression"])
-        psi = psi + np.asarray(e.detach().cpu() if hasattr(e, "detach") else e, dtype)
-    kw["psi"] = psi
-    theta = np.zeros((8, 3), dtype)
-    if "head_rotation_deg" in params:
-        theta = theta + distribute_head_rotation(np.deg2rad(params["head_rotation_deg"])).astype(dtype)
-    if "theta" in params:
-        theta = theta + np.asarray(params["theta"], dtype)
-    kw["theta"] = theta
-    for key in ("global_orient", "transl", "eta", "tau"):
-        if key in params:
-            kw[key] = np.asarray(params[key], dtype)
-    if "eta" not in kw and getattr(model, "has_larynx", False):
-        kw["eta"] = np.asarray(ETA_DEFAULT, dtype)  # the API's default too
-    return kw
-
-
 def _rigid_transforms(rot: np.ndarray, nodes: np.ndarray, parents: tuple[int, ...]
                       ) -> np.ndarray:
     """Forward kinematics of the chain as :func:`hack_render.geometry.lbs.rigid_transforms`:
@@ -210,13 +179,8 @@ def _skin(rest: np.ndarray, weights: np.ndarray, rel: np.ndarray) -> np.ndarray:
 def posed_vertices(params_file, beta, expression, head_rotation, eta, tau, limits,
                    model_path) -> tuple[PosingModel, np.ndarray]:
     """The model and its posed vertices (N, 3) from a parameter file and flags, as
-    :func:`hack_render.geometry.cli.posed_model` gives them, without torch."""
-    from hack_render.geometry import default_model_path
-    from hack_render.geometry.cli import apply_limit_policy, gather_params
-
+    :func:`hack_render.geometry.loading.posed_model` gives them, without torch."""
     if model_path is not None:
-        from hack_render import boundary
-
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = PosingModel.from_file(model_path if model_path is not None else default_model_path())
     p = gather_params(params_file, beta, expression, head_rotation, eta, tau)

@@ -92,7 +92,8 @@ def matrix_to_axis_angle(m: torch.Tensor) -> torch.Tensor:
     return quaternion_to_axis_angle(matrix_to_quaternion(m))
 
 
-def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of quaternions (..., 4), scalar first (w, x, y, z)."""
     return torch.stack(quat_product(a, b), -1)
 
 

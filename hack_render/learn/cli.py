@@ -1,29 +1,84 @@
 """`hack-render learn ...`: every learner under one group, and `hack-render model report`.
 
-`learn model` (the full model), `learn base-model` (the ICT-FaceKit base), `learn joints`,
-`learn pose` (the pose correctives of a model file), `learn appearance`,
-`learn landmark-embedding`, `learn landmark-refiner`, `learn template`
-(the packaged skin template from ICT-FaceKit's OBJ). The commands
-whose code lives beside what they learn (`hack_render.geometry.cli.build`,
-`appearance.cli.build`, `hack_render.fit.cli.calibrate_landmarks` and
-`train_landmark_refiner`) are registered here; their old names (`model build`,
-`model build-v2`, `appearance build`, `calibrate-landmarks`, `train-landmark-refiner`)
-keep working for one release, hidden, with a deprecation message.
+`learn model` (the full model), `learn base-model` (the ICT-FaceKit base), `learn appearance`,
+`learn landmark-embedding`, `learn landmark-refiner`, `learn joints`, `learn template`
+(the packaged skin template from ICT-FaceKit's OBJ), `learn pose` (the pose correctives of
+a model file), `learn head-to-neck`, `learn larynx-motion` and `learn shape` (the identity
+space from registrations). This module owns the group: every learner command is defined
+here or in :mod:`hack_render.learn` (`learn shape`: :mod:`hack_render.learn.shape`), except
+`appearance.cli.build` and `appearance.cli.template`, which the appearance package keeps
+beside its builder and which are registered here. No lower package imports learn: the
+learners' old names (`model build`, `model build-v2`, `appearance build`,
+`calibrate-landmarks`, `train-landmark-refiner`) are added to the lower groups from here by
+:func:`register`, and keep working for one release, hidden, with a deprecation message.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
+from typing import Optional
 
+import numpy as np
 import typer
 
+from appearance import cli as appearance_cli
+from hack_render import boundary, interrupts
+from hack_render import cli_options as opts
+from hack_render.cli_options import add_deprecated, renamed
 from hack_render.errors import HackError
+from hack_render.fit import landmark_embedding as le
+from hack_render.geometry import cli as geometry_cli
+from hack_render.geometry import default_model_path
+from hack_render.geometry.model_file import load_model_file, save_model_file
+from hack_render.geometry.params import load_sequence
+from hack_render.io import atomic_path
+from hack_render.learn import landmark_calibration as lc
+from hack_render.learn import landmark_refiner_training
+from hack_render.learn.full_model import (
+    build_full_model,
+    learn_pose_energy,
+    pose_curves,
+    pose_provenance,
+)
+from hack_render.learn.ict_default import build_default_model
+from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
+from hack_render.learn.pose_energy import DEFAULTS
+from hack_render.learn.report import write_report
+from hack_render.learn.shape import learn_shape_cmd
+from hack_render.motion import head_to_neck as H
+from hack_render.motion import larynx_motion as L
+
+# The learners that import torch or SciPy when imported (landmark_calibration, ict_default,
+# full_model, pose_energy, joint_regressor, fit.landmark_embedding, motion.head_to_neck,
+# motion.larynx_motion) are imported inside the commands: `hack-render learn --help` must
+# not import them (tests/test_cli.py, test_help_imports_no_heavy_module).
 
 learn_app = typer.Typer(help="Learn HACK's components from data: the model, its joints, the "
                         "appearance model, the fitter's landmark embedding and refiner.",
                         no_args_is_help=True)
+
+
+def build_base_model(
+    ict: Path = typer.Option(..., "--ict", help="ICT-FaceKit folder: the development layout "
+                             "(ict_facekit.npz, generic_neutral_mesh.obj, vertex_indices.json) or "
+                             "the original FaceXModel/ folder of OBJs."),
+    output: Path = typer.Option(..., "-o", "--output", help="Model file to write (.npz)."),
+) -> None:
+    """Learn the base model from ICT-FaceKit: shape PCA, AU table, skeleton, weights (~15 s).
+
+    Registered as `hack-render learn base-model` by hack_render.learn.cli.
+    Example: hack-render learn base-model --ict ICT_FACEKIT_DIR -o base.npz
+    """
+    boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
+    boundary.output_file(output, "-o/--output", (".npz",))
+    arrays, meta = build_default_model(ict)
+    errors = save_model_file(output, arrays, meta)
+    typer.echo(f"wrote {output.resolve()} ({output.stat().st_size / 1e6:.1f} MB)")
+    for key, err in errors.items():
+        typer.echo(f"  {key}: int16 storage, max abs error {err:.3g} (unit vectors / metres)")
 
 
 def build_v2(
@@ -41,10 +96,6 @@ def build_v2(
 
     Example: hack-render learn model --ict ICT_FACEKIT_DIR -o model.npz
     """
-    from hack_render import boundary
-    from hack_render.geometry.model_file import save_model_file
-    from hack_render.learn.full_model import build_full_model
-
     boundary.input_dir(ict, "--ict", "ICT-FaceKit folder")
     boundary.output_file(output, "-o/--output", (".npz",))
     boundary.number(expression_identities, "--expression-identities", 20, 100000, integer=True)
@@ -70,8 +121,6 @@ def _command_line() -> str | None:
 
 def _loss_overrides(items: list[str]) -> dict:
     """``--loss KEY=VALUE`` items as a dict, keys checked against the learner's DEFAULTS."""
-    from hack_render.learn.pose_energy import DEFAULTS
-
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -120,11 +169,6 @@ def learn_pose(
 
     Example: hack-render learn pose -o model_pose.npz --iterations 700
     """
-    from hack_render import boundary
-    from hack_render.geometry import default_model_path
-    from hack_render.geometry.model_file import load_model_file, save_model_file
-    from hack_render.learn.full_model import learn_pose_energy, pose_curves, pose_provenance
-
     if model_path is not None:
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     boundary.output_file(output, "-o/--output", (".npz",))
@@ -134,14 +178,13 @@ def learn_pose(
     boundary.number(lr, "--lr", 1e-6, 1.0)
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
+
     overrides = _loss_overrides(loss)
     typer.echo(f"learn pose: {iterations} steps of about 1.5 s on 2 CPU cores (~"
                f"{max(1, round(iterations * 1.5 / 60))} min)", err=True)
     src = model_path or default_model_path()
     arrays, meta = load_model_file(src)
     if continue_ and "pose_pca_components" not in arrays:
-        from hack_render.errors import HackError
-
         raise HackError(f"{src}: --continue needs a model file with learned pose correctives "
                         "(pose_basis, pose_pca_components, pose_mlp_*); drop --continue to "
                         "learn them from zero.")
@@ -170,11 +213,6 @@ def report(
     output: Path = typer.Option(Path("out/model_report"), "-o", "--output", help="Output folder."),
 ) -> None:
     """Write Fig. 11-style compactness/generalisation curves (report.json, report.png)."""
-    from hack_render import boundary
-    from hack_render.geometry import default_model_path
-    from hack_render.geometry.model_file import load_model_file
-    from hack_render.learn.report import write_report
-
     if model_path is not None:
         boundary.input_file(model_path, "MODEL", (".npz",), "model file")
     boundary.output_dir(output)
@@ -189,11 +227,6 @@ def learn_joints(
     slab: float = typer.Option(0.012, help="Candidate ring half-height, metres."),
 ) -> None:
     """Train the joint regressor J (Eq. 6) from (mesh, joint) pairs, e.g. ultrasound labels."""
-    import numpy as np
-
-    from hack_render import boundary
-    from hack_render.learn.joint_regressor import joint_errors, train_joint_regressor
-
     boundary.input_file(data, "DATA", (".npz",), "training data file")
     boundary.output_file(output, "-o/--output", (".npy",))
     boundary.number(slab, "--slab", 0.001, 0.1, unit=" metres")
@@ -204,7 +237,6 @@ def learn_joints(
     if not np.isfinite(reg).all():
         raise HackError(f"{data}: the regressor came out non-finite; check 'meshes' and "
                         "'joints' (metres, the same people in the same order).")
-    from hack_render.render.image_io import atomic_path
 
     with atomic_path(output) as tmp:
         np.save(tmp, reg.astype(np.float32))
@@ -215,8 +247,6 @@ def learn_joints(
 def _joint_data(data: Path):
     """(meshes (P, N, 3), joints (P, 8, 3)) float64 from a training .npz, checked: keys,
     numeric dtypes, shapes, the same P >= 2, finite values."""
-    import numpy as np
-
     try:
         with np.load(data, allow_pickle=False) as z:
             keys = list(z.keys())
@@ -244,21 +274,221 @@ def _joint_data(data: Path):
     return meshes.astype(np.float64), joints.astype(np.float64)
 
 
-def register(app: typer.Typer) -> None:
-    """Add the `learn` group, `model report` and the learners' deprecated old names."""
-    from appearance import cli as appearance_cli
-    from hack_render.cli_options import add_deprecated
-    from hack_render.fit import cli as fit_cli
-    from hack_render.geometry import cli as geometry_cli
+def calibrate_landmarks(
+    output: Path = typer.Option(..., "-o", "--output", help="Embedding file to write (.npz), "
+                                "e.g. hack_render/data/landmark_embedding_dlib.npz."),
+    subjects: int = typer.Option(60, "--subjects", min=1, help="Synthetic subjects to render "
+                                 "(the detector's misses are left out and reported)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
+                             "(default 5150; bench/bench_fit.py's subjects are disjoint)."),
+    resolution: Optional[int] = typer.Option(None, "--resolution", help="Render size in "
+                                             "pixels (default 320)."),
+    resolution_old: Optional[int] = typer.Option(None, "--res", hidden=True,
+                                                 help="Deprecated: --resolution."),
+    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
+    radius: float = typer.Option(0.025, "--radius", help="Search radius around each model "
+                                 "landmark vertex, metres on the rest mesh."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Calibrate the 68-landmark embedding (triangle + barycentrics per landmark) to dlib.
 
+    Renders synthetic subjects of the default model with known geometry and cameras (the
+    dataset sampler), runs dlib on each and picks, per landmark (18-68; the jawline stays
+    contour-matched), the skin point whose projections are nearest to dlib's points.
+    The fitter uses hack_render/data/landmark_embedding_dlib.npz by default.
+
+    Example: hack-render learn landmark-embedding -o emb.npz --subjects 60
+    """
+    resolution = renamed(resolution, resolution_old, "--res", "--resolution")
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(resolution, "--resolution", 64, 4096, integer=True, unit=" pixels")
+    boundary.number(spp, "--spp", 1, 4096, integer=True)
+    boundary.number(radius, "--radius", 0.001, 0.2, unit=" metres")
+    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
+    seed = le.CALIBRATION_SEED if seed is None else seed
+    typer.echo(f"learn landmark-embedding: {subjects} synthetic subjects to render and detect "
+               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min)",
+               err=True)
+    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
+    emb, _report = lc.build(output, subjects, seed, resolution, spp, radius, command=cmd,
+                            progress=not quiet)
+    typer.echo(json.dumps({"used": emb.meta["subjects_used"],
+                           "left_out": len(emb.meta["left_out"]),
+                           "calibrated": int(emb.calibrated.sum()),
+                           "nme_median": emb.meta["calibration_nme_median"]}))
+    typer.echo(f"wrote {Path(output).resolve()}")
+
+
+def train_landmark_refiner(
+    output: Path = typer.Option(..., "-o", "--output", help="Refiner file to write (.npz), "
+                                "e.g. hack_render/data/landmark_refiner_dlib.npz."),
+    subjects: int = typer.Option(1150, "--subjects", min=20, help="Synthetic subjects to "
+                                 "render (dlib's misses are left out and counted)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the "
+                                       "subjects (default 5150, the calibration's)."),
+    stages: int = typer.Option(3, "--stages", min=1, max=8, help="SDM stages."),
+    lam: float = typer.Option(100.0, "--lambda", min=0.0, help="Ridge penalty."),
+    holdout: float = typer.Option(0.1, "--holdout", min=0.0, max=0.5, help="Share of the "
+                                  "subjects held out to measure the refiner and set its "
+                                  "loss weights."),
+    cache: Optional[Path] = typer.Option(None, "--cache", help="Folder for the renders, in "
+                                         "chunks of 50 subjects: an interrupted run resumes "
+                                         "from it."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Train the landmark refiner: dlib's inner points moved toward the calibrated
+    embedding's points by a regression of the image (supervised descent, HOG-like patch
+    features), learned on synthetic renders of the default model with known geometry.
+
+    Renders the subjects (about 2 s each on 2 cores), runs dlib on each, trains on all but
+    the held-out share and reports dlib's and the refined points' error there (rms over the
+    inner points, % of the inter-ocular distance). The fitter uses
+    hack_render/data/landmark_refiner_dlib.npz by default (config landmarks.refiner).
+
+    Example: hack-render learn landmark-refiner -o refiner.npz --subjects 1150 --cache renders/
+    """
+    boundary.output_file(output, "-o/--output", (".npz",))
+    boundary.number(seed, "--seed", 0, 2 ** 63 - 1, integer=True)
+    boundary.number(lam, "--lambda", 0.0, 1e12)
+    if cache is not None:
+        boundary.output_dir(cache, "--cache")
+    cmd = "hack-render " + " ".join(sys.argv[1:]) if len(sys.argv) > 2 else ""
+    note = (f"the renders done so far are kept in --cache {cache}; run the same command to "
+            "go on from them" if cache is not None else
+            "nothing was written (give --cache DIR to keep the renders of an interrupted run)")
+    typer.echo(f"learn landmark-refiner: {subjects} synthetic subjects to render and detect "
+               f"(about 2 s each on 2 CPU cores: ~{max(1, round(subjects * 2 / 60))} min, "
+               "less for those already in --cache)", err=True)
+    with interrupts.on_interrupt(note):
+        _ref, report = landmark_refiner_training.build(output, subjects, seed, stages, lam,
+                                                       holdout, cache, command=cmd,
+                                                       progress=not quiet)
+    typer.echo(json.dumps({k: v for k, v in report.items() if k != "left_out"}))
+    typer.echo(f"wrote {Path(output).resolve()}")
+
+
+def _split_held_out(paths: list[Path], held_out: str) -> tuple[list[Path], list[Path]]:
+    """Training and held-out files: ``held_out`` is a count ('2') or file names ('a.npz,b.npz')."""
+    if held_out.strip().isdigit():
+        k = int(held_out)
+        if not 1 <= k < len(paths):
+            raise HackError(f"--held-out: expected 1..{len(paths) - 1} sequences (of "
+                            f"{len(paths)} given), found {k}; held-out sequences measure the "
+                            "mapping against distribute_head_rotation.")
+        return paths[:-k], paths[-k:]
+    names = [s.strip() for s in held_out.split(",") if s.strip()]
+    test = [p for p in paths if p.name in names or str(p) in names]
+    if len(test) != len(names) or len(test) == len(paths):
+        raise HackError(f"--held-out: expected names of some (not all) given sequences, found "
+                        f"{names}.")
+    return [p for p in paths if p not in test], test
+
+
+def learn_head_to_neck(
+    sequences: list[Path] = typer.Argument(..., help="Parameter sequences (.npz/.jsonl) with "
+                                           "measured per-frame neck joints (theta)."),
+    output: Path = typer.Option(..., "-o", "--output", help="The mapping to write (.npz)."),
+    held_out: str = typer.Option("1", "--held-out", help="Sequences kept out of training to "
+                                 "compare with distribute_head_rotation: a count (the last "
+                                 "ones) or comma-separated file names."),
+    steps: int = typer.Option(3000, help="Adam steps (batches of 256 frames)."),
+    seed: opts.Seed = 0,
+    quiet: opts.Quiet = False,
+) -> None:
+    """Learn head orientation -> the 8 neck joints (the paper's 2-layer, 512-unit MLP) and
+    report its per-joint angle error against distribute_head_rotation on held-out sequences.
+
+    Example: hack-render learn head-to-neck takes/*.npz --held-out 2 -o head_to_neck.npz
+    """
+    boundary.output_file(output, "-o/--output", (".npz",))
+    if len(sequences) < 2:
+        raise HackError(f"SEQUENCES: expected at least 2 files (training and held-out), found "
+                        f"{len(sequences)}.")
+    if steps < 1:
+        raise HackError(f"--steps: expected >= 1, found {steps}.")
+    train_p, test_p = _split_held_out(list(sequences), held_out)
+    train_t, test_t = H.load_thetas(train_p), H.load_thetas(test_p)  # all checked first
+    mapping = H.train(train_t, steps=steps, seed=seed, progress=not quiet,
+                      sources=[str(p) for p in train_p])
+    rep = H.compare(mapping, test_t)
+    mapping.meta["held_out"] = {"sequences": [str(p) for p in test_p], **rep}
+    mapping.save(output)
+    typer.echo(f"wrote {output.resolve()} ({mapping.meta['training_frames']} training frames, "
+               f"{mapping.meta['seconds']:.0f} s)")
+    typer.echo(f"held-out ({rep['frames']} frames), mean angle error per joint, degrees:")
+    typer.echo("  joint    " + " ".join(f"{j:>7}" for j in rep["joints"]))
+    typer.echo("  MLP      " + " ".join(f"{e:7.3f}" for e in rep["mlp_deg"]))
+    typer.echo("  rule     " + " ".join(f"{e:7.3f}" for e in rep["distribute_deg"]))
+    verdict = ("the MLP is better" if rep["mlp_mean_deg"] < rep["distribute_mean_deg"]
+               else "the fixed rule is better: keep distribute_head_rotation")
+    typer.echo(f"  mean: MLP {rep['mlp_mean_deg']:.3f}, distribute_head_rotation "
+               f"{rep['distribute_mean_deg']:.3f} ({verdict})")
+
+
+def _larynx_pairs(paths: list[Path]):
+    pairs = []
+    for p in paths:
+        seq = load_sequence(p)
+        if seq.psi is None or seq.tau is None:
+            raise HackError(f"{p}: expected per-frame 'psi' and 'tau' (expressions and the "
+                            "tracked larynx slide); found keys "
+                            f"{sorted(seq.arrays())}.")
+        pairs.append((seq.psi, seq.tau))
+    return pairs
+
+
+def learn_larynx_motion(
+    sequences: list[Path] = typer.Argument(..., help="Parameter sequences with per-frame psi "
+                                           "and tau (e.g. tau tracked by Eq. 13)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Weights and checkpoint (.npz)."),
+    held_out: int = typer.Option(1, "--held-out", help="Last sequences kept out of training "
+                                 "and used to report the error (0: none)."),
+    steps: int = typer.Option(1500, help="Adam steps."),
+    d_model: int = typer.Option(64, "--d-model", help="Transformer width."),
+    layers: int = typer.Option(2, help="Decoder layers."),
+    window: int = typer.Option(12, help="Frames of expression history each frame reads."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the checkpoint at -o."),
+    seed: opts.Seed = 0,
+    quiet: opts.Quiet = False,
+) -> None:
+    """Learn expressions -> larynx slide: a FaceFormer-style autoregressive transformer
+    (past tau fed back), checkpointed to -o every 100 steps (--resume continues).
+
+    Example: hack-render learn larynx-motion talks/*.npz --held-out 2 -o larynx_motion.npz
+    """
+    boundary.output_file(output, "-o/--output", (".npz",))
+    if not 0 <= held_out < len(sequences):
+        raise HackError(f"--held-out: expected 0..{len(sequences) - 1}, found {held_out}.")
+    for name, value, lo in (("--steps", steps, 1), ("--d-model", d_model, 4),
+                            ("--layers", layers, 1), ("--window", window, 1)):
+        boundary.number(value, name, lo, 1e6, integer=True)
+    pairs = _larynx_pairs(list(sequences))
+    train_pairs = pairs[:len(pairs) - held_out]
+    cfg = L.LarynxConfig(num_expressions=pairs[0][0].shape[1], d_model=d_model, layers=layers,
+                         window=window, steps=steps, seed=seed)
+    model, meta = L.train(train_pairs, cfg, output, resume=resume, progress=not quiet,
+                          sources=[str(p) for p in sequences[:len(pairs) - held_out]])
+    typer.echo(f"wrote {output.resolve()} ({steps} steps, {meta['seconds']:.0f} s)")
+    if held_out:
+        rep = L.evaluate(model, pairs[-held_out:])
+        meta["held_out"] = {"sequences": [str(p) for p in sequences[-held_out:]], **rep}
+        L.save_checkpoint(output, model, None, steps, meta)
+        typer.echo(f"held-out ({rep['frames']} frames, autoregressive): RMSE "
+                   f"{rep['rmse_mm']:.3f} mm, max {rep['max_mm']:.3f} mm (tau's own std "
+                   f"{rep['tau_std_mm']:.3f} mm), correlation {rep['correlation']:.3f}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add the `learn` group, `model report` and the learners' deprecated old names (on
+    the groups that had them: `model`, `appearance` and the main app)."""
     learners = [("model", build_v2, "model build-v2", geometry_cli.model_app, "build-v2"),
-                ("base-model", geometry_cli.build, "model build", geometry_cli.model_app,
+                ("base-model", build_base_model, "model build", geometry_cli.model_app,
                  "build"),
                 ("appearance", appearance_cli.build, "appearance build", appearance_cli.app,
                  "build"),
-                ("landmark-embedding", fit_cli.calibrate_landmarks, "calibrate-landmarks", app,
+                ("landmark-embedding", calibrate_landmarks, "calibrate-landmarks", app,
                  "calibrate-landmarks"),
-                ("landmark-refiner", fit_cli.train_landmark_refiner, "train-landmark-refiner",
+                ("landmark-refiner", train_landmark_refiner, "train-landmark-refiner",
                  app, "train-landmark-refiner")]
     for name, func, old, old_app, old_name in learners:
         learn_app.command(name)(func)
@@ -266,5 +496,8 @@ def register(app: typer.Typer) -> None:
     learn_app.command("joints")(learn_joints)
     learn_app.command("template")(appearance_cli.template)
     learn_app.command("pose")(learn_pose)
+    learn_app.command("head-to-neck")(learn_head_to_neck)
+    learn_app.command("larynx-motion")(learn_larynx_motion)
+    learn_app.command("shape")(learn_shape_cmd)
     geometry_cli.model_app.command("report")(report)
     app.add_typer(learn_app, name="learn")

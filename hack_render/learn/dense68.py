@@ -3,7 +3,7 @@
     python -m hack_render.learn.dense68 [--samples 240] [--seed 7100] [--out FILE]
     python -m hack_render.learn.dense68 --from ert_5301.npz ert_5302.npz ... [--trim 0.1]
 
-Composites of the model (:mod:`hack_render.vision.synthetic`, its own seed, so they share
+Composites of the model (:mod:`hack_render.dataset.composites`, its own seed, so they share
 no subject with the benchmark's or the tests') at yaw U(-90, 90) and pitch U(-45, 45)
 degrees are run through the face-mesh model (BlazeFace's box, two passes); those where
 it reports a face (presence >= 0.9) are kept. ``--from``: the composites the shape
@@ -26,16 +26,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
+
+from hack_render.dataset.composites import CompositeRenderer
+from hack_render.vision.boxes import find_boxes
+from hack_render.vision.dense68 import DEFAULT_FILE, DenseMap, signed_areas, tessellation_triangles
+from hack_render.vision.detect import mesh_landmarks
+from hack_render.vision.ert import upright_keypoints
 
 
 def collect(n: int, seed: int, res: int = 256, spp: int = 16, min_presence: float = 0.9):
     """(dense (S, 468, 3), truth (S, 68, 2), yaw (S,), size (S,)) over composites where
     the detector found the face and the mesh model's face presence is at least
     ``min_presence``."""
-    from tqdm import tqdm
-
-    from hack_render.vision.detect import find_boxes, mesh_landmarks
-    from hack_render.vision.synthetic import CompositeRenderer
 
     rng = np.random.default_rng(seed)
     ren = CompositeRenderer(res, spp, seed)
@@ -63,10 +66,6 @@ def collect_from(files) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
     """As :func:`collect`, from saved composites (``face_ert collect`` files): the mesh
     model run as ``auto`` runs it, on each image's BlazeFace box and keypoints (turned
     the right way up); those with presence >= 0.9 kept. Box size: the truth's."""
-    from tqdm import tqdm
-
-    from hack_render.vision.detect import mesh_landmarks
-    from hack_render.vision.ert import upright_keypoints
 
     dense, truth, yaws, sizes = [], [], [], []
     for f in files:
@@ -126,8 +125,6 @@ def fit_map(dense: np.ndarray, truth: np.ndarray, sizes: np.ndarray, k: int = 6,
 def orient_triangles(dense: np.ndarray, yaws: np.ndarray) -> np.ndarray:
     """Tessellation triangles wound so that facing the camera is a positive area (the
     median sign over samples within 20 degrees of frontal)."""
-    from hack_render.vision.dense68 import signed_areas, tessellation_triangles
-
     tris = tessellation_triangles()
     front = dense[np.abs(yaws) < 20] if (np.abs(yaws) < 20).sum() >= 3 else dense
     sign = np.median(np.sign([signed_areas(d[:, :2], tris) for d in front]), axis=0)
@@ -136,8 +133,6 @@ def orient_triangles(dense: np.ndarray, yaws: np.ndarray) -> np.ndarray:
 
 
 def main(argv=None) -> None:
-    from hack_render.vision.dense68 import DEFAULT_FILE, DenseMap
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=240)
     ap.add_argument("--seed", type=int, default=7100)

@@ -1,8 +1,8 @@
 """Personalised expression blendshapes E_beta and M_E (paper Sec. 3.2, 5.1; Eq. 7; Fig. 12).
 
 For each identity beta_i ~ N(0, I) of the (larynx-removed) shape space, the 53 generic
-shapes are deformation-transferred (:mod:`hack_render.geometry.deformation_transfer`) from the
-template onto the identity's neutral mesh: E_beta_i = DT(E) - x_i. The personal part
+shapes are deformation-transferred (:mod:`hack_render.motion.deformation_transfer`) from
+the template onto the identity's neutral mesh: E_beta_i = DT(E) - x_i. The personal part
 E_beta - E_generic is kept on the M skin vertices where it varies most (the model file's
 vertex subset, to fit the size budget), PCA'd, and M_E maps beta to the first 50 weights.
 
@@ -18,10 +18,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.geometry.deformation_transfer import TargetSolver, source_gradients
 from hack_render.learn.mesh_ops import ring
 from hack_render.learn.pca import compactness, generalisation
-from hack_render.learn.personal import PersonalSpace, learn_personal_space, mlp_forward, personal_arrays
+from hack_render.learn.personal import (
+    PersonalSpace,
+    learn_personal_space,
+    mlp_forward,
+    personal_arrays,
+)
+from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
 SKIN_LAST = 11247
 

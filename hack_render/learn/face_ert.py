@@ -9,10 +9,10 @@ MediaPipe's face mesh, dlib's and most public 68-point models are trained on fac
 within about 45 degrees of frontal; past that (profiles, heads tilted far back) they
 give up or guess. The project's renderer gives faces at any angle with exact landmarks,
 so this trains them (one per range of yaw, :mod:`hack_render.vision.ert`): composites
-(:mod:`hack_render.vision.synthetic`; seeds 5301-5325 of 200 each, apart from the dense
+(:mod:`hack_render.dataset.composites`; seeds 5301-5325 of 200 each, apart from the dense
 map's 7100, the benchmark's 9000-9019 and the tests' 31-33 and 43) at yaw U(-90, 90), pitch
 U(-50, 50), roll U(-25, 25) degrees, a third of them with an occluder; each face's box and
-keypoints are BlazeFace's (as at run time: :func:`hack_render.vision.detect.find_boxes`),
+keypoints are BlazeFace's (as at run time: :func:`hack_render.vision.boxes.find_boxes`),
 the targets the true 68 landmarks (3-D convention: hidden points where they project).
 Derived data: the model learns the model's renders; docs/vision.md gives its accuracy on
 other subjects and backgrounds, and on real photos against the mesh detector.
@@ -25,15 +25,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
+
+from hack_render.dataset.composites import CompositeRenderer
+from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
+from hack_render.geometry import load_default_model
+from hack_render.io.npz import write_npz
+from hack_render.render.parts import vertex_normals
+from hack_render.vision import ert
+from hack_render.vision.boxes import find_boxes
+from hack_render.vision.pose import MEAN_FILE
 
 
 def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -> dict:
     """Composites with BlazeFace's box nearest the truth: images (S, res, res, 3) uint8,
     boxes (S, 4), kps (S, 6, 2) BlazeFace's keypoints, points (S, 68, 2), yaw (S,)."""
-    from tqdm import tqdm
-
-    from hack_render.vision.detect import find_boxes
-    from hack_render.vision.synthetic import CompositeRenderer
 
     rng = np.random.default_rng(seed)
     ren = CompositeRenderer(res, spp, seed)
@@ -56,10 +62,7 @@ def collect(n: int, seed: int = 5300, res: int = 256, spp: int = 16, out=None) -
         data["yaw"].append(c.yaw)
     arrays = {k: np.asarray(v) for k, v in data.items()}
     if out is not None:       # whole or not at all: a run stopped mid-write leaves no file
-        out = Path(out)
-        tmp = out.with_name(f".{out.stem}.tmp.npz")
-        np.savez_compressed(tmp, **arrays)
-        tmp.replace(out)
+        write_npz(out, arrays, compressed=True)
     return arrays
 
 
@@ -72,8 +75,6 @@ def prepare(data: dict, weights=None, augment: int = 0, seed: int = 0) -> dict:
     spread of BlazeFace's boxes and keypoints) and its exposure and contrast changed
     (up to 25 %; half of them grey). Returns crops (S, P, P, 3), points (S, 68, 2),
     est_yaw (S,), weights."""
-    from hack_render.vision import ert
-
     rng = np.random.default_rng(seed)
     crops, pts, kps, yaws = [], [], [], []
     for img, b, k, p, y in zip(data["images"], data["boxes"], data["kps"], data["points"],
@@ -104,8 +105,6 @@ def prepare(data: dict, weights=None, augment: int = 0, seed: int = 0) -> dict:
 
 def _jitter(m: np.ndarray, rng) -> np.ndarray:
     """The crop map ``m`` turned, scaled and shifted a little about the crop's centre."""
-    from hack_render.vision import ert
-
     a = np.radians(rng.uniform(-8, 8))
     k = np.exp(rng.uniform(-0.08, 0.08))
     c, s = np.cos(a) * k, np.sin(a) * k
@@ -131,8 +130,6 @@ def train(data: dict, out_dir=None, trees: int = 50, depth: int = 4, cascade: in
     """The yaw regression and one dlib.train_shape_predictor per yaw range
     (:data:`hack_render.vision.ert.YAW_BINS`), on the prepared upright, one-sided crops."""
     import dlib
-
-    from hack_render.vision import ert
 
     out_dir = Path(out_dir) if out_dir is not None else ert.DATA
     prep = prepare(data, augment=augment)
@@ -172,11 +169,6 @@ def write_mean_shape(out=None) -> Path:
     metres) and their unit surface normals (area-weighted vertex normals interpolated
     the same way): ``hack_render/data/landmarks68_mean.npz`` for
     :mod:`hack_render.vision.pose`."""
-    from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
-    from hack_render.geometry import load_default_model
-    from hack_render.render.parts import vertex_normals
-    from hack_render.vision.pose import MEAN_FILE
-
     model = load_default_model()
     emb = load_default(model) or LandmarkEmbedding.from_vertices(
         model.landmark_indices.numpy(), model.faces.numpy())

@@ -17,6 +17,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from hack_render.geometry.model import HackModel
+from hack_render.learn.expression_learn import learn_expressions
+from hack_render.learn.ict_default import build_default_model
+from hack_render.learn.larynx_learn import learn_larynx
 from hack_render.learn.mesh_ops import ring
 from hack_render.learn.pca import compactness, generalisation
 from hack_render.learn.personal import learn_personal_space, mlp_forward, personal_arrays
@@ -27,6 +31,7 @@ from hack_render.learn.pose_data import (
     single_joint_sweeps,
     twist_area_ratio,
 )
+from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
 from hack_render.learn.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247
@@ -72,8 +77,6 @@ def learn_pose(arrays: dict, num_identities: int = 12, iterations: int = 30, lr:
     more than the procedural weights at single-joint extremes (c1-c2 twist alone: 2.0 vs
     0.53 edge stretch without correctives).
     """
-    from hack_render.geometry.model import HackModel
-
     rng = np.random.default_rng(seed)
     model = HackModel(arrays).double()
     sub = pose_subset(arrays)
@@ -186,8 +189,6 @@ def model_rest_fn(arrays: dict, vertices) -> callable:
     """``(beta (U, S), psi (U, E) or None) -> (rest (U, V, 3), joints (U, K, 3))``: the rest
     mesh of the model the arrays make without pose correctives (template, shape, larynx at
     eta = 1, generic and personalised expressions), on ``vertices``, in float64."""
-    from hack_render.geometry.model import HackModel
-
     model = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}).double()
     idx = torch.as_tensor(np.asarray(vertices), dtype=torch.long)
 
@@ -217,8 +218,6 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
     with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
     on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none)."""
-    from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
-
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     std = np.asarray(arrays["shape_std"], np.float64)
@@ -313,10 +312,6 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
                      progress: bool = True) -> tuple[dict, dict]:
     """Arrays and metadata of the v2 default model (see module docstring).
     ``num_pose_identities``: identities per step of the pose learner (new ones each step)."""
-    from hack_render.learn.expression_learn import learn_expressions
-    from hack_render.learn.ict_default import build_default_model
-    from hack_render.learn.larynx_learn import learn_larynx
-
     torch.set_num_threads(1)
     timings = {}
     t = time.time()

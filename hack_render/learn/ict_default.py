@@ -20,15 +20,15 @@ from pathlib import Path
 import numpy as np
 from scipy import sparse
 
+from hack_render.errors import HackError
+from hack_render.geometry.obj_io import read_obj
+from hack_render.geometry.skeleton import JOINT_NAMES, PARENTS, rotation_limits_deg
 from hack_render.learn.skeleton_fit import (
     DEPTH_FRACTION,
     affine_regressor,
     midline_profiles,
     place_joints,
 )
-from hack_render.errors import HackError
-from hack_render.geometry.obj_io import read_obj
-from hack_render.geometry.skeleton import JOINT_NAMES, PARENTS, rotation_limits_deg
 
 CM = 0.01  # ICT-FaceKit is in centimetres
 

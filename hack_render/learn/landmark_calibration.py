@@ -20,7 +20,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from hack_render.dataset.config import load_config
+from hack_render.dataset.sampling import model_kwargs
+from hack_render.dataset.worker import SampleRenderer, camera_of
 from hack_render.errors import HackError
 from hack_render.fit.landmark_embedding import (
     CALIBRATED,
@@ -28,8 +32,12 @@ from hack_render.fit.landmark_embedding import (
     CALIBRATION_SEED,
     LandmarkEmbedding,
 )
-from hack_render.fit.landmarks import JawContour, detect_landmarks
+from hack_render.fit.landmarks import JawContour
 from hack_render.fit.robust import pseudo_huber
+from hack_render.geometry import load_default_model
+from hack_render.io.image import to_srgb8
+from hack_render.render.bridge import vertex_normals_torch
+from hack_render.vision.landmarks68 import detect_landmarks
 
 
 # --- calibration data -----------------------------------------------------------------
@@ -70,11 +78,6 @@ def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None
     failed fit of dlib's shape model), are left out and listed in ``missed``. ``images``:
     keep the renders (the landmark refiner's training data).
     """
-    from hack_render.dataset.config import load_config
-    from hack_render.dataset.sampling import model_kwargs
-    from hack_render.dataset.worker import SampleRenderer, camera_of
-    from hack_render.render.image_io import to_srgb8
-
     cfg = load_config(None, _merge_dict(CALIBRATION_DATASET, overrides or {}))
     r = SampleRenderer(cfg, out="/nonexistent-not-written", seed=seed)
     res = cfg["render"]["resolution"]
@@ -84,8 +87,6 @@ def render_subjects(n: int, seed: int = CALIBRATION_SEED, overrides: dict | None
     t0 = time.perf_counter()
     it = range(start, start + n)
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(it, desc="calibration renders", unit="subject")
     li = r.model.landmark_indices.numpy()
     for index in it:
@@ -193,8 +194,6 @@ def calibrate(data: CalibrationSet, model, landmarks=CALIBRATED, radius: float =
     report = {"landmarks": {}, "subjects": len(data.indices)}
     it = list(landmarks)
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(it, desc="calibrate landmarks", unit="landmark")
     for lmk in it:
         c0 = template[li[lmk]]
@@ -232,8 +231,6 @@ def evaluate(data: CalibrationSet, emb: LandmarkEmbedding, li: np.ndarray,
     fitter does (:class:`~hack_render.fit.landmarks.JawContour`)."""
     keys = ["vertices", "embedding", "vertices_inner", "embedding_inner"]
     if template is not None:
-        from hack_render.render.bridge import vertex_normals_torch
-
         jaw = JawContour(template, li)
         keys += ["vertices_contour", "embedding_contour"]
     out = {k: [] for k in keys}
@@ -297,8 +294,6 @@ def build(output: str | Path, subjects: int = 60, seed: int = CALIBRATION_SEED,
           resolution: int | None = None, spp: int | None = None, radius: float = 0.025,
           command: str = "", progress: bool = True) -> tuple[LandmarkEmbedding, dict]:
     """Render, detect, calibrate and write the embedding file (with its provenance)."""
-    from hack_render.geometry import load_default_model
-
     over: dict = {"render": {}}
     if resolution:
         over["render"]["resolution"] = int(resolution)

@@ -10,8 +10,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.fit import landmark_embedding as le
 from hack_render.fit.landmark_refiner import (
     INNER,
     LandmarkRefiner,
@@ -21,6 +23,9 @@ from hack_render.fit.landmark_refiner import (
     to_gray,
 )
 from hack_render.fit.metrics import similarity_transform
+from hack_render.geometry import load_default_model
+from hack_render.io.npz import write_npz
+from hack_render.learn import landmark_calibration as lc
 
 
 # --- training -------------------------------------------------------------------------
@@ -87,8 +92,6 @@ def train(grays: list[np.ndarray], starts: list[np.ndarray], targets: list[np.nd
         frames = []
         it = range(len(G))
         if progress:
-            from tqdm import tqdm
-
             it = tqdm(it, desc=f"refiner stage {k + 1}/{stages}: features", unit="image")
         for i in it:
             X[i], s, R = patch_features(G[i], cur[i], mean_shape, spec)
@@ -112,10 +115,6 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
     read back on a rerun (an interrupted build resumes). Returns images (S, H, W) gray
     uint8, dlib (S, 68, 2), targets (S, 68, 2), iod (S,), indices (S,), missed, and
     chunks_from_cache (how many chunks were read back rather than rendered)."""
-    from hack_render.fit import landmark_embedding as le
-    from hack_render.geometry import load_default_model
-    from hack_render.learn import landmark_calibration as lc
-
     model = load_default_model()
     emb = le.load_default(model)
     if emb is None:
@@ -169,10 +168,7 @@ def render_training_set(subjects: int, seed: int, cache: str | Path | None = Non
 
 
 def _save_chunk(path: Path, arrays: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    write_npz(path, arrays, compressed=True)
 
 
 def inner_nme(points: np.ndarray, targets: np.ndarray, iod: np.ndarray) -> np.ndarray:
@@ -188,9 +184,6 @@ def build(output: str | Path, subjects: int = 1200, seed: int | None = None,
     """Render the training set, train on all but the last ``holdout`` share of the
     subjects, measure dlib's and the refined points' error on those held out, take the
     loss weights from the refined points' scatter there, and write the file."""
-    from hack_render.fit import landmark_embedding as le
-    from hack_render.learn import landmark_calibration as lc
-
     seed = le.CALIBRATION_SEED if seed is None else int(seed)
     t0 = time.perf_counter()
     data = render_training_set(subjects, seed, cache, progress=progress)

@@ -36,9 +36,9 @@ from scipy import sparse
 from scipy.sparse.linalg import splu
 from tqdm import tqdm
 
+from hack_render.errors import HackError
 from hack_render.learn.mesh_ops import neck_front_landmarks, ring, uniform_laplacian, vertex_normals
 from hack_render.learn.pca import compactness, fit_pca, generalisation
-from hack_render.errors import HackError
 
 SKIN_LAST = 11247
 IMAGE_SIZE = 64

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
+from hack_render.learn.ict_default import averaging_operator
 from hack_render.learn.skeleton_fit import midline_profiles
 
 
@@ -20,8 +21,6 @@ def vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 def uniform_laplacian(faces: np.ndarray, n: int, v: np.ndarray | None = None) -> sparse.csr_matrix:
     """L = I - A with A the row-normalised adjacency (inverse-edge-length weighted if ``v``)."""
-    from hack_render.learn.ict_default import averaging_operator
-
     return (sparse.eye(n) - averaging_operator(faces, n, v)).tocsr()
 
 

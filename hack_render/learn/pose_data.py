@@ -25,14 +25,13 @@ import math
 
 import numpy as np
 import torch
-
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
 from hack_render.errors import HackError
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
-from hack_render.geometry.rotations import _quat_mul, matrix_to_quaternion
-from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.geometry.rotations import euler_to_axis_angle, matrix_to_quaternion, quat_mul
+from hack_render.geometry.skeleton import JOINT_NAMES, distribute_head_rotation, rotation_limits
 
 #: (name, whole-head Euler target in degrees (flexion, axial, lateral), frames), after Sec. 4.2.
 ACTIONS = (
@@ -47,7 +46,7 @@ def dqs(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
     """Dual-quaternion skinning. vertices (B, N, 3), weights (N, K), rel (B, K, 4, 4) -> (B, N, 3)."""
     qr = matrix_to_quaternion(rel[..., :3, :3])  # (B, K, 4), w >= 0
     t = torch.cat([torch.zeros_like(rel[..., :1, 3]), rel[..., :3, 3]], -1)  # (B, K, 4)
-    qd = 0.5 * _quat_mul(t, qr)
+    qd = 0.5 * quat_mul(t, qr)
     br = torch.einsum("nk,bkc->bnc", weights, qr)
     bd = torch.einsum("nk,bkc->bnc", weights, qd)
     norm = br.norm(dim=-1, keepdim=True)
@@ -58,7 +57,7 @@ def dqs(vertices: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
     c1 = torch.cross(xyz, v, dim=-1)
     rotated = v + 2 * w * c1 + 2 * torch.cross(xyz, c1, dim=-1)
     conj = torch.cat([br[..., :1], -br[..., 1:]], -1)
-    trans = 2 * _quat_mul(bd, conj)[..., 1:]
+    trans = 2 * quat_mul(bd, conj)[..., 1:]
     return rotated + trans
 
 
@@ -78,9 +77,6 @@ def single_joint_sweeps(frames: int = 8) -> list[tuple[str, torch.Tensor]]:
     """Per joint, axis and side, theta (F, 8, 3) easing that one angle to its anatomical
     limit and back: the range of motion of each segment alone, which the whole-head actions
     never reach (they share a rotation over all joints)."""
-    from hack_render.geometry.rotations import euler_to_axis_angle
-    from hack_render.geometry.skeleton import JOINT_NAMES, rotation_limits
-
     lim = rotation_limits(torch.float64)
     s = torch.tensor([math.sin(math.pi * i / (frames - 1)) ** 2 for i in range(frames)], dtype=torch.float64)
     out = []

@@ -35,7 +35,13 @@ import torch
 from tqdm import tqdm
 
 from hack_render.errors import HackError
-from hack_render.geometry.lbs import chain_parents, local_rotations, pose_feature, rigid_transforms, skin
+from hack_render.geometry.lbs import (
+    chain_parents,
+    local_rotations,
+    pose_feature,
+    rigid_transforms,
+    skin,
+)
 from hack_render.geometry.skeleton import adjacent_similarity_penalty, rotation_limit_penalty
 
 PAPER_WEIGHTS = {"rec": 1e5, "rot": 1e6, "sim": 5e3, "col": 5e5, "tem": 1e6, "smo": 5e-2, "ski": 1.0}

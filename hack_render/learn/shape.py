@@ -23,6 +23,12 @@ import numpy as np
 import typer
 
 from hack_render.errors import HackError
+from hack_render.geometry import default_model_path
+from hack_render.geometry.model_file import load_model_file, save_model_file
+from hack_render.io import atomic_path
+from hack_render.learn.pca import compactness, fit_pca, generalisation
+from hack_render.register.align import umeyama
+from hack_render.register.scan import UNITS, detect_units
 
 ALIGN_REGIONS = ("face", "scalp_and_ears")
 
@@ -51,8 +57,6 @@ def read_registration(path: Path, num_vertices: int) -> np.ndarray:
     if not np.isfinite(v).all():
         raise HackError(f"{path}: NaN or infinite vertices.")
     if units is None:
-        from hack_render.register.scan import UNITS, detect_units
-
         units = UNITS[detect_units(float(np.ptp(v, 0).max()), path.name)]
     return v * float(units)
 
@@ -61,8 +65,6 @@ def procrustes(meshes: np.ndarray, reference: np.ndarray, ids: np.ndarray,
                rounds: int = 2) -> np.ndarray:
     """Meshes (n, N, 3) moved rigidly onto ``reference`` (N, 3) over vertices ``ids``,
     then onto their own mean (generalised Procrustes)."""
-    from hack_render.register.align import umeyama
-
     target = reference
     out = meshes.copy()
     for _ in range(rounds):
@@ -76,8 +78,6 @@ def procrustes(meshes: np.ndarray, reference: np.ndarray, ids: np.ndarray,
 def shape_curves(x: np.ndarray, max_k: int) -> dict:
     """Compactness of the PCA of ``x`` (n, 3N) and leave-one-out generalisation (mm RMSE
     per vertex, mean over folds) for k = 1..max_k (at most n - 2)."""
-    from hack_render.learn.pca import compactness, fit_pca, generalisation
-
     n = len(x)
     comp = compactness(fit_pca(x)).tolist()
     ks = list(range(1, max(1, min(max_k, n - 2)) + 1))
@@ -93,10 +93,6 @@ def shape_curves(x: np.ndarray, max_k: int) -> dict:
 def learn_shape(paths: list[Path], base_model: Path | None, components: int | None
                 ) -> tuple[dict, dict, dict]:
     """(arrays, meta, curves) of a model with the shape space of the registrations."""
-    from hack_render.geometry import default_model_path
-    from hack_render.geometry.model_file import load_model_file
-    from hack_render.learn.pca import fit_pca
-
     arrays, meta = load_model_file(base_model or default_model_path())
     n_vert = arrays["template_vertices"].shape[0]
     if len(paths) < 3:
@@ -152,8 +148,6 @@ def plot_curves(curves: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hack_render.render.image_io import atomic_path
-
     fig, ax = plt.subplots(1, 2, figsize=(8, 3.2))
     ax[0].plot(curves["k"], np.asarray(curves["compactness"]) * 100)
     ax[0].set(xlabel="components", ylabel="variance explained (%)", title="compactness")
@@ -182,8 +176,6 @@ def learn_shape_cmd(
 
     Example: hack-render learn shape out/reg/* -o my_model.npz
     """
-    from hack_render.geometry.model_file import save_model_file
-
     if output.suffix != ".npz":
         raise HackError(f"-o {output}: expected a .npz model file name.")
     if components is not None and components < 1:

@@ -10,7 +10,7 @@ character from the template.
 The character is animated like HACK (:func:`character_rig`): the person's targets
 (personalised expressions, larynx slide in-betweens, pose correctives; ``export.rig``) are
 moved onto the character's rest shape by deformation transfer (Sumner & Popovic 2004;
-``geometry.deformation_transfer``), and its skeleton is its own joints, posed by HACK's
+``motion.deformation_transfer``), and its skeleton is its own joints, posed by HACK's
 per-joint rotations.
 """
 
@@ -25,6 +25,22 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.export import rig as R
+from hack_render.export.gltf import (
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    UBYTE,
+    UINT,
+    GltfBuilder,
+    write_document,
+)
+from hack_render.export.rig import frame_weights, top_weights
+from hack_render.geometry.deformation import SkinTopology, deformation_stats, skin_topology
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
+from hack_render.io.npz import write_npz
+from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
+from hack_render.motion.surface_transfer import skin_faces
 
 FORMAT = "hack-character"
 
@@ -50,15 +66,11 @@ class Character:
         return str(self.meta.get("name", "character"))
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, vertices=self.vertices.astype(np.float64),
-                 joints=self.joints.astype(np.float64),
-                 skinning_weights=self.weights.astype(np.float32),
-                 meta=np.str_(json.dumps({"format": FORMAT, "version": 1, **self.meta})))
-        tmp.replace(path)
-        return path
+        return write_npz(path, {
+            "vertices": self.vertices.astype(np.float64),
+            "joints": self.joints.astype(np.float64),
+            "skinning_weights": self.weights.astype(np.float32),
+            "meta": np.str_(json.dumps({"format": FORMAT, "version": 1, **self.meta}))})
 
 
 def check_character(ch: Character, model, where: str = "character") -> Character:
@@ -157,14 +169,6 @@ class CharacterRig:
              ) -> tuple[np.ndarray, np.ndarray]:
         """Posed vertices (T, N, 3) and node rotations (T, 9, 3, 3) for T frames
         (theta (T, 8, 3) required; psi (T, E), tau (T,), global_orient, transl (T, 3))."""
-        from hack_render.export.rig import frame_weights
-        from hack_render.geometry.lbs import (
-            chain_parents,
-            local_rotations,
-            rigid_transforms,
-            skin,
-        )
-
         theta = np.asarray(theta, np.float64)
         t = len(theta)
         r = self.rig
@@ -189,8 +193,6 @@ def _transfer_targets(model, src_base: np.ndarray, dst_base: np.ndarray,
     would be singular there) takes the source's displacements as they are."""
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
-
-    from hack_render.geometry.deformation_transfer import TargetSolver, source_gradients
 
     faces = model.faces.numpy()
     n = len(dst_base)
@@ -220,8 +222,6 @@ def character_rig(model, character: Character, beta=None, eta: float = 1.0,
                   influences: int = 4, tau_range: float | None = None) -> CharacterRig:
     """The person (``beta``, ``eta``) rigged for export, then moved onto ``character``:
     targets by deformation transfer, the skeleton at the character's joints, its weights."""
-    from hack_render.export import rig as R
-
     tau_range = R.TAU_RANGE if tau_range is None else tau_range
     human = R.build_rig(model, beta, eta, tau_range, R.TAU_STEP, influences)
     targets = np.zeros_like(human.targets)
@@ -251,8 +251,6 @@ def pose_checks(crig: CharacterRig, model, theta: np.ndarray, psi=None) -> dict:
     """The pose-space stress test's measures (``geometry.deformation``) on a character:
     per pose, the largest skin-edge stretch and compression and the folded skin triangles,
     against the character at zero pose with the same expression. theta (P, 8, 3)."""
-    from hack_render.geometry.deformation import SkinTopology, deformation_stats, skin_topology
-
     topo = skin_topology(model)
     topo = SkinTopology(topo.faces, topo.edges,
                         torch.as_tensor(crig.weights)[topo.faces].mean(1))
@@ -286,18 +284,6 @@ def long_neck_gltf(model, path: str | Path, character: Character | None = None,
     o-c1) and 4 skin weights per vertex summed from HACK's onto them (:data:`GLTF_BONES`);
     ``_HACK_VERTEX`` holds each vertex's template index (as the export's), for tests.
     A test target for the glTF path; labelled procedural in ``asset.extras``."""
-    from hack_render.export.gltf import (
-        ARRAY_BUFFER,
-        ELEMENT_ARRAY_BUFFER,
-        FLOAT,
-        UBYTE,
-        UINT,
-        GltfBuilder,
-        write_document,
-    )
-    from hack_render.export.rig import top_weights
-    from hack_render.motion.surface_transfer import skin_faces
-
     ch = long_neck_character(model) if character is None else character
     faces, _ = skin_faces(model)
     used = np.unique(faces)

@@ -30,6 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry import distribute_head_rotation
+from hack_render.geometry.params import ParamSequence
+from hack_render.geometry.skeleton import head_rotation_range_deg
 
 #: ARKit's 52 blendshape names as Live Link Face writes them (CSV column order)
 ARKIT = ("EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft",
@@ -197,9 +200,6 @@ def head_to_theta(head: np.ndarray, limits: str = "clamp") -> tuple[np.ndarray, 
     frames beyond the neck's range (clamped)."""
     import torch
 
-    from hack_render.geometry import distribute_head_rotation
-    from hack_render.geometry.skeleton import head_rotation_range_deg
-
     # (flexion about x, axial about y, lateral about z) = (pitch, yaw, roll)
     angles = torch.as_tensor(head[:, [1, 0, 2]], dtype=torch.float64)
     rng = torch.deg2rad(head_rotation_range_deg().double())  # (3, 2)
@@ -213,8 +213,6 @@ def head_to_theta(head: np.ndarray, limits: str = "clamp") -> tuple[np.ndarray, 
 
 def drive(capture: Path, fps: float | None, degrees: bool, expression_names, limits: str):
     """(ParamSequence, report) from a capture file."""
-    from hack_render.geometry.params import ParamSequence
-
     if not capture.is_file():
         raise HackError(f"{capture}: no such file. Pass a Live Link Face / ARKit CSV or a head "
                         "rotation CSV/NPY.")

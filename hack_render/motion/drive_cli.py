@@ -6,7 +6,12 @@ from pathlib import Path
 
 import typer
 
+from hack_render import boundary
 from hack_render import cli_options as opts
+from hack_render.errors import HackError
+from hack_render.geometry import load_model
+from hack_render.geometry.params import save_sequence
+from hack_render.motion.drive import drive
 
 
 def drive_cmd(
@@ -29,12 +34,6 @@ def drive_cmd(
     out/take.npz -o out/take.glb
     """
 
-
-    from hack_render import boundary
-    from hack_render.errors import HackError
-    from hack_render.geometry import load_model
-    from hack_render.geometry.params import save_sequence
-    from hack_render.motion.drive import drive
 
     boundary.output_file(output, suffixes=(".npz", ".jsonl"))
     if limits not in ("warn", "clamp", "error"):

@@ -26,8 +26,13 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
+from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.geometry.params import load_sequence
+from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_euler
+from hack_render.geometry.skeleton import JOINT_NAMES, distribute_head_rotation
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-head-to-neck"
 HIDDEN = 512
@@ -35,8 +40,6 @@ HIDDEN = 512
 
 def head_orientation(theta: torch.Tensor) -> torch.Tensor:
     """The skull's rotation relative to the thorax. theta (..., 8, 3) -> (..., 3, 3)."""
-    from hack_render.geometry.rotations import axis_angle_to_matrix
-
     r = axis_angle_to_matrix(theta)
     out = r[..., 0, :, :]
     for j in range(1, r.shape[-3]):
@@ -51,8 +54,6 @@ def _features(rot: torch.Tensor) -> torch.Tensor:
 
 def as_rotation(head) -> torch.Tensor:
     """Head orientations as matrices: (T, 3, 3), or (T, 3) axis-angle, -> (T, 3, 3)."""
-    from hack_render.geometry.rotations import axis_angle_to_matrix
-
     h = torch.as_tensor(head, dtype=torch.float64)
     if h.ndim == 2 and h.shape[1] == 3:
         return axis_angle_to_matrix(h)
@@ -94,12 +95,8 @@ class HeadToNeck:
         if path.suffix.lower() != ".npz":
             raise HackError(f"-o {path}: expected an .npz output, found "
                             f"{path.suffix or 'no suffix'}.")
-        path.parent.mkdir(parents=True, exist_ok=True)
         arrays = {k: v.detach().numpy() for k, v in self.mlp.state_dict().items()}
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, meta=np.str_(json.dumps(self.meta)), **arrays)
-        tmp.replace(path)
-        return path
+        return write_npz(path, {"meta": np.str_(json.dumps(self.meta)), **arrays})
 
     @classmethod
     def load(cls, path: str | Path) -> HeadToNeck:
@@ -124,8 +121,6 @@ class HeadToNeck:
 def joint_angle_errors(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
     """Geodesic angle (degrees) between predicted and true joint rotations: (T, 8, 3) x 2
     -> (T, 8)."""
-    from hack_render.geometry.rotations import axis_angle_to_matrix
-
     a = axis_angle_to_matrix(torch.as_tensor(pred, dtype=torch.float64))
     b = axis_angle_to_matrix(torch.as_tensor(true, dtype=torch.float64))
     rel = a.transpose(-1, -2) @ b
@@ -136,17 +131,12 @@ def joint_angle_errors(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
 def distribute_baseline(head) -> np.ndarray:
     """The fixed rule: ``distribute_head_rotation`` of the head's Euler angles (unclamped,
     so it reaches every orientation the data holds). (T, 3)|(T, 3, 3) -> (T, 8, 3)."""
-    from hack_render.geometry.rotations import matrix_to_euler
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     return distribute_head_rotation(matrix_to_euler(as_rotation(head)), clamp=False).numpy()
 
 
 def compare(mapping: HeadToNeck, thetas: list[np.ndarray]) -> dict:
     """Per-joint angle error (degrees; mean over frames) of the mapping and of
     ``distribute_head_rotation`` on sequences ``thetas`` ((T, 8, 3) each)."""
-    from hack_render.geometry.skeleton import JOINT_NAMES
-
     theta = np.concatenate(thetas)
     head = head_orientation(torch.as_tensor(theta))
     e_mlp = joint_angle_errors(mapping.predict(head), theta)
@@ -162,8 +152,6 @@ def train(thetas: list[np.ndarray], steps: int = 3000, batch: int = 256, lr: flo
           seed: int = 0, progress: bool = True, sources: list[str] | None = None) -> HeadToNeck:
     """Fit the MLP to sequences' frames ((T, 8, 3) each): the head orientation of every
     frame in, its joints out (mean squared axis-angle error, Adam, cosine-decayed rate)."""
-    from tqdm import tqdm
-
     theta = torch.as_tensor(np.concatenate(thetas), dtype=torch.float32)
     if len(theta) < 2:
         raise HackError(f"head-to-neck: expected at least 2 training frames, found {len(theta)}.")
@@ -198,8 +186,6 @@ def train(thetas: list[np.ndarray], steps: int = 3000, batch: int = 256, lr: flo
 
 def load_thetas(paths: list[Path]) -> list[np.ndarray]:
     """theta (T, 8, 3) of each parameter sequence file (errors name the file)."""
-    from hack_render.geometry.params import load_sequence
-
     out = []
     for p in paths:
         seq = load_sequence(p)

@@ -24,14 +24,16 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
+from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 FORMAT = "hack-larynx-motion"
 #: tau is learned in centimetres (numbers of order 1).
@@ -182,10 +184,7 @@ def save_checkpoint(path: Path, model: LarynxTransformer, opt, step: int, meta: 
             for k, v in st.items():
                 arrays[f"adam/{i}/{k}"] = np.asarray(v.detach().numpy() if torch.is_tensor(v) else v)
     meta = {**meta, "step": step, "config": model.cfg.__dict__}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(tmp, meta=np.str_(json.dumps(meta)), **arrays)
-    tmp.replace(path)
+    write_npz(path, {"meta": np.str_(json.dumps(meta)), **arrays})
 
 
 def _read_npz(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
@@ -219,8 +218,6 @@ def train(pairs, cfg: LarynxConfig, output: str | Path, resume: bool = False,
     end; with ``resume``, training continues from it (weights, Adam's moments, the batch
     generator, step) as if never stopped. ``stop_after`` ends the run early at that step
     (checkpointed), as an interruption would."""
-    from tqdm import tqdm
-
     output = Path(output)
     psis, taus = _check_pairs(pairs, "training sequence")
     if psis[0].shape[1] != cfg.num_expressions:
@@ -283,8 +280,6 @@ def predict(model: LarynxTransformer, psi: np.ndarray) -> np.ndarray:
 def fill_tau(model: LarynxTransformer, seq):
     """A parameter sequence (``geometry.params.ParamSequence``) with its tau predicted from
     its psi (an expression-only sequence, e.g. from an ARKit capture, gains a larynx)."""
-    from dataclasses import replace
-
     if seq.psi is None:
         raise HackError("sequence: key 'psi' is missing; the larynx is predicted from the "
                         "per-frame expressions.")

@@ -26,8 +26,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import xatlas
 
 from hack_render.errors import HackError
+from hack_render.export.gltf import (
+    ARRAY_BUFFER,
+    ELEMENT_ARRAY_BUFFER,
+    FLOAT,
+    UINT,
+    GltfBuilder,
+    skin_material,
+    write_document,
+)
+from hack_render.export.reference import accessor, node_matrix, read_gltf
+from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_quaternion
+from hack_render.geometry.skeleton import JOINT_NAMES
 
 
 @dataclass
@@ -59,17 +72,13 @@ class GltfCharacter:
 
 
 def _local(node: dict) -> np.ndarray:
-    from hack_render.export.reference import _local as ref_local
-
     if "matrix" in node:
         return np.asarray(node["matrix"], np.float64).reshape(4, 4).T
-    return ref_local(node)
+    return node_matrix(node)
 
 
 def load_gltf_character(path: str | Path) -> GltfCharacter:
     """Read a ``.glb``/``.gltf`` character with a skin; errors name the fix."""
-    from hack_render.export.reference import read_gltf
-
     path = Path(path)
     if not path.is_file():
         raise HackError(f"--target {path}: file not found.")
@@ -173,8 +182,6 @@ def joint_map(ch: GltfCharacter, hack_joints: np.ndarray, chain: list[str] | Non
 
 
 def _joint_map(ch, hack_joints, chain, name_map):
-    from hack_render.geometry.skeleton import JOINT_NAMES
-
     if name_map:
         unknown = sorted(set(name_map) - set(JOINT_NAMES))
         missing = [j for j in JOINT_NAMES if j not in name_map]
@@ -210,8 +217,6 @@ def bone_rotations(theta: np.ndarray, assign: list[int], n_bones: int) -> np.nda
 def _quat(m: np.ndarray) -> np.ndarray:
     """(…, 3, 3) -> (…, 4) xyzw, w >= 0."""
     import torch
-
-    from hack_render.geometry.rotations import matrix_to_quaternion
 
     q = matrix_to_quaternion(torch.as_tensor(m)).numpy()  # wxyz
     return np.concatenate([q[..., 1:], q[..., :1]], -1)
@@ -249,8 +254,6 @@ def retarget(ch: GltfCharacter, bones: list[int], assign: list[int],
 
 def _matrices(r: np.ndarray) -> np.ndarray:
     import torch
-
-    from hack_render.geometry.rotations import axis_angle_to_matrix
 
     return axis_angle_to_matrix(torch.as_tensor(np.array(r, np.float64))).numpy()
 
@@ -309,8 +312,6 @@ def posed_primitives(ch: GltfCharacter, nodes: list[dict] | None = None,
         nodes: the document's nodes with animated values set (default: the rest pose).
         morph: mesh index -> its morph weights (default: the mesh's ``weights`` or 0).
     """
-    from hack_render.export.reference import accessor
-
     nodes = ch.doc["nodes"] if nodes is None else nodes
     morph = morph or {}
     world: dict[int, np.ndarray] = {}
@@ -405,10 +406,6 @@ def add_uv_atlas(ch: GltfCharacter, resolution: int = 1024,
     its charts ``padding`` texels apart at ``resolution`` texels (so a map baked at that
     size filters without bleeding between charts); returns the (mesh, primitive) indices
     of those that got one."""
-    import xatlas
-
-    from hack_render.export.gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UINT, GltfBuilder
-    from hack_render.export.reference import accessor
 
     g = GltfBuilder()
     g.doc, g.bin = ch.doc, bytearray(ch.buf)
@@ -449,8 +446,6 @@ def add_uv_atlas(ch: GltfCharacter, resolution: int = 1024,
 def _builder(ch: GltfCharacter):
     """A GltfBuilder appending to the character's own document and buffer (store
     ``bytes(g.bin)`` back into ``ch.buf`` when done)."""
-    from hack_render.export.gltf import GltfBuilder
-
     g = GltfBuilder()
     g.doc, g.bin = ch.doc, bytearray(ch.buf)
     return g
@@ -484,8 +479,6 @@ def add_baked_material(ch: GltfCharacter, prim: dict, maps, name: str) -> int:
     """A material with baked maps (diffuse, specular, roughness, normal in the
     character's atlas; the export's :func:`~hack_render.export.gltf.skin_material`),
     assigned to ``prim``; the extensions it uses are declared."""
-    from hack_render.export.gltf import skin_material
-
     g = _builder(ch)
     mat = skin_material(g, maps)
     ch.doc["materials"][mat]["name"] = name
@@ -504,8 +497,6 @@ def write_animated(ch: GltfCharacter, bones: list[int], quats: np.ndarray, fps: 
     ``bones``, quats (T, B, 4) xyzw; ``tracks`` {node: {"rotation" (T, 4), "translation"
     (T, 3)}}; ``morph_weights`` {mesh node: (T, K) every morph weight of its mesh})
     through the export's builder and writer."""
-    from hack_render.export.gltf import FLOAT, GltfBuilder, write_document
-
     g = GltfBuilder()
     g.doc = json.loads(json.dumps(ch.doc))
     g.doc.pop("buffers", None)

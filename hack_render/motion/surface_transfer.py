@@ -29,7 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from appearance.uv import rasterize_uv
 from hack_render.errors import HackError
+from hack_render.render.parts import Topology, vertex_normals
 
 SKIN_MATERIALS = ("M_Face", "M_BackHead")
 
@@ -55,8 +57,6 @@ class HackSurface:
 
 def skin_faces(model) -> tuple[np.ndarray, np.ndarray]:
     """The model's skin triangles (F, 3) and their atlas coordinates (F, 3, 2)."""
-    from hack_render.render.parts import Topology
-
     topo = Topology.from_model(model)
     sel = np.isin(topo.face_material, [topo.material_names.index(m) for m in SKIN_MATERIALS
                                        if m in topo.material_names])
@@ -228,16 +228,12 @@ def _frame(tb: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 def _vertex_normals(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    from hack_render.render.parts import vertex_normals
-
     return vertex_normals(v, faces)
 
 
 def rasterize_atlas(uv_tris: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
     """A glTF atlas (uv (F, 3, 2) in [0, 1], v down: image row 0 at v = 0) rasterised at
     size x size: triangle per texel (S, S) (-1: none) and barycentrics (S, S, 3)."""
-    from appearance.uv import rasterize_uv
-
     up = np.stack([uv_tris[..., 0], 1.0 - uv_tris[..., 1]], -1)  # image rows as the atlas'
     face, bary = rasterize_uv(up, int(size))
     return face[:, :size], bary[:, :size]

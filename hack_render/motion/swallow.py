@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 #: Samples of an averaged curve (rise and fall together).
 CURVE_SAMPLES = 96
@@ -65,16 +66,11 @@ class SwallowCurve:
 
     def save(self, path: str | Path) -> Path:
         """Write as ``.npz`` (arrays plus a JSON ``meta`` string; no pickle)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         meta = {"format": "hack-swallow", "version": 1, "rise_s": self.rise_s,
                 "fall_s": self.fall_s, "count": self.count, "provenance": self.provenance,
                 "units": "seconds from onset; metres of larynx slide (tau) above the base"}
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, times=self.times, tau=self.tau, std=self.std,
-                 meta=np.str_(json.dumps(meta)))
-        tmp.replace(path)
-        return path
+        return write_npz(path, {"times": self.times, "tau": self.tau, "std": self.std,
+                                "meta": np.str_(json.dumps(meta))})
 
 
 def load_swallow_curve(path: str | Path) -> SwallowCurve:

@@ -16,6 +16,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hack_render.geometry.rotations import euler_to_axis_angle
+from hack_render.geometry.skeleton import head_rotation_range_deg, rotation_limits
+
 #: The lagged rule of :func:`lagged_tau`: (shape name, lag in frames, gain in metres).
 TAU_RULE = (("jawOpen", 3, -0.006), ("mouthFunnel", 6, 0.004), ("mouthPucker", 2, 0.003))
 
@@ -34,9 +37,6 @@ def _smooth_curves(rng: np.random.Generator, frames: int, fps: float, dims: int,
 def neck_rule(angles: np.ndarray) -> np.ndarray:
     """The synthetic rule: whole-head Euler angles (T, 3) radians (flexion X, axial Y,
     lateral Z) -> theta (T, 8, 3) axis-angle."""
-    from hack_render.geometry.rotations import euler_to_axis_angle
-    from hack_render.geometry.skeleton import rotation_limits
-
     lim = rotation_limits(torch.float64).numpy()  # (8, 3, 2)
     total = np.abs(lim).sum(0).max(1)  # (3,) a loose scale per axis
     depth = np.arange(8)[::-1].astype(np.float64)  # o-c1: 0 ... c7-t1: 7
@@ -55,8 +55,6 @@ def neck_sequences(n: int, frames: int = 240, fps: float = 30.0, seed: int = 0,
                    reach: float = 0.8) -> list[np.ndarray]:
     """``n`` theta sequences (frames, 8, 3) of smooth head motion up to ``reach`` of the
     whole neck's range per axis, shared by :func:`neck_rule`."""
-    from hack_render.geometry.skeleton import head_rotation_range_deg
-
     rng = np.random.default_rng(seed)
     rngs = np.deg2rad(head_rotation_range_deg().numpy())  # (3, 2)
     out = []

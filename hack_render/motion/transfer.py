@@ -22,9 +22,36 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import imageio.v3 as iio
 import numpy as np
+from tqdm import tqdm
 
+from appearance.colour_space import srgb_decode
 from hack_render.errors import HackError
+from hack_render.export import rig as R
+from hack_render.export.gltf import Animation, Pose, person_document, write_document
+from hack_render.export.person import frames_from
+from hack_render.export.reference import accessor
+from hack_render.geometry.params import load_sequence, model_inputs
+from hack_render.geometry.skeleton import JOINT_NAMES
+from hack_render.io import atomic_path
+from hack_render.io.image import to_srgb8
+from hack_render.motion import retarget as RT
+from hack_render.motion import surface_transfer as ST
+from hack_render.motion.character import (
+    character_rig,
+    lbs_only,
+    load_character,
+    long_neck_character,
+    pose_checks,
+)
+from hack_render.motion.retarget import posed_mesh, posed_primitives
+from hack_render.render.mesh_views import MeshViews
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from hack_render.render.video import write_gif, write_mp4
+from scenes import cameras as cams
+from scenes import lights
 
 PROCEDURAL = {"procedural:long-neck"}
 
@@ -60,16 +87,10 @@ def transfer_topology(model, character, seq, params: dict, outdir: Path, *,
                       progress: bool = True, maps=None) -> dict:
     """A same-topology character: its rig, the animated glTF, the measures, the turntable.
     ``maps``: skin maps in the model's UV atlas (the character shares it), for both."""
-    from hack_render.export import rig as R
-    from hack_render.export.gltf import Animation, Pose, person_document, write_document
-    from hack_render.export.person import _frames_from
-    from hack_render.geometry.params import model_inputs
-    from hack_render.motion.character import character_rig, lbs_only, pose_checks
-
     t0 = time.perf_counter()
     kw = model_inputs(model, params)
     eta = float(kw["eta"][0]) if "eta" in kw else 0.0
-    frames = _frames_from(kw, seq, model)
+    frames = frames_from(kw, seq, model)
     tau_max = float(np.abs(frames["tau"]).max())
     tau_range = max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP)
     if tau_range > 0.1:  # as the export: in-betweens cover the sequence's slides
@@ -108,12 +129,6 @@ def _orbit(folder: Path, frames: int, size: int, target: np.ndarray, extent: flo
     """The turntable loop shared by both kinds of character: frame i of ``frames`` with the
     camera at ``360 i / frames`` degrees about ``target``, ``render(i, camera)`` -> linear
     RGB (size, size, 3); PNG frames (each written under a temporary name), then videos."""
-    import imageio.v3 as iio
-    from tqdm import tqdm
-
-    from hack_render.render.image_io import atomic_path, to_srgb8
-    from hack_render.render.video import write_gif, write_mp4
-    from scenes import cameras as cams
 
     images = []
     for i in tqdm(range(frames), desc="turntable", unit="frame", disable=not progress):
@@ -146,10 +161,6 @@ def render_turntable(model, verts: np.ndarray, folder: Path, frames: int = 24, f
     frames`` degrees, framed on the vertices above height ``frame_above`` (the neck and
     head; default: all) over the motion. Lit by an environment (``lighting``): the studio's
     soft boxes stand around a human head and would be in view of a taller character."""
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from scenes import lights
-
     w = int(resolution) + int(resolution) % 2
     pts = verts.reshape(-1, 3)
     if frame_above is not None and (pts[:, 1] > frame_above).any():
@@ -176,8 +187,6 @@ def prepare_gltf(model, path: Path, chain: list[str] | None = None,
     output is written): (character, bones, assignment)."""
     import torch
 
-    from hack_render.motion import retarget as RT
-
     ch = RT.load_gltf_character(path)
     with torch.no_grad():
         hack_joints = model(beta=torch.zeros(1, 0, dtype=model.template.dtype)).rest_joints[0]
@@ -197,9 +206,6 @@ def render_gltf_turntable(ch, bones: list[int], quats: np.ndarray, folder: Path,
     weights) as the animation's), ray cast (the render layer's ``MeshViews``) and shaded
     with ``colours`` (V,) linear RGB per vertex (the baked diffuse) or grey; ``spp`` as
     supersampling (its square root per side)."""
-    from hack_render.motion.retarget import posed_mesh
-    from hack_render.render.mesh_views import MeshViews
-
     w = int(resolution) + int(resolution) % 2
     pick = (np.arange(frames) * len(quats)) // frames
     posed = [posed_mesh(ch, bones, quats[k],
@@ -216,8 +222,6 @@ def render_gltf_turntable(ch, bones: list[int], quats: np.ndarray, folder: Path,
 
 
 def _rest_primitives(ch) -> list:
-    from hack_render.motion.retarget import posed_primitives
-
     return list(posed_primitives(ch))
 
 
@@ -228,10 +232,6 @@ def bake_onto_gltf(model, ch, rig, bones: list[int], prims: list[tuple[int, int]
     and larynx targets as morph targets of every skinned mesh they reach; ``ch`` is
     changed in place. Returns a report, the index of each moved mesh's first HACK target
     and the rig's target slice they are."""
-    from hack_render.export.reference import accessor
-    from hack_render.motion import retarget as RT
-    from hack_render.motion import surface_transfer as ST
-
     t0 = time.process_time()
     rest = _rest_primitives(ch)
     head = RT.descendants(ch, bones[-1])
@@ -283,16 +283,10 @@ def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: P
     its chain, expressions and larynx as morph targets, the maps baked into its atlas (a
     UV atlas added where a primitive had none); written as a copy with the animation
     added, and a turntable."""
-    from hack_render.export import rig as R
-    from hack_render.export.person import _frames_from
-    from hack_render.geometry.params import model_inputs
-    from hack_render.geometry.skeleton import JOINT_NAMES
-    from hack_render.motion import retarget as RT
-
     t0 = time.perf_counter()
     kw = model_inputs(model, params or {})
     eta = float(kw["eta"][0]) if "eta" in kw else 1.0
-    fr = _frames_from(kw, seq, model)
+    fr = frames_from(kw, seq, model)
     tau_max = float(np.abs(fr["tau"]).max())
     rig = R.build_rig(model, kw.get("beta"), eta,
                       max(R.TAU_RANGE, np.ceil(tau_max / R.TAU_STEP - 1e-9) * R.TAU_STEP))
@@ -339,10 +333,6 @@ def transfer_gltf(model, ch, bones: list[int], assign: list[int], seq, outdir: P
 def _vertex_colours(ch, maps) -> np.ndarray | None:
     """Linear RGB per vertex of :func:`retarget.posed_mesh` from the baked base colour
     textures (nearest texel at each vertex's UV), grey where a primitive has none."""
-    import imageio.v3 as iio
-
-    from appearance.colour_space import srgb_decode
-    from hack_render.export.reference import accessor
 
     if maps is None:
         return None
@@ -374,9 +364,6 @@ def run_transfer(model, motion: Path, target: str, outdir: Path, params: dict | 
     output folder is created only once the inputs are known good). ``maps``: the skin maps
     (the model's atlas) shown by a same-topology character, or baked into a glTF
     character's atlas at ``bake_size`` texels."""
-    from hack_render.geometry.params import load_sequence
-    from hack_render.motion.character import load_character, long_neck_character
-
     kind = target_kind(target)
     seq = load_sequence(motion, model.num_expressions)
     if kind == "gltf":

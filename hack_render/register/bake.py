@@ -19,8 +19,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from appearance import AppearanceModel
+from appearance.texture_io import write_map, write_png
+from appearance.uv import rasterize_layout
 from hack_render.register.pipeline import Registration
-from hack_render.register.scan import Scan, SurfaceIndex
+from hack_render.register.scan import Scan, SurfaceIndex, vertex_normals
 
 MAX_DISTANCE_M = 0.003
 
@@ -28,8 +31,6 @@ MAX_DISTANCE_M = 0.003
 def texel_points(vertices: np.ndarray, faces: np.ndarray, layout) -> tuple[np.ndarray, np.ndarray]:
     """(points (T, 3), normals (T, 3)) of the layout's valid texels on a mesh in the
     template's topology (``vertices`` (N, 3), ``faces`` the template's triangles)."""
-    from hack_render.register.scan import vertex_normals
-
     valid = layout.mask.ravel()
     face = layout.face.ravel()[valid]
     bary = layout.bary.reshape(-1, 3)[valid].astype(np.float64)
@@ -90,9 +91,6 @@ def bake(vertices_m: np.ndarray, faces: np.ndarray, scan: Scan, height: int = 10
     Returns {"diffuse" (H, 2H, 3) linear, "seen" (H, 2H) bool, "confidence" (H, 2H) in
     [0, 1] (1 seen, 0.5 mirrored, 0 from A(alpha)), "specular", "roughness", "normal",
     "alpha"}."""
-    from appearance import AppearanceModel
-    from appearance.uv import rasterize_layout
-
     layout = rasterize_layout(height)
     p, n = texel_points(vertices_m, faces, layout)
     index = SurfaceIndex(scan, spacing=0.0005)
@@ -136,8 +134,6 @@ def bake_scan_colors(reg: Registration, model, scan: Scan, folder: Path, height:
                      ) -> tuple[dict[str, Path], dict]:
     """Bake and write ``folder``/{diffuse,specular,roughness,normal}.exr, mask.png and
     confidence.png; returns ({name: path}, report)."""
-    from appearance.texture_io import write_map, write_png
-
     maps = bake(reg.vertices * scan.scale, model.faces.numpy(), scan, height)
     folder.mkdir(parents=True, exist_ok=True)
     files = {}
@@ -148,7 +144,6 @@ def bake_scan_colors(reg: Registration, model, scan: Scan, folder: Path, height:
     write_png(files["mask"], maps["seen"].astype(np.float32), bits=8, srgb=False)
     files["confidence"] = folder / "confidence.png"
     write_png(files["confidence"], maps["confidence"], bits=8, srgb=False)
-    from appearance.uv import rasterize_layout
 
     skin = int(rasterize_layout(height).mask.sum())
     report = {"height": height, "seen_fraction_of_skin": float(maps["seen"].sum() / skin),

@@ -1,22 +1,33 @@
-"""`hack-render register SCAN... -o OUTDIR` and `hack-render learn shape`."""
+"""`hack-render register SCAN... -o OUTDIR` (`hack-render learn shape`, which learns a
+shape space from registrations, is hack_render.learn.cli's)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import time
 from pathlib import Path
 
+import numpy as np
 import typer
+from tqdm import tqdm
 
+from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render import interrupts
+from hack_render.dataset.runner import parse_shard
 from hack_render.errors import HackError
+from hack_render.geometry import load_model
+from hack_render.register.align import read_landmarks_3d
+from hack_render.register.bake import bake_scan_colors
+from hack_render.register.find_landmarks import find_landmarks
+from hack_render.register.fitting import RegisterConfig
+from hack_render.register.outputs import write_registration
+from hack_render.register.pipeline import register as register_scan
+from hack_render.register.scan import MESH_SUFFIXES, POINT_SUFFIXES, UNITS, load_scan
 from hack_render.threads import check_threads, command_threads
 
 
 def _scan_files(inputs: list[Path]) -> list[Path]:
-    from hack_render.register.scan import MESH_SUFFIXES, POINT_SUFFIXES
-
     files: list[Path] = []
     for p in inputs:
         if p.is_dir():
@@ -107,13 +118,6 @@ def register_cmd(
     render/turntable/export --params), offsets.npy, error.ply, error.png, landmarks.json,
     textures/ (coloured scans) and report.json (written last).
     """
-    from hack_render import boundary
-    from hack_render.dataset.runner import parse_shard
-    from hack_render.geometry import load_model
-    from hack_render.register.align import read_landmarks_3d
-    from hack_render.register.fitting import RegisterConfig
-    from hack_render.register.scan import UNITS
-
     boundary.output_dir(output)
     if units is not None and units not in UNITS:
         raise HackError(f"--units: expected m, cm or mm, found {units!r}.")
@@ -156,13 +160,6 @@ def register_cmd(
 def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, texture_size,
                   quiet) -> tuple[int, int, int]:
     """Register every scan not already done; (registered, failed, skipped)."""
-    import numpy as np
-    from tqdm import tqdm
-
-    from hack_render.register.outputs import write_registration
-    from hack_render.register.pipeline import register
-    from hack_render.register.scan import load_scan
-
     done = failed = skipped = 0
     for path in tqdm(files, desc="register", unit="scan", disable=quiet or len(files) < 2):
         outdir = output / path.stem
@@ -179,7 +176,7 @@ def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, te
             typer.secho(f"{path.name}: skipped: {err}", err=True, fg=typer.colors.RED)
             failed += 1
             continue
-        reg = register(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
+        reg = register_scan(model, scan, lmk * scan.scale, ids, cfg, progress=not quiet,
                        landmark_source=lmk_info["source"])
         reg.report["fingerprint"] = fp
         if "seconds" in lmk_info:
@@ -187,8 +184,6 @@ def _register_all(files, output, model, cfg, settings, units, lmk_file, bake, te
         reg.report["scan_file"] = str(path)
         extra = {}
         if bake and scan.has_color:
-            from hack_render.register.bake import bake_scan_colors
-
             extra, bake_report = bake_scan_colors(reg, model, scan, outdir / "textures",
                                                   texture_size)
             reg.report["bake"] = bake_report
@@ -226,11 +221,8 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
         return pts, ids, {"source": "file"}
     import torch
 
-    from hack_render.register.find_landmarks import find_landmarks
-
     with torch.no_grad():
         reference = model().landmarks[0].double().numpy()
-    import time
 
     t0 = time.perf_counter()
     pts_m, ids, info = find_landmarks(scan, progress=not quiet, reference=reference)
@@ -240,7 +232,3 @@ def _landmarks(scan, lmk_file, quiet: bool, model):
 
 def register(app: typer.Typer) -> None:
     app.command("register")(register_cmd)
-    from hack_render.learn.cli import learn_app
-    from hack_render.learn.shape import learn_shape_cmd
-
-    learn_app.command("shape")(learn_shape_cmd)

@@ -25,10 +25,15 @@ import math
 import warnings
 
 import numpy as np
+from tqdm import tqdm
 
 from hack_render.errors import HackError
-from hack_render.register.align import INNER
-from hack_render.register.scan import Scan, vertex_colors
+from hack_render.geometry import load_default_model
+from hack_render.io.image import to_srgb8
+from hack_render.register.align import INNER, umeyama
+from hack_render.register.scan import Scan, smoothed, vertex_colors
+from hack_render.render.mesh_views import MeshViews
+from hack_render.vision import dlib_models
 from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 ROTATION_STEP_DEG = 45
@@ -54,8 +59,6 @@ def _any_up(d: np.ndarray) -> np.ndarray:
 
 
 def _to_rgb8(img: np.ndarray) -> np.ndarray:
-    from hack_render.render.image_io import to_srgb8
-
     return to_srgb8(img[..., :3], operator="clip")
 
 
@@ -63,9 +66,7 @@ def _detect(rgb8: np.ndarray, upsample: int = 1) -> tuple[float, np.ndarray | No
     """(best detector score, (68, 2) points in this image's pixels) or (-inf, None)."""
     import dlib
 
-    from hack_render.fit.landmarks import _dlib
-
-    detector, predictor = _dlib()
+    detector, predictor = dlib_models.frontal_detector(), dlib_models.shape_predictor()
     rects, scores, _ = detector.run(np.ascontiguousarray(rgb8), upsample, -0.3)
     if not len(rects):
         return -math.inf, None
@@ -104,8 +105,6 @@ def _face_frame(lmk: np.ndarray, reference: np.ndarray, seen_from: np.ndarray):
     """(centre, forward, up) of a face from its lifted landmarks (68, 3; nan where
     missing): the rotation of the least-squares similarity onto the ``reference``
     landmarks (a head looking along +Z, +Y up) carries the reference's axes over."""
-    from hack_render.register.align import umeyama
-
     ok = [i for i in INNER if np.isfinite(lmk[i]).all()]
     _, R, _ = umeyama(lmk[ok], reference[ok])  # scan -> reference
     fwd, up = R.T @ np.array([0.0, 0.0, 1.0]), R.T @ np.array([0.0, 1.0, 0.0])
@@ -171,18 +170,12 @@ def find_landmarks(scan: Scan, size: int = 320, agree_mm: float = 6.0,
 
     ``reference``: (68, 3) landmarks of a head looking along +Z with +Y up (default: the
     built-in model's mean face), whose axes give the face's frame."""
-    from tqdm import tqdm
-
-    from hack_render.render.mesh_views import MeshViews
 
     if not scan.is_mesh:
         scan = surface_of_points(scan)
-    from hack_render.register.scan import smoothed
 
     if reference is None:
         import torch
-
-        from hack_render.geometry import load_default_model
 
         with torch.no_grad():
             reference = load_default_model()().landmarks[0].double().numpy()

@@ -27,6 +27,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from hack_render.errors import HackError
+from hack_render.fit.stages import run_stage
+from hack_render.geometry.larynx import ETA_DEFAULT, clamp_larynx, larynx_limit_penalty
+from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from hack_render.geometry.skeleton import rotation_limit_penalty
 from hack_render.register.scan import SurfaceIndex, vertex_normals
 
 #: vertex groups of the model's outer skin (the part a scan sees)
@@ -75,8 +80,6 @@ class RegisterConfig:
 
     @classmethod
     def preset_named(cls, name: str, **overrides) -> RegisterConfig:
-        from hack_render.errors import HackError
-
         if name == "default":
             return replace(cls(), **overrides)
         if name == "paper":
@@ -240,9 +243,6 @@ class RegisterState:
 
 def initial_state(model, num_shape: int, R: np.ndarray) -> RegisterState:
     """Zeros, eta at its default, the global rotation from the alignment (model -> scan)."""
-    from hack_render.geometry.larynx import ETA_DEFAULT
-    from hack_render.geometry.rotations import matrix_to_axis_angle
-
     z = lambda *s: torch.zeros(*s, dtype=torch.float32)
     go = matrix_to_axis_angle(torch.as_tensor(R, dtype=torch.float32)[None])
     skin, _ = model_subsets(model)
@@ -258,8 +258,6 @@ def global_from_head(head_orient: torch.Tensor, theta: torch.Tensor) -> torch.Te
     joints, makes "the neck turned, the head where it is" one coordinate instead of a
     narrow valley between two (a scan is aligned by its face, so a turned neck starts as
     a turned torso)."""
-    from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-
     chain = axis_angle_to_matrix(theta)  # (B, 8, 3, 3), c7-t1 ... o-c1
     total = chain[:, 0]
     for k in range(1, chain.shape[1]):
@@ -282,11 +280,6 @@ def run_registration(model, index: SurfaceIndex, landmarks: np.ndarray | None,
                      landmark_ids: tuple[int, ...], st: RegisterState, cfg: RegisterConfig,
                      progress: bool = True) -> RegisterState:
     """Fit ``st`` to the scan (in the model's frame: the scan already moved there)."""
-    from hack_render.fit.stages import run_stage
-    from hack_render.geometry.larynx import clamp_larynx, larynx_limit_penalty
-    from hack_render.geometry.rotations import axis_angle_to_matrix
-    from hack_render.geometry.skeleton import rotation_limit_penalty
-
     corr = make_correspondence(model, index, cfg)
     dist = TwoWayDistance(corr, cfg)
     lmk = None if landmarks is None else torch.as_tensor(landmarks, dtype=torch.float32)

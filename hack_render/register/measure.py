@@ -97,3 +97,71 @@ class MeshDistance:
 def point_to_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M,) distance of each point to the mesh surface (same units as the inputs)."""
     return MeshDistance(vertices, faces).closest(points)[0]
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3) unit normals of the triangles (a degenerate one: zero)."""
+    v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+
+def open_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) sorted vertex pairs of the edges used by one triangle only (holes, cuts)."""
+    f = np.asarray(faces, np.int64)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    return uniq[count == 1]
+
+
+def beyond_open_boundary(points: np.ndarray, closest: np.ndarray, face: np.ndarray,
+                         vertices: np.ndarray, faces: np.ndarray, tol: float = 1e-6
+                         ) -> np.ndarray:
+    """(M,) bool: points beyond the mesh's edge (a hole's, a cut's): their closest points
+    (``MeshDistance.closest``'s points and faces) lie on the open boundary (an edge of one
+    triangle only, or a vertex of one) and the offset runs more along the surface than
+    along its normal. The mesh does not cover such a point: its distance, to the edge, is
+    not a measure of anything. (A point on the edge, or above it, is covered.)"""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    edges = open_edges(f)
+    if not len(edges):
+        return np.zeros(len(closest), bool)
+    n = len(v)
+    keys = np.sort(edges[:, 0] * n + edges[:, 1])
+    rim = np.zeros(n, bool)
+    rim[edges.ravel()] = True
+    tri = f[face]
+    a, b, c = (v[tri[:, k]] for k in range(3))
+    e0, e1, q = b - a, c - a, np.asarray(closest, np.float64) - a
+    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
+    d20, d21 = (q * e0).sum(1), (q * e1).sum(1)
+    den = d00 * d11 - d01 * d01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wb = (d11 * d20 - d01 * d21) / den
+        wc = (d00 * d21 - d01 * d20) / den
+    bary = np.stack([1.0 - wb - wc, wb, wc], 1)  # weights of corners 0, 1, 2
+    out = np.zeros(len(closest), bool)
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):  # edge opposite corner k
+        lo, hi = np.minimum(tri[:, i], tri[:, j]), np.maximum(tri[:, i], tri[:, j])
+        pos = np.searchsorted(keys, lo * n + hi)
+        is_open = keys[np.minimum(pos, len(keys) - 1)] == lo * n + hi
+        out |= (bary[:, k] < tol) & is_open
+        out |= (bary[:, k] > 1.0 - tol) & rim[tri[:, k]]  # at an open corner
+    normal = np.cross(e0, e1)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
+    d = np.asarray(points, np.float64) - np.asarray(closest, np.float64)
+    along = np.abs((d * normal).sum(1))
+    return out & (np.linalg.norm(d - (d * normal).sum(1, keepdims=True) * normal, axis=1)
+                  > along)
+
+
+def beyond_point_cloud(query: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                       nearest: np.ndarray, spacing: float) -> np.ndarray:
+    """(M,) bool: query points beyond a point cloud's edge: the offset to their nearest
+    point ``nearest`` (indices) runs along the surface (its tangential part over twice
+    the cloud's ``spacing``) rather than along the normal, as it does over the cloud."""
+    d = np.asarray(query, np.float64) - points[nearest]
+    n = normals[nearest]
+    tangential = d - (d * n).sum(1, keepdims=True) * n
+    return np.linalg.norm(tangential, axis=1) > 2.0 * spacing

@@ -8,8 +8,10 @@ last, so a folder with ``report.json`` is complete and one without it is not.
   (metres), for ``render --params``, ``turntable --params`` and ``export --params``.
 - ``offsets.npy``: (N, 3) free-form offsets, metres, model frame (zero off the skin).
 - ``error.ply``: the registered mesh coloured by each vertex's distance to the scan
-  (blue 0 mm, red >= 3 mm, grey where not measured), the distance also as a
-  ``quality`` property (millimetres).
+  (blue 0 mm, red >= 3 mm, grey where not measured: off the skin, and where the scan has
+  no surface for the vertex, e.g. the back of the head of a face scan:
+  :func:`hack_render.register.pipeline.measure`), the distance also as a ``quality``
+  property (millimetres; -1 not measured).
 - ``error.png``: that heat map ray cast from the front and both sides, with a labelled
   colour bar (matplotlib) and the scan's errors in the title.
 - ``landmarks.json``: the 3-D landmarks used (scan frame and units) and where they came from.
@@ -19,12 +21,18 @@ last, so a folder with ``report.json`` is complete and one without it is not.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from hack_render.geometry.obj_io import write_mesh
+from hack_render.geometry.params import save_params
+from hack_render.io import atomic_path, write_json
+from hack_render.io.image import to_srgb8
 from hack_render.register.pipeline import Registration
+from hack_render.register.scan import srgb_to_linear
+from hack_render.render.mesh_views import MeshViews
+from scenes.cameras import Camera, framing_distance, intrinsics, look_at
 
 HEAT_MAX_MM = 3.0
 
@@ -42,8 +50,6 @@ def heat_colors(err_mm: np.ndarray, vmax: float = HEAT_MAX_MM) -> np.ndarray:
 def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray
                     ) -> Path:
     """Binary PLY: positions, uchar RGB from :func:`heat_colors`, float ``quality`` (mm)."""
-    from hack_render.render.image_io import atomic_path
-
     rgb = np.round(heat_colors(err_mm) * 255).astype(np.uint8)
     vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
                     ("blue", "u1"), ("quality", "<f4")])
@@ -69,11 +75,6 @@ def write_error_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, err_mm:
 def heat_map_views(model_vertices: np.ndarray, faces: np.ndarray, err_mm: np.ndarray,
                    size: int = 384) -> list[np.ndarray]:
     """Front, left and right views (each (size, size, 3) uint8) of the error colours."""
-    from hack_render.register.scan import srgb_to_linear
-    from hack_render.render.image_io import to_srgb8
-    from hack_render.render.mesh_views import MeshViews
-    from scenes.cameras import Camera, framing_distance, intrinsics, look_at
-
     v = np.asarray(model_vertices, np.float64)
     centre = 0.5 * (v.min(0) + v.max(0))
     views = MeshViews(v, faces, srgb_to_linear(heat_colors(err_mm)), size, size)
@@ -99,8 +100,6 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
     from matplotlib import colormaps
     from matplotlib.colors import Normalize
 
-    from hack_render.render.image_io import atomic_path
-
     tiles = heat_map_views(model_vertices, faces, err_mm)
     fig, axes = plt.subplots(1, 3, figsize=(10.5, 3.9))
     for ax, img, name in zip(axes, tiles, ("front", "left", "right"), strict=True):
@@ -109,8 +108,8 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
         ax.axis("off")
     sm = plt.cm.ScalarMappable(norm=Normalize(0, HEAT_MAX_MM), cmap=colormaps["turbo"])
     bar = fig.colorbar(sm, ax=axes, fraction=0.025, pad=0.01)
-    bar.set_label(f"distance to the scan, mm (grey: not measured; >= {HEAT_MAX_MM:g} red)",
-                  fontsize=8)
+    bar.set_label(f"distance to the scan, mm (grey: not measured, no scan there; >= "
+                  f"{HEAT_MAX_MM:g} red)", fontsize=8)
     fig.suptitle(title, fontsize=10)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png", facecolor="white")
@@ -121,10 +120,6 @@ def write_heat_map(path: Path, model_vertices: np.ndarray, faces: np.ndarray,
 def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
                        extra_files: dict | None = None) -> list[Path]:
     """Write every file of one registration into ``outdir``; ``report.json`` last."""
-    from hack_render.geometry.obj_io import write_mesh
-    from hack_render.geometry.params import save_params
-    from hack_render.render.image_io import atomic_path
-
     outdir.mkdir(parents=True, exist_ok=True)
     faces = model.faces.numpy()
     uvs, uv_faces = model.uvs.numpy(), model.uv_faces.numpy()
@@ -142,15 +137,11 @@ def write_registration(reg: Registration, model, outdir: Path, landmarks: dict,
              f"p95 {err.get('p95', float('nan')):.2f} mm ({reg.report['status']})")
     written.append(write_heat_map(outdir / "error.png", _model_frame(reg), faces,
                                   reg.vertex_error, title))
-    with atomic_path(outdir / "landmarks.json") as tmp:
-        tmp.write_text(json.dumps(landmarks, indent=1))
-    written.append(outdir / "landmarks.json")
+    written.append(write_json(outdir / "landmarks.json", landmarks, indent=1))
     written += list((extra_files or {}).values())
     report = dict(reg.report)
     report["files"] = sorted(str(p.relative_to(outdir)) for p in written)
-    with atomic_path(outdir / "report.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1))
-    written.append(outdir / "report.json")
+    written.append(write_json(outdir / "report.json", report, indent=1))
     return written
 
 

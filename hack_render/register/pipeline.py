@@ -8,7 +8,7 @@ measured errors); :mod:`hack_render.register.outputs` writes it.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -18,19 +18,31 @@ from hack_render.register.align import INNER, umeyama
 from hack_render.register.fitting import (
     RegisterConfig,
     RegisterState,
+    faces_within,
     initial_state,
     model_subsets,
     posed_vertices,
     run_registration,
 )
-from hack_render.register.measure import MeshDistance
-from hack_render.register.scan import Scan, SurfaceIndex, transformed
+from hack_render.register.measure import (
+    MeshDistance,
+    beyond_open_boundary,
+    beyond_point_cloud,
+    face_normals,
+)
+from hack_render.register.scan import Scan, SurfaceIndex, transformed, vertex_normals
 
 #: a registration whose scan-to-mesh mean over the scan points near the model exceeds this
 #: (or that leaves most of the scan unexplained) is reported as failed, not as a result
 FAIL_MEAN_MM = 3.0
 FAIL_COVERAGE = 0.5  # fraction of scan points within 1 cm of the registered mesh
 FAIL_LANDMARK_MM = 12.0
+#: a skin vertex's distance to the scan is measured (vertex_error, error.png) where the
+#: fit could pair it with the scan: its nearest scan point within this many metres (the
+#: fit's RegisterConfig.max_distance), not on the scan's edge, on a surface facing its
+#: way (normals' dot product at least this, as the fit's model-to-scan term asks)
+MEASURED_WITHIN_M = 0.02
+MEASURED_NORMAL_DOT = 0.3
 #: landmarks found on the scan (not given) weigh this much of the given ones'
 AUTO_LANDMARK_WEIGHT = 0.1
 
@@ -48,7 +60,8 @@ class Registration:
         offsets: (N, 3) free-form offsets, metres, model frame (zero off the skin).
         scan_error: (M,) distance of each scan vertex to the registered mesh, millimetres.
         vertex_error: (N,) distance of each model vertex to the scan surface, millimetres
-            (nan off the skin).
+            (nan where not measured: off the skin, and beyond the scan's edge, where the
+            scan does not cover the model).
         report: JSON-ready dict.
     """
 
@@ -87,7 +100,6 @@ def measure(model, scan: Scan, verts_model: np.ndarray, to_scan) -> tuple[np.nda
     ``to_scan``: model frame -> scan metres."""
     skin, cand = model_subsets(model)
     faces = model.faces.numpy()
-    from hack_render.register.fitting import faces_within
 
     f_eval = faces_within(faces, cand)
     v_scan = to_scan(verts_model)
@@ -100,14 +112,32 @@ def measure(model, scan: Scan, verts_model: np.ndarray, to_scan) -> tuple[np.nda
     out = {"all": stats_mm(d_mm[near]), "face": stats_mm(d_mm[near & (region == names.index("face"))]),
            "neck": stats_mm(d_mm[near & (region == names.index("neck"))]),
            "coverage_1cm": float(near.mean()), "points": len(d_mm)}
+    # each skin vertex's distance to the scan where the scan covers it, as the fit pairs
+    # them (fitting.TwoWayDistance): a vertex whose nearest scan point is on the scan's
+    # edge (a mesh) or off to the side of it (a point cloud), or on a surface facing the
+    # other way (the inside of a face-only scan, seen from the back of the head) or
+    # farther than MEASURED_WITHIN_M, lies where the scan has no surface for it: not
+    # measured (nan: grey in error.png, -1 in error.ply), not a ">= 3 mm" red
     vert_err = np.full(len(v_scan), np.nan)
+    v_skin = v_scan[skin]
+    v_normal = vertex_normals(v_scan, f_eval)[skin]
     if scan.is_mesh:
-        sd = MeshDistance(scan.points, scan.faces)
-        vert_err[skin] = 1000.0 * sd.closest(v_scan[skin])[0]
+        d, q, fid = MeshDistance(scan.points, scan.faces).closest(v_skin)
+        s_normal = face_normals(scan.points, scan.faces)[fid]
+        off = beyond_open_boundary(v_skin, q, fid, scan.points, scan.faces)
     else:
         from scipy.spatial import cKDTree
 
-        vert_err[skin] = 1000.0 * cKDTree(scan.points).query(v_scan[skin], workers=-1)[0]
+        tree = cKDTree(scan.points)
+        d, j = tree.query(v_skin, workers=-1)
+        some = scan.points[:: max(1, len(scan.points) // 20_000)]
+        spacing = float(np.median(tree.query(some, k=2, workers=-1)[0][:, 1]))
+        s_normal = scan.normals[j]
+        off = beyond_point_cloud(v_skin, scan.points, scan.normals, j, spacing)
+    off |= ((v_normal * s_normal).sum(1) < MEASURED_NORMAL_DOT) | (d > MEASURED_WITHIN_M)
+    d[off & (d > 1e-6)] = np.nan  # a vertex on the scan is measured, whatever the normals
+    vert_err[skin] = 1000.0 * d
+    out["skin_measured"] = float(np.isfinite(d).mean())  # share of the skin the scan covers
     return d_mm, vert_err, out
 
 
@@ -128,7 +158,6 @@ def register(model, scan: Scan, landmarks: np.ndarray | None, landmark_ids: tupl
     if landmark_source != "file":
         # found landmarks are a few millimetres off (a detector on renders of the scan):
         # they start the alignment and the rigid stage, the surface does the rest
-        from dataclasses import replace
 
         cfg = replace(cfg, w_lmk=cfg.w_lmk * AUTO_LANDMARK_WEIGHT)
     num_shape = min(cfg.num_shape, model.num_shape)

@@ -14,7 +14,9 @@ Every error a user can cause is a :class:`~hack_render.errors.HackError` naming 
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,6 +121,93 @@ def _read_points(path: Path) -> np.ndarray:
         raise HackError(f"{path}: expected an (N, 3), (N, 6) or (N, 9) numeric array, found "
                         f"shape {arr.shape} of {arr.dtype}.")
     return arr.astype(np.float64)
+
+
+#: an OBJ face corner: v, v/vt, v//vn or v/vt/vn (indices non-zero, negative: relative)
+_OBJ_CORNER = re.compile(rb"-?[1-9][0-9]*(?:/-?[1-9][0-9]*(?:/-?[1-9][0-9]*)?|//-?[1-9][0-9]*)?")
+#: a whole face line of one corner form (v, v/vt, v//vn, v/vt/vn): at least 3 corners
+_OBJ_FACES = [re.compile(rb"f(?:[ \t]+-?[1-9][0-9]*%s){3,}[ \t]*" % form) for form in (
+    rb"", rb"/-?[1-9][0-9]*", rb"//-?[1-9][0-9]*", rb"/-?[1-9][0-9]*/-?[1-9][0-9]*")]
+#: a corner's vertex index (after the blank before it; relative ones are left out)
+_OBJ_VERTEX_INDEX = re.compile(rb"[ \t]([0-9]+)")
+#: values of the OBJ statements checked: name -> (fewest, most)
+_OBJ_VALUES = {b"v": (3, 7), b"vn": (3, 3), b"vt": (1, 3)}
+
+
+def check_obj_text(path: Path) -> list[str]:
+    """Refuse an OBJ that is malformed or cut short (trimesh reads such a file without a
+    word: a face cut to two corners is dropped, a file cut among its vertices becomes a
+    point cloud), naming the file and line; returns notes for the report.
+
+    Checked: ``v``, ``vn`` and ``vt`` lines hold numbers, as many on every line as on
+    the first of their kind (a cut line has fewer); ``f`` lines hold at least three
+    corners, each ``v``, ``v/vt``, ``v//vn`` or ``v/vt/vn`` and all of one form; vertex
+    indices refer to vertices the file has; texture coordinates need faces. A file whose
+    last line has no newline may still be cut inside a number: that is said in a note
+    (with how much was read), not refused."""
+    first: dict[bytes, tuple[int, int]] = {}  # kind -> (values, line)
+    count = {b"v": 0, b"vt": 0, b"vn": 0, b"f": 0}
+    top, top_line = 0, 0  # the largest vertex index a face uses, and its line
+    face = _OBJ_FACES[0]
+    last, lineno = b"", 0
+
+    def bad(lineno: int, raw: bytes, what: str) -> HackError:
+        line = raw.decode("utf-8", "replace").strip()
+        shown = line if len(line) <= 60 else line[:57] + "..."
+        return HackError(f"{path}:{lineno}: {what}, found {shown!r}. The file looks cut short "
+                         "or damaged; export the scan again.")
+
+    with path.open("rb") as fh:
+        for lineno, raw in enumerate(fh, 1):
+            last = raw
+            words = raw.split()
+            if not words or words[0] not in count:
+                continue  # comments, groups, materials, smoothing, lines, points
+            kind = words[0]
+            count[kind] += 1
+            if kind == b"f":
+                text = raw.strip()
+                if face.fullmatch(text) is None:
+                    face = next((f for f in _OBJ_FACES if f.fullmatch(text)), None)
+                    if face is None:
+                        face = _OBJ_FACES[0]
+                        odd = [w for w in words[1:] if _OBJ_CORNER.fullmatch(w) is None]
+                        raise bad(lineno, raw, "expected a face of at least 3 corners"
+                                  if len(words) < 4 else
+                                  f"expected face corners like 7, 7/3, 7//2 or 7/3/2, and "
+                                  f"{odd[0].decode('utf-8', 'replace')!r} is none of them"
+                                  if odd else "expected the corners of a face in one form")
+                most = max(map(int, _OBJ_VERTEX_INDEX.findall(raw)), default=0)
+                if most > top:
+                    top, top_line = most, lineno
+                continue
+            values = words[1:]
+            lo, hi = _OBJ_VALUES[kind]
+            name = kind.decode()
+            try:
+                [float(x) for x in values]
+            except ValueError:
+                raise bad(lineno, raw, f"expected numbers after {name!r}") from None
+            if not lo <= len(values) <= hi:
+                raise bad(lineno, raw, f"expected {lo}-{hi} numbers after {name!r}"
+                          if lo < hi else f"expected {lo} numbers after {name!r}")
+            n0, line0 = first.setdefault(kind, (len(values), lineno))
+            if len(values) != n0:
+                raise bad(lineno, raw, f"expected {n0} numbers after {name!r} as on line "
+                          f"{line0}")
+    if top > count[b"v"]:
+        raise HackError(f"{path}:{top_line}: a face refers to vertex {top}, but the file has "
+                        f"{count[b'v']:,}. The file looks cut short or damaged; export the "
+                        "scan again.")
+    if not count[b"f"] and count[b"vt"]:  # texture coordinates of no faces
+        raise HackError(f"{path}:{lineno}: expected faces after the {count[b'v']:,} vertices "
+                        f"and {count[b'vt']:,} texture coordinates, found the end of the file. "
+                        "The file looks cut short; export the scan again.")
+    if last and not last.endswith(b"\n"):
+        note = (f"{path.name} does not end with a newline: it may be cut short; read "
+                f"{count[b'v']:,} vertices and {count[b'f']:,} faces")
+        return [note]
+    return []
 
 
 def _trimesh_geometry(path: Path):
@@ -234,6 +323,7 @@ def load_scan(path: str | Path, units: str | None = None, max_points: int = 5_00
     if units is not None and units not in UNITS:
         raise HackError(f"--units: expected m, cm or mm, found {units!r}.")
     faces = colors = texture = uv = normals = None
+    notes: list[str] = []
     if suffix in POINT_SUFFIXES:
         arr = _read_points(path)
         pts = arr[:, :3]
@@ -245,6 +335,7 @@ def load_scan(path: str | Path, units: str | None = None, max_points: int = 5_00
     else:
         import trimesh
 
+        notes = check_obj_text(path) if suffix == ".obj" else []
         geom = _trimesh_geometry(path)
         pts = np.asarray(geom.vertices, dtype=np.float64)
         if isinstance(geom, trimesh.Trimesh) and len(geom.faces):
@@ -278,15 +369,13 @@ def load_scan(path: str | Path, units: str | None = None, max_points: int = 5_00
             normals = estimate_normals(pts)
         normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
         boundary = None
-    notes = [] if units else [f"units detected: {u} (pass --units to override)"]
+    notes += [] if units else [f"units detected: {u} (pass --units to override)"]
     return Scan(path.stem, pts, normals, faces, colors, texture, uv, boundary, u, UNITS[u],
                 notes)
 
 
 def transformed(scan: Scan, scale: float, R: np.ndarray, t: np.ndarray) -> Scan:
     """The scan moved by x -> scale * R x + t (normals rotated)."""
-    import dataclasses
-
     return dataclasses.replace(scan, points=scale * scan.points @ R.T + t,
                                normals=scan.normals @ R.T)
 

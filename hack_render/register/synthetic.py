@@ -17,6 +17,7 @@ import numpy as np
 
 from hack_render.register.fitting import faces_within, model_subsets
 from hack_render.register.measure import MeshDistance
+from hack_render.register.scan import vertex_normals
 
 
 @dataclass
@@ -105,8 +106,6 @@ def make_scan(model, vertices: np.ndarray, seed: int = 0, noise_m: float = 0.000
         holes: discs of 6-12 mm radius removed.
         transform: a random rotation, translation and unit (m, cm or mm); else metres as is.
     """
-    from hack_render.register.scan import vertex_normals
-
     rng = np.random.default_rng(seed)
     f = scan_faces(model, vertices)
     v = vertices

@@ -13,8 +13,8 @@ traces its own primary rays (one per pixel centre, no filter) and reads the hit:
 - ``segmentation``: (H, W) region id (``parts.REGIONS``; 0 = background).
 
 Like the path tracer (``hide_emitters``), every pass here looks through the area lights'
-rectangles (:func:`camera_hit`): a pixel is background, depth 0, exactly where no
-surface of the subject is met, so segmentation and depth agree.
+rectangles (:func:`hack_render.render.footprint.camera_hit`): a pixel is background,
+depth 0, exactly where no surface of the subject is met, so segmentation and depth agree.
 """
 
 from __future__ import annotations
@@ -22,46 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.render.footprint import CARD_LAYERS, camera_hit, emitter_layers, opacity_at
+from hack_render.render.parts import REGIONS
 
 AOV_NAMES = ("depth", "normal", "albedo", "uv", "segmentation")
-
-
-def _emitter_layers(head) -> int:
-    """How many emitter shapes a camera ray may have to pass (the rig's area lights)."""
-    return sum(1 for shape in head.scene.shapes() if shape.is_emitter())
-
-
-def camera_hit(head, ray, active=True, coherent: bool = False):
-    """The first intersection along ``ray`` that is not an emitter's shape (a camera ray
-    looks through the area lights, as the renderer's ``hide_emitters`` does). Returns a
-    SurfaceInteraction3f (invalid where nothing else is hit)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    active = mi.Bool(active)
-    layers = _emitter_layers(head)
-    if layers == 0:
-        return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
-    ray = mi.Ray3f(ray)
-    pi = head.scene.ray_intersect_preliminary(ray, coherent, active)
-    for _ in range(layers):
-        # only the rays that met a light's rectangle are traced again, from just past it
-        # (10 um; the head is metres away from it)
-        skip = active & pi.is_valid() & pi.shape.is_emitter()
-        ray.o = dr.select(skip, ray(pi.t + 1e-5), ray.o)
-        pi = dr.select(skip, head.scene.ray_intersect_preliminary(ray, coherent, skip), pi)
-    return pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
-
-
-def _opacity_at(opacity, si, active):
-    """A see-through card's opacity at intersections ``si``: a number, or a texture plugin
-    looked up at the hit's UV (``eval_1``, what the ``mask`` BSDF does), clipped to [0, 1]."""
-    import drjit as dr
-    import mitsuba as mi
-
-    if isinstance(opacity, (int, float)):
-        return mi.Float(float(opacity))
-    return dr.clip(opacity.eval_1(si, active), 0.0, 1.0)
 
 
 def card_opacity(head, si, active):
@@ -76,7 +40,7 @@ def card_opacity(head, si, active):
     for bsdf, opacity in getattr(head, "see_through_cards", ()):
         on = mi.Bool(active) & si.is_valid() & (
             ids == dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf)))
-        out = dr.select(on, _opacity_at(opacity, si, on), out)
+        out = dr.select(on, opacity_at(opacity, si, on), out)
     return out
 
 
@@ -129,8 +93,6 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
-
     cam = head.camera
     w, h = cam.width, cam.height
     idx = dr.arange(mi.UInt32, w * h)
@@ -143,8 +105,6 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
     see = [REGIONS.index(name) for name in see_through if name in REGIONS]
     opacity = through = None
     if see:
-        from hack_render.render.footprint import CARD_LAYERS
-
         through = mi.Bool(False)
         on = mi.Bool(True)
         for layer in range(CARD_LAYERS):  # the cards are layered: on to the first other
@@ -256,8 +216,6 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     """
     import drjit as dr
     import mitsuba as mi
-
-    from hack_render.render.parts import REGIONS
 
     cam = head.camera
     w, h, kk = cam.width, cam.height, k * k
@@ -375,8 +333,6 @@ def region_hits(head, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict[str
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
-
     cam = head.camera
     w, h = cam.width, cam.height
     idx = dr.arange(mi.UInt32, w * h)
@@ -414,8 +370,6 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     import drjit as dr
     import mitsuba as mi
 
-    from hack_render.render.parts import REGIONS
-
     cam = head.camera
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     z = (p @ cam.R.T + cam.t)[:, 2]
@@ -441,7 +395,7 @@ def point_visibility(head, points, tolerance: float = 2e-3,
     # intersections (Embree's distance and shape only): no surface interaction is needed,
     # and tracing one is a virtual call over every shape, which cost more than the rays.
     step = 1e-5
-    for _ in range(4 + _emitter_layers(head)):
+    for _ in range(4 + emitter_layers(head)):
         pi = head.scene.ray_intersect_preliminary(ray, False, alive)
         sid = dr.reinterpret_array(mi.UInt32, pi.shape)
         valid = alive & pi.is_valid()

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.render.emitters import area_light_transform
 from hack_render.render.engine import is_jit, release_parked, release_when_safe
 
 INTEGRATORS = ("prb", "direct_projective", "prb_projective")
@@ -99,8 +100,6 @@ class DiffRenderer:
     # --- scene structure ---------------------------------------------------------------
     def _light_bases(self) -> dict[str, np.ndarray]:
         """Unrotated ``to_world`` (4, 4) of each area light of the rig."""
-        from hack_render.render.emitters import area_light_transform
-
         return {f"light_{i}": area_light_transform(light, 0.0)
                 for i, light in enumerate(self.head.lights.area)
                 if f"light_{i}.to_world" in self.head.params}

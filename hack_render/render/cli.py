@@ -8,16 +8,33 @@ commands, so `--help` stays fast.
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import re
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import typer
 
+from hack_render import boundary, interrupts
+from hack_render import boundary as b
 from hack_render import cli_options as opts
-from hack_render import interrupts
+from hack_render.boundary import numbers
 from hack_render.errors import HackError
+from hack_render.geometry.limits import limit_policy
+from hack_render.geometry.posing import posed_vertices
+from hack_render.io.image import rgb_channels, tone_map, write_exr, write_png
+from hack_render.render import denoise as dn
+from hack_render.render import posed_cache
+from hack_render.render.parts import Topology
+from hack_render.render.scene import MAX_SIDE, MAX_SPP, HeadScene, RenderSettings
+from hack_render.render.skin_maps import skin_maps
 from hack_render.threads import check_threads, command_threads
+from scenes import cameras as cams
+from scenes import lights
 
 if TYPE_CHECKING:
     import numpy as np
@@ -25,9 +42,10 @@ if TYPE_CHECKING:
 _AOVS = ("depth", "normal", "albedo", "uv", "segmentation")
 
 SamplerOpt = typer.Option("auto", "--sampler", help="Mitsuba sampler: auto (orthogonal "
-                          "arrays near 25, 49, 121... spp, else multijitter), multijitter, "
-                          "stratified, orthogonal, ldsampler or independent. All but "
-                          "independent round --spp (said when they do); see docs/render.md.")
+                          "arrays at 25, 49, 121... spp and a little under, else "
+                          "multijitter), multijitter, stratified, orthogonal, ldsampler or "
+                          "independent. All but independent round --spp up, never down (said "
+                          "when they do); see docs/render.md.")
 IntegratorOpt = typer.Option("hack_path", "--integrator", help="Integrator: hack_path or "
                              "volpath (shadow rays see through the lashes' transparent parts: "
                              "less noise around the eyes; the same image, hack_path 1.3-2.9x "
@@ -46,9 +64,6 @@ KeepNoisyOpt = typer.Option(False, "--keep-noisy", help="Also keep the image bef
 def check_denoise(denoise: str) -> bool:
     """--denoise resolved to yes/no (HackError naming the extra when 'on' cannot run; a
     one-line warning on stderr when 'auto' falls back to the noisy image)."""
-    import warnings
-
-    from hack_render.render import denoise as dn
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", dn.DenoiserWarning)
@@ -64,20 +79,28 @@ def denoise_settings(settings, use_denoise: bool):
     noise that is correlated between pixels: on the studio portrait at 128 px, 4 / 8 spp
     denoised reach 35.7 / 36.6 dB from a box-filtered render against 33.3 / 31.5 dB
     (``bench_render.py --only quality``, each against its own filter's reference)."""
-    import dataclasses
-
     return dataclasses.replace(settings, pixel_filter="box") if use_denoise else settings
 
 
+def rendered(settings) -> dict:
+    """What a render's metadata records of its sampling (the cameras JSON's ``render``):
+    the sampler and samples per pixel rendered, and the count asked for."""
+    return {"sampler": settings.mitsuba_sampler, "spp": settings.effective_spp,
+            "spp_requested": settings.spp}
+
+
+#: 'W' or 'WxH' (also 'W,H', as before)
+_RESOLUTION = re.compile(r"(\d+)\s*(?:[xX,]\s*(\d+))?")
+
+
 def parse_resolution(text: str) -> tuple[int, int]:
-    """``--resolution`` 'W' or 'WxH' as (width, height), checked."""
-    try:
-        parts = [int(x) for x in text.lower().replace("x", ",").split(",") if x.strip()]
-    except ValueError as err:
-        raise HackError(f"--resolution: expected 'W' or 'WxH' in pixels, found {text!r}.") from err
-    if len(parts) not in (1, 2):
-        raise HackError(f"--resolution: expected 'W' or 'WxH', found {text!r}.")
-    from hack_render.render.scene import MAX_SIDE
+    """``--resolution`` 'W' or 'WxH' as (width, height), checked: whole numbers only, one
+    or two of them ('64x', 'x64' and '64x64x' are refused, not read as a square)."""
+    match = _RESOLUTION.fullmatch(text.strip())
+    if match is None:
+        raise HackError(f"--resolution: expected 'W' or 'WxH' in whole pixels (e.g. 512 or "
+                        f"640x480), found {text!r}.")
+    parts = [int(x) for x in match.groups() if x is not None]
 
     if not all(1 <= p <= MAX_SIDE for p in parts):
         raise HackError(f"--resolution: expected sides of 1..{MAX_SIDE} pixels, found "
@@ -97,8 +120,6 @@ def named(option: str, fn, *args, **kwargs):
 
 def _floats(text: str | None, name: str, n: int | None = None, lo: float = -1e3,
             hi: float = 1e3) -> list[float] | None:
-    from hack_render.boundary import numbers
-
     return numbers(text, f"--{name}", n, lo, hi)
 
 
@@ -106,8 +127,6 @@ def check_look(env_rotation: float, exposure: float, focal_mm: float | None,
                alpha: str | None, appearance_seed: int | None) -> list[float] | None:
     """The lighting, lens and skin options that `render` and `turntable` share, checked
     (finite, in range) before anything heavy; returns alpha as numbers."""
-    from hack_render import boundary as b
-
     b.number(env_rotation, "--env-rotation", -3600.0, 3600.0, unit=" degrees")
     b.number(exposure, "--exposure", -20.0, 20.0, unit=" stops",
              fix="Each stop doubles the light; -3..3 covers most uses.")
@@ -129,9 +148,6 @@ def _aov_list(text: str | None) -> list[str]:
 
 def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str]) -> dict:
     """EXR channel dict: R, G, B, A then the requested AOV layers."""
-    import numpy as np
-
-    from hack_render.render.image_io import rgb_channels
 
     ch = rgb_channels(image[..., :3])
     ch["A"] = image[..., 3]
@@ -147,9 +163,6 @@ def exr_channels(image: np.ndarray, aovs: dict[str, np.ndarray], names: list[str
 
 def _model_vertices(params_file, beta, expression, head_rotation, eta, tau, limits, model_path):
     """(topology, posed vertices) of the pose flags, posed with NumPy (no torch import)."""
-    from hack_render.geometry.posing import posed_vertices
-    from hack_render.render.parts import Topology
-
     model, verts = posed_vertices(params_file, beta, expression, head_rotation, eta, tau,
                                   limits, model_path)
     return Topology.from_model(model), verts
@@ -181,7 +194,7 @@ def render(
                                              "sensor width); default 85 (ring: 50)."),
     views: int = typer.Option(8, help="Number of cameras of the ring preset."),
     resolution: opts.Resolution = "512",
-    spp: opts.Spp = 64,
+    spp: opts.Spp = 49,
     seed: opts.Seed = 0,
     max_depth: int = typer.Option(8, help="Maximum path length."),
     iris_color: str | None = typer.Option(None, help="Iris linear RGB, e.g. '0.1,0.2,0.3'."),
@@ -197,16 +210,8 @@ def render(
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
-    Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 64
+    Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 121
     """
-    import numpy as np
-
-    from hack_render import boundary
-    from hack_render.geometry.cli import LimitPolicy
-    from hack_render.render.image_io import tone_map
-    from hack_render.render.scene import MAX_SPP, RenderSettings
-    from scenes import cameras as cams
-    from scenes import lights
 
     # every cheap check before anything heavy is loaded or allocated
     w, h = parse_resolution(resolution)
@@ -231,15 +236,10 @@ def render(
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
     views_ = named("--camera", cams.preset, camera, w, h, focal_mm, n=views)
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    policy = limit_policy(limits)
     if threads is not None:
         check_threads(threads)
     command_threads(threads)
-
-    from hack_render.render import posed_cache
 
     # a repeated pose comes from the disk cache: no torch import, no model evaluation
     topo, verts = posed_cache.posed(
@@ -247,8 +247,6 @@ def render(
          "head_rotation": head_rotation, "eta": eta, "tau": tau, "limits": limits},
         model_path, lambda: _model_vertices(params, beta, expression, head_rotation, eta,
                                             tau, policy, model_path))
-    from hack_render.render.scene import HeadScene
-    from hack_render.render.skin_maps import skin_maps
 
     maps = skin_maps(alpha_, appearance_seed, textures)
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
@@ -256,14 +254,15 @@ def render(
         typer.echo(settings.spp_note(), err=True)
     outputs = []
     if len(views_) > 1:
-        typer.echo(f"render: {len(views_)} views of {w}x{h} at {spp} spp", err=True)
+        typer.echo(f"render: {len(views_)} views of {w}x{h} at {settings.effective_spp} spp",
+                   err=True)
     with interrupts.on_interrupt(lambda: f"kept {len(outputs)} finished image(s) of "
                                f"{len(views_) * (1 + (exr is not None))}; run the command "
                                "again to render them all"):
         _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
                       use_denoise, keep_noisy, sss)
     cam_json = output.with_name(f"{output.stem}.cameras.json")
-    cams.save_cameras(cam_json, views_)
+    cams.save_cameras(cam_json, views_, rendered(head.settings))
     for target in outputs + [cam_json]:
         typer.echo(f"wrote {target.resolve()}")
 
@@ -274,9 +273,6 @@ def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,
     """Render each camera of ``views_`` to ``output`` (and ``exr``), appending the paths
     written to ``outputs``; denoised when ``use_denoise`` (the noisy image kept as
     ``<name>.noisy.<ext>`` with ``keep_noisy``)."""
-    import json
-
-    from hack_render.render.image_io import write_exr, write_png
 
     for cam in views_:
         head.set_camera(cam)

@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.rigid import kabsch
 from hack_render.render.parts import LIMBUS_RADIUS, radial_eye_distance
 
 #: Anterior corneal radius, metres (schematic eye, see the module docstring).
@@ -194,15 +195,6 @@ def apparent_points(points: np.ndarray, camera_centre: np.ndarray,
     ok &= np.linalg.norm(w, axis=1) < radius  # P behind the cornea
     out = cam + ((dist_q + dist_qp / sphere.ior) / dist_q)[:, None] * to_q
     return np.where(ok[:, None], out, p), ok
-
-
-def kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R (3, 3) and translation t (3,) with dst ~ src @ R.T + t (least squares)."""
-    a, b = src.mean(0), dst.mean(0)
-    u, _, vt = np.linalg.svd((src - a).T @ (dst - b))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return r, b - r @ a
 
 
 class CorneaRig:

@@ -15,6 +15,7 @@ extra (mode ``on``) or fall back to the noisy image with a warning (mode ``auto`
 
 from __future__ import annotations
 
+import sys
 import warnings
 
 import numpy as np
@@ -41,8 +42,6 @@ def _import_pyoidn():
     """``import pyoidn``, without torch where torch is not loaded yet: pyoidn imports it
     (1.1 CPU s) only to accept torch tensors, and this module passes it NumPy arrays. A
     render of a cached pose so never loads torch (docs/render.md, "Fixed cost")."""
-    import sys
-
     if "torch" in sys.modules or "pyoidn" in sys.modules:
         import pyoidn
         return pyoidn

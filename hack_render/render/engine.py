@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from hack_render import threads
 from hack_render.errors import HackError
+from hack_render.render import integrator, skin_bsdf
 
 ENV_VAR = "HACK_RENDER_VARIANT"
 PREFERENCE = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
@@ -143,7 +144,6 @@ def register_plugins() -> None:
     variant = mi.variant()
     if variant in _registered or not is_jit(variant):
         return
-    from hack_render.render import integrator, skin_bsdf
 
     bsdf, integ = skin_bsdf.make_class(), integrator.make_class()
     mi.register_bsdf(skin_bsdf.NAME, lambda props: bsdf(props))

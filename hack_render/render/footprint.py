@@ -10,6 +10,9 @@ as the card's ``mask`` BSDF does) and what lies behind it with the rest, up to
 ``CARD_LAYERS`` cards deep. The film sees the skin through the lashes' gaps, so features
 that stopped at the first card (a dark ring of lash albedo over the eyelids) would not
 explain the image the denoiser is given.
+
+The rays of :mod:`hack_render.render.aov` are traced with the helpers here: the first hit
+past the lights (:func:`camera_hit`) and a card's opacity at a hit (:func:`opacity_at`).
 """
 
 from __future__ import annotations
@@ -19,13 +22,50 @@ from typing import NamedTuple
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.render.aov import _opacity_at, camera_hit
 
 #: How many see-through cards a footprint ray is followed through: the lashes are three
 #: cards deep on each lid, and a ray grazing the lids crosses up to 7 where the strands'
 #: gaps let it (tests/test_render_lashes.py::test_06: with 6, 0.6 % of an eye close-up's
 #: pixels lost up to a third of their weight; with 8, none).
 CARD_LAYERS = 8
+
+
+def emitter_layers(head) -> int:
+    """How many emitter shapes a camera ray may have to pass (the rig's area lights)."""
+    return sum(1 for shape in head.scene.shapes() if shape.is_emitter())
+
+
+def camera_hit(head, ray, active=True, coherent: bool = False):
+    """The first intersection along ``ray`` that is not an emitter's shape (a camera ray
+    looks through the area lights, as the renderer's ``hide_emitters`` does). Returns a
+    SurfaceInteraction3f (invalid where nothing else is hit)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    active = mi.Bool(active)
+    layers = emitter_layers(head)
+    if layers == 0:
+        return head.scene.ray_intersect(ray, mi.RayFlags.All, coherent, active)
+    ray = mi.Ray3f(ray)
+    pi = head.scene.ray_intersect_preliminary(ray, coherent, active)
+    for _ in range(layers):
+        # only the rays that met a light's rectangle are traced again, from just past it
+        # (10 um; the head is metres away from it)
+        skip = active & pi.is_valid() & pi.shape.is_emitter()
+        ray.o = dr.select(skip, ray(pi.t + 1e-5), ray.o)
+        pi = dr.select(skip, head.scene.ray_intersect_preliminary(ray, coherent, skip), pi)
+    return pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
+
+
+def opacity_at(opacity, si, active):
+    """A see-through card's opacity at intersections ``si``: a number, or a texture plugin
+    looked up at the hit's UV (``eval_1``, what the ``mask`` BSDF does), clipped to [0, 1]."""
+    import drjit as dr
+    import mitsuba as mi
+
+    if isinstance(opacity, (int, float)):
+        return mi.Float(float(opacity))
+    return dr.clip(opacity.eval_1(si, active), 0.0, 1.0)
 
 
 def _footprint_rays(head, k: int, lanes):
@@ -78,7 +118,7 @@ def footprint_means(head, k: int, see_through, values) -> list[np.ndarray]:
         for cid, op in cards:
             this = ok & (ids == cid)
             on_card |= this
-            opacity = dr.select(this, _opacity_at(op, hit, this), opacity)
+            opacity = dr.select(this, opacity_at(op, hit, this), opacity)
         return on_card, opacity
 
     w, h = head.camera.width, head.camera.height

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.render.parts import LIMBUS_RADIUS, PUPIL_RADIUS, radial_eye_distance
+from hack_render.render.parts import LIMBUS_RADIUS, PART_SPECS, PUPIL_RADIUS, radial_eye_distance
 
 DEFAULT_IRIS_RGB = (0.16, 0.09, 0.04)  # a brown iris, linear Rec.709
 SCLERA_RGB = (0.70, 0.64, 0.60)
@@ -310,8 +310,6 @@ def material_base_colours(material_names, iris_rgb=None, sclera_rgb=None
     parts' BSDFs above, for formats that carry one colour per material (MTL, glTF); the
     iris's is ``iris_rgb`` and the sclera's ``sclera_rgb`` (e.g. ``SkinMaps``'), else the
     defaults."""
-    from hack_render.render.parts import PART_SPECS
-
     iris = tuple(iris_rgb) if iris_rgb is not None else DEFAULT_IRIS_RGB
     fixed = {**fixed_bsdfs(sclera_rgb), "iris": {"diffuse_reflectance": {"value": iris}}}
     out = {}

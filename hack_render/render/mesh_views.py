@@ -13,15 +13,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from hack_render.render import emitters
+from hack_render.render.emitters import camera_to_world, check_centred
 from hack_render.render.engine import ensure_variant, release_parked, release_when_safe
-from scenes.cameras import Camera
+from hack_render.render.parts import vertex_normals
+from scenes.cameras import Camera, intrinsics, look_at
 
 
 def _mesh(vertices: np.ndarray, faces: np.ndarray, colors: np.ndarray | None,
           normals: np.ndarray | None):
     import mitsuba as mi
-
-    from hack_render.render.parts import vertex_normals
 
     v = np.asarray(vertices, np.float64)
     n = vertex_normals(v, faces) if normals is None else np.asarray(normals, np.float64)
@@ -51,9 +52,6 @@ class MeshViews:
         release_parked()
         import mitsuba as mi
 
-        from hack_render.render import emitters
-        from scenes.cameras import intrinsics, look_at
-
         self.width, self.height = width, height
         K = intrinsics(width, height, 50.0)
         R, t = look_at((0, 0, 1), (0, 0, 0))
@@ -71,8 +69,6 @@ class MeshViews:
         """Move the mesh (same topology): new positions and their vertex normals."""
         import mitsuba as mi
 
-        from hack_render.render.parts import vertex_normals
-
         v = np.asarray(vertices, np.float64)
         self.params["mesh.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
         self.params["mesh.vertex_normals"] = mi.Float(
@@ -81,8 +77,6 @@ class MeshViews:
 
     def _set_camera(self, cam: Camera) -> None:
         import mitsuba as mi
-
-        from hack_render.render.emitters import camera_to_world, check_centred
 
         if (cam.width, cam.height) != (self.width, self.height):
             raise ValueError(f"camera size {cam.width}x{cam.height}, views are "

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.rigid import kabsch
 
 #: Segmentation labels, index = region id (0 is background).
 REGIONS: tuple[str, ...] = ("background", "face", "back_head", "mouth", "teeth", "sclera",
@@ -142,8 +143,6 @@ def eye_axes(topo: Topology, vertices: np.ndarray) -> list[tuple[np.ndarray, np.
     vertices (``topo.rest``: a turned head's front-most shell vertex is not its cornea),
     and carried to ``vertices`` by the rigid (Kabsch) fit of that eye's shell and inner
     eye; without rest vertices (an OBJ), on ``vertices`` themselves."""
-    from hack_render.render.cornea import kabsch
-
     names = topo.material_names
     out = []
     for shell, inner in zip(EYE_SHELLS, EYE_INNER):

@@ -25,6 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hack_render.errors import HackError
+from hack_render.geometry import default_model_path
+from hack_render.io.npz import write_npz
 from hack_render.render.parts import Topology
 
 #: How many posed meshes are kept (~2 MB each).
@@ -63,8 +66,6 @@ def _code_digest() -> str:
 def key(inputs: dict, model_path) -> str:
     """The cache key of a posed mesh: ``inputs`` (the pose flags and options as given,
     JSON-serialisable; paths among them under keys ending in ``_file``) and the model."""
-    from hack_render.geometry import default_model_path
-
     doc = {"format": FORMAT, "code": _code_digest(),
            "model": _identity(model_path if model_path is not None else default_model_path()),
            "inputs": {k: (_identity(v) if k.endswith("_file") else v)
@@ -110,18 +111,15 @@ def _load(path: Path):
 
 def _store(path: Path, topo: Topology, verts: np.ndarray, printed: str) -> None:
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, faces=topo.faces, uvs=topo.uvs, uv_faces=topo.uv_faces,
-                 face_material=topo.face_material,
-                 material_names=np.array(topo.material_names, dtype=str),
-                 vertices=np.asarray(verts), printed=np.array(printed),
-                 **({} if topo.rest is None else {"rest": np.asarray(topo.rest)}))
-        tmp.replace(path)
+        write_npz(path, dict(faces=topo.faces, uvs=topo.uvs, uv_faces=topo.uv_faces,
+                             face_material=topo.face_material,
+                             material_names=np.array(topo.material_names, dtype=str),
+                             vertices=np.asarray(verts), printed=np.array(printed),
+                             **({} if topo.rest is None else {"rest": np.asarray(topo.rest)})))
         old = sorted(path.parent.glob("*.npz"), key=lambda p: p.stat().st_mtime_ns)
         for stale in old[:-KEEP]:
             stale.unlink(missing_ok=True)
-    except OSError:
+    except (OSError, HackError):
         pass  # a read-only or full cache folder: the render goes on without it
 
 

@@ -17,12 +17,36 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+from tqdm import tqdm
 
 from hack_render.errors import HackError
-from hack_render.render import materials
+from hack_render.io.image import read_hdr_image
+from hack_render.render import denoise as dn
+from hack_render.render import emitters, materials
+from hack_render.render.aov import (
+    environment_backdrop,
+    gbuffer,
+    label_pass,
+    point_visibility,
+    region_hits,
+)
 from hack_render.render.cornea import CorneaRig
+from hack_render.render.emitters import (
+    area_light_transform,
+    camera_to_world,
+    check_centred,
+    rotation_y,
+)
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
-from hack_render.render.parts import PART_SPECS, REGIONS, Topology, split_parts, vertex_normals
+from hack_render.render.footprint import denoise_features
+from hack_render.render.parts import (
+    PART_SPECS,
+    REGIONS,
+    Topology,
+    lash_cards,
+    split_parts,
+    vertex_normals,
+)
 from hack_render.render.settings import (
     AUTO_ORTHOGONAL_MIN,
     DEFAULT_INTEGRATOR,
@@ -38,6 +62,7 @@ from hack_render.render.settings import (
     sampler_spp,
     validate_size,
 )
+from hack_render.render.sss import render_scattered
 from scenes.cameras import Camera
 from scenes.lights import LightRig
 
@@ -97,8 +122,6 @@ class HeadScene:
         self.variant = ensure_variant(variant)
         release_parked()  # dropped scenes die here, on the thread that renders
         import mitsuba as mi
-
-        from hack_render.render import emitters
 
         self.settings, self.camera, self.lights = settings, camera, lights
         self.topology = topology
@@ -181,8 +204,6 @@ class HeadScene:
     # --- construction helpers ------------------------------------------------------
     @staticmethod
     def _env_image(rig: LightRig) -> np.ndarray | None:
-        from hack_render.render.image_io import read_hdr_image
-
         if rig.env_map is not None:
             return np.asarray(rig.env_map, dtype=np.float32)
         if rig.env_file is not None:
@@ -195,9 +216,6 @@ class HeadScene:
         found in the part's UVs (``parts.lash_cards``), or ``EYELASH_OPACITY`` where the
         UVs hold no cards (degenerate UVs): strands need a root-to-tip direction."""
         import mitsuba as mi
-
-        from hack_render.render import materials
-        from hack_render.render.parts import lash_cards
 
         cards = lash_cards(part, v, self.eye_axes)
         if len(cards) == 0:
@@ -303,8 +321,6 @@ class HeadScene:
         """Move the camera (and change its focal length); the image size must stay."""
         import mitsuba as mi
 
-        from hack_render.render.emitters import camera_to_world, check_centred
-
         if (camera.width, camera.height) != (self.settings.width, self.settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {self.settings.width}x"
                             f"{self.settings.height}, found {camera.width}x{camera.height}. "
@@ -325,8 +341,6 @@ class HeadScene:
         """Rotate the whole rig (environment and area lights) about +Y."""
         import drjit as dr
         import mitsuba as mi
-
-        from hack_render.render.emitters import area_light_transform, rotation_y
 
         def opaque(m: np.ndarray):
             # a transform built from Python numbers is a set of literals that Dr.Jit bakes
@@ -392,8 +406,6 @@ class HeadScene:
                           stacklevel=2)
             sss = False
         if sss:
-            from hack_render.render.sss import render_scattered
-
             img = render_scattered(self, base, progress)
         else:
             img = self.render_passes(base, progress)
@@ -417,8 +429,6 @@ class HeadScene:
         acc = None
         steps = range(n)
         if progress and n > 1:
-            from tqdm import tqdm
-
             steps = tqdm(steps, desc=desc, unit="pass")
         for i in steps:
             img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31), **kw))
@@ -430,9 +440,6 @@ class HeadScene:
         denoised by OIDN with albedo and normal from :func:`footprint.denoise_features`
         (through the lash cards, as the film sees them); alpha kept. ``fallback``: a missing or failing denoiser returns the image unchanged
         with a warning instead of raising (see ``hack_render.render.denoise``)."""
-        from hack_render.render import denoise as dn
-        from hack_render.render.footprint import denoise_features
-
         albedo, normal = denoise_features(self, k, self.see_through_cards)
         out = image.copy()
         den = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
@@ -462,21 +469,15 @@ class HeadScene:
         ray (zeros without an environment); what the camera would see behind the
         subject, lights excluded. Cached until the camera or the rig moves."""
         if self._backdrop is None:
-            from hack_render.render.aov import environment_backdrop
-
             self._backdrop = environment_backdrop(self)
         return self._backdrop
 
     def aovs(self, see_through=()) -> dict[str, np.ndarray]:
         """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
-        from hack_render.render.aov import gbuffer
-
         return gbuffer(self, see_through)
 
     def region_hits(self, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict:
         """Region ids and model UVs at one sub-pixel point: see :func:`aov.region_hits`."""
-        from hack_render.render.aov import region_hits
-
         return region_hits(self, offset, see_through)
 
     def label_pass(self, k: int, region_labels, uv_label_map, uv_regions=(),
@@ -484,15 +485,11 @@ class HeadScene:
                    see_through_opacity: float | None = None) -> dict:
         """Label coverage of k x k sub-pixel rays and the pixel-centre G-buffer in one
         batch: see :func:`aov.label_pass`."""
-        from hack_render.render.aov import label_pass
-
         return label_pass(self, k, region_labels, uv_label_map, uv_regions, see_through,
                           num_labels, see_through_opacity)
 
     def visibility(self, points, tolerance: float = 2e-3, see_through=("eyelashes",)):
         """Line-of-sight visibility of world points: see :func:`aov.point_visibility`."""
-        from hack_render.render.aov import point_visibility
-
         return point_visibility(self, points, tolerance, see_through)
 
     @property

@@ -23,8 +23,9 @@ SAMPLES_PER_PASS = 1 << 24
 #: Mitsuba samplers offered. Measured at about 32 spp on a 128 px studio portrait against
 #: a 2,048-spp reference (docs/render.md): independent 30.5 dB, stratified (36) 35.3 dB,
 #: multijitter (35) 36.7 dB, orthogonal (49) 40.5 dB, independent at 64 spp 33.8 dB.
-#: ``auto``: Mitsuba's orthogonal array sampler where the count is near the square of a
-#: prime of at least 5 (25, 49, 121, 169, ...), else multijitter (:func:`auto_sampler`).
+#: ``auto``: Mitsuba's orthogonal array sampler where the count is the square of a prime
+#: of at least 5 (25, 49, 121, 169, ...) or a little under one, else multijitter
+#: (:func:`auto_sampler`); never fewer samples than asked for.
 SAMPLERS = ("auto", "multijitter", "stratified", "orthogonal", "ldsampler", "independent")
 DEFAULT_SAMPLER = "auto"
 #: ``auto``'s smallest orthogonal count (5^2). On two 256 px stills (hack_path, depth 8;
@@ -50,31 +51,30 @@ def _next_prime(n: int) -> int:
     return n
 
 
+#: ``auto`` takes the orthogonal array up to this many times the requested count (the
+#: next prime square up: 20-25 spp render 25, 38-49 render 49, 94-121 render 121)
+AUTO_ORTHOGONAL_UP = 1.3
+
+
 def auto_sampler(spp: int, cap: int | None = None) -> tuple[str, int]:
-    """(Mitsuba sampler, sample count) that ``auto`` renders for a requested ``spp``: the
-    orthogonal array at the prime square nearest to ``spp`` in ratio, where that is at
-    least :data:`AUTO_ORTHOGONAL_MIN`, at most ``cap`` (a pass's sample budget) and
-    within 0.7-1.3x of ``spp`` (32 -> 25, 64 -> 49, 100 -> 121), else multijitter (rounded
-    as it rounds: 16 -> 16, 36 -> 36)."""
-    best = None
-    p = _next_prime(math.isqrt(AUTO_ORTHOGONAL_MIN))
-    while p * p <= max(4 * spp, AUTO_ORTHOGONAL_MIN):
-        if (cap is None or p * p <= cap) and 0.7 <= p * p / spp <= 1.3:
-            r = abs(math.log(p * p / spp))
-            if best is None or r < best[0]:
-                best = (r, p * p)
-        p = _next_prime(p + 1)
-    if best is not None:
-        return "orthogonal", best[1]
+    """(Mitsuba sampler, sample count) that ``auto`` renders for a requested ``spp``, never
+    fewer than ``spp``: the orthogonal array at the smallest prime square >= ``spp``, where
+    that is at least :data:`AUTO_ORTHOGONAL_MIN`, at most ``cap`` (a pass's sample budget)
+    and at most :data:`AUTO_ORTHOGONAL_UP` x ``spp`` (25 -> 25, 40 -> 49, 100 -> 121), else
+    multijitter, which rounds up by less than sqrt(spp) (16 -> 16, 32 -> 35, 64 -> 64).
+    (Before issue 65 it took the nearest prime square either way: 32 -> 25, 64 -> 49.)"""
+    p = _next_prime(max(math.isqrt(AUTO_ORTHOGONAL_MIN), math.isqrt(spp - 1) + 1))
+    if p * p <= AUTO_ORTHOGONAL_UP * spp and (cap is None or p * p <= cap):
+        return "orthogonal", p * p
     return "multijitter", sampler_spp("multijitter", spp)
 
 
 def sampler_spp(sampler: str, spp: int) -> int:
-    """The sample count Mitsuba's ``sampler`` actually takes for a requested ``spp``
-    (its own rounding, checked against Mitsuba in the tests): stratified rounds up to a
-    square, multijitter to floor(sqrt n) x ceil(n / floor(sqrt n)), orthogonal to the
-    square of a prime (at least 4), ldsampler to a power of 4 (at least 4); ``auto`` as
-    :func:`auto_sampler` chooses."""
+    """The sample count Mitsuba's ``sampler`` actually takes for a requested ``spp``, at
+    least ``spp`` (its own rounding, checked against Mitsuba in the tests): stratified
+    rounds up to a square, multijitter to floor(sqrt n) x ceil(n / floor(sqrt n)),
+    orthogonal to the square of a prime (at least 4), ldsampler to a power of 4 (at least
+    4); ``auto`` as :func:`auto_sampler` chooses."""
     if sampler == "auto":
         return auto_sampler(spp)[1]
     if sampler == "independent":
@@ -100,12 +100,12 @@ def sampler_spp(sampler: str, spp: int) -> int:
 class RenderSettings:
     """Image size, samples per pixel, path depth, seed and sampler, validated on creation.
 
-    Every sampler but ``independent`` rounds the sample count (:func:`sampler_spp`):
-    :attr:`effective_spp` is what is rendered."""
+    Every sampler but ``independent`` rounds the sample count up, never down
+    (:func:`sampler_spp`): :attr:`effective_spp` is what is rendered."""
 
     width: int = 512
     height: int = 512
-    spp: int = 64
+    spp: int = 49  # the orthogonal array's count (auto renders it as it is)
     max_depth: int = 8
     seed: int = 0
     #: ``gaussian`` (smoother) or ``box`` (bit-reproducible, see ``emitters.sensor_dict``).
@@ -170,8 +170,8 @@ class RenderSettings:
         """One line when the sampler rounded the requested spp, else None."""
         if self.effective_spp == self.spp:
             return None
-        how = ("prime square" if self.mitsuba_sampler == "orthogonal"
-               else "count it rounds to")
+        how = ("next prime square" if self.mitsuba_sampler == "orthogonal"
+               else "count it rounds up to")
         return (f"spp: {self.spp} requested, {self.effective_spp} rendered (the "
                 f"{self.sampler_label} sampler takes {self.passes[1]} per pass, the "
                 f"{how}; --sampler independent takes any count)")

@@ -3,11 +3,13 @@ or constant stand-ins. Returns :class:`~hack_render.render.materials.SkinMaps`."
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.image import read_exr
 from hack_render.render.materials import SkinMaps
 
 TEXTURE_FILES = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
@@ -18,8 +20,6 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
     from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
     there (:func:`read_eye_file`) gives the iris's colour and the eye whites'."""
-    from hack_render.render.image_io import read_exr
-
     folder = Path(folder)
     if not folder.is_dir():
         raise HackError(f"--textures {folder}: expected a folder with diffuse.exr, "
@@ -60,8 +60,6 @@ def read_eye_file(path: Path) -> tuple:
     (3 linear RGB values in [0, 1] each, and a share in [0, 1]; the last two are optional:
     files written before them have none); Nones where the file is absent (the renderer's
     defaults)."""
-    import json
-
     if not path.is_file():
         return None, None, None
     try:
@@ -86,18 +84,16 @@ def read_eye_file(path: Path) -> tuple:
 def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 512) -> SkinMaps:
     """Maps from the appearance layer: a procedural subject for ``seed``
     (``appearance.generator.generate_subject``), or the PCA model's ``maps(alpha)``."""
+    # the appearance model and generator import torch (2.2 s): a render from texture files
+    # or constant maps (and from the mesh cache) runs without it; listed deferrals
+    from appearance.generator import generate_subject  # noqa: PLC0415
+    from appearance.model import AppearanceModel  # noqa: PLC0415
+
     if alpha is None:
-        try:
-            from appearance.generator import generate_subject
-        except ImportError as err:
-            raise HackError(f"--appearance-seed: expected the appearance package, found it "
-                            f"unavailable ({err}). Use --textures DIR.") from err
         if seed is None or seed < 0:
             raise HackError(f"--appearance-seed: expected a non-negative integer, found {seed}.")
         return SkinMaps.from_appearance(generate_subject(int(seed), height=height))
     import torch
-
-    from appearance import AppearanceModel
 
     model = AppearanceModel.load()  # the shipped default; HackError if unusable
     a = torch.tensor([alpha], dtype=torch.float32)  # k <= n_components, checked by maps()

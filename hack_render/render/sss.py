@@ -45,6 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.render.engine import release_parked
+from hack_render.render.footprint import sss_features
 
 
 @dataclass(frozen=True)
@@ -212,8 +214,6 @@ def render_scattered(head, base: int, progress: bool = False) -> np.ndarray:
     scattering in the skin, premultiplied (H, W, 4): ``hack_path``'s one-pass skin split
     (:func:`combine_split`), else the two lobe passes (:func:`combine`); seeds from
     ``base`` as ``HeadScene.render``'s."""
-    from hack_render.render.footprint import sss_features
-
     focal = float(head.camera.K[0, 0])
     if head.integrator_name == "hack_path":  # one pass, the skin's diffuse as an AOV
         img = head.render_passes(base, progress, integrator=split_integrator(head))
@@ -247,8 +247,6 @@ def lobe_passes(head, seed: int | None = None,
     """The two passes of ``render(sss=True)`` with ``volpath`` or ``path``, premultiplied
     (H, W, 4) each: the skin's diffuse lobe alone, then its specular lobe alone (other
     materials in both); the lobe weights are restored afterwards."""
-    from hack_render.render.engine import release_parked
-
     release_parked()
     base = head.settings.seed if seed is None else int(seed)
     try:

@@ -17,14 +17,20 @@ frames already there (each was written atomically, so an existing file is comple
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from hack_render.boundary import clean_temporaries
 from hack_render.errors import HackError
+from hack_render.geometry.params import ParamSequence
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io import TEMP_GLOB, temp_glob
 
 FORMATS = ("mp4", "gif", "frames")
 
@@ -72,9 +78,6 @@ SWALLOW_SPAN = (0.15, 0.85)
 @lru_cache(maxsize=1)
 def _swallow_curve() -> tuple[np.ndarray, np.ndarray, dict]:
     """(times (S,) s, tau (S,) m, meta) of the packaged swallow curve."""
-    import json
-    from importlib import resources
-
     path = Path(str(resources.files("hack_render") / "data" / SWALLOW_CURVE))
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -124,12 +127,14 @@ def pending_frames(folder: Path, n: int, resume: bool) -> list[int]:
     """Frames still to render (all of them unless ``resume``). A frame on disk is complete
     (written under a temporary name, then renamed); the temporaries a killed run left in
     ``<folder>/frames`` and ``<folder>`` are removed first."""
-    from hack_render.boundary import clean_temporaries
-
-    clean_temporaries(Path(folder) / "frames", ".frame_*")
-    if (Path(folder) / "noisy").is_dir():
-        clean_temporaries(Path(folder) / "noisy", ".frame_*")
-    for stem in ("turntable", "cameras", "run"):  # the video, GIF, cameras and run record
+    for kind in ("frames", "noisy"):  # hack_render.io's, and older versions' names
+        if (Path(folder) / kind).is_dir():
+            for pattern in (TEMP_GLOB, ".frame_*"):
+                clean_temporaries(Path(folder) / kind, pattern)
+    # the video, GIF, cameras and run record (the folder's other files are not ours)
+    for name in ("turntable.mp4", "turntable.gif", "cameras.json", "turntable.json"):
+        clean_temporaries(Path(folder), temp_glob(name))
+    for stem in ("turntable", "cameras", "run"):  # as older versions named them
         clean_temporaries(Path(folder), f".{stem}.*")
     return [i for i in range(n) if not (resume and frame_path(folder, i).is_file())]
 
@@ -147,9 +152,6 @@ def motion_sequence(spec: TurntableSpec, base_theta: np.ndarray | None = None,
     swallow's tau (else ``base_tau``) and ``base_psi`` (E,), at ``spec.fps``. The camera
     orbit and the subject turn are not head motion and are not in it."""
     import torch
-
-    from hack_render.geometry.params import ParamSequence
-    from hack_render.geometry.skeleton import distribute_head_rotation
 
     n = spec.frames
     theta = np.zeros((n, 8, 3)) + (0.0 if base_theta is None else np.asarray(base_theta))

@@ -1,9 +1,9 @@
 """`hack-render turntable`: a seamless looping turntable of the head (MP4, GIF, PNG frames).
 
 Its options and checks are `render`'s (:mod:`hack_render.render.cli`,
-:mod:`hack_render.cli_options`); the image writers (numpy) are imported with the module,
-torch and Mitsuba inside the command, so `--help` stays fast. Frames are written on a
-thread of their own while the next frame renders.
+:mod:`hack_render.cli_options`); numpy and everything heavier are imported inside the
+command, so `--help` stays fast. Frames are written on a thread of their own while the
+next frame renders.
 """
 
 from __future__ import annotations
@@ -13,12 +13,21 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import imageio.v3 as iio
+import numpy as np
 import typer
+from tqdm import tqdm
 
+from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render import interrupts
 from hack_render.errors import HackError
-from hack_render.render import image_io
+from hack_render.geometry import load_model
+from hack_render.geometry.limits import apply_limit_policy, limit_policy
+from hack_render.geometry.params import gather_params, model_inputs, save_sequence
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io import atomic_path
+from hack_render.io.image import to_srgb8
+from hack_render.render import turntable as tt
 from hack_render.render.cli import (
     DenoiseOpt,
     IntegratorOpt,
@@ -30,8 +39,15 @@ from hack_render.render.cli import (
     denoise_settings,
     named,
     parse_resolution,
+    rendered,
 )
+from hack_render.render.parts import Topology
+from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
+from hack_render.render.skin_maps import skin_maps
+from hack_render.render.video import write_gif, write_mp4
 from hack_render.threads import check_threads, command_threads
+from scenes import cameras as cams
+from scenes import lights
 
 if TYPE_CHECKING:
     import numpy as np
@@ -73,7 +89,7 @@ def turntable(
     focal_mm: float = typer.Option(85.0, "--focal-mm", help="Focal length, mm."),
     pitch: float = typer.Option(5.0, help="Camera elevation, degrees."),
     resolution: opts.Resolution = "256",
-    spp: opts.Spp = 32,
+    spp: opts.Spp = 25,
     seed: opts.Seed = 0,
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
@@ -89,25 +105,9 @@ def turntable(
 
     Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
     """
-    import imageio.v3 as iio
-    import numpy as np
     import torch
-    from tqdm import tqdm
-
-    from hack_render import boundary
-    from hack_render.geometry.cli import gather_params
-    from hack_render.geometry.params import model_inputs
-    from hack_render.geometry.skeleton import distribute_head_rotation
-    from hack_render.render import turntable as tt
-    from hack_render.render.image_io import to_srgb8
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.skin_maps import skin_maps
-    from hack_render.render.video import write_gif, write_mp4
-    from scenes import cameras as cams
-    from scenes import lights
 
     spec = tt.TurntableSpec(frames, mode, 360.0, look_around, swallow, fps)
-    from hack_render.render.scene import MAX_SPP
 
     w, h = parse_resolution(resolution)
     boundary.number(spp, "--spp", 1, MAX_SPP, integer=True)
@@ -135,14 +135,7 @@ def turntable(
         check_threads(threads)
     command_threads(threads)
 
-    from hack_render.geometry import load_model
-    from hack_render.geometry.cli import LimitPolicy, apply_limit_policy
-    from hack_render.render.parts import Topology
-
-    try:
-        policy = LimitPolicy(limits)
-    except ValueError as err:
-        raise HackError(f"--limits: expected warn, clamp or error, found {limits!r}.") from err
+    policy = limit_policy(limits)
     model = load_model(model_path)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
     base = apply_limit_policy(model_inputs(model, p), policy, p.get("head_rotation_deg"))
@@ -157,6 +150,7 @@ def turntable(
         "pitch": pitch, "resolution": [w, h], "spp": spp, "seed": seed, "tonemap": tonemap,
         "variant": variant, "limits": limits, "frames": frames, "mode": mode,
         "sampler": sampler, "integrator": integrator, "denoise": use_denoise, "sss": sss,
+        "rendered": rendered(settings),
         "look_around": look_around,
         "swallow": swallow}, name="turntable.json")
 
@@ -189,8 +183,6 @@ def turntable(
                 old.unlink()
         record.write(complete=False)
         if sequence is not None:
-            from hack_render.geometry.params import save_sequence
-
             tau0 = float(base["tau"][0]) if "tau" in base else 0.0
             motion = tt.motion_sequence(spec, base["theta"][0].numpy(), base["psi"][0].numpy(),
                                         tau0)
@@ -260,7 +252,8 @@ def turntable(
             written.append(write_mp4(output / "turntable.mp4", seq, fps))
         if "gif" in fmt:
             written.append(write_gif(output / "turntable.gif", seq, fps))
-        cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)])
+        cams.save_cameras(output / "cameras.json", [camera_at(i) for i in range(frames)],
+                          rendered(settings))
         record.write(complete=True)  # the completion marker, last
     for path in written + [output / "cameras.json"]:
         typer.echo(f"wrote {path.resolve()}")
@@ -268,10 +261,8 @@ def turntable(
 
 def _write_frame(path: Path, linear, tonemap: str) -> None:
     """Tone map, encode and write one frame's PNG atomically (the writer thread's job)."""
-    import imageio.v3 as iio
-
-    with image_io.atomic_path(path) as tmp:
-        iio.imwrite(tmp, image_io.to_srgb8(linear, 0.0, tonemap), extension=".png")
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, to_srgb8(linear, 0.0, tonemap), extension=".png")
 
 
 def register(app: typer.Typer) -> None:

@@ -8,17 +8,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+import imageio.v3 as iio
+import imageio_ffmpeg
 import numpy as np
 
 from hack_render.errors import HackError
-from hack_render.render.image_io import atomic_path
+from hack_render.io import atomic_path
 
 
 def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24,
               quality: int = 8) -> Path:
     """H.264 MP4 in yuv420p (plays everywhere). Frame sides must be even (chroma 2x2)."""
-    import imageio_ffmpeg
-
     if not frames:
         raise HackError(f"{path}: expected at least one frame, found none.")
     h, w = frames[0].shape[:2]
@@ -39,8 +39,6 @@ def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24,
 
 def write_gif(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24) -> Path:
     """Looping GIF (Pillow through imageio)."""
-    import imageio.v3 as iio
-
     if not frames:
         raise HackError(f"{path}: expected at least one frame, found none.")
     with atomic_path(path) as tmp:
@@ -51,8 +49,6 @@ def write_gif(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24) -> 
 
 def count_mp4_frames(path: str | Path) -> tuple[int, tuple[int, int], str]:
     """Decode an MP4 fully: (number of frames, (width, height), pixel format of the stream)."""
-    import imageio_ffmpeg
-
     gen = imageio_ffmpeg.read_frames(str(path))
     meta = next(gen)
     n = sum(1 for _ in gen)

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import typer
 
+from hack_render import boundary, interrupts
 from hack_render import cli_options as opts
-from hack_render import interrupts
 from hack_render.errors import HackError
+from hack_render.fit.config import FitConfig, load_config
 from hack_render.threads import check_threads, command_threads, requested
+from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frames
+from hack_render.track.outputs import write_outputs
+from hack_render.track.pipeline import timed, track_clip
+from hack_render.track.video import open_clip
 
 
 def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 640,
@@ -23,11 +29,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     neck's shading (else the keyframe fit's tau throughout); ``outline``: place the neck
     on the person's outline in every frame (the outline stage)."""
 
-    from hack_render import boundary
-    from hack_render.fit.config import FitConfig
-    from hack_render.track.detect import FrameLandmarks
-    from hack_render.track.video import open_clip
-
     boundary.number(keyframes, "--keyframes", 1, 50)
     boundary.number(max_side, "--max-side", 64, 4096, unit=" px")
     if max_frames is not None:
@@ -35,8 +36,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     cfg = config or FitConfig()
     clip = open_clip(video, max_side, fps)
     if max_frames is not None and max_frames < clip.frames:
-        import dataclasses
-
         clip = dataclasses.replace(clip, frames=int(max_frames))
     if clip.frames < 3:
         raise HackError(f"{video}: {clip.frames} frame(s); expected at least 3 to track.")
@@ -52,7 +51,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
         return None, []
     if requested() is None:  # the command's --threads, else torch's default for commands
         command_threads(None)
-    from hack_render.track.pipeline import _timed
 
     landmarks, timings = None, {}
     if resume and lm_path.is_file():
@@ -63,11 +61,9 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     with boundary.folder_lock(outdir):
         record.write(complete=False)
         if landmarks is None:
-            from hack_render.track.detect import FrameDetector, detect_frames
-
             with interrupts.on_interrupt(f"nothing kept in {outdir} (interrupted while finding "
                                        "landmarks); run the same command again"), \
-                    _timed(timings, "landmarks"):
+                    timed(timings, "landmarks"):
                 landmarks = detect_frames(clip.read(), FrameDetector(
                     refiner=cfg.landmarks.refiner), progress, clip.frames)
             landmarks.save(lm_path)  # a resumed run starts after the landmarks
@@ -76,7 +72,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
             result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx,
                                     outline)
             result.timings.update(timings)  # the landmarks' time (none when resumed)
-            from hack_render.track.outputs import write_outputs
 
             paths = write_outputs(result, fitter, outdir, overlay, progress, truth)
         record.write(complete=True)  # the completion marker, last
@@ -84,8 +79,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
 
 
 def _track(clip, cfg, keyframes, progress, landmarks, larynx=True, outline=True):
-    from hack_render.track.pipeline import track_clip
-
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
                         landmarks=landmarks, larynx=larynx, outline=outline)
     return result, result.fitter
@@ -138,16 +131,12 @@ def track(
 
     Example: hack-render track clip.mp4 -o out/clip
     """
-    from hack_render.fit.config import load_config
-
     if tau not in ("photometric", "fixed"):
         raise HackError(f"--tau {tau!r}: expected 'photometric' or 'fixed'.")
     over: dict = {}
     if no_photometric:
         over["photometric"] = {"enabled": False}
     if config is not None:
-        from hack_render import boundary
-
         boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
                             "config file")
     cfg = load_config(config, over)

@@ -8,8 +8,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.fit.landmark_refiner import load_refiner
+from hack_render.io import atomic_path
+from hack_render.vision import detect as vision_detect
+from hack_render.vision import dlib_models
 
 
 @dataclass
@@ -35,8 +40,6 @@ class FrameLandmarks:
             self.source = ["dlib" if f else "" for f in self.found]
 
     def save(self, path) -> None:
-        from hack_render.render.image_io import atomic_path
-
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, points=self.points, found=self.found, boxes=self.boxes,
                      why=np.array(self.why, dtype=str), weights=self.weights, raw=self.raw,
@@ -58,14 +61,11 @@ class FrameDetector:
 
     def __init__(self, min_face_px: int = 48, refiner: str = "dlib", max_jump: float = 0.5,
                  fallback: bool = True):
-        from hack_render.fit.landmarks import _dlib
-
-        self.detector, self.predictor = _dlib()
+        self.detector = dlib_models.frontal_detector()
+        self.predictor = dlib_models.shape_predictor()
         self.min_face_px, self.max_jump = min_face_px, max_jump
         self.refiner = None
         if refiner != "off":
-            from hack_render.fit.landmark_refiner import load_refiner
-
             self.refiner = load_refiner(refiner)
         # where dlib finds no face: the vision package's face mesh (its 68 points are fixed
         # surface points, so its jawline is not dlib's outline: the solve skips it)
@@ -100,9 +100,7 @@ class FrameDetector:
         """(points, visible (68,), box) of the face mesh's face nearest the last one, or
         None (no face, or the vision package's models are not installed)."""
         try:
-            from hack_render.vision.detect import detect_faces
-
-            faces = detect_faces(img, "mesh")
+            faces = vision_detect.detect_faces(img, "mesh")
         except (ImportError, HackError, OSError, RuntimeError):
             return None
         faces = [f for f in faces if f.size >= self.min_face_px]
@@ -184,8 +182,6 @@ class FrameDetector:
 def detect_frames(frames, detector: FrameDetector | None = None, progress: bool = True,
                   total: int | None = None) -> FrameLandmarks:
     """Landmarks of every frame of an iterable of (H, W, 3) uint8 images."""
-    from tqdm import tqdm
-
     det = detector or FrameDetector()
     pts, raws, boxes, why, masks, source = [], [], [], [], [], []
     for img in tqdm(frames, total=total, desc="landmarks", unit="frame", disable=not progress,

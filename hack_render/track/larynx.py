@@ -34,8 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from hack_render.fit.camera import R0
 from hack_render.geometry.larynx import TAU_RANGE_M
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.render.mesh_views import MeshViews
+from scenes.cameras import Camera
 
 
 @dataclass
@@ -304,8 +310,6 @@ def slid_meshes(model, person, params, theta: torch.Tensor, i: int, eta: float,
     first slide, and the others' larynx displacements ``d_tau`` (C, M, 3, rest space) posed
     by the blend of the joints' rotations (LBS is linear in the rest mesh, and the pose
     correctives do not depend on tau); equal to C full forwards (tests)."""
-    from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
-
     with torch.no_grad():
         g = torch.as_tensor(params.g[i]).float()[None]
         out = person(psi=torch.as_tensor(params.psi[i]).float()[None], theta=theta[i][None],
@@ -346,12 +350,6 @@ def track_tau(frames, model, beta: torch.Tensor, eta: float, params, camera, fou
         found: (T,) frames with a face (others are not scored).
         fps: the clip's frame rate (the velocity penalty is per second).
     """
-    from tqdm import tqdm
-
-    from hack_render.fit.camera import R0
-    from hack_render.geometry.skeleton import distribute_head_rotation
-    from hack_render.render.mesh_views import MeshViews
-    from scenes.cameras import Camera
 
     cfg = cfg or LarynxTrackConfig()
     lo, hi = TAU_RANGE_M

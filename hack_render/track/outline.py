@@ -30,10 +30,24 @@ Per frame with a face:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+
+from hack_render.fit.camera import R0
+from hack_render.fit.silhouette import (
+    ModelSilhouette,
+    PhotoSilhouette,
+    mask_problem,
+    segment_plain_background,
+)
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.render.bridge import vertex_normals_torch
+from hack_render.track.solve import solve_clip
+from hack_render.vision.segment import person_mask
 
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
@@ -68,10 +82,10 @@ class FrameMasks:
         """From (H, W) bool masks, one per frame (None: no mask for that frame); each is
         turned into its distance map as it comes (stored as float16 at ``max_side``: a
         long clip's masks are not kept)."""
-        from hack_render.fit.silhouette import PhotoSilhouette
-
         sdfs, has, kinds, scale = [], [], [], 1.0
         for i, m in enumerate(masks):
+            if m is not None and mask_problem(m) is not None:
+                m = None  # all person or none (a tight crop): no outline in this frame
             kind = (source[i] if source is not None else "given") if m is not None else ""
             if m is None:
                 sdfs.append(None)
@@ -114,8 +128,6 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
         max_side: the distance maps' size (long side, px).
         max_spread, chroma: the plain-background key's (``fit.silhouette``).
     """
-    from hack_render.fit.silhouette import segment_plain_background
-
     T = len(found)
     source = [""] * T
 
@@ -139,13 +151,9 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
 
 
 def _segmented(img: np.ndarray, points: np.ndarray) -> np.ndarray | None:
-    try:
-        from hack_render.vision.segment import person_mask
-    except ImportError:  # mediapipe missing: frames on a cluttered background get no mask
-        return None
-    try:
-        m, _ = person_mask(img, points)
-    except Exception:  # noqa: BLE001  (a segmentation that fails leaves the frame to the landmarks)
+    try:  # mediapipe missing (ImportError) or a segmentation that fails: the frame is left
+        m, _ = person_mask(img, points)  # to the landmarks
+    except Exception:  # noqa: BLE001
         return None
     return m
 
@@ -163,9 +171,6 @@ class OutlineTerm:
 
     def __init__(self, model, person, eta: float, tau: np.ndarray, camera, masks: FrameMasks,
                  scale: np.ndarray, cfg: OutlineConfig, robust_knee: float):
-        from hack_render.fit.silhouette import ModelSilhouette
-        from hack_render.geometry.lbs import chain_parents
-
         self.model, self.person, self.camera, self.masks = model, person, camera, masks
         self.eta, self.tau = float(eta), np.asarray(tau, np.float64)
         self.cfg, self.knee = cfg, float(robust_knee)
@@ -179,7 +184,6 @@ class OutlineTerm:
         self.weights_all = model.skinning_weights.double()
         joints = person.joints.double()[None]
         self.nodes = torch.cat([joints[:, :1], joints], 1)
-        from hack_render.fit.camera import R0
 
         self.centre = -(R0.double().T @ torch.as_tensor(camera.cam_t, dtype=torch.float64)).numpy()
         self.rest = self.pairs = self.S = None
@@ -187,9 +191,6 @@ class OutlineTerm:
     def select(self, params) -> None:
         """Re-select every frame's contour and rest mesh at ``params``
         (:class:`~hack_render.track.solve.FrameParams`)."""
-        from hack_render.geometry.skeleton import distribute_head_rotation
-        from hack_render.render.bridge import vertex_normals_torch
-
         T = params.frames
         rest_all, pairs, ts = [None] * T, [np.zeros((0, 2), np.int64)] * T, [np.zeros(0)] * T
         h, w = self.camera.height, self.camera.width
@@ -242,9 +243,6 @@ class OutlineTerm:
 
     def points(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
         """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D)."""
-        from hack_render.geometry.lbs import local_rotations, rigid_transforms, skin
-        from hack_render.geometry.skeleton import distribute_head_rotation
-
         h, g, t = x[:, :3], x[:, 3:6], x[:, 6:9]
         rot = local_rotations(distribute_head_rotation(h, clamp=False), g)
         _, rel = rigid_transforms(rot, self.nodes.expand(len(x), -1, -1), self.parents)
@@ -315,9 +313,6 @@ def refine_outline(rig, camera, obs, found, weights, params, g_ref, tcfg, model,
     """The tracked parameters with the neck placed on the person's outline: the joint
     solve (:func:`~hack_render.track.solve.solve_clip`) with :class:`OutlineTerm` added,
     ``cfg.rounds`` times. Returns (FrameParams, :class:`OutlineResult`)."""
-    import dataclasses
-
-    from hack_render.track.solve import solve_clip
 
     cfg = cfg or OutlineConfig()
     if not masks.has.any():

@@ -3,13 +3,23 @@ landmarks, the overlay video and the report."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image, ImageDraw
+from tqdm import tqdm
 
+from hack_render.fit.camera import R0
+from hack_render.fit.outputs import write_all
+from hack_render.geometry.params import save_params, save_sequence
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io import atomic_path, write_json
+from hack_render.render.mesh_views import MeshViews
 from hack_render.track.pipeline import TrackResult, sequence_of
+from hack_render.track.solve import landmark_error
+from hack_render.track.video import Mp4Writer
+from scenes.cameras import Camera
 
 
 def jitter(x: np.ndarray) -> float:
@@ -26,8 +36,6 @@ def jitter(x: np.ndarray) -> float:
 
 def frame_vertices(result: TrackResult, start: int, stop: int) -> np.ndarray:
     """The fitted model's vertices (stop - start, N, 3) for frames start .. stop - 1."""
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     fit, p = result.fit, result.params
     model = result.fit.model
     sl = slice(start, stop)
@@ -54,14 +62,6 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
     """MP4 at the clip's rate: each frame with the fitted model ray cast over it (shaded,
     60 % opacity), the detected landmarks (green) and the model's (red); lost frames say
     so in a red band."""
-    from PIL import Image, ImageDraw
-    from tqdm import tqdm
-
-    from hack_render.fit.camera import R0
-    from hack_render.render.mesh_views import MeshViews
-    from hack_render.track.solve import landmark_error
-    from hack_render.track.video import Mp4Writer
-    from scenes.cameras import Camera
 
     clip, cam = result.clip, result.camera
     w, h = clip.work
@@ -103,8 +103,6 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
 def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
     """The report: per-frame landmark error, jitter, lost frames, timings (and errors
     against ``truth`` when given: theta, psi, tau per frame)."""
-    from hack_render.track.solve import landmark_error
-
     lm = result.landmarks
     err_px, nme, uv = landmark_error(result.rig, result.camera, result.params, lm.points,
                                      lm.found)
@@ -226,9 +224,6 @@ def neck_offset_px(result: TrackResult, truth: dict) -> np.ndarray:
     the mean image offset (px) of the larynx region's vertices, the tracked model through
     the tracked camera against the true model (``truth``: beta, theta, psi, tau, K,
     cam_t; torso and translation zero) through the true camera."""
-    from hack_render.fit.camera import R0
-    from scenes.cameras import Camera
-
     model = result.fit.model
     T = result.clip.frames
     w, h = result.clip.work
@@ -259,8 +254,6 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hack_render.fit.outputs import _atomic_bytes
-
     lt = result.larynx
     T = len(lt.tau)
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True,
@@ -280,7 +273,8 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
     bx.set_ylabel("confidence")
     bx.set_xlabel("frame")
     fig.tight_layout()
-    _atomic_bytes(path, lambda t: fig.savefig(t, dpi=90))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
     return path
 
@@ -288,10 +282,6 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
-    from hack_render.fit.outputs import write_all
-    from hack_render.geometry.params import save_params, save_sequence
-    from hack_render.render.image_io import atomic_path
-
     written = []
     written += write_all(result.fit, fitter, outdir / "identity")
     person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
@@ -299,15 +289,11 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
     result.landmarks.save(outdir / "landmarks.npz")
     written.append(outdir / "landmarks.npz")
-    with atomic_path(outdir / "camera.json") as tmp:
-        tmp.write_text(json.dumps(result.camera.to_dict(), indent=1))
-    written.append(outdir / "camera.json")
+    written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
     if overlay:
         written.append(write_overlay(result, outdir / "overlay.mp4", progress))
     if result.larynx is not None:
         written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
     rep = report_dict(result, truth)
-    with atomic_path(outdir / "report.json") as tmp:
-        tmp.write_text(json.dumps(rep, indent=1))
-    written.append(outdir / "report.json")
+    written.append(write_json(outdir / "report.json", rep, indent=1))
     return written

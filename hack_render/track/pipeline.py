@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -28,9 +29,19 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
-from hack_render.track.detect import FrameLandmarks
-from hack_render.track.solve import ClipCamera, FrameParams, TrackConfig
+from hack_render.fit.camera import R0
+from hack_render.fit.config import FitConfig
+from hack_render.fit.fitter import Fitter
+from hack_render.fit.photo import from_array
+from hack_render.geometry.params import ParamSequence
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frames
+from hack_render.track.larynx import track_tau
+from hack_render.track.outline import frame_masks, refine_outline
+from hack_render.track.rig import LandmarkRig
+from hack_render.track.solve import ClipCamera, FrameParams, TrackConfig, solve_clip, solve_frames
 from hack_render.track.video import Clip
+from hack_render.vision.detection import Detection
 
 
 @dataclass
@@ -50,7 +61,7 @@ class TrackResult:
     outline: object = None         # the outline stage's OutlineResult (None: not run)
 
 
-class _timed:
+class timed:
     """Adds ``<name>_s`` (wall) and ``<name>_cpu_s`` (this process's CPU time, all
     threads) to ``timings`` for the block."""
 
@@ -92,10 +103,6 @@ def pick_keyframes(found: np.ndarray, count: int, points: np.ndarray) -> list[in
 def fit_identity(clip: Clip, lm: FrameLandmarks, keyframes: list[int], config,
                  progress: bool = True):
     """The photo fit on the keyframes (one expression per view): (FitResult, fitter)."""
-    from hack_render.fit.fitter import Fitter
-    from hack_render.fit.landmarks import Detection
-    from hack_render.fit.photo import from_array
-
     want = set(keyframes)
     photos, dets = [], []
     for i, img in enumerate(clip.read(0, max(keyframes) + 1)):
@@ -115,8 +122,6 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
                  tcfg: TrackConfig, progress: bool) -> FrameParams:
     """The warm-started pass from frame ``first`` (where ``init`` holds): forward to the
     clip's end, and backward to frame 0."""
-    from hack_render.track.solve import solve_frames
-
     w = np.asarray(weights)
     parts = [solve_frames(rig, camera, obs[first:], found[first:],
                           w[first:] if w.ndim == 2 else w, init, tcfg, progress, init.g[0])]
@@ -139,19 +144,12 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
     larynx's slide per frame from the neck's shading (else the keyframe fit's tau);
     ``outline``: place the neck on the person's outline (``outline.py``)."""
-    import dataclasses
-
-    from hack_render.fit.camera import R0
-    from hack_render.fit.config import FitConfig
-    from hack_render.track.detect import FrameDetector, detect_frames
-    from hack_render.track.rig import LandmarkRig
-    from hack_render.track.solve import solve_clip
 
     tcfg = track_config or TrackConfig()
     cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
     timings, notes = {}, list(clip.notes)
     if landmarks is None:
-        with _timed(timings, "landmarks"):
+        with timed(timings, "landmarks"):
             landmarks = detect_frames(clip.read(), FrameDetector(
                 refiner=cfg.landmarks.refiner), progress, clip.frames)
     if landmarks.found.sum() < 2:
@@ -162,7 +160,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     by_dlib = landmarks.found & np.array([src == "dlib" for src in landmarks.source])
     keys = pick_keyframes(by_dlib if by_dlib.any() else landmarks.found, keyframes,
                           landmarks.points)
-    with _timed(timings, "identity_fit"):
+    with timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     state = fitter.state
     rig = LandmarkRig.build(state.model, fit.beta.detach(), state.embedding)
@@ -182,22 +180,20 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                        (R.T @ (v0.transl.detach().double().numpy() - cam_t))[None], psi0)
     obs, found = landmarks.points, landmarks.found.copy()
     point_w = landmarks.weights[None] * landmarks.mask  # (T, 68): the mesh's jaw left out
-    with _timed(timings, "per_frame"):
+    with timed(timings, "per_frame"):
         seq = warm_started(rig, camera, obs, found, point_w, init, keys[0], tcfg,
                            progress)
-    with _timed(timings, "smoothing"):
+    with timed(timings, "smoothing"):
         params = solve_clip(rig, camera, obs, found, point_w, seq, g_ref, tcfg,
                             progress)
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     eta = float(fit.eta.detach().reshape(-1)[0])
     placed = None  # the outline stage's OutlineResult
     if outline and cfg.silhouette.mode != "off":
-        from hack_render.track.outline import frame_masks, refine_outline
-
         sc = cfg.silhouette
-        with _timed(timings, "outline"):
+        with timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
-                                max_spread=sc.max_spread, chroma=sc.chroma)
+                                chroma=sc.chroma)
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
                                             tcfg, state.model, fit.beta.detach(), eta, tau,
                                             masks, progress=progress)
@@ -206,9 +202,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                          "nor the person segmentation); the neck follows the landmarks alone")
     track = None
     if larynx:
-        from hack_render.track.larynx import track_tau
-
-        with _timed(timings, "larynx"):
+        with timed(timings, "larynx"):
             track = track_tau(clip.read, state.model, fit.beta.detach(), eta, params, camera,
                               found, clip.fps, progress=progress)
         tau = track.tau
@@ -218,9 +212,6 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
 
 def sequence_of(result: TrackResult):
     """The per-frame parameters as a :class:`~hack_render.geometry.params.ParamSequence`."""
-    from hack_render.geometry.params import ParamSequence
-    from hack_render.geometry.skeleton import distribute_head_rotation
-
     p = result.params
     theta = distribute_head_rotation(torch.as_tensor(p.h), clamp=False).numpy()
     return ParamSequence(fps=result.clip.fps, theta=theta, psi=p.psi, tau=result.tau,

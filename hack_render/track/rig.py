@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from hack_render.errors import HackError
+from hack_render.fit.landmark_embedding import embedded_points
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.skeleton import distribute_head_rotation
 
@@ -56,14 +57,14 @@ class LandmarkRig:
         psi = torch.cat([torch.zeros(1, E), torch.eye(E)], 0)
         with torch.no_grad():
             rest = model(beta=beta.detach(), psi=psi).rest_vertices.double()
-        pts = _points(rest, embedding, model)
+        pts = landmark_points(rest, embedding, model)
         L0, D = pts[0], pts[1:] - pts[:1]
         # psi enters linearly: a combination of two shapes equals the sum of their deltas
         with torch.no_grad():
             mix = torch.zeros(1, E)
             mix[0, : min(E, 3)] = torch.tensor([0.7, 0.4, 0.9][: min(E, 3)])
-            got = _points(model(beta=beta.detach(), psi=mix).rest_vertices.double(), embedding,
-                          model)[0]
+            got = landmark_points(model(beta=beta.detach(), psi=mix).rest_vertices.double(),
+                                  embedding, model)[0]
         want = L0 + torch.einsum("e,elc->lc", mix[0].double(), D)
         if float((got - want).abs().max()) > 1e-5:
             raise HackError("track: the model's expressions are not linear in psi at the "
@@ -91,10 +92,11 @@ class LandmarkRig:
         return rest @ A.transpose(1, 2) + (a + t)[:, None]
 
 
-def _points(vertices: torch.Tensor, embedding, model) -> torch.Tensor:
+def landmark_points(vertices: torch.Tensor, embedding, model) -> torch.Tensor:
+    """The model's 68 landmarks (B, 68, 3) on ``vertices`` (B, N, 3): by the landmark
+    embedding's barycentric points, or the model's landmark vertices without one."""
     if embedding is None:
         return vertices[:, model.landmark_indices]
-    from hack_render.fit.landmark_embedding import embedded_points
 
     return embedded_points(vertices, torch.as_tensor(embedding.vertex_ids),
                            torch.as_tensor(embedding.bary))

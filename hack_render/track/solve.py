@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from hack_render.fit.camera import R0
 from hack_render.geometry.skeleton import head_rotation_range_deg
@@ -291,8 +292,6 @@ def solve_frames(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray,
     by Levenberg-Marquardt, with a weak pull toward the previous frame (its velocity
     prior); a lost frame keeps the previous frame's parameters. ``g_ref``: the torso the
     prior holds (default: ``init``'s); ``t_ref``: the translation (default: ``init``'s)."""
-    from tqdm import tqdm
-
     cfg = cfg or TrackConfig()
     T = len(obs)
     x_prev = torch.as_tensor(init.vector()[0], dtype=torch.float64)
@@ -327,8 +326,6 @@ def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights
     penalties, over windows of ``cfg.window`` frames (each starting from the warm-started
     pass and joined to the frames before it). ``extra(x, frames)``: a further cost of a
     window's parameters x (T', D) for the frames (a slice) it holds (the outline stage's)."""
-    from tqdm import tqdm
-
     cfg = cfg or TrackConfig()
     T = len(obs)
     x_all = torch.as_tensor(init.vector(), dtype=torch.float64).clone()

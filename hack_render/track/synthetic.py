@@ -13,7 +13,22 @@ import json
 import math
 from pathlib import Path
 
+import imageio.v3 as iio
 import numpy as np
+from tqdm import tqdm
+
+from hack_render.fit.camera import R0, SENSOR_MM
+from hack_render.fit.landmark_embedding import load_default
+from hack_render.geometry import load_default_model
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.io.image import to_srgb8
+from hack_render.render.parts import Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from hack_render.render.skin_maps import skin_maps
+from hack_render.render.turntable import swallow_tau
+from hack_render.track.rig import landmark_points
+from scenes.cameras import Camera
+from scenes.lights import preset
 
 #: Motion amplitudes of a clip (degrees; flexion, axial, lateral)
 HEAD_AMPLITUDE_DEG = (12.0, 30.0, 8.0)
@@ -25,9 +40,6 @@ def clip_truth(model, frames: int, fps: float, seed: int = 0, swallow: bool = Tr
     (T, E), ``tau`` (T,) metres, the identity ``beta`` (1, 20) and the light's rotation
     (T,) degrees."""
     import torch
-
-    from hack_render.geometry.skeleton import distribute_head_rotation
-    from hack_render.render.turntable import swallow_tau
 
     rng = np.random.default_rng(seed)
     t = np.arange(frames) / fps
@@ -64,20 +76,7 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
     """Render a clip into ``outdir/frames/frame_0000.png ...`` and write
     ``outdir/truth.npz`` (the per-frame parameters, the true 2-D landmarks of the
     calibrated embedding and the camera). Returns the truth."""
-    import imageio.v3 as iio
     import torch
-    from tqdm import tqdm
-
-    from hack_render.fit.camera import R0, SENSOR_MM
-    from hack_render.fit.landmark_embedding import load_default
-    from hack_render.geometry import load_default_model
-    from hack_render.render.image_io import to_srgb8
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.skin_maps import skin_maps
-    from hack_render.track.rig import _points
-    from scenes.cameras import Camera
-    from scenes.lights import preset
 
     out = Path(outdir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
@@ -95,7 +94,7 @@ def render_clip(outdir: str | Path, frames: int = 48, fps: float = 24.0, size=(3
                   tau=torch.as_tensor(truth["tau"]).float())
     verts = o.vertices.numpy()
     emb = load_default(model)
-    lm = _points(o.vertices.double(), emb, model).numpy()
+    lm = landmark_points(o.vertices.double(), emb, model).numpy()
     lm2d = np.stack([cam.project(x) for x in lm])
     head = HeadScene(Topology.from_model(model), verts[0], preset("studio"), cam,
                      RenderSettings(w, h, spp, 6, seed), skin_maps(seed=seed))

@@ -9,9 +9,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import imageio_ffmpeg
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".webm", ".mkv", ".m4v")
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
@@ -42,8 +45,6 @@ class Clip:
         """Frames ``start`` .. ``stop`` - 1 as (H, W, 3) uint8 at the working size."""
         stop = self.frames if stop is None else min(stop, self.frames)
         if self.files is not None:
-            from PIL import Image
-
             for p in self.files[start:stop]:
                 with Image.open(p) as im:
                     im = im.convert("RGB")
@@ -51,7 +52,6 @@ class Clip:
                         im = im.resize(self.work, Image.Resampling.LANCZOS)
                     yield np.asarray(im, dtype=np.uint8)
             return
-        import imageio_ffmpeg
 
         w, h = self.work
         gen = imageio_ffmpeg.read_frames(str(self.source), pix_fmt="rgb24",
@@ -84,7 +84,6 @@ def open_clip(path: str | Path, max_side: int = 640, fps: float | None = None) -
         if not files:
             raise HackError(f"{path}: expected video frames ({', '.join(FRAME_SUFFIXES)}) in "
                             "the folder, found none.")
-        from PIL import Image, UnidentifiedImageError
 
         try:
             with Image.open(files[0]) as im:
@@ -101,7 +100,6 @@ def open_clip(path: str | Path, max_side: int = 640, fps: float | None = None) -
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise HackError(f"{path}: expected a video ({', '.join(VIDEO_SUFFIXES)}) or a folder "
                         f"of frames, found '{path.suffix or 'no suffix'}'.")
-    import imageio_ffmpeg
 
     try:
         gen = imageio_ffmpeg.read_frames(str(path))
@@ -126,9 +124,6 @@ class Mp4Writer:
     to hold in memory)."""
 
     def __init__(self, path: str | Path, size: tuple[int, int], fps: float, quality: int = 7):
-        import imageio_ffmpeg
-
-        from hack_render.render.image_io import atomic_path
 
         self.path = Path(path)
         self._ctx = atomic_path(self.path)

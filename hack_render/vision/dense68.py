@@ -4,7 +4,7 @@ Each of the 68 landmarks is a fixed affine combination (weights summing to 1) of
 face-mesh points, calibrated on the model's renders against the true landmarks
 (:mod:`hack_render.learn.dense68`, ``python -m hack_render.learn.dense68``): the shipped
 ``hack_render/data/dense68_mediapipe.npz``. Derived data: fitted on procedural renders
-(hack_render.vision.synthetic), not on annotated photographs.
+(hack_render.dataset.composites), not on annotated photographs.
 
 Visibility (:meth:`DenseMap.visible`) comes from the dense mesh itself: its triangles
 (the face mesh's tessellation, oriented so that a triangle facing the camera has a
@@ -15,6 +15,7 @@ or the cheek.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -115,8 +116,6 @@ class DenseMap:
         return facing & ~covered
 
     def save(self, path: str | Path) -> Path:
-        import json
-
         path = Path(path)
         tmp = path.with_name(f".{path.name}.tmp.npz")
         np.savez_compressed(tmp, format_version=FORMAT_VERSION, index=self.index,
@@ -127,8 +126,6 @@ class DenseMap:
 
     @classmethod
     def load(cls, path: str | Path) -> DenseMap:
-        import json
-
         path = Path(path)
         if not path.is_file():
             raise HackError(f"dense-to-68 map {path}: file not found. Rebuild it: python -m "

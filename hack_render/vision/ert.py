@@ -35,6 +35,9 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.vision import boxes, pose
+from hack_render.vision.boxes import KP_MIRROR
+from hack_render.vision.detection import MIRROR_68
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 #: |yaw| ranges (degrees) of the predictors, chosen by the estimated yaw
@@ -56,8 +59,6 @@ def bin_file(i: int) -> Path:
 
 
 def mirror_ids() -> np.ndarray:
-    from hack_render.vision.detect import MIRROR_68
-
     return MIRROR_68
 
 
@@ -102,10 +103,6 @@ def yaw_features(kps_crop: np.ndarray) -> np.ndarray:
     """(N, 6, 2) keypoints in crop pixels -> (N, 25) features (linear, quadratic, 1)."""
     f = (np.asarray(kps_crop, float).reshape(len(kps_crop), -1) - CROP_PX / 2) / CROP_PX
     return np.hstack([f, f ** 2, np.ones((len(f), 1))])
-
-
-#: BlazeFace's keypoints' mirror images (the eyes and the ears swap)
-KP_MIRROR = np.array([1, 0, 2, 3, 5, 4])
 
 
 def mirror_kps(kps_crop: np.ndarray) -> np.ndarray:
@@ -184,10 +181,8 @@ def _upside_down_keypoints(img: np.ndarray, m: np.ndarray, margin: float = 0.05,
     ``margin``, its keypoints (image pixels), else None. (Faces seen from 45 degrees
     above or below also score higher turned, at 0.54-0.81 on the benchmark's composites,
     the upside-down ones at 0.77-0.92: the two thresholds were set on those composites.)"""
-    from hack_render.vision.detect import blazeface_boxes
-
     def best(im):
-        found = blazeface_boxes(np.ascontiguousarray(im))
+        found = boxes.blazeface_boxes(np.ascontiguousarray(im))
         return max(found, key=lambda b: b[4], default=None)
 
     up, down = best(img), best(img[::-1, ::-1])
@@ -222,8 +217,6 @@ def landmarks(rgb8: np.ndarray, box, kps=None,
     if kps is not None:
         yaw = estimate_yaw(apply(m, kps))
     else:
-        from hack_render.vision.pose import fit_pose
-
-        yaw = fit_pose(_predict(img, 0, False)).angles()[0]
+        yaw = pose.fit_pose(_predict(img, 0, False)).angles()[0]
     p = _predict(img, choose_bin(abs(yaw)), yaw < 0)
     return apply(_invert(m), p), yaw

@@ -41,7 +41,7 @@ class HeadPose:
 
     def angles(self) -> tuple[float, float, float]:
         """(yaw, pitch, roll) degrees, Y-X-Z order: yaw about the vertical (the camera's
-        yaw about the head as in hack_render.vision.synthetic: > 0 sees the subject's
+        yaw about the head as in hack_render.dataset.composites: > 0 sees the subject's
         left side), pitch > 0 the camera above, roll in the image plane."""
         from scipy.spatial.transform import Rotation
 

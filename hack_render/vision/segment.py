@@ -1,9 +1,9 @@
 """Person, face, skin and occluder masks of a photo on any background, offline.
 
-- **person** (soft, [0, 1]): MediaPipe's selfie segmentation (the landscape model, shipped
-  in the ``mediapipe`` wheel; it measured better than the general one on the
-  composites, docs/vision.md), above ``PERSON_THRESHOLD``, the connected part that holds
-  the face.
+- **person** (soft, [0, 1]): MediaPipe's selfie segmentation
+  (:func:`hack_render.vision.person.person_probability`: the landscape model, shipped in
+  the ``mediapipe`` wheel; it measured better than the general one on the composites,
+  docs/vision.md), above ``PERSON_THRESHOLD``, the connected part that holds the face.
 - **face** (soft): the face mesh's face oval (:mod:`hack_render.vision.detect`'s dense
   points), anti-aliased, inside the person.
 - **skin / hair / clothes** (bool, heuristic): skin is the person's pixels whose
@@ -25,7 +25,6 @@ a mask or None and the reason).
 
 from __future__ import annotations
 
-import os
 import warnings
 from contextlib import suppress
 from dataclasses import dataclass
@@ -34,8 +33,11 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.vision import detect as vision_detect
-from hack_render.vision.detect import FaceLandmarks, as_rgb8
+from hack_render.vision.dense68 import load_map
+from hack_render.vision.detect import as_rgb8
+from hack_render.vision.detection import FaceLandmarks
 from hack_render.vision.glasses import frames_in_brows, upright_xy
+from hack_render.vision.person import person_probability
 
 #: face-mesh point rings (MediaPipe's FACEMESH_* connection sets, as ordered loops)
 _RINGS = ("FACEMESH_FACE_OVAL", "FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE", "FACEMESH_LIPS",
@@ -87,18 +89,6 @@ class Segmentation:
 _CACHE: dict = {}
 
 
-def _selfie():
-    if "selfie" not in _CACHE:
-        os.environ.setdefault("GLOG_minloglevel", "2")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            import mediapipe as mp
-
-            _CACHE["selfie"] = mp.solutions.selfie_segmentation.SelfieSegmentation(
-                model_selection=1)
-    return _CACHE["selfie"]
-
-
 def _hands():
     if "hands" not in _CACHE:
         with warnings.catch_warnings():
@@ -131,17 +121,6 @@ def ring(name: str) -> np.ndarray:
     return _CACHE[name]
 
 
-def person_probability(rgb8: np.ndarray, roll_deg: float = 0.0) -> np.ndarray:
-    """(H, W) float32: MediaPipe selfie segmentation's person probability, run on the
-    image turned by the quarter turn nearest ``roll_deg`` (the face's in-plane angle)
-    so the person stands upright (on Grace Hopper turned by a quarter, half and
-    three-quarter turn the model's mask had IoU 0.80 / 0.44 / 0.38 with the upright
-    photo's), turned back."""
-    k = -round(roll_deg / 90.0) % 4
-    res = _selfie().process(np.ascontiguousarray(np.rot90(rgb8, k)))
-    return np.ascontiguousarray(np.rot90(np.asarray(res.segmentation_mask, np.float32), -k))
-
-
 def _polygon_mask(poly: np.ndarray, shape, soft: bool = True) -> np.ndarray:
     """(H, W) float32 coverage of a polygon (pixels), 4x4 supersampled when ``soft``."""
     from skimage.draw import polygon
@@ -161,8 +140,6 @@ def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
     Mahalanobis ``k`` of the skin samples' (cheeks, forehead, nose: visible face-mesh
     points) and that are not too dark for their chromaticity to mean anything."""
     from scipy import ndimage
-
-    from hack_render.vision.dense68 import load_map
 
     h, w = rgb8.shape[:2]
     img = rgb8.astype(np.float32) / 255.0

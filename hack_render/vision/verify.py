@@ -1,13 +1,14 @@
 """Face boxes checked against the person: ``auto``'s detector on hard views.
 
-BlazeFace (:func:`hack_render.vision.detect.find_boxes`) loses faces seen from 45
+BlazeFace (:func:`hack_render.vision.boxes.find_boxes`) loses faces seen from 45
 degrees above or below at 30-90 degrees of yaw: it boxes a patch of background, or the
 head and neck together (up to twice the face's size, some found only in the image turned
 by a quarter turn, at a low score), or nothing. MediaPipe's selfie segmentation still
 outlines the person there, and a face lies on the person, in the head at the top of the
 silhouette. So:
 
-1. **Person**: the selfie segmentation's probability (:func:`person_probability`); its
+1. **Person**: the selfie segmentation's probability (:func:`person_probability`,
+   :mod:`hack_render.vision.person`); its
    largest connected part above 0.5 is the person. No person (under ``MIN_PERSON`` of
    the image): BlazeFace's boxes are returned unchecked.
 2. **Verification**: a BlazeFace box of the whole image mostly off the person (its mean
@@ -32,6 +33,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from hack_render.vision import boxes as face_boxes
+from hack_render.vision import person
+
 #: the least share of the image the person must cover for the boxes to be checked
 MIN_PERSON = 0.01
 #: a box is on the person where the mean person probability inside it is at least this
@@ -54,9 +58,7 @@ CROP_PX = 192               # the head search's crop side, pixels
 
 def person_probability(rgb8: np.ndarray) -> np.ndarray:
     """(H, W) float32: the selfie segmentation's person probability."""
-    from hack_render.vision.segment import person_probability as prob
-
-    return prob(rgb8)
+    return person.person_probability(rgb8)
 
 
 def on_person(prob: np.ndarray, box) -> float:
@@ -112,11 +114,9 @@ def head_region(prob: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 def crop_boxes(rgb8: np.ndarray, centre, side: float) -> list:
     """BlazeFace on the square crop of ``side`` px around ``centre`` resampled to
-    ``CROP_PX``: boxes as :func:`~hack_render.vision.detect.blazeface_boxes`, in the
+    ``CROP_PX``: boxes as :func:`~hack_render.vision.boxes.blazeface_boxes`, in the
     image's pixels."""
     import cv2
-
-    from hack_render.vision.detect import blazeface_boxes
 
     k = CROP_PX / side
     to_crop = np.array([[k, 0.0, CROP_PX / 2 - k * centre[0]],
@@ -125,7 +125,7 @@ def crop_boxes(rgb8: np.ndarray, centre, side: float) -> list:
                           borderMode=cv2.BORDER_REPLICATE)
     return [((x0 - to_crop[0, 2]) / k, (y0 - to_crop[1, 2]) / k, (x1 - to_crop[0, 2]) / k,
              (y1 - to_crop[1, 2]) / k, s, (kp - to_crop[:, 2]) / k)
-            for x0, y0, x1, y1, s, kp in blazeface_boxes(crop)]
+            for x0, y0, x1, y1, s, kp in face_boxes.blazeface_boxes(crop)]
 
 
 def head_box(rgb8: np.ndarray, prob: np.ndarray, region) -> tuple | None:
@@ -159,10 +159,8 @@ def verified_boxes(rgb8: np.ndarray, boxes: list) -> list:
     cand = head_box(rgb8, prob, region)
     if cand is None:
         return kept
-    from hack_render.vision.detect import _iou
-
     # the boxes of the candidate's face: on the head region, or overlapping the candidate
-    same = [b for b in kept if _on_head(b, *region) or _iou(b[:4], cand[:4]) >= 0.3]
+    same = [b for b in kept if _on_head(b, *region) or face_boxes.iou(b[:4], cand[:4]) >= 0.3]
     if any(b[4] >= cand[4] for b in same):
         return kept
     return [cand] + [b for b in kept if not any(b is o for o in same)]

@@ -1,74 +1,25 @@
 """Image files: linear float32 EXR with named channels, sRGB PNG with an explicit tone map.
 
 No Mitsuba here: OpenEXR writes and reads EXR, colour-science encodes sRGB, imageio
-writes PNG. Every writer goes through a temporary name in the target folder and renames,
-so an interrupted run never leaves a half-written file.
+writes PNG. Every writer goes through :func:`hack_render.io.atomic_path` (a temporary name
+in the target folder, renamed when complete), so an interrupted run never leaves a
+half-written file.
 """
 
 from __future__ import annotations
 
 import os
-import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 
+import imageio.v3 as iio  # 0.03 s after NumPy
 import numpy as np
+import OpenEXR  # 0.005 s
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 TONE_MAPS = ("clip", "reinhard", "aces")
-
-
-def check_writable(path: str | Path) -> Path:
-    """Create ``path``'s folder if needed and check that files can be written there.
-
-    Raises:
-        HackError: naming the folder and the fix, before any rendering is done.
-    """
-    path = Path(path)
-    folder = path.parent if path.suffix else path
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise HackError(f"{folder}: expected a folder the output can be written to, found "
-                        f"it cannot be created ({err.strerror}). Choose another output "
-                        "path with -o.") from err
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise HackError(f"{folder}: expected a writable output folder, found it is not "
-                        "writable. Choose another output path with -o or fix its "
-                        "permissions.")
-    return path
-
-
-def _read_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-# read once, at import: os.umask can only be read by setting it, which would race with
-# files created meanwhile by other threads (the dataset's writer thread)
-_UMASK = _read_umask()
-
-
-@contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix); rename it over ``path`` on success."""
-    path = Path(path)
-    check_writable(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        # mkstemp creates 0600; an output is an ordinary file, readable as the umask allows
-        os.chmod(tmp_path, 0o666 & ~_UMASK)
-        tmp_path.replace(path)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
 
 
 def write_exr(path: str | Path, channels: dict[str, np.ndarray],
@@ -80,8 +31,6 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray],
             All the same (H, W); converted to float32.
         metadata: extra string attributes for the header (e.g. camera matrices as text).
     """
-    import OpenEXR
-
     shapes = {k: np.shape(v) for k, v in channels.items()}
     if not channels or len(set(shapes.values())) != 1 or len(next(iter(shapes.values()))) != 2:
         raise HackError(f"EXR channels: expected equal (H, W) arrays, found shapes {shapes}.")
@@ -96,8 +45,6 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray],
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """Read every channel of an EXR as name -> (H, W) float32."""
-    import OpenEXR
-
     path = Path(path)
     if not path.is_file():
         raise HackError(f"{path}: EXR file not found. Check the path.")
@@ -160,12 +107,9 @@ def srgb8_thresholds() -> np.ndarray:
     t = np.asarray(colour.cctf_decoding((np.arange(1, 256) - 0.5) / 255.0, function="sRGB"),
                    np.float64)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".srgb8.", suffix=".npy")
-        with os.fdopen(fd, "wb") as f:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.save(f, t)
-        os.replace(tmp, path)
-    except OSError:
+    except (OSError, HackError):
         pass  # a read-only cache: compute again next time
     return t
 
@@ -181,8 +125,6 @@ def to_srgb8(linear: np.ndarray, exposure: float = 0.0, operator: str = "aces") 
 def write_png(path: str | Path, linear: np.ndarray, exposure: float = 0.0,
               operator: str = "aces") -> Path:
     """Write a linear (H, W, 3) image as an sRGB PNG through :func:`to_srgb8`."""
-    import imageio.v3 as iio
-
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, to_srgb8(linear, exposure, operator), extension=".png")
     return Path(path)
@@ -205,8 +147,6 @@ def read_hdr_image(path: str | Path) -> np.ndarray:
             raise HackError(f"{path}: expected R, G, B channels, found {sorted(ch)}.")
         img = np.stack([ch["R"], ch["G"], ch["B"]], axis=-1)
     elif suffix == ".hdr":
-        import imageio.v3 as iio
-
         try:
             img = np.asarray(iio.imread(path), dtype=np.float32)[..., :3]
         except Exception as err:

@@ -12,8 +12,12 @@ on the model's landmark vertices), their line-of-sight visibility, the person ma
 render's coverage), the face-skin mask and the occluder mask.
 
 Derived data: everything here is procedural (the model's renders); only the backgrounds
-are photographs. Used by ``bench/bench_real_photos.py``, ``tests/test_vision.py`` and the
-calibration of the dense-to-68 landmark map (:mod:`hack_render.vision.dense68`).
+are photographs. Used by ``bench/bench_real_photos.py``, ``tests/test_vision.py``, the
+calibration of the dense-to-68 landmark map (:mod:`hack_render.learn.dense68`, the map
+:mod:`hack_render.vision.dense68`) and the training of the shape predictors
+(:mod:`hack_render.learn.face_ert`). A dataset of its own, not part of the vision package
+it measures: the truth's points are the fitter's calibrated landmark embedding's
+(:mod:`hack_render.fit.landmark_embedding`).
 """
 
 from __future__ import annotations
@@ -22,6 +26,16 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from appearance.model import AppearanceModel
+from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
+from hack_render.geometry import load_default_model
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.render.materials import SkinMaps
+from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.scene import HeadScene, RenderSettings
+from scenes.cameras import Camera, intrinsics, look_at
+from scenes.lights import PRESETS, preset
 
 #: scikit-image sample photographs with no face in them, all public domain or CC0
 #: (skimage.data docstrings): coffee (CC0, Rachel Michetti), rocket (public domain,
@@ -82,8 +96,6 @@ def background(name: str, res: int, rng: np.random.Generator) -> np.ndarray:
 
 def _camera(res: int, focal_mm: float, yaw: float, pitch: float, target: np.ndarray,
             face_frac: float):
-    from scenes.cameras import Camera, intrinsics, look_at
-
     K = intrinsics(res, res, focal_mm)
     d = K[0, 0] * 0.24 / (face_frac * res)        # a ~0.24 m head spans face_frac of the frame
     y, p = math.radians(yaw), math.radians(pitch)
@@ -103,10 +115,6 @@ class CompositeRenderer:
     """
 
     def __init__(self, res: int = 256, spp: int = 16, seed: int = 0):
-        from appearance.model import AppearanceModel
-        from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
-        from hack_render.geometry import load_default_model
-
         self.res, self.spp = int(res), int(spp)
         self.rng = np.random.default_rng(seed)
         self.model = load_default_model()
@@ -121,8 +129,6 @@ class CompositeRenderer:
 
     def _subject(self):
         import torch
-
-        from hack_render.geometry.skeleton import distribute_head_rotation
 
         g = torch.Generator().manual_seed(int(self.rng.integers(2 ** 31)))
         beta = 0.8 * torch.randn(1, 20, generator=g)
@@ -141,11 +147,6 @@ class CompositeRenderer:
         ``roll`` degrees in the image plane, with an occluder when asked. ``bg`` and
         ``light`` name the background photograph and the lighting preset (default: drawn
         at random; the draws are made either way, so the sample stream stays the same)."""
-        from hack_render.render.materials import SkinMaps
-        from hack_render.render.parts import REGIONS, Topology
-        from hack_render.render.scene import HeadScene, RenderSettings
-        from scenes.lights import PRESETS, preset
-
         rng = self.rng
         V, maps = self._subject()
         lm3 = self.emb.points_np(V)
