@@ -12,6 +12,9 @@ This package never imports Mitsuba or Dr.Jit.
 import importlib
 from typing import TYPE_CHECKING
 
+# first, before any module here imports torch: the package sets the OpenMP wait policy
+import hack_render  # noqa: F401
+
 if TYPE_CHECKING:  # imported lazily (below)
     from appearance.builder import build_model
     from appearance.detail import compose_detail, detail_slopes

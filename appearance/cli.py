@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from appearance.report import preview_sheet
+from appearance.texture_io import write_map, write_texture_set
 from hack_render import boundary
 from hack_render.cli_options import renamed
 from hack_render.errors import HackError
@@ -111,8 +113,6 @@ def sample(
 
     from appearance.detail import compose_detail
     from appearance.model import AppearanceModel
-    from appearance.report import preview_sheet
-    from appearance.texture_io import write_map, write_texture_set
 
     out = renamed(output, out_old, "--out", "-o/--output")
     model = renamed(model, model_old, "appearance sample --model", "--appearance-model")

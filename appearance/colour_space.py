@@ -7,20 +7,29 @@
 - sRGB transfer function (encoding for 8/16-bit PNG): ``colour.cctf_encoding`` /
   ``colour.cctf_decoding`` with ``function="sRGB"``.
 - CIELAB (D65 white), CIEDE2000 and the individual typology angle (ITA) of skin.
+
+colour-science is imported by the functions that convert (it costs 1.3-2.8 s to import,
+matplotlib included): importing this module, and the generator through it, is cheap.
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
 
-import colour
 import numpy as np
 
-D65_XY = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+
+def d65_xy() -> np.ndarray:
+    """The D65 white point's CIE 1931 xy chromaticity (colour-science's)."""
+    import colour
+
+    return np.asarray(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
 
 @lru_cache(maxsize=8)
 def _cmfs_illuminant(start: float, end: float, interval: float):
+    import colour
+
     shape = colour.SpectralShape(start, end, interval)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
     ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
@@ -36,6 +45,8 @@ def spectra_to_xyz(reflectance: np.ndarray, wavelengths: np.ndarray) -> np.ndarr
     Returns:
         (..., 3) XYZ, Y = 100 for a perfect white.
     """
+    import colour
+
     wl = np.asarray(wavelengths, np.float64)
     step = float(wl[1] - wl[0])
     shape, cmfs, ill = _cmfs_illuminant(float(wl[0]), float(wl[-1]), step)
@@ -48,11 +59,15 @@ def spectra_to_xyz(reflectance: np.ndarray, wavelengths: np.ndarray) -> np.ndarr
 
 def xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
     """(..., 3) XYZ on the 0-100 scale to linear sRGB (Rec.709 primaries, D65)."""
+    import colour
+
     return np.asarray(colour.XYZ_to_sRGB(np.asarray(xyz) / 100.0, apply_cctf_encoding=False))
 
 
 def linear_srgb_to_xyz(rgb: np.ndarray) -> np.ndarray:
     """(..., 3) linear sRGB to XYZ on the 0-100 scale."""
+    import colour
+
     return 100.0 * np.asarray(colour.sRGB_to_XYZ(np.asarray(rgb), apply_cctf_decoding=False))
 
 
@@ -63,11 +78,15 @@ def spectra_to_linear_srgb(reflectance: np.ndarray, wavelengths: np.ndarray) -> 
 
 def linear_srgb_to_lab(rgb: np.ndarray) -> np.ndarray:
     """(..., 3) linear sRGB to CIELAB (D65 reference white)."""
-    return np.asarray(colour.XYZ_to_Lab(linear_srgb_to_xyz(rgb) / 100.0, D65_XY))
+    import colour
+
+    return np.asarray(colour.XYZ_to_Lab(linear_srgb_to_xyz(rgb) / 100.0, d65_xy()))
 
 
 def delta_e2000(rgb_a: np.ndarray, rgb_b: np.ndarray) -> np.ndarray:
     """CIEDE2000 between two (..., 3) linear sRGB arrays."""
+    import colour
+
     return np.asarray(colour.delta_E(linear_srgb_to_lab(rgb_a), linear_srgb_to_lab(rgb_b),
                                      method="CIE 2000"))
 
@@ -80,9 +99,13 @@ def ita_degrees(rgb: np.ndarray) -> np.ndarray:
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
     """Linear sRGB in [0, 1] to the sRGB-encoded signal (IEC 61966-2-1)."""
+    import colour
+
     return np.asarray(colour.cctf_encoding(np.clip(linear, 0.0, 1.0), function="sRGB"))
 
 
 def srgb_decode(encoded: np.ndarray) -> np.ndarray:
     """sRGB-encoded signal in [0, 1] to linear sRGB."""
+    import colour
+
     return np.asarray(colour.cctf_decoding(np.asarray(encoded, np.float64), function="sRGB"))

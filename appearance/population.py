@@ -9,7 +9,10 @@ free constants, stored in ``data/calibration.json`` by :mod:`appearance.calibrat
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import tempfile
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -70,10 +73,47 @@ def load_calibration(path: str | None = None) -> Calibration:
     return Calibration.from_json(json.loads(p.read_text()))
 
 
+#: Version of the albedo table's disk cache (bump when AlbedoLUT.build changes).
+LUT_CACHE_VERSION = 1
+
+
+def lut_cache_path(optics: OpticsConstants) -> Path:
+    """Where :func:`albedo_lut` keeps the table of these constants (``$XDG_CACHE_HOME`` or
+    ``~/.cache``, then ``hack-render/``; one file per set of constants)."""
+    key = hashlib.sha256(json.dumps([LUT_CACHE_VERSION, asdict(optics)], sort_keys=True)
+                         .encode()).hexdigest()[:16]
+    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return root / "hack-render" / f"albedo_lut-{key}.npz"
+
+
 @lru_cache(maxsize=4)
 def albedo_lut(optics: OpticsConstants) -> AlbedoLUT:
-    """The albedo look-up table for these optics constants (cached)."""
-    return AlbedoLUT.build(optics)
+    """The albedo look-up table for these optics constants.
+
+    Kept in memory and on disk (:func:`lut_cache_path`): building it integrates 11,520
+    spectra with colour-science, whose import alone costs 1.3-2.8 s, and every process that
+    generates a subject (a dataset's first sample, each Ray worker) needs it. A missing,
+    unreadable or malformed file is rebuilt (a read-only cache: built every time)."""
+    path = lut_cache_path(optics)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            lut = AlbedoLUT(z["sqrt_cm"], z["sqrt_ch"], z["bm"], z["rgb"])
+        if (lut.rgb.dtype == np.float32 and lut.rgb.shape == (len(lut.sqrt_cm), len(lut.sqrt_ch),
+                                                              len(lut.bm), 3)
+                and np.all(np.isfinite(lut.rgb))):
+            return lut
+    except (OSError, ValueError, KeyError):
+        pass
+    lut = AlbedoLUT.build(optics)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".albedo_lut.", suffix=".npz")
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, sqrt_cm=lut.sqrt_cm, sqrt_ch=lut.sqrt_ch, bm=lut.bm, rgb=lut.rgb)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return lut
 
 
 def draw_chromophores(u: np.ndarray, pop: PopulationConstants) -> dict[str, np.ndarray]:

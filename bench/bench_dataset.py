@@ -20,21 +20,52 @@
 excluded); ``--inline-writes`` writes the files in the rendering thread instead. (b)
 includes start-up on both sides.
 
+Issue 65, "datasets at render speed" (``--speed``; the dataset's default config: procedural
+subjects, ``appearance.source: seed``):
+
+(d) Render speed: the steady state of the serial executor's pipeline (files on the writer
+    thread, the next sample's inputs prefetched within a block; a block's first sample
+    makes its own) with the subjects' skin maps projected (``appearance.maps: projected``, the
+    default) and generated (``generated``, the full generator: the old path), blocks of
+    ``--block`` samples of each alternating on the same sample indices, against the
+    render call inside the same pipeline (``HeadScene.render``: the path tracer) and
+    against the render call plus the scene's update (``params.update``: the acceleration
+    structure rebuilt for the sample's mesh, camera and lights; what any renderer of a new
+    mesh pays). Target: s/sample <= 1.3x the render call. Printed with the parts: skin
+    maps, labels (``label_images``), the update.
+(e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
+    folder, ``--e2e-rounds`` times: seconds from launching the process to the end of its
+    imports, to the scenes built (start-up: everything before the first sample's render;
+    target <= 3 s), to the first sample complete, then seconds per later sample and the
+    total. ``--before PATH`` runs the same command with another checkout's code (e.g. the
+    main branch) on ``PYTHONPATH``, alternating with this one.
+(f) Skin tones: the dataset's first ``--tones`` subjects (their ids drawn as the dataset
+    draws them), generated at the dataset's map size and projected: ITA, L* and b* of each
+    subject's forehead albedo (``representative_albedo``: the median over the forehead
+    texels), their percentiles under both paths and the per-subject differences; the
+    projected distribution is the dataset's unless these differ.
+
 Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256] [--spp 32] [--appearance alpha]
        [--ray-n 16] [--no-ray] [--inline-writes]
+       python bench/bench_dataset.py --speed [--n 8] [--block 2] [--size 256] [--spp 16]
+       [--e2e-n 6] [--e2e-rounds 2] [--before /work/main] [--tones 60]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import resource
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from provenance import recorded  # bench/ is sys.path[0] when run as a script
+from provenance import ROOT, recorded  # bench/ is sys.path[0] when run as a script
 
 
 def peak_rss_mib() -> float:
@@ -216,6 +247,224 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
         print(f"    ray worker peak RSS: {', '.join(f'{p:.0f}' for p in peaks)} MiB")
 
 
+class _Timer:
+    """Accumulates the seconds spent in wrapped methods, per name (bench-only patching)."""
+
+    def __init__(self):
+        self.total: dict[str, float] = {}
+
+    def wrap(self, owner, method: str, name: str | None = None):
+        orig = getattr(owner, method)
+        key = name or method
+
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return orig(*args, **kwargs)
+            finally:
+                self.total[key] = self.total.get(key, 0.0) + time.perf_counter() - t0
+
+        setattr(owner, method, timed)
+        return orig
+
+    def take(self) -> dict[str, float]:
+        out, self.total = self.total, {}
+        return out
+
+
+def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Path) -> None:
+    """(d): the pipeline's steady state with projected and generated skin maps, against
+    the render call and the render call plus the scene update (see the docstring)."""
+    from hack_render.dataset import labels as lab
+    from hack_render.dataset import worker as wk
+    from hack_render.dataset.config import load_config
+    from hack_render.dataset.runner import with_next
+    from hack_render.dataset.worker import SampleRenderer
+    from hack_render.render.scene import HeadScene
+
+    cfgs = {m: load_config(overrides={"render": {"resolution": size, "spp": spp},
+                                      "appearance": {"maps": m}})
+            for m in ("projected", "generated")}
+    rs = {m: SampleRenderer(c, root / m, seed, background_writes=True) for m, c in cfgs.items()}
+    for r in rs.values():
+        r.build_scenes()
+    timer = _Timer()
+    timer.wrap(HeadScene, "render")
+    timer.wrap(wk.SampleRenderer, "skin_maps")
+    timer.wrap(lab, "label_images")
+    any_scene = next(iter(rs["projected"].scenes.values()))
+    timer.wrap(type(any_scene.params), "update", "params.update")  # mi.SceneParameters
+    # warm-up: every preset's kernels compiled with both renderers' scenes in the process
+    presets, i = set(), 0
+    want = set(cfgs["projected"]["lighting"]["presets"])
+    while (presets < want and i < 64) or i < 2:
+        presets.add(rs["projected"].spec(i)["lighting"]["preset"])
+        for r in rs.values():
+            r.render(i)
+        i += 1
+    timer.take()
+    rows = {m: {"wall": 0.0} for m in rs}
+    for j0 in range(i, i + n, block):
+        js = list(range(j0, min(j0 + block, i + n)))
+        for m, r in rs.items():
+            t0 = time.perf_counter()
+            futures = []
+            for j, upcoming in with_next(js):  # as the serial executor runs them
+                if upcoming is not None:
+                    r.prefetch(upcoming)
+                futures.append(r.submit(j))
+            for f in futures:
+                f.result()
+            rows[m]["wall"] += time.perf_counter() - t0
+            for k, v in timer.take().items():
+                rows[m][k] = rows[m].get(k, 0.0) + v
+    for r in rs.values():
+        r.close()
+    print(f"(d) render speed: {n} samples at {size} px, {spp} spp, appearance 'seed' "
+          f"(procedural subjects), one view, blocks of {block} alternating, background writes, "
+          f"{i} warm-up samples excluded:")
+    for m, row in rows.items():
+        w, rc = row["wall"] / n, row["render"] / n
+        up = row.get("params.update", 0.0) / n
+        print(f"    skin maps {m:9s}: {w:.3f} s/sample; render call {rc:.3f} s "
+              f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update {rc + up:.3f} s "
+              f"(ratio {w / (rc + up):.2f}x); parts: skin maps {row.get('skin_maps', 0) / n:.3f} s, "
+              f"labels {row.get('label_images', 0) / n:.3f} s, update {up:.3f} s (skin maps: "
+              "mostly on the prefetch thread, beside the render)")
+    g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
+    print(f"    projected / generated: {p_ / g:.2f}x the time per sample")
+
+
+E2E_DRIVER = r"""
+import json, sys, time
+T = {"launch": float(sys.argv[1])}
+from hack_render.dataset import runner, worker
+T["imports"] = time.time()
+done = []
+build = worker.SampleRenderer.build_scenes
+def build_scenes(self):
+    out = build(self)
+    T.setdefault("scenes", time.time())
+    return out
+worker.SampleRenderer.build_scenes = build_scenes
+record = worker._write_record  # runs once a sample's files are all on disk
+def stamped(*args):
+    out = record(*args)
+    done.append(time.time())
+    return out
+worker._write_record = stamped
+from hack_render.cli import main
+try:
+    main(sys.argv[2:])
+except SystemExit as err:
+    if err.code:
+        raise
+T["end"] = time.time()
+import hack_render
+print(json.dumps({"T": T, "done": done, "code": hack_render.__file__}))
+"""
+
+
+def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
+    """One fresh process running ``hack-render dataset`` (see (e)); its stamps, in seconds
+    from the launch."""
+    cfg = out.with_suffix(".yaml")
+    cfg.write_text(json.dumps({"render": {"resolution": size, "spp": spp}}))
+    env = dict(os.environ, PYTHONPATH=pythonpath)
+    launch = time.time()
+    # cwd: a folder without the package (`python -c` puts the cwd before PYTHONPATH)
+    res = subprocess.run([sys.executable, "-c", E2E_DRIVER, str(launch), "dataset", "--n", str(n),
+                          "-o", str(out), "--config", str(cfg), "--quiet"], env=env,
+                         cwd=str(out.parent), capture_output=True, text=True, timeout=3600,
+                         check=False)
+    if res.returncode:
+        raise SystemExit(f"(e) run failed:\n{res.stderr[-3000:]}")
+    d = json.loads(res.stdout.strip().splitlines()[-1])
+    if not d["code"].startswith(pythonpath):
+        raise SystemExit(f"(e) ran {d['code']}, expected the code under {pythonpath}")
+    t, done = d["T"], d["done"]
+    done.sort()
+    return {"imports": t["imports"] - launch, "startup": t["scenes"] - launch,
+            "first": done[0] - launch,
+            "later": (done[-1] - done[0]) / max(1, len(done) - 1), "total": t["end"] - launch}
+
+
+def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, root: Path) -> None:
+    """(e): start-up and end to end, this checkout (and ``before``'s), alternating."""
+    sides = {"this": str(ROOT)}
+    if before:
+        sides["before"] = str(Path(before).resolve())
+    runs: dict[str, list[dict]] = {k: [] for k in sides}
+    for r in range(rounds):
+        for k, path in (list(sides.items()) if r % 2 == 0 else list(sides.items())[::-1]):
+            runs[k].append(e2e_run(path, n, size, spp, root / f"e2e_{k}_{r}"))
+    print(f"(e) `hack-render dataset --n {n}` at {size} px, {spp} spp (the default config), fresh "
+          f"process and folder, {rounds} round(s); seconds from the launch, median [range]:")
+    for k, rs in runs.items():
+        commit = _git_head(sides[k])
+
+        def f(key, rs=rs):
+            v = [x[key] for x in rs]
+            return f"{statistics.median(v):5.2f} [{min(v):.2f}..{max(v):.2f}]"
+
+        print(f"    {k} ({commit}): imports {f('imports')}, start-up (scenes built) "
+              f"{f('startup')} (target <= 3 s), first sample done {f('first')}, then "
+              f"{f('later')} s/sample, total {f('total')}")
+
+
+def _git_head(path: str) -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "--short=10", "HEAD"], cwd=path,
+                             capture_output=True, text=True, timeout=10, check=False)
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
+def tones_benchmark(cfg: dict, n: int, seed: int) -> None:
+    """(f): the dataset's first ``n`` subjects, generated and projected at the map size."""
+    from appearance.colour_space import linear_srgb_to_lab
+    from appearance.generator import generate_subject, representative_albedo
+    from appearance.projected import SubjectProjector
+    from hack_render.dataset.sampling import STREAMS, sample_appearance
+
+    h = cfg["appearance"]["height"]
+    # the subjects sample_spec draws for samples 0..n-1 (sampling.py: one stream each)
+    ids = [sample_appearance(cfg, np.random.default_rng([seed, i, STREAMS["appearance"]]))
+           ["subject"] for i in range(n)]
+    proj = SubjectProjector()
+    gen_rgb, proj_rgb, t_gen, t_proj = [], [], [], []
+    for s in ids:
+        t0 = time.perf_counter()
+        ts = generate_subject(s, h)
+        t_gen.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        mp = proj.maps(s, h)
+        t_proj.append(time.perf_counter() - t0)
+        gen_rgb.append(representative_albedo(ts, h))
+        proj_rgb.append(representative_albedo(type("T", (), {"diffuse": mp.diffuse[0].numpy()}), h))
+
+    def stats(rgb):
+        lab = linear_srgb_to_lab(np.asarray(rgb))
+        ita = np.degrees(np.arctan2(lab[:, 0] - 50.0, lab[:, 2]))
+        return {"ITA": ita, "L*": lab[:, 0], "b*": lab[:, 2]}
+
+    a, b = stats(gen_rgb), stats(proj_rgb)
+    q = (5, 25, 50, 75, 95)
+    print(f"(f) skin tones of the dataset's first {n} subjects (seed {seed}) at {h} px maps: "
+          f"forehead median albedo; percentiles {q}:")
+    for k in a:
+        pa = " ".join(f"{v:6.1f}" for v in np.percentile(a[k], q))
+        pb = " ".join(f"{v:6.1f}" for v in np.percentile(b[k], q))
+        d = np.abs(a[k] - b[k])
+        print(f"    {k:3s} generated {pa} | projected {pb} | per subject |diff| median "
+              f"{np.median(d):.2f}, 90th pct {np.percentile(d, 90):.2f}, max {d.max():.2f}; "
+              f"mean {a[k].mean():.1f} vs {b[k].mean():.1f}, std {a[k].std():.1f} vs {b[k].std():.1f}")
+    print(f"    time per subject: generated {statistics.median(t_gen):.3f} s, projected "
+          f"{statistics.median(t_proj):.3f} s (median; the projector's first call excluded "
+          f"from neither)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=16)
@@ -230,9 +479,29 @@ def main() -> None:
     ap.add_argument("--no-labels", action="store_true", help="skip (a)")
     ap.add_argument("--inline-writes", action="store_true",
                     help="(a): write files in the rendering thread (no background writer)")
+    ap.add_argument("--speed", action="store_true", help="(d), (e) and (f) instead of (a)-(c)")
+    ap.add_argument("--e2e-n", type=int, default=6, help="(e): samples of each run")
+    ap.add_argument("--e2e-rounds", type=int, default=2, help="(e): runs of each side")
+    ap.add_argument("--before", default=None, help="(e): another checkout to compare with")
+    ap.add_argument("--tones", type=int, default=60, help="(f): subjects (0: skip)")
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
                     "date, machine and command, e.g. bench/results/dataset.json")
     a = ap.parse_args()
+    if a.speed:
+        from hack_render.dataset.config import load_config
+
+        with tempfile.TemporaryDirectory() as tmp, recorded(a.out, "Datasets at render speed "
+                                                            "(issue 65)"):
+            print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
+            speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
+            if a.e2e_rounds:
+                e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp))
+            if a.tones:
+                tones_benchmark(load_config(overrides={"render": {"resolution": a.size}}),
+                                a.tones, a.seed)
+            print(f"load average (1 min) after: {os.getloadavg()[0]:.1f} (2 cores shared with "
+                  "other jobs: ratios hold within one run, seconds do not)")
+        return
     cfg = config(a.size, a.spp, a.appearance)
     with tempfile.TemporaryDirectory() as tmp, recorded(a.out, "Datasets"):
         if not a.no_labels:

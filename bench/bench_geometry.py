@@ -20,9 +20,11 @@ the median with its range (min..max) over the rounds, and ratios of medians:
 
 Configurations: B = 1 and B = 64 distinct identities with dense random psi (every row of
 every basis read), B = 64 rows of one identity (a sequence or a multi-view fit; the
-personalised bases are built once), and B = 1 with a FACS expression (sparse psi).
+personalised bases are built once), and B = 1 with a FACS expression (sparse psi); all
+with every shape component (100), and B = 1 with 20 (the dataset's and the fitter's
+identity; smplx gets the same 20 shape columns), dense psi and a FACS expression.
 
-    python bench/bench_geometry.py [--repeats 21] [--threads N] [--spin]
+    python bench/bench_geometry.py [--repeats 21] [--threads N] [--spin] [--clock cpu]
                                    [--out bench/results/bench_geometry.json]
 """
 
@@ -57,11 +59,13 @@ except ImportError as err:  # bench-only dependency
                      ) from err
 
 
-def smplx_arrays(model) -> dict[str, torch.Tensor]:
-    """The HACK model's arrays in smplx ``lbs``'s layout (see the module docstring)."""
+def smplx_arrays(model, num_shape: int | None = None) -> dict[str, torch.Tensor]:
+    """The HACK model's arrays in smplx ``lbs``'s layout (see the module docstring), with
+    the first ``num_shape`` shape components (default: all)."""
     n, e = model.num_vertices, model.num_expressions
+    s = model.num_shape if num_shape is None else num_shape
     rows = model.expr_shape_basis  # (E + S, 3N): expressions first
-    dirs = torch.cat([rows[e:], rows[:e]], 0)  # smplx order: [beta, psi]
+    dirs = torch.cat([rows[e:e + s], rows[:e]], 0)  # smplx order: [beta, psi]
     shapedirs = dirs.view(-1, n, 3).permute(1, 2, 0).contiguous()  # (N, 3, S + E)
     p = 9 * model.num_joints
     posedirs = torch.zeros(p, n, 3)
@@ -100,9 +104,22 @@ def floor_buffer(nbytes: int, width: int) -> torch.Tensor:
     return torch.randn(rows, width)
 
 
-def interleaved(fns: dict, repeats: int) -> dict[str, list[float]]:
-    """Per side, the wall times of ``repeats`` rounds; one call per side per round, the
+def smplx_bytes(sx: dict) -> int:
+    """Bytes of the arrays smplx's ``lbs`` reads (float32): shape and expression
+    directions, the dense pose directions, the joint regressor, weights and template."""
+    return 4 * sum(sx[k].numel() for k in ("v_template", "shapedirs", "posedirs",
+                                             "J_regressor", "lbs_weights"))
+
+
+#: the clock of :func:`interleaved`: wall time, or (``--clock cpu``) this process's CPU
+#: time, every thread's (with one thread, the work without the waits other jobs cause)
+CLOCK = {"wall": time.perf_counter, "cpu": time.process_time}
+
+
+def interleaved(fns: dict, repeats: int, clock: str = "wall") -> dict[str, list[float]]:
+    """Per side, the times of ``repeats`` rounds; one call per side per round, the
     order rotating, after one warm-up call each."""
+    now = CLOCK[clock]
     names = list(fns)
     for f in fns.values():
         f()
@@ -110,10 +127,19 @@ def interleaved(fns: dict, repeats: int) -> dict[str, list[float]]:
     for r in range(repeats):
         order = names[r % len(names):] + names[:r % len(names)]
         for k in order:
-            t0 = time.perf_counter()
+            t0 = now()
             fns[k]()
-            times[k].append(time.perf_counter() - t0)
+            times[k].append(now() - t0)
     return times
+
+
+PRINTED: list[str] = []
+
+
+def say(text: str) -> None:
+    """Print, and keep the line for the result file (the docs page shows them)."""
+    print(text)
+    PRINTED.append(text)
 
 
 def summary(ts: list[float]) -> dict:
@@ -127,24 +153,30 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("bench/results/bench_geometry.json"))
     ap.add_argument("--threads", type=int, default=None,
                     help="torch CPU threads (default: torch's own choice)")
+    ap.add_argument("--clock", choices=tuple(CLOCK), default="wall",
+                    help="wall time (default) or the process's CPU time (all threads)")
     ap.add_argument("--spin", action="store_true",
                     help="keep OpenMP's default spin-waiting (default: OMP_WAIT_POLICY=PASSIVE)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     model = load_default_model()
-    sx = smplx_arrays(model)
+    sx_all = {s: smplx_arrays(model, s) for s in (model.num_shape, 20)}
     gen = torch.Generator().manual_seed(0)
-    print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, repeats {args.repeats}")
-    results = {"repeats": args.repeats, "threads": torch.get_num_threads(),
+    say(f"torch {torch.__version__}, threads {torch.get_num_threads()}, repeats {args.repeats}, "
+          f"clock {args.clock}, OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}")
+    results = {"repeats": args.repeats, "threads": torch.get_num_threads(), "clock": args.clock,
                "torch": torch.__version__,
                "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "default (spin)"),
                "load_average_1min_before": os.getloadavg()[0], "configs": {}}
-    configs = [("B=1", 1, False, False), ("B=64", 64, False, False),
-               ("B=64 one identity", 64, True, False), ("B=1 FACS expression", 1, False, True)]
+    S = model.num_shape
+    configs = [("B=1", 1, False, False, S), ("B=64", 64, False, False, S),
+               ("B=64 one identity", 64, True, False, S), ("B=1 FACS expression", 1, False, True, S),
+               ("B=1 S=20", 1, False, False, 20), ("B=1 S=20 FACS expression", 1, False, True, 20)]
     with torch.no_grad():
-        for name, b, shared, facs in configs:
-            beta = torch.randn(1 if shared else b, model.num_shape, generator=gen)
+        for name, b, shared, facs, s in configs:
+            sx = sx_all[s]
+            beta = torch.randn(1 if shared else b, s, generator=gen)
             psi = torch.rand(b, model.num_expressions, generator=gen)
             if facs:
                 psi = model.expression_vector("mouthSmile_L=0.7, mouthSmile_R=0.7, jawOpen=0.3, "
@@ -162,33 +194,37 @@ def main() -> None:
                        "eta": eta, "tau": tau}
             fns = {
                 "hack": lambda kw=hack_kw: model(**kw),
-                "smplx": lambda b_=betas_sx, p_=pose: smplx_lbs(b_, p_, **sx),
+                "smplx": lambda b_=betas_sx, p_=pose, s_=sx: smplx_lbs(b_, p_, **s_),
                 "floor": lambda c_=coeffs, f_=floor: c_ @ f_,
             }
-            times = interleaved(fns, args.repeats)
+            times = interleaved(fns, args.repeats, args.clock)
             s = {k: summary(v) for k, v in times.items()}
-            row = {**s, "bytes_read_mb": nbytes / 1e6,
+            row = {**s, "bytes_read_mb": nbytes / 1e6, "smplx_bytes_read_mb": smplx_bytes(sx) / 1e6,
                    "hack_over_smplx": s["hack"]["median_ms"] / s["smplx"]["median_ms"],
                    "hack_over_floor": s["hack"]["median_ms"] / s["floor"]["median_ms"]}
             results["configs"][name] = row
-            print(f"{name:22s} hack {s['hack']['median_ms']:8.2f} ms "
-                  f"[{s['hack']['min_ms']:.2f}..{s['hack']['max_ms']:.2f}]  smplx "
-                  f"{s['smplx']['median_ms']:8.2f} ms [{s['smplx']['min_ms']:.2f}.."
-                  f"{s['smplx']['max_ms']:.2f}]  floor ({nbytes / 1e6:.1f} MB) "
-                  f"{s['floor']['median_ms']:7.2f} ms  hack/smplx {row['hack_over_smplx']:.2f}x"
-                  f"  hack/floor {row['hack_over_floor']:.2f}x")
+            say(f"{name:22s} hack {s['hack']['median_ms']:8.2f} ms "
+                f"[{s['hack']['min_ms']:.2f}..{s['hack']['max_ms']:.2f}]  smplx "
+                f"{s['smplx']['median_ms']:8.2f} ms [{s['smplx']['min_ms']:.2f}.."
+                f"{s['smplx']['max_ms']:.2f}] ({smplx_bytes(sx) / 1e6:.1f} MB)  floor "
+                f"({nbytes / 1e6:.1f} MB) {s['floor']['median_ms']:7.2f} ms  hack/smplx "
+                f"{row['hack_over_smplx']:.2f}x  hack/floor {row['hack_over_floor']:.2f}x")
         beta1 = torch.randn(1, model.num_shape, generator=gen)
         pers = model.personalize(beta1)
         psi = torch.rand(1, model.num_expressions, generator=gen)
         theta = distribute_head_rotation(0.3 * torch.randn(1, 3, generator=gen))
         times = interleaved({"general": lambda: model(beta=beta1, psi=psi, theta=theta),
-                             "personalised": lambda: pers(psi=psi, theta=theta)}, args.repeats)
+                             "personalised": lambda: pers(psi=psi, theta=theta)}, args.repeats,
+                            args.clock)
         s = {k: summary(v) for k, v in times.items()}
         s["speed_up"] = s["general"]["median_ms"] / s["personalised"]["median_ms"]
         results["configs"]["B=1 personalised vs general"] = s
-        print(f"fixed identity, B=1: general {s['general']['median_ms']:.2f} ms, personalised "
-              f"{s['personalised']['median_ms']:.2f} ms, speed-up {s['speed_up']:.2f}x")
+        say(f"fixed identity, B=1: general {s['general']['median_ms']:.2f} ms, personalised "
+            f"{s['personalised']['median_ms']:.2f} ms, speed-up {s['speed_up']:.2f}x")
     results["load_average_1min_after"] = os.getloadavg()[0]
+    results["printed"] = PRINTED
+    results["title"] = (f"Geometry forward against smplx's lbs ({results['threads']} torch "
+                        f"thread(s), {args.clock} clock)")
     print(f"wrote {write_result(args.out, results)}")
 
 

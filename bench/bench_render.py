@@ -78,6 +78,7 @@ Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-s
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import statistics
 import tempfile
@@ -1161,6 +1162,68 @@ def samplers_benchmark(ref_spp: int = 2048, repeats: int = 2) -> dict:
     return {"printed": printed, "ref_spp": ref_spp, "views": views}
 
 
+def turntable_ratio_benchmark(size: int, spp: int, frames: int, modes: list[list[str]]) -> None:
+    """Issue 65: a later frame of ``hack-render turntable`` against its render call.
+
+    Runs the command in this process (defaults: SSS on, OIDN when installed) with the scene's
+    methods timed: per later frame (frames 2..N; the first compiles), the frame's wall time
+    (from one frame's camera change to the next's) against the render call
+    (``HeadScene.render``, the path tracer with SSS) plus the denoiser (``HeadScene.denoise``:
+    OIDN and its albedo/normal passes; the command calls it beside the render), and the
+    parts: the camera change with its scene update (the cornea moves the iris for each
+    camera: the acceleration structure is rebuilt), the mesh update of animated frames.
+    Target: a later frame <= 1.1x its render call.
+    """
+    from hack_render.cli import main as cli_main
+    from hack_render.render import scene as sc
+
+    names = ("render", "denoise", "set_camera", "set_vertices")
+    for extra in modes:
+        events: list[tuple[str, float, float]] = []
+        saved = {n: getattr(sc.HeadScene, n) for n in names}
+
+        def timed(name):
+            orig = saved[name]
+
+            def run(self, *a, **k):
+                t0 = time.perf_counter()
+                out = orig(self, *a, **k)
+                events.append((name, t0, time.perf_counter()))
+                return out
+            return run
+
+        for n in names:
+            setattr(sc.HeadScene, n, timed(n))
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                try:
+                    cli_main(["turntable", "-o", str(Path(tmp) / "tt"), "--frames", str(frames),
+                              "--resolution", str(size), "--spp", str(spp), "--formats",
+                              "frames", "--quiet", *extra])
+                except SystemExit as err:
+                    if err.code:
+                        raise
+        finally:
+            for n, f in saved.items():
+                setattr(sc.HeadScene, n, f)
+        # a frame: from its camera change (set_vertices first when animated) to the next's
+        starts = [t for n, t, _ in events if n == ("set_vertices" if "--look-around" in extra
+                                                   else "set_camera")]
+        rows = []
+        for k in range(1, len(starts) - 1):  # frames 2..N-1: each has a next start
+            a, b = starts[k], starts[k + 1]
+            part = {n: sum(e - s for m, s, e in events if m == n and a <= s < b) for n in names}
+            rows.append({"wall": b - a, **part})
+        med = {k: statistics.median(r[k] for r in rows) for k in rows[0]}
+        call = med["render"] + med["denoise"]
+        ratios = [r["wall"] / (r["render"] + r["denoise"]) for r in rows]
+        print(f"(t) turntable {' '.join(extra) or '(orbit)'}: {size} px, {spp} spp, frames 2..{frames - 1} "
+              f"(median s): frame {med['wall']:.3f}; render call {med['render']:.3f} + denoise "
+              f"{med['denoise']:.3f} = {call:.3f}; ratio {med['wall'] / call:.2f}x "
+              f"[{min(ratios):.2f}..{max(ratios):.2f}] (target <= 1.1x); of the rest: camera "
+              f"change + update {med['set_camera']:.3f}, mesh update {med['set_vertices']:.3f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -1172,7 +1235,7 @@ def main() -> None:
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles",
-                                       "integrator", "samplers"),
+                                       "integrator", "samplers", "turntable"),
                     default="all")
     ap.add_argument("--blender-python", default=None, help="cycles: a Python with bpy "
                     f"(default ${BPY_ENV})")
@@ -1201,6 +1264,15 @@ def main() -> None:
         with recorded(args.out, "Rendering: turntable frame cost before and after"):
             print(f"variant: {variant}")
             frame_cost_benchmark()
+        return
+    if args.only == "turntable":
+        with recorded(args.out, "Rendering: a later turntable frame against its render call "
+                      "(issue 65)"):
+            print(f"variant: {variant}; load average (1 min) {os.getloadavg()[0]:.1f} before")
+            turntable_ratio_benchmark(args.tt_size, args.tt_spp, args.frames,
+                                      [[], ["--look-around", "--swallow"]])
+            print(f"load average (1 min) {os.getloadavg()[0]:.1f} after (2 cores shared with "
+                  "other jobs: ratios hold within one run, seconds do not)")
         return
     if args.only == "sss":
         with recorded(args.out, "Rendering: subsurface scattering, volumetric and "

@@ -106,3 +106,7 @@ Tonemap = Annotated[str, typer.Option("--tonemap", help="PNG tone map: aces, rei
 Variant = Annotated[Optional[str], typer.Option(
     "--variant", help="Mitsuba variant (default: $HACK_RENDER_VARIANT or automatic).")]
 Quiet = Annotated[bool, typer.Option("--quiet", help="No progress bars.")]
+Threads = Annotated[Optional[int], typer.Option(
+    "--threads", help="CPU threads for torch, Dr.Jit and Open Image Denoise. Default: torch "
+    "2 (register: 1), the renderer and the denoiser every core. On a shared machine or a "
+    "cluster job, the cores you were given (docs/troubleshooting.md).")]

@@ -11,11 +11,14 @@ scikit-image's own documentation (``skimage.data.<name>.__doc__``); faces are le
 (``astronaut``) so that no person is labelled background, and so is the stereo
 ``motorcycle`` pair (Middlebury licence). Photos are sRGB-decoded (colour-science) to
 linear and scaled to a sampled mean luminance: the lighting of the head is not matched
-to them.
+to them. The photos are 8-bit, so decoding is a 256-entry table (:func:`srgb_decode8`,
+kept on disk: importing colour-science costs 1.1-2.8 s of a dataset's first sample).
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -47,10 +50,42 @@ def _data_dir():
     return Path(skimage.__file__).parent / "data"
 
 
+#: File name of :func:`srgb_decode8`'s disk cache (version in the name).
+SRGB_DECODE_CACHE = "srgb_decode8-v1.npy"
+
+
+@lru_cache(maxsize=1)
+def srgb_decode8() -> np.ndarray:
+    """(256,) float64: colour-science's sRGB decoding of k / 255 for the 8-bit codes k.
+
+    Computed once and kept in ``$XDG_CACHE_HOME/hack-render`` (or ``~/.cache``); a missing,
+    unreadable or malformed file is recomputed (a read-only cache: every time)."""
+    path = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hack-render" \
+        / SRGB_DECODE_CACHE
+    try:
+        t = np.load(path, allow_pickle=False)
+        if (t.shape == (256,) and t.dtype == np.float64 and t[0] == 0.0 and t[-1] == 1.0
+                and np.all(np.diff(t) > 0)):
+            return t
+    except (OSError, ValueError):
+        pass
+    import colour
+
+    t = np.asarray(colour.cctf_decoding(np.arange(256) / 255.0, function="sRGB"), np.float64)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".srgb_decode8.", suffix=".npy")
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, t)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return t
+
+
 @lru_cache(maxsize=len(PHOTOS))
 def photo(name: str) -> np.ndarray:
     """(h, w, 3) float32 linear Rec.709 of a shipped photo, mean luminance 1."""
-    import colour
 
     if name not in PHOTOS:
         raise HackError(f"background photo: expected one of {', '.join(PHOTOS)}, found "
@@ -60,10 +95,16 @@ def photo(name: str) -> np.ndarray:
         raise HackError(f"background photo {name!r}: expected {path} (shipped with "
                         "scikit-image), found no file. Reinstall scikit-image or set "
                         "background.source: environment.")
-    img = np.asarray(iio.imread(path), np.float64) / 255.0
+    img = np.asarray(iio.imread(path))
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=-1)
-    lin = colour.cctf_decoding(img[..., :3], function="sRGB")
+    if img.dtype == np.uint8:
+        lin = srgb_decode8()[img[..., :3]]
+    else:  # not a shipped photo's format: decode it directly
+        import colour
+
+        lin = colour.cctf_decoding(img[..., :3] / float(np.iinfo(img.dtype).max),
+                                   function="sRGB")
     lum = lin @ np.array([0.2126, 0.7152, 0.0722])
     return (lin / max(float(lum.mean()), 1e-6)).astype(np.float32)
 

@@ -11,6 +11,7 @@ from hack_render import boundary
 from hack_render import cli_options as opts
 from hack_render.dataset.preview import contact_sheet
 from hack_render.errors import HackError
+from hack_render.threads import check_threads, command_threads
 
 app = typer.Typer(help="Render labelled datasets (docs/datasets.md).",
                   invoke_without_command=True, no_args_is_help=False)
@@ -37,6 +38,7 @@ def dataset(
     workers: Optional[int] = typer.Option(None, "--workers", help="Ray actors (default: "
                                           "one per CPU of the Ray instance)."),
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
 ) -> None:
     """Render N sampled people (identity, expression, neck pose, larynx, skin, light,
     cameras) with RGB, alpha, depth, normals, UV, segmentation, soft masks, landmarks
@@ -54,6 +56,9 @@ def dataset(
                         "found them missing. Example: hack-render dataset --n 100 -o out/ds")
 
     boundary.number(workers, "--workers", 1, 4096, integer=True)
+    if threads is not None:  # this process's engines (serial); each Ray actor: one thread
+        check_threads(threads)
+    command_threads(threads)
     job = Job(output, n, seed, load_config(config), parse_shard(shard), resume)
     summary = run(job, executor, address, workers, progress=not quiet)
     typer.echo(f"{summary['rendered']} rendered, {summary['skipped']} already complete, "

@@ -62,6 +62,10 @@ DEFAULTS: dict[str, Any] = {
     "appearance": {
         "source": "seed",         # seed (procedural subjects), alpha (PCA model), constant
         "subjects": 100000,       # seed: subject ids drawn from [0, subjects)
+        # seed: "projected" (the subject generated at 64 px and projected onto A(alpha),
+        # maps at `height`: ~0.1 s a sample, the same skin tones) or "generated" (the full
+        # generator at `height`: ~1 s a sample, every freckle); docs/datasets.md
+        "maps": "projected",
         "components": 20,         # alpha: first k components, alpha ~ N(0, I)
         "truncation": 2.5,        # alpha: |alpha_k| <= truncation
         "height": 256,            # skin map height H (maps are H x 2H)
@@ -85,6 +89,11 @@ DEFAULTS: dict[str, Any] = {
         "focal_mm": [50.0, 105.0],      # on a 36 mm sensor
     },
 }
+
+
+#: How ``appearance.source: seed`` makes a subject's maps (``appearance.projected`` or
+#: ``appearance.generator``).
+SEED_MAPS = ("projected", "generated")
 
 
 def _fail(key: str, expected: str, found) -> None:
@@ -166,6 +175,8 @@ def check_config(cfg: dict) -> dict:
     if src not in ("seed", "alpha", "constant"):
         _fail("appearance.source", "seed, alpha or constant", src)
     _number(cfg, "appearance", "subjects", 1, 2 ** 31 - 1, integer=True)
+    if cfg["appearance"]["maps"] not in SEED_MAPS:
+        _fail("appearance.maps", f"one of {', '.join(SEED_MAPS)}", cfg["appearance"]["maps"])
     _number(cfg, "appearance", "components", 0, 10000, integer=True)
     _number(cfg, "appearance", "truncation", 0.1, 10.0)
     _number(cfg, "appearance", "height", 16, 4096, integer=True)

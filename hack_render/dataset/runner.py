@@ -32,6 +32,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from appearance.model import AppearanceModel
+from appearance.projected import model_height, supports_height
 from appearance.uv import default_template
 from hack_render import boundary, interrupts
 from hack_render.boundary import estimate_line
@@ -128,6 +129,13 @@ def check_job(job: Job) -> None:
         if app["components"] > k:
             raise HackError(f"config key 'appearance.components': expected <= {k} (the "
                             f"appearance model's components), found {app['components']}.")
+    if app["source"] == "seed" and app["maps"] == "projected":
+        top = model_height()
+        if not supports_height(app["height"], top):
+            raise HackError(f"config key 'appearance.height': expected the appearance model's "
+                            f"{top} divided by a power of two with appearance.maps: projected, "
+                            f"found {app['height']}. Use one of {top}, {top // 2}, "
+                            f"{top // 4}, ..., or appearance.maps: generated.")
     if app["source"] in ("seed", "alpha"):
         default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
@@ -140,11 +148,19 @@ def check_job(job: Job) -> None:
             old = json.loads(path.read_text())
         except (OSError, ValueError):
             old = None
+        old_cfg = old.get("config") if isinstance(old, dict) else None
+        old_app = old_cfg.get("appearance") if isinstance(old_cfg, dict) else None
+        legacy = isinstance(old_app, dict) and "maps" not in old_app
+        if legacy:  # made before appearance.maps: with the generator's maps
+            old_app["maps"] = "generated"
         if old is not None and old != info:
             diff = [k for k in info if old.get(k) != info[k]]
+            hint = (" It was made before appearance.maps existed, with the generator's maps: "
+                    "add `appearance: {maps: generated}` to the config to resume it."
+                    if legacy and info["config"]["appearance"]["maps"] != "generated" else "")
             raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
                             f"the same config and seed, found a dataset that differs in "
-                            f"{diff}. Choose another folder.")
+                            f"{diff}.{hint} Choose another folder.")
     _refuse_rerun(job, existing_samples(job))
 
 
@@ -259,6 +275,16 @@ def _append_manifest(job: Job, rec: dict) -> None:
             raise
 
 
+def with_next(items):
+    """(item, the item after it or None) for each item of an iterable, read one ahead."""
+    it = iter(items)
+    cur = next(it, None)
+    while cur is not None:
+        nxt = next(it, None)
+        yield cur, nxt
+        cur = nxt
+
+
 def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                tally: dict | None = None) -> int:
     """Render ``todo`` (indices, streamed; ``total`` of them) in this process; returns how
@@ -281,7 +307,10 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
     pending: deque = deque()
     count, t0 = 0, time.perf_counter()
     try:
-        for i in tqdm(todo, total=total, desc="dataset", unit="sample", disable=not progress):
+        for i, upcoming in tqdm(with_next(todo), total=total, desc="dataset", unit="sample",
+                                disable=not progress):
+            if upcoming is not None:  # its inputs are made while sample i renders
+                renderer.prefetch(upcoming)
             pending.append(renderer.submit(i))
             count += 1
             if count == 1:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
@@ -32,6 +33,7 @@ import numpy as np
 
 from appearance.generator import generate_subject
 from appearance.model import AppearanceModel
+from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
@@ -85,6 +87,11 @@ class SampleRenderer:
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
+        self._projector: SubjectProjector | None = None
+        self._skin_lock = threading.Lock()  # one projector / model, whichever thread asks
+        #: index -> future of its :meth:`inputs`, started by :meth:`prefetch`
+        self._prefetched: dict[int, Future] = {}
+        self._prefetch_pool: ThreadPoolExecutor | None = None
         #: encodes and writes the files; with ``background_writes`` on one thread of its
         #: own, so that a sample's files are written while the next one renders
         self.writer = FileWriter(background_writes)
@@ -95,13 +102,19 @@ class SampleRenderer:
 
     def skin_maps(self, appearance: dict):
         h = self.cfg["appearance"]["height"]
+        if appearance["source"] == "seed" and self.cfg["appearance"]["maps"] == "projected":
+            with self._skin_lock:
+                if self._projector is None:
+                    self._projector = SubjectProjector()
+            return SkinMaps.from_appearance(self._projector.maps(appearance["subject"], h))
         if appearance["source"] == "seed":
             return SkinMaps.from_appearance(generate_subject(appearance["subject"], height=h))
         if appearance["source"] == "alpha":
             import torch
 
-            if self._appearance_model is None:
-                self._appearance_model = AppearanceModel.load()
+            with self._skin_lock:
+                if self._appearance_model is None:
+                    self._appearance_model = AppearanceModel.load()
             a = torch.tensor([appearance["alpha"]], dtype=torch.float32)
             with torch.no_grad():
                 return SkinMaps.from_appearance(self._appearance_model.maps(a))
@@ -142,7 +155,9 @@ class SampleRenderer:
                          "focal_mm": 85.0}, r["resolution"], "canonical")
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
                          settings, self._flat_maps(), None, r["variant"])
-        head.set_light_rotation(0.0)  # opaque transforms from the start
+        # opaque transforms from the start; applied by the first sample's update (each
+        # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
+        head.set_light_rotation(0.0, update=False)
         return head
 
     # --- one sample -----------------------------------------------------------------
@@ -150,6 +165,39 @@ class SampleRenderer:
         """Render sample ``index`` and write its files; returns its manifest record once
         every file, ``sample.json`` last, is on disk (see :meth:`submit`)."""
         return self.submit(index).result()
+
+    def inputs(self, index: int) -> dict:
+        """What sample ``index`` needs before its scene, each a pure function of the
+        config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
+        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps`` and
+        the ``background`` image (None: the rig's environment)."""
+        import torch
+
+        spec = self.spec(index)
+        with torch.no_grad():
+            out = self.model(**model_kwargs(self.model, spec))
+        larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
+                                                self.larynx_candidates, spec["beta"] or None)
+        res = self.cfg["render"]["resolution"]
+        return {"index": index, "spec": spec, "out": out,
+                "verts": out.vertices[0].numpy().astype(np.float64),
+                "larynx_vertex": larynx_vertex, "larynx": larynx,
+                "maps": self.skin_maps(spec["appearance"]),
+                "background": background_image(spec["background"], res, res)}
+
+    def prefetch(self, index: int) -> None:
+        """Start computing sample ``index``'s :meth:`inputs` on a helper thread, so that
+        they are ready when :meth:`submit` gets that index (the serial executor names the
+        next sample while the current one renders: the path tracer leaves the CPU idle
+        while it traces its kernels and while the acceleration structure is rebuilt).
+        The inputs are pure functions of the index: the files are the same either way."""
+        if self._prefetch_pool is None:
+            self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
+        while len(self._prefetched) >= 2:  # never taken (an index skipped): dropped
+            self._prefetched.pop(next(iter(self._prefetched)))
+        index = int(index)
+        if index not in self._prefetched:
+            self._prefetched[index] = self._prefetch_pool.submit(self.inputs, index)
 
     def submit(self, index: int) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
@@ -159,38 +207,36 @@ class SampleRenderer:
         Files are encoded and written by :attr:`writer` in the order they are queued
         (in the background when it has a thread, while this thread renders on), each
         under a temporary name then renamed; ``sample.json``, queued last and written only
-        if every other file of the sample was, marks the sample complete.
+        if every other file of the sample was, marks the sample complete. The sample's
+        :meth:`inputs` come from :meth:`prefetch` when it was given this index.
         """
-        import torch
-
         self.writer.wait_below(self.max_pending)
-        spec = self.spec(index)
+        ahead = self._prefetched.pop(int(index), None)
+        inp = ahead.result() if ahead is not None else self.inputs(index)
+        spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        with torch.no_grad():
-            out = self.model(**model_kwargs(self.model, spec))
-        verts = out.vertices[0].numpy().astype(np.float64)
-        larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
-                                                self.larynx_candidates, spec["beta"] or None)
         head = self.scene(spec["lighting"]["preset"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
-        head.set_vertices(verts, update=False)
-        head.set_maps(self.skin_maps(spec["appearance"]), update=False)
+        head.set_vertices(inp["verts"], update=False)
+        head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
         writes = [self.writer.submit(write_json, folder / "params.json",
                                      params_file(self.model, spec), indent=1, sort_keys=True)]
         views = []
+        larynx_vertex = inp["larynx_vertex"]
         for v, view in enumerate(spec["cameras"]):
             cam = camera_of(view, self.cfg["render"]["resolution"], f"view_{v:02d}")
-            views.append(self._render_view(head, cam, spec, v, folder, out, larynx, writes))
+            views.append(self._render_view(head, cam, spec, v, folder, out, larynx, writes,
+                                           inp["background"]))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
         return self.writer.submit(_write_record, self.out, folder, spec, writes)
 
-    def _render_view(self, head, cam, spec, v, folder, out, larynx, writes) -> dict:
+    def _render_view(self, head, cam, spec, v, folder, out, larynx, writes, backdrop) -> dict:
         r = self.cfg["render"]
         vdir = folder / f"view_{v:02d}"
         vdir.mkdir()
@@ -226,7 +272,6 @@ class SampleRenderer:
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
         gain = np.float32(2.0 ** spec["lighting"]["exposure"])
-        backdrop = background_image(spec["background"], cam.width, cam.height)
         if backdrop is None:  # the rig's environment, exposed like the lights
             backdrop = head.backdrop() * gain
         if mode != "off" and r["keep_noisy"]:
@@ -246,7 +291,11 @@ class SampleRenderer:
 
     def close(self) -> None:
         """Wait for every queued write (errors stay with their samples' futures) and stop
-        the writer thread."""
+        the writer and prefetch threads."""
+        if self._prefetch_pool is not None:
+            self._prefetch_pool.shutdown(wait=True)
+            self._prefetch_pool = None
+        self._prefetched.clear()
         self.writer.close()
 
 

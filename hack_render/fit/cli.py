@@ -11,10 +11,12 @@ import numpy as np
 import typer
 
 from hack_render import boundary, interrupts
+from hack_render import cli_options as opts
 from hack_render.cli_options import renamed
 from hack_render.errors import HackError
 from hack_render.fit.config import DETECTORS, FitConfig, load_config
 from hack_render.fit.photo import load_photo
+from hack_render.threads import check_threads, command_threads, requested
 
 
 def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Path] | None = None,
@@ -141,13 +143,12 @@ def check_landmark_file(path: Path) -> None:
 
 def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
     """Read, detect and fit (nothing written); returns (result, fitter)."""
-    import torch
-
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect, read_landmark_file
     from hack_render.fit.silhouette import load_mask
 
-    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    if requested() is None:  # the command's --threads, else torch's default for commands
+        command_threads(None)
     t0 = time.perf_counter()
     lc = cfg.landmarks
     imgs = [load_photo(p) for p in photos]
@@ -229,6 +230,7 @@ def fit(
                                 "focal length and config (fit_run.json); refuse other "
                                 "inputs there; redo an incomplete one."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+    threads: opts.Threads = None,
 ) -> None:
     """Fit HACK geometry, appearance, lighting and cameras to photos by inverse rendering.
 
@@ -277,6 +279,9 @@ def fit(
     if config is not None:
         _refuse_duplicate_keys(config)
     cfg = load_config(config, over)
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
     result, paths = fit_photos(photos, output, cfg, landmarks or None, progress=not quiet,
                                masks=mask or None, focal_mm=focal_mm, resume=resume)
     if result is None:

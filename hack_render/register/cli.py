@@ -17,6 +17,7 @@ from hack_render import cli_options as opts
 from hack_render.errors import HackError
 from hack_render.register.align import read_landmarks_3d
 from hack_render.register.scan import MESH_SUFFIXES, POINT_SUFFIXES, UNITS, load_scan
+from hack_render.threads import check_threads, command_threads
 
 
 def _scan_files(inputs: list[Path]) -> list[Path]:
@@ -92,9 +93,9 @@ def register_cmd(
     iterations: str = typer.Option("50,220,150", "--iterations", help="Adam steps of the "
                                    "rigid, model and free-form stages: fewer is faster and "
                                    "coarser."),
-    threads: int = typer.Option(1, "--threads", help="Torch threads. One is the fastest "
-                                "for this work's small tensors: on a 51,802-vertex scan 42 CPU "
-                                "seconds with one, 190 with two on a busy 2-core machine."),
+    # default torch 1: the fastest for this work's small tensors (a 51,802-vertex scan: 42
+    # CPU seconds with one thread, 190 with two on a busy 2-core machine)
+    threads: opts.Threads = None,
     shard: str | None = typer.Option(None, "--shard", help="K/M: register only scans "
                                         "K, K+M, K+2M, ... (one process per shard)."),
     model_path: opts.ModelPath = None,
@@ -127,16 +128,15 @@ def register_cmd(
         raise HackError(f"--shape-components: expected 1..300, found {shape_components}.")
     if not 256 <= texture_size <= 8192:
         raise HackError(f"--texture-size: expected 256..8192, found {texture_size}.")
-    if not 1 <= threads <= 256:
-        raise HackError(f"--threads: expected 1..256, found {threads}.")
+    if threads is not None:
+        check_threads(threads)
     steps = _iterations(iterations)
     cfg = RegisterConfig.preset_named(preset, free_form=free_form, num_shape=shape_components,
                                       rigid_iterations=steps[0], model_iterations=steps[1],
                                       free_iterations=steps[2])
     lmk_file = read_landmarks_3d(landmarks) if landmarks is not None else None
-    import torch
 
-    torch.set_num_threads(threads)
+    command_threads(threads, torch_default=1)
     model = load_model(model_path)
     settings = {"preset": preset, "iterations": steps, "free_form": free_form,
                 "shape_components": shape_components,

@@ -31,6 +31,7 @@ from hack_render.render import denoise as dn
 from hack_render.render import posed_cache
 from hack_render.render.parts import Topology
 from hack_render.render.skin_maps import skin_maps
+from hack_render.threads import check_threads, command_threads
 from scenes import cameras as cams
 from scenes import lights
 
@@ -201,6 +202,7 @@ def render(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
     sampler: str = SamplerOpt,
     integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
@@ -237,6 +239,9 @@ def render(
     views_ = named("--camera", cams.preset, camera, w, h, focal_mm, n=views)
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     policy = limit_policy(limits)
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
 
     # a repeated pose comes from the disk cache: no torch import, no model evaluation
     topo, verts = posed_cache.posed(

@@ -15,6 +15,7 @@ import warnings
 import weakref
 from dataclasses import dataclass
 
+from hack_render import threads
 from hack_render.errors import HackError
 from hack_render.render import integrator, skin_bsdf
 
@@ -128,6 +129,7 @@ def ensure_variant(requested: str | None = None) -> str:
     if variant != current:
         mi.set_variant(variant)
         register_plugins()
+        threads.apply_drjit()  # a `--threads` given before Dr.Jit was loaded
     return variant
 
 

@@ -2,12 +2,14 @@
 
 Its options and checks are `render`'s (:mod:`hack_render.render.cli`,
 :mod:`hack_render.cli_options`); numpy and everything heavier are imported inside the
-command, so `--help` stays fast.
+command, so `--help` stays fast. Frames are written on a thread of their own while the
+next frame renders.
 """
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,6 +41,7 @@ from hack_render.render.cli import (
 from hack_render.render.parts import Topology
 from hack_render.render.skin_maps import skin_maps
 from hack_render.render.video import write_gif, write_mp4
+from hack_render.threads import check_threads, command_threads
 from scenes import cameras as cams
 from scenes import lights
 
@@ -87,6 +90,7 @@ def turntable(
     tonemap: opts.Tonemap = "aces",
     variant: opts.Variant = None,
     quiet: opts.Quiet = False,
+    threads: opts.Threads = None,
     sampler: str = SamplerOpt,
     integrator: str = IntegratorOpt,
     denoise: str = DenoiseOpt,
@@ -128,6 +132,9 @@ def turntable(
     boundary.number(pitch, "--pitch", -89.0, 89.0, unit=" degrees")
     alpha_ = check_look(env_rotation, exposure, focal_mm, alpha, appearance_seed)
     rig = named("--lighting", lights.preset, lighting, env_rotation, exposure)
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
 
     policy = limit_policy(limits)
     model = load_model(model_path)
@@ -195,16 +202,23 @@ def turntable(
             times, animated = [], look_around or swallow or mode == "subject"
             pending, bar = set(todo), tqdm(total=len(todo), desc="turntable", unit="frame",
                                            disable=quiet)
+            # frames are encoded and written on one thread while the next one renders (in
+            # order; a failed write raises from its future at the end, or at the next frame),
+            # and an animated frame's successor is posed there too
+            writer, writes = ThreadPoolExecutor(1, thread_name_prefix="turntable-writer"), []
             # The scene goes through every frame's changes from frame 0, rendering only the
             # pending frames: Mitsuba's state after an update (the acceleration structure,
             # the environment's bounds) depends on the updates before it, so a resumed
             # run replays the skipped frames' updates to render the same bytes as an
             # uninterrupted one (one started at its first pending frame differed in a few
             # pixels of later frames by up to 6/255).
+            upcoming = None  # the next frame's vertices, posed on the writer thread
             for i in range(max(todo) + 1):
                 t0 = time.perf_counter()
                 if animated:
-                    head.set_vertices(vertices_at(i), update=False)
+                    v = upcoming.result() if upcoming is not None else vertices_at(i)
+                    upcoming = writer.submit(vertices_at, i + 1) if i < max(todo) else None
+                    head.set_vertices(v, update=False)
                 head.set_camera(camera_at(i))
                 if animated:
                     head.sync_environment()
@@ -212,18 +226,21 @@ def turntable(
                     continue
                 bare = head.render(seed=seed + i, backdrop=False, sss=sss)
                 img = head.composite(head.denoise(bare) if use_denoise else bare)
+                while writes and writes[0].done():
+                    writes.pop(0).result()  # a failed write stops the run here
                 if use_denoise and keep_noisy:
-                    noisy = tt.frame_path(output, i, "noisy")
-                    with atomic_path(noisy) as tmp:
-                        iio.imwrite(tmp, to_srgb8(head.composite(bare)[..., :3], 0.0,
-                                                  tonemap), extension=".png")
-                with atomic_path(tt.frame_path(output, i)) as tmp:
-                    iio.imwrite(tmp, to_srgb8(img[..., :3], 0.0, tonemap), extension=".png")
+                    writes.append(writer.submit(_write_frame, tt.frame_path(output, i, "noisy"),
+                                                head.composite(bare)[..., :3], tonemap))
+                writes.append(writer.submit(_write_frame, tt.frame_path(output, i),
+                                            img[..., :3], tonemap))
                 times.append(time.perf_counter() - t0)
                 bar.update()
                 if len(times) == 2 and len(todo) > 2:  # the first frame compiles: no rate
                     typer.echo(boundary.estimate_line("turntable", times[1], len(todo) - 2,
                                                       "frame"), err=True)
+            writer.shutdown(wait=True)
+            for fut in writes:
+                fut.result()
             bar.close()
             if len(times) > 1:
                 typer.echo(f"frame times: first {times[0]:.2f} s, later mean "
@@ -241,6 +258,12 @@ def turntable(
         record.write(complete=True)  # the completion marker, last
     for path in written + [output / "cameras.json"]:
         typer.echo(f"wrote {path.resolve()}")
+
+
+def _write_frame(path: Path, linear, tonemap: str) -> None:
+    """Tone map, encode and write one frame's PNG atomically (the writer thread's job)."""
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, to_srgb8(linear, 0.0, tonemap), extension=".png")
 
 
 def register(app: typer.Typer) -> None:

@@ -8,8 +8,10 @@ from pathlib import Path
 import typer
 
 from hack_render import boundary, interrupts
+from hack_render import cli_options as opts
 from hack_render.errors import HackError
 from hack_render.fit.config import FitConfig, load_config
+from hack_render.threads import check_threads, command_threads, requested
 from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frames
 from hack_render.track.video import open_clip
 
@@ -24,7 +26,6 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     same command (``landmarks.npz``) are reused. ``larynx``: track tau per frame from the
     neck's shading (else the keyframe fit's tau throughout); ``outline``: place the neck
     on the person's outline in every frame (the outline stage)."""
-    import torch
 
     from hack_render.track.outputs import write_outputs
     from hack_render.track.pipeline import timed
@@ -49,7 +50,8 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     old = record.check_resume(resume, lm_path.exists())
     if resume and old is not None and old.get("complete"):
         return None, []
-    torch.set_num_threads(max(1, min(2, torch.get_num_threads())))
+    if requested() is None:  # the command's --threads, else torch's default for commands
+        command_threads(None)
 
     landmarks, timings = None, {}
     if resume and lm_path.is_file():
@@ -117,6 +119,7 @@ def track(
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+    threads: opts.Threads = None,
 ) -> None:
     """Track a video into HACK parameters: one identity for the clip, and per frame the
     8 neck joints (from the head's rotation), the torso, the expression and the larynx's
@@ -140,6 +143,9 @@ def track(
         boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
                             "config file")
     cfg = load_config(config, over)
+    if threads is not None:
+        check_threads(threads)
+    command_threads(threads)
     result, paths = track_video(video, output, keyframes, max_side, fps, cfg,
                                 not no_overlay, resume, not quiet, max_frames,
                                 larynx=tau == "photometric", outline=not no_outline)

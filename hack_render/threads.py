@@ -1,0 +1,119 @@
+"""CPU threads of the engines: torch's intra-op pool, Dr.Jit's pool and Open Image Denoise's.
+
+One number for all three, set by :func:`set_threads` (the long commands' ``--threads``):
+
+- torch: ``torch.set_num_threads(n)`` when torch is loaded, else ``OMP_NUM_THREADS``,
+  which torch reads as it loads (a render whose pose comes from the disk cache never
+  loads torch);
+- Dr.Jit: ``drjit.set_thread_count(n)``, at once when Dr.Jit is loaded, else when
+  ``hack_render.render.engine`` activates a Mitsuba variant (:func:`apply_drjit`), so that
+  a command that never renders never pays for importing it;
+- OIDN: ``OIDN_NUM_THREADS``, read when the denoiser creates its device (the first
+  denoised image of the process).
+
+The OpenMP wait policy (``OMP_WAIT_POLICY``, set by the package's ``__init__`` before torch
+loads) is the other half of thread behaviour: see docs/troubleshooting.md (cluster jobs)
+for what to set where other jobs share the cores.
+
+Imports nothing heavy: drjit is imported by :func:`apply_drjit` alone, once a variant is
+active; torch never (it is set through ``sys.modules`` when loaded).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from hack_render.errors import HackError
+
+#: The most threads ``--threads`` accepts (a sanity bound, not a hardware one).
+MAX_THREADS = 1024
+#: Torch's intra-op threads when a command is not given ``--threads`` (see
+#: :func:`default_torch_threads`): small-tensor work (a B = 1 forward, skin maps of one
+#: subject) gains little from more threads and loses much when other jobs share the cores.
+DEFAULT_TORCH_THREADS = 2
+
+_requested: int | None = None
+
+
+def requested() -> int | None:
+    """The thread count :func:`set_threads` was last given (None: never called)."""
+    return _requested
+
+
+def check_threads(n, name: str = "--threads") -> int:
+    """``n`` as a thread count in 1..MAX_THREADS, else HackError naming ``name``."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_THREADS:
+        raise HackError(f"{name}: expected a whole number of threads in 1..{MAX_THREADS}, "
+                        f"found {n!r}.")
+    return n
+
+
+def set_threads(n: int) -> int:
+    """Use ``n`` CPU threads in torch, Dr.Jit and OIDN (see the module docstring); returns n.
+
+    Loads none of them: torch, when not loaded yet, reads ``OMP_NUM_THREADS`` (set here)
+    as it loads; Dr.Jit gets the count when a variant is activated.
+
+    Raises:
+        HackError: n is not a whole number in 1..MAX_THREADS.
+    """
+    global _requested
+    n = check_threads(n)
+    _requested = n
+    _set_torch_threads(n)
+    os.environ["OIDN_NUM_THREADS"] = str(n)
+    if "drjit" in sys.modules:
+        apply_drjit()
+    return n
+
+
+def _set_torch_threads(n: int) -> None:
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(n)
+    else:  # read by torch's OpenMP runtime when it loads
+        os.environ["OMP_NUM_THREADS"] = str(n)
+
+
+def apply_drjit() -> None:
+    """Give Dr.Jit the requested thread count (no-op when none was requested)."""
+    if _requested is None:
+        return
+    import drjit as dr
+
+    if dr.thread_count() != _requested:
+        dr.set_thread_count(_requested)
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity mask, e.g. a cluster job's
+    allocation, where the platform has one; else the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def default_torch_threads() -> int:
+    """Torch threads for a command run without ``--threads``: at most
+    :data:`DEFAULT_TORCH_THREADS`, fewer when fewer cores are available or torch (or
+    ``OMP_NUM_THREADS``) says fewer."""
+    if "torch" in sys.modules:
+        have = sys.modules["torch"].get_num_threads()
+    else:
+        env = os.environ.get("OMP_NUM_THREADS", "")
+        have = int(env) if env.isdigit() and int(env) > 0 else available_cores()
+    return max(1, min(DEFAULT_TORCH_THREADS, have, available_cores()))
+
+
+def command_threads(n: int | None, torch_default: int | None = None) -> int | None:
+    """A command's thread set-up: ``--threads n`` for every engine when given; else torch
+    at ``torch_default`` (default: :func:`default_torch_threads`) and Dr.Jit and OIDN at
+    their own defaults (every core). A user's ``OMP_NUM_THREADS`` is kept when torch is
+    not loaded yet. Returns n (None when not given)."""
+    if n is not None:
+        return set_threads(n)
+    want = default_torch_threads() if torch_default is None else check_threads(torch_default)
+    if "torch" in sys.modules or "OMP_NUM_THREADS" not in os.environ:
+        _set_torch_threads(want)
+    return None

@@ -1,0 +1,128 @@
+"""Threads (issue 65): the OpenMP wait policy is set before torch loads and a user's own
+value wins; ``--threads`` reaches torch, Dr.Jit and OIDN; every long command takes it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from hack_render import threads
+from hack_render.errors import HackError
+
+# records the wait policy in the environment at the moment torch's import begins
+_SPY = """
+import json, os, sys
+seen = {}
+class Spy:
+    def find_spec(self, name, path=None, target=None):
+        if name == "torch" and "torch" not in seen:
+            seen["torch"] = os.environ.get("OMP_WAIT_POLICY")
+        return None
+sys.meta_path.insert(0, Spy())
+import %s
+print(json.dumps({"at_torch": seen.get("torch", "not imported"),
+                  "now": os.environ.get("OMP_WAIT_POLICY")}))
+"""
+
+
+def _python(code: str, **env) -> subprocess.CompletedProcess:
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS", "OIDN_NUM_THREADS")}
+    return subprocess.run([sys.executable, "-c", code], env={**base, **env}, check=False,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("module", ["hack_render.geometry.model", "appearance.model"])
+def test_wait_policy_is_passive_before_torch_loads(module):
+    res = _python(_SPY % module)
+    assert res.returncode == 0, res.stderr[-2000:]
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert got == {"at_torch": "PASSIVE", "now": "PASSIVE"}
+
+
+def test_a_users_wait_policy_is_kept():
+    res = _python(_SPY % "hack_render.geometry.model", OMP_WAIT_POLICY="ACTIVE")
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == {"at_torch": "ACTIVE",
+                                                               "now": "ACTIVE"}
+
+
+def test_importing_the_package_loads_no_engine():
+    res = _python("import sys, hack_render, hack_render.threads; "
+                  "print(sorted(m for m in ('torch', 'drjit', 'mitsuba') if m in sys.modules))")
+    assert res.returncode == 0 and res.stdout.strip() == "[]", res.stderr[-2000:]
+
+
+def test_set_threads_reaches_torch_drjit_and_oidn():
+    code = """
+import os, json
+import drjit as dr
+import torch
+from hack_render.threads import set_threads
+set_threads(1)
+print(json.dumps([torch.get_num_threads(), dr.thread_count(), os.environ["OIDN_NUM_THREADS"]]))
+"""
+    res = _python(code)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == [1, 1, "1"]
+
+
+def test_set_threads_before_the_engines_load():
+    """Given before torch and Dr.Jit load: torch reads OMP_NUM_THREADS as it loads, Dr.Jit
+    gets the count when the engine activates a variant."""
+    code = """
+import json, sys
+from hack_render.threads import set_threads
+set_threads(1)
+assert "torch" not in sys.modules and "drjit" not in sys.modules
+import torch
+from hack_render.render.engine import ensure_variant
+ensure_variant()
+import drjit as dr
+print(json.dumps([torch.get_num_threads(), dr.thread_count()]))
+"""
+    res = _python(code)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout.strip().splitlines()[-1]) == [1, 1]
+
+
+def test_command_default_keeps_a_users_omp_num_threads():
+    code = """
+import json, os
+from hack_render.threads import command_threads
+command_threads(None)
+print(json.dumps(os.environ.get("OMP_NUM_THREADS")))
+"""
+    res = _python(code, OMP_NUM_THREADS="1")
+    assert res.returncode == 0 and json.loads(res.stdout.strip()) == "1", res.stderr[-2000:]
+    res = _python(code)
+    want = str(min(threads.DEFAULT_TORCH_THREADS, threads.available_cores()))
+    assert res.returncode == 0 and json.loads(res.stdout.strip()) == want, res.stderr[-2000:]
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1025, 2.5, True, "2"])
+def test_bad_thread_counts_are_refused(bad):
+    with pytest.raises(HackError, match="--threads"):
+        threads.check_threads(bad)
+
+
+def test_every_long_command_takes_threads():
+    from hack_render.cli import load_commands
+
+    cmds = load_commands()
+    for name in ("render", "turntable", "dataset", "fit", "track", "register"):
+        cmd = cmds[name]
+        opts = [o for p in cmd.params for o in getattr(p, "opts", [])]
+        assert "--threads" in opts, name
+
+
+def test_threads_zero_is_refused_before_anything_heavy(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "hack_render.cli", "render", "--threads", "0",
+                          "-o", str(tmp_path / "x.png")], check=False, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode != 0 and "--threads" in res.stderr, res.stderr[-2000:]
+    assert not (tmp_path / "x.png").exists()
