@@ -28,6 +28,7 @@ import png as pypng
 from appearance.colour_space import srgb_decode, srgb_encode
 from hack_render.errors import HackError
 from hack_render.io import atomic_path
+from hack_render.io.image import write_openexr
 
 MAP_CHANNELS = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
 REQUIRED_MAPS = ("diffuse", "specular", "normal")
@@ -55,7 +56,7 @@ def write_exr(path, image: np.ndarray, channels: list[str] | None = None,
     chans = {n: np.ascontiguousarray(img[..., i].astype(dt)) for i, n in enumerate(names)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp, OpenEXR.File(header, chans) as f:
-        f.write(str(tmp))
+        write_openexr(f, tmp, path)
 
 
 def read_exr(path) -> tuple[np.ndarray, list[str]]:

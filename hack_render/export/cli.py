@@ -13,7 +13,7 @@ from hack_render.export.viewer import serve
 from hack_render.geometry.limits import apply_limit_policy, limit_policy
 from hack_render.geometry.obj_io import ObjMaterials, write_mesh
 from hack_render.geometry.params import gather_params, load_sequence, model_inputs
-from hack_render.io import atomic_write_bytes
+from hack_render.io import atomic_write_bytes, written_together
 from hack_render.render.materials import material_base_colours
 from hack_render.render.skin_maps import skin_maps
 
@@ -138,19 +138,23 @@ def _export_mesh(model, params: dict, maps, output: Path) -> list[Path]:
     if output.suffix.lower() == ".ply":
         return [write_mesh(output, *args)]
     folder = output.parent / f"{output.stem}_maps"
-    folder.mkdir(parents=True, exist_ok=True)
     images = {"diffuse": (maps.diffuse, True), "specular": (maps.specular, False),
               "roughness": (maps.roughness, False)}
     if maps.normal is not None:
         images["normal"] = (0.5 * maps.normal + 0.5, False)
-    written = []
-    for key, (img, srgb) in images.items():
-        written.append(atomic_write_bytes(folder / f"{key}.png", png_bytes(img, srgb)))
     mats = ObjMaterials(model.material_names, model.face_material.numpy(),
                         {k: f"{folder.name}/{k}.png" for k in images},
                         colours=material_base_colours(model.material_names, maps.iris_rgb,
                                                       maps.sclera_rgb))
-    return written + [write_mesh(output, *args, mats), output.with_suffix(".mtl")]
+    pngs = [folder / f"{key}.png" for key in images]
+    written = []
+    # one output: a full disk or an interruption leaves none of its parts without the rest
+    with written_together([*pngs, output.with_suffix(".mtl"), output]):
+        folder.mkdir(parents=True, exist_ok=True)
+        for target, (img, srgb) in zip(pngs, images.values()):
+            written.append(atomic_write_bytes(target, png_bytes(img, srgb)))
+        written += [write_mesh(output, *args, mats), output.with_suffix(".mtl")]
+    return written
 
 
 def view(

@@ -17,11 +17,12 @@ NumPy, OpenEXR and imageio are :mod:`hack_render.io.image`'s.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -103,7 +104,12 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     os.close(fd)
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as err:  # a writer's OS error names the output, not the temporary
+            if err.filename is None or str(err.filename) == str(tmp_path):
+                err.filename = str(path)
+            raise
         # mkstemp creates 0600; an output is an ordinary file, readable as the umask allows
         os.chmod(tmp_path, 0o666 & ~_UMASK)
         tmp_path.replace(path)
@@ -112,6 +118,28 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             tmp_path.unlink(missing_ok=True)
         except OSError:
             pass  # the error that stopped the write is the one to report
+
+
+@contextlib.contextmanager
+def written_together(paths: Iterable[str | Path]) -> Iterator[None]:
+    """The files ``paths`` are one output (an OBJ with its .mtl and maps): if the block
+    fails (a full disk, an interruption), the ones it created are removed again, and the
+    folders it created if they are left empty, so that no part of the output stays without
+    the rest. Files that were there before are left (each writer replaces a file whole)."""
+    paths = [Path(p) for p in paths]
+    existed = {p for p in paths if p.exists()}
+    folders = {p.parent for p in paths if not p.parent.exists()}
+    try:
+        yield
+    except BaseException:
+        for p in paths:
+            if p not in existed:
+                with contextlib.suppress(OSError):
+                    p.unlink(missing_ok=True)
+        for folder in sorted(folders, key=lambda f: len(f.parts), reverse=True):
+            with contextlib.suppress(OSError):
+                folder.rmdir()  # only if empty
+        raise
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:

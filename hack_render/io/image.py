@@ -8,7 +8,9 @@ half-written file.
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 from functools import lru_cache
 from pathlib import Path
 
@@ -39,8 +41,43 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray],
     for k, v in (metadata or {}).items():
         header[k] = str(v)
     with atomic_path(path) as tmp:
-        OpenEXR.File(header, data).write(str(tmp))
+        write_openexr(OpenEXR.File(header, data), tmp, path)
     return Path(path)
+
+
+#: what OpenEXR's RuntimeError says of an OS error while writing, and that error's number
+_OS_ERRORS_IN_OPENEXR = (("No space left on device", errno.ENOSPC),
+                         ("Disk quota exceeded", errno.EDQUOT),
+                         ("Read-only file system", errno.EROFS),
+                         ("Permission denied", errno.EACCES))
+
+
+def write_openexr(exr_file, tmp: str | Path, path: str | Path) -> None:
+    """``exr_file.write(tmp)``, with OpenEXR's RuntimeError for a full disk (or a quota, a
+    read-only or unwritable folder) raised as the OSError it is, naming ``path``, so that
+    the command line ends in one line and exit 2 rather than a traceback."""
+    try:
+        exr_file.write(str(tmp))
+    except RuntimeError as err:
+        for text, number in _OS_ERRORS_IN_OPENEXR:
+            if text in str(err):
+                raise OSError(number, os.strerror(number), str(path)) from err
+        raise
+    # OpenEXR says nothing when the disk fills while it flushes its last buffer: it leaves
+    # an empty or cut file. On an all but full disk, read the file back before keeping it.
+    if os.path.getsize(tmp) == 0 or shutil.disk_usage(Path(tmp).parent).free < FULL_DISK_BYTES:
+        try:
+            with OpenEXR.File(str(tmp), separate_channels=True) as back:
+                whole = os.path.getsize(tmp) > 0 and all(
+                    c.pixels is not None for c in back.channels().values())
+        except Exception:  # noqa: BLE001 - unreadable: cut short
+            whole = False
+        if not whole:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+#: free bytes under which a file a library wrote without an error is read back
+FULL_DISK_BYTES = 1 << 20
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:

@@ -5,6 +5,10 @@ Both writers take sRGB uint8 frames (H, W, 3), write to a temporary name and ren
 
 from __future__ import annotations
 
+import errno
+import os
+import shutil
+import struct
 from pathlib import Path
 from typing import Sequence
 
@@ -34,7 +38,46 @@ def write_mp4(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24,
         for f in frames:
             writer.send(np.ascontiguousarray(f[..., :3], dtype=np.uint8))
         writer.close()
+        check_mp4(tmp, path)
     return Path(path)
+
+
+#: free bytes under which an incomplete MP4 is put down to a full disk
+FULL_DISK_BYTES = 1 << 20
+
+
+def mp4_boxes(path: str | Path) -> list[tuple[str, int]]:
+    """The top-level boxes of an MP4 file, [(type, size)], up to the first one that runs
+    past the end of the file (an ffmpeg stopped by a full disk leaves such a file)."""
+    out, end = [], os.path.getsize(path)
+    with open(path, "rb") as fh:
+        at = 0
+        while at + 8 <= end:
+            fh.seek(at)
+            size, kind = struct.unpack(">I4s", fh.read(8))
+            if size == 1:  # a 64-bit size follows
+                size = struct.unpack(">Q", fh.read(8))[0]
+            elif size == 0:  # to the end of the file
+                size = end - at
+            if size < 8 or at + size > end:
+                break
+            out.append((kind.decode("latin-1"), size))
+            at += size
+    return out
+
+
+def check_mp4(tmp: str | Path, path: str | Path) -> None:
+    """Refuse an MP4 that ffmpeg left incomplete (no ``moov`` index: unplayable): an OSError
+    (ENOSPC) when the disk is all but full, else a HackError; the caller's temporary is
+    then removed and ``path`` never holds it."""
+    kinds = {k for k, _ in mp4_boxes(tmp)}
+    if {"ftyp", "moov", "mdat"} <= kinds:
+        return
+    if shutil.disk_usage(Path(tmp).parent).free < FULL_DISK_BYTES:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    raise HackError(f"{path}: ffmpeg wrote an incomplete MP4 (boxes {sorted(kinds)}, no "
+                    f"'moov' index); nothing was kept under that name. Try again, or "
+                    f"--formats gif,frames.")
 
 
 def write_gif(path: str | Path, frames: Sequence[np.ndarray], fps: int = 24) -> Path:
