@@ -9,10 +9,10 @@ free constants, stored in ``data/calibration.json`` by :mod:`appearance.calibrat
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -21,6 +21,7 @@ import numpy as np
 
 from appearance.skin_optics import DATA_DIR, AlbedoLUT, OpticsConstants
 from hack_render.errors import HackError
+from hack_render.io.npz import write_npz
 
 CALIBRATION_FILE = DATA_DIR / "calibration.json"
 
@@ -105,14 +106,9 @@ def albedo_lut(optics: OpticsConstants) -> AlbedoLUT:
     except (OSError, ValueError, KeyError):
         pass
     lut = AlbedoLUT.build(optics)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".albedo_lut.", suffix=".npz")
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, sqrt_cm=lut.sqrt_cm, sqrt_ch=lut.sqrt_ch, bm=lut.bm, rgb=lut.rgb)
-        os.replace(tmp, path)
-    except OSError:
-        pass
+    with contextlib.suppress(OSError, HackError):  # a cache that cannot be written: no cache
+        write_npz(path, {"sqrt_cm": lut.sqrt_cm, "sqrt_ch": lut.sqrt_ch, "bm": lut.bm,
+                         "rgb": lut.rgb})
     return lut
 
 

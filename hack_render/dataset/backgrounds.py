@@ -17,8 +17,8 @@ kept on disk: importing colour-science costs 1.1-2.8 s of a dataset's first samp
 
 from __future__ import annotations
 
+import contextlib
 import os
-import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -26,6 +26,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io import atomic_path
 
 #: name -> (file in skimage/data, credit and licence as scikit-image documents them)
 PHOTOS: dict[str, tuple[str, str]] = {
@@ -72,14 +73,9 @@ def srgb_decode8() -> np.ndarray:
     import colour
 
     t = np.asarray(colour.cctf_decoding(np.arange(256) / 255.0, function="sRGB"), np.float64)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".srgb_decode8.", suffix=".npy")
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, t)
-        os.replace(tmp, path)
-    except OSError:
-        pass
+    # a cache that cannot be written: no cache
+    with contextlib.suppress(OSError, HackError), atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.save(f, t)
     return t
 
 
