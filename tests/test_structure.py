@@ -42,7 +42,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("hack_render", "hack_render.errors", "hack_render.interrupts", "hack_render.io",
      "hack_render.boundary", "hack_render.cli_options"),
     ("hack_render.geometry",),
-    ("appearance", "scenes"),
+    ("appearance", "scenes", "hack_render.hair"),
     ("hack_render.render",),
     ("hack_render.vision",),
     ("hack_render.fit", "hack_render.dataset", "hack_render.export", "hack_render.register"),

@@ -16,6 +16,7 @@ A parameter file is a mapping with any of these keys (all optional; missing = ze
     transl: [x, y, z]              # metres
     eta: 1.0                       # larynx size, 0..1.5 (0 = none, 1 = the identity's own)
     tau: 0.0                       # larynx vertical slide, metres, up, -0.01..0.02
+    hair: {archetype: long, color: brown, beard: stubble}   # the hair layer (docs/hair.md)
 
 Values beyond the anatomical limits (joints, head rotation, eta, tau) are governed by the
 commands' ``--limits`` (:mod:`hack_render.geometry.limits`).
@@ -53,7 +54,7 @@ if TYPE_CHECKING:  # torch is imported where tensors are made: parsing and check
     import torch
 
 KEYS = ("beta", "psi", "expression", "head_rotation_deg", "theta", "global_orient", "transl",
-        "eta", "tau")
+        "eta", "tau", "hair")
 
 
 #: Hard bounds of each key (beyond them a value means nothing, under any ``--limits``;
@@ -262,7 +263,20 @@ def check_params(data: dict[str, Any], where: str = "parameters") -> dict[str, A
             out[key] = _scalar(data[key], key, where)
     if "expression" in data:
         out["expression"] = _expression(data["expression"], where)
+    if "hair" in data:
+        out["hair"] = _hair(data["hair"], where)
     return out
+
+
+def _hair(value: Any, where: str) -> Any:
+    """The ``hair`` section's shape: a style name, a mapping of style fields, or null (no
+    hair). Its fields are checked by :class:`hack_render.hair.style.HairStyle`."""
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, dict) and all(isinstance(k, str) for k in value):
+        return dict(value)
+    raise HackError(f"{where}: hair: expected a style name, a mapping of hair fields or null, "
+                    f"found {type(value).__name__}.")
 
 
 def parse_floats(text: str | None, name: str) -> list[float] | None:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.normals import vertex_normals  # noqa: F401  (re-exported)
 from hack_render.geometry.rigid import kabsch
 
 #: Segmentation labels, index = region id (0 is background).
@@ -110,18 +111,6 @@ class Part:
     texcoords: np.ndarray
     model_uv: np.ndarray
     flat: bool = False
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals. vertices (N, 3), faces (F, 3) -> (N, 3)."""
-    v = vertices[faces]
-    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    idx = faces.ravel()
-    # bincount is the fast scatter-add (np.add.at is several times slower)
-    n = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=len(vertices))
-                  for c in range(3)], axis=1)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(length > 0, length, 1.0)
 
 
 EYE_SHELLS = ("M_ScleraLeft", "M_ScleraRight")

@@ -1,0 +1,635 @@
+"""Growing a groom: a :class:`~hack_render.hair.style.HairStyle` turned into strands rooted
+on the model's skin.
+
+Every strand is rooted by barycentric coordinates on one skin triangle and stores its control
+points in that triangle's frame (:func:`triangle_frames`: the first edge, the normal and
+their cross product). Posing (:mod:`hack_render.hair.pose`) rebuilds each frame on the posed
+mesh, so strands follow identity, expression (brows lift with AU1/AU2, beards move with the
+jaw, lashes with the lids), the neck's pose and the larynx with no extra work.
+
+Strands are grown once, on the model's mean rest mesh (``template_vertices``), by walking
+each strand from its root: the first step follows the style's flow (away from the parting,
+back from the crown), lifted off the scalp by ``volume``; later steps bend down with
+``gravity``; each step is pushed out of the body to a per-strand shell (the hair's volume)
+by the signed distance to the skin's nearest vertex. Curl is a helix about the strand added
+after, pushed out again. The regions (scalp, brows, lashes, beard) are found on the mean
+mesh from its 68 landmarks and head-frame angles, with the thresholds written below; they
+are procedural, not segmented from data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hack_render.errors import HackError
+from hack_render.geometry.normals import vertex_normals
+from hack_render.hair.style import HairStyle
+
+SKIN_MATERIALS = ("M_Face", "M_BackHead")
+#: Scalp strands at ``density`` 1 and ``lod`` 1 over the full scalp (hairline 0).
+SCALP_STRANDS = 60_000
+BROW_STRANDS = 650  # per brow
+LASH_STRANDS = (110, 45)  # per eye: upper, lower lid
+BEARD_STRANDS = {"stubble": 24_000, "goatee": 6_000, "full": 14_000}
+#: Whorl (crown) of the flow, metres, model frame (y up, z forward, x the subject's left).
+CROWN = np.array([0.0, 0.125, -0.06])
+#: Where a ponytail / a bun gathers the hair.
+PONYTAIL_GATHER = np.array([0.0, 0.055, -0.108])
+BUN_GATHER = np.array([0.0, 0.105, -0.095])
+DOWN = np.array([0.0, -1.0, 0.0])
+
+#: The skin posed strands collide with: rest y under this, metres (all of it: another
+#: identity's skull and forehead move against strands held in their roots' frames, and the
+#: jaw's and neck's skin follow the neck's skinning).
+BODY_BELOW = np.inf
+#: Strands end this far above the lowest skin point at rest (the bust's cut): below it the
+#: model has no body to lie on (a longer strand is cut there, its last points gathered).
+CUT_MARGIN = 0.03
+#: Strands with a point this close to the body at rest are checked for collisions in every
+#: pose (a head turn or bend within the limits moves a point on the head by less).
+NEAR_BODY = 0.08
+
+#: Scalp hairline height (y, metres) by azimuth about the head's vertical axis (degrees, 0
+#: = front), on the mean mesh; recession and a widow's peak move it (:func:`scalp_mask`).
+HAIRLINE_KNOTS = ((0, 0.118), (25, 0.115), (45, 0.097), (60, 0.074), (75, 0.056),
+                  (100, 0.046), (115, 0.02), (135, -0.02), (180, -0.045))
+
+
+@dataclass
+class HeadSurface:
+    """The rest mesh strands are grown on and rooted in: vertices (N, 3) metres, faces
+    (F, 3), the skin triangles (``skin``: face indices of :data:`SKIN_MATERIALS`), the 68
+    landmark vertex indices."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    skin: np.ndarray
+    landmarks: np.ndarray
+
+    @staticmethod
+    def from_model(model) -> HeadSurface:
+        """From a ``HackModel``, a ``PosingModel`` or a dict of the model file's arrays."""
+        def arr(x):
+            return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+        if isinstance(model, dict):
+            a = model
+            v, f, fm = a["template_vertices"], a["faces"], a["face_material"]
+            names, lm = [str(s) for s in a["material_names"]], a["landmark_indices"]
+        else:
+            v, f, fm = model.template, model.faces, model.face_material
+            names = list(model.material_names)
+            lm = getattr(model, "landmark_indices", None)
+            if lm is None:
+                lm = model.arrays["landmark_indices"]
+        fm = arr(fm)
+        ids = [names.index(m) for m in SKIN_MATERIALS if m in names]
+        if not ids:
+            raise HackError(f"hair: the model has none of the skin materials "
+                            f"{', '.join(SKIN_MATERIALS)}; strands need a skin to root on.")
+        return HeadSurface(arr(v).astype(np.float64), arr(f).astype(np.int64),
+                           np.flatnonzero(np.isin(fm, ids)), arr(lm).astype(np.int64))
+
+
+@dataclass
+class StrandGroup:
+    """Strands of one kind (``scalp``, ``brows``, ``lashes``, ``beard``).
+
+    tri (S,) face index of each root; bary (S, 3) its barycentric coordinates; local
+    (S, K, 3) control points in the root triangle's frame, the first at the root (0);
+    radius (K,) metres root to tip; melanin (S, 2) eumelanin, pheomelanin per strand."""
+
+    name: str
+    tri: np.ndarray
+    bary: np.ndarray
+    local: np.ndarray
+    radius: np.ndarray
+    melanin: np.ndarray
+    #: (S,) strands that can reach the body below the head in some pose (posing pushes
+    #: only these out of it: :func:`hack_render.hair.pose.pose_group`)
+    near_body: np.ndarray | None = None
+
+    @property
+    def num_strands(self) -> int:
+        return int(self.tri.shape[0])
+
+    @property
+    def points_per_strand(self) -> int:
+        return int(self.local.shape[1])
+
+
+@dataclass
+class Groom:
+    """A style grown on a head surface: its strand groups and the faces they root in."""
+
+    style: HairStyle
+    groups: list[StrandGroup]
+    faces: np.ndarray
+    #: skin face indices (the collision proxy's vertices are theirs)
+    skin: np.ndarray
+    #: the skin vertices below the head (neck, chest, under the jaw) that posed strands are
+    #: kept out of; the skull moves with the strands rooted on it
+    body: np.ndarray | None = None
+
+    @property
+    def num_strands(self) -> int:
+        return sum(g.num_strands for g in self.groups)
+
+    def group(self, name: str) -> StrandGroup | None:
+        return next((g for g in self.groups if g.name == name), None)
+
+
+# --------------------------------------------------------------------------- geometry
+def triangle_frames(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) orthonormal frames of triangles: rows e1 (first edge), e2, n (normal)."""
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    e1 = b - a
+    n = np.cross(e1, c - a)
+    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-20)
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-20)
+    return np.stack([e1, np.cross(n, e1), n], axis=-2)
+
+
+def root_points(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarray
+                ) -> np.ndarray:
+    return np.einsum("sk,skc->sc", bary, v[faces[tri]])
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+
+
+def _tangent(d: np.ndarray, n: np.ndarray) -> np.ndarray:
+    return _unit(d - np.sum(d * n, -1, keepdims=True) * n)
+
+
+class BodyProxy:
+    """Signed distance to the skin, approximated by the nearest skin vertex's tangent plane
+    (positive outside). Used to grow strands outside the body and to test them."""
+
+    def __init__(self, v: np.ndarray, faces: np.ndarray, skin: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        f = faces[skin]
+        self.index = np.unique(f)
+        normals = vertex_normals(v, f)
+        self.points = v[self.index]
+        self.normals = normals[self.index]
+        self.tree = cKDTree(self.points)
+
+    def nearest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3)."""
+        flat = p.reshape(-1, 3)
+        _, i = self.tree.query(flat, workers=-1)
+        d = np.sum((flat - self.points[i]) * self.normals[i], -1)
+        return d.reshape(p.shape[:-1]), self.normals[i].reshape(p.shape)
+
+    def push_out(self, p: np.ndarray, shell) -> np.ndarray:
+        """``p`` moved along the nearest normal to at least ``shell`` (metres, broadcast)
+        outside the skin."""
+        d, n = self.nearest(p)
+        lack = np.maximum(np.asarray(shell) - d, 0.0)
+        return p + lack[..., None] * n
+
+
+def sample_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray, count: int,
+                     rng: np.random.Generator, weight: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` area-uniform random points on ``candidates`` (face indices), each as
+    (face index, barycentric (3,)); ``weight`` (per candidate, 0..1) thins them."""
+    if count <= 0 or len(candidates) == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    t = v[faces[candidates]]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=-1)
+    p = area * (weight if weight is not None else 1.0)
+    if p.sum() <= 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    pick = rng.choice(len(candidates), size=count, p=p / p.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], -1)
+    return candidates[pick], bary
+
+
+def closest_on_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray,
+                         points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each point (P, 3), the nearest of ``candidates``' triangles by centroid among
+    the 8 nearest, and the point's barycentric coordinates in it (clamped inside)."""
+    from scipy.spatial import cKDTree
+
+    cent = v[faces[candidates]].mean(1)
+    _, near = cKDTree(cent).query(points, k=min(8, len(candidates)))
+    near = np.atleast_2d(near)
+    best_t, best_b, best_d = None, None, None
+    for j in range(near.shape[1]):
+        tri = candidates[near[:, j]]
+        a, b, c = (v[faces[tri, k]] for k in range(3))
+        bary = _barycentric(points, a, b, c)
+        q = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
+        dist = np.linalg.norm(q - points, axis=-1)
+        if best_d is None:
+            best_t, best_b, best_d = tri.copy(), bary, dist
+        else:
+            better = dist < best_d
+            best_t[better], best_b[better], best_d[better] = tri[better], bary[better], \
+                dist[better]
+    return best_t, best_b
+
+
+def _barycentric(p, a, b, c) -> np.ndarray:
+    """Barycentric coordinates of ``p``'s projection on each triangle, clamped to it."""
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(-1), (v0 * v1).sum(-1), (v1 * v1).sum(-1)
+    d20, d21 = (v2 * v0).sum(-1), (v2 * v1).sum(-1)
+    den = np.maximum(d00 * d11 - d01 * d01, 1e-30)
+    y = (d11 * d20 - d01 * d21) / den
+    z = (d00 * d21 - d01 * d20) / den
+    bary = np.clip(np.stack([1 - y - z, y, z], -1), 0, None)
+    return bary / bary.sum(-1, keepdims=True)
+
+
+# --------------------------------------------------------------------------- regions
+def hairline_height(azimuth_deg: np.ndarray, style: HairStyle) -> np.ndarray:
+    """The scalp's lower edge (y, metres) at each azimuth (degrees, 0 front, either side)."""
+    a = np.abs(azimuth_deg)
+    knots = np.asarray(HAIRLINE_KNOTS, np.float64)
+    y = np.interp(a, knots[:, 0], knots[:, 1])
+    # recession: the front and (more) the temples move up towards the crown (an M shape)
+    front = np.clip((100.0 - a) / 40.0, 0.0, 1.0)
+    temples = np.exp(-((a - 48.0) / 14.0) ** 2)
+    y = y + style.hairline * (0.035 * front + 0.02 * temples)
+    return y - style.widows_peak * 0.014 * np.exp(-(a / 9.0) ** 2)
+
+
+def _azimuth(p: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan2(p[..., 0], p[..., 2] - 0.005))
+
+
+def scalp_mask(surface: HeadSurface, style: HairStyle) -> tuple[np.ndarray, np.ndarray]:
+    """(skin face indices on the scalp, a soft 0..1 density weight each): above the hairline
+    (:func:`hairline_height`, a 6 mm soft edge), not on the ears."""
+    v, f = surface.vertices, surface.faces
+    cent = v[f[surface.skin]].mean(1)
+    edge = cent[:, 1] - hairline_height(_azimuth(cent), style)
+    ear = (np.abs(cent[:, 0]) > 0.066) & (cent[:, 1] > -0.045) & (cent[:, 1] < 0.05) & \
+        (cent[:, 2] > -0.04) & (cent[:, 2] < 0.03)
+    weight = np.clip(edge / 0.006 + 0.5, 0.0, 1.0) * ~ear
+    keep = weight > 0
+    return surface.skin[keep], weight[keep]
+
+
+def _polyline_distance(p2: np.ndarray, line: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, arc parameter 0..1) of 2-D points to a polyline (L, 2)."""
+    seg = np.diff(line, axis=0)
+    lengths = np.linalg.norm(seg, axis=-1)
+    cum = np.r_[0.0, np.cumsum(lengths)]
+    best_d = np.full(len(p2), np.inf)
+    best_s = np.zeros(len(p2))
+    for i in range(len(seg)):
+        t = np.clip(((p2 - line[i]) @ seg[i]) / max(lengths[i] ** 2, 1e-20), 0, 1)
+        d = np.linalg.norm(p2 - (line[i] + t[:, None] * seg[i]), axis=-1)
+        better = d < best_d
+        best_d[better] = d[better]
+        best_s[better] = (cum[i] + t[better] * lengths[i]) / cum[-1]
+    return best_d, best_s
+
+
+# --------------------------------------------------------------------------- growth
+def _walk(proxy: BodyProxy, root: np.ndarray, normal: np.ndarray, d0: np.ndarray,
+          length: np.ndarray, k: int, gravity: float, shell: np.ndarray,
+          target: np.ndarray | None = None) -> np.ndarray:
+    """Strands (S, K, 3) from ``root`` in direction ``d0``: ``k - 1`` equal steps of
+    ``length / (k - 1)``, bending down with ``gravity``, each pushed out to ``shell``.
+    ``target`` (3,): steer towards it (a ponytail's gather point) while farther than 1 cm."""
+    s = len(root)
+    pts = np.empty((s, k, 3))
+    pts[:, 0] = root
+    step = (length / (k - 1))[:, None]
+    p = root + normal * np.minimum(shell, 0.0005)[:, None]
+    d = d0
+    reached = np.zeros((s, 1), bool)
+    for j in range(1, k):
+        u = j / (k - 1)
+        if target is not None:
+            to = target - p
+            reached |= (np.linalg.norm(to, axis=-1) < 0.012)[:, None]
+            d = np.where(reached, _unit(d + 1.5 * DOWN), _unit(0.4 * d + _unit(to)))
+        d = _unit(d + gravity * (0.15 + 0.6 * u) * DOWN)
+        q = proxy.push_out(p + step * d, shell)
+        d = _unit(q - p)
+        pts[:, j] = q
+        p = q
+    return pts
+
+
+def _curl(pts: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarray:
+    """A helix about each strand: radius and frequency grow with ``amount``, the root's
+    first 1 cm eased in; phase random per strand."""
+    if amount <= 0:
+        return pts
+    s, k, _ = pts.shape
+    seg = np.linalg.norm(np.diff(pts, axis=1), axis=-1)
+    arc = np.concatenate([np.zeros((s, 1)), np.cumsum(seg, axis=1)], axis=1)
+    tangent = _unit(np.gradient(pts, axis=1))
+    helper = np.where(np.abs(tangent[..., 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    u = _unit(np.cross(tangent, helper))
+    w = np.cross(tangent, u)
+    radius = amount * (0.0008 + 0.0045 * amount) * np.clip(arc / 0.01, 0, 1)
+    period = 0.09 - 0.078 * amount
+    phase = rng.uniform(0, 2 * np.pi, (s, 1)) + 2 * np.pi * arc / period
+    return pts + radius[..., None] * (np.cos(phase)[..., None] * u +
+                                      np.sin(phase)[..., None] * w)
+
+
+def _to_local(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
+              pts: np.ndarray) -> np.ndarray:
+    frames = triangle_frames(v, faces[tri])
+    root = root_points(v, faces, tri, bary)
+    local = np.einsum("sij,skj->ski", frames, pts - root[:, None])
+    local[:, 0] = 0.0
+    return local
+
+
+def _melanin(style: HairStyle, s: int, rng: np.random.Generator, darker: float = 1.0,
+             grey: float = 1.0) -> np.ndarray:
+    base = np.array([style.eumelanin * darker, style.pheomelanin])
+    m = base[None] * (1.0 + style.variation * rng.uniform(-1, 1, (s, 1)))
+    white = rng.random(s) < style.greying * grey
+    m[white] *= 0.02
+    return np.clip(m, 0.0, 20.0)
+
+
+def open_edge_vertices(faces: np.ndarray) -> np.ndarray:
+    """Vertices on the open boundary of a triangle mesh (edges of one triangle): the bust's
+    cut, the mouth's and eyes' openings. A point whose nearest skin vertex is one of them
+    lies beyond the surface's edge, not inside it."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    return np.unique(uniq[count == 1])
+
+
+def body_vertices(surface: HeadSurface) -> np.ndarray:
+    """Skin vertex indices of the body below the head (:data:`BODY_BELOW`)."""
+    index = np.unique(surface.faces[surface.skin])
+    return index[surface.vertices[index, 1] < BODY_BELOW]
+
+
+def _group(name, surface, tri, bary, pts, radius, melanin) -> StrandGroup:
+    from scipy.spatial import cKDTree
+
+    body = surface.vertices[body_vertices(surface)]
+    dist, _ = cKDTree(body).query(pts.reshape(-1, 3), distance_upper_bound=NEAR_BODY,
+                                  workers=-1)
+    near = np.isfinite(dist).reshape(pts.shape[:2]).any(1)
+    return StrandGroup(name, tri, bary, _to_local(surface.vertices, surface.faces, tri, bary,
+                                                  pts), np.asarray(radius, np.float64),
+                       melanin, near)
+
+
+def _taper(r: float, k: int, tip: float = 0.45) -> np.ndarray:
+    return r * np.linspace(1.0, tip, k)
+
+
+def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
+           rng: np.random.Generator) -> StrandGroup | None:
+    if style.bald:
+        return None
+    full = scalp_mask(surface, HairStyle(lod=style.lod))
+    cand, weight = scalp_mask(surface, style)
+    v, f = surface.vertices, surface.faces
+    area = lambda c, w: float(np.sum(w * 0.5 * np.linalg.norm(np.cross(  # noqa: E731
+        v[f[c, 1]] - v[f[c, 0]], v[f[c, 2]] - v[f[c, 0]]), axis=-1)))
+    count = int(round(SCALP_STRANDS * style.density * style.lod *
+                      area(cand, weight) / max(area(*full), 1e-12)))
+    tri, bary = sample_triangles(v, f, cand, count, rng, weight)
+    if len(tri) == 0:
+        return None
+    root = root_points(v, f, tri, bary)
+    normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+    arch = style.archetype
+    length = style.length * rng.uniform(0.85, 1.1, len(tri))
+    short = style.length < 0.02
+    # the flow: away from the parting at the top front, back and down from the crown
+    radial = root - CROWN
+    if style.parting == "none" or arch in ("ponytail", "bun"):
+        flow = radial * [0.3, 0.2, 0.3] + np.array([0.0, -0.3, -1.0])
+    else:
+        xp = {"left": 0.03, "right": -0.03, "centre": 0.0}[style.parting]
+        side = np.sign(root[:, 0] - xp + 1e-9)[:, None]
+        top_front = np.clip((root[:, 2:3] + 0.02) / 0.06, 0, 1) * \
+            np.clip((root[:, 1:2] - 0.08) / 0.03, 0, 1)
+        flow = top_front * (side * [1.0, 0.0, 0.0] + [0.0, -0.15, -0.45]) + \
+            (1 - top_front) * _unit(radial * [1.0, 1.0, 0.25] + [0.0, -0.04, -0.03])
+    t = _tangent(flow, normal)
+    lift = 0.08 + 0.55 * style.volume if arch != "afro" else 0.9
+    d0 = _unit((1 - lift) * t + lift * normal)
+    curly = style.curl > 0.3
+    seg = 0.004 if short else (0.006 if curly else 0.016)
+    k = int(np.clip(round(style.length / seg) + 1, 4, 40))
+    layer = rng.random(len(tri))
+    # off the mean scalp by >= 3 mm (what another identity's skull moves against a strand
+    # held in its root's frame), 0.4 mm for the shortest hair
+    shell = (0.0004 if short else 0.003) + (0.002 + 0.012 * style.volume) * layer * (not short)
+    target = {"ponytail": PONYTAIL_GATHER, "bun": BUN_GATHER}.get(arch)
+    gravity = style.gravity * (0.0 if short else 1.0)
+    if target is not None:
+        reach = np.linalg.norm(root - target, axis=-1) * 1.15
+        length = np.maximum(length, reach + 0.02)
+        k = max(k, 24)
+        shell = 0.003 + 0.002 * layer
+    pts = _walk(proxy, root, normal, d0, length, k, gravity, shell, target)
+    if arch == "bun":
+        pts = _bun(pts, root, rng)
+    pts = _curl(pts, style.curl, rng)
+    pts[:, 1:] = proxy.push_out(pts[:, 1:], shell[:, None] * 0.5 + 0.0003)
+    pts = _cut(pts, v[np.unique(f[surface.skin]), 1].min() + CUT_MARGIN)
+    return _group("scalp", surface, tri, bary, pts, _taper(style.strand_radius, k),
+                  _melanin(style, len(tri), rng))
+
+
+def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
+    """Strands cut where they first go below ``floor`` (y): the later points are gathered
+    on the last one above it."""
+    below = np.cumsum(pts[..., 1] < floor, axis=1) > 0
+    last = np.maximum(np.argmax(below, axis=1) - 1, 0)
+    last = np.where(below.any(1), last, pts.shape[1] - 1)
+    keep = pts[np.arange(len(pts)), last]
+    return np.where(below[..., None], keep[:, None], pts)
+
+
+def _bun(pts: np.ndarray, root: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The points past the gather wound round a ball behind it (a bun)."""
+    s, k, _ = pts.shape
+    gathered = np.linalg.norm(pts - BUN_GATHER, axis=-1) < 0.014
+    first = np.where(gathered.any(1), gathered.argmax(1), k - 1)
+    centre = BUN_GATHER + np.array([0.0, 0.008, -0.024])
+    axis = _unit(rng.normal(size=(s, 3)))
+    start = _unit(BUN_GATHER - centre)[None].repeat(s, 0)
+    u = _tangent(start, axis)
+    w = np.cross(axis, u)
+    radius = rng.uniform(0.016, 0.027, s)
+    out = pts.copy()
+    for j in range(k):
+        a = np.clip(j - first, 0, None) * 0.45
+        ring = centre + radius[:, None] * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * w)
+        out[:, j] = np.where((j > first)[:, None], ring, pts[:, j])
+    return out
+
+
+def _brows(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
+           rng: np.random.Generator) -> StrandGroup | None:
+    count = int(round(BROW_STRANDS * style.brow_density * style.lod))
+    if count <= 0:
+        return None
+    v, f, lm = surface.vertices, surface.faces, surface.vertices[surface.landmarks]
+    cent = v[f[surface.skin]].mean(1)
+    front = cent[:, 2] > 0.05
+    tris, barys, pts_all = [], [], []
+    for idx, lateral in ((range(17, 22), -1.0), (range(22, 27), 1.0)):
+        line = lm[list(idx), :2].copy()
+        s_line = np.linspace(0, 1, len(line))
+        line[:, 1] += 0.004 * style.brow_arch * np.sin(np.pi * s_line) - 0.0015
+        dist, s = _polyline_distance(cent[:, :2], line)
+        # medial end (s=1 for the right brow's 17..21, s=0 for the left's 22..26) thicker
+        medial = s if lateral < 0 else 1 - s
+        half = 0.0032 * style.brow_thickness * (0.55 + 0.45 * medial)
+        inside = front & (dist < half) & (np.abs(cent[:, 0]) > 0.006)
+        cand = surface.skin[inside]
+        tri, bary = sample_triangles(v, f, cand, count, rng)
+        if len(tri) == 0:
+            continue
+        root = root_points(v, f, tri, bary)
+        normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+        _, s_root = _polyline_distance(root[:, :2], line)
+        medial = s_root if lateral < 0 else 1 - s_root
+        d = lateral * np.array([1.0, 0.0, 0.0])[None] * (1 - 0.7 * medial[:, None]) + \
+            np.array([0.0, 1.0, 0.0])[None] * (0.25 + 0.8 * medial[:, None])
+        d0 = _unit(_tangent(d, normal) + 0.25 * normal)
+        length = 0.0075 * rng.uniform(0.7, 1.2, len(tri))
+        pts = _walk(proxy, root, normal, d0, length, 4, 0.0, np.full(len(tri), 0.0004))
+        tris.append(tri)
+        barys.append(bary)
+        pts_all.append(pts)
+    if not tris:
+        return None
+    tri, bary, pts = np.concatenate(tris), np.concatenate(barys), np.concatenate(pts_all)
+    return _group("brows", surface, tri, bary, pts, _taper(style.strand_radius * 1.1, 4, 0.3),
+                  _melanin(style, len(tri), rng, darker=1.15, grey=0.5))
+
+
+def _lashes(surface: HeadSurface, style: HairStyle, rng: np.random.Generator
+            ) -> StrandGroup | None:
+    if style.lash_length <= 0 or style.lod <= 0:
+        return None
+    v, f, lm = surface.vertices, surface.faces, surface.vertices[surface.landmarks]
+    tris, barys, pts_all = [], [], []
+    lids = (((36, 37, 38, 39), 1), ((42, 43, 44, 45), 1), ((39, 40, 41, 36), -1),
+            ((45, 46, 47, 42), -1))
+    for idx, up in lids:
+        n = max(4, int(round(LASH_STRANDS[0 if up > 0 else 1] * min(style.lod, 1.5))))
+        line = lm[list(idx)]
+        cum = np.r_[0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=-1))]
+        s = np.sort(rng.uniform(0.06, 0.94, n)) * cum[-1]
+        anchor = np.stack([np.interp(s, cum, line[:, c]) for c in range(3)], -1)
+        tri, bary = closest_on_triangles(v, f, surface.skin, anchor)
+        root = root_points(v, f, tri, bary)
+        t = s / cum[-1]
+        middle = np.sin(np.pi * t)[:, None]  # longest in the middle of the lid
+        length = (0.0095 if up > 0 else 0.006) * style.lash_length * (0.55 + 0.45 * middle[:, 0])
+        out = _unit(root - np.array([np.sign(root[:, 0].mean()) * 0.031, 0.035, 0.06]))
+        d0 = _unit(np.array([0.0, 0.0, 1.0]) + out * 0.6 + up * np.array([0.0, 0.35, 0.0]))
+        k = 5
+        pts = np.empty((len(tri), k, 3))
+        bend = up * style.lash_curl * 1.1
+        for j in range(k):
+            u = j / (k - 1)
+            ang = bend * u * u
+            dj = _unit(d0 * np.cos(ang) + np.array([0.0, 1.0, 0.0]) * np.sin(ang))
+            pts[:, j] = root + length[:, None] * u * dj
+        tris.append(tri)
+        barys.append(bary)
+        pts_all.append(pts)
+    tri, bary, pts = np.concatenate(tris), np.concatenate(barys), np.concatenate(pts_all)
+    return _group("lashes", surface, tri, bary, pts, _taper(style.strand_radius * 1.2, 5, 0.3),
+                  _melanin(style, len(tri), rng, darker=1.4, grey=0.3))
+
+
+def beard_mask(surface: HeadSurface, beard: str) -> np.ndarray:
+    """Skin face indices of a ``stubble``/``full`` beard (cheeks below the line from the
+    jaw's top to the mouth's corners, moustache, chin, under the jaw) or a ``goatee``."""
+    v, f, lm = surface.vertices, surface.faces, surface.vertices[surface.landmarks]
+    c = v[f[surface.skin]].mean(1)
+    x, y, z = c[:, 0], c[:, 1], c[:, 2]
+    ax = np.abs(x)
+    mouth_half = abs(lm[54, 0] - lm[48, 0]) / 2 + 0.003
+    nose_y, lip_top, lip_bottom = lm[33, 1] - 0.002, lm[51, 1] + 0.0015, lm[57, 1] - 0.004
+    lips = (ax < mouth_half) & (y < lip_top) & (y > lip_bottom)
+    jaw = lm[0:17]
+    order = np.argsort(jaw[:, 0])
+    jaw_y = np.interp(x, jaw[order, 0], jaw[order, 1])
+    chin = lm[8, 1]
+    moustache = (ax < mouth_half + 0.004) & (y < nose_y) & (y >= lip_top - 0.001) & (z > 0.07)
+    if beard == "goatee":
+        region = ((ax < mouth_half + 0.005) & (y < lip_bottom + 0.001) & (y > chin - 0.012)
+                  & (z > 0.06)) | moustache
+        return surface.skin[region & ~lips]
+    jaw_top = abs(lm[1, 0])
+    cheek_line = np.interp(ax, [mouth_half, jaw_top], [lm[48, 1] + 0.012, lm[1, 1] - 0.01])
+    cheeks = (y < cheek_line) & (ax < jaw_top + 0.004) & (z > 0.025) & (y > jaw_y - 0.004)
+    under = (y <= jaw_y + 0.002) & (y > np.maximum(jaw_y - 0.035, chin - 0.035)) & \
+        (z > -0.005) & (ax < jaw_top)
+    return surface.skin[(cheeks | under | moustache) & ~lips]
+
+
+def _beard(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
+           rng: np.random.Generator) -> StrandGroup | None:
+    if style.beard == "none":
+        return None
+    v, f = surface.vertices, surface.faces
+    cand = beard_mask(surface, style.beard)
+    count = int(round(BEARD_STRANDS[style.beard] * style.lod))
+    tri, bary = sample_triangles(v, f, cand, count, rng)
+    if len(tri) == 0:
+        return None
+    root = root_points(v, f, tri, bary)
+    normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+    stubble = style.beard == "stubble"
+    length = (0.0012 if stubble else style.beard_length) * rng.uniform(0.7, 1.2, len(tri))
+    d0 = _unit(_tangent(np.broadcast_to(DOWN + [0, 0, 0.3], root.shape), normal) +
+               (0.6 if stubble else 0.35) * normal)
+    k = 4 if stubble else int(np.clip(round(style.beard_length / 0.004) + 1, 4, 12))
+    shell = np.full(len(tri), 0.0003) if stubble else 0.0004 + 0.004 * rng.random(len(tri))
+    pts = _walk(proxy, root, normal, d0, length, k, 0.0 if stubble else 0.3, shell)
+    if not stubble:
+        pts = _curl(pts, 0.35, rng)
+        pts[:, 1:] = proxy.push_out(pts[:, 1:], 0.0003)
+    return _group("beard", surface, tri, bary, pts,
+                  _taper(style.strand_radius * (1.0 if stubble else 1.3), k, 0.4),
+                  _melanin(style, len(tri), rng, grey=1.3))
+
+
+_CACHE: dict = {}
+
+
+def grow_cached(surface: HeadSurface, style: HairStyle) -> Groom:
+    """:func:`grow`, remembered for the last few (surface, style) pairs of this process (a
+    groom takes 1-10 s to grow; renders, turntables and datasets reuse one)."""
+    key = (id(surface.vertices), surface.vertices.shape, style)
+    if key not in _CACHE:
+        while len(_CACHE) >= 4:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = (surface, grow(surface, style))
+    return _CACHE[key][1]
+
+
+def grow(surface: HeadSurface, style: HairStyle) -> Groom:
+    """The groom of ``style`` on ``surface`` (deterministic in ``style.seed``)."""
+    rng = np.random.default_rng(style.seed)
+    proxy = BodyProxy(surface.vertices, surface.faces, surface.skin)
+    groups = [g for g in (_scalp(surface, style, proxy, rng),
+                          _brows(surface, style, proxy, rng),
+                          _lashes(surface, style, rng),
+                          _beard(surface, style, proxy, rng)) if g is not None]
+    return Groom(style, groups, surface.faces, surface.skin, body_vertices(surface))

@@ -1,0 +1,147 @@
+"""The hair layer's model (issue 61): styles, grooms rooted on the skin, posing that follows
+every input of the geometry model, torch twin, collisions over poses within the limits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hack_render.errors import HackError
+from hack_render.geometry.anatomy import distribute_head_rotation
+from hack_render.geometry.model_file import default_model_path
+from hack_render.geometry.params import check_params
+from hack_render.geometry.posing import PosingModel
+from hack_render.hair.groom import HeadSurface, grow_cached, root_points
+from hack_render.hair.pose import pose_groom, pose_group, pose_group_torch, signed_distance
+from hack_render.hair.style import ARCHETYPES, HairStyle, parse_colour, sample_style
+
+
+@pytest.fixture(scope="module")
+def posing():
+    return PosingModel.from_file(default_model_path())
+
+
+@pytest.fixture(scope="module")
+def surface(posing):
+    return HeadSurface.from_model(posing)
+
+
+def _small(archetype: str, **kw) -> HairStyle:
+    return HairStyle.archetype_style(archetype, lod=0.05, **kw)
+
+
+def test_style_validation_and_colours():
+    with pytest.raises(HackError, match="hair.curl"):
+        HairStyle(curl=1.5)
+    with pytest.raises(HackError, match="archetype"):
+        HairStyle.from_dict({"archetype": "mohawk"})
+    with pytest.raises(HackError, match="unknown key"):
+        HairStyle.from_dict({"lenght": 0.1})
+    with pytest.raises(HackError, match="hair colour"):
+        parse_colour("green")
+    with pytest.raises(HackError):
+        HairStyle(length=True)
+    style = HairStyle.from_dict({"archetype": "long", "color": "black", "beard": "full"})
+    assert (style.eumelanin, style.pheomelanin) == (8.0, 0.0)
+    assert style.length == pytest.approx(0.30) and style.beard == "full"
+    assert HairStyle.from_dict(None).bald and HairStyle.from_dict("bob").archetype == "bob"
+    assert parse_colour("1.5,0.2") == (1.5, 0.2)
+    # the params file carries the section through its own checks
+    assert check_params({"hair": {"archetype": "afro"}})["hair"] == {"archetype": "afro"}
+    with pytest.raises(HackError, match="hair"):
+        check_params({"hair": [1, 2]})
+
+
+def test_sampler_covers_the_archetypes_and_is_deterministic():
+    rng = np.random.default_rng(0)
+    styles = [sample_style(rng) for _ in range(400)]
+    seen = {s.archetype for s in styles}
+    assert seen == set(ARCHETYPES)
+    assert {s.beard for s in styles} == {"none", "stubble", "goatee", "full"}
+    black = np.mean([s.eumelanin > 5 for s in styles])
+    assert 0.35 < black < 0.65  # COLOUR_FREQUENCIES: black 0.5
+    again = [sample_style(np.random.default_rng(0)) for _ in range(1)]
+    assert again[0] == styles[0]
+
+
+def test_roots_are_skin_points_under_identity_expression_and_pose(posing, surface):
+    groom = grow_cached(surface, _small("short", beard="full"))
+    rng = np.random.default_rng(3)
+    beta = rng.normal(size=posing.num_shape).astype(np.float32)
+    psi = posing.expression_vector({"AU1": 1.0, "AU2": 1.0, "jawOpen": 0.8})
+    theta = distribute_head_rotation(np.deg2rad([25.0, 40.0, -15.0])).astype(np.float32)
+    v = posing.vertices(beta=beta, psi=psi, theta=theta, tau=np.float32(0.01))
+    posed = pose_groom(groom, v, collide=False)
+    for g in groom.groups:
+        root = root_points(v.astype(np.float64), surface.faces, g.tri, g.bary)
+        np.testing.assert_allclose(posed[g.name][:, 0], root, atol=1e-7)
+        # the strand's shape is kept: lengths of each segment unchanged up to the
+        # triangle's own strain (a few percent)
+        rest = pose_group(g, surface.vertices, surface.faces)
+        seg_rest = np.linalg.norm(np.diff(rest, axis=1), axis=-1)
+        seg = np.linalg.norm(np.diff(posed[g.name], axis=1), axis=-1)
+        np.testing.assert_allclose(seg, seg_rest, rtol=1e-5, atol=1e-9)
+    # brows rise with AU1/AU2 relative to the eyes' landmarks
+    lm = surface.landmarks
+    rest_v = posing.vertices(beta=beta, theta=theta)
+    up = posing.vertices(beta=beta, theta=theta, psi=psi)
+    brow_rest = pose_group(groom.group("brows"), rest_v, surface.faces)[:, 0, 1]
+    brow_up = pose_group(groom.group("brows"), up, surface.faces)[:, 0, 1]
+    eye_shift = (up[lm[36:48], 1] - rest_v[lm[36:48], 1]).mean()
+    assert (brow_up - brow_rest).mean() > eye_shift + 0.001
+    # the beard on the chin moves down with the jaw
+    chin = groom.group("beard")
+    low = pose_group(chin, rest_v, surface.faces)[:, 0, 1] < rest_v[lm[8], 1] + 0.01
+    moved = pose_group(chin, up, surface.faces)[low, 0, 1] - \
+        pose_group(chin, rest_v, surface.faces)[low, 0, 1]
+    assert moved.mean() < -0.005
+
+
+def test_torch_twin_matches_and_has_gradients(posing, surface):
+    torch = pytest.importorskip("torch")
+    groom = grow_cached(surface, _small("bob"))
+    v = posing.vertices(beta=np.ones(posing.num_shape, np.float32) * 0.5)
+    vt = torch.tensor(v[None], dtype=torch.float64, requires_grad=True)
+    faces = torch.as_tensor(surface.faces)
+    g = groom.group("scalp")
+    out = pose_group_torch(g, vt, faces)
+    np.testing.assert_allclose(out[0].detach().numpy(), pose_group(g, v, surface.faces),
+                               atol=1e-9)
+    out[..., 1].sum().backward()
+    assert torch.isfinite(vt.grad).all() and vt.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("archetype", ["long", "ponytail", "afro", "bob"])
+def test_no_strand_inside_the_body_in_poses_within_the_limits(posing, surface, archetype):
+    """Every control point keeps outside the skin (signed distance to the nearest skin
+    vertex's tangent plane >= -0.5 mm, the strands' own radius tenfold) in random poses
+    with all three axes of every joint drawn within their limits, and in the extremes, for
+    random identities. The lashes are left out: they emerge under the lid's fold, where
+    the nearest vertex's plane is not the skin's side (they are checked against the
+    eyeballs below)."""
+    groom = grow_cached(surface, _small(archetype, beard="full"))
+    lim = np.deg2rad(np.asarray(posing.arrays["rotation_limits_deg"], np.float64))
+    rng = np.random.default_rng(11)
+    poses = [rng.uniform(lim[..., 0], lim[..., 1]) for _ in range(6)]
+    poses += [lim[..., 0].copy(), lim[..., 1].copy()]
+    skin = surface.faces[surface.skin]
+    for theta in poses:
+        beta = rng.normal(size=posing.num_shape).astype(np.float32)
+        v = posing.vertices(beta=beta, theta=theta.astype(np.float32))
+        for name, pts in pose_groom(groom, v).items():
+            if name == "lashes":
+                continue
+            sd = signed_distance(pts[:, 1:], v.astype(np.float64), skin)
+            assert sd.min() > -5e-4, (archetype, name, float(sd.min()))
+
+
+def test_levels_of_detail_scale_counts(surface):
+    full = grow_cached(surface, HairStyle.archetype_style("crew", lod=1.0))
+    tenth = grow_cached(surface, HairStyle.archetype_style("crew", lod=0.1))
+    assert full.group("scalp").num_strands >= 50_000
+    assert tenth.group("scalp").num_strands == pytest.approx(
+        full.group("scalp").num_strands / 10, rel=0.02)
+    receded = grow_cached(surface, HairStyle.archetype_style("crew", lod=0.1, hairline=1.0))
+    assert receded.group("scalp").num_strands < 0.85 * tenth.group("scalp").num_strands
+    bald = grow_cached(surface, HairStyle.archetype_style("bald", lod=0.1))
+    assert bald.group("scalp") is None and bald.group("brows") is not None
