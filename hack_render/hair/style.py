@@ -22,8 +22,10 @@ so wherever they are written.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -260,3 +262,96 @@ def sample_style(rng: np.random.Generator, lod: float = 1.0) -> HairStyle:
         "seed": int(rng.integers(0, 2**31 - 1)),
     }
     return HairStyle(archetype=archetype, **style)
+
+
+#: Absorption per unit concentration (per fibre radius) of eumelanin and pheomelanin, linear
+#: RGB: the values of pbrt-v3's hair material (Pharr, Jakob & Humphreys 2016, section 9.3,
+#: after d'Eon et al. 2011), which Mitsuba's ``hair`` BSDF ports.
+EUMELANIN_SIGMA_A = np.array([0.419, 0.697, 1.37])
+PHEOMELANIN_SIGMA_A = np.array([0.187, 0.4, 1.05])
+
+
+def _chiang_factor(azimuthal_roughness: float = 0.3) -> float:
+    b = azimuthal_roughness
+    return 5.969 - 0.215 * b + 2.532 * b ** 2 - 10.73 * b ** 3 + 5.574 * b ** 4 + 0.245 * b ** 5
+
+
+def melanin_colour(eumelanin, pheomelanin, azimuthal_roughness: float = 0.3) -> np.ndarray:
+    """The hair's overall linear RGB colour (..., 3) for its melanin: Chiang et al. 2016
+    ("A Practical and Controllable Hair and Fur Model for Production Path Tracing", section
+    4.2) map a colour to the absorption that renders as it, ``sigma_a = (ln(c) / f(b))^2``;
+    this is its inverse, ``c = exp(-sqrt(sigma_a) f(b))``, with sigma_a from the pigments
+    (:data:`EUMELANIN_SIGMA_A`, :data:`PHEOMELANIN_SIGMA_A`) and Mitsuba's default azimuthal
+    roughness 0.3."""
+    eu = np.asarray(eumelanin, np.float64)[..., None]
+    pheo = np.asarray(pheomelanin, np.float64)[..., None]
+    sigma = eu * EUMELANIN_SIGMA_A + pheo * PHEOMELANIN_SIGMA_A
+    return np.exp(-np.sqrt(sigma) * _chiang_factor(azimuthal_roughness))
+
+
+def colour_melanin(rgb, azimuthal_roughness: float = 0.3) -> tuple[float, float]:
+    """(eumelanin, pheomelanin) whose :func:`melanin_colour` is nearest to the linear RGB
+    ``rgb`` (3,): non-negative least squares on the absorption the colour implies, both
+    pigments clipped to [0, 20]."""
+    c = np.clip(np.asarray(rgb, np.float64).reshape(3), 1e-4, 0.999)
+    sigma = (np.log(c) / _chiang_factor(azimuthal_roughness)) ** 2
+    a = np.stack([EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A], 1)
+    best, best_err = (0.0, 0.0), np.inf
+    # two unknowns, non-negative: the unconstrained solution, else each pigment alone
+    cands = [np.linalg.lstsq(a, sigma, rcond=None)[0],
+             np.array([max(float(sigma @ a[:, 0] / (a[:, 0] @ a[:, 0])), 0.0), 0.0]),
+             np.array([0.0, max(float(sigma @ a[:, 1] / (a[:, 1] @ a[:, 1])), 0.0)])]
+    for x in cands:
+        if np.all(x >= 0):
+            err = float(np.sum((a @ x - sigma) ** 2))
+            if err < best_err:
+                best, best_err = (float(min(x[0], 20.0)), float(min(x[1], 20.0))), err
+    return best
+
+
+def _albedo_table() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(eumelanin grid, pheomelanin grid, albedo (E, P, 3)) of hack_render/data/
+    hair_albedo.json (measured by bench/hair_albedo.py)."""
+    global _TABLE
+    if _TABLE is None:
+        data = json.loads((Path(__file__).resolve().parents[1] / "data" /
+                           "hair_albedo.json").read_text())
+        _TABLE = (np.asarray(data["eumelanin"], np.float64),
+                  np.asarray(data["pheomelanin"], np.float64),
+                  np.asarray(data["albedo"], np.float64))
+    return _TABLE
+
+
+_TABLE = None
+
+
+def slab_albedo(eumelanin: float, pheomelanin: float) -> np.ndarray:
+    """Linear RGB albedo (3,) of a thick layer of hair of this melanin as this project's
+    renderer draws it (bilinear in the measured table, in the square roots of the
+    concentrations, where the albedo changes evenly)."""
+    eu_grid, ph_grid, table = _albedo_table()
+    se, sp = np.sqrt(eu_grid), np.sqrt(ph_grid)
+    x = np.sqrt(np.clip(eumelanin, eu_grid[0], eu_grid[-1]))
+    y = np.sqrt(np.clip(pheomelanin, ph_grid[0], ph_grid[-1]))
+    i = int(np.clip(np.searchsorted(se, x) - 1, 0, len(se) - 2))
+    j = int(np.clip(np.searchsorted(sp, y) - 1, 0, len(sp) - 2))
+    tx = (x - se[i]) / (se[i + 1] - se[i])
+    ty = (y - sp[j]) / (sp[j + 1] - sp[j])
+    return ((1 - tx) * (1 - ty) * table[i, j] + tx * (1 - ty) * table[i + 1, j]
+            + (1 - tx) * ty * table[i, j + 1] + tx * ty * table[i + 1, j + 1])
+
+
+def albedo_melanin(albedo) -> tuple[float, float]:
+    """(eumelanin, pheomelanin) whose :func:`slab_albedo` is nearest to ``albedo`` (3,)
+    linear RGB, in log colour (a dense search over the table's range)."""
+    target = np.log(np.clip(np.asarray(albedo, np.float64).reshape(3), 1e-4, 1.0))
+    eu_grid, ph_grid, _ = _albedo_table()
+    eus = np.linspace(0, np.sqrt(eu_grid[-1]), 90) ** 2
+    phs = np.linspace(0, np.sqrt(ph_grid[-1]), 40) ** 2
+    best, best_err = (0.0, 0.0), np.inf
+    for e in eus:
+        for p in phs:
+            err = float(np.sum((np.log(np.maximum(slab_albedo(e, p), 1e-4)) - target) ** 2))
+            if err < best_err:
+                best, best_err = (float(e), float(p)), err
+    return best
