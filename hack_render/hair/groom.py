@@ -44,13 +44,11 @@ DOWN = np.array([0.0, -1.0, 0.0])
 #: identity's skull and forehead move against strands held in their roots' frames, and the
 #: jaw's and neck's skin follow the neck's skinning).
 BODY_BELOW = np.inf
+#: Rest y (metres) above which the skin is skull: rigid with the hair rooted on it.
+SKULL_ABOVE = 0.05
 #: Strands end this far above the lowest skin point at rest (the bust's cut): below it the
 #: model has no body to lie on (a longer strand is cut there, its last points gathered).
 CUT_MARGIN = 0.03
-#: Strands with a point this close to the body at rest are checked for collisions in every
-#: pose (a head turn or bend within the limits moves a point on the head by less).
-NEAR_BODY = 0.08
-
 #: Scalp hairline height (y, metres) by azimuth about the head's vertical axis (degrees, 0
 #: = front), on the mean mesh; recession and a widow's peak move it (:func:`scalp_mask`).
 HAIRLINE_KNOTS = ((0, 0.118), (25, 0.115), (45, 0.097), (60, 0.074), (75, 0.056),
@@ -107,9 +105,12 @@ class StrandGroup:
     local: np.ndarray
     radius: np.ndarray
     melanin: np.ndarray
-    #: (S,) strands that can reach the body below the head in some pose (posing pushes
-    #: only these out of it: :func:`hack_render.hair.pose.pose_group`)
-    near_body: np.ndarray | None = None
+    #: (S, K) each control point's nearest skin vertex at rest, and (S, K, 3) where that
+    #: vertex lies in the root's frame: posing tests a point against its anchor's tangent
+    #: plane while the anchor moves with the strand, and searches afresh where it does not
+    #: (:func:`hack_render.hair.pose.pose_group`)
+    anchor: np.ndarray | None = None
+    anchor_local: np.ndarray | None = None
 
     @property
     def num_strands(self) -> int:
@@ -344,11 +345,12 @@ def _curl(pts: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarra
 
 
 def _to_local(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
-              pts: np.ndarray) -> np.ndarray:
+              pts: np.ndarray, keep_root: bool = False) -> np.ndarray:
     frames = triangle_frames(v, faces[tri])
     root = root_points(v, faces, tri, bary)
     local = np.einsum("sij,skj->ski", frames, pts - root[:, None])
-    local[:, 0] = 0.0
+    if not keep_root:
+        local[:, 0] = 0.0
     return local
 
 
@@ -379,13 +381,17 @@ def body_vertices(surface: HeadSurface) -> np.ndarray:
 def _group(name, surface, tri, bary, pts, radius, melanin) -> StrandGroup:
     from scipy.spatial import cKDTree
 
-    body = surface.vertices[body_vertices(surface)]
-    dist, _ = cKDTree(body).query(pts.reshape(-1, 3), distance_upper_bound=NEAR_BODY,
-                                  workers=-1)
-    near = np.isfinite(dist).reshape(pts.shape[:2]).any(1)
-    return StrandGroup(name, tri, bary, _to_local(surface.vertices, surface.faces, tri, bary,
-                                                  pts), np.asarray(radius, np.float64),
-                       melanin, near)
+    body = body_vertices(surface)
+    _, near = cKDTree(surface.vertices[body]).query(pts.reshape(-1, 3), workers=-1)
+    anchor = body[near].reshape(pts.shape[:2]).astype(np.int32)
+    v, f = surface.vertices, surface.faces
+    # only the skull moves with the strands rooted on it: points over the face, the jaw,
+    # the ears, the neck and the shoulders are searched afresh in every pose (-1)
+    anchor = np.where(v[anchor, 1] > SKULL_ABOVE, anchor, -1).astype(np.int32)
+    return StrandGroup(name, tri, bary, _to_local(v, f, tri, bary, pts),
+                       np.asarray(radius, np.float64), melanin, anchor,
+                       _to_local(v, f, tri, bary, v[np.maximum(anchor, 0)],
+                                 keep_root=True).astype(np.float32))
 
 
 def _taper(r: float, k: int, tip: float = 0.45) -> np.ndarray:

@@ -14,6 +14,8 @@ collision test (tests/test_hair.py) checks over poses sampled within the limits.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from hack_render.geometry.normals import vertex_normals
@@ -30,44 +32,79 @@ MARGIN = 0.0002
 
 
 def pose_group(group: StrandGroup, vertices: np.ndarray, faces: np.ndarray,
-               body: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+               body: Body | None = None) -> np.ndarray:
     """(S, K, 3) control points of ``group`` on posed ``vertices`` (N, 3). ``body``: the
-    posed body's (points, normals) (:func:`body_surface`): the strands that can reach it
-    (``group.near_body``) are pushed out of it to :data:`MARGIN`."""
+    posed skin (:func:`body_surface`); points inside it are pushed out to :data:`MARGIN`.
+
+    A point over the skull is tested against its anchor's tangent plane (its nearest skin
+    vertex at rest, ``group.anchor``) while the anchor sits where the strand's root frame
+    carries it (within :data:`ANCHOR_SLACK`: the skull moves with hair rooted on it, in
+    any pose); everywhere else (over the face, the ears, the neck and the shoulders, which
+    move against the head, or an anchor that strayed) the nearest vertex is searched
+    afresh."""
     v = np.asarray(vertices, np.float64)
     frames = triangle_frames(v, faces[group.tri])
     root = root_points(v, faces, group.tri, group.bary)
     pts = root[:, None] + np.einsum("sij,ski->skj", frames, group.local)
-    if body is not None and pts.shape[1] > 1:
-        near = group.near_body if group.near_body is not None else slice(None)
-        pts[near, 1:] = push_out(pts[near, 1:], *body)
+    if body is None or pts.shape[1] < 2:
+        return pts
+    inner = pts[:, 1:]
+    if group.anchor is None:
+        pts[:, 1:] = push_out(inner, body)
+        return pts
+    anchor = group.anchor[:, 1:]
+    expect = root[:, None] + np.einsum("sij,ski->skj", frames,
+                                       group.anchor_local[:, 1:].astype(np.float64))
+    held = (anchor >= 0) & (np.linalg.norm(v[anchor] - expect, axis=-1) < ANCHOR_SLACK)
+    lack = MARGIN - np.sum((inner - v[anchor]) * body.normals[anchor], -1)
+    search = ~held | (lack > 0)
+    if search.any():
+        inner[search] = push_out(inner[search], body)
+    pts[:, 1:] = inner
     return pts
 
 
-def body_surface(groom: Groom, vertices: np.ndarray) -> tuple[object, np.ndarray, np.ndarray]:
-    """(k-d tree, points, outward normals) of the posed body below the head; the normals of
-    the surface's open edges are zero (a point nearest to the edge is beyond it)."""
+#: How far an anchor may sit from where its strand's frame carries it and still stand for
+#: the skin under the point (metres).
+ANCHOR_SLACK = 0.002
+
+
+@dataclass
+class Body:
+    """The posed skin for collisions: a k-d tree of its vertices (``index`` into the mesh),
+    and every mesh vertex's outward unit normal (zero on the skin's open edges: a point
+    nearest to an edge is beyond the surface, not inside it)."""
+
+    tree: object
+    index: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+
+
+def body_surface(groom: Groom, vertices: np.ndarray) -> Body:
+    """The :class:`Body` of ``groom``'s skin on posed ``vertices``."""
     from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, np.float64)
-    normals = vertex_normals(v, groom.faces[groom.skin])
-    normals[open_edge_vertices(groom.faces[groom.skin])] = 0.0
-    index = groom.body
-    return cKDTree(v[index]), v[index], normals[index]
+    skin = groom.faces[groom.skin]
+    normals = vertex_normals(v, skin)
+    normals[open_edge_vertices(skin)] = 0.0
+    index = groom.body if groom.body is not None else np.unique(skin)
+    return Body(cKDTree(v[index]), index, v[index], normals)
 
 
-def push_out(points: np.ndarray, tree, surf: np.ndarray, normals: np.ndarray,
-             margin: float = MARGIN) -> np.ndarray:
-    """``points`` (..., 3) moved out along the nearest surface point's normal until they are
-    ``margin`` outside its tangent plane (points farther than 8 cm from the surface are
+def push_out(points: np.ndarray, body: Body, margin: float = MARGIN) -> np.ndarray:
+    """``points`` (..., 3) moved out along the nearest skin vertex's normal until they are
+    ``margin`` outside its tangent plane (points farther than 8 cm from the skin are
     outside: the neck's radius is smaller)."""
     out = points.reshape(-1, 3).copy()
     todo = np.arange(len(out))
+    normals = body.normals[body.index]
     for _ in range(3):  # a push out of one side of a concave corner can land in the other
-        dist, i = tree.query(out[todo], distance_upper_bound=0.08, workers=-1)
+        dist, i = body.tree.query(out[todo], distance_upper_bound=0.08, workers=-1)
         hit = np.isfinite(dist)
         todo, j = todo[hit], i[hit]
-        lack = margin - np.sum((out[todo] - surf[j]) * normals[j], -1)
+        lack = margin - np.sum((out[todo] - body.points[j]) * normals[j], -1)
         inside = lack > 0
         todo, j, lack = todo[inside], j[inside], lack[inside]
         if len(todo) == 0:
@@ -101,10 +138,7 @@ def pose_groom(groom: Groom, vertices: np.ndarray, *, collide: bool = True
                ) -> dict[str, np.ndarray]:
     """{group name: (S, K, 3)} of the groom on posed ``vertices`` (N, 3); ``collide``: keep
     the strands out of the body below the head (:func:`pose_group`)."""
-    body = None
-    if collide and groom.body is not None and len(groom.body):
-        tree, surf, normals = body_surface(groom, vertices)
-        body = (tree, surf, normals)
+    body = body_surface(groom, vertices) if collide else None
     return {g.name: pose_group(g, vertices, groom.faces, body) for g in groom.groups}
 
 
