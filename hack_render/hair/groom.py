@@ -19,6 +19,7 @@ are procedural, not segmented from data.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -456,13 +457,31 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
 
 
 def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
-    """Strands cut where they first go below ``floor`` (y): the later points are gathered
-    on the last one above it."""
-    below = np.cumsum(pts[..., 1] < floor, axis=1) > 0
-    last = np.maximum(np.argmax(below, axis=1) - 1, 0)
-    last = np.where(below.any(1), last, pts.shape[1] - 1)
-    keep = pts[np.arange(len(pts)), last]
-    return np.where(below[..., None], keep[:, None], pts)
+    """Strands cut where they first go below ``floor`` (y), their K points spread evenly
+    (by arc length) over the part kept, so no segment has zero length."""
+    s, k, _ = pts.shape
+    below = pts[..., 1] < floor
+    cut = below.any(1)
+    if not cut.any():
+        return pts
+    out = pts.copy()
+    for i in np.flatnonzero(cut):
+        first = int(np.argmax(below[i]))
+        keep = pts[i, :max(first, 1) + 1].copy()
+        if first >= 1:  # end on the floor, between the last point above and the first below
+            a, b = pts[i, first - 1], pts[i, first]
+            t = (a[1] - floor) / max(a[1] - b[1], 1e-12)
+            keep[-1] = a + t * (b - a)
+        seg = np.linalg.norm(np.diff(keep, axis=0), axis=-1)
+        arc = np.r_[0.0, np.cumsum(seg)]
+        if arc[-1] <= 1e-6:  # rooted at the floor itself: a short stub along the strand
+            direction = pts[i, 1] - pts[i, 0]
+            keep = np.stack([pts[i, 0], pts[i, 0] + direction / max(
+                np.linalg.norm(direction), 1e-12) * 1e-3])
+            arc = np.array([0.0, 1e-3])
+        at = np.linspace(0.0, arc[-1], k)
+        out[i] = np.stack([np.interp(at, arc, keep[:, c]) for c in range(3)], -1)
+    return out
 
 
 def _bun(pts: np.ndarray, root: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -622,7 +641,9 @@ _CACHE: dict = {}
 def grow_cached(surface: HeadSurface, style: HairStyle) -> Groom:
     """:func:`grow`, remembered for the last few (surface, style) pairs of this process (a
     groom takes 1-10 s to grow; renders, turntables and datasets reuse one)."""
-    key = (id(surface.vertices), surface.vertices.shape, style)
+    key = (hashlib.blake2b(np.ascontiguousarray(surface.vertices).tobytes() +
+                           np.ascontiguousarray(surface.faces).tobytes(),
+                           digest_size=16).hexdigest(), style)
     if key not in _CACHE:
         while len(_CACHE) >= 4:
             _CACHE.pop(next(iter(_CACHE)))
