@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.hair.pose import pose_groom
 from hack_render.io.image import read_hdr_image
 from hack_render.render import denoise as dn
 from hack_render.render import emitters, materials
@@ -271,8 +272,6 @@ class HeadScene:
         """The groom's control points on vertices ``v`` ({group: (S, K, 3)}); posing with
         collisions costs 0.5-5 s for a full head of hair, so it is remembered for the
         last vertices."""
-        from hack_render.hair.pose import pose_groom
-
         if self._hair_posed_for is not None and np.array_equal(self._hair_posed_for[0], v):
             return self._hair_posed_for[1]
         posed = pose_groom(self.hair, v)
