@@ -204,3 +204,17 @@ def test_08_hair_style_resolution(tmp_path):
     f.write_text("hair: {archetype: afro, color: red}\nbeta: [0.5]\n")
     s = hair_style(str(f), None)
     assert s.archetype == "afro" and (s.eumelanin, s.pheomelanin) == (0.5, 1.6)
+
+
+def test_09_any_hit_shadows_without_cards_render_the_same_image(head_model, groom):
+    """With strand lashes there are no null surfaces: hack_path's shadow rays become
+    any-hit tests (``null_surfaces`` false), which must see what the closest-hit loop
+    through null surfaces sees."""
+    head = _scene(head_model, groom, res=48, spp=4, yaw=30.0)
+    assert head.scene.integrator().null_surfaces is False
+    loop = mi.load_dict({"type": "hack_path", "max_depth": head.settings.max_depth,
+                         "hide_emitters": True})
+    a = head.render_passes(3, False)
+    b = head.render_passes(3, False, integrator=loop)
+    assert np.abs(a - b).max() < 1e-3, np.abs(a - b).max()
+    assert _scene(head_model, None, res=16, spp=1).scene.integrator().null_surfaces is True

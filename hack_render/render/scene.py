@@ -177,7 +177,12 @@ class HeadScene:
         scene: dict = {"type": "scene",
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
-                                      "hide_emitters": True},
+                                      "hide_emitters": True,
+                                      # no lash cards (strand lashes): opaque shadow rays
+                                      **({"null_surfaces": False}
+                                         if self.integrator_name == "hack_path" and
+                                         not any(p.name == "eyelashes" for p in self.parts)
+                                         else {})},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter,
                                                       sampler=settings.mitsuba_sampler)}
