@@ -18,7 +18,7 @@ from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import Groom, HeadSurface, grow_cached
 from hack_render.hair.style import HairStyle
-from hack_render.render.hair_shapes import buckets, control_points
+from hack_render.render.hair_shapes import HAIR_RR_DEPTH, buckets, control_points
 from hack_render.render.parts import REGIONS, Topology
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
@@ -213,7 +213,7 @@ def test_09_any_hit_shadows_without_cards_render_the_same_image(head_model, groo
     head = _scene(head_model, groom, res=48, spp=4, yaw=30.0)
     assert head.scene.integrator().null_surfaces is False
     loop = mi.load_dict({"type": "hack_path", "max_depth": head.settings.max_depth,
-                         "hide_emitters": True})
+                         "hide_emitters": True, "rr_depth": HAIR_RR_DEPTH})
     a = head.render_passes(3, False)
     b = head.render_passes(3, False, integrator=loop)
     assert np.abs(a - b).max() < 1e-3, np.abs(a - b).max()

@@ -37,6 +37,17 @@ LONGITUDINAL_ROUGHNESS = 0.3
 AZIMUTHAL_ROUGHNESS = 0.3
 #: Cuticle scale tilt, degrees (Mitsuba's default: 2).
 SCALE_TILT = 2.0
+#: Most control points rendered per strand (before the two phantoms): a longer strand is
+#: resampled to this many of its points, evenly along its index, root and tip kept. A
+#: long groom's 20 points per strand are 1.3 M curve segments for 60k strands, and the
+#: rays' cost grows with them; 12 points keep a 30 cm strand's segments under 3 cm, and
+#: the B-spline is smooth between them.
+MAX_CONTROL_POINTS = 12
+#: Russian roulette from this path depth in a scene with hair (5 without): a path in
+#: dark hair carries little light after a few events; measured on the portrait with a
+#: short groom at 128 px, 16 spp: 0.67x the CPU time for 1.12x the squared error (1.33x
+#: the samples per unit of error).
+HAIR_RR_DEPTH = 2
 #: The prefix of every hair shape's id (``hair_<group>_<bucket>``).
 PREFIX = "hair_"
 
@@ -82,14 +93,19 @@ def hair_shapes(groom) -> list[HairShape]:
 
 
 def control_points(points: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """(S, K + 2, 4) float32 B-spline control points (x, y, z, r) of strands ``points``
-    (S, K, 3) with radii ``radius`` (K,): a phantom point mirrored before the root and after
-    the tip, so that the curve interpolates both (see the module)."""
+    """(S, M + 2, 4) float32 B-spline control points (x, y, z, r) of strands ``points``
+    (S, K, 3) with radii ``radius`` (K,): M = min(K, :data:`MAX_CONTROL_POINTS`) of the
+    points, and a phantom point mirrored before the root and after the tip, so that the
+    curve interpolates both (see the module)."""
     p = np.asarray(points, np.float64)
+    r = np.asarray(radius, np.float64)
+    k = p.shape[1]
+    if k > MAX_CONTROL_POINTS:
+        keep = np.unique(np.round(np.linspace(0, k - 1, MAX_CONTROL_POINTS)).astype(int))
+        p, r = p[:, keep], r[keep]
     first = 2.0 * p[:, :1] - p[:, 1:2]
     last = 2.0 * p[:, -1:] - p[:, -2:-1]
     q = np.concatenate([first, p, last], axis=1)
-    r = np.asarray(radius, np.float64)
     r = np.concatenate([r[:1], r, r[-1:]])
     out = np.empty(q.shape[:2] + (4,), np.float32)
     out[..., :3] = q

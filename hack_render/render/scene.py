@@ -40,8 +40,13 @@ from hack_render.render.emitters import (
 )
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.footprint import denoise_features
+from hack_render.render.hair_shapes import (
+    HAIR_RR_DEPTH,
+    hair_shapes,
+    load_shapes,
+    shape_control_points,
+)
 from hack_render.render.hair_shapes import PREFIX as HAIR_PREFIX
-from hack_render.render.hair_shapes import hair_shapes, load_shapes, shape_control_points
 from hack_render.render.parts import (
     PART_SPECS,
     REGIONS,
@@ -178,6 +183,8 @@ class HeadScene:
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
                                       "hide_emitters": True,
+                                      **({"rr_depth": HAIR_RR_DEPTH} if hair is not None
+                                         else {}),
                                       # no lash cards (strand lashes): opaque shadow rays
                                       **({"null_surfaces": False}
                                          if self.integrator_name == "hack_path" and
