@@ -18,9 +18,11 @@ from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import Groom, HeadSurface, grow_cached
 from hack_render.hair.style import HairStyle
+from hack_render.render.hair_options import hair_style
 from hack_render.render.hair_shapes import HAIR_RR_DEPTH, buckets, control_points
 from hack_render.render.parts import REGIONS, Topology
 from hack_render.render.scene import HeadScene, RenderSettings
+from hack_render.render.sss import split_integrator
 from scenes import cameras, lights
 
 RES = 64
@@ -192,8 +194,6 @@ def test_07_cli_hair_options(tmp_path, capsys):
 
 
 def test_08_hair_style_resolution(tmp_path):
-    from hack_render.render.hair_options import hair_style
-
     assert hair_style(None, None) is None
     assert hair_style("none", None, {"archetype": "long"}) is None  # the flag wins
     assert hair_style(None, None, {"archetype": "long"}).archetype == "long"
@@ -212,6 +212,8 @@ def test_09_any_hit_shadows_without_cards_render_the_same_image(head_model, groo
     through null surfaces sees."""
     head = _scene(head_model, groom, res=48, spp=4, yaw=30.0)
     assert head.scene.integrator().null_surfaces is False
+    split = split_integrator(head)  # render(sss=True)'s: the same settings
+    assert split.null_surfaces is False and split.rr_depth == HAIR_RR_DEPTH
     loop = mi.load_dict({"type": "hack_path", "max_depth": head.settings.max_depth,
                          "hide_emitters": True, "rr_depth": HAIR_RR_DEPTH})
     a = head.render_passes(3, False)

@@ -179,17 +179,20 @@ class HeadScene:
         #: ``volpath`` for ``hack_path`` in a non-JIT variant)
         self.integrator_name = settings.integrator if jit or \
             settings.integrator != "hack_path" else "volpath"
+        #: the integrator's properties besides its type, max_depth and hide_emitters
+        #: (a hair scene's: Russian roulette from ``HAIR_RR_DEPTH``, and no null surfaces
+        #: when strand lashes replace the cards: opaque shadow rays); the skin split's
+        #: integrator (``sss.split_integrator``) takes them too
+        self.integrator_extra: dict = {}
+        if hair is not None:
+            self.integrator_extra["rr_depth"] = HAIR_RR_DEPTH
+        if self.integrator_name == "hack_path" and \
+                not any(p.name == "eyelashes" for p in self.parts):
+            self.integrator_extra["null_surfaces"] = False
         scene: dict = {"type": "scene",
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
-                                      "hide_emitters": True,
-                                      **({"rr_depth": HAIR_RR_DEPTH} if hair is not None
-                                         else {}),
-                                      # no lash cards (strand lashes): opaque shadow rays
-                                      **({"null_surfaces": False}
-                                         if self.integrator_name == "hack_path" and
-                                         not any(p.name == "eyelashes" for p in self.parts)
-                                         else {})},
+                                      "hide_emitters": True, **self.integrator_extra},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter,
                                                       sampler=settings.mitsuba_sampler)}
