@@ -19,7 +19,13 @@ from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import Groom, HeadSurface, grow_cached
 from hack_render.hair.style import HairStyle
 from hack_render.render.hair_options import hair_style
-from hack_render.render.hair_shapes import HAIR_RR_DEPTH, buckets, control_points
+from hack_render.render.hair_shapes import (
+    HAIR_RR_DEPTH,
+    MAX_CONTROL_POINTS,
+    MIN_SEGMENT,
+    buckets,
+    control_points,
+)
 from hack_render.render.parts import REGIONS, Topology
 from hack_render.render.scene import HeadScene, RenderSettings
 from hack_render.render.sss import split_integrator
@@ -62,16 +68,19 @@ def test_01_region_ids_kept_and_hair_appended():
     assert REGIONS[-1] == "hair"
 
 
-def test_02_curve_control_points_interpolate_root_and_tip():
-    """Phantom end points: the uniform cubic B-spline starts at the root and ends at the tip;
-    the melanin buckets split a group by quantile and keep white strands apart."""
-    pts = np.cumsum(np.random.default_rng(0).normal(size=(3, 5, 3)), 1)
-    cp = control_points(pts, np.linspace(2e-4, 1e-4, 5))
-    assert cp.shape == (3, 7, 4)
-    start = (cp[:, 0, :3] + 4 * cp[:, 1, :3] + cp[:, 2, :3]) / 6
-    end = (cp[:, -3, :3] + 4 * cp[:, -2, :3] + cp[:, -1, :3]) / 6
-    np.testing.assert_allclose(start, pts[:, 0], atol=1e-5)
-    np.testing.assert_allclose(end, pts[:, -1], atol=1e-5)
+def test_02_curve_control_points_keep_root_and_tip():
+    """Linear curves through the strand's points: root and tip kept, long strands resampled
+    to MAX_CONTROL_POINTS, no zero-length segment (a cut strand's gathered tail); the
+    melanin buckets split a group by quantile and keep white strands apart."""
+    pts = np.cumsum(np.random.default_rng(0).normal(size=(3, 20, 3)), 1)
+    pts[0, -3:] = pts[0, -4]  # a gathered tail
+    cp = control_points(pts, np.linspace(2e-4, 1e-4, 20))
+    assert cp.shape == (3, MAX_CONTROL_POINTS, 4)
+    np.testing.assert_allclose(cp[:, 0, :3], pts[:, 0], atol=1e-5)
+    np.testing.assert_allclose(cp[1:, -1, :3], pts[1:, -1], atol=1e-5)
+    seg = np.linalg.norm(np.diff(cp[..., :3].astype(np.float64), axis=1), axis=-1)
+    assert seg.min() > 0.9 * MIN_SEGMENT
+    assert cp[0, 0, 3] == pytest.approx(2e-4) and cp[0, -1, 3] == pytest.approx(1e-4)
     mel = np.c_[np.r_[np.linspace(1, 2, 40), [0.02] * 10], np.zeros(50)]
     b = buckets(mel)
     assert len(b) == 5 and sorted(b[0]) == list(range(40, 50))
