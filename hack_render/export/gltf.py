@@ -35,7 +35,7 @@ import numpy as np
 
 from appearance.colour_space import srgb_encode
 from hack_render.errors import HackError
-from hack_render.export.hair_cards import HAIR_ROUGHNESS
+from hack_render.export.hair_cards import HAIR_ALPHA_CUTOFF, HAIR_ROUGHNESS
 from hack_render.export.rig import pose_split
 from hack_render.io import atomic_path
 from hack_render.render.materials import EYELASH_OPACITY, iris_vertex_colors, material_base_colours
@@ -240,6 +240,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                                                  "metallicFactor": 0.0, "roughnessFactor": 0.5}})
     n_inf = rig.joints4.shape[1]
     prims = []
+    if hair is not None and any(c.name == "lashes" for c in hair[1]):
+        parts = [p for p in parts if p.name != "eyelashes"]  # the strands' cards replace them
     for part in parts:
         gi = part.gather
         attrs = {"POSITION": g.accessor(rig.base[gi], FLOAT, "VEC3", ARRAY_BUFFER, bounds=True),
@@ -340,7 +342,7 @@ def hair_material(g: GltfBuilder, cards) -> int:
         "name": f"hair_{cards.name}",
         "pbrMetallicRoughness": {"baseColorTexture": {"index": image},
                                  "metallicFactor": 0.0, "roughnessFactor": HAIR_ROUGHNESS},
-        "alphaMode": "MASK", "alphaCutoff": 0.5, "doubleSided": True,
+        "alphaMode": "MASK", "alphaCutoff": HAIR_ALPHA_CUTOFF, "doubleSided": True,
         "extras": {"hack": {"procedural": True, "mean_melanin": [eu, pheo],
                             "texture": "procedural strand texture; colour by an approximate "
                                        "melanin-to-RGB mapping (hack_render.export."

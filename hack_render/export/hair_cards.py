@@ -30,7 +30,7 @@ Colour: an approximate melanin to linear-RGB mapping, not a render of the hair B
 the absorption coefficient of Blender's Principled Hair BSDF (after d'Eon et al. 2011,
 "An energy-conserving hair reflectance model"), ``sigma_a = eumelanin * (0.506, 0.841,
 1.653) + pheomelanin * (0.343, 0.733, 1.924)``, and the colour ``exp(-sigma_a * PATH)``
-with :data:`MELANIN_PATH` chosen so that the named colours of ``--hair-color`` read as
+(plus :data:`MELANIN_FLOOR`) with :data:`MELANIN_PATH` chosen so that the named colours of ``--hair-color`` read as
 their names as a base colour (eumelanin 0.3 blonde, 1.3 brown, 8 black).
 """
 
@@ -56,10 +56,12 @@ from hack_render.hair.pose import pose_groom
 from hack_render.hair.style import NAMED_COLOURS, HairStyle
 
 #: Strands per card, by group: about 2,000 scalp cards for a full head at lod 1.
-STRANDS_PER_CARD = {"scalp": 30, "brows": 12, "lashes": 5, "beard": 30}
+STRANDS_PER_CARD = {"scalp": 30, "brows": 6, "lashes": 4, "beard": 15}
 #: (min, max) card width, metres, by group.
 CARD_WIDTH = {"scalp": (0.004, 0.035), "brows": (0.002, 0.012), "lashes": (0.0015, 0.006),
               "beard": (0.003, 0.02)}
+#: Widest card relative to its length (short hair: stubble, brows, crew cuts).
+MAX_ASPECT = 0.6
 #: Rows above the root are kept this far outside the skin at rest, metres.
 SHELL = 0.0008
 #: Absorption of eumelanin and pheomelanin (Blender's Principled Hair BSDF, d'Eon 2011).
@@ -68,11 +70,20 @@ PHEOMELANIN_SIGMA = np.array([0.343, 0.733, 1.924])
 #: Path length (in units of the absorption's) of the colour ``exp(-sigma_a * path)``:
 #: chosen by eye, so that eumelanin 0.3 reads blonde, 1.3 brown, 8 black.
 MELANIN_PATH = 2.0
+#: What a fibre returns whatever its pigment (its surface, light from its neighbours):
+#: chosen, so that dark brown is not read as red (eumelanin 8 stays near black).
+MELANIN_FLOOR = 0.015
 #: Texture size (width across the card, height root to tip) and strands drawn across.
 TEXTURE_SIZE = (128, 512)
-TEXTURE_STRANDS = 30
+#: Per group: strands drawn across the texture and their half width at the root (min,
+#: max), texels: dense scalp cards, sparser brows and beards, a few lashes.
+TEXTURE_STRANDS = {"scalp": (40, 1.1, 2.0), "brows": (26, 0.9, 1.5), "lashes": (8, 1.6, 2.6),
+                   "beard": (30, 0.8, 1.4)}
 #: Perceptual roughness of the cards' material.
 HAIR_ROUGHNESS = 0.45
+#: Alpha below which a card's texel is cut (glTF ``alphaMode`` MASK): under 0.5, so the
+#: strands still cover where a renderer's mipmaps average them with the gaps.
+HAIR_ALPHA_CUTOFF = 0.35
 
 
 def melanin_rgb(eumelanin, pheomelanin) -> np.ndarray:
@@ -80,7 +91,8 @@ def melanin_rgb(eumelanin, pheomelanin) -> np.ndarray:
     (see the module docstring): melanin 0 is white, eumelanin 8 near black."""
     eu = np.asarray(eumelanin, np.float64)[..., None]
     pheo = np.asarray(pheomelanin, np.float64)[..., None]
-    return np.exp(-(eu * EUMELANIN_SIGMA + pheo * PHEOMELANIN_SIGMA) * MELANIN_PATH)
+    absorbed = np.exp(-(eu * EUMELANIN_SIGMA + pheo * PHEOMELANIN_SIGMA) * MELANIN_PATH)
+    return MELANIN_FLOOR + (1.0 - MELANIN_FLOOR) * absorbed
 
 
 def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairStyle | None:
@@ -229,14 +241,17 @@ def _unit(x: np.ndarray) -> np.ndarray:
 
 
 def strand_texture(melanin: np.ndarray, rng: np.random.Generator,
-                   size: tuple[int, int] = TEXTURE_SIZE, strands: int = TEXTURE_STRANDS
+                   size: tuple[int, int] = TEXTURE_SIZE,
+                   strands: tuple[int, float, float] = TEXTURE_STRANDS["scalp"]
                    ) -> np.ndarray:
-    """A procedural strand image (H, W, 4), linear RGB + alpha: ``strands`` tapered,
+    """A procedural strand image (H, W, 4), linear RGB + alpha: ``strands`` (count, half
+    width at the root: min, max texels) tapered,
     slightly wavy strands from the root (row 0) to the tip, each coloured as one strand
     of ``melanin`` (S, 2) drawn at random (so greying shows as white strands), darker at
     the root; alpha 0 between them. The gaps take the strands' mean colour (no dark
     fringes where a renderer filters across the alpha's edge)."""
     w, h = size
+    strands, thin, thick = strands
     x = np.arange(w)[None, :] + 0.5
     v = (np.arange(h)[:, None] + 0.5) / h
     alpha = np.zeros((h, w))
@@ -246,7 +261,7 @@ def strand_texture(melanin: np.ndarray, rng: np.random.Generator,
     slots = (np.arange(strands) + rng.uniform(0.2, 0.8, strands)) * w / strands
     for j in range(strands):
         length = rng.uniform(0.7, 1.0)
-        half = rng.uniform(0.9, 1.5) * np.clip(1.0 - 0.75 * v / length, 0.0, 1.0)
+        half = rng.uniform(thin, thick) * np.clip(1.0 - 0.7 * v / length, 0.0, 1.0)
         wave = rng.uniform(0.5, 2.0) * np.sin(2 * np.pi * (rng.uniform(0.5, 2.0) * v
                                                            + rng.uniform()))
         cover = np.clip(half + 0.5 - np.abs(x - slots[j] - wave), 0.0, 1.0)
@@ -314,6 +329,8 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
                 side[r] = -side[r]
         offset = np.abs(np.einsum("skc,kc->sk", pts[m] - mean, side))  # (S_c, K)
         width = np.clip(2.0 * np.percentile(offset, 80, axis=0) + 2 * g.radius, wmin, wmax)
+        length = np.linalg.norm(np.diff(line, axis=0), axis=1).sum()
+        width = np.minimum(width, max(wmin, MAX_ASPECT * length))  # no square patches
         lines.append(line)
         halves.append(width / 2)
         sides.append(side)
@@ -349,7 +366,9 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
         name=g.name, positions=positions, normals=normals, uv=uv.reshape(-1, 2),
         faces=tris.reshape(-1, 3).astype(np.int64), tri=tri_v.astype(np.int64),
         bary=bary_v, root=rootrow.reshape(-1),
-        card=np.repeat(np.arange(n), 2 * k), texture=strand_texture(g.melanin, rng),
+        card=np.repeat(np.arange(n), 2 * k),
+        texture=strand_texture(g.melanin, rng, TEXTURE_SIZE,
+                               TEXTURE_STRANDS.get(g.name, TEXTURE_STRANDS["scalp"])),
         strands=s, melanin=g.melanin.mean(0))
 
 
