@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from hack_render import boundary
 from hack_render.errors import HackError
@@ -116,16 +117,16 @@ def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairSt
             if not path.is_file():
                 raise HackError(f"--hair {spec}: file not found; pass a style name or a "
                                 "params file with a 'hair' section.")
-            yaml = path.suffix.lower() in (".yaml", ".yml")
+            is_yaml = path.suffix.lower() in (".yaml", ".yml")
             try:
                 text = path.read_text(encoding="utf-8")
-                loaded = boundary.parse_yaml(text) if yaml else boundary.parse_json(text)
+                loaded = boundary.parse_yaml(text) if is_yaml else boundary.parse_json(text)
             except HackError as exc:
                 raise HackError(f"--hair {spec}: {exc}") from None
             except (OSError, UnicodeDecodeError) as exc:
                 raise HackError(f"--hair {spec}: not readable as text ({exc}).") from None
-            except Exception as exc:  # json's ValueError, yaml's YAMLError
-                kind = "YAML" if yaml else "JSON"
+            except (ValueError, RecursionError, yaml.YAMLError) as exc:
+                kind = "YAML" if is_yaml else "JSON"
                 raise HackError(f"--hair {spec}: not valid {kind} "
                                 f"({str(exc).splitlines()[0][:200]}).") from None
             if not isinstance(loaded, dict):
@@ -150,7 +151,8 @@ def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairSt
         if colour is not None:
             style = style.with_colour(colour)
     except HackError as exc:
-        flag = "--hair-color" if colour is not None and "colour" in str(exc) else "--hair"
+        flag = "--hair-color" if colour is not None and "colour" in str(exc) else \
+            "--hair" if spec is not None else "--params (its hair section)"
         raise HackError(f"{flag}: {exc}") from None
     return None if style.bald and not _has_facial_hair(style) else style
 
@@ -301,7 +303,7 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
     s, k = pts.shape[:2]
     root = pts[:, 0]
     direction = _unit(pts[:, min(1, k - 1)] - root)
-    n_cards = max(1, int(round(s / STRANDS_PER_CARD.get(g.name, 20))))
+    n_cards = max(1, round(s / STRANDS_PER_CARD.get(g.name, 20)))
     labels = clump_labels(np.concatenate([root, 0.01 * direction], 1), n_cards, rng)
     order = np.argsort(labels, kind="stable")
     starts = np.r_[0, np.flatnonzero(np.diff(labels[order])) + 1, s]
