@@ -57,12 +57,12 @@ from hack_render.hair.pose import pose_groom
 from hack_render.hair.style import NAMED_COLOURS, HairStyle
 
 #: Strands per card, by group: about 2,000 scalp cards for a full head at lod 1.
-STRANDS_PER_CARD = {"scalp": 30, "brows": 6, "lashes": 4, "beard": 15}
+STRANDS_PER_CARD = {"scalp": 30, "brows": 6, "lashes": 4, "beard": 10}
 #: (min, max) card width, metres, by group.
 CARD_WIDTH = {"scalp": (0.004, 0.035), "brows": (0.002, 0.012), "lashes": (0.0015, 0.006),
               "beard": (0.003, 0.02)}
-#: Widest card relative to its length (short hair: stubble, brows, crew cuts).
-MAX_ASPECT = 0.6
+#: Widest card relative to its length, by group (short hair: stubble, brows, crew cuts).
+MAX_ASPECT = {"scalp": 0.6, "brows": 0.5, "lashes": 0.6, "beard": 0.7}
 #: Rows above the root are kept this far outside the skin at rest, metres.
 SHELL = 0.0008
 #: Absorption of eumelanin and pheomelanin (Blender's Principled Hair BSDF, d'Eon 2011).
@@ -79,7 +79,7 @@ TEXTURE_SIZE = (128, 512)
 #: Per group: strands drawn across the texture and their half width at the root (min,
 #: max), texels: dense scalp cards, sparser brows and beards, a few lashes.
 TEXTURE_STRANDS = {"scalp": (40, 1.1, 2.0), "brows": (26, 0.9, 1.5), "lashes": (8, 1.6, 2.6),
-                   "beard": (30, 0.8, 1.4)}
+                   "beard": (34, 1.0, 1.7)}
 #: Perceptual roughness of the cards' material.
 HAIR_ROUGHNESS = 0.45
 #: Alpha below which a card's texel is cut (glTF ``alphaMode`` MASK): under 0.5, so the
@@ -332,7 +332,7 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
         offset = np.abs(np.einsum("skc,kc->sk", pts[m] - mean, side))  # (S_c, K)
         width = np.clip(2.0 * np.percentile(offset, 80, axis=0) + 2 * g.radius, wmin, wmax)
         length = np.linalg.norm(np.diff(line, axis=0), axis=1).sum()
-        width = np.minimum(width, max(wmin, MAX_ASPECT * length))  # no square patches
+        width = np.minimum(width, max(wmin, MAX_ASPECT.get(g.name, 0.6) * length))  # no square patches
         lines.append(line)
         halves.append(width / 2)
         sides.append(side)
@@ -354,6 +354,10 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
     skin_n = frames[g.tri[np.asarray(anchors)], 2]
     flip = np.sum(normal * skin_n[:, None], -1) < 0
     normal = np.where(flip[..., None], -normal, normal)
+    # shading normals: the skin's at the root (cards shade like the scalp under them, not
+    # as a patchwork of tilted tiles), the card's own at the tip
+    a = (np.arange(k) / max(k - 1, 1))[None, :, None]
+    normal = _unit((1 - a) * skin_n[:, None] + a * normal)
     normals = np.repeat(normal[:, :, None], 2, 2).reshape(-1, 3)
     rows = np.arange(k) / max(k - 1, 1)
     uv = np.stack(np.broadcast_arrays(np.array([0.0, 1.0])[None, None, :],
