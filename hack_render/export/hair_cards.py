@@ -78,7 +78,7 @@ MELANIN_FLOOR = 0.015
 TEXTURE_SIZE = (128, 512)
 #: Per group: strands drawn across the texture and their half width at the root (min,
 #: max), texels: dense scalp cards, sparser brows and beards, a few lashes.
-TEXTURE_STRANDS = {"scalp": (40, 1.1, 2.0), "brows": (26, 0.9, 1.5), "lashes": (8, 1.6, 2.6),
+TEXTURE_STRANDS = {"scalp": (40, 1.1, 2.0), "brows": (26, 0.9, 1.5), "lashes": (6, 6.0, 9.0),
                    "beard": (34, 1.0, 1.7)}
 #: Perceptual roughness of the cards' material.
 HAIR_ROUGHNESS = 0.45
