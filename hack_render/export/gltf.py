@@ -7,6 +7,10 @@ Layout of the file:
   ``_HACK_VERTEX`` (float, the model's vertex index of every glTF vertex), ``POSITION``,
   ``NORMAL``, ``TEXCOORD_0``, ``JOINTS_0``/``WEIGHTS_0`` (and ``_1`` with 8 influences),
   and ``COLOR_0`` on the iris;
+- with hair (:mod:`.hair_cards`), one more primitive per strand group (scalp, brows,
+  lashes, beard; ``extras.hair`` names it) of alpha-textured cards: ``POSITION``,
+  ``NORMAL``, ``TEXCOORD_0``, the root triangle's blended skin weights, every morph target
+  (the root's blended deltas) and no ``_HACK_VERTEX``; its lashes replace the eyelash part;
 - morph targets named in ``mesh.extras.targetNames`` (the model's expression names first),
   stored as sparse accessors: only the vertices a target moves are written, a target that
   moves none of a part's vertices has no data at all (an accessor of zeros);
@@ -15,7 +19,8 @@ Layout of the file:
   parameter file's pose, so the file at rest shows what `hack-render mesh` shows;
 - materials: the skin (base colour, roughness and metallic, normal map; specular intensity
   through ``KHR_materials_specular`` with skin's index of refraction 1.4 through
-  ``KHR_materials_ior``), and one material per other part;
+  ``KHR_materials_ior``), one material per other part, and per hair group a two-sided,
+  alpha-masked material with its procedural strand texture;
 - an animation ``sequence`` when a parameter sequence is given: per frame, each node's
   rotation, the root's translation and every morph weight (expressions, larynx slide
   in-betweens, pose correctives from the pose feature), linearly interpolated.
