@@ -63,6 +63,8 @@ CARD_WIDTH = {"scalp": (0.004, 0.035), "brows": (0.002, 0.012), "lashes": (0.001
               "beard": (0.003, 0.02)}
 #: Widest card relative to its length, by group (short hair: stubble, brows, crew cuts).
 MAX_ASPECT = {"scalp": 0.6, "brows": 0.5, "lashes": 0.6, "beard": 0.7}
+#: Most rows per card (a long strand's control points are resampled to these).
+MAX_ROWS = 10
 #: Rows above the root are kept this far outside the skin at rest, metres.
 SHELL = 0.0008
 #: Absorption of eumelanin and pheomelanin (Blender's Principled Hair BSDF, d'Eon 2011).
@@ -300,7 +302,13 @@ def build_cards(groom: Groom, base: np.ndarray, faces: np.ndarray, seed: int = 0
 
 
 def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGroup:
+    if pts.shape[1] > MAX_ROWS:  # long strands: fewer rows (every row costs morph data)
+        t = np.linspace(0.0, pts.shape[1] - 1, MAX_ROWS)
+        lo = np.minimum(t.astype(np.int64), pts.shape[1] - 2)
+        a = (t - lo)[None, :, None]
+        pts = (1 - a) * pts[:, lo] + a * pts[:, lo + 1]
     s, k = pts.shape[:2]
+    radius = np.interp(np.linspace(0, 1, k), np.linspace(0, 1, len(g.radius)), g.radius)
     root = pts[:, 0]
     direction = _unit(pts[:, min(1, k - 1)] - root)
     n_cards = max(1, round(s / STRANDS_PER_CARD.get(g.name, 20)))
@@ -330,7 +338,7 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
             if np.dot(side[r], side[r - 1]) < 0:
                 side[r] = -side[r]
         offset = np.abs(np.einsum("skc,kc->sk", pts[m] - mean, side))  # (S_c, K)
-        width = np.clip(2.0 * np.percentile(offset, 80, axis=0) + 2 * g.radius, wmin, wmax)
+        width = np.clip(2.0 * np.percentile(offset, 80, axis=0) + 2 * radius, wmin, wmax)
         length = np.linalg.norm(np.diff(line, axis=0), axis=1).sum()
         width = np.minimum(width, max(wmin, MAX_ASPECT.get(g.name, 0.6) * length))  # no square patches
         lines.append(line)
