@@ -358,8 +358,12 @@ def _cards(g, pts: np.ndarray, base, faces, skin, frames, proxy, rng) -> CardGro
     tri_v = np.broadcast_to(tri.reshape(n, 1, 2), (n, k, 2)).reshape(-1)
     bary_v = np.broadcast_to(bary.reshape(n, 1, 2, 3), (n, k, 2, 3)).reshape(-1, 3)
     along = np.gradient(edges.mean(2), axis=1) if k > 1 else side
-    normal = _unit(np.cross(side, along))
+    normal = np.cross(side, along)
     skin_n = frames[g.tri[np.asarray(anchors)], 2]
+    # where a strand's last points were gathered (cut at the bust) the rows coincide and
+    # the card has no normal of its own: the skin's
+    flat = np.linalg.norm(normal, axis=-1, keepdims=True) < 1e-9
+    normal = _unit(np.where(flat, skin_n[:, None], normal))
     flip = np.sum(normal * skin_n[:, None], -1) < 0
     normal = np.where(flip[..., None], -normal, normal)
     # shading normals: the skin's at the root (cards shade like the scalp under them, not
