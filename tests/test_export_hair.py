@@ -147,12 +147,15 @@ def test_card_weights_are_the_root_triangles_blend(model, exported, cards, name,
         np.testing.assert_allclose(dense, want, atol=1e-6)
 
 
-def test_long_hair_cards_have_unit_normals_and_few_rows(model):
-    """Long strands (cut and gathered at the bust) give cards with unit normals at every
-    vertex (the validator's ACCESSOR_VECTOR3_NON_UNIT) and at most MAX_ROWS rows."""
+@pytest.mark.parametrize("archetype, beard", [("long", "none"), ("bun", "stubble"),
+                                               ("afro", "full")])
+def test_cards_have_unit_normals_and_few_rows(model, archetype, beard):
+    """Long strands (cut and gathered at the bust), buns, coils and stubble give cards
+    with unit normals at every vertex (the validator's ACCESSOR_VECTOR3_NON_UNIT) and at
+    most MAX_ROWS rows."""
     from hack_render.export.hair_cards import MAX_ROWS
 
-    style = HairStyle.archetype_style("long", lod=0.03)
+    style = HairStyle.archetype_style(archetype, beard=beard, lod=0.03)
     base = model.template.double().numpy()
     for c in build_cards(groom_for(model, style), base, model.faces.numpy()):
         np.testing.assert_allclose(np.linalg.norm(c.normals, axis=1), 1.0, atol=1e-6)
