@@ -72,7 +72,7 @@ EUMELANIN_SIGMA = np.array([0.506, 0.841, 1.653])
 PHEOMELANIN_SIGMA = np.array([0.343, 0.733, 1.924])
 #: Path length (in units of the absorption's) of the colour ``exp(-sigma_a * path)``:
 #: chosen by eye, so that eumelanin 0.3 reads blonde, 1.3 brown, 8 black.
-MELANIN_PATH = 2.0
+MELANIN_PATH = 2.5
 #: What a fibre returns whatever its pigment (its surface, light from its neighbours):
 #: chosen, so that dark brown is not read as red (eumelanin 8 stays near black).
 MELANIN_FLOOR = 0.015
