@@ -281,3 +281,7 @@ def test_export_cli_hair_from_the_params_file_and_none(tmp_path, capsys):
                             "-o", str(out)], capsys)
     assert code == 0 and "  hair:" not in text, err
     assert "hair" not in read_gltf(out)[0]["asset"]["extras"]["hack"]
+    # a mesh file of a params file with hair: the mesh, and a note that the hair is not in it
+    code, text, err = _run(["export", "--params", str(params), "-o", str(tmp_path / "p.ply")],
+                           capsys)
+    assert code == 0 and (tmp_path / "p.ply").is_file() and "hair section is left out" in err

@@ -90,8 +90,12 @@ def export(
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
     style = hair_style(hair, hair_color, p.pop("hair", None))
     if style is not None and suffix in (".obj", ".ply"):
-        raise HackError(f"--hair: hair cards need a .glb or .gltf output, found -o {output} "
-                        "(or pass --hair none).")
+        if hair is not None or hair_color is not None:
+            raise HackError(f"--hair: hair cards need a .glb or .gltf output, found -o "
+                            f"{output} (or pass --hair none).")
+        typer.echo(f"note: {params}'s hair section is left out: hair cards need a .glb or "
+                   ".gltf output", err=True)
+        style = None
     if model_path is not None:
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = load_model(model_path)
