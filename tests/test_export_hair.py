@@ -22,8 +22,8 @@ from hack_render.errors import HackError
 from hack_render.export import rig as R
 from hack_render.export.hair_cards import (
     HAIR_ALPHA_CUTOFF,
-    build_cards,
     blend,
+    build_cards,
     groom_for,
     hair_style,
     melanin_rgb,
@@ -121,7 +121,7 @@ def test_card_roots_stay_on_the_posed_skin(model, exported, cards, frame):
         moved[c.name] = posed[i][c.root]
     if frame == 1:  # the brows rode the expression: they moved against the skull's frame
         rest = evaluate_primitives(path, 0)
-        brows = [i for i, p in _hair_prims(doc) if p["extras"]["hair"] == "brows"][0]
+        brows = next(i for i, p in _hair_prims(doc) if p["extras"]["hair"] == "brows")
         assert np.linalg.norm(posed[brows] - rest[brows], axis=1).max() > 2e-3
 
 
@@ -190,7 +190,8 @@ def _validator():
     node, npm = shutil.which("node"), shutil.which("npm")
     if not node or not npm:
         return None, "node/npm not installed (scripts/setup.sh --test)"
-    root = subprocess.run([npm, "root", "-g"], capture_output=True, text=True).stdout.strip()
+    root = subprocess.run([npm, "root", "-g"], capture_output=True, text=True,
+                          check=False).stdout.strip()
     if not (Path(root) / "gltf-validator").is_dir():
         return None, "npm package gltf-validator not installed (scripts/setup.sh --test)"
     return [node, str(HERE / "gltf_validate.js")], root
@@ -202,7 +203,7 @@ def test_khronos_validator_reports_no_errors(exported):
         pytest.skip(root)
     files = [str(p) for p, _ in exported.values()]
     r = subprocess.run(cmd + files, capture_output=True, text=True, env={"NODE_PATH": root},
-                       timeout=300)
+                       timeout=300, check=False)
     assert r.returncode == 0, r.stderr
     for line in r.stdout.splitlines():
         rep = json.loads(line)
