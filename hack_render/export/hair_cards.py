@@ -109,7 +109,6 @@ def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairSt
     if spec is not None:
         text = spec.strip()
         if text.lower() == "none":
-            data = None
             if colour is not None:
                 raise HackError("--hair-color: --hair none grows no hair to colour; drop one "
                                 "of the two.")
@@ -135,7 +134,7 @@ def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairSt
                 raise HackError(f"--hair {spec}: expected a mapping (a params file with a "
                                 f"'hair' section, or the section itself), found "
                                 f"{type(loaded).__name__}.")
-            data = loaded.get("hair", loaded) if "hair" in loaded else loaded
+            data = loaded["hair"] if "hair" in loaded else loaded
             if data is None:
                 if colour is not None:
                     raise HackError(f"--hair-color: {spec}'s hair section is null (no hair) "
