@@ -3,8 +3,10 @@ skin-weight truncation error, and how closely the file (read by the reference ev
 when a Python with bpy is given, by Blender) poses like the model's forward pass.
 
     python bench/bench_export.py [--blender-python /path/to/python-with-bpy]
+    python bench/bench_export.py --hair      # the hair cards' figures (issue 61)
 
-Writes bench/results/export.json (bench/provenance.py's fields). The person: beta
+Writes bench/results/export.json, or with --hair export_hair.json (bench/provenance.py's
+fields). The person: beta
 (0.8, -1.2, 0.5), AU12 0.6 + jawOpen 0.25, eta 1.3, skin maps A(0); the animation: the
 turntable's look-around + swallow, 48 frames at 24 fps, with random expressions.
 """
@@ -28,8 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import write_result  # noqa: E402
 
 from hack_render.export import rig as R  # noqa: E402
+from hack_render.export.hair_cards import blend, build_cards, groom_for  # noqa: E402
 from hack_render.export.person import export_person  # noqa: E402
-from hack_render.export.reference import evaluate  # noqa: E402
+from hack_render.export.reference import evaluate, evaluate_primitives, read_gltf  # noqa: E402
 from hack_render.geometry import load_default_model  # noqa: E402
 from hack_render.geometry.params import (  # noqa: E402
     ParamSequence,
@@ -37,6 +40,7 @@ from hack_render.geometry.params import (  # noqa: E402
     model_inputs,
     save_sequence,
 )
+from hack_render.hair.style import HairStyle  # noqa: E402
 from hack_render.render import turntable as tt  # noqa: E402
 from hack_render.render.skin_maps import skin_maps  # noqa: E402
 
@@ -68,16 +72,70 @@ def validator(files: list[Path]) -> list[dict] | str:
     return [json.loads(line) for line in r.stdout.splitlines()]
 
 
+#: The hair figures' styles (``--hair``): a short cut with a full beard, long hair.
+HAIR_STYLES = {"short_full_beard": {"archetype": "short", "beard": "full"},
+               "long": {"archetype": "long", "color": "brown"}}
+
+
+def hair_figures(model, seq, maps, out: str) -> None:
+    """Hair cards (issue 61): per style at lod 1, the cards and vertices per group, the file
+    size against the same file without hair, the time to grow and build the cards, how far
+    a card's root row strays from the posed skin over the 48 frames (reference evaluator),
+    and the validator's verdict."""
+    faces = model.faces.numpy()
+    res: dict = {"person": PARAMS, "frames": seq.frames, "influences": 4, "styles": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        base = export_person(model, check_params(PARAMS), tmp / "bald.glb", seq, maps, 4)
+        res["bald"] = {"bytes": base["bytes"], "export_seconds": base["seconds"]}
+        files = [tmp / "bald.glb"]
+        for name, spec in HAIR_STYLES.items():
+            style = HairStyle.from_dict(spec)
+            glb = tmp / f"{name}.glb"
+            rep = export_person(model, check_params(PARAMS), glb, seq, maps, 4, style)
+            files.append(glb)
+            rig = R.build_rig(model, torch.tensor([PARAMS["beta"]]), PARAMS["eta"])
+            cards = build_cards(groom_for(model, style), rig.base, faces, style.seed)
+            hair_prims = [i for i, p in enumerate(read_gltf(glb)[0]["meshes"][0]["primitives"])
+                          if "hair" in p.get("extras", {})]
+            worst = 0.0
+            for k in range(seq.frames):
+                skin = evaluate(glb, k, model.num_vertices)
+                posed = evaluate_primitives(glb, k)
+                for i, c in zip(hair_prims, cards, strict=True):
+                    want = blend(skin, faces, c.tri[c.root], c.bary[c.root])
+                    worst = max(worst, float(np.linalg.norm(posed[i][c.root] - want,
+                                                            axis=1).max()))
+            res["styles"][name] = {
+                "style": spec, "groups": rep["hair"]["groups"], "bytes": rep["bytes"],
+                "bytes_over_bald": rep["bytes"] - base["bytes"],
+                "hair_seconds": rep["hair"]["seconds"], "export_seconds": rep["seconds"],
+                "root_row_max_distance_to_posed_skin_mm_over_frames": 1e3 * worst}
+        v = validator(files)
+        res["validator"] = v if isinstance(v, str) else [
+            {k: r[k] for k in ("errors", "warnings", "infos")} | {"file": Path(r["file"]).name}
+            for r in v]
+    print(json.dumps(res, indent=1))
+    write_result(out, res)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--blender-python", default=None, help="a Python with bpy installed")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "export.json"))
+    ap.add_argument("--hair", action="store_true", help="the hair cards' figures only "
+                    "(bench/results/export_hair.json)")
     args = ap.parse_args()
     model = load_default_model()
     look = tt.motion_sequence(tt.TurntableSpec(48, look_around=True, swallow=True, fps=24))
     psi = np.clip(np.random.default_rng(0).normal(0.15, 0.2, (48, model.num_expressions)), 0, 1)
     seq = ParamSequence(24.0, look.theta, psi, look.tau)
     maps = skin_maps([0.0])
+    if args.hair:
+        out = args.out if args.out != ap.get_default("out") else \
+            str(ROOT / "bench" / "results" / "export_hair.json")
+        hair_figures(model, seq, maps, out)
+        return
     want = forward_frames(model, seq)
     res: dict = {"person": PARAMS, "frames": 48}
     with tempfile.TemporaryDirectory() as tmp:

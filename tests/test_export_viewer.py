@@ -54,6 +54,33 @@ def test_sliders_change_the_rendered_pixels(tmp_path):
         assert (diff > 30).sum() > 500, f"moving {name} changed {int((diff > 30).sum())} pixels"
 
 
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/setup.sh --test)")
+def test_viewer_shows_the_hair_cards(tmp_path):
+    """Issue 61: the page loads a file with hair cards (alpha-masked, two-sided, skinned
+    and morphed primitives) and draws them: long black hair, seen from the side, covers
+    the back of the head and the neck that the bald file shows."""
+    from hack_render.export.person import export_person
+    from hack_render.export.viewer import start
+    from hack_render.hair.style import HairStyle
+
+    model = load_default_model()
+    shots = {}
+    for name, hair in (("bald", None), ("hair", HairStyle.from_dict(
+            {"archetype": "long", "color": "black", "lod": 0.3}))):
+        glb = tmp_path / f"{name}.glb"
+        export_person(model, check_params({"beta": [0.5, -1.0]}), glb, hair=hair)
+        server, url = start(glb, 0)
+        try:
+            shots[name] = screenshot(url + "?camera=120,10,1.3", tmp_path / f"{name}.png")
+        finally:
+            server.shutdown()
+    bald, hair = (shots[k][:420, :VIEW_WIDTH] for k in ("bald", "hair"))
+    changed = np.abs(hair - bald).max(-1) > 30
+    assert changed.sum() > 3000, f"the hair changed {int(changed.sum())} pixels"
+    assert (hair[changed].mean(-1) < bald[changed].mean(-1)).mean() > 0.5  # dark hair
+
+
 def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
     """Ctrl-C stops the viewer like any command: exit 130 and one line, no traceback."""
     import signal

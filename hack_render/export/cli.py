@@ -54,12 +54,26 @@ def export(
                                "(and warn) or error."),
     influences: int = typer.Option(4, help="Skin weights per vertex: 4 (what most engines "
                                    "take; the error it costs is printed) or 8 (exact)."),
+    hair: str | None = typer.Option(None, "--hair", help="Hair, brows, lashes and beard as "
+                                    "alpha-textured cards skinned with the head (.glb/.gltf "
+                                    "only): a style (bald, shaved, crew, short, bob, long, "
+                                    "ponytail, bun, afro), a JSON/YAML file (its 'hair' "
+                                    "section, or the section itself), or none. Default: the "
+                                    "--params file's hair section if it has one, else no "
+                                    "hair."),
+    hair_color: str | None = typer.Option(None, "--hair-color", help="Hair colour: black, "
+                                          "dark-brown, brown, light-brown, blonde, platinum, "
+                                          "red, auburn, white, or 'EUMELANIN,PHEOMELANIN' "
+                                          "(0-20 each, e.g. '1.3,0.1')."),
 ) -> None:
     """Export one person to CG tools: a rigged glTF 2.0 (skeleton, 53 expression, larynx and
-    pose-corrective morph targets, PBR skin, optional animation) or OBJ/PLY mesh files.
+    pose-corrective morph targets, PBR skin, optional animation, optional hair cards) or
+    OBJ/PLY mesh files.
 
     Example: hack-render export --params person.json --sequence motion.npz -o out/person.glb
+    --hair long --hair-color brown
     """
+    from hack_render.export.hair_cards import hair_style
     from hack_render.export.person import export_person
     from hack_render.geometry import load_model
 
@@ -74,6 +88,14 @@ def export(
                               unit=" (standard deviations)", example="0.8,-0.6,0.4")
     boundary.number(appearance_seed, "--appearance-seed", 0, 2 ** 31 - 1, integer=True)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    style = hair_style(hair, hair_color, p.pop("hair", None))
+    if style is not None and suffix in (".obj", ".ply"):
+        if hair is not None or hair_color is not None:
+            raise HackError(f"--hair: hair cards need a .glb or .gltf output, found -o "
+                            f"{output} (or pass --hair none).")
+        typer.echo(f"note: {params}'s hair section is left out: hair cards need a .glb or "
+                   ".gltf output", err=True)
+        style = None
     if model_path is not None:
         boundary.input_file(model_path, "--model", (".npz",), "model file")
     model = load_model(model_path)
@@ -88,11 +110,15 @@ def export(
             typer.echo(f"wrote {path.resolve()}")
         return
 
-    rep = export_person(model, p, output, seq, maps, influences)
+    rep = export_person(model, p, output, seq, maps, influences, style)
     for f in rep["files"]:
         typer.echo(f"wrote {Path(f).resolve()}")
     typer.echo(f"  {rep['bytes'] / 1e6:.1f} MB, {rep['targets']} morph targets, "
                f"{rep['frames']} animation frames, {rep['seconds']:.1f} s")
+    if rep["hair"] is not None:
+        groups = ", ".join(f"{name} {g['cards']:,} cards ({g['strands']:,} strands)"
+                           for name, g in rep["hair"]["groups"].items())
+        typer.echo(f"  hair: {groups or 'none grown'}; {rep['hair']['seconds']:.1f} s")
     err_mm = 1000 * rep["weight_truncation_error_m"]
     typer.echo(f"  skin: {influences} weights per vertex; largest vertex error this costs at "
                f"the joint limits: {err_mm:.3g} mm"

@@ -7,6 +7,10 @@ Layout of the file:
   ``_HACK_VERTEX`` (float, the model's vertex index of every glTF vertex), ``POSITION``,
   ``NORMAL``, ``TEXCOORD_0``, ``JOINTS_0``/``WEIGHTS_0`` (and ``_1`` with 8 influences),
   and ``COLOR_0`` on the iris;
+- with hair (:mod:`.hair_cards`), one more primitive per strand group (scalp, brows,
+  lashes, beard; ``extras.hair`` names it) of alpha-textured cards: ``POSITION``,
+  ``NORMAL``, ``TEXCOORD_0``, the root triangle's blended skin weights, every morph target
+  (the root's blended deltas) and no ``_HACK_VERTEX``; its lashes replace the eyelash part;
 - morph targets named in ``mesh.extras.targetNames`` (the model's expression names first),
   stored as sparse accessors: only the vertices a target moves are written, a target that
   moves none of a part's vertices has no data at all (an accessor of zeros);
@@ -15,7 +19,8 @@ Layout of the file:
   parameter file's pose, so the file at rest shows what `hack-render mesh` shows;
 - materials: the skin (base colour, roughness and metallic, normal map; specular intensity
   through ``KHR_materials_specular`` with skin's index of refraction 1.4 through
-  ``KHR_materials_ior``), and one material per other part;
+  ``KHR_materials_ior``), one material per other part, and per hair group a two-sided,
+  alpha-masked material with its procedural strand texture;
 - an animation ``sequence`` when a parameter sequence is given: per frame, each node's
   rotation, the root's translation and every morph weight (expressions, larynx slide
   in-betweens, pose correctives from the pose feature), linearly interpolated.
@@ -35,6 +40,7 @@ import numpy as np
 
 from appearance.colour_space import srgb_encode
 from hack_render.errors import HackError
+from hack_render.export.hair_cards import HAIR_ALPHA_CUTOFF, HAIR_ROUGHNESS
 from hack_render.export.rig import pose_split
 from hack_render.io import atomic_path
 from hack_render.render.materials import EYELASH_OPACITY, iris_vertex_colors, material_base_colours
@@ -211,7 +217,7 @@ def _mat4_translation(p: np.ndarray) -> np.ndarray:
 
 
 def person_document(model, rig, pose: Pose, maps=None, animation: Animation | None = None,
-                    name: str = "hack_person") -> GltfBuilder:
+                    name: str = "hack_person", hair=None) -> GltfBuilder:
     """Assemble the glTF document of a rigged person (see the module docstring).
 
     Args:
@@ -220,6 +226,9 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         pose: the default state (the parameter file's pose).
         maps: skin maps (``render.materials.SkinMaps``) or None (a plain skin colour).
         animation: the clip, or None.
+        hair: None, or (style, cards): the :class:`~hack_render.hair.style.HairStyle` and
+            its :class:`~hack_render.export.hair_cards.CardGroup` list, written as one
+            primitive per group (:func:`hair_primitive`).
     """
     g = GltfBuilder()
     parts, axes = split_parts(Topology.from_model(model), rig.base)
@@ -236,6 +245,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                                                  "metallicFactor": 0.0, "roughnessFactor": 0.5}})
     n_inf = rig.joints4.shape[1]
     prims = []
+    if hair is not None and any(c.name == "lashes" for c in hair[1]):
+        parts = [p for p in parts if p.name != "eyelashes"]  # the strands' cards replace them
     for part in parts:
         gi = part.gather
         attrs = {"POSITION": g.accessor(rig.base[gi], FLOAT, "VEC3", ARRAY_BUFFER, bounds=True),
@@ -261,6 +272,10 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                 part_material(g, part.name, part_colour.get(part.name) or (0.5, 0.5, 0.5)),
                 "targets": [{"POSITION": g.sparse_vec3(t[gi])} for t in rig.targets]}
         prims.append(prim)
+    if hair is not None:
+        weights = model.skinning_weights.double().numpy()
+        faces = model.faces.numpy()
+        prims += [hair_primitive(g, cards, rig, faces, weights) for cards in hair[1]]
     g._add("meshes", {"name": name, "primitives": prims,
                       "weights": [float(w) for w in pose.weights],
                       "extras": {"targetNames": list(rig.target_names)}})
@@ -283,7 +298,60 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         if rig.slots["pose"].stop > rig.slots["pose"].start else [],
         "joint_limits_deg": model.rotation_limits_deg.tolist(),
         "units": "metres, Y up, face along +Z"}}
+    if hair is not None:
+        g.doc["asset"]["extras"]["hack"]["hair"] = {
+            "style": hair[0].to_dict(),
+            "groups": {c.name: {"strands": c.strands, "cards": c.num_cards,
+                                "vertices": len(c.positions)} for c in hair[1]},
+            "cards": "alpha-textured ribbons, one per clump of strands, rooted on the skin; "
+                     "each card column carries its root point's skin weights and morph "
+                     "deltas (moves rigidly with the skin under it)",
+            "texture": "procedural strand texture (hack-render), colour from melanin by an "
+                       "approximate mapping; not a photograph or a render"}
     return g
+
+
+def hair_primitive(g: GltfBuilder, cards, rig, faces: np.ndarray, weights: np.ndarray
+                   ) -> dict:
+    """One strand group's cards (:class:`~hack_render.export.hair_cards.CardGroup`) as a
+    skinned primitive with every morph target of the mesh (the blend of the root
+    triangle's deltas, sparse) and its alpha-masked, two-sided strand material."""
+    n_inf = rig.joints4.shape[1]
+    joints, w = cards.skin_weights(weights, faces, n_inf)
+    attrs = {"POSITION": g.accessor(cards.positions, FLOAT, "VEC3", ARRAY_BUFFER, bounds=True),
+             "NORMAL": g.accessor(cards.normals, FLOAT, "VEC3", ARRAY_BUFFER),
+             "TEXCOORD_0": g.accessor(cards.uv, FLOAT, "VEC2", ARRAY_BUFFER)}
+    for s in range(n_inf // 4):
+        attrs[f"JOINTS_{s}"] = g.accessor(joints[:, 4 * s:4 * s + 4], UBYTE, "VEC4",
+                                          ARRAY_BUFFER)
+        attrs[f"WEIGHTS_{s}"] = g.accessor(w[:, 4 * s:4 * s + 4], FLOAT, "VEC4", ARRAY_BUFFER)
+    ityp = USHORT if len(cards.positions) < 65536 else UINT
+    return {"attributes": attrs, "mode": 4,
+            "indices": g.accessor(cards.faces.reshape(-1, 1), ityp, "SCALAR",
+                                  ELEMENT_ARRAY_BUFFER),
+            "material": hair_material(g, cards),
+            "targets": [{"POSITION": g.sparse_vec3(cards.morph(t, faces))}
+                        for t in rig.targets],
+            "extras": {"hair": cards.name, "cards": cards.num_cards,
+                       "strands": cards.strands}}
+
+
+def hair_material(g: GltfBuilder, cards) -> int:
+    """The cards' material: the procedural strand texture (sRGB colour, linear alpha) as
+    base colour, alpha MASK, two-sided."""
+    tex = cards.texture
+    rgba = np.concatenate([srgb_encode(np.clip(tex[..., :3], 0, 1)), tex[..., 3:]], -1)
+    image = g.texture(png_bytes(rgba, False), f"hair_{cards.name}_strands_procedural")
+    eu, pheo = (float(x) for x in cards.melanin)
+    return g._add("materials", {
+        "name": f"hair_{cards.name}",
+        "pbrMetallicRoughness": {"baseColorTexture": {"index": image},
+                                 "metallicFactor": 0.0, "roughnessFactor": HAIR_ROUGHNESS},
+        "alphaMode": "MASK", "alphaCutoff": HAIR_ALPHA_CUTOFF, "doubleSided": True,
+        "extras": {"hack": {"procedural": True, "mean_melanin": [eu, pheo],
+                            "texture": "procedural strand texture; colour by an approximate "
+                                       "melanin-to-RGB mapping (hack_render.export."
+                                       "hair_cards.melanin_rgb)"}}})
 
 
 def _skeleton(g: GltfBuilder, rig, pose: Pose) -> None:

@@ -12,7 +12,9 @@ import numpy as np
 from hack_render.errors import HackError
 from hack_render.export import rig as R
 from hack_render.export.gltf import Animation, Pose, person_document, write_document
+from hack_render.export.hair_cards import build_cards, groom_for
 from hack_render.geometry.params import model_inputs
+from hack_render.hair.style import HairStyle
 
 
 def _pose_arrays(rig, theta, psi, global_orient, transl, tau):
@@ -40,7 +42,7 @@ def frames_from(kw: dict, seq, model) -> dict[str, np.ndarray]:
 
 
 def export_person(model, params: dict, output: str | Path, sequence=None, maps=None,
-                  influences: int = R.INFLUENCES) -> dict:
+                  influences: int = R.INFLUENCES, hair: HairStyle | None = None) -> dict:
     """Write a rigged glTF of one person; returns a report (sizes, timings, errors).
 
     Args:
@@ -51,6 +53,8 @@ def export_person(model, params: dict, output: str | Path, sequence=None, maps=N
         sequence: a :class:`~hack_render.geometry.params.ParamSequence` or None.
         maps: skin maps or None.
         influences: skin weights per vertex, 4 or 8.
+        hair: a style to add as hair cards (:mod:`.hair_cards`), or None: the parameter
+            mapping's ``hair`` section if it has one, else no hair.
     """
     t0 = time.perf_counter()
     kw = model_inputs(model, params)
@@ -69,11 +73,24 @@ def export_person(model, params: dict, output: str | Path, sequence=None, maps=N
     if sequence is not None:
         rot, trans, weights = _pose_arrays(rig, **frames)
         anim = Animation(np.arange(sequence.frames) / sequence.fps, rot, trans, weights)
-    doc = person_document(model, rig, pose, maps, anim, Path(output).stem)
+    if hair is None and params.get("hair") is not None:
+        hair = HairStyle.from_dict(params["hair"])
+    cards = None
+    if hair is not None:
+        t1 = time.perf_counter()
+        cards = build_cards(groom_for(model, hair), rig.base, model.faces.numpy(), hair.seed)
+        hair_seconds = time.perf_counter() - t1
+    doc = person_document(model, rig, pose, maps, anim, Path(output).stem,
+                          None if cards is None else (hair, cards))
     written = write_document(doc, output)
     return {"files": [str(p) for p in written],
             "bytes": sum(p.stat().st_size for p in written),
             "seconds": time.perf_counter() - t0, "targets": len(rig.target_names),
             "frames": 0 if sequence is None else sequence.frames,
             "influences": influences, "weight_truncation_error_m": rig.weight_error_m,
-            "larynx_slide_range_m": tau_range}
+            "larynx_slide_range_m": tau_range,
+            "hair": None if cards is None else {
+                "groups": {c.name: {"strands": c.strands, "cards": c.num_cards,
+                                    "vertices": len(c.positions), "triangles": len(c.faces)}
+                           for c in cards},
+                "seconds": hair_seconds}}

@@ -1,7 +1,8 @@
 """A small glTF evaluator in numpy, kept beside the writer as the reference to test it
 against: it reads a ``.glb``/``.gltf`` as the specification says (accessors, sparse
 accessors, morph targets, skins, node hierarchy, linear animation at a keyframe) and
-returns the skinned vertices in the model's order through ``_HACK_VERTEX``.
+returns the skinned vertices in the model's order through ``_HACK_VERTEX`` (or, for the
+hair cards, which have none, per primitive).
 
 Only what :mod:`.gltf` writes is supported (one skinned mesh, float attributes, LINEAR
 samplers evaluated at their keyframes).
@@ -77,11 +78,14 @@ def node_matrix(node: dict) -> np.ndarray:
     return m
 
 
-def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | None = None
-             ) -> np.ndarray:
-    """Skinned vertices (N, 3) in the model's order at animation keyframe ``frame`` (None:
-    the file's default state). Vertices absent from the file are NaN."""
+def evaluate_primitives(path: str | Path, frame: int | None = None) -> list[np.ndarray]:
+    """Skinned vertices (V_i, 3) of every primitive of the skinned mesh, in the file's
+    order, at animation keyframe ``frame`` (None: the file's default state)."""
     doc, buf = read_gltf(path)
+    return [posed for _, posed in _posed_primitives(doc, buf, frame)]
+
+
+def _posed_primitives(doc: dict, buf: bytes, frame: int | None, keep=lambda prim: True):
     nodes = [dict(n) for n in doc["nodes"]]
     mesh_node = next(i for i, n in enumerate(nodes) if "mesh" in n)
     mesh = doc["meshes"][nodes[mesh_node]["mesh"]]
@@ -104,10 +108,7 @@ def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | Non
     skin = doc["skins"][nodes[mesh_node]["skin"]]
     ibm = accessor(doc, buf, skin["inverseBindMatrices"]).reshape(-1, 4, 4).transpose(0, 2, 1)
     jm = np.stack([world(j) @ ibm[k] for k, j in enumerate(skin["joints"])])  # (J, 4, 4)
-    n = num_vertices or 1 + max(int(accessor(doc, buf, p["attributes"]["_HACK_VERTEX"]).max())
-                                for p in mesh["primitives"])
-    result = np.full((n, 3), np.nan)
-    for prim in mesh["primitives"]:
+    for prim in filter(keep, mesh["primitives"]):
         at = prim["attributes"]
         pos = accessor(doc, buf, at["POSITION"])
         for w, tgt in zip(weights, prim.get("targets", []), strict=True):
@@ -120,6 +121,20 @@ def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | Non
             wt = accessor(doc, buf, at[f"WEIGHTS_{s}"])
             blend += np.einsum("nk,nkab->nab", wt, jm[j])
             s += 1
-        posed = np.einsum("nab,nb->na", blend[:, :3, :3], pos) + blend[:, :3, 3]
-        result[accessor(doc, buf, at["_HACK_VERTEX"])[:, 0].astype(np.int64)] = posed
+        yield prim, np.einsum("nab,nb->na", blend[:, :3, :3], pos) + blend[:, :3, 3]
+
+
+def evaluate(path: str | Path, frame: int | None = None, num_vertices: int | None = None
+             ) -> np.ndarray:
+    """Skinned vertices (N, 3) in the model's order at animation keyframe ``frame`` (None:
+    the file's default state). Vertices absent from the file are NaN; primitives without
+    ``_HACK_VERTEX`` (the hair cards) are left out."""
+    doc, buf = read_gltf(path)
+    posed = [(accessor(doc, buf, p["attributes"]["_HACK_VERTEX"])[:, 0].astype(np.int64), v)
+             for p, v in _posed_primitives(doc, buf, frame,
+                                           lambda p: "_HACK_VERTEX" in p["attributes"])]
+    n = num_vertices or 1 + max(int(idx.max()) for idx, _ in posed)
+    result = np.full((n, 3), np.nan)
+    for idx, v in posed:
+        result[idx] = v
     return result

@@ -173,6 +173,12 @@ new THREE.GLTFLoader().load(config.model, (gltf) => {
   const target = new THREE.Vector3(c.x, box.max.y - 0.16, c.z);
   controls.target.copy(target);
   camera.position.set(target.x, target.y + 0.03, target.z + 1.5);
+  const cam = (new URLSearchParams(location.search).get('camera') || '').split(',').map(Number);
+  if (cam.length === 3 && cam.every(Number.isFinite)) {  // ?camera=azimuth_deg,elevation_deg,distance_m
+    const [az, el, dist] = [cam[0] * Math.PI / 180, cam[1] * Math.PI / 180, cam[2]];
+    camera.position.set(target.x + dist * Math.sin(az) * Math.cos(el), target.y + dist * Math.sin(el),
+                        target.z + dist * Math.cos(az) * Math.cos(el));
+  }
   controls.update();
   resize();
   applyUrl();
