@@ -59,6 +59,13 @@ points' eye rings scaled 1.8 and inner mouth ring scaled 1.3 within the region, 
 PSNR and share of its squared error), and where the fit's points lie: ``landmark_residual_iod`` (the
 report's, against the points it fitted) and ``fit_vs_mesh_iod`` (against the face mesh
 detector's, independent of dlib; chin and inner points, outer-eye distance).
+``mesh``: the measure of issue 62, independent of the fit's points and masks:
+``render_over_photo.png`` against the photo (at that image's size) over the regions of
+MediaPipe's 468-point face mesh found on the photo: ``oval_*`` the face oval (forehead to
+chin, cheek to cheek; eyes, brows, nose and mouth included; hair or hands over the face
+count against the fit), ``eyes_*`` the two lid contours, ``mouth_*`` the lips' outer
+contour; each its PSNR (dB) and mean SSIM; ``fit_summary``: their medians and least over
+the photos, and the fits' median and longest wall time.
 ``--real-only`` skips the composites.
 """
 
@@ -337,6 +344,61 @@ def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray)
             "face_ssim": float(ssim_map.mean(axis=2)[m].mean())}
 
 
+#: the face mesh's rings (MediaPipe's 468-point topology) that define the scored regions
+OVAL_RINGS = {"oval": ("FACEMESH_FACE_OVAL",),
+              "eyes": ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"),
+              "mouth": ("FACEMESH_LIPS",)}
+
+
+def oval_regions(img: np.ndarray, shape=None) -> dict | None:
+    """The face mesh's regions of ``img`` (an independent detector: nothing of the fit's
+    points or masks): ``oval`` (the face oval, forehead to chin and cheek to cheek, the
+    eyes, brows, nose and mouth included), ``eyes`` (the two lid contours: the visible
+    eyeballs) and ``mouth`` (the lips' outer contour: the lips and what is between them),
+    as (H, W) bool masks at ``shape`` (default the photo's; the points are scaled to it).
+    None where the mesh finds no face."""
+    from skimage.draw import polygon
+
+    from hack_render.vision.detect import detect_faces
+    from hack_render.vision.segment import ring
+
+    faces = detect_faces(img, "mesh")
+    if not faces or faces[0].dense is None:
+        return None
+    h, w = shape or img.shape[:2]
+    pts = np.asarray(faces[0].dense, np.float64)[:, :2] * [w / img.shape[1], h / img.shape[0]]
+    out = {}
+    for name, rings in OVAL_RINGS.items():
+        m = np.zeros((h, w), bool)
+        for r in rings:
+            loop = pts[ring(r)]
+            rr, cc = polygon(loop[:, 1] - 0.5, loop[:, 0] - 0.5, (h, w))
+            m[rr, cc] = True
+        out[name] = m
+    return out
+
+
+def score_over_photo(photo: np.ndarray, over: np.ndarray, regions: dict) -> dict:
+    """``render_over_photo.png`` against the photo over the face mesh's regions
+    (:func:`oval_regions`): per region its pixels, PSNR (dB, 8-bit sRGB) and mean SSIM
+    (``oval_psnr_db``, ``oval_ssim``, ``eyes_*``, ``mouth_*``)."""
+    from skimage.metrics import structural_similarity
+
+    a = photo.astype(np.float64)
+    b = over[..., :3].astype(np.float64)
+    _, ssim_map = structural_similarity(a, b, channel_axis=2, data_range=255, full=True)
+    ssim_map = ssim_map.mean(axis=2)
+    se = ((a - b) ** 2).mean(-1)
+    row: dict = {}
+    for name, m in regions.items():
+        row[f"{name}_pixels"] = int(m.sum())
+        if m.sum() < 20:
+            continue
+        row[f"{name}_psnr_db"] = float(10 * np.log10(255.0 ** 2 / max(se[m].mean(), 1e-12)))
+        row[f"{name}_ssim"] = float(ssim_map[m].mean())
+    return row
+
+
 def feature_regions(points: np.ndarray, shape) -> dict:
     """The eyes (their landmark rings scaled 1.8 about their centres: lids, lashes and
     the sockets' shadow, as the fit's bake leaves out) and the mouth (its inner ring
@@ -460,6 +522,16 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
         fitted = params.get("view0_landmarks_fitted")
         if truth is not None and fitted is not None:
             row.update({f"fit_vs_truth_{k}": v for k, v in truth_scores(fitted, truth).items()})
+    over_path = out / "render_over_photo.png"
+    if over_path.is_file():   # the measure: the face mesh's oval, eyes and mouth
+        over = np.asarray(iio.imread(over_path))[..., :3]
+        h, w = over.shape[:2]
+        photo = img if (h, w) == img.shape[:2] else (
+            resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+            .round().astype(np.uint8))
+        mesh = oval_regions(img, (h, w))
+        if mesh is not None:
+            row["mesh"] = score_over_photo(photo, over, mesh)
     render = out / "render.png"
     regions = face_region(img) if render.is_file() else None
     if regions is None:
@@ -492,6 +564,28 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
             row.update({f"baked_{k}": v for k, v in
                         score_render(photo, rgba, regions[0] & used).items()})
     return row
+
+
+def _r(x, nd=2):
+    return None if x is None else round(float(x), nd)
+
+
+def fit_summary(real: dict) -> dict:
+    """Over the photos fitted: the median (and the least) of the face mesh's figures
+    (:func:`score_over_photo`) and the fits' median and longest wall time."""
+    rows = [r["fit"] for r in real.values() if "fit" in r]
+    out: dict = {"n": len(rows)}
+    for k in ("oval_psnr_db", "oval_ssim", "eyes_psnr_db", "eyes_ssim", "mouth_psnr_db",
+              "mouth_ssim"):
+        v = [f["mesh"][k] for f in rows if k in f.get("mesh", {})]
+        if v:
+            out[f"median_{k}"] = float(np.median(v))
+            out[f"min_{k}"] = float(np.min(v))
+    secs = [f["seconds"] for f in rows if f.get("seconds") is not None]
+    if secs:
+        out["median_seconds"] = float(np.median(secs))
+        out["max_seconds"] = float(np.max(secs))
+    return out
 
 
 def main(argv=None) -> None:
@@ -562,13 +656,19 @@ def main(argv=None) -> None:
                            | ({n: MORE_LICENCE for n in MORE_PHOTOS} if a.more_photos else {})
                            | ({n: ANNOTATED_LICENCE for n in ANNOTATED} if a.annotated else {})}
     result["seconds"] = round(time.time() - t0, 1)
+    if a.fit:
+        result["fit_summary"] = fit_summary(result["real"])
     write_result(a.out, result)
     for name, row in result["real"].items():
         if "fit" in row:
-            f = row["fit"]
-            print(name, "fit exit", f.get("exit"), f.get("seconds"), "s", "face PSNR",
-                  round(f.get("face_psnr_db", float("nan")), 2), "SSIM",
-                  round(f.get("face_ssim", float("nan")), 3))
+            f, m = row["fit"], row["fit"].get("mesh", {})
+            print(name, "fit exit", f.get("exit"), f.get("seconds"), "s", "oval PSNR",
+                  _r(m.get("oval_psnr_db")), "SSIM", _r(m.get("oval_ssim"), 3), "eyes",
+                  _r(m.get("eyes_psnr_db")), _r(m.get("eyes_ssim"), 3), "mouth",
+                  _r(m.get("mouth_psnr_db")), _r(m.get("mouth_ssim"), 3),
+                  "| face region PSNR", _r(f.get("face_psnr_db")))
+    if a.fit:
+        print("median", result["fit_summary"])
     comp = result["composites"]
     if not comp:
         return
