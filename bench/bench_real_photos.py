@@ -350,6 +350,40 @@ OVAL_RINGS = {"oval": ("FACEMESH_FACE_OVAL",),
               "mouth": ("FACEMESH_LIPS",)}
 
 
+def mesh_loops(name: str) -> list:
+    """(As fit/iris.py's, kept here so that the measure owes the fit nothing.) A face-mesh connection set (MediaPipe's ``FACEMESH_*``) as its closed loops of
+    point ids, longest first: the sets are undirected edges (an eye's is two lids' polylines
+    from corner to corner; the lips' two such loops, outer and inner)."""
+    from collections import defaultdict
+
+    from mediapipe.python.solutions import face_mesh_connections as fmc
+
+    adj = defaultdict(set)
+    for a, b in getattr(fmc, name):
+        adj[a].add(b)
+        adj[b].add(a)
+    loops, seen = [], set()
+    for start in sorted(adj):
+        if start in seen:
+            continue
+        loop, prev, p = [start], None, start
+        seen.add(start)
+        while True:
+            nxt = [q for q in sorted(adj[p]) if q != prev and (q not in seen or q == start)]
+            if not nxt or nxt[0] == start:
+                break
+            prev, p = p, nxt[0]
+            seen.add(p)
+            loop.append(p)
+        loops.append(loop)
+    return sorted(loops, key=len, reverse=True)
+
+
+def _area(loop: np.ndarray) -> float:
+    x, y = loop[:, 0], loop[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+
+
 def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     """The face mesh's regions of ``img`` (an independent detector: nothing of the fit's
     points or masks): ``oval`` (the face oval, forehead to chin and cheek to cheek, the
@@ -360,7 +394,6 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     from skimage.draw import polygon
 
     from hack_render.vision.detect import detect_faces
-    from hack_render.vision.segment import ring
 
     faces = detect_faces(img, "mesh")
     if not faces or faces[0].dense is None:
@@ -370,8 +403,8 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     out = {}
     for name, rings in OVAL_RINGS.items():
         m = np.zeros((h, w), bool)
-        for r in rings:
-            loop = pts[ring(r)]
+        for r in rings:   # (the lips: the outer of their two loops)
+            loop = max((pts[q] for q in mesh_loops(r)), key=_area)
             rr, cc = polygon(loop[:, 1] - 0.5, loop[:, 0] - 0.5, (h, w))
             m[rr, cc] = True
         out[name] = m

@@ -40,7 +40,7 @@ def test_01_synthetic_round_trip_moves_toward_truth():
         warnings.simplefilter("ignore")
         fitter = Fitter([photo], [det], cfg, model=model, progress=False)
         face = slice(0, 9409)
-        v = fitter.views[0]
+        v = fitter.state.views[0]
 
         def face_error():
             with torch.no_grad():

@@ -32,12 +32,13 @@ def test_01_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     pixels, or an estimate above its bounds: the default is kept; one below them is held
     at the lower bound."""
     from hack_render.errors import HackError
+    from hack_render.fit import final as final_stage
     from hack_render.fit import iris, outputs, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB
     from hack_render.render.skin_maps import IRIS_FILE, read_iris_file, read_texture_folder
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=yaw)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v,
                                    maps=dataclasses.replace(true_maps, iris_rgb=truth))
     v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
@@ -49,13 +50,13 @@ def test_01_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     assert behind.any()
     # the default colour is far from the truth: the fit moved it
     assert np.abs(np.log(np.asarray(DEFAULT_IRIS_RGB) / truth)).max() > 0.4
-    final = outputs.FinalRenders(f)
+    final = final_stage.run(f.state, f.cfg)
     # (the final stage renders with the fitted skin, not the true one: a pixel's filter
     # mixes a little skin into the iris's border)
     assert final.maps.iris_rgb == pytest.approx(rgb, rel=0.02)
     assert abs(final.report["iris"]["residual"] - 1.0) < 0.05
     assert "final.occluder_shadow 0.1" in final.report["diffuse"]   # (the provenance)
-    written = outputs.write_textures(f, tmp_path / "textures", final)
+    written = outputs.write_textures(f.state, tmp_path / "textures", final)
     assert tmp_path / "textures" / IRIS_FILE in written
     assert read_texture_folder(tmp_path / "textures").iris_rgb == final.maps.iris_rgb
     # an occluder over the eyes (glasses, hair): no pixel is used, the default is kept
@@ -92,12 +93,13 @@ def test_02_eye_whites_are_recovered_from_the_photo(model, tmp_path, yaw, k, tru
     to ``--textures`` (read back; a malformed one is a clear error), and the lacrimal
     film follows the whites. ``whites=False``: no estimate."""
     from hack_render.errors import HackError
+    from hack_render.fit import final as final_stage
     from hack_render.fit import iris, outputs, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB, LACRIMAL_RGB, SCLERA_RGB, fixed_bsdfs
     from hack_render.render.skin_maps import IRIS_FILE, read_eye_file, read_texture_folder
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=yaw)
-    v = f.views[0]
+    v = f.state.views[0]
     truth = truth or tuple(k * np.asarray(SCLERA_RGB))
     iris_truth = tuple(min(k, 1.0) * np.asarray(DEFAULT_IRIS_RGB))
     shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
@@ -109,11 +111,11 @@ def test_02_eye_whites_are_recovered_from_the_photo(model, tmp_path, yaw, k, tru
     assert np.abs(np.log(np.asarray(SCLERA_RGB) / truth)).max() > 0.2   # the fit moved it
     assert abs(rep["eye_gloss"] - min(k, 1.0)) < 0.1
     np.testing.assert_allclose(rgb, iris_truth, rtol=0.25)
-    final = outputs.FinalRenders(f)
+    final = final_stage.run(f.state, f.cfg)
     assert final.maps.sclera_rgb == pytest.approx(rep["sclera_rgb"], rel=0.05)
     assert final.maps.eye_gloss == pytest.approx(rep["eye_gloss"], abs=0.05)
     assert abs(final.report["iris"]["sclera_residual"] - 1.0) < 0.08
-    written = outputs.write_textures(f, tmp_path / "textures", final)
+    written = outputs.write_textures(f.state, tmp_path / "textures", final)
     assert tmp_path / "textures" / IRIS_FILE in written
     back = read_texture_folder(tmp_path / "textures")
     assert (back.sclera_rgb, back.eye_gloss) == (final.maps.sclera_rgb, final.maps.eye_gloss)
@@ -146,7 +148,7 @@ def test_03_a_dark_iris_under_a_duller_gloss_keeps_its_colour(model):
     from hack_render.render.materials import SCLERA_RGB
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     brown = (0.08, 0.04, 0.02)
     shot = texture.render_at_photo(f.state, cfg, v, maps=dataclasses.replace(
         true_maps, sclera_rgb=tuple(SCLERA_RGB), iris_rgb=brown, eye_gloss=0.2))

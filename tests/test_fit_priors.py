@@ -42,7 +42,7 @@ def smile():
 
 
 def _mouth_nme(f, view):
-    v = f.views[0]
+    v = f.state.views[0]
     with torch.no_grad():
         pred = f.project(v, f.forward(v).landmarks[0]).numpy()
     lm = view[1].points

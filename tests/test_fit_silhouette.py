@@ -210,7 +210,7 @@ def test_04_outer_contour_and_recovery(subject):
     err = {}
     for name, f in (("with", with_sil), ("without", without)):
         with torch.no_grad():
-            rest = model(beta=f.beta, psi=f.psi).vertices[0][:9409].numpy()
+            rest = model(beta=f.state.beta, psi=f.state.psi).vertices[0][:9409].numpy()
         err[name] = similarity_error(rest, true)
     assert err["with"] < 0.9 * err["without"], err
 
@@ -233,7 +233,7 @@ def test_04c_a_mask_cut_by_an_object_in_front_of_the_face_is_dropped(subject):
     res = {}
     for check in (False, True):
         f = _fit(model, (photo, det), cut, "auto", check=check)
-        v = f.views[0]
+        v = f.state.views[0]
         res[check] = (landmark_residual_iod(v, fitted_points(f.state, f.cfg, v)), v)
     names = [r.name for r in f.reports]   # "shape" is the run kept, without the mask
     assert names.count("shape") == 1 and "shape (with the masks, not kept)" in names, names

@@ -29,7 +29,7 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     from hack_render.fit.photo import Photo
 
     f, cfg, true_maps, prior, truth = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5  # a grey backdrop
     v.photo = Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
@@ -81,7 +81,7 @@ def test_02_occluder_is_rejected(model):
     from hack_render.fit.photo import Photo
 
     f, cfg, true_maps, _, truth = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     pts = v.detection.points
@@ -108,7 +108,7 @@ def _frontal_truth_photo(model):
     from hack_render.fit import texture
 
     fitter, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = fitter.views[0]
+    v = fitter.state.views[0]
     pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
     v.photo = photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
     h, w = pr.rgba.shape[:2]
@@ -123,7 +123,7 @@ def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
     from hack_render.fit import texture
 
     f, cfg, true_maps, prior, truth = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
@@ -156,7 +156,7 @@ def test_04_brows_and_lids_are_baked(model):
     from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     assert rgb.shape[:2] == (160, 160)
@@ -196,7 +196,7 @@ def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):
     from hack_render.fit import texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     v.photo = photo_of(rgb)
@@ -231,11 +231,11 @@ def test_07_overlay_shows_render_png_in_the_level_frame(model):
     from hack_render.fit.photometric import setup_level
 
     f, cfg, _, _, _ = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     setup_level(f.state, cfg, v, 64)
     final = SimpleNamespace(renders=[texture.render_at_photo(f.state, cfg, v)])
     warped = outputs._final_in_level(final, 0, v)
-    own = outputs._final_render(f, v)
+    own = outputs._final_render(f.state, v)
     assert warped.shape == own.shape == (64, 64, 4)
     a, b = warped[..., 3] > 0.5, own[..., 3] > 0.5
     assert (a & b).sum() / (a | b).sum() > 0.95
@@ -309,7 +309,7 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
     pts = v.detection.points
@@ -410,7 +410,7 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     # through the bake's pixel weights: the photo of the truth, darkened beside a
     # rectangle of occluder on the forehead as a fringe's shadow would
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
@@ -488,7 +488,7 @@ def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(mod
     from hack_render.fit import bake_weights, texture
 
     f, cfg, _, _, _, _ = _frontal_truth_photo(model)
-    v = f.views[0]
+    v = f.state.views[0]
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
     x0, y0 = int(pts[2, 0]) + 6, int(pts[29, 1]) - 4

@@ -350,6 +350,10 @@ class FinalConfig:
     # (fit/specular_bake.py), one more render per view. Off: the fitted light's error is
     # read as gloss (docs/fit.md)
     specular: bool = False
+    # the iris's and the whites' colours (fit/iris.py) from the render's iris and whites
+    # where the photo's own are (MediaPipe's face mesh with its iris landmarks: the pixels
+    # of both), else from the render's alone (photo luminance percentiles): off, the latter
+    photo_irises: bool = True
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
