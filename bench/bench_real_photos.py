@@ -599,6 +599,70 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
     return row
 
 
+def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Path) -> dict:
+    """The final stage (``fit/final.py``) run again on a kept fit (``fit_dir``: its
+    ``params.npz`` and ``fit_report.json``) with the config's defaults and ``overrides``:
+    the fitted state rebuilt (the photo read as the fit read it, its segmentation redone,
+    the fitted parameters, camera and environment map set), the stage run, its
+    ``render_over_photo.png`` written to ``out`` and scored as :func:`score_fit`'s
+    ``mesh``. What changes the final stage alone (its eyes, its bake) is compared so on
+    the same fit, without the fit's own run-to-run differences."""
+    import imageio.v3 as iio
+    import torch
+    from skimage.transform import resize
+
+    from hack_render.fit import final as final_stage
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import init_state
+    from hack_render.fit.lighting import Lighting
+    from hack_render.fit.outputs import write_photo_renders
+    from hack_render.fit.photo import load_photo
+    from hack_render.vision.detection import Detection
+
+    npz = np.load(fit_dir / "params.npz")
+    report = json.loads((fit_dir / "fit_report.json").read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{name}.png"
+        iio.imwrite(path, img)
+        photo = load_photo(path)
+    pts = np.asarray(npz["view0_landmarks_detected"], np.float64)
+    det = Detection(pts, (*pts.min(0), *pts.max(0)), 1,
+                    report["views"][0].get("landmark_source", "dlib"),
+                    raw=npz["view0_landmarks_dlib"] if "view0_landmarks_dlib" in npz else None)
+    cfg = load_config(None, overrides)
+    state = init_state([photo], [det], cfg)
+    v = state.views[0]
+    t = lambda k: torch.as_tensor(np.asarray(npz[k]), dtype=torch.float32)  # noqa: E731
+    with torch.no_grad():
+        for k in ("beta", "psi", "alpha", "eta", "tau"):
+            getattr(state, k).copy_(t(k).reshape(getattr(state, k).shape))
+        v.head_angles.zero_()
+        v.dtheta.copy_(t("view0_theta").reshape(8, 3))
+        v.global_orient.copy_(t("view0_global_orient"))
+        v.transl.copy_(t("view0_t"))
+        v.log_focal.fill_(float(np.log(npz["view0_K"][0][0])))
+    env = np.asarray(npz["view0_env_map"], np.float32)
+    v.lighting = Lighting("env", env.shape[0])
+    with torch.no_grad():
+        v.lighting.log_texels.copy_(torch.log(torch.from_numpy(env).clamp_min(1e-6)))
+    t0 = time.time()
+    fin = final_stage.run(state, cfg)
+    row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
+                 "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
+                                                       "rgb", "sclera_rgb", "eye_gloss")}}
+    out.mkdir(parents=True, exist_ok=True)
+    write_photo_renders(SimpleNamespace(views=state.views), fin, out)
+    over = np.asarray(iio.imread(out / "render_over_photo.png"))[..., :3]
+    h, w = over.shape[:2]
+    ph = img if (h, w) == img.shape[:2] else (
+        resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+        .round().astype(np.uint8))
+    mesh = oval_regions(img, (h, w))
+    if mesh is not None:
+        row["mesh"] = score_over_photo(ph, over, mesh)
+    return row
+
+
 def _r(x, nd=2):
     return None if x is None else round(float(x), nd)
 
@@ -619,6 +683,41 @@ def fit_summary(real: dict) -> dict:
         out["median_seconds"] = float(np.median(secs))
         out["max_seconds"] = float(np.max(secs))
     return out
+
+
+def run_refinal(a) -> None:
+    """``--refinal``: each kept fit's final stage again per overrides (:func:`refinal`)."""
+    warnings.filterwarnings("ignore")
+    photos = dict(real_photos(a.more_photos))
+    if a.annotated:
+        photos |= {n: img for n, (img, _) in annotated_photos(a.annotated).items()}
+    names = a.photos.split(",") if a.photos else sorted(photos)
+    t0 = time.time()
+    result: dict = {"fit_out": a.fit_out, "refinal": [json.loads(x) for x in a.refinal],
+                    "real": {}}
+    for name in names:
+        fit_dir = Path(a.fit_out) / name
+        if not (fit_dir / "params.npz").is_file():
+            continue
+        runs = []
+        for k, over in enumerate(result["refinal"]):
+            row = refinal(name, photos[name], fit_dir, over,
+                          Path(a.fit_out) / f"{name}_refinal{k}")
+            m = row.get("mesh", {})
+            print(name, k, over, "oval", _r(m.get("oval_psnr_db")), "eyes",
+                  _r(m.get("eyes_psnr_db")), "mouth", _r(m.get("mouth_psnr_db")),
+                  "iris", row["iris"].get("rgb"), row["final_s"], "s", flush=True)
+            runs.append(row)
+        result["real"][name] = {"refinal": runs}
+    for k in range(len(result["refinal"])):
+        for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim", "eyes_ssim"):
+            v = [r["refinal"][k]["mesh"][key] for r in result["real"].values()
+                 if key in r["refinal"][k].get("mesh", {})]
+            if v:
+                result.setdefault("median", {}).setdefault(str(k), {})[key] = float(np.median(v))
+    result["seconds"] = round(time.time() - t0, 1)
+    write_result(a.out, result)
+    print("median", result.get("median"))
 
 
 def main(argv=None) -> None:
@@ -648,6 +747,11 @@ def main(argv=None) -> None:
     ap.add_argument("--fit-option", action="append", default=[], metavar="OPT",
                     help="one more option for every fit, as it is (repeatable; e.g. "
                          "--fit-option=--no-refine)")
+    ap.add_argument("--refinal", action="append", default=[], metavar="JSON",
+                    help="with --fit-out (fits kept there): run each kept fit's final stage "
+                         "again with these config overrides (JSON, e.g. "
+                         "'{\"final\": {\"photo_irises\": false}}'; repeatable: one run each) and "
+                         "score it (real['NAME']['refinal'], no fitting)")
     ap.add_argument("--mirror", action="store_true",
                     help="with --annotated: also each annotated photo mirrored (NAME_mirrored)")
     ap.add_argument("--photos", default=None,
@@ -664,6 +768,10 @@ def main(argv=None) -> None:
         a.seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
     except ValueError:
         ap.error(f"--seeds: expected integers like 9000,9001, found {a.seeds!r}")
+    if a.refinal:
+        if not a.fit_out:
+            ap.error("--refinal: expected --fit-out (the kept fits)")
+        return run_refinal(a)
     if a.score_only and not (a.fit and a.fit_out):
         ap.error("--score-only: expected --fit and --fit-out (the fits to score)")
     warnings.filterwarnings("ignore")

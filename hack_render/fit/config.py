@@ -354,6 +354,10 @@ class FinalConfig:
     # where the photo's own are (MediaPipe's face mesh with its iris landmarks: the pixels
     # of both), else from the render's alone (photo luminance percentiles): off, the latter
     photo_irises: bool = True
+    # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
+    # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
+    # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
+    strands: float = 0.0
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
@@ -533,7 +537,8 @@ class FitConfig:
                             f"{fc.eye_hole!r}.")
         for key, hi, unit in (("edge_feather", 32, "photo pixels' footprints"),
                               ("occluder_shadow", 1, "of the eyes' corner distance"),
-                              ("occluder_margin", 1, "of the eyes' corner distance")):
+                              ("occluder_margin", 1, "of the eyes' corner distance"),
+                              ("strands", 0.2, "of the eyes' corner distance")):
             x = getattr(fc, key)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
                 raise HackError(f"config final.{key}: expected 0..{hi} ({unit}), found {x!r}.")
