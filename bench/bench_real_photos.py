@@ -628,11 +628,13 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     pts = np.asarray(npz["view0_landmarks_detected"], np.float64)
     det = Detection(pts, (*pts.min(0), *pts.max(0)), 1,
                     report["views"][0].get("landmark_source", "dlib"),
-                    raw=npz["view0_landmarks_dlib"] if "view0_landmarks_dlib" in npz else None)
+                    raw=npz.get("view0_landmarks_dlib", None))
     cfg = load_config(None, overrides)
     state = init_state([photo], [det], cfg)
     v = state.views[0]
-    t = lambda k: torch.as_tensor(np.asarray(npz[k]), dtype=torch.float32)  # noqa: E731
+    def t(k):
+        return torch.as_tensor(np.asarray(npz[k]), dtype=torch.float32)
+
     with torch.no_grad():
         for k in ("beta", "psi", "alpha", "eta", "tau"):
             getattr(state, k).copy_(t(k).reshape(getattr(state, k).shape))
@@ -651,7 +653,7 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
                  "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
                                                        "rgb", "sclera_rgb", "eye_gloss")}}
     out.mkdir(parents=True, exist_ok=True)
-    write_photo_renders(SimpleNamespace(views=state.views), fin, out)
+    write_photo_renders(SimpleNamespace(views=state.views, config=cfg), fin, out)
     over = np.asarray(iio.imread(out / "render_over_photo.png"))[..., :3]
     h, w = over.shape[:2]
     ph = img if (h, w) == img.shape[:2] else (

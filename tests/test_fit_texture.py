@@ -502,3 +502,52 @@ def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(mod
     rendered = pr.rgba[..., 3] > 0.999
     rim = rendered & ~binary_erosion(rendered, iterations=2)
     assert (wgt[rim] == 0).all()
+
+
+def test_15_hair_strands_across_the_skin_are_not_baked(model):
+    """Three dark strands 2 px wide (hair over the forehead, a cheek and an eye) pasted
+    over a photo of a known skin (the model's own map A(alpha): what the bake falls back
+    on is right, so the error under the strands is the bake's alone). With
+    ``final.strands`` (thin dark lines left out, bake_weights.thin_dark_lines) the texels
+    under them come back within 6 % of the truth in the mean; without it the strands the
+    robust test leaves (on the brows, lids and lips, kept as the photo has them, and their
+    edges) are baked as darker streaks (measured: 0.86 of the truth on a patterned skin).
+    A photo without strands bakes the same with it on."""
+    from hack_render.fit import texture
+
+    f, cfg, _, prior, _ = texture_fitter(model, yaw=0.0, res=256)
+    v = f.state.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v)       # the skin A(alpha) is the truth
+    clean = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    pts = v.detection.points
+    occ = np.zeros(clean.shape[:2], bool)
+    for (a, da), (b, db) in (((17, 0), (8, 0)), ((19, -20), (31, 0)), ((24, -20), (14, 0))):
+        p0, p1 = pts[a] + [0, da], pts[b] + [0, db]
+        rr = np.round(np.linspace(p0[1], p1[1], 400)).astype(int)
+        cc = np.round(np.linspace(p0[0], p1[0], 400)).astype(int)
+        for d in (0, 1):
+            ok = (rr + d >= 0) & (rr + d < occ.shape[0]) & (cc >= 0) & (cc < occ.shape[1])
+            occ[rr[ok] + d, cc[ok]] = True
+    occ &= shot.rgba[..., 3] > 0.99
+    rgb = clean.copy()
+    rgb[occ] = [0.03, 0.02, 0.015]
+    pr = texture.render_at_photo(f.state, cfg, v)
+    H = cfg.final.atlas_height
+    uv = pr.gbuffer["uv"][occ]
+    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+    yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    truth = prior[yi, xi]
+    out = {}
+    for strands in (0.0, 0.03):
+        cfg.final.strands = strands
+        for name, photo in (("strands", rgb), ("clean", clean)):
+            v.photo = photo_of(photo)
+            bk = texture.bake_diffuse(f.state, cfg, [pr])
+            out[strands, name] = bk
+    under = {k: float(bk.diffuse[yi, xi].mean() / truth.mean()) for k, bk in out.items()}
+    print("baked / truth under the strands", under)
+    assert abs(under[0.03, "strands"] - 1.0) < 0.06, under
+    assert under[0.0, "strands"] < under[0.03, "strands"] - 0.02, under   # streaks
+    seen = out[0.0, "clean"].confidence > 0.9
+    a, b = out[0.0, "clean"].diffuse[seen], out[0.03, "clean"].diffuse[seen]
+    assert np.abs(a - b).mean() < 0.01 * a.mean(), np.abs(a - b).mean()

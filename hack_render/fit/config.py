@@ -358,6 +358,10 @@ class FinalConfig:
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
     strands: float = 0.0
+    # render_over_photo.png keeps the photo's hair and occluders (the segmentation's) in
+    # front of the render (outputs.photo_layer): the model has no hair, so a fringe is the
+    # person's, not the model's bare forehead; render.png is the model alone either way
+    photo_hair: bool = True
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):

@@ -39,6 +39,9 @@ the whites are held within :data:`SCLERA_BOUNDS`. The report says which.
 
 from __future__ import annotations
 
+import warnings
+from collections import defaultdict
+
 import numpy as np
 
 from hack_render.fit import texture
@@ -67,7 +70,7 @@ IRIS_ANNULUS = (0.35, 0.9)
 WHITES_BEYOND = 1.25
 #: The photo's own iris pixels (:func:`photo_eyes`) under the render's iris: luminance
 #: percentiles kept (the brightest tenth: catchlights).
-PERSON_PERCENTILES = (0.0, 90.0)
+PERSON_PERCENTILES = (10.0, 75.0)
 #: The face mesh with iris landmarks is run on the detection's box grown by this much of
 #: its size on each side (a small face in a large photo is found there).
 EYE_CROP_GROW = 0.6
@@ -79,8 +82,6 @@ def _iris_mesh():
     468-472 and 473-477 the irises' centres and four rim points each; the models are in
     the mediapipe wheel)."""
     if "mesh" not in _MESH:
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             import mediapipe as mp
@@ -124,8 +125,6 @@ def mesh_loops(name: str) -> list:
     """A face-mesh connection set (MediaPipe's ``FACEMESH_*``) as its closed loops of
     point ids, longest first: the sets are undirected edges (an eye's is two lids' polylines
     from corner to corner; the lips' two such loops, outer and inner)."""
-    from collections import defaultdict
-
     from mediapipe.python.solutions import face_mesh_connections as fmc
 
     adj = defaultdict(set)

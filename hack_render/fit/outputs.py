@@ -13,6 +13,7 @@ from PIL import Image
 from appearance.texture_io import write_exr, write_png
 from hack_render.boundary import clean_temporaries as clean
 from hack_render.fit import terms
+from hack_render.fit.bake_weights import mask_at
 from hack_render.fit.camera import focal_prior_px
 from hack_render.fit.final import FinalRenders
 from hack_render.fit.fitter import R0, SENSOR_MM, FitResult
@@ -225,9 +226,27 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None, *legacy) 
     return written
 
 
+def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
+    """(h, w) float in [0, 1]: what of the photo stays in front of the render in
+    ``render_over_photo.png`` (``final.photo_hair``): the segmentation's hair and occluders
+    (hands, glasses' frames), the model having no hair, at the render's size, their edge
+    softened by a Gaussian of ``soft`` px; None where the view has no segmentation."""
+    from scipy.ndimage import gaussian_filter
+
+    masks = [m for m in (v.hair, v.occluder) if m is not None]
+    if not masks:
+        return None
+    m = np.zeros((h, w), bool)
+    for mk in masks:
+        m |= mask_at(mk, h, w)
+    return np.clip(gaussian_filter(m.astype(np.float32), soft), 0.0, 1.0)
+
+
 def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> list[Path]:
     """``render.png`` (the fit re-rendered with the baked skin at the photo's size, over a
-    transparent background), ``render_over_photo.png`` (over the photo), and
+    transparent background), ``render_over_photo.png`` (over the photo; with
+    ``final.photo_hair`` the photo's hair and occluders stay in front: the model has no
+    hair, and a fringe over the forehead is the person's, not the model's bare skin), and
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
     skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
     gets grey renders (their luminance): it says nothing of the skin's colour."""
@@ -247,7 +266,11 @@ def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> li
         photo = v.photo.linear()
         if photo.shape[:2] != (h, w):
             photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
-        over = to_srgb8(rgba[..., :3] + (1.0 - a) * photo, 0.0, "clip")
+        over = rgba[..., :3] + (1.0 - a) * photo
+        layer = photo_layer(v, h, w) if res.config.final.photo_hair else None
+        if layer is not None:
+            over = layer[..., None] * photo + (1.0 - layer[..., None]) * over
+        over = to_srgb8(over, 0.0, "clip")
         occ = np.round(255 * np.clip(final.baked.pixel_weights[i], 0, 1)).astype(np.uint8)
         for name, arr in ((f"render{sfx}.png", img), (f"render_over_photo{sfx}.png", over),
                           (f"occlusion{sfx}.png", occ)):
