@@ -64,8 +64,12 @@ detector's, independent of dlib; chin and inner points, outer-eye distance).
 MediaPipe's 468-point face mesh found on the photo: ``oval_*`` the face oval (forehead to
 chin, cheek to cheek; eyes, brows, nose and mouth included; hair or hands over the face
 count against the fit), ``eyes_*`` the two lid contours, ``mouth_*`` the lips' outer
-contour; each its PSNR (dB) and mean SSIM; ``fit_summary``: their medians and least over
-the photos, and the fits' median and longest wall time.
+contour; each its PSNR (dB) and mean SSIM; ``mesh_model``: the same of ``render.png``
+composited over the photo (the model alone, without the photo's hair and occluders that
+``render_over_photo.png`` keeps in front, ``final.photo_hair``); ``fit_summary``: their
+medians and least over the photos, and the fits' median and longest wall time.
+``--refinal JSON``: each kept fit's final stage run again with config overrides, scored
+the same (what the final stage alone changes, on the same fits).
 ``--real-only`` skips the composites.
 """
 
@@ -411,6 +415,20 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     return out
 
 
+def model_over_photo(rgba8: np.ndarray, photo8: np.ndarray) -> np.ndarray:
+    """``render.png`` (straight sRGB colour and alpha) over the photo, in linear light:
+    the model alone, without what ``render_over_photo.png`` keeps of the photo in front
+    (``final.photo_hair``)."""
+    import colour
+
+    a = rgba8[..., 3:4].astype(np.float64) / 255.0
+    def lin(x):
+        return colour.cctf_decoding(x.astype(np.float64) / 255.0, "sRGB")
+
+    out = lin(rgba8[..., :3]) * a + lin(photo8) * (1 - a)
+    return np.round(255 * np.clip(colour.cctf_encoding(out, "sRGB"), 0, 1)).astype(np.uint8)
+
+
 def score_over_photo(photo: np.ndarray, over: np.ndarray, regions: dict) -> dict:
     """``render_over_photo.png`` against the photo over the face mesh's regions
     (:func:`oval_regions`): per region its pixels, PSNR (dB, 8-bit sRGB) and mean SSIM
@@ -565,6 +583,10 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
         mesh = oval_regions(img, (h, w))
         if mesh is not None:
             row["mesh"] = score_over_photo(photo, over, mesh)
+            if (out / "render.png").is_file():   # the model alone over the photo
+                row["mesh_model"] = score_over_photo(
+                    photo, model_over_photo(np.asarray(iio.imread(out / "render.png")), photo),
+                    mesh)
     render = out / "render.png"
     regions = face_region(img) if render.is_file() else None
     if regions is None:
@@ -599,23 +621,17 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
     return row
 
 
-def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Path) -> dict:
-    """The final stage (``fit/final.py``) run again on a kept fit (``fit_dir``: its
-    ``params.npz`` and ``fit_report.json``) with the config's defaults and ``overrides``:
-    the fitted state rebuilt (the photo read as the fit read it, its segmentation redone,
-    the fitted parameters, camera and environment map set), the stage run, its
-    ``render_over_photo.png`` written to ``out`` and scored as :func:`score_fit`'s
-    ``mesh``. What changes the final stage alone (its eyes, its bake) is compared so on
-    the same fit, without the fit's own run-to-run differences."""
+def kept_state(name: str, img: np.ndarray, fit_dir: Path, overrides: dict):
+    """(FitState, FitConfig) of a kept fit (``fit_dir``: its ``params.npz`` and
+    ``fit_report.json``) rebuilt: the photo read as the fit read it, its segmentation
+    redone, the fitted parameters, camera and environment map set; the config the
+    defaults with ``overrides``."""
     import imageio.v3 as iio
     import torch
-    from skimage.transform import resize
 
-    from hack_render.fit import final as final_stage
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import init_state
     from hack_render.fit.lighting import Lighting
-    from hack_render.fit.outputs import write_photo_renders
     from hack_render.fit.photo import load_photo
     from hack_render.vision.detection import Detection
 
@@ -632,6 +648,7 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     cfg = load_config(None, overrides)
     state = init_state([photo], [det], cfg)
     v = state.views[0]
+
     def t(k):
         return torch.as_tensor(np.asarray(npz[k]), dtype=torch.float32)
 
@@ -647,6 +664,51 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     v.lighting = Lighting("env", env.shape[0])
     with torch.no_grad():
         v.lighting.log_texels.copy_(torch.log(torch.from_numpy(env).clamp_min(1e-6)))
+    return state, cfg
+
+
+def recomposite(name: str, img: np.ndarray, fit_dir: Path) -> dict:
+    """A kept fit's ``render.png`` over the photo with the photo's hair and occluders in
+    front (``outputs.photo_layer``, as ``render_over_photo.png`` with
+    ``final.photo_hair``), scored as :func:`score_fit`'s ``mesh``, for fits made before
+    that option: no render again, the segmentation redone."""
+    import imageio.v3 as iio
+    from skimage.transform import resize
+
+    from hack_render.fit.outputs import photo_layer
+
+    state, _ = kept_state(name, img, fit_dir, {})
+    rgba = np.asarray(iio.imread(fit_dir / "render.png"))
+    h, w = rgba.shape[:2]
+    ph = img if (h, w) == img.shape[:2] else (
+        resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+        .round().astype(np.uint8))
+    model = model_over_photo(rgba, ph).astype(np.float64)
+    layer = photo_layer(state.views[0], h, w)
+    over = model if layer is None else layer[..., None] * ph + (1 - layer[..., None]) * model
+    over = np.round(over).astype(np.uint8)
+    mesh = oval_regions(img, (h, w))
+    if mesh is None:
+        return {}
+    return {"mesh": score_over_photo(ph, over, mesh),
+            "mesh_model": score_over_photo(ph, model.astype(np.uint8), mesh)}
+
+
+def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Path) -> dict:
+    """The final stage (``fit/final.py``) run again on a kept fit (``fit_dir``: its
+    ``params.npz`` and ``fit_report.json``) with the config's defaults and ``overrides``:
+    the fitted state rebuilt (the photo read as the fit read it, its segmentation redone,
+    the fitted parameters, camera and environment map set), the stage run, its
+    ``render_over_photo.png`` written to ``out`` and scored as :func:`score_fit`'s
+    ``mesh``. What changes the final stage alone (its eyes, its bake) is compared so on
+    the same fit, without the fit's own run-to-run differences."""
+    import imageio.v3 as iio
+    from skimage.transform import resize
+
+    from hack_render.fit import final as final_stage
+    from hack_render.fit.outputs import write_photo_renders
+
+    state, cfg = kept_state(name, img, fit_dir, overrides)
     t0 = time.time()
     fin = final_stage.run(state, cfg)
     row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
@@ -662,6 +724,8 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     mesh = oval_regions(img, (h, w))
     if mesh is not None:
         row["mesh"] = score_over_photo(ph, over, mesh)
+        row["mesh_model"] = score_over_photo(
+            ph, model_over_photo(np.asarray(iio.imread(out / "render.png")), ph), mesh)
     return row
 
 
@@ -674,17 +738,48 @@ def fit_summary(real: dict) -> dict:
     (:func:`score_over_photo`) and the fits' median and longest wall time."""
     rows = [r["fit"] for r in real.values() if "fit" in r]
     out: dict = {"n": len(rows)}
-    for k in ("oval_psnr_db", "oval_ssim", "eyes_psnr_db", "eyes_ssim", "mouth_psnr_db",
-              "mouth_ssim"):
-        v = [f["mesh"][k] for f in rows if k in f.get("mesh", {})]
-        if v:
-            out[f"median_{k}"] = float(np.median(v))
-            out[f"min_{k}"] = float(np.min(v))
+    for which, pre in (("mesh", ""), ("mesh_model", "model_")):
+        for k in ("oval_psnr_db", "oval_ssim", "eyes_psnr_db", "eyes_ssim", "mouth_psnr_db",
+                  "mouth_ssim"):
+            v = [f[which][k] for f in rows if k in f.get(which, {})]
+            if v:
+                out[f"median_{pre}{k}"] = float(np.median(v))
+                out[f"min_{pre}{k}"] = float(np.min(v))
     secs = [f["seconds"] for f in rows if f.get("seconds") is not None]
     if secs:
         out["median_seconds"] = float(np.median(secs))
         out["max_seconds"] = float(np.max(secs))
     return out
+
+
+def run_recomposite(a) -> None:
+    """``--recomposite``: each kept fit's ``render.png`` with the photo's hair and
+    occluders in front (:func:`recomposite`)."""
+    warnings.filterwarnings("ignore")
+    photos = dict(real_photos(a.more_photos))
+    if a.annotated:
+        photos |= {n: img for n, (img, _) in annotated_photos(a.annotated).items()}
+    names = a.photos.split(",") if a.photos else sorted(photos)
+    result: dict = {"fit_out": a.fit_out, "recomposite": True, "real": {}}
+    for name in names:
+        fit_dir = Path(a.fit_out) / name
+        if not (fit_dir / "render.png").is_file():
+            continue
+        row = recomposite(name, photos[name], fit_dir)
+        result["real"][name] = row
+        m, mm = row.get("mesh", {}), row.get("mesh_model", {})
+        print(name, "with the photo's hair: oval", _r(m.get("oval_psnr_db")), "eyes",
+              _r(m.get("eyes_psnr_db")), "mouth", _r(m.get("mouth_psnr_db")),
+              "| model alone: oval", _r(mm.get("oval_psnr_db")), "eyes",
+              _r(mm.get("eyes_psnr_db")), "mouth", _r(mm.get("mouth_psnr_db")), flush=True)
+    for which in ("mesh", "mesh_model"):
+        for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim"):
+            v = [r[which][key] for r in result["real"].values() if key in r.get(which, {})]
+            if v:
+                result.setdefault("median", {})[f"{which}_{key}"] = float(np.median(v))
+                result.setdefault("min", {})[f"{which}_{key}"] = float(np.min(v))
+    write_result(a.out, result)
+    print("median", result.get("median"), "min", result.get("min"))
 
 
 def run_refinal(a) -> None:
@@ -706,17 +801,23 @@ def run_refinal(a) -> None:
             row = refinal(name, photos[name], fit_dir, over,
                           Path(a.fit_out) / f"{name}_refinal{k}")
             m = row.get("mesh", {})
+            mm = row.get("mesh_model", {})
             print(name, k, over, "oval", _r(m.get("oval_psnr_db")), "eyes",
                   _r(m.get("eyes_psnr_db")), "mouth", _r(m.get("mouth_psnr_db")),
+                  "| model alone: oval", _r(mm.get("oval_psnr_db")), "eyes",
+                  _r(mm.get("eyes_psnr_db")), "mouth", _r(mm.get("mouth_psnr_db")),
                   "iris", row["iris"].get("rgb"), row["final_s"], "s", flush=True)
             runs.append(row)
         result["real"][name] = {"refinal": runs}
     for k in range(len(result["refinal"])):
-        for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim", "eyes_ssim"):
-            v = [r["refinal"][k]["mesh"][key] for r in result["real"].values()
-                 if key in r["refinal"][k].get("mesh", {})]
-            if v:
-                result.setdefault("median", {}).setdefault(str(k), {})[key] = float(np.median(v))
+        for which in ("mesh", "mesh_model"):
+            for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim",
+                        "eyes_ssim", "mouth_ssim"):
+                v = [r["refinal"][k][which][key] for r in result["real"].values()
+                     if key in r["refinal"][k].get(which, {})]
+                if v:
+                    result.setdefault("median", {}).setdefault(str(k), {})[
+                        f"{which}_{key}"] = float(np.median(v))
     result["seconds"] = round(time.time() - t0, 1)
     write_result(a.out, result)
     print("median", result.get("median"))
@@ -754,6 +855,9 @@ def main(argv=None) -> None:
                          "again with these config overrides (JSON, e.g. "
                          "'{\"final\": {\"photo_irises\": false}}'; repeatable: one run each) and "
                          "score it (real['NAME']['refinal'], no fitting)")
+    ap.add_argument("--recomposite", action="store_true",
+                    help="with --fit-out: each kept fit's render.png over the photo with the "
+                         "photo's hair and occluders in front (final.photo_hair), scored")
     ap.add_argument("--mirror", action="store_true",
                     help="with --annotated: also each annotated photo mirrored (NAME_mirrored)")
     ap.add_argument("--photos", default=None,
@@ -770,6 +874,10 @@ def main(argv=None) -> None:
         a.seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
     except ValueError:
         ap.error(f"--seeds: expected integers like 9000,9001, found {a.seeds!r}")
+    if a.recomposite:
+        if not a.fit_out:
+            ap.error("--recomposite: expected --fit-out (the kept fits)")
+        return run_recomposite(a)
     if a.refinal:
         if not a.fit_out:
             ap.error("--refinal: expected --fit-out (the kept fits)")

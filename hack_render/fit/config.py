@@ -352,8 +352,10 @@ class FinalConfig:
     specular: bool = False
     # the iris's and the whites' colours (fit/iris.py) from the render's iris and whites
     # where the photo's own are (MediaPipe's face mesh with its iris landmarks: the pixels
-    # of both), else from the render's alone (photo luminance percentiles): off, the latter
-    photo_irises: bool = True
+    # of both), else from the render's alone (photo luminance percentiles). Off by
+    # default: on the astronaut it took her brown iris to near black, eyes -0.3 dB
+    # (docs/fit.md)
+    photo_irises: bool = False
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)

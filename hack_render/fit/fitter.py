@@ -186,7 +186,7 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # the skin inside the face mesh's oval: hair of a skin-like colour and the
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
-        view.hair = seg.hair
+        view.hair, view.clothes = seg.hair, seg.clothes
     if m is not None and mask_problem(m) is not None:  # no outline in the photo to fit
         m, why = None, f"the plain background's mask has {mask_problem(m)}"
     if m is None and cfg.silhouette.segment:

@@ -70,7 +70,7 @@ IRIS_ANNULUS = (0.35, 0.9)
 WHITES_BEYOND = 1.25
 #: The photo's own iris pixels (:func:`photo_eyes`) under the render's iris: luminance
 #: percentiles kept (the brightest tenth: catchlights).
-PERSON_PERCENTILES = (10.0, 75.0)
+PERSON_PERCENTILES = (0.0, 90.0)
 #: The face mesh with iris landmarks is run on the detection's box grown by this much of
 #: its size on each side (a small face in a large photo is found there).
 EYE_CROP_GROW = 0.6

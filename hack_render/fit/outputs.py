@@ -13,7 +13,7 @@ from PIL import Image
 from appearance.texture_io import write_exr, write_png
 from hack_render.boundary import clean_temporaries as clean
 from hack_render.fit import terms
-from hack_render.fit.bake_weights import mask_at
+from hack_render.fit.bake_weights import feature_rings, mask_at
 from hack_render.fit.camera import focal_prior_px
 from hack_render.fit.final import FinalRenders
 from hack_render.fit.fitter import R0, SENSOR_MM, FitResult
@@ -226,19 +226,38 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None, *legacy) 
     return written
 
 
+#: :func:`photo_layer` leaves out the eyes' landmark rings scaled by this (the lids too)
+#: and the outer lips' ring scaled by PHOTO_LAYER_LIPS
+PHOTO_LAYER_EYES = 1.6
+PHOTO_LAYER_LIPS = 1.25
+
+
 def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
     """(h, w) float in [0, 1]: what of the photo stays in front of the render in
-    ``render_over_photo.png`` (``final.photo_hair``): the segmentation's hair and occluders
-    (hands, glasses' frames), the model having no hair, at the render's size, their edge
-    softened by a Gaussian of ``soft`` px; None where the view has no segmentation."""
+    ``render_over_photo.png`` (``final.photo_hair``): the segmentation's hair, occluders
+    (hands, glasses' frames) and clothes (a collar over the neck), the model having no
+    hair and no clothes, without the eyes and the mouth
+    (the eyes' rings scaled :data:`PHOTO_LAYER_EYES`, the outer lips' by
+    :data:`PHOTO_LAYER_LIPS`), at the render's size,
+    their edge softened by a Gaussian of ``soft`` px; None where the view has no
+    segmentation."""
     from scipy.ndimage import gaussian_filter
+    from skimage.draw import polygon
 
-    masks = [m for m in (v.hair, v.occluder) if m is not None]
+    masks = [m for m in (v.hair, v.occluder, getattr(v, "clothes", None)) if m is not None]
     if not masks:
         return None
     m = np.zeros((h, w), bool)
     for mk in masks:
         m |= mask_at(mk, h, w)
+    # never the eyes or the mouth (the segmentation calls a dark iris, dark lips or the
+    # gaps between teeth occluders): those are the model's to show
+    pts = v.detection.points * (w / v.photo.width)
+    m &= ~feature_rings(pts, (h, w), eye_scale=PHOTO_LAYER_EYES)["eyes"]
+    lips = pts[48:60]
+    lips = lips.mean(0) + PHOTO_LAYER_LIPS * (lips - lips.mean(0))
+    rr, cc = polygon(lips[:, 1] - 0.5, lips[:, 0] - 0.5, (h, w))
+    m[rr, cc] = False
     return np.clip(gaussian_filter(m.astype(np.float32), soft), 0.0, 1.0)
 
 
