@@ -194,8 +194,8 @@ def test_04_outer_contour_and_recovery(subject):
     model, beta, (photo, det, mask) = subject
     with_sil = _fit(model, (photo, det), mask, "auto")
     without = _fit(model, (photo, det), mask, "off")
-    v = with_sil.views[0]
-    assert v.silhouette_note == "mask file" and without.views[0].silhouette is None
+    v = with_sil.state.views[0]
+    assert v.silhouette_note == "mask file" and without.state.views[0].silhouette is None
     pairs, t = v.sil_contour
     # the outer contour: points on mesh edges (zero crossings of n.v), on the face/neck
     # outline; contours hidden inside the footprint (the jaw's over the neck) left out

@@ -73,7 +73,7 @@ def test_01_three_quarter_camera_is_a_turned_body(model):
     assert abs(neck_yaw) < 12.0, neck_yaw
     assert torso_yaw > 18.0, torso_yaw
     old = _fit(model, [view])  # the default, camera.rotate "head"
-    old_yaw = float(torch.rad2deg(old.theta(old.views[0]).detach()[0, :, 1].sum()))
+    old_yaw = float(torch.rad2deg(old.theta(old.state.views[0]).detach()[0, :, 1].sum()))
     assert old_yaw > 20.0 and abs(neck_yaw) < 0.5 * old_yaw, (old_yaw, neck_yaw)
 
 

@@ -51,20 +51,20 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
     both, err_ab = fit(views)
     # one beta for both photos, pinned down by two viewpoints: better than either alone
     assert err_ab < min(err_a, err_b), (err_a, err_b, err_ab)
-    assert both.beta.shape == (1, 20) and len(both.views) == 2
+    assert both.state.beta.shape == (1, 20) and len(both.state.views) == 2
     # each view keeps its own neck pose: per-joint angles recovered per view (the bench's
     # neck joint error: mean over the 8 joints and 3 Euler angles), opposite yaws
     from hack_render.geometry.rotations import axis_angle_to_euler
     from hack_render.geometry.skeleton import distribute_head_rotation
 
-    for v, yaw in zip(both.views, (35.0, -35.0)):
+    for v, yaw in zip(both.state.views, (35.0, -35.0)):
         true = distribute_head_rotation(torch.deg2rad(torch.tensor([5.0, yaw, 0.0])))
         fit_ = both.theta(v).detach()[0]
         err = torch.rad2deg((axis_angle_to_euler(fit_) - axis_angle_to_euler(true)).abs()).mean()
         assert float(err) < 1.0, (yaw, float(err))
         assert float(fit_[:, 1].sum()) * yaw > 0
     # and both views' landmarks fit (normalised by the inter-ocular distance)
-    for v in both.views:
+    for v in both.state.views:
         with torch.no_grad():
             pred = both.project(v, both.forward(v).landmarks[0]).numpy()
         tgt = v.detection.points
