@@ -202,7 +202,7 @@ def test_04_outer_contour_and_recovery(subject):
     assert len(t) > 40 and bool(((t >= 0) & (t <= 1)).all())
     with torch.no_grad():
         out = with_sil.forward(v)
-        pts = with_sil.silhouette.points(out.vertices[0], pairs, t)
+        pts = with_sil.state.silhouette.points(out.vertices[0], pairs, t)
         d, ok = v.silhouette.distance(with_sil.project(v, pts))
     assert float(d[ok].abs().median()) < 1.0
     with torch.no_grad():
