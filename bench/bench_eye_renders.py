@@ -52,7 +52,7 @@ def main(argv=None) -> None:
     fitter = Fitter([ph], [det], load_config(None, {}), progress=False)
     fitter.fit_camera()
     fitter.fit_shape()
-    state, cfg, v = fitter.state, fitter.cfg, fitter.views[0]
+    state, cfg, v = fitter.state, fitter.cfg, fitter.state.views[0]
     v.lighting = Lighting("env", 8)       # uniform light (the photometric stage's start)
     with torch.no_grad():
         v.lighting.log_texels.fill_(0.0)

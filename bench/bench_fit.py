@@ -286,13 +286,13 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
             if oracle_lighting:
                 from hack_render.fit.lighting import Lighting
 
-                fitter.views[0].lighting = Lighting("env", 64)
+                fitter.state.views[0].lighting = Lighting("env", 64)
                 with torch.no_grad():
                     env = torch.from_numpy(rig_env_map(subj["rig"], 64))
-                    fitter.views[0].lighting.log_texels.copy_(torch.log(env.clamp_min(1e-4)))
+                    fitter.state.views[0].lighting.log_texels.copy_(torch.log(env.clamp_min(1e-4)))
             fitter.run()
         dt = time.perf_counter() - t0
-        v = fitter.views[0]
+        v = fitter.state.views[0]
         with torch.no_grad():
             fo = fitter.forward(v)
             fit_maps = fitter.maps()
@@ -307,7 +307,7 @@ def synthetic(n: int, res: int, cfg_over: dict, out_path=None, detector_only=Fal
                 ef = fitter.project(v, emb.points(fo.vertices[0])).numpy()
             extra["nme_embedding"] = float(np.linalg.norm(ef - emb_true, axis=1).mean() / iod)
         if expressions:  # mean absolute error of the 53 expression weights
-            extra["psi_mae"] = float((fitter.psi.detach() - subj["psi"]).abs().mean())
+            extra["psi_mae"] = float((fitter.state.psi.detach() - subj["psi"]).abs().mean())
         mask = app.mask_np[:, : app.height]
         lab = lambda x: colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.clip(x, 1e-6, 1),
                                                                apply_cctf_decoding=False))
@@ -375,6 +375,7 @@ def astronaut(res: int, cfg_over: dict, name: str = "astronaut") -> dict:
     import tempfile
     from pathlib import Path
 
+    from hack_render.fit import terms
     from hack_render.fit.cli import fit_photos
     from hack_render.fit.config import load_config
 
@@ -385,12 +386,12 @@ def astronaut(res: int, cfg_over: dict, name: str = "astronaut") -> dict:
             warnings.simplefilter("ignore")
             res_, _ = fit_photos([p], Path(d) / "out", load_config(None, cfg_over))
         total = time.perf_counter() - t0
-    fitter = res_.fitter
-    v = fitter.views[0]
+    state = res_.state
+    v = state.views[0]
     with torch.no_grad():
-        verts = fitter.forward(v).vertices[0]
+        verts = state.forward(v).vertices[0]
         # it=1: the jaw stays matched to the contour as the last stage left it
-        pred = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()
+        pred = state.project(v, terms.model_landmarks(state, res_.config, v, verts, 1)).numpy()
     det = v.detection.points
     err = np.linalg.norm(pred - det, axis=1) / np.linalg.norm(det[36] - det[45])
     groups = {"jaw": slice(0, 17), "brows": slice(17, 27), "nose": slice(27, 36),
@@ -442,7 +443,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     over = json.loads(json.dumps(overrides or {}))
     over.setdefault("photometric", {})["spp"] = spp
     fitter = Fitter([ph], [det], load_config(None, over), progress=False)
-    v = fitter.views[0]
+    v = fitter.state.views[0]
     # the state the photometric stage starts from: the landmark stages' fitted camera,
     # pose, beta and (sparse, clamped) psi
     fitter.fit_camera()
@@ -454,7 +455,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     target = v.level.target
     if v.lighting.mode == "sg":  # the lobe where the stage starts it
         init_lobes(fitter.state, fitter.cfg, v)
-    leaves = [fitter.alpha, fitter.beta, fitter.psi, v.dtheta, v.head_angles,
+    leaves = [fitter.state.alpha, fitter.state.beta, fitter.state.psi, v.dtheta, v.head_angles,
               *v.lighting.parameters()]
 
     def bridge_iter(i):
@@ -471,7 +472,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
         fitter.forward(v).vertices[0].sum().backward()
 
     def maps_iter(i):  # appearance maps forward + backward, at the level's atlas size
-        fitter.alpha.grad = None
+        fitter.state.alpha.grad = None
         sum(x.sum() for x in level_maps(fitter.state, v).values() if x is not None).backward()
 
     _, stage_loss = level_objective(fitter.state, fitter.cfg)  # the photometric stage's own objective
@@ -510,7 +511,7 @@ def overhead(res: int, spp: int, reps: int = 5, overrides: dict | None = None) -
     out["stage_ratio_vs_bare_step_per_rep"] = float(np.median(amort / step))
     out.update(res=res, spp=spp, reps=reps, integrator=r.integrator_name,
                torch_threads=torch.get_num_threads(),
-               psi_nonzero=int((fitter.psi != 0).sum()), psi_size=int(fitter.psi.numel()))
+               psi_nonzero=int((fitter.state.psi != 0).sum()), psi_size=int(fitter.state.psi.numel()))
     return out
 
 

@@ -52,11 +52,11 @@ def _fit(model, photo, det, over: dict, freeze_psi: bool = False):
         f = Fitter([photo], [det], load_config(None, cfg), model=model, appearance=None,
                    progress=False)
         if freeze_psi:
-            f.psi.requires_grad_(False)  # no gradient: Adam leaves it at zero
+            f.state.psi.requires_grad_(False)  # no gradient: Adam leaves it at zero
         f.fit_camera()
         f.fit_shape()
     with torch.no_grad():
-        return f.forward(f.views[0]).vertices[0].numpy()
+        return f.forward(f.state.views[0]).vertices[0].numpy()
 
 
 def _linear_floor(model, V: np.ndarray, n_beta: int = 40) -> np.ndarray:

@@ -59,6 +59,17 @@ points' eye rings scaled 1.8 and inner mouth ring scaled 1.3 within the region, 
 PSNR and share of its squared error), and where the fit's points lie: ``landmark_residual_iod`` (the
 report's, against the points it fitted) and ``fit_vs_mesh_iod`` (against the face mesh
 detector's, independent of dlib; chin and inner points, outer-eye distance).
+``mesh``: the measure of issue 62, independent of the fit's points and masks:
+``render_over_photo.png`` against the photo (at that image's size) over the regions of
+MediaPipe's 468-point face mesh found on the photo: ``oval_*`` the face oval (forehead to
+chin, cheek to cheek; eyes, brows, nose and mouth included; hair or hands over the face
+count against the fit), ``eyes_*`` the two lid contours, ``mouth_*`` the lips' outer
+contour; each its PSNR (dB) and mean SSIM; ``mesh_model``: the same of ``render.png``
+composited over the photo (the model alone, without the photo's hair and occluders that
+``render_over_photo.png`` keeps in front, ``final.photo_hair``); ``fit_summary``: their
+medians and least over the photos, and the fits' median and longest wall time.
+``--refinal JSON``: each kept fit's final stage run again with config overrides, scored
+the same (what the final stage alone changes, on the same fits).
 ``--real-only`` skips the composites.
 """
 
@@ -337,6 +348,108 @@ def score_render(photo: np.ndarray, render_rgba: np.ndarray, region: np.ndarray)
             "face_ssim": float(ssim_map.mean(axis=2)[m].mean())}
 
 
+#: the face mesh's rings (MediaPipe's 468-point topology) that define the scored regions
+OVAL_RINGS = {"oval": ("FACEMESH_FACE_OVAL",),
+              "eyes": ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"),
+              "mouth": ("FACEMESH_LIPS",)}
+
+
+def mesh_loops(name: str) -> list:
+    """(As fit/iris.py's, kept here so that the measure owes the fit nothing.) A face-mesh connection set (MediaPipe's ``FACEMESH_*``) as its closed loops of
+    point ids, longest first: the sets are undirected edges (an eye's is two lids' polylines
+    from corner to corner; the lips' two such loops, outer and inner)."""
+    from collections import defaultdict
+
+    from mediapipe.python.solutions import face_mesh_connections as fmc
+
+    adj = defaultdict(set)
+    for a, b in getattr(fmc, name):
+        adj[a].add(b)
+        adj[b].add(a)
+    loops, seen = [], set()
+    for start in sorted(adj):
+        if start in seen:
+            continue
+        loop, prev, p = [start], None, start
+        seen.add(start)
+        while True:
+            nxt = [q for q in sorted(adj[p]) if q != prev and (q not in seen or q == start)]
+            if not nxt or nxt[0] == start:
+                break
+            prev, p = p, nxt[0]
+            seen.add(p)
+            loop.append(p)
+        loops.append(loop)
+    return sorted(loops, key=len, reverse=True)
+
+
+def _area(loop: np.ndarray) -> float:
+    x, y = loop[:, 0], loop[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+
+
+def oval_regions(img: np.ndarray, shape=None) -> dict | None:
+    """The face mesh's regions of ``img`` (an independent detector: nothing of the fit's
+    points or masks): ``oval`` (the face oval, forehead to chin and cheek to cheek, the
+    eyes, brows, nose and mouth included), ``eyes`` (the two lid contours: the visible
+    eyeballs) and ``mouth`` (the lips' outer contour: the lips and what is between them),
+    as (H, W) bool masks at ``shape`` (default the photo's; the points are scaled to it).
+    None where the mesh finds no face."""
+    from skimage.draw import polygon
+
+    from hack_render.vision.detect import detect_faces
+
+    faces = detect_faces(img, "mesh")
+    if not faces or faces[0].dense is None:
+        return None
+    h, w = shape or img.shape[:2]
+    pts = np.asarray(faces[0].dense, np.float64)[:, :2] * [w / img.shape[1], h / img.shape[0]]
+    out = {}
+    for name, rings in OVAL_RINGS.items():
+        m = np.zeros((h, w), bool)
+        for r in rings:   # (the lips: the outer of their two loops)
+            loop = max((pts[q] for q in mesh_loops(r)), key=_area)
+            rr, cc = polygon(loop[:, 1] - 0.5, loop[:, 0] - 0.5, (h, w))
+            m[rr, cc] = True
+        out[name] = m
+    return out
+
+
+def model_over_photo(rgba8: np.ndarray, photo8: np.ndarray) -> np.ndarray:
+    """``render.png`` (straight sRGB colour and alpha) over the photo, in linear light:
+    the model alone, without what ``render_over_photo.png`` keeps of the photo in front
+    (``final.photo_hair``)."""
+    import colour
+
+    a = rgba8[..., 3:4].astype(np.float64) / 255.0
+    def lin(x):
+        return colour.cctf_decoding(x.astype(np.float64) / 255.0, "sRGB")
+
+    out = lin(rgba8[..., :3]) * a + lin(photo8) * (1 - a)
+    return np.round(255 * np.clip(colour.cctf_encoding(out, "sRGB"), 0, 1)).astype(np.uint8)
+
+
+def score_over_photo(photo: np.ndarray, over: np.ndarray, regions: dict) -> dict:
+    """``render_over_photo.png`` against the photo over the face mesh's regions
+    (:func:`oval_regions`): per region its pixels, PSNR (dB, 8-bit sRGB) and mean SSIM
+    (``oval_psnr_db``, ``oval_ssim``, ``eyes_*``, ``mouth_*``)."""
+    from skimage.metrics import structural_similarity
+
+    a = photo.astype(np.float64)
+    b = over[..., :3].astype(np.float64)
+    _, ssim_map = structural_similarity(a, b, channel_axis=2, data_range=255, full=True)
+    ssim_map = ssim_map.mean(axis=2)
+    se = ((a - b) ** 2).mean(-1)
+    row: dict = {}
+    for name, m in regions.items():
+        row[f"{name}_pixels"] = int(m.sum())
+        if m.sum() < 20:
+            continue
+        row[f"{name}_psnr_db"] = float(10 * np.log10(255.0 ** 2 / max(se[m].mean(), 1e-12)))
+        row[f"{name}_ssim"] = float(ssim_map[m].mean())
+    return row
+
+
 def feature_regions(points: np.ndarray, shape) -> dict:
     """The eyes (their landmark rings scaled 1.8 about their centres: lids, lashes and
     the sockets' shadow, as the fit's bake leaves out) and the mouth (its inner ring
@@ -460,6 +573,20 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
         fitted = params.get("view0_landmarks_fitted")
         if truth is not None and fitted is not None:
             row.update({f"fit_vs_truth_{k}": v for k, v in truth_scores(fitted, truth).items()})
+    over_path = out / "render_over_photo.png"
+    if over_path.is_file():   # the measure: the face mesh's oval, eyes and mouth
+        over = np.asarray(iio.imread(over_path))[..., :3]
+        h, w = over.shape[:2]
+        photo = img if (h, w) == img.shape[:2] else (
+            resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+            .round().astype(np.uint8))
+        mesh = oval_regions(img, (h, w))
+        if mesh is not None:
+            row["mesh"] = score_over_photo(photo, over, mesh)
+            if (out / "render.png").is_file():   # the model alone over the photo
+                row["mesh_model"] = score_over_photo(
+                    photo, model_over_photo(np.asarray(iio.imread(out / "render.png")), photo),
+                    mesh)
     render = out / "render.png"
     regions = face_region(img) if render.is_file() else None
     if regions is None:
@@ -494,6 +621,208 @@ def score_fit(img: np.ndarray, out: Path, truth=None) -> dict:
     return row
 
 
+def kept_state(name: str, img: np.ndarray, fit_dir: Path, overrides: dict):
+    """(FitState, FitConfig) of a kept fit (``fit_dir``: its ``params.npz`` and
+    ``fit_report.json``) rebuilt: the photo read as the fit read it, its segmentation
+    redone, the fitted parameters, camera and environment map set; the config the
+    defaults with ``overrides``."""
+    import imageio.v3 as iio
+    import torch
+
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import init_state
+    from hack_render.fit.lighting import Lighting
+    from hack_render.fit.photo import load_photo
+    from hack_render.vision.detection import Detection
+
+    npz = np.load(fit_dir / "params.npz")
+    report = json.loads((fit_dir / "fit_report.json").read_text())
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"{name}.png"
+        iio.imwrite(path, img)
+        photo = load_photo(path)
+    pts = np.asarray(npz["view0_landmarks_detected"], np.float64)
+    det = Detection(pts, (*pts.min(0), *pts.max(0)), 1,
+                    report["views"][0].get("landmark_source", "dlib"),
+                    raw=npz.get("view0_landmarks_dlib", None))
+    cfg = load_config(None, overrides)
+    state = init_state([photo], [det], cfg)
+    v = state.views[0]
+
+    def t(k):
+        return torch.as_tensor(np.asarray(npz[k]), dtype=torch.float32)
+
+    with torch.no_grad():
+        for k in ("beta", "psi", "alpha", "eta", "tau"):
+            getattr(state, k).copy_(t(k).reshape(getattr(state, k).shape))
+        v.head_angles.zero_()
+        v.dtheta.copy_(t("view0_theta").reshape(8, 3))
+        v.global_orient.copy_(t("view0_global_orient"))
+        v.transl.copy_(t("view0_t"))
+        v.log_focal.fill_(float(np.log(npz["view0_K"][0][0])))
+    env = np.asarray(npz["view0_env_map"], np.float32)
+    v.lighting = Lighting("env", env.shape[0])
+    with torch.no_grad():
+        v.lighting.log_texels.copy_(torch.log(torch.from_numpy(env).clamp_min(1e-6)))
+    return state, cfg
+
+
+def recomposite(name: str, img: np.ndarray, fit_dir: Path) -> dict:
+    """A kept fit's ``render.png`` over the photo with the photo's hair and occluders in
+    front (``outputs.photo_layer``, as ``render_over_photo.png`` with
+    ``final.photo_hair``), scored as :func:`score_fit`'s ``mesh``, for fits made before
+    that option: no render again, the segmentation redone."""
+    import imageio.v3 as iio
+    from skimage.transform import resize
+
+    from hack_render.fit.outputs import photo_layer
+
+    state, _ = kept_state(name, img, fit_dir, {})
+    rgba = np.asarray(iio.imread(fit_dir / "render.png"))
+    h, w = rgba.shape[:2]
+    ph = img if (h, w) == img.shape[:2] else (
+        resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+        .round().astype(np.uint8))
+    model = model_over_photo(rgba, ph).astype(np.float64)
+    layer = photo_layer(state.views[0], h, w)
+    over = model if layer is None else layer[..., None] * ph + (1 - layer[..., None]) * model
+    over = np.round(over).astype(np.uint8)
+    mesh = oval_regions(img, (h, w))
+    if mesh is None:
+        return {}
+    return {"mesh": score_over_photo(ph, over, mesh),
+            "mesh_model": score_over_photo(ph, model.astype(np.uint8), mesh)}
+
+
+def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Path) -> dict:
+    """The final stage (``fit/final.py``) run again on a kept fit (``fit_dir``: its
+    ``params.npz`` and ``fit_report.json``) with the config's defaults and ``overrides``:
+    the fitted state rebuilt (the photo read as the fit read it, its segmentation redone,
+    the fitted parameters, camera and environment map set), the stage run, its
+    ``render_over_photo.png`` written to ``out`` and scored as :func:`score_fit`'s
+    ``mesh``. What changes the final stage alone (its eyes, its bake) is compared so on
+    the same fit, without the fit's own run-to-run differences."""
+    import imageio.v3 as iio
+    from skimage.transform import resize
+
+    from hack_render.fit import final as final_stage
+    from hack_render.fit.outputs import write_photo_renders
+
+    state, cfg = kept_state(name, img, fit_dir, overrides)
+    t0 = time.time()
+    fin = final_stage.run(state, cfg)
+    row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
+                 "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
+                                                       "rgb", "sclera_rgb", "eye_gloss")}}
+    out.mkdir(parents=True, exist_ok=True)
+    write_photo_renders(SimpleNamespace(views=state.views, config=cfg), fin, out)
+    over = np.asarray(iio.imread(out / "render_over_photo.png"))[..., :3]
+    h, w = over.shape[:2]
+    ph = img if (h, w) == img.shape[:2] else (
+        resize(img, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+        .round().astype(np.uint8))
+    mesh = oval_regions(img, (h, w))
+    if mesh is not None:
+        row["mesh"] = score_over_photo(ph, over, mesh)
+        row["mesh_model"] = score_over_photo(
+            ph, model_over_photo(np.asarray(iio.imread(out / "render.png")), ph), mesh)
+    return row
+
+
+def _r(x, nd=2):
+    return None if x is None else round(float(x), nd)
+
+
+def fit_summary(real: dict) -> dict:
+    """Over the photos fitted: the median (and the least) of the face mesh's figures
+    (:func:`score_over_photo`) and the fits' median and longest wall time."""
+    rows = [r["fit"] for r in real.values() if "fit" in r]
+    out: dict = {"n": len(rows)}
+    for which, pre in (("mesh", ""), ("mesh_model", "model_")):
+        for k in ("oval_psnr_db", "oval_ssim", "eyes_psnr_db", "eyes_ssim", "mouth_psnr_db",
+                  "mouth_ssim"):
+            v = [f[which][k] for f in rows if k in f.get(which, {})]
+            if v:
+                out[f"median_{pre}{k}"] = float(np.median(v))
+                out[f"min_{pre}{k}"] = float(np.min(v))
+    secs = [f["seconds"] for f in rows if f.get("seconds") is not None]
+    if secs:
+        out["median_seconds"] = float(np.median(secs))
+        out["max_seconds"] = float(np.max(secs))
+    return out
+
+
+def run_recomposite(a) -> None:
+    """``--recomposite``: each kept fit's ``render.png`` with the photo's hair and
+    occluders in front (:func:`recomposite`)."""
+    warnings.filterwarnings("ignore")
+    photos = dict(real_photos(a.more_photos))
+    if a.annotated:
+        photos |= {n: img for n, (img, _) in annotated_photos(a.annotated).items()}
+    names = a.photos.split(",") if a.photos else sorted(photos)
+    result: dict = {"fit_out": a.fit_out, "recomposite": True, "real": {}}
+    for name in names:
+        fit_dir = Path(a.fit_out) / name
+        if not (fit_dir / "render.png").is_file():
+            continue
+        row = recomposite(name, photos[name], fit_dir)
+        result["real"][name] = row
+        m, mm = row.get("mesh", {}), row.get("mesh_model", {})
+        print(name, "with the photo's hair: oval", _r(m.get("oval_psnr_db")), "eyes",
+              _r(m.get("eyes_psnr_db")), "mouth", _r(m.get("mouth_psnr_db")),
+              "| model alone: oval", _r(mm.get("oval_psnr_db")), "eyes",
+              _r(mm.get("eyes_psnr_db")), "mouth", _r(mm.get("mouth_psnr_db")), flush=True)
+    for which in ("mesh", "mesh_model"):
+        for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim"):
+            v = [r[which][key] for r in result["real"].values() if key in r.get(which, {})]
+            if v:
+                result.setdefault("median", {})[f"{which}_{key}"] = float(np.median(v))
+                result.setdefault("min", {})[f"{which}_{key}"] = float(np.min(v))
+    write_result(a.out, result)
+    print("median", result.get("median"), "min", result.get("min"))
+
+
+def run_refinal(a) -> None:
+    """``--refinal``: each kept fit's final stage again per overrides (:func:`refinal`)."""
+    warnings.filterwarnings("ignore")
+    photos = dict(real_photos(a.more_photos))
+    if a.annotated:
+        photos |= {n: img for n, (img, _) in annotated_photos(a.annotated).items()}
+    names = a.photos.split(",") if a.photos else sorted(photos)
+    t0 = time.time()
+    result: dict = {"fit_out": a.fit_out, "refinal": [json.loads(x) for x in a.refinal],
+                    "real": {}}
+    for name in names:
+        fit_dir = Path(a.fit_out) / name
+        if not (fit_dir / "params.npz").is_file():
+            continue
+        runs = []
+        for k, over in enumerate(result["refinal"]):
+            row = refinal(name, photos[name], fit_dir, over,
+                          Path(a.fit_out) / f"{name}_refinal{k}")
+            m = row.get("mesh", {})
+            mm = row.get("mesh_model", {})
+            print(name, k, over, "oval", _r(m.get("oval_psnr_db")), "eyes",
+                  _r(m.get("eyes_psnr_db")), "mouth", _r(m.get("mouth_psnr_db")),
+                  "| model alone: oval", _r(mm.get("oval_psnr_db")), "eyes",
+                  _r(mm.get("eyes_psnr_db")), "mouth", _r(mm.get("mouth_psnr_db")),
+                  "iris", row["iris"].get("rgb"), row["final_s"], "s", flush=True)
+            runs.append(row)
+        result["real"][name] = {"refinal": runs}
+    for k in range(len(result["refinal"])):
+        for which in ("mesh", "mesh_model"):
+            for key in ("oval_psnr_db", "eyes_psnr_db", "mouth_psnr_db", "oval_ssim",
+                        "eyes_ssim", "mouth_ssim"):
+                v = [r["refinal"][k][which][key] for r in result["real"].values()
+                     if key in r["refinal"][k].get(which, {})]
+                if v:
+                    result.setdefault("median", {}).setdefault(str(k), {})[
+                        f"{which}_{key}"] = float(np.median(v))
+    result["seconds"] = round(time.time() - t0, 1)
+    write_result(a.out, result)
+    print("median", result.get("median"))
+
+
 def main(argv=None) -> None:
     from hack_render.fit.config import DETECTORS
 
@@ -521,6 +850,14 @@ def main(argv=None) -> None:
     ap.add_argument("--fit-option", action="append", default=[], metavar="OPT",
                     help="one more option for every fit, as it is (repeatable; e.g. "
                          "--fit-option=--no-refine)")
+    ap.add_argument("--refinal", action="append", default=[], metavar="JSON",
+                    help="with --fit-out (fits kept there): run each kept fit's final stage "
+                         "again with these config overrides (JSON, e.g. "
+                         "'{\"final\": {\"photo_irises\": false}}'; repeatable: one run each) and "
+                         "score it (real['NAME']['refinal'], no fitting)")
+    ap.add_argument("--recomposite", action="store_true",
+                    help="with --fit-out: each kept fit's render.png over the photo with the "
+                         "photo's hair and occluders in front (final.photo_hair), scored")
     ap.add_argument("--mirror", action="store_true",
                     help="with --annotated: also each annotated photo mirrored (NAME_mirrored)")
     ap.add_argument("--photos", default=None,
@@ -537,6 +874,14 @@ def main(argv=None) -> None:
         a.seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
     except ValueError:
         ap.error(f"--seeds: expected integers like 9000,9001, found {a.seeds!r}")
+    if a.recomposite:
+        if not a.fit_out:
+            ap.error("--recomposite: expected --fit-out (the kept fits)")
+        return run_recomposite(a)
+    if a.refinal:
+        if not a.fit_out:
+            ap.error("--refinal: expected --fit-out (the kept fits)")
+        return run_refinal(a)
     if a.score_only and not (a.fit and a.fit_out):
         ap.error("--score-only: expected --fit and --fit-out (the fits to score)")
     warnings.filterwarnings("ignore")
@@ -562,13 +907,19 @@ def main(argv=None) -> None:
                            | ({n: MORE_LICENCE for n in MORE_PHOTOS} if a.more_photos else {})
                            | ({n: ANNOTATED_LICENCE for n in ANNOTATED} if a.annotated else {})}
     result["seconds"] = round(time.time() - t0, 1)
+    if a.fit:
+        result["fit_summary"] = fit_summary(result["real"])
     write_result(a.out, result)
     for name, row in result["real"].items():
         if "fit" in row:
-            f = row["fit"]
-            print(name, "fit exit", f.get("exit"), f.get("seconds"), "s", "face PSNR",
-                  round(f.get("face_psnr_db", float("nan")), 2), "SSIM",
-                  round(f.get("face_ssim", float("nan")), 3))
+            f, m = row["fit"], row["fit"].get("mesh", {})
+            print(name, "fit exit", f.get("exit"), f.get("seconds"), "s", "oval PSNR",
+                  _r(m.get("oval_psnr_db")), "SSIM", _r(m.get("oval_ssim"), 3), "eyes",
+                  _r(m.get("eyes_psnr_db")), _r(m.get("eyes_ssim"), 3), "mouth",
+                  _r(m.get("mouth_psnr_db")), _r(m.get("mouth_ssim"), 3),
+                  "| face region PSNR", _r(f.get("face_psnr_db")))
+    if a.fit:
+        print("median", result["fit_summary"])
     comp = result["composites"]
     if not comp:
         return

@@ -202,7 +202,7 @@ def texture_fitter(model, yaw=30.0, res=160):
     photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
     cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res}})
     f = Fitter([photo], [det], cfg, model=model, progress=False)
-    v = f.views[0]
+    v = f.state.views[0]
     with torch.no_grad():
         # the truth pose: landmark_view's head rotation, shared by the anatomical prior
         v.head_angles.copy_(torch.deg2rad(torch.tensor([0.0, yaw, 0.0])))

@@ -99,7 +99,7 @@ def _run_and_check_skin(f, app, truth) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         f.run()
-    a = f.alpha.detach()
+    a = f.state.alpha.detach()
     de_fit = albedo_de2000(app, a, truth["alpha"])
     de_mean = albedo_de2000(app, torch.zeros(1, 20), truth["alpha"])
     print(f"albedo CIEDE2000 {de_fit:.2f} (mean skin {de_mean:.2f}), alpha {a[0, :3]}")
@@ -116,7 +116,7 @@ def test_02_fit_recovers_the_skin_colour(subject):
     _, app, _, _, truth = subject
     f = _fitter(subject)
     _run_and_check_skin(f, app, truth)
-    v = f.views[0]
+    v = f.state.views[0]
     assert f.state.albedo_balance.get("applied"), f.state.albedo_balance
     assert math.sqrt(float(v.lighting.colour_cast(reach=v.level.reach))) < 0.1
 
@@ -133,7 +133,7 @@ def test_03_known_light_recovers_the_albedo(subject, monkeypatch):
     _, app, _, _, truth = subject
     monkeypatch.setattr(photometric, "REFINE_GEOMETRY", False)
     f = _fitter(subject)
-    v, s = f.views[0], f.state
+    v, s = f.state.views[0], f.state
     with torch.no_grad():
         s.beta.copy_(truth["beta"])
         v.head_angles.copy_(torch.deg2rad(torch.tensor([5.0, 15.0, 0.0])))
@@ -147,8 +147,8 @@ def test_03_known_light_recovers_the_albedo(subject, monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         f.log.run("photometric@64", groups, loss, 40, after_step=s.clamp_)
-    de_fit = albedo_de2000(app, f.alpha.detach(), truth["alpha"])
-    assert de_fit < 2.0, (de_fit, f.alpha.detach()[0, :3])
+    de_fit = albedo_de2000(app, f.state.alpha.detach(), truth["alpha"])
+    assert de_fit < 2.0, (de_fit, f.state.alpha.detach()[0, :3])
 
 
 @pytest.mark.slow

@@ -40,7 +40,7 @@ def test_01_synthetic_round_trip_moves_toward_truth():
         warnings.simplefilter("ignore")
         fitter = Fitter([photo], [det], cfg, model=model, progress=False)
         face = slice(0, 9409)
-        v = fitter.views[0]
+        v = fitter.state.views[0]
 
         def face_error():
             with torch.no_grad():
@@ -85,13 +85,26 @@ def test_02_astronaut_cli_end_to_end(tmp_path):
     assert "the fitted landmarks lie" not in r.stderr   # a fit near its points: no warning
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",
                  "textures/diffuse.png", "overlay.png", "losses.png", "losses.json",
-                 "timings.json", "cameras.json"):
+                 "timings.json", "cameras.json", "render.png", "render_over_photo.png",
+                 "occlusion.png", "textures/iris.json"):
         assert (out / name).is_file(), name
     p = load_params(out / "params.json")
     assert len(p["beta"]) == 20 and np.asarray(p["theta"]).shape == (8, 3)
     npz = np.load(out / "params.npz")
     K, t = npz["view0_K"], npz["view0_t"]
     report = json.loads((out / "fit_report.json").read_text())
+    # the final stage (fit/final.py) runs inside the fit, timed as "final"
+    assert report["timings_s"]["final"] > 0 and report["final"]["iris"]["source"]
+    # render_over_photo.png keeps the photo's hair in front (final.photo_hair): the
+    # fringe over her forehead is the photo's, render.png the model alone
+    over = iio.imread(out / "render_over_photo.png")[..., :3].astype(float)
+    rgba = iio.imread(out / "render.png")
+    photo = np.asarray(iio.imread(tmp_path / "astronaut.png"), float)
+    from skimage.transform import resize
+
+    photo = resize(photo, over.shape[:2], preserve_range=True, anti_aliasing=True)
+    fringe = (rgba[..., 3] > 250) & (np.abs(over - photo).mean(-1) < 2)
+    assert fringe.sum() > 20, fringe.sum()
     # dlib's points went through the landmark refiner; both sets are written
     assert report["views"][0]["landmarks_refined"] is True
     assert report["landmark_refiner"].startswith("derived")

@@ -281,10 +281,10 @@ def test_11_exif_focal_length_sets_the_focal_prior(tmp_path, astro):
                        progress=False)
     f0, sigma, source = fitter.focal_prior_px(photo)
     assert f0 == pytest.approx(50.0 / 36.0 * 512) and sigma == 0.05 and source == "exif"
-    assert math.exp(float(fitter.views[0].log_focal)) == pytest.approx(f0, rel=1e-5)
+    assert math.exp(float(fitter.state.views[0].log_focal)) == pytest.approx(f0, rel=1e-5)
     assert plain.focal_prior_px(photo)[0] == pytest.approx(85.0 / 36.0 * 512)
     # the prior pulls toward its own centre: zero at it, positive away from it
-    v = fitter.views[0]
+    v = fitter.state.views[0]
     assert float(fitter.focal_prior(v)) == pytest.approx(0.0, abs=1e-8)
     with torch.no_grad():
         v.log_focal.fill_(math.log(85.0 / 36.0 * 512))

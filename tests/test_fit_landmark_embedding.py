@@ -154,7 +154,7 @@ def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
             warnings.simplefilter("ignore")
             f = Fitter([photo], [dets[source]], load_config(None, {"landmarks": lm}),
                        model=model, appearance=None, progress=False)
-        v = f.views[0]
+        v = f.state.views[0]
         with torch.no_grad():
             verts = f.forward(v).vertices[0]
             return v.embedded, f.model_landmarks(v, verts, 1), verts
@@ -227,7 +227,7 @@ def test_07_detector_weights_are_inverse_variances(tmp_path, model, monkeypatch)
             f = Fitter([photo], [Detection(pts, (10, 10, 50, 50), 1, source)],
                        load_config(None, {"landmarks": lm}), model=model, appearance=None,
                        progress=False)
-        return f.view_landmark_weights(f.views[0]), f.lmk_w
+        return f.view_landmark_weights(f.state.views[0]), f.state.lmk_w
 
     got, base = weights("dlib")
     torch.testing.assert_close(got, base * torch.as_tensor(shipped.weights, dtype=base.dtype))

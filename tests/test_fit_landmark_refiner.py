@@ -191,10 +191,10 @@ def test_08_fitter_uses_the_refiners_weights():
         warnings.simplefilter("ignore")
         f = Fitter([from_array(img, "a"), from_array(img, "b")], [plain, refined], cfg,
                    appearance=None, progress=False)
-    w0, w1 = f.view_landmark_weights(f.views[0]), f.view_landmark_weights(f.views[1])
-    torch.testing.assert_close(w1, f.lmk_w * torch.as_tensor(w, dtype=f.lmk_w.dtype))
-    torch.testing.assert_close(w0, f.lmk_w * torch.as_tensor(f.embedding.weights,
-                                                             dtype=f.lmk_w.dtype))
+    w0, w1 = f.view_landmark_weights(f.state.views[0]), f.view_landmark_weights(f.state.views[1])
+    torch.testing.assert_close(w1, f.state.lmk_w * torch.as_tensor(w, dtype=f.state.lmk_w.dtype))
+    torch.testing.assert_close(w0, f.state.lmk_w * torch.as_tensor(f.state.embedding.weights,
+                                                             dtype=f.state.lmk_w.dtype))
 
 
 def test_09_training_renders_resume_from_the_cache(tmp_path):

@@ -100,7 +100,7 @@ def test_02_init_lobes_finds_the_window():
     for name, rot in (("window", 30.0), ("light_stage", 0.0)):
         rig = preset(name, rotation_deg=rot)
         f = _fitter(model, rig)
-        v = f.views[0]
+        v = f.state.views[0]
         ph.setup_level(f.state, f.cfg, v, 48)
         rep = ph.init_lobes(f.state, f.cfg, v)
         assert len(rep) == 1

@@ -42,7 +42,7 @@ def smile():
 
 
 def _mouth_nme(f, view):
-    v = f.views[0]
+    v = f.state.views[0]
     with torch.no_grad():
         pred = f.project(v, f.forward(v).landmarks[0]).numpy()
     lm = view[1].points
@@ -54,7 +54,7 @@ def test_01_l1_prior_explains_a_smile_with_the_smile_units(smile):
     model, units, view = smile
     l1 = _fit(model, view, {})  # the defaults: psi_prior "l1"
     l2 = _fit(model, view, {"psi_prior": "l2", "w_psi": 2.0})  # the Gaussian prior
-    p1, p2 = l1.psi.detach()[0], l2.psi.detach()[0]
+    p1, p2 = l1.state.psi.detach()[0], l2.state.psi.detach()[0]
     share = lambda p: float(p[units].sum() / p.sum().clamp_min(1e-6))
     # most of the L1 fit's expression is the true smile units, and they are strongly on
     assert share(p1) > 0.6, share(p1)

@@ -194,15 +194,15 @@ def test_04_outer_contour_and_recovery(subject):
     model, beta, (photo, det, mask) = subject
     with_sil = _fit(model, (photo, det), mask, "auto")
     without = _fit(model, (photo, det), mask, "off")
-    v = with_sil.views[0]
-    assert v.silhouette_note == "mask file" and without.views[0].silhouette is None
+    v = with_sil.state.views[0]
+    assert v.silhouette_note == "mask file" and without.state.views[0].silhouette is None
     pairs, t = v.sil_contour
     # the outer contour: points on mesh edges (zero crossings of n.v), on the face/neck
     # outline; contours hidden inside the footprint (the jaw's over the neck) left out
     assert len(t) > 40 and bool(((t >= 0) & (t <= 1)).all())
     with torch.no_grad():
         out = with_sil.forward(v)
-        pts = with_sil.silhouette.points(out.vertices[0], pairs, t)
+        pts = with_sil.state.silhouette.points(out.vertices[0], pairs, t)
         d, ok = v.silhouette.distance(with_sil.project(v, pts))
     assert float(d[ok].abs().median()) < 1.0
     with torch.no_grad():
@@ -210,7 +210,7 @@ def test_04_outer_contour_and_recovery(subject):
     err = {}
     for name, f in (("with", with_sil), ("without", without)):
         with torch.no_grad():
-            rest = model(beta=f.beta, psi=f.psi).vertices[0][:9409].numpy()
+            rest = model(beta=f.state.beta, psi=f.state.psi).vertices[0][:9409].numpy()
         err[name] = similarity_error(rest, true)
     assert err["with"] < 0.9 * err["without"], err
 
@@ -233,7 +233,7 @@ def test_04c_a_mask_cut_by_an_object_in_front_of_the_face_is_dropped(subject):
     res = {}
     for check in (False, True):
         f = _fit(model, (photo, det), cut, "auto", check=check)
-        v = f.views[0]
+        v = f.state.views[0]
         res[check] = (landmark_residual_iod(v, fitted_points(f.state, f.cfg, v)), v)
     names = [r.name for r in f.reports]   # "shape" is the run kept, without the mask
     assert names.count("shape") == 1 and "shape (with the masks, not kept)" in names, names

@@ -57,7 +57,7 @@ def test_02_a_known_specular_map_is_recovered_where_the_photo_identifies_it(tmp_
 
     model = load_default_model()
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=20.0)
-    v = f.views[0]
+    v = f.state.views[0]
     # a dim environment and a bright lobe from above the camera: highlights on the face
     d = torch.tensor([0.0, 0.35, 1.0])
     d = d / d.norm()
@@ -92,15 +92,16 @@ def test_02_a_known_specular_map_is_recovered_where_the_photo_identifies_it(tmp_
     # over the highlights' pixels, the true over the fitted specular contribution)
     assert 1.05 < rep["median_gain"] < 2.0, rep
     # the fit's final stage with final.specular: the map, its confidence, the report
+    from hack_render.fit import final as final_stage
     from hack_render.fit import outputs
 
     cfg.final.specular = True
-    final = outputs.FinalRenders(f)
+    final = final_stage.run(f.state, f.cfg)
     rep = final.report["specular"]
     assert rep["identified_fraction"] > 0.5 and rep["median_gain"] > 1.0, rep
     sure = final.specular_confidence > 0.5
     assert np.abs(final.maps.specular - fitted.specular)[sure].mean() > 0.02
-    written = outputs.write_textures(f, tmp_path / "textures", final)
+    written = outputs.write_textures(f.state, tmp_path / "textures", final)
     assert tmp_path / "textures" / "specular_confidence.exr" in written
     cfg.final.specular = False                     # (the default) the fitted map
-    assert outputs.FinalRenders(f).specular_confidence is None
+    assert final_stage.run(f.state, f.cfg).specular_confidence is None

@@ -29,7 +29,7 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     from hack_render.fit.photo import Photo
 
     f, cfg, true_maps, prior, truth = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5  # a grey backdrop
     v.photo = Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
@@ -81,7 +81,7 @@ def test_02_occluder_is_rejected(model):
     from hack_render.fit.photo import Photo
 
     f, cfg, true_maps, _, truth = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     pts = v.detection.points
@@ -108,7 +108,7 @@ def _frontal_truth_photo(model):
     from hack_render.fit import texture
 
     fitter, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = fitter.views[0]
+    v = fitter.state.views[0]
     pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
     v.photo = photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
     h, w = pr.rgba.shape[:2]
@@ -123,7 +123,7 @@ def test_03_grey_photo_keeps_the_skin_colour_and_bakes_its_luminance(model):
     from hack_render.fit import texture
 
     f, cfg, true_maps, prior, truth = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
@@ -156,7 +156,7 @@ def test_04_brows_and_lids_are_baked(model):
     from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     assert rgb.shape[:2] == (160, 160)
@@ -196,7 +196,7 @@ def test_05_refinement_pass_brings_the_rerender_closer_to_the_photo(model):
     from hack_render.fit import texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
     v.photo = photo_of(rgb)
@@ -231,11 +231,11 @@ def test_07_overlay_shows_render_png_in_the_level_frame(model):
     from hack_render.fit.photometric import setup_level
 
     f, cfg, _, _, _ = texture_fitter(model)
-    v = f.views[0]
+    v = f.state.views[0]
     setup_level(f.state, cfg, v, 64)
     final = SimpleNamespace(renders=[texture.render_at_photo(f.state, cfg, v)])
     warped = outputs._final_in_level(final, 0, v)
-    own = outputs._final_render(f, v)
+    own = outputs._final_render(f.state, v)
     assert warped.shape == own.shape == (64, 64, 4)
     a, b = warped[..., 3] > 0.5, own[..., 3] > 0.5
     assert (a & b).sum() / (a | b).sum() > 0.95
@@ -309,7 +309,7 @@ def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     from hack_render.fit import bake_weights, texture
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
     pts = v.detection.points
@@ -410,7 +410,7 @@ def test_12_occluder_shadow_profile_is_measured_and_divided_out(model):
     # through the bake's pixel weights: the photo of the truth, darkened beside a
     # rectangle of occluder on the forehead as a fringe's shadow would
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
-    v = f.views[0]
+    v = f.state.views[0]
     shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
@@ -488,7 +488,7 @@ def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(mod
     from hack_render.fit import bake_weights, texture
 
     f, cfg, _, _, _, _ = _frontal_truth_photo(model)
-    v = f.views[0]
+    v = f.state.views[0]
     pts = v.detection.points
     occ = np.zeros((v.photo.height, v.photo.width), bool)
     x0, y0 = int(pts[2, 0]) + 6, int(pts[29, 1]) - 4
@@ -502,3 +502,52 @@ def test_14_the_segmentations_edges_are_not_eroded_the_renders_silhouette_is(mod
     rendered = pr.rgba[..., 3] > 0.999
     rim = rendered & ~binary_erosion(rendered, iterations=2)
     assert (wgt[rim] == 0).all()
+
+
+def test_15_hair_strands_across_the_skin_are_not_baked(model):
+    """Three dark strands 2 px wide (hair over the forehead, a cheek and an eye) pasted
+    over a photo of a known skin (the model's own map A(alpha): what the bake falls back
+    on is right, so the error under the strands is the bake's alone). With
+    ``final.strands`` (thin dark lines left out, bake_weights.thin_dark_lines) the texels
+    under them come back within 6 % of the truth in the mean; without it the strands the
+    robust test leaves (on the brows, lids and lips, kept as the photo has them, and their
+    edges) are baked as darker streaks (measured: 0.86 of the truth on a patterned skin).
+    A photo without strands bakes the same with it on."""
+    from hack_render.fit import texture
+
+    f, cfg, _, prior, _ = texture_fitter(model, yaw=0.0, res=256)
+    v = f.state.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v)       # the skin A(alpha) is the truth
+    clean = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    pts = v.detection.points
+    occ = np.zeros(clean.shape[:2], bool)
+    for (a, da), (b, db) in (((17, 0), (8, 0)), ((19, -20), (31, 0)), ((24, -20), (14, 0))):
+        p0, p1 = pts[a] + [0, da], pts[b] + [0, db]
+        rr = np.round(np.linspace(p0[1], p1[1], 400)).astype(int)
+        cc = np.round(np.linspace(p0[0], p1[0], 400)).astype(int)
+        for d in (0, 1):
+            ok = (rr + d >= 0) & (rr + d < occ.shape[0]) & (cc >= 0) & (cc < occ.shape[1])
+            occ[rr[ok] + d, cc[ok]] = True
+    occ &= shot.rgba[..., 3] > 0.99
+    rgb = clean.copy()
+    rgb[occ] = [0.03, 0.02, 0.015]
+    pr = texture.render_at_photo(f.state, cfg, v)
+    H = cfg.final.atlas_height
+    uv = pr.gbuffer["uv"][occ]
+    xi = np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1)
+    yi = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    truth = prior[yi, xi]
+    out = {}
+    for strands in (0.0, 0.03):
+        cfg.final.strands = strands
+        for name, photo in (("strands", rgb), ("clean", clean)):
+            v.photo = photo_of(photo)
+            bk = texture.bake_diffuse(f.state, cfg, [pr])
+            out[strands, name] = bk
+    under = {k: float(bk.diffuse[yi, xi].mean() / truth.mean()) for k, bk in out.items()}
+    print("baked / truth under the strands", under)
+    assert abs(under[0.03, "strands"] - 1.0) < 0.06, under
+    assert under[0.0, "strands"] < under[0.03, "strands"] - 0.02, under   # streaks
+    seen = out[0.0, "clean"].confidence > 0.9
+    a, b = out[0.0, "clean"].diffuse[seen], out[0.03, "clean"].diffuse[seen]
+    assert np.abs(a - b).mean() < 0.01 * a.mean(), np.abs(a - b).mean()

@@ -67,13 +67,13 @@ def test_01_three_quarter_camera_is_a_turned_body(model):
     with "head" (the default) the same view is read as a neck twisted by ~30 deg."""
     view = _view(model, head=(0.0, 3.0, 0.0), torso=(0.0, 30.0, 0.0))
     f = _fit(model, [view], {"camera": {"iterations": 80, "rotate": "torso"}})
-    v = f.views[0]
+    v = f.state.views[0]
     neck_yaw = float(torch.rad2deg(f.theta(v).detach()[0, :, 1].sum()))
     torso_yaw = float(torch.rad2deg(v.global_orient.detach()[1]))
     assert abs(neck_yaw) < 12.0, neck_yaw
     assert torso_yaw > 18.0, torso_yaw
     old = _fit(model, [view])  # the default, camera.rotate "head"
-    old_yaw = float(torch.rad2deg(old.theta(old.views[0]).detach()[0, :, 1].sum()))
+    old_yaw = float(torch.rad2deg(old.theta(old.state.views[0]).detach()[0, :, 1].sum()))
     assert old_yaw > 20.0 and abs(neck_yaw) < 0.5 * old_yaw, (old_yaw, neck_yaw)
 
 
@@ -93,7 +93,7 @@ def test_02_second_view_improves_identity(model):
     for key, views in (("a", [a]), ("b", [b]), ("ab", [a, b])):
         f = _fit(model, views)
         with torch.no_grad():
-            err[key] = similarity_error(model(beta=f.beta).vertices[0].numpy()[:9409], true)
+            err[key] = similarity_error(model(beta=f.state.beta).vertices[0].numpy()[:9409], true)
     assert err["ab"] < 0.93 * min(err["a"], err["b"]), err
 
 
@@ -106,7 +106,7 @@ def test_03_strong_expressions_reach_their_strength(model):
         psi = torch.zeros(1, model.num_expressions)
         psi[0, idx] = 0.9
         f = _fit(model, [_view(model, psi=psi, head=(5.0, 10.0, 0.0))])
-        p = f.psi.detach()[0]
+        p = f.state.psi.detach()[0]
         assert float(p[idx].min()) > 0.75 * 0.9, (units, p[idx])
         assert float(p.sum() - p[idx].sum()) < 0.3, (units, float(p.sum()))
 
@@ -137,7 +137,7 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
     assert got.source == "mesh" and (got.visible == ~hidden).all()
     f = _fit(model, [(photo, got)], {"camera": {"iterations": 0},
                                      "shape": {"iterations": 0}})
-    v = f.views[0]
+    v = f.state.views[0]
     with torch.no_grad():
         verts = f.forward(v).vertices[0]
         a = float(terms.landmark_loss(f.state, f.cfg, v, verts, 0))

@@ -43,7 +43,7 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
             f.fit_camera()
             f.fit_shape()
         with torch.no_grad():
-            rest = model(beta=f.beta.detach()).vertices[0][:9409].numpy()
+            rest = model(beta=f.state.beta.detach()).vertices[0][:9409].numpy()
         return f, 1000 * similarity_error(rest, truth)  # identity (rest shape) error, mm
 
     _, err_a = fit(views[:1])
@@ -51,20 +51,20 @@ def test_01_two_views_recover_shared_shape_better_than_either_alone():
     both, err_ab = fit(views)
     # one beta for both photos, pinned down by two viewpoints: better than either alone
     assert err_ab < min(err_a, err_b), (err_a, err_b, err_ab)
-    assert both.beta.shape == (1, 20) and len(both.views) == 2
+    assert both.state.beta.shape == (1, 20) and len(both.state.views) == 2
     # each view keeps its own neck pose: per-joint angles recovered per view (the bench's
     # neck joint error: mean over the 8 joints and 3 Euler angles), opposite yaws
     from hack_render.geometry.rotations import axis_angle_to_euler
     from hack_render.geometry.skeleton import distribute_head_rotation
 
-    for v, yaw in zip(both.views, (35.0, -35.0)):
+    for v, yaw in zip(both.state.views, (35.0, -35.0)):
         true = distribute_head_rotation(torch.deg2rad(torch.tensor([5.0, yaw, 0.0])))
         fit_ = both.theta(v).detach()[0]
         err = torch.rad2deg((axis_angle_to_euler(fit_) - axis_angle_to_euler(true)).abs()).mean()
         assert float(err) < 1.0, (yaw, float(err))
         assert float(fit_[:, 1].sum()) * yaw > 0
     # and both views' landmarks fit (normalised by the inter-ocular distance)
-    for v in both.views:
+    for v in both.state.views:
         with torch.no_grad():
             pred = both.project(v, both.forward(v).landmarks[0]).numpy()
         tgt = v.detection.points
@@ -99,12 +99,12 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers(monkeypatc
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         f = Fitter([photo], [det], cfg, model=model, progress=False)
-        if f.appearance is None:
+        if f.state.appearance is None:
             pytest.skip("the appearance model is not available")
         f.fit_camera()
         f.fit_shape()
         f.photometric(texel=False)
-    v = f.views[0]
+    v = f.state.views[0]
     # the texel stage renders the full atlas (the photometric stage a coarser mip): the
     # before/after losses below are both taken on the texel stage's scene
     ph.setup_level(f.state, f.cfg, v, int(cfg.photometric.resolutions[-1]), full_maps=True)
@@ -124,17 +124,17 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers(monkeypatc
         return out
 
     pairs = ph.symmetry_pairs(model)
-    frozen = [x.detach().clone() for x in (f.beta, f.psi, f.alpha, v.head_angles)]
+    frozen = [x.detach().clone() for x in (f.state.beta, f.state.psi, f.state.alpha, v.head_angles)]
     before = photo_loss()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         f.photometric(texel=True)
     regularised = photo_loss()
-    reg = {k: float(x) for k, x in ph.texel_regularisers(f.albedo_delta.detach(), pairs).items()}
+    reg = {k: float(x) for k, x in ph.texel_regularisers(f.state.albedo_delta.detach(), pairs).items()}
     # the texel stage moves the albedo only: geometry, expression, PCA alpha, pose frozen
-    for a, b in zip(frozen, (f.beta, f.psi, f.alpha, v.head_angles)):
+    for a, b in zip(frozen, (f.state.beta, f.state.psi, f.state.alpha, v.head_angles)):
         assert torch.equal(a, b.detach())
-    assert float(f.albedo_delta.detach().abs().max()) > 0.0
+    assert float(f.state.albedo_delta.detach().abs().max()) > 0.0
     assert regularised < 0.9 * before, (before, regularised)
 
     # the same stage without the smoothness and symmetry terms: a rougher, less symmetric
@@ -143,23 +143,23 @@ def test_02_texel_refinement_lowers_photo_loss_and_obeys_regularisers(monkeypatc
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         f.photometric(texel=True)
-    free = {k: float(x) for k, x in ph.texel_regularisers(f.albedo_delta.detach(), pairs).items()}
+    free = {k: float(x) for k, x in ph.texel_regularisers(f.state.albedo_delta.detach(), pairs).items()}
     assert reg["smooth"] < 0.5 * free["smooth"], (reg, free)
     assert reg["symmetry"] < 0.5 * free["symmetry"], (reg, free)
 
     # photometric.PSI_LR_SCALE 0: the photometric stage refines the identity and pose but
     # leaves the expressions where the landmark stages put them
-    f.albedo_delta = None  # the photometric stage renders the PCA maps at coarser mips
+    f.state.albedo_delta = None  # the photometric stage renders the PCA maps at coarser mips
     f.cfg.photometric.iterations = [8]
     moved = {}
     for scale in (1.0, 0.0):
         monkeypatch.setattr(ph, "PSI_LR_SCALE", scale)
-        before = [x.detach().clone() for x in (f.psi, f.beta, f.alpha)]
+        before = [x.detach().clone() for x in (f.state.psi, f.state.beta, f.state.alpha)]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             f.photometric(texel=False)
         moved[scale] = [float((x.detach() - b).abs().max())
-                        for x, b in zip((f.psi, f.beta, f.alpha), before)]
+                        for x, b in zip((f.state.psi, f.state.beta, f.state.alpha), before)]
     # the stage kept a later iterate both times (beta and alpha moved); psi only with 1
     assert min(moved[1.0]) > 0.0 and moved[0.0][0] == 0.0, moved
     assert moved[0.0][1] > 0.0 and moved[0.0][2] > 0.0, moved

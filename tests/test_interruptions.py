@@ -315,9 +315,9 @@ def test_fit_interrupted_while_writing_is_marked_incomplete(tmp_path, capsys, mo
     code, err = run(["fit", photo, "-o", tmp_path / "f", "--quiet"], capsys)
     assert code == 130 and "nothing was written" in err and not (tmp_path / "f").exists()
 
-    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: (object(), object()))
+    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: object())
 
-    def half_written(res, fitter, outdir, extra=None):
+    def half_written(res, outdir, extra=None):
         (outdir / "params.json").write_text("{}")
         raise KeyboardInterrupt
 
@@ -337,9 +337,9 @@ def test_fit_resume_skips_a_complete_fit_and_refuses_other_inputs(tmp_path, caps
 
     photo = tmp_path / "face.png"
     iio.imwrite(photo, np.full((32, 32, 3), 100, np.uint8))
-    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: (object(), object()))
+    monkeypatch.setattr(fit_cli, "_fit", lambda *a, **k: object())
 
-    def write_all(res, fitter, outdir, extra=None):
+    def write_all(res, outdir, extra=None):
         (outdir / "params.json").write_text("{}")
         return [outdir / "params.json"]
 

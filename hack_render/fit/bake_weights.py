@@ -13,6 +13,9 @@ skin pixel of a view, and its weight (:func:`pixel_weights`, used by
   the skin's (occluders the segmentation missed, shadows the render does not have,
   clothes, hair), the pixel is dropped. The brows and lips (:func:`feature_bands`) and
   the lids (the band of :data:`LID_INNER`) are kept as the photo has them.
+- thin dark lines (``final.strands``: hair strands across the skin, a frame's edge;
+  :func:`thin_dark_lines`) are dropped, on the brows, lips and lids too; round spots
+  (moles) and broad shadows stay;
 - the skin behind the lash cards' gaps counts (the G-buffer of
   :func:`hack_render.fit.texture.render_at_photo` sees through them).
 """
@@ -128,6 +131,12 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         ratio = ratio * np.exp(-gain)[..., None]
         lr = lr - gain
         ok &= ~mixed
+    thin = np.zeros((h, w), bool)
+    if fc.strands > 0:   # thin dark lines over the skin (hair strands, a frame's edge)
+        thin = thin_dark_lines(lr, ok | features, max(1.0, fc.strands * iod))
+        ok &= ~thin
+        features = features & ~thin
+        lids = lids & ~thin
     obs = gb["albedo"] * ratio
     # robust rejection: the ratio's log far from the skin's median (occluders, shadows the
     # render does not have) or the observation's chromaticity far from the skin's
@@ -139,6 +148,46 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
     ok |= features & (lum > 0.1 * np.median(lum[rendered])) if rendered.any() else features
     wgt = np.where(ok, cos ** 2, 0.0).astype(np.float32)
     return wgt, np.clip(obs, 0.0, 1.0).astype(np.float32)
+
+
+#: :func:`thin_dark_lines`: how much darker than the skin around it a line is (log ratio
+#: photo / render; log 1.6: the skin 1.6 times as bright), and how long beside its width
+STRAND_DEPTH = float(np.log(1.6))
+STRAND_ELONGATION = 4.0
+
+
+def thin_dark_lines(lr: np.ndarray, region: np.ndarray, width: float) -> np.ndarray:
+    """(h, w) bool: the thin dark lines of ``region`` (hair strands across the skin, a
+    frame's edge): where the log ratio photo / render ``lr`` lies :data:`STRAND_DEPTH`
+    below its grey closing over a disc of ``width`` px (a line narrower than the disc is
+    closed over; a broad shadow or a brow is not), in connected parts at least
+    :data:`STRAND_ELONGATION` times as long as ``width`` (a mole or a pore, round, stays),
+    grown by one pixel (the line's edge pixels mix it with the skin)."""
+    from scipy import ndimage
+
+    if not region.any():
+        return np.zeros_like(region)
+    r = max(1, int(np.ceil(width)))
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    disc = xx ** 2 + yy ** 2 <= r * r
+    fill = float(np.median(lr[region]))
+    x = np.where(region, lr, fill)
+    hat = ndimage.grey_closing(x, footprint=disc) - x
+    dark = region & (hat > STRAND_DEPTH)
+    labels, n = ndimage.label(dark, structure=np.ones((3, 3)))
+    if n == 0:
+        return dark
+    out = np.zeros_like(dark)
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        part = labels[sl] == k
+        ys, xs = np.nonzero(part)
+        if len(ys) < 3:
+            continue
+        ev = np.linalg.eigvalsh(np.cov(np.stack([xs, ys]).astype(float)) + 1e-6 * np.eye(2))
+        length = 4.0 * np.sqrt(ev[-1])        # a uniform line's length: sqrt(12 var) ~ 3.5 sd
+        if length >= STRAND_ELONGATION * width:
+            out[sl] |= part
+    return ndimage.binary_dilation(out) & region
 
 
 def feature_rings(points: np.ndarray, shape: tuple[int, int], eye_scale: float = 1.8,

@@ -54,7 +54,7 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
         return None, []
     with interrupts.on_interrupt(f"nothing was written to {outdir} (interrupted while "
                                "fitting); run the same command again"):
-        result, fitter = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
+        result = _fit(photos, cfg, landmarks, progress, masks, focal_mm)
 
     # the files are written under the folder's lock, after a record that says the folder
     # holds no complete fit (what an earlier fit left there is being replaced)
@@ -62,7 +62,7 @@ def fit_photos(photos: list[Path], outdir: Path, config=None, landmarks: list[Pa
             f"the fit in {outdir} is incomplete ({record.path.name} says complete: false; "
             "files from an earlier fit there may remain); run the same command again"):
         record.write(complete=False)
-        paths = write_all(result, fitter, outdir)
+        paths = write_all(result, outdir)
         record.write(complete=True)  # the completion marker, written last
     return result, paths + [record.path]
 
@@ -142,7 +142,8 @@ def check_landmark_file(path: Path) -> None:
 
 
 def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
-    """Read, detect and fit (nothing written); returns (result, fitter)."""
+    """Read, detect and fit (nothing written); returns the :class:`FitResult` (its
+    ``state`` and ``final`` what the outputs are written from)."""
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.landmarks import detect, read_landmark_file
     from hack_render.fit.silhouette import load_mask
@@ -171,9 +172,7 @@ def _fit(photos, cfg, landmarks, progress, masks, focal_mm):
                   for p, ph in zip(masks, imgs)]
     fitter = Fitter(imgs, dets, cfg, progress=progress, masks=person)
     fitter.timings["landmarks"] = t_detect
-    result = fitter.run()
-    result.fitter = fitter  # for callers that evaluate the fit (bench/bench_fit.py)
-    return result, fitter
+    return fitter.run()
 
 
 def fit(

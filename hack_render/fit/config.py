@@ -350,6 +350,20 @@ class FinalConfig:
     # (fit/specular_bake.py), one more render per view. Off: the fitted light's error is
     # read as gloss (docs/fit.md)
     specular: bool = False
+    # the iris's and the whites' colours (fit/iris.py) from the render's iris and whites
+    # where the photo's own are (MediaPipe's face mesh with its iris landmarks: the pixels
+    # of both), else from the render's alone (photo luminance percentiles). Off by
+    # default: on the astronaut it took her brown iris to near black, eyes -0.3 dB
+    # (docs/fit.md)
+    photo_irises: bool = False
+    # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
+    # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
+    # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
+    strands: float = 0.0
+    # render_over_photo.png keeps the photo's hair and occluders (the segmentation's) in
+    # front of the render (outputs.photo_layer): the model has no hair, so a fringe is the
+    # person's, not the model's bare forehead; render.png is the model alone either way
+    photo_hair: bool = True
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
@@ -529,7 +543,8 @@ class FitConfig:
                             f"{fc.eye_hole!r}.")
         for key, hi, unit in (("edge_feather", 32, "photo pixels' footprints"),
                               ("occluder_shadow", 1, "of the eyes' corner distance"),
-                              ("occluder_margin", 1, "of the eyes' corner distance")):
+                              ("occluder_margin", 1, "of the eyes' corner distance"),
+                              ("strands", 0.2, "of the eyes' corner distance")):
             x = getattr(fc, key)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
                 raise HackError(f"config final.{key}: expected 0..{hi} ({unit}), found {x!r}.")

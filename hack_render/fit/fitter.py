@@ -14,13 +14,16 @@ Stages (each with its own iterations, weights and learning rates, see ``config.p
    and spp, coarse to fine; skin-masked robust (Charbonnier) loss over alpha, lighting
    and refinements of beta, psi, theta, eta, tau.
 5. texel (optional): per-texel albedo refinement with smoothness and symmetry terms.
+6. final (``final.py``, with the photometric stage's lighting): the views at the photo's
+   size, the baked skin, the eyes' colours and ``render.png``'s renders.
 
 Structure: the typed state (``state.py``: :class:`FitState`, :class:`View`,
 :class:`Level`), the loss terms (``terms.py``, one robust loss in ``robust.py``), and the
 stages (``geometric.py``: camera and shape; ``photometric.py``), each a function of the
 state and the config that returns its report; :class:`Fitter` builds the state and runs
-the stages in order. Nothing in ``fit/`` imports this module but ``outputs.py`` and the
-CLI (``tests/test_fit_structure.py`` checks the import graph has no cycle).
+the stages in order, and its :class:`FitResult` holds the state and the final stage's
+renders (``outputs.py`` only writes them). Nothing in ``fit/`` imports this module but
+``outputs.py`` and the CLI (``tests/test_fit_structure.py`` checks the import graph has no cycle).
 
 Multi-view: views share beta, alpha, eta and tau; each has its own camera, head rotation,
 neck pose and lighting; expression shared unless ``per_view_expression``.
@@ -35,6 +38,7 @@ the exact homography K' Rv K^-1 (so the crop needs no off-centre principal point
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -43,9 +47,11 @@ import torch
 
 from appearance.model import AppearanceModel
 from hack_render.errors import HackError
+from hack_render.fit import final as final_stage
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
+from hack_render.fit.final import FinalRenders
 from hack_render.fit.landmark_embedding import LandmarkEmbedding, load_default
 from hack_render.fit.landmarks import JawContour, landmark_weights
 from hack_render.fit.photo import Photo
@@ -82,6 +88,12 @@ class FitResult:
     reports: list
     timings: dict
     failures: list
+    #: the fitted state (model, parameters, views with their levels and lighting): what
+    #: outputs and benchmarks evaluate (``state.forward``, ``state.project``, ...)
+    state: FitState | None = None
+    #: the final stage's renders, bake and eyes (``final.py``), or None where it did not
+    #: run (``final.enabled`` off, or no photometric lighting)
+    final: FinalRenders | None = None
 
 
 #: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
@@ -174,7 +186,7 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # the skin inside the face mesh's oval: hair of a skin-like colour and the
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
-        view.hair = seg.hair
+        view.hair, view.clothes = seg.hair, seg.clothes
     if m is not None and mask_problem(m) is not None:  # no outline in the photo to fit
         m, why = None, f"the plain background's mask has {mask_problem(m)}"
     if m is None and cfg.silhouette.segment:
@@ -221,32 +233,15 @@ def _segment(view: View):
 
 
 class Fitter:
-    """Builds the :class:`FitState` and runs the stages in order (:meth:`run`).
-
-    The state's fields (``model``, ``appearance``, ``views``, ``beta``, ``psi``,
-    ``alpha``, ``eta``, ``tau``, ``albedo_delta``, ``embedding``, ...) read and write
-    through the fitter;
-    its methods below evaluate the state for callers that hold a fitter (outputs,
-    benchmarks)."""
+    """Builds the :class:`FitState` (``self.state``: the model, the parameters and the
+    views; read and write them there) and runs the stages in order (:meth:`run`); its
+    methods below evaluate the state with the fitter's config."""
 
     def __init__(self, photos: list[Photo], detections: list[Detection], config: FitConfig,
                  model=None, appearance=None, progress: bool = True, masks: list | None = None):
         self.cfg, self.progress = config, progress
         self.state = init_state(photos, detections, config, model, appearance, masks)
         self.log = StageLog(progress=progress)
-
-    _STATE = frozenset(set(FitState.__dataclass_fields__) | {"faces"})
-
-    def __getattr__(self, name):
-        if name in Fitter._STATE:
-            return getattr(self.__dict__["state"], name)
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-
-    def __setattr__(self, name, value):
-        if name in Fitter._STATE:
-            setattr(self.state, name, value)
-        else:
-            super().__setattr__(name, value)
 
     @property
     def reports(self) -> list[StageReport]:
@@ -291,6 +286,17 @@ class Fitter:
     def photometric(self, texel: bool = False) -> list[StageReport]:
         return photometric.run(self.state, self.cfg, self.log, texel)
 
+    def final(self) -> FinalRenders | None:
+        """The final stage at the photo's size (``final.py``), timed as ``final``; None
+        where it does not run (:func:`~hack_render.fit.final.wanted`)."""
+        if not final_stage.wanted(self.state, self.cfg):
+            return None
+        t0 = time.perf_counter()
+        out = final_stage.run(self.state, self.cfg, self.progress)
+        self.log.timings["final"] = self.log.timings.get("final", 0.0) + (
+            time.perf_counter() - t0)
+        return out
+
     def run(self) -> FitResult:
         self.fit_camera()
         self.fit_shape()
@@ -298,10 +304,11 @@ class Fitter:
             self.photometric(texel=False)
             if self.cfg.texel.enabled and self.state.appearance is not None:
                 self.photometric(texel=True)
+        final = self.final()
         s = self.state
         return FitResult(s.model, s.appearance, self.cfg, s.views, s.beta, s.psi, s.alpha,
                          s.eta, s.tau, s.albedo_delta, self.log.reports, self.log.timings,
-                         [r.failure for r in self.log.reports if r.failure])
+                         [r.failure for r in self.log.reports if r.failure], s, final)
 
 
 def _landmark_embedding(name: str, model):

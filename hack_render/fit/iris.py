@@ -39,6 +39,9 @@ the whites are held within :data:`SCLERA_BOUNDS`. The report says which.
 
 from __future__ import annotations
 
+import warnings
+from collections import defaultdict
+
 import numpy as np
 
 from hack_render.fit import texture
@@ -60,6 +63,125 @@ SCLERA_PERCENTILES = (50.0, 95.0)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
+#: The person's iris in the photo (:func:`photo_eyes`): the annulus of each iris's radius
+#: kept (inside it the pupil, outside the limbus's blur into the whites); the whites are
+#: the lids' opening beyond WHITES_BEYOND radii of the iris.
+IRIS_ANNULUS = (0.35, 0.9)
+WHITES_BEYOND = 1.25
+#: The photo's own iris pixels (:func:`photo_eyes`) under the render's iris: luminance
+#: percentiles kept (the brightest tenth: catchlights).
+PERSON_PERCENTILES = (0.0, 90.0)
+#: The face mesh with iris landmarks is run on the detection's box grown by this much of
+#: its size on each side (a small face in a large photo is found there).
+EYE_CROP_GROW = 0.6
+_MESH: dict = {}
+
+
+def _iris_mesh():
+    """MediaPipe's face mesh with its iris landmarks (``refine_landmarks``: 478 points,
+    468-472 and 473-477 the irises' centres and four rim points each; the models are in
+    the mediapipe wheel)."""
+    if "mesh" not in _MESH:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mediapipe as mp
+
+            _MESH["mesh"] = mp.solutions.face_mesh.FaceMesh(
+                static_image_mode=True, refine_landmarks=True, max_num_faces=4,
+                min_detection_confidence=0.3)
+    return _MESH["mesh"]
+
+
+def iris_landmarks(rgb8: np.ndarray, points: np.ndarray | None = None) -> np.ndarray | None:
+    """(478, 2) the face mesh's points with the irises' (pixels, centres at +0.5), of the
+    face nearest ``points`` (e.g. the fit's 68 detected points; the mesh runs on their box
+    grown by :data:`EYE_CROP_GROW`), or None where it finds no face or mediapipe is
+    missing."""
+    h, w = rgb8.shape[:2]
+    x0, y0, crop = 0, 0, rgb8
+    if points is not None:
+        lo, hi = np.asarray(points).min(0), np.asarray(points).max(0)
+        g = EYE_CROP_GROW * float((hi - lo).max())
+        x0, y0 = int(max(0, lo[0] - g)), int(max(0, lo[1] - g))
+        x1, y1 = int(min(w, hi[0] + g + 1)), int(min(h, hi[1] + g + 1))
+        crop = np.ascontiguousarray(rgb8[y0:y1, x0:x1])
+    try:
+        res = _iris_mesh().process(crop)
+    except (ImportError, OSError, RuntimeError):
+        return None
+    if not res.multi_face_landmarks:
+        return None
+    ch, cw = crop.shape[:2]
+    faces = [np.array([(lm.x * cw + x0, lm.y * ch + y0) for lm in f.landmark])
+             for f in res.multi_face_landmarks]
+    faces = [f for f in faces if len(f) >= 478]
+    if not faces:
+        return None
+    ref = np.asarray(points).mean(0) if points is not None else np.array([w / 2, h / 2])
+    return min(faces, key=lambda f: float(np.linalg.norm(f[:468].mean(0) - ref)))
+
+
+def mesh_loops(name: str) -> list:
+    """A face-mesh connection set (MediaPipe's ``FACEMESH_*``) as its closed loops of
+    point ids, longest first: the sets are undirected edges (an eye's is two lids' polylines
+    from corner to corner; the lips' two such loops, outer and inner)."""
+    from mediapipe.python.solutions import face_mesh_connections as fmc
+
+    adj = defaultdict(set)
+    for a, b in getattr(fmc, name):
+        adj[a].add(b)
+        adj[b].add(a)
+    loops, seen = [], set()
+    for start in sorted(adj):
+        if start in seen:
+            continue
+        loop, prev, p = [start], None, start
+        seen.add(start)
+        while True:
+            nxt = [q for q in sorted(adj[p]) if q != prev and (q not in seen or q == start)]
+            if not nxt or nxt[0] == start:
+                break
+            prev, p = p, nxt[0]
+            seen.add(p)
+            loop.append(p)
+        loops.append(loop)
+    return sorted(loops, key=len, reverse=True)
+
+
+def photo_eyes(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(iris, whites): (H, W) bool masks of the person's irises and eye whites in the
+    photo, from the face mesh's iris landmarks (:func:`iris_landmarks`): each iris's
+    annulus :data:`IRIS_ANNULUS` of its radius (the mean distance of its four rim points
+    from its centre) inside that eye's lid contour (FACEMESH_LEFT_EYE / RIGHT_EYE), and
+    the lids' opening beyond :data:`WHITES_BEYOND` radii. ``shape``: at this (H, W)
+    instead of the photo's (the points scaled). None where no face is found."""
+    from skimage.draw import polygon
+
+    pts = iris_landmarks(rgb8, points)
+    if pts is None:
+        return None
+    h, w = shape or rgb8.shape[:2]
+    pts = pts * [w / rgb8.shape[1], h / rgb8.shape[0]]
+    iris = np.zeros((h, w), bool)
+    whites = np.zeros((h, w), bool)
+    # 468-472: the subject's right iris (the photo's left eye ring: FACEMESH_RIGHT_EYE is
+    # the subject's right); each iris is matched to the lid ring nearest its centre
+    rings = [pts[mesh_loops(n)[0]] for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE")]
+    for c in (468, 473):
+        centre = pts[c]
+        r = float(np.linalg.norm(pts[c + 1:c + 5] - centre, axis=1).mean())
+        lids = min(rings, key=lambda q: float(np.linalg.norm(q.mean(0) - centre)))
+        opening = np.zeros((h, w), bool)
+        rr, cc = polygon(lids[:, 1] - 0.5, lids[:, 0] - 0.5, (h, w))
+        opening[rr, cc] = True
+        d = np.full((h, w), np.inf)
+        d[rr, cc] = np.hypot(cc + 0.5 - centre[0], rr + 0.5 - centre[1])
+        iris |= opening & (d >= IRIS_ANNULUS[0] * r) & (d <= IRIS_ANNULUS[1] * r)
+        whites |= opening & (d >= WHITES_BEYOND * r)
+    return iris, whites
+
+
 def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
@@ -68,10 +190,19 @@ def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     return seg & (rgba[..., 3] > 0.999) & (lum > 0.02) & (lum < 0.6 * sclera)
 
 
-def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None) -> np.ndarray:
-    """(h, w) bool: ``render``'s iris pixels (:func:`iris_mask`, within ``allowed``) whose
-    photo luminance lies within ``KEEP_PERCENTILES`` (see the module docstring)."""
-    return _kept(iris_mask(render.gbuffer, render.rgba), photo, allowed, KEEP_PERCENTILES)
+def kept_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None,
+                person: np.ndarray | None = None) -> np.ndarray:
+    """(h, w) bool: ``render``'s iris pixels (:func:`iris_mask`, within ``allowed``) that
+    are the person's iris in the photo too (``person``: :func:`photo_eyes`' iris, at the
+    render's size), the brightest tenth (catchlights) left out; where those are fewer than
+    :data:`MIN_PIXELS` (or no ``person``), those whose photo luminance lies within
+    ``KEEP_PERCENTILES`` (see the module docstring)."""
+    m = iris_mask(render.gbuffer, render.rgba)
+    if person is not None:
+        both = m & person & (True if allowed is None else allowed)
+        if both.sum() >= MIN_PIXELS:
+            return _kept(both, photo, None, PERSON_PERCENTILES)
+    return _kept(m, photo, allowed, KEEP_PERCENTILES)
 
 
 def sclera_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
@@ -95,13 +226,19 @@ def _kept(mask: np.ndarray, photo: np.ndarray, allowed, percentiles) -> np.ndarr
     return m
 
 
-def kept_sclera_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None
-                       ) -> np.ndarray:
-    """(h, w) bool: ``render``'s eye-white pixels (:func:`sclera_mask`, within ``allowed``)
-    whose photo luminance lies within ``SCLERA_PERCENTILES``: the brighter half of them
-    (where the model's sclera falls on the person's iris, lids or lashes the photo is
-    darker), without the brightest twentieth (catchlights)."""
-    return _kept(sclera_mask(render.gbuffer, render.rgba), photo, allowed, SCLERA_PERCENTILES)
+def kept_sclera_pixels(photo: np.ndarray, render, allowed: np.ndarray | None = None,
+                       person: np.ndarray | None = None) -> np.ndarray:
+    """(h, w) bool: ``render``'s eye-white pixels (:func:`sclera_mask`, within ``allowed``,
+    and within ``person``, the photo's own whites (:func:`photo_eyes`), where that leaves
+    :data:`MIN_PIXELS`) whose photo luminance lies within ``SCLERA_PERCENTILES``: the
+    brighter half of them (where the model's sclera falls on the person's iris, lids or
+    lashes the photo is darker), without the brightest twentieth (catchlights)."""
+    m = sclera_mask(render.gbuffer, render.rgba)
+    if person is not None:
+        both = m & person & (True if allowed is None else allowed)
+        if both.sum() >= MIN_PIXELS:
+            return _kept(both, photo, None, SCLERA_PERCENTILES)
+    return _kept(m, photo, allowed, SCLERA_PERCENTILES)
 
 
 def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np.ndarray:
@@ -113,18 +250,23 @@ def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np
     return lsq_linear(d, p - s, bounds=(np.asarray(lo), np.asarray(hi))).x
 
 
-def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed):
+def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed,
+              person=None):
     """The kept iris and eye-white pixels of every view (see :func:`estimate`): (photo,
     the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), the
     two pixel counts and which rows are the iris's (n,)."""
     rows: dict[str, list] = {k: [] for k in ("p", "s", "di", "ds", "dg")}
     n = n_white = 0
-    iris_rows = []
+    iris_rows, from_person = [], []
     for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
         ok = (allowed or [None] * len(photos))[i]
-        keep = kept_pixels(photo, r, ok)
-        kw = kept_sclera_pixels(photo, r, ok) & ~keep if white_renders \
-            else np.zeros_like(keep)
+        eyes = (person or [None] * len(photos))[i]
+        keep = kept_pixels(photo, r, ok, None if eyes is None else eyes[0])
+        if eyes is not None and (iris_mask(r.gbuffer, r.rgba) & eyes[0] & (
+                True if ok is None else ok)).sum() >= MIN_PIXELS:
+            from_person.append(i)
+        kw = kept_sclera_pixels(photo, r, ok, None if eyes is None else eyes[1]) & ~keep \
+            if white_renders else np.zeros_like(keep)
         m = keep | kw
         q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
         ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
@@ -140,7 +282,7 @@ def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allow
     arrays = [np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
               for k in ("p", "s", "di", "ds", "dg")]
     return arrays, n, n_white, (np.concatenate(iris_rows) if iris_rows
-                                else np.zeros(0, bool))
+                                else np.zeros(0, bool)), from_person
 
 
 def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray) -> float:
@@ -194,7 +336,7 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
 
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
-             sclera=None, matte_renders: list | None = None
+             sclera=None, matte_renders: list | None = None, person: list | None = None
              ) -> tuple[tuple[float, float, float], dict]:
     """The iris colour, and with ``white_renders`` the eye whites' too, that make the
     renders match ``photos`` (linear RGB, each at its render's size) over the iris's and
@@ -220,8 +362,8 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     current = np.asarray(current, np.float64)
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
-    rows, n, n_white, iris_rows = _eye_rows(photos, renders, zero_renders, white_renders,
-                                            matte_renders, allowed)
+    rows, n, n_white, iris_rows, from_person = _eye_rows(
+        photos, renders, zero_renders, white_renders, matte_renders, allowed, person)
     if grey:  # the luminance only: one gain per part for all channels
         rows = [np.repeat((x @ _LUMA)[:, None], 3, 1) for x in rows]
     iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
@@ -229,7 +371,11 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     tied = bool(matte_renders)
     gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
     rgb = current * gain_i
-    report = {"pixels": n, "start": current.tolist()}
+    report = {"pixels": n, "start": current.tolist(),
+              "pixels_from": ("the photo's irises (the face mesh's iris landmarks) under "
+                              f"the render's, views {from_person}" if from_person else
+                              "the render's iris (photo luminance percentiles "
+                              f"{list(KEEP_PERCENTILES)})")}
     how = "photo (grey: luminance only)" if grey else "photo"
     if not iris_ok:
         report["source"] = f"kept: {n} iris pixels seen (fewer than {MIN_PIXELS})"
@@ -264,24 +410,36 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     return tuple(float(x) for x in rgb), report
 
 
-def _at_render_size(state, renders: list, allowed: list | None):
-    """The views' photos and ``allowed`` masks (photo-size, or None) at each render's size."""
+def _at_render_size(state, renders: list, allowed: list | None, person: list | None = None):
+    """The views' photos, ``allowed`` masks (photo-size, or None) and ``person``'s eyes
+    (photo-size (iris, whites), or None) at each render's size."""
     sizes = [r.rgba.shape[:2] for r in renders]
     photos = [photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
     masks = [None if a is None else mask_at(a, *hw)
              for a, hw in zip(allowed or [None] * len(sizes), sizes)]
-    return photos, masks
+    eyes = [None if e is None else (mask_at(e[0], *hw), mask_at(e[1], *hw))
+            for e, hw in zip(person or [None] * len(sizes), sizes)]
+    return photos, masks, eyes
+
+
+def views_eyes(state) -> list:
+    """Per view the person's eyes in its photo (:func:`photo_eyes`: (iris, whites) at the
+    photo's size, near the view's detected points), or None where the face mesh finds
+    none."""
+    return [photo_eyes(v.photo.uint8(), v.detection.points) for v in state.views]
 
 
 def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None,
-               whites: bool = True) -> tuple[tuple[float, float, float], dict]:
+               whites: bool = True, person: list | None = None
+               ) -> tuple[tuple[float, float, float], dict]:
     """The iris colour of the state's views (:func:`estimate`), from renders per view at
     the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
     default eyes, a black iris, and (``whites``) a black sclera and eyes without their wet
     gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
-    photo-size bool mask of the pixels it may use, or None. The report's ``sclera_rgb``
+    photo-size bool mask of the pixels it may use, or None; ``person``: per view the
+    photo's own (iris, whites) (:func:`views_eyes`), or None. The report's ``sclera_rgb``
     and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
-    maps = maps if maps is not None else texture._skin_maps(state)
+    maps = maps if maps is not None else texture.skin_maps(state)
     black = (0.0, 0.0, 0.0)
     variants = [(DEFAULT_IRIS_RGB, SCLERA_RGB, None), (black, SCLERA_RGB, None)]
     if whites:
@@ -289,22 +447,24 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     per_view = [texture.render_eye_variants(state, cfg, v, maps, variants, spp,
                                             cfg.final.max_side) for v in state.views]
     out = [list(r) for r in zip(*per_view)]       # per variant, the views' renders
-    photos, masks = _at_render_size(state, out[0], allowed)
+    photos, masks, eyes = _at_render_size(state, out[0], allowed, person)
     grey = all(v.photo.is_grey for v in state.views)
     return estimate(photos, out[0], out[1], DEFAULT_IRIS_RGB, grey, masks,
-                    out[2] if whites else None, SCLERA_RGB, out[3] if whites else None)
+                    out[2] if whites else None, SCLERA_RGB, out[3] if whites else None,
+                    eyes)
 
 
-def residual(state, renders: list, allowed: list | None = None, part: str = "iris"
-             ) -> float | None:
+def residual(state, renders: list, allowed: list | None = None, part: str = "iris",
+             person: list | None = None) -> float | None:
     """photo / render luminance over the kept iris (``part="iris"``) or eye-white
     (``"sclera"``) pixels of ``renders`` (the state's views, e.g. ``render.png``'s; 1:
-    matched); ``allowed`` as :func:`fit_colour`'s."""
-    photos, masks = _at_render_size(state, renders, allowed)
+    matched); ``allowed`` and ``person`` as :func:`fit_colour`'s."""
+    photos, masks, eyes = _at_render_size(state, renders, allowed, person)
     kept = kept_pixels if part == "iris" else kept_sclera_pixels
+    k = 0 if part == "iris" else 1
     num = den = 0.0
-    for photo, r, ok in zip(photos, renders, masks):
-        keep = kept(photo, r, ok)
+    for photo, r, ok, e in zip(photos, renders, masks, eyes):
+        keep = kept(photo, r, ok, None if e is None else e[k])
         if keep.sum() >= MIN_PIXELS:
             num += float((photo[keep] @ _LUMA).sum())
             den += float((r.rgba[..., :3][keep] @ _LUMA).sum())

@@ -4,22 +4,21 @@ report. Every file is written under a temporary name and renamed."""
 
 from __future__ import annotations
 
-import dataclasses
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 from PIL import Image
-from tqdm import tqdm
 
 from appearance.texture_io import write_exr, write_png
 from hack_render.boundary import clean_temporaries as clean
-from hack_render.fit import iris, texture
+from hack_render.fit import terms
+from hack_render.fit.bake_weights import feature_rings, mask_at
+from hack_render.fit.camera import focal_prior_px
+from hack_render.fit.final import FinalRenders
 from hack_render.fit.fitter import R0, SENSOR_MM, FitResult
 from hack_render.fit.landmark_refiner import load_refiner
 from hack_render.fit.photometric import level_maps, render_view, setup_level
-from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.terms import fitted_points, landmark_residual_iod
 from hack_render.fit.virtual_view import on_photo, warp_photo
 from hack_render.geometry.obj_io import ObjMaterials, write_mesh
@@ -81,10 +80,10 @@ def _refiner_shift(det) -> float | None:
     return float(np.linalg.norm(det.points[idx] - det.raw[idx], axis=1).mean() / iod)
 
 
-def fitted_landmarks(fitter, v) -> np.ndarray:
+def fitted_landmarks(res: FitResult, v) -> np.ndarray:
     """(68, 2) the fitted model's landmark points (the jawline on its contour) projected
     into the view's photo, in pixels."""
-    return fitted_points(fitter.state, fitter.cfg, v, rematch=True)
+    return fitted_points(res.state, res.config, v, rematch=True)
 
 
 def _refiner_provenance(res) -> str | None:
@@ -96,7 +95,7 @@ def _refiner_provenance(res) -> str | None:
     return None if ref is None else ref.meta.get("provenance")
 
 
-def _pose_entry(fitter, v) -> dict:
+def _pose_entry(state, v) -> dict:
     """Torso, neck and head angles of a view (degrees, pitch/yaw/roll about the model's
     x, y, z): the torso (global_orient, relative to the camera), the neck's turn (the
     head's rotation shared over the cervical joints, plus their residuals: the sum over
@@ -105,7 +104,7 @@ def _pose_entry(fitter, v) -> dict:
     (a turn the landmarks cannot place goes to the torso)."""
     with torch.no_grad():
         torso = np.rad2deg(v.global_orient.numpy())
-        neck = np.rad2deg(fitter.theta(v)[0].sum(0).numpy())
+        neck = np.rad2deg(state.theta(v)[0].sum(0).numpy())
     return {"torso": torso.round(2).tolist(), "neck": neck.round(2).tolist(),
             "head": (torso + neck).round(2).tolist(),
             "torso_from": ("silhouette (the shoulders are in the person mask)"
@@ -113,24 +112,30 @@ def _pose_entry(fitter, v) -> dict:
                            else "priors (no shoulders in a person mask)")}
 
 
-def _focal_entry(fitter, v) -> dict:
+def _focal_entry(cfg, v) -> dict:
     """The view's focal length, fitted and prior, in 35 mm-equivalent mm, and the
     prior's source ("prior": camera.focal_mm_prior; "exif"; "--focal-mm")."""
     mm = SENSOR_MM / max(v.photo.width, v.photo.height)
-    f0, sigma, source = fitter.focal_prior_px(v.photo)
+    f0, sigma, source = focal_prior_px(cfg.camera, v.photo)
     return {"fitted_mm": float(v.focal.detach()) * mm, "prior_mm": f0 * mm,
             "prior_log_sigma": sigma, "source": source}
 
 
-def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -> list[Path]:
-    """Write everything; returns the paths written."""
+def write_all(res: FitResult, outdir: Path, extra: dict | None = None, *legacy) -> list[Path]:
+    """Write everything of the fit ``res`` (its state and its final stage's renders) to
+    ``outdir``; returns the paths written. (``write_all(res, fitter, outdir[, extra])``,
+    the call before issue 62, still works: the fitter is not needed.)"""
+    if not isinstance(outdir, (str, Path)):   # write_all(res, fitter, outdir, extra)
+        outdir, extra = extra, (legacy[0] if legacy else None)
+    outdir = Path(outdir)
+    state, final = res.state, res.final
     outdir.mkdir(parents=True, exist_ok=True)
     clean_temporaries(outdir)
     written = []
     for i, v in enumerate(res.views):
         name = "params.json" if i == 0 else f"params_view{i}.json"
         written.append(save_params(outdir / name, view_params(res, i)))
-    fitted = [fitted_landmarks(fitter, v) for v in res.views]   # the npz's and the report's
+    fitted = [fitted_landmarks(res, v) for v in res.views]   # the npz's and the report's
     arrays = {"beta": res.beta.detach().numpy(), "psi": res.psi.detach().numpy(),
               "alpha": res.alpha.detach().numpy(), "eta": res.eta.detach().numpy(),
               "tau": res.tau.detach().numpy()}
@@ -159,11 +164,9 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     cams = [camera_dict(v) for v in res.views]
     written.append(write_json(outdir / "cameras.json", {"cameras": cams}, indent=1))
     m = res.model
-    # the photo-size renders and the baked skin need the fitted lighting (the photometric
-    # stage's); without it the textures are the model's own maps
-    final = final_renders(fitter) if res.config.final.enabled and all(
-        v.lighting is not None for v in res.views) else None
-    textures = write_textures(fitter, outdir / "textures", final)
+    # the photo-size renders and the baked skin (the final stage, fit/final.py; without
+    # the photometric stage's lighting it did not run: the textures are the model's maps)
+    textures = write_textures(state, outdir / "textures", final)
     written += textures
     # the OBJs' .mtl names the fitted maps written just above (PNG, relative paths)
     mats = ObjMaterials(m.material_names, m.face_material.numpy(),
@@ -173,7 +176,7 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                             final.maps.sclera_rgb if final else None))
     for i, v in enumerate(res.views):
         with torch.no_grad():
-            verts = fitter.forward(v).vertices[0].numpy()
+            verts = state.forward(v).vertices[0].numpy()
         stem = "mesh" if i == 0 else f"mesh_view{i}"
         for ext in (".obj", ".ply"):
             written.append(write_mesh(outdir / f"{stem}{ext}", verts, m.faces.numpy(),
@@ -181,8 +184,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
             if ext == ".obj":
                 written.append(outdir / f"{stem}.mtl")
     if final is not None:
-        written += write_photo_renders(fitter, final, outdir)
-    written += write_overlays(fitter, outdir, final)
+        written += write_photo_renders(res, final, outdir)
+    written += write_overlays(res, outdir, final)
     written += write_losses(res, outdir)
     report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),
               "failures": res.failures, "config": res.config.to_dict(),
@@ -201,8 +204,8 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                          "landmark_residual_iod": landmark_residual_iod(v, fitted[i]),
                          "landmark_points": "embedding" if getattr(v, "embedded", False)
                          else "vertices", "silhouette": v.silhouette_note,
-                         "focal": _focal_entry(fitter, v),
-                         "pose_deg": _pose_entry(fitter, v),
+                         "focal": _focal_entry(res.config, v),
+                         "pose_deg": _pose_entry(state, v),
                          # "sg" lighting: the lobes fitted, and how init_lobes started them;
                          # colour_cast: the light's rms log-chromaticity on the skin
                          "lighting": ({"mode": v.lighting.mode, **v.lighting.summary(),
@@ -211,11 +214,10 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
                                       if v.lighting is not None else None)}
                         for i, v in enumerate(res.views)],
               # photometric.balance_albedo: the skin's colour moved from the light to alpha
-              "albedo_balance": getattr(fitter, "albedo_balance", None) or None,
+              "albedo_balance": state.albedo_balance or None,
               "final": final.report if final is not None else None,
-              "landmark_embedding": (fitter.embedding.meta.get("provenance")
-                                     if getattr(fitter, "embedding", None) is not None
-                                     else None),
+              "landmark_embedding": (state.embedding.meta.get("provenance")
+                                     if state.embedding is not None else None),
               "landmark_refiner": _refiner_provenance(res)}
     report.update(extra or {})
     written.append(write_json(outdir / "fit_report.json", report, indent=1))
@@ -224,96 +226,53 @@ def write_all(res: FitResult, fitter, outdir: Path, extra: dict | None = None) -
     return written
 
 
-class FinalRenders:
-    """The views rendered at the photo's size with the fitted maps (the bake's divisor),
-    the baked skin (``texture.bake_diffuse``), the views re-rendered with the baked maps
-    (``render.png``), and what it cost."""
-
-    def __init__(self, fitter):
-
-        st, cfg = fitter.state, fitter.cfg
-        specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
-        bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular),
-                   desc="fit final (renders, bake)", unit="step",
-                   disable=not fitter.progress, leave=False)
-        t0 = time.perf_counter()
-        self.fitted = []
-        for v in st.views:
-            self.fitted.append(texture.render_at_photo(st, cfg, v,
-                                                       max_side=cfg.final.max_side))
-            bar.update()
-        self.baked = texture.bake_diffuse(st, cfg, self.fitted)
-        base = texture._skin_maps(st, cfg.final.atlas_height)
-        spec = base.specular
-        self.specular = {"source": "the fitted map (final.specular off)"}
-        self.specular_confidence = None
-        if specular:  # the highlights' gain (fit/specular_bake.py): a render without specular
-
-            m0 = texture._skin_maps(st)
-            m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
-            flat = [texture.render_at_photo(st, cfg, v, maps=m0, max_side=cfg.final.max_side)
-                    for v in st.views]
-            spec, self.specular_confidence, self.specular = bake_specular(
-                st, cfg, self.fitted, flat, self.baked.pixel_weights, spec)
-            bar.update()
-        # the person's iris and eye-white colours (fit/iris.py): not under the photo's occluders
-        allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
-                   for v in st.views]
-        rgb, self.iris = iris.fit_colour(st, cfg, allowed)
-        bar.update()
-        t1 = time.perf_counter()
-        self.maps = dataclasses.replace(base, diffuse=self.baked.diffuse, specular=spec,
-                                        iris_rgb=rgb,
-                                        sclera_rgb=tuple(self.iris["sclera_rgb"]),
-                                        eye_gloss=self.iris.get("eye_gloss"))
-        self.renders = []
-        for v in st.views:
-            self.renders.append(texture.render_at_photo(st, cfg, v, maps=self.maps,
-                                                        max_side=cfg.final.max_side))
-            bar.update()
-        # refinement: the photo over the re-render, divided out again (what the renderer's
-        # lighting, filter and denoiser change in the baked skin is corrected)
-        for _ in range(int(cfg.final.refine)):
-            self.baked = texture.bake_diffuse(st, cfg, self.renders, prior=self.baked.diffuse,
-                                              weights=self.baked.pixel_weights)
-            self.maps = dataclasses.replace(self.maps, diffuse=self.baked.diffuse)
-            self.renders = [texture.render_at_photo(st, cfg, v, maps=self.maps,
-                                                    max_side=cfg.final.max_side)
-                            for v in st.views]
-            bar.update()
-        bar.close()
-        # photo / render.png over the iris's pixels (luminance; 1: matched)
-        self.iris["residual"] = iris.residual(st, self.renders, allowed)
-        self.iris["sclera_residual"] = iris.residual(st, self.renders, allowed, "sclera")
-        self.report = {"spp": self.renders[0].spp, "denoised": self.renders[0].denoised,
-                       "atlas_height": cfg.final.atlas_height,
-                       "seen_fraction": self.baked.seen_fraction,
-                       "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
-                       "size": [list(r.rgba.shape[1::-1]) for r in self.renders],
-                       "iris": self.iris, "specular": self.specular,
-                       "diffuse": "derived: the photo(s) with the fitted lighting divided "
-                                  "out where seen (confidence.png)"
-                                  + (", and the shadow of occluders and hair beside them "
-                                     f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
-                                     if cfg.final.occluder_shadow > 0 else "")
-                                  + ", the mirrored face or the appearance model A(alpha) "
-                                  "elsewhere"}
+#: :func:`photo_layer` leaves out the eyes' landmark rings scaled by this (the lids too)
+#: and the outer lips' ring scaled by PHOTO_LAYER_LIPS
+PHOTO_LAYER_EYES = 1.6
+PHOTO_LAYER_LIPS = 1.25
 
 
-def final_renders(fitter) -> FinalRenders:
-    return FinalRenders(fitter)
+def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
+    """(h, w) float in [0, 1]: what of the photo stays in front of the render in
+    ``render_over_photo.png`` (``final.photo_hair``): the segmentation's hair, occluders
+    (hands, glasses' frames) and clothes (a collar over the neck), the model having no
+    hair and no clothes, without the eyes and the mouth
+    (the eyes' rings scaled :data:`PHOTO_LAYER_EYES`, the outer lips' by
+    :data:`PHOTO_LAYER_LIPS`), at the render's size,
+    their edge softened by a Gaussian of ``soft`` px; None where the view has no
+    segmentation."""
+    from scipy.ndimage import gaussian_filter
+    from skimage.draw import polygon
+
+    masks = [m for m in (v.hair, v.occluder, getattr(v, "clothes", None)) if m is not None]
+    if not masks:
+        return None
+    m = np.zeros((h, w), bool)
+    for mk in masks:
+        m |= mask_at(mk, h, w)
+    # never the eyes or the mouth (the segmentation calls a dark iris, dark lips or the
+    # gaps between teeth occluders): those are the model's to show
+    pts = v.detection.points * (w / v.photo.width)
+    m &= ~feature_rings(pts, (h, w), eye_scale=PHOTO_LAYER_EYES)["eyes"]
+    lips = pts[48:60]
+    lips = lips.mean(0) + PHOTO_LAYER_LIPS * (lips - lips.mean(0))
+    rr, cc = polygon(lips[:, 1] - 0.5, lips[:, 0] - 0.5, (h, w))
+    m[rr, cc] = False
+    return np.clip(gaussian_filter(m.astype(np.float32), soft), 0.0, 1.0)
 
 
-def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]:
+def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> list[Path]:
     """``render.png`` (the fit re-rendered with the baked skin at the photo's size, over a
-    transparent background), ``render_over_photo.png`` (over the photo), and
+    transparent background), ``render_over_photo.png`` (over the photo; with
+    ``final.photo_hair`` the photo's hair and occluders stay in front: the model has no
+    hair, and a fringe over the forehead is the person's, not the model's bare skin), and
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
     skin, e.g. occluders, clothes, the silhouette's edge), one set per view. A grey photo
     gets grey renders (their luminance): it says nothing of the skin's colour."""
     from skimage.transform import resize
 
     out = []
-    for i, (v, r) in enumerate(zip(fitter.views, final.renders)):
+    for i, (v, r) in enumerate(zip(res.views, final.renders)):
         sfx = "" if i == 0 else f"_view{i}"
         rgba = r.rgba
         if v.photo.is_grey:
@@ -326,7 +285,11 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
         photo = v.photo.linear()
         if photo.shape[:2] != (h, w):
             photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
-        over = to_srgb8(rgba[..., :3] + (1.0 - a) * photo, 0.0, "clip")
+        over = rgba[..., :3] + (1.0 - a) * photo
+        layer = photo_layer(v, h, w) if res.config.final.photo_hair else None
+        if layer is not None:
+            over = layer[..., None] * photo + (1.0 - layer[..., None]) * over
+        over = to_srgb8(over, 0.0, "clip")
         occ = np.round(255 * np.clip(final.baked.pixel_weights[i], 0, 1)).astype(np.uint8)
         for name, arr in ((f"render{sfx}.png", img), (f"render_over_photo{sfx}.png", over),
                           (f"occlusion{sfx}.png", occ)):
@@ -336,14 +299,14 @@ def write_photo_renders(fitter, final: FinalRenders, outdir: Path) -> list[Path]
     return out
 
 
-def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> list[Path]:
+def write_textures(state, folder: Path, final: FinalRenders | None = None) -> list[Path]:
     """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise).
     With ``final``: the baked diffuse map at ``final.atlas_height`` (the other maps
     resampled to its size), its ``confidence`` and the model's own ``diffuse_model``."""
     folder.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         maps = {k: (x.detach().numpy() if x is not None else None)
-                for k, x in fitter.maps().items()}
+                for k, x in state.maps().items()}
     extra = []
     if final is not None:
         fm = final.maps
@@ -378,11 +341,11 @@ def write_textures(fitter, folder: Path, final: FinalRenders | None = None) -> l
     return out
 
 
-def _final_render(fitter, v, passes: int = 16):
+def _final_render(state, v, passes: int = 16):
     """A render of the view at its last level with the fitted maps: ``passes`` renders
     of the level's spp (4 by default) with their own seeds, averaged (64 spp)."""
     with torch.no_grad():
-        maps, verts = level_maps(fitter.state, v), fitter.forward(v).vertices[0]
+        maps, verts = level_maps(state, v), state.forward(v).vertices[0]
         img = sum(render_view(v, maps, verts, 12345 + k).numpy() for k in range(passes))
     return img / passes
 
@@ -403,7 +366,7 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     return img
 
 
-def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
+def write_overlays(res: FitResult, outdir: Path, final=None) -> list[Path]:
     """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
     render over photo, error map. With ``final`` (:class:`FinalRenders`) the render
     panels show ``render.png`` (the baked skin, no visible noise); else a render of the
@@ -414,11 +377,12 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
     import matplotlib.pyplot as plt
 
     out = []
-    for i, v in enumerate(fitter.views):
+    state, cfg = res.state, res.config
+    for i, v in enumerate(res.views):
         if v.renderer is None:  # photometric stage off: build a level for the sheet
-            setup_level(fitter.state, fitter.cfg, v, int(fitter.cfg.photometric.resolutions[-1]))
+            setup_level(state, cfg, v, int(cfg.photometric.resolutions[-1]))
         lv = v.level
-        img = _final_in_level(final, i, v) if final is not None else _final_render(fitter, v)
+        img = _final_in_level(final, i, v) if final is not None else _final_render(state, v)
         target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
         photo8[~on_photo(v.photo.height, v.photo.width, lv.H, lv.res)] = 0  # (not its edge
@@ -429,8 +393,8 @@ def write_overlays(fitter, outdir: Path, final=None) -> list[Path]:
         err = np.abs(img[..., :3] - target).mean(-1) * lv.mask.numpy()
         H = np.linalg.inv(lv.H)
         with torch.no_grad():
-            verts = fitter.forward(v).vertices[0]
-            fit_px = fitter.project(v, fitter.model_landmarks(v, verts, 1)).numpy()
+            verts = state.forward(v).vertices[0]
+            fit_px = state.project(v, terms.model_landmarks(state, cfg, v, verts, 1)).numpy()
         def to_v(p, H=H):
             q = np.c_[p, np.ones(len(p))] @ H.T
             return q[:, :2] / q[:, 2:3]

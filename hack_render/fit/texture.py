@@ -74,7 +74,7 @@ def photo_camera(view: View, width: int | None = None, height: int | None = None
                   w, h, f"{ph.name}_photo")
 
 
-def _skin_maps(state: FitState, height: int | None = None):
+def skin_maps(state: FitState, height: int | None = None):
     """The fitted maps (torch -> numpy SkinMaps), resampled to ``height`` rows."""
     with torch.no_grad():
         m = {k: (x.detach().numpy().astype(np.float32) if x is not None else None)
@@ -84,6 +84,10 @@ def _skin_maps(state: FitState, height: int | None = None):
         if m["normal"] is not None:
             m["normal"] /= np.linalg.norm(m["normal"], axis=-1, keepdims=True).clip(1e-6)
     return SkinMaps(m["albedo"], m["specular"], m["roughness"], m["normal"])
+
+
+#: the name before issue 62 (tests/synthetic.py, bench/bench_eye_renders.py)
+_skin_maps = skin_maps
 
 
 def resize_atlas(img: np.ndarray, height: int) -> np.ndarray:
@@ -180,7 +184,7 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
         if x1 > x0 and y1 > y0 and (x1 - x0) * (y1 - y0) < 0.9 * w * h:
             window = (int(x0), int(y0), int(x1 - x0), int(y1 - y0), w, h)
             cam = cropped(cam, *window[:4])
-    maps = maps if maps is not None else _skin_maps(state)
+    maps = maps if maps is not None else skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
                      RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps)
@@ -332,7 +336,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     """The per-texel diffuse map from every view's photo and its :func:`render_at_photo`
     (see the module's docstring). ``prior``: the map unseen texels fall back to (default
     A(alpha)); ``weights``: each view's pixel weights (default :func:`pixel_weights`'),
-    as the refinement passes of ``FinalRenders`` keep the first bake's."""
+    as the refinement passes of ``fit/final.py`` keep the first bake's."""
     H = int(cfg.final.atlas_height)
     given = weights
     weights, samples = [], []
@@ -348,7 +352,7 @@ def bake_diffuse(state: FitState, cfg: FitConfig, renders: list[PhotoRender],
     obs_m = _mirror(obs)
     # (a refinement pass's prior, the first bake, is tone-matched already)
     tone = cfg.final.tone_match != "off" and prior is None
-    prior = (_skin_maps(state, H).diffuse if prior is None else prior).astype(np.float64)
+    prior = (skin_maps(state, H).diffuse if prior is None else prior).astype(np.float64)
     c1 = conf
     c2 = (1.0 - conf) * conf_m
     c3 = 1.0 - c1 - c2

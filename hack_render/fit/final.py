@@ -1,0 +1,113 @@
+"""The fit's final stage, at the photo's size: the views rendered with the fitted maps (the
+bake's divisor), the baked skin (``texture.bake_diffuse``), the highlights' gain
+(``specular_bake``, with ``final.specular``), the iris's and the eye whites' colours
+(``iris.py``), the views re-rendered with the baked maps (``render.png``) and the
+refinement passes (``final.refine``). :meth:`hack_render.fit.fitter.Fitter.run` runs it
+last (it needs the photometric stage's lighting) and the result carries it
+(``FitResult.final``); ``outputs.py`` only writes it."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from hack_render.fit import iris, texture
+from hack_render.fit.specular_bake import bake_specular
+from hack_render.fit.state import FitState
+
+
+@dataclass
+class FinalRenders:
+    """What the final stage made: ``fitted`` (the renders with the fitted maps, one per
+    view), ``baked`` (:class:`~hack_render.fit.texture.Bake`: the diffuse map, its
+    confidence and the per-pixel weights), ``maps`` (the skin maps the renders used:
+    baked diffuse, specular, the eyes' colours), ``renders`` (``render.png``'s, one per
+    view), ``specular_confidence`` (with ``final.specular``), ``iris`` and ``specular``
+    (their reports) and ``report`` (the fit report's ``final`` entry)."""
+
+    fitted: list
+    baked: object
+    maps: object
+    renders: list
+    iris: dict
+    specular: dict
+    specular_confidence: np.ndarray | None = None
+    report: dict = field(default_factory=dict)
+
+
+def wanted(state: FitState, cfg) -> bool:
+    """Whether the final stage runs: ``final.enabled`` and every view has the fitted
+    lighting (the photometric stage's); without it the textures are the model's maps."""
+    return bool(cfg.final.enabled) and all(v.lighting is not None for v in state.views)
+
+
+def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
+    """The final stage (the module's docstring) on the state's views."""
+    st = state
+    specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
+    bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular),
+               desc="fit final (renders, bake)", unit="step", disable=not progress,
+               leave=False)
+    t0 = time.perf_counter()
+    fitted = []
+    for v in st.views:
+        fitted.append(texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side))
+        bar.update()
+    baked = texture.bake_diffuse(st, cfg, fitted)
+    base = texture.skin_maps(st, cfg.final.atlas_height)
+    spec = base.specular
+    spec_report = {"source": "the fitted map (final.specular off)"}
+    spec_conf = None
+    if specular:  # the highlights' gain (fit/specular_bake.py): a render without specular
+        m0 = texture.skin_maps(st)
+        m0 = dataclasses.replace(m0, specular=np.zeros_like(m0.specular))
+        flat = [texture.render_at_photo(st, cfg, v, maps=m0, max_side=cfg.final.max_side)
+                for v in st.views]
+        spec, spec_conf, spec_report = bake_specular(st, cfg, fitted, flat,
+                                                     baked.pixel_weights, spec)
+        bar.update()
+    # the person's iris and eye-white colours (fit/iris.py): not under the photo's occluders
+    allowed = [None if v.occluder is None else ~np.asarray(v.occluder, bool)
+               for v in st.views]
+    # and the person's own irises and whites in the photo (the face mesh's iris landmarks)
+    person = iris.views_eyes(st) if cfg.final.photo_irises else None
+    rgb, eyes = iris.fit_colour(st, cfg, allowed, person=person)
+    bar.update()
+    t1 = time.perf_counter()
+    maps = dataclasses.replace(base, diffuse=baked.diffuse, specular=spec, iris_rgb=rgb,
+                               sclera_rgb=tuple(eyes["sclera_rgb"]),
+                               eye_gloss=eyes.get("eye_gloss"))
+    renders = []
+    for v in st.views:
+        renders.append(texture.render_at_photo(st, cfg, v, maps=maps,
+                                               max_side=cfg.final.max_side))
+        bar.update()
+    # refinement: the photo over the re-render, divided out again (what the renderer's
+    # lighting, filter and denoiser change in the baked skin is corrected)
+    for _ in range(int(cfg.final.refine)):
+        baked = texture.bake_diffuse(st, cfg, renders, prior=baked.diffuse,
+                                     weights=baked.pixel_weights)
+        maps = dataclasses.replace(maps, diffuse=baked.diffuse)
+        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
+                   for v in st.views]
+        bar.update()
+    bar.close()
+    # photo / render.png over the iris's pixels (luminance; 1: matched)
+    eyes["residual"] = iris.residual(st, renders, allowed, person=person)
+    eyes["sclera_residual"] = iris.residual(st, renders, allowed, "sclera", person)
+    report = {"spp": renders[0].spp, "denoised": renders[0].denoised,
+              "atlas_height": cfg.final.atlas_height, "seen_fraction": baked.seen_fraction,
+              "bake_s": t1 - t0, "render_s": time.perf_counter() - t1,
+              "size": [list(r.rgba.shape[1::-1]) for r in renders],
+              "iris": eyes, "specular": spec_report,
+              "diffuse": "derived: the photo(s) with the fitted lighting divided out where "
+                         "seen (confidence.png)"
+                         + (", and the shadow of occluders and hair beside them "
+                            f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
+                            if cfg.final.occluder_shadow > 0 else "")
+                         + ", the mirrored face or the appearance model A(alpha) elsewhere"}
+    return FinalRenders(fitted, baked, maps, renders, eyes, spec_report, spec_conf, report)
