@@ -338,3 +338,45 @@ def test_13_learner_rest_is_the_models_and_screen_finds_folds():
     flagged = learner.screen(batch)
     assert bool(flagged[folded > 0].all()), (folded.tolist(), flagged.tolist())
     assert not bool(flagged.all())
+
+
+#: the expression the bench holds over its poses (bench/bench_pose_space.py EXPRESSION)
+BENCH_EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
+
+
+@pytest.fixture(scope="module")
+def expression_measured():
+    """As ``measured`` (the same 200 poses, template and two sampled identities), with the
+    bench's expression held: stretch and folds, shipped model and its plain LBS."""
+    model = load_default_model()
+    arrays, meta = load_model_file(model.source_path)
+    lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+    topo = skin_topology(model)
+    theta = torch.cat(list(sample_pose_space(200, seed=2100).values())).float()
+    g = torch.Generator().manual_seed(2101)
+    betas = torch.cat([torch.zeros(1, 20), torch.randn(2, 20, generator=g)])
+    psi = model.expression_vector(BENCH_EXPRESSION)
+    out = {}
+    for name, m in (("model", model), ("lbs", lbs)):
+        st = [model_deformation(m, b[None], theta, psi, topo=topo) for b in betas]
+        out[name] = {k: torch.stack([getattr(s, k) for s in st]).numpy() for k in ("stretch", "folded")}
+    return out
+
+
+@pytest.mark.xfail(strict=True, reason="issue 60: the shipped model (format 2, ungated) folds "
+                   "skin in 6 of these 600 neutral pairs and 11 with the expression, and is "
+                   "worse than LBS by more than a point in 4 of each (docs/model.md, 'Folds "
+                   "and the LBS rule'); strict: a model that passes must drop this mark")
+@pytest.mark.parametrize("conf", ["neutral", "expression"])
+def test_14_no_folds_and_never_meaningfully_worse_than_lbs(measured, expression_measured, conf):
+    """Issue 60's rules on the subset's 600 pose-identity pairs, neutral and with the bench's
+    expression: no folded skin triangle at all, every pair's largest stretch at most 3
+    points above the same identity's plain LBS, and at most 0.5 % of pairs (3) more than 1
+    point above it."""
+    res = measured if conf == "neutral" else expression_measured
+    stretch, folded = res["model"]["stretch"], res["model"]["folded"]
+    what = f"{int((folded > 0).sum())} pairs fold {int(folded.sum())} triangles"
+    assert folded.sum() == 0, (what, np.argwhere(folded > 0)[:5])
+    excess = stretch - res["lbs"]["stretch"]
+    assert excess.max() <= 0.03, (excess.max(), np.unravel_index(excess.argmax(), excess.shape))
+    assert (excess > 0.01).sum() <= 0.005 * excess.size, int((excess > 0.01).sum())

@@ -39,6 +39,31 @@ RANGES_DEG = {
 # flexes (ANATOMY.md, 40/60); 50/50 elsewhere.
 FLEXION_SHARE = {"o-c1": 0.4}
 
+# How a whole-head rotation is shared over the levels (distribute_head_rotation), per axis:
+# None shares it in proportion to the joints' limits above (White & Panjabi); a table gives
+# in-vivo per-level angles, degrees, one side, measured at the subjects' full head rotation,
+# and the head's rotation is shared in their proportions until a level reaches its limit, the
+# rest then going to the levels still free (so the whole range above is still reached, with
+# every joint at its limit). docs/model.md ("The spine against in-vivo data") compares the
+# rules with the literature level by level.
+#
+# Axial rotation (y), one side, mean of healthy volunteers (3D MRI, registered vertebrae):
+#   o-c1 1.7, c1-c2 36.2: Ishii T et al., Kinematics of the upper cervical spine in rotation:
+#     in vivo three-dimensional analysis. Spine 2004;29(7):E139-44 (15 subjects; Results).
+#   c2-c3 2.2, c3-c4 4.5, c4-c5 4.6, c5-c6 4.0, c6-c7 1.6, c7-t1 1.5: Ishii T et al.,
+#     Kinematics of the subaxial cervical spine in rotation in vivo three-dimensional
+#     analysis. Spine 2004;29(24):2826-31 (10 subjects, maximum head rotation 69.5; Results).
+# Flexion/extension (x) and lateral bending (z) keep the limits' proportions: the in-vivo
+# data found (Wu et al. 2007, Eur Spine J 16:1435, C2/3 13.5 and C4/5 22.6 of combined
+# flexion-extension; Lan et al. 2014, BMC Musculoskelet Disord 15:273, lateral bending
+# C2/3-C6/7 7.66, 8.37, 8.91, 7.19, 6.31) agree with them within 3 degrees per level, or
+# leave levels unmeasured (o-c1, c1-c2, c7-t1): see docs/model.md.
+IN_VIVO_AXIAL_DEG = {
+    "o-c1": 1.7, "c1-c2": 36.2,
+    "c2-c3": 2.2, "c3-c4": 4.5, "c4-c5": 4.6, "c5-c6": 4.0, "c6-c7": 1.6, "c7-t1": 1.5,
+}
+HEAD_SHARE_DEG: dict[int, dict[str, float] | None] = {0: None, 1: IN_VIVO_AXIAL_DEG, 2: None}
+
 #: Names of the Euler axes (x, y, z) of a joint or of a whole-head rotation.
 HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)",
                                    "lateral bending (z)")
@@ -129,12 +154,57 @@ def clamp_theta(theta: np.ndarray) -> np.ndarray:
     return np_rotations.euler_to_axis_angle(np.clip(e, lim[..., 0], lim[..., 1]))
 
 
+def _share_knots(limits: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sharing of one side of one axis as a piecewise-linear map: knots of the head's
+    angle A (K,) and each joint's angle at them E (K, 8), both from 0 to the full range.
+
+    limits (8,) > 0: each joint's limit on that side; weights (8,) > 0: the shares while no
+    joint is at its limit. Joint k's angle is min(limit_k, weight_k * t) at the water level t
+    where the joints' angles sum to the head's; a knot wherever one more joint saturates."""
+    t = np.unique(limits / weights)  # the levels where joints saturate, ascending
+    t = np.concatenate([[0.0], t])
+    e = np.minimum(limits[None], weights[None] * t[:, None])  # (K, 8)
+    return e.sum(1), e
+
+
+@lru_cache(maxsize=1)
+def head_share_knots() -> tuple[tuple[tuple[np.ndarray, np.ndarray], ...], ...]:
+    """The rule of :func:`distribute_head_rotation` as knots, radians: for each axis (x, y,
+    z) and side (0: negative, 1: positive) the head's angle magnitudes A (K,) and the joints'
+    angle magnitudes E (K, 8) at them (piecewise linear in between; A[-1] is the range)."""
+    lim = np.abs(np.deg2rad(_limits_deg()))  # (8, 3, 2)
+    out = []
+    for axis in range(3):
+        table = HEAD_SHARE_DEG[axis]
+        sides = []
+        for side in (0, 1):
+            limits = lim[:, axis, side]
+            weights = limits if table is None else np.array([table[n] for n in JOINT_NAMES])
+            a, e = _share_knots(limits, weights / weights.sum())
+            a.flags.writeable = False
+            e.flags.writeable = False
+            sides.append((a, e))
+        out.append(tuple(sides))
+    return tuple(out)
+
+
+def head_share_deg(angles_deg) -> np.ndarray:
+    """Per-joint Euler angles (8, 3), degrees, that :func:`distribute_head_rotation` gives a
+    whole-head rotation (3,) degrees within the range (beyond it, each joint at its limit)."""
+    a = np.deg2rad(_numpy(angles_deg).reshape(3))
+    out = np.zeros((NUM_JOINTS, 3))
+    for axis, sides in enumerate(head_share_knots()):
+        knots, e = sides[int(a[axis] >= 0)]
+        mag = abs(a[axis])
+        out[:, axis] = np.sign(a[axis]) * np.array(
+            [np.interp(mag, knots, e[:, k]) for k in range(NUM_JOINTS)])
+    return np.rad2deg(out)
+
+
 def distribute_head_rotation(angles: np.ndarray) -> np.ndarray:
-    """A whole-head rotation (3,) radians shared over the 8 joints in proportion to their
-    ranges, each clamped to its limits: (8, 3) axis-angle (NumPy; the torch twin, for
+    """A whole-head rotation (3,) radians shared over the 8 joints by the rule of
+    :data:`HEAD_SHARE_DEG` (in-vivo shares for axial rotation, the joints' ranges for the
+    other axes), each joint within its limits: (8, 3) axis-angle (NumPy; the torch twin, for
     gradients, is :func:`hack_render.geometry.skeleton.distribute_head_rotation`)."""
-    lim = np.deg2rad(_limits_deg())
-    lo, hi = lim[..., 0], lim[..., 1]
-    a = np.asarray(angles, dtype=np.float64)[None]
-    e = np.where(a >= 0, a * (hi / hi.sum(0)), a * (lo / lo.sum(0)))
-    return np_rotations.euler_to_axis_angle(np.clip(e, lo, hi))
+    e = np.deg2rad(head_share_deg(np.rad2deg(np.asarray(angles, dtype=np.float64))))
+    return np_rotations.euler_to_axis_angle(e)

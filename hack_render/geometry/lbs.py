@@ -17,10 +17,30 @@ def chain_parents(parents: tuple[int, ...]) -> tuple[int, ...]:
     return (-1,) + tuple(p + 1 for p in parents)
 
 
-def pose_feature(rot_mats: torch.Tensor) -> torch.Tensor:
-    """SMPL-style pose feature ``(R_k - I)`` flattened. rot_mats: (B, K, 3, 3) -> (B, 9K)."""
+def pose_gate(rot_mats: torch.Tensor, gate_rad: float) -> torch.Tensor:
+    """The corrective gate of each joint (format 3): g = s^2 / (s^2 + c^4) with s = 2 (1 -
+    cos angle) (about angle^2), so about angle^4 / (angle^4 + c^4): near 0 for rotations well
+    under ``gate_rad`` = c, 1/2 at c, near 1 above. Rational in the trace of R, so smooth
+    everywhere (no square root at zero). rot_mats: (..., 3, 3) -> (...,).
+
+    Why: small rotations that alternate along the chain are where plain LBS barely
+    stretches and a linear corrective shaped for large rotations adds stretch; the gate
+    leaves them to LBS (docs/model.md, "Folds and the LBS rule")."""
+    tr = rot_mats.diagonal(dim1=-2, dim2=-1).sum(-1)
+    s = 3.0 - tr  # 2 (1 - cos angle)
+    s2 = s * s
+    return s2 / (s2 + gate_rad ** 4)
+
+
+def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None) -> torch.Tensor:
+    """SMPL-style pose feature ``(R_k - I)`` flattened, each joint's block times its
+    :func:`pose_gate` when ``gate_rad`` is given (model files of format 3 with a
+    ``pose_gate_deg``). rot_mats: (B, K, 3, 3) -> (B, 9K)."""
     eye = torch.eye(3, dtype=rot_mats.dtype, device=rot_mats.device)
-    return (rot_mats - eye).flatten(1)
+    d = rot_mats - eye
+    if gate_rad is not None:
+        d = d * pose_gate(rot_mats, gate_rad)[..., None, None]
+    return d.flatten(1)
 
 
 def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,

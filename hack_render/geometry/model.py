@@ -15,6 +15,7 @@ vertex), kept beside it for teaching and as the reference the tests compare it w
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -320,6 +321,9 @@ class HackModel(nn.Module):
         # one matrix product (betas past the given ones, zero, are not read).
         self.register_buffer("expr_shape_basis", torch.cat([expr_dirs, shape_dirs], 0).contiguous())
         self.has_pose_basis = "pose_basis" in arrays
+        # format 3: each joint's corrective gated by its angle (None: plain R - I)
+        self.pose_gate_rad = (math.radians(float(arrays["pose_gate_deg"]))
+                              if "pose_gate_deg" in arrays else None)
         if self.has_pose_basis:
             # the pose correctives move the neck only (~1.4k of ~27k vertices in the default
             # model): stored and read on those vertices' columns, not the zeros elsewhere
@@ -500,9 +504,15 @@ class HackModel(nn.Module):
         beta = p["beta"]
         shared = _shares_identity(beta)
         ident = beta[:1] if shared else beta
-        rest = self._rest(ident, p["psi"], pose_feature(rot[:, 1:]), p["eta"], p["tau"])
+        rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
         joints = self.rest_joints(ident).expand(rest.shape[0], -1, -1)
         return self._pose(rest, joints, rot, p["transl"])
+
+    def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
+        """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
+        (root first): each joint's ``R - I``, times its gate in a format-3 file
+        (:func:`~hack_render.geometry.lbs.pose_feature`)."""
+        return pose_feature(rot[:, 1:], self.pose_gate_rad)
 
     def _rest(self, beta, psi, feat, eta, tau) -> torch.Tensor:
         """T(beta, psi, theta, eta, tau) (B, N, 3). beta: (B, s) or (1, s) for a batch that
@@ -646,7 +656,7 @@ class PersonalizedHack(nn.Module):
         rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
         if self.uses_pose:
             _add_rows_(rest, self.pose_columns,
-                       (pose_feature(rot[:, 1:]) @ self.pose_basis).view(B, -1, 3))
+                       (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
         if m.has_larynx:
             _add_rows_(rest, m.larynx_vertices,
                        m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
@@ -666,7 +676,7 @@ def reference_forward(model: HackModel, beta=None, psi=None, theta=None, global_
     beta = torch.nn.functional.pad(p["beta"], (0, m.num_shape - p["beta"].shape[1]))
     beta = beta.expand(B, -1)
     rot = local_rotations(p["theta"], p["global_orient"])
-    feat = pose_feature(rot[:, 1:])
+    feat = pose_feature(rot[:, 1:], m.pose_gate_rad)
     shape_dirs, expr_dirs = m.expr_shape_basis[E:], m.expr_shape_basis[:E]
     rest = m.template + (beta @ shape_dirs + p["psi"] @ expr_dirs).view(B, n, 3)
     if m.has_pose_basis:  # the dense (72, N, 3) pose basis, zeros off the stored columns

@@ -28,6 +28,8 @@ joint_regressor        (K, N) f32            J = regressor @ (T_bar + B_S), rows
 skinning_weights       (N, K+1) f32          column 0 = root, then joints; rows sum to 1
 rotation_limits_deg    (K, 3, 2) f32         Euler (x, y, z) (min, max) per joint
 opt pose_basis         (9K, N, 3) f32 q      generic pose blendshapes P (SMPL-style)
+opt pose_gate_deg      (), f32               format 3: each joint's pose feature gated by its
+                                             angle (:func:`~hack_render.geometry.lbs.pose_gate`)
 opt expr_pca_*         see below             personalised expressions E_beta = M_E(beta)
 opt pose_pca_*         see below             personalised pose blendshapes P_beta = M_P(beta)
 opt larynx_*           see below             larynx basis L (Eq. 4)
@@ -44,7 +46,10 @@ Larynx: ``larynx_maps`` (L, 3, H, W) metres, ``larynx_uv_bounds`` (4,), ``larynx
 ``larynx_v_per_metre`` (). See :mod:`hack_render.geometry.larynx`. Format 2 adds the
 optional ``larynx_vertex_uv`` (M, 2): the larynx vertices' coordinates in the maps' own
 chart (e.g. template x, y in metres, so a v shift is a vertical slide of the same size on
-every vertex); without it the atlas ``vertex_uv`` is used. Files of format 1 still load.
+every vertex); without it the atlas ``vertex_uv`` is used. Format 3 adds the optional
+``pose_gate_deg`` (): the angle c of the pose correctives' gate, degrees (each joint's
+``R - I`` block scaled by about angle^4 / (angle^4 + c^4)); without it (files of format 1
+and 2, which still load) the features are plain ``R - I``.
 
 "q" arrays may be stored quantised as ``key__q`` (int16) with ``key__scale`` (f32, one per
 leading index, value = q * scale); the loader restores float32 transparently.
@@ -76,10 +81,10 @@ import numpy as np
 from hack_render.errors import HackError
 from hack_render.io.npz import write_npz
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: the built-in default model's file name in the package data (``hack_render/data``)
 DEFAULT_MODEL_NAME = "hack_default.npz"
-SUPPORTED_VERSIONS = (1, 2)
+SUPPORTED_VERSIONS = (1, 2, 3)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
 class CacheWarning(UserWarning):
@@ -140,6 +145,7 @@ OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
         "larynx_coef_offset": ("L", "f"), "larynx_v_per_metre": ("", "f"),
     },
     "larynx_chart": {"larynx_vertex_uv": ("Ml,2", "f")},
+    "pose_gate": {"pose_gate_deg": ("", "f")},
 }
 
 
@@ -333,6 +339,9 @@ def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[
     if "larynx_vertex_uv" in arrays and "larynx_maps" not in arrays:
         raise HackError(f"{path}: key 'larynx_vertex_uv' needs the 'larynx' group (larynx_maps, "
                         f"...). {_FIX}")
+    if "pose_gate_deg" in arrays and not 0.0 < float(arrays["pose_gate_deg"]) <= 90.0:
+        raise HackError(f"{path}: key 'pose_gate_deg' is {float(arrays['pose_gate_deg'])}, "
+                        f"expected an angle in (0, 90] degrees. {_FIX}")
     n = sizes["N"]
     for key in ("faces", "landmark_indices"):
         if arrays[key].min() < 0 or arrays[key].max() >= n:

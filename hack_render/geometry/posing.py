@@ -98,7 +98,11 @@ class PosingModel:
         rest = shaped + psi @ a["expression_basis"].reshape(self.num_expressions, -1)
         rest = rest.reshape(n, 3)
         rot = np_rotations.axis_angle_to_matrix(np.concatenate([orient[None], theta])).astype(f32)
-        feat = (rot[1:] - np.eye(3, dtype=f32)).reshape(-1)  # (72,) pose feature R - I
+        feat = rot[1:] - np.eye(3, dtype=f32)  # (8, 3, 3) pose feature R - I
+        if "pose_gate_deg" in a:  # format 3: gated by each joint's angle (lbs.pose_gate)
+            s = 3.0 - np.trace(rot[1:], axis1=1, axis2=2)
+            feat = feat * (s * s / (s * s + np.deg2rad(float(a["pose_gate_deg"])) ** 4))[:, None, None]
+        feat = feat.reshape(-1).astype(f32)  # (72,)
         if "pose_basis" in a:
             rest += (feat @ a["pose_basis"].reshape(feat.shape[0], -1)).reshape(n, 3)
         for prefix, coeffs in (("expr", psi), ("pose", feat)):

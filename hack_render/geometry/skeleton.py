@@ -94,27 +94,49 @@ def head_rotation_range_deg() -> torch.Tensor:
     return torch.from_numpy(anatomy.head_rotation_range_deg())
 
 
+def _piecewise(m: torch.Tensor, knots, values, clamp: bool) -> torch.Tensor:
+    """A piecewise-linear map through (knots[k], values[k]) with values[0] = 0 at knots[0] =
+    0, at magnitudes m (...,) >= 0 -> (..., 8). Beyond the last knot: the last value
+    (``clamp``) or the line from the origin through it. Written as a sum of ramps so that
+    its gradient at 0 is the first segment's slope (the fitter starts there)."""
+    a = torch.tensor(knots, dtype=m.dtype, device=m.device)  # (K,), a copy: knots are read-only
+    e = torch.tensor(values, dtype=m.dtype, device=m.device)  # (K, 8)
+    slope = (e[1:] - e[:-1]) / (a[1:] - a[:-1])[:, None]  # (K-1, 8)
+    tail = torch.zeros_like(slope[:1]) if clamp else (e[-1] / a[-1])[None]
+    slope = torch.cat([slope, tail])  # segment k starts at knot k
+    m = m.unsqueeze(-1)  # (..., 1)
+    out = m * slope[0]
+    for k in range(1, len(a)):
+        out = out + torch.relu(m - a[k]) * (slope[k] - slope[k - 1])
+    return out
+
+
 def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.Tensor:
-    """Share a whole-head rotation over the 8 joints in proportion to their ranges.
+    """Share a whole-head rotation over the 8 joints (the rule of
+    :data:`hack_render.geometry.anatomy.HEAD_SHARE_DEG`).
+
+    Flexion, extension and lateral bending are shared in proportion to the joints' ranges on
+    that side: each joint's angle is ``angle * range_k / sum(range)``. Axial rotation is
+    shared in the in-vivo proportions of Ishii et al. 2004 (c1-c2 about 64 %) until a joint
+    reaches its limit, the rest then going to the joints still free; at the whole range
+    every joint is at its limit, as before (knots: :func:`anatomy.head_share_knots`).
 
     Args:
         angles: (..., 3) whole-head Euler angles in radians (flexion X, axial Y, lateral Z).
-            Flexion is shared by the joints' flexion ranges, extension by their extension
-            ranges; each joint's angle is ``angle * range_k / sum(range)``.
-        clamp: clamp each joint to its limits (a head rotation beyond the whole neck's range
-            then stops at the range).
+        clamp: beyond the whole neck's range, stop at the range (each joint at its limit);
+            without it, go on in proportion to the ranges (for fitting, where the head may
+            pass the range on its way).
 
     Returns:
         theta: (..., 8, 3) axis-angle per joint. The composition of the eight rotations
         approximates the requested head rotation (exactly for a single axis).
     """
     expect(angles.shape[-1:] == (3,), "angles", "shape (..., 3)", f"shape {tuple(angles.shape)}")
-    lim = rotation_limits(angles.dtype, angles.device)  # (8, 3, 2)
-    lo, hi = lim[..., 0], lim[..., 1]  # (8, 3)
-    frac_pos = hi / hi.sum(0)
-    frac_neg = lo / lo.sum(0)
-    a = angles.unsqueeze(-2)  # (..., 1, 3)
-    e = torch.where(a >= 0, a * frac_pos, a * frac_neg)
-    if clamp:
-        e = torch.maximum(torch.minimum(e, hi), lo)
-    return euler_to_axis_angle(e)
+    cols = []
+    for axis, (neg, pos) in enumerate(anatomy.head_share_knots()):
+        a = angles[..., axis]
+        zero = torch.zeros_like(a)
+        up = _piecewise(torch.where(a >= 0, a, zero), *pos, clamp)
+        down = _piecewise(torch.where(a < 0, -a, zero), *neg, clamp)
+        cols.append(up - down)
+    return euler_to_axis_angle(torch.stack(cols, -1))

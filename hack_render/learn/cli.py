@@ -153,6 +153,11 @@ def learn_pose(
     loss: list[str] = typer.Option([], "--loss", help="A loss weight or threshold of "
                                    "hack_render.learn.pose_energy.DEFAULTS, KEY=VALUE "
                                    "(repeatable), e.g. --loss worse_max=1000."),
+    gate: float | None = typer.Option(None, "--pose-gate", help="Gate each joint's "
+                                      "corrective by its angle, degrees (about angle^4 / "
+                                      "(angle^4 + gate^4); model format 3); 0: no gate. "
+                                      "Default: the --model file's gate with --continue, else "
+                                      "none."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Re-learn a model's pose correctives (P, the personalised components and M_P) and the
@@ -172,6 +177,8 @@ def learn_pose(
     boundary.number(lr, "--lr", 1e-6, 1.0)
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
+    if gate is not None:
+        boundary.number(gate, "--pose-gate", 0.0, 90.0)
 
     overrides = _loss_overrides(loss)
     typer.echo(f"learn pose: {iterations} steps of about 1.5 s on 2 CPU cores (~"
@@ -183,11 +190,13 @@ def learn_pose(
                         "(pose_basis, pose_pca_components, pose_mlp_*); drop --continue to "
                         "learn them from zero.")
     start = dict(arrays) if continue_ else None
+    if gate is None and continue_ and "pose_gate_deg" in arrays:
+        gate = float(arrays["pose_gate_deg"])
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
     po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
                            start=start, mlp_lr=mlp_lr, hard=hard, expressions=expressions,
-                           loss=overrides)
+                           loss=overrides, gate_deg=gate or None)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

@@ -204,7 +204,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
-                      expressions: bool = True, loss: dict | None = None) -> dict:
+                      expressions: bool = True, loss: dict | None = None,
+                      gate_deg: float | None = None) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -217,7 +218,9 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
 
     ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
     with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
-    on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none)."""
+    on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none). ``gate_deg``: the
+    correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
+    ``R - I`` features."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     std = np.asarray(arrays["shape_std"], np.float64)
@@ -231,7 +234,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                                 num_expressions=len(names) if expressions else 0,
                                 jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
                                 symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
-                                           if n.endswith("_L") and n[:-2] + "_R" in names])
+                                           if n.endswith("_L") and n[:-2] + "_R" in names],
+                                gate_deg=gate_deg)
     old_spread = None
     if start is not None:
         learner.start_from(start)
@@ -245,6 +249,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
            "pose_pca_mean": np.zeros((72, m, 3), np.float32),
            "pose_pca_components": res.components}
     out.update({f"pose_mlp_{k}": v for k, v in res.mlp.items()})
+    if gate_deg:
+        out["pose_gate_deg"] = np.asarray(gate_deg, np.float32)
     if learn_weights:
         w = np.asarray(arrays["skinning_weights"], np.float64).copy()
         w[sub] = res.weights
@@ -254,7 +260,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "components": num_components, "subset_vertices": int(m),
               "region_triangles": len(region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
-              "seed": seed, "hard_examples_per_step": hard,
+              "seed": seed, "hard_examples_per_step": hard, "gate_deg": gate_deg or None,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
                        "identities with a sampled expression" if expressions
                        else "T_bar + B_S(beta), neutral")}

@@ -209,13 +209,16 @@ class PoseEnergyLearner:
         jaw_open: the index of the jaw opening among them, sampled more often;
         symmetric: (left, right) index pairs of mirrored expressions (e.g. mouthSmile_L /
         _R), given one value on both sides in half of the expressive rows.
+        gate_deg: the correctives' gate angle, degrees (each joint's feature times
+            :func:`~hack_render.geometry.lbs.pose_gate`; model format 3), or None.
     """
 
     def __init__(self, template, shape_dirs, joint_regressor, weights, parents, region: NeckRegion,
                  num_components: int = 8, num_shape: int = 20, hidden: int = 64,
                  loss: dict | None = None, seed: int = 0, dtype=torch.float64,
                  rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
-                 symmetric: list[tuple[int, int]] | None = None):
+                 symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None):
+        self.gate_rad = None if not gate_deg else float(np.deg2rad(gate_deg))
         t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
         self.region, self.parents = region, tuple(parents)
         self.lam = dict(DEFAULTS, **(loss or {}))
@@ -324,7 +327,7 @@ class PoseEnergyLearner:
         rot = local_rotations(theta, theta.new_zeros(b, 3))
         v = rest
         if corrective:
-            feat = pose_feature(rot[:, 1:])
+            feat = pose_feature(rot[:, 1:], self.gate_rad)  # as the model file will
             delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta))
             v = rest.index_add(1, self.region.subset, delta)
         _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))

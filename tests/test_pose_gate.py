@@ -1,0 +1,117 @@
+"""The pose correctives' gate (model format 3, issue 60): each joint's ``R - I`` block times
+g = s^2 / (s^2 + c^4), s = 2 (1 - cos angle). Small rotations leave the skin to plain LBS,
+large ones get the full corrective; format 2 files load ungated; the torch forward, the
+plain reference and the NumPy posing path agree on a gated file."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hack_render.errors import HackError
+from hack_render.geometry import HackModel
+from hack_render.geometry import rotations as R
+from hack_render.geometry.lbs import pose_feature, pose_gate
+from hack_render.geometry.model import reference_forward
+from hack_render.geometry.model_file import FORMAT_VERSION, load_model_file, save_model_file
+from hack_render.geometry.posing import PosingModel
+from tests.synthetic import synthetic_arrays
+
+GATE = 8.0
+
+
+def _rot(axis_angle) -> torch.Tensor:
+    return R.axis_angle_to_matrix(torch.as_tensor(axis_angle, dtype=torch.float64))
+
+
+def test_01_gate_values_and_gradient():
+    c = math.radians(GATE)
+    axis = torch.tensor([0.3, -0.8, 0.5], dtype=torch.float64)
+    axis = axis / axis.norm()
+    deg = torch.tensor([0.0, 2.0, 4.0, 8.0, 16.0, 40.0], dtype=torch.float64)
+    g = pose_gate(_rot(torch.deg2rad(deg)[:, None] * axis), c)
+    # about angle^4 / (angle^4 + c^4): 0 at rest, 1/2 at c, near 1 well above
+    want = deg ** 4 / (deg ** 4 + GATE ** 4)
+    torch.testing.assert_close(g, want, atol=5e-3, rtol=0)
+    assert g[0] == 0 and abs(float(g[3]) - 0.5) < 5e-3 and g[-1] > 0.99
+    assert torch.all(torch.diff(g) > 0)
+    # smooth through the identity (no square root): finite-difference gradients hold there
+    r = (1e-3 * torch.randn(2, 8, 3, dtype=torch.float64)).requires_grad_()
+    torch.autograd.gradcheck(lambda t: pose_feature(R.axis_angle_to_matrix(t), c), (r,))
+    r0 = torch.zeros(1, 8, 3, dtype=torch.float64, requires_grad=True)
+    torch.autograd.gradcheck(lambda t: pose_feature(R.axis_angle_to_matrix(t), c), (r0,))
+    # ungated is the plain SMPL feature
+    rot = R.axis_angle_to_matrix(torch.randn(3, 8, 3, dtype=torch.float64))
+    torch.testing.assert_close(pose_feature(rot), (rot - torch.eye(3, dtype=torch.float64)).flatten(1))
+
+
+@pytest.fixture(scope="module")
+def gated_arrays():
+    a = synthetic_arrays(seed=2)
+    a["pose_gate_deg"] = np.asarray(GATE, np.float32)
+    return a
+
+
+def test_02_small_rotations_are_plain_lbs_large_ones_corrected(gated_arrays):
+    gated = HackModel(gated_arrays)
+    plain = HackModel({k: v for k, v in gated_arrays.items() if k != "pose_gate_deg"})
+    lbs = HackModel({k: v for k, v in gated_arrays.items() if not k.startswith("pose_")})
+    small = torch.zeros(1, 8, 3)
+    small[0, :, 0] = torch.deg2rad(torch.tensor([2.0, -2.0] * 4))  # alternating 2 degrees
+    big = torch.zeros(1, 8, 3)
+    big[0, 3, 1] = math.radians(40.0)
+    d = {}
+    for name, m in (("gated", gated), ("plain", plain), ("lbs", lbs)):
+        d[name] = [m(theta=t).vertices.double() for t in (small, big)]
+    # at 2 degrees the gate is (2/8)^4 / (1 + (2/8)^4) = 0.0039 of the corrective
+    off_small = (d["plain"][0] - d["lbs"][0]).abs().max()
+    assert off_small > 0
+    assert (d["gated"][0] - d["lbs"][0]).abs().max() <= 0.005 * off_small
+    # at 40 degrees 0.9984 of it
+    off_big = (d["plain"][1] - d["lbs"][1]).abs().max()
+    assert (d["gated"][1] - d["plain"][1]).abs().max() <= 0.01 * off_big
+
+
+def test_03_fast_forward_reference_and_numpy_path_agree(gated_arrays):
+    tm, nm = HackModel(gated_arrays), PosingModel(gated_arrays)
+    g = np.random.default_rng(5)
+    for _ in range(4):
+        kw = {"beta": g.normal(size=nm.num_shape).astype(np.float32),
+              "psi": g.uniform(0, 1, nm.num_expressions).astype(np.float32),
+              "theta": g.normal(scale=0.2, size=(8, 3)).astype(np.float32)}
+        t_kw = {k: torch.as_tensor(v)[None] for k, v in kw.items()}
+        fast = tm(**t_kw).vertices[0].numpy()
+        ref = reference_forward(tm, **t_kw).vertices[0].numpy()
+        assert np.abs(fast - ref).max() < 2e-6
+        assert np.abs(nm.vertices(**kw) - fast).max() < 2e-6
+    pers = tm.personalize(torch.as_tensor(kw["beta"])[None])
+    out = pers(psi=t_kw["psi"], theta=t_kw["theta"]).vertices[0].numpy()
+    assert np.abs(out - fast).max() < 2e-6
+
+
+def test_04_format_3_round_trip_and_older_files(gated_arrays, tmp_path):
+    assert FORMAT_VERSION == 3
+    save_model_file(tmp_path / "g.npz", gated_arrays, {})
+    arrays, _ = load_model_file(tmp_path / "g.npz")
+    assert float(arrays["pose_gate_deg"]) == GATE
+    assert HackModel(arrays).pose_gate_rad == pytest.approx(math.radians(GATE))
+    # a format-2 file (no gate) loads, ungated
+    old = {k: v for k, v in gated_arrays.items() if k != "pose_gate_deg"}
+    save_model_file(tmp_path / "old.npz", old, {})
+    with np.load(tmp_path / "old.npz") as z:
+        raw = {k: z[k] for k in z.files}
+    raw["format_version"] = np.asarray(2)
+    np.savez(tmp_path / "v2.npz", **raw)
+    arrays, _ = load_model_file(tmp_path / "v2.npz")
+    assert "pose_gate_deg" not in arrays and HackModel(arrays).pose_gate_rad is None
+    # a gate that is no angle is refused, naming the key, on writing and on loading
+    for bad in (0.0, -3.0, 120.0):
+        with pytest.raises(HackError, match="pose_gate_deg"):
+            save_model_file(tmp_path / "bad.npz", dict(gated_arrays, pose_gate_deg=np.float32(bad)), {})
+        np.savez(tmp_path / "bad.npz", **dict(raw, format_version=np.asarray(3),
+                                               pose_gate_deg=np.asarray(bad, np.float32)))
+        with pytest.raises(HackError, match="pose_gate_deg"):
+            load_model_file(tmp_path / "bad.npz")
