@@ -158,6 +158,8 @@ def track(
                f"{result.keyframes}")
     for note in result.notes:
         typer.echo(f"note: {note}")
+    for warning in result.warnings:   # a poor track: said, not only written
+        typer.secho(f"warning: {warning}", err=True, fg=typer.colors.YELLOW)
     for p in paths:
         if p.name in ("sequence.npz", "person.json", "overlay.mp4", "report.json"):
             typer.echo(f"wrote {p.resolve()}")

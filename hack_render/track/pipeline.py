@@ -59,6 +59,19 @@ class TrackResult:
     fitter: object = None          # the keyframe fit's Fitter (its outputs are written)
     larynx: object = None          # the photometric tau's LarynxTrack (None: not tracked)
     outline: object = None         # the outline stage's OutlineResult (None: not run)
+    warnings: list[str] = field(default_factory=list)  # :func:`quality_warnings`'s
+
+
+#: the tracked model's points farther than this from the detected ones (median over the
+#: frames with a face, in units of the outer-eye distance) are reported as a poor track
+#: (stderr, the report's ``status``): the tracker reaches 2-4 % on real clips where it
+#: works (docs/motion.md), the photo fitter 3.9 % on held-out portraits; 6 % is a face
+#: fitted a size too wide or the landmarks of another face
+FAR_NME = 0.06
+#: a clip where fewer than this share of the frames with a face show the neck's larynx
+#: region (its photometric confidence 0: not scored) keeps the keyframe fit's tau, with
+#: zero confidence, instead of a path through frames that were never seen
+MIN_NECK_SHARE = 0.25
 
 
 class timed:
@@ -205,9 +218,51 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         with timed(timings, "larynx"):
             track = track_tau(clip.read, state.model, fit.beta.detach(), eta, params, camera,
                               found, clip.fps, progress=progress)
-        tau = track.tau
-    return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
-                       fitter, track, placed)
+        tau, note = larynx_or_fixed(track, tau, found)
+        if note:
+            notes.append(note)
+    result = TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings,
+                         notes, fitter, track, placed)
+    result.warnings = quality_warnings(result)
+    return result
+
+
+def larynx_or_fixed(track, fixed: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, str]:
+    """The photometric tau where the neck was seen, else the keyframe fit's: (tau, note).
+    A clip where under :data:`MIN_NECK_SHARE` of the frames with a face were scored (the
+    larynx region off the frame, under the chin or too small: confidence 0) keeps
+    ``fixed`` throughout and the track's confidence is set to 0 on every frame."""
+    seen = track.confidence > 0
+    n = max(int(np.sum(found)), 1)
+    if seen.sum() >= MIN_NECK_SHARE * n:
+        return track.tau, ""
+    track.confidence[:] = 0.0
+    track.tau = np.array(fixed, np.float64)
+    track.fallback = True
+    return track.tau, (f"larynx: the neck's larynx region was seen in {int(seen.sum())} of "
+                       f"{n} frames with a face (needs {MIN_NECK_SHARE:.0%}); tau kept at the "
+                       f"keyframe fit's {1e3 * float(fixed[0]):.1f} mm on every frame, "
+                       "confidence 0")
+
+
+def quality_warnings(result: TrackResult) -> list[str]:
+    """What a user must know about the track: the tracked model's points far from the
+    detected ones (median NME over the frames with a face above :data:`FAR_NME`)."""
+    from hack_render.track.solve import landmark_error
+
+    lm = result.landmarks
+    _, nme, _ = landmark_error(result.rig, result.camera, result.params, lm.points, lm.found)
+    out = []
+    v = nme[lm.found & np.isfinite(nme)]
+    if len(v):
+        med, far = float(np.median(v)), float(np.mean(v > FAR_NME))
+        if med > FAR_NME:
+            out.append(f"the tracked model's landmarks lie {100 * med:.1f} % of the outer-eye "
+                       f"distance from the detected ones (median over {len(v)} frames; "
+                       f"{100 * far:.0f} % of the frames above {100 * FAR_NME:.0f} %): a poor "
+                       "track (the face fitted the wrong size, or the wrong face); check "
+                       "overlay.mp4")
+    return out
 
 
 def sequence_of(result: TrackResult):
