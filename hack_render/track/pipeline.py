@@ -148,18 +148,42 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
                          ("h", "g", "t", "psi")))
 
 
+#: the keyframe fit's silhouette term: "off" (the default since issue 63: the fit's
+#: silhouette reads the person mask, whose border on a face that fills the frame is the
+#: hair's, and fitted the identity a size too wide) or "person" (the fit's own term)
+IDENTITY_SILHOUETTE = "off"
+#: the outline stage's mask (:func:`~hack_render.track.outline.frame_masks`' ``mode``)
+#: and the share of frames it is made for (every n-th frame; the priors carry the rest)
+OUTLINE_MASK = "head_neck"
+OUTLINE_EVERY = 3
+
+
+def identity_config(config) -> FitConfig:
+    """The keyframe fit's config: per-view expressions, and the silhouette term off
+    unless :data:`IDENTITY_SILHOUETTE` asks for it (the outline stage places the face's
+    and neck's outline on the head-and-neck mask afterwards)."""
+    cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
+    if IDENTITY_SILHOUETTE == "off" and cfg.silhouette.mode != "off":
+        cfg = dataclasses.replace(cfg, silhouette=dataclasses.replace(cfg.silhouette,
+                                                                      mode="off"))
+    return cfg
+
+
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
                landmarks: FrameLandmarks | None = None, larynx: bool = True,
-               outline: bool = True) -> TrackResult:
+               outline: bool = True, outline_mask: str | None = None) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
-    :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
-    ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
-    larynx's slide per frame from the neck's shading (else the keyframe fit's tau);
-    ``outline``: place the neck on the person's outline (``outline.py``)."""
+    :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on, its
+    silhouette off: :func:`identity_config`); ``landmarks``: reuse landmarks found before
+    (a resumed run); ``larynx``: track the larynx's slide per frame from the neck's
+    shading (else the keyframe fit's tau); ``outline``: place the face's and neck's
+    outline on the head-and-neck mask (``outline.py``; ``outline_mask`` "person": the
+    person mask, as before issue 63)."""
 
     tcfg = track_config or TrackConfig()
-    cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
+    outline_on = outline and (config is None or config.silhouette.mode != "off")
+    cfg = identity_config(config)
     timings, notes = {}, list(clip.notes)
     if landmarks is None:
         with timed(timings, "landmarks"):
@@ -202,17 +226,20 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     eta = float(fit.eta.detach().reshape(-1)[0])
     placed = None  # the outline stage's OutlineResult
-    if outline and cfg.silhouette.mode != "off":
-        sc = cfg.silhouette
+    if outline_on:
+        sc = (config or FitConfig()).silhouette
+        mode = outline_mask or OUTLINE_MASK
         with timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
-                                chroma=sc.chroma)
+                                chroma=sc.chroma, mode=mode,
+                                every=OUTLINE_EVERY if mode == "head_neck" else 1)
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
                                             tcfg, state.model, fit.beta.detach(), eta, tau,
                                             masks, progress=progress)
         if not masks.has.any():
-            notes.append("outline: no frame gave a person mask (neither a plain background "
-                         "nor the person segmentation); the neck follows the landmarks alone")
+            notes.append("outline: no frame gave a mask (head and neck: no face mesh; person: "
+                         "neither a plain background nor the person segmentation); the neck "
+                         "follows the landmarks alone")
     track = None
     if larynx:
         with timed(timings, "larynx"):
