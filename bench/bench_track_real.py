@@ -87,10 +87,18 @@ def run_track(clip: Path, out: Path, args) -> dict:
     if args.max_frames:
         cmd += ["--max-frames", str(args.max_frames)]
     cmd += args.track_args.split()
+    import resource
+
     t = time.time()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     row = {"command": " ".join(cmd[2:]), "exit": p.returncode,
            "seconds": round(time.time() - t, 1),
+           # the command's CPU time (all threads): the figure a loaded machine distorts
+           # least (wall seconds on a shared 2-core machine are not the command's own)
+           "cpu_seconds": round(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime, 1),
+           "load_average_1min": round(__import__("os").getloadavg()[0], 1),
            "stderr_warnings": [ln for ln in p.stderr.splitlines()
                                if ln.startswith("warning:")]}
     if p.returncode:
@@ -149,6 +157,31 @@ def summary(rows: list) -> dict:
             "clips_over_4pc": sum(x > 0.04 for x in v)}
 
 
+def table(res: dict) -> str:
+    """The docs' table (markdown) of a result file."""
+    lines = ["| clip | frames | NME median / p90 | jitter tracked / mesh (px/frame^2) | "
+             "lost | status | wall / CPU s | identity fit / outline s |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in res["clips"]:
+        if r.get("nme_median") is None:
+            lines.append(f"| {r['clip']} | - | failed: {(r.get('track') or {}).get('message')} "
+                         "| | | | | |")
+            continue
+        tr, tm = r.get("track") or {}, r.get("timings_s") or {}
+        lines.append(
+            f"| {r['clip']} | {r['frames']} | {100 * r['nme_median']:.1f} / "
+            f"{100 * r['nme_p90']:.1f} % | {r['jitter_tracked_px']:.2f} / "
+            f"{r['jitter_mesh_px']:.2f} | {r['lost_frames']} | {r['status']} | "
+            f"{tr.get('seconds', '-')} / {tr.get('cpu_seconds', '-')} | "
+            f"{tm.get('identity_fit_s', 0):.0f} / {tm.get('outline_s', 0):.0f} |")
+    s = res["summary"]
+    lines.append(f"| **all** | | median of clip medians {100 * s['median_of_clip_medians']:.1f} %, "
+                 f"all frames {100 * s['all_frames_median']:.1f} / "
+                 f"{100 * s['all_frames_p90']:.1f} %; worst clip "
+                 f"{100 * s['worst_clip_median']:.1f} % | | | | | |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     from provenance import write_result
 
@@ -167,8 +200,13 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-first", action="store_true",
                     help="also the photo fitter on each clip's first frame")
     ap.add_argument("--fetch-help", action="store_true", help="print how to get the clips")
+    ap.add_argument("--table", type=Path, help="print the markdown table of a result file "
+                    "and exit")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track_real.json"))
     args = ap.parse_args(argv)
+    if args.table:
+        print(table(json.loads(args.table.read_text())))
+        return 0
     manifest = json.loads(MANIFEST.read_text())
     if args.fetch_help or args.clips_dir is None:
         print(manifest["how_to_get"])
