@@ -108,8 +108,13 @@ def run_track(clip: Path, out: Path, args) -> dict:
 
 def clip_row(name: str, path: Path, out: Path, args) -> dict:
     row: dict = {"clip": name}
+    saved = out / "bench_track_row.json"   # the command's exit, seconds (a rescore keeps them)
     if not args.rescore:
         row["track"] = run_track(path, out, args)
+        if out.is_dir():
+            saved.write_text(json.dumps(row["track"]))
+    elif saved.is_file():
+        row["track"] = json.loads(saved.read_text())
     rep_path, pts_path = out / "report.json", out / "tracked_landmarks.npz"
     if not (rep_path.is_file() and pts_path.is_file()):
         return row
@@ -183,8 +188,6 @@ def table(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    from provenance import write_result
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("clips_dir", type=Path, nargs="?", default=None)
     ap.add_argument("--clips", nargs="*", help="clip names (default: all in the manifest "
@@ -227,6 +230,14 @@ def main(argv=None) -> int:
                                          "lost_frames")}
         short["seconds"] = (row.get("track") or {}).get("seconds")
         print(json.dumps(short), flush=True)
+        write(args, rows, names, manifest)   # after every clip: a stopped run keeps them
+    print(json.dumps(write(args, rows, names, manifest)["summary"]))
+    return 0
+
+
+def write(args, rows, names, manifest) -> dict:
+    from provenance import write_result
+
     res = {"clips": [{k: v for k, v in r.items() if k != "per_frame_nme"} | {
         "per_frame_nme": r.get("per_frame_nme")} for r in rows],
         "summary": summary(rows), "max_frames": args.max_frames, "max_side": args.max_side,
@@ -234,8 +245,7 @@ def main(argv=None) -> int:
         "sources": {c["name"]: {k: c[k] for k in ("repo", "path", "commit", "licence")}
                     for c in manifest["clips"] if c["name"] in names}}
     write_result(args.out, res)
-    print(json.dumps(res["summary"]))
-    return 0
+    return res
 
 
 if __name__ == "__main__":

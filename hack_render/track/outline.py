@@ -47,7 +47,8 @@ from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_trans
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.render.bridge import vertex_normals_torch
 from hack_render.track.solve import solve_clip
-from hack_render.vision.segment import person_mask
+from hack_render.vision.detect import mesh_landmarks
+from hack_render.vision.segment import person_mask, ring, skin_colour_mask
 
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
@@ -185,9 +186,7 @@ def head_neck_mask(img: np.ndarray, points: np.ndarray) -> tuple[np.ndarray | No
     border is the neck's own; -inf: no neck seen, the face oval alone) or (None, inf)
     where the mesh finds no face. About 60 ms a 512 px frame (no person segmentation)."""
     from scipy import ndimage
-
-    from hack_render.vision.detect import mesh_landmarks
-    from hack_render.vision.segment import _polygon_mask, ring, skin_colour_mask
+    from skimage.draw import polygon
 
     p = points[np.isfinite(points).all(1)]
     if len(p) < 20:
@@ -201,7 +200,9 @@ def head_neck_mask(img: np.ndarray, points: np.ndarray) -> tuple[np.ndarray | No
         return None, np.inf
     h, w = img.shape[:2]
     oval_pts = dense[ring("FACEMESH_FACE_OVAL"), :2]
-    oval = _polygon_mask(oval_pts, (h, w), soft=False) > 0.5
+    oval = np.zeros((h, w), bool)
+    rr, cc = polygon(oval_pts[:, 1] - 0.5, oval_pts[:, 0] - 0.5, (h, w))
+    oval[rr, cc] = True
     if oval.sum() < 50:
         return None, np.inf
     iod = float(np.linalg.norm(p[36] - p[45])) if len(p) == 68 else \

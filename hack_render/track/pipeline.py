@@ -39,7 +39,14 @@ from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frame
 from hack_render.track.larynx import track_tau
 from hack_render.track.outline import frame_masks, refine_outline
 from hack_render.track.rig import LandmarkRig
-from hack_render.track.solve import ClipCamera, FrameParams, TrackConfig, solve_clip, solve_frames
+from hack_render.track.solve import (
+    ClipCamera,
+    FrameParams,
+    TrackConfig,
+    landmark_error,
+    solve_clip,
+    solve_frames,
+)
 from hack_render.track.video import Clip
 from hack_render.vision.detection import Detection
 
@@ -275,8 +282,6 @@ def larynx_or_fixed(track, fixed: np.ndarray, found: np.ndarray) -> tuple[np.nda
 def quality_warnings(result: TrackResult) -> list[str]:
     """What a user must know about the track: the tracked model's points far from the
     detected ones (median NME over the frames with a face above :data:`FAR_NME`)."""
-    from hack_render.track.solve import landmark_error
-
     lm = result.landmarks
     _, nme, _ = landmark_error(result.rig, result.camera, result.params, lm.points, lm.found)
     out = []
