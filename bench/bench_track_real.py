@@ -61,6 +61,7 @@ def score(tracked: np.ndarray, mesh: np.ndarray) -> dict:
     """Per-frame NME of the tracked points against the mesh's (chin + inner 51, by the
     mesh's outer-eye distance), summarised; jitter of both."""
     from bench_real_photos import nme
+
     from hack_render.track.outputs import jitter
 
     ok = np.isfinite(mesh).all(axis=(1, 2))
@@ -140,6 +141,7 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
     row.update(score(tracked, mesh))
     if args.fit_first:
         from bench_real_photos import run_fit
+
         from hack_render.track.video import open_clip
 
         img = next(iter(open_clip(path, args.max_side).read(0, 1)))
@@ -164,8 +166,8 @@ def summary(rows: list) -> dict:
 
 def table(res: dict) -> str:
     """The docs' table (markdown) of a result file."""
-    lines = ["| clip | frames | NME median / p90 | jitter tracked / mesh (px/frame^2) | "
-             "lost | status | wall / CPU s | identity fit / outline s |",
+    lines = [("| clip | frames | NME median / p90 | jitter tracked / mesh (px/frame^2) | "
+              "lost | status | wall / CPU s | identity fit / outline s |"),
              "|---|---|---|---|---|---|---|---|"]
     for r in res["clips"]:
         if r.get("nme_median") is None:
