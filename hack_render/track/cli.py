@@ -116,10 +116,10 @@ def track(
                             "for 'fixed'; about 1 frame/s on 2 cores, so opt-in; where the "
                             "neck is not seen it keeps the fixed value; see docs/motion.md)."),
     no_outline: bool = typer.Option(False, "--no-outline", help="Skip the outline stage "
-                                    "(the neck placed on the person mask's border in every "
-                                    "frame: a plain background keyed out, else MediaPipe's "
-                                    "person segmentation); the neck then follows the "
-                                    "landmarks alone."),
+                                    "(the face's and neck's outline placed on the "
+                                    "head-and-neck mask, the face mesh's oval and the "
+                                    "neck's skin, in every third frame); the neck then "
+                                    "follows the landmarks alone."),
     no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
