@@ -191,7 +191,7 @@ def table(res: dict) -> str:
     lines.append(f"| **all** | | median of clip medians {100 * s['median_of_clip_medians']:.1f} %, "
                  f"all frames {100 * s['all_frames_median']:.1f} / "
                  f"{100 * s['all_frames_p90']:.1f} %; worst clip "
-                 f"{100 * s['worst_clip_median']:.1f} % | | | | | |")
+                 f"{100 * s['worst_clip_median']:.1f} % | | | | | | |")
     return "\n".join(lines)
 
 
