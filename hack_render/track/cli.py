@@ -101,20 +101,25 @@ def track(
                                              "first N frames."),
     config: Path | None = typer.Option(None, "--config", help="Fit config (TOML/YAML/JSON) "
                                           "for the keyframe fit; see `hack-render fit`."),
-    no_photometric: bool = typer.Option(False, "--no-photometric", help="Keyframe fit from "
-                                        "landmarks only (no skin, faster)."),
-    tau: str = typer.Option("photometric", "--tau", help="The larynx's slide per frame: "
+    photometric: bool = typer.Option(False, "--photometric/--no-photometric",
+                                     help="Also fit the skin on the keyframes (the fit's "
+                                     "photometric stage: identity/ gets a skin texture; "
+                                     "minutes per keyframe on a CPU). Off by default "
+                                     "since issue 63: the keyframe fit from landmarks is "
+                                     "the identity the tracking uses either way."),
+    tau: str = typer.Option("fixed", "--tau", help="The larynx's slide per frame: "
+                            "'fixed' (the default: the keyframe fit's value throughout) or "
                             "'photometric' (from the neck's shading: the mesh at a grid of "
                             "slides with the light refitted per frame, the least-cost smooth "
                             "path; on the benchmark's two clips 2.6 and 5.1 mm mean error, "
                             "correlation 0.98 and 0.82 with the true slide, against 6.0 mm "
-                            "for 'fixed'; see docs/motion.md) or 'fixed' (the keyframe fit's "
-                            "value throughout)."),
+                            "for 'fixed'; about 1 frame/s on 2 cores, so opt-in; where the "
+                            "neck is not seen it keeps the fixed value; see docs/motion.md)."),
     no_outline: bool = typer.Option(False, "--no-outline", help="Skip the outline stage "
-                                    "(the neck placed on the person mask's border in every "
-                                    "frame: a plain background keyed out, else MediaPipe's "
-                                    "person segmentation); the neck then follows the "
-                                    "landmarks alone."),
+                                    "(the face's and neck's outline placed on the "
+                                    "head-and-neck mask, the face mesh's oval and the "
+                                    "neck's skin, in every third frame); the neck then "
+                                    "follows the landmarks alone."),
     no_overlay: bool = typer.Option(False, "--no-overlay", help="Skip overlay.mp4."),
     resume: bool = typer.Option(False, "--resume", help="Go on from an interrupted run "
                                 "(same arguments): its landmarks are reused."),
@@ -124,7 +129,9 @@ def track(
     """Track a video into HACK parameters: one identity for the clip, and per frame the
     8 neck joints (from the head's rotation), the torso, the expression and the larynx's
     slide tau (from the neck's shading; --tau fixed keeps the keyframe fit's value). The
-    neck is placed on the person's outline in every frame (--no-outline: landmarks alone).
+    neck is placed on the head-and-neck outline (the face mesh's oval and the neck's
+    skin, no hair; --no-outline: landmarks alone). A track whose points lie far from the
+    detected ones is reported on stderr and as the report's status "poor".
 
     Writes sequence.npz (per-frame theta, psi, tau, global_orient, transl: `hack-render
     export --params OUT/person.json --sequence OUT/sequence.npz -o anim.glb`),
@@ -137,7 +144,7 @@ def track(
     if tau not in ("photometric", "fixed"):
         raise HackError(f"--tau {tau!r}: expected 'photometric' or 'fixed'.")
     over: dict = {}
-    if no_photometric:
+    if not photometric:
         over["photometric"] = {"enabled": False}
     if config is not None:
         boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
@@ -158,6 +165,8 @@ def track(
                f"{result.keyframes}")
     for note in result.notes:
         typer.echo(f"note: {note}")
+    for warning in result.warnings:   # a poor track: said, not only written
+        typer.secho(f"warning: {warning}", err=True, fg=typer.colors.YELLOW)
     for p in paths:
         if p.name in ("sequence.npz", "person.json", "overlay.mp4", "report.json"):
             typer.echo(f"wrote {p.resolve()}")

@@ -85,6 +85,8 @@ class LarynxTrack:
         confidence: (T,) the curve's mean rise 5 mm either side of its minimum (0 where
             not scored): how sharply the frame alone tells the slide.
         pixels: (T,) pixels of the larynx region scored per frame.
+        fallback: the neck was seen in too few frames: ``tau`` is the keyframe fit's
+            (``pipeline.larynx_or_fixed``), ``confidence`` 0 throughout.
     """
 
     tau: np.ndarray
@@ -92,6 +94,7 @@ class LarynxTrack:
     cost: np.ndarray
     confidence: np.ndarray
     pixels: np.ndarray
+    fallback: bool = False
 
 
 def _sh9(d: np.ndarray) -> np.ndarray:

@@ -47,7 +47,8 @@ from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_trans
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.render.bridge import vertex_normals_torch
 from hack_render.track.solve import solve_clip
-from hack_render.vision.segment import person_mask
+from hack_render.vision.detect import mesh_landmarks
+from hack_render.vision.segment import person_mask, ring, skin_colour_mask
 
 #: frames whose contour is selected together (one batched forward of the model)
 _CHUNK = 32
@@ -75,6 +76,13 @@ class FrameMasks:
     scale: float
     has: np.ndarray
     source: list
+    #: (T,) per frame, the lowest image row (working px) where the mask's border is the
+    #: person's outline (the head-and-neck mask: the neck's skin seen down to there; +inf:
+    #: the whole border); the model's contour below it is left out
+    limit_y: np.ndarray | None = None
+    #: "head_neck" (:func:`head_neck_mask`: the face's and neck's own outline, no hair, the
+    #: term reads only the face's and neck's skin) or "person" (the person mask)
+    kind: str = "person"
 
     @classmethod
     def from_masks(cls, masks, source: list | None = None,
@@ -116,9 +124,10 @@ class FrameMasks:
 
 
 def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = True,
-                max_side: int = 320, max_spread: float = 0.06, chroma: bool = True
-                ) -> FrameMasks:
-    """The person mask of every frame with a face (:class:`FrameMasks`).
+                max_side: int = 320, max_spread: float = 0.06, chroma: bool = True,
+                mode: str = "head_neck", every: int = 1) -> FrameMasks:
+    """The mask of every ``every``-th frame with a face (:class:`FrameMasks`; the frames
+    between get none and follow the landmarks and the temporal priors).
 
     Args:
         frames: iterable of (H, W, 3) uint8 sRGB frames at the tracker's working size.
@@ -127,9 +136,15 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
             (it is skipped, with frames left without a mask, where mediapipe is missing).
         max_side: the distance maps' size (long side, px).
         max_spread, chroma: the plain-background key's (``fit.silhouette``).
+        mode: "head_neck" (the default, :func:`head_neck_mask`: the face mesh's oval and
+            the neck's skin below it, no hair) or "person" (the person mask: a plain
+            background keyed out, else the person segmentation; hair included, which
+            pulls the face's outline out to the hair's on a face that fills the frame).
+        every: mask every n-th frame (1: all).
     """
     T = len(found)
     source = [""] * T
+    limits = np.full(T, np.inf)
 
     def masks():
         n = 0
@@ -138,16 +153,80 @@ def frame_masks(frames, points: np.ndarray, found: np.ndarray, segment: bool = T
                 break
             n += 1
             m = None
-            if found[i]:
-                m = segment_plain_background(img.astype(np.float32) / 255.0, points[i],
-                                             max_spread=max_spread, chroma=chroma)[0]
-                source[i] = "plain background"
-                if m is None and segment:
-                    m, source[i] = _segmented(img, points[i]), "segmentation"
+            if found[i] and i % max(1, every) == 0:
+                if mode == "head_neck":
+                    m, limits[i] = head_neck_mask(img, points[i])
+                    source[i] = "head and neck"
+                else:
+                    m = segment_plain_background(img.astype(np.float32) / 255.0, points[i],
+                                                 max_spread=max_spread, chroma=chroma)[0]
+                    source[i] = "plain background"
+                    if m is None and segment:
+                        m, source[i] = _segmented(img, points[i]), "segmentation"
             yield m
         yield from [None] * (T - n)  # a clip shorter than its landmarks
 
-    return FrameMasks.from_masks(masks(), source, max_side)
+    fm = FrameMasks.from_masks(masks(), source, max_side)
+    return dataclasses.replace(fm, limit_y=limits, kind=mode)
+
+
+#: the neck's skin counts where at least this many pixels of it, per outer-eye distance
+#: squared, join the face oval's lower half (a collar, a beard's shadow or the frame's
+#: edge leave less: the neck is then left out of the term for that frame)
+MIN_NECK_AREA = 0.15
+
+
+def head_neck_mask(img: np.ndarray, points: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The head-and-neck mask of a frame: the face mesh's face oval (MediaPipe, run in the
+    landmarks' box) joined to the neck's skin below it (pixels of the face's own skin
+    chromaticity, ``vision.segment.skin_colour_mask``, below the mouth, within the oval's
+    width widened by a fifth, the part that touches the oval's lower half). Hair is not in
+    it: on a face that fills the frame the person mask's border is the hair's, 40-60 px
+    outside the jaw (issue 63). Returns (mask (H, W) bool, the lowest row where the
+    border is the neck's own; -inf: no neck seen, the face oval alone) or (None, inf)
+    where the mesh finds no face. About 60 ms a 512 px frame (no person segmentation)."""
+    from scipy import ndimage
+    from skimage.draw import polygon
+
+    p = points[np.isfinite(points).all(1)]
+    if len(p) < 20:
+        return None, np.inf
+    box = (*p.min(0), *p.max(0))
+    try:
+        dense, presence = mesh_landmarks(img, box, passes=1)
+    except Exception:  # noqa: BLE001 - no mesh face: no mask (an interruption is not lost:
+        return None, np.inf  # the command's handler recorded the signal, see interrupts)
+    if presence < 0.5:
+        return None, np.inf
+    h, w = img.shape[:2]
+    oval_pts = dense[ring("FACEMESH_FACE_OVAL"), :2]
+    oval = np.zeros((h, w), bool)
+    rr, cc = polygon(oval_pts[:, 1] - 0.5, oval_pts[:, 0] - 0.5, (h, w))
+    oval[rr, cc] = True
+    if oval.sum() < 50:
+        return None, np.inf
+    iod = float(np.linalg.norm(p[36] - p[45])) if len(p) == 68 else \
+        float(np.ptp(oval_pts[:, 0])) / 2.2
+    mouth_y = float(np.mean(points[48:68, 1]))
+    x0, x1 = oval_pts[:, 0].min(), oval_pts[:, 0].max()
+    pad = 0.2 * (x1 - x0)
+    within = np.zeros((h, w), bool)
+    within[int(max(0, mouth_y)):, int(max(0, x0 - pad)):int(min(w, x1 + pad + 1))] = True
+    within &= ~oval
+    neck = ndimage.binary_opening(skin_colour_mask(img, dense, within), iterations=1)
+    lab, n = ndimage.label(neck)
+    rows = np.arange(h)[:, None]
+    touch = ndimage.binary_dilation(oval & (rows > mouth_y), iterations=3)
+    keep = np.zeros(n + 1, bool)
+    keep[np.unique(lab[touch & (lab > 0)])] = True
+    keep[0] = False
+    neck = keep[lab]
+    if neck.sum() >= MIN_NECK_AREA * iod * iod:
+        ys = np.flatnonzero(neck.any(1))
+        # the neck's border is its own down to where its skin ends (a collar, the
+        # frame's edge), less a margin
+        return ndimage.binary_fill_holes(oval | neck), float(ys.max()) - 0.1 * iod
+    return oval, -np.inf
 
 
 def _segmented(img: np.ndarray, points: np.ndarray) -> np.ndarray | None:
@@ -181,6 +260,19 @@ class OutlineTerm:
         # every 3rd of the silhouette term's inside set (every 9th skin vertex, ~1,200):
         # the one-sided test needs coverage, not density
         self.inside = self.sil.inside.numpy()[::3]
+        self.contour_ok = self.neck_v = None
+        if masks.kind == "head_neck":
+            # the head-and-neck mask's border is the face's and the neck's own outline:
+            # only their skin below the brows is read (the scalp, the ears and the chest
+            # may lie anywhere: hair or clothes cover them, or the frame's edge)
+            regions = model.vertex_region.numpy()
+            names = list(model.region_names)
+            t = model.template.numpy()
+            brow = t[model.landmark_indices.numpy()[17:27], 1].min()
+            face_v = (regions == names.index("face")) & (t[:, 1] < brow)
+            self.neck_v = regions == names.index("neck")
+            self.contour_ok = face_v | self.neck_v
+            self.inside = np.flatnonzero(face_v)[::9]
         self.weights_all = model.skinning_weights.double()
         joints = person.joints.double()[None]
         self.nodes = torch.cat([joints[:, :1], joints], 1)
@@ -219,6 +311,8 @@ class OutlineTerm:
                 pairs[i], ts[i] = self.sil.select_contour(
                     V.numpy(), n, self.centre,
                     lambda X: self.camera.project(torch.as_tensor(X)).numpy(), (h, w), px)
+                if self.contour_ok is not None:
+                    pairs[i], ts[i] = self._head_neck_contour(V, pairs[i], ts[i], i)
         # the vertices the term reads this round: the contours' and the inside set
         self.S = np.unique(np.concatenate([self.inside] + [p.ravel() for p in pairs]))
         local = np.full(self.model.num_vertices, -1, np.int64)
@@ -240,6 +334,23 @@ class OutlineTerm:
                 self.pairs[i, :n] = torch.as_tensor(local[pairs[i]])
                 self.t[i, :n] = torch.as_tensor(ts[i])
                 self.valid[i, :n] = 1.0
+
+    def _head_neck_contour(self, V: torch.Tensor, pairs: np.ndarray, t: np.ndarray,
+                           i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The contour points the head-and-neck mask speaks for: on the face below the
+        brows and on the neck, the neck's only where the frame's neck was seen, and none
+        below the row where the neck's skin ends (``FrameMasks.limit_y``)."""
+        a, b = pairs[:, 0], pairs[:, 1]
+        keep = self.contour_ok[a] & self.contour_ok[b]
+        limit = float(self.masks.limit_y[i]) if self.masks.limit_y is not None else np.inf
+        if limit == -np.inf:   # no neck seen: the face's outline only
+            keep &= ~self.neck_v[a] & ~self.neck_v[b]
+        elif np.isfinite(limit):
+            Vn = V.numpy()
+            X = Vn[a] + t[:, None] * (Vn[b] - Vn[a])
+            uv = self.camera.project(torch.as_tensor(X)).numpy()
+            keep &= uv[:, 1] <= limit
+        return pairs[keep], t[keep]
 
     def points(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
         """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D)."""

@@ -141,6 +141,10 @@ def report_dict(result: TrackResult, truth: dict | None = None) -> dict:
         "larynx": _larynx_report(result),
         "outline": _outline_report(result),
         "notes": result.notes,
+        # "poor": the warnings say why (also printed on stderr); the threshold is
+        # pipeline.FAR_NME of the outer-eye distance
+        "status": "poor" if result.warnings else "ok",
+        "warnings": list(result.warnings),
         "per_frame": [{"frame": i, "found": bool(lm.found[i]),
                        "landmark_error_px": None if not lm.found[i] else float(err_px[i]),
                        "head_deg": np.degrees(result.params.h[i]).round(3).tolist(),
@@ -183,6 +187,13 @@ def _larynx_report(result: TrackResult) -> dict:
         return {"method": "fixed: the keyframe fit's tau on every frame (--tau fixed)"}
     sec = result.timings.get("larynx_s", 0.0)
     cpu = result.timings.get("larynx_cpu_s", 0.0)
+    if getattr(lt, "fallback", False):
+        seen = int((lt.pixels > 0).sum())
+        return {"method": "fixed: the neck's larynx region was not seen (in "
+                          f"{seen} frames); the keyframe fit's tau on every frame, "
+                          "confidence 0",
+                "pixels_median": 0.0, "confidence_median": 0.0,
+                "fps": len(lt.tau) / sec if sec > 0 else None}
     return {"method": "photometric: the neck's shading at a grid of slides, the light "
                       "refitted per frame and slide, then the least-cost smooth path",
             "grid_mm": (1e3 * lt.grid).round(3).tolist(),
@@ -279,6 +290,18 @@ def write_larynx_plot(result: TrackResult, path: Path, truth: dict | None = None
     return path
 
 
+def write_tracked_points(result: TrackResult, path: Path) -> Path:
+    """The tracked model's 68 landmarks projected in every frame (``points`` (T, 68, 2),
+    working-size pixels; lost frames included: the priors' pose), for scoring the track
+    against another detector (``bench/bench_track_real.py``)."""
+    lm = result.landmarks
+    _, _, uv = landmark_error(result.rig, result.camera, result.params, lm.points, lm.found)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, points=uv.astype(np.float32), found=lm.found,
+                 working_size=np.array(result.clip.work))
+    return path
+
+
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
@@ -289,6 +312,7 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
     result.landmarks.save(outdir / "landmarks.npz")
     written.append(outdir / "landmarks.npz")
+    written.append(write_tracked_points(result, outdir / "tracked_landmarks.npz"))
     written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
     if overlay:
         written.append(write_overlay(result, outdir / "overlay.mp4", progress))

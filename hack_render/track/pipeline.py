@@ -39,7 +39,14 @@ from hack_render.track.detect import FrameDetector, FrameLandmarks, detect_frame
 from hack_render.track.larynx import track_tau
 from hack_render.track.outline import frame_masks, refine_outline
 from hack_render.track.rig import LandmarkRig
-from hack_render.track.solve import ClipCamera, FrameParams, TrackConfig, solve_clip, solve_frames
+from hack_render.track.solve import (
+    ClipCamera,
+    FrameParams,
+    TrackConfig,
+    landmark_error,
+    solve_clip,
+    solve_frames,
+)
 from hack_render.track.video import Clip
 from hack_render.vision.detection import Detection
 
@@ -59,6 +66,19 @@ class TrackResult:
     fitter: object = None          # the keyframe fit's Fitter (its outputs are written)
     larynx: object = None          # the photometric tau's LarynxTrack (None: not tracked)
     outline: object = None         # the outline stage's OutlineResult (None: not run)
+    warnings: list[str] = field(default_factory=list)  # :func:`quality_warnings`'s
+
+
+#: the tracked model's points farther than this from the detected ones (median over the
+#: frames with a face, in units of the outer-eye distance) are reported as a poor track
+#: (stderr, the report's ``status``): the tracker reaches 2-4 % on real clips where it
+#: works (docs/motion.md), the photo fitter 3.9 % on held-out portraits; 6 % is a face
+#: fitted a size too wide or the landmarks of another face
+FAR_NME = 0.06
+#: a clip where fewer than this share of the frames with a face show the neck's larynx
+#: region (its photometric confidence 0: not scored) keeps the keyframe fit's tau, with
+#: zero confidence, instead of a path through frames that were never seen
+MIN_NECK_SHARE = 0.25
 
 
 class timed:
@@ -135,18 +155,42 @@ def warm_started(rig, camera, obs, found, weights, init: FrameParams, first: int
                          ("h", "g", "t", "psi")))
 
 
+#: the keyframe fit's silhouette term: "off" (the default since issue 63: the fit's
+#: silhouette reads the person mask, whose border on a face that fills the frame is the
+#: hair's, and fitted the identity a size too wide) or "person" (the fit's own term)
+IDENTITY_SILHOUETTE = "off"
+#: the outline stage's mask (:func:`~hack_render.track.outline.frame_masks`' ``mode``)
+#: and the share of frames it is made for (every n-th frame; the priors carry the rest)
+OUTLINE_MASK = "head_neck"
+OUTLINE_EVERY = 3
+
+
+def identity_config(config) -> FitConfig:
+    """The keyframe fit's config: per-view expressions, and the silhouette term off
+    unless :data:`IDENTITY_SILHOUETTE` asks for it (the outline stage places the face's
+    and neck's outline on the head-and-neck mask afterwards)."""
+    cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
+    if IDENTITY_SILHOUETTE == "off" and cfg.silhouette.mode != "off":
+        cfg = dataclasses.replace(cfg, silhouette=dataclasses.replace(cfg.silhouette,
+                                                                      mode="off"))
+    return cfg
+
+
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
                landmarks: FrameLandmarks | None = None, larynx: bool = True,
-               outline: bool = True) -> TrackResult:
+               outline: bool = True, outline_mask: str | None = None) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
-    :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on);
-    ``landmarks``: reuse landmarks found before (a resumed run); ``larynx``: track the
-    larynx's slide per frame from the neck's shading (else the keyframe fit's tau);
-    ``outline``: place the neck on the person's outline (``outline.py``)."""
+    :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on, its
+    silhouette off: :func:`identity_config`); ``landmarks``: reuse landmarks found before
+    (a resumed run); ``larynx``: track the larynx's slide per frame from the neck's
+    shading (else the keyframe fit's tau); ``outline``: place the face's and neck's
+    outline on the head-and-neck mask (``outline.py``; ``outline_mask`` "person": the
+    person mask, as before issue 63)."""
 
     tcfg = track_config or TrackConfig()
-    cfg = dataclasses.replace(config or FitConfig(), per_view_expression=True)
+    outline_on = outline and (config is None or config.silhouette.mode != "off")
+    cfg = identity_config(config)
     timings, notes = {}, list(clip.notes)
     if landmarks is None:
         with timed(timings, "landmarks"):
@@ -189,25 +233,68 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     eta = float(fit.eta.detach().reshape(-1)[0])
     placed = None  # the outline stage's OutlineResult
-    if outline and cfg.silhouette.mode != "off":
-        sc = cfg.silhouette
+    if outline_on:
+        sc = (config or FitConfig()).silhouette
+        mode = outline_mask or OUTLINE_MASK
         with timed(timings, "outline"):
             masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
-                                chroma=sc.chroma)
+                                chroma=sc.chroma, mode=mode,
+                                every=OUTLINE_EVERY if mode == "head_neck" else 1)
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
                                             tcfg, state.model, fit.beta.detach(), eta, tau,
                                             masks, progress=progress)
         if not masks.has.any():
-            notes.append("outline: no frame gave a person mask (neither a plain background "
-                         "nor the person segmentation); the neck follows the landmarks alone")
+            notes.append("outline: no frame gave a mask (head and neck: no face mesh; person: "
+                         "neither a plain background nor the person segmentation); the neck "
+                         "follows the landmarks alone")
     track = None
     if larynx:
         with timed(timings, "larynx"):
             track = track_tau(clip.read, state.model, fit.beta.detach(), eta, params, camera,
                               found, clip.fps, progress=progress)
-        tau = track.tau
-    return TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings, notes,
-                       fitter, track, placed)
+        tau, note = larynx_or_fixed(track, tau, found)
+        if note:
+            notes.append(note)
+    result = TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings,
+                         notes, fitter, track, placed)
+    result.warnings = quality_warnings(result)
+    return result
+
+
+def larynx_or_fixed(track, fixed: np.ndarray, found: np.ndarray) -> tuple[np.ndarray, str]:
+    """The photometric tau where the neck was seen, else the keyframe fit's: (tau, note).
+    A clip where under :data:`MIN_NECK_SHARE` of the frames with a face were scored (the
+    larynx region off the frame, under the chin or too small: confidence 0) keeps
+    ``fixed`` throughout and the track's confidence is set to 0 on every frame."""
+    seen = track.confidence > 0
+    n = max(int(np.sum(found)), 1)
+    if seen.sum() >= MIN_NECK_SHARE * n:
+        return track.tau, ""
+    track.confidence[:] = 0.0
+    track.tau = np.array(fixed, np.float64)
+    track.fallback = True
+    return track.tau, (f"larynx: the neck's larynx region was seen in {int(seen.sum())} of "
+                       f"{n} frames with a face (needs {MIN_NECK_SHARE:.0%}); tau kept at the "
+                       f"keyframe fit's {1e3 * float(fixed[0]):.1f} mm on every frame, "
+                       "confidence 0")
+
+
+def quality_warnings(result: TrackResult) -> list[str]:
+    """What a user must know about the track: the tracked model's points far from the
+    detected ones (median NME over the frames with a face above :data:`FAR_NME`)."""
+    lm = result.landmarks
+    _, nme, _ = landmark_error(result.rig, result.camera, result.params, lm.points, lm.found)
+    out = []
+    v = nme[lm.found & np.isfinite(nme)]
+    if len(v):
+        med, far = float(np.median(v)), float(np.mean(v > FAR_NME))
+        if med > FAR_NME:
+            out.append(f"the tracked model's landmarks lie {100 * med:.1f} % of the outer-eye "
+                       f"distance from the detected ones (median over {len(v)} frames; "
+                       f"{100 * far:.0f} % of the frames above {100 * FAR_NME:.0f} %): a poor "
+                       "track (the face fitted the wrong size, or the wrong face); check "
+                       "overlay.mp4")
+    return out
 
 
 def sequence_of(result: TrackResult):
