@@ -364,6 +364,14 @@ class FinalConfig:
     # front of the render (outputs.photo_layer): the model has no hair, so a fringe is the
     # person's, not the model's bare forehead; render.png is the model alone either way
     photo_hair: bool = True
+    # the photo's hair as a style of the hair layer (fit/hair_style.py: archetype, volume,
+    # hairline and melanin from the segmentation's hair mask and colour), written to
+    # params.json's hair section and rendered in render.png; render_over_photo.png keeps the
+    # photo's own hair (photo_hair). Off: render.png is bald, as before
+    hair: bool = True
+    # the hair's level of detail in render.png (1: >= 50k scalp strands; growing and
+    # rendering cost ~ strands)
+    hair_lod: float = 0.5
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):

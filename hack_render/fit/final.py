@@ -16,8 +16,11 @@ import numpy as np
 from tqdm import tqdm
 
 from hack_render.fit import iris, texture
+from hack_render.fit.hair_style import hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
+from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.style import HairStyle
 
 
 @dataclass
@@ -37,6 +40,10 @@ class FinalRenders:
     specular: dict
     specular_confidence: np.ndarray | None = None
     report: dict = field(default_factory=dict)
+    #: the photo's hair as a style (``final.hair``; None: off, or no hair segmentation),
+    #: the groom rendered and ``render.png``'s renders with it (one per view)
+    hair_style: object = None
+    hair_renders: list | None = None
 
 
 def wanted(state: FitState, cfg) -> bool:
@@ -95,6 +102,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
                    for v in st.views]
         bar.update()
+    hair_style, hair_renders, hair_report = _hair(st, cfg, maps, baked)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)
     eyes["residual"] = iris.residual(st, renders, allowed, person=person)
@@ -109,5 +117,37 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                          + (", and the shadow of occluders and hair beside them "
                             f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
                             if cfg.final.occluder_shadow > 0 else "")
-                         + ", the mirrored face or the appearance model A(alpha) elsewhere"}
-    return FinalRenders(fitted, baked, maps, renders, eyes, spec_report, spec_conf, report)
+                         + ", the mirrored face or the appearance model A(alpha) elsewhere",
+              "hair": hair_report}
+    return FinalRenders(fitted, baked, maps, renders, eyes, spec_report, spec_conf, report,
+                        hair_style, hair_renders)
+
+
+def _hair(st: FitState, cfg, maps, baked) -> tuple[object, list | None, dict | None]:
+    """(style, renders with its groom, report) of the first view's hair (``final.hair``):
+    :func:`hack_render.fit.hair_style.hair_style_from_photo` on the segmentation's hair
+    and skin, with the baked skin's median albedo where the photo was seen as the skin's
+    colour; (None, None, why) without a hair segmentation."""
+    if not cfg.final.hair:
+        return None, None, None
+    v0 = st.views[0]
+    if v0.hair is None:
+        return None, None, {"note": "no hair segmentation (the vision extra): render.png "
+                                    "is bald"}
+    t0 = time.perf_counter()
+    seen = baked.confidence > 0.5
+    albedo = np.median(baked.diffuse[seen], axis=0) if seen.sum() > 100 else \
+        np.median(maps.diffuse.reshape(-1, 3), axis=0)
+    base = HairStyle(lod=cfg.final.hair_lod, seed=int(cfg.seed))
+    style, report = hair_style_from_photo(v0.photo.linear(), np.asarray(v0.hair, bool),
+                                          None if v0.skin is None else
+                                          np.asarray(v0.skin, bool),
+                                          v0.detection.points, albedo, base)
+    groom = grow_cached(HeadSurface.from_model(st.model), style)
+    renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
+                                       hair=groom) for v in st.views]
+    report.update({"strands": groom.num_strands, "lod": style.lod,
+                   "seconds": round(time.perf_counter() - t0, 2),
+                   "derived": "the hair layer's style read from the photo's hair outline "
+                              "and colour (fit/hair_style.py): a starting point, not a fit"})
+    return style, renders, report

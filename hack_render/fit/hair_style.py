@@ -9,7 +9,8 @@ turned with the face (``u`` to the photo's right, ``w`` up, from the chin to the
 - **length**: the lowest hair beside the face (``|u|`` past 80 % of the jaw's half width):
   below the chin by ``0.4 d`` -> ``long``; below the mouth -> ``bob``; otherwise ``short``,
   or ``crew`` when the hair on top is thinner than ``0.25 d`` over the brows' level +
-  ``0.95 d`` (where a bald head's top is, on the model's mean head);
+  ``0.95 d`` (where a bald head's top is, on the model's mean head) and narrower than
+  1.25 face widths at the forehead;
 - **afro**: hair wider than 2.2 face widths at the forehead, above the brows;
 - **volume**: the hair's width at the forehead over the face's: 1.05 -> 0, 1.65 -> 1;
 - **hairline**: the lowest hair over the forehead's middle, 0.75 d over the brows -> 0 ...
@@ -31,6 +32,7 @@ from hack_render.hair.style import HairStyle, albedo_melanin
 MIN_HAIR_AREA = 0.25  # in d^2
 TOP_OF_HEAD = 0.95  # the mean head's top over the brows, in d (85 mm over 90 mm)
 HAIRLINE_FULL, HAIRLINE_RECEDED = 0.75, 1.35
+CREW_WIDTH = 1.25  # a crew cut's hair at the forehead, face widths, at most
 
 
 def _frame(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -82,7 +84,7 @@ def hair_style_from_photo(photo: np.ndarray, hair: np.ndarray, skin: np.ndarray 
         archetype, why = "long", f"hair reaches {lowest - chin:+.2f} d from the chin"
     elif lowest < mouth:
         archetype, why = "bob", f"hair reaches {lowest - mouth:+.2f} d from the mouth"
-    elif top - (brow + TOP_OF_HEAD) < 0.25:
+    elif top - (brow + TOP_OF_HEAD) < 0.25 and width < CREW_WIDTH:
         archetype, why = "crew", f"hair {top - brow - TOP_OF_HEAD:+.2f} d over the head's top"
     else:
         archetype, why = "short", f"hair {top - brow - TOP_OF_HEAD:+.2f} d over the head's top"

@@ -121,12 +121,9 @@ def _focal_entry(cfg, v) -> dict:
             "prior_log_sigma": sigma, "source": source}
 
 
-def write_all(res: FitResult, outdir: Path, extra: dict | None = None, *legacy) -> list[Path]:
+def write_all(res: FitResult, outdir: Path, extra: dict | None = None) -> list[Path]:
     """Write everything of the fit ``res`` (its state and its final stage's renders) to
-    ``outdir``; returns the paths written. (``write_all(res, fitter, outdir[, extra])``,
-    the call before issue 62, still works: the fitter is not needed.)"""
-    if not isinstance(outdir, (str, Path)):   # write_all(res, fitter, outdir, extra)
-        outdir, extra = extra, (legacy[0] if legacy else None)
+    ``outdir``; returns the paths written."""
     outdir = Path(outdir)
     state, final = res.state, res.final
     outdir.mkdir(parents=True, exist_ok=True)
@@ -134,7 +131,10 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None, *legacy) 
     written = []
     for i, v in enumerate(res.views):
         name = "params.json" if i == 0 else f"params_view{i}.json"
-        written.append(save_params(outdir / name, view_params(res, i)))
+        params = view_params(res, i)
+        if final is not None and final.hair_style is not None:  # final.hair
+            params["hair"] = final.hair_style.to_dict()
+        written.append(save_params(outdir / name, params))
     fitted = [fitted_landmarks(res, v) for v in res.views]   # the npz's and the report's
     arrays = {"beta": res.beta.detach().numpy(), "psi": res.psi.detach().numpy(),
               "alpha": res.alpha.detach().numpy(), "eta": res.eta.detach().numpy(),
@@ -263,7 +263,8 @@ def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
 
 def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> list[Path]:
     """``render.png`` (the fit re-rendered with the baked skin at the photo's size, over a
-    transparent background), ``render_over_photo.png`` (over the photo; with
+    transparent background; with ``final.hair``, with the photo's hair read as a style of
+    the hair layer), ``render_over_photo.png`` (the hairless render over the photo; with
     ``final.photo_hair`` the photo's hair and occluders stay in front: the model has no
     hair, and a fringe over the forehead is the person's, not the model's bare skin), and
     ``occlusion.png`` (the bake's per-pixel weights: 0 where the photo was not used as
@@ -274,7 +275,10 @@ def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> li
     out = []
     for i, (v, r) in enumerate(zip(res.views, final.renders)):
         sfx = "" if i == 0 else f"_view{i}"
-        rgba = r.rgba
+        # render.png: with the photo's hair as the hair layer's style (final.hair);
+        # render_over_photo.png: the hairless render under the photo's own hair
+        hair = final.hair_renders[i].rgba if final.hair_renders else None
+        rgba = hair if hair is not None else r.rgba
         if v.photo.is_grey:
             lum = rgba[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
             rgba = np.concatenate([np.repeat(lum[..., None], 3, -1), rgba[..., 3:]], -1)
@@ -285,7 +289,11 @@ def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> li
         photo = v.photo.linear()
         if photo.shape[:2] != (h, w):
             photo = resize(photo, (h, w), order=1, anti_aliasing=True).astype(np.float32)
-        over = rgba[..., :3] + (1.0 - a) * photo
+        bald = r.rgba
+        if v.photo.is_grey:
+            lum = bald[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+            bald = np.concatenate([np.repeat(lum[..., None], 3, -1), bald[..., 3:]], -1)
+        over = bald[..., :3] + (1.0 - np.clip(bald[..., 3:4], 0.0, 1.0)) * photo
         layer = photo_layer(v, h, w) if res.config.final.photo_hair else None
         if layer is not None:
             over = layer[..., None] * photo + (1.0 - layer[..., None]) * over

@@ -40,6 +40,7 @@ from hack_render.fit.bake_weights import PhotoRender, pixel_weights
 from hack_render.fit.camera import R0
 from hack_render.fit.config import FitConfig
 from hack_render.fit.state import FitState, View
+from hack_render.hair.pose import pose_groom
 from hack_render.render import denoise as dn
 from hack_render.render.emitters import cropped
 from hack_render.render.materials import SkinMaps
@@ -113,16 +114,18 @@ SEE_THROUGH = ("eyelashes",)
 
 
 def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
-                    spp: int | None = None, max_side: int | None = None) -> PhotoRender:
+                    spp: int | None = None, max_side: int | None = None,
+                    hair=None) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
-    :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`)."""
+    :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`);
+    ``hair``: a groom (``hack_render.hair``) rendered with the head."""
     t0 = time.perf_counter()
     dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
     spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
-    head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
+    head, window = _photo_scene(state, cfg, view, maps, spp, max_side, hair)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
@@ -160,7 +163,7 @@ CROP_GROW = 0.02
 
 
 def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
-                 max_side: int | None):
+                 max_side: int | None, hair=None):
     """The HeadScene of :func:`render_at_photo` and the window of the image it renders:
     only the model's projected box (with a margin), where it covers under 90 % of the
     image: (x0, y0, width, height, image width, image height), else None. The rays
@@ -175,9 +178,13 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
         verts = state.forward(view).vertices[0].numpy()
         env = view.lighting.env_map().detach().numpy().astype(np.float32)
     window = None
-    front = (verts @ cam.R.T + cam.t)[:, 2] > 1e-3
+    # the box holds the hair's strands too (their posed control points; collisions move
+    # them by millimetres)
+    extent = verts if hair is None else np.concatenate(
+        [verts] + [p.reshape(-1, 3) for p in pose_groom(hair, verts, collide=False).values()])
+    front = (extent @ cam.R.T + cam.t)[:, 2] > 1e-3
     if front.all():   # (a vertex behind the camera: no box; the whole image)
-        xy = cam.project(verts.astype(np.float64))
+        xy = cam.project(extent.astype(np.float64))
         grow = CROP_MARGIN_PX + CROP_GROW * float((xy.max(0) - xy.min(0)).max())
         x0, y0 = np.floor(np.maximum(xy.min(0) - grow, 0)).astype(int)
         x1, y1 = np.ceil(np.minimum(xy.max(0) + grow, (w, h))).astype(int)
@@ -187,7 +194,8 @@ def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     maps = maps if maps is not None else skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
-                     RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps)
+                     RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps,
+                     hair=hair)
     return head, window
 
 

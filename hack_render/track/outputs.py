@@ -306,7 +306,7 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
     written = []
-    written += write_all(result.fit, fitter, outdir / "identity")
+    written += write_all(result.fit, outdir / "identity")
     person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
     written.append(save_params(outdir / "person.json", person))
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
