@@ -111,7 +111,9 @@ def test_torch_twin_matches_and_has_gradients(posing, surface):
     assert torch.isfinite(vt.grad).all() and vt.grad.abs().sum() > 0
 
 
-@pytest.mark.parametrize("archetype", ["long", "ponytail", "afro", "bob"])
+@pytest.mark.parametrize("archetype", ["long", "ponytail",
+                                       pytest.param("afro", marks=pytest.mark.slow),
+                                       pytest.param("bob", marks=pytest.mark.slow)])
 def test_no_strand_inside_the_body_in_poses_within_the_limits(posing, surface, archetype):
     """Every control point keeps outside the skin (signed distance to the nearest skin
     vertex's tangent plane >= -0.5 mm, the strands' own radius tenfold) in random poses

@@ -363,6 +363,7 @@ def expression_measured():
     return out
 
 
+@pytest.mark.slow  # the expression's 600 pairs cost ~90 s; opt-in while it is xfail
 @pytest.mark.xfail(strict=True, reason="issue 60: the shipped model (format 2, ungated) folds "
                    "skin in 6 of these 600 neutral pairs and 11 with the expression, and is "
                    "worse than LBS by more than a point in 4 of each (docs/model.md, 'Folds "
