@@ -38,7 +38,7 @@ from hack_render import boundary, interrupts
 from hack_render.boundary import estimate_line
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
-from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
+from hack_render.dataset.worker import HAIR_RENDERING, SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
 from hack_render.geometry import load_default_model
 from hack_render.io import atomic_path, temp_glob, write_json
@@ -136,6 +136,9 @@ def check_job(job: Job) -> None:
                             f"{top} divided by a power of two with appearance.maps: projected, "
                             f"found {app['height']}. Use one of {top}, {top // 2}, "
                             f"{top // 4}, ..., or appearance.maps: generated.")
+    if job.cfg["hair"]["style"] != "none" and not HAIR_RENDERING:
+        raise HackError("config key 'hair.style': this version's renderer draws no hair "
+                        "(HeadScene has no hair argument); use `hair: none`.")
     if app["source"] in ("seed", "alpha"):
         default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)
@@ -158,6 +161,10 @@ def check_job(job: Job) -> None:
             hint = (" It was made before appearance.maps existed, with the generator's maps: "
                     "add `appearance: {maps: generated}` to the config to resume it."
                     if legacy and info["config"]["appearance"]["maps"] != "generated" else "")
+            if isinstance(old_cfg, dict) and "hair" not in old_cfg:
+                hint = (" It was made before the hair layer (no hair section, no 'hair' "
+                        "label): this version writes another label table and cannot resume "
+                        "it.")
             raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
                             f"the same config and seed, found a dataset that differs in "
                             f"{diff}.{hint} Choose another folder.")

@@ -21,6 +21,7 @@ expectation, and one compiled scene serves every exposure).
 
 from __future__ import annotations
 
+import inspect
 import json
 import shutil
 import threading
@@ -39,6 +40,8 @@ from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 from hack_render.geometry import load_default_model
+from hack_render.hair.groom import Groom, HeadSurface, grow
+from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.materials import SkinMaps
@@ -48,6 +51,10 @@ from scenes import cameras as cams
 from scenes import lights
 
 SAMPLE_RECORD = "sample.json"
+
+#: Whether the renderer draws hair (``HeadScene(..., hair=Groom)``, re-posed by
+#: ``set_vertices``); a dataset with ``hair.style`` other than ``none`` needs it.
+HAIR_RENDERING = "hair" in inspect.signature(HeadScene).parameters
 
 
 def sample_dir(out: Path, index: int) -> Path:
@@ -84,6 +91,10 @@ class SampleRenderer:
         with torch.no_grad():
             self.rest = self.model().vertices[0].numpy().astype(np.float64)
         self.larynx_candidates = lab.larynx_candidates(self.model)
+        #: the mean rest mesh grooms are grown on (built at the first groom)
+        self._surface: HeadSurface | None = None
+        #: preset -> the groom its scene was built with (renderers without ``set_hair``)
+        self._scene_grooms: dict = {}
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
@@ -147,14 +158,41 @@ class SampleRenderer:
             if preset not in self.scenes:
                 self.scenes[preset] = self._build_scene(preset)
 
-    def _build_scene(self, preset: str):
+    def groom(self, hair: dict | None) -> Groom | None:
+        """The strands of a sample's ``hair`` (its spec's ``HairStyle.to_dict()``), grown
+        on the model's mean rest mesh; None for no hair. A pure function of the style."""
+        if hair is None:
+            return None
+        with self._skin_lock:
+            if self._surface is None:
+                self._surface = HeadSurface.from_model(self.model)
+        return grow(self._surface, HairStyle.from_dict(hair))
+
+    def scene_with_hair(self, preset: str, groom: Groom | None):
+        """The preset's scene holding ``groom`` (posed by the next ``set_vertices``).
+
+        The renderer's ``set_hair`` swaps the strands in place; without it the preset's
+        scene is rebuilt around the groom (slower: a new scene and its kernels), and kept
+        as it is while samples have no hair."""
+        head = self.scene(preset)
+        if hasattr(head, "set_hair"):
+            head.set_hair(groom, update=False)
+            return head
+        if groom is None and self._scene_grooms.get(preset) is None:
+            return head
+        head = self.scenes[preset] = self._build_scene(preset, groom)
+        self._scene_grooms[preset] = groom
+        return head
+
+    def _build_scene(self, preset: str, groom: Groom | None = None):
 
         r = self.cfg["render"]
         settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
+        hair = {"hair": groom} if HAIR_RENDERING else {}
         head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
-                         settings, self._flat_maps(), None, r["variant"])
+                         settings, self._flat_maps(), None, r["variant"], **hair)
         # opaque transforms from the start; applied by the first sample's update (each
         # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
         head.set_light_rotation(0.0, update=False)
@@ -169,8 +207,9 @@ class SampleRenderer:
     def inputs(self, index: int) -> dict:
         """What sample ``index`` needs before its scene, each a pure function of the
         config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
-        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps`` and
-        the ``background`` image (None: the rig's environment)."""
+        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps``, the
+        ``background`` image (None: the rig's environment) and the hair's ``groom`` (None:
+        no hair; grown here, on the prefetch thread, while the previous sample renders)."""
         import torch
 
         spec = self.spec(index)
@@ -183,7 +222,8 @@ class SampleRenderer:
                 "verts": out.vertices[0].numpy().astype(np.float64),
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
-                "background": background_image(spec["background"], res, res)}
+                "background": background_image(spec["background"], res, res),
+                "groom": self.groom(spec.get("hair"))}
 
     def prefetch(self, index: int) -> None:
         """Start computing sample ``index``'s :meth:`inputs` on a helper thread, so that
@@ -218,7 +258,7 @@ class SampleRenderer:
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        head = self.scene(spec["lighting"]["preset"])
+        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         head.set_vertices(inp["verts"], update=False)
