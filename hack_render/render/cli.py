@@ -29,6 +29,7 @@ from hack_render.geometry.posing import posed_vertices
 from hack_render.io.image import rgb_channels, tone_map, write_exr, write_png
 from hack_render.render import denoise as dn
 from hack_render.render import posed_cache
+from hack_render.render.hair_options import HairColorOpt, groom_of, hair_option, hair_style
 from hack_render.render.parts import Topology
 from hack_render.render.skin_maps import skin_maps
 from hack_render.threads import check_threads, command_threads
@@ -208,10 +209,14 @@ def render(
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
     sss: bool = SssOpt,
+    hair: str | None = hair_option("none"),
+    hair_color: str | None = HairColorOpt,
 ) -> None:
     """Render the head model to a PNG and/or an EXR with AOVs; cameras go to a JSON (OpenCV).
 
     Example: hack-render render -o out/head.png --exr out/head.exr --aov all --spp 121
+
+    With hair: hack-render render -o out/head.png --hair long --hair-color auburn
     """
     from hack_render.render.scene import MAX_SPP, HeadScene, RenderSettings
 
@@ -239,6 +244,7 @@ def render(
     views_ = named("--camera", cams.preset, camera, w, h, focal_mm, n=views)
     iris = _floats(iris_color, "iris-color", 3, 0.0, 1.0)
     policy = limit_policy(limits)
+    style = hair_style(hair, hair_color, _params_hair(params))
     if threads is not None:
         check_threads(threads)
     command_threads(threads)
@@ -251,7 +257,8 @@ def render(
                                             tau, policy, model_path))
 
     maps = skin_maps(alpha_, appearance_seed, textures)
-    head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant)
+    groom = groom_of(style, _model_arrays(model_path)) if style is not None else None
+    head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant, hair=groom)
     if settings.spp_note():
         typer.echo(settings.spp_note(), err=True)
     outputs = []
@@ -267,6 +274,22 @@ def render(
     cams.save_cameras(cam_json, views_, rendered(head.settings))
     for target in outputs + [cam_json]:
         typer.echo(f"wrote {target.resolve()}")
+
+
+def _params_hair(params_file):
+    """The parameter file's ``hair`` section (None without a file or a section)."""
+    if params_file is None:
+        return None
+    from hack_render.geometry.params import load_params
+
+    return load_params(params_file).get("hair")
+
+
+def _model_arrays(model_path) -> dict:
+    """The model file's arrays (the hair grows on its mean rest mesh), without torch."""
+    from hack_render.geometry.model_file import default_model_path, load_model_file
+
+    return load_model_file(model_path if model_path is not None else default_model_path())[0]
 
 
 def _render_views(head, views_, output, exr, aov_names, tonemap, quiet, outputs,

@@ -29,9 +29,11 @@ from hack_render.errors import HackError
 from hack_render.geometry.normals import vertex_normals  # noqa: F401  (re-exported)
 from hack_render.geometry.rigid import kabsch
 
-#: Segmentation labels, index = region id (0 is background).
+#: Segmentation labels, index = region id (0 is background). ``hair``: the strands of a
+#: groom (``HeadScene(hair=...)``, curve shapes, not a part of the mesh); appended last so
+#: the earlier ids stay.
 REGIONS: tuple[str, ...] = ("background", "face", "back_head", "mouth", "teeth", "sclera",
-                            "iris", "lacrimal", "eyelashes", "bust")
+                            "iris", "lacrimal", "eyelashes", "bust", "hair")
 
 #: Part name -> (ICT materials, region, u offset subtracted, u scale applied after).
 PART_SPECS: dict[str, tuple[tuple[str, ...], str, float, float]] = {

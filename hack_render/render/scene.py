@@ -39,6 +39,8 @@ from hack_render.render.emitters import (
 )
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.footprint import denoise_features
+from hack_render.render.hair_shapes import PREFIX as HAIR_PREFIX
+from hack_render.render.hair_shapes import hair_shapes, load_shapes, shape_control_points
 from hack_render.render.parts import (
     PART_SPECS,
     REGIONS,
@@ -108,12 +110,19 @@ class HeadScene:
             the iris vertices are moved for each camera, by :meth:`set_camera` and
             :meth:`set_vertices`); False keeps the plain iris (earlier versions). The
             fitter's ``bridge.DiffRenderer`` writes all positions itself: a plain iris.
+        hair: a groom (:class:`hack_render.hair.groom.Groom`, from ``grow`` /
+            ``grow_cached``) rendered as curves with Mitsuba's ``hair`` BSDF
+            (:mod:`hack_render.render.hair_shapes`: one shape per strand group and melanin
+            bucket), posed on ``vertices`` and re-posed by :meth:`set_vertices`; its hits
+            are the segmentation's ``hair`` region. A groom with a ``lashes`` group replaces
+            the lash cards (the ``eyelashes`` part is not rendered). None: bald, the scene
+            of earlier versions.
     """
 
     def __init__(self, topology: Topology, vertices, lights: LightRig, camera: Camera,
                  settings: RenderSettings | None = None, maps=None,
                  iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True,
-                 lash_strands: bool = True, cornea: bool = True):
+                 lash_strands: bool = True, cornea: bool = True, hair=None):
         settings = settings or RenderSettings(camera.width, camera.height)
         if (camera.width, camera.height) != (settings.width, settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
@@ -130,6 +139,13 @@ class HeadScene:
             raise HackError(f"vertices: expected ({topology.num_vertices}, 3) for this "
                             f"topology, found {v.shape}.")
         self.parts, self.eye_axes = split_parts(topology, v, cap=bust_cap)
+        #: the groom rendered (None: bald) and its shapes (``hair_shapes.HairShape``)
+        self.hair = hair
+        self.hair_shapes = hair_shapes(hair) if hair is not None else []
+        if hair is not None and hair.group("lashes") is not None:
+            # the strands replace ICT's lash cards
+            self.parts = [p for p in self.parts if p.name != "eyelashes"]
+        self._hair_posed_for: tuple | None = None
         self._vertices = v
         iris = [p for p in self.parts if p.name == "iris"]
         #: the corneas refracting the iris for the camera (None: a plain iris)
@@ -187,6 +203,8 @@ class HeadScene:
                                                        maps.sclera_rgb)
                 mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
             scene[part.name] = mesh
+        if self.hair_shapes:
+            scene.update(load_shapes(hair, self._pose_hair(v), self.hair_shapes))
         scene.update(emitters.emitter_dicts(lights, env))
         # optimize=False: Mitsuba's optimisation pass (merging equivalent objects) lists
         # shapes and emitters in an order that varies from load to load (two area lights
@@ -249,6 +267,18 @@ class HeadScene:
         mesh.set_id(part.name)
         return mesh
 
+    def _pose_hair(self, v: np.ndarray) -> dict[str, np.ndarray]:
+        """The groom's control points on vertices ``v`` ({group: (S, K, 3)}); posing with
+        collisions costs 0.5-5 s for a full head of hair, so it is remembered for the
+        last vertices."""
+        from hack_render.hair.pose import pose_groom
+
+        if self._hair_posed_for is not None and np.array_equal(self._hair_posed_for[0], v):
+            return self._hair_posed_for[1]
+        posed = pose_groom(self.hair, v)
+        self._hair_posed_for = (v.copy(), posed)
+        return posed
+
     def _find_skin_key(self) -> str | None:
         for key in self.params.keys():  # noqa: SIM118 (SceneParameters: keys() lists them)
             if key.endswith((".albedo.data", ".base_color.data")):
@@ -268,6 +298,8 @@ class HeadScene:
             if part is not None:
                 _, _, u_off, u_scale = PART_SPECS[part.name]
                 table[sid] = (part.region, u_off, u_scale)
+            elif shape.id().startswith(HAIR_PREFIX):  # curves: no model UV (u = curve's)
+                table[sid] = (REGIONS.index("hair"), 0.0, 1.0)
         return table
 
     # --- per-frame updates ---------------------------------------------------------
@@ -289,6 +321,11 @@ class HeadScene:
             if not part.flat:
                 self.params[f"{part.name}.vertex_normals"] = mi.Float(
                     n[part.gather].ravel().astype(np.float32))
+        if self.hair_shapes:
+            posed = self._pose_hair(v)
+            for sh in self.hair_shapes:
+                self.params[f"{sh.id}.control_points"] = mi.Float(
+                    shape_control_points(self.hair, posed, sh))
         if update:
             self.params.update()
 

@@ -38,6 +38,7 @@ from hack_render.render.cli import (
     parse_resolution,
     rendered,
 )
+from hack_render.render.hair_options import HairColorOpt, groom_of, hair_option, hair_style
 from hack_render.render.parts import Topology
 from hack_render.render.skin_maps import skin_maps
 from hack_render.render.video import write_gif, write_mp4
@@ -96,10 +97,12 @@ def turntable(
     denoise: str = DenoiseOpt,
     keep_noisy: bool = KeepNoisyOpt,
     sss: bool = SssOpt,
+    hair: str | None = hair_option("none (bald: no strands)"),
+    hair_color: str | None = HairColorOpt,
 ) -> None:
     """Render a seamless looping turntable of the head to MP4 (H.264) / GIF / PNG frames.
 
-    Example: hack-render turntable -o out/turntable --frames 48 --look-around --swallow
+    Example: hack-render turntable -o out/turntable --frames 48 --hair short --look-around
     """
     import torch
 
@@ -137,8 +140,9 @@ def turntable(
     command_threads(threads)
 
     policy = limit_policy(limits)
-    model = load_model(model_path)
     p = gather_params(params, beta, expression, head_rotation, eta, tau)
+    style = hair_style(hair, hair_color, p.get("hair"))
+    model = load_model(model_path)
     base = apply_limit_policy(model_inputs(model, p), policy, p.get("head_rotation_deg"))
     topo = Topology.from_model(model)
     # everything that decides the frames' pixels: a resume with anything else is refused
@@ -153,7 +157,8 @@ def turntable(
         "sampler": sampler, "integrator": integrator, "denoise": use_denoise, "sss": sss,
         "rendered": rendered(settings),
         "look_around": look_around,
-        "swallow": swallow}, name="turntable.json")
+        "swallow": swallow, "hair": None if style is None else style.to_dict()},
+        name="turntable.json")
 
     def vertices_at(i: int) -> np.ndarray:
         kw = dict(base)
@@ -198,7 +203,8 @@ def turntable(
             if settings.spp_note():
                 typer.echo(settings.spp_note(), err=True)
             head = HeadScene(topo, vertices_at(0), rig, camera_at(0), settings,
-                             skin_maps(alpha_, appearance_seed, textures), None, variant)
+                             skin_maps(alpha_, appearance_seed, textures), None, variant,
+                             hair=groom_of(style, model))
             times, animated = [], look_around or swallow or mode == "subject"
             pending, bar = set(todo), tqdm(total=len(todo), desc="turntable", unit="frame",
                                            disable=quiet)

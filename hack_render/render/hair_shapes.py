@@ -1,0 +1,136 @@
+"""A groom (:mod:`hack_render.hair`) as Mitsuba curve shapes with the ``hair`` BSDF.
+
+Each strand group (scalp, brows, lashes, beard) is split by melanin into a few shapes:
+Mitsuba's ``hair`` BSDF takes one ``eumelanin`` / ``pheomelanin`` pair per shape, so
+per-strand colour variation is given by :data:`MELANIN_BUCKETS` quantile buckets of the
+group's melanin (each shape the mean of its strands), and the unpigmented strands of
+greying (:attr:`HairStyle.greying`: melanin scaled to 2 %) get a white shape of their own.
+
+Strands are cubic B-spline curves (``bsplinecurve``: Embree's round curves on the CPU),
+control points ``x y z radius``. A uniform B-spline does not pass through its end control
+points, so each strand gets a phantom point before its root and after its tip (the end
+points mirrored over their neighbours: ``2 p0 - p1``), which makes the curve start exactly
+at the root on the skin and end at the tip, and lets strands of 2 or 3 points render
+(Mitsuba needs 4 per curve).
+
+``bsplinecurve`` loads only from a text file (one line per control point, a blank line
+between curves); the file is written once per shape to a temporary folder and removed
+after loading. Later poses write the traversed ``<id>.control_points`` (flat x, y, z, r in
+file order) and ``params.update()`` rebuilds the curves' BVH.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+#: Quantile buckets of pigmented strands per group (each a shape of its mean melanin).
+MELANIN_BUCKETS = 4
+#: A strand is "white" (greyed) when its melanin is under this fraction of its group's
+#: median (greying scales a strand's melanin to 2 %, :func:`hack_render.hair.groom._melanin`).
+WHITE_FRACTION = 0.1
+#: The ``hair`` BSDF's roughness: longitudinal and azimuthal (Mitsuba's defaults, 0.3).
+LONGITUDINAL_ROUGHNESS = 0.3
+AZIMUTHAL_ROUGHNESS = 0.3
+#: Cuticle scale tilt, degrees (Mitsuba's default: 2).
+SCALE_TILT = 2.0
+#: The prefix of every hair shape's id (``hair_<group>_<bucket>``).
+PREFIX = "hair_"
+
+
+@dataclass(frozen=True)
+class HairShape:
+    """One curve shape: its id, group name, strand indices in the group, mean melanin."""
+
+    id: str
+    group: str
+    strands: np.ndarray
+    eumelanin: float
+    pheomelanin: float
+
+
+def buckets(melanin: np.ndarray, n: int = MELANIN_BUCKETS) -> list[np.ndarray]:
+    """Strand indices of each melanin bucket of a group (``melanin`` (S, 2)): the white
+    strands (below :data:`WHITE_FRACTION` of the median total) first, if any, then ``n``
+    quantile buckets of the rest by total melanin (empty ones dropped)."""
+    m = np.asarray(melanin, np.float64).reshape(-1, 2)
+    total = m.sum(1)
+    med = float(np.median(total)) if len(total) else 0.0
+    white = total < WHITE_FRACTION * med if med > 0 else np.zeros(len(m), bool)
+    out = [np.flatnonzero(white)] if white.any() else []
+    rest = np.flatnonzero(~white)
+    if len(rest):
+        order = rest[np.argsort(total[rest], kind="stable")]
+        out += [b for b in np.array_split(order, min(n, len(order))) if len(b)]
+    return out
+
+
+def hair_shapes(groom) -> list[HairShape]:
+    """The shapes of a groom: per group, per melanin bucket (:func:`buckets`)."""
+    shapes = []
+    for g in groom.groups:
+        if g.num_strands == 0:
+            continue
+        for i, idx in enumerate(buckets(g.melanin)):
+            eu, pheo = np.asarray(g.melanin, np.float64)[idx].mean(0)
+            shapes.append(HairShape(f"{PREFIX}{g.name}_{i}", g.name, np.sort(idx),
+                                    float(eu), float(pheo)))
+    return shapes
+
+
+def control_points(points: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(S, K + 2, 4) float32 B-spline control points (x, y, z, r) of strands ``points``
+    (S, K, 3) with radii ``radius`` (K,): a phantom point mirrored before the root and after
+    the tip, so that the curve interpolates both (see the module)."""
+    p = np.asarray(points, np.float64)
+    first = 2.0 * p[:, :1] - p[:, 1:2]
+    last = 2.0 * p[:, -1:] - p[:, -2:-1]
+    q = np.concatenate([first, p, last], axis=1)
+    r = np.asarray(radius, np.float64)
+    r = np.concatenate([r[:1], r, r[-1:]])
+    out = np.empty(q.shape[:2] + (4,), np.float32)
+    out[..., :3] = q
+    out[..., 3] = r[None]
+    return out
+
+
+def write_curves(path: Path, cp: np.ndarray) -> None:
+    """Write control points (S, K, 4) as Mitsuba's curve text file."""
+    s, k, _ = cp.shape
+    line = "%.7g %.7g %.7g %.7g\n"
+    with open(path, "w") as fh:
+        fh.write(((line * k) + "\n") * s % tuple(cp.ravel().tolist()))
+
+
+def hair_bsdf(shape: HairShape) -> dict:
+    return {"type": "hair", "eumelanin": shape.eumelanin, "pheomelanin": shape.pheomelanin,
+            "longitudinal_roughness": LONGITUDINAL_ROUGHNESS,
+            "azimuthal_roughness": AZIMUTHAL_ROUGHNESS, "scale_tilt": SCALE_TILT}
+
+
+def load_shapes(groom, posed: dict[str, np.ndarray], shapes: list[HairShape]) -> dict:
+    """{shape id: loaded Mitsuba ``bsplinecurve`` shape with its ``hair`` BSDF} of the
+    groom's strands posed at ``posed`` ({group: (S, K, 3)}, :func:`pose_groom`)."""
+    import mitsuba as mi
+
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="hack-hair-") as tmp:
+        for sh in shapes:
+            g = groom.group(sh.group)
+            cp = control_points(posed[sh.group][sh.strands], g.radius)
+            path = Path(tmp) / f"{sh.id}.txt"
+            write_curves(path, cp)
+            shape = mi.load_dict({"type": "bsplinecurve", "filename": str(path),
+                                  "bsdf": hair_bsdf(sh)})
+            shape.set_id(sh.id)
+            out[sh.id] = shape
+    return out
+
+
+def shape_control_points(groom, posed: dict[str, np.ndarray], sh: HairShape) -> np.ndarray:
+    """The flat float32 control points (x, y, z, r) of one shape at ``posed``."""
+    g = groom.group(sh.group)
+    return control_points(posed[sh.group][sh.strands], g.radius).ravel()
