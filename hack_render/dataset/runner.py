@@ -38,7 +38,7 @@ from hack_render import boundary, interrupts
 from hack_render.boundary import estimate_line
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
-from hack_render.dataset.worker import HAIR_RENDERING, SAMPLE_RECORD, SampleRenderer, sample_dir
+from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
 from hack_render.geometry import load_default_model
 from hack_render.io import atomic_path, temp_glob, write_json
@@ -136,9 +136,6 @@ def check_job(job: Job) -> None:
                             f"{top} divided by a power of two with appearance.maps: projected, "
                             f"found {app['height']}. Use one of {top}, {top // 2}, "
                             f"{top // 4}, ..., or appearance.maps: generated.")
-    if job.cfg["hair"]["style"] != "none" and not HAIR_RENDERING:
-        raise HackError("config key 'hair.style': this version's renderer draws no hair "
-                        "(HeadScene has no hair argument); use `hair: none`.")
     if app["source"] in ("seed", "alpha"):
         default_template()  # the skin atlas needs the packaged template (raises with the fix)
     boundary.output_dir(job.out)

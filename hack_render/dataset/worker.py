@@ -21,7 +21,6 @@ expectation, and one compiled scene serves every exposure).
 
 from __future__ import annotations
 
-import inspect
 import json
 import shutil
 import threading
@@ -51,10 +50,6 @@ from scenes import cameras as cams
 from scenes import lights
 
 SAMPLE_RECORD = "sample.json"
-
-#: Whether the renderer draws hair (``HeadScene(..., hair=Groom)``, re-posed by
-#: ``set_vertices``); a dataset with ``hair.style`` other than ``none`` needs it.
-HAIR_RENDERING = "hair" in inspect.signature(HeadScene).parameters
 
 
 def sample_dir(out: Path, index: int) -> Path:
@@ -93,8 +88,8 @@ class SampleRenderer:
         self.larynx_candidates = lab.larynx_candidates(self.model)
         #: the mean rest mesh grooms are grown on (built at the first groom)
         self._surface: HeadSurface | None = None
-        #: preset -> the groom its scene was built with (renderers without ``set_hair``)
-        self._scene_grooms: dict = {}
+        #: :attr:`scenes` holds one scene with a groom (renderers without ``set_hair``)
+        self._hair_scene = False
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
@@ -168,31 +163,44 @@ class SampleRenderer:
                 self._surface = HeadSurface.from_model(self.model)
         return grow(self._surface, HairStyle.from_dict(hair))
 
-    def scene_with_hair(self, preset: str, groom: Groom | None):
-        """The preset's scene holding ``groom`` (posed by the next ``set_vertices``).
+    def scene_with_hair(self, preset: str, groom: Groom | None, verts: np.ndarray):
+        """The preset's scene holding ``groom``, for a sample with vertices ``verts``.
 
-        The renderer's ``set_hair`` swaps the strands in place; without it the preset's
-        scene is rebuilt around the groom (slower: a new scene and its kernels), and kept
-        as it is while samples have no hair."""
-        head = self.scene(preset)
-        if hasattr(head, "set_hair"):
+        A renderer with ``set_hair`` swaps the strands in place. This version's
+        ``HeadScene`` takes its groom when it is built, so a sample with hair gets a new
+        scene of its preset around its groom, built on its own vertices (the strands are
+        posed once: the ``set_vertices`` that follows finds them posed), and it is the only
+        scene alive: Dr.Jit traces one kernel over every BSDF and shape instance in the
+        process, so with the other presets' scenes alive each new groom would compile new
+        kernels, while alone the kernels depend on the preset and the groom's layout of
+        shapes (its groups and melanin buckets), a few dozen kernels in all, compiled once
+        and then found in Dr.Jit's kernel cache. A sample without hair gets the bald scenes
+        of :meth:`build_scenes` (rebuilt if a groom's scene replaced them). Either way the
+        scene is a function of the sample alone."""
+        if hasattr(HeadScene, "set_hair"):
+            head = self.scene(preset)
             head.set_hair(groom, update=False)
             return head
-        if groom is None and self._scene_grooms.get(preset) is None:
-            return head
-        head = self.scenes[preset] = self._build_scene(preset, groom)
-        self._scene_grooms[preset] = groom
+        if groom is None:
+            if self._hair_scene:
+                self.scenes.clear()
+                self._hair_scene = False
+            return self.scene(preset)
+        self.scenes.clear()  # dropped scenes die when the next one is built
+        head = self.scenes[preset] = self._build_scene(preset, groom, verts)
+        self._hair_scene = True
         return head
 
-    def _build_scene(self, preset: str, groom: Groom | None = None):
+    def _build_scene(self, preset: str, groom: Groom | None = None,
+                     verts: np.ndarray | None = None):
 
         r = self.cfg["render"]
         settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
-        hair = {"hair": groom} if HAIR_RENDERING else {}
-        head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
-                         settings, self._flat_maps(), None, r["variant"], **hair)
+        head = HeadScene(self.topology, self.rest if verts is None else verts,
+                         lights.preset(preset, 0.0, 0.0), cam,
+                         settings, self._flat_maps(), None, r["variant"], hair=groom)
         # opaque transforms from the start; applied by the first sample's update (each
         # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
         head.set_light_rotation(0.0, update=False)
@@ -258,7 +266,7 @@ class SampleRenderer:
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"])
+        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         head.set_vertices(inp["verts"], update=False)
