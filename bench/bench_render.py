@@ -66,12 +66,21 @@
     (median of 2 seeds), and the CPU time multijitter needs for each orthogonal rung's
     PSNR (log-log interpolated); ``bench/results/render_samplers.json``.
 
+(j) Hair (``--only hair``, issue 61): the ``render`` command's defaults (256 px, 49 spp
+    asked, auto sampler, hack_path, screen-space SSS, OIDN denoised, box filter) on the
+    portrait camera and the studio rig, with a full head of hair (a groom of ``--h-styles``
+    at lod 1: >= 50k scalp strands, brows, lashes; posed once, outside the timing) against
+    the same render bald: CPU and wall seconds of ``render(sss=True)`` + ``denoise`` (median
+    of ``--repeats`` after a warm-up that compiles the kernels) and their ratio (target
+    <= 2.0x); also the groom's growing and the scene's building (posing) once.
+
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
        python bench/bench_render.py --only e2e
        python bench/bench_render.py --only sss
        python bench/bench_render.py --only integrator [--i-ref-spp 1024]
        python bench/bench_render.py --only samplers
+       python bench/bench_render.py --only hair [--h-styles short,long] [--repeats 2]
        python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
@@ -1224,6 +1233,58 @@ def turntable_ratio_benchmark(size: int, spp: int, frames: int, modes: list[list
               f"change + update {med['set_camera']:.3f}, mesh update {med['set_vertices']:.3f}")
 
 
+def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
+                   repeats: int = 2) -> None:
+    """(j): see the module's notes."""
+    from hack_render.geometry import default_model_path
+    from hack_render.geometry.posing import PosingModel
+    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.style import HairStyle
+    from hack_render.render.parts import Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    posing = PosingModel.from_file(default_model_path())
+    v = posing.vertices().astype(np.float64)
+    topo, surf = Topology.from_model(posing), HeadSurface.from_model(posing)
+    rig = lights.preset("studio")
+    cam = cameras.preset("portrait", size, size)[0]
+    settings = RenderSettings(size, size, spp, pixel_filter="box")  # the command's, denoised
+    maps = skin_maps(None, None, None)
+
+    def measure(groom) -> tuple[float, float, float]:
+        c0, w0 = time.process_time(), time.perf_counter()
+        head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
+        build = time.perf_counter() - w0
+        head.denoise(head.render(backdrop=False, sss=True))  # compiles the kernels
+        cpu, wall = [], []
+        for i in range(repeats):
+            c0, w0 = time.process_time(), time.perf_counter()
+            head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        return statistics.median(cpu), statistics.median(wall), build
+
+    print(f"(j) hair: {size} px, {settings.effective_spp} spp ({settings.sampler_label}), "
+          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up; "
+          f"load average (1 min) {os.getloadavg()[0]:.1f}")
+    bald_cpu, bald_wall, bald_build = measure(None)
+    print(f"  bald: {bald_cpu:.2f} CPU s, {bald_wall:.2f} s wall (scene {bald_build:.2f} s)")
+    for name in styles:
+        t0 = time.perf_counter()
+        groom = grow(surf, HairStyle.archetype_style(name, lod=1.0))
+        grown = time.perf_counter() - t0
+        cpu, wall, build = measure(groom)
+        counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
+                           for g in groom.groups)
+        print(f"  {name} ({counts}): {cpu:.2f} CPU s, {wall:.2f} s wall: "
+              f"{cpu / bald_cpu:.2f}x CPU, {wall / bald_wall:.2f}x wall the bald render "
+              f"(target <= 2.0x); grown in {grown:.1f} s, scene built (posed) in "
+              f"{build:.1f} s")
+    print(f"  load average (1 min) {os.getloadavg()[0]:.1f} after")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -1235,7 +1296,7 @@ def main() -> None:
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles",
-                                       "integrator", "samplers", "turntable"),
+                                       "integrator", "samplers", "turntable", "hair"),
                     default="all")
     ap.add_argument("--blender-python", default=None, help="cycles: a Python with bpy "
                     f"(default ${BPY_ENV})")
@@ -1247,6 +1308,7 @@ def main() -> None:
     ap.add_argument("--c-still", default="docs/images/cycles_side_by_side.png",
                     help="cycles: the side-by-side still ('' for none)")
     ap.add_argument("--i-ref-spp", type=int, default=1024)
+    ap.add_argument("--h-styles", default="short,long", help="hair: archetypes at lod 1")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -1273,6 +1335,13 @@ def main() -> None:
                                       [[], ["--look-around", "--swallow"]])
             print(f"load average (1 min) {os.getloadavg()[0]:.1f} after (2 cores shared with "
                   "other jobs: ratios hold within one run, seconds do not)")
+        return
+    if args.only == "hair":
+        with recorded(args.out, "Rendering: a full head of hair against the bald head "
+                      "(issue 61)"):
+            print(f"variant: {variant}")
+            hair_benchmark(styles=[x for x in args.h_styles.split(",") if x],
+                           repeats=args.repeats)
         return
     if args.only == "sss":
         with recorded(args.out, "Rendering: subsurface scattering, volumetric and "

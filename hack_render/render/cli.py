@@ -25,6 +25,8 @@ from hack_render import cli_options as opts
 from hack_render.boundary import numbers
 from hack_render.errors import HackError
 from hack_render.geometry.limits import limit_policy
+from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.params import load_params
 from hack_render.geometry.posing import posed_vertices
 from hack_render.io.image import rgb_channels, tone_map, write_exr, write_png
 from hack_render.render import denoise as dn
@@ -280,15 +282,11 @@ def _params_hair(params_file):
     """The parameter file's ``hair`` section (None without a file or a section)."""
     if params_file is None:
         return None
-    from hack_render.geometry.params import load_params
-
     return load_params(params_file).get("hair")
 
 
 def _model_arrays(model_path) -> dict:
     """The model file's arrays (the hair grows on its mean rest mesh), without torch."""
-    from hack_render.geometry.model_file import default_model_path, load_model_file
-
     return load_model_file(model_path if model_path is not None else default_model_path())[0]
 
 

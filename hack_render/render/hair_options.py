@@ -18,6 +18,9 @@ from typing import Any
 import typer
 
 from hack_render.errors import HackError
+from hack_render.geometry.params import MAX_PARAMS_BYTES, parse_params_text
+from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.style import ARCHETYPES, HairStyle
 
 HAIR_HELP = ("Hair, brows, lashes and beard as strands (docs/hair.md): a style name "
              "(bald, shaved, crew, short, bob, long, ponytail, bun, afro; 'bald' keeps "
@@ -43,8 +46,6 @@ HairColorOpt = typer.Option(None, "--hair-color", help=HAIR_COLOR_HELP, show_def
 
 
 def _hair_file(path: Path) -> Any:
-    from hack_render.geometry.params import MAX_PARAMS_BYTES, parse_params_text
-
     if path.is_dir() or not path.is_file():
         raise HackError(f"--hair {path}: expected a style name (bald, shaved, crew, short, "
                         f"bob, long, ponytail, bun, afro), 'none' or an existing .json/.yaml "
@@ -60,9 +61,7 @@ def _hair_file(path: Path) -> Any:
         data = parse_params_text(text, path.suffix, str(path))
     except HackError as exc:
         raise HackError(str(exc).replace("--params", "--hair", 1)) from exc
-    if isinstance(data, dict) and set(data) == {"hair"}:
-        data = data["hair"]
-    elif isinstance(data, dict) and "hair" in data:  # a whole parameter file
+    if isinstance(data, dict) and "hair" in data:  # a hair section, or a parameter file
         data = data["hair"]
     return data
 
@@ -75,8 +74,6 @@ def hair_style(hair: str | None, hair_color: str | None, params_hair: Any = None
     ``hair`` section (absent: None, so a null section cannot be told from none: both are
     no groom); ``default``: ``--hair``'s value when neither is given. HackError (exit 2)
     naming the option for a bad value."""
-    from hack_render.hair.style import ARCHETYPES, HairStyle
-
     source = "--hair"
     if hair is None:
         data: Any = params_hair if params_hair is not None else default
@@ -115,6 +112,4 @@ def groom_of(style, model):
     (:func:`hack_render.hair.groom.grow_cached`)."""
     if style is None:
         return None
-    from hack_render.hair.groom import HeadSurface, grow_cached
-
     return grow_cached(HeadSurface.from_model(model), style)

@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hack_render.errors import HackError
+from hack_render.hair.pose import pose_groom
 from hack_render.io.image import read_hdr_image
 from hack_render.render import denoise as dn
 from hack_render.render import emitters, materials
@@ -267,15 +268,22 @@ class HeadScene:
         mesh.set_id(part.name)
         return mesh
 
-    def _pose_hair(self, v: np.ndarray) -> dict[str, np.ndarray]:
-        """The groom's control points on vertices ``v`` ({group: (S, K, 3)}); posing with
-        collisions costs 0.5-5 s for a full head of hair, so it is remembered for the
-        last vertices."""
-        from hack_render.hair.pose import pose_groom
+    def pose_hair(self, vertices) -> dict[str, np.ndarray] | None:
+        """The groom's strands on ``vertices`` (N, 3): {group: (S, K, 3)} control points
+        (:func:`hack_render.hair.pose.pose_groom`, with collisions), None when bald. Pure
+        NumPy on the groom alone: a caller may pose the next frame on another thread and
+        hand the result to :meth:`set_vertices` (``hair_posed``)."""
+        if self.hair is None:
+            return None
+        return pose_groom(self.hair, _np(vertices).reshape(-1, 3))
 
+    def _pose_hair(self, v: np.ndarray, posed=None) -> dict[str, np.ndarray]:
+        """:meth:`pose_hair` of ``v`` (or ``posed``, already computed for ``v``); posing
+        with collisions costs 0.5-5 s for a full head of hair, so the last one is
+        remembered."""
         if self._hair_posed_for is not None and np.array_equal(self._hair_posed_for[0], v):
             return self._hair_posed_for[1]
-        posed = pose_groom(self.hair, v)
+        posed = posed if posed is not None else pose_groom(self.hair, v)
         self._hair_posed_for = (v.copy(), posed)
         return posed
 
@@ -303,8 +311,10 @@ class HeadScene:
         return table
 
     # --- per-frame updates ---------------------------------------------------------
-    def set_vertices(self, vertices, *, update: bool = True) -> None:
-        """New vertex positions (N, 3) metres, same topology; normals are recomputed.
+    def set_vertices(self, vertices, *, update: bool = True, hair_posed=None) -> None:
+        """New vertex positions (N, 3) metres, same topology; normals are recomputed, and
+        the hair (if any) is posed on them (or given: ``hair_posed``, :meth:`pose_hair` of
+        the same vertices).
 
         ``update=False`` defers ``params.update()`` (see :meth:`update`)."""
         import mitsuba as mi
@@ -322,7 +332,7 @@ class HeadScene:
                 self.params[f"{part.name}.vertex_normals"] = mi.Float(
                     n[part.gather].ravel().astype(np.float32))
         if self.hair_shapes:
-            posed = self._pose_hair(v)
+            posed = self._pose_hair(v, hair_posed)
             for sh in self.hair_shapes:
                 self.params[f"{sh.id}.control_points"] = mi.Float(
                     shape_control_points(self.hair, posed, sh))

@@ -218,13 +218,18 @@ def turntable(
             # run replays the skipped frames' updates to render the same bytes as an
             # uninterrupted one (one started at its first pending frame differed in a few
             # pixels of later frames by up to 6/255).
-            upcoming = None  # the next frame's vertices, posed on the writer thread
+            upcoming = None  # the next frame's vertices (and hair), posed on the writer thread
+
+            def posed_at(j: int):
+                v = vertices_at(j)
+                return v, head.pose_hair(v)
+
             for i in range(max(todo) + 1):
                 t0 = time.perf_counter()
                 if animated:
-                    v = upcoming.result() if upcoming is not None else vertices_at(i)
-                    upcoming = writer.submit(vertices_at, i + 1) if i < max(todo) else None
-                    head.set_vertices(v, update=False)
+                    v, hair_v = upcoming.result() if upcoming is not None else posed_at(i)
+                    upcoming = writer.submit(posed_at, i + 1) if i < max(todo) else None
+                    head.set_vertices(v, update=False, hair_posed=hair_v)
                 head.set_camera(camera_at(i))
                 if animated:
                     head.sync_environment()
