@@ -7,7 +7,9 @@ flat skin maps) and then changed per sample through ``set_vertices``, ``set_maps
 ``set_camera`` and ``set_light_rotation`` (then ``sync_environment``, so that the
 environment emitter sees the sample's own bounds): every sample is then rendered from a
 scene whose content depends on that sample alone, and the box pixel filter makes the
-pixels bit-identical whichever process renders it and whatever it rendered before.
+pixels bit-identical whichever process renders it and whatever it rendered before. A
+sample with hair is rendered in a scene built around its own groom, on its own vertices
+(:meth:`SampleRenderer.scene_with_hair`): a function of that sample alone too.
 
 Files are encoded and written by a :class:`FileWriter`, in the caller's thread or, for
 the serial executor, on one background thread while the next sample renders; either way
@@ -170,11 +172,11 @@ class SampleRenderer:
         ``HeadScene`` takes its groom when it is built, so a sample with hair gets a new
         scene of its preset around its groom, built on its own vertices (the strands are
         posed once: the ``set_vertices`` that follows finds them posed), and it is the only
-        scene alive: Dr.Jit traces one kernel over every BSDF and shape instance in the
-        process, so with the other presets' scenes alive each new groom would compile new
-        kernels, while alone the kernels depend on the preset and the groom's layout of
-        shapes (its groups and melanin buckets), a few dozen kernels in all, compiled once
-        and then found in Dr.Jit's kernel cache. A sample without hair gets the bald scenes
+        scene alive (the bald scenes and the previous sample's are dropped: Dr.Jit traces
+        its kernels over every BSDF and shape instance in the process). Each such scene
+        compiles its kernels again (several seconds a sample: docs/datasets.md, Cost;
+        measured, no kernel cache hit even for a groom of the same layout), which a
+        ``set_hair`` in the renderer would save. A sample without hair gets the bald scenes
         of :meth:`build_scenes` (rebuilt if a groom's scene replaced them). Either way the
         scene is a function of the sample alone."""
         if hasattr(HeadScene, "set_hair"):
