@@ -193,3 +193,13 @@ def test_a_folder_made_before_hair_is_refused_with_the_reason(hair_set, tmp_path
     (tmp_path / "config.json").write_text(json.dumps(info))
     with pytest.raises(HackError, match="before the hair layer"):
         check_job(Job(tmp_path, 2, 0, cfg))
+
+
+def test_cli_hair_option(tmp_path):
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "hack_render.cli", "dataset", "--n", "1", "-o",
+           str(tmp_path / "o"), "--hair", "mohawk"]
+    r = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    assert r.returncode == 2 and "hair.style" in r.stderr and "afro" in r.stderr
