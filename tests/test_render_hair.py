@@ -18,9 +18,17 @@ from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import Groom, HeadSurface, grow_cached
 from hack_render.hair.style import HairStyle
-from hack_render.render.hair_shapes import buckets, control_points
+from hack_render.render.hair_options import hair_style
+from hack_render.render.hair_shapes import (
+    HAIR_RR_DEPTH,
+    MAX_CONTROL_POINTS,
+    MIN_SEGMENT,
+    buckets,
+    control_points,
+)
 from hack_render.render.parts import REGIONS, Topology
 from hack_render.render.scene import HeadScene, RenderSettings
+from hack_render.render.sss import split_integrator
 from scenes import cameras, lights
 
 RES = 64
@@ -60,16 +68,19 @@ def test_01_region_ids_kept_and_hair_appended():
     assert REGIONS[-1] == "hair"
 
 
-def test_02_curve_control_points_interpolate_root_and_tip():
-    """Phantom end points: the uniform cubic B-spline starts at the root and ends at the tip;
-    the melanin buckets split a group by quantile and keep white strands apart."""
-    pts = np.cumsum(np.random.default_rng(0).normal(size=(3, 5, 3)), 1)
-    cp = control_points(pts, np.linspace(2e-4, 1e-4, 5))
-    assert cp.shape == (3, 7, 4)
-    start = (cp[:, 0, :3] + 4 * cp[:, 1, :3] + cp[:, 2, :3]) / 6
-    end = (cp[:, -3, :3] + 4 * cp[:, -2, :3] + cp[:, -1, :3]) / 6
-    np.testing.assert_allclose(start, pts[:, 0], atol=1e-5)
-    np.testing.assert_allclose(end, pts[:, -1], atol=1e-5)
+def test_02_curve_control_points_keep_root_and_tip():
+    """Linear curves through the strand's points: root and tip kept, long strands resampled
+    to MAX_CONTROL_POINTS, no zero-length segment (a cut strand's gathered tail); the
+    melanin buckets split a group by quantile and keep white strands apart."""
+    pts = np.cumsum(np.random.default_rng(0).normal(size=(3, 20, 3)), 1)
+    pts[0, -3:] = pts[0, -4]  # a gathered tail
+    cp = control_points(pts, np.linspace(2e-4, 1e-4, 20))
+    assert cp.shape == (3, MAX_CONTROL_POINTS, 4)
+    np.testing.assert_allclose(cp[:, 0, :3], pts[:, 0], atol=1e-5)
+    np.testing.assert_allclose(cp[1:, -1, :3], pts[1:, -1], atol=1e-5)
+    seg = np.linalg.norm(np.diff(cp[..., :3].astype(np.float64), axis=1), axis=-1)
+    assert seg.min() > 0.9 * MIN_SEGMENT
+    assert cp[0, 0, 3] == pytest.approx(2e-4) and cp[0, -1, 3] == pytest.approx(1e-4)
     mel = np.c_[np.r_[np.linspace(1, 2, 40), [0.02] * 10], np.zeros(50)]
     b = buckets(mel)
     assert len(b) == 5 and sorted(b[0]) == list(range(40, 50))
@@ -192,8 +203,6 @@ def test_07_cli_hair_options(tmp_path, capsys):
 
 
 def test_08_hair_style_resolution(tmp_path):
-    from hack_render.render.hair_options import hair_style
-
     assert hair_style(None, None) is None
     assert hair_style("none", None, {"archetype": "long"}) is None  # the flag wins
     assert hair_style(None, None, {"archetype": "long"}).archetype == "long"
@@ -204,3 +213,19 @@ def test_08_hair_style_resolution(tmp_path):
     f.write_text("hair: {archetype: afro, color: red}\nbeta: [0.5]\n")
     s = hair_style(str(f), None)
     assert s.archetype == "afro" and (s.eumelanin, s.pheomelanin) == (0.5, 1.6)
+
+
+def test_09_any_hit_shadows_without_cards_render_the_same_image(head_model, groom):
+    """With strand lashes there are no null surfaces: hack_path's shadow rays become
+    any-hit tests (``null_surfaces`` false), which must see what the closest-hit loop
+    through null surfaces sees."""
+    head = _scene(head_model, groom, res=48, spp=4, yaw=30.0)
+    assert head.scene.integrator().null_surfaces is False
+    split = split_integrator(head)  # render(sss=True)'s: the same settings
+    assert split.null_surfaces is False and split.rr_depth == HAIR_RR_DEPTH
+    loop = mi.load_dict({"type": "hack_path", "max_depth": head.settings.max_depth,
+                         "hide_emitters": True, "rr_depth": HAIR_RR_DEPTH})
+    a = head.render_passes(3, False)
+    b = head.render_passes(3, False, integrator=loop)
+    assert np.abs(a - b).max() < 1e-3, np.abs(a - b).max()
+    assert _scene(head_model, None, res=16, spp=1).scene.integrator().null_surfaces is True

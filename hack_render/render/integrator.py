@@ -77,6 +77,10 @@ def make_class():
             if self.rr_depth <= 0:
                 raise ValueError(f"{NAME}: rr_depth must be positive, found {self.rr_depth}")
             self.split = bool(props.get("split_skin", False))
+            # false: the scene has no null surfaces (no lash cards: a groom's strand
+            # lashes replace them), so a shadow ray is an any-hit test (``ray_test``), far
+            # cheaper than closest hits through a head of hair
+            self.null_surfaces = bool(props.get("null_surfaces", True))
             self.skin_id = mi.UInt32(0)
 
         def set_skin(self, bsdf):
@@ -93,6 +97,15 @@ def make_class():
         def to_string(self):
             return (f"HackPathIntegrator[max_depth = {self.max_depth}, "
                     f"rr_depth = {self.rr_depth}, hide_emitters = {self.hide_emitters}]")
+
+        def shadow(self, scene, si, p, active):
+            """Transmittance from ``si`` to ``p``: :meth:`transmittance` through the null
+            surfaces, or, in a scene without any (``null_surfaces`` false), one any-hit
+            test (``ray_test``)."""
+            if self.null_surfaces:
+                return self.transmittance(scene, si, p, active)
+            blocked = scene.ray_test(si.spawn_ray_to(p), active)
+            return dr.select(blocked, 0.0, mi.Spectrum(1.0))
 
         @dr.syntax
         def transmittance(self, scene, si, p, active):
@@ -160,7 +173,7 @@ def make_class():
                 ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
                                                                active_em)
                 active_em &= ds.pdf != 0.0
-                em_weight *= self.transmittance(scene, si, ds.p, active_em)
+                em_weight *= self.shadow(scene, si, ds.p, active_em)
                 bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_em)
                 mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
                 c_em = throughput * bsdf_val * em_weight * mis_em

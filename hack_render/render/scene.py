@@ -40,8 +40,13 @@ from hack_render.render.emitters import (
 )
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.footprint import denoise_features
+from hack_render.render.hair_shapes import (
+    HAIR_RR_DEPTH,
+    hair_shapes,
+    load_shapes,
+    shape_control_points,
+)
 from hack_render.render.hair_shapes import PREFIX as HAIR_PREFIX
-from hack_render.render.hair_shapes import hair_shapes, load_shapes, shape_control_points
 from hack_render.render.parts import (
     PART_SPECS,
     REGIONS,
@@ -174,10 +179,20 @@ class HeadScene:
         #: ``volpath`` for ``hack_path`` in a non-JIT variant)
         self.integrator_name = settings.integrator if jit or \
             settings.integrator != "hack_path" else "volpath"
+        #: the integrator's properties besides its type, max_depth and hide_emitters
+        #: (a hair scene's: Russian roulette from ``HAIR_RR_DEPTH``, and no null surfaces
+        #: when strand lashes replace the cards: opaque shadow rays); the skin split's
+        #: integrator (``sss.split_integrator``) takes them too
+        self.integrator_extra: dict = {}
+        if hair is not None:
+            self.integrator_extra["rr_depth"] = HAIR_RR_DEPTH
+        if self.integrator_name == "hack_path" and \
+                not any(p.name == "eyelashes" for p in self.parts):
+            self.integrator_extra["null_surfaces"] = False
         scene: dict = {"type": "scene",
                        "integrator": {"type": self.integrator_name,
                                       "max_depth": settings.max_depth,
-                                      "hide_emitters": True},
+                                      "hide_emitters": True, **self.integrator_extra},
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter,
                                                       sampler=settings.mitsuba_sampler)}

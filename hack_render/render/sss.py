@@ -270,7 +270,8 @@ def split_integrator(head):
         import mitsuba as mi
 
         integ = mi.load_dict({"type": "hack_path", "hide_emitters": True,
-                              "max_depth": head.settings.max_depth, "split_skin": True})
+                              "max_depth": head.settings.max_depth, "split_skin": True,
+                              **getattr(head, "integrator_extra", {})})
         integ.set_skin(head.skin_bsdf)
         _SPLIT[head] = integ
     return _SPLIT[head]
