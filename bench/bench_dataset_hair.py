@@ -34,15 +34,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hack_render.dataset import labels as lab  # noqa: E402
-from hack_render.dataset import worker as wk  # noqa: E402
-from hack_render.dataset.config import load_config  # noqa: E402
-from hack_render.dataset.preview import contact_sheet  # noqa: E402
-from hack_render.dataset.runner import with_next  # noqa: E402
-from hack_render.dataset.sampling import sample_spec  # noqa: E402
-from hack_render.geometry import load_default_model  # noqa: E402
-from hack_render.hair.style import ARCHETYPES  # noqa: E402
-from hack_render.render.scene import HeadScene  # noqa: E402
+from hack_render.dataset import labels as lab
+from hack_render.dataset import worker as wk
+from hack_render.dataset.config import load_config
+from hack_render.dataset.preview import contact_sheet
+from hack_render.dataset.runner import with_next
+from hack_render.dataset.sampling import sample_spec
+from hack_render.geometry import load_default_model
+from hack_render.hair.style import ARCHETYPES
+from hack_render.render.scene import HeadScene
 
 
 def choose(cfg: dict, seed: int, count: int = 12, search: int = 400):

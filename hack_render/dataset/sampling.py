@@ -192,5 +192,5 @@ def degrees_within_limits(theta) -> bool:
     return not outside_limits(torch.as_tensor(theta, dtype=torch.float64), tol_deg=1e-6)
 
 
-__all__ = ["sample_spec", "sample_hair", "model_kwargs", "params_file", "truncated_normal", "STREAMS",
-           "degrees_within_limits"]
+__all__ = ["STREAMS", "degrees_within_limits", "model_kwargs", "params_file", "sample_hair",
+           "sample_spec", "truncated_normal"]
