@@ -103,9 +103,9 @@ def test_bad_hair_config_names_the_key(override, match):
 def test_hair_shorthand_in_a_config_file(tmp_path):
     f = tmp_path / "d.yaml"
     f.write_text("hair: none\n")
-    assert load_config(f)["hair"] == {"style": "none", "lod": 0.25}
-    f.write_text("hair: {style: crew, lod: 0.5}\n")
-    assert load_config(f)["hair"] == {"style": "crew", "lod": 0.5}
+    assert load_config(f)["hair"] == {"style": "none", "lod": 0.5}
+    f.write_text("hair: {style: crew, lod: 0.3}\n")
+    assert load_config(f)["hair"] == {"style": "crew", "lod": 0.3}
 
 
 # --- rendering ------------------------------------------------------------------------

@@ -90,7 +90,7 @@ DEFAULTS: dict[str, Any] = {
         "style": "sampled",
         # level of detail of every groom (1: >= 50k scalp strands, 1-15 s to grow);
         # docs/datasets.md has the cost per sample
-        "lod": 0.25,
+        "lod": 0.5,
     },
     "camera": {
         "views": 1,               # cameras per sample (a multi-view group of one scene)
