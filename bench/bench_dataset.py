@@ -90,8 +90,10 @@ def ray_worker_peaks_mib() -> list[float]:
 def config(size: int, spp: int, appearance: str) -> dict:
     from hack_render.dataset.config import load_config
 
+    # bald heads (hair: none), as measured before issue 61: a groom's scene is rebuilt
+    # per sample, which the bare side does not do (hair: bench/bench_dataset_hair.py)
     return load_config(overrides={"render": {"resolution": size, "spp": spp},
-                                  "appearance": {"source": appearance}})
+                                  "appearance": {"source": appearance}, "hair": "none"})
 
 
 def _bare_rgb(r, spec: dict, cfg: dict) -> tuple[float, float]:
@@ -283,7 +285,7 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     from hack_render.render.scene import HeadScene
 
     cfgs = {m: load_config(overrides={"render": {"resolution": size, "spp": spp},
-                                      "appearance": {"maps": m}})
+                                      "appearance": {"maps": m}, "hair": "none"})
             for m in ("projected", "generated")}
     rs = {m: SampleRenderer(c, root / m, seed, background_writes=True) for m, c in cfgs.items()}
     for r in rs.values():

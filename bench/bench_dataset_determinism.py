@@ -77,6 +77,8 @@ def main() -> int:
                     help="each round: one renderer, the samples in a random order (instead "
                          "of shards 1/2 then 0/2)")
     ap.add_argument("--presets", default="studio,light_stage")
+    ap.add_argument("--hair", default="none", help="the config's hair.style (issue 61; "
+                    "sampled: a scene built per sample, several seconds each)")
     ap.add_argument("--threads", type=int, default=None,
                     help="Dr.Jit thread count for rendering (default: the package's)")
     a = ap.parse_args()
@@ -94,7 +96,7 @@ def main() -> int:
                                             "soft_mask_samples": 2},
                                  "appearance": {"height": 32},
                                  "lighting": {"presets": a.presets.split(",")},
-                                 "camera": {"views": 2}})
+                                 "camera": {"views": 2}, "hair": {"style": a.hair}})
     spinners = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(a.load)]
     failures = 0
     t0 = time.perf_counter()

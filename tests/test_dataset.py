@@ -19,8 +19,11 @@ from hack_render.dataset.runner import Job, parse_shard, run
 from hack_render.dataset.sampling import degrees_within_limits, sample_spec
 from hack_render.errors import HackError
 
+#: without hair: the strands' own tests are tests/test_dataset_hair.py (a scene is built
+#: around each sample's groom: several seconds a sample)
 TINY = {"render": {"resolution": 32, "spp": 2, "soft_mask_samples": 2},
-        "appearance": {"height": 32}, "lighting": {"presets": ["studio", "light_stage"]}}
+        "appearance": {"height": 32}, "lighting": {"presets": ["studio", "light_stage"]},
+        "hair": "none"}
 
 
 def tree(folder: Path) -> dict[str, bytes]:
@@ -51,7 +54,7 @@ def test_changing_one_section_leaves_the_others(au_names):
     b = sample_spec(load_config(overrides={"camera": {"yaw_deg": [10, 20]}}), 1, 3, au_names)
     assert a["cameras"] != b["cameras"] and 10 <= b["cameras"][0]["yaw_deg"] <= 20
     for k in ("beta", "expression", "theta", "eta", "tau", "appearance", "lighting",
-              "background"):
+              "background", "hair"):
         assert a[k] == b[k], k
     c = sample_spec(load_config(overrides={"background": {"crop": [0.5, 0.6]}}), 1, 3,
                     au_names)
@@ -561,7 +564,7 @@ def test_render_order_does_not_change_pixels(tmp_path):
     from hack_render.dataset.worker import SampleRenderer
 
     cfg = load_config(overrides={"render": {"resolution": 64, "spp": 8, "soft_mask_samples": 0},
-                                 "appearance": {"height": 64}})
+                                 "appearance": {"height": 64}, "hair": "none"})
     n = 16
     images = []
     for order in (range(n), np.random.default_rng(1).permutation(n)):
@@ -766,7 +769,7 @@ def test_ray_missing_is_a_clear_error(tmp_path, monkeypatch):
 def test_defaults_are_valid():
     assert load_config() == load_config(overrides={})
     assert set(DEFAULTS) == {"render", "identity", "expression", "neck", "larynx",
-                             "appearance", "lighting", "background", "camera"}
+                             "appearance", "lighting", "background", "camera", "hair"}
 
 
 def test_render_sss_option(tmp_path):

@@ -37,10 +37,13 @@ def dataset(
                                           "(default: start a local Ray instance)."),
     workers: Optional[int] = typer.Option(None, "--workers", help="Ray actors (default: "
                                           "one per CPU of the Ray instance)."),
+    hair: Optional[str] = typer.Option(None, "--hair", help="The config's hair.style: "
+                                       "sampled (default), none, or an archetype (bald, "
+                                       "shaved, crew, short, bob, long, ponytail, bun, afro)."),
     quiet: opts.Quiet = False,
     threads: opts.Threads = None,
 ) -> None:
-    """Render N sampled people (identity, expression, neck pose, larynx, skin, light,
+    """Render N sampled people (identity, expression, neck pose, larynx, skin, hair, light,
     cameras) with RGB, alpha, depth, normals, UV, segmentation, soft masks, landmarks
     and parameters; one JSONL manifest per shard.
 
@@ -59,7 +62,8 @@ def dataset(
     if threads is not None:  # this process's engines (serial); each Ray actor: one thread
         check_threads(threads)
     command_threads(threads)
-    job = Job(output, n, seed, load_config(config), parse_shard(shard), resume)
+    overrides = {"hair": {"style": hair}} if hair is not None else None
+    job = Job(output, n, seed, load_config(config, overrides), parse_shard(shard), resume)
     summary = run(job, executor, address, workers, progress=not quiet)
     typer.echo(f"{summary['rendered']} rendered, {summary['skipped']} already complete, "
                f"{summary['total']} in this shard; manifest {summary['manifest']}")

@@ -17,6 +17,7 @@ from typing import Any
 from hack_render.boundary import parse_yaml
 from hack_render.dataset.backgrounds import check_background_config
 from hack_render.errors import HackError
+from hack_render.hair.style import ARCHETYPES, HairStyle
 from hack_render.io.image import TONE_MAPS
 from hack_render.render.scene import INTEGRATORS, MAX_SIDE, MAX_SPP, SAMPLERS
 from hack_render.render.settings import RenderSettings
@@ -81,6 +82,16 @@ DEFAULTS: dict[str, Any] = {
         "crop": [0.35, 1.0],      # crop side, fraction of the photo's short side
         "luminance": [0.03, 0.3],  # mean linear luminance (log-uniform)
     },
+    "hair": {
+        # sampled (the population sampler, hair.style.sample_style: archetype, colour,
+        # brows, lashes, beard), none (no strands at all: the bald mannequin with lash
+        # cards), an archetype name (everyone gets it, the rest sampled), or a mapping of
+        # the params file's hair fields (one style for everyone, each person's own strands)
+        "style": "sampled",
+        # level of detail of every groom (1: >= 50k scalp strands, 1-15 s to grow);
+        # docs/datasets.md has the cost per sample
+        "lod": 0.5,
+    },
     "camera": {
         "views": 1,               # cameras per sample (a multi-view group of one scene)
         "yaw_deg": [-60.0, 60.0],
@@ -90,6 +101,12 @@ DEFAULTS: dict[str, Any] = {
     },
 }
 
+
+#: Sections that may be given as one value, standing for one key of theirs
+#: (``hair: none`` is ``hair: {style: none}``).
+SHORTHANDS = {"hair": "style"}
+#: ``hair.style`` names besides the archetypes.
+HAIR_SOURCES = ("sampled", "none")
 
 #: How ``appearance.source: seed`` makes a subject's maps (``appearance.projected`` or
 #: ``appearance.generator``).
@@ -108,6 +125,8 @@ def _merge(base: dict, override: dict, prefix: str = "") -> dict:
             raise HackError(f"config key '{key}': unknown key; known keys here: "
                             f"{', '.join(base)}. Check its spelling (docs/datasets.md).")
         if isinstance(base[k], dict):
+            if k in SHORTHANDS and not prefix and (v is None or isinstance(v, str)):
+                v = {SHORTHANDS[k]: "none" if v is None else v}
             if not isinstance(v, dict):
                 _fail(key, "a mapping", v)
             out[k] = _merge(base[k], v, f"{key}.")
@@ -208,12 +227,30 @@ def check_config(cfg: dict) -> dict:
     for key in ("keep_noisy", "sss"):
         if not isinstance(cfg["render"][key], bool):
             _fail(f"render.{key}", "true or false", cfg["render"][key])
+    _check_hair(cfg)
     _number(cfg, "camera", "views", 1, 1024, integer=True)
     _range(cfg, "camera", "yaw_deg", -360.0, 360.0)
     _range(cfg, "camera", "pitch_deg", -89.0, 89.0)
     _range(cfg, "camera", "distance_scale", 0.05, 100.0)
     _range(cfg, "camera", "focal_mm", 1.0, 2000.0)
     return cfg
+
+
+def _check_hair(cfg: dict) -> None:
+    style = cfg["hair"]["style"]
+    names = (*HAIR_SOURCES, *ARCHETYPES)
+    if isinstance(style, str):
+        if style not in names:
+            _fail("hair.style", f"one of {', '.join(names)} or a mapping of hair fields "
+                  "(the params file's hair section, hack_render/hair/style.py)", style)
+    elif isinstance(style, dict):
+        try:
+            HairStyle.from_dict(style)
+        except HackError as err:
+            raise HackError(f"config key 'hair.style': {err}") from err
+    else:
+        _fail("hair.style", f"one of {', '.join(names)} or a mapping of hair fields", style)
+    _number(cfg, "hair", "lod", 0.01, 4.0)
 
 
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:

@@ -2,7 +2,9 @@
 
 Segmentation (:data:`LABELS`, id = index, stored in ``segmentation.png``): the renderer
 reports a coarse region per hit (``render.parts.REGIONS``: skin of the face / back atlas
-tile, mouth, teeth, sclera, iris, lacrimal film, lashes) and the model UV of the hit. Skin
+tile, mouth, teeth, sclera, iris, lacrimal film, lashes, and, where the scene has a groom,
+``hair``: every strand of scalp hair, brows, lashes and beard) and the model UV of the
+hit. Skin
 hits are refined by looking their UV up in a label atlas built once from the appearance
 layer's geometric region labels (``appearance.regions.region_labels``): lips, brows,
 scalp, neck; everything else on the skin (forehead, lids, nose, cheeks, chin, jaw) is
@@ -37,22 +39,24 @@ from hack_render.render.parts import REGIONS
 #: Dataset segmentation labels; the id is the index.
 LABELS: tuple[str, ...] = ("background", "face_skin", "neck_skin", "scalp", "ears", "lips",
                            "eyebrows", "eyes", "iris", "teeth", "gums_tongue", "eyelashes",
-                           "bust_cap")
+                           "bust_cap", "hair")
 LABEL_ID = {n: i for i, n in enumerate(LABELS)}
 LABEL_DESCRIPTIONS = {
     "background": "no surface",
     "face_skin": "skin of the face: forehead, eyelids, nose, cheeks, philtrum, chin, jaw",
     "neck_skin": "skin below the jaw line: neck, nape, and the top of chest and shoulders",
-    "scalp": "skin above the hairline (no hair geometry is rendered)",
+    "scalp": "skin above the hairline (under the hair where the sample has some)",
     "ears": "pinnae, outer and cranial sides (tragus and lobe included)",
     "lips": "red of the lips, inside the outer lip contour",
-    "eyebrows": "the brow region (skin; brow hair is not modelled)",
+    "eyebrows": "the brow region's skin (the brow hairs on it are 'hair')",
     "eyes": "sclera, lacrimal film, and the eye-socket skin inside the lids",
     "iris": "iris and pupil (visible cornea)",
     "teeth": "teeth",
     "gums_tongue": "gums, tongue and the mouth socket",
     "eyelashes": "eyelash cards, weighted by their strand opacity",
     "bust_cap": "the matte grey cap closing the cut of the chest and shoulders (not anatomy)",
+    "hair": "hair strands: scalp hair, brows, lashes and beard (the hair layer's curves), "
+            "its soft mask the strands' coverage",
 }
 #: Appearance atlas region -> dataset label, before :func:`skin_label_atlas`'s corrections
 #: (the ``ears`` box is replaced by the pinna, the sockets are split by vertex group).
@@ -64,7 +68,7 @@ _ATLAS_TO_LABEL = {"none": "face_skin", "forehead": "face_skin", "brows": "eyebr
 #: Render region (``parts.REGIONS``) -> dataset label; skin regions use the atlas.
 _RENDER_TO_LABEL = {"background": "background", "mouth": "gums_tongue", "teeth": "teeth",
                     "sclera": "eyes", "iris": "iris", "lacrimal": "eyes",
-                    "eyelashes": "eyelashes", "bust": "bust_cap"}
+                    "eyelashes": "eyelashes", "bust": "bust_cap", "hair": "hair"}
 SKIN_RENDER_REGIONS = ("face", "back_head")
 #: Atlas height of the label lookup (texel ~ 1 mm on the face).
 ATLAS_HEIGHT = 256

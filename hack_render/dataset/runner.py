@@ -158,6 +158,10 @@ def check_job(job: Job) -> None:
             hint = (" It was made before appearance.maps existed, with the generator's maps: "
                     "add `appearance: {maps: generated}` to the config to resume it."
                     if legacy and info["config"]["appearance"]["maps"] != "generated" else "")
+            if isinstance(old_cfg, dict) and "hair" not in old_cfg:
+                hint = (" It was made before the hair layer (no hair section, no 'hair' "
+                        "label): this version writes another label table and cannot resume "
+                        "it.")
             raise HackError(f"-o/--output {job.out}: expected an empty folder or one made with "
                             f"the same config and seed, found a dataset that differs in "
                             f"{diff}.{hint} Choose another folder.")

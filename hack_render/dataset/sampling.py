@@ -11,17 +11,20 @@ the geometry model's forward arguments.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import torch
 
 from hack_render.dataset.backgrounds import sample_background
 from hack_render.geometry.rotations import axis_angle_to_euler, euler_to_axis_angle
 from hack_render.geometry.skeleton import clamp_to_limits, distribute_head_rotation, outside_limits
+from hack_render.hair.style import ARCHETYPE_DEFAULTS, HairStyle, sample_style
 from hack_render.render.turntable import swallow_tau
 
 #: Generator stream per component (never reorder: it would change every dataset).
 STREAMS = {"identity": 1, "expression": 2, "neck": 3, "larynx": 4, "appearance": 5,
-           "lighting": 6, "camera": 7, "render": 8, "background": 9}
+           "lighting": 6, "camera": 7, "render": 8, "background": 9, "hair": 10}
 
 
 def _rng(seed: int, index: int, stream: str) -> np.random.Generator:
@@ -109,11 +112,38 @@ def sample_cameras(cfg: dict, rng) -> list[dict]:
              "focal_mm": float(rng.uniform(*c["focal_mm"]))} for _ in range(c["views"])]
 
 
+def sample_hair(cfg: dict, rng) -> dict | None:
+    """The person's hair (the params file's ``hair`` section, ``HairStyle.to_dict()``) or
+    None (``hair.style: none``).
+
+    ``sampled``: :func:`hack_render.hair.style.sample_style` at ``hair.lod``. An archetype
+    name: the same draw (colour, brows, lashes, beard, hairline, parting, the groom's
+    seed) with that archetype and its defaults for length, curl, volume and gravity. A
+    mapping: that style for everyone, with the draw's groom seed (each person's own
+    strands) unless it gives ``seed``, and ``hair.lod`` unless it gives ``lod``. The draw
+    is made in every case, so ``hair.style`` changes no other draw."""
+    c = cfg["hair"]
+    style = c["style"]
+    if style == "none":
+        return None
+    drawn = sample_style(rng, float(c["lod"]))
+    if style == "sampled":
+        return drawn.to_dict()
+    if isinstance(style, str):
+        fixed = set(ARCHETYPE_DEFAULTS[style]) | {"archetype"}
+        keep = {k: v for k, v in drawn.to_dict().items() if k not in fixed}
+        return HairStyle.archetype_style(style, **keep).to_dict()
+    given = HairStyle.from_dict(style)
+    return replace(given, seed=given.seed if "seed" in style else drawn.seed,
+                   lod=given.lod if "lod" in style else float(c["lod"])).to_dict()
+
+
 def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> dict:
     """Everything that defines sample ``index`` of the dataset with ``seed``.
 
     Returns a JSON-ready dict: beta, expression (AU weights), head_rotation_deg, theta,
-    eta, tau, swallow_phase, appearance, lighting, cameras, render_seed, background.
+    eta, tau, swallow_phase, appearance, lighting, cameras, render_seed, background, hair
+    (a ``HairStyle.to_dict()`` or None).
     """
     head, theta = sample_neck(cfg, _rng(seed, index, "neck"))
     spec = {"index": int(index), "seed": int(seed),
@@ -127,6 +157,7 @@ def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> 
     spec["render_seed"] = int(_rng(seed, index, "render").integers(0, 2 ** 31 - 1024))
 
     spec["background"] = sample_background(cfg, _rng(seed, index, "background"))
+    spec["hair"] = sample_hair(cfg, _rng(seed, index, "hair"))
     return spec
 
 
@@ -145,12 +176,14 @@ def model_kwargs(model, spec: dict) -> dict[str, torch.Tensor]:
 
 def params_file(model, spec: dict) -> dict:
     """The sample as a ``hack-render render --params`` file (``geometry.params`` format):
-    re-rendering it with the same lighting and camera reproduces the geometry."""
+    re-rendering it with the same lighting and camera reproduces the geometry, and its
+    ``hair`` section (``HairStyle.to_dict()``, null for no hair) the strands."""
     psi = model_kwargs(model, spec)["psi"][0]
     out = {"beta": list(spec["beta"]), "psi": [float(x) for x in psi.tolist()],
            "theta": spec["theta"], "eta": spec["eta"], "tau": spec["tau"]}
     if not out["beta"]:
         del out["beta"]
+    out["hair"] = spec.get("hair")
     return out
 
 
@@ -159,5 +192,5 @@ def degrees_within_limits(theta) -> bool:
     return not outside_limits(torch.as_tensor(theta, dtype=torch.float64), tol_deg=1e-6)
 
 
-__all__ = ["sample_spec", "model_kwargs", "params_file", "truncated_normal", "STREAMS",
-           "degrees_within_limits"]
+__all__ = ["STREAMS", "degrees_within_limits", "model_kwargs", "params_file", "sample_hair",
+           "sample_spec", "truncated_normal"]

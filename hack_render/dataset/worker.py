@@ -7,7 +7,9 @@ flat skin maps) and then changed per sample through ``set_vertices``, ``set_maps
 ``set_camera`` and ``set_light_rotation`` (then ``sync_environment``, so that the
 environment emitter sees the sample's own bounds): every sample is then rendered from a
 scene whose content depends on that sample alone, and the box pixel filter makes the
-pixels bit-identical whichever process renders it and whatever it rendered before.
+pixels bit-identical whichever process renders it and whatever it rendered before. A
+sample with hair is rendered in a scene built around its own groom, on its own vertices
+(:meth:`SampleRenderer.scene_with_hair`): a function of that sample alone too.
 
 Files are encoded and written by a :class:`FileWriter`, in the caller's thread or, for
 the serial executor, on one background thread while the next sample renders; either way
@@ -39,6 +41,8 @@ from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 from hack_render.geometry import load_default_model
+from hack_render.hair.groom import Groom, HeadSurface, grow
+from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.materials import SkinMaps
@@ -84,6 +88,10 @@ class SampleRenderer:
         with torch.no_grad():
             self.rest = self.model().vertices[0].numpy().astype(np.float64)
         self.larynx_candidates = lab.larynx_candidates(self.model)
+        #: the mean rest mesh grooms are grown on (built at the first groom)
+        self._surface: HeadSurface | None = None
+        #: :attr:`scenes` holds one scene with a groom (renderers without ``set_hair``)
+        self._hair_scene = False
         self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
@@ -147,14 +155,54 @@ class SampleRenderer:
             if preset not in self.scenes:
                 self.scenes[preset] = self._build_scene(preset)
 
-    def _build_scene(self, preset: str):
+    def groom(self, hair: dict | None) -> Groom | None:
+        """The strands of a sample's ``hair`` (its spec's ``HairStyle.to_dict()``), grown
+        on the model's mean rest mesh; None for no hair. A pure function of the style."""
+        if hair is None:
+            return None
+        with self._skin_lock:
+            if self._surface is None:
+                self._surface = HeadSurface.from_model(self.model)
+        return grow(self._surface, HairStyle.from_dict(hair))
+
+    def scene_with_hair(self, preset: str, groom: Groom | None, verts: np.ndarray):
+        """The preset's scene holding ``groom``, for a sample with vertices ``verts``.
+
+        A renderer with ``set_hair`` swaps the strands in place. This version's
+        ``HeadScene`` takes its groom when it is built, so a sample with hair gets a new
+        scene of its preset around its groom, built on its own vertices (the strands are
+        posed once: the ``set_vertices`` that follows finds them posed), and it is the only
+        scene alive (the bald scenes and the previous sample's are dropped: Dr.Jit traces
+        its kernels over every BSDF and shape instance in the process). Each such scene
+        compiles its kernels again (several seconds a sample: docs/datasets.md, Cost;
+        measured, no kernel cache hit even for a groom of the same layout), which a
+        ``set_hair`` in the renderer would save. A sample without hair gets the bald scenes
+        of :meth:`build_scenes` (rebuilt if a groom's scene replaced them). Either way the
+        scene is a function of the sample alone."""
+        if hasattr(HeadScene, "set_hair"):
+            head = self.scene(preset)
+            head.set_hair(groom, update=False)
+            return head
+        if groom is None:
+            if self._hair_scene:
+                self.scenes.clear()
+                self._hair_scene = False
+            return self.scene(preset)
+        self.scenes.clear()  # dropped scenes die when the next one is built
+        head = self.scenes[preset] = self._build_scene(preset, groom, verts)
+        self._hair_scene = True
+        return head
+
+    def _build_scene(self, preset: str, groom: Groom | None = None,
+                     verts: np.ndarray | None = None):
 
         r = self.cfg["render"]
         settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
-        head = HeadScene(self.topology, self.rest, lights.preset(preset, 0.0, 0.0), cam,
-                         settings, self._flat_maps(), None, r["variant"])
+        head = HeadScene(self.topology, self.rest if verts is None else verts,
+                         lights.preset(preset, 0.0, 0.0), cam,
+                         settings, self._flat_maps(), None, r["variant"], hair=groom)
         # opaque transforms from the start; applied by the first sample's update (each
         # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
         head.set_light_rotation(0.0, update=False)
@@ -169,8 +217,9 @@ class SampleRenderer:
     def inputs(self, index: int) -> dict:
         """What sample ``index`` needs before its scene, each a pure function of the
         config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
-        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps`` and
-        the ``background`` image (None: the rig's environment)."""
+        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps``, the
+        ``background`` image (None: the rig's environment) and the hair's ``groom`` (None:
+        no hair; grown here, on the prefetch thread, while the previous sample renders)."""
         import torch
 
         spec = self.spec(index)
@@ -183,7 +232,8 @@ class SampleRenderer:
                 "verts": out.vertices[0].numpy().astype(np.float64),
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
-                "background": background_image(spec["background"], res, res)}
+                "background": background_image(spec["background"], res, res),
+                "groom": self.groom(spec.get("hair"))}
 
     def prefetch(self, index: int) -> None:
         """Start computing sample ``index``'s :meth:`inputs` on a helper thread, so that
@@ -218,7 +268,7 @@ class SampleRenderer:
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        head = self.scene(spec["lighting"]["preset"])
+        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         head.set_vertices(inp["verts"], update=False)

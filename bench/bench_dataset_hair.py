@@ -1,0 +1,201 @@
+"""Dataset hair (issue 61), not a test: the sheet of sampled people, and the cost.
+
+(a) ``--sheet PATH`` (256 colours): 12 samples of the dataset's default config (hair sampled at the
+    default level of detail), chosen among the first indices of ``--seed`` so that every
+    hair archetype and every lighting preset is in (the first index that brings a new
+    archetype or preset, then the first others in order), rendered as the dataset renders
+    them, into ``--keep`` (or a temporary folder); the RGB of each in a 4 x 3 grid, with
+    its archetype, beard and preset written under it, saved to PATH; and
+    ``dataset preview``'s sheet of the same samples (segmentation overlay: hair orange) to
+    PATH with ``_preview`` before the suffix.
+(b) ``--speed``: seconds per sample of the serial executor's pipeline (files on the writer
+    thread, the next sample's inputs prefetched) without hair (``hair: none``) and with
+    it (``hair: sampled`` at each ``--lod``), ``--n`` samples each after ``--warm`` warm-up
+    samples, the sides one after the other in separate renderers (a scene with hair alive
+    in the process would make the bald scenes' kernels recompile too), with the parts:
+    the render call (``HeadScene.render``), the labels, the groom (grown on the prefetch
+    thread, beside the render) and the scene built around each groom (posing included).
+
+Usage: python bench/bench_dataset_hair.py --sheet docs/images/dataset_hair_sheet.png
+       python bench/bench_dataset_hair.py --speed [--n 6] [--size 256] [--spp 25] [--lod 0.25]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hack_render.dataset import labels as lab
+from hack_render.dataset import worker as wk
+from hack_render.dataset.config import load_config
+from hack_render.dataset.preview import contact_sheet
+from hack_render.dataset.runner import with_next
+from hack_render.dataset.sampling import sample_spec
+from hack_render.geometry import load_default_model
+from hack_render.hair.style import ARCHETYPES
+from hack_render.render.scene import HeadScene
+
+
+def choose(cfg: dict, seed: int, count: int = 12, search: int = 400):
+    """Indices whose hair and lighting cover every archetype and preset (see (a))."""
+    aus = load_default_model().au_names
+    specs = [sample_spec(cfg, seed, i, aus) for i in range(search)]
+    seen_a, seen_p, chosen = set(), set(), []
+    for i, s in enumerate(specs):
+        a, p = s["hair"]["archetype"], s["lighting"]["preset"]
+        if a not in seen_a or p not in seen_p:
+            chosen.append(i)
+            seen_a.add(a)
+            seen_p.add(p)
+        if len(seen_a) == len(ARCHETYPES) and len(seen_p) == len(cfg["lighting"]["presets"]):
+            break
+    rest = [i for i in range(search) if i not in chosen]
+    chosen = sorted(chosen[:count] + rest[:max(0, count - len(chosen))])
+    return chosen, specs
+
+
+def sheet(path: Path, seed: int, keep: str | None, size: int) -> None:
+    from PIL import Image, ImageDraw
+
+    cfg = load_config(overrides={"render": {"resolution": size}})
+    idx, specs = choose(cfg, seed)
+    root = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="hack-hair-sheet-"))
+    r = wk.SampleRenderer(cfg, root, seed, background_writes=True)
+    r.build_scenes()
+    t0 = time.perf_counter()
+    futures = []
+    for i, upcoming in with_next(idx):
+        if upcoming is not None:
+            r.prefetch(upcoming)
+        futures.append(r.submit(i))
+    for f in futures:
+        f.result()
+    r.close()
+    print(f"rendered {len(idx)} samples {idx} in {time.perf_counter() - t0:.0f} s")
+    import imageio.v3 as iio
+
+    tiles = []
+    for i in idx:
+        s = specs[i]
+        rgb = iio.imread(wk.sample_dir(root, i) / "view_00" / "rgb.png")[..., :3]
+        img = Image.new("RGB", (size, size + 16), (255, 255, 255))
+        img.paste(Image.fromarray(rgb), (0, 0))
+        h = s["hair"]
+        text = f"{h['archetype']}, beard {h['beard']}, {s['lighting']['preset']}"
+        ImageDraw.Draw(img).text((4, size + 2), text, fill=(0, 0, 0))
+        tiles.append(np.asarray(img))
+        print(f"  {i}: {text}; eumelanin {h['eumelanin']:.2f}, pheomelanin "
+              f"{h['pheomelanin']:.2f}, greying {h['greying']:.2f}")
+    cols, rows = 4, -(-len(tiles) // 4)
+    th, tw = tiles[0].shape[:2]
+    grid = np.full((rows * th, cols * tw, 3), 255, np.uint8)
+    for k, t in enumerate(tiles):
+        y, x = divmod(k, cols)
+        grid[y * th:(y + 1) * th, x * tw:(x + 1) * tw] = t
+    path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(path, grid)
+    prev = contact_sheet(root, path.with_name(path.stem + "_preview" + path.suffix),
+                         count=len(idx), columns=6)
+    for p in (path, prev):  # 256 colours (docs-sized files: ~0.4 MB against 1.3 MB)
+        Image.open(p).convert("RGB").quantize(256, Image.Quantize.MEDIANCUT).save(
+            p, optimize=True)
+    print(f"wrote {path} and {prev} (samples kept in {root})")
+
+
+class _Timer:
+    def __init__(self):
+        self.total: dict[str, float] = {}
+
+    def wrap(self, owner, method: str, name: str | None = None):
+        orig = getattr(owner, method)
+        key = name or method
+
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return orig(*args, **kwargs)
+            finally:
+                self.total[key] = self.total.get(key, 0.0) + time.perf_counter() - t0
+
+        setattr(owner, method, timed)
+
+    def take(self) -> dict[str, float]:
+        out, self.total = self.total, {}
+        return out
+
+
+def speed(n: int, warm: int, size: int, spp: int, lods: list[float], seed: int) -> None:
+    timer = _Timer()
+    timer.wrap(HeadScene, "render")
+    timer.wrap(lab, "label_images")
+    timer.wrap(wk.SampleRenderer, "groom")
+    timer.wrap(wk.SampleRenderer, "_build_scene", "scene built")
+    sides = [("hair: none", "none")] + [(f"hair: sampled, lod {x:g}", {"lod": x}) for x in lods]
+    print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
+    base = None
+    for name, hair in sides:
+        cfg = load_config(overrides={"render": {"resolution": size, "spp": spp},
+                                     "hair": hair})
+        with tempfile.TemporaryDirectory() as tmp:
+            r = wk.SampleRenderer(cfg, tmp, seed, background_writes=True)
+            r.build_scenes()
+            for i in range(warm):
+                r.render(i)
+            timer.take()
+            js = list(range(warm, warm + n))
+            t0 = time.perf_counter()
+            futures = []
+            for j, upcoming in with_next(js):
+                if upcoming is not None:
+                    r.prefetch(upcoming)
+                futures.append(r.submit(j))
+            for f in futures:
+                f.result()
+            wall = (time.perf_counter() - t0) / n
+            r.close()
+            del r
+        parts = {k: v / n for k, v in timer.take().items()}
+        base = wall if base is None else base
+        styles = ""
+        if hair != "none":
+            aus = load_default_model().au_names
+            styles = ", ".join(sample_spec(cfg, seed, j, aus)["hair"]["archetype"] for j in js)
+        print(f"  {name:24s}: {wall:6.2f} s/sample ({wall / base:.1f}x without hair); render "
+              f"call {parts.get('render', 0):.2f} s, labels {parts.get('label_images', 0):.2f} s, "
+              f"groom {parts.get('groom', 0):.2f} s (prefetch thread), scene built "
+              f"{parts.get('scene built', 0):.2f} s" + (f"; styles {styles}" if styles else ""),
+              flush=True)
+    print(f"load average (1 min) after: {os.getloadavg()[0]:.1f} (2 cores shared with other "
+          "jobs: ratios within one run, not the seconds)")
+    print(json.dumps({"n": n, "size": size, "spp": spp, "lods": lods}))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sheet", default=None)
+    ap.add_argument("--keep", default=None, help="(a): render the samples into this folder")
+    ap.add_argument("--speed", action="store_true")
+    ap.add_argument("--n", type=int, default=6)
+    ap.add_argument("--warm", type=int, default=2)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--spp", type=int, default=25)
+    ap.add_argument("--lod", type=float, action="append", default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    if a.sheet:
+        sheet(Path(a.sheet), a.seed, a.keep, a.size)
+    if a.speed:
+        speed(a.n, a.warm, a.size, a.spp, a.lod or [load_config()["hair"]["lod"]], a.seed)
+
+
+if __name__ == "__main__":
+    main()
