@@ -239,6 +239,9 @@ def render(results: dict) -> str:
             out += _figures(name, d)
         elif name not in KNOWN and "median" not in d:
             out += _generic(name, d)
+    for name, d in results.items():  # every file is on the page, whatever its shape
+        if f"bench/results/{name}.json" not in "\n".join(out):
+            out += _generic(name, d)
     return "\n".join(out).rstrip() + "\n"
 
 
