@@ -38,8 +38,8 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
     "calibrate-landmarks": ("", ("hack_render.learn.cli",)),
     "train-landmark-refiner": ("", ("hack_render.learn.cli",)),
     "export": ("Export one person to CG tools: a rigged glTF 2.0 (skeleton, 53 expression, "
-               "larynx and pose-corrective morph targets, PBR skin, optional animation) or "
-               "OBJ/PLY mesh files.", ("hack_render.export.cli",)),
+               "larynx and pose-corrective morph targets, PBR skin, optional animation, optional hair "
+               "cards) or OBJ/PLY mesh files.", ("hack_render.export.cli",)),
     "view": ("Serve a local page (127.0.0.1 only, three.js bundled, no network) that shows an "
              "exported person with sliders for the expressions, the 8 joints, the larynx and "
              "the animation's timeline. Stop with Ctrl-C.", ("hack_render.export.cli",)),
@@ -57,8 +57,10 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
     "track": ("Track a video into HACK parameters: one identity for the clip, and per frame "
               "the 8 neck joints (from the head's rotation), the torso, the expression and the "
               "larynx's slide tau (from the neck's shading; --tau fixed keeps the keyframe "
-              "fit's value). The neck is placed on the person's outline in every frame "
-              "(--no-outline: landmarks alone).", ("hack_render.track.cli",)),
+              "fit's value). The neck is placed on the head-and-neck outline (the face mesh's "
+              "oval and the neck's skin, no hair; --no-outline: landmarks alone). A track "
+              "whose points lie far from the detected ones is reported on stderr and as the "
+              "report's status \"poor\".", ("hack_render.track.cli",)),
     "model": ("Inspect HACK model files (`hack-render learn model` builds one).",
               ("hack_render.geometry.cli", "hack_render.learn.cli")),
     "appearance": ("Appearance model A(alpha): sample, report (`hack-render learn appearance` "
