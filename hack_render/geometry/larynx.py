@@ -74,7 +74,7 @@ def larynx_coefficients(beta: torch.Tensor, coef_matrix: torch.Tensor,
 
 def combine_maps(coeffs: torch.Tensor, maps: torch.Tensor) -> torch.Tensor:
     """sum_i c_i L_i. coeffs: (B, L), maps: (L, 3, H, W) -> (B, 3, H, W)."""
-    return torch.einsum("bl,lchw->bchw", coeffs, maps)
+    return (coeffs @ maps.reshape(maps.shape[0], -1)).view(coeffs.shape[0], *maps.shape[1:])
 
 
 def sample_displacement(combined: torch.Tensor, vertex_uv: torch.Tensor, uv_bounds: torch.Tensor,

@@ -58,22 +58,20 @@ def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
             it moves rigidly with node k (the quantity blended by LBS).
     """
     B, K = joints.shape[:2]
-    rel_joints = joints.clone()
-    par = torch.tensor([max(p, 0) for p in parents], device=joints.device)
-    has_parent = torch.tensor([p >= 0 for p in parents], device=joints.device)
-    rel_joints = joints - torch.where(has_parent[None, :, None], joints[:, par], torch.zeros_like(joints))
-    local = torch.zeros(B, K, 4, 4, dtype=joints.dtype, device=joints.device)
-    local[..., :3, :3] = rot_mats
-    local[..., :3, 3] = rel_joints
-    local[..., 3, 3] = 1
+    # each node's offset from its parent (the root's from the origin), by Python indexing
+    # of the constant chain: no index tensors built per call
+    rel_joints = torch.stack([joints[:, k] - joints[:, p] if p >= 0 else joints[:, k]
+                              for k, p in enumerate(parents)], 1)
+    bottom = joints.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(B, K, 1, 4)
+    local = torch.cat([torch.cat([rot_mats, rel_joints.unsqueeze(-1)], -1), bottom], -2)
     world = [local[:, 0]]
     for k in range(1, K):
         world.append(world[parents[k]] @ local[:, k])
     world_t = torch.stack(world, dim=1)
     posed_joints = world_t[..., :3, 3]
     # Remove the rest-pose joint location: rel = world @ [I, -j_rest; 0, 1].
-    rel = world_t.clone()
-    rel[..., :3, 3] = posed_joints - (world_t[..., :3, :3] @ joints.unsqueeze(-1)).squeeze(-1)
+    shift = posed_joints - (world_t[..., :3, :3] @ joints.unsqueeze(-1)).squeeze(-1)
+    rel = torch.cat([torch.cat([world_t[..., :3, :3], shift.unsqueeze(-1)], -1), bottom], -2)
     return posed_joints, rel
 
 
