@@ -43,6 +43,14 @@ def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None) -> torch
     return d.flatten(1)
 
 
+def _offset_matrix(parents: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:
+    """(K, K) constant matrix D with (D j)_k = j_k - j_parent(k) (the root: j_0), in
+    ``like``'s dtype and device: one product instead of a difference per node."""
+    rows = [[(1.0 if i == k else 0.0) - (1.0 if i == p else 0.0) for i in range(len(parents))]
+            for k, p in enumerate(parents)]
+    return torch.tensor(rows, dtype=like.dtype, device=like.device)
+
+
 def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
                      parents: tuple[int, ...]) -> tuple[torch.Tensor, torch.Tensor]:
     """Forward kinematics.
@@ -60,8 +68,7 @@ def rigid_transforms(rot_mats: torch.Tensor, joints: torch.Tensor,
     B, K = joints.shape[:2]
     # each node's offset from its parent (the root's from the origin), by Python indexing
     # of the constant chain: no index tensors built per call
-    rel_joints = torch.stack([joints[:, k] - joints[:, p] if p >= 0 else joints[:, k]
-                              for k, p in enumerate(parents)], 1)
+    rel_joints = torch.matmul(_offset_matrix(parents, joints), joints)
     bottom = joints.new_tensor([0.0, 0.0, 0.0, 1.0]).expand(B, K, 1, 4)
     local = torch.cat([torch.cat([rot_mats, rel_joints.unsqueeze(-1)], -1), bottom], -2)
     world = [local[:, 0]]
