@@ -24,8 +24,11 @@ personalised bases are built once), and B = 1 with a FACS expression (sparse psi
 with every shape component (100), and B = 1 with 20 (the dataset's and the fitter's
 identity; smplx gets the same 20 shape columns), dense psi and a FACS expression.
 
+``--hogs N`` runs the whole table beside N CPU-bound processes (``while True: pass``,
+started and stopped by this script), the loaded case of issue 65.
+
     python bench/bench_geometry.py [--repeats 21] [--threads N] [--spin] [--clock cpu]
-                                   [--out bench/results/bench_geometry.json]
+                                   [--hogs N] [--out bench/results/bench_geometry.json]
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -157,7 +161,20 @@ def main() -> None:
                     help="wall time (default) or the process's CPU time (all threads)")
     ap.add_argument("--spin", action="store_true",
                     help="keep OpenMP's default spin-waiting (default: OMP_WAIT_POLICY=PASSIVE)")
+    ap.add_argument("--hogs", type=int, default=0,
+                    help="CPU-bound processes to run beside the whole table (default 0)")
     args = ap.parse_args()
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.hogs)]
+    try:
+        run(args)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+
+
+def run(args) -> None:
+    """The table (see the module docstring), written to ``args.out``."""
     if args.threads:
         torch.set_num_threads(args.threads)
     model = load_default_model()
@@ -165,7 +182,9 @@ def main() -> None:
     gen = torch.Generator().manual_seed(0)
     say(f"torch {torch.__version__}, threads {torch.get_num_threads()}, repeats {args.repeats}, "
           f"clock {args.clock}, OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}")
+    say(f"CPU-bound processes beside: {args.hogs}; 1-min load average {os.getloadavg()[0]:.1f}")
     results = {"repeats": args.repeats, "threads": torch.get_num_threads(), "clock": args.clock,
+               "hogs": args.hogs,
                "torch": torch.__version__,
                "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "default (spin)"),
                "load_average_1min_before": os.getloadavg()[0], "configs": {}}
@@ -223,8 +242,10 @@ def main() -> None:
             f"{s['personalised']['median_ms']:.2f} ms, speed-up {s['speed_up']:.2f}x")
     results["load_average_1min_after"] = os.getloadavg()[0]
     results["printed"] = PRINTED
+    say(f"1-min load average after: {results['load_average_1min_after']:.1f}")
+    beside = f", beside {args.hogs} CPU-bound process(es)" if args.hogs else ""
     results["title"] = (f"Geometry forward against smplx's lbs ({results['threads']} torch "
-                        f"thread(s), {args.clock} clock)")
+                        f"thread(s), {args.clock} clock{beside})")
     print(f"wrote {write_result(args.out, results)}")
 
 
