@@ -243,6 +243,8 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
             else:
                 o = ladder_of("ours", tag == "oidn", region)
                 c = ladder_of("cycles", tag == "oidn", region)
+            if not o or not c:  # e.g. no denoised ladder
+                continue
             say(f"{region} / {tag}: {what} (PSNR over the "
                 f"{'whole image' if region == 'image' else 'hair region'})")
             summary[f"{region}_{tag}"] = compare_curves(o, c, say)
