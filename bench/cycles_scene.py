@@ -166,41 +166,40 @@ def import_part(root: Path, part: dict, mat) -> None:
     mesh.materials.append(mat)
 
 
-def bspline_points(ctrl: np.ndarray, per_segment: int = 3) -> np.ndarray:
-    """Points on uniform cubic B-splines (S, K, 3) control points -> (S, M, 3), the curve
-    Mitsuba's ``bsplinecurve`` draws (from the 2nd to the (K-1)th control point's span),
-    sampled ``per_segment`` times a segment, ends included."""
-    s, k, _ = ctrl.shape
-    t = np.linspace(0.0, 1.0, per_segment, endpoint=False)
-    basis = np.stack([(1 - t) ** 3, 3 * t ** 3 - 6 * t ** 2 + 4,
-                      -3 * t ** 3 + 3 * t ** 2 + 3 * t + 1, t ** 3], -1) / 6.0
-    out = [np.einsum("tj,sjc->stc", basis, ctrl[:, i:i + 4]) for i in range(k - 3)]
-    last = (ctrl[:, -3] + 4 * ctrl[:, -2] + ctrl[:, -1]) / 6.0
-    return np.concatenate(out + [last[:, None]], axis=1)
-
-
 def import_hair(root: Path, spec: dict) -> None:
-    """Strands (``spec['npz']``: control points (S, K, 3) and radii (S, K) of Mitsuba's
-    B-splines) as a Curves object through points on the same splines (Catmull-Rom, round
-    3-D curves), with the Principled Hair BSDF (Chiang) of absorption ``spec['sigma_a']``,
-    Mitsuba's ``hair`` defaults otherwise (roughness 0.3, radial 0.3, IOR 1.55, 2 deg)."""
+    """One hair shape of ours (``hair_shapes.HairShape``): ``spec['npz']`` holds the
+    control points (S, M, 3) and radii (S, M) of Mitsuba's ``linearcurve`` strands, the
+    points ``HeadScene`` renders; they become a Curves object through the same points
+    (Cycles' round 3-D curves, Catmull-Rom between them: Cycles 4.5 has no linear
+    curves), with the Principled Hair BSDF (Chiang) of absorption ``spec['sigma_a']``
+    (Mitsuba's ``eumelanin x (0.419, 0.697, 1.37) + pheomelanin x (0.187, 0.4, 1.05)``,
+    per unit of fibre radius in both), Mitsuba's ``hair`` defaults otherwise (roughness
+    0.3, radial 0.3, IOR 1.55, scale tilt 2 deg)."""
     d = np.load(root / spec["npz"])
-    ctrl = np.concatenate([d["points"], d["radius"][..., None]], -1).astype(np.float64)
-    pts = bspline_points(ctrl)
+    pts, rad = d["points"].astype(np.float32), d["radius"].astype(np.float32)
     s, m, _ = pts.shape
     curves = bpy.data.hair_curves.new(spec["name"])
     curves.add_curves([m] * s)
-    curves.position_data.foreach_set("vector", pts[..., :3].astype(np.float32).ravel())
-    radius = curves.attributes.new("radius", "FLOAT", "POINT")
-    radius.data.foreach_set("value", pts[..., 3].astype(np.float32).ravel())
+    curves.position_data.foreach_set("vector", pts.ravel())
+    radius = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT",
+                                                                       "POINT")
+    radius.data.foreach_set("value", rad.ravel())
     mat = bpy.data.materials.new(spec["name"])
     mat.use_nodes = True
     t = mat.node_tree
     t.nodes.clear()
     out = t.nodes.new("ShaderNodeOutputMaterial")
     hair = t.nodes.new("ShaderNodeBsdfHairPrincipled")
-    hair.model, hair.parametrization = "CHIANG", "ABSORPTION"
-    hair.inputs["Absorption Coefficient"].default_value = tuple(spec["sigma_a"])
+    hair.model = "CHIANG"
+    if "melanin" in spec:  # Cycles' pigment parametrisation: its own pigment spectra
+        hair.parametrization = "MELANIN"
+        for key, value in (("Melanin", spec["melanin"]),
+                           ("Melanin Redness", spec["melanin_redness"]),
+                           ("Tint", (1.0, 1.0, 1.0, 1.0)), ("Random Color", 0.0)):
+            hair.inputs[key].default_value = value
+    else:
+        hair.parametrization = "ABSORPTION"
+        hair.inputs["Absorption Coefficient"].default_value = tuple(spec["sigma_a"])
     for key, value in (("Roughness", 0.3), ("Radial Roughness", 0.3), ("Coat", 0.0),
                        ("IOR", 1.55), ("Offset", math.radians(2.0)),
                        ("Random Roughness", 0.0)):

@@ -1,0 +1,317 @@
+"""Hair against Blender Cycles at equal noise (issue 61): the same posed strands.
+
+The Cycles comparison of ``bench_render.py --only cycles`` (the default head, ``--alpha
+0.8,-0.6,0.4``, portrait camera, studio rig, depth 8, Gaussian pixel filter) with a full
+head of hair: the ``short`` archetype grown at lod 1 (>= 50k scalp strands, brows and
+lashes; the strand lashes replace the lash cards in both renderers), posed on the head
+by ``HeadScene``. Ours renders it as ``HeadScene(hair=groom)`` does (Mitsuba
+``linearcurve`` shapes, one per strand group and melanin bucket, ``hair`` BSDF); Cycles
+gets the very control points of each of those shapes as a Curves object
+(``cycles_scene.import_hair``: round curves through the same points, Principled Hair BSDF,
+Chiang model) and the same melanin as an absorption coefficient: Mitsuba's
+``sigma_a = eumelanin x (0.419, 0.697, 1.37) + pheomelanin x (0.187, 0.4, 1.05)``
+(``hair.style.EUMELANIN_SIGMA_A``, ``PHEOMELANIN_SIGMA_A``) given to Cycles' *absorption*
+parametrisation, not Cycles' own melanin inputs (whose pigment spectra, (0.506, 0.841,
+1.653) and (0.343, 0.733, 1.924), differ from Mitsuba's); both read it per unit of fibre
+radius (Chiang et al. 2016 / pbrt's ``2 cos(gamma_t) / cos(theta_t)`` path), roughness
+0.3 / 0.3, IOR 1.55, 2 deg scale tilt in both.
+
+Equal noise as in the bald comparison: each renderer against its own high-spp reference
+(``--ref-spp``), a ladder of spp, PSNR on linear RGB (peak 1) over the whole image and
+over the hair region (pixel centres whose first hit is a strand, ``HeadScene.aovs``),
+CPU seconds of the render call (process time, all threads), rungs interleaved (ours,
+Cycles); time at equal PSNR interpolated on each ladder's PSNR-log(time) curve
+(``bench_render.compare_curves``): both noisy, both denoised (OIDN), each at its best.
+Writes ``bench/results/render_hair_cycles.json`` and ``docs/images/hair_vs_cycles.png``
+(ours | Cycles at equal noise: noisy, denoised, references).
+
+    python bench/bench_hair_cycles.py --blender-python /work/bpy-venv/bin/python \\
+        [--ref-spp 1024] [--ladder 4,8,16,32,64,128] [--denoise-ladder 4,8,16,32]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_render import (  # bench/ is sys.path[0] when run as a script
+    CyclesWorker,
+    blender_python,
+    compare_curves,
+    lower_envelope,
+    side_by_side,
+    write_cycles_scene,
+)
+from provenance import write_result
+
+
+def write_cycles_hair(folder: Path, head, vertices: np.ndarray,
+                      melanin: str = "absorption") -> list[dict]:
+    """Each hair shape of ``head`` (its ``hair_shapes``) for ``cycles_scene.import_hair``:
+    the control points ``HeadScene`` renders (posed on ``vertices``) in ``<id>.npz`` and
+    the shape's melanin as Mitsuba's absorption coefficient; added to ``scene.json``."""
+    import json
+
+    from hack_render.hair.style import EUMELANIN_SIGMA_A, PHEOMELANIN_SIGMA_A
+    from hack_render.render.hair_shapes import control_points
+
+    posed = head.pose_hair(vertices)
+    specs = []
+    for sh in head.hair_shapes:
+        cp = control_points(posed[sh.group][sh.strands], head.hair.group(sh.group).radius)
+        np.savez(folder / f"{sh.id}.npz", points=cp[..., :3], radius=cp[..., 3])
+        sigma = sh.eumelanin * EUMELANIN_SIGMA_A + sh.pheomelanin * PHEOMELANIN_SIGMA_A
+        spec = {"name": sh.id, "npz": f"{sh.id}.npz", "sigma_a": sigma.tolist(),
+                "eumelanin": sh.eumelanin, "pheomelanin": sh.pheomelanin,
+                "strands": int(cp.shape[0]), "points": int(cp.shape[1])}
+        if melanin == "concentration":  # Cycles' melanin inputs of the same concentrations
+            total = sh.eumelanin + sh.pheomelanin
+            spec["melanin"] = float(1.0 - np.exp(-total))
+            spec["melanin_redness"] = float(sh.pheomelanin / total) if total > 0 else 0.0
+        specs.append(spec)
+    path = folder / "scene.json"
+    desc = json.loads(path.read_text())
+    desc["hair"] = specs
+    path.write_text(json.dumps(desc, indent=1))
+    return specs
+
+
+def psnr(img: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) -> float:
+    d = (img - ref) ** 2
+    mse = float(d[mask].mean() if mask is not None else d.mean())
+    return 10.0 * np.log10(1.0 / max(mse, 1e-20))
+
+
+def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
+              ref_spp: int, repeats: int, still: Path | None, out: str | None,
+              melanin: str = "concentration") -> dict:
+    import warnings
+
+    import mitsuba as mi
+
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.hair.groom import HeadSurface, grow_cached
+    from hack_render.hair.style import HairStyle
+    from hack_render.io.image import to_srgb8
+    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.scene import HeadScene, RenderSettings, composite
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    mi.set_log_level(mi.LogLevel.Error)
+    warnings.simplefilter("ignore")
+    printed: list[str] = []
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+        printed.extend(text.splitlines())
+
+    model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
+                                  None)
+    v = verts.astype(np.float64)
+    topo = Topology.from_model(model)
+    maps = skin_maps([0.8, -0.6, 0.4])
+    rig = lights.preset("studio")
+    cam = cameras.preset("portrait", size, size)[0]
+    t0 = time.perf_counter()
+    groom = grow_cached(HeadSurface.from_model(model), HairStyle.archetype_style(style,
+                                                                                 lod=1.0))
+    counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
+                       for g in groom.groups)
+
+    def ours(spp: int) -> HeadScene:
+        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp), maps,
+                         hair=groom)
+
+    say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8, "
+        f"ours {RenderSettings().integrator}, gaussian filter; {os.cpu_count()} CPUs "
+        f"(load average {os.getloadavg()[0]:.1f}); Cycles {bpy_version} (CPU) in {bpy_python}")
+    say(f"groom: {style} at lod 1 ({counts}), grown in {time.perf_counter() - t0:.1f} s")
+    rows: list[dict] = []
+    images: dict[tuple, np.ndarray] = {}
+    with tempfile.TemporaryDirectory() as tmp_:
+        tmp = Path(tmp_)
+        head = ours(1)
+        bg = head.backdrop()
+        seg = head.aovs()["segmentation"]
+        mask = seg == REGIONS.index("hair")
+        say(f"hair region: {int(mask.sum())} of {mask.size} pixels "
+            f"({100.0 * mask.mean():.1f} %; pixel centres whose first hit is a strand)")
+        write_cycles_scene(tmp, head, v, maps)
+        specs = write_cycles_hair(tmp, head, v, melanin)
+        say(f"shapes: {len(specs)} ({sum(s['strands'] for s in specs)} strands, "
+            f"<= {max(s['points'] for s in specs)} points each); melanin mapping "
+            f"'{melanin}': " + ("Cycles' Melanin = 1 - exp(-(eu + pheo)), Redness = pheo / "
+                                "(eu + pheo), its own pigment spectra"
+                                if melanin == "concentration" else
+                                "Cycles' Absorption Coefficient = Mitsuba's sigma_a"))
+        say("  " + "; ".join(f"{s['name']} (eu {s['eumelanin']:.2f}, pheo "
+                             f"{s['pheomelanin']:.2f})" for s in specs[:3]) + "; ...")
+        del head
+        t0 = time.perf_counter()
+        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
+        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
+            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
+            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        try:
+            refs, ref_info = {}, {}
+            for name in ("ours", "cycles"):
+                c0 = time.process_time()
+                if name == "cycles":
+                    rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
+                    cpu, spp = rep["cpu_s"], rep["spp"]
+                else:
+                    h = ours(ref_spp)
+                    img = h.render(seed=12345, backdrop=False)
+                    cpu, spp = time.process_time() - c0, h.settings.effective_spp
+                    del h
+                refs[name] = composite(img, bg)[..., :3]
+                images[(name, "ref")] = refs[name]
+                ref_info[name] = {"spp": spp, "cpu_s": cpu,
+                                  "mean_rgb": refs[name].mean((0, 1)).tolist(),
+                                  "hair_mean_rgb": refs[name][mask].mean(0).tolist()}
+                say(f"reference {name}: {spp} spp, {cpu:.0f} CPU s; mean linear RGB "
+                    f"{np.round(refs[name].mean((0, 1)), 4).tolist()}, hair region "
+                    f"{np.round(refs[name][mask].mean(0), 4).tolist()}")
+            ro, rc = refs["ours"][mask].mean(0), refs["cycles"][mask].mean(0)
+            colour_ratio = (rc / ro).tolist()
+            rest = refs["cycles"][~mask].mean(0) / refs["ours"][~mask].mean(0)
+            say(f"hair colour, Cycles / ours (references, hair region): "
+                f"{np.round(rc / ro, 3).tolist()}; the rest {np.round(rest, 3).tolist()}; "
+                f"whole-image PSNR of one reference against the other "
+                f"{psnr(refs['cycles'], refs['ours']):.1f} dB")
+
+            say("renderer  denoise   spp   CPU s  wall s  PSNR dB  hair dB")
+            for denoise, spps in ((False, ladder), (True, dn_ladder)):
+                for spp in spps:  # interleaved: our rung, then Cycles' rung
+                    for name in ("ours", "cycles"):
+                        if name == "ours":
+                            h = ours(spp)
+                            for seed in (1000, 1001):  # Dr.Jit's compiles, before timing
+                                h.render(seed=seed, backdrop=False, denoise=denoise)
+                        cpu, wall, res = [], [], []
+                        for r in range(repeats):
+                            if name == "cycles":
+                                rep, img = worker.render(spp, 1 + r, denoise,
+                                                         tmp / "img.exr")
+                                cpu.append(rep["cpu_s"])
+                                wall.append(rep["wall_s"])
+                                eff = rep["spp"]
+                            else:
+                                c0, w0 = time.process_time(), time.perf_counter()
+                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
+                                cpu.append(time.process_time() - c0)
+                                wall.append(time.perf_counter() - w0)
+                                eff = h.settings.effective_spp
+                            rgb = composite(img, bg)[..., :3]
+                            res.append((psnr(rgb, refs[name]), psnr(rgb, refs[name], mask)))
+                        images[(name, eff, denoise)] = rgb
+                        row = {"renderer": name, "denoise": denoise, "spp": eff,
+                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
+                               "wall_s": statistics.median(wall),
+                               "psnr": float(np.mean([p for p, _ in res])),
+                               "psnr_hair": float(np.mean([p for _, p in res]))}
+                        rows.append(row)
+                        say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
+                            f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "
+                            f"{row['psnr_hair']:8.2f}")
+                        h = None
+        finally:
+            worker.close()
+    say(f"load average (1 min) {os.getloadavg()[0]:.1f} after")
+
+    def ladder_of(name: str, denoise: bool, region: str = "image") -> list[dict]:
+        key = "psnr" if region == "image" else "psnr_hair"
+        return [{**r, "psnr": r[key]} for r in rows
+                if r["renderer"] == name and r["denoise"] == denoise]
+
+    summary: dict = {}
+    for region in ("image", "hair"):
+        for tag, what in (("noisy", "both noisy"), ("oidn", "both denoised by OIDN"),
+                          ("best", "each at its best, noisy or denoised, at each time")):
+            if tag == "best":
+                o = lower_envelope(ladder_of("ours", False, region),
+                                   ladder_of("ours", True, region))
+                c = lower_envelope(ladder_of("cycles", False, region),
+                                   ladder_of("cycles", True, region))
+            else:
+                o = ladder_of("ours", tag == "oidn", region)
+                c = ladder_of("cycles", tag == "oidn", region)
+            if not o or not c:  # e.g. no denoised ladder
+                continue
+            say(f"{region} / {tag}: {what} (PSNR over the "
+                f"{'whole image' if region == 'image' else 'hair region'})")
+            summary[f"{region}_{tag}"] = compare_curves(o, c, say)
+    say("ours / Cycles CPU time at equal PSNR, geometric mean (target <= 0.5x):")
+    for key, s in summary.items():
+        if "ratio_geomean" in s:
+            say(f"  {key:12s} {s['ratio_geomean']:.2f}x (range {s['ratio_range'][0]:.2f}-"
+                f"{s['ratio_range'][1]:.2f}x)")
+
+    if still is not None:
+        def caption(r):
+            return (f"{'ours' if r['renderer'] == 'ours' else 'Cycles'} {r['spp']} spp"
+                    f"{' + OIDN' if r['denoise'] else ''}, {r['cpu_s']:.2f} CPU s\n"
+                    f"{r['psnr']:.1f} dB, hair {r['psnr_hair']:.1f} dB")
+
+        grid = []
+        for denoise, cyc_spp in ((False, 16), (True, 16)):
+            cands = [r for r in rows if r["renderer"] == "cycles" and r["denoise"] == denoise]
+            rc = min(cands, key=lambda r: abs(r["spp"] - cyc_spp))
+            ro = min((r for r in rows if r["renderer"] == "ours" and r["denoise"] == denoise),
+                     key=lambda r: abs(r["psnr"] - rc["psnr"]))  # equal noise
+            grid.append([(to_srgb8(images[(r["renderer"], r["spp"], denoise)], 0.0, "aces"),
+                          caption(r)) for r in (ro, rc)])
+        grid.append([(to_srgb8(images[(name, "ref")], 0.0, "aces"),
+                      f"{'ours' if name == 'ours' else 'Cycles'} reference\n{ref_spp} spp")
+                     for name in ("ours", "cycles")])
+        side_by_side(still, grid)
+        say(f"wrote {still}")
+    result = {"title": "Rendering: hair against Blender Cycles at equal noise (issue 61)",
+              "settings": {"size": size, "style": style, "groom": counts, "ref_spp": ref_spp,
+                           "repeats": repeats, "ladder": list(ladder),
+                           "denoise_ladder": list(dn_ladder), "bpy": bpy_version,
+                           "hair_pixels": int(mask.sum()), "melanin_mapping": melanin},
+              "hair_colour_ratio_cycles_over_ours": colour_ratio,
+              "references": ref_info, "rows": rows, "summary": summary, "printed": printed}
+    if out:
+        write_result(out, result)
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--blender-python", default=None, help="a Python with bpy "
+                    "(default $HACK_RENDER_BPY_PYTHON)")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--style", default="short", help="hair archetype, grown at lod 1")
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--ladder", default="4,8,16,32,64,128")
+    ap.add_argument("--denoise-ladder", default="4,8,16,32")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--melanin", choices=("concentration", "absorption"),
+                    default="concentration", help="how Cycles gets our melanin: its own "
+                    "Melanin inputs of the same concentrations, or Mitsuba's sigma_a")
+    ap.add_argument("--still", default="docs/images/hair_vs_cycles.png",
+                    help="the side-by-side still ('' for none)")
+    ap.add_argument("--out", default="bench/results/render_hair_cycles.json",
+                    help="the result file ('' for none)")
+    args = ap.parse_args()
+    exe, version = blender_python(args.blender_python)  # exits 2 without bpy
+    from hack_render.render.engine import ensure_variant
+
+    print(f"variant: {ensure_variant(None)}")
+    benchmark(exe, version, args.size, args.style, [int(x) for x in args.ladder.split(",")],
+              [int(x) for x in args.denoise_ladder.split(",") if x], args.ref_spp,
+              args.repeats, Path(args.still) if args.still else None, args.out or None,
+              args.melanin)
+
+
+if __name__ == "__main__":
+    main()
