@@ -343,12 +343,12 @@ T = {"launch": float(sys.argv[1])}
 from hack_render.dataset import runner, worker
 T["imports"] = time.time()
 done = []
-build = worker.SampleRenderer.build_scenes
-def build_scenes(self):
-    out = build(self)
+ready = worker.SampleRenderer.scene_with_hair  # the scene a sample renders in, ready
+def scene_with_hair(self, *args):
+    out = ready(self, *args)
     T.setdefault("scenes", time.time())
     return out
-worker.SampleRenderer.build_scenes = build_scenes
+worker.SampleRenderer.scene_with_hair = scene_with_hair
 record = worker._write_record  # runs once a sample's files are all on disk
 def stamped(*args):
     out = record(*args)
@@ -367,11 +367,14 @@ print(json.dumps({"T": T, "done": done, "code": hack_render.__file__}))
 """
 
 
-def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
+def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path, hair: str | None) -> dict:
     """One fresh process running ``hack-render dataset`` (see (e)); its stamps, in seconds
-    from the launch."""
+    from the launch. ``hair``: the config's ``hair`` (None: the default's)."""
     cfg = out.with_suffix(".yaml")
-    cfg.write_text(json.dumps({"render": {"resolution": size, "spp": spp}}))
+    doc = {"render": {"resolution": size, "spp": spp}}
+    if hair is not None:
+        doc["hair"] = hair
+    cfg.write_text(json.dumps(doc))
     env = dict(os.environ, PYTHONPATH=pythonpath)
     launch = time.time()
     # cwd: a folder without the package (`python -c` puts the cwd before PYTHONPATH)
@@ -391,17 +394,23 @@ def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
             "later": (done[-1] - done[0]) / max(1, len(done) - 1), "total": t["end"] - launch}
 
 
-def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, root: Path) -> None:
+def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, root: Path,
+                  hair: str | None = None) -> None:
     """(e): start-up and end to end, this checkout (and ``before``'s), alternating."""
     sides = {"this": str(ROOT)}
     if before:
         sides["before"] = str(Path(before).resolve())
     runs: dict[str, list[dict]] = {k: [] for k in sides}
+    tag = "default" if hair is None else f"hair_{hair}"
     for r in range(rounds):
         for k, path in (list(sides.items()) if r % 2 == 0 else list(sides.items())[::-1]):
-            runs[k].append(e2e_run(path, n, size, spp, root / f"e2e_{k}_{r}"))
-    print(f"(e) `hack-render dataset --n {n}` at {size} px, {spp} spp (the default config), fresh "
-          f"process and folder, {rounds} round(s); seconds from the launch, median [range]:")
+            runs[k].append(e2e_run(path, n, size, spp, root / f"e2e_{tag}_{k}_{r}", hair))
+    which = ("the default config: hair sampled, lod 0.5" if hair is None
+             else f"the default config with hair: {hair}")
+    print(f"(e) `hack-render dataset --n {n}` at {size} px, {spp} spp ({which}), fresh "
+          f"process and folder, {rounds} round(s); seconds from the launch, median [range]; "
+          "start-up: to the first sample's scene and inputs ready (its labels and render "
+          "next):")
     for k, rs in runs.items():
         commit = _git_head(sides[k])
 
@@ -409,7 +418,7 @@ def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, 
             v = [x[key] for x in rs]
             return f"{statistics.median(v):5.2f} [{min(v):.2f}..{max(v):.2f}]"
 
-        print(f"    {k} ({commit}): imports {f('imports')}, start-up (scenes built) "
+        print(f"    {k} ({commit}): imports {f('imports')}, start-up "
               f"{f('startup')} (target <= 3 s), first sample done {f('first')}, then "
               f"{f('later')} s/sample, total {f('total')}")
 
@@ -484,6 +493,9 @@ def main() -> None:
     ap.add_argument("--speed", action="store_true", help="(d), (e) and (f) instead of (a)-(c)")
     ap.add_argument("--e2e-n", type=int, default=6, help="(e): samples of each run")
     ap.add_argument("--e2e-rounds", type=int, default=2, help="(e): runs of each side")
+    ap.add_argument("--e2e-hair", nargs="+", default=["none", "default"],
+                    help="(e): the configs' hair, each a run: 'default' (sampled) or a "
+                    "hair.style such as none")
     ap.add_argument("--before", default=None, help="(e): another checkout to compare with")
     ap.add_argument("--tones", type=int, default=60, help="(f): subjects (0: skip)")
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -496,8 +508,9 @@ def main() -> None:
                                                             "(issue 65)"):
             print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
             speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
-            if a.e2e_rounds:
-                e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp))
+            for hair in (a.e2e_hair if a.e2e_rounds else []):
+                e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp),
+                              None if hair == "default" else hair)
             if a.tones:
                 tones_benchmark(load_config(overrides={"render": {"resolution": a.size}}),
                                 a.tones, a.seed)
