@@ -45,7 +45,8 @@ subjects, ``appearance.source: seed``):
     texels), their percentiles under both paths and the per-subject differences; the
     projected distribution is the dataset's unless these differ.
 
-Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256] [--spp 32] [--appearance alpha]
+Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256] [--spp 32]
+       [--appearance alpha]
        [--ray-n 16] [--no-ray] [--inline-writes]
        python bench/bench_dataset.py --speed [--n 8] [--block 2] [--size 256] [--spp 16]
        [--e2e-n 6] [--e2e-rounds 2] [--before /work/main] [--tones 60]
@@ -225,7 +226,8 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
         while not stop.is_set():
             got = ray_worker_peaks_mib()
             if got:
-                peaks[:] = [max(a, b) for a, b in zip(got, peaks)] if len(peaks) == len(got) else got
+                peaks[:] = [max(a, b) for a, b in zip(got, peaks)] \
+                    if len(peaks) == len(got) else got
             time.sleep(0.5)
 
     th = threading.Thread(target=watch, daemon=True)
@@ -322,15 +324,17 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
                 rows[m][k] = rows[m].get(k, 0.0) + v
     for r in rs.values():
         r.close()
-    print(f"(d) render speed: {n} samples at {size} px, {spp} spp, appearance 'seed' "
-          f"(procedural subjects), one view, blocks of {block} alternating, background writes, "
-          f"{i} warm-up samples excluded:")
+    print(f"(d) render speed: {n} samples at {size} px, {spp} spp, the default config but "
+          f"hair: none (bald heads; with hair a scene is built per sample: (e)), appearance "
+          f"'seed' (procedural subjects), one view, blocks of {block} alternating, background "
+          f"writes, {i} warm-up samples excluded:")
     for m, row in rows.items():
         w, rc = row["wall"] / n, row["render"] / n
         up = row.get("params.update", 0.0) / n
         print(f"    skin maps {m:9s}: {w:.3f} s/sample; render call {rc:.3f} s "
-              f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update {rc + up:.3f} s "
-              f"(ratio {w / (rc + up):.2f}x); parts: skin maps {row.get('skin_maps', 0) / n:.3f} s, "
+              f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update "
+              f"{rc + up:.3f} s (ratio {w / (rc + up):.2f}x); parts: skin maps "
+              f"{row.get('skin_maps', 0) / n:.3f} s, "
               f"labels {row.get('label_images', 0) / n:.3f} s, update {up:.3f} s (skin maps: "
               "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
@@ -470,7 +474,8 @@ def tones_benchmark(cfg: dict, n: int, seed: int) -> None:
         d = np.abs(a[k] - b[k])
         print(f"    {k:3s} generated {pa} | projected {pb} | per subject |diff| median "
               f"{np.median(d):.2f}, 90th pct {np.percentile(d, 90):.2f}, max {d.max():.2f}; "
-              f"mean {a[k].mean():.1f} vs {b[k].mean():.1f}, std {a[k].std():.1f} vs {b[k].std():.1f}")
+              f"mean {a[k].mean():.1f} vs {b[k].mean():.1f}, std {a[k].std():.1f} vs "
+              f"{b[k].std():.1f}")
     print(f"    time per subject: generated {statistics.median(t_gen):.3f} s, projected "
           f"{statistics.median(t_proj):.3f} s (median; the projector's first call excluded "
           f"from neither)")

@@ -78,3 +78,34 @@ def test_02_first_sample_prefetched_while_scenes_build_gives_the_same_files(tmp_
     assert any(k.endswith("segmentation.png") for k in a)
     assert a == b
     assert np.array_equal(ahead.atlas, lab.skin_label_atlas())
+
+
+def test_03_normals_given_and_iris_left_to_the_camera_give_the_same_parameters():
+    """``set_vertices(normals=..., iris=False)`` then ``set_camera``, as the dataset does
+    (normals made on the prefetch thread), leaves the scene's mesh parameters as
+    ``set_vertices`` then ``set_camera`` does."""
+    import torch
+
+    from hack_render.render.parts import vertex_normals
+
+    model = load_default_model()
+    topo = Topology.from_model(model)
+    with torch.no_grad():
+        rest = model().vertices[0].numpy().astype(np.float64)
+        moved = model(theta=torch.full((1, 8, 3), 0.05, dtype=torch.float32)).vertices[0]
+    moved = moved.numpy().astype(np.float64)
+    cam = camera_of({"yaw_deg": -30.0, "pitch_deg": 10.0, "distance_scale": 1.1,
+                     "focal_mm": 60.0}, 32, "u")
+    a, b = _scene(topo, rest, "studio"), _scene(topo, rest, "studio")
+    a.set_vertices(moved, update=False)
+    a.set_camera(cam)
+    b.set_vertices(moved, update=False, normals=vertex_normals(moved, topo.faces), iris=False)
+    b.set_camera(cam)
+    keys = [f"{p.name}.{k}" for p in a.parts for k in ("vertex_positions", "vertex_normals")
+            if f"{p.name}.{k}" in a.params]
+    assert "iris.vertex_positions" in keys and len(keys) > 10
+    for k in keys:
+        assert np.array_equal(np.asarray(a.params[k]), np.asarray(b.params[k])), k
+    assert not np.array_equal(np.asarray(a.params["iris.vertex_positions"]),
+                              moved[[p for p in a.parts if p.name == "iris"][0].gather]
+                              .ravel().astype(np.float32))  # the cornea moved the iris

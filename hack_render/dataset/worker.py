@@ -46,7 +46,7 @@ from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.materials import SkinMaps
-from hack_render.render.parts import Topology
+from hack_render.render.parts import Topology, vertex_normals
 from hack_render.render.scene import HeadScene, composite
 from scenes import cameras as cams
 from scenes import lights
@@ -240,9 +240,10 @@ class SampleRenderer:
     def inputs(self, index: int) -> dict:
         """What sample ``index`` needs before its scene, each a pure function of the
         config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
-        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps``, the
-        ``background`` image (None: the rig's environment) and the hair's ``groom`` (None:
-        no hair; grown here, on the prefetch thread, while the previous sample renders)."""
+        ``verts`` with their ``normals``, the larynx peak (``larynx_vertex``, ``larynx``),
+        the skin ``maps``, the ``background`` image (None: the rig's environment) and the
+        hair's ``groom`` (None: no hair; grown here, on the prefetch thread, while the
+        previous sample renders)."""
         import torch
 
         spec = self.spec(index)
@@ -251,8 +252,9 @@ class SampleRenderer:
         larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
                                                 self.larynx_candidates, spec["beta"] or None)
         res = self.cfg["render"]["resolution"]
+        verts = out.vertices[0].numpy().astype(np.float64)
         return {"index": index, "spec": spec, "out": out,
-                "verts": out.vertices[0].numpy().astype(np.float64),
+                "verts": verts, "normals": vertex_normals(verts, self.topology.faces),
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
                 "background": background_image(spec["background"], res, res),
@@ -297,7 +299,9 @@ class SampleRenderer:
         head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
-        head.set_vertices(inp["verts"], update=False)
+        # the normals were made on the prefetch thread; the iris is placed by set_camera
+        head.set_vertices(inp["verts"], update=False, normals=inp["normals"],
+                          iris=not spec["cameras"])
         head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
         writes = [self.writer.submit(write_json, folder / "params.json",
