@@ -109,3 +109,27 @@ def test_03_normals_given_and_iris_left_to_the_camera_give_the_same_parameters()
     assert not np.array_equal(np.asarray(a.params["iris.vertex_positions"]),
                               moved[[p for p in a.parts if p.name == "iris"][0].gather]
                               .ravel().astype(np.float32))  # the cornea moved the iris
+
+
+def test_04_label_atlas_cache_round_trip(tmp_path, monkeypatch):
+    """The atlas kept on disk is the one rasterised; a damaged file is made again; with
+    HACK_RENDER_NO_CACHE nothing is written."""
+    h = 32
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("HACK_RENDER_NO_CACHE", raising=False)
+    lab.skin_label_atlas.cache_clear()
+    try:
+        ref = lab.label_atlas(h)
+        path = lab.atlas_cache_path(h)
+        assert path is not None and not path.exists()
+        assert np.array_equal(lab.skin_label_atlas(h), ref) and path.is_file()
+        assert np.array_equal(np.load(path), ref)
+        path.write_bytes(b"damaged")
+        lab.skin_label_atlas.cache_clear()
+        assert np.array_equal(lab.skin_label_atlas(h), ref)
+        assert np.array_equal(np.load(path), ref)  # rewritten
+        assert lab.atlas_cache_path(2 * h) != path
+        monkeypatch.setenv("HACK_RENDER_NO_CACHE", "1")
+        assert lab.atlas_cache_path(h) is None
+    finally:
+        lab.skin_label_atlas.cache_clear()
