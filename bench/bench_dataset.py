@@ -34,10 +34,13 @@ subjects, ``appearance.source: seed``):
     mesh pays). Target: s/sample <= 1.3x the render call. Printed with the parts: skin
     maps, labels (``label_images``), the update.
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
-    folder, ``--e2e-rounds`` times: seconds from launching the process to the end of its
-    imports, to the scenes built (start-up: everything before the first sample's render;
-    target <= 3 s), to the first sample complete, then seconds per later sample and the
-    total. ``--before PATH`` runs the same command with another checkout's code (e.g. the
+    folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
+    ``default``: the default config as users run it, hair sampled): seconds from launching
+    the process to the end of its imports, to the first sample's scene and inputs ready
+    (start-up: everything before the first sample's labels and render; target <= 3 s), to
+    the first sample complete, then seconds per later sample and the total; and the CPU
+    seconds of the process (all threads) to the imports and to the start-up, which other
+    jobs on the machine change much less than the seconds. ``--before PATH`` runs the same command with another checkout's code (e.g. the
     main branch) on ``PYTHONPATH``, alternating with this one.
 (f) Skin tones: the dataset's first ``--tones`` subjects (their ids drawn as the dataset
     draws them), generated at the dataset's map size and projected: ITA, L* and b* of each
@@ -49,7 +52,8 @@ Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256
        [--appearance alpha]
        [--ray-n 16] [--no-ray] [--inline-writes]
        python bench/bench_dataset.py --speed [--n 8] [--block 2] [--size 256] [--spp 16]
-       [--e2e-n 6] [--e2e-rounds 2] [--before /work/main] [--tones 60]
+       [--e2e-n 6] [--e2e-rounds 2] [--e2e-hair none default] [--before /work/main]
+       [--tones 60] [--sections def]
 """
 
 from __future__ import annotations
@@ -346,11 +350,13 @@ import json, sys, time
 T = {"launch": float(sys.argv[1])}
 from hack_render.dataset import runner, worker
 T["imports"] = time.time()
+T["imports_cpu"] = time.process_time()  # every thread of the process
 done = []
 ready = worker.SampleRenderer.scene_with_hair  # the scene a sample renders in, ready
 def scene_with_hair(self, *args):
     out = ready(self, *args)
     T.setdefault("scenes", time.time())
+    T.setdefault("scenes_cpu", time.process_time())
     return out
 worker.SampleRenderer.scene_with_hair = scene_with_hair
 record = worker._write_record  # runs once a sample's files are all on disk
@@ -394,6 +400,7 @@ def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path, hair: str |
     t, done = d["T"], d["done"]
     done.sort()
     return {"imports": t["imports"] - launch, "startup": t["scenes"] - launch,
+            "imports_cpu": t["imports_cpu"], "startup_cpu": t["scenes_cpu"],
             "first": done[0] - launch,
             "later": (done[-1] - done[0]) / max(1, len(done) - 1), "total": t["end"] - launch}
 
@@ -424,7 +431,9 @@ def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, 
 
         print(f"    {k} ({commit}): imports {f('imports')}, start-up "
               f"{f('startup')} (target <= 3 s), first sample done {f('first')}, then "
-              f"{f('later')} s/sample, total {f('total')}")
+              f"{f('later')} s/sample, total {f('total')}; CPU seconds (all threads; "
+              f"robust to other jobs' load): imports {f('imports_cpu')}, start-up "
+              f"{f('startup_cpu')}")
 
 
 def _git_head(path: str) -> str:
@@ -496,6 +505,7 @@ def main() -> None:
     ap.add_argument("--inline-writes", action="store_true",
                     help="(a): write files in the rendering thread (no background writer)")
     ap.add_argument("--speed", action="store_true", help="(d), (e) and (f) instead of (a)-(c)")
+    ap.add_argument("--sections", default="def", help="--speed: which of (d), (e), (f)")
     ap.add_argument("--e2e-n", type=int, default=6, help="(e): samples of each run")
     ap.add_argument("--e2e-rounds", type=int, default=2, help="(e): runs of each side")
     ap.add_argument("--e2e-hair", nargs="+", default=["none", "default"],
@@ -512,11 +522,12 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp, recorded(a.out, "Datasets at render speed "
                                                             "(issue 65)"):
             print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
-            speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
-            for hair in (a.e2e_hair if a.e2e_rounds else []):
+            if "d" in a.sections:
+                speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
+            for hair in (a.e2e_hair if a.e2e_rounds and "e" in a.sections else []):
                 e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp),
                               None if hair == "default" else hair)
-            if a.tones:
+            if a.tones and "f" in a.sections:
                 tones_benchmark(load_config(overrides={"render": {"resolution": a.size}}),
                                 a.tones, a.seed)
             print(f"load average (1 min) after: {os.getloadavg()[0]:.1f} (2 cores shared with "
