@@ -34,10 +34,13 @@ subjects, ``appearance.source: seed``):
     mesh pays). Target: s/sample <= 1.3x the render call. Printed with the parts: skin
     maps, labels (``label_images``), the update.
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
-    folder, ``--e2e-rounds`` times: seconds from launching the process to the end of its
-    imports, to the scenes built (start-up: everything before the first sample's render;
-    target <= 3 s), to the first sample complete, then seconds per later sample and the
-    total. ``--before PATH`` runs the same command with another checkout's code (e.g. the
+    folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
+    ``default``: the default config as users run it, hair sampled): seconds from launching
+    the process to the end of its imports, to the first sample's scene and inputs ready
+    (start-up: everything before the first sample's labels and render; target <= 3 s), to
+    the first sample complete, then seconds per later sample and the total; and the CPU
+    seconds of the process (all threads) to the imports and to the start-up, which other
+    jobs on the machine change much less than the seconds. ``--before PATH`` runs the same command with another checkout's code (e.g. the
     main branch) on ``PYTHONPATH``, alternating with this one.
 (f) Skin tones: the dataset's first ``--tones`` subjects (their ids drawn as the dataset
     draws them), generated at the dataset's map size and projected: ITA, L* and b* of each
@@ -45,10 +48,12 @@ subjects, ``appearance.source: seed``):
     texels), their percentiles under both paths and the per-subject differences; the
     projected distribution is the dataset's unless these differ.
 
-Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256] [--spp 32] [--appearance alpha]
+Usage: python bench/bench_dataset.py [--n 16] [--block 4] [--seed 0] [--size 256] [--spp 32]
+       [--appearance alpha]
        [--ray-n 16] [--no-ray] [--inline-writes]
        python bench/bench_dataset.py --speed [--n 8] [--block 2] [--size 256] [--spp 16]
-       [--e2e-n 6] [--e2e-rounds 2] [--before /work/main] [--tones 60]
+       [--e2e-n 6] [--e2e-rounds 2] [--e2e-hair none default] [--before /work/main]
+       [--tones 60] [--sections def]
 """
 
 from __future__ import annotations
@@ -225,7 +230,8 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
         while not stop.is_set():
             got = ray_worker_peaks_mib()
             if got:
-                peaks[:] = [max(a, b) for a, b in zip(got, peaks)] if len(peaks) == len(got) else got
+                peaks[:] = [max(a, b) for a, b in zip(got, peaks)] \
+                    if len(peaks) == len(got) else got
             time.sleep(0.5)
 
     th = threading.Thread(target=watch, daemon=True)
@@ -322,15 +328,17 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
                 rows[m][k] = rows[m].get(k, 0.0) + v
     for r in rs.values():
         r.close()
-    print(f"(d) render speed: {n} samples at {size} px, {spp} spp, appearance 'seed' "
-          f"(procedural subjects), one view, blocks of {block} alternating, background writes, "
-          f"{i} warm-up samples excluded:")
+    print(f"(d) render speed: {n} samples at {size} px, {spp} spp, the default config but "
+          f"hair: none (bald heads; with hair a scene is built per sample: (e)), appearance "
+          f"'seed' (procedural subjects), one view, blocks of {block} alternating, background "
+          f"writes, {i} warm-up samples excluded:")
     for m, row in rows.items():
         w, rc = row["wall"] / n, row["render"] / n
         up = row.get("params.update", 0.0) / n
         print(f"    skin maps {m:9s}: {w:.3f} s/sample; render call {rc:.3f} s "
-              f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update {rc + up:.3f} s "
-              f"(ratio {w / (rc + up):.2f}x); parts: skin maps {row.get('skin_maps', 0) / n:.3f} s, "
+              f"(ratio {w / rc:.2f}x, target <= 1.3x); render call + scene update "
+              f"{rc + up:.3f} s (ratio {w / (rc + up):.2f}x); parts: skin maps "
+              f"{row.get('skin_maps', 0) / n:.3f} s, "
               f"labels {row.get('label_images', 0) / n:.3f} s, update {up:.3f} s (skin maps: "
               "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
@@ -342,13 +350,15 @@ import json, sys, time
 T = {"launch": float(sys.argv[1])}
 from hack_render.dataset import runner, worker
 T["imports"] = time.time()
+T["imports_cpu"] = time.process_time()  # every thread of the process
 done = []
-build = worker.SampleRenderer.build_scenes
-def build_scenes(self):
-    out = build(self)
+ready = worker.SampleRenderer.scene_with_hair  # the scene a sample renders in, ready
+def scene_with_hair(self, *args):
+    out = ready(self, *args)
     T.setdefault("scenes", time.time())
+    T.setdefault("scenes_cpu", time.process_time())
     return out
-worker.SampleRenderer.build_scenes = build_scenes
+worker.SampleRenderer.scene_with_hair = scene_with_hair
 record = worker._write_record  # runs once a sample's files are all on disk
 def stamped(*args):
     out = record(*args)
@@ -367,11 +377,14 @@ print(json.dumps({"T": T, "done": done, "code": hack_render.__file__}))
 """
 
 
-def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
+def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path, hair: str | None) -> dict:
     """One fresh process running ``hack-render dataset`` (see (e)); its stamps, in seconds
-    from the launch."""
+    from the launch. ``hair``: the config's ``hair`` (None: the default's)."""
     cfg = out.with_suffix(".yaml")
-    cfg.write_text(json.dumps({"render": {"resolution": size, "spp": spp}}))
+    doc = {"render": {"resolution": size, "spp": spp}}
+    if hair is not None:
+        doc["hair"] = hair
+    cfg.write_text(json.dumps(doc))
     env = dict(os.environ, PYTHONPATH=pythonpath)
     launch = time.time()
     # cwd: a folder without the package (`python -c` puts the cwd before PYTHONPATH)
@@ -387,21 +400,28 @@ def e2e_run(pythonpath: str, n: int, size: int, spp: int, out: Path) -> dict:
     t, done = d["T"], d["done"]
     done.sort()
     return {"imports": t["imports"] - launch, "startup": t["scenes"] - launch,
+            "imports_cpu": t["imports_cpu"], "startup_cpu": t["scenes_cpu"],
             "first": done[0] - launch,
             "later": (done[-1] - done[0]) / max(1, len(done) - 1), "total": t["end"] - launch}
 
 
-def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, root: Path) -> None:
+def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, root: Path,
+                  hair: str | None = None) -> None:
     """(e): start-up and end to end, this checkout (and ``before``'s), alternating."""
     sides = {"this": str(ROOT)}
     if before:
         sides["before"] = str(Path(before).resolve())
     runs: dict[str, list[dict]] = {k: [] for k in sides}
+    tag = "default" if hair is None else f"hair_{hair}"
     for r in range(rounds):
         for k, path in (list(sides.items()) if r % 2 == 0 else list(sides.items())[::-1]):
-            runs[k].append(e2e_run(path, n, size, spp, root / f"e2e_{k}_{r}"))
-    print(f"(e) `hack-render dataset --n {n}` at {size} px, {spp} spp (the default config), fresh "
-          f"process and folder, {rounds} round(s); seconds from the launch, median [range]:")
+            runs[k].append(e2e_run(path, n, size, spp, root / f"e2e_{tag}_{k}_{r}", hair))
+    which = ("the default config: hair sampled, lod 0.5" if hair is None
+             else f"the default config with hair: {hair}")
+    print(f"(e) `hack-render dataset --n {n}` at {size} px, {spp} spp ({which}), fresh "
+          f"process and folder, {rounds} round(s); seconds from the launch, median [range]; "
+          "start-up: to the first sample's scene and inputs ready (its labels and render "
+          "next):")
     for k, rs in runs.items():
         commit = _git_head(sides[k])
 
@@ -409,9 +429,11 @@ def e2e_benchmark(n: int, size: int, spp: int, rounds: int, before: str | None, 
             v = [x[key] for x in rs]
             return f"{statistics.median(v):5.2f} [{min(v):.2f}..{max(v):.2f}]"
 
-        print(f"    {k} ({commit}): imports {f('imports')}, start-up (scenes built) "
+        print(f"    {k} ({commit}): imports {f('imports')}, start-up "
               f"{f('startup')} (target <= 3 s), first sample done {f('first')}, then "
-              f"{f('later')} s/sample, total {f('total')}")
+              f"{f('later')} s/sample, total {f('total')}; CPU seconds (all threads; "
+              f"robust to other jobs' load): imports {f('imports_cpu')}, start-up "
+              f"{f('startup_cpu')}")
 
 
 def _git_head(path: str) -> str:
@@ -461,7 +483,8 @@ def tones_benchmark(cfg: dict, n: int, seed: int) -> None:
         d = np.abs(a[k] - b[k])
         print(f"    {k:3s} generated {pa} | projected {pb} | per subject |diff| median "
               f"{np.median(d):.2f}, 90th pct {np.percentile(d, 90):.2f}, max {d.max():.2f}; "
-              f"mean {a[k].mean():.1f} vs {b[k].mean():.1f}, std {a[k].std():.1f} vs {b[k].std():.1f}")
+              f"mean {a[k].mean():.1f} vs {b[k].mean():.1f}, std {a[k].std():.1f} vs "
+              f"{b[k].std():.1f}")
     print(f"    time per subject: generated {statistics.median(t_gen):.3f} s, projected "
           f"{statistics.median(t_proj):.3f} s (median; the projector's first call excluded "
           f"from neither)")
@@ -482,8 +505,12 @@ def main() -> None:
     ap.add_argument("--inline-writes", action="store_true",
                     help="(a): write files in the rendering thread (no background writer)")
     ap.add_argument("--speed", action="store_true", help="(d), (e) and (f) instead of (a)-(c)")
+    ap.add_argument("--sections", default="def", help="--speed: which of (d), (e), (f)")
     ap.add_argument("--e2e-n", type=int, default=6, help="(e): samples of each run")
     ap.add_argument("--e2e-rounds", type=int, default=2, help="(e): runs of each side")
+    ap.add_argument("--e2e-hair", nargs="+", default=["none", "default"],
+                    help="(e): the configs' hair, each a run: 'default' (sampled) or a "
+                    "hair.style such as none")
     ap.add_argument("--before", default=None, help="(e): another checkout to compare with")
     ap.add_argument("--tones", type=int, default=60, help="(f): subjects (0: skip)")
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -495,10 +522,12 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp, recorded(a.out, "Datasets at render speed "
                                                             "(issue 65)"):
             print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
-            speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
-            if a.e2e_rounds:
-                e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp))
-            if a.tones:
+            if "d" in a.sections:
+                speed_benchmark(a.size, a.spp, a.n, a.block, a.seed, Path(tmp))
+            for hair in (a.e2e_hair if a.e2e_rounds and "e" in a.sections else []):
+                e2e_benchmark(a.e2e_n, a.size, a.spp, a.e2e_rounds, a.before, Path(tmp),
+                              None if hair == "default" else hair)
+            if a.tones and "f" in a.sections:
                 tones_benchmark(load_config(overrides={"render": {"resolution": a.size}}),
                                 a.tones, a.seed)
             print(f"load average (1 min) after: {os.getloadavg()[0]:.1f} (2 cores shared with "

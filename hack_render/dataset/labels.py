@@ -25,15 +25,21 @@ channels sum to 1 (background included).
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
+import appearance
 from appearance.regions import LANDMARK_VERTICES, SOCKET_VERTICES, hairline_y, nape_y, region_labels
 from appearance.regions import REGIONS as ATLAS_REGIONS
-from appearance.uv import default_template, rasterize_layout
+from appearance.uv import TEMPLATE_FILE, default_template, rasterize_layout
 from hack_render.errors import HackError
-from hack_render.geometry import load_default_model
+from hack_render.geometry import default_model_path, load_default_model
+from hack_render.io import atomic_path
 from hack_render.render.parts import REGIONS
 
 #: Dataset segmentation labels; the id is the index.
@@ -86,8 +92,70 @@ PINNA_MARGIN = 0.1
 LARYNX_WINDOW = (0.015, 0.012)
 
 
+#: Label atlases kept on disk (see :func:`skin_label_atlas`); ``HACK_RENDER_NO_CACHE=1``
+#: turns the cache off.
+ATLAS_CACHE_KEEP = 8
+_ATLAS_CACHE_FORMAT = 1
+
+
+def _file_identity(path) -> list:
+    p = Path(path)
+    st = p.stat()
+    return [str(p.resolve()), st.st_size, st.st_mtime_ns]
+
+
+def atlas_cache_path(height: int) -> Path | None:
+    """Where :func:`skin_label_atlas` keeps its atlas of ``height``: a file named by the
+    sha256 of what the atlas depends on (the model and template files' identity, the
+    source of this module, of the appearance package and of the geometry package); None
+    when ``HACK_RENDER_NO_CACHE`` is set."""
+    if os.environ.get("HACK_RENDER_NO_CACHE", "") not in ("", "0"):
+        return None
+    h = hashlib.sha256(json.dumps([_ATLAS_CACHE_FORMAT, int(height),
+                                   _file_identity(default_model_path()),
+                                   _file_identity(TEMPLATE_FILE)]).encode())
+    geometry = Path(__file__).resolve().parents[1] / "geometry"
+    for f in [Path(__file__).resolve(), *sorted(Path(appearance.__file__).parent.glob("*.py")),
+              *sorted(geometry.glob("*.py"))]:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "hack-render" / "labels" / f"atlas-{h.hexdigest()[:32]}.npy"
+
+
 @lru_cache(maxsize=2)
 def skin_label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
+    """(H, 2H) uint8 dataset label per texel of the skin atlas (:func:`label_atlas`).
+
+    Rasterising it costs ~1 CPU s, a third of a dataset's start-up, so the first one made
+    on a machine is kept in ``$XDG_CACHE_HOME/hack-render/labels/`` (:func:`atlas_cache_path`:
+    any change to the files or code it depends on makes another) and later processes load
+    it (no pickle); a file that cannot be read is made again, one that cannot be written
+    costs only the time."""
+    path = atlas_cache_path(height)
+    if path is not None:
+        try:
+            got = np.load(path, allow_pickle=False)
+            if got.shape == (height, 2 * height) and got.dtype == np.uint8:
+                return got
+        except (OSError, ValueError):
+            pass
+    atlas = label_atlas(height)
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path) as tmp:
+                with open(tmp, "wb") as f:
+                    np.save(f, atlas, allow_pickle=False)
+            kept = sorted(path.parent.glob("atlas-*.npy"), key=lambda p: p.stat().st_mtime_ns)
+            for old in kept[:-ATLAS_CACHE_KEEP]:
+                old.unlink(missing_ok=True)
+        except (OSError, HackError):  # a read-only or full cache: the next process makes it
+            pass
+    return atlas
+
+
+def label_atlas(height: int = ATLAS_HEIGHT) -> np.ndarray:
     """(H, 2H) uint8 dataset label per texel of the skin atlas, filled past the islands.
 
     The appearance regions (:func:`appearance.regions.region_labels`) through

@@ -313,6 +313,8 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
     try:
         for i, upcoming in tqdm(with_next(todo), total=total, desc="dataset", unit="sample",
                                 disable=not progress):
+            if count == 0:  # the first sample's inputs are made while the scenes are built
+                renderer.prefetch(i)
             if upcoming is not None:  # its inputs are made while sample i renders
                 renderer.prefetch(upcoming)
             pending.append(renderer.submit(i))

@@ -46,7 +46,7 @@ from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.materials import SkinMaps
-from hack_render.render.parts import Topology
+from hack_render.render.parts import Topology, vertex_normals
 from hack_render.render.scene import HeadScene, composite
 from scenes import cameras as cams
 from scenes import lights
@@ -92,7 +92,6 @@ class SampleRenderer:
         self._surface: HeadSurface | None = None
         #: :attr:`scenes` holds one scene with a groom (renderers without ``set_hair``)
         self._hair_scene = False
-        self.atlas = lab.skin_label_atlas()
         self.scenes: dict = {}
         self._appearance_model = None
         self._projector: SubjectProjector | None = None
@@ -100,9 +99,26 @@ class SampleRenderer:
         #: index -> future of its :meth:`inputs`, started by :meth:`prefetch`
         self._prefetched: dict[int, Future] = {}
         self._prefetch_pool: ThreadPoolExecutor | None = None
+        # made on the prefetch thread while this one builds the scenes, before the first
+        # sample's inputs: the projector (~1 s: the appearance model loaded and pooled) and
+        # the skin label atlas (~1 s to rasterise; :attr:`atlas` waits for it)
+        app = cfg["appearance"]
+        if app["source"] == "seed" and app["maps"] == "projected":
+            self._prefetcher().submit(self._subject_projector)
+        self._atlas: Future = self._prefetcher().submit(lab.skin_label_atlas)
         #: encodes and writes the files; with ``background_writes`` on one thread of its
         #: own, so that a sample's files are written while the next one renders
         self.writer = FileWriter(background_writes)
+
+    @property
+    def atlas(self) -> np.ndarray:
+        """(H, 2H) uint8: the skin label atlas (``labels.skin_label_atlas``)."""
+        return self._atlas.result()
+
+    def _prefetcher(self) -> ThreadPoolExecutor:
+        if self._prefetch_pool is None:
+            self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
+        return self._prefetch_pool
 
     # --- parts ----------------------------------------------------------------------
     def spec(self, index: int) -> dict:
@@ -111,10 +127,8 @@ class SampleRenderer:
     def skin_maps(self, appearance: dict):
         h = self.cfg["appearance"]["height"]
         if appearance["source"] == "seed" and self.cfg["appearance"]["maps"] == "projected":
-            with self._skin_lock:
-                if self._projector is None:
-                    self._projector = SubjectProjector()
-            return SkinMaps.from_appearance(self._projector.maps(appearance["subject"], h))
+            return SkinMaps.from_appearance(self._subject_projector().maps(
+                appearance["subject"], h))
         if appearance["source"] == "seed":
             return SkinMaps.from_appearance(generate_subject(appearance["subject"], height=h))
         if appearance["source"] == "alpha":
@@ -127,6 +141,12 @@ class SampleRenderer:
             with torch.no_grad():
                 return SkinMaps.from_appearance(self._appearance_model.maps(a))
         return self._flat_maps()
+
+    def _subject_projector(self) -> SubjectProjector:
+        with self._skin_lock:
+            if self._projector is None:
+                self._projector = SubjectProjector()
+        return self._projector
 
     def _flat_maps(self):
         c = SkinMaps.constant(self.cfg["appearance"]["height"])
@@ -200,9 +220,12 @@ class SampleRenderer:
         settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
                          "focal_mm": 85.0}, r["resolution"], "canonical")
+        # the presets' scenes share their vertex-dependent set-up (parts, corneas, ...)
+        like = next(iter(self.scenes.values()), None)
         head = HeadScene(self.topology, self.rest if verts is None else verts,
                          lights.preset(preset, 0.0, 0.0), cam,
-                         settings, self._flat_maps(), None, r["variant"], hair=groom)
+                         settings, self._flat_maps(), None, r["variant"], hair=groom,
+                         like=like)
         # opaque transforms from the start; applied by the first sample's update (each
         # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
         head.set_light_rotation(0.0, update=False)
@@ -217,9 +240,10 @@ class SampleRenderer:
     def inputs(self, index: int) -> dict:
         """What sample ``index`` needs before its scene, each a pure function of the
         config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
-        ``verts``, the larynx peak (``larynx_vertex``, ``larynx``), the skin ``maps``, the
-        ``background`` image (None: the rig's environment) and the hair's ``groom`` (None:
-        no hair; grown here, on the prefetch thread, while the previous sample renders)."""
+        ``verts`` with their ``normals``, the larynx peak (``larynx_vertex``, ``larynx``),
+        the skin ``maps``, the ``background`` image (None: the rig's environment) and the
+        hair's ``groom`` (None: no hair; grown here, on the prefetch thread, while the
+        previous sample renders)."""
         import torch
 
         spec = self.spec(index)
@@ -228,8 +252,9 @@ class SampleRenderer:
         larynx_vertex, larynx = lab.larynx_peak(self.model, out, spec["tau"],
                                                 self.larynx_candidates, spec["beta"] or None)
         res = self.cfg["render"]["resolution"]
+        verts = out.vertices[0].numpy().astype(np.float64)
         return {"index": index, "spec": spec, "out": out,
-                "verts": out.vertices[0].numpy().astype(np.float64),
+                "verts": verts, "normals": vertex_normals(verts, self.topology.faces),
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
                 "background": background_image(spec["background"], res, res),
@@ -241,13 +266,12 @@ class SampleRenderer:
         next sample while the current one renders: the path tracer leaves the CPU idle
         while it traces its kernels and while the acceleration structure is rebuilt).
         The inputs are pure functions of the index: the files are the same either way."""
-        if self._prefetch_pool is None:
-            self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
+        pool = self._prefetcher()
         while len(self._prefetched) >= 2:  # never taken (an index skipped): dropped
             self._prefetched.pop(next(iter(self._prefetched)))
         index = int(index)
         if index not in self._prefetched:
-            self._prefetched[index] = self._prefetch_pool.submit(self.inputs, index)
+            self._prefetched[index] = pool.submit(self.inputs, index)
 
     def submit(self, index: int) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
@@ -262,6 +286,10 @@ class SampleRenderer:
         """
         self.writer.wait_below(self.max_pending)
         ahead = self._prefetched.pop(int(index), None)
+        if not self.scenes and ahead is not None and not ahead.done():
+            first = self.spec(index)
+            if first.get("hair") is None:  # the bald scenes, built while the inputs are made
+                self.scene(first["lighting"]["preset"])
         inp = ahead.result() if ahead is not None else self.inputs(index)
         spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
@@ -271,7 +299,9 @@ class SampleRenderer:
         head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
-        head.set_vertices(inp["verts"], update=False)
+        # the normals were made on the prefetch thread; the iris is placed by set_camera
+        head.set_vertices(inp["verts"], update=False, normals=inp["normals"],
+                          iris=not spec["cameras"])
         head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
         writes = [self.writer.submit(write_json, folder / "params.json",

@@ -123,12 +123,17 @@ class HeadScene:
             are the segmentation's ``hair`` region. A groom with a ``lashes`` group replaces
             the lash cards (the ``eyelashes`` part is not rendered). None: bald, the scene
             of earlier versions.
+        like: another scene on the same topology, vertices and ``bust_cap``, whose
+            vertex-dependent set-up (the parts, eye axes, corneas, vertex normals and the
+            lash opacity map: ~0.2 s) this one reuses, e.g. the dataset's scene of each
+            lighting preset; the scene is the same as one built without it.
     """
 
     def __init__(self, topology: Topology, vertices, lights: LightRig, camera: Camera,
                  settings: RenderSettings | None = None, maps=None,
                  iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True,
-                 lash_strands: bool = True, cornea: bool = True, hair=None):
+                 lash_strands: bool = True, cornea: bool = True, hair=None,
+                 like: HeadScene | None = None):
         settings = settings or RenderSettings(camera.width, camera.height)
         if (camera.width, camera.height) != (settings.width, settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
@@ -144,7 +149,15 @@ class HeadScene:
         if v.shape[0] != topology.num_vertices:
             raise HackError(f"vertices: expected ({topology.num_vertices}, 3) for this "
                             f"topology, found {v.shape}.")
-        self.parts, self.eye_axes = split_parts(topology, v, cap=bust_cap)
+        shared = like._shared if like is not None and like.topology is topology and \
+            like._shared[0] == bust_cap and np.array_equal(like._shared[1], v) else None
+        if shared is None:
+            parts, axes = split_parts(topology, v, cap=bust_cap)
+            #: (bust_cap, vertices, parts, eye axes, {cornea, normals, lash map}): reused
+            #: by a scene built ``like`` this one
+            shared = (bust_cap, v.copy(), parts, axes, {})
+        self._shared = shared
+        self.parts, self.eye_axes, memo = list(shared[2]), shared[3], shared[4]
         #: the groom rendered (None: bald) and its shapes (``hair_shapes.HairShape``)
         self.hair = hair
         self.hair_shapes = hair_shapes(hair) if hair is not None else []
@@ -155,8 +168,10 @@ class HeadScene:
         self._vertices = v
         iris = [p for p in self.parts if p.name == "iris"]
         #: the corneas refracting the iris for the camera (None: a plain iris)
-        self.cornea = CorneaRig.from_topology(topology, v, self.eye_axes, iris[0].gather) \
-            if cornea and iris else None
+        if "cornea" not in memo and cornea and iris:
+            memo["cornea"] = CorneaRig.from_topology(topology, v, self.eye_axes,
+                                                     iris[0].gather)
+        self.cornea = memo.get("cornea") if cornea and iris else None
         maps = maps if maps is not None else materials.SkinMaps.constant()
         env = self._env_image(lights)
         jit = is_jit(self.variant)
@@ -169,7 +184,9 @@ class HeadScene:
         self.see_through_cards: list[tuple[object, object]] = []
         self.lash_opacity: np.ndarray | None = None
         fixed = materials.fixed_bsdfs(maps.sclera_rgb, maps.eye_gloss)
-        normals = vertex_normals(v, topology.faces)
+        normals = memo.get("normals")
+        if normals is None:
+            normals = memo["normals"] = vertex_normals(v, topology.faces)
         # hide_emitters: camera rays pass through the area lights' rectangles and do not
         # see the environment, so no light is ever in frame and the film's alpha is the
         # subject's coverage; the environment is put back behind the subject as a
@@ -202,7 +219,7 @@ class HeadScene:
             elif part.name == "iris":
                 bsdf = mi.load_dict(materials.iris_bsdf(maps.eye_gloss))
             elif part.name == "eyelashes":
-                opacity = self._lash_opacity(part, v) if lash_strands \
+                opacity = self._lash_opacity(part, v, memo) if lash_strands \
                     else materials.EYELASH_OPACITY
                 bsdf = mi.load_dict(materials.eyelash_bsdf(opacity))
                 # see-through cards: the label and AOV passes (and render(sss=True)) look
@@ -244,17 +261,19 @@ class HeadScene:
             return read_hdr_image(rig.env_file)
         return None
 
-    def _lash_opacity(self, part, v: np.ndarray):
+    def _lash_opacity(self, part, v: np.ndarray, memo: dict):
         """The lash cards' opacity: a ``bitmap`` texture plugin of the procedural strand
         map (``materials.lash_opacity_map``, kept in :attr:`lash_opacity`) over the cards
         found in the part's UVs (``parts.lash_cards``), or ``EYELASH_OPACITY`` where the
         UVs hold no cards (degenerate UVs): strands need a root-to-tip direction."""
         import mitsuba as mi
 
-        cards = lash_cards(part, v, self.eye_axes)
-        if len(cards) == 0:
+        if "lash_map" not in memo:  # None: no cards
+            cards = lash_cards(part, v, self.eye_axes)
+            memo["lash_map"] = materials.lash_opacity_map(cards) if len(cards) else None
+        if memo["lash_map"] is None:
             return materials.EYELASH_OPACITY
-        self.lash_opacity = materials.lash_opacity_map(cards)
+        self.lash_opacity = memo["lash_map"]
         return mi.load_dict(materials.bitmap(self.lash_opacity[..., None]))
 
     def _positions(self, part, v: np.ndarray, camera: Camera) -> np.ndarray:
@@ -326,10 +345,14 @@ class HeadScene:
         return table
 
     # --- per-frame updates ---------------------------------------------------------
-    def set_vertices(self, vertices, *, update: bool = True, hair_posed=None) -> None:
-        """New vertex positions (N, 3) metres, same topology; normals are recomputed, and
-        the hair (if any) is posed on them (or given: ``hair_posed``, :meth:`pose_hair` of
-        the same vertices).
+    def set_vertices(self, vertices, *, update: bool = True, hair_posed=None,
+                     normals=None, iris: bool = True) -> None:
+        """New vertex positions (N, 3) metres, same topology; normals are recomputed (or
+        given: ``normals``, ``parts.vertex_normals`` of the same vertices, e.g. made on
+        another thread), and the hair (if any) is posed on them (or given: ``hair_posed``,
+        :meth:`pose_hair` of the same vertices). ``iris=False`` leaves the iris seen
+        through the cornea to the :meth:`set_camera` that must follow (it places the iris
+        again, for its camera: ~0.04 s saved).
 
         ``update=False`` defers ``params.update()`` (see :meth:`update`)."""
         import mitsuba as mi
@@ -338,11 +361,12 @@ class HeadScene:
         if v.shape[0] != self.topology.num_vertices or not np.all(np.isfinite(v)):
             raise HackError(f"vertices: expected finite ({self.topology.num_vertices}, 3), "
                             f"found {v.shape} (finite: {bool(np.all(np.isfinite(v)))}).")
-        n = vertex_normals(v, self.topology.faces)
+        n = vertex_normals(v, self.topology.faces) if normals is None else normals
         self._vertices = v
         for part in self.parts:
-            self.params[f"{part.name}.vertex_positions"] = mi.Float(
-                self._positions(part, v, self.camera).ravel().astype(np.float32))
+            if iris or part.name != "iris" or self.cornea is None:
+                self.params[f"{part.name}.vertex_positions"] = mi.Float(
+                    self._positions(part, v, self.camera).ravel().astype(np.float32))
             if not part.flat:
                 self.params[f"{part.name}.vertex_normals"] = mi.Float(
                     n[part.gather].ravel().astype(np.float32))
