@@ -71,8 +71,10 @@
     portrait camera and the studio rig, with a full head of hair (a groom of ``--h-styles``
     at lod 1: >= 50k scalp strands, brows, lashes; posed once, outside the timing) against
     the same render bald: CPU and wall seconds of ``render(sss=True)`` + ``denoise`` (median
-    of ``--repeats`` after a warm-up that compiles the kernels) and their ratio (target
-    <= 2.0x); also the groom's growing and the scene's building (posing) once.
+    of ``--repeats`` after a warm-up that compiles the kernels; bald, hair and hair without
+    the roulette on hair (``hair_shapes.HAIR_RR`` off: the renderer before it) interleaved
+    per style) and their ratios (target <= 2.0x); also the groom's growing and the scene's
+    building (posing) once.
 
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
@@ -1253,35 +1255,49 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     settings = RenderSettings(size, size, spp, pixel_filter="box")  # the command's, denoised
     maps = skin_maps(None, None, None)
 
-    def measure(groom) -> tuple[float, float, float]:
-        c0, w0 = time.process_time(), time.perf_counter()
+    def build(groom, hair_rr=True):
+        w0 = time.perf_counter()
         head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
-        build = time.perf_counter() - w0
+        if not hair_rr:  # before the roulette on hair: read by the first render(sss=True)
+            head.integrator_extra.pop("hair_rr", None)
+        built = time.perf_counter() - w0
         head.denoise(head.render(backdrop=False, sss=True))  # compiles the kernels
-        cpu, wall = [], []
+        return head, built
+
+    def measure(heads) -> list[tuple[float, float]]:
+        """Median CPU and wall seconds of each head's render + denoise, interleaved."""
+        rows = [[] for _ in heads]
         for i in range(repeats):
-            c0, w0 = time.process_time(), time.perf_counter()
-            head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
-            cpu.append(time.process_time() - c0)
-            wall.append(time.perf_counter() - w0)
-        return statistics.median(cpu), statistics.median(wall), build
+            for row, head in zip(rows, heads):
+                c0, w0 = time.process_time(), time.perf_counter()
+                head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
+                row.append((time.process_time() - c0, time.perf_counter() - w0))
+        return [(statistics.median(c for c, _ in r), statistics.median(w for _, w in r))
+                for r in rows]
 
     print(f"(j) hair: {size} px, {settings.effective_spp} spp ({settings.sampler_label}), "
-          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up; "
-          f"load average (1 min) {os.getloadavg()[0]:.1f}")
-    bald_cpu, bald_wall, bald_build = measure(None)
+          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up, "
+          f"interleaved; load average (1 min) {os.getloadavg()[0]:.1f}")
+    bald, bald_build = build(None)
+    (bald_cpu, bald_wall), = measure([bald])
     print(f"  bald: {bald_cpu:.2f} CPU s, {bald_wall:.2f} s wall (scene {bald_build:.2f} s)")
     for name in styles:
         t0 = time.perf_counter()
         groom = grow(surf, HairStyle.archetype_style(name, lod=1.0))
         grown = time.perf_counter() - t0
-        cpu, wall, build = measure(groom)
+        head, built = build(groom)
+        before, _ = build(groom, hair_rr=False)
+        # bald, hair, hair before: interleaved, so the ratios share the load
+        (b_cpu, b_wall), (cpu, wall), (cpu0, wall0) = measure([bald, head, before])
+        del head, before
         counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                            for g in groom.groups)
         print(f"  {name} ({counts}): {cpu:.2f} CPU s, {wall:.2f} s wall: "
-              f"{cpu / bald_cpu:.2f}x CPU, {wall / bald_wall:.2f}x wall the bald render "
-              f"(target <= 2.0x); grown in {grown:.1f} s, scene built (posed) in "
-              f"{build:.1f} s")
+              f"{cpu / b_cpu:.2f}x CPU, {wall / b_wall:.2f}x wall the bald render "
+              f"({b_cpu:.2f} CPU s in this round; target <= 2.0x); without the roulette on "
+              f"hair (HAIR_RR off, as before): {cpu0:.2f} CPU s, {cpu0 / b_cpu:.2f}x CPU, "
+              f"{wall0 / b_wall:.2f}x wall; grown in {grown:.1f} s, scene built (posed) in "
+              f"{built:.1f} s")
     print(f"  load average (1 min) {os.getloadavg()[0]:.1f} after")
 
 

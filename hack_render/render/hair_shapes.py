@@ -52,6 +52,13 @@ MIN_SEGMENT = 5e-5
 #: short groom at 128 px, 16 spp: 0.67x the CPU time for 1.12x the squared error (1.33x
 #: the samples per unit of error).
 HAIR_RR_DEPTH = 2
+#: ``hack_path``'s ``hair_rr`` in a scene with hair: Russian roulette right after a path's
+#: first event on hair, whatever its depth (without it every path that meets the hair at
+#: its first or second vertex traces one more ray, the roulette starting at depth 2). Dark
+#: hair keeps little of the light it scatters, so most such paths end there; light hair
+#: keeps most of them. Unbiased (no energy is cut, unlike a budget of hair events,
+#: ``hair_depth``); measured with ``bench/bench_render.py --only hair`` (docs/hair.md).
+HAIR_RR = True
 #: The prefix of every hair shape's id (``hair_<group>_<bucket>``).
 PREFIX = "hair_"
 
