@@ -1265,8 +1265,13 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
         return head, built
 
     def measure(heads) -> list[tuple[float, float]]:
-        """Median CPU and wall seconds of each head's render + denoise, interleaved."""
+        """Median CPU and wall seconds of each head's render + denoise, interleaved, after
+        a round that compiles again: Dr.Jit's calls on a BSDF pointer are traced over every
+        BSDF alive, so a scene's kernels change (and compile anew, ~4 CPU s) when another
+        scene's materials come or go."""
         rows = [[] for _ in heads]
+        for head in heads:
+            head.denoise(head.render(seed=0, backdrop=False, sss=True))
         for i in range(repeats):
             for row, head in zip(rows, heads):
                 c0, w0 = time.process_time(), time.perf_counter()
