@@ -74,7 +74,10 @@
     of ``--repeats`` after a warm-up that compiles the kernels; bald, hair and hair without
     the roulette on hair (``hair_shapes.HAIR_RR`` off: the renderer before it) interleaved
     per style) and their ratios (target <= 2.0x); also the groom's growing and the scene's
-    building (posing) once.
+    building (posing) once; ``bench/results/render_hair.json``. ``--h-quality``: the short
+    groom's image before the roulette on hair, with it, and with a budget of one hair event,
+    dark brown and blonde, against a 512-spp reference (PSNR and mean over the hair
+    pixels, :func:`hair_quality`); ``bench/results/render_hair_quality.json``.
 
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
@@ -83,6 +86,7 @@ Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-s
        python bench/bench_render.py --only integrator [--i-ref-spp 1024]
        python bench/bench_render.py --only samplers
        python bench/bench_render.py --only hair [--h-styles short,long] [--repeats 2]
+       python bench/bench_render.py --only hair --h-quality
        python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
@@ -1306,6 +1310,61 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     print(f"  load average (1 min) {os.getloadavg()[0]:.1f} after")
 
 
+def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
+                 colours=("dark-brown", "blonde")) -> None:
+    """(j) ``--h-quality``: the short groom (lod 1) in each colour, rendered as the bench
+    renders it (``render(sss=True)`` + denoise) before the roulette on hair (HAIR_RR off),
+    with it, and with a budget of one hair event (``hair_depth`` 1: a path ends at its first
+    strand), against a ``ref_spp`` render before it (not denoised): PSNR (linear RGB, peak 1)
+    over the pixels whose centre sees hair and the mean there, relative to the reference."""
+    from hack_render.geometry import default_model_path
+    from hack_render.geometry.posing import PosingModel
+    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.style import HairStyle
+    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    posing = PosingModel.from_file(default_model_path())
+    v = posing.vertices().astype(np.float64)
+    topo, surf = Topology.from_model(posing), HeadSurface.from_model(posing)
+    rig = lights.preset("studio")
+    cam = cameras.preset("portrait", size, size)[0]
+    maps = skin_maps(None, None, None)
+    variants = {"before (HAIR_RR off)": {"hair_rr": False},
+                "roulette on hair (now)": {},
+                "budget of 1 hair event": {"hair_rr": False, "hair_depth": 1}}
+
+    def head_of(groom, n, extra):
+        head = HeadScene(topo, v, rig, cam, RenderSettings(size, size, n, pixel_filter="box"),
+                         maps, hair=groom)
+        head.integrator_extra.update(extra)  # read by the first render(sss=True)
+        return head
+
+    print(f"(j) hair quality: {size} px, {spp} spp, denoised, against {ref_spp} spp before "
+          f"the roulette on hair; load average (1 min) {os.getloadavg()[0]:.1f}")
+    for colour in colours:
+        groom = grow(surf, HairStyle.archetype_style("short", lod=1.0).with_colour(colour))
+        ref_head = head_of(groom, ref_spp, {"hair_rr": False})
+        ref = ref_head.render(seed=99, backdrop=False, sss=True)[..., :3]
+        hair = ref_head.aovs()["segmentation"] == REGIONS.index("hair")
+        del ref_head
+        for name, extra in variants.items():
+            head = head_of(groom, spp, extra)
+            raw = head.render(seed=1, backdrop=False, sss=True)
+            den = head.denoise(raw)[..., :3]
+            del head
+
+            def psnr(img):
+                return 10 * np.log10(1.0 / np.mean((img[hair] - ref[hair]) ** 2))
+
+            print(f"  {colour}, {name}: hair PSNR {psnr(raw[..., :3]):.2f} dB noisy, "
+                  f"{psnr(den):.2f} dB denoised; hair mean "
+                  f"{den[hair].mean() / ref[hair].mean():.3f}"
+                  f"x the reference's ({hair.sum()} hair pixels)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
@@ -1330,6 +1389,8 @@ def main() -> None:
                     help="cycles: the side-by-side still ('' for none)")
     ap.add_argument("--i-ref-spp", type=int, default=1024)
     ap.add_argument("--h-styles", default="short,long", help="hair: archetypes at lod 1")
+    ap.add_argument("--h-quality", action="store_true",
+                    help="hair: the image against a reference instead of the timings")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -1361,8 +1422,11 @@ def main() -> None:
         with recorded(args.out, "Rendering: a full head of hair against the bald head "
                       "(issue 61)"):
             print(f"variant: {variant}")
-            hair_benchmark(styles=[x for x in args.h_styles.split(",") if x],
-                           repeats=args.repeats)
+            if args.h_quality:
+                hair_quality()
+            else:
+                hair_benchmark(styles=[x for x in args.h_styles.split(",") if x],
+                               repeats=args.repeats)
         return
     if args.only == "sss":
         with recorded(args.out, "Rendering: subsurface scattering, volumetric and "
