@@ -71,9 +71,10 @@
     portrait camera and the studio rig, with a full head of hair (a groom of ``--h-styles``
     at lod 1: >= 50k scalp strands, brows, lashes; posed once, outside the timing) against
     the same render bald: CPU and wall seconds of ``render(sss=True)`` + ``denoise`` (median
-    of ``--repeats`` after a warm-up that compiles the kernels; bald, hair and hair without
-    the roulette on hair (``hair_shapes.HAIR_RR`` off: the renderer before it) interleaved
-    per style) and their ratios (target <= 2.0x); also the groom's growing and the scene's
+    of ``--repeats`` after a warm-up that compiles the kernels; one scene alive at a time:
+    per style the hair, the hair as before (4 melanin buckets in every group, no roulette
+    on hair) and bald again, each ratio against the mean of the bald runs around it)
+    and their ratios (target <= 2.0x); also the groom's growing and the scene's
     building (posing) once; ``bench/results/render_hair.json``. ``--h-quality``: the short
     groom's image before the roulette on hair, with it, and with a budget of one hair event,
     dark brown and blonde, against a 512-spp reference (PSNR and mean over the hair
@@ -93,6 +94,7 @@ Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-s
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import resource
 import statistics
@@ -1246,6 +1248,7 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     from hack_render.geometry.posing import PosingModel
     from hack_render.hair.groom import HeadSurface, grow
     from hack_render.hair.style import HairStyle
+    from hack_render.render import hair_shapes
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1259,54 +1262,58 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     settings = RenderSettings(size, size, spp, pixel_filter="box")  # the command's, denoised
     maps = skin_maps(None, None, None)
 
-    def build(groom, hair_rr=True):
-        w0 = time.perf_counter()
-        head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
-        if not hair_rr:  # before the roulette on hair: read by the first render(sss=True)
+    def measure(groom, before=False) -> tuple[float, float, float]:
+        """Build the scene, render once (compiling), then the median CPU and wall seconds
+        of ``repeats`` renders + denoise, and the build's seconds; the scene is alone in
+        the process (Dr.Jit traces a BSDF call over every BSDF alive, so another scene's
+        materials would slow this one). ``before``: as the renderer was before (4 melanin
+        buckets in every group, no roulette on hair)."""
+        saved = hair_shapes.GROUP_BUCKETS
+        if before:
+            hair_shapes.GROUP_BUCKETS = {g.name: hair_shapes.MELANIN_BUCKETS
+                                         for g in groom.groups}
+        try:
+            w0 = time.perf_counter()
+            head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
+            built = time.perf_counter() - w0
+        finally:
+            hair_shapes.GROUP_BUCKETS = saved
+        if before:  # read by the first render(sss=True)
             head.integrator_extra.pop("hair_rr", None)
-        built = time.perf_counter() - w0
         head.denoise(head.render(backdrop=False, sss=True))  # compiles the kernels
-        return head, built
-
-    def measure(heads) -> list[tuple[float, float]]:
-        """Median CPU and wall seconds of each head's render + denoise, interleaved, after
-        a round that compiles again: Dr.Jit's calls on a BSDF pointer are traced over every
-        BSDF alive, so a scene's kernels change (and compile anew, ~4 CPU s) when another
-        scene's materials come or go."""
-        rows = [[] for _ in heads]
-        for head in heads:
-            head.denoise(head.render(seed=0, backdrop=False, sss=True))
+        cpu, wall = [], []
         for i in range(repeats):
-            for row, head in zip(rows, heads):
-                c0, w0 = time.process_time(), time.perf_counter()
-                head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
-                row.append((time.process_time() - c0, time.perf_counter() - w0))
-        return [(statistics.median(c for c, _ in r), statistics.median(w for _, w in r))
-                for r in rows]
+            c0, w0 = time.process_time(), time.perf_counter()
+            head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        del head
+        gc.collect()
+        return statistics.median(cpu), statistics.median(wall), built
 
     print(f"(j) hair: {size} px, {settings.effective_spp} spp ({settings.sampler_label}), "
-          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up, "
-          f"interleaved; load average (1 min) {os.getloadavg()[0]:.1f}")
-    bald, bald_build = build(None)
-    (bald_cpu, bald_wall), = measure([bald])
+          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up, one "
+          f"scene at a time, bald before and after each style; load average (1 min) "
+          f"{os.getloadavg()[0]:.1f}")
+    bald_cpu, bald_wall, bald_build = measure(None)
     print(f"  bald: {bald_cpu:.2f} CPU s, {bald_wall:.2f} s wall (scene {bald_build:.2f} s)")
     for name in styles:
         t0 = time.perf_counter()
         groom = grow(surf, HairStyle.archetype_style(name, lod=1.0))
         grown = time.perf_counter() - t0
-        head, built = build(groom)
-        before, _ = build(groom, hair_rr=False)
-        # bald, hair, hair before: interleaved, so the ratios share the load
-        (b_cpu, b_wall), (cpu, wall), (cpu0, wall0) = measure([bald, head, before])
-        del head, before
+        cpu, wall, built = measure(groom)
+        cpu0, wall0, _ = measure(groom, before=True)
+        b_cpu, b_wall, _ = measure(None)
+        bc, bw = (bald_cpu + b_cpu) / 2, (bald_wall + b_wall) / 2  # the bald runs around it
+        bald_cpu, bald_wall = b_cpu, b_wall
         counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                            for g in groom.groups)
         print(f"  {name} ({counts}): {cpu:.2f} CPU s, {wall:.2f} s wall: "
-              f"{cpu / b_cpu:.2f}x CPU, {wall / b_wall:.2f}x wall the bald render "
-              f"({b_cpu:.2f} CPU s in this round; target <= 2.0x); without the roulette on "
-              f"hair (HAIR_RR off, as before): {cpu0:.2f} CPU s, {cpu0 / b_cpu:.2f}x CPU, "
-              f"{wall0 / b_wall:.2f}x wall; grown in {grown:.1f} s, scene built (posed) in "
-              f"{built:.1f} s")
+              f"{cpu / bc:.2f}x CPU, {wall / bw:.2f}x wall the bald render "
+              f"({bc:.2f} CPU s, the mean of the bald runs before and after; target <= "
+              f"2.0x); as before (4 melanin buckets in every group, no roulette on hair): "
+              f"{cpu0:.2f} CPU s, {cpu0 / bc:.2f}x CPU, {wall0 / bw:.2f}x wall; grown in "
+              f"{grown:.1f} s, scene built (posed) in {built:.1f} s")
     print(f"  load average (1 min) {os.getloadavg()[0]:.1f} after")
 
 

@@ -23,6 +23,7 @@ from hack_render.render.hair_shapes import (
     HAIR_RR,
     HAIR_RR_DEPTH,
     MAX_CONTROL_POINTS,
+    MELANIN_BUCKETS,
     MIN_SEGMENT,
     buckets,
     control_points,
@@ -98,6 +99,9 @@ def test_03_bald_scene_has_no_curves_and_hair_scene_replaces_the_lash_cards(head
     assert "eyelashes" not in ids and not hairy.see_through_cards
     assert {s.group for s in hairy.hair_shapes} == {"scalp", "brows", "lashes"}
     assert {s.id for s in hairy.hair_shapes} <= ids
+    groups = [s.group for s in hairy.hair_shapes]  # one BSDF for each small group
+    assert groups.count("scalp") == MELANIN_BUCKETS and groups.count("brows") == 1 == \
+        groups.count("lashes")
     # the bald path: no kwarg and hair=None build the same scene and render the same pixels
     topo, v, _ = head_model
     cam = cameras.orbit(32, 32, 85.0, 0.0, 5.0)

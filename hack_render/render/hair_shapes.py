@@ -2,9 +2,12 @@
 
 Each strand group (scalp, brows, lashes, beard) is split by melanin into a few shapes:
 Mitsuba's ``hair`` BSDF takes one ``eumelanin`` / ``pheomelanin`` pair per shape, so
-per-strand colour variation is given by :data:`MELANIN_BUCKETS` quantile buckets of the
-group's melanin (each shape the mean of its strands), and the unpigmented strands of
+per-strand colour variation is given by quantile buckets of the group's melanin
+(:data:`GROUP_BUCKETS`; each shape the mean of its strands), and the unpigmented strands of
 greying (:attr:`HairStyle.greying`: melanin scaled to 2 %) get a white shape of their own.
+Every BSDF costs every ray: Dr.Jit traces a call on a BSDF pointer over all BSDFs alive,
+so the short groom's 12 shapes (4 buckets in each group) cost 0.9 CPU s more per render
+than 3 (docs/hair.md); the small groups (brows, lashes) get one bucket.
 
 Strands are linear curves (``linearcurve``: Embree's round linear curves, cones between
 the control points, on the CPU), control points ``x y z radius``, so a strand starts at
@@ -27,8 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-#: Quantile buckets of pigmented strands per group (each a shape of its mean melanin).
+#: Quantile buckets of pigmented strands in the scalp's group (each a shape of its mean
+#: melanin), and in each group (:data:`GROUP_BUCKETS`; 1 for a group not named there).
 MELANIN_BUCKETS = 4
+GROUP_BUCKETS = {"scalp": MELANIN_BUCKETS, "beard": 2}
 #: A strand is "white" (greyed) when its melanin is under this fraction of its group's
 #: median (greying scales a strand's melanin to 2 %, :func:`hack_render.hair.groom._melanin`).
 WHITE_FRACTION = 0.1
@@ -91,12 +96,13 @@ def buckets(melanin: np.ndarray, n: int = MELANIN_BUCKETS) -> list[np.ndarray]:
 
 
 def hair_shapes(groom) -> list[HairShape]:
-    """The shapes of a groom: per group, per melanin bucket (:func:`buckets`)."""
+    """The shapes of a groom: per group, per melanin bucket (:func:`buckets`,
+    :data:`GROUP_BUCKETS`)."""
     shapes = []
     for g in groom.groups:
         if g.num_strands == 0:
             continue
-        for i, idx in enumerate(buckets(g.melanin)):
+        for i, idx in enumerate(buckets(g.melanin, GROUP_BUCKETS.get(g.name, 1))):
             eu, pheo = np.asarray(g.melanin, np.float64)[idx].mean(0)
             shapes.append(HairShape(f"{PREFIX}{g.name}_{i}", g.name, np.sort(idx),
                                     float(eu), float(pheo)))
