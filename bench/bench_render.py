@@ -1270,7 +1270,7 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
         buckets in every group, no roulette on hair)."""
         saved = hair_shapes.GROUP_BUCKETS
         if before:
-            hair_shapes.GROUP_BUCKETS = {g.name: hair_shapes.MELANIN_BUCKETS
+            hair_shapes.GROUP_BUCKETS = {g.name: 4
                                          for g in groom.groups}
         try:
             w0 = time.perf_counter()
@@ -1320,14 +1320,15 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
 def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
                  colours=("dark-brown", "blonde")) -> None:
     """(j) ``--h-quality``: the short groom (lod 1) in each colour, rendered as the bench
-    renders it (``render(sss=True)`` + denoise) before the roulette on hair (HAIR_RR off),
-    with it, and with a budget of one hair event (``hair_depth`` 1: a path ends at its first
+    renders it (``render(sss=True)`` + denoise) as before (4 melanin buckets in every group,
+    no roulette on hair), now, and with a budget of one hair event (``hair_depth`` 1: a path ends at its first
     strand), against a ``ref_spp`` render before it (not denoised): PSNR (linear RGB, peak 1)
     over the pixels whose centre sees hair and the mean there, relative to the reference."""
     from hack_render.geometry import default_model_path
     from hack_render.geometry.posing import PosingModel
     from hack_render.hair.groom import HeadSurface, grow
     from hack_render.hair.style import HairStyle
+    from hack_render.render import hair_shapes
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1339,18 +1340,25 @@ def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
     rig = lights.preset("studio")
     cam = cameras.preset("portrait", size, size)[0]
     maps = skin_maps(None, None, None)
-    variants = {"before (HAIR_RR off)": {"hair_rr": False},
-                "roulette on hair (now)": {},
+    variants = {"before": {"hair_rr": False},
+                "now": {},
                 "budget of 1 hair event": {"hair_rr": False, "hair_depth": 1}}
 
     def head_of(groom, n, extra):
-        head = HeadScene(topo, v, rig, cam, RenderSettings(size, size, n, pixel_filter="box"),
-                         maps, hair=groom)
+        saved = hair_shapes.GROUP_BUCKETS
+        if extra.get("hair_rr") is False:  # as before: 4 buckets in every group
+            hair_shapes.GROUP_BUCKETS = {g.name: 4
+                                         for g in groom.groups}
+        try:
+            head = HeadScene(topo, v, rig, cam,
+                             RenderSettings(size, size, n, pixel_filter="box"), maps, hair=groom)
+        finally:
+            hair_shapes.GROUP_BUCKETS = saved
         head.integrator_extra.update(extra)  # read by the first render(sss=True)
         return head
 
-    print(f"(j) hair quality: {size} px, {spp} spp, denoised, against {ref_spp} spp before "
-          f"the roulette on hair; load average (1 min) {os.getloadavg()[0]:.1f}")
+    print(f"(j) hair quality: {size} px, {spp} spp, denoised, against {ref_spp} spp as "
+          f"before; load average (1 min) {os.getloadavg()[0]:.1f}")
     for colour in colours:
         groom = grow(surf, HairStyle.archetype_style("short", lod=1.0).with_colour(colour))
         ref_head = head_of(groom, ref_spp, {"hair_rr": False})
@@ -1426,8 +1434,9 @@ def main() -> None:
                   "other jobs: ratios hold within one run, seconds do not)")
         return
     if args.only == "hair":
-        with recorded(args.out, "Rendering: a full head of hair against the bald head "
-                      "(issue 61)"):
+        with recorded(args.out, "Rendering: a full head of hair, its image against a "
+                      "reference (issue 61)" if args.h_quality else "Rendering: a full head "
+                      "of hair against the bald head (issue 61)"):
             print(f"variant: {variant}")
             if args.h_quality:
                 hair_quality()

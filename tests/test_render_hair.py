@@ -84,7 +84,7 @@ def test_02_curve_control_points_keep_root_and_tip():
     assert seg.min() > 0.9 * MIN_SEGMENT
     assert cp[0, 0, 3] == pytest.approx(2e-4) and cp[0, -1, 3] == pytest.approx(1e-4)
     mel = np.c_[np.r_[np.linspace(1, 2, 40), [0.02] * 10], np.zeros(50)]
-    b = buckets(mel)
+    b = buckets(mel, 4)
     assert len(b) == 5 and sorted(b[0]) == list(range(40, 50))
     assert sorted(np.concatenate(b)) == list(range(50))
 

@@ -5,9 +5,11 @@ Mitsuba's ``hair`` BSDF takes one ``eumelanin`` / ``pheomelanin`` pair per shape
 per-strand colour variation is given by quantile buckets of the group's melanin
 (:data:`GROUP_BUCKETS`; each shape the mean of its strands), and the unpigmented strands of
 greying (:attr:`HairStyle.greying`: melanin scaled to 2 %) get a white shape of their own.
-Every BSDF costs every ray: Dr.Jit traces a call on a BSDF pointer over all BSDFs alive,
-so the short groom's 12 shapes (4 buckets in each group) cost 0.9 CPU s more per render
-than 3 (docs/hair.md); the small groups (brows, lashes) get one bucket.
+Each bucket costs render time: a vectorised call on a BSDF pointer runs the ``hair``
+BSDF once for every distinct BSDF among a packet's lanes, and a packet of rays into the
+scalp meets all its buckets (the short groom, 256 px, 49 spp: 0.3 CPU s per scalp bucket,
+a bald render being 1.8; docs/hair.md), so the scalp gets two and the small groups
+(brows, lashes) one.
 
 Strands are linear curves (``linearcurve``: Embree's round linear curves, cones between
 the control points, on the CPU), control points ``x y z radius``, so a strand starts at
@@ -32,7 +34,7 @@ import numpy as np
 
 #: Quantile buckets of pigmented strands in the scalp's group (each a shape of its mean
 #: melanin), and in each group (:data:`GROUP_BUCKETS`; 1 for a group not named there).
-MELANIN_BUCKETS = 4
+MELANIN_BUCKETS = 2
 GROUP_BUCKETS = {"scalp": MELANIN_BUCKETS, "beard": 2}
 #: A strand is "white" (greyed) when its melanin is under this fraction of its group's
 #: median (greying scales a strand's melanin to 2 %, :func:`hack_render.hair.groom._melanin`).
