@@ -24,6 +24,13 @@ It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at 
 ``path``'s cost per sample on the README's still, against volpath's 1.33x (on an eye
 close-up, where most shadow rays cross cards, 1.56x against 1.67x; ``python
 bench/bench_render.py --only integrator``, docs/render.md).
+**Hair** (a scene with Mitsuba's ``hair`` BSDF, told by its glossy transmission:
+:func:`is_hair`): ``hair_rr`` (true in a HeadScene with hair, ``hair_shapes.HAIR_RR``)
+plays Russian roulette from a path's first event on hair whatever its depth (unbiased);
+``hair_depth`` k > 0 ends a path at its k-th event on hair, that event's direct light
+sampled alone (MIS weight 1): biased dark, off by default (docs/hair.md, Cost). Neither
+changes a scene without hair.
+
 JIT variants only (a Python integrator in a scalar variant would run per sample in
 Python): :class:`~hack_render.render.scene.HeadScene` uses ``volpath`` there.
 
