@@ -71,8 +71,14 @@
     portrait camera and the studio rig, with a full head of hair (a groom of ``--h-styles``
     at lod 1: >= 50k scalp strands, brows, lashes; posed once, outside the timing) against
     the same render bald: CPU and wall seconds of ``render(sss=True)`` + ``denoise`` (median
-    of ``--repeats`` after a warm-up that compiles the kernels) and their ratio (target
-    <= 2.0x); also the groom's growing and the scene's building (posing) once.
+    of ``--repeats`` after a warm-up that compiles the kernels; one scene alive at a time:
+    per style the hair, the hair as before (4 melanin buckets in every group, no roulette
+    on hair) and bald again, each ratio against the mean of the bald runs around it)
+    and their ratios (target <= 2.0x); also the groom's growing and the scene's
+    building (posing) once; ``bench/results/render_hair.json``. ``--h-quality``: the short
+    groom's image before the roulette on hair, with it, and with a budget of one hair event,
+    dark brown and blonde, against a 512-spp reference (PSNR and mean over the hair
+    pixels, :func:`hair_quality`); ``bench/results/render_hair_quality.json``.
 
 Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-size 256]
        python bench/bench_render.py --only quality [--q-size 128] [--q-ref-spp 4096]
@@ -81,12 +87,14 @@ Usage: python bench/bench_render.py [--size 512] [--spp 64] [--frames 8] [--tt-s
        python bench/bench_render.py --only integrator [--i-ref-spp 1024]
        python bench/bench_render.py --only samplers
        python bench/bench_render.py --only hair [--h-styles short,long] [--repeats 2]
+       python bench/bench_render.py --only hair --h-quality
        python bench/bench_render.py --only cycles --blender-python /work/bpy-venv/bin/python
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import resource
 import statistics
@@ -1240,6 +1248,7 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     from hack_render.geometry.posing import PosingModel
     from hack_render.hair.groom import HeadSurface, grow
     from hack_render.hair.style import HairStyle
+    from hack_render.render import hair_shapes
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -1253,10 +1262,24 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     settings = RenderSettings(size, size, spp, pixel_filter="box")  # the command's, denoised
     maps = skin_maps(None, None, None)
 
-    def measure(groom) -> tuple[float, float, float]:
-        c0, w0 = time.process_time(), time.perf_counter()
-        head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
-        build = time.perf_counter() - w0
+    def measure(groom, before=False) -> tuple[float, float, float]:
+        """Build the scene, render once (compiling), then the median CPU and wall seconds
+        of ``repeats`` renders + denoise, and the build's seconds; the scene is alone in
+        the process (Dr.Jit traces a BSDF call over every BSDF alive, so another scene's
+        materials would slow this one). ``before``: as the renderer was before (4 melanin
+        buckets in every group, no roulette on hair)."""
+        saved = hair_shapes.GROUP_BUCKETS
+        if before:
+            hair_shapes.GROUP_BUCKETS = {g.name: 4
+                                         for g in groom.groups}
+        try:
+            w0 = time.perf_counter()
+            head = HeadScene(topo, v, rig, cam, settings, maps, hair=groom)
+            built = time.perf_counter() - w0
+        finally:
+            hair_shapes.GROUP_BUCKETS = saved
+        if before:  # read by the first render(sss=True)
+            head.integrator_extra.pop("hair_rr", None)
         head.denoise(head.render(backdrop=False, sss=True))  # compiles the kernels
         cpu, wall = [], []
         for i in range(repeats):
@@ -1264,25 +1287,97 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
             head.denoise(head.render(seed=i + 1, backdrop=False, sss=True))
             cpu.append(time.process_time() - c0)
             wall.append(time.perf_counter() - w0)
-        return statistics.median(cpu), statistics.median(wall), build
+        del head
+        gc.collect()
+        return statistics.median(cpu), statistics.median(wall), built
 
     print(f"(j) hair: {size} px, {settings.effective_spp} spp ({settings.sampler_label}), "
-          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up; "
-          f"load average (1 min) {os.getloadavg()[0]:.1f}")
+          f"{settings.integrator}, SSS, denoised; median of {repeats} after a warm-up, one "
+          f"scene at a time, bald before and after each style; load average (1 min) "
+          f"{os.getloadavg()[0]:.1f}")
     bald_cpu, bald_wall, bald_build = measure(None)
     print(f"  bald: {bald_cpu:.2f} CPU s, {bald_wall:.2f} s wall (scene {bald_build:.2f} s)")
     for name in styles:
         t0 = time.perf_counter()
         groom = grow(surf, HairStyle.archetype_style(name, lod=1.0))
         grown = time.perf_counter() - t0
-        cpu, wall, build = measure(groom)
+        cpu, wall, built = measure(groom)
+        cpu0, wall0, _ = measure(groom, before=True)
+        b_cpu, b_wall, _ = measure(None)
+        bc, bw = (bald_cpu + b_cpu) / 2, (bald_wall + b_wall) / 2  # the bald runs around it
+        bald_cpu, bald_wall = b_cpu, b_wall
         counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                            for g in groom.groups)
         print(f"  {name} ({counts}): {cpu:.2f} CPU s, {wall:.2f} s wall: "
-              f"{cpu / bald_cpu:.2f}x CPU, {wall / bald_wall:.2f}x wall the bald render "
-              f"(target <= 2.0x); grown in {grown:.1f} s, scene built (posed) in "
-              f"{build:.1f} s")
+              f"{cpu / bc:.2f}x CPU, {wall / bw:.2f}x wall the bald render "
+              f"({bc:.2f} CPU s, the mean of the bald runs before and after; target <= "
+              f"2.0x); as before (4 melanin buckets in every group, no roulette on hair): "
+              f"{cpu0:.2f} CPU s, {cpu0 / bc:.2f}x CPU, {wall0 / bw:.2f}x wall; grown in "
+              f"{grown:.1f} s, scene built (posed) in {built:.1f} s")
     print(f"  load average (1 min) {os.getloadavg()[0]:.1f} after")
+
+
+def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
+                 colours=("dark-brown", "blonde")) -> None:
+    """(j) ``--h-quality``: the short groom (lod 1) in each colour, rendered as the bench
+    renders it (``render(sss=True)`` + denoise) as before (4 melanin buckets in every group,
+    no roulette on hair), now, and with a budget of one hair event (``hair_depth`` 1: a path ends at its first
+    strand), against a ``ref_spp`` render before it (not denoised): PSNR (linear RGB, peak 1)
+    over the pixels whose centre sees hair and the mean there, relative to the reference."""
+    from hack_render.geometry import default_model_path
+    from hack_render.geometry.posing import PosingModel
+    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.style import HairStyle
+    from hack_render.render import hair_shapes
+    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.scene import HeadScene, RenderSettings
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    posing = PosingModel.from_file(default_model_path())
+    v = posing.vertices().astype(np.float64)
+    topo, surf = Topology.from_model(posing), HeadSurface.from_model(posing)
+    rig = lights.preset("studio")
+    cam = cameras.preset("portrait", size, size)[0]
+    maps = skin_maps(None, None, None)
+    variants = {"before": {"hair_rr": False},
+                "now": {},
+                "budget of 1 hair event": {"hair_rr": False, "hair_depth": 1}}
+
+    def head_of(groom, n, extra):
+        saved = hair_shapes.GROUP_BUCKETS
+        if extra.get("hair_rr") is False:  # as before: 4 buckets in every group
+            hair_shapes.GROUP_BUCKETS = {g.name: 4
+                                         for g in groom.groups}
+        try:
+            head = HeadScene(topo, v, rig, cam,
+                             RenderSettings(size, size, n, pixel_filter="box"), maps, hair=groom)
+        finally:
+            hair_shapes.GROUP_BUCKETS = saved
+        head.integrator_extra.update(extra)  # read by the first render(sss=True)
+        return head
+
+    print(f"(j) hair quality: {size} px, {spp} spp, denoised, against {ref_spp} spp as "
+          f"before; load average (1 min) {os.getloadavg()[0]:.1f}")
+    for colour in colours:
+        groom = grow(surf, HairStyle.archetype_style("short", lod=1.0).with_colour(colour))
+        ref_head = head_of(groom, ref_spp, {"hair_rr": False})
+        ref = ref_head.render(seed=99, backdrop=False, sss=True)[..., :3]
+        hair = ref_head.aovs()["segmentation"] == REGIONS.index("hair")
+        del ref_head
+        for name, extra in variants.items():
+            head = head_of(groom, spp, extra)
+            raw = head.render(seed=1, backdrop=False, sss=True)
+            den = head.denoise(raw)[..., :3]
+            del head
+
+            def psnr(img):
+                return 10 * np.log10(1.0 / np.mean((img[hair] - ref[hair]) ** 2))
+
+            print(f"  {colour}, {name}: hair PSNR {psnr(raw[..., :3]):.2f} dB noisy, "
+                  f"{psnr(den):.2f} dB denoised; hair mean "
+                  f"{den[hair].mean() / ref[hair].mean():.3f}"
+                  f"x the reference's ({hair.sum()} hair pixels)")
 
 
 def main() -> None:
@@ -1309,6 +1404,8 @@ def main() -> None:
                     help="cycles: the side-by-side still ('' for none)")
     ap.add_argument("--i-ref-spp", type=int, default=1024)
     ap.add_argument("--h-styles", default="short,long", help="hair: archetypes at lod 1")
+    ap.add_argument("--h-quality", action="store_true",
+                    help="hair: the image against a reference instead of the timings")
     ap.add_argument("--q-size", type=int, default=128)
     ap.add_argument("--q-ref-spp", type=int, default=4096)
     ap.add_argument("--out", default=None, help="also write what it prints, with commit, "
@@ -1337,11 +1434,15 @@ def main() -> None:
                   "other jobs: ratios hold within one run, seconds do not)")
         return
     if args.only == "hair":
-        with recorded(args.out, "Rendering: a full head of hair against the bald head "
-                      "(issue 61)"):
+        with recorded(args.out, "Rendering: a full head of hair, its image against a "
+                      "reference (issue 61)" if args.h_quality else "Rendering: a full head "
+                      "of hair against the bald head (issue 61)"):
             print(f"variant: {variant}")
-            hair_benchmark(styles=[x for x in args.h_styles.split(",") if x],
-                           repeats=args.repeats)
+            if args.h_quality:
+                hair_quality()
+            else:
+                hair_benchmark(styles=[x for x in args.h_styles.split(",") if x],
+                               repeats=args.repeats)
         return
     if args.only == "sss":
         with recorded(args.out, "Rendering: subsurface scattering, volumetric and "

@@ -27,8 +27,8 @@ HAIR_HELP = ("Hair, brows, lashes and beard as strands (docs/hair.md): a style n
              "brows and lashes), 'none' (no strands: ICT's lash cards, as before), or a "
              ".json/.yaml file holding a hair mapping, e.g. {\"archetype\": \"long\", "
              "\"beard\": \"stubble\", \"lod\": 0.5}. Default: the --params file's 'hair' "
-             "section, else {default}. A full head of hair costs up to 2x the render time "
-             "(docs/render.md).")
+             "section, else {default}. A full head of short hair costs about 1.9x the render "
+             "time, long hair 5x (docs/hair.md).")
 HAIR_COLOR_HELP = ("Hair colour as melanin: a name (black, dark-brown, brown, light-brown, "
                    "blonde, platinum, red, auburn, white) or 'EUMELANIN,PHEOMELANIN' (0..20 "
                    "each; eumelanin ~0.3 blonde, 1.3 brown, 8 black; pheomelanin reddens).")

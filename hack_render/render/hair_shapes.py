@@ -2,9 +2,14 @@
 
 Each strand group (scalp, brows, lashes, beard) is split by melanin into a few shapes:
 Mitsuba's ``hair`` BSDF takes one ``eumelanin`` / ``pheomelanin`` pair per shape, so
-per-strand colour variation is given by :data:`MELANIN_BUCKETS` quantile buckets of the
-group's melanin (each shape the mean of its strands), and the unpigmented strands of
+per-strand colour variation is given by quantile buckets of the group's melanin
+(:data:`GROUP_BUCKETS`; each shape the mean of its strands), and the unpigmented strands of
 greying (:attr:`HairStyle.greying`: melanin scaled to 2 %) get a white shape of their own.
+Each bucket costs render time: a vectorised call on a BSDF pointer runs the ``hair``
+BSDF once for every distinct BSDF among a packet's lanes, and a packet of rays into the
+scalp meets all its buckets (the short groom, 256 px, 49 spp: 0.3 CPU s per scalp bucket,
+a bald render being 1.8; docs/hair.md), so the scalp gets two and the small groups
+(brows, lashes) one.
 
 Strands are linear curves (``linearcurve``: Embree's round linear curves, cones between
 the control points, on the CPU), control points ``x y z radius``, so a strand starts at
@@ -27,8 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-#: Quantile buckets of pigmented strands per group (each a shape of its mean melanin).
-MELANIN_BUCKETS = 4
+#: Quantile buckets of pigmented strands in the scalp's group (each a shape of its mean
+#: melanin), and in each group (:data:`GROUP_BUCKETS`; 1 for a group not named there).
+MELANIN_BUCKETS = 2
+GROUP_BUCKETS = {"scalp": MELANIN_BUCKETS, "beard": 2}
 #: A strand is "white" (greyed) when its melanin is under this fraction of its group's
 #: median (greying scales a strand's melanin to 2 %, :func:`hack_render.hair.groom._melanin`).
 WHITE_FRACTION = 0.1
@@ -52,6 +59,13 @@ MIN_SEGMENT = 5e-5
 #: short groom at 128 px, 16 spp: 0.67x the CPU time for 1.12x the squared error (1.33x
 #: the samples per unit of error).
 HAIR_RR_DEPTH = 2
+#: ``hack_path``'s ``hair_rr`` in a scene with hair: Russian roulette right after a path's
+#: first event on hair, whatever its depth (without it every path that meets the hair at
+#: its first or second vertex traces one more ray, the roulette starting at depth 2). Dark
+#: hair keeps little of the light it scatters, so most such paths end there; light hair
+#: keeps most of them. Unbiased (no energy is cut, unlike a budget of hair events,
+#: ``hair_depth``); measured with ``bench/bench_render.py --only hair`` (docs/hair.md).
+HAIR_RR = True
 #: The prefix of every hair shape's id (``hair_<group>_<bucket>``).
 PREFIX = "hair_"
 
@@ -84,12 +98,13 @@ def buckets(melanin: np.ndarray, n: int = MELANIN_BUCKETS) -> list[np.ndarray]:
 
 
 def hair_shapes(groom) -> list[HairShape]:
-    """The shapes of a groom: per group, per melanin bucket (:func:`buckets`)."""
+    """The shapes of a groom: per group, per melanin bucket (:func:`buckets`,
+    :data:`GROUP_BUCKETS`)."""
     shapes = []
     for g in groom.groups:
         if g.num_strands == 0:
             continue
-        for i, idx in enumerate(buckets(g.melanin)):
+        for i, idx in enumerate(buckets(g.melanin, GROUP_BUCKETS.get(g.name, 1))):
             eu, pheo = np.asarray(g.melanin, np.float64)[idx].mean(0)
             shapes.append(HairShape(f"{PREFIX}{g.name}_{i}", g.name, np.sort(idx),
                                     float(eu), float(pheo)))

@@ -24,6 +24,13 @@ It estimates the same image as ``volpath`` (tests/test_render_integrator.py) at 
 ``path``'s cost per sample on the README's still, against volpath's 1.33x (on an eye
 close-up, where most shadow rays cross cards, 1.56x against 1.67x; ``python
 bench/bench_render.py --only integrator``, docs/render.md).
+**Hair** (a scene with Mitsuba's ``hair`` BSDF, told by its glossy transmission:
+:func:`is_hair`): ``hair_rr`` (true in a HeadScene with hair, ``hair_shapes.HAIR_RR``)
+plays Russian roulette from a path's first event on hair whatever its depth (unbiased);
+``hair_depth`` k > 0 ends a path at its k-th event on hair, that event's direct light
+sampled alone (MIS weight 1): biased dark, off by default (docs/hair.md, Cost). Neither
+changes a scene without hair.
+
 JIT variants only (a Python integrator in a scalar variant would run per sample in
 Python): :class:`~hack_render.render.scene.HeadScene` uses ``volpath`` there.
 
@@ -60,12 +67,20 @@ def mis_weight(pdf_a, pdf_b):
     return dr.select(dr.isfinite(w), w, 0.0)
 
 
+def is_hair(bsdf):
+    """Whether ``bsdf`` (a BSDF pointer) is Mitsuba's ``hair`` BSDF: in a
+    :class:`~hack_render.render.scene.HeadScene` the only BSDF with a glossy transmission
+    (tests/test_render_hair.py checks it)."""
+    return mi.has_flag(bsdf.flags(), mi.BSDFFlags.GlossyTransmission)
+
+
 def make_class():
     """Define the integrator class against the active variant's ``mi.SamplingIntegrator``
     (registered by ``engine.register_plugins``)."""
     class HackPathIntegrator(mi.SamplingIntegrator):
         """See the module docstring. Properties: ``max_depth`` (8; -1: unbounded),
-        ``rr_depth`` (5), ``hide_emitters`` (false), ``split_skin`` (false)."""
+        ``rr_depth`` (5), ``hide_emitters`` (false), ``split_skin`` (false),
+        ``null_surfaces`` (true), ``hair_depth`` (0: no budget)."""
 
         def __init__(self, props):
             super().__init__(props)
@@ -81,6 +96,13 @@ def make_class():
             # lashes replace them), so a shadow ray is an any-hit test (``ray_test``), far
             # cheaper than closest hits through a head of hair
             self.null_surfaces = bool(props.get("null_surfaces", True))
+            # the hair budget: a path ends at its hair_depth-th scattering event on hair,
+            # with that event's direct light sampled alone (0: no budget)
+            self.hair_depth = int(props.get("hair_depth", 0))
+            if self.hair_depth < 0:
+                raise ValueError(f"{NAME}: hair_depth must be >= 0, found {self.hair_depth}")
+            # Russian roulette from a path's first event on hair, whatever its depth
+            self.hair_rr = bool(props.get("hair_rr", False))
             self.skin_id = mi.UInt32(0)
 
         def set_skin(self, bsdf):
@@ -96,7 +118,8 @@ def make_class():
 
         def to_string(self):
             return (f"HackPathIntegrator[max_depth = {self.max_depth}, "
-                    f"rr_depth = {self.rr_depth}, hide_emitters = {self.hide_emitters}]")
+                    f"rr_depth = {self.rr_depth}, hair_depth = {self.hair_depth}, "
+                    f"hide_emitters = {self.hide_emitters}]")
 
         def shadow(self, scene, si, p, active):
             """Transmittance from ``si`` to ``p``: :meth:`transmittance` through the null
@@ -148,6 +171,7 @@ def make_class():
             first_cls = mi.UInt32(0)
             frac_d = mi.Spectrum(0.0)
             res_d, res_s = mi.Spectrum(0.0), mi.Spectrum(0.0)
+            hair_events = mi.UInt32(0)
             while active:
                 si = scene.ray_intersect(ray, mi.RayFlags.All, depth == 0, active)
                 emitter = si.emitter(scene)
@@ -167,6 +191,13 @@ def make_class():
                 skip = active & hidden & si.is_valid() & (emitter != None)
                 active &= si.is_valid() & ~skip
                 bsdf = si.bsdf(ray)
+                # ---- the hair budget: the last event on hair gets its direct light from
+                # the emitter sample alone (MIS weight 1) and ends the path
+                last_hair = mi.Bool(False)
+                if self.hair_depth > 0 or self.hair_rr:
+                    last_hair = active & is_hair(bsdf) & (self.hair_depth > 0) & \
+                        (hair_events + 1 >= self.hair_depth)
+                    hair_events[active & is_hair(bsdf)] = hair_events + 1
                 # ---- next-event estimation, its shadow ray through null surfaces
                 active_em = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & \
                     (depth + 1 < self.max_depth)
@@ -175,7 +206,7 @@ def make_class():
                 active_em &= ds.pdf != 0.0
                 em_weight *= self.shadow(scene, si, ds.p, active_em)
                 bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), active_em)
-                mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+                mis_em = dr.select(ds.delta | last_hair, 1.0, mis_weight(ds.pdf, bsdf_pdf))
                 c_em = throughput * bsdf_val * em_weight * mis_em
                 result[active_em] = result + c_em
                 if self.split:
@@ -211,11 +242,11 @@ def make_class():
                 # ---- Russian roulette
                 t_max = dr.max(throughput)
                 rr_prob = dr.minimum(t_max * dr.square(eta), 0.95)
-                rr_active = depth >= self.rr_depth
+                rr_active = (depth >= self.rr_depth) | (hair_events > 0)
                 rr_continue = sampler.next_1d() < rr_prob
                 throughput[rr_active] = throughput * dr.rcp(rr_prob)
                 active = (active | skip) & (depth < self.max_depth) & \
-                    (~rr_active | rr_continue) & (t_max != 0.0)
+                    (~rr_active | rr_continue) & (t_max != 0.0) & ~last_hair
             aovs = []
             if self.split:
                 aovs = [dr.select(valid_ray, part[c], 0.0) for part in (res_d, res_s)

@@ -41,6 +41,7 @@ from hack_render.render.emitters import (
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
 from hack_render.render.footprint import denoise_features
 from hack_render.render.hair_shapes import (
+    HAIR_RR,
     HAIR_RR_DEPTH,
     hair_shapes,
     load_shapes,
@@ -197,12 +198,15 @@ class HeadScene:
         self.integrator_name = settings.integrator if jit or \
             settings.integrator != "hack_path" else "volpath"
         #: the integrator's properties besides its type, max_depth and hide_emitters
-        #: (a hair scene's: Russian roulette from ``HAIR_RR_DEPTH``, and no null surfaces
+        #: (a hair scene's: Russian roulette from ``HAIR_RR_DEPTH`` and, with hack_path,
+        #: from the first event on hair (``HAIR_RR``), and no null surfaces
         #: when strand lashes replace the cards: opaque shadow rays); the skin split's
         #: integrator (``sss.split_integrator``) takes them too
         self.integrator_extra: dict = {}
         if hair is not None:
             self.integrator_extra["rr_depth"] = HAIR_RR_DEPTH
+            if self.integrator_name == "hack_path":
+                self.integrator_extra["hair_rr"] = HAIR_RR
         if self.integrator_name == "hack_path" and \
                 not any(p.name == "eyelashes" for p in self.parts):
             self.integrator_extra["null_surfaces"] = False
