@@ -22,6 +22,9 @@ over the hair region (pixel centres whose first hit is a strand, ``HeadScene.aov
 CPU seconds of the render call (process time, all threads), rungs interleaved (ours,
 Cycles); time at equal PSNR interpolated on each ladder's PSNR-log(time) curve
 (``bench_render.compare_curves``): both noisy, both denoised (OIDN), each at its best.
+Ours denoised renders from the box pixel filter, as ``render --denoise`` does
+(``cli.denoise_settings``: OIDN keeps the noise Mitsuba's Gaussian filter correlates
+between pixels), and is scored against a box-filter reference of its own (``ours_box``).
 Writes ``bench/results/render_hair_cycles.json`` and ``docs/images/hair_vs_cycles.png``
 (ours | Cycles at equal noise: noisy, denoised, references).
 
@@ -99,6 +102,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     from hack_render.hair.groom import HeadSurface, grow_cached
     from hack_render.hair.style import HairStyle
     from hack_render.io.image import to_srgb8
+    from hack_render.render.cli import denoise_settings
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps
@@ -125,8 +129,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                        for g in groom.groups)
 
-    def ours(spp: int) -> HeadScene:
-        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp), maps,
+    def ours(spp: int, denoise: bool = False) -> HeadScene:
+        # denoised: the box pixel filter `render --denoise` uses (cli.denoise_settings)
+        return HeadScene(topo, v, rig, cam,
+                         denoise_settings(RenderSettings(size, size, spp), denoise), maps,
                          hair=groom)
 
     say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8, "
@@ -161,13 +167,13 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
             f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
         try:
             refs, ref_info = {}, {}
-            for name in ("ours", "cycles"):
+            for name in ("ours", "ours_box", "cycles"):
                 c0 = time.process_time()
                 if name == "cycles":
                     rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
                     cpu, spp = rep["cpu_s"], rep["spp"]
                 else:
-                    h = ours(ref_spp)
+                    h = ours(ref_spp, name == "ours_box")
                     img = h.render(seed=12345, backdrop=False)
                     cpu, spp = time.process_time() - c0, h.settings.effective_spp
                     del h
@@ -191,8 +197,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
                 for spp in spps:  # interleaved: our rung, then Cycles' rung
                     for name in ("ours", "cycles"):
+                        # ours denoised: box filter, against the box filter's reference
+                        ref = refs["ours_box" if name == "ours" and denoise else name]
                         if name == "ours":
-                            h = ours(spp)
+                            h = ours(spp, denoise)
                             for seed in (1000, 1001):  # Dr.Jit's compiles, before timing
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
                         cpu, wall, res = [], [], []
@@ -210,7 +218,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                                 wall.append(time.perf_counter() - w0)
                                 eff = h.settings.effective_spp
                             rgb = composite(img, bg)[..., :3]
-                            res.append((psnr(rgb, refs[name]), psnr(rgb, refs[name], mask)))
+                            res.append((psnr(rgb, ref), psnr(rgb, ref, mask)))
                         images[(name, eff, denoise)] = rgb
                         row = {"renderer": name, "denoise": denoise, "spp": eff,
                                "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
