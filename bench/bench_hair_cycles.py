@@ -29,7 +29,7 @@ Writes ``bench/results/render_hair_cycles.json`` and ``docs/images/hair_vs_cycle
 (ours | Cycles at equal noise: noisy, denoised, references).
 
     python bench/bench_hair_cycles.py --blender-python /work/bpy-venv/bin/python \\
-        [--ref-spp 1024] [--ladder 4,8,16,32,64,128] [--denoise-ladder 4,8,16,32]
+        [--ref-spp 1024] [--ladder 4,8,16,32,64,128] [--denoise-ladder 2,4,8,16,32,64]
 """
 
 from __future__ import annotations
@@ -301,7 +301,7 @@ def main() -> None:
     ap.add_argument("--style", default="short", help="hair archetype, grown at lod 1")
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--ladder", default="4,8,16,32,64,128")
-    ap.add_argument("--denoise-ladder", default="4,8,16,32")
+    ap.add_argument("--denoise-ladder", default="2,4,8,16,32,64")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--melanin", choices=("concentration", "absorption"),
                     default="concentration", help="how Cycles gets our melanin: its own "
