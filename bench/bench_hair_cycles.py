@@ -90,9 +90,46 @@ def psnr(img: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) -> fl
     return 10.0 * np.log10(1.0 / max(mse, 1e-20))
 
 
+def feature_variants(head, k: int = 4) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """OIDN's (albedo, normal) for the ablation (``--ablation``): ``features`` as
+    ``HeadScene.denoise`` gives them (``footprint.denoise_features``), ``bsdf`` the hair
+    BSDF's diffuse reflectance and the curves' shading normal (before issue 61 section 3),
+    ``turned`` the calibrated colour with the strand's normal turned to face the camera
+    (perpendicular to its tangent), ``white`` an albedo of 1 with the camera direction."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from hack_render.render import footprint
+
+    hair = [(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b)), rgb)
+            for b, rgb in footprint.hair_albedos(head)]
+
+    def variant(kind):
+        def values(layer):
+            hit, ok, w, ray = layer.hit, layer.ok, layer.weight, layer.ray
+            b = hit.bsdf(ray)
+            albedo, normal = b.eval_diffuse_reflectance(hit, ok), hit.sh_frame.n
+            ids = dr.reinterpret_array(mi.UInt32, b)
+            for hid, rgb in hair if kind != "bsdf" else ():
+                on = ok & (ids == hid)
+                a = mi.Color3f(1.0) if kind == "white" else mi.Color3f(*map(float, rgb))
+                albedo = dr.select(on, a, albedo)
+                t = dr.normalize(hit.dp_du)
+                turned = dr.normalize(-ray.d + dr.dot(ray.d, t) * t)
+                normal = dr.select(on, turned if kind == "turned" else -ray.d, normal)
+            albedo, normal = dr.select(ok, albedo * w, 0.0), dr.select(ok, normal * w, 0.0)
+            return [albedo[c] for c in range(3)] + [normal[c] for c in range(3)]
+        m = footprint.footprint_means(head, k, head.see_through_cards, values)
+        return np.stack(m[:3], -1), np.stack(m[3:], -1)
+
+    out = {"features": footprint.denoise_features(head, k, head.see_through_cards)}
+    out.update({kind: variant(kind) for kind in ("bsdf", "turned", "white")})
+    return out
+
+
 def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
               ref_spp: int, repeats: int, still: Path | None, out: str | None,
-              melanin: str = "concentration") -> dict:
+              melanin: str = "concentration", ablation=()) -> dict:
     import warnings
 
     import mitsuba as mi
@@ -149,6 +186,9 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
         mask = seg == REGIONS.index("hair")
         say(f"hair region: {int(mask.sum())} of {mask.size} pixels "
             f"({100.0 * mask.mean():.1f} %; pixel centres whose first hit is a strand)")
+        if ablation:
+            ablate(ours, head, bg, mask, ablation, ref_spp, say)
+            return {}
         write_cycles_scene(tmp, head, v, maps)
         specs = write_cycles_hair(tmp, head, v, melanin)
         say(f"shapes: {len(specs)} ({sum(s['strands'] for s in specs)} strands, "
@@ -293,6 +333,37 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     return result
 
 
+def ablate(ours, head, bg, mask, spps, ref_spp, say) -> None:
+    """Ours alone, denoised from each pixel filter with each set of features
+    (:func:`feature_variants`), against each filter's ``ref_spp`` reference: PSNR over
+    the image and over the hair region (seed 1, one render per rung)."""
+    from hack_render.render import denoise as dn
+    from hack_render.render.scene import composite
+
+    refs = {}
+    for box in (False, True):
+        refs[box] = composite(ours(ref_spp, box).render(seed=12345, backdrop=False),
+                              bg)[..., :3]
+    say(f"ablation: ours + OIDN against {ref_spp}-spp references of the same filter; "
+        "PSNR dB, image / hair")
+    for spp in spps:
+        for box in (False, True):
+            h = ours(spp, box)
+            img = h.render(seed=1, backdrop=False)
+            line = [f"{spp:4d} spp {'box' if box else 'gaussian':8s}"]
+            noisy = composite(img, bg)[..., :3]
+            line.append(f"noisy {psnr(noisy, refs[box]):.2f} / "
+                        f"{psnr(noisy, refs[box], mask):.2f}")
+            for kind, (albedo, normal) in feature_variants(h).items():
+                out = img.copy()
+                den = dn.denoise(img[..., :3], albedo, normal)
+                out[..., :3] = np.where(img[..., 3:4] > 0, den, 0.0)
+                rgb = composite(out, bg)[..., :3]
+                line.append(f"{kind} {psnr(rgb, refs[box]):.2f} / "
+                            f"{psnr(rgb, refs[box], mask):.2f}")
+            say("  " + "; ".join(line))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--blender-python", default=None, help="a Python with bpy "
@@ -310,6 +381,8 @@ def main() -> None:
                     help="the side-by-side still ('' for none)")
     ap.add_argument("--out", default="bench/results/render_hair_cycles.json",
                     help="the result file ('' for none)")
+    ap.add_argument("--ablation", default="", help="spp list: only ours, denoised from "
+                    "each pixel filter with each set of hair features (no Cycles, no files)")
     args = ap.parse_args()
     exe, version = blender_python(args.blender_python)  # exits 2 without bpy
     from hack_render.render.engine import ensure_variant
@@ -318,7 +391,7 @@ def main() -> None:
     benchmark(exe, version, args.size, args.style, [int(x) for x in args.ladder.split(",")],
               [int(x) for x in args.denoise_ladder.split(",") if x], args.ref_spp,
               args.repeats, Path(args.still) if args.still else None, args.out or None,
-              args.melanin)
+              args.melanin, [int(x) for x in args.ablation.split(",") if x])
 
 
 if __name__ == "__main__":
