@@ -101,8 +101,8 @@ def test_01_hair_hits_give_the_calibrated_colour_and_a_smooth_normal(head_model,
 
 def test_02_denoised_hair_is_nearer_the_reference_than_with_the_bsdf_features(
         head_model, groom):
-    """4 spp + OIDN against a 256-spp render, PSNR over the pixels all covered by hair."""
-    ref_head = _scene(head_model, groom, 256)
+    """4 spp + OIDN against a 128-spp render, PSNR over the pixels all covered by hair."""
+    ref_head = _scene(head_model, groom, 128)
     ref = ref_head.render(seed=7, backdrop=False)[..., :3]
     head = _scene(head_model, groom, 4)
     sel = _covered(head)
@@ -117,4 +117,4 @@ def test_02_denoised_hair_is_nearer_the_reference_than_with_the_bsdf_features(
     print(f"hair PSNR: noisy {noisy:.2f}, OIDN with the BSDF's features {old:.2f}, "
           f"with the hair's {new:.2f} dB")
     assert new > noisy + 6.0, (noisy, old, new)
-    assert new > old + 1.0, (noisy, old, new)  # measured: 31.0, 39.4, 42.0 dB
+    assert new > old + 1.0, (noisy, old, new)  # measured: 31.0, 37.9, 40.2 dB
