@@ -22,11 +22,14 @@ over the hair region (pixel centres whose first hit is a strand, ``HeadScene.aov
 CPU seconds of the render call (process time, all threads), rungs interleaved (ours,
 Cycles); time at equal PSNR interpolated on each ladder's PSNR-log(time) curve
 (``bench_render.compare_curves``): both noisy, both denoised (OIDN), each at its best.
+Ours denoised renders from the box pixel filter, as ``render --denoise`` does
+(``cli.denoise_settings``: OIDN keeps the noise Mitsuba's Gaussian filter correlates
+between pixels), and is scored against a box-filter reference of its own (``ours_box``).
 Writes ``bench/results/render_hair_cycles.json`` and ``docs/images/hair_vs_cycles.png``
 (ours | Cycles at equal noise: noisy, denoised, references).
 
     python bench/bench_hair_cycles.py --blender-python /work/bpy-venv/bin/python \\
-        [--ref-spp 1024] [--ladder 4,8,16,32,64,128] [--denoise-ladder 4,8,16,32]
+        [--ref-spp 1024] [--ladder 4,8,16,32,64,128] [--denoise-ladder 2,4,8,16,32,64]
 """
 
 from __future__ import annotations
@@ -87,9 +90,46 @@ def psnr(img: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) -> fl
     return 10.0 * np.log10(1.0 / max(mse, 1e-20))
 
 
+def feature_variants(head, k: int = 4) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """OIDN's (albedo, normal) for the ablation (``--ablation``): ``features`` as
+    ``HeadScene.denoise`` gives them (``footprint.denoise_features``), ``bsdf`` the hair
+    BSDF's diffuse reflectance and the curves' shading normal (before issue 61 section 3),
+    ``turned`` the calibrated colour with the strand's normal turned to face the camera
+    (perpendicular to its tangent), ``white`` an albedo of 1 with the camera direction."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from hack_render.render import footprint
+
+    hair = [(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b)), rgb)
+            for b, rgb in footprint.hair_albedos(head)]
+
+    def variant(kind):
+        def values(layer):
+            hit, ok, w, ray = layer.hit, layer.ok, layer.weight, layer.ray
+            b = hit.bsdf(ray)
+            albedo, normal = b.eval_diffuse_reflectance(hit, ok), hit.sh_frame.n
+            ids = dr.reinterpret_array(mi.UInt32, b)
+            for hid, rgb in hair if kind != "bsdf" else ():
+                on = ok & (ids == hid)
+                a = mi.Color3f(1.0) if kind == "white" else mi.Color3f(*map(float, rgb))
+                albedo = dr.select(on, a, albedo)
+                t = dr.normalize(hit.dp_du)
+                turned = dr.normalize(-ray.d + dr.dot(ray.d, t) * t)
+                normal = dr.select(on, turned if kind == "turned" else -ray.d, normal)
+            albedo, normal = dr.select(ok, albedo * w, 0.0), dr.select(ok, normal * w, 0.0)
+            return [albedo[c] for c in range(3)] + [normal[c] for c in range(3)]
+        m = footprint.footprint_means(head, k, head.see_through_cards, values)
+        return np.stack(m[:3], -1), np.stack(m[3:], -1)
+
+    out = {"features": footprint.denoise_features(head, k, head.see_through_cards)}
+    out.update({kind: variant(kind) for kind in ("bsdf", "turned", "white")})
+    return out
+
+
 def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
               ref_spp: int, repeats: int, still: Path | None, out: str | None,
-              melanin: str = "concentration") -> dict:
+              melanin: str = "concentration", ablation=()) -> dict:
     import warnings
 
     import mitsuba as mi
@@ -99,6 +139,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     from hack_render.hair.groom import HeadSurface, grow_cached
     from hack_render.hair.style import HairStyle
     from hack_render.io.image import to_srgb8
+    from hack_render.render.cli import denoise_settings
     from hack_render.render.parts import REGIONS, Topology
     from hack_render.render.scene import HeadScene, RenderSettings, composite
     from hack_render.render.skin_maps import skin_maps
@@ -125,8 +166,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                        for g in groom.groups)
 
-    def ours(spp: int) -> HeadScene:
-        return HeadScene(topo, v, rig, cam, RenderSettings(size, size, spp), maps,
+    def ours(spp: int, denoise: bool = False) -> HeadScene:
+        # denoised: the box pixel filter `render --denoise` uses (cli.denoise_settings)
+        return HeadScene(topo, v, rig, cam,
+                         denoise_settings(RenderSettings(size, size, spp), denoise), maps,
                          hair=groom)
 
     say(f"scene: default head, alpha 0.8,-0.6,0.4, portrait, studio, {size} px, depth 8, "
@@ -143,6 +186,9 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
         mask = seg == REGIONS.index("hair")
         say(f"hair region: {int(mask.sum())} of {mask.size} pixels "
             f"({100.0 * mask.mean():.1f} %; pixel centres whose first hit is a strand)")
+        if ablation:
+            ablate(ours, head, bg, mask, ablation, ref_spp, say)
+            return {}
         write_cycles_scene(tmp, head, v, maps)
         specs = write_cycles_hair(tmp, head, v, melanin)
         say(f"shapes: {len(specs)} ({sum(s['strands'] for s in specs)} strands, "
@@ -161,13 +207,13 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
             f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
         try:
             refs, ref_info = {}, {}
-            for name in ("ours", "cycles"):
+            for name in ("ours", "ours_box", "cycles"):
                 c0 = time.process_time()
                 if name == "cycles":
                     rep, img = worker.render(ref_spp, 12345, False, tmp / "ref.exr")
                     cpu, spp = rep["cpu_s"], rep["spp"]
                 else:
-                    h = ours(ref_spp)
+                    h = ours(ref_spp, name == "ours_box")
                     img = h.render(seed=12345, backdrop=False)
                     cpu, spp = time.process_time() - c0, h.settings.effective_spp
                     del h
@@ -191,8 +237,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
                 for spp in spps:  # interleaved: our rung, then Cycles' rung
                     for name in ("ours", "cycles"):
+                        # ours denoised: box filter, against the box filter's reference
+                        ref = refs["ours_box" if name == "ours" and denoise else name]
                         if name == "ours":
-                            h = ours(spp)
+                            h = ours(spp, denoise)
                             for seed in (1000, 1001):  # Dr.Jit's compiles, before timing
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
                         cpu, wall, res = [], [], []
@@ -210,7 +258,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                                 wall.append(time.perf_counter() - w0)
                                 eff = h.settings.effective_spp
                             rgb = composite(img, bg)[..., :3]
-                            res.append((psnr(rgb, refs[name]), psnr(rgb, refs[name], mask)))
+                            res.append((psnr(rgb, ref), psnr(rgb, ref, mask)))
                         images[(name, eff, denoise)] = rgb
                         row = {"renderer": name, "denoise": denoise, "spp": eff,
                                "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
@@ -285,6 +333,37 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
     return result
 
 
+def ablate(ours, head, bg, mask, spps, ref_spp, say) -> None:
+    """Ours alone, denoised from each pixel filter with each set of features
+    (:func:`feature_variants`), against each filter's ``ref_spp`` reference: PSNR over
+    the image and over the hair region (seed 1, one render per rung)."""
+    from hack_render.render import denoise as dn
+    from hack_render.render.scene import composite
+
+    refs = {}
+    for box in (False, True):
+        refs[box] = composite(ours(ref_spp, box).render(seed=12345, backdrop=False),
+                              bg)[..., :3]
+    say(f"ablation: ours + OIDN against {ref_spp}-spp references of the same filter; "
+        "PSNR dB, image / hair")
+    for spp in spps:
+        for box in (False, True):
+            h = ours(spp, box)
+            img = h.render(seed=1, backdrop=False)
+            line = [f"{spp:4d} spp {'box' if box else 'gaussian':8s}"]
+            noisy = composite(img, bg)[..., :3]
+            line.append(f"noisy {psnr(noisy, refs[box]):.2f} / "
+                        f"{psnr(noisy, refs[box], mask):.2f}")
+            for kind, (albedo, normal) in feature_variants(h).items():
+                out = img.copy()
+                den = dn.denoise(img[..., :3], albedo, normal)
+                out[..., :3] = np.where(img[..., 3:4] > 0, den, 0.0)
+                rgb = composite(out, bg)[..., :3]
+                line.append(f"{kind} {psnr(rgb, refs[box]):.2f} / "
+                            f"{psnr(rgb, refs[box], mask):.2f}")
+            say("  " + "; ".join(line))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--blender-python", default=None, help="a Python with bpy "
@@ -293,7 +372,7 @@ def main() -> None:
     ap.add_argument("--style", default="short", help="hair archetype, grown at lod 1")
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--ladder", default="4,8,16,32,64,128")
-    ap.add_argument("--denoise-ladder", default="4,8,16,32")
+    ap.add_argument("--denoise-ladder", default="2,4,8,16,32,64")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--melanin", choices=("concentration", "absorption"),
                     default="concentration", help="how Cycles gets our melanin: its own "
@@ -302,6 +381,8 @@ def main() -> None:
                     help="the side-by-side still ('' for none)")
     ap.add_argument("--out", default="bench/results/render_hair_cycles.json",
                     help="the result file ('' for none)")
+    ap.add_argument("--ablation", default="", help="spp list: only ours, denoised from "
+                    "each pixel filter with each set of hair features (no Cycles, no files)")
     args = ap.parse_args()
     exe, version = blender_python(args.blender_python)  # exits 2 without bpy
     from hack_render.render.engine import ensure_variant
@@ -310,7 +391,7 @@ def main() -> None:
     benchmark(exe, version, args.size, args.style, [int(x) for x in args.ladder.split(",")],
               [int(x) for x in args.denoise_ladder.split(",") if x], args.ref_spp,
               args.repeats, Path(args.still) if args.still else None, args.out or None,
-              args.melanin)
+              args.melanin, [int(x) for x in args.ablation.split(",") if x])
 
 
 if __name__ == "__main__":

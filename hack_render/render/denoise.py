@@ -3,8 +3,13 @@
 OIDN's ``RT`` filter takes the noisy linear colour with two auxiliary images of the same
 pixel footprint, albedo and normal (:func:`hack_render.render.footprint.denoise_features`:
 k x k primary rays per pixel, box-averaged, looking through the lights like the camera
-and through the lash cards' gaps like the film),
-which keep edges and texture sharp. It runs on the premultiplied subject (the film
+and through the lash cards' gaps like the film; on the hair strands the hair's calibrated
+colour and the direction to the camera, smooth from strand to strand), which keep edges
+and texture sharp. OIDN expects noise that is independent from pixel to pixel: a render
+to denoise uses the box pixel filter (``render.cli.denoise_settings``); from Mitsuba's
+Gaussian filter, which spreads each sample over neighbouring pixels, OIDN keeps the
+correlated noise as detail (on the hair most of all: docs/hair.md, "Against Blender
+Cycles"). It runs on the premultiplied subject (the film
 without a backdrop), so a backdrop or photo composited afterwards is not blurred.
 
 ``pyoidn`` installs about 170 MB of shared libraries (OIDN's CPU, CUDA, HIP and SYCL

@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.hair.style import slab_albedo
 
 #: How many see-through cards a footprint ray is followed through: the lashes are three
 #: cards deep on each lid, and a ray grazing the lids crosses up to 7 where the strands'
@@ -156,17 +157,52 @@ def footprint_means(head, k: int, see_through, values) -> list[np.ndarray]:
     return [np.asarray(a, np.float32).reshape(h, w) / np.float32(k * k) for a in acc]
 
 
+def hair_albedos(head) -> list[tuple[object, np.ndarray]]:
+    """(bsdf, linear RGB albedo (3,)) of each hair shape of ``head`` (its ``hair_shapes``,
+    found among the scene's shapes by id): the colour a thick layer of strands of the
+    shape's melanin renders, :func:`hack_render.hair.style.slab_albedo` (the calibration
+    measured by ``bench/hair_albedo.py``). Empty for a bald head."""
+    shapes = {sh.id: sh for sh in getattr(head, "hair_shapes", ())}
+    if not shapes:
+        return []
+    return [(shape.bsdf(), slab_albedo(shapes[shape.id()].eumelanin,
+                                       shapes[shape.id()].pheomelanin))
+            for shape in head.scene.shapes() if shape.id() in shapes]
+
+
 def denoise_features(head, k: int = 4, see_through=()) -> tuple[np.ndarray, np.ndarray]:
     """The denoiser's auxiliary images: albedo and world-space shading normal, each
     (H, W, 3) float32, averaged over k x k stratified primary rays per pixel and through
     the ``see_through`` cards (see the module's notes; as Cycles' denoising features pass
-    transparent surfaces); 0 where nothing is hit."""
+    transparent surfaces); 0 where nothing is hit.
+
+    A hit on a hair strand (:func:`hair_albedos`) gives the hair's colour as it renders
+    (``eval_diffuse_reflectance`` of Mitsuba's ``hair`` BSDF is a grey unrelated to it)
+    and the direction to the camera as its normal: a curve's shading normal turns across
+    every strand, which OIDN reads as detail to keep. Of the normals tried on the hair of
+    the Cycles comparison (``bench/bench_hair_cycles.py``: the shading normal, the
+    strand's normal turned to face the camera, the camera direction), the camera direction
+    left OIDN the least error over the whole image, and the calibrated colour more than
+    the BSDF's grey or an albedo of 1 (docs/hair.md, "Against Blender Cycles")."""
     import drjit as dr
+    import mitsuba as mi
+
+    hair = [(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf)), rgb)
+            for bsdf, rgb in hair_albedos(head)]
 
     def values(layer):
         hit, ok, w = layer.hit, layer.ok, layer.weight
-        albedo = dr.select(ok, hit.bsdf(layer.ray).eval_diffuse_reflectance(hit, ok) * w, 0.0)
-        normal = dr.select(ok, hit.sh_frame.n * w, 0.0)
+        b = hit.bsdf(layer.ray)
+        albedo = b.eval_diffuse_reflectance(hit, ok)
+        normal = hit.sh_frame.n
+        if hair:
+            ids = dr.reinterpret_array(mi.UInt32, b)
+            for hid, rgb in hair:
+                on = ok & (ids == hid)
+                albedo = dr.select(on, mi.Color3f(*(float(c) for c in rgb)), albedo)
+                normal = dr.select(on, -layer.ray.d, normal)
+        albedo = dr.select(ok, albedo * w, 0.0)
+        normal = dr.select(ok, normal * w, 0.0)
         return [albedo[c] for c in range(3)] + [normal[c] for c in range(3)]
 
     m = footprint_means(head, k, see_through, values)
