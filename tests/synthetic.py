@@ -200,7 +200,10 @@ def texture_fitter(model, yaw=30.0, res=160):
     from hack_render.fit.lighting import Lighting
 
     photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
-    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res}})
+    # silhouette off: the blank photo holds no person to segment (the views come out the
+    # same, without the segmentation's ~10 s per fitter)
+    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res},
+                             "silhouette": {"mode": "off"}})
     f = Fitter([photo], [det], cfg, model=model, progress=False)
     v = f.state.views[0]
     with torch.no_grad():

@@ -17,7 +17,12 @@ pytest.importorskip("mitsuba")
 from synthetic import synthetic_target  # after the skip: it renders
 
 
+@pytest.mark.slow
 def test_01_synthetic_round_trip_moves_toward_truth():
+    """Opt-in (--runslow): the whole ``Fitter.run`` runs in test_02 (the astronaut CLI,
+    every stage to its outputs); the landmark stages recovering a known shape and pose
+    in test_fit_views_texel.py test_01 and test_fit_views.py test_01, the photometric
+    stage recovering a known skin in test_fit_alpha.py test_02."""
     import colour
 
     from hack_render.fit.config import load_config

@@ -276,9 +276,10 @@ def test_11_exif_focal_length_sets_the_focal_prior(tmp_path, astro):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         det = detect_landmarks(photo.uint8())
-        fitter = Fitter([photo], [det], load_config(None, {}), progress=False)
-        plain = Fitter([photo], [det], load_config(None, {"camera": {"use_photo_focal": False}}),
-                       progress=False)
+        off = {"silhouette": {"mode": "off"}}  # the focal prior needs no segmentation
+        fitter = Fitter([photo], [det], load_config(None, off), progress=False)
+        plain = Fitter([photo], [det], load_config(None, {"camera": {"use_photo_focal": False},
+                                                          **off}), progress=False)
     f0, sigma, source = fitter.focal_prior_px(photo)
     assert f0 == pytest.approx(50.0 / 36.0 * 512) and sigma == 0.05 and source == "exif"
     assert math.exp(float(fitter.state.views[0].log_focal)) == pytest.approx(f0, rel=1e-5)

@@ -152,7 +152,9 @@ def test_06_fitter_uses_the_embedding_for_dlib_and_falls_back(tmp_path, model):
     def landmarks(source, **lm):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            f = Fitter([photo], [dets[source]], load_config(None, {"landmarks": lm}),
+            # silhouette off: nothing to segment on the grey photo (~10 s a fitter)
+            f = Fitter([photo], [dets[source]],
+                       load_config(None, {"landmarks": lm, "silhouette": {"mode": "off"}}),
                        model=model, appearance=None, progress=False)
         v = f.state.views[0]
         with torch.no_grad():
@@ -225,8 +227,8 @@ def test_07_detector_weights_are_inverse_variances(tmp_path, model, monkeypatch)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             f = Fitter([photo], [Detection(pts, (10, 10, 50, 50), 1, source)],
-                       load_config(None, {"landmarks": lm}), model=model, appearance=None,
-                       progress=False)
+                       load_config(None, {"landmarks": lm, "silhouette": {"mode": "off"}}),
+                       model=model, appearance=None, progress=False)
         return f.view_landmark_weights(f.state.views[0]), f.state.lmk_w
 
     got, base = weights("dlib")

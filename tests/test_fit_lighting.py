@@ -77,6 +77,8 @@ def _fitter(model, rig, res=80):
     det = Detection(lm, (*lm.min(0), *lm.max(0)), 1, "truth")
     cfg = load_config(None, {"camera": {"iterations": 60},
                              "shape": {"iterations": 40, "n_beta": 10},
+                             # the true landmarks place the head: no person segmentation
+                             "silhouette": {"mode": "off"},
                              "photometric": {"lighting": "sg", "lobes": 1, "sg_height": 16,
                                              "spp": 4}})
     with warnings.catch_warnings():

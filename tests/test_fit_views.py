@@ -97,18 +97,21 @@ def test_02_second_view_improves_identity(model):
     assert err["ab"] < 0.93 * min(err["a"], err["b"]), err
 
 
-def test_03_strong_expressions_reach_their_strength(model):
+# one unit (jaw open) runs the same path as the two of the broad smile (the harder case: two
+# units the L1 prior could share out among their neighbours): opt-in (--runslow)
+@pytest.mark.parametrize("units", [pytest.param(["jawOpen"], marks=pytest.mark.slow),
+                                   ["mouthSmile_L", "mouthSmile_R"]], ids=["jaw", "smile"])
+def test_03_strong_expressions_reach_their_strength(model, units):
     """Jaw open and a broad smile at 0.9, neck turned 10 deg: the fitted units reach at
     least 75 % of it (the L1 prior's shrinkage), and little else switches on."""
     names = list(model.expression_names)
-    for units in (["jawOpen"], ["mouthSmile_L", "mouthSmile_R"]):
-        idx = [names.index(u) for u in units]
-        psi = torch.zeros(1, model.num_expressions)
-        psi[0, idx] = 0.9
-        f = _fit(model, [_view(model, psi=psi, head=(5.0, 10.0, 0.0))])
-        p = f.state.psi.detach()[0]
-        assert float(p[idx].min()) > 0.75 * 0.9, (units, p[idx])
-        assert float(p.sum() - p[idx].sum()) < 0.3, (units, float(p.sum()))
+    idx = [names.index(u) for u in units]
+    psi = torch.zeros(1, model.num_expressions)
+    psi[0, idx] = 0.9
+    f = _fit(model, [_view(model, psi=psi, head=(5.0, 10.0, 0.0))])
+    p = f.state.psi.detach()[0]
+    assert float(p[idx].min()) > 0.75 * 0.9, (units, p[idx])
+    assert float(p.sum() - p[idx].sum()) < 0.3, (units, float(p.sum()))
 
 
 def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
