@@ -43,11 +43,13 @@ from pathlib import Path
 
 import numpy as np
 from bench_render import (  # bench/ is sys.path[0] when run as a script
-    CyclesWorker,
     blender_python,
     compare_curves,
+    cycles_comparison_scene,
     lower_envelope,
     side_by_side,
+    start_cycles,
+    transcript,
     write_cycles_scene,
 )
 from provenance import write_result
@@ -130,39 +132,19 @@ def feature_variants(head, k: int = 4) -> dict[str, tuple[np.ndarray, np.ndarray
 def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
               ref_spp: int, repeats: int, still: Path | None, out: str | None,
               melanin: str = "concentration", ablation=()) -> dict:
-    import warnings
-
-    import mitsuba as mi
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
     from hack_render.hair.groom import HeadSurface, grow_cached
     from hack_render.hair.style import HairStyle
     from hack_render.io.image import to_srgb8
     from hack_render.render.cli import denoise_settings
-    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.parts import REGIONS
     from hack_render.render.scene import HeadScene, RenderSettings, composite
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
 
-    mi.set_log_level(mi.LogLevel.Error)
-    warnings.simplefilter("ignore")
-    printed: list[str] = []
-
-    def say(text: str) -> None:
-        print(text, flush=True)
-        printed.extend(text.splitlines())
-
-    model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
-                                  None)
-    v = verts.astype(np.float64)
-    topo = Topology.from_model(model)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    rig = lights.preset("studio")
-    cam = cameras.preset("portrait", size, size)[0]
+    say, printed = transcript()
+    sc = cycles_comparison_scene(size)
+    v, topo, maps, rig, cam = sc.v, sc.topo, sc.maps, sc.rig, sc.cam
     t0 = time.perf_counter()
-    groom = grow_cached(HeadSurface.from_model(model), HairStyle.archetype_style(style,
-                                                                                 lod=1.0))
+    groom = grow_cached(HeadSurface.from_model(sc.model), HairStyle.archetype_style(style,
+                                                                                    lod=1.0))
     counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                        for g in groom.groups)
 
@@ -200,11 +182,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
         say("  " + "; ".join(f"{s['name']} (eu {s['eumelanin']:.2f}, pheo "
                              f"{s['pheomelanin']:.2f})" for s in specs[:3]) + "; ...")
         del head
-        t0 = time.perf_counter()
-        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
-        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
-            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
-            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        worker = start_cycles(bpy_python, tmp, say)
         try:
             refs, ref_info = {}, {}
             for name in ("ours", "ours_box", "cycles"):

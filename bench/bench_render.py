@@ -101,6 +101,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -851,39 +852,69 @@ def lower_envelope(*ladders: list[dict]) -> list[dict]:
     return out
 
 
-def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
-                     ref_spp: int, repeats: int, still: Path | None,
-                     out: str | None) -> None:
-    import os
-    import warnings
-
-    import mitsuba as mi
-    from skimage.metrics import structural_similarity
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
-    from hack_render.io.image import to_srgb8
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings, composite
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
-
-    mi.set_log_level(mi.LogLevel.Error)
-    warnings.simplefilter("ignore")
+def transcript() -> tuple:
+    """(say, printed): ``say(text)`` prints ``text`` at once and keeps its lines in the list
+    ``printed``, for the result file."""
     printed: list[str] = []
 
     def say(text: str) -> None:
         print(text, flush=True)
         printed.extend(text.splitlines())
 
-    # hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE (portrait, studio, depth 8)
+    return say, printed
+
+
+def cycles_comparison_scene(size: int) -> SimpleNamespace:
+    """The scene of both Cycles comparisons (``--only cycles``, bench_hair_cycles.py):
+    ``hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE``, the default head at
+    rest (portrait camera, studio rig, depth 8). Returns ``model``, ``v`` (V, 3) float64
+    posed vertices (metres), ``topo``, skin ``maps``, light ``rig`` and ``cam``; Mitsuba's
+    log and Python's warnings are quietened (the ladders print tables)."""
+    import warnings
+
+    import mitsuba as mi
+
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.render.parts import Topology
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    mi.set_log_level(mi.LogLevel.Error)
+    warnings.simplefilter("ignore")
     model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
                                   None)
-    v = verts.astype(np.float64)
-    topo = Topology.from_model(model)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    rig = lights.preset("studio")
-    cam = cameras.preset("portrait", size, size)[0]
+    return SimpleNamespace(model=model, v=verts.astype(np.float64),
+                           topo=Topology.from_model(model), maps=skin_maps([0.8, -0.6, 0.4]),
+                           rig=lights.preset("studio"),
+                           cam=cameras.preset("portrait", size, size)[0])
+
+
+def start_cycles(bpy_python: str, scene_dir: Path, say) -> CyclesWorker:
+    """A :class:`CyclesWorker` on the scene written to ``scene_dir``; says what its start
+    cost."""
+    t0 = time.perf_counter()
+    worker = CyclesWorker(bpy_python, scene_dir, scene_dir / "cycles.log")
+    say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
+        f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
+        f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+    return worker
+
+
+def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
+                     ref_spp: int, repeats: int, still: Path | None,
+                     out: str | None) -> None:
+    import os
+
+    from skimage.metrics import structural_similarity
+
+    from hack_render.io.image import to_srgb8
+    from hack_render.render.scene import HeadScene, RenderSettings, composite
+
+    say, printed = transcript()
+    # hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE (portrait, studio, depth 8)
+    sc = cycles_comparison_scene(size)
+    v, topo, maps, rig, cam = sc.v, sc.topo, sc.maps, sc.rig, sc.cam
     # "ours_box": a diagnostic, our renderer with a box pixel filter (each sample in one
     # pixel, as Cycles' filter importance sampling), denoised, against its own reference
     filters = {"ours": "gaussian", "ours_box": "box"}
@@ -904,11 +935,7 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
         head = ours(1)
         bg = head.backdrop()
         write_cycles_scene(tmp, head, v, maps)
-        t0 = time.perf_counter()
-        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
-        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
-            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
-            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        worker = start_cycles(bpy_python, tmp, say)
         try:
             refs = {}
             for name in ("ours", "cycles", "ours_box"):

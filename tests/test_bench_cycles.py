@@ -74,6 +74,34 @@ def test_missing_blender_python_exits_2_with_the_fix(bench, monkeypatch, capsys,
     assert err.value.code == 2 and "missing" in capsys.readouterr().err
 
 
+def test_both_comparisons_render_one_scene(bench, capsys):
+    """``cycles_comparison_scene`` (bench_render's ``--only cycles`` and
+    bench_hair_cycles.py): ``render --alpha 0.8,-0.6,0.4`` of the default head at rest,
+    the portrait camera at the size asked, the studio rig; ``transcript`` prints and keeps
+    each line."""
+    pytest.importorskip("mitsuba")
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    sc = bench.cycles_comparison_scene(40)
+    _, _, v = posed_model(None, None, None, None, None, None, LimitPolicy("warn"), None)
+    assert sc.v.dtype == np.float64 and np.array_equal(sc.v, v)
+    assert sc.topo.faces.shape[0] == sc.model.faces.shape[0]
+    cam = cameras.preset("portrait", 40, 40)[0]
+    assert (sc.cam.width, sc.cam.height, sc.cam.name) == (40, 40, cam.name)
+    np.testing.assert_array_equal(sc.cam.K, cam.K)
+    np.testing.assert_array_equal(sc.cam.t, cam.t)
+    assert (sc.rig.name, sc.rig.exposure) == ("studio", lights.preset("studio").exposure)
+    np.testing.assert_array_equal(sc.maps.diffuse, skin_maps([0.8, -0.6, 0.4]).diffuse)
+    say, printed = bench.transcript()
+    say("one\ntwo")
+    say("three")
+    assert printed == ["one", "two", "three"]
+    assert capsys.readouterr().out == "one\ntwo\nthree\n"
+
+
 BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
 
 
@@ -83,20 +111,11 @@ BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
 def test_cycles_renders_the_same_scene(bench, tmp_path):
     """At 64 px and 64 spp both see the head in the same pixels with the same brightness
     (lights, camera and materials carried over; the materials differ in detail)."""
-    import warnings
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
-    from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
 
-    warnings.simplefilter("ignore")
-    model, _, v = posed_model(None, None, None, None, None, None, LimitPolicy("warn"), None)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    head = HeadScene(Topology.from_model(model), v, lights.preset("studio"),
-                     cameras.preset("portrait", 64, 64)[0], RenderSettings(64, 64, 64), maps)
+    sc = bench.cycles_comparison_scene(64)
+    v, maps = sc.v, sc.maps
+    head = HeadScene(sc.topo, v, sc.rig, sc.cam, RenderSettings(64, 64, 64), maps)
     ours = head.render(seed=1, backdrop=False)
     exe, _ = bench.blender_python(BPY)
     bench.write_cycles_scene(tmp_path, head, v, maps)
