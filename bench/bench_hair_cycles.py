@@ -49,6 +49,7 @@ from bench_render import (  # bench/ is sys.path[0] when run as a script
     lower_envelope,
     side_by_side,
     start_cycles,
+    timed_render,
     transcript,
     write_cycles_scene,
 )
@@ -223,18 +224,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
                         cpu, wall, res = [], [], []
                         for r in range(repeats):
-                            if name == "cycles":
-                                rep, img = worker.render(spp, 1 + r, denoise,
-                                                         tmp / "img.exr")
-                                cpu.append(rep["cpu_s"])
-                                wall.append(rep["wall_s"])
-                                eff = rep["spp"]
-                            else:
-                                c0, w0 = time.process_time(), time.perf_counter()
-                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
-                                cpu.append(time.process_time() - c0)
-                                wall.append(time.perf_counter() - w0)
-                                eff = h.settings.effective_spp
+                            img, c, w, eff = timed_render(name, h, worker, spp, 1 + r,
+                                                          denoise, tmp / "img.exr")
+                            cpu.append(c)
+                            wall.append(w)
                             rgb = composite(img, bg)[..., :3]
                             res.append((psnr(rgb, ref), psnr(rgb, ref, mask)))
                         images[(name, eff, denoise)] = rgb

@@ -901,6 +901,20 @@ def start_cycles(bpy_python: str, scene_dir: Path, say) -> CyclesWorker:
     return worker
 
 
+def timed_render(name: str, head, worker: CyclesWorker, spp: int, seed: int, denoise: bool,
+                 out: Path) -> tuple[np.ndarray, float, float, int]:
+    """One render of a ladder's rung: Cycles' (``name == "cycles"``: ``worker`` renders
+    into ``out``, and reports its times) or ours (``head``, a ``HeadScene`` built and
+    compiled beforehand). Returns (the (H, W, 4) linear RGBA image, CPU seconds (process
+    time, all threads), wall seconds, the effective spp)."""
+    if name == "cycles":
+        rep, img = worker.render(spp, seed, denoise, out)
+        return img, rep["cpu_s"], rep["wall_s"], rep["spp"]
+    c0, w0 = time.process_time(), time.perf_counter()
+    img = head.render(seed=seed, backdrop=False, denoise=denoise)
+    return img, time.process_time() - c0, time.perf_counter() - w0, head.settings.effective_spp
+
+
 def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
                      ref_spp: int, repeats: int, still: Path | None,
                      out: str | None) -> None:
@@ -974,18 +988,10 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
                         cpu, wall, res = [], [], []
                         for r in range(repeats):
-                            if name == "cycles":
-                                rep, img = worker.render(spp, 1 + r, denoise,
-                                                         tmp / "img.exr")
-                                cpu.append(rep["cpu_s"])
-                                wall.append(rep["wall_s"])
-                                eff = rep["spp"]
-                            else:
-                                c0, w0 = time.process_time(), time.perf_counter()
-                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
-                                cpu.append(time.process_time() - c0)
-                                wall.append(time.perf_counter() - w0)
-                                eff = h.settings.effective_spp
+                            img, c, w, eff = timed_render(name, h, worker, spp, 1 + r,
+                                                          denoise, tmp / "img.exr")
+                            cpu.append(c)
+                            wall.append(w)
                             res.append(score(name, img))
                         images[(name, eff, denoise)] = composite(img, bg)[..., :3]
                         row = {"renderer": name, "denoise": denoise, "spp": eff,

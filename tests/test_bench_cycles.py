@@ -102,6 +102,36 @@ def test_both_comparisons_render_one_scene(bench, capsys):
     assert capsys.readouterr().out == "one\ntwo\nthree\n"
 
 
+def test_a_rung_is_timed_by_the_renderer_that_renders_it(bench, tmp_path):
+    """``timed_render``: Cycles' times are the worker's own report (its process's), ours
+    the render call's (process and wall time), each with the effective spp."""
+    import time
+    from types import SimpleNamespace
+
+    img = np.zeros((2, 2, 4), np.float32)
+
+    class Worker:
+        def render(self, spp, seed, denoise, out):
+            self.asked = (spp, seed, denoise, out)
+            return {"cpu_s": 7.0, "wall_s": 3.0, "spp": spp + 1}, img
+
+    class Head:
+        settings = SimpleNamespace(effective_spp=16)
+
+        def render(self, seed, backdrop, denoise):
+            self.asked = (seed, backdrop, denoise)
+            time.sleep(0.05)
+            return img + seed
+
+    w, h = Worker(), Head()
+    got = bench.timed_render("cycles", None, w, 8, 2, True, tmp_path / "i.exr")
+    assert got[0] is img and got[1:] == (7.0, 3.0, 9)
+    assert w.asked == (8, 2, True, tmp_path / "i.exr")
+    out, cpu, wall, spp = bench.timed_render("ours", h, None, 8, 3, False, tmp_path / "i.exr")
+    assert h.asked == (3, False, False) and out[0, 0, 0] == 3 and spp == 16
+    assert 0.04 <= wall < 1.0 and 0 <= cpu < wall
+
+
 BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
 
 
