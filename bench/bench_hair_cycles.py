@@ -133,7 +133,8 @@ def feature_variants(head, k: int = 4) -> dict[str, tuple[np.ndarray, np.ndarray
 def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
               ref_spp: int, repeats: int, still: Path | None, out: str | None,
               melanin: str = "concentration", ablation=()) -> dict:
-    from hack_render.hair.groom import HeadSurface, grow_cached
+    from hack_render.hair.groom import grow_cached
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.io.image import to_srgb8
     from hack_render.render.cli import denoise_settings

@@ -1279,7 +1279,8 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     """(j): see the module's notes."""
     from hack_render.geometry import default_model_path
     from hack_render.geometry.posing import PosingModel
-    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.groom import grow
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.render import hair_shapes
     from hack_render.render.parts import Topology
@@ -1359,7 +1360,8 @@ def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
     over the pixels whose centre sees hair and the mean there, relative to the reference."""
     from hack_render.geometry import default_model_path
     from hack_render.geometry.posing import PosingModel
-    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.groom import grow
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.render import hair_shapes
     from hack_render.render.parts import REGIONS, Topology

@@ -44,12 +44,12 @@ from hack_render.export.rig import top_weights
 from hack_render.hair.groom import (
     BodyProxy,
     Groom,
-    HeadSurface,
     closest_on_triangles,
     grow_cached,
     triangle_frames,
 )
 from hack_render.hair.pose import pose_groom
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import NAMED_COLOURS, HairStyle
 from hack_render.render.hair_options import hair_style as resolve_hair_style
 

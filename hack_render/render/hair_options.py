@@ -19,7 +19,8 @@ import typer
 
 from hack_render.errors import HackError
 from hack_render.geometry.params import MAX_PARAMS_BYTES, parse_params_text
-from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.groom import grow_cached
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import ARCHETYPES, HairStyle
 
 HAIR_HELP = ("Hair, brows, lashes and beard as strands (docs/hair.md): a style name "
