@@ -98,7 +98,8 @@ def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
     assert exe, "the hack-render console script is installed with the package"
     # CI runs the suite in the background, which hands children SIGINT ignored; an ignored
     # signal stays ignored through exec, a handled one is reset to the default: the test
-    # handles it while it starts the viewer (no preexec_fn: unsafe with threads, PLW1509)
+    # handles it while it starts the viewer, which so starts as from a terminal
+    # (test_interruptions.ctrl_c_for_children; no preexec_fn: unsafe with threads, PLW1509)
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         p = subprocess.Popen([exe, "view", str(glb), "--no-open", "--port", str(port)],

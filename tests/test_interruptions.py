@@ -51,12 +51,14 @@ def tree(folder: Path, skip=()) -> dict[str, bytes]:
 
 @contextlib.contextmanager
 def ctrl_c_for_children():
-    """Children started inside get Ctrl-C's default handling. A suite started in the
-    background by a non-interactive shell (as CI runs it) has SIGINT ignored, and a command
-    that ignores Ctrl-C cannot be tested on it. An ignored signal stays ignored through
-    exec (``start_new_session``, ``process_group`` and ``restore_signals`` leave it so); a
-    handled one is reset to the default there. So the test process handles SIGINT while it
-    starts the child, instead of a ``preexec_fn`` (unsafe with threads, ruff PLW1509)."""
+    """Children started inside get Ctrl-C's default handling, as from a terminal. A suite
+    started in the background by a non-interactive shell (as CI runs it) has SIGINT
+    ignored, and an ignored signal stays ignored through exec (``start_new_session``,
+    ``process_group`` and ``restore_signals`` leave it so), while a handled one is reset
+    to the default there: so the test process handles SIGINT while it starts the child,
+    instead of a ``preexec_fn`` (unsafe with threads, ruff PLW1509). (``hack_render.cli``'s
+    main installs its own handlers whatever it inherits; this keeps the child a terminal's
+    until then.)"""
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
