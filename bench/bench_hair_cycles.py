@@ -36,9 +36,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -47,9 +47,9 @@ from bench_render import (  # bench/ is sys.path[0] when run as a script
     compare_curves,
     cycles_comparison_scene,
     lower_envelope,
+    rung_row,
     side_by_side,
     start_cycles,
-    timed_render,
     transcript,
     write_cycles_scene,
 )
@@ -213,6 +213,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                 f"whole-image PSNR of one reference against the other "
                 f"{psnr(refs['cycles'], refs['ours']):.1f} dB")
 
+            def score(ref: np.ndarray, img: np.ndarray) -> dict[str, float]:
+                rgb = composite(img, bg)[..., :3]
+                return {"psnr": psnr(rgb, ref), "psnr_hair": psnr(rgb, ref, mask)}
+
             say("renderer  denoise   spp   CPU s  wall s  PSNR dB  hair dB")
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
                 for spp in spps:  # interleaved: our rung, then Cycles' rung
@@ -223,20 +227,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                             h = ours(spp, denoise)
                             for seed in (1000, 1001):  # Dr.Jit's compiles, before timing
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
-                        cpu, wall, res = [], [], []
-                        for r in range(repeats):
-                            img, c, w, eff = timed_render(name, h, worker, spp, 1 + r,
-                                                          denoise, tmp / "img.exr")
-                            cpu.append(c)
-                            wall.append(w)
-                            rgb = composite(img, bg)[..., :3]
-                            res.append((psnr(rgb, ref), psnr(rgb, ref, mask)))
-                        images[(name, eff, denoise)] = rgb
-                        row = {"renderer": name, "denoise": denoise, "spp": eff,
-                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
-                               "wall_s": statistics.median(wall),
-                               "psnr": float(np.mean([p for p, _ in res])),
-                               "psnr_hair": float(np.mean([p for _, p in res]))}
+                        row, img = rung_row(name, h, worker, spp, denoise, repeats,
+                                            tmp / "img.exr", partial(score, ref))
+                        eff = row["spp"]
+                        images[(name, eff, denoise)] = composite(img, bg)[..., :3]
                         rows.append(row)
                         say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
                             f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "

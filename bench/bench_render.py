@@ -100,6 +100,7 @@ import resource
 import statistics
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -915,6 +916,25 @@ def timed_render(name: str, head, worker: CyclesWorker, spp: int, seed: int, den
     return img, time.process_time() - c0, time.perf_counter() - w0, head.settings.effective_spp
 
 
+def rung_row(name: str, head, worker: CyclesWorker, spp: int, denoise: bool, repeats: int,
+             out: Path, score) -> tuple[dict, np.ndarray]:
+    """A ladder's rung: ``repeats`` renders (seeds 1, 2, ...) by :func:`timed_render`,
+    each scored by ``score(image) -> {name: value}``. Returns the row (renderer, denoise,
+    effective spp, median CPU and wall seconds, each render's CPU seconds, each score's
+    mean over the renders) and the last (H, W, 4) image."""
+    cpu, wall, scores = [], [], []
+    for r in range(repeats):
+        img, c, w, eff = timed_render(name, head, worker, spp, 1 + r, denoise, out)
+        cpu.append(c)
+        wall.append(w)
+        scores.append(score(img))
+    row = {"renderer": name, "denoise": denoise, "spp": eff,
+           "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
+           "wall_s": statistics.median(wall)}
+    row.update({k: float(np.mean([sc[k] for sc in scores])) for k in scores[0]})
+    return row, img
+
+
 def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
                      ref_spp: int, repeats: int, still: Path | None,
                      out: str | None) -> None:
@@ -968,12 +988,12 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                     f"{np.round(refs[name].mean((0, 1)), 4).tolist()}")
             ref8 = {k: to_srgb8(r, 0.0, "aces") for k, r in refs.items()}
 
-            def score(name: str, img: np.ndarray) -> tuple[float, float]:
+            def score(name: str, img: np.ndarray) -> dict[str, float]:
                 rgb = composite(img, bg)[..., :3]
                 mse = float(np.mean((rgb - refs[name]) ** 2))
                 ssim = structural_similarity(to_srgb8(rgb, 0.0, "aces"), ref8[name],
                                              channel_axis=-1)
-                return 10.0 * np.log10(1.0 / mse), float(ssim)
+                return {"psnr": 10.0 * np.log10(1.0 / mse), "ssim": float(ssim)}
 
             say("renderer  denoise   spp   CPU s  wall s   PSNR dB   SSIM")
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
@@ -986,19 +1006,10 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                             # before timing
                             for seed in (1000, 1001):
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
-                        cpu, wall, res = [], [], []
-                        for r in range(repeats):
-                            img, c, w, eff = timed_render(name, h, worker, spp, 1 + r,
-                                                          denoise, tmp / "img.exr")
-                            cpu.append(c)
-                            wall.append(w)
-                            res.append(score(name, img))
+                        row, img = rung_row(name, h, worker, spp, denoise, repeats,
+                                            tmp / "img.exr", partial(score, name))
+                        eff = row["spp"]
                         images[(name, eff, denoise)] = composite(img, bg)[..., :3]
-                        row = {"renderer": name, "denoise": denoise, "spp": eff,
-                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
-                               "wall_s": statistics.median(wall),
-                               "psnr": float(np.mean([p for p, _ in res])),
-                               "ssim": float(np.mean([s for _, s in res]))}
                         rows.append(row)
                         say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
                             f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "

@@ -130,6 +130,17 @@ def test_a_rung_is_timed_by_the_renderer_that_renders_it(bench, tmp_path):
     out, cpu, wall, spp = bench.timed_render("ours", h, None, 8, 3, False, tmp_path / "i.exr")
     assert h.asked == (3, False, False) and out[0, 0, 0] == 3 and spp == 16
     assert 0.04 <= wall < 1.0 and 0 <= cpu < wall
+    # ``rung_row``: seeds 1..repeats, the medians, each CPU time and each score's mean
+    row, last = bench.rung_row("cycles", None, w, 8, True, 3, tmp_path / "i.exr",
+                               lambda im: {"psnr": 30.0 + w.asked[1], "ssim": 0.5})
+    assert w.asked[1] == 3 and last is img
+    assert row == {"renderer": "cycles", "denoise": True, "spp": 9, "cpu_s": 7.0,
+                   "cpu_each_s": [7.0] * 3, "wall_s": 3.0, "psnr": 32.0, "ssim": 0.5}
+    assert list(row)[-2:] == ["psnr", "ssim"]   # the result file's key order
+    row, last = bench.rung_row("ours", h, None, 8, False, 2, tmp_path / "i.exr",
+                               lambda im: {"psnr_hair": float(im[0, 0, 0])})
+    assert last[0, 0, 0] == 2 and row["psnr_hair"] == 1.5 and row["spp"] == 16
+    assert len(row["cpu_each_s"]) == 2 and row["wall_s"] >= 0.04
 
 
 BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
