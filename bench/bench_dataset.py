@@ -70,6 +70,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from method_timer import MethodTimer  # bench/ is sys.path[0] when run as a script
 from provenance import ROOT, recorded  # bench/ is sys.path[0] when run as a script
 
 
@@ -255,31 +256,6 @@ def ray_benchmark(cfg: dict, n: int, root: Path) -> None:
         print(f"    ray worker peak RSS: {', '.join(f'{p:.0f}' for p in peaks)} MiB")
 
 
-class _Timer:
-    """Accumulates the seconds spent in wrapped methods, per name (bench-only patching)."""
-
-    def __init__(self):
-        self.total: dict[str, float] = {}
-
-    def wrap(self, owner, method: str, name: str | None = None):
-        orig = getattr(owner, method)
-        key = name or method
-
-        def timed(*args, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return orig(*args, **kwargs)
-            finally:
-                self.total[key] = self.total.get(key, 0.0) + time.perf_counter() - t0
-
-        setattr(owner, method, timed)
-        return orig
-
-    def take(self) -> dict[str, float]:
-        out, self.total = self.total, {}
-        return out
-
-
 def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Path) -> None:
     """(d): the pipeline's steady state with projected and generated skin maps, against
     the render call and the render call plus the scene update (see the docstring)."""
@@ -296,7 +272,7 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     rs = {m: SampleRenderer(c, root / m, seed, background_writes=True) for m, c in cfgs.items()}
     for r in rs.values():
         r.build_scenes()
-    timer = _Timer()
+    timer = MethodTimer()
     timer.wrap(HeadScene, "render")
     timer.wrap(wk.SampleRenderer, "skin_maps")
     timer.wrap(lab, "label_images")

@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from method_timer import MethodTimer  # bench/ is sys.path[0] when run as a script
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -111,30 +112,8 @@ def sheet(path: Path, seed: int, keep: str | None, size: int) -> None:
     print(f"wrote {path} and {prev} (samples kept in {root})")
 
 
-class _Timer:
-    def __init__(self):
-        self.total: dict[str, float] = {}
-
-    def wrap(self, owner, method: str, name: str | None = None):
-        orig = getattr(owner, method)
-        key = name or method
-
-        def timed(*args, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return orig(*args, **kwargs)
-            finally:
-                self.total[key] = self.total.get(key, 0.0) + time.perf_counter() - t0
-
-        setattr(owner, method, timed)
-
-    def take(self) -> dict[str, float]:
-        out, self.total = self.total, {}
-        return out
-
-
 def speed(n: int, warm: int, size: int, spp: int, lods: list[float], seed: int) -> None:
-    timer = _Timer()
+    timer = MethodTimer()
     timer.wrap(HeadScene, "render")
     timer.wrap(lab, "label_images")
     timer.wrap(wk.SampleRenderer, "groom")

@@ -36,18 +36,21 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 from bench_render import (  # bench/ is sys.path[0] when run as a script
-    CyclesWorker,
     blender_python,
     compare_curves,
+    cycles_comparison_scene,
     lower_envelope,
+    rung_row,
     side_by_side,
+    start_cycles,
+    transcript,
     write_cycles_scene,
 )
 from provenance import write_result
@@ -130,39 +133,20 @@ def feature_variants(head, k: int = 4) -> dict[str, tuple[np.ndarray, np.ndarray
 def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, dn_ladder,
               ref_spp: int, repeats: int, still: Path | None, out: str | None,
               melanin: str = "concentration", ablation=()) -> dict:
-    import warnings
-
-    import mitsuba as mi
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
-    from hack_render.hair.groom import HeadSurface, grow_cached
+    from hack_render.hair.groom import grow_cached
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.io.image import to_srgb8
     from hack_render.render.cli import denoise_settings
-    from hack_render.render.parts import REGIONS, Topology
+    from hack_render.render.parts import REGIONS
     from hack_render.render.scene import HeadScene, RenderSettings, composite
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
 
-    mi.set_log_level(mi.LogLevel.Error)
-    warnings.simplefilter("ignore")
-    printed: list[str] = []
-
-    def say(text: str) -> None:
-        print(text, flush=True)
-        printed.extend(text.splitlines())
-
-    model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
-                                  None)
-    v = verts.astype(np.float64)
-    topo = Topology.from_model(model)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    rig = lights.preset("studio")
-    cam = cameras.preset("portrait", size, size)[0]
+    say, printed = transcript()
+    sc = cycles_comparison_scene(size)
+    v, topo, maps, rig, cam = sc.v, sc.topo, sc.maps, sc.rig, sc.cam
     t0 = time.perf_counter()
-    groom = grow_cached(HeadSurface.from_model(model), HairStyle.archetype_style(style,
-                                                                                 lod=1.0))
+    groom = grow_cached(HeadSurface.from_model(sc.model), HairStyle.archetype_style(style,
+                                                                                    lod=1.0))
     counts = ", ".join(f"{g.name} {g.num_strands} x {g.points_per_strand}"
                        for g in groom.groups)
 
@@ -200,11 +184,7 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
         say("  " + "; ".join(f"{s['name']} (eu {s['eumelanin']:.2f}, pheo "
                              f"{s['pheomelanin']:.2f})" for s in specs[:3]) + "; ...")
         del head
-        t0 = time.perf_counter()
-        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
-        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
-            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
-            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        worker = start_cycles(bpy_python, tmp, say)
         try:
             refs, ref_info = {}, {}
             for name in ("ours", "ours_box", "cycles"):
@@ -233,6 +213,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                 f"whole-image PSNR of one reference against the other "
                 f"{psnr(refs['cycles'], refs['ours']):.1f} dB")
 
+            def score(ref: np.ndarray, img: np.ndarray) -> dict[str, float]:
+                rgb = composite(img, bg)[..., :3]
+                return {"psnr": psnr(rgb, ref), "psnr_hair": psnr(rgb, ref, mask)}
+
             say("renderer  denoise   spp   CPU s  wall s  PSNR dB  hair dB")
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
                 for spp in spps:  # interleaved: our rung, then Cycles' rung
@@ -243,28 +227,10 @@ def benchmark(bpy_python: str, bpy_version: str, size: int, style: str, ladder, 
                             h = ours(spp, denoise)
                             for seed in (1000, 1001):  # Dr.Jit's compiles, before timing
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
-                        cpu, wall, res = [], [], []
-                        for r in range(repeats):
-                            if name == "cycles":
-                                rep, img = worker.render(spp, 1 + r, denoise,
-                                                         tmp / "img.exr")
-                                cpu.append(rep["cpu_s"])
-                                wall.append(rep["wall_s"])
-                                eff = rep["spp"]
-                            else:
-                                c0, w0 = time.process_time(), time.perf_counter()
-                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
-                                cpu.append(time.process_time() - c0)
-                                wall.append(time.perf_counter() - w0)
-                                eff = h.settings.effective_spp
-                            rgb = composite(img, bg)[..., :3]
-                            res.append((psnr(rgb, ref), psnr(rgb, ref, mask)))
-                        images[(name, eff, denoise)] = rgb
-                        row = {"renderer": name, "denoise": denoise, "spp": eff,
-                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
-                               "wall_s": statistics.median(wall),
-                               "psnr": float(np.mean([p for p, _ in res])),
-                               "psnr_hair": float(np.mean([p for _, p in res]))}
+                        row, img = rung_row(name, h, worker, spp, denoise, repeats,
+                                            tmp / "img.exr", partial(score, ref))
+                        eff = row["spp"]
+                        images[(name, eff, denoise)] = composite(img, bg)[..., :3]
                         rows.append(row)
                         say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
                             f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "

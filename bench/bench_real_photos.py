@@ -354,35 +354,6 @@ OVAL_RINGS = {"oval": ("FACEMESH_FACE_OVAL",),
               "mouth": ("FACEMESH_LIPS",)}
 
 
-def mesh_loops(name: str) -> list:
-    """(As fit/iris.py's, kept here so that the measure owes the fit nothing.) A face-mesh connection set (MediaPipe's ``FACEMESH_*``) as its closed loops of
-    point ids, longest first: the sets are undirected edges (an eye's is two lids' polylines
-    from corner to corner; the lips' two such loops, outer and inner)."""
-    from collections import defaultdict
-
-    from mediapipe.python.solutions import face_mesh_connections as fmc
-
-    adj = defaultdict(set)
-    for a, b in getattr(fmc, name):
-        adj[a].add(b)
-        adj[b].add(a)
-    loops, seen = [], set()
-    for start in sorted(adj):
-        if start in seen:
-            continue
-        loop, prev, p = [start], None, start
-        seen.add(start)
-        while True:
-            nxt = [q for q in sorted(adj[p]) if q != prev and (q not in seen or q == start)]
-            if not nxt or nxt[0] == start:
-                break
-            prev, p = p, nxt[0]
-            seen.add(p)
-            loop.append(p)
-        loops.append(loop)
-    return sorted(loops, key=len, reverse=True)
-
-
 def _area(loop: np.ndarray) -> float:
     x, y = loop[:, 0], loop[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
@@ -397,6 +368,7 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     None where the mesh finds no face."""
     from skimage.draw import polygon
 
+    from hack_render.fit.iris import mesh_loops  # the face mesh's topology, no fitting
     from hack_render.vision.detect import detect_faces
 
     faces = detect_faces(img, "mesh")

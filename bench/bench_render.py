@@ -100,7 +100,9 @@ import resource
 import statistics
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -851,39 +853,102 @@ def lower_envelope(*ladders: list[dict]) -> list[dict]:
     return out
 
 
-def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
-                     ref_spp: int, repeats: int, still: Path | None,
-                     out: str | None) -> None:
-    import os
-    import warnings
-
-    import mitsuba as mi
-    from skimage.metrics import structural_similarity
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
-    from hack_render.io.image import to_srgb8
-    from hack_render.render.parts import Topology
-    from hack_render.render.scene import HeadScene, RenderSettings, composite
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
-
-    mi.set_log_level(mi.LogLevel.Error)
-    warnings.simplefilter("ignore")
+def transcript() -> tuple:
+    """(say, printed): ``say(text)`` prints ``text`` at once and keeps its lines in the list
+    ``printed``, for the result file."""
     printed: list[str] = []
 
     def say(text: str) -> None:
         print(text, flush=True)
         printed.extend(text.splitlines())
 
-    # hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE (portrait, studio, depth 8)
+    return say, printed
+
+
+def cycles_comparison_scene(size: int) -> SimpleNamespace:
+    """The scene of both Cycles comparisons (``--only cycles``, bench_hair_cycles.py):
+    ``hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE``, the default head at
+    rest (portrait camera, studio rig, depth 8). Returns ``model``, ``v`` (V, 3) float64
+    posed vertices (metres), ``topo``, skin ``maps``, light ``rig`` and ``cam``; Mitsuba's
+    log and Python's warnings are quietened (the ladders print tables)."""
+    import warnings
+
+    import mitsuba as mi
+
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.render.parts import Topology
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    mi.set_log_level(mi.LogLevel.Error)
+    warnings.simplefilter("ignore")
     model, _, verts = posed_model(None, None, None, None, None, None, LimitPolicy("warn"),
                                   None)
-    v = verts.astype(np.float64)
-    topo = Topology.from_model(model)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    rig = lights.preset("studio")
-    cam = cameras.preset("portrait", size, size)[0]
+    return SimpleNamespace(model=model, v=verts.astype(np.float64),
+                           topo=Topology.from_model(model), maps=skin_maps([0.8, -0.6, 0.4]),
+                           rig=lights.preset("studio"),
+                           cam=cameras.preset("portrait", size, size)[0])
+
+
+def start_cycles(bpy_python: str, scene_dir: Path, say) -> CyclesWorker:
+    """A :class:`CyclesWorker` on the scene written to ``scene_dir``; says what its start
+    cost."""
+    t0 = time.perf_counter()
+    worker = CyclesWorker(bpy_python, scene_dir, scene_dir / "cycles.log")
+    say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
+        f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
+        f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+    return worker
+
+
+def timed_render(name: str, head, worker: CyclesWorker, spp: int, seed: int, denoise: bool,
+                 out: Path) -> tuple[np.ndarray, float, float, int]:
+    """One render of a ladder's rung: Cycles' (``name == "cycles"``: ``worker`` renders
+    into ``out``, and reports its times) or ours (``head``, a ``HeadScene`` built and
+    compiled beforehand). Returns (the (H, W, 4) linear RGBA image, CPU seconds (process
+    time, all threads), wall seconds, the effective spp)."""
+    if name == "cycles":
+        rep, img = worker.render(spp, seed, denoise, out)
+        return img, rep["cpu_s"], rep["wall_s"], rep["spp"]
+    c0, w0 = time.process_time(), time.perf_counter()
+    img = head.render(seed=seed, backdrop=False, denoise=denoise)
+    return img, time.process_time() - c0, time.perf_counter() - w0, head.settings.effective_spp
+
+
+def rung_row(name: str, head, worker: CyclesWorker, spp: int, denoise: bool, repeats: int,
+             out: Path, score) -> tuple[dict, np.ndarray]:
+    """A ladder's rung: ``repeats`` renders (seeds 1, 2, ...) by :func:`timed_render`,
+    each scored by ``score(image) -> {name: value}``. Returns the row (renderer, denoise,
+    effective spp, median CPU and wall seconds, each render's CPU seconds, each score's
+    mean over the renders) and the last (H, W, 4) image."""
+    cpu, wall, scores = [], [], []
+    for r in range(repeats):
+        img, c, w, eff = timed_render(name, head, worker, spp, 1 + r, denoise, out)
+        cpu.append(c)
+        wall.append(w)
+        scores.append(score(img))
+    row = {"renderer": name, "denoise": denoise, "spp": eff,
+           "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
+           "wall_s": statistics.median(wall)}
+    row.update({k: float(np.mean([sc[k] for sc in scores])) for k in scores[0]})
+    return row, img
+
+
+def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_ladder,
+                     ref_spp: int, repeats: int, still: Path | None,
+                     out: str | None) -> None:
+    import os
+
+    from skimage.metrics import structural_similarity
+
+    from hack_render.io.image import to_srgb8
+    from hack_render.render.scene import HeadScene, RenderSettings, composite
+
+    say, printed = transcript()
+    # hack-render render --alpha 0.8,-0.6,0.4 --resolution SIZE (portrait, studio, depth 8)
+    sc = cycles_comparison_scene(size)
+    v, topo, maps, rig, cam = sc.v, sc.topo, sc.maps, sc.rig, sc.cam
     # "ours_box": a diagnostic, our renderer with a box pixel filter (each sample in one
     # pixel, as Cycles' filter importance sampling), denoised, against its own reference
     filters = {"ours": "gaussian", "ours_box": "box"}
@@ -904,11 +969,7 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
         head = ours(1)
         bg = head.backdrop()
         write_cycles_scene(tmp, head, v, maps)
-        t0 = time.perf_counter()
-        worker = CyclesWorker(bpy_python, tmp, tmp / "cycles.log")
-        say(f"Cycles scene built in {time.perf_counter() - t0:.1f} s wall "
-            f"({worker.ready['build_cpu_s']:.1f} CPU s import + sync; warm-up 1 spp "
-            f"{worker.ready['warmup_cpu_s']:.2f} CPU s)")
+        worker = start_cycles(bpy_python, tmp, say)
         try:
             refs = {}
             for name in ("ours", "cycles", "ours_box"):
@@ -927,12 +988,12 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                     f"{np.round(refs[name].mean((0, 1)), 4).tolist()}")
             ref8 = {k: to_srgb8(r, 0.0, "aces") for k, r in refs.items()}
 
-            def score(name: str, img: np.ndarray) -> tuple[float, float]:
+            def score(name: str, img: np.ndarray) -> dict[str, float]:
                 rgb = composite(img, bg)[..., :3]
                 mse = float(np.mean((rgb - refs[name]) ** 2))
                 ssim = structural_similarity(to_srgb8(rgb, 0.0, "aces"), ref8[name],
                                              channel_axis=-1)
-                return 10.0 * np.log10(1.0 / mse), float(ssim)
+                return {"psnr": 10.0 * np.log10(1.0 / mse), "ssim": float(ssim)}
 
             say("renderer  denoise   spp   CPU s  wall s   PSNR dB   SSIM")
             for denoise, spps in ((False, ladder), (True, dn_ladder)):
@@ -945,27 +1006,10 @@ def cycles_benchmark(bpy_python: str, bpy_version: str, size: int, ladder, dn_la
                             # before timing
                             for seed in (1000, 1001):
                                 h.render(seed=seed, backdrop=False, denoise=denoise)
-                        cpu, wall, res = [], [], []
-                        for r in range(repeats):
-                            if name == "cycles":
-                                rep, img = worker.render(spp, 1 + r, denoise,
-                                                         tmp / "img.exr")
-                                cpu.append(rep["cpu_s"])
-                                wall.append(rep["wall_s"])
-                                eff = rep["spp"]
-                            else:
-                                c0, w0 = time.process_time(), time.perf_counter()
-                                img = h.render(seed=1 + r, backdrop=False, denoise=denoise)
-                                cpu.append(time.process_time() - c0)
-                                wall.append(time.perf_counter() - w0)
-                                eff = h.settings.effective_spp
-                            res.append(score(name, img))
+                        row, img = rung_row(name, h, worker, spp, denoise, repeats,
+                                            tmp / "img.exr", partial(score, name))
+                        eff = row["spp"]
                         images[(name, eff, denoise)] = composite(img, bg)[..., :3]
-                        row = {"renderer": name, "denoise": denoise, "spp": eff,
-                               "cpu_s": statistics.median(cpu), "cpu_each_s": cpu,
-                               "wall_s": statistics.median(wall),
-                               "psnr": float(np.mean([p for p, _ in res])),
-                               "ssim": float(np.mean([s for _, s in res]))}
                         rows.append(row)
                         say(f"{name:9s} {'OIDN' if denoise else '-':7s} {eff:5d} "
                             f"{row['cpu_s']:7.2f} {row['wall_s']:7.2f} {row['psnr']:8.2f} "
@@ -1246,7 +1290,8 @@ def hair_benchmark(size: int = 256, spp: int = 49, styles=("short", "long"),
     """(j): see the module's notes."""
     from hack_render.geometry import default_model_path
     from hack_render.geometry.posing import PosingModel
-    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.groom import grow
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.render import hair_shapes
     from hack_render.render.parts import Topology
@@ -1326,7 +1371,8 @@ def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
     over the pixels whose centre sees hair and the mean there, relative to the reference."""
     from hack_render.geometry import default_model_path
     from hack_render.geometry.posing import PosingModel
-    from hack_render.hair.groom import HeadSurface, grow
+    from hack_render.hair.groom import grow
+    from hack_render.hair.regions import HeadSurface
     from hack_render.hair.style import HairStyle
     from hack_render.render import hair_shapes
     from hack_render.render.parts import REGIONS, Topology

@@ -17,7 +17,8 @@ import numpy as np
 
 from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
-from hack_render.hair.groom import HeadSurface, grow
+from hack_render.hair.groom import grow
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.io.image import to_srgb8
 from hack_render.render.parts import Topology

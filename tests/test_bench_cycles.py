@@ -74,6 +74,75 @@ def test_missing_blender_python_exits_2_with_the_fix(bench, monkeypatch, capsys,
     assert err.value.code == 2 and "missing" in capsys.readouterr().err
 
 
+def test_both_comparisons_render_one_scene(bench, capsys):
+    """``cycles_comparison_scene`` (bench_render's ``--only cycles`` and
+    bench_hair_cycles.py): ``render --alpha 0.8,-0.6,0.4`` of the default head at rest,
+    the portrait camera at the size asked, the studio rig; ``transcript`` prints and keeps
+    each line."""
+    pytest.importorskip("mitsuba")
+    from hack_render.geometry.limits import LimitPolicy
+    from hack_render.geometry.loading import posed_model
+    from hack_render.render.skin_maps import skin_maps
+    from scenes import cameras, lights
+
+    sc = bench.cycles_comparison_scene(40)
+    _, _, v = posed_model(None, None, None, None, None, None, LimitPolicy("warn"), None)
+    assert sc.v.dtype == np.float64 and np.array_equal(sc.v, v)
+    assert sc.topo.faces.shape[0] == sc.model.faces.shape[0]
+    cam = cameras.preset("portrait", 40, 40)[0]
+    assert (sc.cam.width, sc.cam.height, sc.cam.name) == (40, 40, cam.name)
+    np.testing.assert_array_equal(sc.cam.K, cam.K)
+    np.testing.assert_array_equal(sc.cam.t, cam.t)
+    assert (sc.rig.name, sc.rig.exposure) == ("studio", lights.preset("studio").exposure)
+    np.testing.assert_array_equal(sc.maps.diffuse, skin_maps([0.8, -0.6, 0.4]).diffuse)
+    say, printed = bench.transcript()
+    say("one\ntwo")
+    say("three")
+    assert printed == ["one", "two", "three"]
+    assert capsys.readouterr().out == "one\ntwo\nthree\n"
+
+
+def test_a_rung_is_timed_by_the_renderer_that_renders_it(bench, tmp_path):
+    """``timed_render``: Cycles' times are the worker's own report (its process's), ours
+    the render call's (process and wall time), each with the effective spp."""
+    import time
+    from types import SimpleNamespace
+
+    img = np.zeros((2, 2, 4), np.float32)
+
+    class Worker:
+        def render(self, spp, seed, denoise, out):
+            self.asked = (spp, seed, denoise, out)
+            return {"cpu_s": 7.0, "wall_s": 3.0, "spp": spp + 1}, img
+
+    class Head:
+        settings = SimpleNamespace(effective_spp=16)
+
+        def render(self, seed, backdrop, denoise):
+            self.asked = (seed, backdrop, denoise)
+            time.sleep(0.05)
+            return img + seed
+
+    w, h = Worker(), Head()
+    got = bench.timed_render("cycles", None, w, 8, 2, True, tmp_path / "i.exr")
+    assert got[0] is img and got[1:] == (7.0, 3.0, 9)
+    assert w.asked == (8, 2, True, tmp_path / "i.exr")
+    out, cpu, wall, spp = bench.timed_render("ours", h, None, 8, 3, False, tmp_path / "i.exr")
+    assert h.asked == (3, False, False) and out[0, 0, 0] == 3 and spp == 16
+    assert 0.04 <= wall < 1.0 and 0 <= cpu < wall
+    # ``rung_row``: seeds 1..repeats, the medians, each CPU time and each score's mean
+    row, last = bench.rung_row("cycles", None, w, 8, True, 3, tmp_path / "i.exr",
+                               lambda im: {"psnr": 30.0 + w.asked[1], "ssim": 0.5})
+    assert w.asked[1] == 3 and last is img
+    assert row == {"renderer": "cycles", "denoise": True, "spp": 9, "cpu_s": 7.0,
+                   "cpu_each_s": [7.0] * 3, "wall_s": 3.0, "psnr": 32.0, "ssim": 0.5}
+    assert list(row)[-2:] == ["psnr", "ssim"]   # the result file's key order
+    row, last = bench.rung_row("ours", h, None, 8, False, 2, tmp_path / "i.exr",
+                               lambda im: {"psnr_hair": float(im[0, 0, 0])})
+    assert last[0, 0, 0] == 2 and row["psnr_hair"] == 1.5 and row["spp"] == 16
+    assert len(row["cpu_each_s"]) == 2 and row["wall_s"] >= 0.04
+
+
 BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
 
 
@@ -83,20 +152,11 @@ BPY = os.environ.get("HACK_RENDER_BPY_PYTHON")
 def test_cycles_renders_the_same_scene(bench, tmp_path):
     """At 64 px and 64 spp both see the head in the same pixels with the same brightness
     (lights, camera and materials carried over; the materials differ in detail)."""
-    import warnings
-
-    from hack_render.geometry.limits import LimitPolicy
-    from hack_render.geometry.loading import posed_model
-    from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
-    from hack_render.render.skin_maps import skin_maps
-    from scenes import cameras, lights
 
-    warnings.simplefilter("ignore")
-    model, _, v = posed_model(None, None, None, None, None, None, LimitPolicy("warn"), None)
-    maps = skin_maps([0.8, -0.6, 0.4])
-    head = HeadScene(Topology.from_model(model), v, lights.preset("studio"),
-                     cameras.preset("portrait", 64, 64)[0], RenderSettings(64, 64, 64), maps)
+    sc = bench.cycles_comparison_scene(64)
+    v, maps = sc.v, sc.maps
+    head = HeadScene(sc.topo, v, sc.rig, sc.cam, RenderSettings(64, 64, 64), maps)
     ours = head.render(seed=1, backdrop=False)
     exe, _ = bench.blender_python(BPY)
     bench.write_cycles_scene(tmp_path, head, v, maps)

@@ -10,7 +10,8 @@ import pytest
 
 from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
-from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.groom import grow_cached
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle, slab_albedo
 from hack_render.render import denoise as dn
 from hack_render.render import footprint

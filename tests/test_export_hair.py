@@ -33,6 +33,7 @@ from hack_render.export.reference import accessor, evaluate, evaluate_primitives
 from hack_render.geometry import load_default_model
 from hack_render.geometry.params import ParamSequence, check_params
 from hack_render.hair.style import HairStyle
+from hack_render.render.hair_options import hair_style as render_hair_style
 
 PARAMS = {"beta": [0.8, -1.2, 0.5], "expression": "AU12=0.6,jawOpen=0.25",
           "head_rotation_deg": [8, 25, -3], "eta": 1.3, "tau": 0.004}
@@ -230,7 +231,16 @@ def test_hair_style_resolution(tmp_path):
     (tmp_path / "h.yaml").write_text("archetype: bun\ncolor: blonde\n")
     assert hair_style(str(tmp_path / "p.json"), None, None).beard == "full"
     assert hair_style(str(tmp_path / "h.yaml"), None, None).archetype == "bun"
-    for args, match in ((("mohawk", None, None), "--hair: .*archetype"),
+    # the options mean what they mean for render and turntable (one resolver: a spelling
+    # render takes, export takes alike), but a bald style with no brows, lashes or beard
+    # has no cards
+    for args in (("LONG", "red", None), (None, "brown", {"archetype": "crew", "beard": "full"}),
+                 (str(tmp_path / "h.yaml"), None, None), ("bald", None, None)):
+        assert hair_style(*args) == render_hair_style(*args) is not None, args
+    assert hair_style("off", None, {"archetype": "bob"}) is render_hair_style("off", None) is None
+    bare = {"archetype": "bald", "brow_density": 0.0, "lash_length": 0.0}
+    assert render_hair_style(None, None, bare).bald and hair_style(None, None, bare) is None
+    for args, match in ((("mohawk", None, None), "--hair: expected a style name"),
                         (("short", "green", None), "--hair-color"),
                         ((None, "black", None), "--hair-color: no hair"),
                         (("none", "black", None), "--hair-color"),
@@ -251,7 +261,7 @@ def _run(args, capsys):
 
 
 @pytest.mark.parametrize("extra, want", [
-    (["--hair", "mohawk"], "--hair: hair archetype: expected one of"),
+    (["--hair", "mohawk"], "--hair: expected a style name"),
     (["--hair", "short", "--hair-color", "green"], "--hair-color: hair colour"),
     (["--hair-color", "black"], "--hair-color: no hair to colour"),
     (["--hair", "short", "--obj"], "--hair: hair cards need a .glb or .gltf"),

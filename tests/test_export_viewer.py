@@ -96,11 +96,16 @@ def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
         port = s.getsockname()[1]
     exe = shutil.which("hack-render")
     assert exe, "the hack-render console script is installed with the package"
-    p = subprocess.Popen([exe, "view", str(glb), "--no-open", "--port", str(port)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         # CI runs the suite in the background, which hands children
-                         # SIGINT ignored: give the viewer its default Ctrl-C back
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    # CI runs the suite in the background, which hands children SIGINT ignored; an ignored
+    # signal stays ignored through exec, a handled one is reset to the default: the test
+    # handles it while it starts the viewer, which so starts as from a terminal
+    # (test_interruptions.ctrl_c_for_children; no preexec_fn: unsafe with threads, PLW1509)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        p = subprocess.Popen([exe, "view", str(glb), "--no-open", "--port", str(port)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, old)
     deadline = time.time() + 60
     while time.time() < deadline:  # wait until it serves
         try:

@@ -11,8 +11,9 @@ from hack_render.geometry.anatomy import distribute_head_rotation
 from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.params import check_params
 from hack_render.geometry.posing import PosingModel
-from hack_render.hair.groom import HeadSurface, grow_cached, root_points
+from hack_render.hair.groom import grow_cached, root_points
 from hack_render.hair.pose import pose_groom, pose_group, pose_group_torch, signed_distance
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import ARCHETYPES, HairStyle, parse_colour, sample_style
 
 
@@ -147,3 +148,31 @@ def test_levels_of_detail_scale_counts(surface):
     assert receded.group("scalp").num_strands < 0.85 * tenth.group("scalp").num_strands
     bald = grow_cached(surface, HairStyle.archetype_style("bald", lod=0.1))
     assert bald.group("scalp") is None and bald.group("brows") is not None
+
+
+def test_regions_on_the_mean_mesh(surface):
+    """hair/regions.py on the default model's mean mesh: the scalp's and beard's skin
+    triangles (counts measured before the regions left groom.py, so a change shows), the
+    hairline's knots, its recession (front and temples up, the back kept) and widow's peak
+    (the front only), and no beard triangle on the scalp."""
+    from hack_render.hair.regions import beard_mask, hairline_height, scalp_mask
+
+    assert len(surface.skin) == 28068
+    az = np.array([0.0, 25.0, -45.0, 180.0])
+    np.testing.assert_allclose(hairline_height(az, HairStyle()), [0.118, 0.115, 0.097, -0.045])
+    up = hairline_height(np.array([0.0, 48.0, 180.0]), HairStyle(hairline=1.0)) - \
+        hairline_height(np.array([0.0, 48.0, 180.0]), HairStyle())
+    np.testing.assert_allclose(up, [0.035, 0.055, 0.0], atol=1e-6)
+    peak = hairline_height(np.array([0.0, 30.0]), HairStyle(widows_peak=1.0)) - \
+        hairline_height(np.array([0.0, 30.0]), HairStyle())
+    np.testing.assert_allclose(peak, [-0.014, 0.0], atol=1e-6)
+    scalp, weight = scalp_mask(surface, HairStyle())
+    assert len(scalp) == 2607 and float(weight.sum()) == pytest.approx(2481.631, abs=1e-3)
+    assert np.all((weight > 0) & (weight <= 1)) and np.isin(scalp, surface.skin).all()
+    receded, _ = scalp_mask(surface, HairStyle(hairline=1.0))
+    peaked, _ = scalp_mask(surface, HairStyle(widows_peak=1.0))
+    assert len(receded) == 1677 and np.isin(receded, scalp).all() and len(peaked) == 2648
+    beards = {b: beard_mask(surface, b) for b in ("stubble", "goatee", "full")}
+    assert {b: len(m) for b, m in beards.items()} == {"stubble": 5192, "goatee": 2154,
+                                                       "full": 5192}
+    assert not any(np.isin(m, scalp).any() for m in beards.values())

@@ -9,6 +9,7 @@ in-process (``hack_render.cli.main``).
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -48,17 +49,28 @@ def tree(folder: Path, skip=()) -> dict[str, bytes]:
             if p.is_file() and p.name not in skip}
 
 
-def default_sigint() -> None:
-    """In the child before exec: Ctrl-C back to its default. A suite started in the
-    background by a non-interactive shell (as CI runs it) hands its children SIGINT
-    ignored, and a command that ignores Ctrl-C cannot be tested on it."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+@contextlib.contextmanager
+def ctrl_c_for_children():
+    """Children started inside get Ctrl-C's default handling, as from a terminal. A suite
+    started in the background by a non-interactive shell (as CI runs it) has SIGINT
+    ignored, and an ignored signal stays ignored through exec (``start_new_session``,
+    ``process_group`` and ``restore_signals`` leave it so), while a handled one is reset
+    to the default there: so the test process handles SIGINT while it starts the child,
+    instead of a ``preexec_fn`` (unsafe with threads, ruff PLW1509). (``hack_render.cli``'s
+    main installs its own handlers whatever it inherits; this keeps the child a terminal's
+    until then.)"""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def spawn(args) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "hack_render.cli", *map(str, args)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True, preexec_fn=default_sigint)
+    with ctrl_c_for_children():
+        return subprocess.Popen([sys.executable, "-m", "hack_render.cli", *map(str, args)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
 
 
 def kill_when(proc: subprocess.Popen, ready, sig: int, timeout: float = 240.0) -> tuple[int, str]:

@@ -16,7 +16,8 @@ import mitsuba as mi
 from hack_render.cli import main
 from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.posing import PosingModel
-from hack_render.hair.groom import Groom, HeadSurface, grow_cached
+from hack_render.hair.groom import Groom, grow_cached
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.render.hair_options import hair_style
 from hack_render.render.hair_shapes import (

@@ -41,7 +41,8 @@ from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 from hack_render.geometry import load_default_model
-from hack_render.hair.groom import Groom, HeadSurface, grow
+from hack_render.hair.groom import Groom, grow
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr

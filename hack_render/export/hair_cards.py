@@ -37,24 +37,21 @@ their names as a base colour (eumelanin 0.3 blonde, 1.3 brown, 8 black).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import yaml
 
-from hack_render import boundary
-from hack_render.errors import HackError
 from hack_render.export.rig import top_weights
 from hack_render.hair.groom import (
     BodyProxy,
     Groom,
-    HeadSurface,
     closest_on_triangles,
     grow_cached,
     triangle_frames,
 )
 from hack_render.hair.pose import pose_groom
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import NAMED_COLOURS, HairStyle
+from hack_render.render.hair_options import hair_style as resolve_hair_style
 
 #: Strands per card, by group: about 2,000 scalp cards for a full head at lod 1.
 STRANDS_PER_CARD = {"scalp": 30, "brows": 6, "lashes": 4, "beard": 10}
@@ -101,61 +98,17 @@ def melanin_rgb(eumelanin, pheomelanin) -> np.ndarray:
 def hair_style(spec: str | None, colour: str | None, params_hair=None) -> HairStyle | None:
     """The style `export --hair SPEC --hair-color COLOUR` asks for, or None (no hair).
 
-    ``spec``: an archetype name, ``none``, or a JSON/YAML file whose ``hair`` section (or,
-    without one, the whole mapping) is the style; None: the parameter file's ``hair``
-    section ``params_hair`` if it has one, else no hair. ``colour``: a name or
-    ``EUMELANIN,PHEOMELANIN`` that replaces the style's melanin."""
-    data = params_hair
-    if spec is not None:
-        text = spec.strip()
-        if text.lower() == "none":
-            if colour is not None:
-                raise HackError("--hair-color: --hair none grows no hair to colour; drop one "
-                                "of the two.")
-            return None
-        if text.lower().endswith((".json", ".yaml", ".yml")):
-            path = Path(text)
-            if not path.is_file():
-                raise HackError(f"--hair {spec}: file not found; pass a style name or a "
-                                "params file with a 'hair' section.")
-            is_yaml = path.suffix.lower() in (".yaml", ".yml")
-            try:
-                text = path.read_text(encoding="utf-8")
-                loaded = boundary.parse_yaml(text) if is_yaml else boundary.parse_json(text)
-            except HackError as exc:
-                raise HackError(f"--hair {spec}: {exc}") from None
-            except (OSError, UnicodeDecodeError) as exc:
-                raise HackError(f"--hair {spec}: not readable as text ({exc}).") from None
-            except (ValueError, RecursionError, yaml.YAMLError) as exc:
-                kind = "YAML" if is_yaml else "JSON"
-                raise HackError(f"--hair {spec}: not valid {kind} "
-                                f"({str(exc).splitlines()[0][:200]}).") from None
-            if not isinstance(loaded, dict):
-                raise HackError(f"--hair {spec}: expected a mapping (a params file with a "
-                                f"'hair' section, or the section itself), found "
-                                f"{type(loaded).__name__}.")
-            data = loaded["hair"] if "hair" in loaded else loaded
-            if data is None:
-                if colour is not None:
-                    raise HackError(f"--hair-color: {spec}'s hair section is null (no hair) "
-                                    "and there is none to colour.")
-                return None
-        else:
-            data = text
-    if data is None:
-        if colour is not None:
-            raise HackError("--hair-color: no hair to colour; add --hair STYLE (e.g. --hair "
-                            "short) or a params file with a 'hair' section.")
+    The options mean what they mean for `render` and `turntable`
+    (:func:`hack_render.render.hair_options.hair_style`, which checks them): ``spec`` an
+    archetype name, ``none``, or a JSON/YAML file whose ``hair`` section (or, without
+    one, the whole mapping) is the style; None: the parameter file's ``hair`` section
+    ``params_hair`` if it has one, else no hair. ``colour``: a name or
+    ``EUMELANIN,PHEOMELANIN`` that replaces the style's melanin. A bald style without
+    brows, lashes or beard has no cards: None."""
+    style = resolve_hair_style(spec, colour, params_hair)
+    if style is None or (style.bald and not _has_facial_hair(style)):
         return None
-    try:
-        style = HairStyle.from_dict(data)
-        if colour is not None:
-            style = style.with_colour(colour)
-    except HackError as exc:
-        flag = "--hair-color" if colour is not None and "colour" in str(exc) else \
-            "--hair" if spec is not None else "--params (its hair section)"
-        raise HackError(f"{flag}: {exc}") from None
-    return None if style.bald and not _has_facial_hair(style) else style
+    return style
 
 
 def _has_facial_hair(style: HairStyle) -> bool:

@@ -19,7 +19,8 @@ from hack_render.fit import iris, texture
 from hack_render.fit.hair_style import hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
-from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.groom import grow_cached
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 
 

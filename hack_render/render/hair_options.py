@@ -1,5 +1,5 @@
-"""`--hair` and `--hair-color` of `hack-render render` and `turntable`: the style to grow
-(:mod:`hack_render.hair`), checked before anything heavy, and its groom.
+"""`--hair` and `--hair-color` of `hack-render render`, `turntable` and `export`: the style
+to grow (:mod:`hack_render.hair`), checked before anything heavy, and its groom.
 
 ``--hair`` takes an archetype name (:data:`hack_render.hair.style.ARCHETYPES`), ``none`` (no
 groom at all: the scene of earlier versions, ICT's lash cards) or a .json / .yaml file
@@ -19,7 +19,8 @@ import typer
 
 from hack_render.errors import HackError
 from hack_render.geometry.params import MAX_PARAMS_BYTES, parse_params_text
-from hack_render.hair.groom import HeadSurface, grow_cached
+from hack_render.hair.groom import grow_cached
+from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import ARCHETYPES, HairStyle
 
 HAIR_HELP = ("Hair, brows, lashes and beard as strands (docs/hair.md): a style name "
@@ -47,9 +48,10 @@ HairColorOpt = typer.Option(None, "--hair-color", help=HAIR_COLOR_HELP, show_def
 
 def _hair_file(path: Path) -> Any:
     if path.is_dir() or not path.is_file():
-        raise HackError(f"--hair {path}: expected a style name (bald, shaved, crew, short, "
-                        f"bob, long, ponytail, bun, afro), 'none' or an existing .json/.yaml "
-                        f"file, found {'a folder' if path.is_dir() else 'no such file'}.")
+        found = "expected a file, found a folder" if path.is_dir() else "file not found"
+        raise HackError(f"--hair {path}: {found}; pass a style name (bald, shaved, crew, "
+                        f"short, bob, long, ponytail, bun, afro), 'none' or an existing "
+                        f".json/.yaml file.")
     if path.stat().st_size > MAX_PARAMS_BYTES:
         raise HackError(f"--hair {path}: expected a small .json/.yaml hair mapping, found "
                         f"{path.stat().st_size / 1e6:.0f} MB.")
@@ -90,7 +92,7 @@ def hair_style(hair: str | None, hair_color: str | None, params_hair: Any = None
                             f"or a .json/.yaml file holding a hair mapping, found {hair!r}.")
     if data is None or (isinstance(data, str) and data.lower() in NONE):
         if hair_color is not None:
-            raise HackError(f"--hair-color: there is no hair to colour ({source} is none); "
+            raise HackError(f"--hair-color: no hair to colour ({source} is none); "
                             "pass --hair STYLE too, e.g. --hair short --hair-color "
                             f"{hair_color}.")
         return None
