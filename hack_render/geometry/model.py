@@ -422,6 +422,19 @@ class HackModel(nn.Module):
         # dtype, so a float64 model stays exact)
         self.pose_folded = (self.has_pose_basis and self.pose_personal is not None
                             and torch.equal(self.pose_columns, self.pose_personal.vertices))
+        if self.expr_personal is not None:
+            # B = 1 (:meth:`_rest_single`): the generic expression rows' columns on the
+            # vertices some expression moves, less the personalised vertices (their
+            # generic rows are folded into the personal mean: ``expr_psi_rows``)
+            moved = expr_dirs.view(self.num_expressions, n, 3).ne(0).any(0).any(1)
+            moved[self.expr_personal.vertices] = False
+            verts = torch.nonzero(moved).flatten()
+            xyz = torch.arange(3)
+            self.register_buffer("expr_col_index", (3 * verts[:, None] + xyz).flatten(),
+                                 persistent=False)
+            self.register_buffer("expr_personal_cols",
+                                 (3 * self.expr_personal.vertices[:, None] + xyz).flatten(),
+                                 persistent=False)
         self._fold_pose_mean()
         self.has_larynx = "larynx_maps" in arrays
         if self.has_larynx:
@@ -454,6 +467,13 @@ class HackModel(nn.Module):
         """
         folded = self.pose_personal.mean + self.pose_basis_columns if self.pose_folded else None
         self.register_buffer("pose_mean_folded", folded, persistent=False)
+        psi_rows = None
+        if self.expr_personal is not None:
+            E = self.num_expressions
+            gen = self.expr_shape_basis[:E]
+            psi_rows = torch.cat([gen.index_select(1, self.expr_col_index), self.expr_personal.mean
+                                  + gen.index_select(1, self.expr_personal_cols)], 1)
+        self.register_buffer("expr_psi_rows", psi_rows, persistent=False)
         for name, pb, mean in (("pose_bias_basis", self.pose_personal, folded),
                                ("expr_bias_basis", self.expr_personal, None)):
             with torch.no_grad():
@@ -612,16 +632,24 @@ class HackModel(nn.Module):
         shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,)."""
         B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
         template = self.template.view(1, -1)
-        if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
+        single = B == 1 and self.expr_psi_rows is not None
+        if single:
+            nz = _nonzero_columns(psi)
+            # zero weights with gradients: the general path (its backward reads every row)
+            single = nz is None or not (torch.is_grad_enabled() and psi.requires_grad)
+        if single:
+            rest = self._rest_single(beta, psi, nz)
+        elif beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
             bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
             flat = rows_product(psi, self.expr_shape_basis[:E], bias)
         else:
             flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb], template)
-        rest = flat.view(B, -1, 3)
+        if not single:
+            rest = flat.view(B, -1, 3)
         # the MLPs and the larynx coefficients read only the given betas' columns
         for pb, coeffs, mean, bias_basis in (
                 (self.pose_personal, feat, self.pose_mean_folded, self.pose_bias_basis),
-                (self.expr_personal, psi, None, self.expr_bias_basis)):
+                (None if single else self.expr_personal, psi, None, self.expr_bias_basis)):
             if pb is None:
                 continue
             w, constant = pb.mlp.weights(beta)
@@ -636,6 +664,37 @@ class HackModel(nn.Module):
             combined = self._larynx_combined(beta).expand(B, -1, -1, -1)
             _add_rows_(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
         return rest
+
+    def _rest_single(self, beta, psi, nz) -> torch.Tensor:
+        """The shape and expression terms of :meth:`_rest` for one row (B = 1): (1, N, 3).
+
+        The expression weights multiply three things: the generic expression rows, the
+        personalised basis's mean and its components. They go first, in two
+        matrix-vector products over the used rows (``nz``; None: all): one over
+        :attr:`expr_psi_rows` (the generic rows on the vertices some expression moves,
+        then the personal mean with the generic rows of its vertices folded in) and one
+        over the components (D, C K), giving P (C, K); then the personal deltas are
+        ``mean part + w(beta) @ P``. The generic rows' exact zeros (the vertices no
+        expression moves, a quarter of the default model's) are not read. Differentiable
+        (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
+        general path)."""
+        E, nb = self.num_expressions, beta.shape[1]
+        pb = self.expr_personal
+        D, C, K = pb.rows.shape
+        flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
+        Y = P = None
+        for _, first, end in _row_runs(nz, E):
+            c = psi[:, first:end]
+            y = c @ self.expr_psi_rows[first:end]
+            p = c @ pb.rows[first:end].view(end - first, C * K)
+            Y, P = (y, p) if Y is None else (Y + y, P + p)
+        if Y is None:
+            return flat.view(1, -1, 3)
+        m = self.expr_col_index.shape[0]
+        flat = flat.index_add(1, self.expr_col_index, Y[:, :m])
+        w, _ = pb.mlp.weights(beta)  # at w = b2 (an identity-independent M_E) the same
+        personal = torch.addmm(Y[:, m:], w, P.view(C, K))
+        return _add_rows_(flat.view(1, -1, 3), pb.vertices, personal.view(1, -1, 3))
 
     def _larynx_combined(self, beta: torch.Tensor) -> torch.Tensor:
         """sum_i c_i(beta) L_i: (B, S) -> (B, 3, H, W) metres."""
