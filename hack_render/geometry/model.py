@@ -313,10 +313,15 @@ def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
     """LBS of some vertices, as :func:`hack_render.geometry.lbs.skin` (the same blend of
     ``rel - I``), with the per-vertex 3x4 product written out elementwise (a batched 3x3 @
     3x1 matmul per vertex is slow). v: (B, M, 3), weights (M, K), rel (B, K, 4, 4)."""
+    d = _skin_blend(weights, rel)
+    return _affine_columns(v, d, v + d[..., 3])
+
+
+def _skin_blend(weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+    """The blended ``rel - I`` of :func:`_skin_rows`: (M, K), (B, K, 4, 4) -> (B, M, 3, 4)."""
     B, K = rel.shape[:2]
     eye = torch.eye(4, dtype=rel.dtype, device=rel.device)[:3]
-    d = torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
-    return _affine_columns(v, d, v + d[..., 3])
+    return torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
 
 
 def _affine_columns(v: torch.Tensor, m: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -342,15 +347,27 @@ def _rigid_points(v: torch.Tensor, a: torch.Tensor, transl: torch.Tensor) -> tor
     :data:`_RIGID_BLOCK` to a row: (B, N / k, 3k) x the block-diagonal (3k, 3k) matrix of k
     copies of the rotation's transpose (the few points past a multiple of k by column
     multiply-adds). Differentiable in all three."""
+    return _rigid_apply(v, _rigid_operator(a, transl))
+
+
+def _rigid_operator(a: torch.Tensor, transl: torch.Tensor) -> tuple:
+    """The parts of :func:`_rigid_points` that do not depend on the points: (a, t, the
+    block-diagonal matrices (B, 3k, 3k), their bias rows (B, 1, 3k))."""
+    B, k = a.shape[0], _RIGID_BLOCK
+    rt = a[..., :3].transpose(1, 2)  # (B, 3, 3): row-vector points times R^T
+    t = a[..., 3] + transl  # (B, 3)
+    eye = torch.eye(k, dtype=a.dtype, device=a.device)
+    blocks = (eye[None, :, None, :, None] * rt[:, None, :, None, :]).reshape(B, 3 * k, 3 * k)
+    return a, t, blocks, t.repeat(1, k)[:, None]
+
+
+def _rigid_apply(v: torch.Tensor, op: tuple) -> torch.Tensor:
+    """:func:`_rigid_points` with its :func:`_rigid_operator`."""
+    a, t, blocks, bias = op
     B, N, _ = v.shape
     k = _RIGID_BLOCK
     n0 = N - N % k
-    rt = a[..., :3].transpose(1, 2)  # (B, 3, 3): row-vector points times R^T
-    t = a[..., 3] + transl  # (B, 3)
-    eye = torch.eye(k, dtype=v.dtype, device=v.device)
-    blocks = (eye[None, :, None, :, None] * rt[:, None, :, None, :]).reshape(B, 3 * k, 3 * k)
-    out = torch.baddbmm(t.repeat(1, k)[:, None], v[:, :n0].reshape(B, n0 // k, 3 * k), blocks)
-    out = out.view(B, n0, 3)
+    out = torch.baddbmm(bias, v[:, :n0].reshape(B, n0 // k, 3 * k), blocks).view(B, n0, 3)
     if n0 == N:
         return out
     tail = _affine_columns(v[:, n0:], a[:, None], t[:, None])
@@ -617,9 +634,13 @@ class HackModel(nn.Module):
         beta = p["beta"]
         shared = _shares_identity(beta)
         ident = beta[:1] if shared else beta
+        # the small operations first, the basis products last: a product streams tens of
+        # MB through the caches, and small operations after it run cold (a chain of them
+        # after a 72 MB read measured 2.6x its warm CPU time)
+        joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
+        posing = self._posing(joints, rot, p["transl"])
         rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
-        joints = self.rest_joints(ident).expand(rest.shape[0], -1, -1)
-        return self._pose(rest, joints, rot, p["transl"])
+        return self._pose(rest, joints, rot, p["transl"], posing)
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
@@ -632,40 +653,51 @@ class HackModel(nn.Module):
         shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,)."""
         B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
         template = self.template.view(1, -1)
+        # the small terms (MLPs, pose correctives, larynx; they read only the given betas'
+        # columns) before the expression and shape products, as in :meth:`forward`
+        deltas = []  # (vertex indices, (B, M, 3) deltas)
+        pp, ep = self.pose_personal, self.expr_personal
+        if pp is not None:
+            w, constant = pp.mlp.weights(beta)
+            if constant:  # w = b2 for every row, no gradient in beta: the basis at b2
+                bb = self.pose_bias_basis
+                d = rows_product(feat, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+            else:
+                d = pp.apply(feat, w, self.pose_mean_folded)
+            deltas.append((pp.vertices, d))
+        if self.has_pose_basis and not self.pose_folded:
+            deltas.append((self.pose_columns, (feat @ self.pose_basis_columns).view(B, -1, 3)))
+        if self.has_larynx:
+            combined = self._larynx_combined(beta).expand(B, -1, -1, -1)
+            deltas.append((self.larynx_vertices, self._larynx_sample(combined, eta, tau)))
+        w_e, constant_e = ep.mlp.weights(beta) if ep is not None else (None, False)
         single = B == 1 and self.expr_psi_rows is not None
         if single:
             nz = _nonzero_columns(psi)
             # zero weights with gradients: the general path (its backward reads every row)
             single = nz is None or not (torch.is_grad_enabled() and psi.requires_grad)
         if single:
-            rest = self._rest_single(beta, psi, nz)
-        elif beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
-            bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
-            flat = rows_product(psi, self.expr_shape_basis[:E], bias)
+            rest = self._rest_single(beta, psi, nz, w_e)
         else:
-            flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb], template)
-        if not single:
-            rest = flat.view(B, -1, 3)
-        # the MLPs and the larynx coefficients read only the given betas' columns
-        for pb, coeffs, mean, bias_basis in (
-                (self.pose_personal, feat, self.pose_mean_folded, self.pose_bias_basis),
-                (None if single else self.expr_personal, psi, None, self.expr_bias_basis)):
-            if pb is None:
-                continue
-            w, constant = pb.mlp.weights(beta)
-            if constant:  # w = b2 for every row, no gradient in beta: the basis at b2
-                delta = rows_product(coeffs, bias_basis, bias_basis.new_zeros(bias_basis.shape[1]))
-                _add_rows_(rest, pb.vertices, delta.view(B, -1, 3))
+            if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
+                bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
+                flat = rows_product(psi, self.expr_shape_basis[:E], bias)
             else:
-                _add_rows_(rest, pb.vertices, pb.apply(coeffs, w, mean))
-        if self.has_pose_basis and not self.pose_folded:
-            _add_rows_(rest, self.pose_columns, (feat @ self.pose_basis_columns).view(B, -1, 3))
-        if self.has_larynx:
-            combined = self._larynx_combined(beta).expand(B, -1, -1, -1)
-            _add_rows_(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
+                flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb],
+                                    template)
+            rest = flat.view(B, -1, 3)
+            if ep is not None:
+                if constant_e:
+                    bb = self.expr_bias_basis
+                    d = rows_product(psi, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+                else:
+                    d = ep.apply(psi, w_e)
+                _add_rows_(rest, ep.vertices, d)
+        for index, d in deltas:
+            _add_rows_(rest, index, d)
         return rest
 
-    def _rest_single(self, beta, psi, nz) -> torch.Tensor:
+    def _rest_single(self, beta, psi, nz, w) -> torch.Tensor:
         """The shape and expression terms of :meth:`_rest` for one row (B = 1): (1, N, 3).
 
         The expression weights multiply three things: the generic expression rows, the
@@ -674,25 +706,26 @@ class HackModel(nn.Module):
         :attr:`expr_psi_rows` (the generic rows on the vertices some expression moves,
         then the personal mean with the generic rows of its vertices folded in) and one
         over the components (D, C K), giving P (C, K); then the personal deltas are
-        ``mean part + w(beta) @ P``. The generic rows' exact zeros (the vertices no
+        ``mean part + w @ P`` (w: M_E's weights of beta, (1, C)). The generic rows' exact zeros (the vertices no
         expression moves, a quarter of the default model's) are not read. Differentiable
         (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
         general path)."""
         E, nb = self.num_expressions, beta.shape[1]
         pb = self.expr_personal
         D, C, K = pb.rows.shape
-        flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
         Y = P = None
         for _, first, end in _row_runs(nz, E):
             c = psi[:, first:end]
             y = c @ self.expr_psi_rows[first:end]
             p = c @ pb.rows[first:end].view(end - first, C * K)
             Y, P = (y, p) if Y is None else (Y + y, P + p)
+        # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
+        # the additions and the posing that follow
+        flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
         if Y is None:
             return flat.view(1, -1, 3)
         m = self.expr_col_index.shape[0]
-        flat = flat.index_add(1, self.expr_col_index, Y[:, :m])
-        w, _ = pb.mlp.weights(beta)  # at w = b2 (an identity-independent M_E) the same
+        flat.view(-1).index_add_(0, self.expr_col_index, Y[0, :m])
         personal = torch.addmm(Y[:, m:], w, P.view(C, K))
         return _add_rows_(flat.view(1, -1, 3), pb.vertices, personal.view(1, -1, 3))
 
@@ -721,16 +754,25 @@ class HackModel(nn.Module):
         return _larynx.sample_displacement(combined, self.larynx_uv,
                                            self.larynx_uv_bounds, eta, tau, self.larynx_v_per_metre)
 
-    def _pose(self, rest, joints, rot, transl) -> HackOutput:
+    def _posing(self, joints, rot, transl) -> tuple:
+        """What :meth:`_pose` needs that does not depend on the rest mesh: the posed nodes,
+        the chain's transforms, the rigid node's operator and the blended vertices' blend."""
         root = joints[:, :1]  # the root (thorax) rotates about the c7-t1 joint
         nodes = torch.cat([root, joints], 1)
         posed_nodes, rel = rigid_transforms(rot, nodes, chain_parents(self.parents))
+        rigid = _rigid_operator(rel[:, self.rigid_node, :3], transl)
+        blend = _skin_blend(self.blended_weights, rel) if len(self.blended_vertices) else None
+        return posed_nodes, rigid, blend
+
+    def _pose(self, rest, joints, rot, transl, posing=None) -> HackOutput:
+        posed_nodes, rigid, blend = posing or self._posing(joints, rot, transl)
         # every vertex as if rigid with the node most vertices follow (one (B, N, 3) x
         # (B, 3, 3) product), then the blended vertices overwritten with their LBS
-        verts = _rigid_points(rest, rel[:, self.rigid_node, :3], transl)
+        verts = _rigid_apply(rest, rigid)
         idx = self.blended_vertices
         if len(idx):
-            blended = _skin_rows(rest[:, idx], self.blended_weights, rel) + transl[:, None]
+            v = rest[:, idx]
+            blended = _affine_columns(v, blend, v + blend[..., 3]) + transl[:, None]
             if verts.shape[0] == 1:
                 verts.view(-1, 3).index_copy_(0, idx, blended[0])
             else:
