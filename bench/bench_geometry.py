@@ -14,9 +14,10 @@ the median with its range (min..max) over the rounds, and ratios of medians:
   the root row (c7-t1) first, parents = the chain, lbs_weights = the skinning weights. It
   has no personalised or larynx terms: the HACK side does strictly more work.
 * ``floor``: one (B, K) @ (K, 3N) float32 product over a buffer as large as the bytes the
-  HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, the
-  personalised components of the used rows, the pose columns, larynx maps, skinning
-  weights and template), i.e. reading those bytes once.
+  HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, as the
+  forward lays them out, the personalised components of the used rows, the pose
+  correctives, larynx maps, blended vertices' skinning weights and template), i.e. reading
+  those bytes once.
 
 Configurations: B = 1 and B = 64 distinct identities with dense random psi (every row of
 every basis read), B = 64 rows of one identity (a sequence or a multi-view fit; the
