@@ -200,3 +200,20 @@ def test_08_live_and_dead_mlps_equal_reference(model):
         for f in FIELDS:
             err = _relative_error(getattr(fast, f), getattr(ref, f).expand_as(getattr(fast, f)))
             assert err < 1e-6, f"{f}: relative error {err:.2e} (B={b})"
+
+
+def test_09_path_transforms_equal_rigid_transforms():
+    """The prefix-scan chain of a path (the model's) equals the node-by-node one: posed
+    nodes and the top three rows of every transform, float64, random rotations."""
+    from hack_render.geometry.lbs import is_path, local_rotations, path_transforms
+    g = torch.Generator().manual_seed(8)
+    for k in (1, 2, 5, 9):
+        parents = tuple(range(-1, k - 1))
+        assert is_path(parents) and not is_path((-1, 0, 0)[:max(k, 3)])
+        rot = local_rotations(torch.randn(3, k - 1, 3, generator=g, dtype=torch.float64),
+                              torch.randn(3, 3, generator=g, dtype=torch.float64))
+        j = torch.randn(3, k, 3, generator=g, dtype=torch.float64)
+        posed, rel = rigid_transforms(rot, j, parents)
+        posed_p, rel_p = path_transforms(rot, j)
+        torch.testing.assert_close(posed_p, posed, atol=1e-13, rtol=0)
+        torch.testing.assert_close(rel_p, rel[..., :3, :], atol=1e-13, rtol=0)

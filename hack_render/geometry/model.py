@@ -32,7 +32,9 @@ from hack_render.geometry.expressions import (
 )
 from hack_render.geometry.lbs import (
     chain_parents,
+    is_path,
     local_rotations,
+    path_transforms,
     pose_feature,
     rigid_transforms,
     skin,
@@ -318,7 +320,8 @@ def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> tor
 
 
 def _skin_blend(weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
-    """The blended ``rel - I`` of :func:`_skin_rows`: (M, K), (B, K, 4, 4) -> (B, M, 3, 4)."""
+    """The blended ``rel - I`` of :func:`_skin_rows`: (M, K), (B, K, 4, 4) or its top rows
+    (B, K, 3, 4) -> (B, M, 3, 4)."""
     B, K = rel.shape[:2]
     eye = torch.eye(4, dtype=rel.dtype, device=rel.device)[:3]
     return torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
@@ -333,10 +336,16 @@ def _affine_columns(v: torch.Tensor, m: torch.Tensor, bias: torch.Tensor) -> tor
     return out.addcmul_(v[..., 2:], m[..., 2])
 
 
-#: points per row of :func:`_rigid_points`'s block product (4: 0.06 ms for the default
-#: model's 26.7k vertices at B = 1 on one CPU thread, vs 0.2 ms for three column
-#: multiply-adds or one (N, 3) x (3, 3) product; 8 the same, 16 and 32 slower)
-_RIGID_BLOCK = 4
+#: points per row of :func:`_rigid_points`'s block product, tried in this order for one
+#: that divides the number of points (else the first, and the rest by column multiply-adds):
+#: 0.06-0.09 ms for the default model's 26.7k vertices (k = 7) at B = 1 on one CPU thread,
+#: vs 0.2 ms for three column multiply-adds or one (N, 3) x (3, 3) product; 16 and 32 slower
+_RIGID_BLOCKS = (4, 8, 6, 5, 7)
+
+
+def _rigid_block(n: int) -> int:
+    """Points per row of the block product for n points (:data:`_RIGID_BLOCKS`)."""
+    return next((k for k in _RIGID_BLOCKS if n % k == 0), _RIGID_BLOCKS[0])
 
 
 def _rigid_points(v: torch.Tensor, a: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
@@ -344,16 +353,16 @@ def _rigid_points(v: torch.Tensor, a: torch.Tensor, transl: torch.Tensor) -> tor
     + transl``. v: (B, N, 3), a: (B, 3, 4), transl (B, 3) -> a new (B, N, 3) tensor.
 
     A (3, 3) product per point is too thin for the CPU's matrix kernels, so the points go
-    :data:`_RIGID_BLOCK` to a row: (B, N / k, 3k) x the block-diagonal (3k, 3k) matrix of k
-    copies of the rotation's transpose (the few points past a multiple of k by column
+    k to a row (:func:`_rigid_block`): (B, N / k, 3k) x the block-diagonal (3k, 3k) matrix
+    of k copies of the rotation's transpose (the few points past a multiple of k by column
     multiply-adds). Differentiable in all three."""
-    return _rigid_apply(v, _rigid_operator(a, transl))
+    return _rigid_apply(v, _rigid_operator(a, transl, _rigid_block(v.shape[1])))
 
 
-def _rigid_operator(a: torch.Tensor, transl: torch.Tensor) -> tuple:
+def _rigid_operator(a: torch.Tensor, transl: torch.Tensor, k: int) -> tuple:
     """The parts of :func:`_rigid_points` that do not depend on the points: (a, t, the
     block-diagonal matrices (B, 3k, 3k), their bias rows (B, 1, 3k))."""
-    B, k = a.shape[0], _RIGID_BLOCK
+    B = a.shape[0]
     rt = a[..., :3].transpose(1, 2)  # (B, 3, 3): row-vector points times R^T
     t = a[..., 3] + transl  # (B, 3)
     eye = torch.eye(k, dtype=a.dtype, device=a.device)
@@ -365,7 +374,7 @@ def _rigid_apply(v: torch.Tensor, op: tuple) -> torch.Tensor:
     """:func:`_rigid_points` with its :func:`_rigid_operator`."""
     a, t, blocks, bias = op
     B, N, _ = v.shape
-    k = _RIGID_BLOCK
+    k = blocks.shape[1] // 3
     n0 = N - N % k
     out = torch.baddbmm(bias, v[:, :n0].reshape(B, n0 // k, 3 * k), blocks).view(B, n0, 3)
     if n0 == N:
@@ -759,8 +768,13 @@ class HackModel(nn.Module):
         the chain's transforms, the rigid node's operator and the blended vertices' blend."""
         root = joints[:, :1]  # the root (thorax) rotates about the c7-t1 joint
         nodes = torch.cat([root, joints], 1)
-        posed_nodes, rel = rigid_transforms(rot, nodes, chain_parents(self.parents))
-        rigid = _rigid_operator(rel[:, self.rigid_node, :3], transl)
+        parents = chain_parents(self.parents)
+        if is_path(parents):  # rel: (B, K, 3, 4), all that posing reads
+            posed_nodes, rel = path_transforms(rot, nodes)
+        else:
+            posed_nodes, rel = rigid_transforms(rot, nodes, parents)
+        rigid = _rigid_operator(rel[:, self.rigid_node, :3], transl,
+                                _rigid_block(self.num_vertices))
         blend = _skin_blend(self.blended_weights, rel) if len(self.blended_vertices) else None
         return posed_nodes, rigid, blend
 
