@@ -14,9 +14,10 @@ the median with its range (min..max) over the rounds, and ratios of medians:
   the root row (c7-t1) first, parents = the chain, lbs_weights = the skinning weights. It
   has no personalised or larynx terms: the HACK side does strictly more work.
 * ``floor``: one (B, K) @ (K, 3N) float32 product over a buffer as large as the bytes the
-  HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, the
-  personalised components of the used rows, the pose columns, larynx maps, skinning
-  weights and template), i.e. reading those bytes once.
+  HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, as the
+  forward lays them out, the personalised components of the used rows, the pose
+  correctives, larynx maps, blended vertices' skinning weights and template), i.e. reading
+  those bytes once.
 
 Configurations: B = 1 and B = 64 distinct identities with dense random psi (every row of
 every basis read), B = 64 rows of one identity (a sequence or a multi-view fit; the
@@ -83,23 +84,39 @@ def smplx_arrays(model, num_shape: int | None = None) -> dict[str, torch.Tensor]
 
 def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
     """Bytes of model buffers the forward reads for these inputs (float32, index arrays
-    excluded): the expression rows with a nonzero weight, the given betas' shape rows,
-    the pose columns, the personalised components and means of the used rows (once for a
-    shared identity or a batch: the outer-product form reads them once either way), the
-    larynx maps, the skinning weights and the template."""
+    excluded), as the forward reads them: the template and the given betas' shape rows;
+    for the expression rows with a nonzero weight, at B = 1 their rows of
+    ``expr_psi_rows`` (generic rows on the moved vertices, personal mean folded in) and of
+    M_E's components, otherwise their generic rows (3N wide) and personal mean and
+    components (once for a shared identity or a batch); the pose correctives (M_P's basis
+    at w = b2 when its MLP is constant for these betas, else its mean and components, and
+    the generic columns when not folded); the larynx maps and the blended vertices'
+    skinning weights."""
     f = 4
     n3 = model.expr_shape_basis.shape[1]
     used_e = int(psi.ne(0).any(0).sum())
-    total = (used_e + beta.shape[1]) * n3 * f + model.template.numel() * f
-    total += model.pose_basis_columns.numel() * f
-    if model.expr_personal is not None:
-        _, c, k = model.expr_personal.components.shape
-        total += used_e * (c + 1) * k * f
-    if model.pose_personal is not None:
-        total += (model.pose_personal.components.numel() + model.pose_personal.mean.numel()) * f
+    total = (beta.shape[1] * n3 + model.template.numel()) * f
+    ep = model.expr_personal
+    if ep is not None:
+        d, c, k = ep.rows.shape
+        total += used_e * c * k * f
+        if psi.shape[0] == 1 and model.expr_psi_rows is not None:
+            total += used_e * model.expr_psi_rows.shape[1] * f
+        else:
+            total += used_e * (n3 + k) * f
+    else:
+        total += used_e * n3 * f
+    pp = model.pose_personal
+    if pp is not None:
+        if pp.mlp.weights(beta)[1]:
+            total += model.pose_bias_basis.numel() * f
+        else:
+            total += (pp.rows.numel() + pp.mean.numel()) * f
+    if model.has_pose_basis and not model.pose_folded:
+        total += model.pose_basis_columns.numel() * f
     if model.has_larynx:
         total += model.larynx_maps.numel() * f
-    total += model.skinning_weights.numel() * f
+    total += model.blended_weights.numel() * f
     return total
 
 

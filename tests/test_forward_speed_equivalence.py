@@ -118,3 +118,102 @@ def test_04_chain_offsets_and_finiteness_check(model):
     bad[0, 3, 1] = float("nan")
     with pytest.raises(HackError, match="theta"):
         model(beta=torch.zeros(1, 20), theta=bad)
+
+
+# ------------------------------------------------------------------ issue 65 §2: the B = 1 path
+@pytest.mark.parametrize("num_shape,b,facs", [(20, 1, False), (20, 1, True), (100, 1, False),
+                                              (20, 64, False), (100, 64, True)])
+def test_05_row_major_and_single_row_paths_equal_reference(model, num_shape, b, facs):
+    """The personalised expressions contracted with psi first (M_E row-major, B = 1: the
+    generic rows on the moved vertices and the folded personal mean in one product), the
+    identity-independent M_P at w = b2 and the block rigid posing equal the plain forward
+    to 1e-6 of each output's largest magnitude, at B = 1 and B = 64 distinct identities."""
+    p = _inputs(model, num_shape, facs, seed=11 + num_shape + b + facs, b=b)
+    assert model.pose_personal.mlp.weights(p["beta"])[1]  # the shipped M_P: constant
+    assert not model.expr_personal.mlp.weights(p["beta"])[1]
+    with torch.no_grad():
+        fast, ref = model(**p), reference_forward(model, **p)
+    for f in FIELDS:
+        err = _relative_error(getattr(fast, f), getattr(ref, f).expand_as(getattr(fast, f)))
+        assert err < 1e-6, f"{f}: relative error {err:.2e} (S={num_shape}, B={b}, facs={facs})"
+
+
+@pytest.mark.parametrize("num_shape,facs,psi_grad", [(20, False, True), (100, False, True),
+                                                     (20, True, False), (20, True, True)])
+def test_06_single_row_gradients_equal_reference_float64(model64, num_shape, facs, psi_grad):
+    """B = 1 gradients of every output (float64) equal the reference's to 1e-9: the single
+    row path (dense psi, or sparse psi without a gradient) and the general one (sparse psi
+    with a gradient: its zero weights get theirs)."""
+    p = _inputs(model64, num_shape, facs, seed=23 + num_shape + facs, b=1)
+    gen = torch.Generator().manual_seed(4)
+    weights, grads = None, []
+    for fn in (lambda **k: model64(**k), lambda **k: reference_forward(model64, **k)):
+        leaves = {k: v.clone().requires_grad_(k != "psi" or psi_grad) for k, v in p.items()}
+        out = fn(**leaves)
+        if weights is None:
+            weights = {f: torch.randn(getattr(out, f).shape, generator=gen, dtype=torch.float64)
+                       for f in FIELDS}
+        loss = sum((getattr(out, f) * weights[f]).sum() for f in FIELDS)
+        names = [k for k, v in leaves.items() if v.requires_grad]
+        grads.append(dict(zip(names, torch.autograd.grad(loss, [leaves[k] for k in names]))))
+    for k in grads[1]:
+        err = _relative_error(grads[0][k], grads[1][k])
+        assert err < 1e-9, f"d/d{k}: relative error {err:.2e}"
+    if facs and psi_grad:
+        assert grads[0]["psi"][:, p["psi"][0] == 0].abs().max() > 0
+
+
+@pytest.mark.parametrize("b", [8, pytest.param(64, marks=pytest.mark.slow)])
+def test_07_gradients_batch_float64(model64, b):
+    """B distinct identities (the row-major M_E's outer-product form): gradients of beta,
+    psi and theta equal the reference's to 1e-9 (B = 64: 50 s, in the slow run)."""
+    p = _inputs(model64, 20, False, seed=31, b=b)
+    gen = torch.Generator().manual_seed(6)
+    grads, weights = [], None
+    for fn in (lambda **k: model64(**k), lambda **k: reference_forward(model64, **k)):
+        leaves = {k: v.clone().requires_grad_(k in ("beta", "psi", "theta")) for k, v in p.items()}
+        out = fn(**leaves)
+        if weights is None:
+            weights = torch.randn(out.vertices.shape, generator=gen, dtype=torch.float64)
+        loss = (out.vertices * weights).sum()
+        grads.append(torch.autograd.grad(loss, [leaves[k] for k in ("beta", "psi", "theta")]))
+    for name, a, r in zip(("beta", "psi", "theta"), *grads):
+        assert _relative_error(a, r) < 1e-9, f"d/d{name}"
+
+
+def test_08_live_and_dead_mlps_equal_reference(model):
+    """The personalised bases at w = b2 are used exactly when an MLP's second hidden layer
+    is zero: an M_P brought to life (its hidden biases raised) takes the general path, an
+    M_E with a dead hidden layer the bias basis, and both equal the plain forward."""
+    import copy
+    m = copy.deepcopy(model)
+    with torch.no_grad():
+        m.pose_personal.mlp.b1 += 0.5
+        m.expr_personal.mlp.b1 -= 1e4
+        m._fold_pose_mean()
+    for b in (1, 3):
+        p = _inputs(m, 20, False, seed=41 + b, b=b)
+        assert not m.pose_personal.mlp.weights(p["beta"])[1]
+        assert m.expr_personal.mlp.weights(p["beta"])[1]
+        with torch.no_grad():
+            fast, ref = m(**p), reference_forward(m, **p)
+        for f in FIELDS:
+            err = _relative_error(getattr(fast, f), getattr(ref, f).expand_as(getattr(fast, f)))
+            assert err < 1e-6, f"{f}: relative error {err:.2e} (B={b})"
+
+
+def test_09_path_transforms_equal_rigid_transforms():
+    """The prefix-scan chain of a path (the model's) equals the node-by-node one: posed
+    nodes and the top three rows of every transform, float64, random rotations."""
+    from hack_render.geometry.lbs import is_path, local_rotations, path_transforms
+    g = torch.Generator().manual_seed(8)
+    for k in (1, 2, 5, 9):
+        parents = tuple(range(-1, k - 1))
+        assert is_path(parents) and not is_path((-1, 0, 0)[:max(k, 3)])
+        rot = local_rotations(torch.randn(3, k - 1, 3, generator=g, dtype=torch.float64),
+                              torch.randn(3, 3, generator=g, dtype=torch.float64))
+        j = torch.randn(3, k, 3, generator=g, dtype=torch.float64)
+        posed, rel = rigid_transforms(rot, j, parents)
+        posed_p, rel_p = path_transforms(rot, j)
+        torch.testing.assert_close(posed_p, posed, atol=1e-13, rtol=0)
+        torch.testing.assert_close(rel_p, rel[..., :3, :], atol=1e-13, rtol=0)

@@ -32,7 +32,9 @@ from hack_render.geometry.expressions import (
 )
 from hack_render.geometry.lbs import (
     chain_parents,
+    is_path,
     local_rotations,
+    path_transforms,
     pose_feature,
     rigid_transforms,
     skin,
@@ -72,10 +74,17 @@ class _MLP(nn.Module):
     def forward(self, beta: torch.Tensor) -> torch.Tensor:
         """beta: (B, S) -> (B, C); betas beyond the first layer's width are ignored, and
         missing ones are zero (the first layer reads only the given betas' columns)."""
+        return self.weights(beta)[0]
+
+    def weights(self, beta: torch.Tensor) -> tuple[torch.Tensor, bool]:
+        """(w, constant): w = forward(beta); ``constant`` when the second hidden layer is
+        zero in every row, so that w is exactly the output bias b2 (0 @ w2 + b2) and its
+        gradient in beta is zero (ReLU's is zero where it clips): the model's personalised
+        basis is then the identity-independent ``mean + b2 @ components``."""
         s = min(beta.shape[1], self.w0.shape[1])
         x = torch.relu(torch.addmm(self.b0, beta[:, :s], self.w0[:, :s].T))
         x = torch.relu(torch.addmm(self.b1, x, self.w1.T))
-        return torch.addmm(self.b2, x, self.w2.T)
+        return torch.addmm(self.b2, x, self.w2.T), not bool(x.detach().any())
 
 
 # --------------------------------------------------------------------- basis products
@@ -161,43 +170,67 @@ def rows_product(coeffs: torch.Tensor, rows: torch.Tensor, bias: torch.Tensor) -
     return _RowsProduct.apply(coeffs, rows, bias, nz)
 
 
-def _personal_rows(coeffs, mean, w, comps, nz):
-    """coeffs[:, nz] @ (mean + w comps)[nz] for one identity (w: (1, C)): per run of
-    consecutive used rows, its basis rows by one (1, C) x (C, n K) product over a strided
-    view (no copy), then one (B, n) x (n, K) product."""
-    C, _, K = comps.shape
-    out = None
-    for _, first, end in _runs(nz.tolist()):
+def _row_runs(nz: torch.Tensor | None, D: int) -> list[tuple[int, int, int]]:
+    """Runs (position, first, end) of the used rows ``nz``, or one run of all D rows."""
+    return [(0, 0, D)] if nz is None else _runs(nz.tolist())
+
+
+def _personal_forward(coeffs, mean, w, rows, nz):
+    """coeffs[:, nz] @ (mean + w comps)[nz] per batch row, reading only the used rows
+    (all rows when nz is None). rows: (D, C, K), each basis row's C components together,
+    so every run of consecutive used rows is one contiguous block (a view, no copy).
+
+    * B = 1: the expression weights first, ``P = coeffs @ rows.view(D, C K)`` (C, K) by one
+      matrix-vector product over wide rows (the layout the CPU streams fastest), then
+      ``w @ P``: C K + D C K multiply-adds and one read of the used rows.
+    * Distinct identities (B > 1): the outer products ``coeffs[b, d] w[b, c]`` (B, D C) by
+      the (D C, K) rows, one matrix product (the rows read once for the whole batch).
+    * One identity for a batch (``w`` of one row, B > 1): its (n, K) basis on the used
+      rows once, then one (B, n) x (n, K) product.
+    Differentiable when ``nz`` is None (plain autograd ops)."""
+    D, C, K = rows.shape
+    B = coeffs.shape[0]
+    runs = _row_runs(nz, D)
+    used = coeffs if nz is None else coeffs.index_select(1, nz)
+    used_mean = mean if nz is None else mean.index_select(0, nz)
+    if B == 1:
+        P = None
+        for _, first, end in runs:
+            part = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
+            P = part if P is None else P + part
+        if P is None:
+            return coeffs.new_zeros(B, K)
+        return torch.addmm(used @ used_mean, w, P.view(C, K))
+    if w.shape[0] == 1:
+        parts = [torch.matmul(w[0], rows[first:end]) for _, first, end in runs]
+        if not parts:
+            return coeffs.new_zeros(B, K)
+        basis = used_mean + (parts[0] if len(parts) == 1 else torch.cat(parts, 0))
+        return used @ basis
+    out = used @ used_mean
+    for pos, first, end in runs:
         n = end - first
-        basis = torch.addmm(mean[first:end].reshape(1, n * K), w,
-                            comps[:, first:end].reshape(C, n * K)).view(n, K)
-        part = coeffs[:, first:end] @ basis
-        out = part if out is None else out.add_(part)
-    return coeffs.new_zeros(coeffs.shape[0], K) if out is None else out
+        x = (used[:, pos:pos + n, None] * w[:, None, :]).reshape(B, n * C)
+        out = torch.addmm(out, x, rows[first:end].view(n * C, K))
+    return out
 
 
 class _PersonalProduct(torch.autograd.Function):
-    """Per-row personalised product, unused rows skipped; see :func:`personal_product`."""
+    """Per-row personalised product, unused rows skipped forward; see :func:`personal_product`."""
 
     @staticmethod
-    def forward(ctx, coeffs, mean, w, comps, nz):
-        ctx.save_for_backward(coeffs, mean, w, comps)
-        if w.shape[0] == 1:
-            return _personal_rows(coeffs, mean, w, comps, nz)
-        B = coeffs.shape[0]
-        C, _, K = comps.shape
-        n = len(nz)
-        x = (w[:, :, None] * coeffs[:, None, nz]).reshape(B, C * n)  # outer products, used rows
-        return torch.addmm(coeffs[:, nz] @ mean[nz], x, comps.index_select(1, nz).view(C * n, K))
+    def forward(ctx, coeffs, mean, w, rows, nz):
+        ctx.save_for_backward(coeffs, mean, w, rows)
+        return _personal_forward(coeffs, mean, w, rows, nz)
 
     @staticmethod
     def backward(ctx, g):
-        coeffs, mean, w, comps = ctx.saved_tensors
-        C, D, K = comps.shape
-        # the one full read: G[b, c, d] = sum_k comps[c, d, k] g[b, k]
-        G = (g @ comps.view(C * D, K).T).view(-1, C, D)
-        grad_c = g @ mean.T + (G * w[:, :, None]).sum(1) if ctx.needs_input_grad[0] else None
-        grad_w = (G * coeffs[:, None, :]).sum(2) if ctx.needs_input_grad[2] else None
+        coeffs, mean, w, rows = ctx.saved_tensors
+        D, C, K = rows.shape
+        # the one full read: G[b, d, c] = sum_k rows[d, c, k] g[b, k]
+        G = (g @ rows.view(D * C, K).T).view(-1, D, C)
+        grad_c = g @ mean.T + (G * w[:, None, :]).sum(2) if ctx.needs_input_grad[0] else None
+        grad_w = (G * coeffs[:, :, None]).sum(1) if ctx.needs_input_grad[2] else None
         if grad_w is not None and w.shape[0] == 1:
             grad_w = grad_w.sum(0, keepdim=True)
         return grad_c, None, grad_w, None, None
@@ -212,37 +245,36 @@ def personal_product(coeffs: torch.Tensor, mean: torch.Tensor, w: torch.Tensor,
         mean: (D, K) the personalised basis's mean.
         w: (B, C) per-row identity weights (the MLP of beta), or (1, C) when the whole
             batch shares one identity.
-        comps: (C, D, K) components.
+        comps: (C, D, K) components; fastest as the (C, D, K) view
+            ``rows.transpose(0, 1)`` of a contiguous (D, C, K) ``rows`` (how
+            :class:`_PersonalBasis` stores them: each basis row's components together);
+            any other layout is copied into that one first.
 
     Exact and differentiable in ``coeffs`` and ``w``; every form reads the components
     once per forward, and only the rows d with a nonzero ``coeffs[:, d]`` (the backward
-    reads all rows, for the gradients of zero coefficients).
-
-    * Distinct identities (and B = 1): one (B, C D) x (C D, K) product of the outer
-      products ``w[b, c] coeffs[b, d]`` with the components, not one basis per row; its
-      output is only (B, K), so at B = 1 it is a cache-friendly matrix-vector product.
-    * One identity for a batch (``w`` of one row, B > 1): the identity's (D, K) basis once,
-      then one (B, D) x (D, K) product (B C D K multiply-adds become C D K + B D K).
+    reads all rows, for the gradients of zero coefficients). See :func:`_personal_forward`
+    for the contraction orders (B = 1: the expression weights first).
     """
-    C, D, K = comps.shape
+    rows = comps.transpose(0, 1)
+    if not rows.is_contiguous():
+        rows = rows.contiguous()
     B = coeffs.shape[0]
     grad = torch.is_grad_enabled() and (coeffs.requires_grad or w.requires_grad)
-    if w.shape[0] == 1 and B > 1:
-        nz = None if grad and coeffs.requires_grad else _nonzero_columns(coeffs)
-        if nz is None:
-            return coeffs @ (mean + (w @ comps.view(C, D * K)).view(D, K))
-        return _personal_rows(coeffs, mean, w, comps, nz)
-    nz = _nonzero_columns(coeffs)
-    if nz is None:
-        x = (w[:, :, None] * coeffs[:, None, :]).reshape(B, C * D)
-        return torch.addmm(coeffs @ mean, x, comps.view(C * D, K))
-    if not grad and w.shape[0] == 1:
-        return _personal_rows(coeffs, mean, w, comps, nz)
-    return _PersonalProduct.apply(coeffs, mean, w, comps, nz)
+    if grad and w.shape[0] == 1 and B > 1 and coeffs.requires_grad:
+        nz = None  # a shared identity's batch with gradients: the plain dense form
+    else:
+        nz = _nonzero_columns(coeffs)
+    if nz is None or not grad:
+        return _personal_forward(coeffs, mean, w, rows, nz)
+    return _PersonalProduct.apply(coeffs, mean, w, rows, nz)
 
 
 class _PersonalBasis(nn.Module):
-    """Personalised deltas on M vertices: mean + sum_c w_c(beta) components_c (D deltas)."""
+    """Personalised deltas on M vertices: mean + sum_c w_c(beta) components_c (D deltas).
+
+    The components are kept as ``rows`` (D, C, K), each basis row's C components together
+    (the file's (C, D, M, 3) permuted once at load: see :func:`_personal_forward`);
+    :attr:`components` is the (C, D, K) view of them."""
 
     def __init__(self, arrays: dict[str, np.ndarray], prefix: str):
         super().__init__()
@@ -250,8 +282,14 @@ class _PersonalBasis(nn.Module):
         self.register_buffer("vertices", t("pca_vertices").long())
         mean, comps = t("pca_mean").float(), t("pca_components").float()
         self.register_buffer("mean", mean.reshape(mean.shape[0], -1))  # (D, 3M)
-        self.register_buffer("components", comps.reshape(comps.shape[0], comps.shape[1], -1))  # (C, D, 3M)
+        comps = comps.reshape(comps.shape[0], comps.shape[1], -1)  # (C, D, 3M)
+        self.register_buffer("rows", comps.transpose(0, 1).contiguous())  # (D, C, 3M)
         self.mlp = _MLP(*(t(f"mlp_{k}").float() for k in ("w0", "b0", "w1", "b1", "w2", "b2")))
+
+    @property
+    def components(self) -> torch.Tensor:
+        """(C, D, 3M): the components as in the file (a view of :attr:`rows`)."""
+        return self.rows.transpose(0, 1)
 
     def apply(self, coeffs: torch.Tensor, w: torch.Tensor, mean: torch.Tensor | None = None
               ) -> torch.Tensor:
@@ -261,21 +299,32 @@ class _PersonalBasis(nn.Module):
         out = personal_product(coeffs, self.mean if mean is None else mean, w, self.components)
         return out.reshape(coeffs.shape[0], -1, 3)
 
+    def bias_basis(self, mean: torch.Tensor | None = None) -> torch.Tensor:
+        """(D, 3M): ``mean + b2 @ components``, the basis of every identity whose MLP's
+        second hidden layer is all zero (:meth:`_MLP.weights`); ``mean`` as in :meth:`apply`."""
+        mean = self.mean if mean is None else mean
+        return mean + torch.matmul(self.mlp.b2.to(mean.dtype), self.rows)
+
     def basis(self, beta: torch.Tensor) -> torch.Tensor:
         """The personal deltas themselves for one identity. beta: (1, S) -> (D, M, 3)."""
-        C, D, K = self.components.shape
-        return (self.mean + (self.mlp(beta) @ self.components.view(C, D * K)).view(D, K)
-                ).reshape(D, -1, 3)
+        return (self.mean + torch.matmul(self.mlp(beta)[0], self.rows)).reshape(
+            self.rows.shape[0], -1, 3)
 
 
 def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
     """LBS of some vertices, as :func:`hack_render.geometry.lbs.skin` (the same blend of
     ``rel - I``), with the per-vertex 3x4 product written out elementwise (a batched 3x3 @
     3x1 matmul per vertex is slow). v: (B, M, 3), weights (M, K), rel (B, K, 4, 4)."""
+    d = _skin_blend(weights, rel)
+    return _affine_columns(v, d, v + d[..., 3])
+
+
+def _skin_blend(weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+    """The blended ``rel - I`` of :func:`_skin_rows`: (M, K), (B, K, 4, 4) or its top rows
+    (B, K, 3, 4) -> (B, M, 3, 4)."""
     B, K = rel.shape[:2]
     eye = torch.eye(4, dtype=rel.dtype, device=rel.device)[:3]
-    d = torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
-    return _affine_columns(v, d, v + d[..., 3])
+    return torch.matmul(weights, (rel[..., :3, :] - eye).reshape(B, K, 12)).view(B, -1, 3, 4)
 
 
 def _affine_columns(v: torch.Tensor, m: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -285,6 +334,53 @@ def _affine_columns(v: torch.Tensor, m: torch.Tensor, bias: torch.Tensor) -> tor
     out = torch.addcmul(bias, v[..., :1], m[..., 0])
     out.addcmul_(v[..., 1:2], m[..., 1])
     return out.addcmul_(v[..., 2:], m[..., 2])
+
+
+#: points per row of :func:`_rigid_points`'s block product, tried in this order for one
+#: that divides the number of points (else the first, and the rest by column multiply-adds):
+#: 0.06-0.09 ms for the default model's 26.7k vertices (k = 7) at B = 1 on one CPU thread,
+#: vs 0.2 ms for three column multiply-adds or one (N, 3) x (3, 3) product; 16 and 32 slower
+_RIGID_BLOCKS = (4, 8, 6, 5, 7)
+
+
+def _rigid_block(n: int) -> int:
+    """Points per row of the block product for n points (:data:`_RIGID_BLOCKS`)."""
+    return next((k for k in _RIGID_BLOCKS if n % k == 0), _RIGID_BLOCKS[0])
+
+
+def _rigid_points(v: torch.Tensor, a: torch.Tensor, transl: torch.Tensor) -> torch.Tensor:
+    """Every point moved by one rigid transform per batch row: ``a[:, :, :3] v + a[:, :, 3]
+    + transl``. v: (B, N, 3), a: (B, 3, 4), transl (B, 3) -> a new (B, N, 3) tensor.
+
+    A (3, 3) product per point is too thin for the CPU's matrix kernels, so the points go
+    k to a row (:func:`_rigid_block`): (B, N / k, 3k) x the block-diagonal (3k, 3k) matrix
+    of k copies of the rotation's transpose (the few points past a multiple of k by column
+    multiply-adds). Differentiable in all three."""
+    return _rigid_apply(v, _rigid_operator(a, transl, _rigid_block(v.shape[1])))
+
+
+def _rigid_operator(a: torch.Tensor, transl: torch.Tensor, k: int) -> tuple:
+    """The parts of :func:`_rigid_points` that do not depend on the points: (a, t, the
+    block-diagonal matrices (B, 3k, 3k), their bias rows (B, 1, 3k))."""
+    B = a.shape[0]
+    rt = a[..., :3].transpose(1, 2)  # (B, 3, 3): row-vector points times R^T
+    t = a[..., 3] + transl  # (B, 3)
+    eye = torch.eye(k, dtype=a.dtype, device=a.device)
+    blocks = (eye[None, :, None, :, None] * rt[:, None, :, None, :]).reshape(B, 3 * k, 3 * k)
+    return a, t, blocks, t.repeat(1, k)[:, None]
+
+
+def _rigid_apply(v: torch.Tensor, op: tuple) -> torch.Tensor:
+    """:func:`_rigid_points` with its :func:`_rigid_operator`."""
+    a, t, blocks, bias = op
+    B, N, _ = v.shape
+    k = blocks.shape[1] // 3
+    n0 = N - N % k
+    out = torch.baddbmm(bias, v[:, :n0].reshape(B, n0 // k, 3 * k), blocks).view(B, n0, 3)
+    if n0 == N:
+        return out
+    tail = _affine_columns(v[:, n0:], a[:, None], t[:, None])
+    return torch.cat([out, tail], 1)
 
 
 class HackModel(nn.Module):
@@ -343,8 +439,8 @@ class HackModel(nn.Module):
         reg = f32("joint_regressor")  # (K, N)
         self.register_buffer("joint_regressor", reg)
         self.register_buffer("joints_template", reg @ self.template)  # (K, 3)
-        self.register_buffer("joints_shapedirs", torch.einsum("kn,snc->skc", reg,
-                                                              shape_dirs.reshape(-1, n, 3)))
+        self.register_buffer("joints_shapedirs", torch.einsum(
+            "kn,snc->skc", reg, shape_dirs.reshape(-1, n, 3)).contiguous())  # rows as views
         self.expr_personal = _PersonalBasis(arrays, "expr") if "expr_pca_vertices" in arrays else None
         self.pose_personal = _PersonalBasis(arrays, "pose") if "pose_pca_vertices" in arrays else None
         # generic pose rows on the same vertices as the personalised ones: one product
@@ -352,6 +448,19 @@ class HackModel(nn.Module):
         # dtype, so a float64 model stays exact)
         self.pose_folded = (self.has_pose_basis and self.pose_personal is not None
                             and torch.equal(self.pose_columns, self.pose_personal.vertices))
+        if self.expr_personal is not None:
+            # B = 1 (:meth:`_rest_single`): the generic expression rows' columns on the
+            # vertices some expression moves, less the personalised vertices (their
+            # generic rows are folded into the personal mean: ``expr_psi_rows``)
+            moved = expr_dirs.view(self.num_expressions, n, 3).ne(0).any(0).any(1)
+            moved[self.expr_personal.vertices] = False
+            verts = torch.nonzero(moved).flatten()
+            xyz = torch.arange(3)
+            self.register_buffer("expr_col_index", (3 * verts[:, None] + xyz).flatten(),
+                                 persistent=False)
+            self.register_buffer("expr_personal_cols",
+                                 (3 * self.expr_personal.vertices[:, None] + xyz).flatten(),
+                                 persistent=False)
         self._fold_pose_mean()
         self.has_larynx = "larynx_maps" in arrays
         if self.has_larynx:
@@ -367,14 +476,35 @@ class HackModel(nn.Module):
             self.register_buffer("larynx_uv", chart)
 
     def _fold_pose_mean(self) -> None:
-        """``pose_mean_folded``: the personalised pose mean plus the generic pose rows on
-        the same vertices (one (72, 3M) buffer, read once per forward), or None. Computed
-        from the two buffers in their current dtype, so a float64 model's sum is exact in
-        float64; rebuilt whenever the module's buffers are converted or moved (``_apply``:
-        ``.double()``, ``.to()``), never per forward (an allocation of 1.2 MB and a pass
-        over both buffers: 0.3-2 ms of a 6-16 ms B = 1 forward on a shared 2-core machine)."""
+        """Derived buffers, computed from the stored ones in their current dtype (so a
+        float64 model's are exact in float64) and rebuilt whenever the module's buffers
+        are converted or moved (``_apply``: ``.double()``, ``.to()``), never per forward:
+
+        * ``pose_mean_folded``: the personalised pose mean plus the generic pose rows on
+          the same vertices (one (72, 3M) buffer, read once per forward), or None (an
+          allocation of 1.2 MB and a pass over both buffers: 0.3-2 ms of a 6-16 ms B = 1
+          forward on a shared 2-core machine).
+        * ``pose_bias_basis`` / ``expr_bias_basis``: a personalised basis at w = b2,
+          ``mean (+ generic rows) + b2 @ components`` (:meth:`_PersonalBasis.bias_basis`),
+          used exactly when the MLP's second hidden layer is zero for every row
+          (:meth:`_MLP.weights`). The default model's M_P is such an MLP for every identity
+          (its hidden units died in learning: see its metadata), so its 10 MB of
+          components are not read per forward; M_E is not, and its stay as they are.
+        """
         folded = self.pose_personal.mean + self.pose_basis_columns if self.pose_folded else None
         self.register_buffer("pose_mean_folded", folded, persistent=False)
+        psi_rows = None
+        if self.expr_personal is not None:
+            E = self.num_expressions
+            gen = self.expr_shape_basis[:E]
+            psi_rows = torch.cat([gen.index_select(1, self.expr_col_index), self.expr_personal.mean
+                                  + gen.index_select(1, self.expr_personal_cols)], 1)
+        self.register_buffer("expr_psi_rows", psi_rows, persistent=False)
+        for name, pb, mean in (("pose_bias_basis", self.pose_personal, folded),
+                               ("expr_bias_basis", self.expr_personal, None)):
+            with torch.no_grad():
+                basis = None if pb is None else pb.bias_basis(mean)
+            self.register_buffer(name, basis, persistent=False)
 
     def _apply(self, fn, *args, **kwargs):
         out = super()._apply(fn, *args, **kwargs)
@@ -513,9 +643,13 @@ class HackModel(nn.Module):
         beta = p["beta"]
         shared = _shares_identity(beta)
         ident = beta[:1] if shared else beta
+        # the small operations first, the basis products last: a product streams tens of
+        # MB through the caches, and small operations after it run cold (a chain of them
+        # after a 72 MB read measured 2.6x its warm CPU time)
+        joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
+        posing = self._posing(joints, rot, p["transl"])
         rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
-        joints = self.rest_joints(ident).expand(rest.shape[0], -1, -1)
-        return self._pose(rest, joints, rot, p["transl"])
+        return self._pose(rest, joints, rot, p["transl"], posing)
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
@@ -528,26 +662,81 @@ class HackModel(nn.Module):
         shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,)."""
         B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
         template = self.template.view(1, -1)
-        if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
-            bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
-            flat = rows_product(psi, self.expr_shape_basis[:E], bias)
-        else:
-            flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb], template)
-        rest = flat.view(B, -1, 3)
-        # the MLPs and the larynx coefficients read only the given betas' columns
-        if self.pose_personal is not None:
-            w = self.pose_personal.mlp(beta)
-            mean = self.pose_mean_folded  # None: not folded
-            _add_rows_(rest, self.pose_personal.vertices, self.pose_personal.apply(feat, w, mean))
+        # the small terms (MLPs, pose correctives, larynx; they read only the given betas'
+        # columns) before the expression and shape products, as in :meth:`forward`
+        deltas = []  # (vertex indices, (B, M, 3) deltas)
+        pp, ep = self.pose_personal, self.expr_personal
+        if pp is not None:
+            w, constant = pp.mlp.weights(beta)
+            if constant:  # w = b2 for every row, no gradient in beta: the basis at b2
+                bb = self.pose_bias_basis
+                d = rows_product(feat, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+            else:
+                d = pp.apply(feat, w, self.pose_mean_folded)
+            deltas.append((pp.vertices, d))
         if self.has_pose_basis and not self.pose_folded:
-            _add_rows_(rest, self.pose_columns, (feat @ self.pose_basis_columns).view(B, -1, 3))
-        if self.expr_personal is not None:
-            w = self.expr_personal.mlp(beta)
-            _add_rows_(rest, self.expr_personal.vertices, self.expr_personal.apply(psi, w))
+            deltas.append((self.pose_columns, (feat @ self.pose_basis_columns).view(B, -1, 3)))
         if self.has_larynx:
             combined = self._larynx_combined(beta).expand(B, -1, -1, -1)
-            _add_rows_(rest, self.larynx_vertices, self._larynx_sample(combined, eta, tau))
+            deltas.append((self.larynx_vertices, self._larynx_sample(combined, eta, tau)))
+        w_e, constant_e = ep.mlp.weights(beta) if ep is not None else (None, False)
+        single = B == 1 and self.expr_psi_rows is not None
+        if single:
+            nz = _nonzero_columns(psi)
+            # zero weights with gradients: the general path (its backward reads every row)
+            single = nz is None or not (torch.is_grad_enabled() and psi.requires_grad)
+        if single:
+            rest = self._rest_single(beta, psi, nz, w_e)
+        else:
+            if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
+                bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
+                flat = rows_product(psi, self.expr_shape_basis[:E], bias)
+            else:
+                flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb],
+                                    template)
+            rest = flat.view(B, -1, 3)
+            if ep is not None:
+                if constant_e:
+                    bb = self.expr_bias_basis
+                    d = rows_product(psi, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+                else:
+                    d = ep.apply(psi, w_e)
+                _add_rows_(rest, ep.vertices, d)
+        for index, d in deltas:
+            _add_rows_(rest, index, d)
         return rest
+
+    def _rest_single(self, beta, psi, nz, w) -> torch.Tensor:
+        """The shape and expression terms of :meth:`_rest` for one row (B = 1): (1, N, 3).
+
+        The expression weights multiply three things: the generic expression rows, the
+        personalised basis's mean and its components. They go first, in two
+        matrix-vector products over the used rows (``nz``; None: all): one over
+        :attr:`expr_psi_rows` (the generic rows on the vertices some expression moves,
+        then the personal mean with the generic rows of its vertices folded in) and one
+        over the components (D, C K), giving P (C, K); then the personal deltas are
+        ``mean part + w @ P`` (w: M_E's weights of beta, (1, C)). The generic rows' exact zeros (the vertices no
+        expression moves, a quarter of the default model's) are not read. Differentiable
+        (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
+        general path)."""
+        E, nb = self.num_expressions, beta.shape[1]
+        pb = self.expr_personal
+        D, C, K = pb.rows.shape
+        Y = P = None
+        for _, first, end in _row_runs(nz, E):
+            c = psi[:, first:end]
+            y = c @ self.expr_psi_rows[first:end]
+            p = c @ pb.rows[first:end].view(end - first, C * K)
+            Y, P = (y, p) if Y is None else (Y + y, P + p)
+        # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
+        # the additions and the posing that follow
+        flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
+        if Y is None:
+            return flat.view(1, -1, 3)
+        m = self.expr_col_index.shape[0]
+        flat.view(-1).index_add_(0, self.expr_col_index, Y[0, :m])
+        personal = torch.addmm(Y[:, m:], w, P.view(C, K))
+        return _add_rows_(flat.view(1, -1, 3), pb.vertices, personal.view(1, -1, 3))
 
     def _larynx_combined(self, beta: torch.Tensor) -> torch.Tensor:
         """sum_i c_i(beta) L_i: (B, S) -> (B, 3, H, W) metres."""
@@ -574,17 +763,30 @@ class HackModel(nn.Module):
         return _larynx.sample_displacement(combined, self.larynx_uv,
                                            self.larynx_uv_bounds, eta, tau, self.larynx_v_per_metre)
 
-    def _pose(self, rest, joints, rot, transl) -> HackOutput:
+    def _posing(self, joints, rot, transl) -> tuple:
+        """What :meth:`_pose` needs that does not depend on the rest mesh: the posed nodes,
+        the chain's transforms, the rigid node's operator and the blended vertices' blend."""
         root = joints[:, :1]  # the root (thorax) rotates about the c7-t1 joint
         nodes = torch.cat([root, joints], 1)
-        posed_nodes, rel = rigid_transforms(rot, nodes, chain_parents(self.parents))
+        parents = chain_parents(self.parents)
+        if is_path(parents):  # rel: (B, K, 3, 4), all that posing reads
+            posed_nodes, rel = path_transforms(rot, nodes)
+        else:
+            posed_nodes, rel = rigid_transforms(rot, nodes, parents)
+        rigid = _rigid_operator(rel[:, self.rigid_node, :3], transl,
+                                _rigid_block(self.num_vertices))
+        blend = _skin_blend(self.blended_weights, rel) if len(self.blended_vertices) else None
+        return posed_nodes, rigid, blend
+
+    def _pose(self, rest, joints, rot, transl, posing=None) -> HackOutput:
+        posed_nodes, rigid, blend = posing or self._posing(joints, rot, transl)
         # every vertex as if rigid with the node most vertices follow (one (B, N, 3) x
         # (B, 3, 3) product), then the blended vertices overwritten with their LBS
-        a = rel[:, self.rigid_node, None, :3]  # (B, 1, 3, 4)
-        verts = _affine_columns(rest, a, a[..., 3] + transl[:, None])
+        verts = _rigid_apply(rest, rigid)
         idx = self.blended_vertices
         if len(idx):
-            blended = _skin_rows(rest[:, idx], self.blended_weights, rel) + transl[:, None]
+            v = rest[:, idx]
+            blended = _affine_columns(v, blend, v + blend[..., 3]) + transl[:, None]
             if verts.shape[0] == 1:
                 verts.view(-1, 3).index_copy_(0, idx, blended[0])
             else:
