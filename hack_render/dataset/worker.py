@@ -286,10 +286,17 @@ class SampleRenderer:
         """
         self.writer.wait_below(self.max_pending)
         ahead = self._prefetched.pop(int(index), None)
+        # the first sample with its inputs still being made (the serial executor's start):
+        # only its own preset's scene is built now, while the inputs are made, and the
+        # other presets' after its render (:meth:`build_scenes`), while its files are
+        # written: the start-up before the first render is one scene, not one per preset
+        rest = False
         if not self.scenes and ahead is not None and not ahead.done():
             first = self.spec(index)
-            if first.get("hair") is None:  # the bald scenes, built while the inputs are made
-                self.scene(first["lighting"]["preset"])
+            if first.get("hair") is None:
+                preset = first["lighting"]["preset"]
+                self.scenes[preset] = self._build_scene(preset)
+                rest = True
         inp = ahead.result() if ahead is not None else self.inputs(index)
         spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
@@ -314,7 +321,10 @@ class SampleRenderer:
                                            inp["background"]))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
-        return self.writer.submit(_write_record, self.out, folder, spec, writes)
+        record = self.writer.submit(_write_record, self.out, folder, spec, writes)
+        if rest and not self._hair_scene:
+            self.build_scenes()
+        return record
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes, backdrop) -> dict:
         r = self.cfg["render"]
