@@ -32,25 +32,22 @@ float16 or int8 with a per (component, channel) scale.
 Unpacking the shipped file (inflating it, restoring the int8 basis, validating) costs
 ~0.4 CPU s, a tenth of a dataset's start-up, so :meth:`AppearanceModel.load` keeps the
 validated arrays of a file, uncompressed, in ``$XDG_CACHE_HOME/hack-render/appearance/``
-(:func:`cached_arrays`: one ``.npy`` each, keyed by the file's path, size and
-modification time and this module's source) and later loads map them copy-on-write
-(no pickle); ``HACK_RENDER_NO_CACHE=1`` turns the cache off. The arrays are the same
-bits either way.
+(``appearance.cache.cached_arrays``: keyed by the file's path, size and modification
+time and this module's source) and later loads map them copy-on-write (no pickle);
+``HACK_RENDER_NO_CACHE=1`` turns the cache off. The arrays are the same bits either way.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import shutil
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from appearance.cache import cached_arrays, file_key, source_key
 from appearance.uv import fill_index
 from hack_render.errors import HackError
 from hack_render.io.npz import write_npz
@@ -264,7 +261,7 @@ class AppearanceModel:
     @staticmethod
     def load(path: str | os.PathLike | None = None) -> AppearanceModel:
         """Load and validate a model file (default: the shipped procedural model); the
-        validated arrays come from the cache when it holds them (:func:`cached_arrays`)."""
+        validated arrays come from the cache when it holds them (``appearance.cache``)."""
         path = Path(path or DEFAULT_MODEL)
         if not path.is_file():
             return AppearanceModel(**load_model_arrays(path))  # raises, naming the fix
@@ -275,65 +272,9 @@ class AppearanceModel:
             return ({k: np.asarray(a[k]) for k in names},
                     {"metadata": a["metadata"], "report": a["report"]})
 
-        arrays, extra = cached_arrays("model", file_key(path), unpack)
+        arrays, extra = cached_arrays("model", [file_key(path), source_key(__file__)],
+                                      unpack, mmap=True)
         return AppearanceModel(**dict(arrays, height=int(arrays["height"])), **extra)
-
-
-#: Entries kept by :func:`cached_arrays` (the newest, per kind)
-CACHE_KEEP = 4
-_CACHE_FORMAT = 1
-
-
-def file_key(path) -> list:
-    """What identifies a file's content for :func:`cached_arrays`: its resolved path, size
-    and modification time."""
-    p = Path(path).resolve()
-    st = p.stat()
-    return [str(p), st.st_size, st.st_mtime_ns]
-
-
-def cached_arrays(kind: str, key: list, make: Callable[[], tuple[dict[str, np.ndarray], dict]]
-                  ) -> tuple[dict[str, np.ndarray], dict]:
-    """``make()``'s (arrays, JSON-ready dict), kept on disk by ``key`` (JSON-ready: what
-    they are a function of) and this module's source, in
-    ``$XDG_CACHE_HOME/hack-render/appearance/<kind>-<hash>/`` (one ``.npy`` per array,
-    mapped copy-on-write on later calls, no pickle). An entry that cannot be read is made
-    again, one that cannot be written costs only the time; ``HACK_RENDER_NO_CACHE=1``
-    turns the cache off."""
-    if os.environ.get("HACK_RENDER_NO_CACHE", "") not in ("", "0"):
-        return make()
-    h = hashlib.sha256(json.dumps([_CACHE_FORMAT, kind, key]).encode())
-    h.update(Path(__file__).read_bytes())
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    root = Path(base) / "hack-render" / "appearance"
-    folder = root / f"{kind}-{h.hexdigest()[:32]}"
-    try:
-        index = json.loads((folder / "index.json").read_text())
-        arrays = {k: np.load(folder / f"{k}.npy", mmap_mode="c", allow_pickle=False)
-                  for k in index["keys"]}
-        os.utime(folder)  # the newest CACHE_KEEP are kept
-        return arrays, index["extra"]
-    except (OSError, ValueError, KeyError, TypeError):
-        pass  # absent, partial or damaged: made again
-    arrays, extra = make()
-    tmp = root / f".{folder.name}.{os.getpid()}.tmp"
-    try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        for k, v in arrays.items():
-            np.save(tmp / f"{k}.npy", np.asarray(v), allow_pickle=False)
-        (tmp / "index.json").write_text(json.dumps({"keys": sorted(arrays), "extra": extra}))
-        shutil.rmtree(folder, ignore_errors=True)
-        os.replace(tmp, folder)
-        mine = sorted((p for p in root.glob(f"{kind}-*") if p.is_dir()),
-                      key=lambda p: p.stat().st_mtime_ns, reverse=True)
-        for old in mine[CACHE_KEEP:]:
-            shutil.rmtree(old, ignore_errors=True)
-    except OSError:  # a read-only or full cache: the next process makes them again
-        pass
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return arrays, extra
 
 
 def _fail(path, what, expected, found, fix="Rebuild it with `hack-render learn appearance`."):

@@ -21,26 +21,17 @@ float32, so it is the same bits whatever the thread count (serial or Ray workers
 
 from __future__ import annotations
 
-import hashlib
-from pathlib import Path
+import inspect
 
 import numpy as np
 import torch
 
+from appearance.cache import cached_arrays, file_key, source_key
 from appearance.generator import generate_subject
-from appearance.model import (
-    DEFAULT_MODEL,
-    AppearanceMaps,
-    AppearanceModel,
-    cached_arrays,
-    file_key,
-    normals_to_slopes,
-)
+from appearance.model import DEFAULT_MODEL, AppearanceMaps, AppearanceModel, normals_to_slopes
 from appearance.population import Calibration
 from hack_render.errors import HackError
 
-#: this module's source: the projector's cached operators (``cached_arrays``) are made by it
-_SOURCE = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
 #: Atlas height of the generated probe: at 64 a subject's forehead ITA is within ~3
 #: degrees of the full-resolution subject's projection (at 32, up to 7).
 PROBE_HEIGHT = 64
@@ -81,10 +72,13 @@ class SubjectProjector:
                      "mean": probe.mean.detach().cpu().double().numpy(),
                      "mask": probe.mask_np}, {})
 
-        # the shipped model's operators are kept on disk (~0.3 s to make; the same bits)
-        ops = cached_arrays("projector", [file_key(DEFAULT_MODEL), self.probe_height,
-                                          _SOURCE], operators)[0] \
-            if model is None and DEFAULT_MODEL.is_file() else operators()[0]
+        if model is None and DEFAULT_MODEL.is_file():
+            # the shipped model's operators are kept on disk (~0.3 s to make; same bits)
+            code = source_key(__file__, inspect.getfile(AppearanceModel))
+            ops = cached_arrays("projector", [file_key(DEFAULT_MODEL), self.probe_height, code],
+                                operators)[0]
+        else:
+            ops = operators()[0]
         #: (K, 7N') least-squares operator: alpha = pinv @ (x - mean)
         self.pinv, self.mean, self.mask = ops["pinv"], ops["mean"], ops["mask"]
         self._maps_models: dict[int, AppearanceModel] = {self.model.height: self.model}
