@@ -188,3 +188,27 @@ def test_05_appearance_caches_give_the_same_arrays(tmp_path, monkeypatch):
                    for p in cache_root().glob("projector-*/pinv.npy"))
     finally:
         generator.atlas_context.cache_clear()
+
+
+def test_06_background_resize_is_scikit_image_resize():
+    """``backgrounds.resize_linear`` (no skimage.transform import at the first sample) gives
+    scikit-image's ``resize(order=1, anti_aliasing=True, preserve_range=True)`` bit for
+    bit: down- and up-sampling, mirrored crops, odd shapes."""
+    from skimage.transform import resize
+
+    from hack_render.dataset.backgrounds import PHOTOS, photo, resize_linear
+
+    img = photo(min(PHOTOS))
+    rng = np.random.default_rng(0)
+    for t in range(8):
+        side = [0.03, 0.1, 0.5, 1.0][t % 4]
+        ch = max(2, round(min(img.shape[:2]) * side))
+        cw = max(2, min(img.shape[1], ch + t - 3))
+        y0 = int(rng.integers(0, img.shape[0] - ch + 1))
+        x0 = int(rng.integers(0, img.shape[1] - cw + 1))
+        crop = img[y0:y0 + ch, x0:x0 + cw]
+        crop = crop[:, ::-1] if t % 2 else crop
+        for h, w in ((64, 64), (17, 40)):
+            a = resize(crop, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+            b = resize_linear(crop, h, w)
+            assert a.dtype == b.dtype and np.array_equal(a, b), (t, h, w)
