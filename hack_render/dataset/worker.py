@@ -273,9 +273,11 @@ class SampleRenderer:
         if index not in self._prefetched:
             self._prefetched[index] = pool.submit(self.inputs, index)
 
-    def submit(self, index: int) -> Future:
+    def submit(self, index: int, then: int | None = None) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
-        manifest record.
+        manifest record. ``then``: the next sample's index, whose inputs are started
+        (:meth:`prefetch`) once this sample's scene is ready, so that at the start they do
+        not compete with the first scene's build.
 
         The folder is emptied first (a partial sample from an interrupted run is redone).
         Files are encoded and written by :attr:`writer` in the order they are queued
@@ -304,6 +306,8 @@ class SampleRenderer:
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
         head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
+        if then is not None:
+            self.prefetch(then)
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         # the normals were made on the prefetch thread; the iris is placed by set_camera
