@@ -163,14 +163,17 @@ class SampleRenderer:
         return self.scenes[preset]
 
     def build_scenes(self) -> None:
-        """Build the scene of every configured preset, in config order, before any render.
+        """Build the scene of every configured preset not built yet, in config order.
 
         Dr.Jit compiles one kernel for every instance of a class that exists in the
         process (the emitters and BSDFs of all scenes), so each scene built or changed
         later would recompile the kernels of the others (~0.5 s each at 256 px). Built
-        together up front, with their light transforms already opaque (``set_light_rotation``),
-        every process holds the same instances and each preset compiles once.
-        """
+        together, with their light transforms already opaque (``set_light_rotation``),
+        every process holds the same instances and each preset compiles once. The serial
+        executor's first sample renders in its own preset's scene alone (the start-up is
+        one scene, not four) and the others are built right after it (:meth:`submit`): its
+        kernels are traced once more, the pixels are the same (the kernels' instances do
+        not change what they compute; tests/test_dataset_speed.py)."""
         for preset in self.cfg["lighting"]["presets"]:
             if preset not in self.scenes:
                 self.scenes[preset] = self._build_scene(preset)
