@@ -315,8 +315,8 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
                                 disable=not progress):
             if count == 0:  # the first sample's inputs are made while its scene is built
                 renderer.prefetch(i)
-            # the next sample's inputs are made while sample i renders (started once its
-            # scene is ready)
+            # the next sample's inputs are made while sample i renders (at the start: once
+            # its scene is built)
             pending.append(renderer.submit(i, then=upcoming))
             count += 1
             if count == 1:

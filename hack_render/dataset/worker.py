@@ -279,8 +279,8 @@ class SampleRenderer:
     def submit(self, index: int, then: int | None = None) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
         manifest record. ``then``: the next sample's index, whose inputs are started
-        (:meth:`prefetch`) once this sample's scene is ready, so that at the start they do
-        not compete with the first scene's build.
+        (:meth:`prefetch`) before this sample's scene and render, but after the first
+        bald sample's own scene (at the start they would compete with its build).
 
         The folder is emptied first (a partial sample from an interrupted run is redone).
         Files are encoded and written by :attr:`writer` in the order they are queued
@@ -302,6 +302,8 @@ class SampleRenderer:
                 preset = first["lighting"]["preset"]
                 self.scenes[preset] = self._build_scene(preset)
                 rest = True
+        if then is not None:  # made while this sample renders (and a groom's scene builds)
+            self.prefetch(then)
         inp = ahead.result() if ahead is not None else self.inputs(index)
         spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
@@ -309,8 +311,6 @@ class SampleRenderer:
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
         head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
-        if then is not None:
-            self.prefetch(then)
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         # the normals were made on the prefetch thread; the iris is placed by set_camera
