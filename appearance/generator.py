@@ -24,12 +24,15 @@ Texels outside the skin islands are filled from the nearest valid texel (same ti
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 from scipy import ndimage
 
+from appearance.cache import cached_arrays, file_key, source_key
 from appearance.noise import fbm3
 from appearance.population import (
     Calibration,
@@ -39,7 +42,8 @@ from appearance.population import (
     subject_uniforms,
 )
 from appearance.regions import LANDMARK_VERTICES, REGION_ID, REGIONS, region_labels
-from appearance.uv import UVLayout, default_template, rasterize_layout
+from appearance.uv import TEMPLATE_FILE, UVLayout, default_template, rasterize_layout
+from hack_render.geometry.obj_io import read_obj
 
 # Regional multipliers of (C_m, C_h) and base (specular, roughness); specular scales the
 # F0 = 0.028 lobe (1 = full skin Fresnel), roughness is perceptual (GGX alpha = r^2).
@@ -97,7 +101,27 @@ class AtlasContext:
 @lru_cache(maxsize=4)
 def atlas_context(height: int) -> AtlasContext:
     """The precomputation of atlas height ``height`` (cached): layout, region labels and
-    soft weights, texel positions and sizes."""
+    soft weights, texel positions and sizes. Kept on disk too (``appearance.cache``: a
+    function of the template file and the code that makes it; ~0.25 s a process, with
+    scipy.spatial's import, at the projector's probe height)."""
+    fields = [f.name for f in dataclasses.fields(UVLayout)]
+    ctx_fields = [f.name for f in dataclasses.fields(AtlasContext) if f.name != "layout"]
+
+    def make():
+        ctx = _atlas_context(height)
+        arrays = {f"layout_{k}": np.asarray(getattr(ctx.layout, k)) for k in fields}
+        arrays.update({k: np.asarray(getattr(ctx, k)) for k in ctx_fields})
+        return arrays, {}
+
+    code = source_key(__file__, inspect.getfile(UVLayout), inspect.getfile(region_labels),
+                      inspect.getfile(read_obj))
+    a = cached_arrays("atlas_context", [int(height), file_key(TEMPLATE_FILE), code], make)[0]
+    lay = UVLayout(**{k: int(a[f"layout_{k}"]) if k == "height" else a[f"layout_{k}"]
+                      for k in fields})
+    return AtlasContext(lay, **{k: a[k] for k in ctx_fields})
+
+
+def _atlas_context(height: int) -> AtlasContext:
     lay = rasterize_layout(height)
     lab = region_labels(lay)
     m = lay.mask

@@ -28,6 +28,13 @@ block weighted to equal total variance when the PCA was built.
 The model file is one ``.npz`` (format ``hack-appearance-model``, version 1), validated
 on load: keys, shapes, dtypes and finite values; the basis may be stored as float32,
 float16 or int8 with a per (component, channel) scale.
+
+Unpacking the shipped file (inflating it, restoring the int8 basis, validating) costs
+~0.4 CPU s, a tenth of a dataset's start-up, so :meth:`AppearanceModel.load` keeps the
+validated arrays of a file, uncompressed, in ``$XDG_CACHE_HOME/hack-render/appearance/``
+(``appearance.cache.cached_arrays``: keyed by the file's path, size and modification
+time and this module's source) and later loads map them copy-on-write (no pickle);
+``HACK_RENDER_NO_CACHE=1`` turns the cache off. The arrays are the same bits either way.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from appearance.cache import cached_arrays, file_key, source_key
 from appearance.uv import fill_index
 from hack_render.errors import HackError
 from hack_render.io.npz import write_npz
@@ -252,8 +260,21 @@ class AppearanceModel:
     # -- file IO ----------------------------------------------------------------------
     @staticmethod
     def load(path: str | os.PathLike | None = None) -> AppearanceModel:
-        """Load and validate a model file (default: the shipped procedural model)."""
-        return AppearanceModel(**load_model_arrays(path or DEFAULT_MODEL))
+        """Load and validate a model file (default: the shipped procedural model); the
+        validated arrays come from the cache when it holds them (``appearance.cache``)."""
+        path = Path(path or DEFAULT_MODEL)
+        if not path.is_file():
+            return AppearanceModel(**load_model_arrays(path))  # raises, naming the fix
+        names = ("height", "mask", "mean", "basis", "stddev", "explained_variance_ratio")
+
+        def unpack() -> tuple[dict[str, np.ndarray], dict]:
+            a = load_model_arrays(path)
+            return ({k: np.asarray(a[k]) for k in names},
+                    {"metadata": a["metadata"], "report": a["report"]})
+
+        arrays, extra = cached_arrays("model", [file_key(path), source_key(__file__)],
+                                      unpack, mmap=True)
+        return AppearanceModel(**dict(arrays, height=int(arrays["height"])), **extra)
 
 
 def _fail(path, what, expected, found, fix="Rebuild it with `hack-render learn appearance`."):

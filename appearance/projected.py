@@ -21,9 +21,12 @@ float32, so it is the same bits whatever the thread count (serial or Ray workers
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import torch
 
+from appearance.cache import cached_arrays, file_key, source_key
 from appearance.generator import generate_subject
 from appearance.model import DEFAULT_MODEL, AppearanceMaps, AppearanceModel, normals_to_slopes
 from appearance.population import Calibration
@@ -61,12 +64,23 @@ class SubjectProjector:
         self.model = model if model is not None else AppearanceModel.load()
         self.calibration = calibration
         self.probe_height = int(probe_height)
-        probe = self.model.downsampled(self.probe_height)
-        basis = probe.basis.detach().cpu().double()  # (K, 7N'), scaled: alpha ~ N(0, I)
+
+        def operators() -> tuple[dict[str, np.ndarray], dict]:
+            probe = self.model.downsampled(self.probe_height)
+            basis = probe.basis.detach().cpu().double()  # (K, 7N'), scaled: alpha ~ N(0, I)
+            return ({"pinv": torch.linalg.solve(basis @ basis.T, basis).numpy(),
+                     "mean": probe.mean.detach().cpu().double().numpy(),
+                     "mask": probe.mask_np}, {})
+
+        if model is None and DEFAULT_MODEL.is_file():
+            # the shipped model's operators are kept on disk (~0.3 s to make; same bits)
+            code = source_key(__file__, inspect.getfile(AppearanceModel))
+            ops = cached_arrays("projector", [file_key(DEFAULT_MODEL), self.probe_height, code],
+                                operators)[0]
+        else:
+            ops = operators()[0]
         #: (K, 7N') least-squares operator: alpha = pinv @ (x - mean)
-        self.pinv = torch.linalg.solve(basis @ basis.T, basis).numpy()
-        self.mean = probe.mean.detach().cpu().double().numpy()
-        self.mask = probe.mask_np
+        self.pinv, self.mean, self.mask = ops["pinv"], ops["mean"], ops["mask"]
         self._maps_models: dict[int, AppearanceModel] = {self.model.height: self.model}
 
     def supports(self, height: int) -> bool:

@@ -27,7 +27,6 @@ across the top of the forehead in the renders).
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.path import Path as MplPath
 
 from appearance.uv import UVLayout, default_template, rasterize_layout
 
@@ -78,6 +77,10 @@ def nape_y(z: np.ndarray) -> np.ndarray:
 
 
 def _inside(poly_xy: np.ndarray, pts: np.ndarray, radius: float = 0.0) -> np.ndarray:
+    # deferred (~0.1 s): the labelling runs once per atlas height, then comes from the
+    # caches (``generator.atlas_context``, the dataset's label atlas)
+    from matplotlib.path import Path as MplPath
+
     return MplPath(poly_xy).contains_points(pts, radius=radius)
 
 

@@ -294,9 +294,7 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
             t0 = time.perf_counter()
             futures = []
             for j, upcoming in with_next(js):  # as the serial executor runs them
-                if upcoming is not None:
-                    r.prefetch(upcoming)
-                futures.append(r.submit(j))
+                futures.append(r.submit(j, then=upcoming))
             for f in futures:
                 f.result()
             rows[m]["wall"] += time.perf_counter() - t0

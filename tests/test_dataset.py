@@ -659,10 +659,10 @@ def test_interrupt_finishes_the_queued_writes_then_resume_completes(rendered, tm
     out, cfg, _ = rendered
     real = SampleRenderer.submit
 
-    def submit(self, index):
+    def submit(self, index, then=None):
         if index == 1:
             raise KeyboardInterrupt
-        return real(self, index)
+        return real(self, index, then)
 
     monkeypatch.setattr(SampleRenderer, "submit", submit)
     target = tmp_path / "interrupted"

@@ -58,14 +58,27 @@ def test_01_scene_built_like_another_is_the_same_scene():
 
 def test_02_first_sample_prefetched_while_scenes_build_gives_the_same_files(tmp_path):
     """The serial executor's start: the first sample's inputs made on the prefetch thread
-    (after the projector and the label atlas) while the scenes are built; the files equal
-    those of a renderer that makes everything in order, in its own thread."""
+    (after the projector and the label atlas) while its preset's scene alone is built, the
+    other presets' scenes after its render; the files equal those of a renderer that makes
+    everything in order, every scene first, in its own thread."""
     cfg = load_config(overrides=TINY)
     ahead = SampleRenderer(cfg, tmp_path / "ahead", 5, background_writes=True)
     assert not ahead.scenes
-    ahead.prefetch(0)
-    ahead.submit(0).result()
+    alive = []
+    render = HeadScene.render
+
+    def counted(self, *args, **kwargs):
+        alive.append(len(ahead.scenes))
+        return render(self, *args, **kwargs)
+
+    HeadScene.render = counted
+    try:
+        ahead.prefetch(0)
+        ahead.submit(0).result()
+    finally:
+        HeadScene.render = render
     ahead.close()
+    assert alive == [1]  # one scene when the first sample rendered
     assert set(ahead.scenes) == set(cfg["lighting"]["presets"])
     plain = SampleRenderer(cfg, tmp_path / "plain", 5)
     plain.render(0)
@@ -129,3 +142,73 @@ def test_04_label_atlas_cache_round_trip(tmp_path, monkeypatch):
         assert lab.atlas_cache_path(h) is None
     finally:
         lab.skin_label_atlas.cache_clear()
+
+
+def test_05_appearance_caches_give_the_same_arrays(tmp_path, monkeypatch):
+    """The appearance model, the subject projector's operators and the generator's atlas
+    precomputation, kept on disk (``appearance.cache``), are the bits made without the
+    cache; a damaged entry is made again; with HACK_RENDER_NO_CACHE nothing is written."""
+    from appearance import generator
+    from appearance.cache import cache_root
+    from appearance.model import AppearanceModel
+    from appearance.projected import SubjectProjector
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("HACK_RENDER_NO_CACHE", "1")
+    assert cache_root() is None
+    plain = SubjectProjector()
+    ctx = generator._atlas_context(32)
+    assert not (tmp_path / "hack-render").exists()
+    monkeypatch.delenv("HACK_RENDER_NO_CACHE")
+    generator.atlas_context.cache_clear()
+    try:
+        for _ in range(2):  # made and kept, then read back
+            kept = SubjectProjector()
+            assert all(np.array_equal(getattr(kept, k), getattr(plain, k))
+                       for k in ("pinv", "mean", "mask"))
+            for k in ("mean", "basis", "gather", "mask"):
+                assert np.array_equal(getattr(kept.model, k).numpy(),
+                                      getattr(plain.model, k).numpy()), k
+            assert kept.model.metadata == plain.model.metadata
+            a, b = kept.maps(7, 32), plain.maps(7, 32)
+            assert all(np.array_equal(getattr(a, k).numpy(), getattr(b, k).numpy())
+                       for k in ("diffuse", "specular", "roughness", "normal"))
+            got = generator.atlas_context(32)
+            generator.atlas_context.cache_clear()
+            assert np.array_equal(got.soft, ctx.soft) and np.array_equal(got.labels, ctx.labels)
+            assert got.layout.height == 32 and np.array_equal(got.layout.fill, ctx.layout.fill)
+        kinds = {p.name.split("-")[0] for p in cache_root().iterdir()}
+        assert kinds == {"atlas_context", "model", "projector"}  # atlases at 32 and 64
+        for p in cache_root().glob("projector-*/pinv.npy"):
+            p.write_bytes(b"damaged")
+        again = SubjectProjector(AppearanceModel.load())  # a model given: not cached
+        assert np.array_equal(again.pinv, plain.pinv)
+        assert np.array_equal(SubjectProjector().pinv, plain.pinv)  # made again
+        assert all(np.load(p).shape == plain.pinv.shape
+                   for p in cache_root().glob("projector-*/pinv.npy"))
+    finally:
+        generator.atlas_context.cache_clear()
+
+
+def test_06_background_resize_is_scikit_image_resize():
+    """``backgrounds.resize_linear`` (no skimage.transform import at the first sample) gives
+    scikit-image's ``resize(order=1, anti_aliasing=True, preserve_range=True)`` bit for
+    bit: down- and up-sampling, mirrored crops, odd shapes."""
+    from skimage.transform import resize
+
+    from hack_render.dataset.backgrounds import PHOTOS, photo, resize_linear
+
+    img = photo(min(PHOTOS))
+    rng = np.random.default_rng(0)
+    for t in range(8):
+        side = [0.03, 0.1, 0.5, 1.0][t % 4]
+        ch = max(2, round(min(img.shape[:2]) * side))
+        cw = max(2, min(img.shape[1], ch + t - 3))
+        y0 = int(rng.integers(0, img.shape[0] - ch + 1))
+        x0 = int(rng.integers(0, img.shape[1] - cw + 1))
+        crop = img[y0:y0 + ch, x0:x0 + cw]
+        crop = crop[:, ::-1] if t % 2 else crop
+        for h, w in ((64, 64), (17, 40)):
+            a = resize(crop, (h, w), order=1, anti_aliasing=True, preserve_range=True)
+            b = resize_linear(crop, h, w)
+            assert a.dtype == b.dtype and np.array_equal(a, b), (t, h, w)

@@ -313,11 +313,11 @@ def run_serial(job: Job, todo, progress: bool = True, total: int | None = None,
     try:
         for i, upcoming in tqdm(with_next(todo), total=total, desc="dataset", unit="sample",
                                 disable=not progress):
-            if count == 0:  # the first sample's inputs are made while the scenes are built
+            if count == 0:  # the first sample's inputs are made while its scene is built
                 renderer.prefetch(i)
-            if upcoming is not None:  # its inputs are made while sample i renders
-                renderer.prefetch(upcoming)
-            pending.append(renderer.submit(i))
+            # the next sample's inputs are made while sample i renders (at the start: once
+            # its scene is built)
+            pending.append(renderer.submit(i, then=upcoming))
             count += 1
             if count == 1:
                 t0 = time.perf_counter()  # the first sample compiles the kernels: not a rate

@@ -164,14 +164,17 @@ class SampleRenderer:
         return self.scenes[preset]
 
     def build_scenes(self) -> None:
-        """Build the scene of every configured preset, in config order, before any render.
+        """Build the scene of every configured preset not built yet, in config order.
 
         Dr.Jit compiles one kernel for every instance of a class that exists in the
         process (the emitters and BSDFs of all scenes), so each scene built or changed
         later would recompile the kernels of the others (~0.5 s each at 256 px). Built
-        together up front, with their light transforms already opaque (``set_light_rotation``),
-        every process holds the same instances and each preset compiles once.
-        """
+        together, with their light transforms already opaque (``set_light_rotation``),
+        every process holds the same instances and each preset compiles once. The serial
+        executor's first sample renders in its own preset's scene alone (the start-up is
+        one scene, not four) and the others are built right after it (:meth:`submit`): its
+        kernels are traced once more, the pixels are the same (the kernels' instances do
+        not change what they compute; tests/test_dataset_speed.py)."""
         for preset in self.cfg["lighting"]["presets"]:
             if preset not in self.scenes:
                 self.scenes[preset] = self._build_scene(preset)
@@ -274,9 +277,11 @@ class SampleRenderer:
         if index not in self._prefetched:
             self._prefetched[index] = pool.submit(self.inputs, index)
 
-    def submit(self, index: int) -> Future:
+    def submit(self, index: int, then: int | None = None) -> Future:
         """Render sample ``index`` and queue its file writes; returns a future of its
-        manifest record.
+        manifest record. ``then``: the next sample's index, whose inputs are started
+        (:meth:`prefetch`) before this sample's scene and render, but after the first
+        bald sample's own scene (at the start they would compete with its build).
 
         The folder is emptied first (a partial sample from an interrupted run is redone).
         Files are encoded and written by :attr:`writer` in the order they are queued
@@ -287,10 +292,19 @@ class SampleRenderer:
         """
         self.writer.wait_below(self.max_pending)
         ahead = self._prefetched.pop(int(index), None)
+        # the first sample with its inputs still being made (the serial executor's start):
+        # only its own preset's scene is built now, while the inputs are made, and the
+        # other presets' after its render (:meth:`build_scenes`), while its files are
+        # written: the start-up before the first render is one scene, not one per preset
+        rest = False
         if not self.scenes and ahead is not None and not ahead.done():
             first = self.spec(index)
-            if first.get("hair") is None:  # the bald scenes, built while the inputs are made
-                self.scene(first["lighting"]["preset"])
+            if first.get("hair") is None:
+                preset = first["lighting"]["preset"]
+                self.scenes[preset] = self._build_scene(preset)
+                rest = True
+        if then is not None:  # made while this sample renders (and a groom's scene builds)
+            self.prefetch(then)
         inp = ahead.result() if ahead is not None else self.inputs(index)
         spec, out, larynx = inp["spec"], inp["out"], inp["larynx"]
         folder = sample_dir(self.out, index)
@@ -315,7 +329,10 @@ class SampleRenderer:
                                            inp["background"]))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
-        return self.writer.submit(_write_record, self.out, folder, spec, writes)
+        record = self.writer.submit(_write_record, self.out, folder, spec, writes)
+        if rest and not self._hair_scene:
+            self.build_scenes()
+        return record
 
     def _render_view(self, head, cam, spec, v, folder, out, larynx, writes, backdrop) -> dict:
         r = self.cfg["render"]
