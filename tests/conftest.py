@@ -1,6 +1,7 @@
 """Shared test options: slow and GPU checks are opt-in, never deleted."""
 
 import os
+import shutil
 import tempfile
 
 import pytest
@@ -14,7 +15,15 @@ def pytest_addoption(parser):
 def pytest_configure(config):
     # the package's disk caches (posed meshes, sRGB thresholds) go to a folder of this
     # session, so that tests neither read nor fill the user's ~/.cache
-    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="hack-render-test-cache-")
+    # (about 200 MB: the model's and the appearance model's caches; removed at the end)
+    config._hack_cache = os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(
+        prefix="hack-render-test-cache-")
+
+
+def pytest_unconfigure(config):
+    folder = getattr(config, "_hack_cache", None)
+    if folder:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(config, items):
