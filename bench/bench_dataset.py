@@ -278,6 +278,13 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     timer.wrap(lab, "label_images")
     any_scene = next(iter(rs["projected"].scenes.values()))
     timer.wrap(type(any_scene.params), "update", "params.update")  # mi.SceneParameters
+    # the profile's other parts: the main thread's, the prefetch thread's, the writer's
+    timer.wrap(HeadScene, "set_camera")
+    timer.wrap(lab, "landmark_record")
+    timer.wrap(wk.SampleRenderer, "inputs")
+    timer.wrap(wk, "write_exr")
+    timer.wrap(wk, "_write_png")
+    triangles = sum(s.primitive_count() for s in any_scene.scene.shapes())
     # warm-up: every preset's kernels compiled with both renderers' scenes in the process
     presets, i = set(), 0
     want = set(cfgs["projected"]["lighting"]["presets"])
@@ -291,13 +298,14 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     for j0 in range(i, i + n, block):
         js = list(range(j0, min(j0 + block, i + n)))
         for m, r in rs.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             futures = []
             for j, upcoming in with_next(js):  # as the serial executor runs them
                 futures.append(r.submit(j, then=upcoming))
             for f in futures:
                 f.result()
             rows[m]["wall"] += time.perf_counter() - t0
+            rows[m]["cpu"] = rows[m].get("cpu", 0.0) + time.process_time() - c0
             for k, v in timer.take().items():
                 rows[m][k] = rows[m].get(k, 0.0) + v
     for r in rs.values():
@@ -317,6 +325,20 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
               "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
     print(f"    projected / generated: {p_ / g:.2f}x the time per sample")
+    row = {k: v / n for k, v in rows["projected"].items()}
+    beside = row["wall"] - row["render"]
+    main = row.get("set_camera", 0) + row.get("label_images", 0) + row.get("landmark_record", 0)
+    print(f"    profile, skin maps projected (s/sample, wall in each part's own thread): "
+          f"{beside:.3f} s beside the render call; main thread: set_camera "
+          f"{row.get('set_camera', 0):.3f} (of which params.update {row.get('params.update', 0):.3f}"
+          f": Mitsuba rebuilds the Embree BVH of all {triangles} triangles at its fixed "
+          f"RTC_BUILD_QUALITY_HIGH), labels {row.get('label_images', 0):.3f}, landmark "
+          f"visibility {row.get('landmark_record', 0):.3f}, the rest "
+          f"{beside - main:.3f}; prefetch thread: inputs {row.get('inputs', 0):.3f} (skin maps "
+          f"{row.get('skin_maps', 0):.3f}); writer thread: EXR {row.get('write_exr', 0):.3f}, "
+          f"PNG {row.get('_write_png', 0):.3f}; process CPU {row['cpu']:.3f} s/sample "
+          f"({row['cpu'] / row['wall']:.2f} cores busy: the other threads' work competes "
+          f"with the render's kernels)")
 
 
 E2E_DRIVER = r"""
