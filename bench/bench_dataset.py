@@ -32,7 +32,10 @@ subjects, ``appearance.source: seed``):
     against the render call plus the scene's update (``params.update``: the acceleration
     structure rebuilt for the sample's mesh, camera and lights; what any renderer of a new
     mesh pays). Target: s/sample <= 1.3x the render call. Printed with the parts: skin
-    maps, labels (``label_images``), the update.
+    maps, labels (``label_images``), the update; then a profile of the projected side:
+    the main thread's parts beside the render call (``set_camera`` with the update,
+    labels, landmark visibility, the rest), the prefetch thread's inputs, the writer
+    thread's EXR and PNG encoding, and the process's CPU seconds per sample.
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
     folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
     ``default``: the default config as users run it, hair sampled): seconds from launching
