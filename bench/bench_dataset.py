@@ -35,7 +35,12 @@ subjects, ``appearance.source: seed``):
     maps, labels (``label_images``), the update; then a profile of the projected side:
     the main thread's parts beside the render call (``set_camera`` with the update,
     labels, landmark visibility, the rest), the prefetch thread's inputs, the writer
-    thread's EXR and PNG encoding, and the process's CPU seconds per sample.
+    thread's EXR and PNG encoding, and the process's CPU seconds per sample. The blocks
+    count each block's first sample's inputs (made in the rendering thread) and its last
+    sample's writes; a last stream of ``--n`` more projected samples runs as the serial
+    executor does (every sample's inputs prefetched while the one before renders) and is
+    timed from the first sample's files on disk to the last's: the executor's own steady
+    state, against the render calls of the same samples.
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
     folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
     ``default``: the default config as users run it, hair sampled): seconds from launching
@@ -311,6 +316,28 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
             rows[m]["cpu"] = rows[m].get("cpu", 0.0) + time.process_time() - c0
             for k, v in timer.take().items():
                 rows[m][k] = rows[m].get(k, 0.0) + v
+    # the executor's own steady state: one stream of n more samples, every sample's
+    # inputs prefetched while the previous one renders (runner.run_serial's loop), timed
+    # from the first sample's files on disk to the last's (no block starts or ends)
+    r = rs["projected"]
+    stream = list(range(i + n, i + 2 * n))
+    done: list[float] = []
+    timer.take()
+    r.prefetch(stream[0])
+    c0 = time.process_time()
+    futures = []
+    for j, upcoming in with_next(stream):
+        f = r.submit(j, then=upcoming)
+        f.add_done_callback(lambda _f: done.append(time.perf_counter()))
+        futures.append(f)
+    for f in futures:
+        f.result()
+    cpu_stream = (time.process_time() - c0) / n
+    parts = timer.take()
+    done.sort()
+    per = (done[-1] - done[0]) / (n - 1)
+    # the render calls of the samples inside that interval (all but the first sample's)
+    rc_stream = parts["render"] / n
     for r in rs.values():
         r.close()
     print(f"(d) render speed: {n} samples at {size} px, {spp} spp, the default config but "
@@ -328,6 +355,14 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
               "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
     print(f"    projected / generated: {p_ / g:.2f}x the time per sample")
+    print(f"    one stream of {n} more samples, skin maps projected, as the serial executor "
+          f"runs them (each sample's inputs made while the one before renders; from the first "
+          f"sample's files on disk to the last's): {per:.3f} s/sample; render call "
+          f"{rc_stream:.3f} s (ratio {per / rc_stream:.2f}x, target <= 1.3x); render call + "
+          f"scene update {rc_stream + parts.get('params.update', 0) / n:.3f} s; labels "
+          f"{parts.get('label_images', 0) / n:.3f} s; process CPU {cpu_stream:.3f} s/sample "
+          f"(the blocks above also count each block's first sample's inputs, made in the "
+          f"rendering thread, and its last sample's file writes)")
     row = {k: v / n for k, v in rows["projected"].items()}
     beside = row["wall"] - row["render"]
     main = row.get("set_camera", 0) + row.get("label_images", 0) + row.get("landmark_record", 0)
