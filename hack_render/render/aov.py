@@ -295,8 +295,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
         # it): a pixel's rays are scatter-added from several threads in whatever order they
         # run, and float32 sums of fractional opacities changed in the last bit from run to
         # run (lash pixels, 256 px); integer sums are exact in any order
-        q = mi.UInt64(dr.round(alpha * COVERAGE_ONE))
-        cov = dr.zeros(mi.UInt64, n * L)
+        acc = mi.UInt32 if kk * COVERAGE_ONE < 2 ** 32 else mi.UInt64  # k < 16: 32 bits
+        q = acc(dr.round(alpha * COVERAGE_ONE))
+        cov = dr.zeros(acc, n * L)
         dr.scatter_reduce(dr.ReduceOp.Add, cov, q, pix * L + label, counted)
         dr.scatter_reduce(dr.ReduceOp.Add, cov, COVERAGE_ONE - q, pix * L + behind,
                           counted & through)
