@@ -32,7 +32,15 @@ subjects, ``appearance.source: seed``):
     against the render call plus the scene's update (``params.update``: the acceleration
     structure rebuilt for the sample's mesh, camera and lights; what any renderer of a new
     mesh pays). Target: s/sample <= 1.3x the render call. Printed with the parts: skin
-    maps, labels (``label_images``), the update.
+    maps, labels (``label_images``), the update; then a profile of the projected side:
+    the main thread's parts beside the render call (``set_camera`` with the update,
+    labels, landmark visibility, the rest), the prefetch thread's inputs, the writer
+    thread's EXR and PNG encoding, and the process's CPU seconds per sample. The blocks
+    count each block's first sample's inputs (made in the rendering thread) and its last
+    sample's writes; a last stream of ``--n`` more projected samples runs as the serial
+    executor does (every sample's inputs prefetched while the one before renders) and is
+    timed from the first sample's files on disk to the last's: the executor's own steady
+    state, against the render calls of the same samples.
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
     folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
     ``default``: the default config as users run it, hair sampled): seconds from launching
@@ -278,6 +286,13 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     timer.wrap(lab, "label_images")
     any_scene = next(iter(rs["projected"].scenes.values()))
     timer.wrap(type(any_scene.params), "update", "params.update")  # mi.SceneParameters
+    # the profile's other parts: the main thread's, the prefetch thread's, the writer's
+    timer.wrap(HeadScene, "set_camera")
+    timer.wrap(lab, "landmark_record")
+    timer.wrap(wk.SampleRenderer, "inputs")
+    timer.wrap(wk, "write_exr")
+    timer.wrap(wk, "_write_png")
+    triangles = sum(s.primitive_count() for s in any_scene.scene.shapes())
     # warm-up: every preset's kernels compiled with both renderers' scenes in the process
     presets, i = set(), 0
     want = set(cfgs["projected"]["lighting"]["presets"])
@@ -291,15 +306,38 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     for j0 in range(i, i + n, block):
         js = list(range(j0, min(j0 + block, i + n)))
         for m, r in rs.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             futures = []
             for j, upcoming in with_next(js):  # as the serial executor runs them
                 futures.append(r.submit(j, then=upcoming))
             for f in futures:
                 f.result()
             rows[m]["wall"] += time.perf_counter() - t0
+            rows[m]["cpu"] = rows[m].get("cpu", 0.0) + time.process_time() - c0
             for k, v in timer.take().items():
                 rows[m][k] = rows[m].get(k, 0.0) + v
+    # the executor's own steady state: one stream of n more samples, every sample's
+    # inputs prefetched while the previous one renders (runner.run_serial's loop), timed
+    # from the first sample's files on disk to the last's (no block starts or ends)
+    r = rs["projected"]
+    stream = list(range(i + n, i + 2 * n))
+    done: list[float] = []
+    timer.take()
+    r.prefetch(stream[0])
+    c0 = time.process_time()
+    futures = []
+    for j, upcoming in with_next(stream):
+        f = r.submit(j, then=upcoming)
+        f.add_done_callback(lambda _f: done.append(time.perf_counter()))
+        futures.append(f)
+    for f in futures:
+        f.result()
+    cpu_stream = (time.process_time() - c0) / n
+    parts = timer.take()
+    done.sort()
+    per = (done[-1] - done[0]) / (n - 1)
+    # the render calls of the samples inside that interval (all but the first sample's)
+    rc_stream = parts["render"] / n
     for r in rs.values():
         r.close()
     print(f"(d) render speed: {n} samples at {size} px, {spp} spp, the default config but "
@@ -317,6 +355,28 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
               "mostly on the prefetch thread, beside the render)")
     g, p_ = rows["generated"]["wall"], rows["projected"]["wall"]
     print(f"    projected / generated: {p_ / g:.2f}x the time per sample")
+    print(f"    one stream of {n} more samples, skin maps projected, as the serial executor "
+          f"runs them (each sample's inputs made while the one before renders; from the first "
+          f"sample's files on disk to the last's): {per:.3f} s/sample; render call "
+          f"{rc_stream:.3f} s (ratio {per / rc_stream:.2f}x, target <= 1.3x); render call + "
+          f"scene update {rc_stream + parts.get('params.update', 0) / n:.3f} s; labels "
+          f"{parts.get('label_images', 0) / n:.3f} s; process CPU {cpu_stream:.3f} s/sample "
+          f"(the blocks above also count each block's first sample's inputs, made in the "
+          f"rendering thread, and its last sample's file writes)")
+    row = {k: v / n for k, v in rows["projected"].items()}
+    beside = row["wall"] - row["render"]
+    main = row.get("set_camera", 0) + row.get("label_images", 0) + row.get("landmark_record", 0)
+    print(f"    profile, skin maps projected (s/sample, wall in each part's own thread): "
+          f"{beside:.3f} s beside the render call; main thread: set_camera "
+          f"{row.get('set_camera', 0):.3f} (of which params.update {row.get('params.update', 0):.3f}"
+          f": Mitsuba rebuilds the Embree BVH of all {triangles} triangles at its fixed "
+          f"RTC_BUILD_QUALITY_HIGH), labels {row.get('label_images', 0):.3f}, landmark "
+          f"visibility {row.get('landmark_record', 0):.3f}, the rest "
+          f"{beside - main:.3f}; prefetch thread: inputs {row.get('inputs', 0):.3f} (skin maps "
+          f"{row.get('skin_maps', 0):.3f}); writer thread: EXR {row.get('write_exr', 0):.3f}, "
+          f"PNG {row.get('_write_png', 0):.3f}; process CPU {row['cpu']:.3f} s/sample "
+          f"({row['cpu'] / row['wall']:.2f} cores busy: the other threads' work competes "
+          f"with the render's kernels)")
 
 
 E2E_DRIVER = r"""

@@ -245,9 +245,9 @@ class SampleRenderer:
         """What sample ``index`` needs before its scene, each a pure function of the
         config, seed and index: ``spec``, the geometry forward ``out`` and its vertices
         ``verts`` with their ``normals``, the larynx peak (``larynx_vertex``, ``larynx``),
-        the skin ``maps``, the ``background`` image (None: the rig's environment) and the
+        the skin ``maps``, the ``background`` image (None: the rig's environment), the
         hair's ``groom`` (None: no hair; grown here, on the prefetch thread, while the
-        previous sample renders)."""
+        previous sample renders) and ``params``, the content of its ``params.json``."""
         import torch
 
         spec = self.spec(index)
@@ -262,7 +262,8 @@ class SampleRenderer:
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
                 "background": background_image(spec["background"], res, res),
-                "groom": self.groom(spec.get("hair"))}
+                "groom": self.groom(spec.get("hair")),
+                "params": params_file(self.model, spec)}
 
     def prefetch(self, index: int) -> None:
         """Start computing sample ``index``'s :meth:`inputs` on a helper thread, so that
@@ -319,8 +320,8 @@ class SampleRenderer:
                           iris=not spec["cameras"])
         head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
-        writes = [self.writer.submit(write_json, folder / "params.json",
-                                     params_file(self.model, spec), indent=1, sort_keys=True)]
+        writes = [self.writer.submit(write_json, folder / "params.json", inp["params"],
+                                     indent=1, sort_keys=True)]
         views = []
         larynx_vertex = inp["larynx_vertex"]
         for v, view in enumerate(spec["cameras"]):

@@ -26,6 +26,8 @@ from hack_render.render.footprint import CARD_LAYERS, camera_hit, emitter_layers
 from hack_render.render.parts import REGIONS
 
 AOV_NAMES = ("depth", "normal", "albedo", "uv", "segmentation")
+#: :func:`label_pass` sums coverage in units of 1 / COVERAGE_ONE (exact integer sums)
+COVERAGE_ONE = 1 << 24
 
 
 def card_opacity(head, si, active):
@@ -205,8 +207,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     the number ``see_through_opacity`` when one is given. Sub-pixel
     point s = b k + a is ((a + 0.5) / k, (b + 0.5) / k); the pixel centre is one of them
     for odd k and an extra ray (not counted in the coverage) otherwise. Coverage is
-    accumulated in the kernel (scatter-add of 1 and the opacity per ray: exact sums), and
-    the centre rays scatter the G-buffer, so nothing per ray leaves the kernel.
+    accumulated in the kernel, in fixed point (:data:`COVERAGE_ONE`: integer sums, the same
+    in whatever order the threads add a pixel's rays; the opacity is rounded to 2^-24),
+    and the centre rays scatter the G-buffer, so nothing per ray leaves the kernel.
 
     Returns:
         ``coverage`` (H, W, L) float32, L = ``num_labels`` (default: max label + 1), summing
@@ -288,9 +291,15 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
             alpha = dr.select(through, card_opacity(head, si, through), 1.0)
         else:
             alpha = dr.select(through, float(see_through_opacity), 1.0)
-        cov = dr.zeros(mi.Float, n * L)
-        dr.scatter_reduce(dr.ReduceOp.Add, cov, alpha, pix * L + label, counted)
-        dr.scatter_reduce(dr.ReduceOp.Add, cov, 1.0 - alpha, pix * L + behind,
+        # summed in fixed point (the opacity in units of 2^-24, its complement 2^24 minus
+        # it): a pixel's rays are scatter-added from several threads in whatever order they
+        # run, and float32 sums of fractional opacities changed in the last bit from run to
+        # run (lash pixels, 256 px); integer sums are exact in any order
+        acc = mi.UInt32 if kk * COVERAGE_ONE < 2 ** 32 else mi.UInt64  # k < 16: 32 bits
+        q = acc(dr.round(alpha * COVERAGE_ONE))
+        cov = dr.zeros(acc, n * L)
+        dr.scatter_reduce(dr.ReduceOp.Add, cov, q, pix * L + label, counted)
+        dr.scatter_reduce(dr.ReduceOp.Add, cov, COVERAGE_ONE - q, pix * L + behind,
                           counted & through)
         outs["coverage"] = cov
     dr.eval(outs)
@@ -310,7 +319,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
         "uv": np.where(zero, 0.0, np.stack([img(outs["u"]), img(outs["v"])], -1)).astype(np.float32),
         "segmentation": img(outs["region"], dtype=np.int64).astype(np.int32),
         "centre_label": np.asarray(outs["label"]).astype(np.uint8).reshape(h, w),
-        "coverage": (np.asarray(outs["coverage"], np.float32).reshape(h, w, L) / np.float32(kk)
+        # fixed point -> float32 (exact for whole rays: the float32 sums of before), / k^2
+        "coverage": ((np.asarray(outs["coverage"]).astype(np.float64).astype(np.float32)
+                      * np.float32(1.0 / COVERAGE_ONE)).reshape(h, w, L) / np.float32(kk)
                      if kk else np.zeros((h, w, 0), np.float32)),
     }
     return result
