@@ -47,3 +47,38 @@ def head_model():
     with torch.no_grad():
         v = model().vertices[0].double().numpy()
     return Topology.from_model(model), v
+
+
+@pytest.fixture
+def cli_in_process(capsys):
+    """A function (*args) -> (returncode, stdout, stderr) that runs the console entry
+    point (``hack_render.cli.main``) in this process, as ``python -m hack_render.cli``
+    would: for tests of what a command does, not of a process's start (tests/test_cli.py's
+    ``--help`` tests start real ones). Its warnings are shown on stderr as a fresh
+    process prints them; the torch thread count a command sets is undone."""
+    import sys
+    import warnings
+    from types import SimpleNamespace
+
+    from hack_render.cli import main
+
+    def cli(*args):
+        capsys.readouterr()
+        torch = sys.modules.get("torch")
+        threads = torch.get_num_threads() if torch is not None else None
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("default")   # a fresh process's filter
+            try:
+                main([str(a) for a in args])
+                code = 0
+            except SystemExit as exc:
+                code = exc.code or 0
+            finally:
+                if threads is not None:
+                    torch.set_num_threads(threads)
+        cap = capsys.readouterr()
+        shown = "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno)
+                        for w in caught)
+        return SimpleNamespace(returncode=code, stdout=cap.out, stderr=cap.err + shown)
+
+    return cli

@@ -55,6 +55,9 @@ def test_01_iris_colour_is_recovered_from_the_photo(model, tmp_path, yaw, truth)
     # the default colour is far from the truth: the fit moved it
     assert np.abs(np.log(np.asarray(DEFAULT_IRIS_RGB) / truth)).max() > 0.4
     final = final_stage.run(f.state, f.cfg)
+    # final.specular off (the default): the fitted specular map, no confidence map (for
+    # tests/test_fit_specular.py test_02, whose final stage has it on)
+    assert not f.cfg.final.specular and final.specular_confidence is None
     # (the final stage renders with the fitted skin, not the true one: a pixel's filter
     # mixes a little skin into the iris's border)
     assert final.maps.iris_rgb == pytest.approx(rgb, rel=0.02)

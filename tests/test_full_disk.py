@@ -101,7 +101,8 @@ def test_dataset_on_a_full_disk_leaves_no_empty_file(tiny_disk):
     disk = tiny_disk("40k")
     cfg = disk.parent / "ds.yaml"
     cfg.write_text("render: {resolution: 32, spp: 1, soft_mask_samples: 0}\n"
-                   "appearance: {height: 16, source: constant}\nlighting: {presets: [studio]}\n")
+                   "appearance: {height: 16, source: constant}\nlighting: {presets: [studio]}\n"
+                   "hair: none\n")   # (the groom's scene: most of a sample's time)
     res = cli("dataset", "--n", 2, "-o", disk / "ds", "--config", cfg, "--quiet")
     one_line_exit_2(res)
     # the manifest starts empty (no sample complete yet: a valid, empty JSONL)

@@ -135,7 +135,9 @@ def _cli(*args):
                           capture_output=True, text=True)
 
 
-def test_cli_head_turn_120_exits_2_under_limits_error_and_warns_otherwise(tmp_path):
+def test_cli_head_turn_120_exits_2_under_limits_error_and_warns_otherwise(tmp_path,
+                                                                          cli_in_process):
+    _cli = cli_in_process
     res = _cli("mesh", "-o", str(tmp_path / "m.obj"), "--head-rotation", "0,120,0",
                "--limits", "error")
     assert res.returncode == 2, res.stderr

@@ -25,7 +25,8 @@ def _cli(*args, cwd=None):
                           capture_output=True, text=True, cwd=cwd)
 
 
-def test_mesh_command_writes_obj_and_ply_with_uvs(tmp_path):
+def test_mesh_command_writes_obj_and_ply_with_uvs(tmp_path, cli_in_process):
+    _cli = cli_in_process
     out = tmp_path / "m.obj"
     res = _cli("mesh", "-o", str(out), "--expr", "AU12=0.5", "--head-rotation", "0,30,0", "--both")
     assert res.returncode == 0, res.stderr
@@ -36,7 +37,8 @@ def test_mesh_command_writes_obj_and_ply_with_uvs(tmp_path):
     assert abs(obj.vertices[:, 1].max() - ply.vertices[:, 1].max()) < 1e-6
 
 
-def test_cli_bad_input_exits_2(tmp_path):
+def test_cli_bad_input_exits_2(tmp_path, cli_in_process):
+    _cli = cli_in_process
     res = _cli("mesh", "-o", str(tmp_path / "x.obj"), "--expr", "AU99=1")
     assert res.returncode == 2 and "unknown action unit" in res.stderr
     bad = tmp_path / "p.json"
@@ -58,7 +60,8 @@ def test_cli_bad_input_exits_2(tmp_path):
     assert not (tmp_path / "x.obj").exists()
 
 
-def test_theta_beyond_limits_policy(tmp_path):
+def test_theta_beyond_limits_policy(tmp_path, cli_in_process):
+    _cli = cli_in_process
     p = tmp_path / "p.yaml"
     p.write_text("theta: [[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,0,0],[0,1.2,0],[0,0,0]]\n")
     res = _cli("mesh", "-o", str(tmp_path / "a.obj"), "--params", str(p), "--limits", "error")

@@ -258,11 +258,19 @@ def test_register_command_writes_files_that_round_trip_and_resumes(model, tmp_pa
     assert changed.exit_code != 0 and "other inputs or settings" in str(changed.exception or changed.output)
 
 
-def test_a_sphere_with_landmarks_is_reported_failed(model, tmp_path):
+def test_a_sphere_with_landmarks_is_reported_failed(model, tmp_path, monkeypatch):
     """No head: the registration finishes but says it failed (no confident wrong answer)."""
+    import functools
+
+    from hack_render.register import pipeline
     from hack_render.register.fitting import RegisterConfig
     from hack_render.register.pipeline import register
-    from hack_render.register.scan import Scan
+    from hack_render.register.scan import Scan, SurfaceIndex
+
+    # the ball's facets are 9 mm across: sampled every 2 mm (38k points) rather than the
+    # default 0.8 mm (240k points, whose nearest-point queries were most of the time)
+    monkeypatch.setattr(pipeline, "SurfaceIndex", functools.partial(SurfaceIndex,
+                                                                    spacing=0.002))
 
     ball = trimesh.creation.icosphere(subdivisions=4, radius=0.11)
     with torch.no_grad():

@@ -177,7 +177,9 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
 
     folder, truth = small_clip
     over = tiny_overrides()
-    over["photometric"] = {"enabled": False}
+    # photometric off, at the tiny level size: the identity's overlay.png is rendered at
+    # the last photometric level (24 px here, not the default 128 px at 64 spp)
+    over["photometric"]["enabled"] = False
     res, paths = track_video(folder / "frames", tmp_path / "out", keyframes=2, fps=12.0,
                              config=load_config(None, over), progress=False,
                              truth=dict(np.load(folder / "truth.npz")), larynx=True)
@@ -234,7 +236,7 @@ def test_07_a_real_face_follows_a_known_roll(tmp_path):
         frame = transform.rotate(img, a, center=(250, 200), mode="edge", preserve_range=True)
         iio.imwrite(folder / f"{i:03d}.png", frame.astype(np.uint8))
     over = tiny_overrides()
-    over["photometric"] = {"enabled": False}
+    over["photometric"]["enabled"] = False  # keeps the tiny level: overlay.png at 24 px
     res, _ = track_video(folder, tmp_path / "out", keyframes=2, fps=5.0,
                          config=load_config(None, over), overlay=False, progress=False)
     assert res.landmarks.found.all()

@@ -31,7 +31,7 @@ def _tiny_config(path):
     from hack_render.fit.config import tiny_overrides
 
     over = tiny_overrides()
-    over["photometric"] = {"enabled": False}
+    over["photometric"]["enabled"] = False  # keeps the tiny level: overlay.png at 24 px
     path.write_text(json.dumps(over))
     return path
 
@@ -109,7 +109,7 @@ def tracked(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("tracked")
     over = tiny_overrides()
-    over["photometric"] = {"enabled": False}
+    over["photometric"]["enabled"] = False  # keeps the tiny level: overlay.png at 24 px
     res, _ = track_video(_frames(tmp / "frames"), tmp / "out", keyframes=2, fps=8.0,
                          config=load_config(None, over), overlay=False, progress=False,
                          larynx=False)
