@@ -116,7 +116,7 @@ def test_03_normals_given_and_iris_left_to_the_camera_give_the_same_parameters()
     for k in keys:
         assert np.array_equal(np.asarray(a.params[k]), np.asarray(b.params[k])), k
     assert not np.array_equal(np.asarray(a.params["iris.vertex_positions"]),
-                              moved[[p for p in a.parts if p.name == "iris"][0].gather]
+                              moved[next(p for p in a.parts if p.name == "iris").gather]
                               .ravel().astype(np.float32))  # the cornea moved the iris
 
 

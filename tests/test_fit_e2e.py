@@ -68,28 +68,7 @@ def test_01_synthetic_round_trip_moves_toward_truth():
     assert nme < 0.035  # 3.2 % since the skeleton moved behind the pharynx (3 % before)
 
 
-def _cli(capsys, *args) -> tuple[int, str]:
-    """(exit code, stderr) of the command run in-process (``hack_render.cli.main``, the
-    console entry point; a real process is tests/test_cli.py's): its warnings as Python
-    prints them on a process's stderr, the torch thread count it sets undone."""
-    from hack_render.cli import main
-
-    threads = torch.get_num_threads()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")   # a fresh process's filter
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as exc:
-            code = exc.code or 0
-        finally:
-            torch.set_num_threads(threads)
-    shown = "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno)
-                    for w in caught)
-    return code, capsys.readouterr().err + shown
-
-
-def test_02_astronaut_cli_end_to_end(tmp_path, capsys):
+def test_02_astronaut_cli_end_to_end(tmp_path, cli_in_process):
     import imageio.v3 as iio
     from skimage import data
 
@@ -100,8 +79,9 @@ def test_02_astronaut_cli_end_to_end(tmp_path, capsys):
 
     (tmp_path / "tiny.json").write_text(json.dumps(tiny_overrides()))
     out = tmp_path / "fit"
-    code, err = _cli(capsys, "fit", tmp_path / "astronaut.png", "-o", out, "--config",
-                     tmp_path / "tiny.json", "--quiet")
+    r = cli_in_process("fit", tmp_path / "astronaut.png", "-o", out, "--config",
+                       tmp_path / "tiny.json", "--quiet")
+    code, err = r.returncode, r.stderr
     assert code == 0, err[-2000:]
     assert "2 faces found; fitting the largest" in err
     assert "the fitted landmarks lie" not in err   # a fit near its points: no warning
@@ -165,6 +145,7 @@ def test_02_astronaut_cli_end_to_end(tmp_path, capsys):
     own = np.linalg.norm(px[idx] - det[idx], axis=1).mean() / np.linalg.norm(det[36] - det[45])
     assert report["views"][0]["landmark_residual_iod"] == pytest.approx(own, abs=3e-4)
     # the fit re-renders through `hack-render render --params`
-    code, err = _cli(capsys, "render", "--params", out / "params.json", "-o",
-                     tmp_path / "re.png", "--resolution", "32", "--spp", "1")
+    r = cli_in_process("render", "--params", out / "params.json", "-o",
+                       tmp_path / "re.png", "--resolution", "32", "--spp", "1")
+    code, err = r.returncode, r.stderr
     assert code == 0, err[-2000:]
