@@ -18,11 +18,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from hack_render.io.array_folder import cache_base, read_array_folder, write_array_folder
 
 #: Entries kept per kind (the newest)
 CACHE_KEEP = 4
@@ -52,8 +53,7 @@ def cache_root() -> Path | None:
     """The cache folder (None when ``HACK_RENDER_NO_CACHE`` is set)."""
     if os.environ.get("HACK_RENDER_NO_CACHE", "") not in ("", "0"):
         return None
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "hack-render" / "appearance"
+    return cache_base() / "appearance"
 
 
 def cached_arrays(kind: str, key: list, make: Callable[[], Made], mmap: bool = False) -> Made:
@@ -65,30 +65,12 @@ def cached_arrays(kind: str, key: list, make: Callable[[], Made], mmap: bool = F
         return make()
     digest = hashlib.sha256(json.dumps([_CACHE_FORMAT, kind, key]).encode()).hexdigest()
     folder = root / f"{kind}-{digest[:32]}"
+    hit = read_array_folder(folder, mmap=mmap)
+    if hit is not None:
+        return hit
+    arrays, extra = make()  # absent, partial or damaged: made again
     try:
-        index = json.loads((folder / "index.json").read_text())
-        arrays = {k: np.load(folder / f"{k}.npy", mmap_mode="c" if mmap else None,
-                             allow_pickle=False) for k in index["keys"]}
-        os.utime(folder)  # the newest CACHE_KEEP are kept
-        return arrays, index["extra"]
-    except (OSError, ValueError, KeyError, TypeError):
-        pass  # absent, partial or damaged: made again
-    arrays, extra = make()
-    tmp = root / f".{folder.name}.{os.getpid()}.tmp"
-    try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        for k, v in arrays.items():
-            np.save(tmp / f"{k}.npy", np.asarray(v), allow_pickle=False)
-        (tmp / "index.json").write_text(json.dumps({"keys": sorted(arrays), "extra": extra}))
-        shutil.rmtree(folder, ignore_errors=True)
-        os.replace(tmp, folder)
-        mine = sorted((p for p in root.glob(f"{kind}-*") if p.is_dir()),
-                      key=lambda p: p.stat().st_mtime_ns, reverse=True)
-        for old in mine[CACHE_KEEP:]:
-            shutil.rmtree(old, ignore_errors=True)
+        write_array_folder(folder, arrays, extra, CACHE_KEEP, siblings=f"{kind}-*")
     except OSError:  # a read-only or full cache: the next process makes them again
         pass
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return arrays, extra

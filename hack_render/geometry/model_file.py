@@ -69,7 +69,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import warnings
 import zipfile
 from importlib import resources
@@ -79,6 +78,7 @@ from typing import Any
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.io.array_folder import cache_base, read_array_folder, write_array_folder
 from hack_render.io.npz import write_npz
 
 FORMAT_VERSION = 3
@@ -216,7 +216,7 @@ def load_model_file(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
         raise HackError(f"{path}: model file not found. Pass an existing .npz, or omit it to use "
                         "the built-in default model.")
     cache = _cache_entry(path)
-    hit = _read_cache(cache) if cache is not None else None
+    hit = read_array_folder(cache, mmap=True) if cache is not None else None
     if hit is not None:
         return hit
     arrays, meta = _unpack(path)
@@ -249,45 +249,19 @@ def _cache_entry(path: Path) -> Path | None:
     st = path.stat()
     key = json.dumps([_CACHE_FORMAT, FORMAT_VERSION, str(path.resolve()), st.st_size,
                       st.st_mtime_ns])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "hack-render" / "models" / hashlib.sha256(key.encode()).hexdigest()[:32]
-
-
-def _read_cache(folder: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
-    try:
-        index = json.loads((folder / "index.json").read_text())
-        arrays = {k: np.load(folder / f"{k}.npy", mmap_mode="c", allow_pickle=False)
-                  for k in index["keys"]}
-        meta = index["meta"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None  # absent, partial or damaged: unpack the file again
-    os.utime(folder)  # the newest CACHE_KEEP are kept
-    return arrays, meta
+    return cache_base() / "models" / hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
 def _write_cache(folder: Path, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-    """Write the unpacked arrays to ``folder`` (atomically: a temporary folder renamed),
-    then drop all but the newest :data:`CACHE_KEEP` entries. Failures only cost speed."""
-    tmp = folder.with_name(f".{folder.name}.{os.getpid()}.tmp")
+    """Write the unpacked arrays to ``folder`` and keep the newest :data:`CACHE_KEEP`
+    entries. Failures only cost speed."""
     try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        for k, v in arrays.items():
-            np.save(tmp / f"{k}.npy", np.asarray(v), allow_pickle=False)
-        (tmp / "index.json").write_text(json.dumps({"keys": sorted(arrays), "meta": meta}))
-        shutil.rmtree(folder, ignore_errors=True)  # a damaged entry
-        os.replace(tmp, folder)
-        entries = sorted((p for p in folder.parent.iterdir() if not p.name.startswith(".")),
-                         key=lambda p: p.stat().st_mtime_ns, reverse=True)
-        for old in entries[CACHE_KEEP:]:
-            shutil.rmtree(old, ignore_errors=True)
+        write_array_folder(folder, arrays, meta, CACHE_KEEP)
     except OSError as err:  # a full disk, a read-only cache: loads stay slower, no more
         warnings.warn(f"could not cache the unpacked model file in {folder.parent} ({err}); "
                       "every load unpacks the file again (~0.5 s). Free space there, set "
                       "XDG_CACHE_HOME, or HACK_RENDER_NO_CACHE=1 to skip the cache.",
                       CacheWarning, stacklevel=3)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _unpack(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
