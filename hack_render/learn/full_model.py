@@ -200,6 +200,29 @@ def model_rest_fn(arrays: dict, vertices) -> callable:
     return rest
 
 
+def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
+                   expressions: bool = True, loss: dict | None = None,
+                   gate_deg: float | None = None) -> PoseEnergyLearner:
+    """The :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` of a model's arrays: its
+    neck region, the model's rest meshes (``expressions``: with sampled expressions) and
+    mirrored expression pairs; :func:`learn_pose_energy` trains it, and
+    ``bench/bench_mp_heldout.py`` scores a learned file's M_P with it."""
+    sub = pose_subset(arrays)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64) * std[:, None, None]
+    region = neck_region(arrays["faces"], SKIN_LAST, sub)
+    rest = model_rest_fn(arrays, region.vertices) if expressions else None
+    names = [str(x) for x in arrays["expression_names"]]
+    return PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                             arrays["skinning_weights"], arrays["joint_parents"], region,
+                             num_components=num_components, seed=seed, rest_fn=rest, loss=loss,
+                             num_expressions=len(names) if expressions else 0,
+                             jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
+                             symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
+                                        if n.endswith("_L") and n[:-2] + "_R" in names],
+                             gate_deg=gate_deg)
+
+
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True,
@@ -223,19 +246,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     ``R - I`` features."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
-    std = np.asarray(arrays["shape_std"], np.float64)
-    dirs = np.asarray(arrays["shape_components"], np.float64) * std[:, None, None]
-    region = neck_region(arrays["faces"], SKIN_LAST, sub)
-    rest = model_rest_fn(arrays, region.vertices) if expressions else None
-    names = [str(x) for x in arrays["expression_names"]]
-    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
-                                arrays["skinning_weights"], arrays["joint_parents"], region,
-                                num_components=num_components, seed=seed, rest_fn=rest, loss=loss,
-                                num_expressions=len(names) if expressions else 0,
-                                jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
-                                symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
-                                           if n.endswith("_L") and n[:-2] + "_R" in names],
-                                gate_deg=gate_deg)
+    learner = energy_learner(arrays, num_components=num_components, seed=seed,
+                             expressions=expressions, loss=loss, gate_deg=gate_deg)
     old_spread = None
     if start is not None:
         learner.start_from(start)
@@ -258,7 +270,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     report = {"method": "energy (hack_render.learn.pose_energy)", "iterations": iterations,
               "lr_cm": lr, "mlp_lr": mlp_lr, "identities_per_step": identities, "poses_per_identity": poses,
               "components": num_components, "subset_vertices": int(m),
-              "region_triangles": len(region.faces), "learned_weights": learn_weights,
+              "region_triangles": len(learner.region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
               "seed": seed, "hard_examples_per_step": hard, "gate_deg": gate_deg or None,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
