@@ -139,8 +139,9 @@ def learn_pose(
                                       "only; keep the file's skinning weights."),
     seed: int = typer.Option(12, help="Seed of the sampled identities and poses."),
     continue_: bool = typer.Option(False, "--continue", help="Continue from the model file's "
-                                   "correctives and neck weights (M_P restarted, its mean "
-                                   "folded into P) instead of from zero."),
+                                   "correctives, neck weights and M_P (an M_P that had died, one "
+                                   "output for every identity, is restarted, its mean folded "
+                                   "into P) instead of from zero."),
     lr: float = typer.Option(0.01, "--lr", help="Adam step of P, the components and the "
                              "weights' logits (cm), decaying linearly to 10 %."),
     mlp_lr: float = typer.Option(1e-4, "--mlp-lr", help="Adam step of M_P."),

@@ -200,6 +200,11 @@ def model_rest_fn(arrays: dict, vertices) -> callable:
     return rest
 
 
+#: an M_P whose output's largest standard deviation over sampled identities is below this
+#: has died (one constant for every identity): ``learn pose --continue`` restarts it
+MP_DEAD = 1e-4
+
+
 def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                    expressions: bool = True, loss: dict | None = None,
                    gate_deg: float | None = None) -> PoseEnergyLearner:
@@ -235,9 +240,10 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     model arrays and a report.
 
     ``start``: model arrays whose correctives and weights (``pose_*``,
-    ``skinning_weights``) the learner continues from, M_P restarted
-    (:meth:`~hack_render.learn.pose_energy.PoseEnergyLearner.restart_personalisation`);
-    without it P and the components start at zero.
+    ``skinning_weights``) the learner continues from; an M_P that had died (its output's
+    spread over identities under :data:`MP_DEAD`) is restarted
+    (:meth:`~hack_render.learn.pose_energy.PoseEnergyLearner.restart_personalisation`), a
+    live one continues; without ``start`` P and the components start at zero.
 
     ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
     with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
@@ -251,7 +257,10 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     old_spread = None
     if start is not None:
         learner.start_from(start)
-        old_spread = learner.restart_personalisation(seed)
+        old_spread = learner.personalisation_spread(seed)
+        restarted = old_spread < MP_DEAD
+        if restarted:
+            learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
                       learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr,
                       hard=hard)
@@ -278,7 +287,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                        else "T_bar + B_S(beta), neutral")}
     if start is not None:
         report["continued"] = {"from": "the input model's correctives and neck weights",
-                               "mp_restarted": True, "old_mp_output_std_max": old_spread}
+                               "mp_restarted": restarted, "old_mp_output_std_max": old_spread}
     return {"arrays": out, "report": report}
 
 

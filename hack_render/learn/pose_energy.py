@@ -267,6 +267,14 @@ class PoseEnergyLearner:
             w = torch.as_tensor(np.asarray(arrays["skinning_weights"]), dtype=self.logits.dtype)
             self.logits.copy_(torch.log(w[sub_ids].clamp(min=1e-6)))
 
+    def personalisation_spread(self, seed: int = 0, samples: int = 512) -> float:
+        """The largest standard deviation of M_P's output over sampled identities (0 for a
+        dead M_P: one constant for every identity)."""
+        g = torch.Generator().manual_seed(seed)
+        beta = torch.randn(samples, self.num_shape, generator=g, dtype=self.template.dtype)
+        with torch.no_grad():
+            return float(self.mlp(beta).std(0).max())
+
     def restart_personalisation(self, seed: int = 0, samples: int = 512) -> float:
         """Fold M_P's mean output over sampled identities into P (``P += mean_beta m(beta) C``)
         and restart M_P small, as at construction: a continuation whose M_P had died (one
