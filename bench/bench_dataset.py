@@ -40,7 +40,11 @@ subjects, ``appearance.source: seed``):
     sample's writes; a last stream of ``--n`` more projected samples runs as the serial
     executor does (every sample's inputs prefetched while the one before renders) and is
     timed from the first sample's files on disk to the last's: the executor's own steady
-    state, against the render calls of the same samples.
+    state, against the render calls of the same samples; then the serial floor: ``--n`` / 2
+    (at least 3) more samples of that stream with each label kernel's execution timed by
+    Dr.Jit's kernel history, and (render call + scene update + label kernel) / render
+    call: what the rendering thread waits for beside the render call with no Python
+    around it (the update is Embree's rebuild, the label kernel runs on Dr.Jit's threads).
 (e) Start-up and end to end: ``hack-render dataset --n --e2e-n`` in a fresh process, fresh
     folder, ``--e2e-rounds`` times, for each ``--e2e-hair`` (``none``: bald heads;
     ``default``: the default config as users run it, hair sampled): seconds from launching
@@ -338,6 +342,7 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
     per = (done[-1] - done[0]) / (n - 1)
     # the render calls of the samples inside that interval (all but the first sample's)
     rc_stream = parts["render"] / n
+    floor = serial_floor(r, lab, timer, list(range(i + 2 * n, i + 2 * n + floor_n(n))))
     for r in rs.values():
         r.close()
     print(f"(d) render speed: {n} samples at {size} px, {spp} spp, the default config but "
@@ -363,6 +368,13 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
           f"{parts.get('label_images', 0) / n:.3f} s; process CPU {cpu_stream:.3f} s/sample "
           f"(the blocks above also count each block's first sample's inputs, made in the "
           f"rendering thread, and its last sample's file writes)")
+    f_rc, f_up, f_lab, f_kernel = floor
+    print(f"    the serial floor ({floor_n(n)} more samples of the same stream, each label kernel "
+          f"timed by Dr.Jit's kernel history): render call {f_rc:.3f} s + scene update "
+          f"{f_up:.3f} s + label kernel {f_kernel:.3f} s = {(f_rc + f_up + f_kernel) / f_rc:.2f}x "
+          f"the render call: the rendering thread's own waits beside the render call, with no "
+          f"Python, no file and no other thread's work (the labels' other {f_lab - f_kernel:.3f} s:"
+          f" tracing, code generation, NumPy, the GIL)")
     row = {k: v / n for k, v in rows["projected"].items()}
     beside = row["wall"] - row["render"]
     main = row.get("set_camera", 0) + row.get("label_images", 0) + row.get("landmark_record", 0)
@@ -377,6 +389,47 @@ def speed_benchmark(size: int, spp: int, n: int, block: int, seed: int, root: Pa
           f"PNG {row.get('_write_png', 0):.3f}; process CPU {row['cpu']:.3f} s/sample "
           f"({row['cpu'] / row['wall']:.2f} cores busy: the other threads' work competes "
           f"with the render's kernels)")
+
+
+def floor_n(n: int) -> int:
+    return max(3, n // 2)
+
+
+def serial_floor(r, lab, timer, indices: list[int]) -> tuple[float, float, float, float]:
+    """(d)'s floor: ``indices`` run as the serial executor runs them, with each label
+    kernel's execution time taken from Dr.Jit's kernel history (switched on inside
+    ``label_images`` alone). Returns the mean render call, scene update, labels and label
+    kernel seconds a sample: the scene update (Embree's rebuild) and the label kernel are
+    what the rendering thread waits for beside the render call however little Python
+    runs around them."""
+    import drjit as dr
+
+    from hack_render.dataset.runner import with_next
+
+    kernel = [0.0]
+    inner = lab.label_images  # the timer's wrapper
+
+    def label_images(*args, **kw):
+        dr.kernel_history_clear()
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        try:
+            return inner(*args, **kw)
+        finally:
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+            kernel[0] += sum(k.get("execution_time", 0.0) for k in dr.kernel_history()
+                             if k.get("type") == dr.KernelType.JIT) / 1000.0  # ms
+    lab.label_images = label_images
+    try:
+        timer.take()
+        r.prefetch(indices[0])
+        for f in [r.submit(j, then=u) for j, u in with_next(indices)]:
+            f.result()
+        parts = timer.take()
+    finally:
+        lab.label_images = inner
+    m = len(indices)
+    return (parts["render"] / m, parts.get("params.update", 0.0) / m,
+            parts.get("label_images", 0.0) / m, kernel[0] / m)
 
 
 E2E_DRIVER = r"""
