@@ -71,3 +71,25 @@ def test_03_energy_is_the_learners(bench, arrays):
                if k not in ("smooth", "weights"))
     assert e == pytest.approx(want, rel=1e-12)
     assert 0 < stretch < 5
+
+
+def test_04_mp_learns_from_fresh_identities_only(arrays):
+    """Rows from the hard-example pool (``fresh`` False) reach P but not M_P: the pool repeats
+    a few hundred identities, on which M_P overfitted."""
+    from hack_render.learn.full_model import energy_learner
+
+    learner = energy_learner(arrays, expressions=False, seed=2)
+    batch = learner.sample(torch.Generator().manual_seed(2), 2, 4)
+    grads = {}
+    for fresh in (False, True):
+        batch.fresh = torch.full((len(batch),), fresh)
+        for p in [learner.p_cm, *learner.mlp.parameters()]:
+            p.grad = None
+        terms = learner.terms(batch)
+        sum(learner.lam[k] * v for k, v in terms.items()).backward()
+        grads[fresh] = (float(learner.p_cm.grad.abs().sum()),
+                        sum(0.0 if p.grad is None else float(p.grad.abs().sum())
+                            for p in learner.mlp.parameters()))
+    assert grads[False][0] > 0 and grads[False][1] == 0.0
+    assert grads[True][0] == pytest.approx(grads[False][0], rel=1e-9)
+    assert grads[True][1] > 0

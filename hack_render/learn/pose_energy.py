@@ -171,26 +171,34 @@ class PoseEnergyResult:
 @dataclass
 class PoseBatch:
     """Training rows: identities beta (B, S), poses theta (B, 8, 3), expressions psi (B, E)
-    or None, and each row's rest region (B, V, 3) and rest joints (B, K, 3)."""
+    or None, and each row's rest region (B, V, 3) and rest joints (B, K, 3); ``fresh`` (B,)
+    bool: rows of newly sampled identities (None: all), the only rows M_P learns from."""
 
     beta: torch.Tensor
     theta: torch.Tensor
     psi: torch.Tensor | None
     rest: torch.Tensor
     joints: torch.Tensor
+    fresh: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.theta.shape[0]
 
     def rows(self, keep: torch.Tensor) -> PoseBatch:
         return PoseBatch(self.beta[keep], self.theta[keep], None if self.psi is None else self.psi[keep],
-                         self.rest[keep], self.joints[keep])
+                         self.rest[keep], self.joints[keep],
+                         None if self.fresh is None else self.fresh[keep])
 
     @staticmethod
     def cat(parts: list[PoseBatch]) -> PoseBatch:
         psi = None if any(p.psi is None for p in parts) else torch.cat([p.psi for p in parts])
+        fresh = None
+        if any(p.fresh is not None for p in parts):
+            fresh = torch.cat([torch.ones(len(p), dtype=torch.bool) if p.fresh is None else p.fresh
+                               for p in parts])
         return PoseBatch(*(torch.cat([getattr(p, k) for p in parts]) for k in ("beta", "theta")),
-                         psi, *(torch.cat([getattr(p, k) for p in parts]) for k in ("rest", "joints")))
+                         psi, *(torch.cat([getattr(p, k) for p in parts]) for k in ("rest", "joints")),
+                         fresh)
 
 
 class PoseEnergyLearner:
@@ -312,9 +320,12 @@ class PoseEnergyLearner:
         ws = torch.softmax(self.logits.masked_fill(~self.support, -1e9), dim=1)
         return self.w_fixed.index_put((self.region.subset,), ws)
 
-    def blendshapes(self, beta: torch.Tensor) -> torch.Tensor:
-        """(B, 72, M, 3) P + sum_c m_c(beta) C_c, metres."""
+    def blendshapes(self, beta: torch.Tensor, fresh: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, 72, M, 3) P + sum_c m_c(beta) C_c, metres; ``fresh`` (B,) bool: the rows whose
+        gradient reaches M_P (the others see its output as a constant)."""
         w = self.mlp(beta)
+        if fresh is not None:
+            w = torch.where(fresh[:, None], w, w.detach())
         return (self.p_cm + torch.einsum("bc,cdmk->bdmk", w, self.c_cm)) / 100
 
     def rest(self, beta: torch.Tensor, psi: torch.Tensor | None = None):
@@ -336,7 +347,7 @@ class PoseEnergyLearner:
         v = rest
         if corrective:
             feat = pose_feature(rot[:, 1:], self.gate_rad)  # as the model file will
-            delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta))
+            delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta, batch.fresh))
             v = rest.index_add(1, self.region.subset, delta)
         _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))
         w = self.weights() if corrective else (self.w_fixed if weights is None else weights)
@@ -447,6 +458,9 @@ class PoseEnergyLearner:
             if hard and it % mine_every == 0:
                 cand = self.sample(g, identities, mine_poses)
                 found = cand.rows(self.screen(cand))
+                # M_P learns from fresh identities only: the pool repeats a few hundred
+                # identities for many steps, and M_P fitted to them did worse on unseen ones
+                found.fresh = torch.zeros(len(found), dtype=torch.bool)
                 mined += len(found)
                 pool = found if pool is None else PoseBatch.cat([pool, found])
                 pool = pool.rows(torch.arange(max(len(pool) - pool_size, 0), len(pool)))
