@@ -288,6 +288,23 @@ class TexelConfig:
 
 
 @dataclass
+class EyesConfig:
+    """The eyes' stage (``fit/eyes.py``): the lids' opening (``eyeBlink``, ``eyeSquint``,
+    ``eyeWide`` per eye) and the eyeballs' gaze from the face mesh's eye contours and
+    irises on the photo, after the photometric stage."""
+
+    # false: the eyes as the landmark and photometric stages left them, looking ahead
+    enabled: bool = False
+    iterations: int = 60
+    # Adam's step for the lid shapes' change and the gaze (radians)
+    lr: float = 0.03
+    # the iris centre's weight beside the lids' (its two measures, the same unit)
+    w_iris: float = 1.0
+    # false: the lids only (the eyeballs look ahead)
+    gaze: bool = True
+
+
+@dataclass
 class FinalConfig:
     """After the stages: the fit re-rendered at the photo's size (``render.png``) and the
     photo(s) baked into a per-texel diffuse map (``texture.py``)."""
@@ -356,6 +373,12 @@ class FinalConfig:
     # default: on the astronaut it took her brown iris to near black, eyes -0.3 dB
     # (docs/fit.md)
     photo_irises: bool = False
+    # which pixels the eyes' colours are solved over: "pixels", those chosen above (the
+    # render's iris and whites, trimmed by luminance percentiles or by the photo's own
+    # irises); "opening", every pixel of the render's iris and whites inside the photo's
+    # two lid contours (the face mesh's), none trimmed: the least squares over the
+    # openings, what the eyes' figure scores (docs/fit.md)
+    eye_colours: str = "pixels"
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
@@ -449,6 +472,7 @@ class FitConfig:
     silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     texel: TexelConfig = field(default_factory=TexelConfig)
+    eyes: EyesConfig = field(default_factory=EyesConfig)
     final: FinalConfig = field(default_factory=FinalConfig)
     # (--per-view-expression) multi-view: one expression per photo instead of one shared:
     # photos of different expressions fit, but each view's expression is pinned by its own
@@ -534,6 +558,9 @@ class FitConfig:
         if self.camera.rotate not in ("torso", "head"):
             raise HackError(f"config camera.rotate: expected 'torso' or 'head', found "
                             f"{self.camera.rotate!r}.")
+        if self.final.eye_colours not in ("pixels", "opening"):
+            raise HackError(f"config final.eye_colours: expected 'pixels' or 'opening', "
+                            f"found {self.final.eye_colours!r}.")
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")

@@ -83,7 +83,9 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                for v in st.views]
     # and the person's own irises and whites in the photo (the face mesh's iris landmarks)
     person = iris.views_eyes(st) if cfg.final.photo_irises else None
-    rgb, eyes = iris.fit_colour(st, cfg, allowed, person=person)
+    # or every pixel of the render's eyes inside the photo's lid contours
+    opening = iris.views_openings(st) if cfg.final.eye_colours == "opening" else None
+    rgb, eyes = iris.fit_colour(st, cfg, allowed, person=person, opening=opening)
     bar.update()
     t1 = time.perf_counter()
     maps = dataclasses.replace(base, diffuse=baked.diffuse, specular=spec, iris_rgb=rgb,

@@ -182,6 +182,26 @@ def photo_eyes(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     return iris, whites
 
 
+def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
+                  ) -> np.ndarray | None:
+    """(H, W) bool: the person's eye openings in the photo, inside the face mesh's two lid
+    contours (FACEMESH_LEFT_EYE / RIGHT_EYE; :func:`iris_landmarks`), at ``shape`` (H, W)
+    if given; None where no face is found."""
+    from skimage.draw import polygon
+
+    pts = iris_landmarks(rgb8, points)
+    if pts is None:
+        return None
+    h, w = shape or rgb8.shape[:2]
+    pts = pts * [w / rgb8.shape[1], h / rgb8.shape[0]]
+    out = np.zeros((h, w), bool)
+    for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"):
+        lids = pts[mesh_loops(n)[0]]
+        rr, cc = polygon(lids[:, 1] - 0.5, lids[:, 0] - 0.5, (h, w))
+        out[rr, cc] = True
+    return out
+
+
 def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
@@ -251,31 +271,39 @@ def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np
 
 
 def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed,
-              person=None):
+              person=None, opening=None):
     """The kept iris and eye-white pixels of every view (see :func:`estimate`): (photo,
     the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), the
-    two pixel counts and which rows are the iris's (n,)."""
+    two pixel counts and which rows are the iris's (n,). ``opening``: per view the
+    photo's eye openings (:func:`photo_opening`, or None): where given, every pixel of
+    the render's iris and whites inside them, none left out (the solve then minimises the
+    squared error over the openings, what the eyes' figure scores)."""
     rows: dict[str, list] = {k: [] for k in ("p", "s", "di", "ds", "dg")}
     n = n_white = 0
     iris_rows, from_person = [], []
     for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
         ok = (allowed or [None] * len(photos))[i]
         eyes = (person or [None] * len(photos))[i]
+        lids = (opening or [None] * len(photos))[i]
+        if lids is not None:
+            both = lids & (True if ok is None else ok)
+            keep = iris_mask(r.gbuffer, r.rgba) & both
+            kw = sclera_mask(r.gbuffer, r.rgba) & both & ~keep if white_renders \
+                else np.zeros_like(keep)
+            if keep.sum() >= MIN_PIXELS:
+                from_person.append(i)
+                _rows_of(rows, photo, r, r0, i, keep | kw, white_renders, matte_renders)
+                n += int(keep.sum())
+                n_white += int(kw.sum())
+                iris_rows.append(keep[keep | kw])
+                continue
         keep = kept_pixels(photo, r, ok, None if eyes is None else eyes[0])
         if eyes is not None and (iris_mask(r.gbuffer, r.rgba) & eyes[0] & (
                 True if ok is None else ok)).sum() >= MIN_PIXELS:
             from_person.append(i)
         kw = kept_sclera_pixels(photo, r, ok, None if eyes is None else eyes[1]) & ~keep \
             if white_renders else np.zeros_like(keep)
-        m = keep | kw
-        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
-        ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
-        rows["p"].append(photo[m].astype(np.float64))
-        rows["s"].append(q0 - ds)          # neither part's diffuse share
-        rows["di"].append(q - q0)
-        rows["ds"].append(ds)
-        rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
-                          else np.zeros_like(q))
+        _rows_of(rows, photo, r, r0, i, keep | kw, white_renders, matte_renders)
         n += int(keep.sum())
         n_white += int(kw.sum())
         iris_rows.append(keep[m])
@@ -283,6 +311,19 @@ def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allow
               for k in ("p", "s", "di", "ds", "dg")]
     return arrays, n, n_white, (np.concatenate(iris_rows) if iris_rows
                                 else np.zeros(0, bool)), from_person
+
+
+def _rows_of(rows: dict, photo, r, r0, i: int, m: np.ndarray, white_renders,
+             matte_renders) -> None:
+    """Append the pixels ``m`` of view ``i`` to ``rows`` (:func:`_eye_rows`)."""
+    q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
+    ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
+    rows["p"].append(photo[m].astype(np.float64))
+    rows["s"].append(q0 - ds)          # neither part's diffuse share
+    rows["di"].append(q - q0)
+    rows["ds"].append(ds)
+    rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
+                      else np.zeros_like(q))
 
 
 def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray) -> float:
@@ -336,8 +377,8 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
 
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
-             sclera=None, matte_renders: list | None = None, person: list | None = None
-             ) -> tuple[tuple[float, float, float], dict]:
+             sclera=None, matte_renders: list | None = None, person: list | None = None,
+             opening: list | None = None) -> tuple[tuple[float, float, float], dict]:
     """The iris colour, and with ``white_renders`` the eye whites' too, that make the
     renders match ``photos`` (linear RGB, each at its render's size) over the iris's and
     the whites' pixels (and ``allowed``'s, e.g. not the photo's occluders). ``renders``
@@ -363,7 +404,8 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
     rows, n, n_white, iris_rows, from_person = _eye_rows(
-        photos, renders, zero_renders, white_renders, matte_renders, allowed, person)
+        photos, renders, zero_renders, white_renders, matte_renders, allowed, person,
+        opening)
     if grey:  # the luminance only: one gain per part for all channels
         rows = [np.repeat((x @ _LUMA)[:, None], 3, 1) for x in rows]
     iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
@@ -372,7 +414,10 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
     rgb = current * gain_i
     report = {"pixels": n, "start": current.tolist(),
-              "pixels_from": ("the photo's irises (the face mesh's iris landmarks) under "
+              "pixels_from": ("the render's iris and whites inside the photo's lid "
+                              f"contours (the face mesh's), views {from_person}"
+                              if from_person and opening is not None else
+                              "the photo's irises (the face mesh's iris landmarks) under "
                               f"the render's, views {from_person}" if from_person else
                               "the render's iris (photo luminance percentiles "
                               f"{list(KEEP_PERCENTILES)})")}
@@ -410,16 +455,28 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     return tuple(float(x) for x in rgb), report
 
 
-def _at_render_size(state, renders: list, allowed: list | None, person: list | None = None):
-    """The views' photos, ``allowed`` masks (photo-size, or None) and ``person``'s eyes
-    (photo-size (iris, whites), or None) at each render's size."""
+def _at_render_size(state, renders: list, allowed: list | None, person: list | None = None,
+                    opening: list | None = None):
+    """The views' photos, ``allowed`` masks (photo-size, or None), ``person``'s eyes
+    (photo-size (iris, whites), or None) and ``opening``'s masks at each render's size
+    (the last only where ``opening`` is given)."""
     sizes = [r.rgba.shape[:2] for r in renders]
     photos = [photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
     masks = [None if a is None else mask_at(a, *hw)
              for a, hw in zip(allowed or [None] * len(sizes), sizes)]
     eyes = [None if e is None else (mask_at(e[0], *hw), mask_at(e[1], *hw))
             for e, hw in zip(person or [None] * len(sizes), sizes)]
-    return photos, masks, eyes
+    if opening is None:
+        return photos, masks, eyes
+    lids = [None if o is None else mask_at(o, *hw)
+            for o, hw in zip(opening, sizes)]
+    return photos, masks, eyes, lids
+
+
+def views_openings(state) -> list:
+    """Per view the person's eye openings in its photo (:func:`photo_opening`, at the
+    photo's size), or None where the face mesh finds no face."""
+    return [photo_opening(v.photo.uint8(), v.detection.points) for v in state.views]
 
 
 def views_eyes(state) -> list:
@@ -430,14 +487,15 @@ def views_eyes(state) -> list:
 
 
 def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None,
-               whites: bool = True, person: list | None = None
-               ) -> tuple[tuple[float, float, float], dict]:
+               whites: bool = True, person: list | None = None,
+               opening: list | None = None) -> tuple[tuple[float, float, float], dict]:
     """The iris colour of the state's views (:func:`estimate`), from renders per view at
     the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
     default eyes, a black iris, and (``whites``) a black sclera and eyes without their wet
     gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
     photo-size bool mask of the pixels it may use, or None; ``person``: per view the
-    photo's own (iris, whites) (:func:`views_eyes`), or None. The report's ``sclera_rgb``
+    photo's own (iris, whites) (:func:`views_eyes`), or None; ``opening``: per view the
+    photo's eye openings (:func:`views_openings`), or None. The report's ``sclera_rgb``
     and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
     maps = maps if maps is not None else texture.skin_maps(state)
     black = (0.0, 0.0, 0.0)
@@ -447,11 +505,11 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     per_view = [texture.render_eye_variants(state, cfg, v, maps, variants, spp,
                                             cfg.final.max_side) for v in state.views]
     out = [list(r) for r in zip(*per_view)]       # per variant, the views' renders
-    photos, masks, eyes = _at_render_size(state, out[0], allowed, person)
+    photos, masks, eyes, *lids = _at_render_size(state, out[0], allowed, person, opening)
     grey = all(v.photo.is_grey for v in state.views)
     return estimate(photos, out[0], out[1], DEFAULT_IRIS_RGB, grey, masks,
                     out[2] if whites else None, SCLERA_RGB, out[3] if whites else None,
-                    eyes)
+                    eyes, lids[0] if lids else None)
 
 
 def residual(state, renders: list, allowed: list | None = None, part: str = "iris",
