@@ -23,7 +23,7 @@ def _fitter(model, yaw=15.0):
     from hack_render.fit.fitter import Fitter
 
     photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=256)
-    cfg = load_config(None, {"silhouette": {"mode": "off"}, "eyes": {"iterations": 150}})
+    cfg = load_config(None, {"silhouette": {"mode": "off"}, "eyes": {"iterations": 150, "mesh_offset": False}})
     f = Fitter([photo], [det], cfg, model=model, progress=False)
     v = f.state.views[0]
     with torch.no_grad():

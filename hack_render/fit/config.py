@@ -298,8 +298,12 @@ class EyesConfig:
     iterations: int = 60
     # Adam's step for the lid shapes' change and the gaze (radians)
     lr: float = 0.03
-    # the iris centre's weight beside the lids' (its two measures, the same unit)
+    # the lids' weight (0: the lids as they were) and the iris centre's (its two measures,
+    # the same unit)
+    w_lids: float = 1.0
     w_iris: float = 1.0
+    # the face mesh's points read in the landmark embedding's convention (eyes.MESH_OFFSET)
+    mesh_offset: bool = True
     # false: the lids only (the eyeballs look ahead)
     gaze: bool = True
 
