@@ -381,7 +381,7 @@ class FinalConfig:
     # render's iris and whites, trimmed by luminance percentiles or by the photo's own
     # irises); "opening", every pixel of the render's iris and whites inside the photo's
     # two lid contours (the face mesh's), none trimmed: the least squares over the
-    # openings, what the eyes' figure scores (docs/fit.md)
+    # openings in sRGB-encoded values, what the eyes' figure scores (docs/fit.md)
     eye_colours: str = "pixels"
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'

@@ -97,6 +97,8 @@ class FitResult:
     #: the final stage's renders, bake and eyes (``final.py``), or None where it did not
     #: run (``final.enabled`` off, or no photometric lighting)
     final: FinalRenders | None = None
+    #: the eyes' stage's report (``eyes.py``), or None where it did not run
+    eyes: dict | None = None
 
 
 #: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
@@ -314,7 +316,8 @@ class Fitter:
         s = self.state
         return FitResult(s.model, s.appearance, self.cfg, s.views, s.beta, s.psi, s.alpha,
                          s.eta, s.tau, s.albedo_delta, self.log.reports, self.log.timings,
-                         [r.failure for r in self.log.reports if r.failure], s, final)
+                         [r.failure for r in self.log.reports if r.failure], s, final,
+                         self.eyes_report)
 
 
 def _landmark_embedding(name: str, model):

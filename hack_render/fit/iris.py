@@ -375,6 +375,37 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
     return gi, gw, gloss
 
 
+def _encoded_gains(rows, s0: np.ndarray, gi: np.ndarray, gw: np.ndarray, gloss: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The iris's and the whites' gains refined so that the renders match the photo in
+    sRGB-encoded values (what the eyes' figure compares, and the eye sees: the linear
+    solve weighs a bright pixel's error most, the catchlights and the whites, so a dark
+    iris comes out too light), per channel from the linear solution, within the same
+    bounds (the iris's at least 0, the whites' :data:`SCLERA_BOUNDS`), the gloss held."""
+    import colour
+    from scipy.optimize import least_squares
+
+    p, s_, di, ds, dg = rows
+    base = s_ - (1.0 - gloss) * dg
+    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+
+    def enc(x):
+        return colour.cctf_encoding(np.clip(x, 0.0, 1.0))
+
+    gi, gw = gi.copy(), gw.copy()
+    for c in range(3):
+        target = enc(p[:, c])
+
+        def res(x, c=c, target=target):
+            return enc(base[:, c] + x[0] * di[:, c] + x[1] * ds[:, c]) - target
+
+        x0 = np.clip([gi[c], gw[c]], [0.0, lo_w[c]], [np.inf, hi_w[c]])
+        x0[1] = min(max(x0[1], lo_w[c] + 1e-9), hi_w[c] - 1e-9)
+        sol = least_squares(res, x0, bounds=([0.0, lo_w[c]], [np.inf, hi_w[c]]))
+        gi[c], gw[c] = sol.x
+    return gi, gw
+
+
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
              sclera=None, matte_renders: list | None = None, person: list | None = None,
@@ -412,6 +443,8 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     white_ok = whites and n_white >= MIN_PIXELS and bool(np.all(rows[3].sum(0) > 0))
     tied = bool(matte_renders)
     gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
+    if opening is not None and from_person and iris_ok and white_ok and not grey:
+        gain_i, gain_w = _encoded_gains(rows, s0, gain_i, gain_w, gloss)
     rgb = current * gain_i
     report = {"pixels": n, "start": current.tolist(),
               "pixels_from": ("the render's iris and whites inside the photo's lid "
