@@ -306,7 +306,7 @@ def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allow
         _rows_of(rows, photo, r, r0, i, keep | kw, white_renders, matte_renders)
         n += int(keep.sum())
         n_white += int(kw.sum())
-        iris_rows.append(keep[m])
+        iris_rows.append(keep[keep | kw])
     arrays = [np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
               for k in ("p", "s", "di", "ds", "dg")]
     return arrays, n, n_white, (np.concatenate(iris_rows) if iris_rows
