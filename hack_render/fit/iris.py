@@ -58,6 +58,13 @@ KEEP_PERCENTILES = (10.0, 75.0)
 RGB_BOUNDS = (0.005, 0.6)
 #: The eye whites' colour is held within these bounds (linear RGB, per channel).
 SCLERA_BOUNDS = (0.02, 0.9)
+#: The same over the photo's lid openings (``opening``): the lower bound the iris's. A
+#: photo's colour cast that the light does not take (the light-colour prior leaves it in
+#: the skin's albedo: a sepia print, Grace Hopper's) is in the eyes' whites too; her
+#: whites, (113, 44, 32) in sRGB under a grey light 2.5 times the default, need an albedo
+#: of (0.066, 0.010, 0.006), below 0.02 in green and blue: held there, they came out
+#: grey-blue beside her red-brown skin.
+SCLERA_BOUNDS_OPENING = (0.005, 0.9)
 #: Luminance percentiles of the photo's pixels under the render's eye whites that are kept.
 SCLERA_PERCENTILES = (50.0, 95.0)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -343,7 +350,8 @@ def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray)
 
 
 def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool,
-           hold_iris: bool, iris_rows=None) -> tuple[np.ndarray, np.ndarray, float]:
+           hold_iris: bool, iris_rows=None, bounds=SCLERA_BOUNDS
+           ) -> tuple[np.ndarray, np.ndarray, float]:
     """(the iris's gains, the whites' gains, the gloss): per channel one bounded linear
     least-squares solve (``hold_iris``: the iris at its colour); the gloss (where
     ``gloss_tied``) the whites' luminance gain, at most 1 (the same light that makes the
@@ -353,7 +361,7 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
     squares over the iris's pixels (``iris_rows``), the colours held; the cap only comes
     down."""
     p, s_, di, ds, dg = rows
-    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+    lo_w, hi_w = (b / s0 for b in bounds)
     gloss, cap, gi, gw = 1.0, 1.0, np.ones(3), np.ones(3)
     for _ in range(8 if white_ok and gloss_tied else 1):
         base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
@@ -375,19 +383,19 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
     return gi, gw, gloss
 
 
-def _encoded_gains(rows, s0: np.ndarray, gi: np.ndarray, gw: np.ndarray, gloss: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _encoded_gains(rows, s0: np.ndarray, gi: np.ndarray, gw: np.ndarray, gloss: float,
+                   bounds=SCLERA_BOUNDS_OPENING) -> tuple[np.ndarray, np.ndarray]:
     """The iris's and the whites' gains refined so that the renders match the photo in
     sRGB-encoded values (what the eyes' figure compares, and the eye sees: the linear
     solve weighs a bright pixel's error most, the catchlights and the whites, so a dark
     iris comes out too light), per channel from the linear solution, within the same
-    bounds (the iris's at least 0, the whites' :data:`SCLERA_BOUNDS`), the gloss held."""
+    bounds (the iris's at least 0, the whites' ``bounds``), the gloss held."""
     import colour
     from scipy.optimize import least_squares
 
     p, s_, di, ds, dg = rows
     base = s_ - (1.0 - gloss) * dg
-    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+    lo_w, hi_w = (b / s0 for b in bounds)
 
     def enc(x):
         return colour.cctf_encoding(np.clip(x, 0.0, 1.0))
@@ -442,9 +450,11 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
     white_ok = whites and n_white >= MIN_PIXELS and bool(np.all(rows[3].sum(0) > 0))
     tied = bool(matte_renders)
-    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
+    sb = SCLERA_BOUNDS_OPENING if opening is not None and from_person else SCLERA_BOUNDS
+    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows,
+                                   sb)
     if opening is not None and from_person and iris_ok and white_ok and not grey:
-        gain_i, gain_w = _encoded_gains(rows, s0, gain_i, gain_w, gloss)
+        gain_i, gain_w = _encoded_gains(rows, s0, gain_i, gain_w, gloss, sb)
     rgb = current * gain_i
     report = {"pixels": n, "start": current.tolist(),
               "pixels_from": ("the render's iris and whites inside the photo's lid "
@@ -464,7 +474,7 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
         report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
                             f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
         rgb = current
-        _, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, True)
+        _, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, True, None, sb)
     else:
         # darker than the darkest allowed (the photo's eyes in shadow, or darker than the
         # render's gloss alone): held there
@@ -476,10 +486,10 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     if whites:
         report.update(sclera_pixels=n_white, sclera_start=s0.tolist())
         if white_ok:
-            sc = np.clip(s0 * gain_w, *SCLERA_BOUNDS)
-            held = np.any(np.isclose(sc, SCLERA_BOUNDS[0]) | np.isclose(sc, SCLERA_BOUNDS[1]))
+            sc = np.clip(s0 * gain_w, *sb)
+            held = np.any(np.isclose(sc, sb[0]) | np.isclose(sc, sb[1]))
             report.update(sclera_rgb=sc.tolist(), sclera_source=how + (
-                f"; held within {list(SCLERA_BOUNDS)}" if held else ""))
+                f"; held within {list(sb)}" if held else ""))
             if tied:
                 report["eye_gloss"] = gloss
         else:
