@@ -49,8 +49,8 @@ import torch
 
 from appearance.model import AppearanceModel
 from hack_render.errors import HackError
-from hack_render.fit import final as final_stage
 from hack_render.fit import eyes as eyes_stage
+from hack_render.fit import final as final_stage
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
