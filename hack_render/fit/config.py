@@ -385,6 +385,12 @@ class FinalConfig:
     # face, "pixels": those chosen above (the render's iris and whites, trimmed by
     # luminance percentiles or by the photo's own irises), the default before
     eye_colours: str = "opening"
+    # the bake's lid band reaches the photo's own eye openings (the face mesh's lid
+    # contours, grown by a pixel) instead of LID_INNER times the 68 points' eye rings:
+    # the lid skin the render shows up to the person's opening is baked as the photo has
+    # it (the lash line's dark rim); with the eyes' stage closing the lids, that skin
+    # would otherwise come from the mirror or A(alpha) (docs/fit.md)
+    lids_from_mesh: bool = False
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)

@@ -95,6 +95,9 @@ class View:
     # (2,) the eyeballs' gaze (yaw, pitch), radians (``fit/gaze.py``; the eyes' stage,
     # ``fit/eyes.py``); None: looking ahead
     gaze: torch.Tensor | None = None
+    # (h, w) bool at the photo's size: the person's eye openings (the face mesh's lid
+    # contours, iris.photo_opening; set by the final stage); None: not known
+    eye_opening: np.ndarray | None = None
 
     @property
     def focal(self) -> torch.Tensor:
