@@ -303,6 +303,8 @@ class EyesConfig:
     # the lids' weight (0: the lids as they were) and the iris centre's (its two measures,
     # the same unit)
     w_lids: float = 1.0
+    # the lower lid's share of the lids' weight (0: the upper lid and the gaze only)
+    w_lower: float = 1.0
     w_iris: float = 1.0
     # the face mesh's points read in the landmark embedding's convention (eyes.MESH_OFFSET)
     mesh_offset: bool = True

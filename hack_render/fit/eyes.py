@@ -199,7 +199,8 @@ def fit_eyes(state: FitState, cfg, log=None, contours: list | None = None) -> di
             ms = _model_measures(state, v, psi_of(v), g, eyes)
             for m, t in zip(ms, targets):
                 r = (m - torch.as_tensor(t, dtype=m.dtype)) / SCALE
-                lids, irs = ec.w_lids * (r[:2] ** 2).sum(), ec.w_iris * (r[2:] ** 2).sum()
+                lids = ec.w_lids * (r[0] ** 2 + ec.w_lower * r[1] ** 2)
+                irs = ec.w_iris * (r[2:] ** 2).sum()
                 total = total + lids + (irs if ec.gaze else 0.0)
                 terms["lids"] += float(lids)
                 terms["iris"] += float(irs)
