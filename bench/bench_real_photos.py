@@ -632,6 +632,8 @@ def kept_state(name: str, img: np.ndarray, fit_dir: Path, overrides: dict):
         v.global_orient.copy_(t("view0_global_orient"))
         v.transl.copy_(t("view0_t"))
         v.log_focal.fill_(float(np.log(npz["view0_K"][0][0])))
+    if "view0_gaze" in npz:  # the eyes' stage's (fit/eyes.py)
+        v.gaze = t("view0_gaze").reshape(2)
     env = np.asarray(npz["view0_env_map"], np.float32)
     v.lighting = Lighting("env", env.shape[0])
     with torch.no_grad():
@@ -677,13 +679,18 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     import imageio.v3 as iio
     from skimage.transform import resize
 
+    from hack_render.fit import eyes as eyes_stage
     from hack_render.fit import final as final_stage
     from hack_render.fit.outputs import write_photo_renders
 
     state, cfg = kept_state(name, img, fit_dir, overrides)
     t0 = time.time()
+    eyes = None
+    if cfg.eyes.enabled and "view0_gaze" not in np.load(fit_dir / "params.npz"):
+        eyes = eyes_stage.fit_eyes(state, cfg)   # a fit kept from before the eyes' stage
     fin = final_stage.run(state, cfg)
     row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
+                 "eyes": eyes,
                  "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
                                                        "rgb", "sclera_rgb", "eye_gloss")}}
     out.mkdir(parents=True, exist_ok=True)

@@ -104,8 +104,14 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
                 occluded = mk
     features = lids = np.zeros((h, w), bool)
     if fc.features:
-        inside = (binary_erosion(rendered, iterations=edge) & ~occluded
-                  & ~feature_holes(points, (h, w), eye_scale=LID_INNER))
+        hole = feature_holes(points, (h, w), eye_scale=LID_INNER)
+        if fc.lids_from_mesh and view.eye_opening is not None:
+            # the eyes' hole is the photo's own openings (the face mesh's lid contours)
+            # grown by a pixel: the lid skin the render shows up to them is baked, the
+            # lash line's dark rim with it
+            hole = feature_rings(points, (h, w), LID_INNER)["mouth"] | binary_dilation(
+                mask_at(view.eye_opening, h, w), iterations=1)
+        inside = binary_erosion(rendered, iterations=edge) & ~occluded & ~hole
         features = feature_bands(points, (h, w)) & inside
         lids = feature_rings(points, (h, w), eye_scale=fc.eye_hole)["eyes"] & inside & ~features
     # cosine between the normal and the direction to the camera (camera frame, z forward)

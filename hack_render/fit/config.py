@@ -288,6 +288,31 @@ class TexelConfig:
 
 
 @dataclass
+class EyesConfig:
+    """The eyes' stage (``fit/eyes.py``): the lids' opening (``eyeBlink``, ``eyeSquint``,
+    ``eyeWide`` per eye) and the eyeballs' gaze from the face mesh's eye contours and
+    irises on the photo, after the photometric stage."""
+
+    # false: the eyes as the landmark and photometric stages left them, looking ahead.
+    # Off by default: on Grace Hopper it narrows the eyes to her squint, yet the eyes'
+    # figure drops (16.51 -> 15.19 dB); the gaze alone costs obama 0.66 dB (docs/fit.md)
+    enabled: bool = False
+    iterations: int = 60
+    # Adam's step for the lid shapes' change and the gaze (radians)
+    lr: float = 0.03
+    # the lids' weight (0: the lids as they were) and the iris centre's (its two measures,
+    # the same unit)
+    w_lids: float = 1.0
+    # the lower lid's share of the lids' weight (0: the upper lid and the gaze only)
+    w_lower: float = 1.0
+    w_iris: float = 1.0
+    # the face mesh's points read in the landmark embedding's convention (eyes.MESH_OFFSET)
+    mesh_offset: bool = True
+    # false: the lids only (the eyeballs look ahead)
+    gaze: bool = True
+
+
+@dataclass
 class FinalConfig:
     """After the stages: the fit re-rendered at the photo's size (``render.png``) and the
     photo(s) baked into a per-texel diffuse map (``texture.py``)."""
@@ -356,6 +381,20 @@ class FinalConfig:
     # default: on the astronaut it took her brown iris to near black, eyes -0.3 dB
     # (docs/fit.md)
     photo_irises: bool = False
+    # which pixels the eyes' colours are solved over: "opening", every pixel of the
+    # render's iris and whites inside the photo's two lid contours (the face mesh's), none
+    # trimmed: the least squares over the openings in sRGB-encoded values, what the eyes'
+    # figure scores, the whites down to 0.005 (the eyes' figure: Grace Hopper 15.43 ->
+    # 16.51 dB, the astronaut 13.39 -> 13.82, docs/fit.md); where the face mesh finds no
+    # face, "pixels": those chosen above (the render's iris and whites, trimmed by
+    # luminance percentiles or by the photo's own irises), the default before
+    eye_colours: str = "opening"
+    # the bake's lid band reaches the photo's own eye openings (the face mesh's lid
+    # contours, grown by a pixel) instead of LID_INNER times the 68 points' eye rings:
+    # the lid skin the render shows up to the person's opening is baked as the photo has
+    # it (the lash line's dark rim); with the eyes' stage closing the lids, that skin
+    # would otherwise come from the mirror or A(alpha) (docs/fit.md)
+    lids_from_mesh: bool = False
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
@@ -449,6 +488,7 @@ class FitConfig:
     silhouette: SilhouetteConfig = field(default_factory=SilhouetteConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     texel: TexelConfig = field(default_factory=TexelConfig)
+    eyes: EyesConfig = field(default_factory=EyesConfig)
     final: FinalConfig = field(default_factory=FinalConfig)
     # (--per-view-expression) multi-view: one expression per photo instead of one shared:
     # photos of different expressions fit, but each view's expression is pinned by its own
@@ -534,6 +574,9 @@ class FitConfig:
         if self.camera.rotate not in ("torso", "head"):
             raise HackError(f"config camera.rotate: expected 'torso' or 'head', found "
                             f"{self.camera.rotate!r}.")
+        if self.final.eye_colours not in ("pixels", "opening"):
+            raise HackError(f"config final.eye_colours: expected 'pixels' or 'opening', "
+                            f"found {self.final.eye_colours!r}.")
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")

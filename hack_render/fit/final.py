@@ -61,6 +61,13 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                desc="fit final (renders, bake)", unit="step", disable=not progress,
                leave=False)
     t0 = time.perf_counter()
+    # the person's eye openings (the face mesh's lid contours): the eyes' colours are
+    # solved over them (final.eye_colours) and the bake's lid band reaches them
+    # (final.lids_from_mesh)
+    opening = iris.views_openings(st) if (cfg.final.eye_colours == "opening"
+                                          or cfg.final.lids_from_mesh) else None
+    for v, o in zip(st.views, opening or [None] * len(st.views)):
+        v.eye_opening = o
     fitted = []
     for v in st.views:
         fitted.append(texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side))
@@ -83,7 +90,10 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                for v in st.views]
     # and the person's own irises and whites in the photo (the face mesh's iris landmarks)
     person = iris.views_eyes(st) if cfg.final.photo_irises else None
-    rgb, eyes = iris.fit_colour(st, cfg, allowed, person=person)
+    # or every pixel of the render's eyes inside the photo's lid contours
+    rgb, eyes = iris.fit_colour(st, cfg, allowed, person=person,
+                                opening=opening if cfg.final.eye_colours == "opening"
+                                else None)
     bar.update()
     t1 = time.perf_counter()
     maps = dataclasses.replace(base, diffuse=baked.diffuse, specular=spec, iris_rgb=rgb,

@@ -14,6 +14,8 @@ Stages (each with its own iterations, weights and learning rates, see ``config.p
    and spp, coarse to fine; skin-masked robust (Charbonnier) loss over alpha, lighting
    and refinements of beta, psi, theta, eta, tau.
 5. texel (optional): per-texel albedo refinement with smoothness and symmetry terms.
+5b. eyes (``eyes.py``): the lids' opening and the eyeballs' gaze from the face mesh's eye
+   contours and irises (landmarks only, no renders).
 6. final (``final.py``, with the photometric stage's lighting): the views at the photo's
    size, the baked skin, the eyes' colours and ``render.png``'s renders.
 
@@ -47,6 +49,7 @@ import torch
 
 from appearance.model import AppearanceModel
 from hack_render.errors import HackError
+from hack_render.fit import eyes as eyes_stage
 from hack_render.fit import final as final_stage
 from hack_render.fit import geometric, photometric, terms
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
@@ -94,6 +97,8 @@ class FitResult:
     #: the final stage's renders, bake and eyes (``final.py``), or None where it did not
     #: run (``final.enabled`` off, or no photometric lighting)
     final: FinalRenders | None = None
+    #: the eyes' stage's report (``eyes.py``), or None where it did not run
+    eyes: dict | None = None
 
 
 #: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
@@ -242,6 +247,7 @@ class Fitter:
         self.cfg, self.progress = config, progress
         self.state = init_state(photos, detections, config, model, appearance, masks)
         self.log = StageLog(progress=progress)
+        self.eyes_report: dict | None = None   # the eyes' stage's (fit/eyes.py)
 
     @property
     def reports(self) -> list[StageReport]:
@@ -304,11 +310,14 @@ class Fitter:
             self.photometric(texel=False)
             if self.cfg.texel.enabled and self.state.appearance is not None:
                 self.photometric(texel=True)
+        if self.cfg.eyes.enabled:
+            self.eyes_report = eyes_stage.fit_eyes(self.state, self.cfg, self.log)
         final = self.final()
         s = self.state
         return FitResult(s.model, s.appearance, self.cfg, s.views, s.beta, s.psi, s.alpha,
                          s.eta, s.tau, s.albedo_delta, self.log.reports, self.log.timings,
-                         [r.failure for r in self.log.reports if r.failure], s, final)
+                         [r.failure for r in self.log.reports if r.failure], s, final,
+                         self.eyes_report)
 
 
 def _landmark_embedding(name: str, model):

@@ -58,6 +58,13 @@ KEEP_PERCENTILES = (10.0, 75.0)
 RGB_BOUNDS = (0.005, 0.6)
 #: The eye whites' colour is held within these bounds (linear RGB, per channel).
 SCLERA_BOUNDS = (0.02, 0.9)
+#: The same over the photo's lid openings (``opening``): the lower bound the iris's. A
+#: photo's colour cast that the light does not take (the light-colour prior leaves it in
+#: the skin's albedo: a sepia print, Grace Hopper's) is in the eyes' whites too; her
+#: whites, (113, 44, 32) in sRGB under a grey light 2.5 times the default, need an albedo
+#: of (0.066, 0.010, 0.006), below 0.02 in green and blue: held there, they came out
+#: grey-blue beside her red-brown skin.
+SCLERA_BOUNDS_OPENING = (0.005, 0.9)
 #: Luminance percentiles of the photo's pixels under the render's eye whites that are kept.
 SCLERA_PERCENTILES = (50.0, 95.0)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -182,6 +189,26 @@ def photo_eyes(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     return iris, whites
 
 
+def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
+                  ) -> np.ndarray | None:
+    """(H, W) bool: the person's eye openings in the photo, inside the face mesh's two lid
+    contours (FACEMESH_LEFT_EYE / RIGHT_EYE; :func:`iris_landmarks`), at ``shape`` (H, W)
+    if given; None where no face is found."""
+    from skimage.draw import polygon
+
+    pts = iris_landmarks(rgb8, points)
+    if pts is None:
+        return None
+    h, w = shape or rgb8.shape[:2]
+    pts = pts * [w / rgb8.shape[1], h / rgb8.shape[0]]
+    out = np.zeros((h, w), bool)
+    for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"):
+        lids = pts[mesh_loops(n)[0]]
+        rr, cc = polygon(lids[:, 1] - 0.5, lids[:, 0] - 0.5, (h, w))
+        out[rr, cc] = True
+    return out
+
+
 def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
     seg = gbuffer["segmentation"] == REGIONS.index("iris")
@@ -251,38 +278,59 @@ def _affine_fit(p: np.ndarray, s: np.ndarray, d: np.ndarray, bounds: list) -> np
 
 
 def _eye_rows(photos, renders, zero_renders, white_renders, matte_renders, allowed,
-              person=None):
+              person=None, opening=None):
     """The kept iris and eye-white pixels of every view (see :func:`estimate`): (photo,
     the rest, the iris's share, the whites' share, the gloss's share), each (n, 3), the
-    two pixel counts and which rows are the iris's (n,)."""
+    two pixel counts and which rows are the iris's (n,). ``opening``: per view the
+    photo's eye openings (:func:`photo_opening`, or None): where given, every pixel of
+    the render's iris and whites inside them, none left out (the solve then minimises the
+    squared error over the openings, what the eyes' figure scores)."""
     rows: dict[str, list] = {k: [] for k in ("p", "s", "di", "ds", "dg")}
     n = n_white = 0
     iris_rows, from_person = [], []
     for i, (photo, r, r0) in enumerate(zip(photos, renders, zero_renders)):
         ok = (allowed or [None] * len(photos))[i]
         eyes = (person or [None] * len(photos))[i]
+        lids = (opening or [None] * len(photos))[i]
+        if lids is not None:
+            both = lids & (True if ok is None else ok)
+            keep = iris_mask(r.gbuffer, r.rgba) & both
+            kw = sclera_mask(r.gbuffer, r.rgba) & both & ~keep if white_renders \
+                else np.zeros_like(keep)
+            if keep.sum() >= MIN_PIXELS:
+                from_person.append(i)
+                _rows_of(rows, photo, r, r0, i, keep | kw, white_renders, matte_renders)
+                n += int(keep.sum())
+                n_white += int(kw.sum())
+                iris_rows.append(keep[keep | kw])
+                continue
         keep = kept_pixels(photo, r, ok, None if eyes is None else eyes[0])
         if eyes is not None and (iris_mask(r.gbuffer, r.rgba) & eyes[0] & (
                 True if ok is None else ok)).sum() >= MIN_PIXELS:
             from_person.append(i)
         kw = kept_sclera_pixels(photo, r, ok, None if eyes is None else eyes[1]) & ~keep \
             if white_renders else np.zeros_like(keep)
-        m = keep | kw
-        q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
-        ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
-        rows["p"].append(photo[m].astype(np.float64))
-        rows["s"].append(q0 - ds)          # neither part's diffuse share
-        rows["di"].append(q - q0)
-        rows["ds"].append(ds)
-        rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
-                          else np.zeros_like(q))
+        _rows_of(rows, photo, r, r0, i, keep | kw, white_renders, matte_renders)
         n += int(keep.sum())
         n_white += int(kw.sum())
-        iris_rows.append(keep[m])
+        iris_rows.append(keep[keep | kw])
     arrays = [np.concatenate(rows[k]) if rows[k] else np.zeros((0, 3))
               for k in ("p", "s", "di", "ds", "dg")]
     return arrays, n, n_white, (np.concatenate(iris_rows) if iris_rows
                                 else np.zeros(0, bool)), from_person
+
+
+def _rows_of(rows: dict, photo, r, r0, i: int, m: np.ndarray, white_renders,
+             matte_renders) -> None:
+    """Append the pixels ``m`` of view ``i`` to ``rows`` (:func:`_eye_rows`)."""
+    q, q0 = (x.rgba[..., :3][m].astype(np.float64) for x in (r, r0))
+    ds = q - white_renders[i].rgba[..., :3][m] if white_renders else np.zeros_like(q)
+    rows["p"].append(photo[m].astype(np.float64))
+    rows["s"].append(q0 - ds)          # neither part's diffuse share
+    rows["di"].append(q - q0)
+    rows["ds"].append(ds)
+    rows["dg"].append(q - matte_renders[i].rgba[..., :3][m] if matte_renders
+                      else np.zeros_like(q))
 
 
 def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray) -> float:
@@ -302,7 +350,8 @@ def _iris_gloss(p: np.ndarray, rest: np.ndarray, di: np.ndarray, dg: np.ndarray)
 
 
 def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool,
-           hold_iris: bool, iris_rows=None) -> tuple[np.ndarray, np.ndarray, float]:
+           hold_iris: bool, iris_rows=None, bounds=SCLERA_BOUNDS
+           ) -> tuple[np.ndarray, np.ndarray, float]:
     """(the iris's gains, the whites' gains, the gloss): per channel one bounded linear
     least-squares solve (``hold_iris``: the iris at its colour); the gloss (where
     ``gloss_tied``) the whites' luminance gain, at most 1 (the same light that makes the
@@ -312,7 +361,7 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
     squares over the iris's pixels (``iris_rows``), the colours held; the cap only comes
     down."""
     p, s_, di, ds, dg = rows
-    lo_w, hi_w = (b / s0 for b in SCLERA_BOUNDS)
+    lo_w, hi_w = (b / s0 for b in bounds)
     gloss, cap, gi, gw = 1.0, 1.0, np.ones(3), np.ones(3)
     for _ in range(8 if white_ok and gloss_tied else 1):
         base = s_ - (1.0 - gloss) * dg          # the rest, with the gloss at its share
@@ -334,10 +383,41 @@ def _gains(rows, s0: np.ndarray, iris_ok: bool, white_ok: bool, gloss_tied: bool
     return gi, gw, gloss
 
 
+def _encoded_gains(rows, s0: np.ndarray, gi: np.ndarray, gw: np.ndarray, gloss: float,
+                   bounds=SCLERA_BOUNDS_OPENING) -> tuple[np.ndarray, np.ndarray]:
+    """The iris's and the whites' gains refined so that the renders match the photo in
+    sRGB-encoded values (what the eyes' figure compares, and the eye sees: the linear
+    solve weighs a bright pixel's error most, the catchlights and the whites, so a dark
+    iris comes out too light), per channel from the linear solution, within the same
+    bounds (the iris's at least 0, the whites' ``bounds``), the gloss held."""
+    import colour
+    from scipy.optimize import least_squares
+
+    p, s_, di, ds, dg = rows
+    base = s_ - (1.0 - gloss) * dg
+    lo_w, hi_w = (b / s0 for b in bounds)
+
+    def enc(x):
+        return colour.cctf_encoding(np.clip(x, 0.0, 1.0))
+
+    gi, gw = gi.copy(), gw.copy()
+    for c in range(3):
+        target = enc(p[:, c])
+
+        def res(x, c=c, target=target):
+            return enc(base[:, c] + x[0] * di[:, c] + x[1] * ds[:, c]) - target
+
+        x0 = np.clip([gi[c], gw[c]], [0.0, lo_w[c]], [np.inf, hi_w[c]])
+        x0[1] = min(max(x0[1], lo_w[c] + 1e-9), hi_w[c] - 1e-9)
+        sol = least_squares(res, x0, bounds=([0.0, lo_w[c]], [np.inf, hi_w[c]]))
+        gi[c], gw[c] = sol.x
+    return gi, gw
+
+
 def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, current,
              grey: bool = False, allowed: list | None = None, white_renders: list | None = None,
-             sclera=None, matte_renders: list | None = None, person: list | None = None
-             ) -> tuple[tuple[float, float, float], dict]:
+             sclera=None, matte_renders: list | None = None, person: list | None = None,
+             opening: list | None = None) -> tuple[tuple[float, float, float], dict]:
     """The iris colour, and with ``white_renders`` the eye whites' too, that make the
     renders match ``photos`` (linear RGB, each at its render's size) over the iris's and
     the whites' pixels (and ``allowed``'s, e.g. not the photo's occluders). ``renders``
@@ -363,16 +443,24 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     s0 = np.asarray(SCLERA_RGB if sclera is None else sclera, np.float64)
     whites = white_renders is not None
     rows, n, n_white, iris_rows, from_person = _eye_rows(
-        photos, renders, zero_renders, white_renders, matte_renders, allowed, person)
+        photos, renders, zero_renders, white_renders, matte_renders, allowed, person,
+        opening)
     if grey:  # the luminance only: one gain per part for all channels
         rows = [np.repeat((x @ _LUMA)[:, None], 3, 1) for x in rows]
     iris_ok = n >= MIN_PIXELS and bool(np.all(rows[2].sum(0) > 0))
     white_ok = whites and n_white >= MIN_PIXELS and bool(np.all(rows[3].sum(0) > 0))
     tied = bool(matte_renders)
-    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows)
+    sb = SCLERA_BOUNDS_OPENING if opening is not None and from_person else SCLERA_BOUNDS
+    gain_i, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, not iris_ok, iris_rows,
+                                   sb)
+    if opening is not None and from_person and iris_ok and white_ok and not grey:
+        gain_i, gain_w = _encoded_gains(rows, s0, gain_i, gain_w, gloss, sb)
     rgb = current * gain_i
     report = {"pixels": n, "start": current.tolist(),
-              "pixels_from": ("the photo's irises (the face mesh's iris landmarks) under "
+              "pixels_from": ("the render's iris and whites inside the photo's lid "
+                              f"contours (the face mesh's), views {from_person}"
+                              if from_person and opening is not None else
+                              "the photo's irises (the face mesh's iris landmarks) under "
                               f"the render's, views {from_person}" if from_person else
                               "the render's iris (photo luminance percentiles "
                               f"{list(KEEP_PERCENTILES)})")}
@@ -386,7 +474,7 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
         report["source"] = (f"kept: the estimate {np.round(rgb, 4).tolist()} is beyond "
                             f"{list(RGB_BOUNDS)} (a photo the render's iris cannot explain)")
         rgb = current
-        _, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, True)
+        _, gain_w, gloss = _gains(rows, s0, iris_ok, white_ok, tied, True, None, sb)
     else:
         # darker than the darkest allowed (the photo's eyes in shadow, or darker than the
         # render's gloss alone): held there
@@ -398,10 +486,10 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     if whites:
         report.update(sclera_pixels=n_white, sclera_start=s0.tolist())
         if white_ok:
-            sc = np.clip(s0 * gain_w, *SCLERA_BOUNDS)
-            held = np.any(np.isclose(sc, SCLERA_BOUNDS[0]) | np.isclose(sc, SCLERA_BOUNDS[1]))
+            sc = np.clip(s0 * gain_w, *sb)
+            held = np.any(np.isclose(sc, sb[0]) | np.isclose(sc, sb[1]))
             report.update(sclera_rgb=sc.tolist(), sclera_source=how + (
-                f"; held within {list(SCLERA_BOUNDS)}" if held else ""))
+                f"; held within {list(sb)}" if held else ""))
             if tied:
                 report["eye_gloss"] = gloss
         else:
@@ -410,16 +498,28 @@ def estimate(photos: list[np.ndarray], renders: list, zero_renders: list, curren
     return tuple(float(x) for x in rgb), report
 
 
-def _at_render_size(state, renders: list, allowed: list | None, person: list | None = None):
-    """The views' photos, ``allowed`` masks (photo-size, or None) and ``person``'s eyes
-    (photo-size (iris, whites), or None) at each render's size."""
+def _at_render_size(state, renders: list, allowed: list | None, person: list | None = None,
+                    opening: list | None = None):
+    """The views' photos, ``allowed`` masks (photo-size, or None), ``person``'s eyes
+    (photo-size (iris, whites), or None) and ``opening``'s masks at each render's size
+    (the last only where ``opening`` is given)."""
     sizes = [r.rgba.shape[:2] for r in renders]
     photos = [photo_at(v, *hw) for v, hw in zip(state.views, sizes)]
     masks = [None if a is None else mask_at(a, *hw)
              for a, hw in zip(allowed or [None] * len(sizes), sizes)]
     eyes = [None if e is None else (mask_at(e[0], *hw), mask_at(e[1], *hw))
             for e, hw in zip(person or [None] * len(sizes), sizes)]
-    return photos, masks, eyes
+    if opening is None:
+        return photos, masks, eyes
+    lids = [None if o is None else mask_at(o, *hw)
+            for o, hw in zip(opening, sizes)]
+    return photos, masks, eyes, lids
+
+
+def views_openings(state) -> list:
+    """Per view the person's eye openings in its photo (:func:`photo_opening`, at the
+    photo's size), or None where the face mesh finds no face."""
+    return [photo_opening(v.photo.uint8(), v.detection.points) for v in state.views]
 
 
 def views_eyes(state) -> list:
@@ -430,14 +530,15 @@ def views_eyes(state) -> list:
 
 
 def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None,
-               whites: bool = True, person: list | None = None
-               ) -> tuple[tuple[float, float, float], dict]:
+               whites: bool = True, person: list | None = None,
+               opening: list | None = None) -> tuple[tuple[float, float, float], dict]:
     """The iris colour of the state's views (:func:`estimate`), from renders per view at
     the photo's size (at most ``cfg.final.max_side``), ``spp`` samples, one seed: the
     default eyes, a black iris, and (``whites``) a black sclera and eyes without their wet
     gloss, with ``maps`` (default: the fitted skin maps). ``allowed``: per view a
     photo-size bool mask of the pixels it may use, or None; ``person``: per view the
-    photo's own (iris, whites) (:func:`views_eyes`), or None. The report's ``sclera_rgb``
+    photo's own (iris, whites) (:func:`views_eyes`), or None; ``opening``: per view the
+    photo's eye openings (:func:`views_openings`), or None. The report's ``sclera_rgb``
     and ``eye_gloss`` are the eye whites' colour and the eyes' gloss."""
     maps = maps if maps is not None else texture.skin_maps(state)
     black = (0.0, 0.0, 0.0)
@@ -447,11 +548,11 @@ def fit_colour(state, cfg, allowed: list | None = None, spp: int = 16, maps=None
     per_view = [texture.render_eye_variants(state, cfg, v, maps, variants, spp,
                                             cfg.final.max_side) for v in state.views]
     out = [list(r) for r in zip(*per_view)]       # per variant, the views' renders
-    photos, masks, eyes = _at_render_size(state, out[0], allowed, person)
+    photos, masks, eyes, *lids = _at_render_size(state, out[0], allowed, person, opening)
     grey = all(v.photo.is_grey for v in state.views)
     return estimate(photos, out[0], out[1], DEFAULT_IRIS_RGB, grey, masks,
                     out[2] if whites else None, SCLERA_RGB, out[3] if whites else None,
-                    eyes)
+                    eyes, lids[0] if lids else None)
 
 
 def residual(state, renders: list, allowed: list | None = None, part: str = "iris",

@@ -144,6 +144,8 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None) -> list[P
         arrays[f"view{i}_theta"] = np.asarray(p["theta"], np.float32)
         arrays[f"view{i}_psi"] = np.asarray(p["psi"], np.float32)
         arrays[f"view{i}_global_orient"] = np.asarray(p["global_orient"], np.float32)
+        if v.gaze is not None:  # the eyeballs' (yaw, pitch), radians (fit/eyes.py)
+            arrays[f"view{i}_gaze"] = v.gaze.detach().numpy().astype(np.float32)
         cam = camera_dict(v)
         arrays[f"view{i}_K"] = np.asarray(cam["K"])
         arrays[f"view{i}_R"] = np.asarray(cam["R"])
@@ -216,6 +218,7 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None) -> list[P
               # photometric.balance_albedo: the skin's colour moved from the light to alpha
               "albedo_balance": state.albedo_balance or None,
               "final": final.report if final is not None else None,
+              "eyes": getattr(res, "eyes", None),
               "landmark_embedding": (state.embedding.meta.get("provenance")
                                      if state.embedding is not None else None),
               "landmark_refiner": _refiner_provenance(res)}

@@ -16,12 +16,14 @@ config and return reports; loss terms live in ``terms.py``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.fit import gaze
 from hack_render.fit.camera import R0
 from hack_render.fit.landmarks import JawContour
 from hack_render.fit.lighting import Lighting
@@ -90,6 +92,12 @@ class View:
     # the silhouette term's outer-contour points (edge pairs, parameters), None before
     sil_contour: tuple | None = None
     level: Level | None = None    # the current photometric level
+    # (2,) the eyeballs' gaze (yaw, pitch), radians (``fit/gaze.py``; the eyes' stage,
+    # ``fit/eyes.py``); None: looking ahead
+    gaze: torch.Tensor | None = None
+    # (h, w) bool at the photo's size: the person's eye openings (the face mesh's lid
+    # contours, iris.photo_opening; set by the final stage); None: not known
+    eye_opening: np.ndarray | None = None
 
     @property
     def focal(self) -> torch.Tensor:
@@ -135,9 +143,17 @@ class FitState:
         """(1, 8, 3) neck pose: the head rotation's anatomical share plus the residual."""
         return (distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta)[None]
 
-    def forward(self, v: View):
-        return self.model(beta=self.beta, psi=self.view_psi(v), theta=self.theta(v),
-                          global_orient=v.global_orient[None], eta=self.eta, tau=self.tau)
+    def forward(self, v: View, psi: torch.Tensor | None = None):
+        """The model's output for view ``v`` (``psi``: this expression instead of the
+        view's), its eyeballs turned by the view's gaze (``fit/gaze.py``) where it has one."""
+        out = self.model(beta=self.beta, psi=self.view_psi(v) if psi is None else psi,
+                         theta=self.theta(v), global_orient=v.global_orient[None],
+                         eta=self.eta, tau=self.tau)
+        if v.gaze is None:
+            return out
+        verts = gaze.apply_gaze(gaze.eye_rig(self.model), out.vertices[0],
+                                out.rest_vertices[0], v.gaze)
+        return dataclasses.replace(out, vertices=verts[None])
 
     def project(self, v: View, X: torch.Tensor) -> torch.Tensor:
         """World points (..., 3) -> photo pixels (..., 2) (continuous coordinates)."""
