@@ -15,7 +15,7 @@ from hack_render.fit.outputs import write_all
 from hack_render.geometry.params import save_params, save_sequence
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
-from hack_render.render.mesh_views import MeshViews
+from hack_render.render.raster import render_shaded
 from hack_render.track.pipeline import TrackResult, sequence_of
 from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
@@ -58,10 +58,19 @@ def _dots(img: np.ndarray, pts: np.ndarray, colour, r: int = 1) -> None:
         img[max(0, yi - r):min(h, yi + r + 1), max(0, xi - r):min(w, xi + r + 1)] = colour
 
 
+def blend(img: np.ndarray, rgba: np.ndarray, opacity: float = 0.6) -> np.ndarray:
+    """The frame (H, W, 3) uint8 with the linear render ``rgba`` over it at ``opacity``
+    (gamma 2.2 for display), where the render covers it."""
+    a = opacity * rgba[..., 3:4]
+    shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
+    return (img * (1 - a) + shade * a).astype(np.uint8)
+
+
 def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Path:
-    """MP4 at the clip's rate: each frame with the fitted model ray cast over it (shaded,
-    60 % opacity), the detected landmarks (green) and the model's (red); lost frames say
-    so in a red band."""
+    """MP4 at the clip's rate: each frame with the fitted model drawn over it (shaded,
+    60 % opacity; rasterised, :func:`~hack_render.render.raster.render_shaded`: the image
+    of the mesh viewer's ray caster in a fraction of its time), the detected landmarks
+    (green) and the model's (red); lost frames say so in a red band."""
 
     clip, cam = result.clip, result.camera
     w, h = clip.work
@@ -70,7 +79,6 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
     faces = result.fit.model.faces.numpy()
     _, _, uv = landmark_error(result.rig, cam, result.params, result.landmarks.points,
                               result.landmarks.found)
-    views = None
     chunk = 16
     verts = None
     with Mp4Writer(path, (w, h), clip.fps) as out:
@@ -78,15 +86,8 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
                                      unit="frame", disable=not progress, leave=False)):
             if i % chunk == 0:
                 verts = frame_vertices(result, i, min(clip.frames, i + chunk))
-            v = verts[i % chunk]
-            if views is None:
-                views = MeshViews(v, faces, width=w, height=h)
-            else:
-                views.set_vertices(v, faces)
-            rgba = views.render(camera, supersample=1)
-            a = 0.6 * rgba[..., 3:4]
-            shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
-            frame = (img * (1 - a) + shade * a).astype(np.uint8)
+            rgba = render_shaded(verts[i % chunk], faces, camera)
+            frame = blend(img, rgba)
             _dots(frame, result.landmarks.points[i], (40, 220, 60))
             _dots(frame, uv[i], (230, 40, 40))
             if not result.landmarks.found[i]:
