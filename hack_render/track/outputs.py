@@ -22,6 +22,10 @@ from hack_render.track.video import Mp4Writer
 from scenes.cameras import Camera
 
 
+#: render passes of the identity's overlay sheets (``fit.outputs.write_overlays``)
+IDENTITY_SHEET_PASSES = 4
+
+
 def jitter(x: np.ndarray) -> float:
     """Mean magnitude of the frame-to-frame acceleration of a (T, ...) series: the
     trailing axis is one vector (a point's x, y; a joint's axis-angle), the axes between
@@ -58,6 +62,15 @@ def _dots(img: np.ndarray, pts: np.ndarray, colour, r: int = 1) -> None:
         img[max(0, yi - r):min(h, yi + r + 1), max(0, xi - r):min(w, xi + r + 1)] = colour
 
 
+def skin_faces(model) -> np.ndarray:
+    """(F,) the triangles of the model's skin (``M_Face``, ``M_BackHead``): a closed
+    surface seen from outside (its holes filled by the eyes and the mouth), so the
+    overlay's rasteriser culls their back faces."""
+    names = [n for n in ("M_Face", "M_BackHead") if n in model.material_names]
+    ids = [list(model.material_names).index(n) for n in names]
+    return np.isin(model.face_material.numpy(), ids)
+
+
 def blend(img: np.ndarray, rgba: np.ndarray, opacity: float = 0.6) -> np.ndarray:
     """The frame (H, W, 3) uint8 with the linear render ``rgba`` over it at ``opacity``
     (gamma 2.2 for display), where the render covers it."""
@@ -76,7 +89,9 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
     w, h = clip.work
     K = np.array([[cam.focal, 0, w / 2], [0, cam.focal, h / 2], [0, 0, 1.0]])
     camera = Camera(K, R0.double().numpy(), np.asarray(cam.cam_t, np.float64), w, h, "clip")
-    faces = result.fit.model.faces.numpy()
+    model = result.fit.model
+    faces = model.faces.numpy()
+    closed = skin_faces(model)
     _, _, uv = landmark_error(result.rig, cam, result.params, result.landmarks.points,
                               result.landmarks.found)
     chunk = 16
@@ -86,7 +101,7 @@ def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Pat
                                      unit="frame", disable=not progress, leave=False)):
             if i % chunk == 0:
                 verts = frame_vertices(result, i, min(clip.frames, i + chunk))
-            rgba = render_shaded(verts[i % chunk], faces, camera)
+            rgba = render_shaded(verts[i % chunk], faces, camera, closed=closed)
             frame = blend(img, rgba)
             _dots(frame, result.landmarks.points[i], (40, 220, 60))
             _dots(frame, uv[i], (230, 40, 40))
@@ -307,7 +322,10 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written."""
     written = []
-    written += write_all(result.fit, outdir / "identity")
+    # the keyframe fit's sheets: 4 render passes (16 spp), not the photo fit's 16 (their
+    # 80 path-traced renders took about a tenth of the command's CPU time; the render
+    # panel is a little noisier)
+    written += write_all(result.fit, outdir / "identity", sheet_passes=IDENTITY_SHEET_PASSES)
     person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
     written.append(save_params(outdir / "person.json", person))
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
