@@ -16,7 +16,7 @@ from hack_render.geometry.params import save_params, save_sequence
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
 from hack_render.render.raster import render_shaded
-from hack_render.track.pipeline import TrackResult, sequence_of
+from hack_render.track.pipeline import TrackResult, sequence_of, timed
 from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
 from scenes.cameras import Camera
@@ -325,7 +325,9 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     # the keyframe fit's sheets: 4 render passes (16 spp), not the photo fit's 16 (their
     # 80 path-traced renders took about a tenth of the command's CPU time; the render
     # panel is a little noisier)
-    written += write_all(result.fit, outdir / "identity", sheet_passes=IDENTITY_SHEET_PASSES)
+    with timed(result.timings, "identity_files"):   # the report's timings_s has them
+        written += write_all(result.fit, outdir / "identity",
+                             sheet_passes=IDENTITY_SHEET_PASSES)
     person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
     written.append(save_params(outdir / "person.json", person))
     written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
@@ -334,7 +336,8 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     written.append(write_tracked_points(result, outdir / "tracked_landmarks.npz"))
     written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
     if overlay:
-        written.append(write_overlay(result, outdir / "overlay.mp4", progress))
+        with timed(result.timings, "overlay"):
+            written.append(write_overlay(result, outdir / "overlay.mp4", progress))
     if result.larynx is not None:
         written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
     rep = report_dict(result, truth)
