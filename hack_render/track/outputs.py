@@ -21,7 +21,6 @@ from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
 from scenes.cameras import Camera
 
-
 #: render passes of the identity's overlay sheets (``fit.outputs.write_overlays``)
 IDENTITY_SHEET_PASSES = 4
 
