@@ -166,10 +166,12 @@ def small_clip(tmp_path_factory):
     return out, truth
 
 
-def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
+def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path, monkeypatch):
     """A clip rendered with known motion: the command writes every output; the sequence
     animates the person (export reads it back), the overlay has one frame per frame, and
-    the head rotation and joints are recovered within a few degrees."""
+    the head rotation and joints are recovered within a few degrees. The overlay is
+    written in a thread beside the identity's files: a failure of those abandons it
+    (no overlay.mp4, no temporary left)."""
     from hack_render.fit.config import load_config, tiny_overrides
     from hack_render.geometry.params import load_sequence
     from hack_render.render.video import count_mp4_frames
@@ -216,6 +218,18 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path):
     assert rep["truth"]["theta_joint_deg"]["mean"] < 3.0, rep["truth"]["theta_joint_deg"]
     assert rep["landmark_nme"]["median"] < 0.08
     assert json.loads((tmp_path / "out" / "track_run.json").read_text())["complete"] is True
+    assert {"overlay_s", "identity_files_s"} <= set(rep["timings_s"])
+    from hack_render.track import outputs
+
+    def broken(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(outputs, "write_all", broken)
+    again = tmp_path / "again"
+    again.mkdir()
+    with pytest.raises(RuntimeError, match="disk full"):
+        outputs.write_outputs(res, None, again, progress=False)
+    assert list(again.iterdir()) == []
 
 
 def test_07_a_real_face_follows_a_known_roll(tmp_path):
