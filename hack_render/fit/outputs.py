@@ -121,9 +121,12 @@ def _focal_entry(cfg, v) -> dict:
             "prior_log_sigma": sigma, "source": source}
 
 
-def write_all(res: FitResult, outdir: Path, extra: dict | None = None) -> list[Path]:
+def write_all(res: FitResult, outdir: Path, extra: dict | None = None,
+              sheet_passes: int = 16) -> list[Path]:
     """Write everything of the fit ``res`` (its state and its final stage's renders) to
-    ``outdir``; returns the paths written."""
+    ``outdir``; returns the paths written. ``sheet_passes``: the overlay sheets' render
+    passes where the final stage did not run (:func:`_final_render`; fewer, a noisier
+    render panel, faster)."""
     outdir = Path(outdir)
     state, final = res.state, res.final
     outdir.mkdir(parents=True, exist_ok=True)
@@ -187,7 +190,7 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None) -> list[P
                 written.append(outdir / f"{stem}.mtl")
     if final is not None:
         written += write_photo_renders(res, final, outdir)
-    written += write_overlays(res, outdir, final)
+    written += write_overlays(res, outdir, final, sheet_passes)
     written += write_losses(res, outdir)
     report = {"timings_s": res.timings, "total_s": float(sum(res.timings.values())),
               "failures": res.failures, "config": res.config.to_dict(),
@@ -377,11 +380,11 @@ def _final_in_level(final, i: int, v) -> np.ndarray:
     return img
 
 
-def write_overlays(res: FitResult, outdir: Path, final=None) -> list[Path]:
+def write_overlays(res: FitResult, outdir: Path, final=None, passes: int = 16) -> list[Path]:
     """Overlay sheet per view: photo, landmarks (detected green, fitted red), render,
     render over photo, error map. With ``final`` (:class:`FinalRenders`) the render
     panels show ``render.png`` (the baked skin, no visible noise); else a render of the
-    last photometric level with the fitted maps."""
+    last photometric level with the fitted maps (``passes`` renders averaged)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -393,7 +396,8 @@ def write_overlays(res: FitResult, outdir: Path, final=None) -> list[Path]:
         if v.renderer is None:  # photometric stage off: build a level for the sheet
             setup_level(state, cfg, v, int(cfg.photometric.resolutions[-1]))
         lv = v.level
-        img = _final_in_level(final, i, v) if final is not None else _final_render(state, v)
+        img = (_final_in_level(final, i, v) if final is not None
+               else _final_render(state, v, passes))
         target = lv.target.numpy()
         photo8 = to_srgb8(target, 0.0, "clip")
         photo8[~on_photo(v.photo.height, v.photo.width, lv.H, lv.res)] = 0  # (not its edge

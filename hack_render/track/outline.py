@@ -279,6 +279,7 @@ class OutlineTerm:
 
         self.centre = -(R0.double().T @ torch.as_tensor(camera.cam_t, dtype=torch.float64)).numpy()
         self.rest = self.pairs = self.S = None
+        self._cache = None   # (window, frames with a mask, their float64 maps)
 
     def select(self, params) -> None:
         """Re-select every frame's contour and rest mesh at ``params``
@@ -352,38 +353,57 @@ class OutlineTerm:
             keep &= uv[:, 1] <= limit
         return pairs[keep], t[keep]
 
-    def points(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
-        """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D)."""
+    def points(self, x: torch.Tensor, frames) -> torch.Tensor:
+        """(T', |S|, 3) the term's vertices posed by LBS at parameters x (T', D) of
+        ``frames`` (a slice or index tensor into the clip)."""
         h, g, t = x[:, :3], x[:, 3:6], x[:, 6:9]
         rot = local_rotations(distribute_head_rotation(h, clamp=False), g)
         _, rel = rigid_transforms(rot, self.nodes.expand(len(x), -1, -1), self.parents)
-        return skin(self.rest[sl], self.weights, rel) + t[:, None]
+        return skin(self.rest[frames], self.weights, rel) + t[:, None]
 
-    def _contour(self, P: torch.Tensor, sl: slice) -> torch.Tensor:
-        """(T', C, 3) frames ``sl``'s contour points on their edges of the posed term
-        vertices P (T', |S|, 3) (padding rows: ``valid`` 0)."""
-        pairs, t = self.pairs[sl], self.t[sl]
+    def _contour(self, P: torch.Tensor, frames) -> torch.Tensor:
+        """(T', C, 3) the contour points of ``frames`` (a slice or index tensor) on their
+        edges of the posed term vertices P (T', |S|, 3) (padding rows: ``valid`` 0)."""
+        pairs, t = self.pairs[frames], self.t[frames]
         a = torch.gather(P, 1, pairs[..., 0:1].expand(-1, -1, 3))
         b = torch.gather(P, 1, pairs[..., 1:2].expand(-1, -1, 3))
         return a + t[..., None] * (b - a)
 
+    def _window_masks(self, sl: slice) -> tuple[torch.Tensor, FrameMasks]:
+        """The frames of window ``sl`` with a mask (indices into the clip) and their
+        distance maps in float64, converted once per window (the solve evaluates the
+        term a hundred times a window; converting the window's whole float16 stack on
+        each call took half the stage's time)."""
+        key = (sl.start, sl.stop)
+        if self._cache is None or self._cache[0] != key:
+            idx = torch.as_tensor(np.flatnonzero(self.masks.has[sl]) + (sl.start or 0))
+            sdf = self.masks.sdf[idx].to(torch.float64)
+            self._cache = key, idx, FrameMasks(sdf, self.masks.scale,
+                                               np.ones(len(idx), bool), [])
+        return self._cache[1], self._cache[2]
+
     def frame_costs(self, x: torch.Tensor, sl: slice) -> torch.Tensor:
-        """(T',) the outline cost of frames ``sl`` at parameters x (T', D)."""
-        P = self.points(x, sl)
+        """(T',) the outline cost of frames ``sl`` at parameters x (T', D) (0 where a
+        frame has no mask: only the frames with one are evaluated)."""
+        idx, masks = self._window_masks(sl)
+        out = x.new_zeros(len(x))
+        if len(idx) == 0:
+            return out
+        local = idx - (sl.start or 0)
+        P = self.points(x[local], idx)
         k = self.knee
-        scale = self.scale[sl][:, None]
+        scale = self.scale[idx][:, None]
 
         def rho(r):
             return k * k * (torch.sqrt(1 + (r / k) ** 2) - 1)
 
-        masks = FrameMasks(self.masks.sdf[sl], self.masks.scale, self.masks.has[sl], [])
-        d, ok = masks.distance(self.camera.project(self._contour(P, sl)))
-        w = self.valid[sl] * ok
+        d, ok = masks.distance(self.camera.project(self._contour(P, idx)))
+        w = self.valid[idx] * ok
         contour = (rho(d / scale) * w).sum(1) / w.sum(1).clamp_min(1.0)
         d, ok = masks.distance(self.camera.project(P[:, self.inside_local]))
         inside = (rho(torch.relu(d) / scale) * ok).sum(1) / ok.sum(1).clamp_min(1)
-        has = torch.as_tensor(self.masks.has[sl], dtype=x.dtype)
-        return 68.0 * has * (self.cfg.contour * contour + self.cfg.inside * inside)
+        cost = 68.0 * (self.cfg.contour * contour + self.cfg.inside * inside)
+        return out.index_add(0, local, cost)
 
     def distances(self, params) -> np.ndarray:
         """(T,) each frame's mean absolute distance (px) of its contour points from the

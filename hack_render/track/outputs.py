@@ -3,6 +3,8 @@ landmarks, the overlay video and the report."""
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +17,14 @@ from hack_render.fit.outputs import write_all
 from hack_render.geometry.params import save_params, save_sequence
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
-from hack_render.render.mesh_views import MeshViews
+from hack_render.render.raster import render_shaded
 from hack_render.track.pipeline import TrackResult, sequence_of
 from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
 from scenes.cameras import Camera
+
+#: render passes of the identity's overlay sheets (``fit.outputs.write_overlays``)
+IDENTITY_SHEET_PASSES = 4
 
 
 def jitter(x: np.ndarray) -> float:
@@ -58,35 +63,51 @@ def _dots(img: np.ndarray, pts: np.ndarray, colour, r: int = 1) -> None:
         img[max(0, yi - r):min(h, yi + r + 1), max(0, xi - r):min(w, xi + r + 1)] = colour
 
 
-def write_overlay(result: TrackResult, path: Path, progress: bool = True) -> Path:
-    """MP4 at the clip's rate: each frame with the fitted model ray cast over it (shaded,
-    60 % opacity), the detected landmarks (green) and the model's (red); lost frames say
-    so in a red band."""
+def skin_faces(model) -> np.ndarray:
+    """(F,) the triangles of the model's skin (``M_Face``, ``M_BackHead``): a closed
+    surface seen from outside (its holes filled by the eyes and the mouth), so the
+    overlay's rasteriser culls their back faces."""
+    names = [n for n in ("M_Face", "M_BackHead") if n in model.material_names]
+    ids = [list(model.material_names).index(n) for n in names]
+    return np.isin(model.face_material.numpy(), ids)
+
+
+def blend(img: np.ndarray, rgba: np.ndarray, opacity: float = 0.6) -> np.ndarray:
+    """The frame (H, W, 3) uint8 with the linear render ``rgba`` over it at ``opacity``
+    (gamma 2.2 for display), where the render covers it."""
+    a = opacity * rgba[..., 3:4]
+    shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
+    return (img * (1 - a) + shade * a).astype(np.uint8)
+
+
+def write_overlay(result: TrackResult, path: Path, progress: bool = True,
+                  stop: threading.Event | None = None) -> Path:
+    """MP4 at the clip's rate: each frame with the fitted model drawn over it (shaded,
+    60 % opacity; rasterised, :func:`~hack_render.render.raster.render_shaded`: the image
+    of the mesh viewer's ray caster in a fraction of its time), the detected landmarks
+    (green) and the model's (red); lost frames say so in a red band. ``stop``: set, the
+    video is abandoned (nothing written) at the next frame."""
 
     clip, cam = result.clip, result.camera
     w, h = clip.work
     K = np.array([[cam.focal, 0, w / 2], [0, cam.focal, h / 2], [0, 0, 1.0]])
     camera = Camera(K, R0.double().numpy(), np.asarray(cam.cam_t, np.float64), w, h, "clip")
-    faces = result.fit.model.faces.numpy()
+    model = result.fit.model
+    faces = model.faces.numpy()
+    closed = skin_faces(model)
     _, _, uv = landmark_error(result.rig, cam, result.params, result.landmarks.points,
                               result.landmarks.found)
-    views = None
     chunk = 16
     verts = None
     with Mp4Writer(path, (w, h), clip.fps) as out:
         for i, img in enumerate(tqdm(clip.read(), total=clip.frames, desc="overlay",
                                      unit="frame", disable=not progress, leave=False)):
+            if stop is not None and stop.is_set():
+                raise _Stopped
             if i % chunk == 0:
                 verts = frame_vertices(result, i, min(clip.frames, i + chunk))
-            v = verts[i % chunk]
-            if views is None:
-                views = MeshViews(v, faces, width=w, height=h)
-            else:
-                views.set_vertices(v, faces)
-            rgba = views.render(camera, supersample=1)
-            a = 0.6 * rgba[..., 3:4]
-            shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
-            frame = (img * (1 - a) + shade * a).astype(np.uint8)
+            rgba = render_shaded(verts[i % chunk], faces, camera, closed=closed)
+            frame = blend(img, rgba)
             _dots(frame, result.landmarks.points[i], (40, 220, 60))
             _dots(frame, uv[i], (230, 40, 40))
             if not result.landmarks.found[i]:
@@ -302,22 +323,73 @@ def write_tracked_points(result: TrackResult, path: Path) -> Path:
     return path
 
 
+class _Stopped(Exception):
+    """The overlay was abandoned (the command failed or was interrupted meanwhile)."""
+
+
+class _OverlayJob(threading.Thread):
+    """``write_overlay`` in a thread, beside the identity's files (on two idle cores the
+    two overlap: the rasteriser's NumPy and the sheets' renders release the GIL);
+    ``timings`` gets ``overlay_s`` and ``overlay_cpu_s`` (this thread's CPU time)."""
+
+    def __init__(self, result: TrackResult, path: Path, progress: bool):
+        super().__init__(name="overlay", daemon=True)
+        self.job, self.stop = (result, path, progress), threading.Event()
+        self.path = self.error = None
+
+    def run(self) -> None:
+        t, c = time.perf_counter(), time.thread_time()
+        try:
+            self.path = write_overlay(*self.job, stop=self.stop)
+        except _Stopped:
+            pass
+        except BaseException as err:  # noqa: BLE001 - re-raised by result()
+            self.error = err
+        timings = self.job[0].timings
+        timings["overlay_s"] = time.perf_counter() - t
+        timings["overlay_cpu_s"] = time.thread_time() - c
+
+    def result(self) -> Path:
+        self.join()
+        if self.error is not None:
+            raise self.error
+        return self.path
+
+
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
-    """Everything; the report last. Returns the paths written."""
+    """Everything; the report last. Returns the paths written. The overlay video is
+    written in a thread while the identity's files are (:class:`_OverlayJob`)."""
     written = []
-    written += write_all(result.fit, outdir / "identity")
-    person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
-    written.append(save_params(outdir / "person.json", person))
-    written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
-    result.landmarks.save(outdir / "landmarks.npz")
-    written.append(outdir / "landmarks.npz")
-    written.append(write_tracked_points(result, outdir / "tracked_landmarks.npz"))
-    written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
-    if overlay:
-        written.append(write_overlay(result, outdir / "overlay.mp4", progress))
-    if result.larynx is not None:
-        written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
+    job = _OverlayJob(result, outdir / "overlay.mp4", progress) if overlay else None
+    if job is not None:
+        job.start()
+    try:
+        # the keyframe fit's sheets: 4 render passes (16 spp), not the photo fit's 16
+        # (their 80 path-traced renders took about a tenth of the command's CPU time; the
+        # render panel is a little noisier). Timed in the report's timings_s (its CPU
+        # seconds: this thread's, the overlay's thread runs meanwhile)
+        t, c = time.perf_counter(), time.thread_time()
+        written += write_all(result.fit, outdir / "identity",
+                             sheet_passes=IDENTITY_SHEET_PASSES)
+        result.timings["identity_files_s"] = time.perf_counter() - t
+        result.timings["identity_files_cpu_s"] = time.thread_time() - c
+        person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
+        written.append(save_params(outdir / "person.json", person))
+        written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))
+        result.landmarks.save(outdir / "landmarks.npz")
+        written.append(outdir / "landmarks.npz")
+        written.append(write_tracked_points(result, outdir / "tracked_landmarks.npz"))
+        written.append(write_json(outdir / "camera.json", result.camera.to_dict(), indent=1))
+        if result.larynx is not None:
+            written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
+    except BaseException:
+        if job is not None:   # an error or an interrupt: the video is abandoned
+            job.stop.set()
+            job.join()
+        raise
+    if job is not None:
+        written.append(job.result())
     rep = report_dict(result, truth)
     written.append(write_json(outdir / "report.json", rep, indent=1))
     return written
