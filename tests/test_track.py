@@ -219,7 +219,26 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path, monkeypatc
     assert rep["landmark_nme"]["median"] < 0.08
     assert json.loads((tmp_path / "out" / "track_run.json").read_text())["complete"] is True
     assert {"overlay_s", "identity_files_s"} <= set(rep["timings_s"])
+    assert rep["timings_s"]["overlay_cpu_s"] > 0
     from hack_render.track import outputs
+
+    # the overlay's frames are drawn by worker threads and written in order: the same
+    # frames as drawn one by one
+    import cv2
+
+    monkeypatch.setattr(outputs, "OVERLAY_THREADS", 1)
+    outputs.write_overlay(res, tmp_path / "serial.mp4", progress=False)
+
+    def frames(path):
+        cap, out = cv2.VideoCapture(str(path)), []
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                return np.stack(out)
+            out.append(img)
+
+    np.testing.assert_array_equal(frames(tmp_path / "serial.mp4"),
+                                  frames(tmp_path / "out" / "overlay.mp4"))
 
     def broken(*a, **k):
         raise RuntimeError("disk full")

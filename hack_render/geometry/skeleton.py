@@ -14,6 +14,8 @@ Angles follow :mod:`hack_render.geometry.rotations`: (flexion X, axial Y, latera
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from hack_render.errors import expect
@@ -94,21 +96,28 @@ def head_rotation_range_deg() -> torch.Tensor:
     return torch.from_numpy(anatomy.head_rotation_range_deg())
 
 
-def _piecewise(m: torch.Tensor, knots, values, clamp: bool) -> torch.Tensor:
-    """A piecewise-linear map through (knots[k], values[k]) with values[0] = 0 at knots[0] =
-    0, at magnitudes m (...,) >= 0 -> (..., 8). Beyond the last knot: the last value
-    (``clamp``) or the line from the origin through it. Written as a sum of ramps so that
-    its gradient at 0 is the first segment's slope (the fitter starts there)."""
-    a = torch.tensor(knots, dtype=m.dtype, device=m.device)  # (K,), a copy: knots are read-only
-    e = torch.tensor(values, dtype=m.dtype, device=m.device)  # (K, 8)
+@functools.lru_cache(maxsize=64)
+def _ramps(knots_id: int, clamp: bool, dtype: torch.dtype, device: str):
+    """(knots (K,), the first segment's slope (8,), the slope changes at knots 1.. (K-1, 8))
+    of :func:`anatomy.head_share_knots`' table ``knots_id`` (axis * 2 + side)."""
+    a_np, e_np = anatomy.head_share_knots()[knots_id // 2][knots_id % 2]
+    a = torch.tensor(a_np, dtype=dtype, device=device)  # a copy: knots are read-only
+    e = torch.tensor(e_np, dtype=dtype, device=device)
     slope = (e[1:] - e[:-1]) / (a[1:] - a[:-1])[:, None]  # (K-1, 8)
     tail = torch.zeros_like(slope[:1]) if clamp else (e[-1] / a[-1])[None]
     slope = torch.cat([slope, tail])  # segment k starts at knot k
+    return a[1:], slope[0], slope[1:] - slope[:-1]
+
+
+def _piecewise(m: torch.Tensor, knots_id: int, clamp: bool) -> torch.Tensor:
+    """A piecewise-linear map through the knots (A[k], E[k]) of table ``knots_id`` of
+    :func:`anatomy.head_share_knots` (E[0] = 0 at A[0] = 0), at magnitudes m (...,) >= 0 ->
+    (..., 8). Beyond the last knot: the last value (``clamp``) or the line from the origin
+    through it. Written as a sum of ramps, ``m s_0 + sum_k relu(m - A_k) (s_k - s_{k-1})``,
+    so that its gradient at 0 is the first segment's slope (the fitter starts there)."""
+    a, s0, ds = _ramps(knots_id, clamp, m.dtype, str(m.device))
     m = m.unsqueeze(-1)  # (..., 1)
-    out = m * slope[0]
-    for k in range(1, len(a)):
-        out = out + torch.relu(m - a[k]) * (slope[k] - slope[k - 1])
-    return out
+    return m * s0 + torch.relu(m - a) @ ds
 
 
 def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.Tensor:
@@ -133,10 +142,10 @@ def distribute_head_rotation(angles: torch.Tensor, clamp: bool = True) -> torch.
     """
     expect(angles.shape[-1:] == (3,), "angles", "shape (..., 3)", f"shape {tuple(angles.shape)}")
     cols = []
-    for axis, (neg, pos) in enumerate(anatomy.head_share_knots()):
+    for axis in range(3):
         a = angles[..., axis]
         zero = torch.zeros_like(a)
-        up = _piecewise(torch.where(a >= 0, a, zero), *pos, clamp)
-        down = _piecewise(torch.where(a < 0, -a, zero), *neg, clamp)
+        up = _piecewise(torch.where(a >= 0, a, zero), 2 * axis + 1, clamp)
+        down = _piecewise(torch.where(a < 0, -a, zero), 2 * axis, clamp)
         cols.append(up - down)
     return euler_to_axis_angle(torch.stack(cols, -1))

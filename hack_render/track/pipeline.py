@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -96,6 +97,35 @@ class timed:
         self.timings[f"{self.name}_s"] = time.perf_counter() - self.t
         self.timings[f"{self.name}_cpu_s"] = time.process_time() - self.c
         return False
+
+
+class _Background(threading.Thread):
+    """``fn(*args, **kw)`` in a daemon thread (an interrupt of the command abandons it: it
+    writes nothing); :meth:`result` waits and returns it, or raises its error. Adds
+    ``<name>_s`` (its wall seconds) and ``<name>_cpu_s`` (its thread's CPU) to
+    ``timings``."""
+
+    def __init__(self, timings: dict, name: str, fn, *args, **kw):
+        super().__init__(name=name, daemon=True)
+        self.timings, self.label, self.call = timings, name, (fn, args, kw)
+        self.value = self.error = None
+        self.start()
+
+    def run(self) -> None:
+        t, c = time.perf_counter(), time.thread_time()
+        fn, args, kw = self.call
+        try:
+            self.value = fn(*args, **kw)
+        except BaseException as err:  # noqa: BLE001 - re-raised by result()
+            self.error = err
+        self.timings[f"{self.label}_s"] = time.perf_counter() - t
+        self.timings[f"{self.label}_cpu_s"] = time.thread_time() - c
+
+    def result(self):
+        self.join()
+        if self.error is not None:
+            raise self.error
+        return self.value
 
 
 def pick_keyframes(found: np.ndarray, count: int, points: np.ndarray) -> list[int]:
@@ -216,6 +246,16 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     by_dlib = landmarks.found & np.array([src == "dlib" for src in landmarks.source])
     keys = pick_keyframes(by_dlib if by_dlib.any() else landmarks.found, keyframes,
                           landmarks.points)
+    masking = None
+    if outline_on:  # the outline stage's masks need only the frames and their landmarks:
+        # made in a thread while the keyframe fit runs (its torch work and the masks'
+        # face mesh and NumPy share the two cores)
+        sc = (config or FitConfig()).silhouette
+        mode = outline_mask or OUTLINE_MASK
+        masking = _Background(timings, "outline_masks", frame_masks, clip.read(),
+                              landmarks.points, landmarks.found.copy(), segment=sc.segment,
+                              chroma=sc.chroma, mode=mode,
+                              every=OUTLINE_EVERY if mode == "head_neck" else 1)
     with timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     state = fitter.state
@@ -245,13 +285,9 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     tau = np.full(clip.frames, float(fit.tau.detach().reshape(-1)[0]))
     eta = float(fit.eta.detach().reshape(-1)[0])
     placed = None  # the outline stage's OutlineResult
-    if outline_on:
-        sc = (config or FitConfig()).silhouette
-        mode = outline_mask or OUTLINE_MASK
+    if masking is not None:
         with timed(timings, "outline"):
-            masks = frame_masks(clip.read(), obs, found, segment=sc.segment,
-                                chroma=sc.chroma, mode=mode,
-                                every=OUTLINE_EVERY if mode == "head_neck" else 1)
+            masks = masking.result()
             params, placed = refine_outline(rig, camera, obs, found, point_w, params, g_ref,
                                             tcfg, state.model, fit.beta.detach(), eta, tau,
                                             masks, progress=progress)
