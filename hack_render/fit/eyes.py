@@ -34,6 +34,7 @@ import torch
 
 from hack_render.fit import gaze as gz
 from hack_render.fit import iris
+from hack_render.fit.stages import run_stage
 from hack_render.fit.state import FitState, View
 
 #: The measures' unit (a share of the eye's width): residuals are divided by it.
@@ -230,8 +231,6 @@ def fit_eyes(state: FitState, cfg, log=None, contours: list | None = None) -> di
     if log is not None:
         rep = log.run("eyes", groups, loss_fn, ec.iterations, after)
     else:
-        from hack_render.fit.stages import run_stage
-
         rep = run_stage("eyes", groups, loss_fn, ec.iterations, False, after)
     after_rows = snapshot()
     names = [str(n) for n in state.model.expression_names]
