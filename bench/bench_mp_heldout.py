@@ -22,11 +22,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from provenance import write_result
 
 from hack_render.geometry.model_file import default_model_path, load_model_file
 from hack_render.learn.full_model import energy_learner
@@ -102,15 +106,15 @@ def main(argv=None) -> None:
     arrays, _ = load_model_file(path)
     t0 = time.time()
     res = held_out(arrays, args.identities, args.poses, args.seed)
-    res.update({"model": str(path), "seconds": round(time.time() - t0, 1),
-                "command": "python bench/bench_mp_heldout.py " + " ".join(argv or [])})
+    res.update({"model": str(path) if args.model else "the shipped model",
+                "seconds": round(time.time() - t0, 1)})
     for r in res["identities"]:
         print(f"identity {r['identity']}: energy {r['energy_personalised']:.5f} with M_P, "
               f"{r['energy_generic']:.5f} with its mean (ratio {r['ratio']:.3f}); largest "
               f"stretch {r['max_stretch_personalised']:.3f} / {r['max_stretch_generic']:.3f}")
     print(json.dumps(res["summary"]))
     if args.out:
-        args.out.write_text(json.dumps(res, indent=1))
+        print(f"wrote {write_result(args.out, res)}")
 
 
 if __name__ == "__main__":
