@@ -165,11 +165,10 @@ def photo_eyes(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     instead of the photo's (the points scaled). None where no face is found."""
     from skimage.draw import polygon
 
-    pts = iris_landmarks(rgb8, points)
-    if pts is None:
+    found = _mesh_at(rgb8, points, shape)
+    if found is None:
         return None
-    h, w = shape or rgb8.shape[:2]
-    pts = pts * [w / rgb8.shape[1], h / rgb8.shape[0]]
+    pts, h, w = found
     iris = np.zeros((h, w), bool)
     whites = np.zeros((h, w), bool)
     # 468-472: the subject's right iris (the photo's left eye ring: FACEMESH_RIGHT_EYE is
@@ -189,6 +188,16 @@ def photo_eyes(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     return iris, whites
 
 
+def _mesh_at(rgb8: np.ndarray, points, shape) -> tuple[np.ndarray, int, int] | None:
+    """The face mesh's points with irises (:func:`iris_landmarks`) scaled to ``shape`` (H, W;
+    default the photo's), and that size: (points, H, W), or None where no face is found."""
+    pts = iris_landmarks(rgb8, points)
+    if pts is None:
+        return None
+    h, w = shape or rgb8.shape[:2]
+    return pts * [w / rgb8.shape[1], h / rgb8.shape[0]], h, w
+
+
 def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
                   ) -> np.ndarray | None:
     """(H, W) bool: the person's eye openings in the photo, inside the face mesh's two lid
@@ -196,11 +205,10 @@ def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     if given; None where no face is found."""
     from skimage.draw import polygon
 
-    pts = iris_landmarks(rgb8, points)
-    if pts is None:
+    found = _mesh_at(rgb8, points, shape)
+    if found is None:
         return None
-    h, w = shape or rgb8.shape[:2]
-    pts = pts * [w / rgb8.shape[1], h / rgb8.shape[0]]
+    pts, h, w = found
     out = np.zeros((h, w), bool)
     for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"):
         lids = pts[mesh_loops(n)[0]]
