@@ -220,11 +220,11 @@ def test_06_track_end_to_end_on_a_rendered_clip(small_clip, tmp_path, monkeypatc
     assert json.loads((tmp_path / "out" / "track_run.json").read_text())["complete"] is True
     assert {"overlay_s", "identity_files_s"} <= set(rep["timings_s"])
     assert rep["timings_s"]["overlay_cpu_s"] > 0
-    from hack_render.track import outputs
-
     # the overlay's frames are drawn by worker threads and written in order: the same
     # frames as drawn one by one
     import cv2
+
+    from hack_render.track import outputs
 
     monkeypatch.setattr(outputs, "OVERLAY_THREADS", 1)
     outputs.write_overlay(res, tmp_path / "serial.mp4", progress=False)

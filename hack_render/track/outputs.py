@@ -20,7 +20,7 @@ from hack_render.geometry.params import save_params, save_sequence
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
 from hack_render.render.raster import render_shaded
-from hack_render.track.pipeline import TrackResult, sequence_of
+from hack_render.track.pipeline import Background, TrackResult, sequence_of
 from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
 from scenes.cameras import Camera
@@ -349,44 +349,26 @@ class _Stopped(Exception):
     """The overlay was abandoned (the command failed or was interrupted meanwhile)."""
 
 
-class _OverlayJob(threading.Thread):
-    """``write_overlay`` in a thread, beside the identity's files (on two idle cores the
-    two overlap: the rasteriser's NumPy and the sheets' renders release the GIL);
-    ``timings`` gets ``overlay_s`` and ``overlay_cpu_s`` (this thread's CPU time and its
-    drawing workers')."""
-
-    def __init__(self, result: TrackResult, path: Path, progress: bool):
-        super().__init__(name="overlay", daemon=True)
-        self.job, self.stop = (result, path, progress), threading.Event()
-        self.path = self.error = None
-
-    def run(self) -> None:
-        t, c, workers = time.perf_counter(), time.thread_time(), []
-        try:
-            self.path = write_overlay(*self.job, stop=self.stop, cpu=workers)
-        except _Stopped:
-            pass
-        except BaseException as err:  # noqa: BLE001 - re-raised by result()
-            self.error = err
-        timings = self.job[0].timings
-        timings["overlay_s"] = time.perf_counter() - t
-        timings["overlay_cpu_s"] = time.thread_time() - c + sum(workers)
-
-    def result(self) -> Path:
-        self.join()
-        if self.error is not None:
-            raise self.error
-        return self.path
+def _overlay_unless_stopped(result: TrackResult, path: Path, progress: bool,
+                            stop: threading.Event, cpu: list) -> Path | None:
+    """:func:`write_overlay`, or None where the caller abandoned it (``stop`` set: the
+    identity's files failed or the command was interrupted; nothing is written)."""
+    try:
+        return write_overlay(result, path, progress, stop=stop, cpu=cpu)
+    except _Stopped:
+        return None
 
 
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written. The overlay video is
-    written in a thread while the identity's files are (:class:`_OverlayJob`)."""
+    written in a thread while the identity's files are (``pipeline.Background``;
+    ``timings_s`` gets ``overlay_s`` and ``overlay_cpu_s``, its drawing workers' CPU
+    included)."""
     written = []
-    job = _OverlayJob(result, outdir / "overlay.mp4", progress) if overlay else None
-    if job is not None:
-        job.start()
+    stop, workers = threading.Event(), []
+    job = Background(result.timings, "overlay", _overlay_unless_stopped, result,
+                      outdir / "overlay.mp4", progress, stop, workers) if overlay else None
     try:
         # the keyframe fit's sheets: 4 render passes (16 spp), not the photo fit's 16
         # (their 80 path-traced renders took about a tenth of the command's CPU time; the
@@ -408,11 +390,12 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
             written.append(write_larynx_plot(result, outdir / "larynx.png", truth))
     except BaseException:
         if job is not None:   # an error or an interrupt: the video is abandoned
-            job.stop.set()
+            stop.set()
             job.join()
         raise
     if job is not None:
         written.append(job.result())
+        result.timings["overlay_cpu_s"] += sum(workers)
     rep = report_dict(result, truth)
     written.append(write_json(outdir / "report.json", rep, indent=1))
     return written

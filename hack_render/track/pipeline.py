@@ -99,7 +99,7 @@ class timed:
         return False
 
 
-class _Background(threading.Thread):
+class Background(threading.Thread):
     """``fn(*args, **kw)`` in a daemon thread (an interrupt of the command abandons it: it
     writes nothing); :meth:`result` waits and returns it, or raises its error. Adds
     ``<name>_s`` (its wall seconds) and ``<name>_cpu_s`` (its thread's CPU) to
@@ -252,7 +252,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         # face mesh and NumPy share the two cores)
         sc = (config or FitConfig()).silhouette
         mode = outline_mask or OUTLINE_MASK
-        masking = _Background(timings, "outline_masks", frame_masks, clip.read(),
+        masking = Background(timings, "outline_masks", frame_masks, clip.read(),
                               landmarks.points, landmarks.found.copy(), segment=sc.segment,
                               chroma=sc.chroma, mode=mode,
                               every=OUTLINE_EVERY if mode == "head_neck" else 1)
