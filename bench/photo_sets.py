@@ -84,6 +84,44 @@ def annotated_photos(sdist: str | Path) -> dict[str, tuple[np.ndarray, np.ndarra
     return out
 
 
+#: --helen: the ten photos with hand-placed 68 points in D-X-Y/landmark-detection's test
+#: data (HELEN photos with the 300-W annotations), read from a folder holding them
+HELEN = {"repo": "D-X-Y/landmark-detection", "path": ".test/data",
+         "commit": "228213e3cce33155c24924bc3b2ac38afa033f7d",
+         "licence": ("HELEN (Le et al. 2012: Flickr photos) with iBUG's 300-W annotations "
+                     "(Sagonas et al. 2013: non-commercial research use); the repository's "
+                     "code is MIT: scores and index choices only, nothing of the photos kept"),
+         "how_to_get": ("git clone https://github.com/D-X-Y/landmark-detection, then copy its "
+                        ".test/data/*.jpg and *.pts into one folder")}
+
+
+def helen_photos(folder: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each ``NAME.jpg`` in ``folder`` with a ``NAME.pts`` of 68 points beside it, cropped
+    to the annotated face (a square of 2.2 times the points' larger extent about their box's
+    centre, inside the photo: HELEN's photos may hold several faces, and only one is
+    annotated): name -> ((H, W, 3) uint8 RGB, (68, 2) points in the crop)."""
+    from PIL import Image
+
+    out = {}
+    for jpg in sorted(Path(folder).glob("*.jpg")):
+        pts_file = jpg.with_suffix(".pts")
+        if not pts_file.is_file():
+            continue
+        points = read_pts(pts_file.read_text())
+        if points.shape != (68, 2):
+            raise SystemExit(f"--helen: {pts_file} holds {len(points)} points, expected 68")
+        with Image.open(jpg) as im:
+            rgb = np.asarray(im.convert("RGB"))
+        lo, hi = points.min(0), points.max(0)
+        half = 1.1 * float((hi - lo).max())
+        x0, y0 = np.maximum(0, np.floor((lo + hi) / 2 - half)).astype(int)
+        x1, y1 = np.ceil((lo + hi) / 2 + half).astype(int)
+        out[jpg.stem] = (np.ascontiguousarray(rgb[y0:y1, x0:x1]), points - [x0, y0])
+    if not out:
+        raise SystemExit(f"--helen: found no NAME.jpg with NAME.pts in {folder}")
+    return out
+
+
 def mirrored(photos: dict) -> dict:
     """Each annotated photo (name -> (image, points)) mirrored as ``NAME_mirrored``, its
     points renumbered left for right (pixel centres at +0.5: x -> width - x)."""
