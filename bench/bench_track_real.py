@@ -40,7 +40,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 MANIFEST = ROOT / "bench" / "track_real_clips.json"
-from mesh68_hand import IDX  # noqa: E402 - the chin and the 51 inner points
+from mesh68_hand import IDX  # the chin and the 51 inner points
 
 
 def mesh_dense(clip_path: Path, max_side: int, frames: int) -> np.ndarray:

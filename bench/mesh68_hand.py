@@ -113,6 +113,7 @@ def _summary(rows: list) -> dict:
 def collect(photos: dict) -> dict:
     """name -> {"dense": (468, 3) or None, "truth", "mesh": the shipped map's 68,
     "dlib": dlib's refined 68 or None} for every photo (name -> (image, truth))."""
+    from hack_render.errors import HackError
     from hack_render.fit.config import LandmarkConfig
     from hack_render.fit.landmarks import detect
     from hack_render.vision.detect import detect_faces
@@ -128,8 +129,8 @@ def collect(photos: dict) -> dict:
         try:
             row["dlib"] = np.asarray(detect(img, LandmarkConfig(fallback="off")).points,
                                      np.float64)[:, :2]
-        except Exception:  # noqa: BLE001 - dlib finds no face on this photo
-            pass
+        except HackError as e:    # dlib finds no face on this photo: not scored
+            row["dlib_error"] = str(e)
         out[name] = row
     return out
 
