@@ -161,7 +161,9 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
     with np.load(out / "landmarks.npz") as z:   # the tracker's own detector against the mesh:
         det = z["points"][:T].astype(np.float64)   # the floor two detectors leave
     row["detector_vs_mesh"] = {k: v for k, v in score(det, mesh).items()
-                               if k in ("nme_median", "nme_p90")}
+                               if k in ("nme_median", "nme_p90", "jitter_tracked_px")}
+    # (the detector's points' own jitter, under the name score() gives the points it scores)
+    row["detector_vs_mesh"]["jitter_px"] = row["detector_vs_mesh"].pop("jitter_tracked_px")
     for name_, other in refs.items():            # the other reading of the same mesh
         row[f"vs_{name_}"] = {k: v for k, v in score(tracked, other).items()
                               if k in ("nme_median", "nme_p90", "per_frame_nme")}
@@ -219,7 +221,7 @@ def _fit_first_summary(rows: list) -> dict:
 
 def table(res: dict) -> str:
     """The docs' table (markdown) of a result file."""
-    lines = [("| clip | frames | NME median / p90 | jitter tracked / mesh (px/frame^2) | "
+    lines = [("| clip | frames | NME median / p90 | jitter tracked / mesh / dlib (px/frame^2) | "
                "dlib vs mesh | lost | status | wall / CPU s | identity fit / outline s |"),
              "|---|---|---|---|---|---|---|---|---|"]
     for r in res["clips"]:
@@ -231,7 +233,8 @@ def table(res: dict) -> str:
         lines.append(
             f"| {r['clip']} | {r['frames']} | {100 * r['nme_median']:.1f} / "
             f"{100 * r['nme_p90']:.1f} % | {r['jitter_tracked_px']:.2f} / "
-            f"{r['jitter_mesh_px']:.2f} | "
+            f"{r['jitter_mesh_px']:.2f} / "
+            f"{(r.get('detector_vs_mesh') or {}).get('jitter_px', float('nan')):.2f} | "
             f"{100 * (r.get('detector_vs_mesh') or {}).get('nme_median', float('nan')):.1f} % | "
             f"{r['lost_frames']} | {r['status']} | "
             f"{tr.get('seconds', '-')} / {tr.get('cpu_seconds', '-')} | "
