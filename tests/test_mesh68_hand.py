@@ -125,3 +125,36 @@ def test_04_shipped_pairs_are_mesh_points_or_edges_and_beat_the_model_map(hand, 
     assert loo["photos"] >= 20 and loo["nme_mean"] < model["nme_mean"]
     assert all(abs(v) < 0.01 for g, off in loo["offset_mean"].items() if g != "chin"
                for v in off)
+
+
+def test_05_clip_bench_scores_both_readings_of_the_same_mesh(hand, layout):
+    """bench_track_real: the hand reading and the fitter's map read the same dense mesh
+    (NaN frames stay unscored); a tracked track equal to one reading scores 0 against it
+    and, against the other, what the two readings differ by; the summary of the other
+    reading is built from its own per-frame figures."""
+    spec = importlib.util.spec_from_file_location("bench_track_real",
+                                                  ROOT / "bench" / "bench_track_real.py")
+    btr = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(btr)
+    from hack_render.vision.dense68 import load_map
+
+    rng = np.random.default_rng(3)
+    dense = np.stack([np.c_[layout + rng.normal(0, 1.0, layout.shape), np.zeros(468)]
+                      for _ in range(6)])
+    dense[2] = np.nan                                    # no face in frame 2
+    pairs = hand.load_pairs()
+    refs = btr.references(dense, pairs)
+    np.testing.assert_allclose(refs["hand"][0], hand.to68(pairs, dense[0]))
+    np.testing.assert_allclose(refs["model_map"][0], load_map().to68(dense[0]))
+    own = btr.score(refs["hand"], refs["hand"])
+    other = btr.score(refs["hand"], refs["model_map"])
+    assert own["frames_scored"] == other["frames_scored"] == 5
+    assert own["nme_median"] == 0.0 and own["per_frame_nme"][2] is None
+    iod = np.linalg.norm(refs["model_map"][0, 36] - refs["model_map"][0, 45])
+    gap = np.linalg.norm(refs["hand"][0] - refs["model_map"][0], axis=1)[hand.IDX].mean() / iod
+    assert other["per_frame_nme"][0] == pytest.approx(gap, abs=1e-5) and gap > 0.01
+    rows = [{"nme_median": 0.01, "per_frame_nme": [0.01], "vs_model_map": other},
+            {"nme_median": 0.02, "per_frame_nme": [0.02], "vs_model_map": own}]
+    s = btr.summary(rows, "vs_model_map")
+    assert s["clips"] == 2 and s["worst_clip_median"] == pytest.approx(other["nme_median"])
+    assert s["clips_over_4pc"] == int(other["nme_median"] > 0.04)
