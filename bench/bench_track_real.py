@@ -178,7 +178,7 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
                                                           "fit_vs_mesh_iod", "fit_vs_dlib_iod",
                                                           "landmark_residual_iod")}
         # the fitted points against this table's reference on the same frame, beside the
-        # tracked points' (the fitter's detector is the mesh: not independent of it)
+        # tracked points' (the fitter's default detector is dlib, as the tracker's)
         npz = out / "fit_first" / name / "params.npz"
         if npz.is_file() and np.isfinite(mesh[0]).all():
             with np.load(npz) as z:
@@ -195,7 +195,7 @@ def summary(rows: list, key: str | None = None) -> dict:
     """The table's summary; ``key``: of the rows' ``key`` scores (the other reference)."""
     if key is not None:
         rows = [r[key] for r in rows if key in r]
-        return summary(rows) | {"clips": len(rows)} if rows else {}
+        return summary(rows) if rows else {}
     v = [r["nme_median"] for r in rows if r.get("nme_median") is not None]
     allf = [x for r in rows for x in r.get("per_frame_nme", []) if x is not None]
     return {"clips": len(rows), "clips_scored": len(v),
