@@ -42,6 +42,9 @@ def main(argv=None) -> int:
     ap.add_argument("--keyframes", type=int, default=4)
     ap.add_argument("--photometric", action="store_true",
                     help="run the keyframe fit's photometric stage (default: landmarks only)")
+    ap.add_argument("--refine", action="store_true",
+                    help="refine dlib's points with the fit's landmark refiner (the "
+                    "command's --refine; default off, as the command)")
     ap.add_argument("--tau", choices=("photometric", "fixed"), default="photometric",
                     help="how track finds the larynx's slide (the command's default: fixed)")
     ap.add_argument("--outline", choices=("both", "on", "off"), default="both",
@@ -60,6 +63,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     w, h = (int(x) for x in args.size.split("x"))
     over = {} if args.photometric else {"photometric": {"enabled": False}}
+    if not args.refine:   # the command's default (--no-refine): dlib's own points
+        over["landmarks"] = {"refiner": "off"}
     cfg = load_config(None, over)
     clips = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -112,6 +117,7 @@ def main(argv=None) -> int:
     result = {
         "what": "hack-render track on clips rendered with known parameters (procedural)",
         "keyframe_fit": "photometric" if args.photometric else "landmarks only",
+        "landmark_refiner": "dlib" if args.refine else "off",
         "tau": args.tau,
         "clips": clips,
         "summary": {("outline" if o else "no_outline"): {

@@ -107,6 +107,13 @@ def track(
                                      "minutes per keyframe on a CPU). Off by default "
                                      "since issue 63: the keyframe fit from landmarks is "
                                      "the identity the tracking uses either way."),
+    refine: bool = typer.Option(False, "--refine/--no-refine", help="Refine dlib's points "
+                                "with the fit's landmark refiner (the config's "
+                                "landmarks.refiner, default the shipped one). Off by "
+                                "default: it was trained on renders, and on the ten real "
+                                "clips of docs/motion.md it moved the tracked points about "
+                                "1 % of the outer-eye distance further from the "
+                                "hand-calibrated reference."),
     tau: str = typer.Option("fixed", "--tau", help="The larynx's slide per frame: "
                             "'fixed' (the default: the keyframe fit's value throughout) or "
                             "'photometric' (from the neck's shading: the mesh at a grid of "
@@ -146,6 +153,8 @@ def track(
     over: dict = {}
     if not photometric:
         over["photometric"] = {"enabled": False}
+    if not refine:   # dlib's own points (the config's refiner applies with --refine)
+        over["landmarks"] = {"refiner": "off"}
     if config is not None:
         boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
                             "config file")
