@@ -50,6 +50,12 @@ def main(argv=None) -> int:
     ap.add_argument("--outline", choices=("both", "on", "off"), default="both",
                     help="the outline stage: on, off, or each clip tracked both ways "
                          "(the command's default: on)")
+    ap.add_argument("--masks", choices=("head_neck", "person"), default="head_neck",
+                    help="person: the keyframe fit's silhouette term and the outline stage "
+                         "on the person mask, as before issue 63 (on these bald renders the "
+                         "person mask is the head's exact outline); default: the command's "
+                         "(no silhouette in the keyframe fit, outline on the head-and-neck "
+                         "mask)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track.json"))
     args = ap.parse_args(argv)
@@ -57,6 +63,7 @@ def main(argv=None) -> int:
     import torch
 
     from hack_render.fit.config import load_config
+    from hack_render.track import pipeline
     from hack_render.track.cli import track_video
     from hack_render.track.synthetic import render_clip
 
@@ -66,6 +73,9 @@ def main(argv=None) -> int:
     if not args.refine:   # the command's default (--no-refine): dlib's own points
         over["landmarks"] = {"refiner": "off"}
     cfg = load_config(None, over)
+    if args.masks == "person":  # the tracker's two switches (track/pipeline.py), as before
+        pipeline.IDENTITY_SILHOUETTE = "person"
+        pipeline.OUTLINE_MASK = "person"
     clips = []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.clips):
@@ -119,6 +129,7 @@ def main(argv=None) -> int:
         "keyframe_fit": "photometric" if args.photometric else "landmarks only",
         "landmark_refiner": "dlib" if args.refine else "off",
         "tau": args.tau,
+        "masks": args.masks,
         "clips": clips,
         "summary": {("outline" if o else "no_outline"): {
             k: mean(k, o) for k in ("theta_joint_deg_mean", "neck_px_mean",
