@@ -42,11 +42,20 @@ def main(argv=None) -> int:
     ap.add_argument("--keyframes", type=int, default=4)
     ap.add_argument("--photometric", action="store_true",
                     help="run the keyframe fit's photometric stage (default: landmarks only)")
+    ap.add_argument("--refine", action="store_true",
+                    help="refine dlib's points with the fit's landmark refiner (the "
+                    "command's --refine; default off, as the command)")
     ap.add_argument("--tau", choices=("photometric", "fixed"), default="photometric",
                     help="how track finds the larynx's slide (the command's default: fixed)")
     ap.add_argument("--outline", choices=("both", "on", "off"), default="both",
                     help="the outline stage: on, off, or each clip tracked both ways "
                          "(the command's default: on)")
+    ap.add_argument("--masks", choices=("head_neck", "person"), default="head_neck",
+                    help="person: the keyframe fit's silhouette term and the outline stage "
+                         "on the person mask, as before issue 63 (on these bald renders the "
+                         "person mask is the head's exact outline); default: the command's "
+                         "(no silhouette in the keyframe fit, outline on the head-and-neck "
+                         "mask)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track.json"))
     args = ap.parse_args(argv)
@@ -54,13 +63,19 @@ def main(argv=None) -> int:
     import torch
 
     from hack_render.fit.config import load_config
+    from hack_render.track import pipeline
     from hack_render.track.cli import track_video
     from hack_render.track.synthetic import render_clip
 
     torch.set_num_threads(args.threads)
     w, h = (int(x) for x in args.size.split("x"))
     over = {} if args.photometric else {"photometric": {"enabled": False}}
+    if not args.refine:   # the command's default (--no-refine): dlib's own points
+        over["landmarks"] = {"refiner": "off"}
     cfg = load_config(None, over)
+    if args.masks == "person":  # the tracker's two switches (track/pipeline.py), as before
+        pipeline.IDENTITY_SILHOUETTE = "person"
+        pipeline.OUTLINE_MASK = "person"
     clips = []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(args.clips):
@@ -112,7 +127,9 @@ def main(argv=None) -> int:
     result = {
         "what": "hack-render track on clips rendered with known parameters (procedural)",
         "keyframe_fit": "photometric" if args.photometric else "landmarks only",
+        "landmark_refiner": "dlib" if args.refine else "off",
         "tau": args.tau,
+        "masks": args.masks,
         "clips": clips,
         "summary": {("outline" if o else "no_outline"): {
             k: mean(k, o) for k in ("theta_joint_deg_mean", "neck_px_mean",

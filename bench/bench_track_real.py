@@ -12,10 +12,12 @@ Per clip, the command is run as a user would (``python -m hack_render.cli track 
 OUT --quiet`` plus ``--track-args``), with its exit code, wall seconds and per-stage
 timings (its ``report.json``). Then MediaPipe's face mesh (``vision.detect.detect_faces(
 img, "mesh")``) is run on every frame at the tracker's working size, independently of the
-tracker (which uses dlib and the fit's refiner), its 468 points read as the 68 of the iBUG
-convention by the index pairs calibrated on hand-placed points (``--reference hand``, the
-default: ``bench/mesh68_hand.py``) or by the fitter's map calibrated on the model's own
-renders (``--reference model_map``; each row scores the other too), and the tracked
+tracker (which uses dlib and the fit's refiner), and MediaPipe's attention mesh (its lips
+and eyes refined: ``mesh68_hand.attention_mesh``) on the face it found; the attention
+mesh's 468 points read as the 68 of the iBUG convention by the index pairs calibrated on
+hand-placed points (``--reference hand``, the default: ``bench/mesh68_hand.py``), or the
+plain mesh's by the fitter's map calibrated on the model's own renders (``--reference
+model_map``; each row scores the other too), and the tracked
 model's projected points (``tracked_landmarks.npz``) are scored against it: NME over the
 chin and the 51 inner points (``bench_real_photos.fit_against_mesh``'s set), in units of
 the mesh's outer-eye distance, per frame; reported: median and p90 over the frames where
@@ -58,10 +60,28 @@ def mesh_dense(clip_path: Path, max_side: int, frames: int) -> np.ndarray:
     return out
 
 
-def references(dense: np.ndarray, pairs: np.ndarray | None) -> dict[str, np.ndarray]:
-    """The mesh's (T, 468, 3) points read as the 68, (T, 68, 2) each: ``hand`` by the
-    hand-calibrated index pairs (``mesh68_hand``; the reference) and ``model_map`` by the
-    shipped map (``vision.dense68``, calibrated on the model's renders: the fitter's)."""
+def mesh_attention(clip_path: Path, max_side: int, dense: np.ndarray) -> np.ndarray:
+    """MediaPipe's attention mesh on every frame at the working size, on the face the plain
+    mesh found there (``dense``, (T, 468, 3)): (T, 468, 2), NaN where either finds none."""
+    from mesh68_hand import attention_mesh
+
+    from hack_render.track.video import open_clip
+
+    out = np.full((len(dense), 468, 2), np.nan)
+    for i, img in enumerate(open_clip(clip_path, max_side).read(0, len(dense))):
+        if np.isfinite(dense[i]).all():
+            pts = attention_mesh(img, dense[i])
+            if pts is not None:
+                out[i] = pts
+    return out
+
+
+def references(dense: np.ndarray, attention: np.ndarray,
+               pairs: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The meshes read as the 68, (T, 68, 2) each: ``hand``, the attention mesh's (T, 468,
+    2) points by the hand-calibrated index pairs (``mesh68_hand``; the reference), and
+    ``model_map``, the plain mesh's (T, 468, 3) by the shipped map (``vision.dense68``,
+    calibrated on the plain mesh of the model's renders: the fitter's)."""
     from mesh68_hand import to68
 
     from hack_render.vision.dense68 import load_map
@@ -69,7 +89,7 @@ def references(dense: np.ndarray, pairs: np.ndarray | None) -> dict[str, np.ndar
     dmap = load_map()
     out = {"model_map": np.array([dmap.to68(d) for d in dense])}
     if pairs is not None:
-        out["hand"] = np.array([to68(pairs, d) for d in dense])
+        out["hand"] = np.array([to68(pairs, d) for d in attention])
     return out
 
 
@@ -154,7 +174,17 @@ def clip_row(name: str, path: Path, out: Path, args) -> dict:
         dense = mesh_dense(path, args.max_side, T)
         row["mesh_seconds"] = round(time.time() - t, 1)
         np.save(cache, dense)
-    refs = references(dense, args.pairs)
+    attention = None
+    if args.pairs is not None:
+        cache = out / "mesh_attention.npy"
+        if cache.is_file() and len(np.load(cache)) == T:
+            attention = np.load(cache)
+        else:
+            t = time.time()
+            attention = mesh_attention(path, args.max_side, dense)
+            row["attention_mesh_seconds"] = round(time.time() - t, 1)
+            np.save(cache, attention)
+    refs = references(dense, attention, args.pairs)
     mesh = refs.pop("hand" if args.pairs is not None else "model_map")
     row["reference"] = "hand" if args.pairs is not None else "model_map"
     row.update(score(tracked, mesh))
@@ -266,10 +296,11 @@ def main(argv=None) -> int:
     ap.add_argument("--table", type=Path, help="print the markdown table of a result file "
                     "and exit")
     ap.add_argument("--reference", choices=("hand", "model_map"), default="hand",
-                    help="how the mesh's 468 points are read as the 68 for the table: 'hand', "
-                    "the index pairs calibrated on hand-placed points (bench/mesh68_hand.py, "
-                    "bench/results/mesh68_hand.json), or 'model_map', the shipped map "
-                    "calibrated on the model's renders; each row also scores the other")
+                    help="the 68 the table scores against: 'hand', MediaPipe's attention "
+                    "mesh read by the index pairs calibrated on hand-placed points "
+                    "(bench/mesh68_hand.py, bench/results/mesh68_hand.json), or 'model_map', "
+                    "the plain mesh read by the shipped map calibrated on the model's renders; "
+                    "each row also scores the other")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "track_real.json"),
                     help="result file")
     args = ap.parse_args(argv)

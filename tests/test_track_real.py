@@ -208,3 +208,33 @@ def test_the_identity_fit_does_not_read_the_person_mask():
     assert cfg.silhouette.mode == "off" and cfg.per_view_expression
     assert FitConfig().silhouette.mode != "off"   # the photo fit keeps its own
     assert pipeline.OUTLINE_MASK == "head_neck"
+
+
+@pytest.mark.parametrize("flags,config,want", [
+    ([], None, "off"),                                   # the default: dlib's own points
+    (["--refine"], None, "dlib"),                        # the shipped refiner
+    ([], {"landmarks": {"refiner": "dlib"}}, "off"),     # a config's refiner needs --refine
+    (["--no-refine"], None, "off"),
+])
+def test_the_command_tracks_dlibs_own_points_unless_asked_to_refine(
+        flags, config, want, tmp_path, capsys, monkeypatch):
+    """The refiner was trained on renders and moved the tracked points away from the
+    hand-calibrated reference on real clips (docs/motion.md): the command passes the
+    keyframe fit and the detector a config whose refiner is off unless --refine."""
+    from hack_render.track import cli
+
+    seen = {}
+
+    def fake(video, outdir, keyframes, max_side, fps, cfg, *a, **k):
+        seen["refiner"] = cfg.landmarks.refiner
+        return None, []
+
+    monkeypatch.setattr(cli, "track_video", fake)
+    args = ["track", _frames(tmp_path / "frames", n=3), "-o", tmp_path / "out", *flags]
+    if config is not None:
+        path = tmp_path / "c.json"
+        path.write_text(json.dumps(config))
+        args += ["--config", path]
+    code, cap = _run(args, capsys)
+    assert code == 0, cap.err
+    assert seen["refiner"] == want

@@ -107,14 +107,23 @@ def track(
                                      "minutes per keyframe on a CPU). Off by default "
                                      "since issue 63: the keyframe fit from landmarks is "
                                      "the identity the tracking uses either way."),
+    refine: bool = typer.Option(False, "--refine/--no-refine", help="Refine dlib's points "
+                                "with the fit's landmark refiner (the config's "
+                                "landmarks.refiner, default the shipped one). Off by "
+                                "default: it was trained on renders, and on the ten real "
+                                "clips of docs/motion.md it moved the tracked points about "
+                                "1 % of the outer-eye distance further from the "
+                                "hand-calibrated reference."),
     tau: str = typer.Option("fixed", "--tau", help="The larynx's slide per frame: "
                             "'fixed' (the default: the keyframe fit's value throughout) or "
                             "'photometric' (from the neck's shading: the mesh at a grid of "
                             "slides with the light refitted per frame, the least-cost smooth "
-                            "path; on the benchmark's two clips 2.6 and 5.1 mm mean error, "
-                            "correlation 0.98 and 0.82 with the true slide, against 6.0 mm "
-                            "for 'fixed'; about 1 frame/s on 2 cores, so opt-in; where the "
-                            "neck is not seen it keeps the fixed value; see docs/motion.md)."),
+                            "path; on the benchmark's two rendered clips 5.5 and 11.5 mm mean "
+                            "error, correlation 0.83 and 0.29 with the true slide, against "
+                            "6.0 mm for 'fixed': it reads the slide where the tracked neck "
+                            "lies, 5-22 px from the true one there; about 1 frame/s on 2 "
+                            "cores, so opt-in; where the neck is not seen it keeps the fixed "
+                            "value; see docs/motion.md)."),
     no_outline: bool = typer.Option(False, "--no-outline", help="Skip the outline stage "
                                     "(the face's and neck's outline placed on the "
                                     "head-and-neck mask, the face mesh's oval and the "
@@ -128,7 +137,7 @@ def track(
 ) -> None:
     """Track a video into HACK parameters: one identity for the clip, and per frame the
     8 neck joints (from the head's rotation), the torso, the expression and the larynx's
-    slide tau (from the neck's shading; --tau fixed keeps the keyframe fit's value). The
+    slide tau (the keyframe fit's; --tau photometric: per frame from the neck's shading). The
     neck is placed on the head-and-neck outline (the face mesh's oval and the neck's
     skin, no hair; --no-outline: landmarks alone). A track whose points lie far from the
     detected ones is reported on stderr and as the report's status "poor".
@@ -146,6 +155,8 @@ def track(
     over: dict = {}
     if not photometric:
         over["photometric"] = {"enabled": False}
+    if not refine:   # dlib's own points (the config's refiner applies with --refine)
+        over["landmarks"] = {"refiner": "off"}
     if config is not None:
         boundary.input_file(config, "--config", (".toml", ".yaml", ".yml", ".json"),
                             "config file")
