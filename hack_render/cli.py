@@ -56,8 +56,8 @@ COMMANDS: dict[str, tuple[str, tuple[str, ...]]] = {
               ("hack_render.motion.drive_cli",)),
     "track": ("Track a video into HACK parameters: one identity for the clip, and per frame "
               "the 8 neck joints (from the head's rotation), the torso, the expression and the "
-              "larynx's slide tau (from the neck's shading; --tau fixed keeps the keyframe "
-              "fit's value). The neck is placed on the head-and-neck outline (the face mesh's "
+              "larynx's slide tau (the keyframe fit's; --tau photometric: per frame from the "
+              "neck's shading). The neck is placed on the head-and-neck outline (the face mesh's "
               "oval and the neck's skin, no hair; --no-outline: landmarks alone). A track "
               "whose points lie far from the detected ones is reported on stderr and as the "
               "report's status \"poor\".", ("hack_render.track.cli",)),
