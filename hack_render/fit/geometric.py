@@ -41,8 +41,9 @@ def fit_camera(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
                    {"params": [turn], "lr": CAMERA_LR}]
         if c.fit_focal:
             groups.append({"params": [v.log_focal], "lr": CAMERA_LR})
-    return log.run("camera", groups, lambda it: terms.camera_objective(state, cfg, it),
-                   c.iterations)
+    with state.grads_only([p for g in groups for p in g["params"]]):
+        return log.run("camera", groups, lambda it: terms.camera_objective(state, cfg, it),
+                       c.iterations)
 
 
 def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
@@ -62,8 +63,9 @@ def fit_shape(state: FitState, cfg: FitConfig, log: StageLog) -> StageReport:
                    {"params": [v.log_focal], "lr": SHAPE_LR * 0.5}]
         if v.psi is not None:
             groups.append({"params": [v.psi], "lr": SHAPE_LR})
-    return log.run("shape", groups, lambda it: terms.shape_objective(state, cfg, it),
-                   s.iterations, after_step=state.clamp_)
+    with state.grads_only([p for g in groups for p in g["params"]]):
+        return log.run("shape", groups, lambda it: terms.shape_objective(state, cfg, it),
+                       s.iterations, after_step=state.clamp_)
 
 
 #: a view's person mask is dropped from the silhouette term when, with it, the shape

@@ -16,6 +16,7 @@ config and return reports; loss terms live in ``terms.py``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass, field
 
@@ -131,6 +132,8 @@ class FitState:
     albedo_delta: torch.Tensor | None = None   # (H, 2H, 3) per-texel refinement
     coarse_appearance: dict = field(default_factory=dict)  # (height, n_alpha) -> model
     albedo_balance: dict = field(default_factory=dict)  # photometric.balance_albedo's report
+    # (beta, PersonalizedHack) of :meth:`forward_views` while beta takes no gradient
+    personal: tuple | None = field(default=None, repr=False)
 
     @property
     def faces(self) -> torch.Tensor:
@@ -138,6 +141,32 @@ class FitState:
 
     def view_psi(self, v: View) -> torch.Tensor:
         return v.psi if v.psi is not None else self.psi
+
+    def leaves(self) -> list[torch.Tensor]:
+        """Every parameter the stages optimise (shared and per view; the per-texel
+        albedo delta and the views' gazes where they exist)."""
+        out = [self.beta, self.psi, self.eta, self.tau, self.alpha, self.const_albedo,
+               self.albedo_delta]
+        for v in self.views:
+            out += [v.log_focal, v.transl, v.head_angles, v.dtheta, v.global_orient, v.psi,
+                    v.gaze]
+        return [t for t in out if isinstance(t, torch.Tensor)]
+
+    @contextlib.contextmanager
+    def grads_only(self, params: list[torch.Tensor]):
+        """Within the block, only ``params`` among :meth:`leaves` require a gradient: a
+        stage's backward pass then skips the others' (the camera stage's through the
+        identity and expression bases was half its time). The same step for ``params``;
+        their flags restored after."""
+        keep = {id(p) for p in params}
+        off = [t for t in self.leaves() if t.requires_grad and id(t) not in keep]
+        for t in off:
+            t.requires_grad_(False)
+        try:
+            yield
+        finally:
+            for t in off:
+                t.requires_grad_(True)
 
     def theta(self, v: View) -> torch.Tensor:
         """(1, 8, 3) neck pose: the head rotation's anatomical share plus the residual."""
@@ -154,6 +183,27 @@ class FitState:
         verts = gaze.apply_gaze(gaze.eye_rig(self.model), out.vertices[0],
                                 out.rest_vertices[0], v.gaze)
         return dataclasses.replace(out, vertices=verts[None])
+
+    def forward_views(self) -> list[torch.Tensor]:
+        """Every view's posed vertices (N, 3), as :meth:`forward`'s: one batched forward
+        of the model where there are several views and none has a gaze (the batch shares
+        the identity; forward and backward in about half the time of one forward per
+        view), else one per view."""
+        views = self.views
+        if len(views) < 2 or any(v.gaze is not None for v in views):
+            return [self.forward(v).vertices[0] for v in views]
+        B = len(views)
+        kw = {"psi": torch.cat([self.view_psi(v) for v in views]),
+              "theta": torch.cat([self.theta(v) for v in views]),
+              "global_orient": torch.stack([v.global_orient for v in views]),
+              "eta": self.eta.expand(B), "tau": self.tau.expand(B)}
+        if self.beta.requires_grad:
+            return list(self.model(beta=self.beta, **kw).vertices.unbind(0))
+        # the identity fixed (the camera stage): its bases made once
+        # (:meth:`~hack_render.geometry.model.HackModel.personalize`) and kept while beta is
+        if self.personal is None or not torch.equal(self.personal[0], self.beta):
+            self.personal = (self.beta.detach().clone(), self.model.personalize(self.beta))
+        return list(self.personal[1](**kw).vertices.unbind(0))
 
     def project(self, v: View, X: torch.Tensor) -> torch.Tensor:
         """World points (..., 3) -> photo pixels (..., 2) (continuous coordinates)."""

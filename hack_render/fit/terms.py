@@ -200,8 +200,8 @@ def shape_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Ten
     """Sum of :func:`shape_terms` over the views plus the identity prior, and its terms
     as floats (the shape stage's loss)."""
     total, terms = 0.0, {}
-    for v in state.views:
-        for k, x in shape_terms(state, cfg, v, state.forward(v).vertices[0], it).items():
+    for v, verts in zip(state.views, state.forward_views()):
+        for k, x in shape_terms(state, cfg, v, verts, it).items():
             total = total + x
             terms[k] = terms.get(k, 0.0) + float(x.detach())
     bp = beta_prior(state, cfg)
@@ -212,8 +212,7 @@ def shape_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Ten
 def camera_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Tensor, dict]:
     """The camera stage's loss: landmarks, a light focal prior and E_rot, per view."""
     total, terms = 0.0, {"landmarks": 0.0, "focal_prior": 0.0}
-    for v in state.views:
-        verts = state.forward(v).vertices[0]
+    for v, verts in zip(state.views, state.forward_views()):
         lm = landmark_loss(state, cfg, v, verts, it)
         fp = 0.01 * focal_prior(cfg, v)
         rot = rotation_limit_penalty(state.theta(v)).sum()

@@ -71,7 +71,7 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
         with interrupts.on_interrupt(f"the landmarks of every frame are kept in {lm_path}; "
                                    "run the same command with --resume to go on from there"):
             result, fitter = _track(clip, cfg, keyframes, progress, landmarks, larynx,
-                                    outline)
+                                    outline, outdir)
             result.timings.update(timings)  # the landmarks' time (none when resumed)
 
             paths = write_outputs(result, fitter, outdir, overlay, progress, truth)
@@ -79,11 +79,17 @@ def track_video(video: Path, outdir: Path, keyframes: int = 5, max_side: int = 6
     return result, paths + [record.path]
 
 
-def _track(clip, cfg, keyframes, progress, landmarks, larynx=True, outline=True):
+def _track(clip, cfg, keyframes, progress, landmarks, larynx=True, outline=True,
+           outdir: Path | None = None):
+    from hack_render.track.outputs import start_identity_files
     from hack_render.track.pipeline import track_clip
 
+    # the keyframe fit's files are written in a thread from the moment the fit ends
+    write = None if outdir is None else (
+        lambda fit, timings: start_identity_files(fit, outdir, timings))
     result = track_clip(clip, cfg, keyframes=keyframes, progress=progress,
-                        landmarks=landmarks, larynx=larynx, outline=outline)
+                        landmarks=landmarks, larynx=larynx, outline=outline,
+                        on_identity=write)
     return result, result.fitter
 
 

@@ -79,9 +79,14 @@ def skin_faces(model) -> np.ndarray:
 def blend(img: np.ndarray, rgba: np.ndarray, opacity: float = 0.6) -> np.ndarray:
     """The frame (H, W, 3) uint8 with the linear render ``rgba`` over it at ``opacity``
     (gamma 2.2 for display), where the render covers it."""
-    a = opacity * rgba[..., 3:4]
-    shade = np.clip(rgba[..., :3], 0, 1) ** (1 / 2.2) * 255
-    return (img * (1 - a) + shade * a).astype(np.uint8)
+    out = np.array(img, np.uint8)
+    flat, rgb = out.reshape(-1, 3), rgba.reshape(-1, 4)
+    on = np.flatnonzero(rgb[:, 3] > 0)      # the covered pixels only (the gamma's power
+    # over the whole frame was a sixth of a frame's drawing)
+    a = opacity * rgb[on, 3:4]
+    shade = np.clip(rgb[on, :3], 0, 1) ** (1 / 2.2) * 255
+    flat[on] = (flat[on] * (1 - a) + shade * a).astype(np.uint8)
+    return out
 
 
 def write_overlay(result: TrackResult, path: Path, progress: bool = True,
@@ -359,6 +364,18 @@ def _overlay_unless_stopped(result: TrackResult, path: Path, progress: bool,
         return None
 
 
+def start_identity_files(fit, outdir: Path, timings: dict) -> Background:
+    """The keyframe fit's files (``outdir``/identity: ``fit.outputs.write_all``) written in
+    a thread (``timings`` gets ``identity_files_s`` and its thread's CPU seconds): started
+    by ``track_clip`` as soon as the fit ends, so they are written while the per-frame
+    stages run on the other core; :func:`write_outputs` waits for them. The sheets take
+    :data:`IDENTITY_SHEET_PASSES` render passes (16 spp), not the photo fit's 16 (their
+    80 path-traced renders took about a tenth of the command's CPU time; the render
+    panel is a little noisier)."""
+    return Background(timings, "identity_files", write_all, fit, outdir / "identity",
+                      sheet_passes=IDENTITY_SHEET_PASSES)
+
+
 def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = True,
                   progress: bool = True, truth: dict | None = None) -> list[Path]:
     """Everything; the report last. Returns the paths written. The overlay video is
@@ -370,15 +387,11 @@ def write_outputs(result: TrackResult, fitter, outdir: Path, overlay: bool = Tru
     job = Background(result.timings, "overlay", _overlay_unless_stopped, result,
                       outdir / "overlay.mp4", progress, stop, workers) if overlay else None
     try:
-        # the keyframe fit's sheets: 4 render passes (16 spp), not the photo fit's 16
-        # (their 80 path-traced renders took about a tenth of the command's CPU time; the
-        # render panel is a little noisier). Timed in the report's timings_s (its CPU
-        # seconds: this thread's, the overlay's thread runs meanwhile)
-        t, c = time.perf_counter(), time.thread_time()
-        written += write_all(result.fit, outdir / "identity",
-                             sheet_passes=IDENTITY_SHEET_PASSES)
-        result.timings["identity_files_s"] = time.perf_counter() - t
-        result.timings["identity_files_cpu_s"] = time.thread_time() - c
+        # the keyframe fit's files: written since the fit ended where track_clip started
+        # them (start_identity_files), else here, beside the overlay's thread
+        ident = result.identity_job or start_identity_files(result.fit, outdir,
+                                                            result.timings)
+        written += ident.result()
         person = {"beta": result.fit.beta[0].detach().tolist(), "eta": float(result.fit.eta)}
         written.append(save_params(outdir / "person.json", person))
         written.append(save_sequence(outdir / "sequence.npz", sequence_of(result)))

@@ -68,6 +68,9 @@ class TrackResult:
     larynx: object = None          # the photometric tau's LarynxTrack (None: not tracked)
     outline: object = None         # the outline stage's OutlineResult (None: not run)
     warnings: list[str] = field(default_factory=list)  # :func:`quality_warnings`'s
+    # what ``track_clip``'s ``on_identity`` returned (a :class:`Background` writing the
+    # keyframe fit's files while the clip is tracked), None: not started
+    identity_job: object = None
 
 
 #: the tracked model's points farther than this from the detected ones (median over the
@@ -221,14 +224,18 @@ def identity_config(config) -> FitConfig:
 def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                keyframes: int = 5, progress: bool = True, model=None,
                landmarks: FrameLandmarks | None = None, larynx: bool = True,
-               outline: bool = True, outline_mask: str | None = None) -> TrackResult:
+               outline: bool = True, outline_mask: str | None = None,
+               on_identity=None) -> TrackResult:
     """Track a clip (no files written). ``config``: the keyframe fit's
     :class:`~hack_render.fit.config.FitConfig` (per-view expressions are switched on, its
     silhouette off: :func:`identity_config`); ``landmarks``: reuse landmarks found before
     (a resumed run); ``larynx``: track the larynx's slide per frame from the neck's
     shading (else the keyframe fit's tau); ``outline``: place the face's and neck's
     outline on the head-and-neck mask (``outline.py``; ``outline_mask`` "person": the
-    person mask, as before issue 63)."""
+    person mask, as before issue 63); ``on_identity``: called with the keyframe
+    FitResult and the timings as soon as the keyframe fit ends (``outputs.py`` starts
+    writing its files there, in a thread beside the per-frame stages, which use one
+    core); what it returns is the result's ``identity_job``."""
 
     tcfg = track_config or TrackConfig()
     outline_on = outline and (config is None or config.silhouette.mode != "off")
@@ -258,6 +265,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
                               every=OUTLINE_EVERY if mode == "head_neck" else 1)
     with timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
+    identity_job = on_identity(fit, timings) if on_identity is not None else None
     state = fitter.state
     rig = LandmarkRig.build(state.model, fit.beta.detach(), state.embedding)
     views = fit.views
@@ -304,7 +312,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
         if note:
             notes.append(note)
     result = TrackResult(clip, landmarks, keys, fit, rig, camera, params, tau, timings,
-                         notes, fitter, track, placed)
+                         notes, fitter, track, placed, identity_job=identity_job)
     result.warnings = quality_warnings(result)
     return result
 

@@ -88,6 +88,15 @@ class LandmarkRig:
                t: torch.Tensor) -> torch.Tensor:
         """Posed landmarks (T, 68, 3) in metres, the model's world frame."""
         rest = self.L0 + torch.einsum("te,elc->tlc", psi, self.D)
+        hg = torch.cat([h, g], 1)
+        if len(hg) > 8 and not hg.requires_grad:  # a finite-difference batch
+            # (solve._frame_lm, no autograd): most rows move only psi or t and share the
+            # skull's transform, made once per distinct (h, g): 7 of 63 rows, 0.8 ms
+            # instead of 1.4 ms a batch on the 2-core test host
+            uniq, inv = torch.unique(hg, dim=0, return_inverse=True)
+            if len(uniq) < len(hg):
+                A, a = self.skull(uniq[:, :3], uniq[:, 3:])
+                return rest @ A[inv].transpose(1, 2) + (a[inv] + t)[:, None]
         A, a = self.skull(h, g)
         return rest @ A.transpose(1, 2) + (a + t)[:, None]
 
