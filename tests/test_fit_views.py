@@ -161,3 +161,62 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
 
     with pytest.raises(HackError, match="no face found"):
         landmarks.detect(photo.uint8(), LandmarkConfig(fallback="off"))
+
+
+def test_05_batched_views_match_one_forward_per_view(model):
+    """The landmark stages evaluate the views in one batched forward
+    (``FitState.forward_views``; on the identity's personalised bases while beta takes no
+    gradient): the same vertices as one forward per view, and the same gradients for the
+    stage's own parameters (the others frozen by ``grads_only``, their flags restored)."""
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+
+    views = [_view(model, head=h, name=f"v{i}")
+             for i, h in enumerate([(0, 0, 0), (10, -25, 5), (-8, 30, 0)])]
+    cfg = load_config(None, {"per_view_expression": True, "silhouette": {"mode": "off"},
+                             "shape": {"n_beta": 20}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        st = Fitter([v[0] for v in views], [v[1] for v in views], cfg, model=model,
+                    appearance=None, progress=False).state
+    g = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        st.beta.copy_(torch.randn(st.beta.shape, generator=g))
+        for v in st.views:
+            v.head_angles.copy_(0.2 * torch.randn(3, generator=g))
+            v.dtheta.copy_(0.02 * torch.randn(8, 3, generator=g))
+            v.psi.copy_(torch.rand(v.psi.shape, generator=g) * (torch.rand(v.psi.shape,
+                                                                           generator=g) < 0.2))
+
+    def grads(batched: bool, params):
+        for p in st.leaves():
+            p.grad = None
+        verts = (st.forward_views() if batched
+                 else [st.forward(v).vertices[0] for v in st.views])
+        sum((vv[::97] ** 2).sum() * (i + 1) for i, vv in enumerate(verts)).backward()
+        assert all(p.grad is not None for p in params), [p.grad is None for p in params]
+        return [vv.detach() for vv in verts], [p.grad.clone() for p in params]
+
+    # the shape stage (beta takes gradients): the batched forward of the model
+    shape_params = [st.beta] + [p for v in st.views for p in (v.head_angles, v.psi)]
+    with st.grads_only(shape_params):
+        (va, ga), (vb, gb) = grads(True, shape_params), grads(False, shape_params)
+    for a, b in zip(va + ga, vb + gb):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+    # the camera stage (beta frozen): the personalised bases, made once for this beta
+    cam_params = [p for v in st.views for p in (v.head_angles, v.global_orient)]
+    with st.grads_only(cam_params):
+        assert not st.beta.requires_grad and not st.views[0].psi.requires_grad
+        (va, ga), (vb, gb) = grads(True, cam_params), grads(False, cam_params)
+        assert st.personal is not None and torch.equal(st.personal[0], st.beta)
+        first = st.personal[1]
+        st.forward_views()
+        assert st.personal[1] is first          # kept while beta is unchanged
+    for a, b in zip(va + ga, vb + gb):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+    assert all(p.requires_grad for p in st.leaves())
+    with torch.no_grad():
+        st.beta.add_(0.5)
+    with st.grads_only(cam_params):
+        st.forward_views()
+        assert torch.equal(st.personal[0], st.beta)   # rebuilt for the new identity

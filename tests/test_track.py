@@ -47,6 +47,14 @@ def test_01_rig_equals_the_model_forward(model, rig_setup):
     want = landmark_points(out.vertices.double(), emb, model)
     got = rig.points(psi.double(), h.double(), go.double(), t.double())
     assert float((want - got).abs().max()) < 1e-6
+    # a finite-difference batch (the per-frame solve's Jacobian: each row one parameter
+    # moved) makes the skull once per distinct head and torso pose: the same points
+    x = torch.cat([h[:1], go[:1], t[:1], psi[:1]], 1).double()
+    X = torch.cat([x, x + 1e-3 * torch.eye(x.shape[1], dtype=x.dtype)])
+    fd = rig.points(X[:, 9:], X[:, :3], X[:, 3:6], X[:, 6:9])
+    A, a = rig.skull(X[:, :3], X[:, 3:6])
+    rest = rig.L0 + torch.einsum("te,elc->tlc", X[:, 9:], rig.D)
+    assert torch.equal(fd, rest @ A.transpose(1, 2) + (a + X[:, 6:9])[:, None])
 
 
 def _motion(model, T=90, fps=30.0):
@@ -543,3 +551,76 @@ def test_15_the_rasterised_overlay_equals_the_ray_cast_one(model):
         assert np.median(d) < 1e-4 and np.mean(d > 0.01) < 0.005
         diff = np.abs(blend(img, ray).astype(int) - blend(img, ras).astype(int))
         assert np.median(diff[both]) <= 1 and np.mean(diff > 2) < 0.005
+
+
+def test_16_hidden_parts_are_culled_without_changing_the_image(model, monkeypatch):
+    """The rasteriser draws the closed skin first and skips the open parts (teeth,
+    tongue, the eyes' inner layers) that the skin hides over their whole box: the same
+    fragments as drawing every triangle, mouth closed and open; with the mouth closed
+    most open triangles are skipped."""
+    from hack_render.fit.camera import R0
+    from hack_render.render import raster
+    from hack_render.track.outputs import skin_faces
+    from scenes.cameras import Camera
+
+    faces, closed = model.faces.numpy(), skin_faces(model)
+    psi = torch.zeros(2, model.num_expressions)
+    psi[1, list(model.expression_names).index("jawOpen")] = 0.9
+    h = torch.tensor([[0.05, 0.3, 0.0], [-0.15, -0.2, 0.1]])
+    with torch.no_grad():
+        V = model(psi=psi, theta=distribute_head_rotation(h)).vertices.double().numpy()
+    K = np.array([[900.0, 0, 128], [0, 900.0, 128], [0, 0, 1.0]])
+    camera = Camera(K, R0.double().numpy(), np.array([0.0, -0.05, 0.75]), 256, 256, "test")
+    names = list(model.material_names)
+    mouth = np.isin(model.face_material.numpy(),
+                    [names.index(n) for n in ("M_Teeth", "M_GumsTongue")])
+    culled, seen = [], []
+    real = raster._hidden
+
+    def spy(*a):
+        out = real(*a)
+        culled.append(out)
+        return out
+
+    for i, v in enumerate(V):
+        monkeypatch.setattr(raster, "_hidden", spy)
+        got = raster.fragments(v, faces, camera, closed)
+        monkeypatch.setattr(raster, "_hidden", lambda sbuf, lo, hi, near: np.zeros(len(lo), bool))
+        want = raster.fragments(v, faces, camera, closed)
+        order_g, order_w = np.argsort(got[0]), np.argsort(want[0])
+        assert len(got[0]) > 10000 and np.array_equal(got[0][order_g], want[0][order_w])
+        assert np.array_equal(got[1][order_g], want[1][order_w])
+        np.testing.assert_allclose(got[2][order_g], want[2][order_w], atol=1e-9)
+        seen.append(int(np.isin(got[1], np.flatnonzero(mouth)).sum()))
+    # the mouth closed, most of the open parts skipped; opened, far more teeth are seen
+    assert culled[0].mean() > 0.3 and seen[1] > 5 * max(seen[0], 1)
+
+
+@pytest.mark.parametrize("T, windows", [(30, 1), (37, 1), (41, 2), (64, 3)])
+def test_17_joint_solve_windows_cover_the_clip_without_a_tail_window(model, rig_setup,
+                                                                      monkeypatch, T, windows):
+    """The joint solve runs over windows of ``TrackConfig.window`` frames; a clip up to a
+    quarter longer than a window is one window (a second one for a short tail solved a
+    whole window again), and every frame of a longer clip is in some window."""
+    from hack_render.track import solve
+
+    rig = rig_setup[0]
+    E = model.num_expressions
+    cam = solve.ClipCamera(1500.0, 640, 480, np.array([0.0, -0.03, 1.0]))
+    zeros = solve.FrameParams(np.zeros((T, 3)), np.zeros((T, 3)), np.zeros((T, 3)),
+                              np.zeros((T, E)))
+    with torch.no_grad():
+        uv = cam.project(rig.points(*(torch.as_tensor(a) for a in (
+            zeros.psi, zeros.h, zeros.g, zeros.t)))).numpy()
+    spans = []
+
+    def fake(x0, fn, iterations):
+        spans.append(len(x0))
+        return torch.ones_like(x0)   # "solved"
+
+    monkeypatch.setattr(solve, "_lbfgs", fake)
+    cfg = solve.TrackConfig(window=30)
+    out = solve.solve_clip(rig, cam, uv, np.ones(T, bool), np.ones(68), zeros, np.zeros(3),
+                           cfg, progress=False)
+    assert spans == ([T] if windows == 1 else [30] * windows)
+    assert np.all(out.h == 1.0)   # every frame solved

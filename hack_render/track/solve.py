@@ -324,18 +324,21 @@ def solve_clip(rig, cam: ClipCamera, obs: np.ndarray, found: np.ndarray, weights
                progress: bool = True, extra=None) -> FrameParams:
     """The joint solve: every frame's landmarks and priors plus velocity and acceleration
     penalties, over windows of ``cfg.window`` frames (each starting from the warm-started
-    pass and joined to the frames before it). ``extra(x, frames)``: a further cost of a
+    pass and joined to the frames before it; a clip up to 1.25 windows long is one). ``extra(x, frames)``: a further cost of a
     window's parameters x (T', D) for the frames (a slice) it holds (the outline stage's)."""
     cfg = cfg or TrackConfig()
     T = len(obs)
     x_all = torch.as_tensor(init.vector(), dtype=torch.float64).clone()
-    step = max(1, cfg.window - cfg.window // 4)
-    starts = list(range(0, max(T - cfg.window, 0) + 1, step))
-    if starts[-1] + cfg.window < T:
-        starts.append(T - cfg.window)
+    # a clip up to a quarter longer than a window is one window: a second one over the
+    # last window's frames for a short tail doubled the solve (250 frames: 240 + 240)
+    span = T if T <= cfg.window + cfg.window // 4 else cfg.window
+    step = max(1, span - span // 4)
+    starts = list(range(0, max(T - span, 0) + 1, step))
+    if starts[-1] + span < T:
+        starts.append(T - span)
     for s in tqdm(starts, desc="smoothing", unit="window", disable=not progress or len(starts) < 2,
                   leave=False):
-        e = min(T, s + cfg.window)
+        e = min(T, s + span)
         obj = _Objective(rig, cam, obs[s:e], found[s:e], _window(weights, slice(s, e)), cfg,
                          g_ref)
         head = x_all[max(0, s - 2):s] if s > 0 else None
