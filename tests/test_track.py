@@ -527,7 +527,8 @@ def test_15_the_rasterised_overlay_equals_the_ray_cast_one(model):
     from hack_render.fit.camera import R0
     from hack_render.render.mesh_views import MeshViews
     from hack_render.render.raster import render_shaded
-    from hack_render.track.outputs import blend, skin_faces
+    from hack_render.track.draw import blend
+    from hack_render.track.outputs import skin_faces
     from scenes.cameras import Camera
 
     faces = model.faces.numpy()

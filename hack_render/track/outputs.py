@@ -4,14 +4,12 @@ landmarks, the overlay video and the report."""
 from __future__ import annotations
 
 import threading
-import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image, ImageDraw
 from tqdm import tqdm
 
 from hack_render.fit.camera import R0
@@ -19,7 +17,7 @@ from hack_render.fit.outputs import write_all
 from hack_render.geometry.params import save_params, save_sequence
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import atomic_path, write_json
-from hack_render.render.raster import render_shaded
+from hack_render.track import draw
 from hack_render.track.pipeline import Background, TrackResult, sequence_of
 from hack_render.track.solve import landmark_error
 from hack_render.track.video import Mp4Writer
@@ -58,15 +56,6 @@ def frame_vertices(result: TrackResult, start: int, stop: int) -> np.ndarray:
     return out.vertices.numpy()
 
 
-def _dots(img: np.ndarray, pts: np.ndarray, colour, r: int = 1) -> None:
-    h, w = img.shape[:2]
-    for x, y in pts:
-        if not (np.isfinite(x) and np.isfinite(y)):
-            continue
-        xi, yi = int(x), int(y)
-        img[max(0, yi - r):min(h, yi + r + 1), max(0, xi - r):min(w, xi + r + 1)] = colour
-
-
 def skin_faces(model) -> np.ndarray:
     """(F,) the triangles of the model's skin (``M_Face``, ``M_BackHead``): a closed
     surface seen from outside (its holes filled by the eyes and the mouth), so the
@@ -76,73 +65,56 @@ def skin_faces(model) -> np.ndarray:
     return np.isin(model.face_material.numpy(), ids)
 
 
-def blend(img: np.ndarray, rgba: np.ndarray, opacity: float = 0.6) -> np.ndarray:
-    """The frame (H, W, 3) uint8 with the linear render ``rgba`` over it at ``opacity``
-    (gamma 2.2 for display), where the render covers it."""
-    out = np.array(img, np.uint8)
-    flat, rgb = out.reshape(-1, 3), rgba.reshape(-1, 4)
-    on = np.flatnonzero(rgb[:, 3] > 0)      # the covered pixels only (the gamma's power
-    # over the whole frame was a sixth of a frame's drawing)
-    a = opacity * rgb[on, 3:4]
-    shade = np.clip(rgb[on, :3], 0, 1) ** (1 / 2.2) * 255
-    flat[on] = (flat[on] * (1 - a) + shade * a).astype(np.uint8)
-    return out
-
-
 def write_overlay(result: TrackResult, path: Path, progress: bool = True,
                   stop: threading.Event | None = None, cpu: list | None = None) -> Path:
     """MP4 at the clip's rate: each frame with the fitted model drawn over it (shaded,
     60 % opacity; rasterised, :func:`~hack_render.render.raster.render_shaded`: the image
     of the mesh viewer's ray caster in a fraction of its time), the detected landmarks
-    (green) and the model's (red); lost frames say so in a red band. ``stop``: set, the
-    video is abandoned (nothing written) at the next frame; ``cpu``: a list that gets the
-    drawing threads' CPU seconds."""
+    (green) and the model's (red); lost frames say so in a red band
+    (:func:`~hack_render.track.draw.draw_frame`). ``stop``: set, the video is abandoned
+    (nothing written) at the next frame; ``cpu``: a list that gets the drawing threads'
+    CPU seconds."""
 
     clip, cam = result.clip, result.camera
     w, h = clip.work
     K = np.array([[cam.focal, 0, w / 2], [0, cam.focal, h / 2], [0, 0, 1.0]])
-    camera = Camera(K, R0.double().numpy(), np.asarray(cam.cam_t, np.float64), w, h, "clip")
+    camera = (K, R0.double().numpy(), np.asarray(cam.cam_t, np.float64), w, h)
     model = result.fit.model
     faces = model.faces.numpy()
     closed = skin_faces(model)
     _, _, uv = landmark_error(result.rig, cam, result.params, result.landmarks.points,
                               result.landmarks.found)
+    lm = result.landmarks
     chunk = 16
     verts = None
-
-    def draw(i: int, img: np.ndarray, v: np.ndarray) -> np.ndarray:
-        c0 = time.thread_time()
-        frame = blend(img, render_shaded(v, faces, camera, closed=closed))
-        _dots(frame, result.landmarks.points[i], (40, 220, 60))
-        _dots(frame, uv[i], (230, 40, 40))
-        if not result.landmarks.found[i]:
-            pil = Image.fromarray(frame)
-            d = ImageDraw.Draw(pil)
-            d.rectangle([0, 0, w, 14], fill=(200, 20, 20))
-            d.text((4, 1), f"frame {i}: face lost ({result.landmarks.why[i]}); "
-                   "interpolated", fill=(255, 255, 255))
-            frame = np.asarray(pil)
-        drawn.append(time.thread_time() - c0)
-        return frame
-
-    drawn: list[float] = []   # the workers' CPU seconds (list.append is atomic)
-    # frames drawn by OVERLAY_THREADS workers (the rasteriser's NumPy releases the GIL:
-    # 1.5x on 2 cores), written in order; each frame is drawn alone, so the video is the
-    # same bits as drawn one by one
+    drawn: list[float] = []   # the drawing threads' CPU seconds
+    # frames drawn by OVERLAY_THREADS threads (the rasteriser's NumPy releases the GIL:
+    # 1.6x one thread on 2 cores; worker processes were slower still, their frames
+    # pickled both ways), written in order; each frame is drawn alone, so the video is
+    # the same bits as drawn one by one
+    ctx = draw.frame_context(faces, closed, camera)
+    pool = ThreadPoolExecutor(OVERLAY_THREADS, thread_name_prefix="overlay")
     pending: deque = deque()
-    with Mp4Writer(path, (w, h), clip.fps) as out, \
-            ThreadPoolExecutor(OVERLAY_THREADS, thread_name_prefix="overlay") as pool:
+
+    def take():
+        frame, sec = pending.popleft().result()
+        drawn.append(sec)
+        out.write(frame)
+
+    with Mp4Writer(path, (w, h), clip.fps) as out, pool:
         for i, img in enumerate(tqdm(clip.read(), total=clip.frames, desc="overlay",
                                      unit="frame", disable=not progress, leave=False)):
             if stop is not None and stop.is_set():
                 raise _Stopped
             if i % chunk == 0:
                 verts = frame_vertices(result, i, min(clip.frames, i + chunk))
-            pending.append(pool.submit(draw, i, img, verts[i % chunk]))
+            pending.append(pool.submit(draw.draw_frame, ctx, i, img, verts[i % chunk],
+                                       lm.points[i], uv[i],
+                                       None if lm.found[i] else str(lm.why[i])))
             if len(pending) > 2 * OVERLAY_THREADS:
-                out.write(pending.popleft().result())
+                take()
         while pending:
-            out.write(pending.popleft().result())
+            take()
     if cpu is not None:
         cpu.append(sum(drawn))
     return path
