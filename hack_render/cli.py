@@ -206,7 +206,7 @@ def _run(argv: list[str] | None) -> int | None:
         return 130
     except SystemExit:
         raise
-    except Exception as err:  # noqa: BLE001 - sorted below; what is not ours is re-raised
+    except Exception as err:  # sorted below; what is not ours is re-raised
         if interrupts.is_interruption(err):  # Ctrl-C / SIGTERM inside a native loop or import
             return 130
         if isinstance(err, OSError) and err.errno in USER_OS_ERRORS:
