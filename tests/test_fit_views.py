@@ -220,3 +220,72 @@ def test_05_batched_views_match_one_forward_per_view(model):
     with st.grads_only(cam_params):
         st.forward_views()
         assert torch.equal(st.personal[0], st.beta)   # rebuilt for the new identity
+
+
+def test_06_landmark_stages_read_a_vertex_subset(model):
+    """The camera stage and the shape stage without a silhouette term compute only the
+    vertices their terms read (``FitState.landmark_reads``, ``geometry/subset.py``): there
+    the same vertices and normals as the whole model's forward, the same objective and
+    the same gradients for every parameter; a vertex the model blends between joints, or
+    one carrying a pose corrective or the larynx, sends the forward back to the model."""
+    from hack_render.fit import terms
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+    from hack_render.geometry.subset import VertexSubset
+    from hack_render.render.bridge import vertex_normals_torch
+
+    views = [_view(model, head=h, name=f"v{i}")
+             for i, h in enumerate([(0, 0, 0), (10, -25, 5)])]
+    cfg = load_config(None, {"per_view_expression": True, "silhouette": {"mode": "off"},
+                             "shape": {"n_beta": 30}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        st = Fitter([v[0] for v in views], [v[1] for v in views], cfg, model=model,
+                    appearance=None, progress=False).state
+    g = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        st.beta.copy_(torch.randn(st.beta.shape, generator=g))
+        for v in st.views:
+            v.head_angles.copy_(0.2 * torch.randn(3, generator=g))
+            v.dtheta.copy_(0.02 * torch.randn(8, 3, generator=g))
+            v.global_orient.copy_(0.05 * torch.randn(3, generator=g))
+            v.psi.copy_(torch.rand(v.psi.shape, generator=g) * (torch.rand(v.psi.shape,
+                                                                           generator=g) < 0.3))
+    index, sub = st.landmark_reads()
+    assert sub is not None and torch.equal(sub.index, torch.as_tensor(index))
+    cand = np.concatenate(st.jaw.candidates)
+    need = np.r_[st.lmk_idx.numpy(), cand, st.embedding.vertex_ids.reshape(-1)]
+    assert np.isin(need, index).all() and len(index) < model.num_vertices // 20
+    full = [x.detach() for x in st.forward_views()]
+    part = [x.detach() for x in st.forward_views(landmarks_only=True)]
+    outside = np.setdiff1d(np.arange(model.num_vertices), index)
+    for a, b in zip(full, part):
+        torch.testing.assert_close(b[index], a[index], rtol=0, atol=2e-6)
+        assert not b[outside].any()
+        # the jawline re-match reads the normals at its candidates: every face about
+        # them is in the subset
+        na, nb = (vertex_normals_torch(x, st.faces)[cand] for x in (a, b))
+        torch.testing.assert_close(nb, na, rtol=0, atol=1e-5)
+
+    def objective(subset: bool, fn):
+        saved = st.reads
+        if not subset:
+            st.reads = (index, None)          # no subset: the whole model's forward
+        for p in st.leaves():
+            p.grad = None
+        loss, _ = fn(st, cfg, 0)
+        loss.backward()
+        st.reads = saved
+        # eta and tau move no vertex read here: no gradient (None) or zeros
+        return [loss.detach()] + [torch.zeros_like(p) if p.grad is None else p.grad.clone()
+                                  for p in st.leaves()]
+
+    for fn in (terms.shape_objective, terms.camera_objective):
+        a, b = objective(False, fn), objective(True, fn)
+        assert len(a) == len(b) > 8
+        for x, y in zip(a, b):
+            torch.testing.assert_close(y, x, rtol=1e-4, atol=1e-6)
+    for moved in (model.blended_vertices[:1], model.pose_personal.vertices[:1],
+                  model.larynx_vertices[:1]):
+        assert VertexSubset.build(model, np.r_[index, moved.numpy()]) is None
+    assert VertexSubset.build(model, [model.num_vertices]) is None

@@ -31,6 +31,7 @@ from hack_render.fit.lighting import Lighting
 from hack_render.fit.photo import Photo
 from hack_render.geometry.larynx import ETA_RANGE, TAU_RANGE_M
 from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.geometry.subset import VertexSubset
 from hack_render.vision.detection import Detection
 
 
@@ -134,6 +135,8 @@ class FitState:
     albedo_balance: dict = field(default_factory=dict)  # photometric.balance_albedo's report
     # (beta, PersonalizedHack) of :meth:`forward_views` while beta takes no gradient
     personal: tuple | None = field(default=None, repr=False)
+    # (the vertices :meth:`landmark_reads` lists, their VertexSubset or None)
+    reads: tuple | None = field(default=None, repr=False)
 
     @property
     def faces(self) -> torch.Tensor:
@@ -172,6 +175,12 @@ class FitState:
         """(1, 8, 3) neck pose: the head rotation's anatomical share plus the residual."""
         return (distribute_head_rotation(v.head_angles, clamp=False) + v.dtheta)[None]
 
+    def thetas(self) -> torch.Tensor:
+        """(V, 8, 3) every view's :meth:`theta`, in one call of the anatomical share."""
+        h = torch.stack([v.head_angles for v in self.views])
+        return distribute_head_rotation(h, clamp=False) + torch.stack(
+            [v.dtheta for v in self.views])
+
     def forward(self, v: View, psi: torch.Tensor | None = None):
         """The model's output for view ``v`` (``psi``: this expression instead of the
         view's), its eyeballs turned by the view's gaze (``fit/gaze.py``) where it has one."""
@@ -184,19 +193,51 @@ class FitState:
                                 out.rest_vertices[0], v.gaze)
         return dataclasses.replace(out, vertices=verts[None])
 
-    def forward_views(self) -> list[torch.Tensor]:
+    def landmark_reads(self):
+        """The vertices the landmark terms read (``terms.model_landmarks``), and their
+        :class:`~hack_render.geometry.subset.VertexSubset` (None where the model does not
+        move them all rigidly with the skull): the embedding's triangles, the landmark
+        vertices, the jawline's candidates and every vertex of the faces about those
+        (the re-match's normals there). Made once per state."""
+        if self.reads is None:
+            cand = np.concatenate([np.asarray(c).reshape(-1) for c in self.jaw.candidates])
+            F = self.faces.numpy()
+            ring = F[np.isin(F, cand).any(1)].reshape(-1)
+            ids = [self.lmk_idx.numpy(), cand, ring]
+            if self.embedding is not None:
+                ids.append(np.asarray(self.embedding.vertex_ids).reshape(-1))
+            index = np.unique(np.concatenate(ids).astype(np.int64))
+            self.reads = (index, VertexSubset.build(self.model, index))
+        return self.reads
+
+    def forward_views(self, landmarks_only: bool = False,
+                      thetas: torch.Tensor | None = None) -> list[torch.Tensor]:
         """Every view's posed vertices (N, 3), as :meth:`forward`'s: one batched forward
         of the model where there are several views and none has a gaze (the batch shares
         the identity; forward and backward in about half the time of one forward per
-        view), else one per view."""
+        view), else one per view.
+
+        ``landmarks_only``: the caller reads only :meth:`landmark_reads`' vertices (the
+        camera stage, and the shape stage without a silhouette term); where the model
+        moves them rigidly with the skull, only they are computed
+        (``geometry/subset.py``: the same values to rounding, a twentieth of the work) and
+        every other vertex is left at zero. ``thetas``: :meth:`thetas`, when the caller
+        has them."""
         views = self.views
-        if len(views) < 2 or any(v.gaze is not None for v in views):
+        if any(v.gaze is not None for v in views):
+            return [self.forward(v).vertices[0] for v in views]
+        sub = self.landmark_reads()[1] if landmarks_only else None
+        if sub is None and len(views) < 2:
             return [self.forward(v).vertices[0] for v in views]
         B = len(views)
         kw = {"psi": torch.cat([self.view_psi(v) for v in views]),
-              "theta": torch.cat([self.theta(v) for v in views]),
-              "global_orient": torch.stack([v.global_orient for v in views]),
-              "eta": self.eta.expand(B), "tau": self.tau.expand(B)}
+              "theta": self.thetas() if thetas is None else thetas,
+              "global_orient": torch.stack([v.global_orient for v in views])}
+        if sub is not None:
+            pts = sub(self.beta, **kw)
+            full = pts.new_zeros(B, self.model.num_vertices, 3)
+            return list(full.index_copy(1, sub.index, pts).unbind(0))
+        kw |= {"eta": self.eta.expand(B), "tau": self.tau.expand(B)}
         if self.beta.requires_grad:
             return list(self.model(beta=self.beta, **kw).vertices.unbind(0))
         # the identity fixed (the camera stage): its bases made once

@@ -157,8 +157,11 @@ def silhouette_loss(state: FitState, cfg: FitConfig, v: View, verts: torch.Tenso
     return SILHOUETTE_INSIDE_WEIGHT * inside + SILHOUETTE_CONTOUR_WEIGHT * contour
 
 
-def pose_priors(state: FitState, cfg: FitConfig, v: View) -> dict[str, torch.Tensor]:
-    th = state.theta(v)
+def pose_priors(state: FitState, cfg: FitConfig, v: View,
+                th: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    """E_rot, E_sim and the rotations' priors of a view (``th``: its (1, 8, 3) neck
+    pose, :meth:`~hack_render.fit.state.FitState.theta`, when the caller has it)."""
+    th = state.theta(v) if th is None else th
     terms = {"E_rot": W_ROT * rotation_limit_penalty(th).sum(),
              "E_sim": W_SIM * adjacent_similarity_penalty(th, normalized=True).sum(),
              "dtheta": W_DTHETA * (v.dtheta ** 2).sum()}
@@ -184,12 +187,12 @@ def beta_prior(state: FitState, cfg: FitConfig) -> torch.Tensor:
 
 
 def shape_terms(state: FitState, cfg: FitConfig, v: View, verts: torch.Tensor,
-                it: int) -> dict[str, torch.Tensor]:
+                it: int, th: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
     """One view's part of the shape objective: landmarks, focal prior, pose priors and the
     expression prior (the photometric stage keeps it, scaled), and the silhouette term
-    when the view has a person mask."""
+    when the view has a person mask (``th`` as in :func:`pose_priors`)."""
     terms = {"landmarks": landmark_loss(state, cfg, v, verts, it),
-             "focal_prior": 0.01 * focal_prior(cfg, v), **pose_priors(state, cfg, v),
+             "focal_prior": 0.01 * focal_prior(cfg, v), **pose_priors(state, cfg, v, th),
              "psi_prior": psi_prior(state, cfg, v)}
     if v.silhouette is not None:
         terms["silhouette"] = silhouette_loss(state, cfg, v, verts, it)
@@ -200,8 +203,10 @@ def shape_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Ten
     """Sum of :func:`shape_terms` over the views plus the identity prior, and its terms
     as floats (the shape stage's loss)."""
     total, terms = 0.0, {}
-    for v, verts in zip(state.views, state.forward_views()):
-        for k, x in shape_terms(state, cfg, v, verts, it).items():
+    landmarks_only = all(v.silhouette is None for v in state.views)
+    th = state.thetas()
+    for i, (v, verts) in enumerate(zip(state.views, state.forward_views(landmarks_only, th))):
+        for k, x in shape_terms(state, cfg, v, verts, it, th[i:i + 1]).items():
             total = total + x
             terms[k] = terms.get(k, 0.0) + float(x.detach())
     bp = beta_prior(state, cfg)
@@ -212,10 +217,11 @@ def shape_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Ten
 def camera_objective(state: FitState, cfg: FitConfig, it: int) -> tuple[torch.Tensor, dict]:
     """The camera stage's loss: landmarks, a light focal prior and E_rot, per view."""
     total, terms = 0.0, {"landmarks": 0.0, "focal_prior": 0.0}
-    for v, verts in zip(state.views, state.forward_views()):
+    th = state.thetas()
+    for i, (v, verts) in enumerate(zip(state.views, state.forward_views(True, th))):
         lm = landmark_loss(state, cfg, v, verts, it)
         fp = 0.01 * focal_prior(cfg, v)
-        rot = rotation_limit_penalty(state.theta(v)).sum()
+        rot = rotation_limit_penalty(th[i:i + 1]).sum()
         total = total + lm + fp + rot
         terms["landmarks"] += float(lm.detach())
         terms["focal_prior"] += float(fp.detach())
