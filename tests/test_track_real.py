@@ -210,6 +210,41 @@ def test_the_identity_fit_does_not_read_the_person_mask():
     assert pipeline.OUTLINE_MASK == "head_neck"
 
 
+def test_the_outline_masks_made_beside_the_landmarks_equal_those_made_after(tmp_path):
+    """The outline stage's masks are made in a thread from each frame as its landmarks
+    are final (``pipeline.MaskFeed``, beside dlib's one core): the same masks as made
+    from the finished landmarks; a clip whose frame count was announced wrong says so
+    (``complete`` False: the command then makes the masks afresh)."""
+    import torch
+
+    from hack_render.track import pipeline
+    from hack_render.track.detect import FrameDetector, detect_frames
+    from hack_render.track.outline import frame_masks
+    from hack_render.track.video import open_clip
+
+    clip = open_clip(_frames(tmp_path / "frames", n=4), fps=5.0)
+
+    def streamed(announced: int):
+        feed = pipeline.MaskFeed(announced)
+        job = pipeline.Background({}, "masks", frame_masks, feed.frames(), feed.points,
+                                  feed.found, every=1)
+        try:
+            lm = detect_frames(clip.read(), FrameDetector(refiner="off"), False,
+                               on_frame=feed.put)
+        finally:
+            feed.close()
+        return feed, job.result(), lm
+
+    for wrong in (clip.frames + 1, clip.frames - 1):
+        assert not streamed(wrong)[0].complete
+    feed, masks, lm = streamed(clip.frames)
+    after = frame_masks(clip.read(), lm.points, lm.found.copy(), every=1)
+    assert feed.complete and lm.found.all() and masks.has.all() and after.has.all()
+    assert np.array_equal(feed.points, lm.points) and np.array_equal(feed.found, lm.found)
+    assert torch.equal(masks.sdf, after.sdf) and masks.source == after.source
+    assert np.array_equal(masks.limit_y, after.limit_y)
+
+
 @pytest.mark.parametrize("flags,config,want", [
     ([], None, "off"),                                   # the default: dlib's own points
     (["--refine"], None, "dlib"),                        # the shipped refiner

@@ -180,13 +180,17 @@ class FrameDetector:
 
 
 def detect_frames(frames, detector: FrameDetector | None = None, progress: bool = True,
-                  total: int | None = None) -> FrameLandmarks:
-    """Landmarks of every frame of an iterable of (H, W, 3) uint8 images."""
+                  total: int | None = None, on_frame=None) -> FrameLandmarks:
+    """Landmarks of every frame of an iterable of (H, W, 3) uint8 images. ``on_frame``:
+    called as ``on_frame(i, img, points, found)`` as each frame's landmarks are final
+    (points (68, 2), NaN where no face was found)."""
     det = detector or FrameDetector()
     pts, raws, boxes, why, masks, source = [], [], [], [], [], []
-    for img in tqdm(frames, total=total, desc="landmarks", unit="frame", disable=not progress,
-                    leave=False):
+    for i, img in enumerate(tqdm(frames, total=total, desc="landmarks", unit="frame",
+                                 disable=not progress, leave=False)):
         p, raw, box, reason, mask = det.detect(img)
+        if on_frame is not None:
+            on_frame(i, img, np.full((68, 2), np.nan) if p is None else p, reason == "")
         nan = np.full((68, 2), np.nan)
         pts.append(nan if p is None else p)
         raws.append(nan if raw is None else raw)

@@ -131,6 +131,41 @@ class Background(threading.Thread):
         return self.value
 
 
+class MaskFeed:
+    """The landmarks stage's frames and points handed, as each frame's landmarks are
+    final, to a thread that makes the outline stage's masks (:func:`~hack_render.track.
+    outline.frame_masks` reads frame i's points and found flag only): the masks' face mesh
+    and NumPy then run beside dlib's one-core detection instead of beside the keyframe
+    fit. :attr:`points` and :attr:`found` are filled as frames come; :meth:`frames` is
+    the masks' frame iterable; :meth:`close` ends it (a clip with more or fewer frames
+    than announced: :attr:`complete` is False and the caller makes the masks afresh)."""
+
+    def __init__(self, frames: int):
+        import queue
+
+        self.points = np.full((frames, 68, 2), np.nan)
+        self.found = np.zeros(frames, bool)
+        self.seen = 0
+        self.queue: queue.Queue = queue.Queue(maxsize=32)
+
+    def put(self, i: int, img: np.ndarray, points: np.ndarray, found: bool) -> None:
+        self.seen = i + 1
+        if i < len(self.found):
+            self.points[i], self.found[i] = points, found
+            self.queue.put(img)
+
+    def close(self) -> None:
+        self.queue.put(None)
+
+    @property
+    def complete(self) -> bool:
+        return self.seen == len(self.found)
+
+    def frames(self):
+        while (img := self.queue.get()) is not None:
+            yield img
+
+
 def pick_keyframes(found: np.ndarray, count: int, points: np.ndarray) -> list[int]:
     """``count`` frames with a face, spread over the clip: the first found frame, then in
     each of ``count - 1`` equal spans the frame whose face turns furthest from the ones
@@ -241,10 +276,34 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     outline_on = outline and (config is None or config.silhouette.mode != "off")
     cfg = identity_config(config)
     timings, notes = {}, list(clip.notes)
+    # the outline stage's masks need only the frames and their landmarks: made in a
+    # thread from each frame as its landmarks are final (beside dlib's one core), or, for
+    # landmarks given, beside the keyframe fit (its torch work and the masks' face mesh and
+    # NumPy then share the two cores)
+    sc = (config or FitConfig()).silhouette
+    mode = outline_mask or OUTLINE_MASK
+
+    def masks_from(frames, points, found) -> Background:
+        return Background(timings, "outline_masks", frame_masks, frames, points, found,
+                          segment=sc.segment, chroma=sc.chroma, mode=mode,
+                          every=OUTLINE_EVERY if mode == "head_neck" else 1)
+
+    masking = feed = None
     if landmarks is None:
-        with timed(timings, "landmarks"):
-            landmarks = detect_frames(clip.read(), FrameDetector(
-                refiner=cfg.landmarks.refiner), progress, clip.frames)
+        if outline_on:
+            feed = MaskFeed(clip.frames)
+            masking = masks_from(feed.frames(), feed.points, feed.found)
+        try:
+            with timed(timings, "landmarks"):
+                landmarks = detect_frames(clip.read(), FrameDetector(
+                    refiner=cfg.landmarks.refiner), progress, clip.frames,
+                    on_frame=feed.put if feed is not None else None)
+        finally:
+            if feed is not None:
+                feed.close()
+        if feed is not None and not feed.complete:  # the clip's frame count was wrong
+            masking.result()
+            masking = None
     if landmarks.found.sum() < 2:
         raise HackError(f"track: a face was found in {int(landmarks.found.sum())} of "
                         f"{len(landmarks.found)} frames; expected at least 2. Use a clip with "
@@ -253,16 +312,8 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     by_dlib = landmarks.found & np.array([src == "dlib" for src in landmarks.source])
     keys = pick_keyframes(by_dlib if by_dlib.any() else landmarks.found, keyframes,
                           landmarks.points)
-    masking = None
-    if outline_on:  # the outline stage's masks need only the frames and their landmarks:
-        # made in a thread while the keyframe fit runs (its torch work and the masks'
-        # face mesh and NumPy share the two cores)
-        sc = (config or FitConfig()).silhouette
-        mode = outline_mask or OUTLINE_MASK
-        masking = Background(timings, "outline_masks", frame_masks, clip.read(),
-                              landmarks.points, landmarks.found.copy(), segment=sc.segment,
-                              chroma=sc.chroma, mode=mode,
-                              every=OUTLINE_EVERY if mode == "head_neck" else 1)
+    if outline_on and masking is None:
+        masking = masks_from(clip.read(), landmarks.points, landmarks.found.copy())
     with timed(timings, "identity_fit"):
         fit, fitter = fit_identity(clip, landmarks, keys, cfg, progress)
     identity_job = on_identity(fit, timings) if on_identity is not None else None
