@@ -163,30 +163,40 @@ def test_04_mesh_fallback_and_hidden_points(model, monkeypatch):
         landmarks.detect(photo.uint8(), LandmarkConfig(fallback="off"))
 
 
-def test_05_batched_views_match_one_forward_per_view(model):
-    """The landmark stages evaluate the views in one batched forward
-    (``FitState.forward_views``; on the identity's personalised bases while beta takes no
-    gradient): the same vertices as one forward per view, and the same gradients for the
-    stage's own parameters (the others frozen by ``grads_only``, their flags restored)."""
+def _random_state(model, heads, n_beta: int, seed: int, density: float):
+    """(FitState, config) of a landmark fit of views of the model turned by ``heads``
+    (per-view expressions, no silhouette), its parameters set at random: beta N(0, 1),
+    head turns about 0.2 rad, joint residuals, torso turns, and a share ``density`` of
+    each view's expression weights nonzero."""
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
 
-    views = [_view(model, head=h, name=f"v{i}")
-             for i, h in enumerate([(0, 0, 0), (10, -25, 5), (-8, 30, 0)])]
+    views = [_view(model, head=h, name=f"v{i}") for i, h in enumerate(heads)]
     cfg = load_config(None, {"per_view_expression": True, "silhouette": {"mode": "off"},
-                             "shape": {"n_beta": 20}})
+                             "shape": {"n_beta": n_beta}})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         st = Fitter([v[0] for v in views], [v[1] for v in views], cfg, model=model,
                     appearance=None, progress=False).state
-    g = torch.Generator().manual_seed(0)
+    g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         st.beta.copy_(torch.randn(st.beta.shape, generator=g))
         for v in st.views:
             v.head_angles.copy_(0.2 * torch.randn(3, generator=g))
             v.dtheta.copy_(0.02 * torch.randn(8, 3, generator=g))
-            v.psi.copy_(torch.rand(v.psi.shape, generator=g) * (torch.rand(v.psi.shape,
-                                                                           generator=g) < 0.2))
+            v.global_orient.copy_(0.05 * torch.randn(3, generator=g))
+            on = torch.rand(v.psi.shape, generator=g) < density
+            v.psi.copy_(torch.rand(v.psi.shape, generator=g) * on)
+    return st, cfg
+
+
+def test_05_batched_views_match_one_forward_per_view(model):
+    """The landmark stages evaluate the views in one batched forward
+    (``FitState.forward_views``; on the identity's personalised bases while beta takes no
+    gradient): the same vertices as one forward per view, and the same gradients for the
+    stage's own parameters (the others frozen by ``grads_only``, their flags restored)."""
+    st, _ = _random_state(model, [(0, 0, 0), (10, -25, 5), (-8, 30, 0)], 20, seed=0,
+                          density=0.2)
 
     def grads(batched: bool, params):
         for p in st.leaves():
@@ -229,28 +239,10 @@ def test_06_landmark_stages_read_a_vertex_subset(model):
     the same gradients for every parameter; a vertex the model blends between joints, or
     one carrying a pose corrective or the larynx, sends the forward back to the model."""
     from hack_render.fit import terms
-    from hack_render.fit.config import load_config
-    from hack_render.fit.fitter import Fitter
     from hack_render.geometry.subset import VertexSubset
     from hack_render.render.bridge import vertex_normals_torch
 
-    views = [_view(model, head=h, name=f"v{i}")
-             for i, h in enumerate([(0, 0, 0), (10, -25, 5)])]
-    cfg = load_config(None, {"per_view_expression": True, "silhouette": {"mode": "off"},
-                             "shape": {"n_beta": 30}})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        st = Fitter([v[0] for v in views], [v[1] for v in views], cfg, model=model,
-                    appearance=None, progress=False).state
-    g = torch.Generator().manual_seed(1)
-    with torch.no_grad():
-        st.beta.copy_(torch.randn(st.beta.shape, generator=g))
-        for v in st.views:
-            v.head_angles.copy_(0.2 * torch.randn(3, generator=g))
-            v.dtheta.copy_(0.02 * torch.randn(8, 3, generator=g))
-            v.global_orient.copy_(0.05 * torch.randn(3, generator=g))
-            v.psi.copy_(torch.rand(v.psi.shape, generator=g) * (torch.rand(v.psi.shape,
-                                                                           generator=g) < 0.3))
+    st, cfg = _random_state(model, [(0, 0, 0), (10, -25, 5)], 30, seed=1, density=0.3)
     index, sub = st.landmark_reads()
     assert sub is not None and torch.equal(sub.index, torch.as_tensor(index))
     cand = np.concatenate(st.jaw.candidates)
