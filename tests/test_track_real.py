@@ -243,6 +243,19 @@ def test_the_outline_masks_made_beside_the_landmarks_equal_those_made_after(tmp_
     assert np.array_equal(feed.points, lm.points) and np.array_equal(feed.found, lm.found)
     assert torch.equal(masks.sdf, after.sdf) and masks.source == after.source
     assert np.array_equal(masks.limit_y, after.limit_y)
+    # a masks' thread that fails holds the detection up no longer than its queue's room
+    feed = pipeline.MaskFeed(4 * pipeline.MASK_FEED_FRAMES)
+
+    def fails(frames, *args):
+        next(iter(frames))
+        raise RuntimeError("the masks failed")
+
+    feed.consumer = pipeline.Background({}, "masks", fails, feed.frames())
+    for i in range(len(feed.found)):
+        feed.put(i, np.zeros((8, 8, 3), np.uint8), lm.points[0], True)
+    feed.close()
+    with pytest.raises(RuntimeError, match="the masks failed"):
+        feed.consumer.result()
 
 
 @pytest.mark.parametrize("flags,config,want", [

@@ -71,8 +71,8 @@ class VertexSubset:
         if int(index.max()) >= model.num_vertices or int(index.min()) < 0:
             return None
         moved = [model.blended_vertices]
-        if getattr(model, "has_pose_basis", False) and not getattr(model, "pose_folded", True):
-            moved.append(model.pose_columns)
+        if getattr(model, "has_pose_basis", False):  # folded into M_P's mean or not
+            moved.append(getattr(model, "pose_columns", None))
         if getattr(model, "pose_personal", None) is not None:
             moved.append(model.pose_personal.vertices)
         if getattr(model, "has_larynx", False):

@@ -138,7 +138,9 @@ class MaskFeed:
     and NumPy then run beside dlib's one-core detection instead of beside the keyframe
     fit. :attr:`points` and :attr:`found` are filled as frames come; :meth:`frames` is
     the masks' frame iterable; :meth:`close` ends it (a clip with more or fewer frames
-    than announced: :attr:`complete` is False and the caller makes the masks afresh)."""
+    than announced: :attr:`complete` is False and the caller makes the masks afresh).
+    At most :data:`MASK_FEED_FRAMES` frames wait; ``consumer``: the masks' thread, once
+    started (a thread that has died no longer holds the detection up)."""
 
     def __init__(self, frames: int):
         import queue
@@ -146,16 +148,27 @@ class MaskFeed:
         self.points = np.full((frames, 68, 2), np.nan)
         self.found = np.zeros(frames, bool)
         self.seen = 0
-        self.queue: queue.Queue = queue.Queue(maxsize=32)
+        self.queue: queue.Queue = queue.Queue(maxsize=MASK_FEED_FRAMES)
+        self.consumer: threading.Thread | None = None
+
+    def _put(self, item) -> None:
+        import queue
+
+        while self.consumer is None or self.consumer.is_alive():
+            try:
+                self.queue.put(item, timeout=0.2)
+                return
+            except queue.Full:
+                continue
 
     def put(self, i: int, img: np.ndarray, points: np.ndarray, found: bool) -> None:
         self.seen = i + 1
         if i < len(self.found):
             self.points[i], self.found[i] = points, found
-            self.queue.put(img)
+            self._put(img)
 
     def close(self) -> None:
-        self.queue.put(None)
+        self._put(None)
 
     @property
     def complete(self) -> bool:
@@ -164,6 +177,11 @@ class MaskFeed:
     def frames(self):
         while (img := self.queue.get()) is not None:
             yield img
+
+
+#: frames waiting for the outline masks' thread at most (:class:`MaskFeed`: 512 px frames,
+#: 0.8 MB each; the masks' thread takes every third frame, faster than dlib's detection)
+MASK_FEED_FRAMES = 32
 
 
 def pick_keyframes(found: np.ndarray, count: int, points: np.ndarray) -> list[int]:
@@ -292,7 +310,7 @@ def track_clip(clip: Clip, config=None, track_config: TrackConfig | None = None,
     if landmarks is None:
         if outline_on:
             feed = MaskFeed(clip.frames)
-            masking = masks_from(feed.frames(), feed.points, feed.found)
+            masking = feed.consumer = masks_from(feed.frames(), feed.points, feed.found)
         try:
             with timed(timings, "landmarks"):
                 landmarks = detect_frames(clip.read(), FrameDetector(
