@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import dataclasses
+import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -143,8 +144,6 @@ class MaskFeed:
     started (a thread that has died no longer holds the detection up)."""
 
     def __init__(self, frames: int):
-        import queue
-
         self.points = np.full((frames, 68, 2), np.nan)
         self.found = np.zeros(frames, bool)
         self.seen = 0
@@ -152,8 +151,6 @@ class MaskFeed:
         self.consumer: threading.Thread | None = None
 
     def _put(self, item) -> None:
-        import queue
-
         while self.consumer is None or self.consumer.is_alive():
             try:
                 self.queue.put(item, timeout=0.2)
