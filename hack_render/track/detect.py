@@ -49,7 +49,7 @@ class FrameLandmarks:
     def load(cls, path) -> FrameLandmarks:
         with np.load(path, allow_pickle=False) as z:
             return cls(z["points"], z["found"], z["boxes"], [str(s) for s in z["why"]],
-                       z["weights"], z["raw"], z["mask"] if "mask" in z else None,
+                       z["weights"], z["raw"], z.get("mask", None),
                        [str(s) for s in z["source"]] if "source" in z else None)
 
 
