@@ -201,8 +201,10 @@ def texture_fitter(model, yaw=30.0, res=160):
 
     photo, det = landmark_view(model, angles_deg=(0.0, yaw, 0.0), res=res)
     # silhouette off: the blank photo holds no person to segment (the views come out the
-    # same, without the segmentation's ~10 s per fitter)
-    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res},
+    # same, without the segmentation's ~10 s per fitter); the parts' bake off: its two
+    # re-renders per final stage are tests/test_fit_part_bake.py's
+    cfg = load_config(None, {"final": {"spp": 32, "atlas_height": 256, "max_side": res,
+                                       "part_bake": 0},
                              "silhouette": {"mode": "off"}})
     f = Fitter([photo], [det], cfg, model=model, progress=False)
     v = f.state.views[0]

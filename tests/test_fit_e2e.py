@@ -88,7 +88,7 @@ def test_02_astronaut_cli_end_to_end(tmp_path, cli_in_process):
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",
                  "textures/diffuse.png", "overlay.png", "losses.png", "losses.json",
                  "timings.json", "cameras.json", "render.png", "render_over_photo.png",
-                 "occlusion.png", "textures/iris.json"):
+                 "occlusion.png", "textures/iris.json", "textures/parts.npz"):
         assert (out / name).is_file(), name
     p = load_params(out / "params.json")
     assert len(p["beta"]) == 20 and np.asarray(p["theta"]).shape == (8, 3)
@@ -97,6 +97,13 @@ def test_02_astronaut_cli_end_to_end(tmp_path, cli_in_process):
     report = json.loads((out / "fit_report.json").read_text())
     # the final stage (fit/final.py) runs inside the fit, timed as "final"
     assert report["timings_s"]["final"] > 0 and report["final"]["iris"]["source"]
+    # the eyes' fronts baked from the photo (final.part_bake, on by default) and written
+    # beside the skin maps for --textures
+    assert report["final"]["part_bake"]["iris"]["seen_vertices"] > 0
+    from hack_render.render.skin_maps import read_texture_folder
+
+    assert read_texture_folder(out / "textures").part_rgb["iris"].shape == (
+        report["final"]["part_bake"]["iris"]["vertices"], 3)
     # render_over_photo.png keeps the photo's hair in front (final.photo_hair): the
     # fringe over her forehead is the photo's, render.png the model alone
     over = iio.imread(out / "render_over_photo.png")[..., :3].astype(float)

@@ -243,7 +243,8 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         (tmp_path / "s.toml").write_text(f"[silhouette]\n{key} = {val}\n")
         with pytest.raises(HackError, match=f"silhouette.{key}"):
             load_config(tmp_path / "s.toml")
-    for key, val in (("refine", "5"), ("refine", "true"), ("eye_hole", "0"),
+    for key, val in (("refine", "5"), ("refine", "true"), ("part_bake", "-1"),
+                     ("part_bake", "true"), ("part_bake", "1.5"), ("eye_hole", "0"),
                      ("eye_hole", '"wide"'), ("occluder_shadow", "2"),
                      ("occluder_shadow", '"on"'), ("edge_feather", "-1")):
         (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")

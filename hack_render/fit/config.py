@@ -345,6 +345,12 @@ class FinalConfig:
     # transport, pixel filter and denoiser divided out), each a re-render: 0 bakes against
     # the fitted maps' render only; 2 gained 0.09 dB over 1 (docs/fit.md)
     refine: int = 1
+    # the parts that are not skin (the eyes' fronts, whites and tear film, the teeth, gums
+    # and tongue) baked from the photo per vertex (fit/part_bake.py): passes, each a
+    # re-render of the views; 0: the fitted iris's and whites' colours on the model's
+    # pattern (eye_colours), the teeth's and gums' defaults. On six real photos' kept fits
+    # the eyes' figure rose 0.9-6.9 dB with 2 passes, 3 added 0.1-0.2 (docs/fit.md)
+    part_bake: int = 2
     # the eyes left out of the bake: their landmark rings scaled by this about their
     # centres; with features, the lids' band from bake_weights.LID_INNER to it is baked.
     # Smaller bakes more of the lids and less of the model's eyes (1.0: the astronaut 22.22
@@ -588,6 +594,10 @@ class FitConfig:
                             f"16..8192, found {fc.atlas_height} and {fc.max_side}.")
         if isinstance(fc.refine, bool) or not isinstance(fc.refine, int) or not 0 <= fc.refine <= 4:
             raise HackError(f"config final.refine: expected 0..4 passes, found {fc.refine!r}.")
+        if isinstance(fc.part_bake, bool) or not isinstance(fc.part_bake, int) \
+                or not 0 <= fc.part_bake <= 4:
+            raise HackError(f"config final.part_bake: expected 0..4 passes, found "
+                            f"{fc.part_bake!r}.")
         if not (isinstance(fc.eye_hole, (int, float)) and math.isfinite(fc.eye_hole)
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.fit import iris, texture
+from hack_render.fit import iris, part_bake, texture
 from hack_render.fit.hair_style import hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
@@ -57,7 +57,8 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     """The final stage (the module's docstring) on the state's views."""
     st = state
     specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
-    bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular),
+    bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular)
+               + int(cfg.final.part_bake),
                desc="fit final (renders, bake)", unit="step", disable=not progress,
                leave=False)
     t0 = time.perf_counter()
@@ -113,6 +114,15 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
                    for v in st.views]
         bar.update()
+    part_report = None
+    for _ in range(int(cfg.final.part_bake)):  # eyes, teeth, mouth: the photo per vertex
+        part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders)
+        if part_rgb is None:
+            break
+        maps = dataclasses.replace(maps, part_rgb=part_rgb)
+        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
+                   for v in st.views]
+        bar.update()
     hair_style, hair_renders, hair_report = _hair(st, cfg, maps, baked)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)
@@ -129,7 +139,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                             f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
                             if cfg.final.occluder_shadow > 0 else "")
                          + ", the mirrored face or the appearance model A(alpha) elsewhere",
-              "hair": hair_report}
+              "hair": hair_report, "part_bake": part_report}
     return FinalRenders(fitted, baked, maps, renders, eyes, spec_report, spec_conf, report,
                         hair_style, hair_renders)
 
@@ -154,7 +164,10 @@ def _hair(st: FitState, cfg, maps, baked) -> tuple[object, list | None, dict | N
                                           None if v0.skin is None else
                                           np.asarray(v0.skin, bool),
                                           v0.detection.points, albedo, base)
-    groom = grow_cached(HeadSurface.from_model(st.model), style)
+    # the brows the bake holds (final.features: baked as the photo has them) are not
+    # drawn again as strands over them in render.png (the style keeps its brows)
+    drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
+    groom = grow_cached(HeadSurface.from_model(st.model), drawn)
     renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
                                        hair=groom) for v in st.views]
     report.update({"strands": groom.num_strands, "lod": style.lod,

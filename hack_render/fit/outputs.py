@@ -26,8 +26,9 @@ from hack_render.geometry.params import save_params
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.io import TEMP_GLOB, atomic_path, write_json
 from hack_render.io.image import straight_colour, to_srgb8
+from hack_render.io.npz import write_npz
 from hack_render.render.materials import material_base_colours
-from hack_render.render.skin_maps import IRIS_FILE
+from hack_render.render.skin_maps import IRIS_FILE, PARTS_FILE
 
 #: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
 #: the names older versions gave them (one pattern per output).
@@ -352,6 +353,12 @@ def write_textures(state, folder: Path, final: FinalRenders | None = None) -> li
                "derived": "linear Rec.709; the photo over renders of the fit, over the "
                           "iris's and the eye whites' pixels (hack_render/fit/iris.py)"}
         out.append(write_json(folder / IRIS_FILE, doc, indent=1))
+    if final is not None and final.maps.part_rgb:  # read by --textures
+        out.append(write_npz(folder / PARTS_FILE, {
+            "derived": np.array("linear Rec.709 per vertex of each part: the photo over "
+                                "renders of the fit, at the fitted pose, gaze and jaw "
+                                "(hack_render/fit/part_bake.py)"),
+            **{k: np.asarray(v, np.float32) for k, v in final.maps.part_rgb.items()}}))
     return out
 
 

@@ -125,7 +125,7 @@ def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
     dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
     spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
-    head, window = _photo_scene(state, cfg, view, maps, spp, max_side, hair)
+    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
@@ -144,7 +144,7 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     behind a card is the eye's pixel too, its radiance still affine in the eye's colours
     (the card's share is in what comes from neither)."""
     t0 = time.perf_counter()
-    head, window = _photo_scene(state, cfg, view, maps, spp, max_side)
+    head, window = photo_scene(state, cfg, view, maps, spp, max_side)
     gb, out = None, []
     for iris, sclera, gloss in eyes:
         head.set_eyes(iris, sclera, gloss)
@@ -155,14 +155,14 @@ def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes:
     return out
 
 
-#: the window rendered of a photo (:func:`_photo_scene`): the model's projected box
+#: the window rendered of a photo (:func:`photo_scene`): the model's projected box
 #: grown by this many pixels (the pixel filter's reach, the lash cards' tips) and by
 #: CROP_GROW of its size
 CROP_MARGIN_PX = 8
 CROP_GROW = 0.02
 
 
-def _photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
+def photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
                  max_side: int | None, hair=None):
     """The HeadScene of :func:`render_at_photo` and the window of the image it renders:
     only the model's projected box (with a margin), where it covers under 90 % of the

@@ -47,6 +47,11 @@ class SkinMaps:
         ``sclera_rgb``), or None for :data:`SCLERA_RGB`.
         eye_gloss: the eyes' wet gloss (the sclera's and lacrimal film's coat, the
         cornea's clearcoat) as a share of the default's, in [0, 1]; None for 1.
+        part_rgb: per-vertex linear RGB in [0, 1] of the parts that are not skin, by part
+            name (:data:`VERTEX_COLOUR_PARTS`; each (n, 3), n the part's vertices), e.g.
+            the fit's bake of the photo onto them (``fit/part_bake.py``), replacing the
+            part's own colour (the iris's pattern, the teeth's white); a part not named
+            keeps its own. None: none.
     """
 
     diffuse: np.ndarray
@@ -56,9 +61,20 @@ class SkinMaps:
     iris_rgb: tuple[float, float, float] | None = None
     sclera_rgb: tuple[float, float, float] | None = None
     eye_gloss: float | None = None
+    part_rgb: dict | None = None
 
     def __post_init__(self):
         h = self.diffuse.shape[0]
+        for name, e in (self.part_rgb or {}).items():
+            if name not in VERTEX_COLOUR_PARTS:
+                raise HackError(f"part colours: expected parts among {VERTEX_COLOUR_PARTS}, "
+                                f"found {name!r}.")
+            e = np.asarray(e)
+            if e.ndim != 2 or e.shape[1] != 3 or not np.all(np.isfinite(e)) \
+                    or e.min() < 0.0 or e.max() > 1.0:
+                raise HackError(f"part colours {name!r}: expected (n, 3) linear RGB in [0, 1], "
+                                f"found an array of shape {e.shape}"
+                                + (" with values outside [0, 1]" if e.ndim == 2 else "") + ".")
         want = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
         for key, c in want.items():
             a = getattr(self, key)
@@ -236,6 +252,26 @@ def fixed_bsdfs(sclera_rgb=None, eye_gloss=None) -> dict[str, dict]:
         # uniformly half-transparent
         "eyelashes": eyelash_bsdf(EYELASH_OPACITY),
     }
+
+
+#: the parts whose colour may be given per vertex (``SkinMaps.part_rgb``)
+VERTEX_COLOUR_PARTS = ("iris", "sclera", "lacrimal", "teeth", "mouth")
+
+
+def vertex_colour_bsdf(fixed: dict) -> dict:
+    """The BSDF of a part with per-vertex colours (attribute ``vertex_color``) that is
+    otherwise ``fixed`` (one of :func:`fixed_bsdfs`' roughplastic, maybe two-sided): a
+    principled BSDF of the same GGX roughness and Fresnel reflectance at normal
+    incidence, its base colour the vertex colours (roughplastic needs Texture::mean(),
+    which mesh_attribute textures do not implement; see :func:`iris_bsdf`)."""
+    inner = fixed.get("bsdf", fixed)
+    ior = float(inner.get("int_ior", 1.49))
+    f0 = ((ior - 1.0) / (ior + 1.0)) ** 2
+    gloss = inner.get("specular_reflectance", {}).get("value", [1.0])[0]
+    out = {"type": "principled", "roughness": float(np.sqrt(inner["alpha"])),
+           "specular": float(min(1.0, f0 / 0.08 * gloss)),
+           "base_color": {"type": "mesh_attribute", "name": "vertex_color"}}
+    return {"type": "twosided", "bsdf": out} if fixed.get("type") == "twosided" else out
 
 
 def iris_bsdf(eye_gloss=None) -> dict:

@@ -217,6 +217,9 @@ class HeadScene:
                        "sensor": emitters.sensor_dict(camera, settings.passes[1],
                                                       pixel_filter=settings.pixel_filter,
                                                       sampler=settings.mitsuba_sampler)}
+        # per-vertex colours given for parts (the fit's bake); an explicit iris_rgb wins
+        part_rgb = {k: np.asarray(c) for k, c in (maps.part_rgb or {}).items()
+                    if not (k == "iris" and iris_rgb is not None)}
         for part in self.parts:
             if part.name.startswith("skin"):
                 bsdf = skin
@@ -229,16 +232,25 @@ class HeadScene:
                 # see-through cards: the label and AOV passes (and render(sss=True)) look
                 # up the same opacity at their hits
                 self.see_through_cards.append((bsdf, opacity))
+            elif part.name in part_rgb:
+                bsdf = mi.load_dict(materials.vertex_colour_bsdf(fixed[part.name]))
             else:
                 bsdf = mi.load_dict(fixed[part.name])
             mesh = self._mesh(part, self._positions(part, v, camera), normals[part.gather],
                               bsdf)
-            if part.name == "iris":
+            colours = part_rgb.get(part.name)
+            if colours is not None and colours.shape != (len(part.gather), 3):
+                raise HackError(f"part colours {part.name!r}: expected one per vertex of the "
+                                f"part, ({len(part.gather)}, 3), found {colours.shape} "
+                                "(another model's?).")
+            if part.name == "iris" and colours is None:
                 colours = materials.iris_vertex_colors(v[part.gather], self.eye_axes,
                                                        iris_rgb or maps.iris_rgb
                                                        or materials.DEFAULT_IRIS_RGB,
                                                        maps.sclera_rgb)
-                mesh.add_attribute("vertex_color", 3, mi.Float(colours.ravel()))
+            if colours is not None:
+                mesh.add_attribute("vertex_color", 3,
+                                   mi.Float(np.asarray(colours, np.float32).ravel()))
             scene[part.name] = mesh
         if self.hair_shapes:
             scene.update(load_shapes(hair, self._pose_hair(v), self.hair_shapes))

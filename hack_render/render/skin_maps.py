@@ -10,7 +10,7 @@ import numpy as np
 
 from hack_render.errors import HackError
 from hack_render.io.image import read_exr
-from hack_render.render.materials import SkinMaps
+from hack_render.render.materials import VERTEX_COLOUR_PARTS, SkinMaps
 
 TEXTURE_FILES = {"diffuse": 3, "specular": 1, "roughness": 1, "normal": 3}
 
@@ -19,7 +19,8 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     """Read ``diffuse.exr`` (RGB, linear), ``specular.exr``, ``roughness.exr`` (one channel,
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
     from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
-    there (:func:`read_eye_file`) gives the iris's colour and the eye whites'."""
+    there (:func:`read_eye_file`) gives the iris's colour and the eye whites', a
+    ``parts.npz`` (:func:`read_parts_file`) the parts' per-vertex colours."""
     folder = Path(folder)
     if not folder.is_dir():
         raise HackError(f"--textures {folder}: expected a folder with diffuse.exr, "
@@ -41,7 +42,32 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
                             f"found {sorted(ch)}.")
         maps[name] = np.stack([ch[k] for k in keys], axis=-1)
     return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"],
-                    *read_eye_file(folder / IRIS_FILE))
+                    *read_eye_file(folder / IRIS_FILE),
+                    part_rgb=read_parts_file(folder / PARTS_FILE))
+
+
+#: The per-vertex colours of the parts that are not skin beside the skin maps (``fit``
+#: writes it with ``final.part_bake``): an NPZ, one (n, 3) float32 array of linear RGB
+#: per part name (``materials.VERTEX_COLOUR_PARTS``), and ``derived``, a note.
+PARTS_FILE = "parts.npz"
+
+
+def read_parts_file(path: Path) -> dict | None:
+    """{part name: (n, 3) linear RGB} of a texture folder's ``parts.npz`` (read without
+    pickle); None where the file is absent."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            out = {k: np.asarray(z[k], np.float32) for k in z.files if k != "derived"}
+    except (OSError, ValueError, EOFError) as err:
+        raise HackError(f"{path}: expected an NPZ of per-vertex part colours, found it "
+                        f"unreadable ({err}).") from err
+    unknown = sorted(set(out) - set(VERTEX_COLOUR_PARTS))
+    if unknown:
+        raise HackError(f"{path}: expected arrays named among {list(VERTEX_COLOUR_PARTS)}, "
+                        f"found {unknown}.")
+    return out or None
 
 
 #: The iris's and the eye whites' colours beside the skin maps (``fit`` writes it: its

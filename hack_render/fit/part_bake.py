@@ -1,0 +1,128 @@
+"""The photo baked onto the parts that are not skin (``final.part_bake``): the fronts of
+the eyeballs (iris, pupil and the whites about them), the whites' and the tear film's
+shells, the teeth, the gums and the tongue.
+
+Each such part then carries one colour per vertex (``SkinMaps.part_rgb``; the eyes'
+fronts have 800 vertices an eye, the teeth 4,412). Where a view's camera sees a vertex
+(nothing else within :data:`TOLERANCE_M` before it on the ray from the camera; the lash
+cards are seen through) and the render shows the part at the vertex's pixel, the photo at the vertex's pixel over the render at that pixel
+(the fitted lighting, geometry and BSDF: shading, the lids' and lips' shadows and the
+highlights cancel to first order) scales the vertex's colour. So the photo's iris
+pattern, the whites' shading under the lids, the lash line where the model's opening is
+wider than the person's, the teeth's own colour and the mouth's dark inside are baked,
+as the skin's bake does for the skin (``texture.bake_diffuse``). A vertex no view sees
+keeps the colour it had (the fitted iris and whites, ``fit/iris.py``; the teeth's and
+the gums' defaults). Several views: the mean of the seen ones, weighted by the cosine of
+the view angle squared.
+
+Derived data: the colours are the photo's with the fitted lighting divided out, at the
+fitted pose, gaze and jaw; another gaze or jaw shows them where they were.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hack_render.fit import texture
+from hack_render.fit.bake_weights import mask_at, photo_at
+from hack_render.fit.state import FitState
+from hack_render.render.materials import VERTEX_COLOUR_PARTS, material_base_colours
+from hack_render.render.parts import PART_SPECS, REGIONS
+
+#: the ratio photo / render per vertex held within these (a glint the render has where
+#: the photo has none, or the reverse, and the mouth's unlit inside are not colours)
+RATIO_RANGE = (0.05, 8.0)
+#: visibility: nothing nearer the camera than this before the vertex (metres; the lids
+#: and lips are millimetres in front of what they cover)
+TOLERANCE_M = 5e-4
+def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    h, w = img.shape[:2]
+    x = np.clip(xy[:, 0] - 0.5, 0, w - 1.001)
+    y = np.clip(xy[:, 1] - 0.5, 0, h - 1.001)
+    ix, iy = x.astype(int), y.astype(int)
+    fx, fy = x - ix, y - iy
+    if img.ndim == 3:
+        fx, fy = fx[:, None], fy[:, None]
+    top = img[iy, ix] * (1 - fx) + img[iy, ix + 1] * fx
+    bottom = img[iy + 1, ix] * (1 - fx) + img[iy + 1, ix + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def view_samples(state: FitState, cfg, view, maps, render) -> dict:
+    """One view's samples per part: {name: (the colours rendered (n, 3), the colours the
+    vertices would need (n, 3), weights (n,) >= 0; 0: not seen)}. ``render`` is the
+    view's :class:`~hack_render.fit.bake_weights.PhotoRender` made with ``maps``."""
+    head, window = texture.photo_scene(state, cfg, view, maps, 1, cfg.final.max_side)
+    h, w = render.rgba.shape[:2]
+    photo = photo_at(view, h, w)
+    rgb, alpha = render.rgba[..., :3], render.rgba[..., 3]
+    region = render.gbuffer["segmentation"]
+    cam = head.camera
+    occ = None if view.occluder is None else np.asarray(view.occluder, bool)
+    if occ is not None and view.eye_opening is not None:
+        # not inside the person's own eye openings (the face mesh's lid contours): the
+        # segmentation calls much of a shaded or turned eye "not skin", so "occluder"
+        occ = occ & ~(np.asarray(view.eye_opening, bool) if view.eye_opening.shape ==
+                      occ.shape else mask_at(view.eye_opening, *occ.shape))
+    # a part without vertex colours yet renders its material's one colour
+    base = material_base_colours(state.model.material_names, maps.iris_rgb, maps.sclera_rgb)
+    out = {}
+    for name in VERTEX_COLOUR_PARTS:
+        if f"{name}.vertex_positions" not in head.params:
+            continue   # (a model without this part)
+        pos = np.asarray(head.params[f"{name}.vertex_positions"], np.float64).reshape(-1, 3)
+        if f"{name}.vertex_color" in head.params:
+            cur = np.asarray(head.params[f"{name}.vertex_color"], np.float64).reshape(-1, 3)
+        else:
+            cur = np.tile(np.asarray(base[PART_SPECS[name][0][0]], np.float64), (len(pos), 1))
+        nrm = np.asarray(head.params[f"{name}.vertex_normals"], np.float64).reshape(-1, 3)
+        _, seen = head.visibility(pos, tolerance=TOLERANCE_M)
+        xy = cam.project(pos)
+        if window is not None:
+            xy = xy + np.array(window[:2], np.float64)
+        p, r = _bilinear(photo, xy), _bilinear(rgb, xy)
+        cover = _bilinear(alpha, xy)
+        if view.photo.is_grey:  # no colour in the photo: luminance only, the colour kept
+            luma = np.array([0.2126, 0.7152, 0.0722])
+            ratio = np.repeat(((p @ luma) / np.maximum(r @ luma, 1e-4))[:, None], 3, 1)
+        else:
+            ratio = p / np.maximum(r, 1e-4)
+        ratio = np.clip(ratio, *RATIO_RANGE)
+        to_cam = cam.center[None] - pos
+        to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
+        cos = np.abs((nrm * to_cam).sum(1))  # (the tear film is two-sided)
+        # and the part is what the render shows at the vertex's pixel (the eyes' fronts
+        # run on beyond the limbus under the whites' shell, a fraction of a millimetre
+        # behind it)
+        px = np.clip(xy.astype(int), 0, [w - 1, h - 1])
+        shown = region[px[:, 1], px[:, 0]] == REGIONS.index(PART_SPECS[name][1])
+        ok = seen & shown & (cover > 0.99)
+        if occ is not None:  # a hand, a glasses' frame: not the part's colour
+            s = occ.shape[1] / w
+            ok &= ~occ[np.clip((xy[:, 1] * s).astype(int), 0, occ.shape[0] - 1),
+                       np.clip((xy[:, 0] * s).astype(int), 0, occ.shape[1] - 1)]
+        out[name] = (cur, np.clip(cur * ratio, 0.0, 1.0), np.where(ok, cos ** 2, 0.0))
+    return out
+
+
+def bake_parts(state: FitState, cfg, maps, renders) -> tuple[dict | None, dict]:
+    """(``part_rgb`` for ``SkinMaps``, report): every view's samples
+    (:func:`view_samples`) against its render ``renders[i]`` made with ``maps``,
+    weighted; parts no view sees keep their colours. None where the model has none of
+    these parts."""
+    acc: dict = {}
+    for view, render in zip(state.views, renders):
+        for name, (cur, col, wgt) in view_samples(state, cfg, view, maps, render).items():
+            a = acc.setdefault(name, [cur, np.zeros_like(cur), np.zeros(len(cur))])
+            a[1] += col * wgt[:, None]
+            a[2] += wgt
+    if not acc:
+        return None, {"note": "the model has none of the parts baked"}
+    out, report = {}, {}
+    for name, (cur, total, wsum) in acc.items():
+        seen = wsum > 1e-6
+        col = cur.copy()
+        col[seen] = total[seen] / wsum[seen, None]
+        out[name] = col.astype(np.float32)
+        report[name] = {"seen_vertices": int(seen.sum()), "vertices": len(col)}
+    return out, report

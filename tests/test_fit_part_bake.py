@@ -1,0 +1,120 @@
+"""The photo baked onto the parts that are not skin (hack_render/fit/part_bake.py,
+``final.part_bake``): per-vertex colours of the eyes' fronts, whites and tear film (and
+the teeth and gums where the mouth shows them), carried to ``render.png`` and to
+``--textures`` (``parts.npz``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from synthetic import photo_of, texture_fitter
+
+EYE_PARTS = ("iris", "sclera", "lacrimal")
+
+
+@pytest.fixture(scope="module")
+def model():
+    from hack_render.geometry import load_default_model
+
+    return load_default_model()
+
+
+def _positions(head, part):
+    return np.asarray(head.params[f"{part}.vertex_positions"], np.float64).reshape(-1, 3)
+
+
+def test_01_the_eyes_colours_are_baked_from_the_photo(model, tmp_path):
+    """A photo whose eyes' fronts, whites and tear film carry colours of their own (a
+    smooth pattern over each part, far from the defaults): two passes of the bake bring
+    the render over those parts' pixels to the photo (the squared error 10 times lower
+    than before at least) and the colours of the vertices the camera sees to the truth;
+    a vertex it does not see keeps its colour exactly. The
+    colours go to ``parts.npz`` and come back through ``--textures``; an array of another
+    length or an unknown part is a clear error."""
+    from hack_render.errors import HackError
+    from hack_render.fit import outputs, part_bake, texture
+    from hack_render.render.materials import SkinMaps
+    from hack_render.render.parts import REGIONS
+    from hack_render.render.skin_maps import PARTS_FILE, read_texture_folder
+
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=15.0, res=256)
+    st, v = f.state, f.state.views[0]
+    head, _ = texture.photo_scene(st, cfg, v, true_maps, 1, cfg.final.max_side)
+    truth = {}
+    for k, part in enumerate(EYE_PARTS):
+        # a pattern of about 25 mm: smooth over the few pixels an eye is wide here
+        p = _positions(head, part) * 1e3 / 4.0
+        truth[part] = np.clip(0.45 + 0.3 * np.stack(
+            [np.sin(p[:, 0] + k), np.cos(p[:, 1] * 0.7 + k), np.sin(p[:, 0] + p[:, 1])], 1),
+            0.03, 0.95).astype(np.float32)
+    shot = texture.render_at_photo(st, cfg, v, maps=dataclasses.replace(
+        true_maps, part_rgb=truth), spp=64)
+    v.photo = photo_of(shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5)
+    ids = [REGIONS.index(p) for p in EYE_PARTS]
+    pixels = np.isin(shot.gbuffer["segmentation"], ids) & (shot.rgba[..., 3] > 0.999)
+    assert pixels.sum() > 40
+
+    def err(render):
+        return float(((render.rgba[..., :3] - shot.rgba[..., :3])[pixels] ** 2).mean())
+
+    maps = true_maps
+    render = texture.render_at_photo(st, cfg, v, maps=maps, spp=64)
+    before = err(render)
+    start = part_bake.view_samples(st, cfg, v, maps, render)
+    first = None
+    for _ in range(2):
+        rgb, report = part_bake.bake_parts(st, cfg, maps, [render])
+        first = first or rgb
+        maps = dataclasses.replace(maps, part_rgb=rgb)
+        render = texture.render_at_photo(st, cfg, v, maps=maps, spp=64)
+    assert err(render) < before / 10, (before, err(render))   # measured 17x
+    assert set(EYE_PARTS) <= set(rgb) and report["iris"]["seen_vertices"] > 50
+    samples = part_bake.view_samples(st, cfg, v, maps, render)
+    for part in EYE_PARTS:
+        cur0, _, _ = start[part]
+        _, _, wgt = samples[part]
+        seen = wgt > 0.5
+        assert seen.sum() >= 10, part
+        # the colours of the vertices seen move to the truth, as far as the pixels tell:
+        # an eye is ~12 pixels wide here, ~3 of the iris's vertices to a pixel, so what
+        # varies within a pixel stays as it was (the iris's pattern, its pupil); measured
+        # median error iris 0.60 -> 0.14, whites 0.10 -> 0.04, tear film 0.12 -> 0.02
+        e0 = np.median(np.abs(cur0[seen] - truth[part][seen]))
+        e1 = np.median(np.abs(rgb[part][seen] - truth[part][seen]))
+        assert e1 < 0.5 * e0 and e1 < 0.2, (part, e0, e1)
+        # not seen (the same vertices in each pass: the geometry is the same): the colour
+        # the part had (its material's, or the iris's pattern) is kept as it was
+        unseen = wgt == 0
+        assert unseen.any()
+        np.testing.assert_array_equal(rgb[part][unseen], first[part][unseen])
+        np.testing.assert_allclose(rgb[part][unseen], cur0[unseen], atol=1e-6)
+    # to --textures and back
+    final = _final_stub(maps)
+    written = outputs.write_textures(st, tmp_path / "tex", final)
+    assert tmp_path / "tex" / PARTS_FILE in written
+    back = read_texture_folder(tmp_path / "tex").part_rgb
+    assert set(back) == set(rgb)
+    for part in rgb:
+        np.testing.assert_array_equal(back[part], rgb[part])
+    with pytest.raises(HackError, match="part colours 'iris': expected one per vertex"):
+        texture.photo_scene(st, cfg, v, dataclasses.replace(
+            maps, part_rgb={"iris": rgb["iris"][:-1]}), 1, None)
+    with pytest.raises(HackError, match="expected parts among"):
+        SkinMaps(maps.diffuse, maps.specular, maps.roughness, part_rgb={"nose": rgb["iris"]})
+    np.savez(tmp_path / "tex" / PARTS_FILE, nose=rgb["iris"])
+    with pytest.raises(HackError, match="expected arrays named among"):
+        read_texture_folder(tmp_path / "tex")
+
+
+def _final_stub(maps):
+    from types import SimpleNamespace
+
+    from hack_render.fit.final import FinalRenders
+
+    baked = SimpleNamespace(confidence=np.ones(maps.diffuse.shape[:2], np.float32))
+    return FinalRenders(fitted=[], baked=baked, maps=maps, renders=[], iris={}, specular={})
