@@ -300,6 +300,31 @@ def test_09_fallback_skin_is_tone_matched_without_a_seam():
     assert tone_matched_prior(prior, photo, few.astype(float)) is prior
 
 
+def test_unseen_skin_continues_the_face_colour_not_the_prior_tone():
+    """A(alpha)'s neck is lighter than its face (1.4x on Grace Hopper's fit): the unseen
+    skin far from the face takes the seen skin's median colour over the prior's own
+    smooth tone there, so it continues the face's colour (before: 1.4x lighter), and
+    keeps the prior's fine detail (a pattern of a few texels)."""
+    from hack_render.fit.texture import tone_matched_prior
+
+    H = 128
+    yy, xx = np.mgrid[0:H, 0:2 * H]
+    detail = 1.0 + 0.1 * np.sign(np.sin(xx / 1.5) * np.sin(yy / 1.5))
+    # the prior: its "face" (left tile) one tone, its "neck" (right tile) 1.4x lighter
+    tone = np.where(xx < H, 1.0, 1.4)[..., None] * np.float64([0.30, 0.20, 0.15])
+    prior = tone * detail[..., None]
+    seen = np.hypot(yy - H / 2, xx - H / 2) < 30
+    photo = np.where(seen[..., None], np.float64([0.40, 0.22, 0.12]), 0.0)
+    out = tone_matched_prior(prior, photo, seen.astype(float))
+    far = (xx > H + 30) & (xx < 2 * H - 30) & (yy > 30) & (yy < H - 30)
+    # its smooth colour: the seen skin's (within 3 %), not 1.4x that
+    ratio = np.exp(np.log(out[far]).mean(0)) / np.exp(np.log(photo[seen]).mean(0))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.03)
+    # its detail: the prior's (a +-10 % pattern; the gain over it varies by 0.14 %)
+    rel = out[far] / prior[far]
+    assert np.ptp(rel, axis=0).max() < 0.01 * rel.mean()
+
+
 def test_10_occluder_margin_leaves_the_occluders_edge_out(model):
     """final.occluder_margin grows the segmentation's occluders before the bake leaves
     them out: the ring around an occluder loses its weight, the rest of the face keeps

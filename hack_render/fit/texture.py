@@ -384,10 +384,13 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
                        inside: bool = False) -> np.ndarray:
     """``prior`` (the fallback map, A(alpha)) tone-matched to the photo's texels, so the
     baked face does not end in a seam: prior * exp(g), g a smooth per-channel log gain.
-    Where the photo saw the skin (``weight`` > 0.5), g = log(photo / prior); it is spread
-    by normalised Gaussian convolution (``TONE_SIGMA``) and blends, with the share of
-    seen texels around, into the seen texels' median gain far away (the scalp, the back
-    of the head, the other UV tile: one tone, no new seam). ``inside`` False: the holes
+    The photo's log colour where it saw the skin (``weight`` > 0.5) is spread by
+    normalised Gaussian convolution (``TONE_SIGMA``) and blends, with the share of seen
+    texels around, into the seen texels' median far away (the neck, the scalp, the back
+    of the head, the other UV tile); g is that over the prior's own tone (its log
+    Gaussian of the same width over the atlas's texels). So the unseen skin continues
+    the face's colour with the prior's detail, no new seam (A(alpha)'s neck is lighter
+    than its face: it kept that 1.4x on Grace Hopper's fit). ``inside`` False: the holes
     the seen texels enclose (eyes, mouth, nostrils) keep ``prior``. Seen texels are
     unchanged by this (the bake takes the photo there)."""
     from scipy.ndimage import binary_fill_holes, gaussian_filter
@@ -397,14 +400,20 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
     if seen.sum() < 16:
         return prior
     eps = 1e-3
-    g = np.log(np.clip(photo, eps, None)) - np.log(np.clip(prior, eps, None))
-    g = np.where(seen[..., None], g, 0.0)
-    g0 = np.median(g[seen], axis=0)
     sigma = TONE_SIGMA * H
+    # the prior's own tone: its log, smoothed over the atlas's texels
+    lp = np.log(np.clip(prior, eps, None))
+    valid = (prior.max(-1) > eps).astype(np.float64)
+    vb = gaussian_filter(valid, sigma, mode="constant")
+    tone = np.stack([gaussian_filter(lp[..., c] * valid, sigma, mode="constant")
+                     for c in range(3)], -1) / np.maximum(vb, 1e-9)[..., None]
+    lphoto = np.log(np.clip(photo, eps, None))
+    g0 = np.median(lphoto[seen], axis=0) - tone
     w = seen.astype(np.float64)
     wb = gaussian_filter(w, sigma, mode="constant")
-    local = np.stack([gaussian_filter(g[..., c] * w, sigma, mode="constant")
-                      for c in range(3)], -1) / np.maximum(wb, 1e-9)[..., None]
+    # near the seen skin: its colour spread (in log) over the prior's tone, likewise
+    local = np.stack([gaussian_filter(lphoto[..., c] * w, sigma, mode="constant")
+                      for c in range(3)], -1) / np.maximum(wb, 1e-9)[..., None] - tone
     # the share of seen texels around (half the kernel's mass: the seen face's edge) -> 1
     a = np.clip(wb / 0.5, 0.0, 1.0)[..., None]
     gain = a * np.where(wb[..., None] > 1e-6, local, g0) + (1.0 - a) * g0
