@@ -26,6 +26,7 @@ import numpy as np
 from hack_render.fit import texture
 from hack_render.fit.bake_weights import mask_at, photo_at
 from hack_render.fit.state import FitState
+from hack_render.io.image import sample_bilinear
 from hack_render.render.materials import VERTEX_COLOUR_PARTS, material_base_colours
 from hack_render.render.parts import PART_SPECS, REGIONS
 
@@ -35,19 +36,6 @@ RATIO_RANGE = (0.05, 8.0)
 #: visibility: nothing nearer the camera than this before the vertex (metres; the lids
 #: and lips are millimetres in front of what they cover)
 TOLERANCE_M = 5e-4
-def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    h, w = img.shape[:2]
-    x = np.clip(xy[:, 0] - 0.5, 0, w - 1.001)
-    y = np.clip(xy[:, 1] - 0.5, 0, h - 1.001)
-    ix, iy = x.astype(int), y.astype(int)
-    fx, fy = x - ix, y - iy
-    if img.ndim == 3:
-        fx, fy = fx[:, None], fy[:, None]
-    top = img[iy, ix] * (1 - fx) + img[iy, ix + 1] * fx
-    bottom = img[iy + 1, ix] * (1 - fx) + img[iy + 1, ix + 1] * fx
-    return top * (1 - fy) + bottom * fy
-
-
 def view_samples(state: FitState, cfg, view, maps, render) -> dict:
     """One view's samples per part: {name: (the colours rendered (n, 3), the colours the
     vertices would need (n, 3), weights (n,) >= 0; 0: not seen)}. ``render`` is the
@@ -80,8 +68,9 @@ def view_samples(state: FitState, cfg, view, maps, render) -> dict:
         xy = cam.project(pos)
         if window is not None:
             xy = xy + np.array(window[:2], np.float64)
-        p, r = _bilinear(photo, xy), _bilinear(rgb, xy)
-        cover = _bilinear(alpha, xy)
+        col, row = xy[:, 0] - 0.5, xy[:, 1] - 0.5   # (pixel centres at k + 0.5)
+        p, r = sample_bilinear(photo, col, row), sample_bilinear(rgb, col, row)
+        cover = sample_bilinear(alpha, col, row)
         if view.photo.is_grey:  # no colour in the photo: luminance only, the colour kept
             luma = np.array([0.2126, 0.7152, 0.0722])
             ratio = np.repeat(((p @ luma) / np.maximum(r @ luma, 1e-4))[:, None], 3, 1)

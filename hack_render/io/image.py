@@ -214,3 +214,18 @@ def straight_colour(premultiplied: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         iy, ix = distance_transform_edt(~solid, return_distances=False, return_indices=True)
         rgb = np.where(solid[..., None], rgb, rgb[iy, ix])
     return np.where((alpha > 0)[..., None], rgb, 0.0)
+
+
+def sample_bilinear(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """An image (H, W) or (H, W, C) at fractional pixel coordinates (Q,) each, pixel
+    centres at integers, clamped at the borders: (Q,) or (Q, C)."""
+    h, w = img.shape[:2]
+    c0 = np.clip(np.floor(col).astype(np.int64), 0, w - 1)
+    r0 = np.clip(np.floor(row).astype(np.int64), 0, h - 1)
+    c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
+    fc, fr = np.clip(col - c0, 0, 1), np.clip(row - r0, 0, 1)
+    if img.ndim == 3:
+        fc, fr = fc[:, None], fr[:, None]
+    top = img[r0, c0] * (1 - fc) + img[r0, c1] * fc
+    bot = img[r1, c0] * (1 - fc) + img[r1, c1] * fc
+    return top * (1 - fr) + bot * fr

@@ -31,6 +31,7 @@ import numpy as np
 
 from appearance.uv import rasterize_uv
 from hack_render.errors import HackError
+from hack_render.io.image import sample_bilinear
 from hack_render.render.parts import Topology, vertex_normals
 
 SKIN_MATERIALS = ("M_Face", "M_BackHead")
@@ -183,23 +184,10 @@ def closest_points(v: np.ndarray, faces: np.ndarray, query: np.ndarray, k: int =
     return tri, bary, dist
 
 
-def _bilinear(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-    """Image (H, W, C) at fractional texel coordinates (centres at integers), clamped."""
-    h, w = img.shape[:2]
-    c0 = np.clip(np.floor(col).astype(np.int64), 0, w - 1)
-    r0 = np.clip(np.floor(row).astype(np.int64), 0, h - 1)
-    c1, r1 = np.minimum(c0 + 1, w - 1), np.minimum(r0 + 1, h - 1)
-    fc = np.clip(col - c0, 0, 1)[:, None]
-    fr = np.clip(row - r0, 0, 1)[:, None]
-    top = img[r0, c0] * (1 - fc) + img[r0, c1] * fc
-    bot = img[r1, c0] * (1 - fc) + img[r1, c1] * fc
-    return top * (1 - fr) + bot * fr
-
-
 def sample_atlas(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """A skin map (H, 2H, C) at atlas coordinates uv (Q, 2) (u in [0, 2], v up)."""
     h = img.shape[0]
-    return _bilinear(np.asarray(img, np.float64), uv[:, 0] * h - 0.5, (1 - uv[:, 1]) * h - 0.5)
+    return sample_bilinear(np.asarray(img, np.float64), uv[:, 0] * h - 0.5, (1 - uv[:, 1]) * h - 0.5)
 
 
 def tangent_frames(v: np.ndarray, faces: np.ndarray, uv: np.ndarray) -> np.ndarray:
