@@ -203,3 +203,28 @@ def test_cli_hair_option(tmp_path):
            str(tmp_path / "o"), "--hair", "mohawk"]
     r = subprocess.run(cmd, capture_output=True, text=True, check=False)
     assert r.returncode == 2 and "hair.style" in r.stderr and "afro" in r.stderr
+
+
+def test_hair_samples_swap_their_grooms_into_the_presets_scenes(tmp_path, monkeypatch):
+    """With hair the presets' scenes hold hair slots and each sample's groom is swapped in
+    (``HeadScene.set_hair``): one scene a preset, not one a sample, and no groom goes
+    the rebuilt-scene way (its files are checked against the order-free run above)."""
+    from hack_render.render.scene import HeadScene
+
+    built, swapped = [], []
+    init, set_hair = HeadScene.__init__, HeadScene.set_hair
+
+    def counting_init(self, *a, **kw):
+        built.append(bool(kw.get("hair_slots")))
+        init(self, *a, **kw)
+
+    def counting_set_hair(self, groom, **kw):
+        swapped.append(groom.style.archetype)
+        set_hair(self, groom, **kw)
+
+    monkeypatch.setattr(HeadScene, "__init__", counting_init)
+    monkeypatch.setattr(HeadScene, "set_hair", counting_set_hair)
+    cfg = load_config(overrides=TINY)
+    run(Job(tmp_path / "ds", 4, 3, cfg), progress=False)
+    assert len(swapped) == 4
+    assert all(built) and len(built) <= len(TINY["lighting"]["presets"])

@@ -7,9 +7,11 @@ flat skin maps) and then changed per sample through ``set_vertices``, ``set_maps
 ``set_camera`` and ``set_light_rotation`` (then ``sync_environment``, so that the
 environment emitter sees the sample's own bounds): every sample is then rendered from a
 scene whose content depends on that sample alone, and the box pixel filter makes the
-pixels bit-identical whichever process renders it and whatever it rendered before. A
-sample with hair is rendered in a scene built around its own groom, on its own vertices
-(:meth:`SampleRenderer.scene_with_hair`): a function of that sample alone too.
+pixels bit-identical whichever process renders it and whatever it rendered before. With
+hair in the config, the scenes hold hair slots and each sample's groom is swapped in
+(``HeadScene.set_hair``: the same pixels as a scene built around the groom, tested); a
+groom no slot layout takes is rendered in a scene built around it, on the sample's own
+vertices (:meth:`SampleRenderer.scene_with_hair`): a function of that sample alone too.
 
 Files are encoded and written by a :class:`FileWriter`, in the caller's thread or, for
 the serial executor, on one background thread while the next sample renders; either way
@@ -42,10 +44,12 @@ from hack_render.dataset.config import render_settings
 from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
 from hack_render.geometry import load_default_model
 from hack_render.hair.groom import Groom, grow
+from hack_render.hair.pose import pose_groom
 from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
+from hack_render.render.hair_shapes import slot_bound, slots_take
 from hack_render.render.materials import SkinMaps
 from hack_render.render.parts import Topology, vertex_normals
 from hack_render.render.scene import HeadScene, composite
@@ -91,8 +95,14 @@ class SampleRenderer:
         self.larynx_candidates = lab.larynx_candidates(self.model)
         #: the mean rest mesh grooms are grown on (built at the first groom)
         self._surface: HeadSurface | None = None
-        #: :attr:`scenes` holds one scene with a groom (renderers without ``set_hair``)
+        #: :attr:`scenes` holds one scene built around a groom (one set_hair did not take)
         self._hair_scene = False
+        #: the presets' scenes hold hair slots (``HeadScene.set_hair``): hair configured
+        self.hair_slots = cfg["hair"]["style"] != "none"
+        #: {slot id: segments} of the presets' scenes' hair slots: room for every groom
+        #: the sampler draws at the config's level of detail (``hair_shapes.slot_bound``),
+        #: the same whatever came before (the pixels depend on the slots)
+        self.hair_capacity = slot_bound(cfg["hair"]["lod"]) if self.hair_slots else {}
         self.scenes: dict = {}
         self._appearance_model = None
         self._projector: SubjectProjector | None = None
@@ -189,37 +199,40 @@ class SampleRenderer:
                 self._surface = HeadSurface.from_model(self.model)
         return grow(self._surface, HairStyle.from_dict(hair))
 
-    def scene_with_hair(self, preset: str, groom: Groom | None, verts: np.ndarray):
-        """The preset's scene holding ``groom``, for a sample with vertices ``verts``.
+    def scene_with_hair(self, preset: str, groom: Groom | None, verts: np.ndarray,
+                        posed: dict | None = None):
+        """The preset's scene holding ``groom``, for a sample with vertices ``verts``
+        (``posed``: the groom's strands posed on them, or None to pose them here).
 
-        A renderer with ``set_hair`` swaps the strands in place. This version's
-        ``HeadScene`` takes its groom when it is built, so a sample with hair gets a new
-        scene of its preset around its groom, built on its own vertices (the strands are
-        posed once: the ``set_vertices`` that follows finds them posed), and it is the only
-        scene alive (the bald scenes and the previous sample's are dropped: Dr.Jit traces
-        its kernels over every BSDF and shape instance in the process). Each such scene
-        compiles its kernels again (several seconds a sample: docs/datasets.md, Cost;
-        measured, no kernel cache hit even for a groom of the same layout), which a
-        ``set_hair`` in the renderer would save. A sample without hair gets the bald scenes
-        of :meth:`build_scenes` (rebuilt if a groom's scene replaced them). Either way the
-        scene is a function of the sample alone."""
-        if hasattr(HeadScene, "set_hair"):
-            head = self.scene(preset)
-            head.set_hair(groom, update=False)
-            return head
-        if groom is None:
+        With hair configured the presets' scenes hold hair slots, and the groom is swapped
+        into its preset's scene (``HeadScene.set_hair``, posed on ``verts``; the
+        ``set_vertices`` that follows finds them posed): no scene is loaded and no kernel
+        compiled again. A groom that the slots do not take (one without lashes, or one
+        larger than the slots: a style outside the sampler's ranges) gets a
+        new scene of its preset around it, built on its own vertices, and it is the only
+        scene alive (the others are dropped: Dr.Jit traces its kernels over every BSDF and
+        shape instance in the process; such a scene compiles its kernels again, seconds a
+        sample). A sample without hair gets the bald scenes of :meth:`build_scenes`
+        (rebuilt if a groom's scene replaced them). Either way the scene is a function of
+        the sample alone."""
+        standard = slots_take(groom, self.hair_capacity) if self.hair_slots else groom is None
+        if standard:
             if self._hair_scene:
                 self.scenes.clear()
                 self._hair_scene = False
-            return self.scene(preset)
+            head = self.scene(preset)
+            if groom is not None:
+                head.set_hair(groom, vertices=verts, hair_posed=posed, update=False)
+            return head
         self.scenes.clear()  # dropped scenes die when the next one is built
-        head = self.scenes[preset] = self._build_scene(preset, groom, verts)
+        head = self.scenes[preset] = self._build_scene(preset, groom, verts, slots=False)
         self._hair_scene = True
         return head
 
     def _build_scene(self, preset: str, groom: Groom | None = None,
-                     verts: np.ndarray | None = None):
-
+                     verts: np.ndarray | None = None, slots: bool | None = None):
+        """A scene of ``preset`` (with ``groom``, on ``verts``; ``slots``: with hair
+        slots, default :attr:`hair_slots`)."""
         r = self.cfg["render"]
         settings = render_settings(self.cfg)
         cam = camera_of({"yaw_deg": 0.0, "pitch_deg": 0.0, "distance_scale": 1.0,
@@ -229,6 +242,7 @@ class SampleRenderer:
         head = HeadScene(self.topology, self.rest if verts is None else verts,
                          lights.preset(preset, 0.0, 0.0), cam,
                          settings, self._flat_maps(), None, r["variant"], hair=groom,
+                         hair_slots=self.hair_capacity if slots is None else False,
                          like=like)
         # opaque transforms from the start; applied by the first sample's update (each
         # update that touches a shape rebuilds the acceleration structure: ~0.1 s a scene)
@@ -247,7 +261,9 @@ class SampleRenderer:
         ``verts`` with their ``normals``, the larynx peak (``larynx_vertex``, ``larynx``),
         the skin ``maps``, the ``background`` image (None: the rig's environment), the
         hair's ``groom`` (None: no hair; grown here, on the prefetch thread, while the
-        previous sample renders) and ``params``, the content of its ``params.json``."""
+        previous sample renders) with its strands posed on ``verts`` (``hair_posed``: for
+        scenes with hair slots; None otherwise) and ``params``, the content of its
+        ``params.json``."""
         import torch
 
         spec = self.spec(index)
@@ -257,12 +273,15 @@ class SampleRenderer:
                                                 self.larynx_candidates, spec["beta"] or None)
         res = self.cfg["render"]["resolution"]
         verts = out.vertices[0].numpy().astype(np.float64)
+        groom = self.groom(spec.get("hair"))
         return {"index": index, "spec": spec, "out": out,
                 "verts": verts, "normals": vertex_normals(verts, self.topology.faces),
                 "larynx_vertex": larynx_vertex, "larynx": larynx,
                 "maps": self.skin_maps(spec["appearance"]),
                 "background": background_image(spec["background"], res, res),
-                "groom": self.groom(spec.get("hair")),
+                "groom": groom,
+                "hair_posed": pose_groom(groom, verts) if groom is not None and
+                self.hair_slots else None,
                 "params": params_file(self.model, spec)}
 
     def prefetch(self, index: int) -> None:
@@ -312,12 +331,13 @@ class SampleRenderer:
         if folder.exists():
             shutil.rmtree(folder)
         folder.mkdir(parents=True)
-        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"])
+        head = self.scene_with_hair(spec["lighting"]["preset"], inp["groom"], inp["verts"],
+                                    inp["hair_posed"])
         # one params.update() (in set_camera) for all of the sample's changes: each update
         # that touches a shape rebuilds the acceleration structure
         # the normals were made on the prefetch thread; the iris is placed by set_camera
         head.set_vertices(inp["verts"], update=False, normals=inp["normals"],
-                          iris=not spec["cameras"])
+                          iris=not spec["cameras"], hair_posed=inp["hair_posed"])
         head.set_maps(inp["maps"], update=False)
         head.set_light_rotation(spec["lighting"]["rotation_deg"], update=False)
         writes = [self.writer.submit(write_json, folder / "params.json", inp["params"],

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hack_render.hair.groom import BEARD_STRANDS, BROW_STRANDS, LASH_STRANDS, SCALP_STRANDS
+
 #: Quantile buckets of pigmented strands in the scalp's group (each a shape of its mean
 #: melanin), and in each group (:data:`GROUP_BUCKETS`; 1 for a group not named there).
 MELANIN_BUCKETS = 2
@@ -68,6 +70,11 @@ HAIR_RR_DEPTH = 2
 HAIR_RR = True
 #: The prefix of every hair shape's id (``hair_<group>_<bucket>``).
 PREFIX = "hair_"
+#: The strand groups a groom may hold (``hack_render.hair.groom.grow``'s).
+GROUPS = ("scalp", "brows", "lashes", "beard")
+#: An empty slot's strand (:func:`placeholder_points`): its length and radius, metres.
+PLACEHOLDER_LENGTH = 1e-6
+PLACEHOLDER_RADIUS = 1e-9
 
 
 @dataclass(frozen=True)
@@ -111,6 +118,129 @@ def hair_shapes(groom) -> list[HairShape]:
     return shapes
 
 
+def slot_ids() -> list[str]:
+    """Every shape id :func:`hair_shapes` can give a groom: per group of :data:`GROUPS`,
+    its melanin buckets (:data:`GROUP_BUCKETS`) and a white one. A scene holding a shape
+    for each (``HeadScene(..., hair_slots=...)``) takes a groom in place
+    (``HeadScene.set_hair``)."""
+    return [f"{PREFIX}{g}_{i}" for g in GROUPS for i in range(GROUP_BUCKETS.get(g, 1) + 1)]
+
+
+def needed_segments(groom) -> dict[str, int]:
+    """{slot id: curve segments} that ``groom``'s shapes fill (0: a slot it leaves empty)."""
+    out = dict.fromkeys(slot_ids(), 0)
+    for sh in hair_shapes(groom) if groom is not None else []:
+        k = min(groom.group(sh.group).points_per_strand, MAX_CONTROL_POINTS)
+        out[sh.id] = len(sh.strands) * (k - 1)
+    return out
+
+
+def slots_take(groom, capacity: dict[str, int] | None = None) -> bool:
+    """Whether a scene with hair slots of ``capacity`` ({slot id: segments}; None: any)
+    takes ``groom`` (``HeadScene.set_hair``): it has lashes (such a scene renders no lash
+    cards), each of its shapes has a slot and, given ``capacity``, fits in it."""
+    if groom is None or groom.group("lashes") is None:
+        return False
+    need = needed_segments(groom)
+    if set(need) != set(slot_ids()):
+        return False
+    return capacity is None or all(need[k] <= capacity.get(k, 0) for k in need)
+
+
+def slot_capacity(groom=None, margin: float = 1.0, at_least: dict[str, int] | None = None
+                  ) -> dict[str, int]:
+    """{slot id: segments} for a scene with hair slots: every slot of a group the same
+    number, at least 1, ``margin`` times the most any slot of the group needs for
+    ``groom`` (:func:`needed_segments`; a group's strands move between its melanin buckets
+    from one groom to the next) and at least ``at_least``'s for any slot of the group."""
+    need = needed_segments(groom)
+    base = at_least or {}
+    out = {}
+    for g in GROUPS:
+        ids = [k for k in need if k.startswith(f"{PREFIX}{g}_")]
+        n = max(1, int(np.ceil(margin * max(need[k] for k in ids))),
+                *(int(base.get(k, 0)) for k in ids))
+        out.update(dict.fromkeys(ids, n))
+    return out
+
+
+#: The most a style's density times its scalp area (over the full scalp's) reaches in the
+#: population sampler (``hair.style.sample_style``: density up to 1.1; 1.10 measured over
+#: 300 draws), with room: :func:`slot_bound`'s scalp.
+SCALP_FACTOR = 1.25
+#: The same for the brows (the sampler's ``brow_density`` up to 1.4).
+BROW_FACTOR = 1.4
+
+
+def slot_bound(lod: float) -> dict[str, int]:
+    """{slot id: segments} that hold every groom the population sampler draws at ``lod``
+    (``hair.style.sample_style``; a style outside its ranges may need more:
+    :func:`slots_take` says so): n strands at most in a group (``hair.groom``'s counts at
+    this level of detail), each of at most ``MAX_CONTROL_POINTS - 1`` segments; the first
+    slot of a group (its white strands, or its first melanin bucket) may take all n, each
+    other (a quantile bucket) at most n / buckets. A constant of the level of detail, so a
+    scene's slots, hence its pixels, do not depend on which grooms came before."""
+    lod = float(lod)
+    most = {"scalp": SCALP_STRANDS * lod * SCALP_FACTOR,
+            "brows": 2 * BROW_STRANDS * lod * BROW_FACTOR,
+            "lashes": 2 * sum(max(4, round(n * min(lod, 1.5))) for n in LASH_STRANDS),
+            "beard": max(BEARD_STRANDS.values()) * lod}
+    out = {}
+    for g in GROUPS:
+        n, b = int(np.ceil(most[g])), GROUP_BUCKETS.get(g, 1)
+        for i in range(b + 1):
+            out[f"{PREFIX}{g}_{i}"] = max(1, (n if i == 0 else -(-n // b)) *
+                                          (MAX_CONTROL_POINTS - 1))
+    return out
+
+
+def padding_points(centre, segments: int, invalid: bool = True) -> np.ndarray:
+    """(segments + 1, 4) float32 control points of one strand of ``segments`` segments
+    that fills a slot's unused capacity. ``invalid``: its first point at ``centre``, the
+    others NaN, so every segment is invalid and Embree drops it when it builds the
+    acceleration structure (a slot padded with valid segments rebuilt it in 0.75 s a
+    sample against 0.1 s; measured at 256 px); the one finite point keeps an empty slot's
+    bounds those of a point inside the scene's (the mesh's centroid), so the bounds and
+    the lights' sampling are those of the scene without it. Not ``invalid`` (a curve
+    file, which Mitsuba refuses with NaN): every point within
+    :data:`PLACEHOLDER_LENGTH` of ``centre``, zig-zagging, :data:`PLACEHOLDER_RADIUS`
+    thick (a ray meets one with a probability of about 1e-12 a pixel)."""
+    c = np.asarray(centre, np.float64).reshape(3)
+    out = np.zeros((segments + 1, 4), np.float32)
+    out[:, :3] = c
+    out[1::2, 1] += PLACEHOLDER_LENGTH
+    out[:, 3] = PLACEHOLDER_RADIUS
+    if invalid:
+        out[1:, :3] = np.nan
+    return out
+
+
+def segment_indices(num_strands: int, points_per_strand: int) -> np.ndarray:
+    """The first control point of every curve segment of ``num_strands`` strands of
+    ``points_per_strand`` points each, in file order (what a ``linearcurve`` loads from
+    :func:`write_curves`' file: its ``segment_indices``)."""
+    first = np.arange(num_strands, dtype=np.int64)[:, None] * points_per_strand
+    return (first + np.arange(points_per_strand - 1)).astype(np.uint32).ravel()
+
+
+def slot_content(cp: np.ndarray | None, capacity: int, centre) -> tuple[np.ndarray, np.ndarray]:
+    """(control points (P, 4) float32, segment indices (capacity,) uint32) of a slot of
+    ``capacity`` segments holding strands ``cp`` ((S, K, 4), :func:`control_points`; None:
+    none): the strands, then one :func:`padding_points` strand over the rest. The
+    segment count is the slot's, whatever the groom: Mitsuba's ``linearcurve`` compiles
+    its segment count into the render kernel (``dr::width(m_indices)`` in its
+    ``compute_surface_interaction``), so a scene whose counts change compiles again."""
+    cp = np.zeros((0, 2, 4), np.float32) if cp is None else cp
+    s, k = cp.shape[:2]
+    pad = capacity - s * (k - 1)
+    if pad < 0 or capacity < 1:
+        raise ValueError(f"a slot of {capacity} segments cannot hold {s * (k - 1)}")
+    first = s * k
+    points = [cp.reshape(-1, 4)] + ([padding_points(centre, pad)] if pad else [])
+    tail = np.arange(first, first + pad, dtype=np.uint32)
+    return np.concatenate(points), np.concatenate([segment_indices(s, k), tail])
+
+
 def control_points(points: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """(S, M, 4) float32 curve control points (x, y, z, r) of strands ``points`` (S, K, 3)
     with radii ``radius`` (K,): M = min(K, :data:`MAX_CONTROL_POINTS`) of the points, root
@@ -143,37 +273,98 @@ def open_segments(p: np.ndarray, eps: float = MIN_SEGMENT) -> np.ndarray:
     return p
 
 
-def write_curves(path: Path, cp: np.ndarray) -> None:
-    """Write control points (S, K, 4) as Mitsuba's curve text file."""
+def write_curves(path: Path, cp: np.ndarray, tail: np.ndarray | None = None) -> None:
+    """Write control points (S, K, 4) as Mitsuba's curve text file (``tail``: one more
+    strand's (n, 4) points after them)."""
     s, k, _ = cp.shape
-    line = "%.7g %.7g %.7g %.7g\n"
+    line = "%.9g %.9g %.9g %.9g\n"  # float32 to the bit
     with open(path, "w") as fh:
         fh.write(((line * k) + "\n") * s % tuple(cp.ravel().tolist()))
+        if tail is not None and len(tail):
+            fh.write((line * len(tail)) % tuple(np.asarray(tail, np.float32).ravel().tolist()))
 
 
-def hair_bsdf(shape: HairShape) -> dict:
-    return {"type": "hair", "eumelanin": shape.eumelanin, "pheomelanin": shape.pheomelanin,
+def hair_bsdf(shape: HairShape | None) -> dict:
+    """The ``hair`` BSDF of a shape (None: an empty slot's, melanin 0)."""
+    eu, pheo = (shape.eumelanin, shape.pheomelanin) if shape is not None else (0.0, 0.0)
+    return {"type": "hair", "eumelanin": eu, "pheomelanin": pheo,
             "longitudinal_roughness": LONGITUDINAL_ROUGHNESS,
             "azimuthal_roughness": AZIMUTHAL_ROUGHNESS, "scale_tilt": SCALE_TILT}
 
 
-def load_shapes(groom, posed: dict[str, np.ndarray], shapes: list[HairShape]) -> dict:
+def load_shapes(groom, posed: dict[str, np.ndarray] | None, shapes: list[HairShape],
+                capacity: dict[str, int] | None = None, centre=None) -> dict:
     """{shape id: loaded Mitsuba ``linearcurve`` shape with its ``hair`` BSDF} of the
-    groom's strands posed at ``posed`` ({group: (S, K, 3)}, :func:`pose_groom`)."""
+    groom's strands posed at ``posed`` ({group: (S, K, 3)}, :func:`pose_groom`); with
+    ``capacity`` ({slot id: segments}), one shape per slot instead, each padded to its
+    capacity at ``centre`` (valid segments: a curve file holds no NaN; the scene then
+    writes the invalid padding of :func:`slot_content`, :func:`write_slots`)."""
     import mitsuba as mi
 
+    active = {sh.id: sh for sh in shapes}
     out = {}
     with tempfile.TemporaryDirectory(prefix="hack-hair-") as tmp:
-        for sh in shapes:
-            g = groom.group(sh.group)
-            cp = control_points(posed[sh.group][sh.strands], g.radius)
-            path = Path(tmp) / f"{sh.id}.txt"
-            write_curves(path, cp)
+        for sid in active if capacity is None else capacity:
+            sh = active.get(sid)
+            cp = None if sh is None else \
+                control_points(posed[sh.group][sh.strands], groom.group(sh.group).radius)
+            tail = None
+            if capacity is not None:
+                s, k = (0, 2) if cp is None else cp.shape[:2]
+                tail = padding_points(centre, capacity[sid] - s * (k - 1), invalid=False)
+                tail = tail if capacity[sid] > s * (k - 1) else None
+            path = Path(tmp) / f"{sid}.txt"
+            write_curves(path, np.zeros((0, 2, 4), np.float32) if cp is None else cp, tail)
             shape = mi.load_dict({"type": "linearcurve", "filename": str(path),
                                   "bsdf": hair_bsdf(sh)})
-            shape.set_id(sh.id)
-            out[sh.id] = shape
+            shape.set_id(sid)
+            out[sid] = shape
     return out
+
+
+def aligned_float(values: np.ndarray):
+    """``mi.Float`` of float32 ``values`` from a 64-byte-aligned copy. Dr.Jit reads a
+    curve's control points four at a time (a packet gather) only from an aligned buffer,
+    and takes a NumPy array's memory as it is: an array at an address that happens not to
+    be aligned gives other kernel code, which compiles again (about 1 s at every new
+    groom or pose, measured); aligned, a new groom of the same slots reuses the kernels."""
+    import mitsuba as mi
+
+    a = np.ascontiguousarray(values, np.float32).ravel()
+    buf = np.empty(a.nbytes + 64, np.uint8)
+    start = (-buf.ctypes.data) % 64
+    out = buf[start:start + a.nbytes].view(np.float32)
+    out[:] = a
+    return mi.Float(out)
+
+
+def write_slots(params, groom, posed: dict[str, np.ndarray] | None, shapes: list[HairShape],
+                capacity: dict[str, int], centre, structure: bool) -> None:
+    """Write a groom into a scene's hair slots (``params``: the scene's traversed
+    parameters; ``capacity``: {slot id: segments}, :func:`slot_content`): each of
+    ``shapes`` (the groom's, :func:`hair_shapes`) its strands posed at ``posed``, padded
+    at ``centre``. ``structure``: the segments, control point counts and melanin too, not
+    only the positions (a new groom). The melanin is written as opaque values, so a new
+    groom compiles no kernel again. The caller updates the parameters."""
+    import drjit as dr
+    import mitsuba as mi
+
+    active = {sh.id: sh for sh in shapes}
+    for sid, cap in capacity.items():
+        sh = active.get(sid)
+        cp = None if sh is None else \
+            control_points(posed[sh.group][sh.strands], groom.group(sh.group).radius)
+        points, index = slot_content(cp, cap, centre)
+        params[f"{sid}.control_points"] = aligned_float(points)
+        if not structure:
+            continue
+        params[f"{sid}.segment_indices"] = mi.UInt32(index)
+        params[f"{sid}.control_point_count"] = len(points)
+        for key, value in zip(("eumelanin", "pheomelanin"),
+                              (0.0, 0.0) if sh is None else (sh.eumelanin, sh.pheomelanin)):
+            x = mi.Float(value)
+            dr.make_opaque(x)
+            params[f"{sid}.bsdf.{key}"] = x
 
 
 def shape_control_points(groom, posed: dict[str, np.ndarray], sh: HairShape) -> np.ndarray:

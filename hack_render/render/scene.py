@@ -43,9 +43,13 @@ from hack_render.render.footprint import denoise_features
 from hack_render.render.hair_shapes import (
     HAIR_RR,
     HAIR_RR_DEPTH,
+    aligned_float,
     hair_shapes,
     load_shapes,
     shape_control_points,
+    slot_capacity,
+    slots_take,
+    write_slots,
 )
 from hack_render.render.hair_shapes import PREFIX as HAIR_PREFIX
 from hack_render.render.parts import (
@@ -124,6 +128,13 @@ class HeadScene:
             are the segmentation's ``hair`` region. A groom with a ``lashes`` group replaces
             the lash cards (the ``eyelashes`` part is not rendered). None: bald, the scene
             of earlier versions.
+        hair_slots: hold a curve shape for every shape a groom can have
+            (``hair_shapes.slot_ids``), each of a fixed number of segments (a mapping
+            {slot id: segments}; True: what ``hair`` fills, ``hair_shapes.slot_capacity``):
+            the groom's strands, then a hidden padding strand (``slot_content``), so that
+            :meth:`set_hair` swaps in any groom with lashes that fits, without a new scene
+            and without compiling the kernels again (the dataset's scenes). The lash cards
+            are not rendered (the strand lashes replace them), even while ``hair`` is None.
         like: another scene on the same topology, vertices and ``bust_cap``, whose
             vertex-dependent set-up (the parts, eye axes, corneas, vertex normals and the
             lash opacity map: ~0.2 s) this one reuses, e.g. the dataset's scene of each
@@ -134,7 +145,7 @@ class HeadScene:
                  settings: RenderSettings | None = None, maps=None,
                  iris_rgb=None, variant: str | None = None, *, bust_cap: bool = True,
                  lash_strands: bool = True, cornea: bool = True, hair=None,
-                 like: HeadScene | None = None):
+                 hair_slots: bool | dict = False, like: HeadScene | None = None):
         settings = settings or RenderSettings(camera.width, camera.height)
         if (camera.width, camera.height) != (settings.width, settings.height):
             raise HackError(f"camera {camera.name!r}: expected size {settings.width}x"
@@ -162,10 +173,18 @@ class HeadScene:
         #: the groom rendered (None: bald) and its shapes (``hair_shapes.HairShape``)
         self.hair = hair
         self.hair_shapes = hair_shapes(hair) if hair is not None else []
-        if hair is not None and hair.group("lashes") is not None:
+        #: {slot id: segments} of the hair slots (``hair_slots``; empty: none)
+        self.hair_slots = dict(hair_slots) if isinstance(hair_slots, dict) else \
+            slot_capacity(hair) if hair_slots else {}
+        if self.hair_slots and hair is not None and not slots_take(hair, self.hair_slots):
+            raise HackError("hair_slots: the groom has no lashes (a scene with hair slots "
+                            "renders the lashes as strands) or does not fit the slots; build "
+                            "the scene without slots or with larger ones.")
+        if (hair is not None and hair.group("lashes") is not None) or hair_slots:
             # the strands replace ICT's lash cards
             self.parts = [p for p in self.parts if p.name != "eyelashes"]
         self._hair_posed_for: tuple | None = None
+        self._hair_written = None  # the posed strands last written into the scene
         self._vertices = v
         iris = [p for p in self.parts if p.name == "iris"]
         #: the corneas refracting the iris for the camera (None: a plain iris)
@@ -203,7 +222,7 @@ class HeadScene:
         #: when strand lashes replace the cards: opaque shadow rays); the skin split's
         #: integrator (``sss.split_integrator``) takes them too
         self.integrator_extra: dict = {}
-        if hair is not None:
+        if hair is not None or hair_slots:
             self.integrator_extra["rr_depth"] = HAIR_RR_DEPTH
             if self.integrator_name == "hack_path":
                 self.integrator_extra["hair_rr"] = HAIR_RR
@@ -252,8 +271,11 @@ class HeadScene:
                 mesh.add_attribute("vertex_color", 3,
                                    mi.Float(np.asarray(colours, np.float32).ravel()))
             scene[part.name] = mesh
-        if self.hair_shapes:
-            scene.update(load_shapes(hair, self._pose_hair(v), self.hair_shapes))
+        posed = self._pose_hair(v) if hair is not None else None
+        if self.hair_shapes or self.hair_slots:
+            scene.update(load_shapes(hair, posed, self.hair_shapes, self.hair_slots or None,
+                                     v.mean(0)))
+            self._hair_written = posed
         scene.update(emitters.emitter_dicts(lights, env))
         # optimize=False: Mitsuba's optimisation pass (merging equivalent objects) lists
         # shapes and emitters in an order that varies from load to load (two area lights
@@ -267,6 +289,10 @@ class HeadScene:
         self._backdrop: np.ndarray | None = None
         self._skin_key = self._find_skin_key()
         self._shape_regions = self._shape_region_table()
+        if self.hair_slots:  # the state set_hair leaves (opaque melanin: no recompiles)
+            write_slots(self.params, hair, posed, self.hair_shapes, self.hair_slots,
+                        v.mean(0), structure=True)
+            self.params.update()
 
     # --- construction helpers ------------------------------------------------------
     @staticmethod
@@ -386,11 +412,46 @@ class HeadScene:
             if not part.flat:
                 self.params[f"{part.name}.vertex_normals"] = mi.Float(
                     n[part.gather].ravel().astype(np.float32))
-        if self.hair_shapes:
+        if self.hair is not None:
             posed = self._pose_hair(v, hair_posed)
-            for sh in self.hair_shapes:
-                self.params[f"{sh.id}.control_points"] = mi.Float(
-                    shape_control_points(self.hair, posed, sh))
+            if posed is not self._hair_written:
+                if self.hair_slots:
+                    write_slots(self.params, self.hair, posed, self.hair_shapes,
+                                self.hair_slots, v.mean(0), structure=False)
+                for sh in [] if self.hair_slots else self.hair_shapes:
+                    self.params[f"{sh.id}.control_points"] = aligned_float(
+                        shape_control_points(self.hair, posed, sh))
+                self._hair_written = posed
+        if update:
+            self.params.update()
+
+    def takes_hair(self, groom) -> bool:
+        """Whether :meth:`set_hair` takes ``groom`` into this scene: it has hair slots, the
+        groom has lashes (a slotted scene has no lash cards) and fits the slots."""
+        return bool(self.hair_slots) and slots_take(groom, self.hair_slots)
+
+    def set_hair(self, groom, *, vertices=None, hair_posed=None, update: bool = True) -> None:
+        """Render ``groom`` instead of the present one, in place: a scene built with
+        ``hair_slots`` (:meth:`takes_hair`) renders what a new ``HeadScene(...,
+        hair=groom, hair_slots=<the same slots>)`` would, without loading a scene or compiling its
+        kernels again. The strands are posed on ``vertices`` (default: the mesh's
+        present vertices; given: the ones a :meth:`set_vertices` that follows moves the
+        mesh to, without posing them again) or given posed (``hair_posed``,
+        :meth:`pose_hair` of those vertices with this groom). ``update=False`` defers
+        ``params.update()``."""
+        if not self.takes_hair(groom):
+            raise HackError("set_hair: " + (
+                "this scene has no hair slots; build it with HeadScene(..., hair_slots=True)"
+                if not self.hair_slots else "expected a groom with lashes (a scene with hair "
+                "slots renders the lashes as strands) that fits the slots "
+                "(hair_shapes.needed_segments); build a HeadScene with this groom"))
+        v = self._vertices if vertices is None else _np(vertices).reshape(-1, 3)
+        self.hair, self.hair_shapes = groom, hair_shapes(groom)
+        self._hair_posed_for = None
+        posed = self._pose_hair(v, hair_posed)
+        write_slots(self.params, groom, posed, self.hair_shapes, self.hair_slots, v.mean(0),
+                    structure=True)
+        self._hair_written = posed
         if update:
             self.params.update()
 
