@@ -388,29 +388,54 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
 
 def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
     """Strands cut where they first go below ``floor`` (y), their K points spread evenly
-    (by arc length) over the part kept, so no segment has zero length."""
+    (by arc length) over the part kept, so no segment has zero length. Vectorised over
+    the strands that keep the same number of points (a long groom cuts ~13k strands)."""
     s, k, _ = pts.shape
     below = pts[..., 1] < floor
     cut = below.any(1)
     if not cut.any():
         return pts
     out = pts.copy()
-    for i in np.flatnonzero(cut):
-        first = int(np.argmax(below[i]))
-        keep = pts[i, :max(first, 1) + 1].copy()
-        if first >= 1:  # end on the floor, between the last point above and the first below
-            a, b = pts[i, first - 1], pts[i, first]
-            t = (a[1] - floor) / max(a[1] - b[1], 1e-12)
-            keep[-1] = a + t * (b - a)
-        seg = np.linalg.norm(np.diff(keep, axis=0), axis=-1)
-        arc = np.r_[0.0, np.cumsum(seg)]
-        if arc[-1] <= 1e-6:  # rooted at the floor itself: a short stub along the strand
-            direction = pts[i, 1] - pts[i, 0]
-            keep = np.stack([pts[i, 0], pts[i, 0] + direction / max(
-                np.linalg.norm(direction), 1e-12) * 1e-3])
-            arc = np.array([0.0, 1e-3])
-        at = np.linspace(0.0, arc[-1], k)
-        out[i] = np.stack([np.interp(at, arc, keep[:, c]) for c in range(3)], -1)
+    rows = np.flatnonzero(cut)
+    first = np.argmax(below[rows], 1)
+    for m in np.unique(np.maximum(first, 1) + 1):  # the points each strand keeps
+        sel = np.maximum(first, 1) + 1 == m
+        i, f = rows[sel], first[sel]
+        keep = pts[i, :m].copy()
+        on = f >= 1  # end on the floor, between the last point above and the first below
+        a, b = pts[i[on], f[on] - 1], pts[i[on], f[on]]
+        t = (a[:, 1] - floor) / np.maximum(a[:, 1] - b[:, 1], 1e-12)
+        keep[on, -1] = a + t[:, None] * (b - a)
+        arc = np.concatenate([np.zeros((len(i), 1)), np.cumsum(
+            np.linalg.norm(np.diff(keep, axis=1), axis=-1), 1)], 1)
+        stub = arc[:, -1] <= 1e-6  # rooted at the floor itself: a short stub along it
+        if stub.any():
+            d = pts[i[stub], 1] - pts[i[stub], 0]
+            d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12) * 1e-3
+            keep[stub] = pts[i[stub], :1]
+            keep[stub, -1] = pts[i[stub], 0] + d
+            arc[stub] = 0.0
+            arc[stub, -1] = 1e-3
+        out[i] = _resample(keep, arc, k)
+    return out
+
+
+def _resample(keep: np.ndarray, arc: np.ndarray, k: int) -> np.ndarray:
+    """(n, k, 3) points at ``k`` even arc lengths along polylines ``keep`` (n, m, 3) with
+    cumulative arc lengths ``arc`` (n, m), as ``np.interp`` per coordinate: the segment
+    whose start is the last at or before each length (the end itself: the last point)."""
+    n, m = arc.shape
+    at = np.linspace(0.0, 1.0, k)[None] * arc[:, -1:]
+    j = np.clip((arc[:, None, :] <= at[:, :, None]).sum(-1) - 1, 0, m - 2)
+    a0 = np.take_along_axis(arc, j, 1)
+    a1 = np.take_along_axis(arc, j + 1, 1)
+    p0 = np.take_along_axis(keep, j[..., None], 1)
+    p1 = np.take_along_axis(keep, j[..., None] + 1, 1)
+    span = a1 - a0
+    t = np.where(span > 0, (at - a0) / np.where(span > 0, span, 1.0), 1.0)
+    out = p0 + t[..., None] * (p1 - p0)
+    last = at >= arc[:, -1:]  # np.interp's value at and past the end
+    out[last] = np.broadcast_to(keep[:, -1:], out.shape)[last]
     return out
 
 
