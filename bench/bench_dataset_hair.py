@@ -15,14 +15,22 @@
     in the process would make the bald scenes' kernels recompile too), with the parts:
     the render call (``HeadScene.render``), the labels, the groom (grown on the prefetch
     thread, beside the render) and the scene built around each groom (posing included).
+(c) ``--steady``: the default config (hair sampled) in a fresh process, as the serial
+    executor runs it (each sample submitted with the next one's inputs prefetched),
+    ``--warm`` samples first, then ``--n``: seconds per sample, the render call's, the
+    process's CPU seconds per sample and the render kernels compiled anew (Dr.Jit's kernel
+    history: cache misses, and their compile seconds); ``--before PATH`` runs the same
+    in another checkout right after, in its own process.
 
 Usage: python bench/bench_dataset_hair.py --sheet docs/images/dataset_hair_sheet.png
        python bench/bench_dataset_hair.py --speed [--n 6] [--size 256] [--spp 25] [--lod 0.25]
+       python bench/bench_dataset_hair.py --steady [--n 6] [--warm 2] [--before PATH]
 """
 
 from __future__ import annotations
 
 import argparse
+import builtins
 import json
 import os
 import sys
@@ -32,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from method_timer import MethodTimer  # bench/ is sys.path[0] when run as a script
+from provenance import write_result
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -158,6 +167,90 @@ def speed(n: int, warm: int, size: int, spp: int, lods: list[float], seed: int) 
     print(json.dumps({"n": n, "size": size, "spp": spp, "lods": lods}))
 
 
+STEADY = """
+import json, sys, tempfile, time
+sys.path.insert(0, {bench!r})
+from method_timer import MethodTimer
+from hack_render.render.engine import ensure_variant
+ensure_variant()
+import drjit as dr
+from hack_render.dataset import labels as lab
+from hack_render.dataset import worker as wk
+from hack_render.dataset.config import load_config
+from hack_render.dataset.runner import with_next
+from hack_render.render.scene import HeadScene
+cfg = load_config(overrides={{"render": {{"resolution": {size}, "spp": {spp}}}}})
+r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes=True)
+# warm-up: {warm} samples, and on until every lighting preset has rendered (its kernels)
+presets, i = set(), 0
+while len(presets) < len(cfg["lighting"]["presets"]) or i < {warm}:
+    presets.add(r.spec(i)["lighting"]["preset"])
+    r.render(i)
+    i += 1
+first = i
+timer = MethodTimer()
+timer.wrap(HeadScene, "render")
+timer.wrap(lab, "label_images")
+dr.set_flag(dr.JitFlag.KernelHistory, True)
+dr.kernel_history_clear()
+js = list(range(first, first + {n}))
+t0, c0 = time.perf_counter(), time.process_time()
+futures = [r.submit(j, then=upcoming) for j, upcoming in with_next(js)]
+for f in futures:
+    f.result()
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+miss = [k for k in dr.kernel_history()
+        if k.get("type") == dr.KernelType.JIT and not k.get("cache_hit")]
+parts = timer.take()
+r.close()
+print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
+                  "render_call": parts.get("render", 0.0) / {n},
+                  "labels": parts.get("label_images", 0.0) / {n},
+                  "kernels_compiled": len(miss), "first": first,
+                  "compile_s": sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
+                                   for k in miss) / 1000.0}}))
+"""
+
+
+def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None,
+           out: str | None) -> None:
+    import subprocess
+
+    printed: list[str] = []
+
+    def print(text: str, **kw) -> None:  # also kept for --out
+        printed.append(text)
+        builtins.print(text, **kw)
+
+    here = str(Path(__file__).resolve().parents[1])
+    print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
+    results: dict = {"title": "Datasets with hair at render speed (issue 65)", "runs": {}}
+    print(f"(c) the default config (hair sampled, lod {load_config()['hair']['lod']:g}) at "
+          f"{size} px, {spp} spp, as the serial executor runs it, {n} samples of seed {seed} "
+          f"after at least {warm} warm-up samples and until every lighting preset has "
+          f"rendered once, each checkout in a fresh process:")
+    for name, root in [("this", here)] + ([("before", before)] if before else []):
+        code = STEADY.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
+                             warm=warm, n=n)
+        env = dict(os.environ, PYTHONPATH=root)
+        line = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, check=True,
+                              capture_output=True, text=True).stdout.strip().splitlines()[-1]
+        d = json.loads(line)
+        results["runs"][name] = d
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, check=False,
+                                capture_output=True, text=True).stdout.strip()
+        print(f"  {name} ({commit}), samples {d['first']}..{d['first'] + n - 1}: "
+              f"{d['s_per_sample']:.2f} s/sample; render call "
+              f"{d['render_call']:.2f} s (ratio {d['s_per_sample'] / d['render_call']:.2f}x, "
+              f"target <= 1.3x); labels {d['labels']:.2f} s; process CPU "
+              f"{d['cpu_per_sample']:.2f} s/sample; kernels compiled anew "
+              f"{d['kernels_compiled']} ({d['compile_s']:.1f} s)", flush=True)
+    print(f"load average (1 min) after: {os.getloadavg()[0]:.1f}")
+    if out:
+        results["printed"] = printed
+        builtins.print(f"wrote {write_result(out, results)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sheet", default=None)
@@ -169,9 +262,14 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=25)
     ap.add_argument("--lod", type=float, action="append", default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--steady", action="store_true")
+    ap.add_argument("--before", default=None, help="(c): another checkout to compare with")
+    ap.add_argument("--out", default=None, help="(c): also write what it prints, with commit")
     a = ap.parse_args()
     if a.sheet:
         sheet(Path(a.sheet), a.seed, a.keep, a.size)
+    if a.steady:
+        steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out)
     if a.speed:
         speed(a.n, a.warm, a.size, a.spp, a.lod or [load_config()["hair"]["lod"]], a.seed)
 
