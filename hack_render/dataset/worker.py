@@ -220,6 +220,8 @@ class SampleRenderer:
             if self._hair_scene:
                 self.scenes.clear()
                 self._hair_scene = False
+            if self.hair_slots and not self.scenes:  # the first sample's; the rest after it
+                self.scenes[preset] = self._build_scene(preset)
             head = self.scene(preset)
             if groom is not None:
                 head.set_hair(groom, vertices=verts, hair_posed=posed, update=False)
@@ -316,7 +318,7 @@ class SampleRenderer:
         # only its own preset's scene is built now, while the inputs are made, and the
         # other presets' after its render (:meth:`build_scenes`), while its files are
         # written: the start-up before the first render is one scene, not one per preset
-        rest = False
+        rest = not self.scenes and self.hair_slots  # hair: built with the groom's inputs
         if not self.scenes and ahead is not None and not ahead.done():
             first = self.spec(index)
             if first.get("hair") is None:

@@ -273,15 +273,12 @@ def open_segments(p: np.ndarray, eps: float = MIN_SEGMENT) -> np.ndarray:
     return p
 
 
-def write_curves(path: Path, cp: np.ndarray, tail: np.ndarray | None = None) -> None:
-    """Write control points (S, K, 4) as Mitsuba's curve text file (``tail``: one more
-    strand's (n, 4) points after them)."""
+def write_curves(path: Path, cp: np.ndarray) -> None:
+    """Write control points (S, K, 4) as Mitsuba's curve text file."""
     s, k, _ = cp.shape
     line = "%.9g %.9g %.9g %.9g\n"  # float32 to the bit
     with open(path, "w") as fh:
         fh.write(((line * k) + "\n") * s % tuple(cp.ravel().tolist()))
-        if tail is not None and len(tail):
-            fh.write((line * len(tail)) % tuple(np.asarray(tail, np.float32).ravel().tolist()))
 
 
 def hair_bsdf(shape: HairShape | None) -> dict:
@@ -296,9 +293,10 @@ def load_shapes(groom, posed: dict[str, np.ndarray] | None, shapes: list[HairSha
                 capacity: dict[str, int] | None = None, centre=None) -> dict:
     """{shape id: loaded Mitsuba ``linearcurve`` shape with its ``hair`` BSDF} of the
     groom's strands posed at ``posed`` ({group: (S, K, 3)}, :func:`pose_groom`); with
-    ``capacity`` ({slot id: segments}), one shape per slot instead, each padded to its
-    capacity at ``centre`` (valid segments: a curve file holds no NaN; the scene then
-    writes the invalid padding of :func:`slot_content`, :func:`write_slots`)."""
+    ``capacity`` ({slot id: segments}), one shape per slot instead, each loaded as one
+    short strand at ``centre`` (a curve file holds no NaN, and a slot's million segments
+    as text took seconds to write and parse): the scene then writes the slots' content
+    (:func:`write_slots`) before its first render."""
     import mitsuba as mi
 
     active = {sh.id: sh for sh in shapes}
@@ -306,15 +304,12 @@ def load_shapes(groom, posed: dict[str, np.ndarray] | None, shapes: list[HairSha
     with tempfile.TemporaryDirectory(prefix="hack-hair-") as tmp:
         for sid in active if capacity is None else capacity:
             sh = active.get(sid)
-            cp = None if sh is None else \
-                control_points(posed[sh.group][sh.strands], groom.group(sh.group).radius)
-            tail = None
-            if capacity is not None:
-                s, k = (0, 2) if cp is None else cp.shape[:2]
-                tail = padding_points(centre, capacity[sid] - s * (k - 1), invalid=False)
-                tail = tail if capacity[sid] > s * (k - 1) else None
             path = Path(tmp) / f"{sid}.txt"
-            write_curves(path, np.zeros((0, 2, 4), np.float32) if cp is None else cp, tail)
+            if capacity is None:
+                write_curves(path, control_points(posed[sh.group][sh.strands],
+                                                  groom.group(sh.group).radius))
+            else:
+                write_curves(path, padding_points(centre, 1, invalid=False)[None])
             shape = mi.load_dict({"type": "linearcurve", "filename": str(path),
                                   "bsdf": hair_bsdf(sh)})
             shape.set_id(sid)
