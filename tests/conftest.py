@@ -4,6 +4,7 @@ import os
 import shutil
 import tempfile
 
+import numpy as np
 import pytest
 
 
@@ -47,6 +48,20 @@ def head_model():
     with torch.no_grad():
         v = model().vertices[0].double().numpy()
     return Topology.from_model(model), v
+
+
+@pytest.fixture(scope="module")
+def hair_head_model():
+    """(Topology, rest vertices (V, 3) float64, HeadSurface) of the default model at the
+    posing model's rest: the hair render tests' head and the surface grooms grow on."""
+    from hack_render.geometry.model_file import default_model_path
+    from hack_render.geometry.posing import PosingModel
+    from hack_render.hair.regions import HeadSurface
+    from hack_render.render.parts import Topology
+
+    posing = PosingModel.from_file(default_model_path())
+    return (Topology.from_model(posing), posing.vertices().astype(np.float64),
+            HeadSurface.from_model(posing))
 
 
 @pytest.fixture

@@ -8,15 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hack_render.geometry.model_file import default_model_path
-from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import grow_cached
-from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle, slab_albedo
 from hack_render.render import denoise as dn
 from hack_render.render import footprint
 from hack_render.render.engine import ensure_variant
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import REGIONS
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
 
@@ -30,10 +27,8 @@ EU, PHEO = 1.3, 0.25  # a brown: its slab albedo is far from the BSDF's grey
 
 
 @pytest.fixture(scope="module")
-def head_model():
-    posing = PosingModel.from_file(default_model_path())
-    return Topology.from_model(posing), posing.vertices().astype(np.float64), \
-        HeadSurface.from_model(posing)
+def head_model(hair_head_model):
+    return hair_head_model
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,7 @@ ensure_variant()
 import mitsuba as mi
 
 from hack_render.cli import main
-from hack_render.geometry.model_file import default_model_path
-from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import Groom, grow_cached
-from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.render.hair_options import hair_style
 from hack_render.render.hair_shapes import (
@@ -29,7 +26,7 @@ from hack_render.render.hair_shapes import (
     buckets,
     control_points,
 )
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import REGIONS
 from hack_render.render.scene import HeadScene, RenderSettings
 from hack_render.render.sss import split_integrator
 from scenes import cameras, lights
@@ -39,10 +36,8 @@ HAIR = REGIONS.index("hair")
 
 
 @pytest.fixture(scope="module")
-def head_model():
-    posing = PosingModel.from_file(default_model_path())
-    v = posing.vertices().astype(np.float64)
-    return Topology.from_model(posing), v, HeadSurface.from_model(posing)
+def head_model(hair_head_model):
+    return hair_head_model
 
 
 @pytest.fixture(scope="module")

@@ -15,10 +15,7 @@ import drjit as dr
 import mitsuba as mi
 
 from hack_render.errors import HackError
-from hack_render.geometry.model_file import default_model_path
-from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import grow_cached
-from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.render.hair_shapes import (
     PREFIX,
@@ -33,7 +30,7 @@ from hack_render.render.hair_shapes import (
     slots_take,
     write_curves,
 )
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import REGIONS
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes import cameras, lights
 
@@ -41,10 +38,8 @@ RES = 48
 
 
 @pytest.fixture(scope="module")
-def head_model():
-    posing = PosingModel.from_file(default_model_path())
-    v = posing.vertices().astype(np.float64)
-    return Topology.from_model(posing), v, HeadSurface.from_model(posing)
+def head_model(hair_head_model):
+    return hair_head_model
 
 
 @pytest.fixture(scope="module")
