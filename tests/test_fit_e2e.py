@@ -88,8 +88,11 @@ def test_02_astronaut_cli_end_to_end(tmp_path, cli_in_process):
     for name in ("params.json", "params.npz", "mesh.obj", "mesh.ply", "textures/diffuse.exr",
                  "textures/diffuse.png", "overlay.png", "losses.png", "losses.json",
                  "timings.json", "cameras.json", "render.png", "render_over_photo.png",
-                 "occlusion.png", "textures/iris.json", "textures/parts.npz"):
+                 "occlusion.png", "textures/iris.json", "textures/parts.npz",
+                 "textures/skin.json"):
         assert (out / name).is_file(), name
+    # the bake holds the photo's brows (final.features, on by default): --textures knows
+    assert json.loads((out / "textures" / "skin.json").read_text())["brows_baked"] is True
     p = load_params(out / "params.json")
     assert len(p["beta"]) == 20 and np.asarray(p["theta"]).shape == (8, 3)
     npz = np.load(out / "params.npz")

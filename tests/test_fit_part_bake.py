@@ -95,8 +95,9 @@ def test_01_the_eyes_colours_are_baked_from_the_photo(model, tmp_path):
         np.testing.assert_allclose(rgb[part][unseen], cur0[unseen], atol=1e-6)
     # to --textures and back
     final = _final_stub(maps)
-    written = outputs.write_textures(st, tmp_path / "tex", final)
+    written = outputs.write_textures(st, tmp_path / "tex", final, brows_baked=True)
     assert tmp_path / "tex" / PARTS_FILE in written
+    assert read_texture_folder(tmp_path / "tex").brows_baked
     back = read_texture_folder(tmp_path / "tex").part_rgb
     assert set(back) == set(rgb)
     for part in rgb:
@@ -118,3 +119,46 @@ def _final_stub(maps):
 
     baked = SimpleNamespace(confidence=np.ones(maps.diffuse.shape[:2], np.float32))
     return FinalRenders(fitted=[], baked=baked, maps=maps, renders=[], iris={}, specular={})
+
+
+def test_02_textures_that_hold_the_brows_get_no_brow_strands(tmp_path, cli_in_process):
+    """A texture folder whose ``skin.json`` says the diffuse map holds the brows (a fit's
+    bake with ``final.features``): ``render --textures --hair`` draws no brow strands
+    over them and says so; without the file, or with brows_baked false, the style's brows
+    are drawn; a malformed file is a clear error (exit 2)."""
+    import json
+
+    from hack_render.io.image import write_exr
+    from hack_render.render import cli as render_cli
+    from hack_render.render.materials import SkinMaps
+    from hack_render.render.skin_maps import SKIN_FILE
+
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    c = SkinMaps.constant(32)
+    write_exr(tex / "diffuse.exr", {k: c.diffuse[..., i] for i, k in enumerate("RGB")})
+    write_exr(tex / "specular.exr", {"Y": c.specular[..., 0]})
+    write_exr(tex / "roughness.exr", {"Y": c.roughness[..., 0]})
+    brows = []
+    real = render_cli.groom_of
+
+    def groom_of(style, model):
+        brows.append(style.brow_density)
+        return real(style, model)
+
+    args = ("render", "-o", tmp_path / "r.png", "--textures", tex, "--hair", "crew",
+            "--resolution", "32", "--spp", "1")
+    import unittest.mock
+
+    with unittest.mock.patch.object(render_cli, "groom_of", groom_of):
+        for doc, drawn in ((None, True), ({"brows_baked": False}, True),
+                           ({"brows_baked": True}, False)):
+            if doc is not None:
+                (tex / SKIN_FILE).write_text(json.dumps(doc))
+            r = cli_in_process(*args)
+            assert r.returncode == 0, r.stderr[-1000:]
+            assert (brows[-1] > 0) == drawn
+            assert ("no brow strands" in r.stderr) == (not drawn)
+        (tex / SKIN_FILE).write_text(json.dumps({"brows_baked": "yes"}))
+        r = cli_in_process(*args)
+        assert r.returncode == 2 and "expected a boolean brows_baked" in r.stderr

@@ -28,7 +28,7 @@ from hack_render.io import TEMP_GLOB, atomic_path, write_json
 from hack_render.io.image import straight_colour, to_srgb8
 from hack_render.io.npz import write_npz
 from hack_render.render.materials import material_base_colours
-from hack_render.render.skin_maps import IRIS_FILE, PARTS_FILE
+from hack_render.render.skin_maps import IRIS_FILE, PARTS_FILE, SKIN_FILE
 
 #: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
 #: the names older versions gave them (one pattern per output).
@@ -172,7 +172,8 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None,
     m = res.model
     # the photo-size renders and the baked skin (the final stage, fit/final.py; without
     # the photometric stage's lighting it did not run: the textures are the model's maps)
-    textures = write_textures(state, outdir / "textures", final)
+    textures = write_textures(state, outdir / "textures", final,
+                              brows_baked=final is not None and res.config.final.features)
     written += textures
     # the OBJs' .mtl names the fitted maps written just above (PNG, relative paths)
     mats = ObjMaterials(m.material_names, m.face_material.numpy(),
@@ -314,10 +315,13 @@ def write_photo_renders(res: FitResult, final: FinalRenders, outdir: Path) -> li
     return out
 
 
-def write_textures(state, folder: Path, final: FinalRenders | None = None) -> list[Path]:
+def write_textures(state, folder: Path, final: FinalRenders | None = None,
+                   brows_baked: bool = False) -> list[Path]:
     """Fitted skin maps: EXR (linear, float) and PNG (sRGB for diffuse, raw otherwise).
     With ``final``: the baked diffuse map at ``final.atlas_height`` (the other maps
-    resampled to its size), its ``confidence`` and the model's own ``diffuse_model``."""
+    resampled to its size), its ``confidence`` and the model's own ``diffuse_model``;
+    ``brows_baked`` (the bake holds the photo's brows: ``final.features``) is written to
+    ``skin.json``, so ``render --textures`` draws no brow strands over them."""
     folder.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         maps = {k: (x.detach().numpy() if x is not None else None)
@@ -353,6 +357,11 @@ def write_textures(state, folder: Path, final: FinalRenders | None = None) -> li
                "derived": "linear Rec.709; the photo over renders of the fit, over the "
                           "iris's and the eye whites' pixels (hack_render/fit/iris.py)"}
         out.append(write_json(folder / IRIS_FILE, doc, indent=1))
+    if final is not None:  # read by --textures
+        out.append(write_json(folder / SKIN_FILE, {
+            "brows_baked": bool(brows_baked),
+            "derived": "whether diffuse.exr holds the photo's brows (the fit's final.features)"},
+            indent=1))
     if final is not None and final.maps.part_rgb:  # read by --textures
         out.append(write_npz(folder / PARTS_FILE, {
             "derived": np.array("linear Rec.709 per vertex of each part: the photo over "

@@ -259,6 +259,11 @@ def render(
                                             tau, policy, model_path))
 
     maps = skin_maps(alpha_, appearance_seed, textures)
+    if style is not None and maps.brows_baked and style.brow_density > 0:
+        # a fit's textures that hold the photo's brows: no strand brows drawn over them
+        style = dataclasses.replace(style, brow_density=0.0)
+        typer.echo("render: the textures hold the brows (skin.json): no brow strands",
+                   err=True)
     groom = groom_of(style, _model_arrays(model_path)) if style is not None else None
     head = HeadScene(topo, verts, rig, views_[0], settings, maps, iris, variant, hair=groom)
     if settings.spp_note():

@@ -52,6 +52,9 @@ class SkinMaps:
             the fit's bake of the photo onto them (``fit/part_bake.py``), replacing the
             part's own colour (the iris's pattern, the teeth's white); a part not named
             keeps its own. None: none.
+        brows_baked: the diffuse map holds the person's brows (a fit's bake with
+            ``final.features``, a texture folder's ``skin.json``): a render with hair draws
+            no brow strands over them.
     """
 
     diffuse: np.ndarray
@@ -62,6 +65,7 @@ class SkinMaps:
     sclera_rgb: tuple[float, float, float] | None = None
     eye_gloss: float | None = None
     part_rgb: dict | None = None
+    brows_baked: bool = False
 
     def __post_init__(self):
         h = self.diffuse.shape[0]

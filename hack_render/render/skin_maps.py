@@ -20,7 +20,8 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
     e.g. ``Y`` or ``R``) and optional ``normal.exr`` (RGB = tangent-space XYZ in [-1, 1])
     from a folder. Each is (H, 2H): the skin atlas, row 0 at v = 1. An ``iris.json``
     there (:func:`read_eye_file`) gives the iris's colour and the eye whites', a
-    ``parts.npz`` (:func:`read_parts_file`) the parts' per-vertex colours."""
+    ``parts.npz`` (:func:`read_parts_file`) the parts' per-vertex colours, a ``skin.json``
+    (:func:`read_skin_file`) whether the diffuse map holds the brows."""
     folder = Path(folder)
     if not folder.is_dir():
         raise HackError(f"--textures {folder}: expected a folder with diffuse.exr, "
@@ -43,7 +44,28 @@ def read_texture_folder(folder: str | Path) -> SkinMaps:
         maps[name] = np.stack([ch[k] for k in keys], axis=-1)
     return SkinMaps(maps["diffuse"], maps["specular"], maps["roughness"], maps["normal"],
                     *read_eye_file(folder / IRIS_FILE),
-                    part_rgb=read_parts_file(folder / PARTS_FILE))
+                    part_rgb=read_parts_file(folder / PARTS_FILE),
+                    brows_baked=read_skin_file(folder / SKIN_FILE))
+
+
+#: What the skin maps hold beside their pixels (``fit`` writes it): JSON with
+#: ``brows_baked`` (bool: the diffuse map holds the person's brows) and ``derived``.
+SKIN_FILE = "skin.json"
+
+
+def read_skin_file(path: Path) -> bool:
+    """``brows_baked`` of a texture folder's ``skin.json``; False where the file is absent."""
+    if not path.is_file():
+        return False
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise HackError(f"{path}: expected JSON with a boolean brows_baked, found it "
+                        f"unreadable ({err}).") from err
+    value = doc.get("brows_baked") if isinstance(doc, dict) else None
+    if not isinstance(value, bool):
+        raise HackError(f"{path}: expected a boolean brows_baked, found {value!r}.")
+    return value
 
 
 #: The per-vertex colours of the parts that are not skin beside the skin maps (``fit``
