@@ -195,3 +195,40 @@ def test_khronos_validator_reports_no_errors(exported):
         # the only warnings: tangents left to the runtime (MikkTSpace) for the normal map
         assert all("GENERATED_TANGENT_SPACE" in m for m in rep["messages"] if m.startswith("1 ")), \
             rep["messages"]
+
+
+def test_a_fits_part_colours_go_to_the_parts_vertex_colours(model, tmp_path):
+    """Skin maps with per-vertex part colours (a fit's bake, ``SkinMaps.part_rgb``, read
+    from ``--textures``' ``parts.npz``): each coloured part's primitive carries them as
+    ``COLOR_0`` (linear, as the file holds them) under a white material; the other parts
+    keep their colour; colours for another model's part are a clear error."""
+    import dataclasses
+
+    from hack_render.errors import HackError
+    from hack_render.render.parts import Topology, split_parts
+    from hack_render.render.skin_maps import skin_maps
+
+    with torch.no_grad():
+        rest = model().vertices[0].double().numpy()
+    parts = {p.name: p for p in split_parts(Topology.from_model(model), rest)[0]}
+    rng = np.random.default_rng(3)
+    rgb = {k: rng.uniform(0.05, 0.95, (len(parts[k].gather), 3)).astype(np.float32)
+           for k in ("teeth", "iris")}
+    maps = dataclasses.replace(skin_maps([0.0]), part_rgb=rgb)
+    path = tmp_path / "coloured.glb"
+    export_person(model, check_params(PARAMS), path, None, maps, 4)
+    doc, buf = read_gltf(path)
+    by_name = {doc["materials"][p["material"]]["name"]: p
+               for p in doc["meshes"][0]["primitives"]}
+    for k, want in rgb.items():
+        prim = by_name[k]
+        np.testing.assert_allclose(accessor(doc, buf, prim["attributes"]["COLOR_0"]), want,
+                                   atol=1e-7)
+        assert doc["materials"][prim["material"]]["pbrMetallicRoughness"][
+            "baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
+    assert "COLOR_0" not in by_name["mouth"]["attributes"]
+    assert doc["materials"][by_name["mouth"]["material"]]["pbrMetallicRoughness"][
+        "baseColorFactor"] != [1.0, 1.0, 1.0, 1.0]
+    bad = dataclasses.replace(maps, part_rgb={"teeth": rgb["teeth"][:-1]})
+    with pytest.raises(HackError, match="part colours 'teeth': expected one per vertex"):
+        export_person(model, check_params(PARAMS), tmp_path / "bad.glb", None, bad, 4)

@@ -6,7 +6,8 @@ Layout of the file:
   mouth, teeth, sclera, iris, lacrimal film, eyelashes), each split at its UV seams, with
   ``_HACK_VERTEX`` (float, the model's vertex index of every glTF vertex), ``POSITION``,
   ``NORMAL``, ``TEXCOORD_0``, ``JOINTS_0``/``WEIGHTS_0`` (and ``_1`` with 8 influences),
-  and ``COLOR_0`` on the iris;
+  and ``COLOR_0`` on the iris (and on each part a fit's bake coloured:
+  ``SkinMaps.part_rgb``, from ``--textures``' ``parts.npz``);
 - with hair (:mod:`.hair_cards`), one more primitive per strand group (scalp, brows,
   lashes, beard; ``extras.hair`` names it) of alpha-textured cards: ``POSITION``,
   ``NORMAL``, ``TEXCOORD_0``, the root triangle's blended skin weights, every morph target
@@ -184,12 +185,14 @@ def skin_material(g: GltfBuilder, maps) -> int:
     return g._add("materials", mat)
 
 
-def part_material(g: GltfBuilder, part: str, rgb) -> int:
-    """A plain material for a non-skin part (colour from the renderer's BSDFs)."""
+def part_material(g: GltfBuilder, part: str, rgb, vertex_colours: bool = False) -> int:
+    """A plain material for a non-skin part (colour from the renderer's BSDFs; white when
+    the part's vertices carry its colours, ``COLOR_0``: the iris's pupil, iris and limbus,
+    or a fit's bake, ``SkinMaps.part_rgb``)."""
     mat = {"name": part, "pbrMetallicRoughness": {
         "baseColorFactor": [*map(float, rgb), 1.0], "metallicFactor": 0.0,
         "roughnessFactor": PART_ROUGHNESS.get(part, 0.5)}}
-    if part == "iris":  # colours per vertex (pupil, iris, limbus)
+    if vertex_colours:
         mat["pbrMetallicRoughness"]["baseColorFactor"] = [1.0, 1.0, 1.0, 1.0]
     if part in ("lacrimal", "eyelashes"):  # thin shells and cards, seen from both sides
         mat["doubleSided"] = True
@@ -235,6 +238,7 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
     normals = vertex_normals(rig.base, model.faces.numpy())
     iris_rgb = getattr(maps, "iris_rgb", None)  # a fit's texture folder: the person's
     sclera_rgb = getattr(maps, "sclera_rgb", None)
+    part_rgb = getattr(maps, "part_rgb", None) or {}
     colours = material_base_colours(model.material_names, iris_rgb, sclera_rgb)
     part_colour = {"mouth": colours.get("M_GumsTongue"), "teeth": colours.get("M_Teeth"),
                    "sclera": colours.get("M_ScleraLeft"), "iris": colours.get("M_IrisLeft"),
@@ -260,7 +264,15 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                                               ARRAY_BUFFER)
             attrs[f"WEIGHTS_{s}"] = g.accessor(rig.weights4[gi, 4 * s:4 * s + 4], FLOAT, "VEC4",
                                                ARRAY_BUFFER)
-        if part.name == "iris" and axes:
+        baked = part_rgb.get(part.name)  # a fit's bake of the photo (linear RGB)
+        if baked is not None and np.shape(baked) != (len(gi), 3):
+            raise HackError(f"part colours {part.name!r}: expected one per vertex of the "
+                            f"part, ({len(gi)}, 3), found {np.shape(baked)} (another "
+                            "model's?).")
+        if baked is not None:
+            attrs["COLOR_0"] = g.accessor(np.asarray(baked, np.float32), FLOAT, "VEC3",
+                                          ARRAY_BUFFER)
+        elif part.name == "iris" and axes:
             attrs["COLOR_0"] = g.accessor(iris_vertex_colors(rig.base[gi], axes, iris_rgb,
                                                              sclera_rgb),
                                           FLOAT, "VEC3", ARRAY_BUFFER)
@@ -269,7 +281,8 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                 "indices": g.accessor(part.faces.reshape(-1, 1), ityp, "SCALAR",
                                       ELEMENT_ARRAY_BUFFER),
                 "material": skin_mat if part.name.startswith("skin") else
-                part_material(g, part.name, part_colour.get(part.name) or (0.5, 0.5, 0.5)),
+                part_material(g, part.name, part_colour.get(part.name) or (0.5, 0.5, 0.5),
+                              "COLOR_0" in attrs),
                 "targets": [{"POSITION": g.sparse_vec3(t[gi])} for t in rig.targets]}
         prims.append(prim)
     if hair is not None:
