@@ -141,17 +141,23 @@ class BodyProxy:
         self.normals = normals[self.index]
         self.tree = cKDTree(self.points)
 
-    def nearest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3)."""
+    def nearest(self, p: np.ndarray, bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3);
+        a point farther than ``bound`` from every skin vertex: +inf and a zero normal."""
         flat = p.reshape(-1, 3)
-        _, i = self.tree.query(flat, workers=-1)
-        d = np.sum((flat - self.points[i]) * self.normals[i], -1)
-        return d.reshape(p.shape[:-1]), self.normals[i].reshape(p.shape)
+        dist, i = self.tree.query(flat, workers=-1, distance_upper_bound=bound)
+        far = ~np.isfinite(dist)
+        i = np.where(far, 0, i)
+        n = np.where(far[:, None], 0.0, self.normals[i])
+        d = np.where(far, np.inf, np.sum((flat - self.points[i]) * n, -1))
+        return d.reshape(p.shape[:-1]), n.reshape(p.shape)
 
-    def push_out(self, p: np.ndarray, shell) -> np.ndarray:
+    def push_out(self, p: np.ndarray, shell, bound: float = np.inf) -> np.ndarray:
         """``p`` moved along the nearest normal to at least ``shell`` (metres, broadcast)
-        outside the skin."""
-        d, n = self.nearest(p)
+        outside the skin. ``bound``: points farther than that from every skin vertex are
+        outside (their k-d tree search stops there): what a caller may say of points at
+        most a step from points outside the skin (:func:`_walk`)."""
+        d, n = self.nearest(p, bound)
         lack = np.maximum(np.asarray(shell) - d, 0.0)
         return p + lack[..., None] * n
 
@@ -242,6 +248,9 @@ def _walk(proxy: BodyProxy, root: np.ndarray, normal: np.ndarray, d0: np.ndarray
     p = root + normal * np.minimum(shell, 0.0005)[:, None]
     d = d0
     reached = np.zeros((s, 1), bool)
+    # each point is a step from the last, which is outside the skin: a point farther than a
+    # step, the shell and a margin for the mesh's edges from every skin vertex is outside
+    bound = float(step.max() + np.max(shell) + 0.01)
     for j in range(1, k):
         u = j / (k - 1)
         if target is not None:
@@ -249,7 +258,7 @@ def _walk(proxy: BodyProxy, root: np.ndarray, normal: np.ndarray, d0: np.ndarray
             reached |= (np.linalg.norm(to, axis=-1) < 0.012)[:, None]
             d = np.where(reached, _unit(d + 1.5 * DOWN), _unit(0.4 * d + _unit(to)))
         d = _unit(d + gravity * (0.15 + 0.6 * u) * DOWN)
-        q = proxy.push_out(p + step * d, shell)
+        q = proxy.push_out(p + step * d, shell, bound)
         d = _unit(q - p)
         pts[:, j] = q
         p = q
