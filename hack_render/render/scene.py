@@ -418,9 +418,10 @@ class HeadScene:
                 if self.hair_slots:
                     write_slots(self.params, self.hair, posed, self.hair_shapes,
                                 self.hair_slots, v.mean(0), structure=False)
-                for sh in [] if self.hair_slots else self.hair_shapes:
-                    self.params[f"{sh.id}.control_points"] = aligned_float(
-                        shape_control_points(self.hair, posed, sh))
+                else:
+                    for sh in self.hair_shapes:
+                        self.params[f"{sh.id}.control_points"] = aligned_float(
+                            shape_control_points(self.hair, posed, sh))
                 self._hair_written = posed
         if update:
             self.params.update()

@@ -134,8 +134,8 @@ def appearance_maps(alpha: list[float] | None, seed: int | None, height: int = 5
     (``appearance.generator.generate_subject``), or the PCA model's ``maps(alpha)``."""
     # the appearance model and generator import torch (2.2 s): a render from texture files
     # or constant maps (and from the mesh cache) runs without it; listed deferrals
-    from appearance.generator import generate_subject  # noqa: PLC0415
-    from appearance.model import AppearanceModel  # noqa: PLC0415
+    from appearance.generator import generate_subject
+    from appearance.model import AppearanceModel
 
     if alpha is None:
         if seed is None or seed < 0:
