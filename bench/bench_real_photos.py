@@ -681,6 +681,7 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
 
     from hack_render.fit import eyes as eyes_stage
     from hack_render.fit import final as final_stage
+    from hack_render.fit import mouth as mouth_stage
     from hack_render.fit.outputs import write_photo_renders
 
     state, cfg = kept_state(name, img, fit_dir, overrides)
@@ -688,9 +689,10 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     eyes = None
     if cfg.eyes.enabled and "view0_gaze" not in np.load(fit_dir / "params.npz"):
         eyes = eyes_stage.fit_eyes(state, cfg)   # a fit kept from before the eyes' stage
+    mouth = mouth_stage.fit_mouth(state, cfg) if cfg.mouth.enabled else None
     fin = final_stage.run(state, cfg)
     row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
-                 "eyes": eyes,
+                 "eyes": eyes, "mouth": mouth,
                  "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
                                                        "rgb", "sclera_rgb", "eye_gloss")}}
     out.mkdir(parents=True, exist_ok=True)

@@ -313,6 +313,27 @@ class EyesConfig:
 
 
 @dataclass
+class MouthConfig:
+    """The mouth's stage (``fit/mouth.py``): the jaw and lip shapes and the identity
+    moved so the model's teeth stand where the photo's are, the 68 points held, after
+    the photometric stage (and the eyes')."""
+
+    # false: the jaw as the landmark and photometric stages left it. On six real photos'
+    # kept fits the face oval's figure rose on the three with teeth or lips between the
+    # face mesh's inner lips that the model's jaw drop hid (obama +2.9, einstein +2.2 dB),
+    # fell on one (obama_speech -0.3 dB), the rest within 0.03 (docs/fit.md)
+    enabled: bool = True
+    # Adam's steps (about 20 ms each on a 2-core machine)
+    iterations: int = 60
+    # Adam's step for the shapes' and beta's changes
+    lr: float = 0.02
+    # the teeth term's weight and the 68 points' hold (higher: the lips and chin stay
+    # closer to where the stages before put them, the teeth move less)
+    w_teeth: float = 1.0
+    w_hold: float = 1.0
+
+
+@dataclass
 class FinalConfig:
     """After the stages: the fit re-rendered at the photo's size (``render.png``) and the
     photo(s) baked into a per-texel diffuse map (``texture.py``)."""
@@ -495,6 +516,7 @@ class FitConfig:
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     texel: TexelConfig = field(default_factory=TexelConfig)
     eyes: EyesConfig = field(default_factory=EyesConfig)
+    mouth: MouthConfig = field(default_factory=MouthConfig)
     final: FinalConfig = field(default_factory=FinalConfig)
     # (--per-view-expression) multi-view: one expression per photo instead of one shared:
     # photos of different expressions fit, but each view's expression is pinned by its own

@@ -16,6 +16,9 @@ Stages (each with its own iterations, weights and learning rates, see ``config.p
 5. texel (optional): per-texel albedo refinement with smoothness and symmetry terms.
 5b. eyes (``eyes.py``): the lids' opening and the eyeballs' gaze from the face mesh's eye
    contours and irises (landmarks only, no renders).
+5c. mouth (``mouth.py``): the jaw and lip shapes and the identity moved so the model's
+   teeth stand where the photo's are (the face mesh's inner lips, the rows between them
+   read as teeth or the mouth's dark inside), the 68 points held (no renders).
 6. final (``final.py``, with the photometric stage's lighting): the views at the photo's
    size, the baked skin, the eyes' colours and ``render.png``'s renders.
 
@@ -52,6 +55,7 @@ from hack_render.errors import HackError
 from hack_render.fit import eyes as eyes_stage
 from hack_render.fit import final as final_stage
 from hack_render.fit import geometric, photometric, terms
+from hack_render.fit import mouth as mouth_stage
 from hack_render.fit.camera import R0, SENSOR_MM, focal_prior_px
 from hack_render.fit.config import FitConfig
 from hack_render.fit.final import FinalRenders
@@ -99,6 +103,8 @@ class FitResult:
     final: FinalRenders | None = None
     #: the eyes' stage's report (``eyes.py``), or None where it did not run
     eyes: dict | None = None
+    #: the mouth's stage's report (``mouth.py``), or None where it did not run
+    mouth: dict | None = None
 
 
 #: weight of the 10 brow landmarks beside the others' 1 (dlib's least certain points; the
@@ -248,6 +254,7 @@ class Fitter:
         self.state = init_state(photos, detections, config, model, appearance, masks)
         self.log = StageLog(progress=progress)
         self.eyes_report: dict | None = None   # the eyes' stage's (fit/eyes.py)
+        self.mouth_report: dict | None = None   # the mouth's stage's (fit/mouth.py)
 
     @property
     def reports(self) -> list[StageReport]:
@@ -312,12 +319,14 @@ class Fitter:
                 self.photometric(texel=True)
         if self.cfg.eyes.enabled:
             self.eyes_report = eyes_stage.fit_eyes(self.state, self.cfg, self.log)
+        if self.cfg.mouth.enabled:
+            self.mouth_report = mouth_stage.fit_mouth(self.state, self.cfg, self.log)
         final = self.final()
         s = self.state
         return FitResult(s.model, s.appearance, self.cfg, s.views, s.beta, s.psi, s.alpha,
                          s.eta, s.tau, s.albedo_delta, self.log.reports, self.log.timings,
                          [r.failure for r in self.log.reports if r.failure], s, final,
-                         self.eyes_report)
+                         self.eyes_report, self.mouth_report)
 
 
 def _landmark_embedding(name: str, model):

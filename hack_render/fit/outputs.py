@@ -224,6 +224,7 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None,
               "albedo_balance": state.albedo_balance or None,
               "final": final.report if final is not None else None,
               "eyes": getattr(res, "eyes", None),
+              "mouth": getattr(res, "mouth", None),
               "landmark_embedding": (state.embedding.meta.get("provenance")
                                      if state.embedding is not None else None),
               "landmark_refiner": _refiner_provenance(res)}

@@ -1,0 +1,173 @@
+"""The mouth's stage (hack_render/fit/mouth.py): the model's teeth tips, what a photo's
+mouth shows (drawn mouths of known rows), and the jaw moved to the teeth with the 68
+points held. No renders."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from synthetic import landmark_view
+
+
+@pytest.fixture(scope="module")
+def model():
+    from hack_render.geometry import load_default_model
+
+    return load_default_model()
+
+
+def test_01_teeth_tips(model):
+    """The upper tips stay with the skull, the lower ones go down with the jaw; at rest
+    they lie within 3 mm of each other (the bite) near the midline."""
+    from hack_render.fit import mouth
+
+    rig = mouth.teeth_rig(model)
+    assert rig is not None and len(rig.upper) >= 2 and len(rig.lower) >= 2
+    names = list(model.expression_names)
+    with torch.no_grad():
+        rest = model(psi=torch.zeros(1, len(names))).vertices[0]
+        psi = torch.zeros(1, len(names))
+        psi[0, names.index("jawOpen")] = 1.0
+        open_ = model(psi=psi).vertices[0]
+    up, lo = rig.upper, rig.lower
+    assert abs(float(rest[up, 1].mean() - rest[lo, 1].mean())) < 0.003
+    assert float(rest[np.r_[up, lo], 0].abs().max()) < mouth.MID_X
+    assert float((open_[up] - rest[up]).norm(dim=1).max()) < 1e-6
+    assert float(rest[lo, 1].mean() - open_[lo, 1].mean()) > 0.01   # 1 cm down or more
+
+
+def _mouth_photo(rows: list[tuple[str, int]], grey: bool = False):
+    """A photo of a mouth: an outer lip ellipse and an inner opening 60 px wide whose
+    rows from the top are filled as ``rows`` says (("teeth" | "dark" | "tongue", count));
+    and the face mesh's 478 points with its two lip loops on the ellipses (the rest at
+    the centre). Returns (rgb8, points, the opening's top row)."""
+    from hack_render.fit import iris
+
+    h = sum(n for _, n in rows)
+    cx, cy, rx, ry = 100.0, 100.0, 30.0, h / 2.0
+    colours = {"teeth": (235, 232, 222), "dark": (22, 12, 12), "tongue": (205, 90, 100)}
+    img = np.zeros((200, 200, 3), np.uint8)
+    img[:] = (205, 150, 125)
+    yy, xx = np.mgrid[0:200, 0:200] + 0.5
+    outer = ((xx - cx) / (rx + 8)) ** 2 + ((yy - cy) / (ry + 8)) ** 2 <= 1
+    inner = ((xx - cx) / rx) ** 2 + ((yy - cy) / ry) ** 2 <= 1
+    img[outer] = (170, 80, 80)
+    top = round(cy - ry)
+    r = top
+    for what, n in rows:
+        band = inner & (yy >= r) & (yy < r + n)
+        img[band] = colours[what]
+        r += n
+    if grey:
+        img = np.repeat((img @ np.array([0.2126, 0.7152, 0.0722]))[..., None], 3, 2).astype(np.uint8)
+    pts = np.full((478, 2), [cx, cy])
+    loops = iris.mesh_loops("FACEMESH_LIPS")
+    for loop, (ax, ay) in zip(sorted(loops, key=len), ((rx, ry), (rx + 8, ry + 8))):
+        ang = np.linspace(0, 2 * np.pi, len(loop), endpoint=False)
+        pts[loop] = np.c_[cx + ax * np.cos(ang), cy + ay * np.sin(ang)]
+    return img, pts, top
+
+
+@pytest.mark.parametrize("grey", [False, True])
+def test_02_what_the_photo_shows(grey):
+    """Drawn mouths: teeth that meet, a dark gap over the lower teeth (its rows found
+    within 1.5 px), a dark gap down to the tongue, a dark mouth without teeth, one showing
+    only the tongue and a closed one are told apart, in colour and in grey."""
+    from hack_render.fit import mouth
+
+    def read(rows):
+        img, pts, top = _mouth_photo(rows, grey)
+        return mouth.photo_mouth(img, pts, grey), top
+
+    r, _ = read([("teeth", 10), ("teeth", 10)])
+    assert r["state"] == "teeth meet"
+    r, top = read([("teeth", 8), ("dark", 10), ("teeth", 6)])
+    assert r["state"] == "gap, teeth below"
+    w = r["frame"][3]
+    # the gap's rows in pixels below the corners' chord (y = 100 - height * w)
+    got = [100.0 - g * w for g in r["gap"]]
+    assert abs(got[0] - (top + 8)) < 1.5 and abs(got[1] - (top + 18)) < 1.5, got
+    r, _ = read([("teeth", 8), ("dark", 10), ("tongue", 6)])
+    assert r["state"] == "gap to the lip"
+    r, _ = read([("dark", 8), ("tongue", 10)])
+    assert r["state"] == "no teeth"
+    r, _ = read([("tongue", 12)])
+    assert r["state"] == "lips only"
+    r, _ = read([("teeth", 1)])
+    assert r["state"] == "closed"
+
+
+def test_03_tip_loss_targets():
+    """Each state's target: two-sided on the gap's bottom, one-sided otherwise."""
+    from hack_render.fit.mouth import SCALE, tip_loss
+
+    h = torch.tensor([0.0, -0.1])
+    assert float(tip_loss(h, {"state": "gap, teeth below", "gap": (0.0, -0.1)})) == 0
+    assert float(tip_loss(h, {"state": "gap, teeth below", "gap": (0.0, -0.2)})) == \
+        pytest.approx((0.1 / SCALE) ** 2)
+    assert float(tip_loss(h, {"state": "gap to the lip", "gap": (0.0, -0.05)})) == 0
+    assert float(tip_loss(h, {"state": "gap to the lip", "gap": (0.0, -0.2)})) > 0
+    assert float(tip_loss(h, {"state": "teeth meet"})) == pytest.approx((0.1 / SCALE) ** 2)
+    assert float(tip_loss(torch.tensor([-0.1, 0.0]), {"state": "teeth meet"})) == 0
+    assert float(tip_loss(h, {"state": "lips only"})) == pytest.approx((0.1 / SCALE) ** 2)
+    assert float(tip_loss(h, {"state": "no teeth"})) == 0
+    assert float(tip_loss(h, {"state": "closed"})) == 0
+
+
+def _state(model):
+    from hack_render.fit.config import load_config
+    from hack_render.fit.fitter import Fitter
+
+    photo, det = landmark_view(model, angles_deg=(0.0, 10.0, 0.0), res=256)
+    cfg = load_config(None, {"silhouette": {"mode": "off"}, "mouth": {"iterations": 120}})
+    f = Fitter([photo], [det], cfg, model=model, progress=False)
+    v = f.state.views[0]
+    with torch.no_grad():
+        v.head_angles.copy_(torch.deg2rad(torch.tensor([0.0, 10.0, 0.0])))
+        v.transl.copy_(torch.tensor([0.0, -0.03, 1.0]))
+        v.log_focal.fill_(float(np.log(50.0 / 36.0 * 256 * 2.2)))
+    return f.state, cfg
+
+
+def test_04_jaw_moved_to_the_teeth(model):
+    """A smile whose lips part over a nearly closed jaw, fitted with the jaw dropped: told
+    that the photo's teeth meet, the stage raises the lower teeth to the upper ones (from
+    a quarter of the mouth's width below them to within a twentieth) with the 68 points
+    held (the lips within 5 % of the mouth's width, the rest within 3 %), and the jaw drop
+    falls; told nothing (a closed mouth), it
+    changes nothing."""
+    from hack_render.fit import mouth
+
+    st, cfg = _state(model)
+    v = st.views[0]
+    names = [str(n) for n in model.expression_names]
+    with torch.no_grad():
+        for k, x in {"jawOpen": 0.4, "mouthSmile_L": 0.6, "mouthSmile_R": 0.6}.items():
+            st.psi[0, names.index(k)] = x
+        verts = st.forward(v).vertices[0]
+        pts = mouth._points(st, v, verts).numpy()
+    # the photo's frame: the model's own inner lip corners (the 68's 60 and 64)
+    a, b = pts[60], pts[64]
+    t, n, w = mouth._frame(a, b)
+    frame = (a, t, n, w)
+    rig = mouth.teeth_rig(model)
+    with torch.no_grad():
+        before = mouth._tips(st, v, verts, rig, frame)
+    assert float(before[0] - before[1]) > 0.25
+    psi0, beta0 = st.psi.detach().clone(), st.beta.detach().clone()
+    rep = mouth.fit_mouth(st, cfg, reads=[{"state": "closed", "frame": frame, "gap": None}])
+    assert torch.equal(st.psi, psi0) and torch.equal(st.beta, beta0)
+    assert rep["views"][0]["note"] == "mouth kept"
+    read = {"state": "teeth meet", "frame": frame, "gap": None, "opening": (0.1, -0.3)}
+    rep = mouth.fit_mouth(st, cfg, reads=[read])
+    with torch.no_grad():
+        verts = st.forward(v).vertices[0]
+        after = mouth._tips(st, v, verts, rig, frame)
+        moved = ((mouth._points(st, v, verts) - torch.as_tensor(pts)).norm(dim=1) / w).numpy()
+    assert float(after[0] - after[1]) < 0.05, (before, after)
+    # the lips give most (the model's lips cannot part as far over a closed jaw), the
+    # chin, nose, eyes and brows less
+    assert moved[48:].max() < 0.05 and moved[:48].max() < 0.03, moved
+    assert float(st.psi.detach()[0, names.index("jawOpen")]) < 0.2
+    assert rep["views"][0]["state"] == "teeth meet"
