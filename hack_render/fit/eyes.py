@@ -167,10 +167,7 @@ def fit_eyes(state: FitState, cfg, log=None, contours: list | None = None) -> di
         report["note"] = "the model has no eyeballs, lid loops or lid shapes: skipped"
         return report
     if contours is None:
-        contours = []
-        for v in state.views:
-            pts = iris.iris_landmarks(v.photo.uint8(), v.detection.points)
-            contours.append(None if pts is None else photo_eye_points(pts))
+        contours = iris.views_mesh(state, lambda _img, pts, _grey: photo_eye_points(pts))
     ids = np.concatenate([e.psi for e in eyes])
     # one change of the lid shapes per expression tensor (shared or per view)
     deltas: dict[int, torch.Tensor] = {}
@@ -189,9 +186,7 @@ def fit_eyes(state: FitState, cfg, log=None, contours: list | None = None) -> di
     idx = torch.as_tensor(ids)
 
     def psi_of(v):
-        p = state.view_psi(v).detach()
-        d = deltas[id(state.view_psi(v))]
-        return p.index_put((torch.zeros_like(idx), idx), (p[0, idx] + d).clamp(0.0, 1.0))
+        return state.psi_changed(v, idx, deltas[id(state.view_psi(v))])
 
     def loss_fn(_it):
         total = torch.zeros(())

@@ -524,6 +524,18 @@ def _at_render_size(state, renders: list, allowed: list | None, person: list | N
     return photos, masks, eyes, lids
 
 
+def views_mesh(state, read=None) -> list:
+    """Per view ``read(photo rgb8, the face mesh's 478 points, the photo is grey)``
+    (default: the points themselves), or None where the face mesh finds no face near the
+    view's detected points (:func:`iris_landmarks`)."""
+    out = []
+    for v in state.views:
+        pts = iris_landmarks(v.photo.uint8(), v.detection.points)
+        out.append(None if pts is None else pts if read is None
+                   else read(v.photo.uint8(), pts, v.photo.is_grey))
+    return out
+
+
 def views_openings(state) -> list:
     """Per view the person's eye openings in its photo (:func:`photo_opening`, at the
     photo's size), or None where the face mesh finds no face."""

@@ -246,11 +246,7 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
         report["note"] = "the model has no teeth or no jaw and lip shapes: skipped"
         return report
     if reads is None:
-        reads = []
-        for v in state.views:
-            pts = iris.iris_landmarks(v.photo.uint8(), v.detection.points)
-            reads.append(None if pts is None else photo_mouth(v.photo.uint8(), pts,
-                                                               v.photo.is_grey))
+        reads = iris.views_mesh(state, photo_mouth)
     views = []
     deltas: dict[int, torch.Tensor] = {}
     with torch.no_grad():
@@ -270,9 +266,7 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
     dbeta = torch.zeros_like(beta0, requires_grad=True)
 
     def psi_of(v):
-        p = state.view_psi(v).detach()
-        d = deltas[id(state.view_psi(v))]
-        return p.index_put((torch.zeros_like(idx), idx), (p[0, idx] + d).clamp(0.0, 1.0))
+        return state.psi_changed(v, idx, deltas[id(state.view_psi(v))])
 
     def loss_fn(_it):
         total = torch.zeros(())

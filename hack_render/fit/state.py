@@ -145,6 +145,13 @@ class FitState:
     def view_psi(self, v: View) -> torch.Tensor:
         return v.psi if v.psi is not None else self.psi
 
+    def psi_changed(self, v: View, ids: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+        """The view's expression (detached) with ``delta`` added to its weights ``ids``,
+        clamped to [0, 1]: the eyes' and the mouth's stages fit such a change of a few
+        shapes (differentiable in ``delta``)."""
+        p = self.view_psi(v).detach()
+        return p.index_put((torch.zeros_like(ids), ids), (p[0, ids] + delta).clamp(0.0, 1.0))
+
     def leaves(self) -> list[torch.Tensor]:
         """Every parameter the stages optimise (shared and per view; the per-texel
         albedo delta and the views' gazes where they exist)."""
