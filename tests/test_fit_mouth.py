@@ -133,9 +133,8 @@ def _state(model):
 def test_04_jaw_moved_to_the_teeth(model):
     """A smile whose lips part over a nearly closed jaw, fitted with the jaw dropped: told
     that the photo's teeth meet, the stage raises the lower teeth to the upper ones (from
-    a quarter of the mouth's width below them to within a twentieth) with the 68 points
-    held (the lips within 5 % of the mouth's width, the rest within 3 %), and the jaw drop
-    falls; told nothing (a closed mouth), it
+    a quarter of the mouth's width below them to within 7 %) with the 68 points held (the
+    lips within 4 % of the mouth's width, the rest within 2.5 %), and the jaw drop falls; told nothing (a closed mouth), it
     changes nothing."""
     from hack_render.fit import mouth
 
@@ -165,9 +164,9 @@ def test_04_jaw_moved_to_the_teeth(model):
         verts = st.forward(v).vertices[0]
         after = mouth._tips(st, v, verts, rig, frame)
         moved = ((mouth._points(st, v, verts) - torch.as_tensor(pts)).norm(dim=1) / w).numpy()
-    assert float(after[0] - after[1]) < 0.05, (before, after)
+    assert float(after[0] - after[1]) < 0.07, (before, after)
     # the lips give most (the model's lips cannot part as far over a closed jaw), the
     # chin, nose, eyes and brows less
-    assert moved[48:].max() < 0.05 and moved[:48].max() < 0.03, moved
+    assert moved[48:].max() < 0.04 and moved[:48].max() < 0.025, moved
     assert float(st.psi.detach()[0, names.index("jawOpen")]) < 0.2
     assert rep["views"][0]["state"] == "teeth meet"
