@@ -354,11 +354,6 @@ OVAL_RINGS = {"oval": ("FACEMESH_FACE_OVAL",),
               "mouth": ("FACEMESH_LIPS",)}
 
 
-def _area(loop: np.ndarray) -> float:
-    x, y = loop[:, 0], loop[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
-
-
 def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     """The face mesh's regions of ``img`` (an independent detector: nothing of the fit's
     points or masks): ``oval`` (the face oval, forehead to chin and cheek to cheek, the
@@ -368,7 +363,7 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     None where the mesh finds no face."""
     from skimage.draw import polygon
 
-    from hack_render.fit.iris import mesh_loops  # the face mesh's topology, no fitting
+    from hack_render.fit.iris import loop_area, mesh_loops  # the face mesh's topology
     from hack_render.vision.detect import detect_faces
 
     faces = detect_faces(img, "mesh")
@@ -380,7 +375,7 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     for name, rings in OVAL_RINGS.items():
         m = np.zeros((h, w), bool)
         for r in rings:   # (the lips: the outer of their two loops)
-            loop = max((pts[q] for q in mesh_loops(r)), key=_area)
+            loop = max((pts[q] for q in mesh_loops(r)), key=loop_area)
             rr, cc = polygon(loop[:, 1] - 0.5, loop[:, 0] - 0.5, (h, w))
             m[rr, cc] = True
         out[name] = m

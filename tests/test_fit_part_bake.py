@@ -33,7 +33,8 @@ def test_01_the_eyes_colours_are_baked_from_the_photo(model, tmp_path):
     smooth pattern over each part, far from the defaults): two passes of the bake bring
     the render over those parts' pixels to the photo (the squared error 10 times lower
     than before at least) and the colours of the vertices the camera sees to the truth;
-    a vertex it does not see keeps its colour exactly. The
+    a vertex it does not see keeps its colour exactly; an occluder keeps the parts out
+    except inside the person's eye and mouth openings. The
     colours go to ``parts.npz`` and come back through ``--textures``; an array of another
     length or an unknown part is a clear error."""
     from hack_render.errors import HackError
@@ -93,6 +94,20 @@ def test_01_the_eyes_colours_are_baked_from_the_photo(model, tmp_path):
         assert unseen.any()
         np.testing.assert_array_equal(rgb[part][unseen], first[part][unseen])
         np.testing.assert_allclose(rgb[part][unseen], cur0[unseen], atol=1e-6)
+    # an occluder over the whole photo keeps every part out of the bake; the person's
+    # eye or mouth opening over it (the face mesh's: the segmentation calls the teeth and
+    # a shaded eye "not skin") gives the parts inside it back
+    full = np.ones(v.photo.uint8().shape[:2], bool)
+    v.occluder, v.eye_opening, v.mouth_opening = full, None, None
+    hidden = part_bake.view_samples(st, cfg, v, maps, render)
+    assert all((w == 0).all() for _, _, w in hidden.values())
+    for which in ("eye_opening", "mouth_opening"):
+        setattr(v, which, full)
+        back = part_bake.view_samples(st, cfg, v, maps, render)
+        for part in EYE_PARTS:
+            np.testing.assert_array_equal(back[part][2], samples[part][2])
+        setattr(v, which, None)
+    v.occluder = None
     # to --textures and back
     final = _final_stub(maps)
     written = outputs.write_textures(st, tmp_path / "tex", final, brows_baked=True)

@@ -69,6 +69,10 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                                           or cfg.final.lids_from_mesh) else None
     for v, o in zip(st.views, opening or [None] * len(st.views)):
         v.eye_opening = o
+    # and the mouth's (the teeth the segmentation calls "not skin" are baked there)
+    for v in st.views:
+        v.mouth_opening = (iris.photo_mouth_opening(v.photo.uint8(), v.detection.points)
+                           if cfg.final.part_bake else None)
     fitted = []
     for v in st.views:
         fitted.append(texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side))

@@ -217,6 +217,30 @@ def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     return out
 
 
+def photo_mouth_opening(rgb8: np.ndarray, points: np.ndarray | None = None
+                        ) -> np.ndarray | None:
+    """(H, W) bool: the person's mouth opening in the photo, inside the face mesh's inner
+    lip contour (the smaller of FACEMESH_LIPS' two loops; :func:`iris_landmarks`); None
+    where no face is found."""
+    from skimage.draw import polygon
+
+    pts = iris_landmarks(rgb8, points)
+    if pts is None:
+        return None
+    h, w = rgb8.shape[:2]
+    inner = min((pts[q] for q in mesh_loops("FACEMESH_LIPS")), key=loop_area)
+    out = np.zeros((h, w), bool)
+    rr, cc = polygon(inner[:, 1] - 0.5, inner[:, 0] - 0.5, (h, w))
+    out[rr, cc] = True
+    return out
+
+
+def loop_area(loop: np.ndarray) -> float:
+    """The area a closed polygon (n, 2) encloses (the shoelace formula)."""
+    x, y = loop[:, 0], loop[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+
+
 def iris_mask(gbuffer: dict, rgba: np.ndarray) -> np.ndarray:
     """(h, w) bool: the render's iris proper (no pupil, no sclera ring), fully covered."""
     seg = gbuffer["segmentation"] == REGIONS.index("iris")

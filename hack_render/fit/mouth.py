@@ -128,8 +128,7 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
     teeth below" | "gap to the lip", "frame": (a, t, n, w), "gap": (top, bottom) heights
     of the dark run or None, "opening": (top, bottom), "rows": the rows' classes}
     ("lips only" too: see the module's docstring)."""
-    loops = iris.mesh_loops("FACEMESH_LIPS")
-    loops = sorted(loops, key=lambda q: _area(points[q]))
+    loops = sorted(iris.mesh_loops("FACEMESH_LIPS"), key=lambda q: iris.loop_area(points[q]))
     inner, outer = points[loops[0]], points[loops[-1]]
     # the inner corners: the inner loop's two points farthest apart along x
     i0, i1 = int(np.argmin(inner[:, 0])), int(np.argmax(inner[:, 0]))
@@ -185,11 +184,6 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
     if (cls[:r0] == "t").sum() < MIN_ROWS and below < MIN_ROWS:
         out["state"] = "no teeth"
     return out
-
-
-def _area(loop: np.ndarray) -> float:
-    x, y = loop[:, 0], loop[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
 
 
 def _longest(cls: np.ndarray, c: str) -> tuple[int, int] | None:

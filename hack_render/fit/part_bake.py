@@ -47,11 +47,15 @@ def view_samples(state: FitState, cfg, view, maps, render) -> dict:
     region = render.gbuffer["segmentation"]
     cam = head.camera
     occ = None if view.occluder is None else np.asarray(view.occluder, bool)
-    if occ is not None and view.eye_opening is not None:
-        # not inside the person's own eye openings (the face mesh's lid contours): the
-        # segmentation calls much of a shaded or turned eye "not skin", so "occluder"
-        occ = occ & ~(np.asarray(view.eye_opening, bool) if view.eye_opening.shape ==
-                      occ.shape else mask_at(view.eye_opening, *occ.shape))
+    for opening in (view.eye_opening, view.mouth_opening):
+        if occ is not None and opening is not None:
+            # not inside the person's own eye and mouth openings (the face mesh's lid and
+            # inner lip contours): the segmentation calls much of a shaded or turned eye,
+            # and the teeth, "not skin", so "occluder" (on obama's smile 1,684 of the
+            # opening's 2,278 pixels, which kept 477 of the 672 teeth vertices facing the
+            # camera there from the bake)
+            occ = occ & ~(np.asarray(opening, bool) if opening.shape == occ.shape
+                          else mask_at(opening, *occ.shape))
     # a part without vertex colours yet renders its material's one colour
     base = material_base_colours(state.model.material_names, maps.iris_rgb, maps.sclera_rgb)
     out = {}

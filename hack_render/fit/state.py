@@ -100,6 +100,10 @@ class View:
     # (h, w) bool at the photo's size: the person's eye openings (the face mesh's lid
     # contours, iris.photo_opening; set by the final stage); None: not known
     eye_opening: np.ndarray | None = None
+    # (h, w) bool at the photo's size: the person's mouth opening (the face mesh's inner
+    # lip contour, iris.photo_mouth_opening; set by the final stage for the parts' bake);
+    # None: not known
+    mouth_opening: np.ndarray | None = None
 
     @property
     def focal(self) -> torch.Tensor:
