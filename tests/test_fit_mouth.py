@@ -170,3 +170,16 @@ def test_04_jaw_moved_to_the_teeth(model):
     assert moved[48:].max() < 0.04 and moved[:48].max() < 0.025, moved
     assert float(st.psi.detach()[0, names.index("jawOpen")]) < 0.2
     assert rep["views"][0]["state"] == "teeth meet"
+
+
+@pytest.mark.parametrize("bad", [{"iterations": -1}, {"iterations": 2.5}, {"lr": 0},
+                                 {"w_hold": float("nan")}, {"w_teeth": -1.0},
+                                 {"enabled": True, "w_hold": True}])
+def test_05_bad_settings_are_refused(bad):
+    """The mouth section's settings are checked when the config loads, naming the key."""
+    from hack_render.errors import HackError
+    from hack_render.fit.config import load_config
+
+    key = next(k for k in bad if k != "enabled")
+    with pytest.raises(HackError, match=f"mouth.{key}: expected"):
+        load_config(None, {"mouth": bad})

@@ -610,6 +610,18 @@ class FitConfig:
         if self.shape.psi_prior not in ("l1", "l2"):
             raise HackError(f"config shape.psi_prior: expected 'l1' or 'l2', found "
                             f"{self.shape.psi_prior!r}.")
+        mc = self.mouth
+        if isinstance(mc.iterations, bool) or not isinstance(mc.iterations, int) \
+                or mc.iterations < 0:
+            raise HackError(f"config mouth.iterations: expected a whole number >= 0, found "
+                            f"{mc.iterations!r}.")
+        for key, low in (("lr", 0.0), ("w_teeth", None), ("w_hold", None)):
+            x = getattr(mc, key)
+            ok = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) \
+                and (x > low if low is not None else x >= 0)
+            if not ok:
+                raise HackError(f"config mouth.{key}: expected a finite number "
+                                f"{'> 0' if low is not None else '>= 0'}, found {x!r}.")
         fc = self.final
         if not 1 <= fc.spp <= 4096:
             raise HackError(f"config final.spp: expected 1..4096, found {fc.spp}.")
