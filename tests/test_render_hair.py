@@ -104,7 +104,10 @@ def test_03_bald_scene_has_no_curves_and_hair_scene_replaces_the_lash_cards(head
     a = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(32, 32, 2)).render()
     b = HeadScene(topo, v, lights.preset("studio"), cam, RenderSettings(32, 32, 2),
                   hair=None).render()
-    np.testing.assert_array_equal(a, b)
+    # the same samples; the film's splats are added by threads in any order, so a pixel
+    # may differ in its last bit (seen once in CI: 98 of 4,096 values, 1.2e-7); another
+    # scene would differ by the Monte Carlo noise, ~1e-2
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
 
 
 def _hair_pixels(head, k=3):
