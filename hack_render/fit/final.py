@@ -64,15 +64,15 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     t0 = time.perf_counter()
     # the person's eye openings (the face mesh's lid contours): the eyes' colours are
     # solved over them (final.eye_colours) and the bake's lid band reaches them
-    # (final.lids_from_mesh)
-    opening = iris.views_openings(st) if (cfg.final.eye_colours == "opening"
-                                          or cfg.final.lids_from_mesh) else None
-    for v, o in zip(st.views, opening or [None] * len(st.views)):
-        v.eye_opening = o
-    # and the mouth's (the teeth the segmentation calls "not skin" are baked there)
-    for v in st.views:
-        v.mouth_opening = (iris.photo_mouth_opening(v.photo.uint8(), v.detection.points)
-                           if cfg.final.part_bake else None)
+    # (final.lids_from_mesh); and the mouth's (the teeth the segmentation calls "not
+    # skin" are baked there, final.part_bake): one face mesh per view for both
+    eyes_wanted = cfg.final.eye_colours == "opening" or cfg.final.lids_from_mesh
+    found = (iris.views_openings(st) if eyes_wanted or cfg.final.part_bake
+             else [None] * len(st.views))
+    for v, f in zip(st.views, found):
+        v.eye_opening = f[0] if f is not None and eyes_wanted else None
+        v.mouth_opening = f[1] if f is not None and cfg.final.part_bake else None
+    opening = [v.eye_opening for v in st.views] if eyes_wanted else None
     fitted = []
     for v in st.views:
         fitted.append(texture.render_at_photo(st, cfg, v, max_side=cfg.final.max_side))

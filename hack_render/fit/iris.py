@@ -203,36 +203,23 @@ def photo_opening(rgb8: np.ndarray, points: np.ndarray | None = None, shape=None
     """(H, W) bool: the person's eye openings in the photo, inside the face mesh's two lid
     contours (FACEMESH_LEFT_EYE / RIGHT_EYE; :func:`iris_landmarks`), at ``shape`` (H, W)
     if given; None where no face is found."""
-    from skimage.draw import polygon
-
     found = _mesh_at(rgb8, points, shape)
-    if found is None:
-        return None
-    pts, h, w = found
-    out = np.zeros((h, w), bool)
-    for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE"):
-        lids = pts[mesh_loops(n)[0]]
-        rr, cc = polygon(lids[:, 1] - 0.5, lids[:, 0] - 0.5, (h, w))
-        out[rr, cc] = True
-    return out
+    return None if found is None else opening_masks(*found)[0]
 
 
-def photo_mouth_opening(rgb8: np.ndarray, points: np.ndarray | None = None
-                        ) -> np.ndarray | None:
-    """(H, W) bool: the person's mouth opening in the photo, inside the face mesh's inner
-    lip contour (the smaller of FACEMESH_LIPS' two loops; :func:`iris_landmarks`); None
-    where no face is found."""
+def opening_masks(pts: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(eyes, mouth), (h, w) bool each, of the face mesh's points ``pts`` (pixels of an
+    h x w image): inside its two lid contours (FACEMESH_LEFT_EYE / RIGHT_EYE), and inside
+    its inner lip contour (the smaller of FACEMESH_LIPS' two loops)."""
     from skimage.draw import polygon
 
-    pts = iris_landmarks(rgb8, points)
-    if pts is None:
-        return None
-    h, w = rgb8.shape[:2]
-    inner = min((pts[q] for q in mesh_loops("FACEMESH_LIPS")), key=loop_area)
-    out = np.zeros((h, w), bool)
-    rr, cc = polygon(inner[:, 1] - 0.5, inner[:, 0] - 0.5, (h, w))
-    out[rr, cc] = True
-    return out
+    eyes, mouth = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    loops = [(eyes, pts[mesh_loops(n)[0]]) for n in ("FACEMESH_LEFT_EYE", "FACEMESH_RIGHT_EYE")]
+    loops.append((mouth, min((pts[q] for q in mesh_loops("FACEMESH_LIPS")), key=loop_area)))
+    for out, loop in loops:
+        rr, cc = polygon(loop[:, 1] - 0.5, loop[:, 0] - 0.5, (h, w))
+        out[rr, cc] = True
+    return eyes, mouth
 
 
 def loop_area(loop: np.ndarray) -> float:
@@ -561,9 +548,9 @@ def views_mesh(state, read=None) -> list:
 
 
 def views_openings(state) -> list:
-    """Per view the person's eye openings in its photo (:func:`photo_opening`, at the
-    photo's size), or None where the face mesh finds no face."""
-    return [photo_opening(v.photo.uint8(), v.detection.points) for v in state.views]
+    """Per view the person's (eyes, mouth) openings in its photo (:func:`opening_masks`, at
+    the photo's size; one face mesh for both), or None where the face mesh finds no face."""
+    return views_mesh(state, lambda img, pts, _grey: opening_masks(pts, *img.shape[:2]))
 
 
 def views_eyes(state) -> list:
