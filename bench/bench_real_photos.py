@@ -629,6 +629,8 @@ def kept_state(name: str, img: np.ndarray, fit_dir: Path, overrides: dict):
         v.log_focal.fill_(float(np.log(npz["view0_K"][0][0])))
     if "view0_gaze" in npz:  # the eyes' stage's (fit/eyes.py)
         v.gaze = t("view0_gaze").reshape(2)
+    if "teeth_drop" in npz:  # the mouth's stage's (fit/teeth.py)
+        state.teeth = t("teeth_drop").reshape(1)
     env = np.asarray(npz["view0_env_map"], np.float32)
     v.lighting = Lighting("env", env.shape[0])
     with torch.no_grad():

@@ -20,9 +20,9 @@ def model():
 def test_01_teeth_tips(model):
     """The upper tips stay with the skull, the lower ones go down with the jaw; at rest
     they lie within 3 mm of each other (the bite) near the midline."""
-    from hack_render.fit import mouth
+    from hack_render.fit import teeth
 
-    rig = mouth.teeth_rig(model)
+    rig = teeth.teeth_rig(model)
     assert rig is not None and len(rig.upper) >= 2 and len(rig.lower) >= 2
     names = list(model.expression_names)
     with torch.no_grad():
@@ -32,7 +32,7 @@ def test_01_teeth_tips(model):
         open_ = model(psi=psi).vertices[0]
     up, lo = rig.upper, rig.lower
     assert abs(float(rest[up, 1].mean() - rest[lo, 1].mean())) < 0.003
-    assert float(rest[np.r_[up, lo], 0].abs().max()) < mouth.MID_X
+    assert float(rest[np.r_[up, lo], 0].abs().max()) < teeth.MID_X
     assert float((open_[up] - rest[up]).norm(dim=1).max()) < 1e-6
     assert float(rest[lo, 1].mean() - open_[lo, 1].mean()) > 0.01   # 1 cm down or more
 
@@ -88,8 +88,18 @@ def test_02_what_the_photo_shows(grey):
     # the gap's rows in pixels below the corners' chord (y = 100 - height * w)
     got = [100.0 - g * w for g in r["gap"]]
     assert abs(got[0] - (top + 8)) < 1.5 and abs(got[1] - (top + 18)) < 1.5, got
+    assert r["upper"] == ("at", r["gap"][0])
+    assert abs(100.0 - r["lower"] * w - (top + 18)) < 1.5
+    # a tongue over the lower teeth: they begin below it
+    r, top = read([("teeth", 8), ("dark", 10), ("tongue", 4), ("teeth", 6)])
+    assert r["state"] == "gap, teeth below"
+    assert abs(100.0 - r["lower"] * w - (top + 22)) < 1.5
+    assert abs(100.0 - r["gap"][1] * w - (top + 18)) < 1.5
     r, _ = read([("teeth", 8), ("dark", 10), ("tongue", 6)])
-    assert r["state"] == "gap to the lip"
+    assert r["state"] == "gap to the lip" and r["upper"][0] == "at"
+    # the upper lip's colour (a tongue's here) just above the gap: the tips only above it
+    r, _ = read([("teeth", 4), ("tongue", 6), ("dark", 10), ("teeth", 6)])
+    assert r["state"] == "gap, teeth below" and r["upper"] == ("above", r["gap"][0])
     r, _ = read([("dark", 8), ("tongue", 10)])
     assert r["state"] == "no teeth"
     r, _ = read([("tongue", 12)])
@@ -106,6 +116,9 @@ def test_03_tip_loss_targets():
     assert float(tip_loss(h, {"state": "gap, teeth below", "gap": (0.0, -0.1)})) == 0
     assert float(tip_loss(h, {"state": "gap, teeth below", "gap": (0.0, -0.2)})) == \
         pytest.approx((0.1 / SCALE) ** 2)
+    # the teeth's top below a tongue, not the gap's bottom
+    assert float(tip_loss(h, {"state": "gap, teeth below", "gap": (0.0, -0.05),
+                              "lower": -0.1})) == 0
     assert float(tip_loss(h, {"state": "gap to the lip", "gap": (0.0, -0.05)})) == 0
     assert float(tip_loss(h, {"state": "gap to the lip", "gap": (0.0, -0.2)})) > 0
     assert float(tip_loss(h, {"state": "teeth meet"})) == pytest.approx((0.1 / SCALE) ** 2)
@@ -113,6 +126,13 @@ def test_03_tip_loss_targets():
     assert float(tip_loss(h, {"state": "lips only"})) == pytest.approx((0.1 / SCALE) ** 2)
     assert float(tip_loss(h, {"state": "no teeth"})) == 0
     assert float(tip_loss(h, {"state": "closed"})) == 0
+    # the upper tips: at the gap's top, or (lip above it) not inside the gap
+    gap = {"state": "gap, teeth below", "gap": (0.05, -0.1)}
+    assert float(tip_loss(h, gap | {"upper": ("at", 0.05)})) == pytest.approx((0.05 / SCALE) ** 2)
+    assert float(tip_loss(h, gap | {"upper": ("above", 0.05)})) == pytest.approx((0.05 / SCALE) ** 2)
+    assert float(tip_loss(h, gap | {"upper": ("above", -0.05)})) == 0
+    assert float(tip_loss(h, {"state": "teeth meet", "upper": ("at", 0.05)})) == \
+        pytest.approx((0.1 / SCALE) ** 2)
 
 
 def _state(model):
@@ -136,7 +156,7 @@ def test_04_jaw_moved_to_the_teeth(model):
     a quarter of the mouth's width below them to within 7 %) with the 68 points held (the
     lips within 4 % of the mouth's width, the rest within 2.5 %), and the jaw drop falls; told nothing (a closed mouth), it
     changes nothing."""
-    from hack_render.fit import mouth
+    from hack_render.fit import mouth, teeth
 
     st, cfg = _state(model)
     v = st.views[0]
@@ -150,7 +170,7 @@ def test_04_jaw_moved_to_the_teeth(model):
     a, b = pts[60], pts[64]
     t, n, w = mouth._frame(a, b)
     frame = (a, t, n, w)
-    rig = mouth.teeth_rig(model)
+    rig = teeth.teeth_rig(model)
     with torch.no_grad():
         before = mouth._tips(st, v, verts, rig, frame)
     assert float(before[0] - before[1]) > 0.25
@@ -172,8 +192,85 @@ def test_04_jaw_moved_to_the_teeth(model):
     assert rep["views"][0]["state"] == "teeth meet"
 
 
+def test_06_teeth_drop_moves_the_upper_teeth_only(model):
+    """The upper teeth's drop (fit/teeth.py) lowers the upper teeth, and nothing else, by
+    the drop along the posed head's down (a turned and tilted head), clamped to the
+    limit; its gradient matches finite differences."""
+    from hack_render.fit import teeth
+
+    rig = teeth.teeth_rig(model)
+    names = list(model.expression_names)
+    theta = torch.zeros(1, 8, 3)
+    theta[0, 7] = torch.deg2rad(torch.tensor([20.0, -35.0, 10.0]))
+    with torch.no_grad():
+        out = model(psi=torch.zeros(1, len(names)), theta=theta)
+        v, rest = out.vertices[0].double(), out.rest_vertices[0].double()
+    d = torch.tensor([0.002], dtype=torch.float64, requires_grad=True)
+    moved = teeth.apply_teeth(rig, v, rest, d)
+    delta = (moved - v).detach()
+    others = np.setdiff1d(np.arange(model.num_vertices), rig.upper_set)
+    assert float(delta[others].abs().max()) == 0
+    # the skull's down, posed: the rest -y through the head's rotation
+    from hack_render.geometry.rigid import kabsch
+
+    r, _ = kabsch(rest[rig.upper_set].numpy(), v[rig.upper_set].numpy())
+    want = 0.002 * -r[:, 1]
+    np.testing.assert_allclose(delta[rig.upper_set].numpy(), np.broadcast_to(want, (len(rig.upper_set), 3)),
+                               atol=1e-9)
+    assert float(-r[1, 1]) < -0.8   # still mostly downwards
+    big = teeth.apply_teeth(rig, v, rest, torch.tensor([0.01], dtype=torch.float64))
+    assert float((big - v)[rig.upper_set].norm(dim=1).max()) == pytest.approx(teeth.TEETH_LIMIT)
+    # gradient of a tip's height against central differences
+    def f(x):
+        return teeth.apply_teeth(rig, v, rest, x)[rig.upper, 1].mean()
+
+    f(d).backward()
+    eps = 1e-5
+    fd = (f(torch.tensor([0.002 + eps], dtype=torch.float64))
+          - f(torch.tensor([0.002 - eps], dtype=torch.float64))) / (2 * eps)
+    assert float(d.grad) == pytest.approx(float(fd), rel=1e-6)
+
+
+def test_07_teeth_drop_recovered(model):
+    """A photo whose dark gap begins 1.5 mm below the model's upper tips (the teeth seen
+    above it): the stage lowers the upper teeth to within 0.35 mm of that (the prior
+    shrinks it a little), the lower tips go to the gap's bottom, and the drop goes into
+    params.npz's ``teeth_drop``. Teeth that meet fit no drop."""
+    from hack_render.fit import mouth, teeth
+
+    st, cfg = _state(model)
+    v = st.views[0]
+    rig = teeth.teeth_rig(model)
+    names = [str(n) for n in model.expression_names]
+    with torch.no_grad():
+        st.psi[0, names.index("jawOpen")] = 0.3
+        verts = st.forward(v).vertices[0]
+        pts = mouth._points(st, v, verts).numpy()
+        a, b = pts[60], pts[64]
+        t, n, w = mouth._frame(a, b)
+        frame = (a, t, n, w)
+        h0 = mouth._tips(st, v, verts, rig, frame)
+        st.teeth = torch.tensor([0.0015])
+        h1 = mouth._tips(st, v, st.forward(v).vertices[0], rig, frame)
+        st.teeth = None
+    assert float(h0[0] - h1[0]) > 0.01     # 1.5 mm is visible in the frame
+    read = {"state": "gap, teeth below", "frame": frame, "gap": (float(h1[0]), float(h0[1])),
+            "opening": (0.2, -0.4), "upper": ("at", float(h1[0]))}
+    rep = mouth.fit_mouth(st, cfg, reads=[read])
+    assert st.teeth is not None and abs(float(st.teeth) - 0.0015) < 0.00035, rep["teeth_drop_mm"]
+    with torch.no_grad():
+        after = mouth._tips(st, v, st.forward(v).vertices[0], rig, frame)
+    assert abs(float(after[0] - h1[0])) < 0.35 * float(h0[0] - h1[0])
+    assert abs(float(after[1] - h0[1])) < 0.02
+    assert rep["teeth_drop_mm"] == pytest.approx(float(st.teeth) * 1e3, abs=1e-3)
+    st2, _ = _state(model)
+    mouth.fit_mouth(st2, cfg, reads=[{"state": "teeth meet", "frame": frame, "gap": None,
+                                      "opening": (0.1, -0.3)}])
+    assert st2.teeth is None
+
+
 @pytest.mark.parametrize("bad", [{"iterations": -1}, {"iterations": 2.5}, {"lr": 0},
-                                 {"w_hold": float("nan")}, {"w_teeth": -1.0},
+                                 {"w_hold": float("nan")}, {"w_teeth": -1.0}, {"teeth": 1},
                                  {"enabled": True, "w_hold": True}])
 def test_05_bad_settings_are_refused(bad):
     """The mouth section's settings are checked when the config loads, naming the key."""

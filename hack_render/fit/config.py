@@ -333,6 +333,10 @@ class MouthConfig:
     # +0.11 / +1.97 dB (docs/fit.md)
     w_teeth: float = 1.0
     w_hold: float = 3.0
+    # true: the upper teeth's drop under the upper lip (fit/teeth.py) is fitted too where
+    # the photo's mouth shows a dark gap (the upper tips at its top where teeth are seen
+    # just above it, else not inside it); false: the teeth where the model places them
+    teeth: bool = True
 
 
 @dataclass
@@ -615,6 +619,8 @@ class FitConfig:
                 or mc.iterations < 0:
             raise HackError(f"config mouth.iterations: expected a whole number >= 0, found "
                             f"{mc.iterations!r}.")
+        if not isinstance(mc.teeth, bool):
+            raise HackError(f"config mouth.teeth: expected true or false, found {mc.teeth!r}.")
         for key, low in (("lr", 0.0), ("w_teeth", None), ("w_hold", None)):
             x = getattr(mc, key)
             ok = isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) \

@@ -17,7 +17,8 @@ teeth. The model's teeth are read as their tips near the midline (the upper inci
 lowest vertices, the lower ones' highest; ``teeth_rig``), projected, in the same frame.
 The targets on the lower tips' height ``h_lo`` (the jaw moves them):
 
-- a dark gap with teeth below it: ``h_lo`` at the gap's bottom;
+- a dark gap with teeth below it: ``h_lo`` at the first teeth row below the gap (the
+  gap's bottom, or a tongue's rows lower where the tongue lies over the lower teeth);
 - a dark gap down to the lower lip (the lower teeth hidden): ``h_lo`` at most there;
 - no dark gap, teeth seen: the teeth meet, ``h_lo`` at least the upper tips' height;
 - no dark gap and no teeth, only rows of the lips' or the tongue's colour between the
@@ -27,18 +28,21 @@ The targets on the lower tips' height ``h_lo`` (the jaw moves them):
 - a dark inside without teeth, or the mouth closed in the face mesh (the opening thinner
   than :data:`CLOSED`): none.
 
+Where a dark gap is seen, the upper tips' height ``h_up`` too: at the gap's top where
+teeth are seen just above it (:data:`UPPER_ROWS`), else (the lip's colour, or teeth in
+shade, there) not inside the gap.
+
 The unknowns: the jaw and lip shapes (:data:`SHAPES`, added to the fitted expression,
-within [0, 1]) and the identity (beta), with every one of the 68 points held where the
-stages before placed them (projected, in units of :data:`HOLD` of the mouth's width) and
-weak priors on the changes: the jaw can close only if the lips and chin stay, so a
+within [0, 1]), the identity (beta) and, where ``h_up`` has a target, the upper teeth's
+drop under the upper lip (``fit/teeth.py``; prior :data:`TEETH_SIGMA`), with every one
+of the 68 points held where the stages before placed them (projected, in units of
+:data:`HOLD` of the mouth's width) and weak priors on the changes: the jaw can close only if the lips and chin stay, so a
 shorter jaw drop is paid by a longer lower face, not by a moved chin. A view where the face
 mesh finds no face, or the photo shows no teeth, keeps its mouth. The report says per
 view what was read and the tips' heights before and after.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -47,10 +51,8 @@ from skimage.draw import polygon
 from hack_render.fit import iris
 from hack_render.fit.stages import run_stage
 from hack_render.fit.state import FitState, View
+from hack_render.fit.teeth import SHAPES, TEETH_LIMIT, TeethRig, teeth_rig
 
-#: The shapes fitted (added to the expression the stages before fitted).
-SHAPES = ("jawOpen", "mouthClose", "mouthLowerDown_L", "mouthLowerDown_R",
-          "mouthUpperUp_L", "mouthUpperUp_R")
 #: The measures' unit (a share of the mouth's width between its inner corners).
 SCALE = 0.02
 #: The 68 points' hold: their unit, a share of the mouth's width; and each point's
@@ -75,40 +77,11 @@ TEETH_GREY = 1.3
 CLOSED = 0.04
 #: The fewest rows of a run that counts (a run of one pixel is an edge).
 MIN_ROWS = 2
-#: The model's teeth tips: vertices within this of the midline (metres), in front (within
-#: FRONT of the front-most), and within TIP of the lowest (upper) / highest (lower).
-MID_X, FRONT, TIP = 0.008, 0.004, 0.0008
-
-
-@dataclass(frozen=True)
-class TeethRig:
-    """The model's upper and lower incisors' tips (vertex ids) and the shapes' ids."""
-
-    upper: np.ndarray
-    lower: np.ndarray
-    psi: np.ndarray
-
-
-def teeth_rig(model) -> TeethRig | None:
-    """The teeth's tips of ``model`` (the ``teeth`` group; the lower teeth are those
-    ``jawOpen`` moves), or None where it has no teeth or shapes."""
-    names = list(model.expression_names)
-    if "teeth" not in model.group_names or not all(s in names for s in SHAPES):
-        return None
-    teeth = torch.nonzero(model.vertex_group == model.group_names.index("teeth")).flatten()
-    n = model.num_vertices
-    jaw = model.expr_shape_basis[names.index("jawOpen")].view(n, 3)[teeth]
-    moved = jaw.abs().amax(1) > 1e-6
-    rest = model.template[teeth]
-    out = []
-    for sel, sign in ((~moved, 1.0), (moved, -1.0)):  # upper: lowest; lower: highest
-        p, ids = rest[sel], teeth[sel]
-        if not len(ids):
-            return None
-        near = (p[:, 0].abs() < MID_X) & (p[:, 2] > p[:, 2].max() - FRONT)
-        y = sign * p[near, 1]
-        out.append(ids[near][y < y.min() + TIP].numpy())
-    return TeethRig(out[0], out[1], np.array([names.index(s) for s in SHAPES]))
+#: Teeth within this many rows above the dark gap are the upper teeth's tips.
+UPPER_ROWS = 3
+#: The upper teeth's drop (``fit/teeth.py``): its prior (metres) and Adam's step (in mm).
+TEETH_SIGMA = 0.003
+TEETH_LR = 0.1
 
 
 def _frame(a: np.ndarray, b: np.ndarray):
@@ -179,6 +152,13 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
         return out
     r0, r1 = run   # rows r0 .. r1 - 1 dark
     out["gap"] = (top - r0 / w, top - r1 / w)
+    # the upper teeth end where the gap begins if teeth are seen just above it, else
+    # (lip or shade there) somewhere above it
+    out["upper"] = ("at" if "t" in cls[max(0, r0 - UPPER_ROWS):r0] else "above", out["gap"][0])
+    # the lower teeth begin at the first teeth row below the gap (a tongue's rows may lie
+    # between: the gap's bottom is then the tongue's top, above the teeth)
+    below_t = np.flatnonzero(cls[r1:] == "t")
+    out["lower"] = top - (r1 + int(below_t[0])) / w if len(below_t) else out["gap"][1]
     below = (cls[r1:] == "t").sum()
     out["state"] = "gap, teeth below" if below >= MIN_ROWS else "gap to the lip"
     if (cls[:r0] == "t").sum() < MIN_ROWS and below < MIN_ROWS:
@@ -218,15 +198,31 @@ def _points(state: FitState, v: View, verts: torch.Tensor) -> torch.Tensor:
 def tip_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
     """The teeth term of one view (squared, in units of :data:`SCALE`): ``h`` the model's
     (upper, lower) tip heights, ``read`` :func:`photo_mouth`'s."""
-    zero = h.new_zeros(())
+    return lower_loss(h, read) + upper_loss(h, read)
+
+
+def lower_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
+    """The lower tips' part of :func:`tip_loss` (the jaw's target)."""
     st = read["state"]
     if st == "gap, teeth below":
-        return ((h[1] - read["gap"][1]) / SCALE) ** 2
+        return ((h[1] - read.get("lower", read["gap"][1])) / SCALE) ** 2
     if st == "gap to the lip":
         return (torch.relu(h[1] - read["gap"][1]) / SCALE) ** 2
     if st in ("teeth meet", "lips only"):
         return (torch.relu(h[0] - h[1]) / SCALE) ** 2
-    return zero
+    return h.new_zeros(())
+
+
+def upper_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
+    """The upper tips' part of :func:`tip_loss`, where the photo shows a dark gap: at
+    its top where teeth are seen just above it, else not inside it."""
+    up = read.get("upper")
+    if up is None or read["state"] not in ("gap, teeth below", "gap to the lip"):
+        return h.new_zeros(())
+    how, top = up
+    if how == "at":
+        return ((h[0] - top) / SCALE) ** 2
+    return (torch.relu(top - h[0]) / SCALE) ** 2
 
 
 def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict:
@@ -258,6 +254,13 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
     idx = torch.as_tensor(rig.psi)
     beta0 = state.beta.detach().clone()
     dbeta = torch.zeros_like(beta0, requires_grad=True)
+    teeth0 = state.teeth
+    fit_teeth = bool(mc.teeth) and any(
+        r.get("upper") is not None and r["state"] in ("gap, teeth below", "gap to the lip")
+        for _, r, _, _ in views)
+    # the upper teeth's drop, mm (fit/teeth.py), from where a kept fit left it
+    drop_mm = torch.tensor([0.0 if teeth0 is None else float(teeth0) * 1e3],
+                           requires_grad=fit_teeth)
 
     def psi_of(v):
         return state.psi_changed(v, idx, deltas[id(state.view_psi(v))])
@@ -267,6 +270,8 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
         terms = {"teeth": 0.0, "hold": 0.0}
         keep = state.beta
         state.beta = beta0 + dbeta
+        if fit_teeth:
+            state.teeth = drop_mm * 1e-3
         try:
             for v, r, held, _ in views:
                 verts = state.forward(v, psi=psi_of(v)).vertices[0]
@@ -278,13 +283,17 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
                 terms["teeth"] += float(teeth.detach())
                 terms["hold"] += float(hold.detach())
         finally:
-            state.beta = keep
+            state.beta, state.teeth = keep, teeth0
         for d in deltas.values():
             total = total + ((d / PSI_SIGMA) ** 2).sum()
+        if fit_teeth:
+            total = total + ((drop_mm * 1e-3 / TEETH_SIGMA) ** 2).sum()
         return total + ((dbeta / BETA_SIGMA) ** 2).sum(), terms
 
     groups = [{"params": list(deltas.values()), "lr": mc.lr},
               {"params": [dbeta], "lr": mc.lr}]
+    if fit_teeth:
+        groups.append({"params": [drop_mm], "lr": TEETH_LR})
     if log is not None:
         rep = log.run("mouth", groups, loss_fn, mc.iterations)
     else:
@@ -294,6 +303,8 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
         for v, _, _, _ in views:
             state.view_psi(v).copy_(psi_of(v))
         state.beta.copy_(beta0 + dbeta)
+        if fit_teeth:
+            state.teeth = (drop_mm * 1e-3).clamp(-TEETH_LIMIT, TEETH_LIMIT).detach().clone()
         for v, r, held, before in views:
             verts = state.forward(v).vertices[0]
             after = _tips(state, v, verts, rig, r["frame"])
@@ -301,6 +312,8 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
             report["views"].append({
                 "state": r["state"], "rows": r.get("rows"),
                 "gap": None if r["gap"] is None else np.round(r["gap"], 4).tolist(),
+                "upper": None if r.get("upper") is None else r["upper"][0],
+                "lower": None if r.get("lower") is None else round(float(r["lower"]), 4),
                 "opening": np.round(r["opening"], 4).tolist(),
                 "tips_before": np.round(before.numpy(), 4).tolist(),
                 "tips_after": np.round(after.numpy(), 4).tolist(),
@@ -312,6 +325,7 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
     report.update(measures="heights above the inner lip corners' chord, shares of its "
                            "length (the photo's face mesh); tips: (upper, lower) incisors",
                   beta_change=round(float(dbeta.detach().norm()), 4),
+                  teeth_drop_mm=None if state.teeth is None else round(float(state.teeth) * 1e3, 3),
                   iterations=rep.iterations, seconds=round(rep.seconds, 2),
                   failure=rep.failure)
     return report

@@ -143,6 +143,9 @@ def write_all(res: FitResult, outdir: Path, extra: dict | None = None,
     arrays = {"beta": res.beta.detach().numpy(), "psi": res.psi.detach().numpy(),
               "alpha": res.alpha.detach().numpy(), "eta": res.eta.detach().numpy(),
               "tau": res.tau.detach().numpy()}
+    teeth = None if res.state is None else res.state.teeth
+    if teeth is not None:  # the upper teeth's drop, metres (fit/teeth.py)
+        arrays["teeth_drop"] = teeth.detach().numpy().astype(np.float32)
     for i, v in enumerate(res.views):
         p = view_params(res, i)
         arrays[f"view{i}_theta"] = np.asarray(p["theta"], np.float32)

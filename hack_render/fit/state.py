@@ -25,6 +25,7 @@ import torch
 
 from hack_render.errors import HackError
 from hack_render.fit import gaze
+from hack_render.fit import teeth as teeth_rig
 from hack_render.fit.camera import R0
 from hack_render.fit.landmarks import JawContour
 from hack_render.fit.lighting import Lighting
@@ -141,6 +142,9 @@ class FitState:
     personal: tuple | None = field(default=None, repr=False)
     # (the vertices :meth:`landmark_reads` lists, their VertexSubset or None)
     reads: tuple | None = field(default=None, repr=False)
+    # (1,) the upper teeth's drop under the upper lip, metres (``fit/teeth.py``; the
+    # mouth's stage, ``fit/mouth.py``); None: where the model places them
+    teeth: torch.Tensor | None = None
 
     @property
     def faces(self) -> torch.Tensor:
@@ -158,9 +162,9 @@ class FitState:
 
     def leaves(self) -> list[torch.Tensor]:
         """Every parameter the stages optimise (shared and per view; the per-texel
-        albedo delta and the views' gazes where they exist)."""
+        albedo delta, the teeth's drop and the views' gazes where they exist)."""
         out = [self.beta, self.psi, self.eta, self.tau, self.alpha, self.const_albedo,
-               self.albedo_delta]
+               self.albedo_delta, self.teeth]
         for v in self.views:
             out += [v.log_focal, v.transl, v.head_angles, v.dtheta, v.global_orient, v.psi,
                     v.gaze]
@@ -194,14 +198,20 @@ class FitState:
 
     def forward(self, v: View, psi: torch.Tensor | None = None):
         """The model's output for view ``v`` (``psi``: this expression instead of the
-        view's), its eyeballs turned by the view's gaze (``fit/gaze.py``) where it has one."""
+        view's), its eyeballs turned by the view's gaze (``fit/gaze.py``) where it has one
+        and its upper teeth lowered by :attr:`teeth` (``fit/teeth.py``) where it is set."""
         out = self.model(beta=self.beta, psi=self.view_psi(v) if psi is None else psi,
                          theta=self.theta(v), global_orient=v.global_orient[None],
                          eta=self.eta, tau=self.tau)
-        if v.gaze is None:
+        if v.gaze is None and self.teeth is None:
             return out
-        verts = gaze.apply_gaze(gaze.eye_rig(self.model), out.vertices[0],
-                                out.rest_vertices[0], v.gaze)
+        verts = out.vertices[0]
+        if v.gaze is not None:
+            verts = gaze.apply_gaze(gaze.eye_rig(self.model), verts, out.rest_vertices[0],
+                                    v.gaze)
+        if self.teeth is not None:
+            verts = teeth_rig.apply_teeth(teeth_rig.teeth_rig(self.model), verts,
+                                          out.rest_vertices[0], self.teeth)
         return dataclasses.replace(out, vertices=verts[None])
 
     def landmark_reads(self):
@@ -224,8 +234,8 @@ class FitState:
     def forward_views(self, landmarks_only: bool = False,
                       thetas: torch.Tensor | None = None) -> list[torch.Tensor]:
         """Every view's posed vertices (N, 3), as :meth:`forward`'s: one batched forward
-        of the model where there are several views and none has a gaze (the batch shares
-        the identity; forward and backward in about half the time of one forward per
+        of the model where there are several views, none has a gaze and the teeth are the
+        model's (the batch shares the identity; forward and backward in about half the time of one forward per
         view), else one per view.
 
         ``landmarks_only``: the caller reads only :meth:`landmark_reads`' vertices (the
@@ -235,7 +245,7 @@ class FitState:
         every other vertex is left at zero. ``thetas``: :meth:`thetas`, when the caller
         has them."""
         views = self.views
-        if any(v.gaze is not None for v in views):
+        if self.teeth is not None or any(v.gaze is not None for v in views):
             return [self.forward(v).vertices[0] for v in views]
         sub = self.landmark_reads()[1] if landmarks_only else None
         if sub is None and len(views) < 2:
