@@ -80,11 +80,17 @@ def test_02_what_the_photo_shows(grey):
         img, pts, top = _mouth_photo(rows, grey)
         return mouth.photo_mouth(img, pts, grey), top
 
-    r, _ = read([("teeth", 10), ("teeth", 10)])
+    r, top = read([("teeth", 10), ("teeth", 10)])
     assert r["state"] == "teeth meet"
+    w = r["frame"][3]
+    # teeth down to the lower lip: the tips at or below the run's end
+    assert r["upper"] == ("below", r["opening"][1]) and \
+        abs(100.0 - r["upper"][1] * w - (top + 20)) < 1.5
+    # the teeth meet behind the upper ones: their run's bottom is the upper tips' target
+    r, top = read([("teeth", 12), ("tongue", 8)])
+    assert r["state"] == "teeth meet" and abs(100.0 - r["upper"][1] * w - (top + 12)) < 1.5
     r, top = read([("teeth", 8), ("dark", 10), ("teeth", 6)])
     assert r["state"] == "gap, teeth below"
-    w = r["frame"][3]
     # the gap's rows in pixels below the corners' chord (y = 100 - height * w)
     got = [100.0 - g * w for g in r["gap"]]
     assert abs(got[0] - (top + 8)) < 1.5 and abs(got[1] - (top + 18)) < 1.5, got
@@ -132,7 +138,14 @@ def test_03_tip_loss_targets():
     assert float(tip_loss(h, gap | {"upper": ("above", 0.05)})) == pytest.approx((0.05 / SCALE) ** 2)
     assert float(tip_loss(h, gap | {"upper": ("above", -0.05)})) == 0
     assert float(tip_loss(h, {"state": "teeth meet", "upper": ("at", 0.05)})) == \
+        pytest.approx((0.1 / SCALE) ** 2 + (0.05 / SCALE) ** 2)
+    assert float(tip_loss(h, {"state": "lips only", "upper": ("at", 0.05)})) == \
         pytest.approx((0.1 / SCALE) ** 2)
+    meet = {"state": "teeth meet"}
+    assert float(tip_loss(h, meet | {"upper": ("below", 0.05)})) == \
+        pytest.approx((0.1 / SCALE) ** 2)
+    assert float(tip_loss(h, meet | {"upper": ("below", -0.05)})) == \
+        pytest.approx((0.1 / SCALE) ** 2 + (0.05 / SCALE) ** 2)
 
 
 def _state(model):
@@ -235,7 +248,7 @@ def test_07_teeth_drop_recovered(model):
     """A photo whose dark gap begins 1.5 mm below the model's upper tips (the teeth seen
     above it): the stage lowers the upper teeth to within 0.35 mm of that (the prior
     shrinks it a little), the lower tips go to the gap's bottom, and the drop goes into
-    params.npz's ``teeth_drop``. Teeth that meet fit no drop."""
+    params.npz's ``teeth_drop``. Teeth that meet with no teeth run read fit no drop."""
     from hack_render.fit import mouth, teeth
 
     st, cfg = _state(model)
@@ -267,6 +280,18 @@ def test_07_teeth_drop_recovered(model):
     mouth.fit_mouth(st2, cfg, reads=[{"state": "teeth meet", "frame": frame, "gap": None,
                                       "opening": (0.1, -0.3)}])
     assert st2.teeth is None
+    # teeth that meet, their run ending 1.5 mm below the model's upper tips: the upper
+    # teeth drop to it and the lower ones stay behind them (up to the upper tips)
+    st3, _ = _state(model)
+    with torch.no_grad():
+        st3.psi[0, names.index("jawOpen")] = 0.3
+    mouth.fit_mouth(st3, cfg, reads=[{"state": "teeth meet", "frame": frame, "gap": None,
+                                      "opening": (0.2, -0.4), "upper": ("at", float(h1[0]))}])
+    assert st3.teeth is not None and abs(float(st3.teeth) - 0.0015) < 0.00045, st3.teeth
+    with torch.no_grad():
+        v3 = st3.views[0]
+        after = mouth._tips(st3, v3, st3.forward(v3).vertices[0], rig, frame)
+    assert float(after[0] - after[1]) < 0.07
 
 
 @pytest.mark.parametrize("bad", [{"iterations": -1}, {"iterations": 2.5}, {"lr": 0},

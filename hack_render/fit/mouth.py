@@ -149,6 +149,14 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
     if run is None:
         out["state"] = ("teeth meet" if (cls == "t").sum() >= MIN_ROWS else
                         "lips only" if (cls == "o").sum() >= MIN_ROWS else "no teeth")
+        teeth_run = _longest(cls, "t")
+        if out["state"] == "teeth meet" and teeth_run is not None:
+            # the lower teeth meet behind the upper ones: the longest run of teeth rows
+            # ends at the upper tips, or, where it runs into the lower lip, the lip hides
+            # them (at or below the run's end)
+            bottom = top - teeth_run[1] / w
+            out["upper"] = (("below", max(bottom, out["opening"][1]))
+                            if teeth_run[1] > len(cls) - UPPER_ROWS else ("at", bottom))
         return out
     r0, r1 = run   # rows r0 .. r1 - 1 dark
     out["gap"] = (top - r0 / w, top - r1 / w)
@@ -214,14 +222,17 @@ def lower_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
 
 
 def upper_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
-    """The upper tips' part of :func:`tip_loss`, where the photo shows a dark gap: at
-    its top where teeth are seen just above it, else not inside it."""
+    """The upper tips' part of :func:`tip_loss`: where the photo shows a dark gap, at
+    its top where teeth are seen just above it, else not inside it; where the teeth meet,
+    at the end of the teeth's rows, or at or below it where they run into the lower lip."""
     up = read.get("upper")
-    if up is None or read["state"] not in ("gap, teeth below", "gap to the lip"):
+    if up is None or read["state"] not in ("gap, teeth below", "gap to the lip", "teeth meet"):
         return h.new_zeros(())
     how, top = up
     if how == "at":
         return ((h[0] - top) / SCALE) ** 2
+    if how == "below":
+        return (torch.relu(h[0] - top) / SCALE) ** 2
     return (torch.relu(top - h[0]) / SCALE) ** 2
 
 
@@ -256,7 +267,8 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
     dbeta = torch.zeros_like(beta0, requires_grad=True)
     teeth0 = state.teeth
     fit_teeth = bool(mc.teeth) and any(
-        r.get("upper") is not None and r["state"] in ("gap, teeth below", "gap to the lip")
+        r.get("upper") is not None and r["state"] in ("gap, teeth below", "gap to the lip",
+                                                      "teeth meet")
         for _, r, _, _ in views)
     # the upper teeth's drop, mm (fit/teeth.py), from where a kept fit left it
     drop_mm = torch.tensor([0.0 if teeth0 is None else float(teeth0) * 1e3],
