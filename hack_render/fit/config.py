@@ -322,7 +322,7 @@ class MouthConfig:
     # real photos the face oval's median rose 22.18 -> 24.02 dB (with the teeth's bake
     # inside the mouth's opening), most on a smile with the teeth meeting (obama) and a
     # closed mouth the fit had parted (einstein); the eyes' 19.64 -> 19.33 dB; with the
-    # teeth's drop (below) 24.16 dB (docs/fit.md)
+    # teeth's drop (below) 24.14-24.36 dB (docs/fit.md)
     enabled: bool = True
     # Adam's steps (about 20 ms each on a 2-core machine)
     iterations: int = 60
@@ -336,8 +336,10 @@ class MouthConfig:
     w_hold: float = 3.0
     # true: the upper teeth's drop under the upper lip (fit/teeth.py) is fitted too where
     # the photo's mouth shows a dark gap (the upper tips at its top where teeth are seen
-    # just above it, else not inside it); false: the teeth where the model places them.
-    # obama_speech's kept fit: 23.54 dB without, 23.69 dB with it (docs/fit.md)
+    # just above it, else not inside it), or their teeth meet (the upper tips at the end
+    # of the teeth's rows); false: the teeth where the model places them. Kept fits, the
+    # stage run again without / with it: obama_speech 23.54 / 23.69 dB, obama 24.95 /
+    # 25.06 dB (docs/fit.md)
     teeth: bool = True
 
 

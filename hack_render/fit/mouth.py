@@ -30,7 +30,9 @@ The targets on the lower tips' height ``h_lo`` (the jaw moves them):
 
 Where a dark gap is seen, the upper tips' height ``h_up`` too: at the gap's top where
 teeth are seen just above it (:data:`UPPER_ROWS`), else (the lip's colour, or teeth in
-shade, there) not inside the gap.
+shade, there) not inside the gap. Where the teeth meet, the lower ones behind the upper:
+``h_up`` at the end of the longest run of teeth rows, or at or below the lower lip's edge
+where that run reaches the opening's last rows (the lip hides the tips).
 
 The unknowns: the jaw and lip shapes (:data:`SHAPES`, added to the fitted expression,
 within [0, 1]), the identity (beta) and, where ``h_up`` has a target, the upper teeth's
