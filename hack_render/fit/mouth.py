@@ -31,15 +31,16 @@ The targets on the lower tips' height ``h_lo`` (the jaw moves them):
 Where a dark gap is seen, the upper tips' height ``h_up`` too: at the gap's top where
 teeth are seen just above it (:data:`UPPER_ROWS`), else (the lip's colour, or teeth in
 shade, there) not inside the gap. Where the teeth meet, the lower ones behind the upper:
-``h_up`` at the end of the longest run of teeth rows, or at or below the lower lip's edge
-where that run reaches the opening's last rows (the lip hides the tips).
+``h_up`` at the end of the longest run of teeth rows, unless that run reaches the
+opening's last rows (:data:`UPPER_ROWS`): the lower lip hides the tips there.
 
 The unknowns: the jaw and lip shapes (:data:`SHAPES`, added to the fitted expression,
 within [0, 1]), the identity (beta) and, where ``h_up`` has a target, the upper teeth's
 drop under the upper lip (``fit/teeth.py``; prior :data:`TEETH_SIGMA`), with every one
 of the 68 points held where the stages before placed them (projected, in units of
-:data:`HOLD` of the mouth's width) and weak priors on the changes: the jaw can close only if the lips and chin stay, so a
-shorter jaw drop is paid by a longer lower face, not by a moved chin. A view where the face
+:data:`HOLD` of the mouth's width) and weak priors on the changes: the jaw can close
+only if the lips and chin stay, so a shorter jaw drop is paid by a longer lower face, not
+by a moved chin. A view where the face
 mesh finds no face, or the photo shows no teeth, keeps its mouth. The report says per
 view what was read and the tips' heights before and after.
 """
@@ -152,13 +153,12 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
         out["state"] = ("teeth meet" if (cls == "t").sum() >= MIN_ROWS else
                         "lips only" if (cls == "o").sum() >= MIN_ROWS else "no teeth")
         teeth_run = _longest(cls, "t")
-        if out["state"] == "teeth meet" and teeth_run is not None:
+        if out["state"] == "teeth meet" and teeth_run is not None \
+                and teeth_run[1] <= len(cls) - UPPER_ROWS:
             # the lower teeth meet behind the upper ones: the longest run of teeth rows
-            # ends at the upper tips, or, where it runs into the lower lip, the lip hides
-            # them (at or below the run's end)
-            bottom = top - teeth_run[1] / w
-            out["upper"] = (("below", max(bottom, out["opening"][1]))
-                            if teeth_run[1] > len(cls) - UPPER_ROWS else ("at", bottom))
+            # ends at the upper tips (where it runs into the lower lip, the lip hides them:
+            # no target, so the jaw, not the upper teeth, meets the bite)
+            out["upper"] = ("at", top - teeth_run[1] / w)
         return out
     r0, r1 = run   # rows r0 .. r1 - 1 dark
     out["gap"] = (top - r0 / w, top - r1 / w)
@@ -226,15 +226,13 @@ def lower_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
 def upper_loss(h: torch.Tensor, read: dict) -> torch.Tensor:
     """The upper tips' part of :func:`tip_loss`: where the photo shows a dark gap, at
     its top where teeth are seen just above it, else not inside it; where the teeth meet,
-    at the end of the teeth's rows, or at or below it where they run into the lower lip."""
+    at the end of the teeth's rows."""
     up = read.get("upper")
     if up is None or read["state"] not in ("gap, teeth below", "gap to the lip", "teeth meet"):
         return h.new_zeros(())
     how, top = up
     if how == "at":
         return ((h[0] - top) / SCALE) ** 2
-    if how == "below":
-        return (torch.relu(h[0] - top) / SCALE) ** 2
     return (torch.relu(top - h[0]) / SCALE) ** 2
 
 
