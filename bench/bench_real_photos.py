@@ -363,7 +363,7 @@ def oval_regions(img: np.ndarray, shape=None) -> dict | None:
     None where the mesh finds no face."""
     from skimage.draw import polygon
 
-    from hack_render.fit.iris import loop_area, mesh_loops  # the face mesh's topology
+    from hack_render.fit.face_mesh import loop_area, mesh_loops  # the face mesh's topology
     from hack_render.vision.detect import detect_faces
 
     faces = detect_faces(img, "mesh")

@@ -36,7 +36,7 @@ def main() -> None:
     from synthetic import landmark_view
 
     from hack_render.fit import eyes as fit_eyes
-    from hack_render.fit import gaze, iris, texture
+    from hack_render.fit import face_mesh, gaze, texture
     from hack_render.fit.config import load_config
     from hack_render.fit.fitter import Fitter
     from hack_render.fit.lighting import Lighting
@@ -70,7 +70,7 @@ def main() -> None:
         r = texture.render_at_photo(st, cfg, v, max_side=a.res)
         rgb = np.clip(r.rgba[..., :3] + (1 - r.rgba[..., 3:4]) * 0.5, 0, 1)
         u8 = (np.clip(colour.cctf_encoding(rgb), 0, 1) * 255).round().astype(np.uint8)
-        mp = iris.iris_landmarks(u8, det.points)
+        mp = face_mesh.iris_landmarks(u8, det.points)
         with torch.no_grad():
             mm = [m.numpy() for m in fit_eyes._model_measures(st, v, st.psi, None, rig)]
         print(setting or "neutral", f"({time.time() - t0:.0f} s)")

@@ -18,7 +18,7 @@ an upper and a lower lip point is not an edge).
 
 Which mesh: MediaPipe's attention mesh (the face mesh with ``refine_landmarks``, whose
 lips and eyes are refined by their own sub-models: Grishchenko et al. 2020, "Attention
-Mesh"; the model is in the mediapipe wheel, run as :func:`hack_render.fit.iris.
+Mesh"; the model is in the mediapipe wheel, run as :func:`hack_render.fit.face_mesh.
 iris_landmarks` runs it, on the plain mesh's face grown by 0.6 of its size) is the
 reference; the plain mesh (``vision.detect.detect_faces(img, "mesh")``, the fitter's) is
 calibrated and scored beside it the same way (``hand_loo_plain``, ``pairs_plain``). The
@@ -131,7 +131,7 @@ def attention_mesh(rgb8: np.ndarray, dense: np.ndarray) -> np.ndarray | None:
     """MediaPipe's attention mesh (``refine_landmarks``) on the face whose plain mesh
     points are ``dense``: its 468 mesh points, (468, 2) pixels, or None where it finds no
     face there (the irises' ten points are not part of the mesh and not used)."""
-    from hack_render.fit.iris import iris_landmarks
+    from hack_render.fit.face_mesh import iris_landmarks
 
     pts = iris_landmarks(np.ascontiguousarray(rgb8[..., :3]), np.asarray(dense)[:, :2])
     return None if pts is None else np.asarray(pts[:468], np.float64)

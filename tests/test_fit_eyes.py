@@ -241,25 +241,25 @@ def test_05_the_photo_s_irises_are_found_by_the_iris_landmarks():
 
 
 def test_06_face_mesh_sets_are_traced_as_closed_loops():
-    """``iris.mesh_loops`` (shared with bench/bench_real_photos.py's face regions): each
-    connection set's undirected edges come back as closed loops, longest first, that use
+    """``face_mesh.mesh_loops`` (shared with bench/bench_real_photos.py's face regions):
+    each connection set's undirected edges come back as closed loops, longest first, that use
     every edge once: an eye's lids one loop of 16 points, the lips two of 20 (outer and
     inner), the face oval one of 36."""
     pytest.importorskip("mediapipe")
     from mediapipe.python.solutions import face_mesh_connections as fmc
 
-    from hack_render.fit import iris
+    from hack_render.fit import face_mesh
 
     sizes = {"FACEMESH_LEFT_EYE": [16], "FACEMESH_RIGHT_EYE": [16],
              "FACEMESH_LIPS": [20, 20], "FACEMESH_FACE_OVAL": [36]}
     for name, want in sizes.items():
-        loops = iris.mesh_loops(name)
+        loops = face_mesh.mesh_loops(name)
         assert [len(loop) for loop in loops] == want, name
         edges = {frozenset(e) for e in getattr(fmc, name)}
         walked = {frozenset((loop[k], loop[(k + 1) % len(loop)]))
                   for loop in loops for k in range(len(loop))}
         assert walked == edges, name
-    assert iris.mesh_loops("FACEMESH_LEFT_EYE")[0][:2] == [249, 263]   # from the lowest id
+    assert face_mesh.mesh_loops("FACEMESH_LEFT_EYE")[0][:2] == [249, 263]   # from the lowest id
 
 
 def test_07_the_eyes_colours_over_the_photo_s_lid_openings(model):

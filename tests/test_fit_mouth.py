@@ -42,7 +42,7 @@ def _mouth_photo(rows: list[tuple[str, int]], grey: bool = False):
     rows from the top are filled as ``rows`` says (("teeth" | "dark" | "tongue", count));
     and the face mesh's 478 points with its two lip loops on the ellipses (the rest at
     the centre). Returns (rgb8, points, the opening's top row)."""
-    from hack_render.fit import iris
+    from hack_render.fit import face_mesh
 
     h = sum(n for _, n in rows)
     cx, cy, rx, ry = 100.0, 100.0, 30.0, h / 2.0
@@ -62,7 +62,7 @@ def _mouth_photo(rows: list[tuple[str, int]], grey: bool = False):
     if grey:
         img = np.repeat((img @ np.array([0.2126, 0.7152, 0.0722]))[..., None], 3, 2).astype(np.uint8)
     pts = np.full((478, 2), [cx, cy])
-    loops = iris.mesh_loops("FACEMESH_LIPS")
+    loops = face_mesh.mesh_loops("FACEMESH_LIPS")
     for loop, (ax, ay) in zip(sorted(loops, key=len), ((rx, ry), (rx + 8, ry + 8))):
         ang = np.linspace(0, 2 * np.pi, len(loop), endpoint=False)
         pts[loop] = np.c_[cx + ax * np.cos(ang), cy + ay * np.sin(ang)]

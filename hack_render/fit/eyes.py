@@ -1,6 +1,6 @@
 """The eyes' stage: the lids' opening and the eyeballs' gaze from the face mesh's eye
-contours and irises on the photo (``iris.iris_landmarks``: MediaPipe's 478 points with
-``refine_landmarks``), after the photometric stage and before the final one.
+contours and irises on the photo (``face_mesh.iris_landmarks``: MediaPipe's 478 points
+with ``refine_landmarks``), after the photometric stage and before the final one.
 
 The 68 points hold an eye by six points that a detector places loosely on a squint, and
 the model's neutral eye is open wider than most people's in a photo: a squint came back
@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from hack_render.fit import face_mesh
 from hack_render.fit import gaze as gz
-from hack_render.fit import iris
 from hack_render.fit.stages import run_stage
 from hack_render.fit.state import FitState, View
 
@@ -167,7 +167,8 @@ def fit_eyes(state: FitState, cfg, log=None, contours: list | None = None) -> di
         report["note"] = "the model has no eyeballs, lid loops or lid shapes: skipped"
         return report
     if contours is None:
-        contours = iris.views_mesh(state, lambda _img, pts, _grey: photo_eye_points(pts))
+        contours = face_mesh.views_mesh(state,
+                                        lambda _img, pts, _grey: photo_eye_points(pts))
     ids = np.concatenate([e.psi for e in eyes])
     # one change of the lid shapes per expression tensor (shared or per view)
     deltas: dict[int, torch.Tensor] = {}

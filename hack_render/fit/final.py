@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.fit import iris, part_bake, texture
+from hack_render.fit import face_mesh, iris, part_bake, texture
 from hack_render.fit.hair_style import hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
@@ -67,7 +67,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     # (final.lids_from_mesh); and the mouth's (the teeth the segmentation calls "not
     # skin" are baked there, final.part_bake): one face mesh per view for both
     eyes_wanted = cfg.final.eye_colours == "opening" or cfg.final.lids_from_mesh
-    found = (iris.views_openings(st) if eyes_wanted or cfg.final.part_bake
+    found = (face_mesh.views_openings(st) if eyes_wanted or cfg.final.part_bake
              else [None] * len(st.views))
     for v, f in zip(st.views, found):
         v.eye_opening = f[0] if f is not None and eyes_wanted else None

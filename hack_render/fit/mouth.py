@@ -51,7 +51,7 @@ import numpy as np
 import torch
 from skimage.draw import polygon
 
-from hack_render.fit import iris
+from hack_render.fit import face_mesh
 from hack_render.fit.stages import run_stage
 from hack_render.fit.state import FitState, View
 from hack_render.fit.teeth import SHAPES, TEETH_LIMIT, TeethRig, teeth_rig
@@ -104,7 +104,8 @@ def photo_mouth(rgb8: np.ndarray, points: np.ndarray, grey: bool = False) -> dic
     teeth below" | "gap to the lip", "frame": (a, t, n, w), "gap": (top, bottom) heights
     of the dark run or None, "opening": (top, bottom), "rows": the rows' classes}
     ("lips only" too: see the module's docstring)."""
-    loops = sorted(iris.mesh_loops("FACEMESH_LIPS"), key=lambda q: iris.loop_area(points[q]))
+    loops = sorted(face_mesh.mesh_loops("FACEMESH_LIPS"),
+                   key=lambda q: face_mesh.loop_area(points[q]))
     inner, outer = points[loops[0]], points[loops[-1]]
     # the inner corners: the inner loop's two points farthest apart along x
     i0, i1 = int(np.argmin(inner[:, 0])), int(np.argmax(inner[:, 0]))
@@ -247,7 +248,7 @@ def fit_mouth(state: FitState, cfg, log=None, reads: list | None = None) -> dict
         report["note"] = "the model has no teeth or no jaw and lip shapes: skipped"
         return report
     if reads is None:
-        reads = iris.views_mesh(state, photo_mouth)
+        reads = face_mesh.views_mesh(state, photo_mouth)
     views = []
     deltas: dict[int, torch.Tensor] = {}
     with torch.no_grad():

@@ -99,10 +99,10 @@ class View:
     # ``fit/eyes.py``); None: looking ahead
     gaze: torch.Tensor | None = None
     # (h, w) bool at the photo's size: the person's eye openings (the face mesh's lid
-    # contours, iris.opening_masks; set by the final stage); None: not known
+    # contours, face_mesh.opening_masks; set by the final stage); None: not known
     eye_opening: np.ndarray | None = None
     # (h, w) bool at the photo's size: the person's mouth opening (the face mesh's inner
-    # lip contour, iris.opening_masks; set by the final stage for the parts' bake);
+    # lip contour, face_mesh.opening_masks; set by the final stage for the parts' bake);
     # None: not known
     mouth_opening: np.ndarray | None = None
 
