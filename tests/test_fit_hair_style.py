@@ -94,3 +94,37 @@ def test_albedo_round_trip_over_the_table():
             a = slab_albedo(eu, pheo)
             e, p = albedo_melanin(a)
             np.testing.assert_allclose(slab_albedo(e, p), a, rtol=0.05, atol=0.002)
+
+
+def test_skin_in_the_hair_mask_is_left_out_of_the_colour(points):
+    """The segmentation's "hair" holding a bare upper forehead and the ears (the face's
+    own skin colour, as on obama's portrait): the colour is read from the hair alone. A
+    hair mask that is all skin-coloured (blond on light skin) keeps every pixel."""
+    from hack_render.fit.hair_style import colour_pixels
+
+    hair = _mask(points, 90, 20, 88, 40)
+    truth = slab_albedo(8.0, 0.0)
+    photo, skin = _photo(points, hair, truth)
+    # two thirds of the mask, over the forehead and beside it, are skin (the face's
+    # colour, lit alike)
+    yy = np.mgrid[:SIZE, :SIZE][0] + 0.5
+    brow = points[17:27, 1].mean()
+    forehead = hair & (yy > brow - 70)
+    assert 0.6 < forehead.sum() / hair.sum() < 0.7
+    photo[forehead] = photo[skin][0]
+    keep, left_out = colour_pixels(photo, hair, skin)
+    assert left_out == forehead.sum() and not (keep & forehead).any()
+    style, report = hair_style_from_photo(photo, hair, skin, points, [0.5, 0.35, 0.28])
+    np.testing.assert_allclose(slab_albedo(style.eumelanin, style.pheomelanin), truth,
+                               rtol=0.1, atol=0.002)
+    assert report["skin_like_left_out"] == forehead.sum()
+    # before, the median of the mask's darker 85 % was the skin's colour
+    px = photo[hair]
+    lum = px @ np.array([0.2126, 0.7152, 0.0722])
+    np.testing.assert_allclose(np.median(px[lum <= np.percentile(lum, 85)], 0),
+                               photo[skin][0])
+    blond = np.zeros_like(photo)
+    blond[hair] = photo[skin][0]
+    blond[skin] = photo[skin][0]
+    keep, left_out = colour_pixels(blond, hair, skin)
+    assert left_out == 0 and keep.sum() >= 0.8 * hair.sum()
