@@ -691,7 +691,8 @@ def refinal(name: str, img: np.ndarray, fit_dir: Path, overrides: dict, out: Pat
     row: dict = {"final_s": round(time.time() - t0, 1), "overrides": overrides,
                  "eyes": eyes, "mouth": mouth,
                  "iris": {k: fin.iris.get(k) for k in ("source", "pixels", "pixels_from",
-                                                       "rgb", "sclera_rgb", "eye_gloss")}}
+                                                       "rgb", "sclera_rgb", "eye_gloss")},
+                 "hair": fin.report.get("hair")}
     out.mkdir(parents=True, exist_ok=True)
     write_photo_renders(SimpleNamespace(views=state.views, config=cfg), fin, out)
     over = np.asarray(iio.imread(out / "render_over_photo.png"))[..., :3]

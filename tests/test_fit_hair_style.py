@@ -98,8 +98,9 @@ def test_albedo_round_trip_over_the_table():
 
 def test_skin_in_the_hair_mask_is_left_out_of_the_colour(points):
     """The segmentation's "hair" holding a bare upper forehead and the ears (the face's
-    own skin colour, as on obama's portrait): the colour is read from the hair alone. A
-    hair mask that is all skin-coloured (blond on light skin) keeps every pixel."""
+    own skin colour, joined to its skin, as on obama's portrait): the colour is read from
+    the hair alone. A hair mask that is all skin-coloured (blond on light skin) keeps
+    every pixel, and skin-coloured highlights inside the hair stay."""
     from hack_render.fit.hair_style import colour_pixels
 
     hair = _mask(points, 90, 20, 88, 40)
@@ -112,6 +113,11 @@ def test_skin_in_the_hair_mask_is_left_out_of_the_colour(points):
     forehead = hair & (yy > brow - 70)
     assert 0.6 < forehead.sum() / hair.sum() < 0.7
     photo[forehead] = photo[skin][0]
+    # the face's skin reaches the hair mask's lower edge (the skin-like part joins it)
+    xx = np.mgrid[:SIZE, :SIZE][1] + 0.5
+    face = (np.abs(xx - points[30, 0]) < 60) & (yy > brow - 40) & (yy < points[8, 1]) & ~hair
+    photo[face] = photo[skin][0]
+    skin = face
     keep, left_out = colour_pixels(photo, hair, skin)
     assert left_out == forehead.sum() and not (keep & forehead).any()
     style, report = hair_style_from_photo(photo, hair, skin, points, [0.5, 0.35, 0.28])
@@ -128,3 +134,11 @@ def test_skin_in_the_hair_mask_is_left_out_of_the_colour(points):
     blond[skin] = photo[skin][0]
     keep, left_out = colour_pixels(blond, hair, skin)
     assert left_out == 0 and keep.sum() >= 0.8 * hair.sum()
+    # the hair's own skin-coloured highlights, apart from the face, stay in
+    lit = photo.copy()
+    spots = hair & (yy < brow - 76) & ((np.mgrid[:SIZE, :SIZE][1] // 6) % 3 == 0) \
+        & ((np.mgrid[:SIZE, :SIZE][0] // 6) % 3 == 0)
+    assert spots.sum() > 100
+    lit[spots] = photo[skin][0]
+    keep, left_out = colour_pixels(lit, hair, skin)
+    assert left_out == forehead.sum()
