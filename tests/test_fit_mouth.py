@@ -299,3 +299,30 @@ def test_05_bad_settings_are_refused(bad):
     key = next(k for k in bad if k != "enabled")
     with pytest.raises(HackError, match=f"mouth.{key}: expected"):
         load_config(None, {"mouth": bad})
+
+
+def test_08_the_face_mesh_runs_once_per_view(monkeypatch):
+    """The mouth's and the final stages read one face mesh per view
+    (``face_mesh.view_mesh``): found once, again only when the detected points change,
+    and handed out as copies (a caller's edit does not reach the next)."""
+    from types import SimpleNamespace
+
+    from hack_render.fit import face_mesh
+
+    calls = []
+
+    def fake(rgb8, points=None):
+        calls.append(np.asarray(points).copy())
+        return np.full((478, 2), float(len(calls)))
+
+    monkeypatch.setattr(face_mesh, "iris_landmarks", fake)
+    photo = SimpleNamespace(uint8=lambda: np.zeros((8, 8, 3), np.uint8), is_grey=False)
+    v = SimpleNamespace(photo=photo, detection=SimpleNamespace(points=np.ones((68, 2))),
+                        mesh478=None)
+    state = SimpleNamespace(views=[v])
+    first = face_mesh.views_mesh(state)[0]
+    first[:] = -1.0
+    again = face_mesh.views_mesh(state, lambda img, pts, grey: pts.sum())
+    assert len(calls) == 1 and again[0] == 478 * 2 * 1.0
+    v.detection.points = np.ones((68, 2)) * 2
+    assert face_mesh.view_mesh(v)[0, 0] == 2.0 and len(calls) == 2

@@ -105,6 +105,9 @@ class View:
     # lip contour, face_mesh.opening_masks; set by the final stage for the parts' bake);
     # None: not known
     mouth_opening: np.ndarray | None = None
+    # the face mesh's 478 points on the photo (face_mesh.view_mesh's cache: the mouth's
+    # and the final stages read them), with the detected points they were found near
+    mesh478: tuple | None = None
 
     @property
     def focal(self) -> torch.Tensor:
