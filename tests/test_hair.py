@@ -176,3 +176,26 @@ def test_regions_on_the_mean_mesh(surface):
     assert {b: len(m) for b, m in beards.items()} == {"stubble": 5192, "goatee": 2154,
                                                        "full": 5192}
     assert not any(np.isin(m, scalp).any() for m in beards.values())
+
+
+def test_anchors_reuse_the_last_push_out_exactly(surface):
+    """A group's anchors (each point's nearest body vertex at rest) taken from the last
+    push out's search where the points are unchanged, and searched again elsewhere (the
+    roots, the points it moved, strands changed after it, as a cut changes them), are
+    the ones a full search finds."""
+    from hack_render.hair.groom import BodyProxy, _group
+
+    g = grow_cached(surface, _small("long")).group("scalp")
+    proxy = BodyProxy(surface.vertices, surface.faces, surface.skin)
+    pts = pose_group(g, surface.vertices, surface.faces)
+    pts[:, 1:], known = proxy.push_out(pts[:, 1:], 0.006, index=True)
+    assert (known.index < 0).any() and (known.index >= 0).mean() > 0.3
+    pts[:7, 2:] += 0.002   # strands changed after the push out
+    args = ("scalp", surface, g.tri, g.bary, pts, g.radius, g.melanin)
+    full, reused = _group(*args), _group(*args, known)
+    np.testing.assert_array_equal(reused.anchor, full.anchor)
+    np.testing.assert_array_equal(reused.anchor_local, full.anchor_local)
+    # the index a push out reports is the nearest skin vertex of the point it returns
+    _, _, i = proxy.nearest(pts[7:, 1:], index=True)
+    ok = known.index[7:] >= 0
+    np.testing.assert_array_equal(i[ok], known.index[7:][ok])

@@ -141,25 +141,45 @@ class BodyProxy:
         self.normals = normals[self.index]
         self.tree = cKDTree(self.points)
 
-    def nearest(self, p: np.ndarray, bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def nearest(self, p: np.ndarray, bound: float = np.inf, index: bool = False):
         """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3);
-        a point farther than ``bound`` from every skin vertex: +inf and a zero normal."""
+        a point farther than ``bound`` from every skin vertex: +inf and a zero normal.
+        ``index``: also the nearest skin vertex (..., into :attr:`index`; -1 beyond
+        ``bound``)."""
         flat = p.reshape(-1, 3)
         dist, i = self.tree.query(flat, workers=-1, distance_upper_bound=bound)
         far = ~np.isfinite(dist)
         i = np.where(far, 0, i)
         n = np.where(far[:, None], 0.0, self.normals[i])
         d = np.where(far, np.inf, np.sum((flat - self.points[i]) * n, -1))
-        return d.reshape(p.shape[:-1]), n.reshape(p.shape)
+        out = d.reshape(p.shape[:-1]), n.reshape(p.shape)
+        return out + (np.where(far, -1, i).reshape(p.shape[:-1]),) if index else out
 
-    def push_out(self, p: np.ndarray, shell, bound: float = np.inf) -> np.ndarray:
+    def push_out(self, p: np.ndarray, shell, bound: float = np.inf, index: bool = False):
         """``p`` moved along the nearest normal to at least ``shell`` (metres, broadcast)
         outside the skin. ``bound``: points farther than that from every skin vertex are
         outside (their k-d tree search stops there): what a caller may say of points at
-        most a step from points outside the skin (:func:`_walk`)."""
-        d, n = self.nearest(p, bound)
+        most a step from points outside the skin (:func:`_walk`). ``index``: also
+        :class:`Nearest`, each point's nearest skin vertex where the point did not move
+        (:func:`_group` takes it as the anchor instead of searching again)."""
+        d, n, i = self.nearest(p, bound, index=True)
         lack = np.maximum(np.asarray(shell) - d, 0.0)
-        return p + lack[..., None] * n
+        out = p + lack[..., None] * n
+        if not index:
+            return out
+        return out, Nearest(out.copy(), np.where(lack > 0, -1, i), self)
+
+
+@dataclass
+class Nearest:
+    """Points (..., 3) and each one's nearest skin vertex (..., into ``proxy.index``; -1:
+    not known), as a :class:`BodyProxy` query found them: a later search for the same
+    points (:func:`_group`'s anchors) takes these instead (the same tree and points: the
+    same answer)."""
+
+    points: np.ndarray
+    index: np.ndarray
+    proxy: BodyProxy
 
 
 def sample_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray, count: int,
@@ -318,11 +338,30 @@ def body_vertices(surface: HeadSurface) -> np.ndarray:
     return index[surface.vertices[index, 1] < BODY_BELOW]
 
 
-def _group(name, surface, tri, bary, pts, radius, melanin) -> StrandGroup:
+def _group(name, surface, tri, bary, pts, radius, melanin,
+           known: Nearest | None = None) -> StrandGroup:
+    """The group of strands ``pts`` (S, K, 3) with each point's anchor (its nearest body
+    vertex at rest). ``known``: the nearest skin vertices of ``pts[:, 1:]`` as the last
+    push out found them (:meth:`BodyProxy.push_out`); only the points it does not hold
+    unchanged (the roots, the points it moved, a cut strand's) are searched again, in the
+    proxy's own tree where the body is its vertices (the same answer)."""
     from scipy.spatial import cKDTree
 
     body = body_vertices(surface)
-    _, near = cKDTree(surface.vertices[body]).query(pts.reshape(-1, 3), workers=-1)
+    flat = pts.reshape(-1, 3)
+    near = np.full(len(flat), -1, np.int64)
+    tree = None
+    if known is not None and np.array_equal(known.proxy.index, body):
+        tree = known.proxy.tree
+        same = np.zeros(pts.shape[:2], bool)
+        same[:, 1:] = (known.index >= 0) & np.all(known.points == pts[:, 1:], -1)
+        idx = np.zeros(pts.shape[:2], np.int64)
+        idx[:, 1:] = np.maximum(known.index, 0)
+        near[same.reshape(-1)] = idx[same]
+    todo = near < 0
+    if todo.any():
+        tree = tree if tree is not None else cKDTree(surface.vertices[body])
+        near[todo] = tree.query(flat[todo], workers=-1)[1]
     anchor = body[near].reshape(pts.shape[:2]).astype(np.int32)
     v, f = surface.vertices, surface.faces
     # only the skull moves with the strands rooted on it: points over the face, the jaw,
@@ -389,10 +428,10 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
     if arch == "bun":
         pts = _bun(pts, root, rng)
     pts = _curl(pts, style.curl, rng)
-    pts[:, 1:] = proxy.push_out(pts[:, 1:], shell[:, None] * 0.5 + 0.0003)
+    pts[:, 1:], known = proxy.push_out(pts[:, 1:], shell[:, None] * 0.5 + 0.0003, index=True)
     pts = _cut(pts, v[np.unique(f[surface.skin]), 1].min() + CUT_MARGIN)
     return _group("scalp", surface, tri, bary, pts, _taper(style.strand_radius, k),
-                  _melanin(style, len(tri), rng))
+                  _melanin(style, len(tri), rng), known)
 
 
 def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
@@ -564,12 +603,13 @@ def _beard(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
     k = 4 if stubble else int(np.clip(round(style.beard_length / 0.004) + 1, 4, 12))
     shell = np.full(len(tri), 0.0003) if stubble else 0.0004 + 0.004 * rng.random(len(tri))
     pts = _walk(proxy, root, normal, d0, length, k, 0.0 if stubble else 0.3, shell)
+    known = None
     if not stubble:
         pts = _curl(pts, 0.35, rng)
-        pts[:, 1:] = proxy.push_out(pts[:, 1:], 0.0003)
+        pts[:, 1:], known = proxy.push_out(pts[:, 1:], 0.0003, index=True)
     return _group("beard", surface, tri, bary, pts,
                   _taper(style.strand_radius * (1.0 if stubble else 1.3), k, 0.4),
-                  _melanin(style, len(tri), rng, grey=1.3))
+                  _melanin(style, len(tri), rng, grey=1.3), known)
 
 
 _CACHE: dict = {}
