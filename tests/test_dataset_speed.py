@@ -236,3 +236,37 @@ def test_07_soft_masks_do_not_depend_on_the_threads_order():
     assert ((lash > 0) & (lash < 1)).sum() > 20  # fractional lash pixels in view
     for _ in range(6):
         assert np.array_equal(lab.label_images(head, 3, atlas)[2], first)
+
+
+def test_08_with_hair_the_first_scene_is_built_while_the_groom_grows(tmp_path):
+    """With hair slots the first sample's scene needs no groom, so the serial executor's
+    start builds it while the first groom grows on the prefetch thread (the groom below
+    waits for it, up to 20 s); the files equal those of a renderer that makes everything
+    in order in its own thread."""
+    import time
+
+    cfg = load_config(overrides=dict(TINY, hair={"style": "sampled", "lod": 0.05}))
+    ahead = SampleRenderer(cfg, tmp_path / "ahead", 5, background_writes=True)
+    assert ahead.hair_slots and ahead.spec(0)["hair"] is not None
+    seen = []
+    grow = SampleRenderer.groom
+
+    def waiting(self, hair):
+        t0 = time.perf_counter()
+        while not self.scenes and time.perf_counter() - t0 < 20.0:
+            time.sleep(0.01)
+        seen.append(bool(self.scenes))
+        return grow(self, hair)
+
+    SampleRenderer.groom = waiting
+    try:
+        ahead.prefetch(0)
+        ahead.submit(0).result()
+    finally:
+        SampleRenderer.groom = grow
+    ahead.close()
+    assert seen == [True]
+    plain = SampleRenderer(cfg, tmp_path / "plain", 5)
+    plain.render(0)
+    plain.close()
+    assert tree(tmp_path / "ahead") == tree(tmp_path / "plain")

@@ -318,10 +318,12 @@ class SampleRenderer:
         # only its own preset's scene is built now, while the inputs are made, and the
         # other presets' after its render (:meth:`build_scenes`), while its files are
         # written: the start-up before the first render is one scene, not one per preset
-        rest = not self.scenes and self.hair_slots  # hair: built with the groom's inputs
+        rest = not self.scenes and self.hair_slots  # hair slots: the other presets after
         if not self.scenes and ahead is not None and not ahead.done():
             first = self.spec(index)
-            if first.get("hair") is None:
+            # bald, or a groom for the hair slots (swapped in after: the scene needs no
+            # groom to be built, so it is built while the groom grows)
+            if first.get("hair") is None or self.hair_slots:
                 preset = first["lighting"]["preset"]
                 self.scenes[preset] = self._build_scene(preset)
                 rest = True
