@@ -238,7 +238,7 @@ def test_07_soft_masks_do_not_depend_on_the_threads_order():
         assert np.array_equal(lab.label_images(head, 3, atlas)[2], first)
 
 
-def test_08_with_hair_the_first_scene_is_built_while_the_groom_grows(tmp_path):
+def test_08_with_hair_the_first_scene_is_built_while_the_groom_grows(tmp_path, monkeypatch):
     """With hair slots the first sample's scene needs no groom, so the serial executor's
     start builds it while the first groom grows on the prefetch thread (the groom below
     waits for it, up to 20 s); the files equal those of a renderer that makes everything
@@ -258,13 +258,11 @@ def test_08_with_hair_the_first_scene_is_built_while_the_groom_grows(tmp_path):
         seen.append(bool(self.scenes))
         return grow(self, hair)
 
-    SampleRenderer.groom = waiting
-    try:
-        ahead.prefetch(0)
-        ahead.submit(0).result()
-    finally:
-        SampleRenderer.groom = grow
+    monkeypatch.setattr(SampleRenderer, "groom", waiting)
+    ahead.prefetch(0)
+    ahead.submit(0).result()
     ahead.close()
+    monkeypatch.undo()
     assert seen == [True]
     plain = SampleRenderer(cfg, tmp_path / "plain", 5)
     plain.render(0)
