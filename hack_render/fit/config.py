@@ -175,9 +175,10 @@ class SilhouetteConfig:
     # backdrop as dark as shadowed skin cuts that skin out of the mask
     chroma: bool = True
     # on a background that is not plain: the person mask of the vision package's
-    # segmentation (hack_render.vision.segment; MediaPipe selfie segmentation), and its
-    # occluders (hair, hands over the face) left out of the bake. False: no mask there
-    # (no silhouette term) and no occluders left out, and the segmentation's time saved
+    # segmentation (hack_render.vision.segment; MediaPipe selfie segmentation); on any
+    # background and with a mask file: its occluders (hair, hands over the face) left out
+    # of the bake, its hair read as the hair layer's style. False: no mask there (no
+    # silhouette term) and no occluders left out, and the segmentation's time saved
     segment: bool = True
     # where a view has a mask, run the shape stage once more without it and drop a mask that
     # pulls the points off (an object before the face; geometric.fit_shape_checked). False

@@ -185,6 +185,13 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
     if state.silhouette is None:
         view.silhouette_note = "off (config silhouette.mode)"
         return
+    seg, err = _segment(view) if cfg.silhouette.segment else (None, "off")
+    if seg is not None:  # skin and occluders whichever mask the silhouette takes (a mask
+        # file's too: without them the bake took a fringe, glasses and hands as skin)
+        # the skin inside the face mesh's oval: hair of a skin-like colour and the
+        # clothes' edges stay out of the bake
+        view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
+        view.hair, view.clothes = seg.hair, seg.clothes
     if mask is not None:
         view.silhouette = PhotoSilhouette.from_mask(mask, "file")
         view.silhouette_note = "mask file"
@@ -192,12 +199,6 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         return
     m, why = segment_plain_background(view.photo.rgb, view.detection.points,
                                       chroma=cfg.silhouette.chroma)
-    seg, err = _segment(view) if cfg.silhouette.segment else (None, "off")
-    if seg is not None:  # skin and occluders whichever mask the silhouette takes
-        # the skin inside the face mesh's oval: hair of a skin-like colour and the
-        # clothes' edges stay out of the bake
-        view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
-        view.hair, view.clothes = seg.hair, seg.clothes
     if m is not None and mask_problem(m) is not None:  # no outline in the photo to fit
         m, why = None, f"the plain background's mask has {mask_problem(m)}"
     if m is None and cfg.silhouette.segment:
