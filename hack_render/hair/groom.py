@@ -167,7 +167,7 @@ class BodyProxy:
         out = p + lack[..., None] * n
         if not index:
             return out
-        return out, Nearest(out.copy(), np.where(lack > 0, -1, i), self)
+        return out, Nearest(out, np.where(lack > 0, -1, i), self)
 
 
 @dataclass
