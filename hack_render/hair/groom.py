@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hack_render.geometry.nearest import PointTree
 from hack_render.geometry.normals import vertex_normals
 from hack_render.hair.regions import HeadSurface, beard_mask, scalp_mask
 from hack_render.hair.style import HairStyle
@@ -132,14 +133,12 @@ class BodyProxy:
     (positive outside). Used to grow strands outside the body and to test them."""
 
     def __init__(self, v: np.ndarray, faces: np.ndarray, skin: np.ndarray):
-        from scipy.spatial import cKDTree
-
         f = faces[skin]
         self.index = np.unique(f)
         normals = vertex_normals(v, f)
         self.points = v[self.index]
         self.normals = normals[self.index]
-        self.tree = cKDTree(self.points)
+        self.tree = PointTree(self.points)
 
     def nearest(self, p: np.ndarray, bound: float = np.inf, index: bool = False):
         """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3);
@@ -147,7 +146,7 @@ class BodyProxy:
         ``index``: also the nearest skin vertex (..., into :attr:`index`; -1 beyond
         ``bound``)."""
         flat = p.reshape(-1, 3)
-        dist, i = self.tree.query(flat, workers=-1, distance_upper_bound=bound)
+        dist, i = self.tree.query(flat, distance_upper_bound=bound)
         far = ~np.isfinite(dist)
         i = np.where(far, 0, i)
         n = np.where(far[:, None], 0.0, self.normals[i])
@@ -205,10 +204,8 @@ def closest_on_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarra
                          points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each point (P, 3), the nearest of ``candidates``' triangles by centroid among
     the 8 nearest, and the point's barycentric coordinates in it (clamped inside)."""
-    from scipy.spatial import cKDTree
-
     cent = v[faces[candidates]].mean(1)
-    _, near = cKDTree(cent).query(points, k=min(8, len(candidates)))
+    _, near = PointTree(cent).query(points, k=min(8, len(candidates)))
     near = np.atleast_2d(near)
     best_t, best_b, best_d = None, None, None
     for j in range(near.shape[1]):
@@ -345,8 +342,6 @@ def _group(name, surface, tri, bary, pts, radius, melanin,
     push out found them (:meth:`BodyProxy.push_out`); only the points it does not hold
     unchanged (the roots, the points it moved, a cut strand's) are searched again, in the
     proxy's own tree where the body is its vertices (the same answer)."""
-    from scipy.spatial import cKDTree
-
     body = body_vertices(surface)
     flat = pts.reshape(-1, 3)
     near = np.full(len(flat), -1, np.int64)
@@ -360,8 +355,8 @@ def _group(name, surface, tri, bary, pts, radius, melanin,
         near[same.reshape(-1)] = idx[same]
     todo = near < 0
     if todo.any():
-        tree = tree if tree is not None else cKDTree(surface.vertices[body])
-        near[todo] = tree.query(flat[todo], workers=-1)[1]
+        tree = tree if tree is not None else PointTree(surface.vertices[body])
+        near[todo] = tree.query(flat[todo])[1]
     anchor = body[near].reshape(pts.shape[:2]).astype(np.int32)
     v, f = surface.vertices, surface.faces
     # only the skull moves with the strands rooted on it: points over the face, the jaw,

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hack_render.geometry.nearest import PointTree
 from hack_render.geometry.normals import vertex_normals
 from hack_render.hair.groom import (
     Groom,
@@ -83,14 +84,12 @@ class Body:
 
 def body_surface(groom: Groom, vertices: np.ndarray) -> Body:
     """The :class:`Body` of ``groom``'s skin on posed ``vertices``."""
-    from scipy.spatial import cKDTree
-
     v = np.asarray(vertices, np.float64)
     skin = groom.faces[groom.skin]
     normals = vertex_normals(v, skin)
     normals[open_edge_vertices(skin)] = 0.0
     index = groom.body if groom.body is not None else np.unique(skin)
-    return Body(cKDTree(v[index]), index, v[index], normals)
+    return Body(PointTree(v[index]), index, v[index], normals)
 
 
 def push_out(points: np.ndarray, body: Body, margin: float = MARGIN) -> np.ndarray:
@@ -101,7 +100,7 @@ def push_out(points: np.ndarray, body: Body, margin: float = MARGIN) -> np.ndarr
     todo = np.arange(len(out))
     normals = body.normals[body.index]
     for _ in range(3):  # a push out of one side of a concave corner can land in the other
-        dist, i = body.tree.query(out[todo], distance_upper_bound=0.08, workers=-1)
+        dist, i = body.tree.query(out[todo], distance_upper_bound=0.08)
         hit = np.isfinite(dist)
         todo, j = todo[hit], i[hit]
         lack = margin - np.sum((out[todo] - body.points[j]) * normals[j], -1)
@@ -118,8 +117,6 @@ def signed_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     """Signed distance (...,) of ``points`` to the mesh's nearest vertex tangent plane
     (positive outside); points nearest to the mesh's open edges (the bust's cut) are
     beyond it: +inf."""
-    from scipy.spatial import cKDTree
-
     index = np.unique(faces)
     normals = vertex_normals(vertices, faces)
     edge = np.zeros(len(vertices), bool)
@@ -128,7 +125,7 @@ def signed_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     normals = normals[index]
     surf = vertices[index]
     flat = points.reshape(-1, 3)
-    _, i = cKDTree(surf).query(flat, workers=-1)
+    _, i = PointTree(surf).query(flat)
     d = np.sum((flat - surf[i]) * normals[i], -1)
     beyond = edge[i] | (flat[:, 1] < surf[:, 1].min())
     return np.where(beyond, np.inf, d).reshape(points.shape[:-1])
