@@ -55,6 +55,8 @@ def test_the_outline_picks_the_archetype(points, name, top, bottom, width, expec
     photo, skin = _photo(points, hair, slab_albedo(1.3, 0.1))
     style, report = hair_style_from_photo(photo, hair, skin, points, [0.5, 0.35, 0.28])
     assert style.archetype == expected, report
+    # a crew cut is not parted (no scalp line on top); the rest keep the base's parting
+    assert style.parting == ("none" if expected == "crew" else "left")
 
 
 def test_no_hair_is_bald_and_a_receding_line_is_read(points):

@@ -449,6 +449,11 @@ class FinalConfig:
     # the hair's level of detail in render.png (1: >= 50k scalp strands; growing and
     # rendering cost ~ strands)
     hair_lod: float = 0.5
+    # the scalp under the hair layer's roots, where the photo did not see the skin (the
+    # photo's hair hides it), blended towards the hair's colour by this share at the
+    # groom's median root density (fit/scalp.py): no bare, face-coloured crown or parting
+    # between the strands of render.png; 0: the fallback skin (A(alpha)) as it is
+    scalp_shade: float = 0.8
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
@@ -652,7 +657,8 @@ class FitConfig:
         for key, hi, unit in (("edge_feather", 32, "photo pixels' footprints"),
                               ("occluder_shadow", 1, "of the eyes' corner distance"),
                               ("occluder_margin", 1, "of the eyes' corner distance"),
-                              ("strands", 0.2, "of the eyes' corner distance")):
+                              ("strands", 0.2, "of the eyes' corner distance"),
+                              ("scalp_shade", 1, "of the hair's colour")):
             x = getattr(fc, key)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
                 raise HackError(f"config final.{key}: expected 0..{hi} ({unit}), found {x!r}.")

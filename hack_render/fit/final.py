@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.fit import face_mesh, iris, part_bake, texture
+from hack_render.fit import face_mesh, iris, part_bake, scalp, texture
 from hack_render.fit.hair_style import hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
@@ -79,6 +79,20 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         bar.update()
     baked = texture.bake_diffuse(st, cfg, fitted)
     base = texture.skin_maps(st, cfg.final.atlas_height)
+    # the photo's hair as the hair layer (final.hair), and the scalp its roots cover
+    # shaded towards its colour where the photo did not see the skin (fit/scalp.py)
+    hair_style, groom, hair_report = _hair_style(st, cfg, baked)
+    density = (scalp.root_density(st.model, groom, baked.diffuse.shape[0])
+               if groom is not None and cfg.final.scalp_shade > 0 else None)
+
+    def shaded(bk) -> np.ndarray:
+        if density is None:
+            return bk.diffuse
+        out, share = scalp.shade_scalp(bk.diffuse, bk.confidence, density,
+                                       hair_report["hair_albedo"], cfg.final.scalp_shade)
+        hair_report["scalp_shaded_share"] = round(share, 4)
+        return out
+
     spec = base.specular
     spec_report = {"source": "the fitted map (final.specular off)"}
     spec_conf = None
@@ -101,7 +115,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                                 else None)
     bar.update()
     t1 = time.perf_counter()
-    maps = dataclasses.replace(base, diffuse=baked.diffuse, specular=spec, iris_rgb=rgb,
+    maps = dataclasses.replace(base, diffuse=shaded(baked), specular=spec, iris_rgb=rgb,
                                sclera_rgb=tuple(eyes["sclera_rgb"]),
                                eye_gloss=eyes.get("eye_gloss"))
     renders = []
@@ -114,7 +128,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     for _ in range(int(cfg.final.refine)):
         baked = texture.bake_diffuse(st, cfg, renders, prior=baked.diffuse,
                                      weights=baked.pixel_weights)
-        maps = dataclasses.replace(maps, diffuse=baked.diffuse)
+        maps = dataclasses.replace(maps, diffuse=shaded(baked))
         renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
                    for v in st.views]
         bar.update()
@@ -127,7 +141,13 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
                    for v in st.views]
         bar.update()
-    hair_style, hair_renders, hair_report = _hair(st, cfg, maps, baked)
+    hair_renders = None
+    if groom is not None:
+        t2 = time.perf_counter()
+        hair_renders = [texture.render_at_photo(st, cfg, v, maps=maps,
+                                                max_side=cfg.final.max_side, hair=groom)
+                        for v in st.views]
+        hair_report["seconds"] = round(hair_report["seconds"] + time.perf_counter() - t2, 2)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)
     eyes["residual"] = iris.residual(st, renders, allowed, person=person)
@@ -142,17 +162,21 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                          + (", and the shadow of occluders and hair beside them "
                             f"(final.occluder_shadow {cfg.final.occluder_shadow:g})"
                             if cfg.final.occluder_shadow > 0 else "")
-                         + ", the mirrored face or the appearance model A(alpha) elsewhere",
+                         + ", the mirrored face or the appearance model A(alpha) elsewhere"
+                         + (", the scalp under the hair layer's roots shaded towards the "
+                            f"hair's colour (final.scalp_shade {cfg.final.scalp_shade:g})"
+                            if density is not None else ""),
               "hair": hair_report, "part_bake": part_report}
     return FinalRenders(fitted, baked, maps, renders, eyes, spec_report, spec_conf, report,
                         hair_style, hair_renders)
 
 
-def _hair(st: FitState, cfg, maps, baked) -> tuple[object, list | None, dict | None]:
-    """(style, renders with its groom, report) of the first view's hair (``final.hair``):
+def _hair_style(st: FitState, cfg, baked) -> tuple[object, object, dict | None]:
+    """(style, groom, report) of the first view's hair (``final.hair``):
     :func:`hack_render.fit.hair_style.hair_style_from_photo` on the segmentation's hair
     and skin, with the baked skin's median albedo where the photo was seen as the skin's
-    colour; (None, None, why) without a hair segmentation."""
+    colour; (None, None, why) without a hair segmentation, (None, None, None) with the
+    hair layer off."""
     if not cfg.final.hair:
         return None, None, None
     v0 = st.views[0]
@@ -161,8 +185,8 @@ def _hair(st: FitState, cfg, maps, baked) -> tuple[object, list | None, dict | N
                                     "is bald"}
     t0 = time.perf_counter()
     seen = baked.confidence > 0.5
-    albedo = np.median(baked.diffuse[seen], axis=0) if seen.sum() > 100 else \
-        np.median(maps.diffuse.reshape(-1, 3), axis=0)
+    albedo = np.median((baked.diffuse[seen] if seen.sum() > 100 else
+                        baked.diffuse.reshape(-1, 3)), axis=0)
     base = HairStyle(lod=cfg.final.hair_lod, seed=int(cfg.seed))
     style, report = hair_style_from_photo(v0.photo.linear(), np.asarray(v0.hair, bool),
                                           None if v0.skin is None else
@@ -172,10 +196,8 @@ def _hair(st: FitState, cfg, maps, baked) -> tuple[object, list | None, dict | N
     # drawn again as strands over them in render.png (the style keeps its brows)
     drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
     groom = grow_cached(HeadSurface.from_model(st.model), drawn)
-    renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
-                                       hair=groom) for v in st.views]
     report.update({"strands": groom.num_strands, "lod": style.lod,
                    "seconds": round(time.perf_counter() - t0, 2),
                    "derived": "the hair layer's style read from the photo's hair outline "
                               "and colour (fit/hair_style.py): a starting point, not a fit"})
-    return style, renders, report
+    return style, groom, report

@@ -10,7 +10,7 @@ turned with the face (``u`` to the photo's right, ``w`` up, from the chin to the
   below the chin by ``0.4 d`` -> ``long``; below the mouth -> ``bob``; otherwise ``short``,
   or ``crew`` when the hair on top is thinner than ``0.25 d`` over the brows' level +
   ``0.95 d`` (where a bald head's top is, on the model's mean head) and narrower than
-  1.25 face widths at the forehead;
+  1.25 face widths at the forehead (a crew cut is not parted: ``parting`` none);
 - **afro**: hair wider than 2.2 face widths at the forehead, above the brows;
 - **volume**: the hair's width at the forehead over the face's: 1.05 -> 0, 1.65 -> 1;
 - **hairline**: the lowest hair over the forehead's middle, 0.75 d over the brows -> 0 ...
@@ -111,6 +111,8 @@ def hair_style_from_photo(photo: np.ndarray, hair: np.ndarray, skin: np.ndarray 
     kw = {**_keep(base), "hairline": hairline, "eumelanin": eu, "pheomelanin": pheo}
     if archetype != "afro":
         kw["volume"] = volume
+    if archetype == "crew":  # too short to part: combed back, no scalp line on top
+        kw["parting"] = "none"
     style = HairStyle.archetype_style(archetype, **kw)
     report.update({"archetype": archetype, "archetype_reason": why,
                    "lowest_beside_face_d": round(lowest - chin, 3),

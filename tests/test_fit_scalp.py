@@ -1,0 +1,77 @@
+"""fit/scalp.py: the scalp under the fitted hair layer, shaded towards the hair's colour."""
+
+import numpy as np
+import pytest
+
+from hack_render.errors import HackError
+from hack_render.fit import scalp
+from hack_render.fit.config import load_config
+from hack_render.geometry import load_default_model
+from hack_render.hair.groom import grow_cached
+from hack_render.hair.regions import HeadSurface
+from hack_render.hair.style import HairStyle
+
+
+@pytest.fixture(scope="module")
+def crew():
+    m = load_default_model()
+    groom = grow_cached(HeadSurface.from_model(m), HairStyle.archetype_style("crew", lod=0.3))
+    return m, groom, scalp.root_density(m, groom, 256)
+
+
+def _uv_texels(m, faces, H):
+    """The atlas texels (rows, cols) of ``faces``' UV centroids."""
+    uv = m.uvs.numpy()[m.uv_faces.numpy()[faces]].mean(1)
+    return (np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1),
+            np.clip((uv[:, 0] * H).astype(int), 0, 2 * H - 1))
+
+
+def test_01_the_roots_cover_the_crown_and_never_the_face(crew):
+    m, groom, dens = crew
+    assert dens.shape == (256, 512) and dens.dtype == np.float32
+    assert 0.0 <= dens.min() and dens.max() <= 1.0
+    v, f = m.template.numpy(), m.faces.numpy()
+    names = list(m.material_names)
+    fm = m.face_material.numpy()
+    c = v[f].mean(1)
+    lm = v[m.landmark_indices.numpy()]
+    # the face between the eyes' outer corners, below the brows (sideburns are beside it)
+    face = np.flatnonzero((fm == names.index("M_Face")) & (c[:, 1] < lm[19, 1] - 0.01)
+                          & (np.abs(c[:, 0]) < np.abs(lm[36, 0] - lm[45, 0]) / 2))
+    cy = c[:, 1]
+    top = np.flatnonzero(cy > v[:, 1].max() - 0.02)
+    assert len(face) > 500 and len(top) > 50
+    assert dens[_uv_texels(m, face, 256)].max() < 0.01     # no strand roots below the brows
+    assert np.median(dens[_uv_texels(m, top, 256)]) > 0.5  # a crew cut covers the crown
+
+
+def test_02_only_unseen_texels_under_roots_take_the_hairs_colour():
+    rng = np.random.default_rng(0)
+    diffuse = rng.uniform(0.2, 0.6, (8, 16, 3)).astype(np.float32)
+    conf = np.zeros((8, 16), np.float32)
+    conf[:, :4] = 1.0      # seen by the photo
+    conf[:, 4:6] = 0.5
+    dens = np.zeros((8, 16), np.float32)
+    dens[:, :12] = 1.0     # rooted
+    dens[:, 6:8] = 0.25
+    hair = (0.02, 0.015, 0.01)
+    out, share = scalp.shade_scalp(diffuse, conf, dens, hair, 0.8)
+    assert out.dtype == diffuse.dtype
+    np.testing.assert_array_equal(out[:, :4], diffuse[:, :4])      # seen: the bake's
+    np.testing.assert_array_equal(out[:, 12:], diffuse[:, 12:])    # no roots: unchanged
+    np.testing.assert_allclose(out[:, 8:12], 0.2 * diffuse[:, 8:12] + 0.8 * np.array(hair),
+                               rtol=1e-6)
+    np.testing.assert_allclose(out[:, 4:6], 0.6 * diffuse[:, 4:6] + 0.4 * np.array(hair),
+                               rtol=1e-6)
+    np.testing.assert_allclose(out[:, 6:8], 0.8 * diffuse[:, 6:8] + 0.2 * np.array(hair),
+                               rtol=1e-6)
+    assert share == pytest.approx(8 / 16)
+    same, none = scalp.shade_scalp(diffuse, conf, dens, hair, 0.0)
+    np.testing.assert_array_equal(same, diffuse)
+    assert none == 0.0
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "0.5"])
+def test_03_the_shade_is_a_share(bad):
+    with pytest.raises(HackError, match="final.scalp_shade"):
+        load_config(None, {"final": {"scalp_shade": bad}})
