@@ -1,15 +1,18 @@
-"""fit/scalp.py: the scalp under the fitted hair layer, shaded towards the hair's colour."""
+"""The fitted hair layer in render.png: the scalp under it shaded towards the hair's colour
+(fit/scalp.py), and its strands rendered with their own scattering (texture.hair_composite)."""
 
 import numpy as np
 import pytest
 
 from hack_render.errors import HackError
-from hack_render.fit import scalp
+from hack_render.fit import scalp, texture
+from hack_render.fit.bake_weights import PhotoRender
 from hack_render.fit.config import load_config
 from hack_render.geometry import load_default_model
 from hack_render.hair.groom import grow_cached
 from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
+from hack_render.render.parts import REGIONS
 
 
 @pytest.fixture(scope="module")
@@ -75,3 +78,26 @@ def test_02_only_unseen_texels_under_roots_take_the_hairs_colour():
 def test_03_the_shade_is_a_share(bad):
     with pytest.raises(HackError, match="final.scalp_shade"):
         load_config(None, {"final": {"scalp_shade": bad}})
+
+
+def test_04_the_hair_pixels_come_from_the_deep_render_the_skin_from_the_shallow():
+    h, w = 12, 16
+    seg = np.full((h, w), REGIONS.index("face"), np.int32)
+    seg[3:9, 4:10] = REGIONS.index("hair")
+    shallow = PhotoRender(np.full((h, w, 4), 0.2, np.float32), {"segmentation": seg}, 16, 1.0)
+    deep = PhotoRender(np.full((h, w, 4), 0.6, np.float32), {"segmentation": seg.copy()},
+                       16, 2.0)
+    out = texture.hair_composite(shallow, deep)
+    assert out.rgba.dtype == np.float32 and out.seconds == 3.0
+    assert out.gbuffer is shallow.gbuffer
+    np.testing.assert_allclose(out.rgba[4:8, 5:9], 0.6, rtol=1e-6)   # inside the hair
+    np.testing.assert_allclose(out.rgba[:, 11:], 0.2, rtol=1e-6)     # skin away from it
+    np.testing.assert_allclose(out.rgba[:2], 0.2, rtol=1e-6)
+    edge = out.rgba[2, 3, 0]     # a skin pixel diagonal to the hair's corner: 1/9 hair
+    assert edge == pytest.approx(0.2 + 0.4 / 9, rel=1e-5)
+
+
+@pytest.mark.parametrize("bad", [1, 65, True, 2.5, "8"])
+def test_05_the_hair_depth_is_a_path_depth(bad):
+    with pytest.raises(HackError, match="final.hair_depth"):
+        load_config(None, {"final": {"hair_depth": bad}})

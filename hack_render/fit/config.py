@@ -454,6 +454,12 @@ class FinalConfig:
     # groom's median root density (fit/scalp.py): no bare, face-coloured crown or parting
     # between the strands of render.png; 0: the fallback skin (A(alpha)) as it is
     scalp_shade: float = 0.8
+    # the path depth of render.png's hair layer: its pixels come from a render this deep
+    # (the light the strands scatter to each other, which the hair's melanin was
+    # calibrated with, bench/hair_albedo.py: at 2, direct light only, the astronaut's
+    # golden brown hair rendered dark grey), the skin's from one at the photometric
+    # stage's 2 (what the bake assumed; render_over_photo.png's too); 2: one render
+    hair_depth: int = 8
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
@@ -662,6 +668,10 @@ class FitConfig:
             x = getattr(fc, key)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
                 raise HackError(f"config final.{key}: expected 0..{hi} ({unit}), found {x!r}.")
+        if isinstance(fc.hair_depth, bool) or not isinstance(fc.hair_depth, int) \
+                or not 2 <= fc.hair_depth <= 64:
+            raise HackError(f"config final.hair_depth: expected a path depth in 2..64, "
+                            f"found {fc.hair_depth!r}.")
         if fc.tone_match not in ("outside", "all", "off"):
             raise HackError(f"config final.tone_match: expected 'outside', 'all' or 'off', "
                             f"found {fc.tone_match!r}.")

@@ -144,9 +144,15 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     hair_renders = None
     if groom is not None:
         t2 = time.perf_counter()
-        hair_renders = [texture.render_at_photo(st, cfg, v, maps=maps,
-                                                max_side=cfg.final.max_side, hair=groom)
-                        for v in st.views]
+        hair_renders = []
+        for v in st.views:
+            pr = texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
+                                         hair=groom)
+            if cfg.final.hair_depth > texture.MAX_DEPTH:  # the strands' own scattering
+                pr = texture.hair_composite(pr, texture.render_at_photo(
+                    st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
+                    max_depth=cfg.final.hair_depth))
+            hair_renders.append(pr)
         hair_report["seconds"] = round(hair_report["seconds"] + time.perf_counter() - t2, 2)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)

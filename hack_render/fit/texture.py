@@ -44,7 +44,7 @@ from hack_render.hair.pose import pose_groom
 from hack_render.render import denoise as dn
 from hack_render.render.emitters import cropped
 from hack_render.render.materials import SkinMaps
-from hack_render.render.parts import Topology
+from hack_render.render.parts import REGIONS, Topology
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes.cameras import Camera
 from scenes.lights import LightRig
@@ -115,23 +115,40 @@ SEE_THROUGH = ("eyelashes",)
 
 def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                     spp: int | None = None, max_side: int | None = None,
-                    hair=None) -> PhotoRender:
+                    hair=None, max_depth: int = MAX_DEPTH) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
     :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`);
-    ``hair``: a groom (``hack_render.hair``) rendered with the head."""
+    ``hair``: a groom (``hack_render.hair``) rendered with the head; ``max_depth``: the
+    path depth (default the photometric stage's, :data:`MAX_DEPTH`)."""
     t0 = time.perf_counter()
     dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
     spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
-    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair)
+    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair, max_depth)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
         rgba = head.denoise(rgba, fallback=True)
     return PhotoRender(_paste(rgba, window), _paste(gb, window), spp,
                        time.perf_counter() - t0, denoised)
+
+
+def hair_composite(shallow: PhotoRender, deep: PhotoRender) -> PhotoRender:
+    """``shallow`` (the photometric stage's path depth: the skin as the bake assumed it)
+    with the pixels whose first surface is the hair layer's taken from ``deep`` (a longer
+    path: the light the strands scatter to each other, which the hair's melanin
+    calibration counts, ``bench/hair_albedo.py``): blended by the share of hair among
+    each pixel's 3 x 3 neighbours' first hits (strands are thinner than a pixel), so the
+    skin keeps the bake's shading and the hair its colour."""
+    from scipy.ndimage import uniform_filter
+
+    hair = (np.asarray(deep.gbuffer["segmentation"]) == REGIONS.index("hair"))
+    share = uniform_filter(hair.astype(np.float32), 3, mode="nearest")[..., None]
+    rgba = shallow.rgba + share * (deep.rgba - shallow.rgba)
+    return PhotoRender(rgba.astype(shallow.rgba.dtype), shallow.gbuffer, shallow.spp,
+                       shallow.seconds + deep.seconds, shallow.denoised)
 
 
 def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes: list,
@@ -163,7 +180,7 @@ CROP_GROW = 0.02
 
 
 def photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
-                 max_side: int | None, hair=None):
+                 max_side: int | None, hair=None, max_depth: int = MAX_DEPTH):
     """The HeadScene of :func:`render_at_photo` and the window of the image it renders:
     only the model's projected box (with a margin), where it covers under 90 % of the
     image: (x0, y0, width, height, image width, image height), else None. The rays
@@ -194,7 +211,7 @@ def photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
     maps = maps if maps is not None else skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
-                     RenderSettings(cam.width, cam.height, spp, MAX_DEPTH, cfg.seed), maps,
+                     RenderSettings(cam.width, cam.height, spp, int(max_depth), cfg.seed), maps,
                      hair=hair)
     return head, window
 
