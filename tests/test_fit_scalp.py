@@ -30,7 +30,7 @@ def _uv_texels(m, faces, H):
 
 
 def test_01_the_roots_cover_the_crown_and_never_the_face(crew):
-    m, groom, dens = crew
+    m, _, dens = crew
     assert dens.shape == (256, 512) and dens.dtype == np.float32
     assert 0.0 <= dens.min() and dens.max() <= 1.0
     v, f = m.template.numpy(), m.faces.numpy()
