@@ -101,3 +101,27 @@ def test_04_the_hair_pixels_come_from_the_deep_render_the_skin_from_the_shallow(
 def test_05_the_hair_depth_is_a_path_depth(bad):
     with pytest.raises(HackError, match="final.hair_depth"):
         load_config(None, {"final": {"hair_depth": bad}})
+
+
+def test_06_the_colour_step_reads_hair_where_both_show_it():
+    from types import SimpleNamespace
+
+    from hack_render.fit import final
+
+    h, w = 40, 40
+    photo = np.full((h, w, 3), 0.5, np.float32)
+    photo[:20] = (0.12, 0.08, 0.02)                     # the photo's hair: the top half
+    view = SimpleNamespace(photo=SimpleNamespace(linear=lambda: photo))
+    hair_px = np.zeros((h, w), bool)
+    hair_px[:20] = True
+    seg = np.full((h, w), REGIONS.index("face"), np.int32)
+    seg[5:30] = REGIONS.index("hair")                   # the render's strands overlap it
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = 0.3
+    rgba[5:30, :, :3] = (0.24, 0.16, 0.04)              # twice the photo's hair
+    pr = PhotoRender(rgba, {"segmentation": seg}, 16, 1.0)
+    ph, rd = final._hair_pixels(view, pr, hair_px)      # rows 5..19: 600 pixels
+    np.testing.assert_allclose(ph, (0.12, 0.08, 0.02), rtol=1e-6)
+    np.testing.assert_allclose(rd, (0.24, 0.16, 0.04), rtol=1e-6)
+    seg[8:30] = REGIONS.index("face")                   # 3 rows x 40: too few
+    assert final._hair_pixels(view, pr, hair_px) == (None, None)

@@ -460,6 +460,10 @@ class FinalConfig:
     # golden brown hair rendered dark grey), the skin's from one at the photometric
     # stage's 2 (what the bake assumed; render_over_photo.png's too); 2: one render
     hair_depth: int = 8
+    # one step of the hair's colour against the photo (at hair_depth > 2): the photo's
+    # hair over render.png's, per channel, scales the albedo the colour was read as; the
+    # strands grown again with that melanin and rendered once more (fit/final.py)
+    hair_colour_step: bool = True
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):

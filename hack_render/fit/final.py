@@ -16,12 +16,14 @@ import numpy as np
 from tqdm import tqdm
 
 from hack_render.fit import face_mesh, iris, part_bake, scalp, texture
-from hack_render.fit.hair_style import hair_style_from_photo
+from hack_render.fit.bake_weights import mask_at, photo_at
+from hack_render.fit.hair_style import colour_pixels, hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
 from hack_render.hair.groom import grow_cached
 from hack_render.hair.regions import HeadSurface
-from hack_render.hair.style import HairStyle
+from hack_render.hair.style import HairStyle, albedo_melanin
+from hack_render.render.parts import REGIONS
 
 
 @dataclass
@@ -153,6 +155,9 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                     st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
                     max_depth=cfg.final.hair_depth))
             hair_renders.append(pr)
+        if cfg.final.hair_colour_step and cfg.final.hair_depth > texture.MAX_DEPTH:
+            hair_style, hair_renders = _colour_step(st, cfg, maps, hair_style, hair_renders,
+                                                    hair_report)
         hair_report["seconds"] = round(hair_report["seconds"] + time.perf_counter() - t2, 2)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)
@@ -207,3 +212,60 @@ def _hair_style(st: FitState, cfg, baked) -> tuple[object, object, dict | None]:
                    "derived": "the hair layer's style read from the photo's hair outline "
                               "and colour (fit/hair_style.py): a starting point, not a fit"})
     return style, groom, report
+
+
+#: the least hair pixels (the render's strands over the photo's hair colour pixels) for
+#: :func:`_colour_step` to run
+COLOUR_STEP_PIXELS = 200
+
+
+def _hair_pixels(view, pr, hair_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(photo, render) median linear RGB over the pixels where both show hair: the render's
+    first hits on strands (fully covered) among the photo's hair colour pixels."""
+    h, w = pr.rgba.shape[:2]
+    m = (mask_at(hair_px, h, w) & (np.asarray(pr.gbuffer["segmentation"]) == REGIONS.index("hair"))
+         & (pr.rgba[..., 3] > 0.99))
+    if m.sum() < COLOUR_STEP_PIXELS:
+        return None, None
+    return (np.median(photo_at(view, h, w)[m], axis=0),
+            np.median(pr.rgba[..., :3][m].astype(np.float64), axis=0))
+
+
+def _colour_step(st: FitState, cfg, maps, style, renders: list, report: dict):
+    """One step of the hair's colour against the photo (``final.hair_colour_step``): the
+    photo's hair colour (its colour pixels, ``hair_style.colour_pixels``) over the first
+    view's render of it, per channel, scales the albedo the colour was read as, and the
+    strands are grown again with its melanin and rendered (the depth-``hair_depth`` render
+    only: the skin's pixels are the first render's). With paths that deep the strands'
+    colour follows their albedo (at depth 2 it did not: docs/hair.md). (style, renders);
+    unchanged where the two share too few pixels."""
+    v0 = st.views[0]
+    hair_px, _ = colour_pixels(v0.photo.linear(), np.asarray(v0.hair, bool),
+                               None if v0.skin is None else np.asarray(v0.skin, bool))
+    photo, render = _hair_pixels(v0, renders[0], hair_px)
+    if photo is None:
+        report["colour_step"] = {"note": f"fewer than {COLOUR_STEP_PIXELS} pixels where the "
+                                         "render's strands meet the photo's hair: kept"}
+        return style, renders
+    ratio = photo / np.maximum(render, 1e-6)
+    albedo = np.clip(np.asarray(report["hair_albedo"], np.float64) * ratio, 1e-3, 1.0)
+    eu, pheo = albedo_melanin(albedo)
+    style = dataclasses.replace(style, eumelanin=eu, pheomelanin=pheo)
+    drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
+    groom = grow_cached(HeadSurface.from_model(st.model), drawn)
+    out = []
+    for v, pr in zip(st.views, renders):
+        out.append(texture.hair_composite(pr, texture.render_at_photo(
+            st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
+            max_depth=cfg.final.hair_depth)))
+    after = _hair_pixels(v0, out[0], hair_px)
+    report["colour_step"] = {
+        "pixels": int(((mask_at(hair_px, *renders[0].rgba.shape[:2]))
+                       & (np.asarray(renders[0].gbuffer["segmentation"])
+                          == REGIONS.index("hair"))).sum()),
+        "photo_over_render": [round(float(x), 3) for x in ratio],
+        "photo_over_render_after": None if after[0] is None else
+        [round(float(x), 3) for x in after[0] / np.maximum(after[1], 1e-6)],
+        "albedo": [round(float(x), 4) for x in albedo],
+        "eumelanin": round(eu, 3), "pheomelanin": round(pheo, 3)}
+    return style, out
