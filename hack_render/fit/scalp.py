@@ -11,7 +11,7 @@ in the atlas, :func:`root_density`) is blended towards the hair's albedo
 (:func:`shade_scalp`): by ``strength`` where the roots are as dense as the groom's
 median texel, less at the hairline, not at all where the photo saw the skin (the bake's
 confidence) or where no strand is rooted. Derived, not measured: the report says so
-(``final.scalp``).
+(``final.diffuse``; ``final.hair.scalp_shaded_share``, the atlas's share changed).
 """
 
 from __future__ import annotations
