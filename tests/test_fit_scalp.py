@@ -125,3 +125,9 @@ def test_06_the_colour_step_reads_hair_where_both_show_it():
     np.testing.assert_allclose(rd, (0.24, 0.16, 0.04), rtol=1e-6)
     seg[8:30] = REGIONS.index("face")                   # 3 rows x 40: too few
     assert final._hair_pixels(view, pr, hair_px) == (None, None)
+
+
+@pytest.mark.parametrize("bad", [-1, 5, True, 1.5])
+def test_07_the_colour_steps_are_a_count(bad):
+    with pytest.raises(HackError, match="final.hair_colour_steps"):
+        load_config(None, {"final": {"hair_colour_steps": bad}})

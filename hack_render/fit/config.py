@@ -460,10 +460,10 @@ class FinalConfig:
     # golden brown hair rendered dark grey), the skin's from one at the photometric
     # stage's 2 (what the bake assumed; render_over_photo.png's too); 2: one render
     hair_depth: int = 8
-    # one step of the hair's colour against the photo (at hair_depth > 2): the photo's
-    # hair over render.png's, per channel, scales the albedo the colour was read as; the
-    # strands grown again with that melanin and rendered once more (fit/final.py)
-    hair_colour_step: bool = True
+    # steps of the hair's colour against the photo, at most (at hair_depth > 2): the
+    # photo's hair over render.png's, per channel, scales the albedo; the strands grown
+    # again with that melanin and rendered once more each (fit/final.py); 0: none
+    hair_colour_steps: int = 2
 
 
 #: config keys that were settings and are now constants beside their use (issue 64):
@@ -676,6 +676,10 @@ class FitConfig:
                 or not 2 <= fc.hair_depth <= 64:
             raise HackError(f"config final.hair_depth: expected a path depth in 2..64, "
                             f"found {fc.hair_depth!r}.")
+        if isinstance(fc.hair_colour_steps, bool) or not isinstance(fc.hair_colour_steps, int) \
+                or not 0 <= fc.hair_colour_steps <= 4:
+            raise HackError(f"config final.hair_colour_steps: expected 0..4 steps, found "
+                            f"{fc.hair_colour_steps!r}.")
         if fc.tone_match not in ("outside", "all", "off"):
             raise HackError(f"config final.tone_match: expected 'outside', 'all' or 'off', "
                             f"found {fc.tone_match!r}.")

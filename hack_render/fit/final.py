@@ -155,9 +155,9 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                     st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
                     max_depth=cfg.final.hair_depth))
             hair_renders.append(pr)
-        if cfg.final.hair_colour_step and cfg.final.hair_depth > texture.MAX_DEPTH:
-            hair_style, hair_renders = _colour_step(st, cfg, maps, hair_style, hair_renders,
-                                                    hair_report)
+        if cfg.final.hair_depth > texture.MAX_DEPTH:  # the colour against the photo
+            hair_style, hair_renders = _colour_steps(st, cfg, maps, hair_style,
+                                                     hair_renders, hair_report)
         hair_report["seconds"] = round(hair_report["seconds"] + time.perf_counter() - t2, 2)
     bar.close()
     # photo / render.png over the iris's pixels (luminance; 1: matched)
@@ -215,8 +215,10 @@ def _hair_style(st: FitState, cfg, baked) -> tuple[object, object, dict | None]:
 
 
 #: the least hair pixels (the render's strands over the photo's hair colour pixels) for
-#: :func:`_colour_step` to run
+#: :func:`_colour_steps` to run, and how near the photo's colour (photo over render, per
+#: channel) its steps stop
 COLOUR_STEP_PIXELS = 200
+COLOUR_STEP_DONE = 0.1
 
 
 def _hair_pixels(view, pr, hair_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -231,41 +233,47 @@ def _hair_pixels(view, pr, hair_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]
             np.median(pr.rgba[..., :3][m].astype(np.float64), axis=0))
 
 
-def _colour_step(st: FitState, cfg, maps, style, renders: list, report: dict):
-    """One step of the hair's colour against the photo (``final.hair_colour_step``): the
-    photo's hair colour (its colour pixels, ``hair_style.colour_pixels``) over the first
-    view's render of it, per channel, scales the albedo the colour was read as, and the
-    strands are grown again with its melanin and rendered (the depth-``hair_depth`` render
-    only: the skin's pixels are the first render's). With paths that deep the strands'
-    colour follows their albedo (at depth 2 it did not: docs/hair.md). (style, renders);
-    unchanged where the two share too few pixels."""
+def _colour_steps(st: FitState, cfg, maps, style, renders: list, report: dict):
+    """Steps of the hair's colour against the photo (``final.hair_colour_steps`` at most):
+    the photo's hair colour (its colour pixels, ``hair_style.colour_pixels``) over the
+    first view's render of it, per channel, scales the albedo (first the one the colour
+    was read as), and the strands are grown again with its melanin and rendered (the
+    depth-``hair_depth`` render only: the skin's pixels are the first render's). With
+    paths that deep the strands' colour follows their albedo (at depth 2 it did not:
+    docs/hair.md). Stops early once every channel is within :data:`COLOUR_STEP_DONE` of
+    the photo's, or the melanin no longer changes (the table's bound: a render brighter
+    than the darkest hair can be). (style, renders); the report's ``colour_steps``."""
     v0 = st.views[0]
     hair_px, _ = colour_pixels(v0.photo.linear(), np.asarray(v0.hair, bool),
                                None if v0.skin is None else np.asarray(v0.skin, bool))
+    albedo = np.asarray(report["hair_albedo"], np.float64)
     photo, render = _hair_pixels(v0, renders[0], hair_px)
+    steps: list = []
+    report["colour_steps"] = steps
     if photo is None:
-        report["colour_step"] = {"note": f"fewer than {COLOUR_STEP_PIXELS} pixels where the "
-                                         "render's strands meet the photo's hair: kept"}
+        report["colour_steps"] = {"note": f"fewer than {COLOUR_STEP_PIXELS} pixels where the "
+                                          "render's strands meet the photo's hair: kept"}
         return style, renders
-    ratio = photo / np.maximum(render, 1e-6)
-    albedo = np.clip(np.asarray(report["hair_albedo"], np.float64) * ratio, 1e-3, 1.0)
-    eu, pheo = albedo_melanin(albedo)
-    style = dataclasses.replace(style, eumelanin=eu, pheomelanin=pheo)
-    drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
-    groom = grow_cached(HeadSurface.from_model(st.model), drawn)
-    out = []
-    for v, pr in zip(st.views, renders):
-        out.append(texture.hair_composite(pr, texture.render_at_photo(
+    for _ in range(int(cfg.final.hair_colour_steps)):
+        ratio = photo / np.maximum(render, 1e-6)
+        if np.all(np.abs(ratio - 1.0) < COLOUR_STEP_DONE):
+            break
+        albedo = np.clip(albedo * ratio, 1e-3, 1.0)
+        eu, pheo = albedo_melanin(albedo)
+        if steps and (eu, pheo) == (style.eumelanin, style.pheomelanin):
+            break
+        style = dataclasses.replace(style, eumelanin=eu, pheomelanin=pheo)
+        drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
+        groom = grow_cached(HeadSurface.from_model(st.model), drawn)
+        renders = [texture.hair_composite(pr, texture.render_at_photo(
             st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
-            max_depth=cfg.final.hair_depth)))
-    after = _hair_pixels(v0, out[0], hair_px)
-    report["colour_step"] = {
-        "pixels": int(((mask_at(hair_px, *renders[0].rgba.shape[:2]))
-                       & (np.asarray(renders[0].gbuffer["segmentation"])
-                          == REGIONS.index("hair"))).sum()),
-        "photo_over_render": [round(float(x), 3) for x in ratio],
-        "photo_over_render_after": None if after[0] is None else
-        [round(float(x), 3) for x in after[0] / np.maximum(after[1], 1e-6)],
-        "albedo": [round(float(x), 4) for x in albedo],
-        "eumelanin": round(eu, 3), "pheomelanin": round(pheo, 3)}
-    return style, out
+            max_depth=cfg.final.hair_depth)) for v, pr in zip(st.views, renders)]
+        photo, render = _hair_pixels(v0, renders[0], hair_px)
+        steps.append({"photo_over_render": [round(float(x), 3) for x in ratio],
+                      "albedo": [round(float(x), 4) for x in albedo],
+                      "eumelanin": round(eu, 3), "pheomelanin": round(pheo, 3),
+                      "photo_over_render_after": None if photo is None else
+                      [round(float(x), 3) for x in photo / np.maximum(render, 1e-6)]})
+        if photo is None:
+            break
+    return style, renders
