@@ -260,7 +260,7 @@ def _colour_steps(st: FitState, cfg, maps, style, renders: list, report: dict):
             break
         albedo = np.clip(albedo * ratio, 1e-3, 1.0)
         eu, pheo = albedo_melanin(albedo)
-        if steps and (eu, pheo) == (style.eumelanin, style.pheomelanin):
+        if (eu, pheo) == (style.eumelanin, style.pheomelanin):  # at the table's bound
             break
         style = dataclasses.replace(style, eumelanin=eu, pheomelanin=pheo)
         drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
