@@ -576,3 +576,50 @@ def test_15_hair_strands_across_the_skin_are_not_baked(model):
     seen = out[0.0, "clean"].confidence > 0.9
     a, b = out[0.0, "clean"].diffuse[seen], out[0.03, "clean"].diffuse[seen]
     assert np.abs(a - b).mean() < 0.01 * a.mean(), np.abs(a - b).mean()
+
+
+def test_16_a_smiles_dark_mouth_corners_are_baked_onto_the_lips(model):
+    """final.mouth_corners: where the photo's mouth corners are dark (a broad smile's
+    inside beside the teeth) and the render shows the model's lips meeting there, the
+    bake takes them as the photo has them; the middle of the mouth's hole, as dark, and
+    bright (teeth-coloured) corners are not taken; 0 turns it off."""
+    from scipy.ndimage import binary_erosion
+
+    from hack_render.fit import bake_weights, texture
+
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0, res=320)
+    v = f.state.views[0]
+    shot = texture.render_at_photo(f.state, cfg, v, maps=true_maps)
+    rgb = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    pts, (h, w) = v.detection.points, rgb.shape[:2]
+    hole = bake_weights.feature_rings(pts, (h, w))["mouth"]
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    chord = pts[64] - pts[60]
+    u = ((xx - pts[60, 0]) * chord[0] + (yy - pts[60, 1]) * chord[1]) / (chord @ chord)
+    share = cfg.final.mouth_corners
+    assert share > 0
+    corners = hole & ((u < share) | (u > 1 - share))
+    middle = hole & ~corners
+    # the render's lips there, away from its silhouette's edge
+    lips = binary_erosion(np.isin(shot.gbuffer["segmentation"], bake_weights.SKIN_REGIONS),
+                          iterations=2)
+    assert (corners & lips).sum() >= 10 and middle.sum() >= 10
+    dark = rgb.copy()
+    dark[hole] *= 0.1
+    v.photo = photo_of(dark)
+    found = bake_weights.dark_corners(pts, v.photo.linear(), share)
+    assert found[corners].mean() > 0.9 and not found[middle].any()
+    pr = texture.render_at_photo(f.state, cfg, v)
+    w_on, obs_on = bake_weights.pixel_weights(v, pr, cfg)
+    taken = corners & lips
+    assert (w_on[taken] > 0).mean() > 0.8
+    assert np.median(obs_on[taken].mean(-1)) < 0.3 * np.median(
+        shot.gbuffer["albedo"][taken].mean(-1))
+    assert (w_on[middle] == 0).all()
+    cfg.final.mouth_corners = 0.0
+    w_off, _ = bake_weights.pixel_weights(v, pr, cfg)
+    assert (w_off[hole] == 0).all()
+    # bright (teeth-coloured) corners are not the mouth's dark inside
+    teeth = rgb.copy()
+    teeth[hole] = 0.8
+    assert not bake_weights.dark_corners(pts, photo_of(teeth).linear(), share).any()

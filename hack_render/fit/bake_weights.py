@@ -113,6 +113,14 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
                 mask_at(view.eye_opening, h, w), iterations=1)
         inside = binary_erosion(rendered, iterations=edge) & ~occluded & ~hole
         features = feature_bands(points, (h, w)) & inside
+        if fc.mouth_corners > 0:   # the dark inside the person's mouth corners, where the
+            # model's lips close: baked onto the lips as the photo has it
+            opening = (None if view.mouth_opening is None
+                       else mask_at(view.mouth_opening, h, w))
+            seen = binary_erosion(rendered, iterations=edge) & ~(
+                occluded & ~opening if opening is not None else occluded)
+            features = features | dark_corners(points, photo, fc.mouth_corners) \
+                & seen
         lids = feature_rings(points, (h, w), eye_scale=fc.eye_hole)["eyes"] & inside & ~features
     # cosine between the normal and the direction to the camera (camera frame, z forward)
     f = w / view.photo.width * float(view.focal.detach())
@@ -224,6 +232,41 @@ def feature_holes(points: np.ndarray, shape: tuple[int, int],
     and the mouth's opening (scaled 1.2), left out of the bake."""
     rings = feature_rings(points, shape, eye_scale)
     return rings["eyes"] | rings["mouth"]
+
+
+#: :func:`dark_corners`: darker than this share of the lips' median luminance (linear; the
+#: mouth stage's DARK, 0.55 sRGB-encoded, is 0.27 linear; 0.3 took less of the astronaut's
+#: corners, her mouth 19.38 dB against 19.82)
+CORNER_DARK = 0.45
+
+
+def dark_corners(points: np.ndarray, photo: np.ndarray, share: float) -> np.ndarray:
+    """(h, w) bool: the photo's dark pixels in the mouth's hole (the inner ring scaled 1.2:
+    :func:`feature_rings`) within ``share`` of the inner corners' chord (points 60 to 64)
+    from either corner: darker than :data:`CORNER_DARK` times the median of the photo's
+    lips (the outer lip ring, 48-59, outside the hole). ``photo``: (h, w, 3) linear. A
+    broad smile's dark corners (the mouth's inside beside the teeth) where the model's
+    lips already meet."""
+    from skimage.draw import polygon
+
+    h, w = photo.shape[:2]
+    hole = feature_rings(points, (h, w))["mouth"]
+    lum = photo[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    ref = np.zeros((h, w), bool)
+    rr, cc = polygon(points[48:60, 1] - 0.5, points[48:60, 0] - 0.5, (h, w))
+    ref[rr, cc] = True
+    ref &= ~hole
+    if ref.sum() < 8 or not hole.any():
+        return np.zeros((h, w), bool)
+    a, b = points[60], points[64]
+    chord = b - a
+    n2 = float(chord @ chord)
+    if n2 < 1e-6:
+        return np.zeros((h, w), bool)
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    u = ((xx - a[0]) * chord[0] + (yy - a[1]) * chord[1]) / n2
+    near = (u < share) | (u > 1.0 - share)
+    return hole & near & (lum < CORNER_DARK * float(np.median(lum[ref])))
 
 
 def feature_bands(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

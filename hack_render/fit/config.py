@@ -433,6 +433,11 @@ class FinalConfig:
     # it (the lash line's dark rim); with the eyes' stage closing the lids, that skin
     # would otherwise come from the mirror or A(alpha) (docs/fit.md)
     lids_from_mesh: bool = False
+    # the photo's dark mouth corners (a broad smile's inside beside the teeth) within this
+    # share of the inner corners' chord from either corner, where the render shows the
+    # model's lips meeting, baked onto the lips as the photo has it
+    # (bake_weights.dark_corners); 0: off (the lips' fallback colour there)
+    mouth_corners: float = 0.35
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
     # outer-corner distance; 0: off (strands the segmentation misses are baked as streaks)
@@ -668,6 +673,7 @@ class FitConfig:
                               ("occluder_shadow", 1, "of the eyes' corner distance"),
                               ("occluder_margin", 1, "of the eyes' corner distance"),
                               ("strands", 0.2, "of the eyes' corner distance"),
+                              ("mouth_corners", 0.5, "of the mouth's width"),
                               ("scalp_shade", 1, "of the hair's colour")):
             x = getattr(fc, key)
             if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x <= hi):
