@@ -114,10 +114,11 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
         inside = binary_erosion(rendered, iterations=edge) & ~occluded & ~hole
         features = feature_bands(points, (h, w)) & inside
         if fc.mouth_corners > 0:   # the dark inside the person's mouth corners, where the
-            # model's lips close: baked onto the lips as the photo has it
+            # model's lips close: baked onto the lips as the photo has it, up to the
+            # model's own opening (its inside is dark too: only the silhouette is eroded)
             opening = (None if view.mouth_opening is None
                        else mask_at(view.mouth_opening, h, w))
-            seen = binary_erosion(rendered, iterations=edge) & ~(
+            seen = rendered & binary_erosion(rgba[..., 3] > 0.999, iterations=edge) & ~(
                 occluded & ~opening if opening is not None else occluded)
             features = features | dark_corners(points, photo, fc.mouth_corners) \
                 & seen
