@@ -127,6 +127,40 @@ def test_01_the_eyes_colours_are_baked_from_the_photo(model, tmp_path):
         read_texture_folder(tmp_path / "tex")
 
 
+def test_03_the_pupil_is_not_baked(model):
+    """The iris's pupil keeps its colour (a hole: black) whatever the photo shows over
+    it: baked, a photo's catchlight spread over the pupil's few vertices as a grey-blue
+    pupil. On synthetic points about one eye's axis, then through a render: white painted
+    over both irises of a photo leaves the pupils' vertices as they were and lightens the
+    rest of the irises."""
+    from hack_render.fit import part_bake, texture
+    from hack_render.render.parts import PUPIL_RADIUS, REGIONS
+
+    axes = [(np.zeros(3), np.array([0.0, 0.0, 1.0])),
+            (np.array([0.06, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))]
+    r = np.array([0.3, 0.8, 1.5, 1.69, 1.71, 2.5, 4.0, 6.5]) * 1e-3
+    pos = np.r_[np.c_[r, np.zeros_like(r), np.full_like(r, 0.01)],
+                np.c_[0.06 - r, np.zeros_like(r), np.full_like(r, 0.01)]]
+    np.testing.assert_array_equal(part_bake.pupil(pos, axes), np.tile(r < PUPIL_RADIUS, 2))
+
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0, res=256)
+    st, v = f.state, f.state.views[0]
+    head, _ = texture.photo_scene(st, cfg, v, true_maps, 1, cfg.final.max_side)
+    shot = texture.render_at_photo(st, cfg, v, maps=true_maps, spp=32)
+    photo = shot.rgba[..., :3] + (1 - shot.rgba[..., 3:4]) * 0.5
+    iris = shot.gbuffer["segmentation"] == REGIONS.index("iris")
+    assert iris.sum() > 20
+    photo[iris] = [0.95, 0.95, 1.0]
+    v.photo = photo_of(photo)
+    cur, _, wgt = part_bake.view_samples(st, cfg, v, true_maps, shot)["iris"]
+    inside = part_bake.pupil(_positions(head, "iris"), head.eye_axes)
+    assert inside.sum() >= 4 and (wgt[inside] == 0).all() and (wgt[~inside] > 0).sum() >= 10
+    rgb, _ = part_bake.bake_parts(st, cfg, true_maps, [shot])
+    np.testing.assert_allclose(rgb["iris"][inside], cur[inside], atol=1e-6)
+    seen = wgt > 0
+    assert (rgb["iris"][seen].mean(1) > cur[seen].mean(1)).mean() > 0.9
+
+
 def _final_stub(maps):
     from types import SimpleNamespace
 

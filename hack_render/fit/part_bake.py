@@ -28,7 +28,12 @@ from hack_render.fit.bake_weights import mask_at, photo_at
 from hack_render.fit.state import FitState
 from hack_render.io.image import sample_bilinear
 from hack_render.render.materials import VERTEX_COLOUR_PARTS, material_base_colours
-from hack_render.render.parts import PART_SPECS, REGIONS
+from hack_render.render.parts import (
+    PART_SPECS,
+    PUPIL_RADIUS,
+    REGIONS,
+    radial_eye_distance,
+)
 
 #: the ratio photo / render per vertex held within these (a glint the render has where
 #: the photo has none, or the reverse, and the mouth's unlit inside are not colours)
@@ -90,12 +95,25 @@ def view_samples(state: FitState, cfg, view, maps, render) -> dict:
         px = np.clip(xy.astype(int), 0, [w - 1, h - 1])
         shown = region[px[:, 1], px[:, 0]] == REGIONS.index(PART_SPECS[name][1])
         ok = seen & shown & (cover > 0.99)
+        if name == "iris":
+            ok &= ~pupil(pos, head.eye_axes)
         if occ is not None:  # a hand, a glasses' frame: not the part's colour
             s = occ.shape[1] / w
             ok &= ~occ[np.clip((xy[:, 1] * s).astype(int), 0, occ.shape[0] - 1),
                        np.clip((xy[:, 0] * s).astype(int), 0, occ.shape[1] - 1)]
         out[name] = (cur, np.clip(cur * ratio, 0.0, 1.0), np.where(ok, cos ** 2, 0.0))
     return out
+
+
+def pupil(pos: np.ndarray, axes) -> np.ndarray:
+    """(n,) bool: the iris part's vertices inside the pupil (``pos`` (n, 3); ``axes``: the
+    eyes' optical axes, ``HeadScene.eye_axes``). The pupil is a hole, black whatever the
+    photo shows over it (a catchlight of the light on the cornea, which the fitted light
+    does not reproduce; the iris blurred into it): the bake leaves it out. Baked, a
+    catchlight spread over the pupil's few vertices as a grey-blue pupil (the
+    astronaut's)."""
+    r, _ = radial_eye_distance(pos, axes)
+    return r < PUPIL_RADIUS
 
 
 def bake_parts(state: FitState, cfg, maps, renders) -> tuple[dict | None, dict]:
