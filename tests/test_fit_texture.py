@@ -619,6 +619,20 @@ def test_16_a_smiles_dark_mouth_corners_are_baked_onto_the_lips(model):
     cfg.final.mouth_corners = 0.0
     w_off, _ = bake_weights.pixel_weights(v, pr, cfg)
     assert (w_off[hole] == 0).all()
+    # the person's own opening (the face mesh's) reaches beyond the 68 points' ring: its
+    # dark corner pixels there count too, its middle still not
+    ys, xs = np.nonzero(hole)
+    beyond = np.zeros((h, w), bool)
+    beyond[ys.min() - 3:ys.max() + 4, xs.min() - 3:xs.max() + 4] = True
+    beyond &= ~hole
+    dark2 = rgb.copy()
+    dark2[beyond | hole] *= 0.1
+    out = bake_weights.dark_corners(pts, photo_of(dark2).linear(), share, beyond | hole)
+    far = beyond & ((u < share) | (u > 1 - share))
+    mid = beyond & (u > share + 0.05) & (u < 1 - share - 0.05)
+    assert far.sum() >= 10 and mid.sum() >= 10
+    assert out[far].mean() > 0.9 and not out[mid].any()
+    assert not bake_weights.dark_corners(pts, photo_of(dark2).linear(), share)[beyond].any()
     # bright (teeth-coloured) corners are not the mouth's dark inside
     teeth = rgb.copy()
     teeth[hole] = 0.8

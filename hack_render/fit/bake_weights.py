@@ -113,14 +113,15 @@ def pixel_weights(view: View, pr: PhotoRender, cfg: FitConfig) -> tuple[np.ndarr
                 mask_at(view.eye_opening, h, w), iterations=1)
         inside = binary_erosion(rendered, iterations=edge) & ~occluded & ~hole
         features = feature_bands(points, (h, w)) & inside
-        if fc.mouth_corners > 0:   # the dark inside the person's mouth corners, where the
-            # model's lips close: baked onto the lips as the photo has it, up to the
-            # model's own opening (its inside is dark too: only the silhouette is eroded)
+        if fc.mouth_corners > 0:   # the dark inside the person's mouth corners (in the
+            # 68 points' ring or the face mesh's opening), where the model's lips close:
+            # baked onto the lips as the photo has it, up to the model's own opening (its
+            # inside is dark too: only the silhouette is eroded)
             opening = (None if view.mouth_opening is None
                        else mask_at(view.mouth_opening, h, w))
             seen = rendered & binary_erosion(rgba[..., 3] > 0.999, iterations=edge) & ~(
                 occluded & ~opening if opening is not None else occluded)
-            features = features | dark_corners(points, photo, fc.mouth_corners) \
+            features = features | dark_corners(points, photo, fc.mouth_corners, opening) \
                 & seen
         lids = feature_rings(points, (h, w), eye_scale=fc.eye_hole)["eyes"] & inside & ~features
     # cosine between the normal and the direction to the camera (camera frame, z forward)
@@ -241,17 +242,21 @@ def feature_holes(points: np.ndarray, shape: tuple[int, int],
 CORNER_DARK = 0.45
 
 
-def dark_corners(points: np.ndarray, photo: np.ndarray, share: float) -> np.ndarray:
+def dark_corners(points: np.ndarray, photo: np.ndarray, share: float,
+                 opening: np.ndarray | None = None) -> np.ndarray:
     """(h, w) bool: the photo's dark pixels in the mouth's hole (the inner ring scaled 1.2:
-    :func:`feature_rings`) within ``share`` of the inner corners' chord (points 60 to 64)
-    from either corner: darker than :data:`CORNER_DARK` times the median of the photo's
-    lips (the outer lip ring, 48-59, outside the hole). ``photo``: (h, w, 3) linear. A
-    broad smile's dark corners (the mouth's inside beside the teeth) where the model's
-    lips already meet."""
+    :func:`feature_rings`; with ``opening``, (h, w) bool, the person's own mouth opening
+    too: the face mesh's inner lip contour) within ``share`` of the inner corners' chord
+    (points 60 to 64) from either corner: darker than :data:`CORNER_DARK` times the median
+    of the photo's lips (the outer lip ring, 48-59, outside the hole). ``photo``: (h, w, 3)
+    linear. A broad smile's dark corners (the mouth's inside beside the teeth) where the
+    model's lips already meet."""
     from skimage.draw import polygon
 
     h, w = photo.shape[:2]
     hole = feature_rings(points, (h, w))["mouth"]
+    if opening is not None:
+        hole = hole | opening
     lum = photo[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     ref = np.zeros((h, w), bool)
     rr, cc = polygon(points[48:60, 1] - 0.5, points[48:60, 0] - 0.5, (h, w))

@@ -433,10 +433,11 @@ class FinalConfig:
     # it (the lash line's dark rim); with the eyes' stage closing the lids, that skin
     # would otherwise come from the mirror or A(alpha) (docs/fit.md)
     lids_from_mesh: bool = False
-    # the photo's dark mouth corners (a broad smile's inside beside the teeth) within this
-    # share of the inner corners' chord from either corner, where the render shows the
-    # model's lips meeting, baked onto the lips as the photo has it
-    # (bake_weights.dark_corners); 0: off (the lips' fallback colour there)
+    # the photo's dark mouth corners (a broad smile's inside beside the teeth, in the 68
+    # points' inner ring scaled 1.2 or the face mesh's opening) within this share of the
+    # inner corners' chord from either corner, where the render shows the model's lips
+    # meeting, baked onto the lips as the photo has it (bake_weights.dark_corners); 0:
+    # off (the lips' fallback colour there); 0.5: the whole opening
     mouth_corners: float = 0.35
     # thin dark lines over the skin (hair strands, a frame's edge) left out of the bake
     # (bake_weights.thin_dark_lines): those narrower than this share of the eyes'
