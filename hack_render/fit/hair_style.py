@@ -76,7 +76,7 @@ def hair_style_from_photo(photo: np.ndarray, hair: np.ndarray, skin: np.ndarray 
     base = base or HairStyle()
     origin, u_axis, w_axis, d = _frame(np.asarray(points, np.float64))
     ys, xs = np.nonzero(hair)
-    report: dict = {"hair_pixels": int(len(xs)), "eye_distance_px": round(d, 2)}
+    report: dict = {"hair_pixels": len(xs), "eye_distance_px": round(d, 2)}
     if len(xs) < MIN_HAIR_AREA * d * d:
         report["archetype_reason"] = f"hair area {len(xs) / d ** 2:.2f} d^2 < {MIN_HAIR_AREA}"
         return replace(HairStyle.archetype_style("bald", **_keep(base))), report
