@@ -85,8 +85,14 @@ def numbers(text: str | None, name: str, n: int | None = None, lo: float = -math
     ``n`` of them when given, at least one."""
     if text is None:
         return None
-    parts = [x for x in str(text).replace(" ", "").split(",") if x]
+    parts = str(text).replace(" ", "").split(",")
     kind = "integers" if integer else "numbers"
+    if len(parts) > 1 and "" in parts:
+        # "1,,2" is not "1,2": dropping the empty item would shift every later component.
+        raise HackError(f"{name}: expected comma-separated {kind} like {example!r}, found an "
+                        f"empty item (item {parts.index('') + 1}) in {text!r}. Write 0 where "
+                        f"a component is meant to be zero.")
+    parts = [x for x in parts if x]
     try:
         vals = [int(x) if integer else float(x) for x in parts]
     except ValueError as err:
