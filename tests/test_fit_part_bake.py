@@ -211,3 +211,45 @@ def test_02_textures_that_hold_the_brows_get_no_brow_strands(tmp_path, cli_in_pr
         (tex / SKIN_FILE).write_text(json.dumps({"brows_baked": "yes"}))
         r = cli_in_process(*args)
         assert r.returncode == 2 and "expected a boolean brows_baked" in r.stderr
+
+
+def test_04_the_veil_is_taken_off_before_the_ratio():
+    """``final.part_veil``: the render is affine in a vertex's colour, ``colour * shading +
+    veil`` (the veil: the cornea's reflection, what the render shows with the colours
+    black). A dark iris under a bright reflection: the factor ``(photo - veil) / (render -
+    veil)`` gives the true colour in one step; photo / render leaves it several times too
+    light after the default two passes (the grey-blue irises), converging only slowly. A grey photo gives one
+    factor for the three channels; where the part's own share is nearly nothing the
+    plain ratio stands; a photo darker than the veil alone gives black, not a negative
+    colour."""
+    from hack_render.fit.part_bake import AFFINE_MIN, RATIO_RANGE, affine_ratio
+
+    rng = np.random.default_rng(4)
+    n = 200
+    truth = rng.uniform(0.01, 0.08, (n, 3))          # a dark brown iris, linear
+    shading = rng.uniform(0.3, 1.0, (n, 1))
+    veil = rng.uniform(0.02, 0.06, (n, 3)) * np.array([0.8, 0.9, 1.0])  # a bluish sky
+    cur = np.full((n, 3), 0.3)                       # the prior's light iris
+    photo = truth * shading + veil                   # the same light on the cornea
+
+    def render(c):
+        return c * shading + veil
+
+    got = cur * affine_ratio(photo, render(cur), veil)
+    np.testing.assert_allclose(got, truth, rtol=1e-9)
+    # photo / render, iterated: after the default two passes still too light
+    c = cur.copy()
+    for _ in range(2):
+        c = np.clip(c * affine_ratio(photo, render(c), None), 0, 1)
+    assert np.median(c / truth) > 1.3, np.median(c / truth)
+    # grey: one factor, from luminance
+    g = affine_ratio(photo, render(cur), veil, grey=True)
+    assert np.all(g == g[:, :1])
+    luma = np.array([0.2126, 0.7152, 0.0722])
+    np.testing.assert_allclose(g[:, 0], ((photo - veil) @ luma) / ((render(cur) - veil) @ luma))
+    # the part's own share too small: the plain ratio; the photo under the veil: 0
+    r = render(cur)
+    tiny = veil + AFFINE_MIN / 2
+    np.testing.assert_allclose(affine_ratio(photo, tiny, veil),
+                               np.clip(photo / tiny, *RATIO_RANGE))
+    assert np.all(affine_ratio(veil * 0.5, r, veil) == 0.0)

@@ -383,6 +383,13 @@ class FinalConfig:
     # pattern (eye_colours), the teeth's and gums' defaults. On six real photos' kept fits
     # the eyes' figure rose 0.9-6.9 dB with 2 passes, 3 added 0.1-0.2 (docs/fit.md)
     part_bake: int = 2
+    # the part bake's later passes solve each vertex's colour from the render as an affine
+    # function of it (fit/part_bake.py): the light a part's colour does not scale (the
+    # cornea's and tear film's reflections, the lids' inter-reflections; measured with the
+    # parts black, one more render a pass) is taken off the photo first, instead of
+    # scaling the colour by photo / render, which leaves a dark iris under a bright
+    # reflection grey and bluish
+    part_veil: bool = False
     # the eyes left out of the bake: their landmark rings scaled by this about their
     # centres; with features, the lids' band from bake_weights.LID_INNER to it is baked.
     # Smaller bakes more of the lids and less of the model's eyes (1.0: the astronaut 22.22
@@ -666,6 +673,9 @@ class FitConfig:
                 or not 0 <= fc.part_bake <= 4:
             raise HackError(f"config final.part_bake: expected 0..4 passes, found "
                             f"{fc.part_bake!r}.")
+        if not isinstance(fc.part_veil, bool):
+            raise HackError(f"config final.part_veil: expected true or false, found "
+                            f"{fc.part_veil!r}.")
         if not (isinstance(fc.eye_hole, (int, float)) and math.isfinite(fc.eye_hole)
                 and 0 < fc.eye_hole <= 4):
             raise HackError(f"config final.eye_hole: expected a scale in (0, 4], found "

@@ -136,7 +136,13 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         bar.update()
     part_report = None
     for _ in range(int(cfg.final.part_bake)):  # eyes, teeth, mouth: the photo per vertex
-        part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders)
+        veils = None
+        if cfg.final.part_veil and maps.part_rgb:  # the renders with the parts black
+            black = dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c
+                                                        in maps.part_rgb.items()})
+            veils = [texture.render_at_photo(st, cfg, v, maps=black,
+                                             max_side=cfg.final.max_side) for v in st.views]
+        part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders, veils)
         if part_rgb is None:
             break
         maps = dataclasses.replace(maps, part_rgb=part_rgb)

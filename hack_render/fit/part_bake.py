@@ -41,10 +41,13 @@ RATIO_RANGE = (0.05, 8.0)
 #: visibility: nothing nearer the camera than this before the vertex (metres; the lids
 #: and lips are millimetres in front of what they cover)
 TOLERANCE_M = 5e-4
-def view_samples(state: FitState, cfg, view, maps, render) -> dict:
+def view_samples(state: FitState, cfg, view, maps, render, veil=None) -> dict:
     """One view's samples per part: {name: (the colours rendered (n, 3), the colours the
     vertices would need (n, 3), weights (n,) >= 0; 0: not seen)}. ``render`` is the
-    view's :class:`~hack_render.fit.bake_weights.PhotoRender` made with ``maps``."""
+    view's :class:`~hack_render.fit.bake_weights.PhotoRender` made with ``maps``;
+    ``veil``, where given, the same render with the parts' vertex colours black: the
+    light a vertex's colour does not scale (the cornea's reflections above all), which
+    :func:`affine_ratio` takes off the photo before the ratio."""
     head, window = texture.photo_scene(state, cfg, view, maps, 1, cfg.final.max_side)
     h, w = render.rgba.shape[:2]
     photo = photo_at(view, h, w)
@@ -80,12 +83,8 @@ def view_samples(state: FitState, cfg, view, maps, render) -> dict:
         col, row = xy[:, 0] - 0.5, xy[:, 1] - 0.5   # (pixel centres at k + 0.5)
         p, r = sample_bilinear(photo, col, row), sample_bilinear(rgb, col, row)
         cover = sample_bilinear(alpha, col, row)
-        if view.photo.is_grey:  # no colour in the photo: luminance only, the colour kept
-            luma = np.array([0.2126, 0.7152, 0.0722])
-            ratio = np.repeat(((p @ luma) / np.maximum(r @ luma, 1e-4))[:, None], 3, 1)
-        else:
-            ratio = p / np.maximum(r, 1e-4)
-        ratio = np.clip(ratio, *RATIO_RANGE)
+        v0 = None if veil is None else sample_bilinear(veil.rgba[..., :3], col, row)
+        ratio = affine_ratio(p, r, v0, view.photo.is_grey)
         to_cam = cam.center[None] - pos
         to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
         cos = np.abs((nrm * to_cam).sum(1))  # (the tear film is two-sided)
@@ -105,6 +104,37 @@ def view_samples(state: FitState, cfg, view, maps, render) -> dict:
     return out
 
 
+#: the part's own share of the render (render - veil, linear) below which the affine
+#: ratio is not taken (the part's colour nearly black: its shading is not measured)
+AFFINE_MIN = 2e-3
+
+
+def affine_ratio(p: np.ndarray, r: np.ndarray, veil: np.ndarray | None,
+                 grey: bool = False) -> np.ndarray:
+    """(n, 3) factors of the vertices' colours that make the render ``r`` the photo ``p``
+    at their pixels ((n, 3) linear RGB each). The render is affine in a vertex's colour:
+    ``r = colour * shading + veil``, ``veil`` the render with the colours black. With
+    it, the factor is ``(p - veil) / (r - veil)``: exact to first order where the veil is
+    bright beside the part (a catchlight over a dark iris), where photo / render (the
+    factor without it) leaves the colour too light after any number of passes. Without
+    ``veil``, or where the part's own share is under :data:`AFFINE_MIN`: photo / render.
+    ``grey``: a photo without colour, one luminance factor for the three channels. Held
+    within :data:`RATIO_RANGE` (the affine factor down to 0: the photo darker than the
+    veil alone)."""
+    def lum(x):
+        luma = np.array([0.2126, 0.7152, 0.0722])
+        return np.repeat((x @ luma)[:, None], 3, 1)
+    if grey:
+        p, r, veil = lum(p), lum(r), None if veil is None else lum(veil)
+    ratio = np.clip(p / np.maximum(r, 1e-4), *RATIO_RANGE)
+    if veil is not None:
+        own = r - veil
+        ok = own > AFFINE_MIN
+        aff = np.clip((p - veil) / np.where(ok, own, 1.0), 0.0, RATIO_RANGE[1])
+        ratio = np.where(ok, aff, ratio)
+    return ratio
+
+
 def pupil(pos: np.ndarray, axes) -> np.ndarray:
     """(n,) bool: the iris part's vertices inside the pupil (``pos`` (n, 3); ``axes``: the
     eyes' optical axes, ``HeadScene.eye_axes``). The pupil is a hole, black whatever the
@@ -116,14 +146,16 @@ def pupil(pos: np.ndarray, axes) -> np.ndarray:
     return r < PUPIL_RADIUS
 
 
-def bake_parts(state: FitState, cfg, maps, renders) -> tuple[dict | None, dict]:
+def bake_parts(state: FitState, cfg, maps, renders, veils=None) -> tuple[dict | None, dict]:
     """(``part_rgb`` for ``SkinMaps``, report): every view's samples
-    (:func:`view_samples`) against its render ``renders[i]`` made with ``maps``,
-    weighted; parts no view sees keep their colours. None where the model has none of
-    these parts."""
+    (:func:`view_samples`) against its render ``renders[i]`` made with ``maps`` (and
+    ``veils[i]``, the same with the parts black, where given), weighted; parts no view
+    sees keep their colours. None where the model has none of these parts."""
     acc: dict = {}
-    for view, render in zip(state.views, renders):
-        for name, (cur, col, wgt) in view_samples(state, cfg, view, maps, render).items():
+    for i, (view, render) in enumerate(zip(state.views, renders)):
+        veil = None if veils is None else veils[i]
+        for name, (cur, col, wgt) in view_samples(state, cfg, view, maps, render,
+                                                  veil).items():
             a = acc.setdefault(name, [cur, np.zeros_like(cur), np.zeros(len(cur))])
             a[1] += col * wgt[:, None]
             a[2] += wgt
