@@ -388,8 +388,9 @@ class FinalConfig:
     # cornea's and tear film's reflections, the lids' inter-reflections; measured with the
     # parts black, one more render a pass) is taken off the photo first, instead of
     # scaling the colour by photo / render, which leaves a dark iris under a bright
-    # reflection grey and bluish
-    part_veil: bool = False
+    # reflection too light after two passes. On six real photos' kept fits the eyes rose
+    # 0.01-0.24 dB (median 19.72 -> 19.84), the oval 0.00-0.05 (docs/fit.md)
+    part_veil: bool = True
     # the eyes left out of the bake: their landmark rings scaled by this about their
     # centres; with features, the lids' band from bake_weights.LID_INNER to it is baked.
     # Smaller bakes more of the lids and less of the model's eyes (1.0: the astronaut 22.22
