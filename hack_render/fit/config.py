@@ -391,6 +391,10 @@ class FinalConfig:
     # reflection too light after two passes. On six real photos' kept fits the eyes rose
     # 0.01-0.24 dB (median 19.72 -> 19.84), the oval 0.00-0.05 (docs/fit.md)
     part_veil: bool = True
+    # bake the neck's skin the photo shows below the jaw (hack_render.vision.neck: a
+    # looser skin test there, joined to the face's skin; not in grey photos), as the face;
+    # off: the neck is the tone-matched A(alpha), the face's colour without its detail
+    neck: bool = True
     # the eyes left out of the bake: their landmark rings scaled by this about their
     # centres; with features, the lids' band from bake_weights.LID_INNER to it is baked.
     # Smaller bakes more of the lids and less of the model's eyes (1.0: the astronaut 22.22
@@ -674,6 +678,8 @@ class FitConfig:
                 or not 0 <= fc.part_bake <= 4:
             raise HackError(f"config final.part_bake: expected 0..4 passes, found "
                             f"{fc.part_bake!r}.")
+        if not isinstance(fc.neck, bool):
+            raise HackError(f"config final.neck: expected true or false, found {fc.neck!r}.")
         if not isinstance(fc.part_veil, bool):
             raise HackError(f"config final.part_veil: expected true or false, found "
                             f"{fc.part_veil!r}.")

@@ -191,6 +191,8 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         # the skin inside the face mesh's oval: hair of a skin-like colour and the
         # clothes' edges stay out of the bake
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
+        if cfg.final.neck and seg.neck is not None:  # and the neck's below the jaw
+            view.skin = view.skin | seg.neck
         view.hair, view.clothes = seg.hair, seg.clothes
     if mask is not None:
         view.silhouette = PhotoSilhouette.from_mask(mask, "file")

@@ -37,6 +37,7 @@ from hack_render.vision.dense68 import load_map
 from hack_render.vision.detect import as_rgb8
 from hack_render.vision.detection import FaceLandmarks
 from hack_render.vision.glasses import frames_in_brows, upright_xy
+from hack_render.vision.neck import NECK_K, neck_skin
 from hack_render.vision.person import person_probability
 
 #: face-mesh point rings (MediaPipe's FACEMESH_* connection sets, as ordered loops)
@@ -79,6 +80,9 @@ class Segmentation:
     clothes: np.ndarray
     occluder: np.ndarray
     source: str
+    #: the neck's skin below the jaw (:mod:`hack_render.vision.neck`; bool), in
+    #: ``skin`` too, not in ``clothes``; None: not looked for
+    neck: np.ndarray | None = None
 
     def photometric_weight(self) -> np.ndarray:
         """(H, W) float32: the face's pixels a photometric loss may use (soft face mask,
@@ -415,10 +419,14 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     chin_y = float(_upright_y(face, 8))
     up = _upright_rows(face, h, w)
     hair = rest & (up < mouth_y) & (oval < 0.5)
-    clothes = rest & (up > chin_y)
+    neck = neck_skin(face, rgb8, skin_colour_mask(rgb8, face.dense, person_bin, NECK_K),
+                     skin_all & (oval > 0.5), person_bin, _grey(rgb8))
+    skin_all |= neck
+    clothes = rest & (up > chin_y) & ~neck
     return Segmentation(person.astype(np.float32), face_soft.astype(np.float32), skin_all,
-                        hair, clothes, occluder, "mediapipe selfie_segmentation + face mesh"
-                        + (" + hands" if hands else ""))
+                        hair & ~neck, clothes, occluder,
+                        "mediapipe selfie_segmentation + face mesh"
+                        + (" + hands" if hands else ""), neck)
 
 
 def _upright_rows(face: FaceLandmarks, h: int, w: int) -> np.ndarray:
