@@ -115,8 +115,11 @@ def affine_ratio(p: np.ndarray, r: np.ndarray, veil: np.ndarray | None,
     at their pixels ((n, 3) linear RGB each). The render is affine in a vertex's colour:
     ``r = colour * shading + veil``, ``veil`` the render with the colours black. With
     it, the factor is ``(p - veil) / (r - veil)``: exact to first order where the veil is
-    bright beside the part (a catchlight over a dark iris), where photo / render (the
-    factor without it) leaves the colour too light after any number of passes. Without
+    bright beside the part (a reflection over a dark iris), where photo / render (the
+    factor without it) converges only slowly, leaving the colour too light after the
+    passes the bake runs. (The veil blacks every part at once, so the light a neighbour
+    part spreads over this one's pixels through the pixel filter, the whites' over an
+    iris, counts as this part's own.) Without
     ``veil``, or where the part's own share is under :data:`AFFINE_MIN`: photo / render.
     ``grey``: a photo without colour, one luminance factor for the three channels. Held
     within :data:`RATIO_RANGE` (the affine factor down to 0: the photo darker than the
