@@ -637,3 +637,34 @@ def test_16_a_smiles_dark_mouth_corners_are_baked_onto_the_lips(model):
     teeth = rgb.copy()
     teeth[hole] = 0.8
     assert not bake_weights.dark_corners(pts, photo_of(teeth).linear(), share).any()
+
+
+def test_17_the_splat_filters_each_band_in_its_box_exactly(monkeypatch):
+    """``texture.splat`` filters each footprint band only in its samples' box grown by
+    twice the kernel's reach: bit for bit what filtering the whole atlas gives, with
+    samples at the atlas's corners and edges (where the filter reflects) and inside, and
+    footprints over several bands (on obama_speech's bake 6.6 -> 1.5 s, measured)."""
+    from hack_render.fit import texture
+
+    rng = np.random.default_rng(17)
+    H, n = 64, 400
+    xs = np.concatenate([rng.uniform(0, 3, 50), rng.uniform(2 * H - 3, 2 * H - 1, 50),
+                         rng.uniform(40, 60, n - 100)])
+    ys = np.concatenate([rng.uniform(0, 3, 50), rng.uniform(H - 3, H - 1, 50),
+                         rng.uniform(20, 30, n - 100)])
+    ws = rng.uniform(0.1, 1.0, n)
+    obs = rng.uniform(0, 1, (n, 3))
+    # the median footprint's band at the corners and inside (its box the whole atlas);
+    # wider bands inside only (their boxes cropped)
+    foot = np.ones(n)
+    foot[100:] = np.where(rng.uniform(size=n - 100) < 0.4, rng.uniform(2.0, 7.0, n - 100), 1.0)
+    foot[::37] = np.nan
+    samples = [(xs, ys, ws, obs, foot), None]
+    got = texture.splat(samples, H)
+    full = (slice(None), slice(None))
+    monkeypatch.setattr(texture, "_grown_box", lambda mask, grow: full)
+    want = texture.splat(samples, H)
+    for g, w in zip(got[:2], want[:2]):
+        np.testing.assert_array_equal(g, w)
+    assert got[2] == want[2]
+    assert (got[1] > 0).any() and (got[1][:4, :4] > 0).any() and (got[1][-4:, -4:] > 0).any()
