@@ -10,7 +10,12 @@ between the jaw's angles, down to a face's length below the chin, joined to the 
 own skin. A white collar or a dark tie is far from skin in chromaticity at any looseness
 that keeps the neck; a skin-coloured shirt would pass, as it passes the face's test.
 
-A grey photo has no chromaticity to tell a neck from a collar: no neck there."""
+A grey photo has no chromaticity to tell a neck from a collar: no neck there.
+
+The tracker has a neck of its own for its outline term
+(:func:`hack_render.track.outline.head_neck_mask`: the face's strict test below the mouth,
+without a person segmentation, ~60 ms a frame); one mask for both would need the
+real-clip tracking bench run again (a follow-up)."""
 
 from __future__ import annotations
 

@@ -143,6 +143,15 @@ def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
     r + g + b: shading and highlights change brightness far more than it) lies within
     Mahalanobis ``k`` of the skin samples' (cheeks, forehead, nose: visible face-mesh
     points) and that are not too dark for their chromaticity to mean anything."""
+    maha, lit = skin_distance(rgb8, dense)
+    return within & (maha < k) & lit
+
+
+def skin_distance(rgb8: np.ndarray, dense: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Mahalanobis distance (H, W) of each pixel's chromaticity from the skin samples'
+    clusters, bool (H, W): bright enough for its chromaticity to mean anything), which
+    :func:`skin_colour_mask` thresholds; one computation for several thresholds (the
+    face's and the neck's)."""
     from scipy import ndimage
 
     h, w = rgb8.shape[:2]
@@ -181,7 +190,7 @@ def skin_colour_mask(rgb8: np.ndarray, dense: np.ndarray, within: np.ndarray,
         dd = chroma - mu
         maha = np.minimum(maha, np.sqrt(np.einsum("...i,ij,...j->...", dd,
                                                    np.linalg.inv(cov), dd)))
-    return within & (maha < k) & (img.mean(-1) > 0.06)
+    return maha, img.mean(-1) > 0.06
 
 
 def _pixel_features(rgb8: np.ndarray, win: int) -> np.ndarray:
@@ -388,7 +397,8 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     # the face oval is the mesh's, which also covers the far side of a turned head: only
     # its part inside the person is seen
     face_soft = np.minimum(oval, np.maximum(person, person_bin.astype(np.float32)))
-    skin = skin_colour_mask(rgb8, face.dense, person_bin | (oval > 0.5))
+    maha, lit = skin_distance(rgb8, face.dense)
+    skin = (person_bin | (oval > 0.5)) & (maha < 3.0) & lit
     features = np.zeros((h, w), np.float32)
     brows = np.zeros((h, w), bool)
     for nm in _RINGS[1:]:
@@ -419,7 +429,7 @@ def segment(image, face: FaceLandmarks | None = None, hands: bool = True,
     chin_y = float(_upright_y(face, 8))
     up = _upright_rows(face, h, w)
     hair = rest & (up < mouth_y) & (oval < 0.5)
-    neck = neck_skin(face, rgb8, skin_colour_mask(rgb8, face.dense, person_bin, NECK_K),
+    neck = neck_skin(face, rgb8, person_bin & (maha < NECK_K) & lit,
                      skin_all & (oval > 0.5), person_bin, _grey(rgb8))
     skin_all |= neck
     clothes = rest & (up > chin_y) & ~neck
