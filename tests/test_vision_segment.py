@@ -238,3 +238,61 @@ def test_the_neck_below_the_jaw_is_skin():
     assert ys.max() < 430 and ys.min() > face.points[27][1]
     grey = np.repeat(np.ascontiguousarray(skimage.data.camera())[..., None], 3, 2)
     assert not segment(grey, detect_face(grey, "mesh"), hands=False).neck.any()
+
+
+def _layer_view(rgb8):
+    """A fit's view as ``outputs.photo_layer`` reads it, from the segmentation (what
+    ``fitter._init_silhouette`` keeps, the neck included)."""
+    from types import SimpleNamespace
+
+    from hack_render.vision.segment import segment
+
+    face = detect_face(rgb8, "mesh")
+    seg = segment(rgb8, face, hands=False)
+    return SimpleNamespace(hair=seg.hair, occluder=seg.occluder, clothes=seg.clothes,
+                           skin=seg.skin & (seg.face > 0.5) | seg.neck, face=seg.face > 0.5,
+                           detection=face, photo=SimpleNamespace(width=rgb8.shape[1])), face
+
+
+def test_the_composite_keeps_the_photo_below_the_face():
+    """``render_over_photo.png`` keeps the photo in front of the model's neck and chest
+    wherever the photo below the face is not the person's skin (``vision.neck.below_face``):
+    the cameraman's gloved hand and black coat under his chin were covered by a grey slab
+    of the model's chest (a grey photo: no skin test, no clothes found); on Grace Hopper
+    her collar, tie and the background beside her neck stay the photo's and her neck,
+    skin the bake took, the model's. Her face and his stay the model's."""
+    import matplotlib.cbook
+    import skimage.data
+    from PIL import Image
+
+    from hack_render.fit.outputs import photo_layer
+    from hack_render.vision.neck import below_face
+
+    grey = np.repeat(np.ascontiguousarray(skimage.data.camera())[..., None], 3, 2)
+    view, face = _layer_view(grey)
+    h, w = grey.shape[:2]
+    layer = photo_layer(view, h, w)
+    below = below_face(face.points, (h, w)) & (view.face is not None) & ~view.face
+    person_below = below & (grey.mean(-1) < 60)        # his dark coat and glove
+    assert person_below.sum() > 3000
+    assert (layer[person_below] > 0.5).mean() > 0.95
+    cheek = view.skin & view.face & ~below
+    assert cheek.sum() > 500 and (layer[cheek] < 0.5).mean() > 0.95
+
+    with matplotlib.cbook.get_sample_data("grace_hopper.jpg") as f:
+        grace = np.asarray(Image.open(f).convert("RGB"))
+    view, face = _layer_view(grace)
+    h, w = grace.shape[:2]
+    layer = photo_layer(view, h, w)
+    neck = np.zeros((h, w), bool)
+    neck[350:400, 235:295] = True
+    assert (layer[neck & view.skin] < 0.5).mean() > 0.95
+    lum, spread = grace.mean(-1), np.ptp(grace.astype(int), -1)
+    collar = (lum > 200) & (spread < 25)
+    collar[:380] = False
+    tie = lum < 30
+    tie[:420] = False
+    assert (layer[collar] > 0.5).mean() > 0.95 and (layer[tie] > 0.5).mean() > 0.95
+    sky = below_face(face.points, (h, w)) & ~view.face & (np.ptp(grace.astype(int), -1) > 60) \
+        & (grace[..., 2].astype(int) > grace[..., 0].astype(int) + 40)   # the blue beside her
+    assert sky.sum() > 1000 and (layer[sky] > 0.5).mean() > 0.95

@@ -193,7 +193,7 @@ def _init_silhouette(state: FitState, cfg: FitConfig, view: View, mask) -> None:
         view.occluder, view.skin = seg.occluder, seg.skin & (seg.face > 0.5)
         if cfg.final.neck and seg.neck is not None:  # and the neck's below the jaw
             view.skin = view.skin | seg.neck
-        view.hair, view.clothes = seg.hair, seg.clothes
+        view.hair, view.clothes, view.face = seg.hair, seg.clothes, seg.face > 0.5
     if mask is not None:
         view.silhouette = PhotoSilhouette.from_mask(mask, "file")
         view.silhouette_note = "mask file"

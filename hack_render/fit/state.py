@@ -89,6 +89,9 @@ class View:
     # (h, w) bool: the segmentation's clothes (kept in front of the render in
     # render_over_photo.png: outputs.photo_layer); None: no segmentation
     clothes: np.ndarray | None = None
+    # (h, w) bool: the face mesh's oval inside the person (the segmentation's face);
+    # None: no segmentation
+    face: np.ndarray | None = None
     embedded: bool = False        # landmarks are the embedding's points (else vertices)
     # the jawline's contour vertices (17,) matched at the last re-match, None before
     jaw: np.ndarray | None = None

@@ -19,6 +19,9 @@ real-clip tracking bench run again (a follow-up)."""
 
 from __future__ import annotations
 
+import math
+from types import SimpleNamespace
+
 import numpy as np
 
 from hack_render.vision.detection import FaceLandmarks
@@ -52,6 +55,27 @@ def neck_region(face: FaceLandmarks, shape) -> np.ndarray:
     length = float(py[8] - py[27])
     lo, hi = sorted((px[3], px[13]))
     return (uy > jaw_y) & (ux >= lo) & (ux <= hi) & (uy < py[8] + NECK_DEPTH * length)
+
+
+def below_face(points: np.ndarray, shape) -> np.ndarray:
+    """(H, W) bool: what lies below the face in the photo, in the face's upright frame
+    (the eyes' line, landmarks 36 and 45, level): below the jaw's contour (landmarks
+    0-16) between its two ends, and below the mouth's row (the mean of landmarks 48-67)
+    across the whole width (the neck's sides, a collar risen over a turned jaw, the
+    shoulders, the chest). ``points``: the 68 landmarks (pixels) of the photo of
+    ``shape``. What of it is not the person's skin has no counterpart in the model (it
+    has no clothes): a collar, a hand over the neck, a microphone, the background."""
+    h, w = shape
+    d = points[45] - points[36]
+    face = SimpleNamespace(points=points, roll_deg=math.degrees(math.atan2(-d[1], d[0])))
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    ux, uy = upright_xy(face, xx, yy)
+    px, py = upright_xy(face, points[:, 0], points[:, 1])
+    jx, jy = px[:17], py[:17]
+    order = np.argsort(jx)
+    jaw_y = np.interp(ux, jx[order], jy[order])
+    below = (uy > jaw_y) & (ux >= jx.min()) & (ux <= jx.max())
+    return below | (uy > py[48:68].mean())
 
 
 def neck_skin(face: FaceLandmarks, rgb8: np.ndarray, loose_skin: np.ndarray,
