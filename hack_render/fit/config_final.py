@@ -47,8 +47,10 @@ class FinalConfig:
     # and tongue) baked from the photo per vertex (fit/part_bake.py): passes, each a
     # re-render of the views; 0: the fitted iris's and whites' colours on the model's
     # pattern (eye_colours), the teeth's and gums' defaults. On six real photos' kept fits
-    # the eyes' figure rose 0.9-6.9 dB with 2 passes, 3 added 0.1-0.2 (docs/fit.md)
-    part_bake: int = 2
+    # the eyes' figure rose 0.9-6.9 dB with 2 passes; with the veil (below, rendered once
+    # for the later passes) 4 passes gained another 0.2-0.4 dB over 2 (8: 0.8 on the
+    # astronaut; docs/fit.md)
+    part_bake: int = 4
     # the part bake's later passes solve each vertex's colour from the render as an affine
     # function of it (fit/part_bake.py): the light a part's colour does not scale (the
     # cornea's and tear film's reflections, the lids' inter-reflections; measured with the

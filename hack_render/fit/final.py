@@ -134,10 +134,11 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
                    for v in st.views]
         bar.update()
-    part_report = None
+    part_report, veils = None, None
     for _ in range(int(cfg.final.part_bake)):  # eyes, teeth, mouth: the photo per vertex
-        veils = None
-        if cfg.final.part_veil and maps.part_rgb:  # the renders with the parts black
+        if veils is None and cfg.final.part_veil and maps.part_rgb:
+            # the renders with the parts black: the geometry's and the light's alone, the
+            # same in every later pass, so rendered once
             black = dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c
                                                         in maps.part_rgb.items()})
             veils = [texture.render_at_photo(st, cfg, v, maps=black,
