@@ -253,3 +253,38 @@ def test_04_the_veil_is_taken_off_before_the_ratio():
     np.testing.assert_allclose(affine_ratio(photo, tiny, veil),
                                np.clip(photo / tiny, *RATIO_RANGE))
     assert np.all(affine_ratio(veil * 0.5, r, veil) == 0.0)
+
+
+def test_05_the_passes_before_the_last_render_the_parts_box(model):
+    """``final.part_box``: the part bake's passes before the last (and the veil) render
+    only the box of the parts' pixels (``part_bake.parts_box``, 12 px about them). That
+    box holds every eye and mouth pixel of the whole render, and its render, pasted in
+    the whole image, shows the same first hits inside it as the whole render does and
+    nothing outside it. A render without the parts has no box; a box outside the image
+    is an error."""
+    from hack_render.fit import part_bake, texture
+    from hack_render.fit.bake_weights import PhotoRender
+    from hack_render.render.materials import VERTEX_COLOUR_PARTS
+    from hack_render.render.parts import PART_SPECS, REGIONS
+
+    f, cfg, true_maps, _, _ = texture_fitter(model, yaw=15.0, res=256)
+    st, v = f.state, f.state.views[0]
+    whole = texture.render_at_photo(st, cfg, v, maps=true_maps, spp=4)
+    seg = np.asarray(whole.gbuffer["segmentation"])
+    ids = [REGIONS.index(PART_SPECS[n][1]) for n in VERTEX_COLOUR_PARTS]
+    box = part_bake.parts_box(whole)
+    x0, y0, bw, bh = box
+    parts = np.isin(seg, ids)
+    assert parts.sum() > 40 and parts[y0:y0 + bh, x0:x0 + bw].sum() == parts.sum()
+    assert bw * bh < 0.5 * np.count_nonzero(seg)   # the head's pixels: far fewer rendered
+    part = texture.render_at_photo(st, cfg, v, maps=true_maps, spp=4, box=box)
+    pseg = np.asarray(part.gbuffer["segmentation"])
+    assert part.rgba.shape == whole.rgba.shape
+    np.testing.assert_array_equal(pseg[y0:y0 + bh, x0:x0 + bw], seg[y0:y0 + bh, x0:x0 + bw])
+    outside = np.ones(seg.shape, bool)
+    outside[y0:y0 + bh, x0:x0 + bw] = False
+    assert not pseg[outside].any() and not part.rgba[outside].any()
+    none = PhotoRender(whole.rgba, {"segmentation": np.where(parts, 1, seg)}, 4, 0.0)
+    assert part_bake.parts_box(none) is None
+    with pytest.raises(ValueError, match="outside"):
+        texture.render_at_photo(st, cfg, v, maps=true_maps, spp=4, box=(10_000, 0, 5, 5))

@@ -48,9 +48,9 @@ class FinalConfig:
     # re-render of the views; 0: the fitted iris's and whites' colours on the model's
     # pattern (eye_colours), the teeth's and gums' defaults. On six real photos' kept fits
     # the eyes' figure rose 0.9-6.9 dB with 2 passes; with the veil (below, rendered once
-    # for the later passes) 4 passes gained another 0.2-0.4 dB over 2 (8: 0.8 on the
-    # astronaut; docs/fit.md)
-    part_bake: int = 4
+    # for the later passes) 4 passes gained another 0.2-1.1 dB over 2, 8 (with part_box)
+    # up to 0.3 more (docs/fit.md)
+    part_bake: int = 8
     # the part bake's later passes solve each vertex's colour from the render as an affine
     # function of it (fit/part_bake.py): the light a part's colour does not scale (the
     # cornea's and tear film's reflections, the lids' inter-reflections; measured with the
@@ -59,6 +59,10 @@ class FinalConfig:
     # reflection too light after two passes. On six real photos' kept fits the eyes rose
     # 0.01-0.24 dB (median 19.72 -> 19.84), the oval 0.00-0.05 (docs/fit.md)
     part_veil: bool = True
+    # the part bake's passes before the last (and the veil) render only the box of the
+    # parts' pixels (fit/part_bake.py, ``parts_box``: 12 px about them), the last the
+    # whole view: a pass costs ~1.2 s instead of ~4.7 s on a 1,024-px photo
+    part_box: bool = True
     # bake the neck's skin the photo shows below the jaw (hack_render.vision.neck: a
     # looser skin test there, joined to the face's skin; not in grey photos), as the face;
     # off: the neck is the tone-matched A(alpha), the face's colour without its detail
@@ -163,11 +167,14 @@ class FinalConfig:
         if isinstance(fc.refine, bool) or not isinstance(fc.refine, int) or not 0 <= fc.refine <= 4:
             raise HackError(f"config final.refine: expected 0..4 passes, found {fc.refine!r}.")
         if isinstance(fc.part_bake, bool) or not isinstance(fc.part_bake, int) \
-                or not 0 <= fc.part_bake <= 4:
-            raise HackError(f"config final.part_bake: expected 0..4 passes, found "
+                or not 0 <= fc.part_bake <= 8:
+            raise HackError(f"config final.part_bake: expected 0..8 passes, found "
                             f"{fc.part_bake!r}.")
         if not isinstance(fc.neck, bool):
             raise HackError(f"config final.neck: expected true or false, found {fc.neck!r}.")
+        if not isinstance(fc.part_box, bool):
+            raise HackError(f"config final.part_box: expected true or false, found "
+                            f"{fc.part_box!r}.")
         if not isinstance(fc.part_veil, bool):
             raise HackError(f"config final.part_veil: expected true or false, found "
                             f"{fc.part_veil!r}.")

@@ -135,20 +135,30 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                    for v in st.views]
         bar.update()
     part_report, veils = None, None
-    for _ in range(int(cfg.final.part_bake)):  # eyes, teeth, mouth: the photo per vertex
+    passes = int(cfg.final.part_bake)
+    # the passes before the last render the parts' box alone (final.part_box)
+    boxes = [part_bake.parts_box(r) if cfg.final.part_box else None for r in renders]
+    for k in range(passes):  # eyes, teeth, mouth: the photo per vertex
         if veils is None and cfg.final.part_veil and maps.part_rgb:
             # the renders with the parts black: the geometry's and the light's alone, the
             # same in every later pass, so rendered once
             black = dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c
                                                         in maps.part_rgb.items()})
             veils = [texture.render_at_photo(st, cfg, v, maps=black,
-                                             max_side=cfg.final.max_side) for v in st.views]
+                                             max_side=cfg.final.max_side, box=b)
+                     for v, b in zip(st.views, boxes)]
         part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders, veils)
         if part_rgb is None:
+            if k > 0:  # (the last pass's renders were the box's)
+                renders = [texture.render_at_photo(st, cfg, v, maps=maps,
+                                                   max_side=cfg.final.max_side)
+                           for v in st.views]
             break
         maps = dataclasses.replace(maps, part_rgb=part_rgb)
-        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
-                   for v in st.views]
+        last = k == passes - 1
+        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
+                                           box=None if last else b)
+                   for v, b in zip(st.views, boxes)]
         bar.update()
     hair_renders = None
     if groom is not None:

@@ -138,6 +138,28 @@ def affine_ratio(p: np.ndarray, r: np.ndarray, veil: np.ndarray | None,
     return ratio
 
 
+#: :func:`parts_box`'s margin about the parts' pixels: the pixel filter's reach and the
+#: denoiser's context (pixels)
+BOX_MARGIN_PX = 12
+
+
+def parts_box(render) -> tuple[int, int, int, int] | None:
+    """(x0, y0, width, height): the box of a render's pixels whose first hit is one of the
+    baked parts (eyes, teeth, mouth), grown by :data:`BOX_MARGIN_PX`, which the part
+    bake's passes before the last render alone (``final.part_box``); None where the
+    render shows none of them."""
+    region = np.asarray(render.gbuffer["segmentation"])
+    ids = [REGIONS.index(PART_SPECS[n][1]) for n in VERTEX_COLOUR_PARTS]
+    ys, xs = np.nonzero(np.isin(region, ids))
+    if len(xs) == 0:
+        return None
+    h, w = region.shape
+    x0, y0 = max(int(xs.min()) - BOX_MARGIN_PX, 0), max(int(ys.min()) - BOX_MARGIN_PX, 0)
+    x1 = min(int(xs.max()) + 1 + BOX_MARGIN_PX, w)
+    y1 = min(int(ys.max()) + 1 + BOX_MARGIN_PX, h)
+    return x0, y0, x1 - x0, y1 - y0
+
+
 def pupil(pos: np.ndarray, axes) -> np.ndarray:
     """(n,) bool: the iris part's vertices inside the pupil (``pos`` (n, 3); ``axes``: the
     eyes' optical axes, ``HeadScene.eye_axes``). The pupil is a hole, black whatever the

@@ -115,18 +115,20 @@ SEE_THROUGH = ("eyelashes",)
 
 def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                     spp: int | None = None, max_side: int | None = None,
-                    hair=None, max_depth: int = MAX_DEPTH) -> PhotoRender:
+                    hair=None, max_depth: int = MAX_DEPTH, box=None) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
     :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`);
     ``hair``: a groom (``hack_render.hair``) rendered with the head; ``max_depth``: the
-    path depth (default the photometric stage's, :data:`MAX_DEPTH`)."""
+    path depth (default the photometric stage's, :data:`MAX_DEPTH`); ``box``: (x0, y0,
+    width, height) pixels of the image, only that window rendered (the rest background),
+    as :func:`photo_scene`'s."""
     t0 = time.perf_counter()
     dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
     spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
-    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair, max_depth)
+    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair, max_depth, box)
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
@@ -180,13 +182,14 @@ CROP_GROW = 0.02
 
 
 def photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
-                 max_side: int | None, hair=None, max_depth: int = MAX_DEPTH):
+                 max_side: int | None, hair=None, max_depth: int = MAX_DEPTH, box=None):
     """The HeadScene of :func:`render_at_photo` and the window of the image it renders:
     only the model's projected box (with a margin), where it covers under 90 % of the
     image: (x0, y0, width, height, image width, image height), else None. The rays
     through its pixels are the whole image's (``render.emitters.cropped``); the rest
     of the image is background, so renders and G-buffers are pasted into it
-    (:func:`_paste`): a full-length photo renders its head, not its frame."""
+    (:func:`_paste`): a full-length photo renders its head, not its frame. ``box``
+    (x0, y0, width, height), clipped to the image: that window instead."""
     ph = view.photo
     s = 1.0 if max_side is None else min(1.0, max_side / max(ph.width, ph.height))
     w, h = max(1, round(ph.width * s)), max(1, round(ph.height * s))
@@ -195,19 +198,28 @@ def photo_scene(state: FitState, cfg: FitConfig, view: View, maps, spp: int,
         verts = state.forward(view).vertices[0].numpy()
         env = view.lighting.env_map().detach().numpy().astype(np.float32)
     window = None
-    # the box holds the hair's strands too (their posed control points; collisions move
-    # them by millimetres)
-    extent = verts if hair is None else np.concatenate(
-        [verts] + [p.reshape(-1, 3) for p in pose_groom(hair, verts, collide=False).values()])
-    front = (extent @ cam.R.T + cam.t)[:, 2] > 1e-3
-    if front.all():   # (a vertex behind the camera: no box; the whole image)
-        xy = cam.project(extent.astype(np.float64))
-        grow = CROP_MARGIN_PX + CROP_GROW * float((xy.max(0) - xy.min(0)).max())
-        x0, y0 = np.floor(np.maximum(xy.min(0) - grow, 0)).astype(int)
-        x1, y1 = np.ceil(np.minimum(xy.max(0) + grow, (w, h))).astype(int)
-        if x1 > x0 and y1 > y0 and (x1 - x0) * (y1 - y0) < 0.9 * w * h:
-            window = (int(x0), int(y0), int(x1 - x0), int(y1 - y0), w, h)
-            cam = cropped(cam, *window[:4])
+    if box is not None:
+        x0, y0 = max(int(box[0]), 0), max(int(box[1]), 0)
+        x1, y1 = min(int(box[0] + box[2]), w), min(int(box[1] + box[3]), h)
+        if x1 <= x0 or y1 <= y0:
+            raise ValueError(f"photo_scene: the box {box} is outside the {w}x{h} image")
+        window = (x0, y0, x1 - x0, y1 - y0, w, h)
+        cam = cropped(cam, *window[:4])
+    else:
+        # the box holds the hair's strands too (their posed control points; collisions
+        # move them by millimetres)
+        extent = verts if hair is None else np.concatenate(
+            [verts] + [p.reshape(-1, 3)
+                       for p in pose_groom(hair, verts, collide=False).values()])
+        front = (extent @ cam.R.T + cam.t)[:, 2] > 1e-3
+        if front.all():   # (a vertex behind the camera: no box; the whole image)
+            xy = cam.project(extent.astype(np.float64))
+            grow = CROP_MARGIN_PX + CROP_GROW * float((xy.max(0) - xy.min(0)).max())
+            x0, y0 = np.floor(np.maximum(xy.min(0) - grow, 0)).astype(int)
+            x1, y1 = np.ceil(np.minimum(xy.max(0) + grow, (w, h))).astype(int)
+            if x1 > x0 and y1 > y0 and (x1 - x0) * (y1 - y0) < 0.9 * w * h:
+                window = (int(x0), int(y0), int(x1 - x0), int(y1 - y0), w, h)
+                cam = cropped(cam, *window[:4])
     maps = maps if maps is not None else skin_maps(state)
     rig = LightRig(name="fit", env_map=env)
     head = HeadScene(Topology.from_model(state.model), verts, rig, cam,
