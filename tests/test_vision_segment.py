@@ -260,13 +260,15 @@ def test_the_composite_keeps_the_photo_below_the_face():
     the cameraman's gloved hand and black coat under his chin were covered by a grey slab
     of the model's chest (a grey photo: no skin test, no clothes found); on Grace Hopper
     her collar, tie and the background beside her neck stay the photo's and her neck,
-    skin the bake took, the model's. Her face and his stay the model's."""
+    skin the bake took, the model's. Her face and his stay the model's. Above the brows
+    and outside the oval (``vision.neck.above_brows``) her cap and the flag stay the
+    photo's, her forehead the model's."""
     import matplotlib.cbook
     import skimage.data
     from PIL import Image
 
     from hack_render.fit.outputs import photo_layer
-    from hack_render.vision.neck import below_face
+    from hack_render.vision.neck import above_brows, below_face
 
     grey = np.repeat(np.ascontiguousarray(skimage.data.camera())[..., None], 3, 2)
     view, face = _layer_view(grey)
@@ -296,3 +298,12 @@ def test_the_composite_keeps_the_photo_below_the_face():
     sky = below_face(face.points, (h, w)) & ~view.face & (np.ptp(grace.astype(int), -1) > 60) \
         & (grace[..., 2].astype(int) > grace[..., 0].astype(int) + 40)   # the blue beside her
     assert sky.sum() > 1000 and (layer[sky] > 0.5).mean() > 0.95
+    # above the brows: her cap and the flag outside the oval stay the photo's (the model
+    # has no hair and no cap: its bare scalp showed where the segmentation missed hair),
+    # her forehead's skin inside the oval is the model's
+    up = above_brows(face.points, (h, w))
+    cap = up & ~view.face
+    forehead = up & view.face & view.skin
+    assert cap.sum() > 20000 and forehead.sum() > 2000
+    assert (layer[cap] > 0.5).mean() > 0.95 and (layer[forehead] < 0.5).mean() > 0.95
+    assert not up[face.points[36:48, 1].astype(int), face.points[36:48, 0].astype(int)].any()

@@ -29,7 +29,7 @@ from hack_render.io.image import straight_colour, to_srgb8
 from hack_render.io.npz import write_npz
 from hack_render.render.materials import material_base_colours
 from hack_render.render.skin_maps import IRIS_FILE, PARTS_FILE, SKIN_FILE
-from hack_render.vision.neck import below_face
+from hack_render.vision.neck import above_brows, below_face
 
 #: The hidden temporaries a killed fit may leave in its folder: ``hack_render.io``'s, and
 #: the names older versions gave them (one pattern per output).
@@ -250,8 +250,9 @@ def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
     ``render_over_photo.png`` (``final.photo_hair``): the segmentation's hair, occluders
     (hands, glasses' frames) and clothes (a collar over the neck), the model having no
     hair and no clothes, and below the face (:func:`~hack_render.vision.neck.below_face`)
-    and outside its oval all but the view's skin (the neck the bake took), without the
-    eyes and the mouth
+    or above the brows (:func:`~hack_render.vision.neck.above_brows`) and outside its
+    oval all but the view's skin (the neck the bake took), without the eyes and the
+    mouth
     (the eyes' rings scaled :data:`PHOTO_LAYER_EYES`, the outer lips' by
     :data:`PHOTO_LAYER_LIPS`), at the render's size,
     their edge softened by a Gaussian of ``soft`` px; None where the view has no
@@ -263,11 +264,13 @@ def photo_layer(v, h: int, w: int, soft: float = 0.7) -> np.ndarray | None:
     if not masks:
         return None
     if v.skin is not None and v.face is not None:
-        # below the face and outside its oval (inside it, what is not skin is an
-        # occluder), all but the skin the bake took (the neck's; none in a grey photo):
-        # the model's neck and chest over a collar, a hand or the background beside the
-        # neck are not the person
-        masks.append(below_face(v.detection.points, v.skin.shape)
+        # below the face or above the brows, outside the face's oval (inside it, what is
+        # not skin is an occluder), all but the skin the bake took (the neck's; none in a
+        # grey photo): the model's neck and chest over a collar, a hand or the background
+        # beside the neck, its bare scalp over hair the segmentation missed or over the
+        # background above the head are not the person
+        pts, shape = v.detection.points, v.skin.shape
+        masks.append((below_face(pts, shape) | above_brows(pts, shape))
                      & ~np.asarray(v.skin, bool) & ~np.asarray(v.face, bool))
     m = np.zeros((h, w), bool)
     for mk in masks:

@@ -78,6 +78,22 @@ def below_face(points: np.ndarray, shape) -> np.ndarray:
     return below | (uy > py[48:68].mean())
 
 
+def above_brows(points: np.ndarray, shape) -> np.ndarray:
+    """(H, W) bool: above the brows' row (the mean of landmarks 17-26) in the face's
+    upright frame (as :func:`below_face`'s): the scalp and the hair over it, and what
+    lies above the head. What of it outside the face's oval is not skin the bake took has
+    no counterpart in the model (it has no hair): hair the segmentation did not call hair
+    (a crew cut's close-cropped top), the background above a head the model's skull
+    overtops."""
+    h, w = shape
+    d = points[45] - points[36]
+    face = SimpleNamespace(points=points, roll_deg=math.degrees(math.atan2(-d[1], d[0])))
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    _, uy = upright_xy(face, xx, yy)
+    _, py = upright_xy(face, points[17:27, 0], points[17:27, 1])
+    return uy < py.mean()
+
+
 def neck_skin(face: FaceLandmarks, rgb8: np.ndarray, loose_skin: np.ndarray,
               face_skin: np.ndarray, person: np.ndarray, grey: bool) -> np.ndarray:
     """(H, W) bool: the pixels of ``loose_skin`` (the skin test at :data:`NECK_K`) in the
