@@ -57,6 +57,18 @@ def neck_region(face: FaceLandmarks, shape) -> np.ndarray:
     return (uy > jaw_y) & (ux >= lo) & (ux <= hi) & (uy < py[8] + NECK_DEPTH * length)
 
 
+def _upright(points: np.ndarray, shape):
+    """(x, y) of every pixel of an image of ``shape`` and of the 68 ``points`` in the
+    face's upright frame (its roll, the eyes' line of landmarks 36 and 45, undone)."""
+    h, w = shape
+    d = points[45] - points[36]
+    face = SimpleNamespace(points=points, roll_deg=math.degrees(math.atan2(-d[1], d[0])))
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    ux, uy = upright_xy(face, xx, yy)
+    px, py = upright_xy(face, points[:, 0], points[:, 1])
+    return ux, uy, px, py
+
+
 def below_face(points: np.ndarray, shape) -> np.ndarray:
     """(H, W) bool: what lies below the face in the photo, in the face's upright frame
     (the eyes' line, landmarks 36 and 45, level): below the jaw's contour (landmarks
@@ -65,12 +77,7 @@ def below_face(points: np.ndarray, shape) -> np.ndarray:
     shoulders, the chest). ``points``: the 68 landmarks (pixels) of the photo of
     ``shape``. What of it is not the person's skin has no counterpart in the model (it
     has no clothes): a collar, a hand over the neck, a microphone, the background."""
-    h, w = shape
-    d = points[45] - points[36]
-    face = SimpleNamespace(points=points, roll_deg=math.degrees(math.atan2(-d[1], d[0])))
-    yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    ux, uy = upright_xy(face, xx, yy)
-    px, py = upright_xy(face, points[:, 0], points[:, 1])
+    ux, uy, px, py = _upright(points, shape)
     jx, jy = px[:17], py[:17]
     order = np.argsort(jx)
     jaw_y = np.interp(ux, jx[order], jy[order])
@@ -85,13 +92,8 @@ def above_brows(points: np.ndarray, shape) -> np.ndarray:
     no counterpart in the model (it has no hair): hair the segmentation did not call hair
     (a crew cut's close-cropped top), the background above a head the model's skull
     overtops."""
-    h, w = shape
-    d = points[45] - points[36]
-    face = SimpleNamespace(points=points, roll_deg=math.degrees(math.atan2(-d[1], d[0])))
-    yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    _, uy = upright_xy(face, xx, yy)
-    _, py = upright_xy(face, points[17:27, 0], points[17:27, 1])
-    return uy < py.mean()
+    _, uy, _, py = _upright(points, shape)
+    return uy < py[17:27].mean()
 
 
 def neck_skin(face: FaceLandmarks, rgb8: np.ndarray, loose_skin: np.ndarray,
