@@ -257,11 +257,12 @@ def test_04_the_veil_is_taken_off_before_the_ratio():
 
 def test_05_the_passes_before_the_last_render_the_parts_box(model):
     """``final.part_box``: the part bake's passes before the last (and the veil) render
-    only the box of the parts' pixels (``part_bake.parts_box``, 12 px about them). That
-    box holds every eye and mouth pixel of the whole render, and its render, pasted in
-    the whole image, shows the same first hits inside it as the whole render does and
-    nothing outside it. A render without the parts has no box; a box outside the image
-    is an error."""
+    only the box of the parts' pixels (``part_bake.parts_box``, 12 px about them), their
+    scene kept (``texture.PartRenders``). That box holds every eye and mouth pixel of the
+    whole render; its render, pasted in the whole image, shows the same first hits inside
+    it as the whole render and nothing outside it; new part colours set in the kept scene
+    render as a scene built with them does. A render without the parts has no box; a
+    box outside the image is an error."""
     from hack_render.fit import part_bake, texture
     from hack_render.fit.bake_weights import PhotoRender
     from hack_render.render.materials import VERTEX_COLOUR_PARTS
@@ -277,14 +278,26 @@ def test_05_the_passes_before_the_last_render_the_parts_box(model):
     parts = np.isin(seg, ids)
     assert parts.sum() > 40 and parts[y0:y0 + bh, x0:x0 + bw].sum() == parts.sum()
     assert bw * bh < 0.5 * np.count_nonzero(seg)   # the head's pixels: far fewer rendered
-    part = texture.render_at_photo(st, cfg, v, maps=true_maps, spp=4, box=box)
-    pseg = np.asarray(part.gbuffer["segmentation"])
-    assert part.rgba.shape == whole.rgba.shape
+    head, _ = texture.photo_scene(st, cfg, v, true_maps, 1, cfg.final.max_side)
+    rng = np.random.default_rng(6)
+    colours = [{p: rng.uniform(0.05, 0.9, (len(_positions(head, p)), 3)).astype(np.float32)
+                for p in EYE_PARTS} for _ in range(2)]
+    kept = texture.PartRenders(st, cfg, v, box)
+    first = kept(dataclasses.replace(true_maps, part_rgb=colours[0]))
+    pseg = np.asarray(first.gbuffer["segmentation"])
+    assert first.rgba.shape == whole.rgba.shape
     np.testing.assert_array_equal(pseg[y0:y0 + bh, x0:x0 + bw], seg[y0:y0 + bh, x0:x0 + bw])
     outside = np.ones(seg.shape, bool)
     outside[y0:y0 + bh, x0:x0 + bw] = False
-    assert not pseg[outside].any() and not part.rgba[outside].any()
+    assert not pseg[outside].any() and not first.rgba[outside].any()
+    second = kept(dataclasses.replace(true_maps, part_rgb=colours[1]))
+    fresh = texture.PartRenders(st, cfg, v, box)(dataclasses.replace(true_maps,
+                                                                     part_rgb=colours[1]))
+    eyes = np.isin(pseg, [REGIONS.index(p) for p in EYE_PARTS])
+    assert np.abs(second.rgba - first.rgba)[eyes].max() > 0.05   # the colours changed
+    # (1.3e-6 measured: the Gaussian filter's splats summed in the threads' order)
+    np.testing.assert_allclose(second.rgba, fresh.rgba, atol=1e-5)
     none = PhotoRender(whole.rgba, {"segmentation": np.where(parts, 1, seg)}, 4, 0.0)
     assert part_bake.parts_box(none) is None
     with pytest.raises(ValueError, match="outside"):
-        texture.render_at_photo(st, cfg, v, maps=true_maps, spp=4, box=(10_000, 0, 5, 5))
+        texture.photo_scene(st, cfg, v, true_maps, 4, cfg.final.max_side, box=(10_000, 0, 5, 5))

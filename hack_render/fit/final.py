@@ -137,16 +137,23 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     part_report, veils = None, None
     passes = int(cfg.final.part_bake)
     # the passes before the last render the parts' box alone (final.part_box)
+    # (their scenes kept, the parts' colours changed in place: texture.PartRenders)
     boxes = [part_bake.parts_box(r) if cfg.final.part_box else None for r in renders]
+    box_renders = [texture.PartRenders(st, cfg, v, b) if b is not None else None
+                   for v, b in zip(st.views, boxes)]
+
+    def render_pass(v, br, m, last):
+        if br is None or last:
+            return texture.render_at_photo(st, cfg, v, maps=m, max_side=cfg.final.max_side)
+        return br(m)
+
     for k in range(passes):  # eyes, teeth, mouth: the photo per vertex
         if veils is None and cfg.final.part_veil and maps.part_rgb:
             # the renders with the parts black: the geometry's and the light's alone, the
             # same in every later pass, so rendered once
             black = dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c
                                                         in maps.part_rgb.items()})
-            veils = [texture.render_at_photo(st, cfg, v, maps=black,
-                                             max_side=cfg.final.max_side, box=b)
-                     for v, b in zip(st.views, boxes)]
+            veils = [render_pass(v, br, black, False) for v, br in zip(st.views, box_renders)]
         part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders, veils)
         if part_rgb is None:
             if k > 0:  # (the last pass's renders were the box's)
@@ -155,10 +162,8 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
                            for v in st.views]
             break
         maps = dataclasses.replace(maps, part_rgb=part_rgb)
-        last = k == passes - 1
-        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
-                                           box=None if last else b)
-                   for v, b in zip(st.views, boxes)]
+        renders = [render_pass(v, br, maps, k == passes - 1)
+                   for v, br in zip(st.views, box_renders)]
         bar.update()
     hair_renders = None
     if groom is not None:

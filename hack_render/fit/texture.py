@@ -115,26 +115,52 @@ SEE_THROUGH = ("eyelashes",)
 
 def render_at_photo(state: FitState, cfg: FitConfig, view: View, maps=None,
                     spp: int | None = None, max_side: int | None = None,
-                    hair=None, max_depth: int = MAX_DEPTH, box=None) -> PhotoRender:
+                    hair=None, max_depth: int = MAX_DEPTH) -> PhotoRender:
     """Render the view through its fitted camera at the photo's size (the long side at
     most ``max_side``): the fitted vertices, ``maps`` (default: the fitted maps), the
     view's lighting, the photometric stage's path depth; ``final.spp`` samples, or
     :data:`SPP_DENOISED` denoised by OIDN where it is installed (:data:`DENOISE`);
     ``hair``: a groom (``hack_render.hair``) rendered with the head; ``max_depth``: the
-    path depth (default the photometric stage's, :data:`MAX_DEPTH`); ``box``: (x0, y0,
-    width, height) pixels of the image, only that window rendered (the rest background),
-    as :func:`photo_scene`'s."""
+    path depth (default the photometric stage's, :data:`MAX_DEPTH`)."""
     t0 = time.perf_counter()
     dn = _denoiser() if spp is None and DENOISE == "auto" else None
     denoised = dn is not None
     spp = int(spp or (SPP_DENOISED if denoised else cfg.final.spp))
-    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair, max_depth, box)
+    head, window = photo_scene(state, cfg, view, maps, spp, max_side, hair, max_depth)
+    return _render_head(head, window, cfg, spp, denoised, t0)
+
+
+def _render_head(head, window, cfg, spp: int, denoised: bool, t0: float) -> PhotoRender:
+    """:func:`render_at_photo`'s render of a built scene: the image, its G-buffer,
+    denoised where ``denoised``, pasted into the whole image."""
     rgba = head.render(seed=cfg.seed * 1000 + 4242, backdrop=False)
     gb = head.aovs(see_through=SEE_THROUGH)
     if denoised:  # with the renderer's own footprint features (through the lashes)
         rgba = head.denoise(rgba, fallback=True)
     return PhotoRender(_paste(rgba, window), _paste(gb, window), spp,
                        time.perf_counter() - t0, denoised)
+
+
+class PartRenders:
+    """:func:`render_at_photo` of one view's ``box`` (the part bake's passes before the
+    last, ``final.part_box``) with the scene kept: a later call with maps that differ in
+    the parts' vertex colours alone (``SkinMaps.part_rgb``) changes them in place
+    (``HeadScene.set_part_colours``) instead of building the scene again."""
+
+    def __init__(self, state: FitState, cfg: FitConfig, view: View, box):
+        self.state, self.cfg, self.view, self.box = state, cfg, view, box
+        self.head = self.window = None
+
+    def __call__(self, maps) -> PhotoRender:
+        t0 = time.perf_counter()
+        denoised = DENOISE == "auto" and _denoiser() is not None
+        spp = SPP_DENOISED if denoised else int(self.cfg.final.spp)
+        if self.head is None:
+            self.head, self.window = photo_scene(self.state, self.cfg, self.view, maps, spp,
+                                                 self.cfg.final.max_side, box=self.box)
+        else:
+            self.head.set_part_colours(maps.part_rgb)
+        return _render_head(self.head, self.window, self.cfg, spp, denoised, t0)
 
 
 def hair_composite(shallow: PhotoRender, deep: PhotoRender) -> PhotoRender:

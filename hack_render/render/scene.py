@@ -473,6 +473,25 @@ class HeadScene:
         if update:
             self.params.update()
 
+    def set_part_colours(self, part_rgb: dict, *, update: bool = True) -> None:
+        """New per-vertex colours ({part: (n, 3)}) of parts the scene was built with
+        colours for (``SkinMaps.part_rgb``), without a new scene."""
+        import mitsuba as mi
+
+        for name, colours in part_rgb.items():
+            key = f"{name}.vertex_color"
+            if key not in self.params:
+                raise HackError(f"part colours {name!r}: the scene was built without them; "
+                                "expected a part with per-vertex colours.")
+            flat = np.asarray(colours, np.float32).ravel()
+            n = len(self.params[key])
+            if flat.size != n:
+                raise HackError(f"part colours {name!r}: expected {n // 3} colours, found "
+                                f"{flat.size // 3}.")
+            self.params[key] = mi.Float(flat)
+        if update:
+            self.params.update()
+
     def set_eyes(self, iris_rgb=None, sclera_rgb=None, eye_gloss=None, *, update=True):
         """Eye colours and gloss (``materials.set_eye_parameters``), without a new scene."""
         iris = [p.gather for p in self.parts if p.name == "iris"]
