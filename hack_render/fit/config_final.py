@@ -63,6 +63,11 @@ class FinalConfig:
     # parts' pixels (fit/part_bake.py, ``parts_box``: 12 px about them), the last the
     # whole view: a pass costs ~1.2 s instead of ~4.7 s on a 1,024-px photo
     part_box: bool = True
+    # after the passes, steps that solve the parts' colours together by bounded least
+    # squares against the photo (fit/part_solve.py: the render linear in them, from one
+    # more render with them white), each a re-render of the parts' box; 0: the passes'
+    # colours
+    part_solve: int = 2
     # bake the neck's skin the photo shows below the jaw (hack_render.vision.neck: a
     # looser skin test there, joined to the face's skin; not in grey photos), as the face;
     # off: the neck is the tone-matched A(alpha), the face's colour without its detail
@@ -172,6 +177,10 @@ class FinalConfig:
                             f"{fc.part_bake!r}.")
         if not isinstance(fc.neck, bool):
             raise HackError(f"config final.neck: expected true or false, found {fc.neck!r}.")
+        if isinstance(fc.part_solve, bool) or not isinstance(fc.part_solve, int) \
+                or not 0 <= fc.part_solve <= 4:
+            raise HackError(f"config final.part_solve: expected 0..4 steps, found "
+                            f"{fc.part_solve!r}.")
         if not isinstance(fc.part_box, bool):
             raise HackError(f"config final.part_box: expected true or false, found "
                             f"{fc.part_box!r}.")

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from hack_render.fit import face_mesh, iris, part_bake, scalp, texture
+from hack_render.fit import face_mesh, iris, part_bake, part_solve, scalp, texture
 from hack_render.fit.bake_weights import mask_at, photo_at
 from hack_render.fit.hair_style import colour_pixels, hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
@@ -60,7 +60,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     st = state
     specular = cfg.final.specular and not all(v.photo.is_grey for v in st.views)
     bar = tqdm(total=2 * len(st.views) + 2 + int(cfg.final.refine) + int(specular)
-               + int(cfg.final.part_bake),
+               + int(cfg.final.part_bake) + int(cfg.final.part_solve),
                desc="fit final (renders, bake)", unit="step", disable=not progress,
                leave=False)
     t0 = time.perf_counter()
@@ -138,9 +138,11 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
     passes = int(cfg.final.part_bake)
     # the passes before the last render the parts' box alone (final.part_box)
     # (their scenes kept, the parts' colours changed in place: texture.PartRenders)
-    boxes = [part_bake.parts_box(r) if cfg.final.part_box else None for r in renders]
+    shown = [part_bake.parts_box(r) for r in renders]
+    boxes = shown if cfg.final.part_box else [None] * len(shown)
     box_renders = [texture.PartRenders(st, cfg, v, b) if b is not None else None
                    for v, b in zip(st.views, boxes)]
+    steps = int(cfg.final.part_solve) if passes else 0
 
     def render_pass(v, br, m, last):
         if br is None or last:
@@ -151,20 +153,26 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
         if veils is None and cfg.final.part_veil and maps.part_rgb:
             # the renders with the parts black: the geometry's and the light's alone, the
             # same in every later pass, so rendered once
-            black = dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c
-                                                        in maps.part_rgb.items()})
-            veils = [render_pass(v, br, black, False) for v, br in zip(st.views, box_renders)]
+            veils = [render_pass(v, br, _coloured(maps, 0.0), False)
+                     for v, br in zip(st.views, box_renders)]
         part_rgb, part_report = part_bake.bake_parts(st, cfg, maps, renders, veils)
         if part_rgb is None:
             if k > 0:  # (the last pass's renders were the box's)
                 renders = [texture.render_at_photo(st, cfg, v, maps=maps,
                                                    max_side=cfg.final.max_side)
                            for v in st.views]
+            steps = 0
             break
         maps = dataclasses.replace(maps, part_rgb=part_rgb)
-        renders = [render_pass(v, br, maps, k == passes - 1)
+        renders = [render_pass(v, br, maps, k == passes - 1 and not steps)
                    for v, br in zip(st.views, box_renders)]
         bar.update()
+    if steps and maps.part_rgb:  # then all the parts' colours at once (final.part_solve)
+        maps, renders, part_report["solve"] = _solve_parts(
+            st, cfg, maps, renders, veils, [br if br is not None or b is None
+                                            else texture.PartRenders(st, cfg, v, None)
+                                            for v, br, b in zip(st.views, box_renders, shown)],
+            steps, bar)
     hair_renders = None
     if groom is not None:
         t2 = time.perf_counter()
@@ -299,3 +307,39 @@ def _colour_steps(st: FitState, cfg, maps, style, renders: list, report: dict):
         if photo is None:
             break
     return style, renders
+
+
+def _coloured(maps, value: float):
+    """``maps`` with every baked part's vertex colours ``value`` (0: the veil's render,
+    1: the shading's, fit/part_solve.py)."""
+    return dataclasses.replace(maps, part_rgb={k: np.full_like(c, value)
+                                               for k, c in maps.part_rgb.items()})
+
+
+def _solve_parts(st, cfg, maps, renders, veils, solvers, steps: int, bar):
+    """``final.part_solve``'s steps (fit/part_solve.py) after the part bake's passes:
+    (maps, the views' renders, the last as the whole view's, report). ``solvers``: each
+    view's :class:`texture.PartRenders` (None: the view shows no part); ``veils``: the
+    passes' renders with the parts black (None: rendered here)."""
+    t0 = time.perf_counter()
+    whites = [None if pr is None else pr(_coloured(maps, 1.0)) for pr in solvers]
+    if veils is None:
+        veils = [None if pr is None else pr(_coloured(maps, 0.0)) for pr in solvers]
+    heads = [pr.head for pr in solvers if pr is not None]
+    if not heads:
+        return maps, renders, {"steps": 0, "note": "no view shows a baked part"}
+    layout = part_solve.Layout.of(heads[0])
+    rows = [None if pr is None else part_solve.ViewRows(v, pr.hits(), pr.head, layout,
+                                                        wh.rgba, vl.rgba)
+            for v, pr, wh, vl in zip(st.views, solvers, whites, veils)]
+    reports = []
+    for k in range(steps):
+        part_rgb, rep = part_solve.solve_step(st, maps.part_rgb, rows,
+                                              [r.rgba for r in renders], layout)
+        reports.append(rep)
+        maps = dataclasses.replace(maps, part_rgb=part_rgb)
+        renders = [texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side)
+                   if pr is None or k == steps - 1 else pr(maps)
+                   for v, pr in zip(st.views, solvers)]
+        bar.update()
+    return maps, renders, {"steps": reports, "seconds": round(time.perf_counter() - t0, 2)}

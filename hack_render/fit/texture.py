@@ -162,6 +162,12 @@ class PartRenders:
             self.head.set_part_colours(maps.part_rgb)
         return _render_head(self.head, self.window, self.cfg, spp, denoised, t0)
 
+    def hits(self) -> dict:
+        """The kept scene's G-buffer with each pixel's triangle and hit point
+        (``render.aov.gbuffer(hits=True)``, through the lash cards), in the whole image
+        (after a first call)."""
+        return _paste(self.head.aovs(see_through=SEE_THROUGH, hits=True), self.window)
+
 
 def hair_composite(shallow: PhotoRender, deep: PhotoRender) -> PhotoRender:
     """``shallow`` (the photometric stage's path depth: the skin as the bake assumed it)

@@ -82,14 +82,17 @@ def environment_backdrop(head) -> np.ndarray:
                      for c in range(3)], -1).reshape(h, w, 3)
 
 
-def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
+def gbuffer(head, see_through=(), hits: bool = False) -> dict[str, np.ndarray]:
     """Compute every AOV of a :class:`~hack_render.render.scene.HeadScene`'s current state:
     ``depth``, ``normal`` (camera frame), ``albedo``, ``uv`` (model UV) and
     ``segmentation`` (``parts.REGIONS`` ids) of each pixel centre's first surface. With
     ``see_through`` (region names, e.g. ``("eyelashes",)``) a centre ray whose first
     surface is in one of them is continued past them (through up to
     ``footprint.CARD_LAYERS`` layered cards, as the footprint rays) and the AOVs are
-    the first other surface's behind;
+    the first other surface's behind; with ``hits``, also ``prim`` (H, W) int32, the
+    hit triangle's index in its shape (-1 where none), and ``position`` (H, W, 3) the
+    hit point (world frame, metres), from which a triangle's barycentric coordinates
+    follow (:func:`hack_render.fit.part_solve` reads the parts' vertex colours so);
     ``card_opacity`` (H, W) is then the card's opacity at the first hit (0 where the ray
     met none) and ``through`` (H, W) bool where the ray went through one."""
     import drjit as dr
@@ -122,7 +125,7 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
             on = card
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid)
     region, u_model, v_model = _region_uv_jit(head, si, valid)
-    dr.eval(si.p, si.sh_frame.n, albedo, region, u_model, v_model, valid)
+    dr.eval(si.p, si.sh_frame.n, albedo, region, u_model, v_model, valid, si.prim_index)
 
     def arr(v, c):
         return np.asarray(v, dtype=np.float64).reshape(c, h, w).transpose(1, 2, 0) \
@@ -142,9 +145,14 @@ def gbuffer(head, see_through=()) -> dict[str, np.ndarray]:
         "uv": np.where(zero[..., None], 0.0, uv_model),
         "segmentation": region,
     }
+    if hits:
+        out["position"] = np.where(zero[..., None], 0.0, p)
+        prim = np.asarray(si.prim_index, np.int64).reshape(h, w)
+        out["prim"] = np.where(zero, -1, prim).astype(np.int32)
     if opacity is not None:
         out["card_opacity"] = np.asarray(opacity, dtype=np.float64).reshape(h, w)
-    out = {k: v.astype(np.float32) if k != "segmentation" else v for k, v in out.items()}
+    out = {k: v.astype(np.float32) if k not in ("segmentation", "prim", "position") else v
+           for k, v in out.items()}
     if through is not None:
         out["through"] = np.asarray(through, dtype=bool).reshape(h, w)
     return out

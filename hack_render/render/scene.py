@@ -655,9 +655,9 @@ class HeadScene:
             self._backdrop = environment_backdrop(self)
         return self._backdrop
 
-    def aovs(self, see_through=()) -> dict[str, np.ndarray]:
+    def aovs(self, see_through=(), hits: bool = False) -> dict[str, np.ndarray]:
         """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
-        return gbuffer(self, see_through)
+        return gbuffer(self, see_through, hits)
 
     def region_hits(self, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict:
         """Region ids and model UVs at one sub-pixel point: see :func:`aov.region_hits`."""
