@@ -329,8 +329,8 @@ def _solve_parts(st, cfg, maps, renders, veils, solvers, steps: int, bar):
     if not heads:
         return maps, renders, {"steps": 0, "note": "no view shows a baked part"}
     layout = part_solve.Layout.of(heads[0])
-    rows = [None if pr is None else part_solve.ViewRows(v, pr.hits(), pr.head, layout,
-                                                        wh.rgba, vl.rgba)
+    rows = [None if pr is None else part_solve.ViewRows(
+        v, pr.hits(), pr.head, layout, wh.rgba, vl.rgba, pr.head.settings.pixel_filter)
             for v, pr, wh, vl in zip(st.views, solvers, whites, veils)]
     reports = []
     for k in range(steps):

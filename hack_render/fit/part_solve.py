@@ -3,35 +3,39 @@ bounded linear least squares after the per-vertex passes of :mod:`part_bake`.
 
 The per-vertex passes scale each vertex's colour by the photo over the render at the
 vertex's own pixel. Where a part's vertices are denser than the pixels (an iris a few
-pixels across) or sparser (the whites' shell, the teeth), a pixel's colour is the
-interpolation of three vertices' and the passes converge slowly or not at all. Here the
-render is taken as what it is, linear in the parts' colours: at a pixel whose first
-surface is a part (``G-buffer`` ``prim`` and ``position``: the triangle and its
-barycentric weights ``b``),
+pixels across) or sparser (the whites' shell, the teeth), and where the pixel filter
+mixes a pixel's neighbours into it (Mitsuba's Gaussian gives a pixel's own cell 47 % of
+its weight), a pixel's colour is no one vertex's and the passes converge slowly or not
+at all. Here the render is taken as what it is, linear in the parts' colours: a pixel
+whose first surface is a part (the G-buffer's ``prim`` and ``position``: the triangle
+and the barycentric weights ``b``) has the light
 
-    render = veil + shading * (b . colours of the triangle's vertices)
+    S * (b . colours of the triangle's vertices)
 
-``veil`` the render with the parts' colours black (:mod:`part_bake`), ``shading`` the
-render with them white minus the veil: both rendered once, with the fitted geometry,
-light and camera. The pixel filter's spread and the denoiser are left out of the model;
-each step therefore starts from the photo minus the current render (a Gauss-Newton step
-with this Jacobian), and the steps' renders correct what the model misses.
+``S`` its shading: the render with the parts' colours white minus the render with them
+black (the veil, :mod:`part_bake`), both rendered once with the fitted geometry, light
+and camera, over the share of the filter's weight that falls on part pixels. The
+render is the veil plus those lights spread by the pixel filter (:func:`filter_weights`)
+over the part pixels and the pixels within its reach. The denoiser and what varies
+within a pixel are left out of the model; each step therefore starts from the photo
+minus the current render (a Gauss-Newton step with this Jacobian ``J``), and the steps'
+renders correct what the model misses.
 
-A step solves, per channel, for the colours of the vertices some pixel sees:
+A step solves, per channel, for the colours ``c + d`` of the vertices some row sees:
 
-    min  sum_px  g^2 (photo - render - shading * B d)^2  +  MU |E (c + d)|^2  +  LAM |d|^2
+    min  sum_rows  g^2 (photo - render - J d)^2  +  s (MU |E (c + d)|^2  +  LAM |d|^2)
 
 with ``c + d`` in [0, 1]: ``g`` the sRGB curve's slope at the pixel (the error the
 score and the eye see: a dark iris's pixels weigh as much as the whites'), ``E`` the
 parts' mesh edges (neighbouring colours alike where the pixels do not say otherwise),
-``LAM`` holding vertices few pixels see. The bounds are kept by an active set
-(:func:`bounded_solve`): a vertex whose colour the unbounded solution pushes past 0 or 1
-is held there and the rest solved again. Which pixels: those whose first surface
-(through the lash cards) is a baked part, not an occluder of the photo's (the person's
-own eye and mouth openings excepted, as in :func:`part_bake.view_samples`); the pupil's
-vertices stay black. A grey photo solves one luminance per vertex, its hue kept.
+``LAM`` holding vertices few pixels see, ``s`` the data term's mean diagonal (the same
+weights under a bright or a dim light). The bounds are kept by an active set
+(:func:`bounded_solve`). Which rows: the part pixels and those within the filter's
+reach, not an occluder's (the person's own eye and mouth openings excepted, as in
+:func:`part_bake.view_samples`); the pupil's vertices stay black. A grey photo solves
+one luminance per vertex, its hue kept.
 
-Measured on kept fits (2 steps after the 8 per-vertex passes): see docs/fit.md.
+Measured on six real photos' kept fits: see docs/fit.md.
 """
 
 from __future__ import annotations
@@ -46,9 +50,9 @@ from hack_render.render.materials import VERTEX_COLOUR_PARTS
 from hack_render.render.parts import PART_SPECS, REGIONS
 
 #: weight of the colours' differences across the parts' mesh edges
-MU = 1e-4
+MU = 3e-3
 #: weight of a colour's change (holds vertices few pixels see)
-LAM = 1e-4
+LAM = 1e-2
 #: the sRGB slope is taken at linear values no darker than this
 SLOPE_FLOOR = 0.003
 #: active-set rounds of :func:`bounded_solve`
@@ -105,13 +109,19 @@ def bounded_solve(H, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
 
 
 class ViewRows:
-    """One view's pixels whose first surface is a baked part: their (row, col), the
-    sparse map ``B`` (pixels x all parts' vertices, barycentric weights) and the
-    shading ``white - veil`` there (pixels, 3)."""
+    """One view's rows of the solve: the pixels (``pixels``, (rows, 2) row, col) that
+    show a baked part or lie within the pixel filter's reach of one, not an occluder's,
+    and per channel the sparse map ``J[ch]`` (rows x the parts' stacked vertices) from
+    the vertices' colours to those pixels' light: the part pixels' barycentric weights
+    (``B``: the first surface's triangle), times their shading, spread by the pixel
+    filter (:func:`filter_weights`: Mitsuba's Gaussian, or none for the box filter).
+    The shading of a part pixel is ``white - veil`` there over the share of the filter's
+    weight that falls on part pixels (1 inside a part, less at its edge)."""
 
     def __init__(self, view, gbuffer: dict, head, layout: Layout,
-                 white: np.ndarray, veil: np.ndarray):
+                 white: np.ndarray, veil: np.ndarray, pixel_filter: str = "gaussian"):
         import scipy.sparse as sp
+        from scipy.ndimage import binary_dilation
 
         seg = np.asarray(gbuffer["segmentation"])
         h, w = seg.shape
@@ -125,8 +135,7 @@ class ViewRows:
         rows, cols, vals, pix = [], [], [], []
         k = 0
         for name, off in layout.offsets.items():
-            m = (seg == REGIONS.index(PART_SPECS[name][1])) & allowed
-            ys, xs = np.nonzero(m)
+            ys, xs = np.nonzero(seg == REGIONS.index(PART_SPECS[name][1]))
             if len(ys) == 0:
                 continue
             pos = np.asarray(head.params[f"{name}.vertex_positions"], np.float64).reshape(-1, 3)
@@ -143,13 +152,61 @@ class ViewRows:
                 vals.append(b[:, j])
             pix.append(np.stack([ys, xs], 1))
             k += len(ys)
-        self.pixels = np.concatenate(pix) if pix else np.zeros((0, 2), int)
+        part = np.concatenate(pix) if pix else np.zeros((0, 2), int)
         self.B = sp.csr_matrix((np.concatenate(vals) if vals else [],
                                 (np.concatenate(rows) if rows else [],
                                  np.concatenate(cols) if cols else [])),
                                shape=(k, layout.n))
-        yy, xx = self.pixels.T if k else (np.zeros(0, int), np.zeros(0, int))
-        self.shading = (white[..., :3] - veil[..., :3])[yy, xx].astype(np.float64)
+        # the rows: the part pixels and their filter's reach, without the occluders
+        taps = filter_weights(pixel_filter)
+        reach = len(taps) // 2
+        shown = np.zeros((h, w), bool)
+        shown[part[:, 0], part[:, 1]] = True
+        near = binary_dilation(shown, np.ones((2 * reach + 1,) * 2, bool)) if reach else shown
+        ry, rx = np.nonzero(near & allowed)
+        self.pixels = np.stack([ry, rx], 1)
+        row_of = -np.ones((h, w), np.int64)
+        row_of[ry, rx] = np.arange(len(ry))
+        kr, kc, kv = [], [], []
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                y, x = part[:, 0] + dy, part[:, 1] + dx
+                inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+                j = np.full(len(part), -1)
+                j[inside] = row_of[y[inside], x[inside]]
+                on = j >= 0
+                kr.append(j[on])
+                kc.append(np.nonzero(on)[0])
+                kv.append(np.full(on.sum(), taps[dy + reach] * taps[dx + reach]))
+        K = sp.csr_matrix((np.concatenate(kv), (np.concatenate(kr), np.concatenate(kc))),
+                          shape=(len(ry), k))
+        # a part pixel's own shading: white - veil over the filter's share on part pixels
+        share = np.zeros(k)
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                y, x = part[:, 0] + dy, part[:, 1] + dx
+                inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+                hit = np.zeros(k, bool)
+                hit[inside] = shown[y[inside], x[inside]]
+                share += hit * taps[dy + reach] * taps[dx + reach]
+        own = (white[..., :3] - veil[..., :3])[part[:, 0], part[:, 1]].astype(np.float64)
+        shading = own / np.maximum(share, 0.25)[:, None]
+        self.J = [(K @ sp.diags(shading[:, ch]) @ self.B).tocsr() for ch in range(3)]
+
+
+def filter_weights(pixel_filter: str) -> np.ndarray:
+    """The weights of a pixel's neighbours along one axis (offsets -2..2, summing to 1)
+    in the render of a scene with ``pixel_filter``: Mitsuba's ``gaussian`` (standard
+    deviation 0.5 px, radius 2 px) over each neighbour's cell; ``box``: the pixel
+    alone."""
+    from scipy.special import erf
+
+    if pixel_filter != "gaussian":
+        return np.ones(1)
+    edges = (np.arange(-2, 4) - 0.5) / 0.5           # the cells' edges in deviations
+    cdf = 0.5 * (1 + erf(edges / np.sqrt(2)))
+    taps = np.diff(cdf)
+    return taps / taps.sum()
 
 
 @dataclass
@@ -197,7 +254,7 @@ def solve_step(state, part_rgb: dict, rows: list, renders: list,
     grey = all(v.photo.is_grey for v, r in zip(state.views, rows) if r is not None)
     seen = np.zeros(n, bool)
     for r in used:
-        seen |= np.asarray(abs(r.B).sum(0)).ravel() > 0
+        seen |= np.asarray(sum(abs(j) for j in r.J).sum(0)).ravel() > 0
     U = np.nonzero(seen & ~fixed)[0]
     if len(U) == 0:
         return part_rgb, {"pixels": 0}
@@ -223,8 +280,8 @@ def solve_step(state, part_rgb: dict, rows: list, renders: list,
     new = c.copy()
     if grey:
         lum = np.maximum(c @ _LUMA, 1e-6)
-        A = sp.vstack([sp.diags(gw[:, 0]) @ sum(sp.diags(r.shading[:, ch] * _LUMA[ch])
-                                                 @ r.B[:, U] @ sp.diags(c[U, ch] / lum[U])
+        A = sp.vstack([sp.diags(gw[:, 0]) @ sum(_LUMA[ch] * r.J[ch][:, U]
+                                                 @ sp.diags(c[U, ch] / lum[U])
                                                  for ch in range(3))
                        for r, gw in blocks]).tocsr()
         x = lum[U]
@@ -233,7 +290,7 @@ def solve_step(state, part_rgb: dict, rows: list, renders: list,
         new[U] = c[U] * ((x + d) / lum[U])[:, None]
     else:
         for ch in range(3):
-            A = sp.vstack([sp.diags(r.shading[:, ch] * gw[:, ch]) @ r.B[:, U]
+            A = sp.vstack([sp.diags(gw[:, ch]) @ r.J[ch][:, U]
                            for r, gw in blocks]).tocsr()
             x = c[U, ch]
             d = _step(A, res[:, ch], L, x, -x, 1.0 - x)
@@ -246,12 +303,16 @@ def solve_step(state, part_rgb: dict, rows: list, renders: list,
 
 
 def _step(A, r: np.ndarray, L, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The bounded change ``d`` of one channel: min |r - A d|^2 + MU (x+d)'L(x+d) +
-    LAM |d|^2, lo <= d <= hi."""
+    """The bounded change ``d`` of one channel: min |r - A d|^2 + s (MU (x+d)'L(x+d) +
+    LAM |d|^2), lo <= d <= hi; ``s`` the mean of A'A's diagonal (the weights relative to
+    the data's, whatever the light's scale)."""
     import scipy.sparse as sp
 
-    H = (A.T @ A + MU * L + LAM * sp.identity(len(x))).tocsc()
-    g = A.T @ r - MU * (L @ x)
+    AtA = (A.T @ A).tocsc()
+    s = float(AtA.diagonal().mean()) if AtA.shape[0] else 1.0
+    s = s if s > 0 else 1.0
+    H = (AtA + s * (MU * L + LAM * sp.identity(len(x)))).tocsc()
+    g = A.T @ r - s * MU * (L @ x)
     return bounded_solve(H, g, lo, hi)
 
 
