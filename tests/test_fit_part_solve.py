@@ -65,7 +65,8 @@ def test_03_the_steps_bring_the_parts_to_a_photo_with_known_colours(model):
     than two passes of the per-vertex bake leave, and 30 times lower than at the
     start), the vertices the pixels see towards the truth, within [0, 1]; the pupils
     and the vertices no pixel sees keep their colours exactly. A grey photo keeps each
-    vertex's hue."""
+    vertex's hue. The G-buffer's hits the solve reads (``gbuffer(hits=True)``): each
+    iris pixel's point lies on its triangle and projects to the pixel's centre."""
     from synthetic import photo_of, texture_fitter
 
     from hack_render.fit import part_bake, texture
@@ -107,7 +108,22 @@ def test_03_the_steps_bring_the_parts_to_a_photo_with_known_colours(model):
     white = pr(dataclasses.replace(maps, part_rgb={k: np.ones_like(c) for k, c in start.items()}))
     veil = pr(dataclasses.replace(maps, part_rgb={k: np.zeros_like(c) for k, c in start.items()}))
     layout = part_solve.Layout.of(pr.head)
-    rows = [part_solve.ViewRows(v, pr.hits(), pr.head, layout, white.rgba, veil.rgba)]
+    hits = pr.hits()
+    # the G-buffer's hits: each part pixel's point lies on its triangle, on the pixel
+    # centre's ray
+    iris = np.nonzero(hits["segmentation"] == REGIONS.index("iris"))
+    pos = np.asarray(pr.head.params["iris.vertex_positions"], np.float64).reshape(-1, 3)
+    tri = pos[layout.faces["iris"][hits["prim"][iris]]]
+    p = hits["position"][iris]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    assert len(p) > 10 and np.abs(((p - tri[:, 0]) * normal).sum(1)).max() < 1e-6
+    b = part_solve.barycentric(p, *tri.transpose(1, 0, 2))
+    np.testing.assert_allclose((b[:, :, None] * tri).sum(1), p, atol=1e-6)
+    xy = pr.head.camera.project(p) + np.array(pr.window[:2])
+    # (float32 hit points: 0.06 px at most measured)
+    np.testing.assert_allclose(xy, np.stack([iris[1], iris[0]], 1) + 0.5, atol=0.1)
+    rows = [part_solve.ViewRows(v, hits, pr.head, layout, white.rgba, veil.rgba)]
     cur, render = maps, render0
     seen = None
     for _ in range(2):
