@@ -103,6 +103,9 @@ def test_02_astronaut_cli_end_to_end(tmp_path, cli_in_process):
     # the eyes' fronts baked from the photo (final.part_bake, on by default) and written
     # beside the skin maps for --textures
     assert report["final"]["part_bake"]["iris"]["seen_vertices"] > 0
+    # then solved together (final.part_solve, 3 steps)
+    solve = report["final"]["part_bake"]["solve"]
+    assert len(solve["steps"]) == 3 and all(s["pixels"] > 50 for s in solve["steps"])
     from hack_render.render.skin_maps import read_texture_folder
 
     assert read_texture_folder(out / "textures").part_rgb["iris"].shape == (

@@ -244,7 +244,8 @@ def test_10_config_rejects_unknown_keys(tmp_path):
         with pytest.raises(HackError, match=f"silhouette.{key}"):
             load_config(tmp_path / "s.toml")
     for key, val in (("refine", "5"), ("refine", "true"), ("part_bake", "-1"),
-                     ("part_bake", "true"), ("part_bake", "1.5"), ("eye_hole", "0"),
+                     ("part_bake", "true"), ("part_bake", "1.5"), ("part_solve", "5"),
+                     ("part_solve", "true"), ("eye_hole", "0"),
                      ("eye_hole", '"wide"'), ("occluder_shadow", "2"),
                      ("occluder_shadow", '"on"'), ("edge_feather", "-1")):
         (tmp_path / "f.toml").write_text(f"[final]\n{key} = {val}\n")
