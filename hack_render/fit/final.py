@@ -327,7 +327,7 @@ def _solve_parts(st, cfg, maps, renders, veils, solvers, steps: int, bar):
         veils = [None if pr is None else pr(_coloured(maps, 0.0)) for pr in solvers]
     heads = [pr.head for pr in solvers if pr is not None]
     if not heads:
-        return maps, renders, {"steps": 0, "note": "no view shows a baked part"}
+        return maps, renders, {"steps": [], "note": "no view shows a baked part"}
     layout = part_solve.Layout.of(heads[0])
     rows = [None if pr is None else part_solve.ViewRows(
         v, pr.hits(), pr.head, layout, wh.rgba, vl.rgba, pr.head.settings.pixel_filter)
