@@ -1,11 +1,11 @@
 """The fitted hair layer in render.png: the scalp under it shaded towards the hair's colour
-(fit/scalp.py), and its strands rendered with their own scattering (texture.hair_composite)."""
+(fit/scalp.py), and its strands rendered with their own scattering (final.hair_composite)."""
 
 import numpy as np
 import pytest
 
 from hack_render.errors import HackError
-from hack_render.fit import scalp, texture
+from hack_render.fit import final, scalp
 from hack_render.fit.bake_weights import PhotoRender
 from hack_render.fit.config import load_config
 from hack_render.geometry import load_default_model
@@ -87,7 +87,7 @@ def test_04_the_hair_pixels_come_from_the_deep_render_the_skin_from_the_shallow(
     shallow = PhotoRender(np.full((h, w, 4), 0.2, np.float32), {"segmentation": seg}, 16, 1.0)
     deep = PhotoRender(np.full((h, w, 4), 0.6, np.float32), {"segmentation": seg.copy()},
                        16, 2.0)
-    out = texture.hair_composite(shallow, deep)
+    out = final.hair_composite(shallow, deep)
     assert out.rgba.dtype == np.float32 and out.seconds == 3.0
     assert out.gbuffer is shallow.gbuffer
     np.testing.assert_allclose(out.rgba[4:8, 5:9], 0.6, rtol=1e-6)   # inside the hair

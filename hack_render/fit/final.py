@@ -16,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hack_render.fit import face_mesh, iris, part_bake, part_solve, scalp, texture
-from hack_render.fit.bake_weights import mask_at, photo_at
+from hack_render.fit.bake_weights import PhotoRender, mask_at, photo_at
 from hack_render.fit.hair_style import colour_pixels, hair_style_from_photo
 from hack_render.fit.specular_bake import bake_specular
 from hack_render.fit.state import FitState
@@ -181,7 +181,7 @@ def run(state: FitState, cfg, progress: bool = False) -> FinalRenders:
             pr = texture.render_at_photo(st, cfg, v, maps=maps, max_side=cfg.final.max_side,
                                          hair=groom)
             if cfg.final.hair_depth > texture.MAX_DEPTH:  # the strands' own scattering
-                pr = texture.hair_composite(pr, texture.render_at_photo(
+                pr = hair_composite(pr, texture.render_at_photo(
                     st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
                     max_depth=cfg.final.hair_depth))
             hair_renders.append(pr)
@@ -295,7 +295,7 @@ def _colour_steps(st: FitState, cfg, maps, style, renders: list, report: dict):
         style = dataclasses.replace(style, eumelanin=eu, pheomelanin=pheo)
         drawn = dataclasses.replace(style, brow_density=0.0) if cfg.final.features else style
         groom = grow_cached(HeadSurface.from_model(st.model), drawn)
-        renders = [texture.hair_composite(pr, texture.render_at_photo(
+        renders = [hair_composite(pr, texture.render_at_photo(
             st, cfg, v, maps=maps, max_side=cfg.final.max_side, hair=groom,
             max_depth=cfg.final.hair_depth)) for v, pr in zip(st.views, renders)]
         photo, render = _hair_pixels(v0, renders[0], hair_px)
@@ -343,3 +343,19 @@ def _solve_parts(st, cfg, maps, renders, veils, solvers, steps: int, bar):
                    for v, pr in zip(st.views, solvers)]
         bar.update()
     return maps, renders, {"steps": reports, "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def hair_composite(shallow: PhotoRender, deep: PhotoRender) -> PhotoRender:
+    """``shallow`` (the photometric stage's path depth: the skin as the bake assumed it)
+    with the pixels whose first surface is the hair layer's taken from ``deep`` (a longer
+    path: the light the strands scatter to each other, which the hair's melanin
+    calibration counts, ``bench/hair_albedo.py``): blended by the share of hair among
+    each pixel's 3 x 3 neighbours' first hits (strands are thinner than a pixel), so the
+    skin keeps the bake's shading and the hair its colour."""
+    from scipy.ndimage import uniform_filter
+
+    hair = (np.asarray(deep.gbuffer["segmentation"]) == REGIONS.index("hair"))
+    share = uniform_filter(hair.astype(np.float32), 3, mode="nearest")[..., None]
+    rgba = shallow.rgba + share * (deep.rgba - shallow.rgba)
+    return PhotoRender(rgba.astype(shallow.rgba.dtype), shallow.gbuffer, shallow.spp,
+                       shallow.seconds + deep.seconds, shallow.denoised)

@@ -168,6 +168,7 @@ class ViewRows:
         row_of = -np.ones((h, w), np.int64)
         row_of[ry, rx] = np.arange(len(ry))
         kr, kc, kv = [], [], []
+        share = np.zeros(k)   # the filter's weight about each part pixel on part pixels
         for dy in range(-reach, reach + 1):
             for dx in range(-reach, reach + 1):
                 y, x = part[:, 0] + dy, part[:, 1] + dx
@@ -175,20 +176,16 @@ class ViewRows:
                 j = np.full(len(part), -1)
                 j[inside] = row_of[y[inside], x[inside]]
                 on = j >= 0
+                tap = taps[dy + reach] * taps[dx + reach]
                 kr.append(j[on])
                 kc.append(np.nonzero(on)[0])
-                kv.append(np.full(on.sum(), taps[dy + reach] * taps[dx + reach]))
+                kv.append(np.full(on.sum(), tap))
+                hit = np.zeros(k, bool)
+                hit[inside] = shown[y[inside], x[inside]]
+                share += hit * tap
         K = sp.csr_matrix((np.concatenate(kv), (np.concatenate(kr), np.concatenate(kc))),
                           shape=(len(ry), k))
         # a part pixel's own shading: white - veil over the filter's share on part pixels
-        share = np.zeros(k)
-        for dy in range(-reach, reach + 1):
-            for dx in range(-reach, reach + 1):
-                y, x = part[:, 0] + dy, part[:, 1] + dx
-                inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
-                hit = np.zeros(k, bool)
-                hit[inside] = shown[y[inside], x[inside]]
-                share += hit * taps[dy + reach] * taps[dx + reach]
         own = (white[..., :3] - veil[..., :3])[part[:, 0], part[:, 1]].astype(np.float64)
         shading = own / np.maximum(share, 0.25)[:, None]
         self.J = [(K @ sp.diags(shading[:, ch]) @ self.B).tocsr() for ch in range(3)]

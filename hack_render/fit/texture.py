@@ -44,7 +44,7 @@ from hack_render.hair.pose import pose_groom
 from hack_render.render import denoise as dn
 from hack_render.render.emitters import cropped
 from hack_render.render.materials import SkinMaps
-from hack_render.render.parts import REGIONS, Topology
+from hack_render.render.parts import Topology
 from hack_render.render.scene import HeadScene, RenderSettings
 from scenes.cameras import Camera
 from scenes.lights import LightRig
@@ -167,22 +167,6 @@ class PartRenders:
         (``render.aov.gbuffer(hits=True)``, through the lash cards), in the whole image
         (after a first call)."""
         return _paste(self.head.aovs(see_through=SEE_THROUGH, hits=True), self.window)
-
-
-def hair_composite(shallow: PhotoRender, deep: PhotoRender) -> PhotoRender:
-    """``shallow`` (the photometric stage's path depth: the skin as the bake assumed it)
-    with the pixels whose first surface is the hair layer's taken from ``deep`` (a longer
-    path: the light the strands scatter to each other, which the hair's melanin
-    calibration counts, ``bench/hair_albedo.py``): blended by the share of hair among
-    each pixel's 3 x 3 neighbours' first hits (strands are thinner than a pixel), so the
-    skin keeps the bake's shading and the hair its colour."""
-    from scipy.ndimage import uniform_filter
-
-    hair = (np.asarray(deep.gbuffer["segmentation"]) == REGIONS.index("hair"))
-    share = uniform_filter(hair.astype(np.float32), 3, mode="nearest")[..., None]
-    rgba = shallow.rgba + share * (deep.rgba - shallow.rgba)
-    return PhotoRender(rgba.astype(shallow.rgba.dtype), shallow.gbuffer, shallow.spp,
-                       shallow.seconds + deep.seconds, shallow.denoised)
 
 
 def render_eye_variants(state: FitState, cfg: FitConfig, view: View, maps, eyes: list,
