@@ -199,3 +199,55 @@ def test_anchors_reuse_the_last_push_out_exactly(surface):
     _, _, i = proxy.nearest(pts[7:, 1:], index=True)
     ok = known.index[7:] >= 0
     np.testing.assert_array_equal(i[ok], known.index[7:][ok])
+
+
+def test_fast_forms_give_numpys_bits(surface):
+    """The groom's and the posing's hand-written forms of NumPy calls (for speed: the
+    dataset grows and poses a groom per sample) give the same bits as the calls: the
+    open-edge vertices (an edge as one integer key) as the rows' unique, the posing's
+    frame products as ``np.einsum``, the curl's tangent as ``np.gradient``, the collision
+    proxy built from the surface's cached arrays as the one built afresh. The local
+    frames' product sums in the order ``np.einsum`` takes on the development machine;
+    elsewhere it may differ in the last bit, so that one is compared to 1e-15."""
+    from hack_render.hair.groom import (
+        BodyProxy,
+        _gradient,
+        _to_local,
+        open_edge_vertices,
+        triangle_frames,
+    )
+    from hack_render.hair.pose import from_frames
+
+    def rows_unique(faces):  # the reference: unique edge rows, counted
+        e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+        uniq, count = np.unique(e, axis=0, return_counts=True)
+        return np.unique(uniq[count == 1])
+
+    rng = np.random.default_rng(7)
+    skin = surface.faces[surface.skin]
+    for faces in (skin, surface.faces, skin[rng.permutation(len(skin))[:500]],
+                  skin.astype(np.int32), skin[:0]):
+        got = open_edge_vertices(faces)
+        np.testing.assert_array_equal(got, rows_unique(faces))
+        assert got.dtype == faces.dtype
+    tri = rng.choice(surface.skin, 300)
+    frames = triangle_frames(surface.vertices, surface.faces[tri])
+    local = rng.normal(size=(300, 6, 3))
+    np.testing.assert_array_equal(from_frames(frames, local),
+                                  np.einsum("sij,ski->skj", frames, local))
+    bary = rng.dirichlet(np.ones(3), 300)
+    root = root_points(surface.vertices, surface.faces, tri, bary)
+    pts = root[:, None] + 0.01 * local
+    want = np.einsum("sij,skj->ski", frames, pts - root[:, None])
+    want[:, 0] = 0.0
+    np.testing.assert_allclose(_to_local(surface.vertices, surface.faces, tri, bary, pts),
+                               want, rtol=0, atol=1e-15)
+    for k in (2, 3, 9):
+        np.testing.assert_array_equal(_gradient(local[:, :k]), np.gradient(local[:, :k], axis=1))
+    fresh, cached = BodyProxy(surface.vertices, surface.faces, surface.skin), \
+        BodyProxy.of(surface)
+    for name in ("index", "points", "normals"):
+        np.testing.assert_array_equal(getattr(cached, name), getattr(fresh, name))
+    q = surface.vertices[::50] + rng.normal(0, 0.01, (len(surface.vertices[::50]), 3))
+    for a, b in zip(cached.nearest(q, index=True), fresh.nearest(q, index=True)):
+        np.testing.assert_array_equal(a, b)

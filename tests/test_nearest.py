@@ -47,3 +47,21 @@ def test_03_empty_queries_and_an_empty_tree():
     assert d.shape == i.shape == (0, 3)
     with pytest.raises(ValueError, match="at least one point"):
         PointTree(np.zeros((0, 3)))
+
+
+def test_04_cross3_and_norm3_are_numpys_bits():
+    """``normals.cross3`` and ``normals.norm3`` (the hair's 3-vector products) give the
+    bits of ``np.cross`` and ``np.linalg.norm(axis=-1)``, broadcast and in float32 too."""
+    from hack_render.geometry.normals import cross3, norm3
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(2, 500, 7, 3))
+    for x, y in ((a, b), (a, np.array([0.0, 1.0, 0.0])), (a[:, 1:], b[:, :-1]),
+                 (a[0], b[0, 0]), (a.astype(np.float32), b.astype(np.float32))):
+        out = cross3(x, y)
+        assert out.dtype == np.cross(x, y).dtype
+        np.testing.assert_array_equal(out, np.cross(x, y))
+    for x in (a, a[:, 1:], a.reshape(-1, 3), a[0, 0], a.astype(np.float32)):
+        np.testing.assert_array_equal(norm3(x), np.linalg.norm(x, axis=-1))
+        np.testing.assert_array_equal(norm3(x, keepdims=True),
+                                      np.linalg.norm(x, axis=-1, keepdims=True))

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.geometry.nearest import PointTree
-from hack_render.geometry.normals import vertex_normals
+from hack_render.geometry.normals import cross3, norm3
 from hack_render.hair.regions import HeadSurface, beard_mask, scalp_mask
 from hack_render.hair.style import HairStyle
 
@@ -109,10 +109,10 @@ def triangle_frames(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F, 3, 3) orthonormal frames of triangles: rows e1 (first edge), e2, n (normal)."""
     a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
     e1 = b - a
-    n = np.cross(e1, c - a)
-    e1 = e1 / np.maximum(np.linalg.norm(e1, axis=-1, keepdims=True), 1e-20)
-    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-20)
-    return np.stack([e1, np.cross(n, e1), n], axis=-2)
+    n = cross3(e1, c - a)
+    e1 = e1 / np.maximum(norm3(e1, keepdims=True), 1e-20)
+    n = n / np.maximum(norm3(n, keepdims=True), 1e-20)
+    return np.stack([e1, cross3(n, e1), n], axis=-2)
 
 
 def root_points(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarray
@@ -121,7 +121,7 @@ def root_points(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndar
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
+    return x / np.maximum(norm3(x, keepdims=True), 1e-12)
 
 
 def _tangent(d: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -132,13 +132,22 @@ class BodyProxy:
     """Signed distance to the skin, approximated by the nearest skin vertex's tangent plane
     (positive outside). Used to grow strands outside the body and to test them."""
 
-    def __init__(self, v: np.ndarray, faces: np.ndarray, skin: np.ndarray):
-        f = faces[skin]
-        self.index = np.unique(f)
-        normals = vertex_normals(v, f)
+    def __init__(self, v: np.ndarray, faces: np.ndarray, skin: np.ndarray,
+                 _parts: tuple | None = None):
+        if _parts is None:
+            surface = HeadSurface(v, faces, skin, np.zeros(0, np.int64))
+            _parts = surface.skin_vertices, surface.skin_normals, surface.skin_tree
+        self.index, normals, self.tree = _parts
         self.points = v[self.index]
         self.normals = normals[self.index]
-        self.tree = PointTree(self.points)
+
+    @staticmethod
+    def of(surface: HeadSurface) -> BodyProxy:
+        """The proxy of ``surface``'s skin, from its arrays made once
+        (:class:`~hack_render.hair.regions.HeadSurface`): the same as
+        ``BodyProxy(surface.vertices, surface.faces, surface.skin)``."""
+        return BodyProxy(surface.vertices, surface.faces, surface.skin,
+                         (surface.skin_vertices, surface.skin_normals, surface.skin_tree))
 
     def nearest(self, p: np.ndarray, bound: float = np.inf, index: bool = False):
         """(signed distance (...,), outward normal (..., 3)) at points ``p`` (..., 3);
@@ -189,7 +198,7 @@ def sample_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray, c
     if count <= 0 or len(candidates) == 0:
         return np.zeros(0, np.int64), np.zeros((0, 3))
     t = v[faces[candidates]]
-    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=-1)
+    area = 0.5 * norm3(cross3(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]))
     p = area * (weight if weight is not None else 1.0)
     if p.sum() <= 0:
         return np.zeros(0, np.int64), np.zeros((0, 3))
@@ -201,11 +210,13 @@ def sample_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray, c
 
 
 def closest_on_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarray,
-                         points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                         points: np.ndarray, tree: PointTree | None = None
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """For each point (P, 3), the nearest of ``candidates``' triangles by centroid among
-    the 8 nearest, and the point's barycentric coordinates in it (clamped inside)."""
-    cent = v[faces[candidates]].mean(1)
-    _, near = PointTree(cent).query(points, k=min(8, len(candidates)))
+    the 8 nearest, and the point's barycentric coordinates in it (clamped inside).
+    ``tree``: a k-d tree over the candidates' centroids, if one is at hand."""
+    tree = tree if tree is not None else PointTree(v[faces[candidates]].mean(1))
+    _, near = tree.query(points, k=min(8, len(candidates)))
     near = np.atleast_2d(near)
     best_t, best_b, best_d = None, None, None
     for j in range(near.shape[1]):
@@ -213,7 +224,7 @@ def closest_on_triangles(v: np.ndarray, faces: np.ndarray, candidates: np.ndarra
         a, b, c = (v[faces[tri, k]] for k in range(3))
         bary = _barycentric(points, a, b, c)
         q = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
-        dist = np.linalg.norm(q - points, axis=-1)
+        dist = norm3(q - points)
         if best_d is None:
             best_t, best_b, best_d = tri.copy(), bary, dist
         else:
@@ -272,7 +283,7 @@ def _walk(proxy: BodyProxy, root: np.ndarray, normal: np.ndarray, d0: np.ndarray
         u = j / (k - 1)
         if target is not None:
             to = target - p
-            reached |= (np.linalg.norm(to, axis=-1) < 0.012)[:, None]
+            reached |= (norm3(to) < 0.012)[:, None]
             d = np.where(reached, _unit(d + 1.5 * DOWN), _unit(0.4 * d + _unit(to)))
         d = _unit(d + gravity * (0.15 + 0.6 * u) * DOWN)
         q = proxy.push_out(p + step * d, shell, bound)
@@ -287,25 +298,49 @@ def _curl(pts: np.ndarray, amount: float, rng: np.random.Generator) -> np.ndarra
     first 1 cm eased in; phase random per strand."""
     if amount <= 0:
         return pts
-    s, k, _ = pts.shape
-    seg = np.linalg.norm(np.diff(pts, axis=1), axis=-1)
+    s = pts.shape[0]
+    seg = norm3(np.diff(pts, axis=1))
     arc = np.concatenate([np.zeros((s, 1)), np.cumsum(seg, axis=1)], axis=1)
-    tangent = _unit(np.gradient(pts, axis=1))
-    helper = np.where(np.abs(tangent[..., 1:2]) < 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
-    u = _unit(np.cross(tangent, helper))
-    w = np.cross(tangent, u)
+    tangent = _unit(_gradient(pts))
+    # the helper axis: y, or x where the tangent is nearly along y
+    helper = np.zeros_like(tangent)
+    along_y = np.abs(tangent[..., 1]) < 0.9
+    helper[..., 1] = along_y
+    helper[..., 0] = ~along_y
+    u = _unit(cross3(tangent, helper))
+    w = cross3(tangent, u)
     radius = amount * (0.0008 + 0.0045 * amount) * np.clip(arc / 0.01, 0, 1)
     period = 0.09 - 0.078 * amount
     phase = rng.uniform(0, 2 * np.pi, (s, 1)) + 2 * np.pi * arc / period
-    return pts + radius[..., None] * (np.cos(phase)[..., None] * u +
-                                      np.sin(phase)[..., None] * w)
+    # pts + radius (cos u + sin w), in place (the same operations: the same bits)
+    u *= np.cos(phase)[..., None]
+    w *= np.sin(phase)[..., None]
+    u += w
+    u *= radius[..., None]
+    u += pts
+    return u
+
+
+def _gradient(pts: np.ndarray) -> np.ndarray:
+    """``np.gradient(pts, axis=1)`` (unit spacing, first-order edges): the same bits
+    without its general set-up."""
+    out = np.empty_like(pts)
+    np.subtract(pts[:, 2:], pts[:, :-2], out=out[:, 1:-1])
+    out[:, 1:-1] /= 2.0
+    np.subtract(pts[:, 1], pts[:, 0], out=out[:, 0])
+    np.subtract(pts[:, -1], pts[:, -2], out=out[:, -1])
+    return out
 
 
 def _to_local(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarray,
               pts: np.ndarray, keep_root: bool = False) -> np.ndarray:
     frames = triangle_frames(v, faces[tri])
     root = root_points(v, faces, tri, bary)
-    local = np.einsum("sij,skj->ski", frames, pts - root[:, None])
+    # np.einsum("sij,skj->ski", frames, d), its sum in the order it takes here (x and z,
+    # then y): the same bits, without its set-up
+    d = pts - root[:, None]
+    f = frames[:, None]
+    local = (f[..., 0] * d[..., 0:1] + f[..., 2] * d[..., 2:3]) + f[..., 1] * d[..., 1:2]
     if not keep_root:
         local[:, 0] = 0.0
     return local
@@ -323,16 +358,22 @@ def _melanin(style: HairStyle, s: int, rng: np.random.Generator, darker: float =
 def open_edge_vertices(faces: np.ndarray) -> np.ndarray:
     """Vertices on the open boundary of a triangle mesh (edges of one triangle): the bust's
     cut, the mouth's and eyes' openings. A point whose nearest skin vertex is one of them
-    lies beyond the surface's edge, not inside it."""
+    lies beyond the surface's edge, not inside it. (Each edge as one integer key, its
+    vertices sorted: a 1-D unique, several times faster than the rows' own.)"""
     e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
-    uniq, count = np.unique(e, axis=0, return_counts=True)
-    return np.unique(uniq[count == 1])
+    if len(e) == 0:
+        return np.zeros(0, faces.dtype)
+    n = np.int64(e.max()) + 1
+    key = e[:, 0].astype(np.int64) * n + e[:, 1]
+    uniq, count = np.unique(key, return_counts=True)
+    once = uniq[count == 1]
+    return np.unique(np.concatenate([once // n, once % n])).astype(faces.dtype, copy=False)
 
 
 def body_vertices(surface: HeadSurface) -> np.ndarray:
     """Skin vertex indices of the body below the head (:data:`BODY_BELOW`)."""
-    index = np.unique(surface.faces[surface.skin])
-    return index[surface.vertices[index, 1] < BODY_BELOW]
+    index = surface.skin_vertices
+    return index if BODY_BELOW == np.inf else index[surface.vertices[index, 1] < BODY_BELOW]
 
 
 def _group(name, surface, tri, bary, pts, radius, melanin,
@@ -345,7 +386,7 @@ def _group(name, surface, tri, bary, pts, radius, melanin,
     body = body_vertices(surface)
     flat = pts.reshape(-1, 3)
     near = np.full(len(flat), -1, np.int64)
-    tree = None
+    tree = surface.skin_tree if body is surface.skin_vertices else None
     if known is not None and np.array_equal(known.proxy.index, body):
         tree = known.proxy.tree
         same = np.zeros(pts.shape[:2], bool)
@@ -379,15 +420,15 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
     full = scalp_mask(surface, HairStyle(lod=style.lod))
     cand, weight = scalp_mask(surface, style)
     v, f = surface.vertices, surface.faces
-    area = lambda c, w: float(np.sum(w * 0.5 * np.linalg.norm(np.cross(  # noqa: E731
-        v[f[c, 1]] - v[f[c, 0]], v[f[c, 2]] - v[f[c, 0]]), axis=-1)))
-    count = int(round(SCALP_STRANDS * style.density * style.lod *
-                      area(cand, weight) / max(area(*full), 1e-12)))
+    area = lambda c, w: float(np.sum(w * 0.5 * norm3(cross3(
+        v[f[c, 1]] - v[f[c, 0]], v[f[c, 2]] - v[f[c, 0]]))))
+    count = round(SCALP_STRANDS * style.density * style.lod *
+                      area(cand, weight) / max(area(*full), 1e-12))
     tri, bary = sample_triangles(v, f, cand, count, rng, weight)
     if len(tri) == 0:
         return None
     root = root_points(v, f, tri, bary)
-    normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+    normal = _unit(np.einsum("sk,skc->sc", bary, surface.normals[f[tri]]))
     arch = style.archetype
     length = style.length * rng.uniform(0.85, 1.1, len(tri))
     short = style.length < 0.02
@@ -415,7 +456,7 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
     target = {"ponytail": PONYTAIL_GATHER, "bun": BUN_GATHER}.get(arch)
     gravity = style.gravity * (0.0 if short else 1.0)
     if target is not None:
-        reach = np.linalg.norm(root - target, axis=-1) * 1.15
+        reach = norm3(root - target) * 1.15
         length = np.maximum(length, reach + 0.02)
         k = max(k, 24)
         shell = 0.003 + 0.002 * layer
@@ -424,7 +465,7 @@ def _scalp(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
         pts = _bun(pts, root, rng)
     pts = _curl(pts, style.curl, rng)
     pts[:, 1:], known = proxy.push_out(pts[:, 1:], shell[:, None] * 0.5 + 0.0003, index=True)
-    pts = _cut(pts, v[np.unique(f[surface.skin]), 1].min() + CUT_MARGIN)
+    pts = _cut(pts, v[surface.skin_vertices, 1].min() + CUT_MARGIN)
     return _group("scalp", surface, tri, bary, pts, _taper(style.strand_radius, k),
                   _melanin(style, len(tri), rng), known)
 
@@ -433,7 +474,7 @@ def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
     """Strands cut where they first go below ``floor`` (y), their K points spread evenly
     (by arc length) over the part kept, so no segment has zero length. Vectorised over
     the strands that keep the same number of points (a long groom cuts ~13k strands)."""
-    s, k, _ = pts.shape
+    k = pts.shape[1]
     below = pts[..., 1] < floor
     cut = below.any(1)
     if not cut.any():
@@ -450,11 +491,11 @@ def _cut(pts: np.ndarray, floor: float) -> np.ndarray:
         t = (a[:, 1] - floor) / np.maximum(a[:, 1] - b[:, 1], 1e-12)
         keep[on, -1] = a + t[:, None] * (b - a)
         arc = np.concatenate([np.zeros((len(i), 1)), np.cumsum(
-            np.linalg.norm(np.diff(keep, axis=1), axis=-1), 1)], 1)
+            norm3(np.diff(keep, axis=1)), 1)], 1)
         stub = arc[:, -1] <= 1e-6  # rooted at the floor itself: a short stub along it
         if stub.any():
             d = pts[i[stub], 1] - pts[i[stub], 0]
-            d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12) * 1e-3
+            d = d / np.maximum(norm3(d, keepdims=True), 1e-12) * 1e-3
             keep[stub] = pts[i[stub], :1]
             keep[stub, -1] = pts[i[stub], 0] + d
             arc[stub] = 0.0
@@ -467,7 +508,7 @@ def _resample(keep: np.ndarray, arc: np.ndarray, k: int) -> np.ndarray:
     """(n, k, 3) points at ``k`` even arc lengths along polylines ``keep`` (n, m, 3) with
     cumulative arc lengths ``arc`` (n, m), as ``np.interp`` per coordinate: the segment
     whose start is the last at or before each length (the end itself: the last point)."""
-    n, m = arc.shape
+    m = arc.shape[1]
     at = np.linspace(0.0, 1.0, k)[None] * arc[:, -1:]
     j = np.clip((arc[:, None, :] <= at[:, :, None]).sum(-1) - 1, 0, m - 2)
     a0 = np.take_along_axis(arc, j, 1)
@@ -485,13 +526,13 @@ def _resample(keep: np.ndarray, arc: np.ndarray, k: int) -> np.ndarray:
 def _bun(pts: np.ndarray, root: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The points past the gather wound round a ball behind it (a bun)."""
     s, k, _ = pts.shape
-    gathered = np.linalg.norm(pts - BUN_GATHER, axis=-1) < 0.014
+    gathered = norm3(pts - BUN_GATHER) < 0.014
     first = np.where(gathered.any(1), gathered.argmax(1), k - 1)
     centre = BUN_GATHER + np.array([0.0, 0.008, -0.024])
     axis = _unit(rng.normal(size=(s, 3)))
     start = _unit(BUN_GATHER - centre)[None].repeat(s, 0)
     u = _tangent(start, axis)
-    w = np.cross(axis, u)
+    w = cross3(axis, u)
     radius = rng.uniform(0.016, 0.027, s)
     out = pts.copy()
     for j in range(k):
@@ -503,11 +544,11 @@ def _bun(pts: np.ndarray, root: np.ndarray, rng: np.random.Generator) -> np.ndar
 
 def _brows(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
            rng: np.random.Generator) -> StrandGroup | None:
-    count = int(round(BROW_STRANDS * style.brow_density * style.lod))
+    count = round(BROW_STRANDS * style.brow_density * style.lod)
     if count <= 0:
         return None
     v, f, lm = surface.vertices, surface.faces, surface.vertices[surface.landmarks]
-    cent = v[f[surface.skin]].mean(1)
+    cent = surface.skin_centroids
     front = cent[:, 2] > 0.05
     tris, barys, pts_all = [], [], []
     for idx, lateral in ((range(17, 22), -1.0), (range(22, 27), 1.0)):
@@ -524,7 +565,7 @@ def _brows(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
         if len(tri) == 0:
             continue
         root = root_points(v, f, tri, bary)
-        normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+        normal = _unit(np.einsum("sk,skc->sc", bary, surface.normals[f[tri]]))
         _, s_root = _polyline_distance(root[:, :2], line)
         medial = s_root if lateral < 0 else 1 - s_root
         d = lateral * np.array([1.0, 0.0, 0.0])[None] * (1 - 0.7 * medial[:, None]) + \
@@ -551,12 +592,12 @@ def _lashes(surface: HeadSurface, style: HairStyle, rng: np.random.Generator
     lids = (((36, 37, 38, 39), 1), ((42, 43, 44, 45), 1), ((39, 40, 41, 36), -1),
             ((45, 46, 47, 42), -1))
     for idx, up in lids:
-        n = max(4, int(round(LASH_STRANDS[0 if up > 0 else 1] * min(style.lod, 1.5))))
+        n = max(4, round(LASH_STRANDS[0 if up > 0 else 1] * min(style.lod, 1.5)))
         line = lm[list(idx)]
         cum = np.r_[0, np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=-1))]
         s = np.sort(rng.uniform(0.06, 0.94, n)) * cum[-1]
         anchor = np.stack([np.interp(s, cum, line[:, c]) for c in range(3)], -1)
-        tri, bary = closest_on_triangles(v, f, surface.skin, anchor)
+        tri, bary = closest_on_triangles(v, f, surface.skin, anchor, surface.centroid_tree)
         root = root_points(v, f, tri, bary)
         t = s / cum[-1]
         middle = np.sin(np.pi * t)[:, None]  # longest in the middle of the lid
@@ -585,12 +626,12 @@ def _beard(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
         return None
     v, f = surface.vertices, surface.faces
     cand = beard_mask(surface, style.beard)
-    count = int(round(BEARD_STRANDS[style.beard] * style.lod))
+    count = round(BEARD_STRANDS[style.beard] * style.lod)
     tri, bary = sample_triangles(v, f, cand, count, rng)
     if len(tri) == 0:
         return None
     root = root_points(v, f, tri, bary)
-    normal = _unit(np.einsum("sk,skc->sc", bary, vertex_normals(v, f)[f[tri]]))
+    normal = _unit(np.einsum("sk,skc->sc", bary, surface.normals[f[tri]]))
     stubble = style.beard == "stubble"
     length = (0.0012 if stubble else style.beard_length) * rng.uniform(0.7, 1.2, len(tri))
     d0 = _unit(_tangent(np.broadcast_to(DOWN + [0, 0, 0.3], root.shape), normal) +
@@ -626,7 +667,7 @@ def grow_cached(surface: HeadSurface, style: HairStyle) -> Groom:
 def grow(surface: HeadSurface, style: HairStyle) -> Groom:
     """The groom of ``style`` on ``surface`` (deterministic in ``style.seed``)."""
     rng = np.random.default_rng(style.seed)
-    proxy = BodyProxy(surface.vertices, surface.faces, surface.skin)
+    proxy = BodyProxy.of(surface)
     groups = [g for g in (_scalp(surface, style, proxy, rng),
                           _brows(surface, style, proxy, rng),
                           _lashes(surface, style, rng),

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.geometry.nearest import PointTree
-from hack_render.geometry.normals import vertex_normals
+from hack_render.geometry.normals import norm3, vertex_normals
 from hack_render.hair.groom import (
     Groom,
     StrandGroup,
@@ -46,7 +46,7 @@ def pose_group(group: StrandGroup, vertices: np.ndarray, faces: np.ndarray,
     v = np.asarray(vertices, np.float64)
     frames = triangle_frames(v, faces[group.tri])
     root = root_points(v, faces, group.tri, group.bary)
-    pts = root[:, None] + np.einsum("sij,ski->skj", frames, group.local)
+    pts = root[:, None] + from_frames(frames, group.local)
     if body is None or pts.shape[1] < 2:
         return pts
     inner = pts[:, 1:]
@@ -54,15 +54,23 @@ def pose_group(group: StrandGroup, vertices: np.ndarray, faces: np.ndarray,
         pts[:, 1:] = push_out(inner, body)
         return pts
     anchor = group.anchor[:, 1:]
-    expect = root[:, None] + np.einsum("sij,ski->skj", frames,
-                                       group.anchor_local[:, 1:].astype(np.float64))
-    held = (anchor >= 0) & (np.linalg.norm(v[anchor] - expect, axis=-1) < ANCHOR_SLACK)
+    expect = root[:, None] + from_frames(frames, group.anchor_local[:, 1:].astype(np.float64))
+    held = (anchor >= 0) & (norm3(v[anchor] - expect) < ANCHOR_SLACK)
     lack = MARGIN - np.sum((inner - v[anchor]) * body.normals[anchor], -1)
     search = ~held | (lack > 0)
     if search.any():
         inner[search] = push_out(inner[search], body)
     pts[:, 1:] = inner
     return pts
+
+
+def from_frames(frames: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """(S, K, 3) points ``local`` (S, K, 3) given in frames (S, 3, 3) (rows: the axes) in
+    the frames' space: ``np.einsum("sij,ski->skj", frames, local)``, the same bits in
+    about two thirds of the time (the axes summed in the same order)."""
+    f = frames[:, None]
+    return (f[..., 0, :] * local[..., 0:1] + f[..., 1, :] * local[..., 1:2]) + \
+        f[..., 2, :] * local[..., 2:3]
 
 
 #: How far an anchor may sit from where its strand's frame carries it and still stand for

@@ -12,10 +12,13 @@ are metres in the model frame (y up, z forward, x the subject's left).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.nearest import PointTree
+from hack_render.geometry.normals import vertex_normals
 from hack_render.hair.style import HairStyle
 
 SKIN_MATERIALS = ("M_Face", "M_BackHead")
@@ -29,12 +32,47 @@ HAIRLINE_KNOTS = ((0, 0.118), (25, 0.115), (45, 0.097), (60, 0.074), (75, 0.056)
 class HeadSurface:
     """The rest mesh strands are grown on and rooted in: vertices (N, 3) metres, faces
     (F, 3), the skin triangles (``skin``: face indices of :data:`SKIN_MATERIALS`), the 68
-    landmark vertex indices."""
+    landmark vertex indices.
+
+    What every groom grown on it reads is made once per surface, on first use (the
+    arrays are not to be changed after): :attr:`normals`, :attr:`skin_centroids` and
+    their k-d tree, :attr:`skin_vertices`, their normals and k-d tree (the collision
+    proxy's, ``groom.BodyProxy.of``)."""
 
     vertices: np.ndarray
     faces: np.ndarray
     skin: np.ndarray
     landmarks: np.ndarray
+
+    @cached_property
+    def normals(self) -> np.ndarray:
+        """(N, 3) unit vertex normals of the whole mesh."""
+        return vertex_normals(self.vertices, self.faces)
+
+    @cached_property
+    def skin_centroids(self) -> np.ndarray:
+        """(len(skin), 3) the skin triangles' centroids."""
+        return self.vertices[self.faces[self.skin]].mean(1)
+
+    @cached_property
+    def centroid_tree(self) -> PointTree:
+        """A k-d tree over :attr:`skin_centroids`."""
+        return PointTree(self.skin_centroids)
+
+    @cached_property
+    def skin_vertices(self) -> np.ndarray:
+        """Sorted indices of the skin triangles' vertices."""
+        return np.unique(self.faces[self.skin])
+
+    @cached_property
+    def skin_normals(self) -> np.ndarray:
+        """(N, 3) unit vertex normals of the skin triangles alone (zero elsewhere)."""
+        return vertex_normals(self.vertices, self.faces[self.skin])
+
+    @cached_property
+    def skin_tree(self) -> PointTree:
+        """A k-d tree over the :attr:`skin_vertices`' positions."""
+        return PointTree(self.vertices[self.skin_vertices])
 
     @staticmethod
     def from_model(model) -> HeadSurface:
@@ -80,8 +118,7 @@ def _azimuth(p: np.ndarray) -> np.ndarray:
 def scalp_mask(surface: HeadSurface, style: HairStyle) -> tuple[np.ndarray, np.ndarray]:
     """(skin face indices on the scalp, a soft 0..1 density weight each): above the hairline
     (:func:`hairline_height`, a 6 mm soft edge), not on the ears."""
-    v, f = surface.vertices, surface.faces
-    cent = v[f[surface.skin]].mean(1)
+    cent = surface.skin_centroids
     edge = cent[:, 1] - hairline_height(_azimuth(cent), style)
     ear = (np.abs(cent[:, 0]) > 0.066) & (cent[:, 1] > -0.045) & (cent[:, 1] < 0.05) & \
         (cent[:, 2] > -0.04) & (cent[:, 2] < 0.03)
@@ -93,8 +130,8 @@ def scalp_mask(surface: HeadSurface, style: HairStyle) -> tuple[np.ndarray, np.n
 def beard_mask(surface: HeadSurface, beard: str) -> np.ndarray:
     """Skin face indices of a ``stubble``/``full`` beard (cheeks below the line from the
     jaw's top to the mouth's corners, moustache, chin, under the jaw) or a ``goatee``."""
-    v, f, lm = surface.vertices, surface.faces, surface.vertices[surface.landmarks]
-    c = v[f[surface.skin]].mean(1)
+    lm = surface.vertices[surface.landmarks]
+    c = surface.skin_centroids
     x, y, z = c[:, 0], c[:, 1], c[:, 2]
     ax = np.abs(x)
     mouth_half = abs(lm[54, 0] - lm[48, 0]) / 2 + 0.003
