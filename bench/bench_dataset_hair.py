@@ -22,9 +22,16 @@
     history: cache misses, and their compile seconds); ``--before PATH`` runs the same
     in another checkout right after, in its own process.
 
+(d) ``--groom``: the groom alone, in a fresh process per checkout: ``grow`` of the hair of
+    samples 0..``--n``-1 of ``--seed`` (the default config), then ``pose_groom`` of each on
+    its sample's vertices; seconds and CPU seconds (all threads) of each, and a digest of
+    every array grown and posed: two checkouts with the same digest grow and pose the same
+    grooms bit for bit; ``--before PATH`` runs the other checkout right after.
+
 Usage: python bench/bench_dataset_hair.py --sheet docs/images/dataset_hair_sheet.png
        python bench/bench_dataset_hair.py --speed [--n 6] [--size 256] [--spp 25] [--lod 0.25]
        python bench/bench_dataset_hair.py --steady [--n 6] [--warm 2] [--before PATH]
+       python bench/bench_dataset_hair.py --groom [--n 40] [--before PATH]
 """
 
 from __future__ import annotations
@@ -212,6 +219,82 @@ print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
 """
 
 
+GROOM = """
+import dataclasses, hashlib, json, time
+import numpy as np
+import torch
+from hack_render.dataset.config import load_config
+from hack_render.dataset.sampling import model_kwargs, sample_spec
+from hack_render.geometry import load_default_model
+from hack_render.hair.groom import grow
+from hack_render.hair.pose import pose_groom
+from hack_render.hair.regions import HeadSurface
+from hack_render.hair.style import HairStyle
+model = load_default_model()
+surface = HeadSurface.from_model(model)
+cfg = load_config()
+specs = [sample_spec(cfg, {seed}, i, model.au_names) for i in range({n})]
+specs = [s for s in specs if s["hair"] is not None]
+digest = hashlib.blake2b(digest_size=16)
+grooms, t = [], {{"grow": [0.0, 0.0], "pose": [0.0, 0.0]}}
+def timed(key, fn, *args):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn(*args)
+    t[key][0] += time.perf_counter() - w
+    t[key][1] += time.process_time() - c
+    return out
+for s in specs:
+    g = timed("grow", grow, surface, HairStyle.from_dict(s["hair"]))
+    for gr in g.groups:
+        for f in dataclasses.fields(gr):
+            a = getattr(gr, f.name)
+            if isinstance(a, np.ndarray):
+                digest.update(np.ascontiguousarray(a).tobytes())
+    grooms.append(g)
+for s, g in zip(specs, grooms):
+    with torch.no_grad():
+        v = model(**model_kwargs(model, s)).vertices[0].numpy().astype(np.float64)
+    for a in timed("pose", pose_groom, g, v).values():
+        digest.update(np.ascontiguousarray(a).tobytes())
+print(json.dumps({{"grooms": len(specs), "strands": sum(g.num_strands for g in grooms),
+                  "grow_s": t["grow"][0], "grow_cpu_s": t["grow"][1],
+                  "pose_s": t["pose"][0], "pose_cpu_s": t["pose"][1],
+                  "digest": digest.hexdigest()}}))
+"""
+
+
+def groom_cost(n: int, seed: int, before: str | None, out: str | None) -> None:
+    """(d): see the module docstring."""
+    import subprocess
+
+    here = str(Path(__file__).resolve().parents[1])
+    printed: list[str] = []
+    results: dict = {"title": "Growing and posing the dataset's grooms (issue 65)", "runs": {}}
+    for name, root in [("this", here)] + ([("before", before)] if before else []):
+        env = dict(os.environ, PYTHONPATH=root)
+        line = subprocess.run([sys.executable, "-c", GROOM.format(n=n, seed=seed)], cwd=root,
+                              env=env, check=True, capture_output=True,
+                              text=True).stdout.strip().splitlines()[-1]
+        d = json.loads(line)
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, check=False,
+                                capture_output=True, text=True).stdout.strip()
+        results["runs"][name] = dict(d, commit=commit)
+        text = (f"  {name} ({commit}): {d['grooms']} grooms of samples 0..{n - 1} of seed {seed} "
+                f"({d['strands']} strands): grow {d['grow_s']:.2f} s ({d['grow_cpu_s']:.2f} CPU "
+                f"s), pose {d['pose_s']:.2f} s ({d['pose_cpu_s']:.2f} CPU s); digest "
+                f"{d['digest']}")
+        printed.append(text)
+        print(text, flush=True)
+    if before:
+        same = results["runs"]["this"]["digest"] == results["runs"]["before"]["digest"]
+        text = f"  the same grooms bit for bit: {same}"
+        printed.append(text)
+        print(text)
+    if out:
+        results["printed"] = printed
+        print(f"wrote {write_result(out, results)}")
+
+
 def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None,
            out: str | None) -> None:
     import subprocess
@@ -263,13 +346,16 @@ def main() -> None:
     ap.add_argument("--lod", type=float, action="append", default=None)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steady", action="store_true")
-    ap.add_argument("--before", default=None, help="(c): another checkout to compare with")
-    ap.add_argument("--out", default=None, help="(c): also write what it prints, with commit")
+    ap.add_argument("--groom", action="store_true")
+    ap.add_argument("--before", default=None, help="(c), (d): another checkout to compare with")
+    ap.add_argument("--out", default=None, help="(c), (d): also write what it prints, with commit")
     a = ap.parse_args()
     if a.sheet:
         sheet(Path(a.sheet), a.seed, a.keep, a.size)
     if a.steady:
         steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out)
+    if a.groom:
+        groom_cost(a.n, a.seed, a.before, a.out)
     if a.speed:
         speed(a.n, a.warm, a.size, a.spp, a.lod or [load_config()["hair"]["lod"]], a.seed)
 
