@@ -239,9 +239,13 @@ def hair_like(rgb8: np.ndarray, face: FaceLandmarks, person: np.ndarray, oval: n
     lr, hair_seed = test[:2]
     like = ndimage.binary_opening(lr > 0, iterations=1) & (person | (oval > 0.5))
     if grey:   # brightness alone: below the eyes a shadowed chin or a dark collar
-        # joins the hair; a fringe reaches down from above
+        # joins the hair; a fringe reaches down from above, and inside the face oval a
+        # sideburn down to the nose's base (outside it, below the eyes, an ear's folds
+        # look like hair in grey)
         h, w = rgb8.shape[:2]
-        like &= _upright_rows(face, h, w) < _upright_y(face, slice(36, 48)).mean()
+        up = _upright_rows(face, h, w)
+        like &= (up < _upright_y(face, slice(36, 48)).mean()) | \
+            ((oval > 0.5) & (up < _upright_y(face, slice(31, 36)).mean()))
     # hair reaches the face from the hair: only the parts joined to the hair samples
     lab, _ = ndimage.label(like)
     ids = np.unique(lab[hair_seed])
