@@ -11,9 +11,10 @@ from hack_render.geometry.anatomy import distribute_head_rotation
 from hack_render.geometry.model_file import default_model_path
 from hack_render.geometry.params import check_params
 from hack_render.geometry.posing import PosingModel
-from hack_render.hair.groom import grow_cached, root_points
+from hack_render.hair.groom import grow_cached
 from hack_render.hair.pose import pose_groom, pose_group, pose_group_torch, signed_distance
 from hack_render.hair.regions import HeadSurface
+from hack_render.hair.strands import root_points
 from hack_render.hair.style import ARCHETYPES, HairStyle, parse_colour, sample_style
 
 
@@ -183,7 +184,8 @@ def test_anchors_reuse_the_last_push_out_exactly(surface):
     push out's search where the points are unchanged, and searched again elsewhere (the
     roots, the points it moved, strands changed after it, as a cut changes them), are
     the ones a full search finds."""
-    from hack_render.hair.groom import BodyProxy, _group
+    from hack_render.hair.groom import _group
+    from hack_render.hair.strands import BodyProxy
 
     g = grow_cached(surface, _small("long")).group("scalp")
     proxy = BodyProxy(surface.vertices, surface.faces, surface.skin)
@@ -209,14 +211,9 @@ def test_fast_forms_give_numpys_bits(surface):
     proxy built from the surface's cached arrays as the one built afresh. The local
     frames' product sums in the order ``np.einsum`` takes on the development machine;
     elsewhere it may differ in the last bit, so that one is compared to 1e-15."""
-    from hack_render.hair.groom import (
-        BodyProxy,
-        _gradient,
-        _to_local,
-        open_edge_vertices,
-        triangle_frames,
-    )
+    from hack_render.hair.groom import _gradient, _to_local
     from hack_render.hair.pose import from_frames
+    from hack_render.hair.strands import BodyProxy, open_edge_vertices, triangle_frames
 
     def rows_unique(faces):  # the reference: unique edge rows, counted
         e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)

@@ -41,15 +41,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from hack_render.export.rig import top_weights
-from hack_render.hair.groom import (
-    BodyProxy,
-    Groom,
-    closest_on_triangles,
-    grow_cached,
-    triangle_frames,
-)
+from hack_render.hair.groom import Groom, grow_cached
 from hack_render.hair.pose import pose_groom
 from hack_render.hair.regions import HeadSurface
+from hack_render.hair.strands import BodyProxy, closest_on_triangles, triangle_frames
 from hack_render.hair.style import NAMED_COLOURS, HairStyle
 from hack_render.render.hair_options import hair_style as resolve_hair_style
 

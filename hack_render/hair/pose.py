@@ -1,7 +1,7 @@
 """Posing a groom on posed vertices, in NumPy (renders, exports) and in torch (gradients).
 
 A strand's control points are stored in its root triangle's frame
-(:func:`hack_render.hair.groom.triangle_frames`); posing rebuilds the frame on the posed
+(:func:`hack_render.hair.strands.triangle_frames`); posing rebuilds the frame on the posed
 mesh and maps them back: ``p = root + frame^T local``. Strands therefore follow every input
 of G(beta, psi, theta, eta, tau) through the skin they are rooted in.
 
@@ -20,13 +20,8 @@ import numpy as np
 
 from hack_render.geometry.nearest import PointTree
 from hack_render.geometry.normals import norm3, vertex_normals
-from hack_render.hair.groom import (
-    Groom,
-    StrandGroup,
-    open_edge_vertices,
-    root_points,
-    triangle_frames,
-)
+from hack_render.hair.groom import Groom, StrandGroup
+from hack_render.hair.strands import open_edge_vertices, root_points, triangle_frames
 
 #: Smallest distance a posed control point keeps outside the skin, metres.
 MARGIN = 0.0002

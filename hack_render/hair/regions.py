@@ -37,7 +37,7 @@ class HeadSurface:
     What every groom grown on it reads is made once per surface, on first use (the
     arrays are not to be changed after): :attr:`normals`, :attr:`skin_centroids` and
     their k-d tree, :attr:`skin_vertices`, their normals and k-d tree (the collision
-    proxy's, ``groom.BodyProxy.of``)."""
+    proxy's, ``strands.BodyProxy.of``)."""
 
     vertices: np.ndarray
     faces: np.ndarray

@@ -52,7 +52,7 @@ SCALE_TILT = 2.0
 #: rays' cost grows with them; 12 points keep a 30 cm strand's segments under 3 cm.
 MAX_CONTROL_POINTS = 12
 #: Shortest segment between a strand's control points, metres: a groom's cut strands
-#: gather their last points in one place (``hair.groom._cut``: 96k zero-length segments in
+#: gather their last points in one place (``hair.strands.cut_strands``: 96k zero-length segments in
 #: a long groom); they are opened to this length along the strand's last direction, so no
 #: curve segment is degenerate.
 MIN_SEGMENT = 5e-5
