@@ -96,7 +96,7 @@ def test_02_set_hair_then_set_vertices_poses_the_new_groom_once(head_model, groo
     """The dataset's order: set_hair posed on the sample's vertices (or given them posed),
     then set_vertices to those vertices finds them posed; the pixels are those of a plain
     scene moved to the same vertices."""
-    from hack_render.render import scene as scene_mod
+    from hack_render.render import scene_hair as scene_mod  # where the scene poses
 
     a, b = grooms
     v2 = head_model[1] + np.array([0.01, -0.005, 0.0])

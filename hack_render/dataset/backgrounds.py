@@ -1,7 +1,7 @@
 """Dataset backgrounds: real photographs shipped with scikit-image, composited behind.
 
 The renderer's film holds the subject alone (camera rays never see an emitter, see
-``render/scene.py``), premultiplied by its coverage; a sample's background photo is
+``render/scene_images.py``), premultiplied by its coverage; a sample's background photo is
 cropped, flipped and scaled here and composited behind it (RGB + (1 - alpha) photo), so
 labels, depth and the matte are those of the subject exactly as without a background.
 

@@ -9,28 +9,20 @@ the kernels it compiled for the first frame.
 
 Its settings (size, samples and sampler, integrator) are ``render/settings.py``'s, whose
 names this module re-exports; the skin's passes of ``render(sss=True)`` are
-``render/sss.py``'s (:func:`hack_render.render.sss.render_scattered`).
+``render/sss.py``'s (:func:`hack_render.render.sss.render_scattered`). What a built scene
+gives (images, the denoiser, the backdrop, G-buffers, labels) is
+``render/scene_images.py``'s (:class:`~hack_render.render.scene_images.SceneImages`), and
+swapping grooms in and posing them ``render/scene_hair.py``'s
+(:class:`~hack_render.render.scene_hair.SceneHair`); :class:`HeadScene` extends both.
 """
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
-from tqdm import tqdm
 
 from hack_render.errors import HackError
-from hack_render.hair.pose import pose_groom
 from hack_render.io.image import read_hdr_image
-from hack_render.render import denoise as dn
 from hack_render.render import emitters, materials
-from hack_render.render.aov import (
-    environment_backdrop,
-    gbuffer,
-    label_pass,
-    point_visibility,
-    region_hits,
-)
 from hack_render.render.cornea import CorneaRig
 from hack_render.render.emitters import (
     area_light_transform,
@@ -39,7 +31,6 @@ from hack_render.render.emitters import (
     rotation_y,
 )
 from hack_render.render.engine import ensure_variant, is_jit, release_parked, release_when_safe
-from hack_render.render.footprint import denoise_features
 from hack_render.render.hair_shapes import (
     HAIR_RR,
     HAIR_RR_DEPTH,
@@ -60,6 +51,8 @@ from hack_render.render.parts import (
     split_parts,
     vertex_normals,
 )
+from hack_render.render.scene_hair import SceneHair
+from hack_render.render.scene_images import SceneImages, as_points, composite
 from hack_render.render.settings import (
     AUTO_ORTHOGONAL_MIN,
     DEFAULT_INTEGRATOR,
@@ -75,7 +68,6 @@ from hack_render.render.settings import (
     sampler_spp,
     validate_size,
 )
-from hack_render.render.sss import render_scattered
 from scenes.cameras import Camera
 from scenes.lights import LightRig
 
@@ -85,22 +77,7 @@ __all__ = ["AUTO_ORTHOGONAL_MIN", "DEFAULT_INTEGRATOR", "DEFAULT_SAMPLER", "INTE
            "RenderSettings", "auto_sampler", "composite", "sampler_spp", "validate_size"]
 
 
-def composite(image: np.ndarray, backdrop: np.ndarray | None) -> np.ndarray:
-    """Premultiplied linear RGBA (H, W, 4) over a linear RGB backdrop (H, W, 3) or None:
-    RGB + (1 - alpha) backdrop; alpha is kept (the subject's coverage)."""
-    if backdrop is None:
-        return image
-    out = image.copy()
-    out[..., :3] += (1.0 - image[..., 3:4]) * backdrop
-    return out
-
-
-def _np(x) -> np.ndarray:
-    x = x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
-    return x.astype(np.float64)
-
-
-class HeadScene:
+class HeadScene(SceneImages, SceneHair):
     """The head, its materials, lights and camera as one Mitsuba scene.
 
     Args:
@@ -157,7 +134,7 @@ class HeadScene:
 
         self.settings, self.camera, self.lights = settings, camera, lights
         self.topology = topology
-        v = _np(vertices).reshape(-1, 3)
+        v = as_points(vertices).reshape(-1, 3)
         if v.shape[0] != topology.num_vertices:
             raise HackError(f"vertices: expected ({topology.num_vertices}, 3) for this "
                             f"topology, found {v.shape}.")
@@ -344,25 +321,6 @@ class HeadScene:
         mesh.set_id(part.name)
         return mesh
 
-    def pose_hair(self, vertices) -> dict[str, np.ndarray] | None:
-        """The groom's strands on ``vertices`` (N, 3): {group: (S, K, 3)} control points
-        (:func:`hack_render.hair.pose.pose_groom`, with collisions), None when bald. Pure
-        NumPy on the groom alone: a caller may pose the next frame on another thread and
-        hand the result to :meth:`set_vertices` (``hair_posed``)."""
-        if self.hair is None:
-            return None
-        return pose_groom(self.hair, _np(vertices).reshape(-1, 3))
-
-    def _pose_hair(self, v: np.ndarray, posed=None) -> dict[str, np.ndarray]:
-        """:meth:`pose_hair` of ``v`` (or ``posed``, already computed for ``v``); posing
-        with collisions costs 0.5-5 s for a full head of hair, so the last one is
-        remembered."""
-        if self._hair_posed_for is not None and np.array_equal(self._hair_posed_for[0], v):
-            return self._hair_posed_for[1]
-        posed = posed if posed is not None else pose_groom(self.hair, v)
-        self._hair_posed_for = (v.copy(), posed)
-        return posed
-
     def _find_skin_key(self) -> str | None:
         for key in self.params.keys():  # noqa: SIM118 (SceneParameters: keys() lists them)
             if key.endswith((".albedo.data", ".base_color.data")):
@@ -399,7 +357,7 @@ class HeadScene:
         ``update=False`` defers ``params.update()`` (see :meth:`update`)."""
         import mitsuba as mi
 
-        v = _np(vertices).reshape(-1, 3)
+        v = as_points(vertices).reshape(-1, 3)
         if v.shape[0] != self.topology.num_vertices or not np.all(np.isfinite(v)):
             raise HackError(f"vertices: expected finite ({self.topology.num_vertices}, 3), "
                             f"found {v.shape} (finite: {bool(np.all(np.isfinite(v)))}).")
@@ -423,36 +381,6 @@ class HeadScene:
                         self.params[f"{sh.id}.control_points"] = aligned_float(
                             shape_control_points(self.hair, posed, sh))
                 self._hair_written = posed
-        if update:
-            self.params.update()
-
-    def takes_hair(self, groom) -> bool:
-        """Whether :meth:`set_hair` takes ``groom`` into this scene: it has hair slots, the
-        groom has lashes (a slotted scene has no lash cards) and fits the slots."""
-        return bool(self.hair_slots) and slots_take(groom, self.hair_slots)
-
-    def set_hair(self, groom, *, vertices=None, hair_posed=None, update: bool = True) -> None:
-        """Render ``groom`` instead of the present one, in place: a scene built with
-        ``hair_slots`` (:meth:`takes_hair`) renders what a new ``HeadScene(...,
-        hair=groom, hair_slots=<the same slots>)`` would, without loading a scene or compiling its
-        kernels again. The strands are posed on ``vertices`` (default: the mesh's
-        present vertices; given: the ones a :meth:`set_vertices` that follows moves the
-        mesh to, without posing them again) or given posed (``hair_posed``,
-        :meth:`pose_hair` of those vertices with this groom). ``update=False`` defers
-        ``params.update()``."""
-        if not self.takes_hair(groom):
-            raise HackError("set_hair: " + (
-                "this scene has no hair slots; build it with HeadScene(..., hair_slots=True)"
-                if not self.hair_slots else "expected a groom with lashes (a scene with hair "
-                "slots renders the lashes as strands) that fits the slots "
-                "(hair_shapes.needed_segments); build a HeadScene with this groom"))
-        v = self._vertices if vertices is None else _np(vertices).reshape(-1, 3)
-        self.hair, self.hair_shapes = groom, hair_shapes(groom)
-        self._hair_posed_for = None
-        posed = self._pose_hair(v, hair_posed)
-        write_slots(self.params, groom, posed, self.hair_shapes, self.hair_slots, v.mean(0),
-                    structure=True)
-        self._hair_written = posed
         if update:
             self.params.update()
 
@@ -559,122 +487,3 @@ class HeadScene:
         geometry's. A second call, with no shape left dirty, only refreshes it: the
         render then depends on the current geometry alone, not on what came before."""
         self.scene.parameters_changed()
-
-    # --- rendering -------------------------------------------------------------------
-    def render(self, seed: int | None = None, progress: bool = False,
-               backdrop=True, denoise: bool = False, sss: bool = False) -> np.ndarray:
-        """Render the image: (H, W, 4) float32 linear Rec.709 RGB + alpha (coverage).
-
-        Samples are split into equal passes of at most ``SAMPLES_PER_PASS`` samples with
-        seeds derived from ``seed`` (default: the settings' seed), then averaged.
-
-        Camera rays never see an emitter (the path integrator's ``hide_emitters``): the
-        film holds the subject alone, RGB premultiplied by the alpha. ``backdrop`` says
-        what fills the rest: True, the rig's environment as seen along each pixel's
-        centre ray (:meth:`backdrop`); False, nothing (premultiplied RGBA, for
-        compositing); or an (H, W, 3) linear image composited behind the subject.
-        ``denoise``: run Intel Open Image Denoise on the subject before compositing
-        (:meth:`denoise`; raises ``denoise.DenoiserUnavailable`` without pyoidn).
-        ``sss``: subsurface scattering in the skin (:mod:`hack_render.render.sss`: the
-        skin's diffuse light rendered apart, in the same pass with ``hack_path``, in a
-        second with the other integrators, then diffused by the skin profile); JIT
-        variants only (the scalar variant's stand-in skin material renders without it,
-        with a warning).
-        """
-        release_parked()
-        base = self.settings.seed if seed is None else int(seed)
-        if sss and self.skin_bsdf is None:
-            warnings.warn("sss: subsurface scattering needs the hack_skin material of a JIT "
-                          "variant (llvm_ad_rgb or cuda_ad_rgb); rendering without it.",
-                          stacklevel=2)
-            sss = False
-        if sss:
-            img = render_scattered(self, base, progress)
-        else:
-            img = self.render_passes(base, progress)
-        if denoise:
-            img = self.denoise(img)
-        return composite(img, self._backdrop_of(backdrop))
-
-    def render_passes(self, base: int, progress: bool, desc: str = "render passes",
-                       spp: int | None = None, integrator=None):
-        """The premultiplied film averaged over the settings' passes (see :meth:`render`);
-        ``spp``: samples per pixel of each pass instead of the settings' (rounded as the
-        sampler takes them); ``integrator``: a Mitsuba integrator instead of the scene's
-        (its AOVs follow the RGBA channels)."""
-        import mitsuba as mi
-
-        n, _ = self.settings.passes
-        kw = {} if spp is None else {"spp": sampler_spp(self.settings.mitsuba_sampler,
-                                                        max(1, int(spp)))}
-        if integrator is not None:
-            kw["integrator"] = integrator
-        acc = None
-        steps = range(n)
-        if progress and n > 1:
-            steps = tqdm(steps, desc=desc, unit="pass")
-        for i in steps:
-            img = np.asarray(mi.render(self.scene, seed=(base * 7919 + i) % (2 ** 31), **kw))
-            acc = img if acc is None else acc + img
-        return (acc / n).astype(np.float32)
-
-    def denoise(self, image: np.ndarray, fallback: bool = False, k: int = 4) -> np.ndarray:
-        """A premultiplied render (H, W, 4) of this scene's current state (camera, mesh),
-        denoised by OIDN with albedo and normal from :func:`footprint.denoise_features`
-        (through the lash cards, as the film sees them); alpha kept. ``fallback``: a missing or failing denoiser returns the image unchanged
-        with a warning instead of raising (see ``hack_render.render.denoise``)."""
-        albedo, normal = denoise_features(self, k, self.see_through_cards)
-        out = image.copy()
-        den = dn.denoise(image[..., :3], albedo, normal, fallback=fallback)
-        # premultiplied: no coverage, no colour (OIDN leaves ~1e-6 residues there)
-        out[..., :3] = np.where(image[..., 3:4] > 0, den, 0.0)
-        return out
-
-    def composite(self, image: np.ndarray, backdrop=True) -> np.ndarray:
-        """A premultiplied render (``render(backdrop=False)``) over ``backdrop`` (see
-        :meth:`render`)."""
-        return composite(image, self._backdrop_of(backdrop))
-
-    def _backdrop_of(self, backdrop) -> np.ndarray | None:
-        if backdrop is True:
-            return self.backdrop()
-        if backdrop is False or backdrop is None:
-            return None
-        bg = np.asarray(backdrop, dtype=np.float32)
-        shape = (self.settings.height, self.settings.width, 3)
-        if bg.shape != shape or not np.all(np.isfinite(bg)):
-            raise HackError(f"backdrop: expected a finite linear RGB image of shape {shape}, "
-                            f"found {bg.shape}.")
-        return bg
-
-    def backdrop(self) -> np.ndarray:
-        """(H, W, 3) float32: the environment's radiance along each pixel-centre camera
-        ray (zeros without an environment); what the camera would see behind the
-        subject, lights excluded. Cached until the camera or the rig moves."""
-        if self._backdrop is None:
-            self._backdrop = environment_backdrop(self)
-        return self._backdrop
-
-    def aovs(self, see_through=(), hits: bool = False) -> dict[str, np.ndarray]:
-        """Pixel-centre G-buffer: see :func:`hack_render.render.aov.gbuffer`."""
-        return gbuffer(self, see_through, hits)
-
-    def region_hits(self, offset=(0.5, 0.5), see_through=("eyelashes",)) -> dict:
-        """Region ids and model UVs at one sub-pixel point: see :func:`aov.region_hits`."""
-        return region_hits(self, offset, see_through)
-
-    def label_pass(self, k: int, region_labels, uv_label_map, uv_regions=(),
-                   see_through=("eyelashes",), num_labels: int | None = None,
-                   see_through_opacity: float | None = None) -> dict:
-        """Label coverage of k x k sub-pixel rays and the pixel-centre G-buffer in one
-        batch: see :func:`aov.label_pass`."""
-        return label_pass(self, k, region_labels, uv_label_map, uv_regions, see_through,
-                          num_labels, see_through_opacity)
-
-    def visibility(self, points, tolerance: float = 2e-3, see_through=("eyelashes",)):
-        """Line-of-sight visibility of world points: see :func:`aov.point_visibility`."""
-        return point_visibility(self, points, tolerance, see_through)
-
-    @property
-    def region_names(self) -> tuple[str, ...]:
-        return REGIONS
