@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+from contextlib import contextmanager
 
 from hack_render.errors import HackError
 
@@ -34,6 +36,8 @@ MAX_THREADS = 1024
 DEFAULT_TORCH_THREADS = 2
 
 _requested: int | None = None
+#: Per Python thread: the torch thread count outside the innermost :func:`small_work`.
+_outer = threading.local()
 
 
 def requested() -> int | None:
@@ -117,3 +121,44 @@ def command_threads(n: int | None, torch_default: int | None = None) -> int | No
     if "torch" in sys.modules or "OMP_NUM_THREADS" not in os.environ:
         _set_torch_threads(want)
     return None
+
+
+@contextmanager
+def small_work(active: bool = True):
+    """Torch on one thread inside (when ``active`` and torch has more): for a chain of small
+    operations, such as a B = 1 forward's rotations, joints, skinning and MLPs. Under
+    OpenMP's passive wait policy (the package's default) every parallel region wakes the
+    sleeping workers, which costs more than a small operation's work: a (1372, 9) x (9, 12)
+    product measured 0.08 ms on 2 threads and 0.011 ms on one. :func:`bulk_work` gives a
+    streaming product inside the block the caller's threads back. Torch's count is the
+    calling thread's own (OpenMP's per-thread setting and MKL's local one), restored on
+    exit."""
+    torch = sys.modules["torch"]
+    n = torch.get_num_threads()
+    if not active or n == 1:
+        yield
+        return
+    outer = getattr(_outer, "n", None)
+    _outer.n = n
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+        _outer.n = outer
+
+
+@contextmanager
+def bulk_work():
+    """Inside :func:`small_work`: the caller's torch thread count again, for a product that
+    streams megabytes (a basis product), where more threads may read memory faster."""
+    n = getattr(_outer, "n", None)
+    if n is None:
+        yield
+        return
+    torch = sys.modules["torch"]
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(1)

@@ -126,3 +126,47 @@ def test_threads_zero_is_refused_before_anything_heavy(tmp_path):
                          text=True, timeout=300)
     assert res.returncode != 0 and "--threads" in res.stderr, res.stderr[-2000:]
     assert not (tmp_path / "x.png").exists()
+
+
+def test_small_work_runs_on_one_thread_and_restores():
+    """``small_work``: one torch thread inside, the caller's count back for ``bulk_work``
+    and on exit, also after an exception and when nested; inactive: nothing changes. A
+    B = 1 forward (which runs in it) leaves the count as it found it and gives the same
+    vertices as a batch of two whose rows are that one (which does not)."""
+    import torch
+
+    from hack_render.geometry import load_default_model
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with threads.small_work():
+            assert torch.get_num_threads() == 1
+            with threads.bulk_work():
+                assert torch.get_num_threads() == 2
+            assert torch.get_num_threads() == 1
+            with threads.small_work():
+                assert torch.get_num_threads() == 1
+                with threads.bulk_work():
+                    assert torch.get_num_threads() == 2
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(ValueError), threads.small_work():
+            raise ValueError("inside")
+        assert torch.get_num_threads() == 2
+        with threads.small_work(active=False):
+            assert torch.get_num_threads() == 2
+            with threads.bulk_work():
+                assert torch.get_num_threads() == 2
+        model = load_default_model()
+        g = torch.Generator().manual_seed(3)
+        kw = {"beta": torch.randn(1, 20, generator=g),
+              "psi": torch.rand(1, model.num_expressions, generator=g),
+              "theta": 0.1 * torch.randn(1, 8, 3, generator=g)}
+        with torch.no_grad():
+            one = model(**kw).vertices
+            assert torch.get_num_threads() == 2
+            two = model(**{k: v.expand(2, *v.shape[1:]) for k, v in kw.items()}).vertices
+        assert torch.allclose(one[0], two[1], atol=1e-6)
+    finally:
+        torch.set_num_threads(before)

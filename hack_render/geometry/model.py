@@ -53,6 +53,7 @@ from hack_render.geometry.products import (
     skin_blend,
 )
 from hack_render.geometry.skeleton import clamp_to_limits
+from hack_render.threads import bulk_work, small_work
 
 
 @dataclass
@@ -330,17 +331,20 @@ class HackModel(nn.Module):
         if clamp_limits:
             p["theta"] = clamp_to_limits(p["theta"])
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
-        rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
-        beta = p["beta"]
-        shared = _shares_identity(beta)
-        ident = beta[:1] if shared else beta
-        # the small operations first, the basis products last: a product streams tens of
-        # MB through the caches, and small operations after it run cold (a chain of them
-        # after a 72 MB read measured 2.6x its warm CPU time)
-        joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
-        posing = self._posing(joints, rot, p["transl"])
-        rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
-        return self._pose(rest, joints, rot, p["transl"], posing)
+        # one row: torch on one thread but for the basis products (``threads.small_work``;
+        # at S = 20, 4.2 -> 3.9 ms on 2 cores)
+        with small_work(p["theta"].shape[0] == 1):
+            rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
+            beta = p["beta"]
+            shared = _shares_identity(beta)
+            ident = beta[:1] if shared else beta
+            # the small operations first, the basis products last: a product streams tens
+            # of MB through the caches, and small operations after it run cold (a chain of
+            # them after a 72 MB read measured 2.6x its warm CPU time)
+            joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
+            posing = self._posing(joints, rot, p["transl"])
+            rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
+            return self._pose(rest, joints, rot, p["transl"], posing)
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
@@ -379,19 +383,22 @@ class HackModel(nn.Module):
         if single:
             rest = self._rest_single(beta, psi, nz, w_e)
         else:
-            if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
-                bias = torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb else template
-                flat = rows_product(psi, self.expr_shape_basis[:E], bias)
-            else:
-                flat = rows_product(torch.cat([psi, beta], 1), self.expr_shape_basis[:E + nb],
-                                    template)
-            rest = flat.view(B, -1, 3)
-            if ep is not None:
-                if constant_e:
-                    bb = self.expr_bias_basis
-                    d = rows_product(psi, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+            with bulk_work():
+                if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
+                    bias = (torch.addmm(template, beta, self.expr_shape_basis[E:E + nb]) if nb
+                            else template)
+                    flat = rows_product(psi, self.expr_shape_basis[:E], bias)
                 else:
-                    d = ep.apply(psi, w_e)
+                    flat = rows_product(torch.cat([psi, beta], 1),
+                                        self.expr_shape_basis[:E + nb], template)
+                rest = flat.view(B, -1, 3)
+                if ep is not None:
+                    if constant_e:
+                        bb = self.expr_bias_basis
+                        d = rows_product(psi, bb, bb.new_zeros(bb.shape[1])).view(B, -1, 3)
+                    else:
+                        d = ep.apply(psi, w_e)
+            if ep is not None:
                 add_rows_(rest, ep.vertices, d)
         for index, d in deltas:
             add_rows_(rest, index, d)
@@ -414,11 +421,12 @@ class HackModel(nn.Module):
         pb = self.expr_personal
         D, C, K = pb.rows.shape
         Y = P = None
-        for _, first, end in row_runs(nz, E):
-            c = psi[:, first:end]
-            y = c @ self.expr_psi_rows[first:end]
-            p = c @ pb.rows[first:end].view(end - first, C * K)
-            Y, P = (y, p) if Y is None else (Y + y, P + p)
+        with bulk_work():
+            for _, first, end in row_runs(nz, E):
+                c = psi[:, first:end]
+                y = c @ self.expr_psi_rows[first:end]
+                p = c @ pb.rows[first:end].view(end - first, C * K)
+                Y, P = (y, p) if Y is None else (Y + y, P + p)
         # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
         # the additions and the posing that follow
         flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
@@ -567,16 +575,18 @@ class PersonalizedHack(nn.Module):
             p["theta"] = clamp_to_limits(p["theta"])
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         B = p["theta"].shape[0]
-        rot = local_rotations(p["theta"], p["global_orient"])
-        rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
-        if self.uses_pose:
-            add_rows_(rest, self.pose_columns,
-                       (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
-        if m.has_larynx:
-            add_rows_(rest, m.larynx_vertices,
-                       m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
-                                        p["eta"], p["tau"]))
-        return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
+        with small_work(B == 1):  # as HackModel.forward
+            rot = local_rotations(p["theta"], p["global_orient"])
+            with bulk_work():
+                rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
+            if self.uses_pose:
+                add_rows_(rest, self.pose_columns,
+                           (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
+            if m.has_larynx:
+                add_rows_(rest, m.larynx_vertices,
+                           m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
+                                            p["eta"], p["tau"]))
+            return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
 
 
 def reference_forward(model: HackModel, beta=None, psi=None, theta=None, global_orient=None,
