@@ -13,7 +13,7 @@ from hack_render.errors import HackError
 from hack_render.geometry import load_default_model
 from hack_render.geometry.deformation import sample_joint_poses
 from hack_render.geometry.lbs import chain_parents, rigid_transforms
-from hack_render.geometry.model import reference_forward
+from hack_render.geometry.reference import reference_forward
 
 FIELDS = ("vertices", "joints", "rest_joints", "landmarks", "rest_vertices")
 

@@ -12,7 +12,7 @@ from hack_render.errors import HackError
 from hack_render.geometry import HackModel, load_default_model
 from hack_render.geometry import rotations as R
 from hack_render.geometry.lbs import rigid_transforms, skin, skin_reference
-from hack_render.geometry.model import reference_forward
+from hack_render.geometry.reference import reference_forward
 from hack_render.geometry.model_file import load_model_file
 from hack_render.geometry.products import personal_product, rows_product
 from hack_render.geometry.skeleton import (

@@ -9,7 +9,8 @@ from hack_render.geometry.model_file import DEFAULT_MODEL_NAME, default_model_pa
 
 if TYPE_CHECKING:  # imported lazily (below): the NumPy posing path must not import torch
     from hack_render.geometry.loading import load_default_model, load_model
-    from hack_render.geometry.model import HackModel, HackOutput, PersonalizedHack
+    from hack_render.geometry.model import HackModel, HackOutput
+    from hack_render.geometry.personalized import PersonalizedHack
     from hack_render.geometry.skeleton import (
         JOINT_NAMES,
         adjacent_similarity_penalty,
@@ -19,7 +20,7 @@ if TYPE_CHECKING:  # imported lazily (below): the NumPy posing path must not imp
         rotation_limits,
     )
 
-_LAZY = {"HackModel": "model", "HackOutput": "model", "PersonalizedHack": "model",
+_LAZY = {"HackModel": "model", "HackOutput": "model", "PersonalizedHack": "personalized",
          "JOINT_NAMES": "skeleton", "adjacent_similarity_penalty": "skeleton",
          "clamp_to_limits": "skeleton", "distribute_head_rotation": "skeleton",
          "rotation_limit_penalty": "skeleton", "rotation_limits": "skeleton",

@@ -8,9 +8,11 @@ argument, missing ones are filled on the buffers' device and dtype (zeros, excep
 the identity's own larynx), and the batch size comes from the inputs. ``model.double()``
 gives a float64 model for gradient checks.
 
-The forward (:meth:`HackModel.forward`) is the fast path; :func:`reference_forward` is the
-same model written plainly (dense bases, per-row personalised bases, skinning of every
-vertex), kept beside it for teaching and as the reference the tests compare it with.
+The forward (:meth:`HackModel.forward`) is the fast path; ``reference.reference_forward`` is
+the same model written plainly (dense bases, per-row personalised bases, skinning of every
+vertex), kept for teaching and as the reference the tests compare it with. The inputs'
+checks and defaults are ``arguments.py``'s, the one-identity module (:meth:`personalize`)
+``personalized.py``'s.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from torch import nn
 
 from hack_render.errors import HackError
 from hack_render.geometry import larynx as _larynx
+from hack_render.geometry.arguments import forward_arguments, shares_identity
 from hack_render.geometry.expressions import (
     FACS_WITHOUT_SHAPES,  # noqa: F401  (re-exported)
     expression_weights,
@@ -37,9 +40,9 @@ from hack_render.geometry.lbs import (
     path_transforms,
     pose_feature,
     rigid_transforms,
-    skin,
 )
 from hack_render.geometry.model_file import load_model_file
+from hack_render.geometry.personalized import PersonalizedHack
 from hack_render.geometry.products import (
     PersonalBasis,
     add_rows_,
@@ -229,62 +232,9 @@ class HackModel(nn.Module):
         return len(self.joint_names)
 
     # ---------------------------------------------------------------------- input handling
-    def _psi_value(self, value):
-        """psi given as an expression string or dict (one row), or a list of them (and/or
-        weight vectors), one per batch row -> (E,) or (B, E); anything else unchanged."""
-        if isinstance(value, (str, dict)):
-            return self.expression_vector(value)
-        if isinstance(value, (list, tuple)) and any(isinstance(v, (str, dict)) for v in value):
-            dd = {"dtype": self.template.dtype, "device": self.template.device}
-            return torch.stack([self.expression_vector(v) if isinstance(v, (str, dict))
-                                else torch.as_tensor(v, **dd) for v in value])
-        return value
-
     def _params(self, beta, psi, theta, global_orient, transl, eta, tau) -> dict[str, torch.Tensor]:
-        dtype, device = self.template.dtype, self.template.device
-        given = {"beta": beta, "psi": psi, "theta": theta, "global_orient": global_orient,
-                 "transl": transl, "eta": eta, "tau": tau}
-        trailing = {"beta": None, "psi": (self.num_expressions,), "theta": (self.num_joints, 3),
-                    "global_orient": (3,), "transl": (3,), "eta": (), "tau": ()}
-        batch = 1
-        out: dict[str, torch.Tensor] = {}
-        for name, value in given.items():
-            if value is None:
-                continue
-            if name == "psi":
-                value = self._psi_value(value)
-            value = torch.as_tensor(value, dtype=dtype, device=device)
-            if not torch.is_floating_point(value):
-                value = value.to(dtype)
-            want = trailing[name]
-            if name == "beta":
-                if value.ndim == 1:
-                    value = value[None]
-                if value.ndim != 2 or value.shape[1] > self.num_shape:
-                    raise HackError(f"beta: expected shape (B, <= {self.num_shape}), found "
-                                    f"{tuple(value.shape)}.")
-            else:
-                if value.ndim == len(want):
-                    value = value[None]
-                if value.ndim != len(want) + 1 or tuple(value.shape[1:]) != want:
-                    raise HackError(f"{name}: expected shape (B, {', '.join(map(str, want))})"
-                                    f"{' i.e. (B,)' if not want else ''}, found {tuple(value.shape)}.")
-            if value.shape[0] != 1:
-                if batch != 1 and value.shape[0] != batch:
-                    raise HackError(f"{name}: batch size {value.shape[0]} does not match "
-                                    f"batch size {batch} of the other parameters.")
-                batch = value.shape[0]
-            out[name] = value
-        _check_finite(out)
-        zeros = {"beta": (0,), "psi": (self.num_expressions,), "theta": (self.num_joints, 3),
-                 "global_orient": (3,), "transl": (3,), "eta": (), "tau": ()}
-        for name, shp in zeros.items():
-            if name not in out:
-                fill = _larynx.ETA_DEFAULT if name == "eta" else 0.0
-                out[name] = torch.full((batch,) + shp, fill, dtype=dtype, device=device)
-            elif out[name].shape[0] != batch:
-                out[name] = out[name].expand((batch,) + tuple(out[name].shape[1:]))
-        return out
+        """The forward's inputs checked, defaulted and broadcast (:func:`arguments.forward_arguments`)."""
+        return forward_arguments(self, beta, psi, theta, global_orient, transl, eta, tau)
 
     # ------------------------------------------------------------------------- expressions
     def expression_vector(self, spec: str | dict[str, float]) -> torch.Tensor:
@@ -336,7 +286,7 @@ class HackModel(nn.Module):
         with small_work(p["theta"].shape[0] == 1):
             rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
             beta = p["beta"]
-            shared = _shares_identity(beta)
+            shared = shares_identity(beta)
             ident = beta[:1] if shared else beta
             # the small operations first, the basis products last: a product streams tens
             # of MB through the caches, and small operations after it run cold (a chain of
@@ -419,7 +369,7 @@ class HackModel(nn.Module):
         general path)."""
         E, nb = self.num_expressions, beta.shape[1]
         pb = self.expr_personal
-        D, C, K = pb.rows.shape
+        _, C, K = pb.rows.shape
         Y = P = None
         with bulk_work():
             for _, first, end in row_runs(nz, E):
@@ -503,127 +453,3 @@ class HackModel(nn.Module):
         personalised-basis and larynx-basis work.
         """
         return PersonalizedHack(self, beta)
-
-
-def _check_finite(given: dict[str, torch.Tensor]) -> None:
-    """Raise naming the first input with a NaN or inf. One check over all inputs at once
-    (a handful of small ops per input otherwise, a tenth of a B = 1 forward's overhead)."""
-    if not given:
-        return
-    flat = torch.cat([v.detach().reshape(-1) for v in given.values()])
-    if bool(torch.isfinite(flat).all()):
-        return
-    for name, value in given.items():
-        if not torch.isfinite(value.detach()).all():
-            raise HackError(f"{name}: contains NaN or inf values; pass finite numbers.")
-
-
-def _shares_identity(beta: torch.Tensor) -> bool:
-    """Whether a (B, s) beta is one identity for the whole batch, so that per-identity work
-    may be done once: one row, a row expanded over the batch (stride 0: the gradient of the
-    one row is what autograd wants), or equal rows that need no gradient."""
-    if beta.shape[0] == 1 or beta.shape[1] == 0 or beta.stride(0) == 0:
-        return True
-    if torch.is_grad_enabled() and beta.requires_grad:
-        return False
-    return bool((beta == beta[:1]).all())
-
-
-class PersonalizedHack(nn.Module):
-    """HACK for one fixed identity: "personalise once, animate many"."""
-
-    def __init__(self, model: HackModel, beta):
-        super().__init__()
-        self.model = model
-        p = model._params(beta, None, None, None, None, None, None)
-        beta = p["beta"]
-        if beta.shape[0] != 1:
-            raise HackError(f"beta: personalize takes one identity, found batch {beta.shape[0]}.")
-        with torch.no_grad():
-            beta_full = torch.nn.functional.pad(beta, (0, model.num_shape - beta.shape[1]))
-            e, n = model.num_expressions, model.num_vertices
-            v_shaped = model.template.view(1, -1) + beta_full @ model.expr_shape_basis[e:]
-            expr = model.expr_shape_basis[:e].clone().view(e, n, 3)  # (E, N, 3)
-            if model.expr_personal is not None:
-                expr.index_add_(1, model.expr_personal.vertices, model.expr_personal.basis(beta_full))
-            # pose correctives on the union of the generic and personalised columns
-            parts = []
-            if model.has_pose_basis:
-                parts.append((model.pose_columns, model.pose_basis_columns.view(-1, len(model.pose_columns), 3)))
-            if model.pose_personal is not None:
-                parts.append((model.pose_personal.vertices, model.pose_personal.basis(beta_full)))
-            self.uses_pose = bool(parts)
-            if parts:
-                cols = torch.unique(torch.cat([c for c, _ in parts]))
-                pose = torch.zeros(9 * model.num_joints, n, 3, dtype=expr.dtype, device=expr.device)
-                for c, b in parts:
-                    pose.index_add_(1, c, b)
-                self.register_buffer("pose_columns", cols)
-                self.register_buffer("pose_basis", pose[:, cols].reshape(pose.shape[0], -1).contiguous())
-            self.register_buffer("v_shaped", v_shaped)
-            self.register_buffer("basis", expr.reshape(e, -1))
-            self.register_buffer("joints", model.rest_joints(beta_full)[0])
-            if model.has_larynx:
-                self.register_buffer("larynx_combined", model._larynx_combined(beta_full))
-
-    def forward(self, psi=None, theta=None, global_orient=None, transl=None, eta=None,
-                tau=None, clamp_limits: bool = False) -> HackOutput:
-        """As :meth:`HackModel.forward` at the personalised beta (same defaults)."""
-        m = self.model
-        p = m._params(None, psi, theta, global_orient, transl, eta, tau)
-        if clamp_limits:
-            p["theta"] = clamp_to_limits(p["theta"])
-            p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
-        B = p["theta"].shape[0]
-        with small_work(B == 1):  # as HackModel.forward
-            rot = local_rotations(p["theta"], p["global_orient"])
-            with bulk_work():
-                rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
-            if self.uses_pose:
-                add_rows_(rest, self.pose_columns,
-                           (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
-            if m.has_larynx:
-                add_rows_(rest, m.larynx_vertices,
-                           m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
-                                            p["eta"], p["tau"]))
-            return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
-
-
-def reference_forward(model: HackModel, beta=None, psi=None, theta=None, global_orient=None,
-                      transl=None, eta=None, tau=None) -> HackOutput:
-    """G written plainly, for teaching and as the tests' reference for the fast forward:
-    dense (3N-wide) shape, expression and pose bases, each row's personalised bases built
-    in full, the larynx per row, and every vertex skinned by :func:`lbs.skin`. Same inputs
-    and defaults as :meth:`HackModel.forward` (no ``clamp_limits``); slow."""
-    m = model
-    p = m._params(beta, psi, theta, global_orient, transl, eta, tau)
-    B, n, E = p["theta"].shape[0], m.num_vertices, m.num_expressions
-    beta = torch.nn.functional.pad(p["beta"], (0, m.num_shape - p["beta"].shape[1]))
-    beta = beta.expand(B, -1)
-    rot = local_rotations(p["theta"], p["global_orient"])
-    feat = pose_feature(rot[:, 1:], m.pose_gate_rad)
-    shape_dirs, expr_dirs = m.expr_shape_basis[E:], m.expr_shape_basis[:E]
-    rest = m.template + (beta @ shape_dirs + p["psi"] @ expr_dirs).view(B, n, 3)
-    if m.has_pose_basis:  # the dense (72, N, 3) pose basis, zeros off the stored columns
-        dense = torch.zeros(feat.shape[1], n, 3, dtype=rest.dtype, device=rest.device)
-        dense[:, m.pose_columns] = m.pose_basis_columns.view(feat.shape[1], -1, 3)
-        rest = rest + (feat @ dense.view(feat.shape[1], -1)).view(B, n, 3)
-    for pb, coeffs in ((m.expr_personal, p["psi"]), (m.pose_personal, feat)):
-        if pb is None:
-            continue
-        rows = []
-        for b in range(B):  # each row's own basis: mean + sum_c w_c components_c
-            w = pb.mlp(beta[b:b + 1])[0]
-            basis = pb.mean + torch.einsum("c,cdk->dk", w, pb.components)
-            rows.append((coeffs[b] @ basis).view(-1, 3))
-        rest = rest.index_add(1, pb.vertices, torch.stack(rows))
-    if m.has_larynx:
-        lar = m._larynx_sample(m._larynx_combined(beta), p["eta"], p["tau"])
-        rest = rest.index_add(1, m.larynx_vertices, lar)
-    joints = m.rest_joints(beta)
-    nodes = torch.cat([joints[:, :1], joints], 1)
-    posed, rel = rigid_transforms(rot, nodes, chain_parents(m.parents))
-    verts = skin(rest, m.skinning_weights, rel) + p["transl"][:, None]
-    return HackOutput(vertices=verts, joints=posed[:, 1:] + p["transl"][:, None],
-                      rest_joints=joints, landmarks=verts[:, m.landmark_indices],
-                      rest_vertices=rest)
