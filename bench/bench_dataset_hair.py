@@ -18,6 +18,8 @@
 (c) ``--steady``: the default config (hair sampled) in a fresh process, as the serial
     executor runs it (each sample submitted with the next one's inputs prefetched),
     ``--warm`` samples first, then ``--n``: seconds per sample, the render call's, the
+    labels', the scene update's (``HeadScene.set_camera``, where the sample's one
+    ``params.update()`` rebuilds the acceleration structures, the groom's among them), the
     process's CPU seconds per sample and the render kernels compiled anew (Dr.Jit's kernel
     history: cache misses, and their compile seconds); ``--before PATH`` runs the same
     in another checkout right after, in its own process.
@@ -198,6 +200,7 @@ first = i
 timer = MethodTimer()
 timer.wrap(HeadScene, "render")
 timer.wrap(lab, "label_images")
+timer.wrap(HeadScene, "set_camera")
 dr.set_flag(dr.JitFlag.KernelHistory, True)
 dr.kernel_history_clear()
 js = list(range(first, first + {n}))
@@ -213,6 +216,7 @@ r.close()
 print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
                   "render_call": parts.get("render", 0.0) / {n},
                   "labels": parts.get("label_images", 0.0) / {n},
+                  "scene_update": parts.get("set_camera", 0.0) / {n},
                   "kernels_compiled": len(miss), "first": first,
                   "compile_s": sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
                                    for k in miss) / 1000.0}}))
@@ -325,7 +329,9 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
         print(f"  {name} ({commit}), samples {d['first']}..{d['first'] + n - 1}: "
               f"{d['s_per_sample']:.2f} s/sample; render call "
               f"{d['render_call']:.2f} s (ratio {d['s_per_sample'] / d['render_call']:.2f}x, "
-              f"target <= 1.3x); labels {d['labels']:.2f} s; process CPU "
+              f"target <= 1.3x); labels {d['labels']:.2f} s; scene update (in set_camera: "
+              f"the sample's one acceleration-structure build) {d['scene_update']:.2f} s; "
+              f"process CPU "
               f"{d['cpu_per_sample']:.2f} s/sample; kernels compiled anew "
               f"{d['kernels_compiled']} ({d['compile_s']:.1f} s)", flush=True)
     print(f"load average (1 min) after: {os.getloadavg()[0]:.1f}")
