@@ -15,9 +15,9 @@ from hack_render.errors import HackError
 from hack_render.geometry import HackModel
 from hack_render.geometry import rotations as R
 from hack_render.geometry.lbs import pose_feature, pose_gate
-from hack_render.geometry.reference import reference_forward
 from hack_render.geometry.model_file import FORMAT_VERSION, load_model_file, save_model_file
 from hack_render.geometry.posing import PosingModel
+from hack_render.geometry.reference import reference_forward
 from tests.synthetic import synthetic_arrays
 
 GATE = 8.0
