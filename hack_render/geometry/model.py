@@ -282,7 +282,7 @@ class HackModel(nn.Module):
             p["theta"] = clamp_to_limits(p["theta"])
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         # one row: torch on one thread but for the basis products (``threads.small_work``;
-        # at S = 20, 4.2 -> 3.9 ms on 2 cores)
+        # at S = 20, interleaved with smplx on 2 cores, 4.66 -> 4.44 ms: docs/model.md)
         with small_work(p["theta"].shape[0] == 1):
             rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
             beta = p["beta"]
