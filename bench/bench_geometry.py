@@ -101,7 +101,7 @@ def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
     total = (beta.shape[1] * n3 + model.template.numel()) * f
     ep = model.expr_personal
     if ep is not None:
-        d, c, k = ep.rows.shape
+        _, c, k = ep.rows.shape
         total += used_e * c * k * f
         if psi.shape[0] == 1 and model.expr_psi_rows is not None:
             total += used_e * model.expr_psi_rows.shape[1] * f
