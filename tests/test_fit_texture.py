@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.ndimage import binary_fill_holes
 
 pytest.importorskip("mitsuba")
 
@@ -53,6 +54,21 @@ def test_01_bake_recovers_the_seen_skin_and_fills_the_rest(model):
     dark = unseen & (bk.confidence == 0)
     gain = np.log(np.clip(bk.diffuse, 1e-3, None) / np.clip(prior, 1e-3, None))
     assert np.abs(np.diff(gain, axis=1))[dark[:, 1:] & dark[:, :-1]].max() < 0.02
+    # by default the holes the seen skin encloses (the lids inside the eyes' rings, the
+    # inner lips) are tone-matched too; "outside" leaves them at A(alpha)
+    assert cfg.final.tone_match == "all"
+    enclosed = np.zeros_like(dark)
+    for t in (slice(0, H), slice(H, 2 * H)):
+        enclosed[:, t] = binary_fill_holes(bk.confidence[:, t] > 0.5)
+    holes = enclosed & dark
+    assert holes.sum() > 50, holes.sum()
+    cfg.final.tone_match = "outside"
+    outside = texture.bake_diffuse(f.state, cfg, [pr])
+    np.testing.assert_allclose(outside.diffuse[holes], prior[holes], atol=1e-5)
+    moved = np.abs(np.log(np.clip(bk.diffuse[holes], 1e-3, None) / np.clip(prior[holes], 1e-3, None)))
+    assert moved.mean() > 0.01, moved.mean()
+    # the unseen skin outside the holes is the same either way
+    np.testing.assert_allclose(bk.diffuse[~holes & dark], outside.diffuse[~holes & dark], atol=1e-6)
     cfg.final.tone_match = "off"
     off = texture.bake_diffuse(f.state, cfg, [pr])
     np.testing.assert_allclose(off.diffuse[dark], prior[dark], atol=1e-5)

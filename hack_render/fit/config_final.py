@@ -80,11 +80,13 @@ class FinalConfig:
     # -> 22.49 dB, the others within 0.01; docs/fit.md)
     eye_hole: float = 1.8
     # the fallback map (A(alpha)) where the photo does not see, tone-matched to the baked
-    # skin by a smooth gain field (texture.tone_matched_prior): "outside" the seen face
-    # (scalp, neck, ears: no seam at the face's edge), "all" (the holes inside too: eyes,
-    # mouth, nostrils) or "off" (A(alpha) as it is: the model's pinker skin meets the bake
-    # in a seam)
-    tone_match: str = "outside"
+    # skin by a smooth gain field (texture.tone_matched_prior): "all" (outside the seen
+    # face, and the holes it encloses: the lids inside the eyes' rings, the inner lips,
+    # the nostrils), "outside" (the scalp, neck and ears only: the holes keep A(alpha),
+    # lighter than a dark or shadowed face around them; the cameraman's eyes 21.57 ->
+    # 20.53 dB, docs/fit.md) or "off" (A(alpha) as it is: the model's pinker skin meets
+    # the bake in a seam)
+    tone_match: str = "all"
     # the occluders (hair, hands, glasses) grown by this share of the eyes' outer-corner
     # distance before the bake leaves them out (a fringe's strands and shadow): higher, no
     # dark rim along a fringe, less of the skin baked. 0.08 cost the astronaut's face region
