@@ -32,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -309,6 +310,10 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         "joints": list(model.joint_names), "root": rig.node_names[0],
         "pose_targets": [[f, sg] for f, sg, _ in pose_split(model.num_joints)]
         if rig.slots["pose"].stop > rig.slots["pose"].start else [],
+        # each joint's pose weights times g = s^2 / (s^2 + c^4), s = 3 - trace R, c this
+        # angle in radians (geometry.lbs.pose_gate); null: ungated
+        "pose_gate_deg": (None if rig.pose_gate_rad is None
+                          else math.degrees(rig.pose_gate_rad)),
         "joint_limits_deg": model.rotation_limits_deg.tolist(),
         "units": "metres, Y up, face along +Z"}}
     if hair is not None:

@@ -1,6 +1,7 @@
 // The hack-render viewer: an exported person (glTF) with sliders for the expressions, the
 // 8 neck joints, the larynx and the animation's timeline. The pose-corrective morph
-// targets follow the joints as in the model: weight = (R - I) of each joint's rotation.
+// targets follow the joints as in the model: weight = (R - I) of each joint's rotation
+// (times its gate in a gated model).
 // URL parameters (used by the tests): ?set=NAME:VALUE,... sets sliders (expression names,
 // JOINT.x|y|z in degrees, larynx.size, larynx.slide_mm) and ?frame=K selects a frame.
 import * as THREE from 'three-bundle';
@@ -81,10 +82,15 @@ function correctives() {   // pose-corrective weights from the joints' current r
   const s = hack.target_slots;
   if (!s.pose || s.pose[1] <= s.pose[0]) return;
   const m = new THREE.Matrix4(), feat = [];
+  // a gated model (pose_gate_deg): each joint's block times g = s^2 / (s^2 + c^4),
+  // s = 3 - trace R (geometry.lbs.pose_gate); ungated: g = 1
+  const c4 = hack.pose_gate_deg == null ? null : Math.pow(THREE.MathUtils.degToRad(hack.pose_gate_deg), 4);
   hack.joints.forEach((name, j) => {
     m.makeRotationFromQuaternion(bones[name].quaternion);
     const e = m.elements;  // column-major
-    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) feat[9 * j + 3 * r + c] = e[c * 4 + r] - (r === c ? 1 : 0);
+    const s = 3 - (e[0] + e[5] + e[10]);
+    const g = c4 == null ? 1 : s * s / (s * s + c4);
+    for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) feat[9 * j + 3 * r + c] = g * (e[c * 4 + r] - (r === c ? 1 : 0));
   });
   // each feature's target split by sign: weight = max(sign * feature, 0)
   hack.pose_targets.forEach(([f, sign], i) => {
