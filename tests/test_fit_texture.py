@@ -684,3 +684,21 @@ def test_17_the_splat_filters_each_band_in_its_box_exactly(monkeypatch):
         np.testing.assert_array_equal(g, w)
     assert got[2] == want[2]
     assert (got[1] > 0).any() and (got[1][:4, :4] > 0).any() and (got[1][-4:, -4:] > 0).any()
+
+
+def test_wide_gaussian_is_scipys_constant_mode_gaussian():
+    """texture.wide_gaussian (FFT, one axis at a time) equals scipy's gaussian_filter with
+    mode="constant" (the tone match's blur before) to float64 rounding, at the atlas's
+    edges and beyond the kernel's reach too, for narrow and wide kernels."""
+    from scipy.ndimage import gaussian_filter
+
+    from hack_render.fit.texture import wide_gaussian
+
+    rng = np.random.default_rng(7)
+    x = rng.random((96, 192))
+    x[:, 150:] = 0.0                      # far from any input: 0 (scipy) or ~1e-18
+    x[0, 0] = x[-1, -1] = 3.0             # the corners
+    for sigma in (0.7, 3.0, 11.3):
+        got, want = wide_gaussian(x, sigma), gaussian_filter(x, sigma, mode="constant")
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
+    assert np.abs(wide_gaussian(x, 3.0)[:80, 170:]).max() < 1e-15   # (away from the corner)

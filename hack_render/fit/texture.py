@@ -340,16 +340,19 @@ def splat(samples: list, H: int) -> tuple[np.ndarray, np.ndarray, float]:
                           FOOTPRINT_BANDS - 1).astype(int)
         x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
         fx, fy = xs - x0, ys - y0
-        for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
-                          (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-            flat = band * (H * W) + np.clip(y0 + oy, 0, H - 1) * W + np.clip(x0 + ox, 0, W - 1)
-            kw = ws * k
-            den += np.bincount(flat, kw, FOOTPRINT_BANDS * H * W).reshape(den.shape)
-            area += np.bincount(flat, kw * rel * rel, FOOTPRINT_BANDS * H * W
-                                ).reshape(den.shape)
-            for c in range(C):
-                num[..., c] += np.bincount(flat, kw * os_[:, c],
-                                           FOOTPRINT_BANDS * H * W).reshape(den.shape)
+        # the 4 bilinear corners of every sample, summed per texel over the texels they
+        # reach (a few percent of the bands' 10 M: no atlas-sized bincount per term)
+        flat = np.concatenate([band * (H * W) + np.clip(y0 + oy, 0, H - 1) * W
+                               + np.clip(x0 + ox, 0, W - 1)
+                               for ox, oy in ((0, 0), (1, 0), (0, 1), (1, 1))])
+        kw = np.concatenate([ws * (1 - fx) * (1 - fy), ws * fx * (1 - fy),
+                             ws * (1 - fx) * fy, ws * fx * fy])
+        texels, at = np.unique(flat, return_inverse=True)
+        n = len(texels)
+        den.reshape(-1)[texels] += np.bincount(at, kw, n)
+        area.reshape(-1)[texels] += np.bincount(at, kw * np.tile(rel * rel, 4), n)
+        for c in range(C):
+            num.reshape(-1, C)[texels, c] += np.bincount(at, kw * np.tile(os_[:, c], 4), n)
     # each band spread by a normalised Gaussian of half its footprint, so that wider
     # pixels (oblique skin, stretched UVs) leave no gaps between their splats; for the
     # confidence each pixel's weight counts by its area (in median pixels), so a texel
@@ -451,7 +454,7 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
     than its face: it kept that 1.4x on Grace Hopper's fit). ``inside`` False: the holes
     the seen texels enclose (eyes, mouth, nostrils) keep ``prior``. Seen texels are
     unchanged by this (the bake takes the photo there)."""
-    from scipy.ndimage import binary_fill_holes, gaussian_filter
+    from scipy.ndimage import binary_fill_holes
 
     H = prior.shape[0]
     seen = weight > 0.5
@@ -462,15 +465,15 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
     # the prior's own tone: its log, smoothed over the atlas's texels
     lp = np.log(np.clip(prior, eps, None))
     valid = (prior.max(-1) > eps).astype(np.float64)
-    vb = gaussian_filter(valid, sigma, mode="constant")
-    tone = np.stack([gaussian_filter(lp[..., c] * valid, sigma, mode="constant")
+    vb = wide_gaussian(valid, sigma)
+    tone = np.stack([wide_gaussian(lp[..., c] * valid, sigma)
                      for c in range(3)], -1) / np.maximum(vb, 1e-9)[..., None]
     lphoto = np.log(np.clip(photo, eps, None))
     g0 = np.median(lphoto[seen], axis=0) - tone
     w = seen.astype(np.float64)
-    wb = gaussian_filter(w, sigma, mode="constant")
+    wb = wide_gaussian(w, sigma)
     # near the seen skin: its colour spread (in log) over the prior's tone, likewise
-    local = np.stack([gaussian_filter(lphoto[..., c] * w, sigma, mode="constant")
+    local = np.stack([wide_gaussian(lphoto[..., c] * w, sigma)
                       for c in range(3)], -1) / np.maximum(wb, 1e-9)[..., None] - tone
     # the share of seen texels around (half the kernel's mass: the seen face's edge) -> 1
     a = np.clip(wb / 0.5, 0.0, 1.0)[..., None]
@@ -482,6 +485,22 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
             holes[:, t] = binary_fill_holes(seen[:, t]) & ~seen[:, t]
         out = np.where(holes[..., None], prior, out)
     return out
+
+
+def wide_gaussian(x: np.ndarray, sigma: float) -> np.ndarray:
+    """``scipy.ndimage.gaussian_filter(x, sigma, mode="constant")`` of a 2-D array (its
+    kernel: truncated at 4 sigma, normalised) as two FFT convolutions, one per axis: the
+    same to float64 rounding (~1e-15; beyond the kernel's reach ~1e-18 where it gives 0),
+    for the wide kernels of :func:`tone_matched_prior` (41 texels at 1,024: 0.08 s
+    instead of 0.5 s per channel)."""
+    from scipy.signal import fftconvolve
+
+    r = int(4.0 * sigma + 0.5)
+    t = np.arange(-r, r + 1, dtype=np.float64)
+    k = np.exp(-0.5 * (t / sigma) ** 2)
+    k /= k.sum()
+    y = fftconvolve(np.asarray(x, np.float64), k[:, None], mode="same", axes=0)
+    return fftconvolve(y, k[None, :], mode="same", axes=1)
 
 
 def face_seen_fraction(state: FitState, conf: np.ndarray) -> float:
