@@ -489,18 +489,23 @@ def tone_matched_prior(prior: np.ndarray, photo: np.ndarray, weight: np.ndarray,
 
 def wide_gaussian(x: np.ndarray, sigma: float) -> np.ndarray:
     """``scipy.ndimage.gaussian_filter(x, sigma, mode="constant")`` of a 2-D array (its
-    kernel: truncated at 4 sigma, normalised) as two FFT convolutions, one per axis: the
-    same to float64 rounding (~1e-15; beyond the kernel's reach ~1e-18 where it gives 0),
-    for the wide kernels of :func:`tone_matched_prior` (41 texels at 1,024: 0.08 s
-    instead of 0.5 s per channel)."""
-    from scipy.signal import fftconvolve
-
+    kernel: truncated at 4 sigma, normalised) as FFT convolutions, one per axis, over the
+    array padded with zeros by the kernel's reach: the same to float64 rounding (~1e-15;
+    beyond the kernel's reach ~1e-18 where it gives 0), for the wide kernels of
+    :func:`tone_matched_prior` (41 texels at 1,024: ~0.1 s instead of 0.5 s a channel)."""
     r = int(4.0 * sigma + 0.5)
     t = np.arange(-r, r + 1, dtype=np.float64)
     k = np.exp(-0.5 * (t / sigma) ** 2)
     k /= k.sum()
-    y = fftconvolve(np.asarray(x, np.float64), k[:, None], mode="same", axes=0)
-    return fftconvolve(y, k[None, :], mode="same", axes=1)
+    y = np.ascontiguousarray(x, np.float64)
+    for axis in (0, 1):
+        n = y.shape[axis]
+        size = n + 2 * r          # the whole linear convolution: no wrap-around
+        f = np.fft.rfft(y, size, axis=axis)
+        kf = np.fft.rfft(k, size)
+        full = np.fft.irfft(f * (kf[:, None] if axis == 0 else kf[None, :]), size, axis=axis)
+        y = full[r:r + n] if axis == 0 else full[:, r:r + n]
+    return y
 
 
 def face_seen_fraction(state: FitState, conf: np.ndarray) -> float:
