@@ -233,3 +233,16 @@ def photo_of(rgb):
 
     return Photo(np.asarray(colour.cctf_encoding(np.clip(rgb, 0, 1), function="sRGB"),
                             np.float32), "syn")
+
+
+def frontal_truth_photo(model):
+    """A frontal fitter whose photo is the render of its true maps (over grey): (fitter,
+    cfg, that render, its height and width, the atlas's height)."""
+    from hack_render.fit import texture
+
+    fitter, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0)
+    v = fitter.state.views[0]
+    pr = texture.render_at_photo(fitter.state, cfg, v, maps=true_maps)
+    v.photo = photo_of(pr.rgba[..., :3] + (1 - pr.rgba[..., 3:4]) * 0.5)
+    h, w = pr.rgba.shape[:2]
+    return fitter, cfg, pr, h, w, cfg.final.atlas_height

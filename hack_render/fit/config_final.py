@@ -80,7 +80,7 @@ class FinalConfig:
     # -> 22.49 dB, the others within 0.01; docs/fit.md)
     eye_hole: float = 1.8
     # the fallback map (A(alpha)) where the photo does not see, tone-matched to the baked
-    # skin by a smooth gain field (texture.tone_matched_prior): "all" (outside the seen
+    # skin by a smooth gain field (atlas.tone_matched_prior): "all" (outside the seen
     # face, and the holes it encloses: the lids inside the eyes' rings, the inner lips,
     # the nostrils), "outside" (the scalp, neck and ears only: the holes keep A(alpha),
     # lighter than a dark or shadowed face around them; the cameraman's eyes 21.57 ->

@@ -2,7 +2,7 @@
 hair that covers it.
 
 Where the photo shows hair, the bake does not see the scalp, so its texels take the
-fallback skin (``texture.tone_matched_prior``: A(alpha) in the face's tone), and between
+fallback skin (``atlas.tone_matched_prior``: A(alpha) in the face's tone), and between
 the hair layer's strands ``render.png`` showed a bare, face-coloured scalp: a peach crown
 under a dark crew cut, a light line along the parting. Real hair hides the scalp and
 shades it; a groom's scalp texture is painted in the hair's colour for the same reason.

@@ -21,7 +21,7 @@ orthogonal to the skin's colour and what the model leaves unexplained around the
 
 The gains are splatted into a coarse atlas (:data:`ATLAS_HEIGHT`, 16 rows: a region of
 the face per texel, the T-zone, a cheek, the chin) as the diffuse bake's observations
-(``texture.splat``), resampled to the map's size, and the map is ``s (c g + 1 - c)``,
+(``atlas.splat``), resampled to the map's size, and the map is ``s (c g + 1 - c)``,
 ``c`` their confidence: the fitted map where the photo says nothing (no highlight, a grey
 photo). Per pixel the split is not to be trusted: a skin's own colour texture (creases,
 a film's tint, the more saturated skin in shadow) moves along the same direction as a
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hack_render.fit import texture
+from hack_render.fit import atlas, texture
 from hack_render.fit.bake_weights import photo_at
 
 #: A pixel's specular share (|G| / |R|) of reference for the pull below.
@@ -125,13 +125,13 @@ def bake_specular(state, cfg, renders: list, renders0: list, weights: list,
         sigma = max(1.0, COLOUR_SIGMA * float(np.linalg.norm(pts[45] - pts[36])))
         k, wk = gain_observations(photo_at(v, h, w), pr.rgba[..., :3], pr0.rgba[..., :3],
                                   wgt, sigma)
-        samples.append(texture.atlas_samples(pr, wk, k[..., None], H))
+        samples.append(atlas.atlas_samples(pr, wk, k[..., None], H))
     if not any(s is not None for s in samples):
         why = "no colour photo" if not samples else "no pixel identifies it"
         return specular, np.zeros(specular.shape[:2], np.float32), \
             {"identified_fraction": 0.0, "source": f"the fitted map ({why})"}
-    gain, dens, fp = texture.splat(samples, H)
-    conf = texture.splat_confidence(dens, fp, cfg.final.edge_feather)
+    gain, dens, fp = atlas.splat(samples, H)
+    conf = atlas.splat_confidence(dens, fp, cfg.final.edge_feather)
     gain = np.where(conf[..., None] > 0, gain, 1.0)
     full = specular.shape[0]        # the gain field, bilinear, at the map's size
     gain = texture.resize_atlas(gain.astype(np.float32), full)
