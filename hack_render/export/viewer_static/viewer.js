@@ -88,8 +88,8 @@ function correctives() {   // pose-corrective weights from the joints' current r
   hack.joints.forEach((name, j) => {
     m.makeRotationFromQuaternion(bones[name].quaternion);
     const e = m.elements;  // column-major
-    const s = 3 - (e[0] + e[5] + e[10]);
-    const g = c4 == null ? 1 : s * s / (s * s + c4);
+    const t = 3 - (e[0] + e[5] + e[10]);  // 2 (1 - cos angle)
+    const g = c4 == null ? 1 : t * t / (t * t + c4);
     for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) feat[9 * j + 3 * r + c] = g * (e[c * 4 + r] - (r === c ? 1 : 0));
   });
   // each feature's target split by sign: weight = max(sign * feature, 0)
