@@ -120,3 +120,43 @@ def test_wide_gaussian_is_scipys_constant_mode_gaussian():
         got, want = wide_gaussian(x, sigma), gaussian_filter(x, sigma, mode="constant")
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-13)
     assert np.abs(wide_gaussian(x, 3.0)[:80, 170:]).max() < 1e-15   # (away from the corner)
+
+
+def test_the_splat_sums_each_samples_four_corners(monkeypatch):
+    """``atlas.splat``'s sums per texel (the filters made the identity): each sample's
+    weight, area and observation go to its four bilinear corners, clamped at the atlas's
+    edges, as an independent ``np.add.at`` over the corners gives them (several samples
+    per texel, samples on the edges, NaN footprints)."""
+    import scipy.ndimage
+
+    from hack_render.fit import atlas
+
+    monkeypatch.setattr(scipy.ndimage, "gaussian_filter", lambda a, sigma, **kw: a)
+    rng = np.random.default_rng(5)
+    H, n = 16, 300
+    xs = np.concatenate([rng.uniform(-0.5, 2 * H - 0.5, n - 20), np.full(20, 2 * H - 0.6)])
+    ys = np.concatenate([rng.uniform(-0.5, H - 0.5, n - 20), rng.uniform(0, 3, 20)])
+    ws = rng.uniform(0.1, 1.0, n)
+    obs = rng.uniform(0, 1, (n, 3))
+    foot = rng.uniform(0.5, 6.0, n)
+    foot[::17] = np.nan
+    got_obs, got_dens, fp = atlas.splat([(xs, ys, ws, obs, foot)], H)
+    assert fp == np.median(foot[np.isfinite(foot)])
+    rel = np.clip(np.nan_to_num(foot, nan=fp) / fp, 1.0,
+                  atlas.FOOTPRINT_STEP ** atlas.FOOTPRINT_BANDS)
+    den = np.zeros((H, 2 * H))
+    area = np.zeros((H, 2 * H))
+    num = np.zeros((H, 2 * H, 3))
+    x0, y0 = np.floor(xs).astype(int), np.floor(ys).astype(int)
+    fx, fy = xs - x0, ys - y0
+    for ox, oy, k in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                      (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        at = (np.clip(y0 + oy, 0, H - 1), np.clip(x0 + ox, 0, 2 * H - 1))
+        np.add.at(den, at, ws * k)
+        np.add.at(area, at, ws * k * rel * rel)
+        np.add.at(num, at, (ws * k)[:, None] * obs)
+    seen = den > 1e-8
+    np.testing.assert_allclose(got_dens, area, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(got_obs[seen], num[seen] / den[seen][:, None], rtol=1e-4,
+                               atol=1e-5)
+    assert (got_obs[~seen] == 0).all() and seen.sum() > 200
