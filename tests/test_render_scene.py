@@ -195,7 +195,8 @@ def test_07_scene_dropped_on_another_thread_dies_on_the_rendering_thread(head_mo
 
 def test_08_eye_colours_changed_in_place_render_as_a_scene_built_with_them(head_model):
     """set_eyes (the fit's eye estimates render four variants from one scene): each
-    variant's image is the image of a scene built with those maps, and each changes it."""
+    variant's image is the image of a scene built with those maps, and each changes it;
+    the gloss reaches the lashes' sheen (its parameter is the scene's, not skipped)."""
     import dataclasses
 
     from hack_render.render.materials import SkinMaps
@@ -209,6 +210,7 @@ def test_08_eye_colours_changed_in_place_render_as_a_scene_built_with_them(head_
     rig, base = lights.preset("studio"), SkinMaps.constant()
     head = HeadScene(topo, v, rig, cam, settings, base)
     default = head.render(seed=3, backdrop=False)
+    assert "eyelashes.bsdf.nested_bsdf.brdf_0.specular_reflectance.value" in head.params
     for iris, sclera, gloss in [((0.0, 0.0, 0.0), None, None), (None, (0.0, 0.0, 0.0), None),
                                 (None, None, 0.0), ((0.3, 0.2, 0.1), (0.5, 0.3, 0.2), 0.4),
                                 (None, None, None)]:

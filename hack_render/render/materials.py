@@ -201,14 +201,18 @@ def lash_opacity_map(cards: np.ndarray, size: int = LASH_MAP_SIZE, seed: int = L
     return (1.0 - keep).astype(np.float32)
 
 
-def eyelash_bsdf(opacity) -> dict:
+def eyelash_bsdf(opacity, eye_gloss=None) -> dict:
     """The lash cards' BSDF: dark brown, slightly glossy, two-sided, behind a ``mask`` whose
     opacity is ``opacity`` (a texture dict or object, e.g. :func:`bitmap` of
-    :func:`lash_opacity_map`, or a number)."""
+    :func:`lash_opacity_map`, or a number). ``eye_gloss`` scales the sheen (None: 1), as
+    the eyes' gloss (:func:`fixed_bsdfs`): a fitted light too bright for the eyes' fixed
+    colours makes the lashes' sheen a grey band over the lids by as much (the fit's
+    eyes' figure: Grace Hopper +0.6 dB without it, docs/fit.md)."""
     if isinstance(opacity, (int, float)):
         opacity = {"type": "uniform", "value": float(opacity)}
-    return {"type": "mask", "opacity": opacity,
-            "bsdf": {"type": "twosided", "bsdf": _plastic((0.03, 0.02, 0.015), 0.3, 1.55)}}
+    lash = _plastic((0.03, 0.02, 0.015), 0.3, 1.55)
+    lash["specular_reflectance"] = {"type": "rgb", "value": [_gloss(eye_gloss)] * 3}
+    return {"type": "mask", "opacity": opacity, "bsdf": {"type": "twosided", "bsdf": lash}}
 
 
 def _plastic(rgb, alpha: float, ior: float = 1.4) -> dict:
@@ -236,7 +240,8 @@ def fixed_bsdfs(sclera_rgb=None, eye_gloss=None) -> dict[str, dict]:
     ``sclera_rgb``: the eye whites' colour (e.g. ``SkinMaps.sclera_rgb``, fitted to a
     photo), else :data:`SCLERA_RGB`; the lacrimal film follows it by the same ratio.
     ``eye_gloss``: their coat's share of its default reflection (None: 1), the
-    ``specular_reflectance`` of both (:meth:`HeadScene.set_eyes` changes it in place)."""
+    ``specular_reflectance`` of both and of the lashes' sheen (:meth:`HeadScene.set_eyes`
+    changes it in place)."""
     sclera = np.asarray(SCLERA_RGB) if sclera_rgb is None else _checked_rgb(sclera_rgb,
                                                                             "sclera")
     lacrimal = np.clip(np.asarray(LACRIMAL_RGB) * sclera / np.asarray(SCLERA_RGB), 0.0, 1.0)
@@ -254,7 +259,7 @@ def fixed_bsdfs(sclera_rgb=None, eye_gloss=None) -> dict[str, dict]:
             "type": "rgb", "value": [0.40, 0.40, 0.42]}}},
         # lash cards without a strand texture (HeadScene draws one, lash_opacity_map):
         # uniformly half-transparent
-        "eyelashes": eyelash_bsdf(EYELASH_OPACITY),
+        "eyelashes": eyelash_bsdf(EYELASH_OPACITY, eye_gloss),
     }
 
 
@@ -335,6 +340,8 @@ def set_eye_parameters(params, iris_points, eye_axes, iris_rgb=None, sclera_rgb=
                       ("lacrimal.bsdf.brdf_0", fixed["lacrimal"]["bsdf"])):
         for attr in ("diffuse_reflectance", "specular_reflectance"):
             values[f"{key}.{attr}.value"] = mi.Color3f(*map(float, bsdf[attr]["value"]))
+    values["eyelashes.bsdf.nested_bsdf.brdf_0.specular_reflectance.value"] = mi.Color3f(
+        *fixed["eyelashes"]["bsdf"]["bsdf"]["specular_reflectance"]["value"])
     if iris_points is not None:
         values["iris.vertex_color"] = mi.Float(iris_vertex_colors(
             iris_points, eye_axes, DEFAULT_IRIS_RGB if iris_rgb is None else iris_rgb,

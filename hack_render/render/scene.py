@@ -224,7 +224,7 @@ class HeadScene(SceneImages, SceneHair):
             elif part.name == "eyelashes":
                 opacity = self._lash_opacity(part, v, memo) if lash_strands \
                     else materials.EYELASH_OPACITY
-                bsdf = mi.load_dict(materials.eyelash_bsdf(opacity))
+                bsdf = mi.load_dict(materials.eyelash_bsdf(opacity, maps.eye_gloss))
                 # see-through cards: the label and AOV passes (and render(sss=True)) look
                 # up the same opacity at their hits
                 self.see_through_cards.append((bsdf, opacity))
