@@ -304,9 +304,8 @@ def _encoded_gains(rows, s0: np.ndarray, gi: np.ndarray, gw: np.ndarray, gloss: 
     catchlights and the whites, so a dark iris comes out too light), from the linear
     solution, within the same bounds (the iris's at least 0, the whites' ``bounds``, the
     gloss from 0 to the given one). Without ``free_gloss`` each channel is solved alone,
-    the gloss held;
-    with it the three channels together, the gloss one share of all three (see
-    :data:`FREE_GLOSS_BELOW` for where :func:`estimate` frees it). Returns (gi, gw,
+    the gloss held; with it the three channels together, the gloss one share of all three
+    (see :data:`FREE_GLOSS_BELOW` for where :func:`estimate` frees it). Returns (gi, gw,
     gloss)."""
     import colour
     from scipy.optimize import least_squares

@@ -206,8 +206,8 @@ def eyelash_bsdf(opacity, eye_gloss=None) -> dict:
     opacity is ``opacity`` (a texture dict or object, e.g. :func:`bitmap` of
     :func:`lash_opacity_map`, or a number). ``eye_gloss`` scales the sheen (None: 1), as
     the eyes' gloss (:func:`fixed_bsdfs`): a fitted light too bright for the eyes' fixed
-    colours makes the lashes' sheen a grey band over the lids by as much (the fit's
-    eyes' figure: Grace Hopper +0.6 dB without it, docs/fit.md)."""
+    colours makes the lashes' sheen a grey band along the lids by as much (the fit's
+    eyes' figure: Grace Hopper's +0.6 dB with the sheen scaled so, docs/fit.md)."""
     if isinstance(opacity, (int, float)):
         opacity = {"type": "uniform", "value": float(opacity)}
     lash = _plastic((0.03, 0.02, 0.015), 0.3, 1.55)
