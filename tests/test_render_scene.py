@@ -215,6 +215,8 @@ def test_08_eye_colours_changed_in_place_render_as_a_scene_built_with_them(head_
                                 (None, None, 0.0), ((0.3, 0.2, 0.1), (0.5, 0.3, 0.2), 0.4),
                                 (None, None, None)]:
         head.set_eyes(iris, sclera, gloss)
+        lash = head.params["eyelashes.bsdf.nested_bsdf.brdf_0.specular_reflectance.value"]
+        assert np.allclose(np.asarray(lash).ravel(), 1.0 if gloss is None else gloss)
         img = head.render(seed=3, backdrop=False)
         maps = dataclasses.replace(base, iris_rgb=iris, sclera_rgb=sclera, eye_gloss=gloss)
         built = HeadScene(topo, v, rig, cam, settings, maps).render(seed=3, backdrop=False)
