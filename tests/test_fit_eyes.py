@@ -309,13 +309,13 @@ def test_07_the_eyes_colours_over_the_photo_s_lid_openings(model):
 
 
 def test_08_the_openings_solve_finds_the_gloss_with_the_colours():
-    """``_encoded_gains(free_gloss=True)`` (the "opening" solve): pixels made exactly
+    """``eye_gains.encoded_gains(free_gloss=True)`` (the "opening" solve): pixels made exactly
     affine in the iris's and whites' gains and one gloss share of all three channels come
     back as those gains and that gloss, from the tied solve's start (the gloss at 1); held
     (``free_gloss=False``), the gloss stays where it was given."""
     import colour
 
-    from hack_render.fit import iris
+    from hack_render.fit import eye_gains
     from hack_render.render.materials import SCLERA_RGB
 
     rng = np.random.default_rng(8)
@@ -328,12 +328,12 @@ def test_08_the_openings_solve_finds_the_gloss_with_the_colours():
     p = s_ - (1.0 - g) * dg + gi * di + gw * ds
     rows = (p, s_, di, ds, dg)
     s0 = np.asarray(SCLERA_RGB)
-    got_i, got_w, got_g = iris._encoded_gains(rows, s0, np.ones(3), np.ones(3), 1.0,
+    got_i, got_w, got_g = eye_gains.encoded_gains(rows, s0, np.ones(3), np.ones(3), 1.0,
                                               free_gloss=True)
     np.testing.assert_allclose(got_i, gi, rtol=1e-3)
     np.testing.assert_allclose(got_w, gw, rtol=1e-3)
     assert abs(got_g - g) < 1e-3
-    held_i, held_w, held_g = iris._encoded_gains(rows, s0, np.ones(3), np.ones(3), 1.0)
+    held_i, held_w, held_g = eye_gains.encoded_gains(rows, s0, np.ones(3), np.ones(3), 1.0)
     assert held_g == 1.0 and not np.allclose(held_i, gi, rtol=0.05)   # the gloss held at 1
     enc = colour.cctf_encoding
 
@@ -346,7 +346,7 @@ def test_08_the_openings_solve_finds_the_gloss_with_the_colours():
 def test_09_the_openings_gloss_only_comes_down_from_the_tied_one(model):
     """Over the photo's lid openings, eyes under a duller gloss than the model's: a dark
     iris (0.02, 0.01, 0.006) under gloss 0.1, whose tied gloss (the cap's, 0.018) is
-    below ``iris.FREE_GLOSS_BELOW``, is solved again with the colours
+    below ``eye_gains.FREE_GLOSS_BELOW``, is solved again with the colours
     (``eye_gloss_source``); the solved gloss is never above the tied one (on the model's
     own renders the encoded solve would raise it: a true 0.4 whose whites said 0.39 to
     0.54), and the encoded squared error over the openings (what the solve minimises) is
@@ -355,7 +355,7 @@ def test_09_the_openings_gloss_only_comes_down_from_the_tied_one(model):
     freed both ways, the gloss came out 0.72 and the iris (0.079, 0.049, 0.034))."""
     from scipy import ndimage
 
-    from hack_render.fit import iris, texture
+    from hack_render.fit import eye_gains, iris, texture
     from hack_render.render.materials import DEFAULT_IRIS_RGB, SCLERA_RGB
 
     f, cfg, true_maps, _, _ = texture_fitter(model, yaw=0.0, res=256)
@@ -387,11 +387,11 @@ def test_09_the_openings_gloss_only_comes_down_from_the_tied_one(model):
             cfg.final.max_side)
         rows, _, _, iris_rows, _ = iris._eye_rows(
             [v.photo.linear()], *([r] for r in renders), None, None, [lids])
-        gi, gw, tied = iris._gains(rows, s0, True, True, True, False, iris_rows,
-                                   iris.SCLERA_BOUNDS_OPENING)
-        assert 1e-6 < tied < iris.FREE_GLOSS_BELOW
-        held = iris._encoded_gains(rows, s0, gi, gw, tied)
-        freed = iris._encoded_gains(rows, s0, gi, gw, tied, free_gloss=True)
+        gi, gw, tied = eye_gains.gains(rows, s0, True, True, True, False, iris_rows,
+                                   eye_gains.SCLERA_BOUNDS_OPENING)
+        assert 1e-6 < tied < eye_gains.FREE_GLOSS_BELOW
+        held = eye_gains.encoded_gains(rows, s0, gi, gw, tied)
+        freed = eye_gains.encoded_gains(rows, s0, gi, gw, tied, free_gloss=True)
         assert held[2] == tied and 0.0 <= freed[2] <= tied
         assert abs(freed[2] - rep["eye_gloss"]) < 1e-6
         assert _encoded_error(rows, *freed) <= _encoded_error(rows, *held) * (1 + 1e-9)
