@@ -144,7 +144,8 @@ def test_07_learn_pose_writes_a_model_that_loads(tmp_path):
     from hack_render.cli import main
 
     out = tmp_path / "m.npz"
-    main(["learn", "pose", "-o", str(out), "--iterations", "2", "--identities", "1", "--quiet"])
+    main(["learn", "pose", "-o", str(out), "--iterations", "2", "--identities", "1",
+          "--mine-poses", "5", "--quiet"])
     src, _ = load_model_file(load_default_model().source_path)
     new, meta = load_model_file(out)
     assert {k for k in src if k.startswith("pose_")} == {k for k in new if k.startswith("pose_")}
@@ -155,6 +156,7 @@ def test_07_learn_pose_writes_a_model_that_loads(tmp_path):
     assert not np.array_equal(new["pose_basis"], src["pose_basis"])
     assert "optimised" in meta["provenance"]["pose_blendshapes"]
     assert meta["learn"]["pose"]["iterations"] == 2
+    assert meta["learn"]["pose"]["mine_poses"] == 5  # the screen's poses, as asked
     HackModel(new, meta)(theta=torch.full((1, 8, 3), 0.05))  # it runs
 
 

@@ -148,6 +148,9 @@ def learn_pose(
     hard: int = typer.Option(16, "--hard-examples", help="Rows per step drawn from a pool of "
                              "mined hard examples (poses that fold, nearly fold or stretch "
                              "more than plain LBS); 0: none."),
+    mine_poses: int = typer.Option(48, "--mine-poses", help="Fresh poses per identity "
+                                   "screened for hard examples every 10 steps (more finds "
+                                   "rarer folds, e.g. an expression's)."),
     expressions: bool = typer.Option(True, "--expressions/--neutral-only", help="Train on the "
                                      "model's own rest meshes with sampled expressions (as the "
                                      "stress test measures), or on neutral T_bar + B_S(beta)."),
@@ -178,6 +181,7 @@ def learn_pose(
     boundary.number(lr, "--lr", 1e-6, 1.0)
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
+    boundary.number(mine_poses, "--mine-poses", 1, 10000, integer=True)
     if gate is not None:
         boundary.number(gate, "--pose-gate", 0.0, 90.0)
 
@@ -196,7 +200,8 @@ def learn_pose(
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
     po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
-                           start=start, mlp_lr=mlp_lr, hard=hard, expressions=expressions,
+                           start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,
+                           expressions=expressions,
                            loss=overrides, gate_deg=gate or None)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))

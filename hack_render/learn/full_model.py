@@ -232,7 +232,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       num_components: int = 8, identities: int = 4, poses: int = 8,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
-                      expressions: bool = True, loss: dict | None = None,
+                      mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
                       gate_deg: float | None = None) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
@@ -247,7 +247,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
 
     ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
     with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
-    on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none). ``gate_deg``: the
+    on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none); ``mine_poses``:
+    the poses per identity screened for them every 10 steps. ``gate_deg``: the
     correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
     ``R - I`` features."""
     sub = pose_subset(arrays)
@@ -263,7 +264,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
             learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
                       learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr,
-                      hard=hard)
+                      hard=hard, mine_poses=mine_poses)
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = res.pose_basis
     out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),
@@ -281,7 +282,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "components": num_components, "subset_vertices": int(m),
               "region_triangles": len(learner.region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
-              "seed": seed, "hard_examples_per_step": hard, "gate_deg": gate_deg or None,
+              "seed": seed, "hard_examples_per_step": hard,
+              "mine_poses": mine_poses, "gate_deg": gate_deg or None,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
                        "identities with a sampled expression" if expressions
                        else "T_bar + B_S(beta), neutral")}
