@@ -19,7 +19,6 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -290,13 +289,13 @@ def calibrate_landmarks(
                                 "e.g. hack_render/data/landmark_embedding_dlib.npz."),
     subjects: int = typer.Option(60, "--subjects", min=1, help="Synthetic subjects to render "
                                  "(the detector's misses are left out and reported)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
+    seed: int | None = typer.Option(None, "--seed", help="Dataset sampler seed of the subjects "
                              "(default 5150; bench/bench_fit.py's subjects are disjoint)."),
-    resolution: Optional[int] = typer.Option(None, "--resolution", help="Render size in "
+    resolution: int | None = typer.Option(None, "--resolution", help="Render size in "
                                              "pixels (default 320)."),
-    resolution_old: Optional[int] = typer.Option(None, "--res", hidden=True,
+    resolution_old: int | None = typer.Option(None, "--res", hidden=True,
                                                  help="Deprecated: --resolution."),
-    spp: Optional[int] = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
+    spp: int | None = typer.Option(None, "--spp", help="Samples per pixel (default 16)."),
     radius: float = typer.Option(0.025, "--radius", help="Search radius around each model "
                                  "landmark vertex, metres on the rest mesh."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -338,14 +337,14 @@ def train_landmark_refiner(
                                 "e.g. hack_render/data/landmark_refiner_dlib.npz."),
     subjects: int = typer.Option(1150, "--subjects", min=20, help="Synthetic subjects to "
                                  "render (dlib's misses are left out and counted)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Dataset sampler seed of the "
+    seed: int | None = typer.Option(None, "--seed", help="Dataset sampler seed of the "
                                        "subjects (default 5150, the calibration's)."),
     stages: int = typer.Option(3, "--stages", min=1, max=8, help="SDM stages."),
     lam: float = typer.Option(100.0, "--lambda", min=0.0, help="Ridge penalty."),
     holdout: float = typer.Option(0.1, "--holdout", min=0.0, max=0.5, help="Share of the "
                                   "subjects held out to measure the refiner and set its "
                                   "loss weights."),
-    cache: Optional[Path] = typer.Option(None, "--cache", help="Folder for the renders, in "
+    cache: Path | None = typer.Option(None, "--cache", help="Folder for the renders, in "
                                          "chunks of 50 subjects: an interrupted run resumes "
                                          "from it."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
