@@ -383,3 +383,25 @@ def test_14_no_folds_and_never_meaningfully_worse_than_lbs(measured, expression_
     excess = stretch - res["lbs"]["stretch"]
     assert excess.max() <= 0.03, (excess.max(), np.unravel_index(excess.argmax(), excess.shape))
     assert (excess > 0.01).sum() <= 0.005 * excess.size, int((excess > 0.01).sum())
+
+
+def test_15_arap_reference_holds_the_rigid_sets_and_the_bound():
+    """The stretch bench's reference deformer (`learn.pose_data.arap_deformation`: DQS, then
+    ARAP of the skin with the vertices skinned to one node held rigid, the bound's rigid
+    sets) never stretches below the bound, and spreads the stretch: on 8 combined
+    full-range head rotations of the template, below plain LBS's in the median."""
+    from hack_render.geometry.deformation import model_stretch_bound, sample_head_poses
+    from hack_render.learn.pose_data import arap_deformation
+
+    model = load_default_model()
+    lbs = HackModel({k: v for k, v in load_model_file(model.source_path)[0].items()
+                     if not k.startswith("pose_")}, model.meta)
+    theta = sample_head_poses(8, torch.Generator().manual_seed(15), "xyz")
+    beta = torch.zeros(1, 20)
+    topo = skin_topology(model)
+    arap = arap_deformation(model, beta, theta, topo=topo, iterations=20)
+    bound = model_stretch_bound(model, beta, theta.float(), topo=topo).double()
+    plain = model_deformation(lbs, beta, theta.float(), topo=topo)
+    assert (arap.stretch >= bound - 1e-9).all(), (arap.stretch - bound).min()
+    assert float(arap.stretch.median()) < float(plain.stretch.median()) - 0.1, (
+        arap.stretch, plain.stretch)

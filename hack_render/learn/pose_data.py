@@ -29,6 +29,7 @@ from scipy import sparse
 from scipy.sparse.linalg import splu
 
 from hack_render.errors import HackError
+from hack_render.geometry.deformation import DeformationStats, deformation_stats, skin_topology
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms, skin
 from hack_render.geometry.rotations import euler_to_axis_angle, matrix_to_quaternion, quat_mul
 from hack_render.geometry.skeleton import JOINT_NAMES, distribute_head_rotation, rotation_limits
@@ -200,6 +201,36 @@ def pose_sequence(rest: torch.Tensor, joints: torch.Tensor, weights: torch.Tenso
     if deformer == "dqs":
         return posed
     return torch.as_tensor(arap(posed.numpy(), arap_iterations), dtype=posed.dtype)
+
+
+def arap_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None, topo=None,
+                     iterations: int = 30, chunk: int = 25):
+    """:func:`~hack_render.geometry.deformation.deformation_stats` of ARAP (DQS, then
+    :class:`ArapNeck` of the skin) over poses theta (P, 8, 3) of one identity of a
+    :class:`~hack_render.geometry.model.HackModel` (beta (1, S), expression psi (E,) held or
+    None), in float64: the reference deformer of the stretch bench
+    (``bench/bench_pose_arap.py``). The skin vertices skinned to one node are held rigid
+    with it, the rigid sets of :func:`~hack_render.geometry.deformation.stretch_lower_bound`,
+    so the bound holds for it too."""
+    topo = topo or skin_topology(model)
+    person = model.personalize(beta)
+    with torch.no_grad():
+        psi1 = None if psi is None else torch.as_tensor(psi, dtype=model.template.dtype).reshape(1, -1)
+        rest = person(psi=psi1).vertices[0].double()
+        joints = person.joints.reshape(-1, 3).double()
+    w = model.skinning_weights.double()
+    arap = ArapNeck(rest.numpy(), topo.faces.numpy(), (w.max(1).values >= 1 - 1e-6).numpy())
+    parts = []
+    for s in range(0, theta.shape[0], chunk):
+        th = theta[s:s + chunk].double()
+        posed = pose_sequence(rest, joints, w, model.parents, th, "arap", arap, iterations)
+        f = th.shape[0]
+        j = joints.expand(f, -1, -1)
+        _, rel = rigid_transforms(local_rotations(th, th.new_zeros(f, 3)),
+                                  torch.cat([j[:, :1], j], 1), chain_parents(model.parents))
+        parts.append(deformation_stats(rest, posed, rel[..., :3, :3], topo))
+    return DeformationStats(**{k: torch.cat([getattr(p, k) for p in parts])
+                               for k in ("stretch", "compression", "folded")})
 
 
 def twist_area_ratio(rest, joints, weights, parents, ring_idx: np.ndarray, degrees: float = 75.0) -> dict:
