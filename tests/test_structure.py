@@ -482,7 +482,7 @@ def test_07_fit_stages_never_reach_back_into_the_orchestrator(imports):
 
 def test_08_training_code_is_off_the_runtime_path(imports):
     """Calibration and training live in hack_render.learn, and only learn's own modules
-    import it (learn/cli.py owns every learner command)."""
+    import it (learn/cli.py and learn/motion_cli.py own the learner commands)."""
     g = graph(imports)
     users = sorted(m for m, deps in g.items() if not m.startswith("hack_render.learn")
                    and m != "hack_render.cli" and any(d.startswith("hack_render.learn")
