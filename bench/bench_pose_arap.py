@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pose_gate import add_subset_arguments, subset
 from bench_pose_space import EXPRESSION
 from provenance import write_result
 
@@ -42,7 +43,6 @@ from hack_render.geometry.deformation import (
     model_deformation,
     model_stretch_bound,
     rigid_anchors,
-    sample_pose_space,
     skin_topology,
 )
 from hack_render.geometry.model import HackModel
@@ -64,10 +64,7 @@ def summary(gap: np.ndarray, folded: np.ndarray) -> dict:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", type=Path, default=None)
-    ap.add_argument("--poses", type=int, default=200)
-    ap.add_argument("--identities", type=int, default=3, help="the template and N-1 sampled")
-    ap.add_argument("--seed", type=int, default=2100, help="poses; identities use seed + 1")
+    add_subset_arguments(ap)
     ap.add_argument("--iterations", type=int, default=30, help="ARAP's local-global rounds")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--out", type=Path, default=Path("bench/results/pose_arap.json"))
@@ -79,12 +76,8 @@ def main(argv=None) -> None:
     lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta).double()
     topo = skin_topology(model)
     anchors = rigid_anchors(model, topo)
-    fams = sample_pose_space(args.poses, seed=args.seed)
-    names = list(fams)
-    theta = torch.cat(list(fams.values())).double()
-    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams.values())])
-    g = torch.Generator().manual_seed(args.seed + 1)
-    betas = torch.cat([torch.zeros(1, 20), torch.randn(args.identities - 1, 20, generator=g)]).double()
+    names, theta, fam_of, betas = subset(args)
+    betas = betas.double()
     t0 = time.time()
     results = {"model": str(args.model) if args.model else "the shipped model",
                "poses": args.poses, "identities": args.identities, "seed": args.seed,

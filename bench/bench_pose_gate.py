@@ -32,6 +32,26 @@ from hack_render.geometry.model_file import default_model_path, load_model_file
 EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
 
 
+def add_subset_arguments(ap: argparse.ArgumentParser) -> None:
+    """The subset's options (also ``bench/bench_pose_arap.py``'s): the model file, the
+    poses and their seed, the identities (the template and N - 1 of seed + 1)."""
+    ap.add_argument("--model", type=Path, default=None)
+    ap.add_argument("--poses", type=int, default=200)
+    ap.add_argument("--identities", type=int, default=3, help="the template and N-1 sampled")
+    ap.add_argument("--seed", type=int, default=2100, help="poses; identities use seed + 1")
+
+
+def subset(args) -> tuple[list[str], torch.Tensor, np.ndarray, torch.Tensor]:
+    """The family names, poses (P, 8, 3) float64, each pose's family index (P,) and the
+    identities (I, 20) float32 of :func:`add_subset_arguments`' options."""
+    fams = sample_pose_space(args.poses, seed=args.seed)
+    theta = torch.cat(list(fams.values()))
+    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams.values())])
+    g = torch.Generator().manual_seed(args.seed + 1)
+    betas = torch.cat([torch.zeros(1, 20), torch.randn(args.identities - 1, 20, generator=g)])
+    return list(fams), theta, fam_of, betas
+
+
 def measure(model, betas, theta, psi, topo) -> tuple[np.ndarray, np.ndarray]:
     """(I, P) largest stretch and folded triangles per identity and pose."""
     st = [model_deformation(model, b[None], theta, psi, topo=topo) for b in betas]
@@ -40,10 +60,7 @@ def measure(model, betas, theta, psi, topo) -> tuple[np.ndarray, np.ndarray]:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", type=Path, default=None)
-    ap.add_argument("--poses", type=int, default=200)
-    ap.add_argument("--identities", type=int, default=3, help="the template and N-1 sampled")
-    ap.add_argument("--seed", type=int, default=2100, help="poses; identities use seed + 1")
+    add_subset_arguments(ap)
     ap.add_argument("--gates", default="0", help="gate angles, degrees, comma-separated")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
@@ -52,12 +69,8 @@ def main(argv=None) -> None:
     model = HackModel(arrays, meta)
     lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
     topo = skin_topology(model)
-    fams = sample_pose_space(args.poses, seed=args.seed)
-    names = list(fams)
-    theta = torch.cat(list(fams.values())).float()
-    fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams.values())])
-    g = torch.Generator().manual_seed(args.seed + 1)
-    betas = torch.cat([torch.zeros(1, 20), torch.randn(args.identities - 1, 20, generator=g)])
+    names, theta, fam_of, betas = subset(args)
+    theta = theta.float()
     own_gate = model.pose_gate_rad
     t0 = time.time()
     for conf, psi in (("neutral", None), ("expression", model.expression_vector(EXPRESSION))):
