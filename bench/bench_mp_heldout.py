@@ -34,7 +34,7 @@ from provenance import write_result
 
 from hack_render.geometry.model_file import default_model_path, load_model_file
 from hack_render.learn.full_model import energy_learner
-from hack_render.learn.pose_energy import skin_measures
+from hack_render.learn.neck_region import skin_measures
 
 #: identity-independent regularisers of the learner, left out of the held-out energy
 REGULARISERS = ("smooth", "weights")

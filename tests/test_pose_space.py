@@ -91,7 +91,7 @@ def test_05_neck_region_and_skin_measures():
     """The learner's region: unique edges, adjacent pairs share an edge; its measures
     agree with the stress test's under a rigid rotation and a scale."""
     from hack_render.learn.full_model import SKIN_LAST, pose_subset
-    from hack_render.learn.pose_energy import neck_region, skin_measures
+    from hack_render.learn.neck_region import neck_region, skin_measures
 
     model = load_default_model()
     arrays, _ = load_model_file(model.source_path)
@@ -165,7 +165,8 @@ def test_08_pose_learner_personalises():
     output differs between identities (its hidden units once all died at a large learning
     rate, leaving one constant for every identity)."""
     from hack_render.learn.full_model import SKIN_LAST, pose_subset
-    from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
+    from hack_render.learn.neck_region import neck_region
+    from hack_render.learn.pose_energy import PoseEnergyLearner
 
     arrays, _ = load_model_file(load_default_model().source_path)
     std = np.asarray(arrays["shape_std"], np.float64)
@@ -264,7 +265,8 @@ def test_11_restart_personalisation_keeps_the_mean_corrective():
     folded into P (the mean corrective is unchanged) and M_P starts again, small and
     identity-dependent."""
     from hack_render.learn.full_model import SKIN_LAST, pose_subset
-    from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
+    from hack_render.learn.neck_region import neck_region
+    from hack_render.learn.pose_energy import PoseEnergyLearner
 
     arrays, _ = load_model_file(load_default_model().source_path)
     std = np.asarray(arrays["shape_std"], np.float64)
@@ -308,7 +310,8 @@ def test_13_learner_rest_is_the_models_and_screen_finds_folds():
     flags every row where plain LBS folds skin (with P at zero the learner is plain LBS)."""
     from hack_render.geometry.deformation import sample_head_poses
     from hack_render.learn.full_model import SKIN_LAST, model_rest_fn, pose_subset
-    from hack_render.learn.pose_energy import PoseBatch, PoseEnergyLearner, neck_region
+    from hack_render.learn.neck_region import neck_region
+    from hack_render.learn.pose_energy import PoseBatch, PoseEnergyLearner
 
     model = load_default_model().double()
     arrays, meta = load_model_file(model.source_path)
@@ -405,3 +408,49 @@ def test_15_arap_reference_holds_the_rigid_sets_and_the_bound():
     assert (arap.stretch >= bound - 1e-9).all(), (arap.stretch - bound).min()
     assert float(arap.stretch.median()) < float(plain.stretch.median()) - 0.1, (
         arap.stretch, plain.stretch)
+
+
+def test_16_learner_bound_is_the_models():
+    """The learner's stretch bound (its region's anchors and paths, :mod:`learn.neck_region`)
+    equals the model-level bound (:func:`model_stretch_bound`) of the same identity and
+    expression over poses of every family; with the ``bound`` loss on, the term is finite
+    and positive on full-range rotations, and the screen's ``near_bound`` keeps exactly the
+    rows whose largest stretch exceeds their bound by more than it."""
+    from hack_render.geometry.deformation import model_stretch_bound
+    from hack_render.learn.full_model import SKIN_LAST, model_rest_fn, pose_subset
+    from hack_render.learn.neck_region import neck_region, skin_measures
+    from hack_render.learn.pose_energy import PoseBatch, PoseEnergyLearner
+
+    model = load_default_model().double()
+    arrays, _ = load_model_file(model.source_path)
+    sub = pose_subset(arrays)
+    region = neck_region(arrays["faces"], SKIN_LAST, sub)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                arrays["skinning_weights"], arrays["joint_parents"], region,
+                                rest_fn=model_rest_fn(arrays, region.vertices), seed=16,
+                                loss={"bound": 1.0, "near_bound": 0.25})
+    learner.start_from(arrays)
+    theta = torch.cat(list(sample_pose_space(6, seed=16).values())).double()
+    beta = torch.randn(1, 20, generator=torch.Generator().manual_seed(16), dtype=torch.float64)
+    psi = model.expression_vector("jawOpen=0.5, mouthSmile_L=0.8, mouthSmile_R=0.8")[None]
+    rest, joints = learner.rest(beta, psi)
+    ours = learner._bounds(rest, joints, theta, len(theta))
+    ref = model_stretch_bound(model, beta, theta, psi=psi)
+    assert (ours - ref).abs().max() < 1e-9, (ours - ref).abs().max()
+    assert ref.max() > 0.3  # the full-range rotations are in
+
+    n = len(theta)
+    batch = PoseBatch(beta.expand(n, -1), theta, psi.expand(n, -1), rest.expand(n, -1, -1),
+                      joints.expand(n, -1, -1), bound=ours)
+    term = learner.terms(batch)["bound"]
+    assert torch.isfinite(term) and float(term) > 0
+    with torch.no_grad():
+        posed, rot = learner.pose(batch)
+        r, _, _ = skin_measures(region, batch.rest, posed, rot, learner.weights()[region.faces].mean(1))
+    learner.lam.update(near_fold=-2.0, near_worse=-10.0)  # the other criteria off
+    above = r.amax(1) > ours + 0.25
+    assert above.any() and not above.all()
+    assert torch.equal(learner.screen(batch), above)
+    assert len(PoseBatch.cat([batch.rows(above), batch]).bound) == int(above.sum()) + n

@@ -22,6 +22,7 @@ from hack_render.learn.expression_learn import learn_expressions
 from hack_render.learn.ict_default import build_default_model
 from hack_render.learn.larynx_learn import learn_larynx
 from hack_render.learn.mesh_ops import ring
+from hack_render.learn.neck_region import neck_region
 from hack_render.learn.pca import compactness, generalisation
 from hack_render.learn.personal import learn_personal_space, mlp_forward, personal_arrays
 from hack_render.learn.pose_data import (
@@ -31,7 +32,7 @@ from hack_render.learn.pose_data import (
     single_joint_sweeps,
     twist_area_ratio,
 )
-from hack_render.learn.pose_energy import PoseEnergyLearner, neck_region
+from hack_render.learn.pose_energy import PoseEnergyLearner
 from hack_render.learn.pose_learn import PoseTrainer, Sequence
 
 SKIN_LAST = 11247

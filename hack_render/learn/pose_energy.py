@@ -41,13 +41,18 @@ a mean over its elements (r = |e| / |e0| - 1 per edge):
 * ``worse_pose``: the same bound on every edge, summed over a pose's edges: each edge
   stretched past plain LBS's largest stretch of that pose counts (the max alone moves
   one edge per step, and the next one then stands out);
+* ``bound``: per edge, the stretch beyond the pose's stretch bound (the largest stretch
+  no deformation with the face and chest rigid can avoid: :func:`~hack_render.learn.
+  neck_region.region_bound`) plus ``bound_margin``, squared and summed over a pose's edges
+  (off by default: the bench's "stretch above the bound", as a loss);
 * ``smooth``: the squared uniform Laplacian of P over the region; ``weights``: ||W - W0||^2.
 
 Hard examples (issue 21: the rare full-range combined rotations that still folded once the
 mean energy was low): every few steps the learner screens a fresh batch without gradients
 and keeps, in a pool, the pose-identity-expression triples that fold a triangle, come
 within a margin of folding, or stretch more than plain LBS; each step then trains on some
-of the pool beside the fresh samples.
+of the pool beside the fresh samples (with ``near_bound`` > 0, also the rows whose largest
+stretch exceeds their bound by more than it).
 
 Rest shapes: by default T_bar + B_S(beta) from the arrays given; with ``rest_fn`` (see
 :func:`~hack_render.learn.full_model.learn_pose_energy`) the model's own rest mesh for each
@@ -72,6 +77,13 @@ from hack_render.geometry.lbs import (
     rigid_transforms,
     skin,
 )
+from hack_render.learn.neck_region import (
+    NeckRegion,
+    anchor_path_lengths,
+    region_anchors,
+    region_bound,
+    skin_measures,
+)
 from hack_render.learn.pose_learn import weight_support
 
 #: loss weights and thresholds (s0, c0: stretch / compression past which the tails count;
@@ -79,81 +91,12 @@ from hack_render.learn.pose_learn import weight_support
 DEFAULTS = {"s0": 0.2, "c0": 0.3, "f0": 0.3, "strain": 1.0, "stretch": 30.0, "compress": 10.0,
             "fold": 30.0, "bend": 3.0, "worse": 300.0, "smooth": 1e-3, "weights": 1e-2,
             "fold_sum": 1.0, "worse_max": 100.0, "worse_pose": 0.0, "worse_margin": 0.005,
-            "near_fold": 0.1, "near_worse": 0.0}
+            "near_fold": 0.1, "near_worse": 0.0, "bound": 0.0, "bound_margin": 0.1,
+            "near_bound": 0.0}
 
 #: terms of :meth:`PoseEnergyLearner.terms` (the other DEFAULTS keys are thresholds)
 TERMS = ("strain", "stretch", "compress", "fold", "bend", "worse", "smooth", "weights",
-         "fold_sum", "worse_max", "worse_pose")
-
-
-@dataclass
-class NeckRegion:
-    """The skin around the neck where correctives act, in local indices.
-
-    Attributes:
-        vertices: (V,) model vertex ids of every corner of the skin triangles that touch
-            the corrective subset.
-        subset: (M,) local ids of the corrective subset (where P, C and W are learned).
-        faces: (T, 3) local triangles; edges (E, 2); pairs (Q, 2) adjacent triangles.
-    """
-
-    vertices: torch.Tensor
-    subset: torch.Tensor
-    faces: torch.Tensor
-    edges: torch.Tensor
-    pairs: torch.Tensor
-
-
-def neck_region(faces: np.ndarray, skin_last: int, subset: np.ndarray) -> NeckRegion:
-    """The :class:`NeckRegion` of a model's triangles (ids <= ``skin_last`` are skin)."""
-    f = torch.as_tensor(np.asarray(faces), dtype=torch.long)
-    f = f[(f <= skin_last).all(1)]
-    n = int(f.max()) + 1
-    sub = torch.as_tensor(np.asarray(subset), dtype=torch.long)
-    insub = torch.zeros(n, dtype=torch.bool)
-    insub[sub] = True
-    f = f[insub[f].any(1)]
-    verts = torch.unique(f)
-    loc = -torch.ones(n, dtype=torch.long)
-    loc[verts] = torch.arange(len(verts))
-    f = loc[f]
-    half = torch.cat([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]).sort(1).values
-    edges = torch.unique(half, dim=0)
-    fid = torch.arange(len(f)).repeat(3)
-    order = torch.argsort(half[:, 0] * (len(verts) + 1) + half[:, 1])
-    hs, fs = half[order], fid[order]
-    same = (hs[1:] == hs[:-1]).all(1)
-    pairs = torch.stack([fs[:-1][same], fs[1:][same]], 1)
-    return NeckRegion(vertices=verts, subset=loc[sub], faces=f, edges=edges, pairs=pairs)
-
-
-def _unit(x: torch.Tensor) -> torch.Tensor:
-    return x / x.norm(dim=-1, keepdim=True).clamp(min=1e-12)
-
-
-def _normals(v: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-    return torch.cross(v[..., f[:, 1], :] - v[..., f[:, 0], :], v[..., f[:, 2], :] - v[..., f[:, 0], :], dim=-1)
-
-
-def _nearest_rotation(m: torch.Tensor) -> torch.Tensor:
-    u, _, vh = torch.linalg.svd(m)
-    d = torch.linalg.det(u @ vh)
-    return torch.cat([u[..., :2], u[..., 2:] * d[..., None, None]], -1) @ vh
-
-
-def skin_measures(region: NeckRegion, rest: torch.Tensor, posed: torch.Tensor,
-                  rel_rot: torch.Tensor, face_weights: torch.Tensor):
-    """Per pose: edge strain r (B, E), fold cosines (B, T) and adjacent-normal cosines
-    (B, Q) of posed (B, V, 3) against rest (B, V, 3); rel_rot (B, K+1, 3, 3)."""
-    e, f, q = region.edges, region.faces, region.pairs
-    l0 = (rest[:, e[:, 0]] - rest[:, e[:, 1]]).norm(dim=-1).clamp(min=1e-12)
-    r = (posed[:, e[:, 0]] - posed[:, e[:, 1]]).norm(dim=-1) / l0 - 1
-    n0, n = _unit(_normals(rest, f)), _unit(_normals(posed, f))
-    with torch.no_grad():  # the SVD's gradient is unstable at repeated singular values
-        carry = _nearest_rotation(torch.einsum("tk,bkij->btij", face_weights, rel_rot))
-    cos_fold = (n * torch.einsum("btij,btj->bti", carry, n0)).sum(-1)
-    bend = (n[:, q[:, 0]] * n[:, q[:, 1]]).sum(-1) - (n0[:, q[:, 0]] * n0[:, q[:, 1]]).sum(-1)
-    return r, cos_fold, bend
+         "fold_sum", "worse_max", "worse_pose", "bound")
 
 
 @dataclass
@@ -172,7 +115,9 @@ class PoseEnergyResult:
 class PoseBatch:
     """Training rows: identities beta (B, S), poses theta (B, 8, 3), expressions psi (B, E)
     or None, and each row's rest region (B, V, 3) and rest joints (B, K, 3); ``fresh`` (B,)
-    bool: rows of newly sampled identities (None: all), the only rows M_P learns from."""
+    bool: rows of newly sampled identities (None: all), the only rows M_P learns from;
+    ``bound`` (B,): each row's stretch bound (:func:`~hack_render.learn.neck_region.
+    region_bound`), or None where the learner needs none."""
 
     beta: torch.Tensor
     theta: torch.Tensor
@@ -180,6 +125,7 @@ class PoseBatch:
     rest: torch.Tensor
     joints: torch.Tensor
     fresh: torch.Tensor | None = None
+    bound: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.theta.shape[0]
@@ -187,7 +133,8 @@ class PoseBatch:
     def rows(self, keep: torch.Tensor) -> PoseBatch:
         return PoseBatch(self.beta[keep], self.theta[keep], None if self.psi is None else self.psi[keep],
                          self.rest[keep], self.joints[keep],
-                         None if self.fresh is None else self.fresh[keep])
+                         None if self.fresh is None else self.fresh[keep],
+                         None if self.bound is None else self.bound[keep])
 
     @staticmethod
     def cat(parts: list[PoseBatch]) -> PoseBatch:
@@ -196,9 +143,11 @@ class PoseBatch:
         if any(p.fresh is not None for p in parts):
             fresh = torch.cat([torch.ones(len(p), dtype=torch.bool) if p.fresh is None else p.fresh
                                for p in parts])
+        bound = (None if any(p.bound is None for p in parts)
+                 else torch.cat([p.bound for p in parts]))
         return PoseBatch(*(torch.cat([getattr(p, k) for p in parts]) for k in ("beta", "theta")),
                          psi, *(torch.cat([getattr(p, k) for p in parts]) for k in ("rest", "joints")),
-                         fresh)
+                         fresh, bound)
 
 
 class PoseEnergyLearner:
@@ -245,6 +194,7 @@ class PoseEnergyLearner:
         support = torch.as_tensor(weight_support(w0[sub].numpy(), self.parents))
         rigid = self.w0_sub.max(1).values >= 1 - 1e-6  # skull- or root-rigid rows stay so
         self.support = torch.where(rigid[:, None], self.w0_sub > 0.5, support)
+        self.anchors = region_anchors(region, w0)
         m = len(sub)
         g = torch.Generator().manual_seed(seed)
         self.p_cm = torch.zeros(72, m, 3, dtype=dtype, requires_grad=True)
@@ -341,17 +291,36 @@ class PoseEnergyLearner:
     def pose(self, batch: PoseBatch, corrective: bool = True, weights: torch.Tensor | None = None):
         """Posed region (B, V, 3) and node rotations (B, K+1, 3, 3) of a :class:`PoseBatch`;
         without ``corrective``, plain LBS with ``weights`` (default W0)."""
-        theta, rest, joints = batch.theta, batch.rest, batch.joints
-        b = theta.shape[0]
-        rot = local_rotations(theta, theta.new_zeros(b, 3))
+        theta, rest = batch.theta, batch.rest
+        rot, rel = self._transforms(theta, batch.joints)
         v = rest
         if corrective:
             feat = pose_feature(rot[:, 1:], self.gate_rad)  # as the model file will
             delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta, batch.fresh))
             v = rest.index_add(1, self.region.subset, delta)
-        _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))
         w = self.weights() if corrective else (self.w_fixed if weights is None else weights)
         return skin(v, w, rel), rel[..., :3, :3]
+
+    def _transforms(self, theta: torch.Tensor, joints: torch.Tensor):
+        """Node rotations (B, K+1, 3, 3) of poses theta (B, 8, 3) and the nodes' transforms
+        (B, K+1, 4, 4), rest to posed, about rest joints (B, K, 3)."""
+        rot = local_rotations(theta, theta.new_zeros(theta.shape[0], 3))
+        _, rel = rigid_transforms(rot, torch.cat([joints[:, :1], joints], 1), chain_parents(self.parents))
+        return rot, rel
+
+    def _wants_bound(self) -> bool:
+        return bool(self.lam["bound"] or self.lam["near_bound"])
+
+    def _bounds(self, rest: torch.Tensor, joints: torch.Tensor, theta: torch.Tensor,
+                per: int) -> torch.Tensor:
+        """(B,) the stretch bound of each row: ``per`` consecutive rows share an identity's
+        rest region (U, V, 3) and joints (U, K, 3); theta (B, 8, 3)."""
+        paths = torch.stack([torch.as_tensor(anchor_path_lengths(r.numpy(), self.anchors))
+                             for r in rest]).to(rest.dtype)
+        with torch.no_grad():
+            _, rel = self._transforms(theta, joints.repeat_interleave(per, 0))
+            return region_bound(rest.repeat_interleave(per, 0), rel, self.anchors,
+                                paths.repeat_interleave(per, 0))
 
     def _lbs_reference(self, batch: PoseBatch):
         """Plain LBS with W0 and with the current W, the stricter per element: edge strain
@@ -377,6 +346,8 @@ class PoseEnergyLearner:
         p = self.p_cm / 100
         m = p.shape[1]
         fold = torch.relu(lam["f0"] - cosf).pow(2)
+        above = (r.new_zeros(()) if batch.bound is None else torch.relu(
+            r - (batch.bound + lam["bound_margin"])[:, None]).pow(2).sum(1).mean())
         return {
             "strain": (r ** 2).mean(), "stretch": torch.relu(r - lam["s0"]).pow(2).mean(),
             "compress": torch.relu(-r - lam["c0"]).pow(2).mean(),
@@ -388,18 +359,23 @@ class PoseEnergyLearner:
             "fold_sum": fold.sum(1).mean(),
             "worse_max": torch.relu(r.amax(1) - r_lmax + lam["worse_margin"]).pow(2).mean(),
             "worse_pose": torch.relu(r - r_lmax[:, None] + lam["worse_margin"]).pow(2).sum(1).mean(),
+            "bound": above,
         }
 
     def screen(self, batch: PoseBatch) -> torch.Tensor:
         """(B,) bool: the hard examples: the rows that fold a triangle or come near it (a
         fold cosine below ``near_fold``), or whose largest strain comes within
-        ``near_worse`` of plain LBS's (the stricter of W0 and W) or exceeds it."""
+        ``near_worse`` of plain LBS's (the stricter of W0 and W) or exceeds it, or (with
+        ``near_bound`` > 0) exceeds the row's bound by more than ``near_bound``."""
         reg = self.region
         with torch.no_grad():
             _, _, r_lmax = self._lbs_reference(batch)
             posed, rot = self.pose(batch)
             r, cosf, _ = skin_measures(reg, batch.rest, posed, rot, self.weights()[reg.faces].mean(1))
-        return (cosf.amin(1) < self.lam["near_fold"]) | (r.amax(1) > r_lmax - self.lam["near_worse"])
+        hard = (cosf.amin(1) < self.lam["near_fold"]) | (r.amax(1) > r_lmax - self.lam["near_worse"])
+        if self.lam["near_bound"] and batch.bound is not None:
+            hard |= r.amax(1) > batch.bound + self.lam["near_bound"]
+        return hard
 
     def _expressions(self, g: torch.Generator, n: int) -> torch.Tensor | None:
         """(n, E) expressions: half neutral, the rest a jaw opening (U(0, 1), half the
@@ -433,7 +409,8 @@ class PoseEnergyLearner:
         rest, joints = self.rest(beta, psi)
         per = len(th) // identities
         rep = lambda x: None if x is None else x.repeat_interleave(per, 0)
-        return PoseBatch(rep(beta), th, rep(psi), rep(rest), rep(joints))
+        bound = self._bounds(rest, joints, th, per) if self._wants_bound() else None
+        return PoseBatch(rep(beta), th, rep(psi), rep(rest), rep(joints), bound=bound)
 
     def fit(self, iterations: int = 600, lr: float = 0.01, identities: int = 4, poses: int = 8,
             learn_weights: bool = True, seed: int = 0, progress: bool = True,
