@@ -27,10 +27,21 @@ print("| level | in vivo | share in vivo | rule share | rule at same C2-C7 sum |
 for n, k, l in zip(lat, idx, limz):
     r = ts * l / limz.sum()
     print(f"| {n} | {lat[n]:.2f} | {lat[n]/ts:.3f} | {l/limz.sum():.3f} | {r:.2f} | {r-lat[n]:+.2f} | {l:.0f} | {l-lat[n]:+.2f} |")
-fe = {"c2-c3": 13.5, "c4-c5": 22.6}
-print("| level | in vivo (F+E) | limit F+E (rule at full range) | diff |")
-for n, deg in fe.items():
-    k = JOINT_NAMES.index(n)
+# flexion/extension: whole flexion-to-extension arcs, degrees (in vivo; abstracts, see
+# docs/model.md): O-C1 Kaneko et al. 2018 (MRI, 157 volunteers); C2-C3 and C5-C6 Anderst
+# et al. 2015 J Biomech (biplane radiography, 29 subjects); C2/3 and C4/5 Wu et al. 2007
+# (videofluoroscopy, 56 subjects)
+fe = {"o-c1": [("Kaneko 2018", 9.91)], "c2-c3": [("Anderst 2015", 12.7), ("Wu 2007", 13.5)],
+      "c4-c5": [("Wu 2007", 22.6)], "c5-c6": [("Anderst 2015", 19.7)]}
+print("flexion/extension, whole arcs at the full range (the rule puts every level at its limits)")
+print("| level | rule (limits' arc) | in vivo | rule - in vivo |")
+for k in reversed(range(8)):
+    n = JOINT_NAMES[k]
     rng = lim[k, 0, 1] - lim[k, 0, 0]
-    print(f"| {n} | {deg} | {rng:.0f} | {rng - deg:+.1f} |")
-print("ratio in vivo", 13.5/22.6, "rule", 10/20)
+    seen = fe.get(n, [])
+    vivo = "; ".join(f"{v} ({src})" for src, v in seen) or "-"
+    diff = "; ".join(f"{rng - v:+.1f}" for _, v in seen) or "-"
+    print(f"| {n} | {rng:.0f} | {vivo} | {diff} |")
+print(f"ratios: C2-C3 / C5-C6 in vivo {12.7 / 19.7:.2f} (Anderst), C2/3 / C4/5 {13.5 / 22.6:.2f} (Wu); "
+      f"the rule's {(lim[5, 0, 1] - lim[5, 0, 0]) / (lim[2, 0, 1] - lim[2, 0, 0]):.2f} and "
+      f"{(lim[5, 0, 1] - lim[5, 0, 0]) / (lim[3, 0, 1] - lim[3, 0, 0]):.2f}")
