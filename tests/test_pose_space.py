@@ -454,3 +454,25 @@ def test_16_learner_bound_is_the_models():
     assert above.any() and not above.all()
     assert torch.equal(learner.screen(batch), above)
     assert len(PoseBatch.cat([batch.rows(above), batch]).bound) == int(above.sum()) + n
+
+
+def test_17_learner_samples_single_axis_head_rotations():
+    """``single_axis``: a quarter of a sampled batch are whole-head rotations about one
+    axis alone (a third each of x, y, z: each joint's axis-angle on that axis only);
+    without it, none are."""
+    from hack_render.learn.full_model import SKIN_LAST, pose_subset
+    from hack_render.learn.neck_region import neck_region
+    from hack_render.learn.pose_energy import PoseEnergyLearner
+
+    arrays, _ = load_model_file(load_default_model().source_path)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    region = neck_region(arrays["faces"], SKIN_LAST, pose_subset(arrays))
+    for single in (False, True):
+        learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                    arrays["skinning_weights"], arrays["joint_parents"], region,
+                                    seed=17, single_axis=single)
+        theta = learner.sample(torch.Generator().manual_seed(17), 3, 8).theta
+        on = (theta.abs() > 1e-12).any(1)  # (B, 3): the axes any joint turns about
+        counts = [int((on.sum(1) == 1)[on[:, a]].sum()) for a in range(3)]
+        assert counts == ([2, 2, 2] if single else [0, 0, 0]), counts

@@ -160,6 +160,10 @@ def learn_pose(
                                       "(angle^4 + gate^4); model format 3); 0: no gate. "
                                       "Default: the --model file's gate with --continue, else "
                                       "none."),
+    single_axis: bool = typer.Option(False, "--single-axis", help="Sample a quarter of the "
+                                     "poses as whole-head rotations about one axis alone "
+                                     "(flexion, axial or lateral, as the stress test's head_x/y/z "
+                                     "families) instead of combined ones at 60 %% of the range."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Re-learn a model's pose correctives (P, the personalised components and M_P) and the
@@ -200,7 +204,7 @@ def learn_pose(
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
                            start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,
                            expressions=expressions,
-                           loss=overrides, gate_deg=gate or None)
+                           loss=overrides, gate_deg=gate or None, single_axis=single_axis)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

@@ -168,13 +168,18 @@ class PoseEnergyLearner:
         _R), given one value on both sides in half of the expressive rows.
         gate_deg: the correctives' gate angle, degrees (each joint's feature times
             :func:`~hack_render.geometry.lbs.pose_gate`; model format 3), or None.
+        single_axis: sample a quarter of the poses as whole-head rotations about one axis
+            alone (x, y or z, a third each, as the stress test's head_x/y/z families)
+            instead of combined ones at 60 % of the range.
     """
 
     def __init__(self, template, shape_dirs, joint_regressor, weights, parents, region: NeckRegion,
                  num_components: int = 8, num_shape: int = 20, hidden: int = 64,
                  loss: dict | None = None, seed: int = 0, dtype=torch.float64,
                  rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
-                 symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None):
+                 symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None,
+                 single_axis: bool = False):
+        self.single_axis = single_axis
         self.gate_rad = None if not gate_deg else float(np.deg2rad(gate_deg))
         t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
         self.region, self.parents = region, tuple(parents)
@@ -398,11 +403,16 @@ class PoseEnergyLearner:
     def sample(self, g: torch.Generator, identities: int, poses: int) -> PoseBatch:
         """A batch: identities beta ~ N(0, I) (each with a sampled expression where
         ``rest_fn`` is given), each in ``poses`` poses (half per-joint uniform, a quarter
-        whole-head at full range, a quarter at 60 % of it)."""
+        whole-head at full range, a quarter at 60 % of it or, with ``single_axis``, about
+        one axis alone)."""
         k = max(poses // 4, 1)
+        n = identities * k
+        if self.single_axis:
+            last = torch.cat([sample_head_poses(n // 3 + (i < n % 3), g, ax) for i, ax in enumerate("xyz")])
+        else:
+            last = 0.6 * sample_head_poses(n, g, "xyz")
         th = torch.cat([sample_joint_poses(identities * (poses - 2 * k), g),
-                        sample_head_poses(identities * k, g, "xyz"),
-                        0.6 * sample_head_poses(identities * k, g, "xyz")]).to(self.template.dtype)
+                        sample_head_poses(n, g, "xyz"), last]).to(self.template.dtype)
         th = th[torch.randperm(len(th), generator=g)]
         beta = torch.randn(identities, self.num_shape, generator=g, dtype=self.template.dtype)
         psi = self._expressions(g, identities)
