@@ -198,15 +198,24 @@ def rigid_anchors(model, topo: SkinTopology | None = None) -> RigidAnchors:
     w = model.skinning_weights
     skin = torch.zeros(w.shape[0], dtype=torch.bool)
     skin[topo.faces.unique()] = True
-    node = torch.where(skin & (w.max(1).values >= 1 - 1e-6), w.argmax(1), -1)
-    a, b = topo.edges[:, 0], topo.edges[:, 1]
+    return border_anchors(w, topo.edges, skin)
+
+
+def border_anchors(weights: torch.Tensor, edges: torch.Tensor,
+                   skin: torch.Tensor | None = None) -> RigidAnchors:
+    """:class:`RigidAnchors` of vertices with skinning weights (N, K + 1) joined by skin
+    ``edges`` (E, 2) (``skin`` (N,) bool: the vertices that may be anchors; None: all)."""
+    w = weights
+    rigid = w.max(1).values >= 1 - 1e-6
+    node = torch.where(rigid if skin is None else skin & rigid, w.argmax(1), -1)
+    a, b = edges[:, 0], edges[:, 1]
     differ = node[a] != node[b]
-    border = torch.zeros_like(skin)
+    border = torch.zeros(len(node), dtype=torch.bool)
     border[a[differ & (node[a] >= 0)]] = True
     border[b[differ & (node[b] >= 0)]] = True
     ids = border.nonzero()[:, 0]
     free = (node[a] < 0) | (node[b] < 0) | (border[a] & border[b])
-    return RigidAnchors(vertices=ids, node=node[ids], edges=topo.edges[free])
+    return RigidAnchors(vertices=ids, node=node[ids], edges=edges[free])
 
 
 def edge_path_lengths(vertices: torch.Tensor, edges: torch.Tensor, sources: torch.Tensor,
