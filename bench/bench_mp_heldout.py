@@ -63,7 +63,8 @@ def held_out(arrays: dict, identities: int = 10, poses: int = 48, seed: int = 90
     """Per held-out identity, the energy with M_P and with its mean output (module doc)."""
     gate = float(arrays["pose_gate_deg"]) if "pose_gate_deg" in arrays else None
     comps = int(np.asarray(arrays["pose_pca_components"]).shape[0])
-    learner = energy_learner(arrays, num_components=comps, gate_deg=gate)
+    learner = energy_learner(arrays, num_components=comps, gate_deg=gate,
+                             gate_chain=float(arrays.get("pose_gate_chain", 0.0)))
     learner.start_from(arrays)
     mlp = learner.mlp
     mean = mean_output(learner)

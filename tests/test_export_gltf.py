@@ -88,24 +88,30 @@ def test_every_animation_frame_matches_the_forward_pass(model, exported, sequenc
         assert err.max() < 6e-5, f"frame {k}: max {err.max() * 1e3:.4f} mm"
 
 
-def test_a_gated_models_frames_match_its_forward_pass(model, sequence, tmp_path):
+@pytest.mark.parametrize("chain", [0.0, 1.0])
+def test_a_gated_models_frames_match_its_forward_pass(model, sequence, tmp_path, chain):
     """A model whose pose correctives are gated by each joint's angle (format 3,
-    ``pose_gate_deg``): the file's pose-corrective weights are the model's gated features,
-    so every frame still poses like its forward pass, and the file names the gate for
-    players that drive the correctives from the joints (the viewer)."""
+    ``pose_gate_deg``; with ``chain``, format 4's ``pose_gate_chain``, also by the chain's
+    net rotation): the file's pose-corrective weights are the model's gated features, so
+    every frame still poses like its forward pass, and the file names the gate for players
+    that drive the correctives from the joints (the viewer)."""
     import copy
     import math
 
     gated = copy.deepcopy(model)
     gated.pose_gate_rad = math.radians(20.0)   # wide: most of the sequence's angles gated
+    gated.pose_gate_chain = chain
     path = tmp_path / "gated.glb"
     export_person(gated, check_params(PARAMS), path, sequence, None, 8)
     doc, _ = read_gltf(path)
     assert doc["asset"]["extras"]["hack"]["pose_gate_deg"] == pytest.approx(20.0)
+    assert doc["asset"]["extras"]["hack"]["pose_gate_chain"] == chain
     rest = evaluate(path, None, model.num_vertices)   # the parameter file's pose
     used = ~np.isnan(rest[:, 0])
     assert np.linalg.norm(rest[used] - forward(gated)[used], axis=1).max() < 2e-6
-    ungated = 0.0
+    other = copy.deepcopy(gated)
+    other.pose_gate_chain = 1.0 - chain   # the gate with the chain term the other way
+    ungated = moved = 0.0
     for k in range(sequence.frames):
         frame = {"theta": sequence.theta[k], "psi": sequence.psi[k], "tau": sequence.tau[k],
                  "global_orient": sequence.global_orient[k], "transl": sequence.transl[k]}
@@ -115,7 +121,9 @@ def test_a_gated_models_frames_match_its_forward_pass(model, sequence, tmp_path)
         err = np.linalg.norm(got[used] - want[used], axis=1)
         assert err.max() < 6e-5, f"frame {k}: max {err.max() * 1e3:.4f} mm"
         ungated = max(ungated, np.abs(want - forward(model, **frame)).max())
+        moved = max(moved, np.abs(want - forward(other, **frame)).max())
     assert ungated > 1e-4   # the gate moves the mesh: the test above could fail
+    assert moved > 1e-5     # and so does its chain term
 
 
 def test_gltf_with_bin_equals_glb(model, exported):

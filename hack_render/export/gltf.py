@@ -311,9 +311,11 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
         "pose_targets": [[f, sg] for f, sg, _ in pose_split(model.num_joints)]
         if rig.slots["pose"].stop > rig.slots["pose"].start else [],
         # each joint's pose weights times g = s^2 / (s^2 + c^4), s = 3 - trace R, c this
-        # angle in radians (geometry.lbs.pose_gate); null: ungated
+        # angle in radians (geometry.lbs.pose_gate); null: ungated. pose_gate_chain = l:
+        # s + l |n|^2, n the sum of the joints' axial vectors (R - R^T) / 2 (0: s alone)
         "pose_gate_deg": (None if rig.pose_gate_rad is None
                           else math.degrees(rig.pose_gate_rad)),
+        "pose_gate_chain": rig.pose_gate_chain,
         "joint_limits_deg": model.rotation_limits_deg.tolist(),
         "units": "metres, Y up, face along +Z"}}
     if hair is not None:

@@ -71,6 +71,8 @@ class ExportRig:
         pose_gate_rad: the model's corrective gate (format 3, ``HackModel.pose_gate_rad``):
             each joint's pose-corrective weights are its ``R - I`` times
             :func:`~hack_render.geometry.lbs.pose_gate`; None: ungated.
+        pose_gate_chain: the gate's chain weight (format 4, ``HackModel.pose_gate_chain``;
+            0: each joint's own angle alone).
     """
 
     base: np.ndarray
@@ -86,6 +88,7 @@ class ExportRig:
     num_expressions: int
     eta: float
     pose_gate_rad: float | None = None
+    pose_gate_chain: float = 0.0
 
     @property
     def slots(self) -> dict[str, slice]:
@@ -150,12 +153,13 @@ def pose_split(num_joints: int) -> list[tuple[int, float, str]]:
     return out
 
 
-def pose_features(theta: torch.Tensor, gate_rad: float | None = None) -> torch.Tensor:
+def pose_features(theta: torch.Tensor, gate_rad: float | None = None,
+                  chain: float = 0.0) -> torch.Tensor:
     """theta (T, 8, 3) axis-angle -> (T, 72): the weights of the pose-corrective targets,
     the model's own (``HackModel.pose_features``: each joint's ``R - I``, times its gate
-    in a gated model, ``gate_rad``)."""
+    in a gated model, ``gate_rad``, with its chain weight ``chain``)."""
     zeros = theta.new_zeros(theta.shape[0], 3)
-    return pose_feature(local_rotations(theta, zeros)[:, 1:], gate_rad)
+    return pose_feature(local_rotations(theta, zeros)[:, 1:], gate_rad, chain)
 
 
 def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = TAU_RANGE,
@@ -196,7 +200,7 @@ def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = T
         base = neutral + lar[1]  # eta baked in, at tau = 0
         blocks.append(np.concatenate([lar[:1], lar[2:] - lar[1]]).astype(np.float32))
         names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
-    pose = _pose_targets(rest, neutral, k, dtype, model.pose_gate_rad)
+    pose = _pose_targets(rest, neutral, k, dtype, model.pose_gate_rad, model.pose_gate_chain)
     if pose is not None:
         split = pose_split(k)
         blocks.append(np.stack([sign * pose[f] for f, sign, _ in split]))
@@ -207,7 +211,8 @@ def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = T
                     parents=[-1] + [p + 1 if p >= 0 else 0 for p in model.parents],
                     rest_nodes=np.concatenate([rest_joints[:1], rest_joints], 0),
                     joints4=joints4, weights4=weights4, weight_error_m=0.0, tau_grid=grid,
-                    num_expressions=e, eta=float(eta), pose_gate_rad=model.pose_gate_rad)
+                    num_expressions=e, eta=float(eta), pose_gate_rad=model.pose_gate_rad,
+                    pose_gate_chain=model.pose_gate_chain)
     rig.weight_error_m = weight_truncation_error(model, rig)
     return rig
 
@@ -219,11 +224,11 @@ _PROBE_ANGLE = 1.0  # radians: far from zero, so the 9 x 9 systems are well cond
 
 
 def _pose_targets(rest, neutral: np.ndarray, k: int, dtype,
-                  gate_rad: float | None = None) -> np.ndarray | None:
+                  gate_rad: float | None = None, chain: float = 0.0) -> np.ndarray | None:
     """(9K, N, 3) pose-corrective targets (feature order: joint, row, column of R - I), or
     None when the model has none (the rest mesh does not depend on the pose). With a gate,
     the probes' features are gated as the model's (one factor per joint: every probe turns
-    its joint by the same angle)."""
+    its joint by the same angle, and the chain's net rotation is that joint's own)."""
     axes = np.asarray(_PROBE_AXES, np.float64)
     aa = _PROBE_ANGLE * axes / np.linalg.norm(axes, axis=1, keepdims=True)  # (9, 3)
     theta = np.zeros((9 * k, k, 3))
@@ -232,7 +237,7 @@ def _pose_targets(rest, neutral: np.ndarray, k: int, dtype,
     y = rest(9 * k, theta=torch.as_tensor(theta, dtype=dtype))[0] - neutral  # (9K, N, 3)
     if not np.any(y):
         return None
-    feat = pose_features(torch.as_tensor(theta), gate_rad).numpy()  # (9K, 9K), block diagonal
+    feat = pose_features(torch.as_tensor(theta), gate_rad, chain).numpy()  # (9K, 9K), block diagonal
     out = np.zeros_like(y)
     n = y.shape[1] * 3
     for j in range(k):
@@ -292,7 +297,7 @@ def frame_weights(rig: ExportRig, psi: np.ndarray | None, theta: np.ndarray,
         out[:, s["larynx_slide"]] = tau_weights(np.zeros(t) if tau is None else tau, rig.tau_grid)
     if s["pose"].stop > s["pose"].start:
         feat = pose_features(torch.tensor(np.asarray(theta), dtype=torch.float64),
-                             rig.pose_gate_rad).numpy()
+                             rig.pose_gate_rad, rig.pose_gate_chain).numpy()
         split = pose_split(feat.shape[1] // 9)
         idx = np.array([f for f, _, _ in split])
         sign = np.array([sg for _, sg, _ in split])

@@ -17,29 +17,49 @@ def chain_parents(parents: tuple[int, ...]) -> tuple[int, ...]:
     return (-1,) + tuple(p + 1 for p in parents)
 
 
-def pose_gate(rot_mats: torch.Tensor, gate_rad: float) -> torch.Tensor:
+def pose_gate(rot_mats: torch.Tensor, gate_rad: float, chain: float = 0.0) -> torch.Tensor:
     """The corrective gate of each joint (format 3): g = s^2 / (s^2 + c^4) with s = 2 (1 -
     cos angle) (about angle^2), so about angle^4 / (angle^4 + c^4): near 0 for rotations well
-    under ``gate_rad`` = c, 1/2 at c, near 1 above. Rational in the trace of R, so smooth
-    everywhere (no square root at zero). rot_mats: (..., 3, 3) -> (...,).
+    under ``gate_rad`` = c, 1/2 at c, near 1 above. Rational in the entries of R, so smooth
+    everywhere (no square root at zero). rot_mats: (..., K, 3, 3) -> (..., K).
+
+    ``chain`` = lambda (format 4, ``pose_gate_chain``): s = 2 (1 - cos angle) + lambda |n|^2,
+    n = sum over the K joints of each R's axial vector (sin angle times its axis): the
+    chain's net rotation, about the head's angle to the thorax. A whole-head nod spread over
+    the joints at a few degrees each then opens every joint's gate; rotations that
+    alternate along the chain cancel in n and stay gated.
 
     Why: small rotations that alternate along the chain are where plain LBS barely
     stretches and a linear corrective shaped for large rotations adds stretch; the gate
     leaves them to LBS (docs/model.md, "Folds and the LBS rule")."""
     tr = rot_mats.diagonal(dim1=-2, dim2=-1).sum(-1)
     s = 3.0 - tr  # 2 (1 - cos angle)
+    if chain:
+        n = net_axial(rot_mats)
+        s = s + chain * (n * n).sum(-1, keepdim=True)
     s2 = s * s
     return s2 / (s2 + gate_rad ** 4)
 
 
-def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None) -> torch.Tensor:
+def net_axial(rot_mats: torch.Tensor) -> torch.Tensor:
+    """The sum over the K joints of each rotation's axial vector (R - R^T) / 2 read as a
+    vector (sin angle times the axis): (..., K, 3, 3) -> (..., 3)."""
+    r = rot_mats
+    v = torch.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                     r[..., 1, 0] - r[..., 0, 1]], -1)
+    return 0.5 * v.sum(-2)
+
+
+def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None,
+                 chain: float = 0.0) -> torch.Tensor:
     """SMPL-style pose feature ``(R_k - I)`` flattened, each joint's block times its
     :func:`pose_gate` when ``gate_rad`` is given (model files of format 3 with a
-    ``pose_gate_deg``). rot_mats: (B, K, 3, 3) -> (B, 9K)."""
+    ``pose_gate_deg``; ``chain``: format 4's ``pose_gate_chain``). rot_mats: (B, K, 3, 3) ->
+    (B, 9K)."""
     eye = torch.eye(3, dtype=rot_mats.dtype, device=rot_mats.device)
     d = rot_mats - eye
     if gate_rad is not None:
-        d = d * pose_gate(rot_mats, gate_rad)[..., None, None]
+        d = d * pose_gate(rot_mats, gate_rad, chain)[..., None, None]
     return d.flatten(1)
 
 

@@ -123,6 +123,8 @@ class HackModel(nn.Module):
         # format 3: each joint's corrective gated by its angle (None: plain R - I)
         self.pose_gate_rad = (math.radians(float(arrays["pose_gate_deg"]))
                               if "pose_gate_deg" in arrays else None)
+        # format 4: the gate also opened by the chain's net rotation (0: by each joint's own)
+        self.pose_gate_chain = float(arrays.get("pose_gate_chain", 0.0))
         if self.has_pose_basis:
             # the pose correctives move the neck only (~1.4k of ~27k vertices in the default
             # model): stored and read on those vertices' columns, not the zeros elsewhere
@@ -298,9 +300,9 @@ class HackModel(nn.Module):
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
-        (root first): each joint's ``R - I``, times its gate in a format-3 file
-        (:func:`~hack_render.geometry.lbs.pose_feature`)."""
-        return pose_feature(rot[:, 1:], self.pose_gate_rad)
+        (root first): each joint's ``R - I``, times its gate in a format-3 file (format 4:
+        also opened by the chain's net rotation; :func:`~hack_render.geometry.lbs.pose_feature`)."""
+        return pose_feature(rot[:, 1:], self.pose_gate_rad, self.pose_gate_chain)
 
     def _rest(self, beta, psi, feat, eta, tau) -> torch.Tensor:
         """T(beta, psi, theta, eta, tau) (B, N, 3). beta: (B, s) or (1, s) for a batch that

@@ -30,6 +30,8 @@ rotation_limits_deg    (K, 3, 2) f32         Euler (x, y, z) (min, max) per join
 opt pose_basis         (9K, N, 3) f32 q      generic pose blendshapes P (SMPL-style)
 opt pose_gate_deg      (), f32               format 3: each joint's pose feature gated by its
                                              angle (:func:`~hack_render.geometry.lbs.pose_gate`)
+opt pose_gate_chain    (), f32               format 4: the gate also opened by the chain's net
+                                             rotation (needs ``pose_gate_deg``)
 opt expr_pca_*         see below             personalised expressions E_beta = M_E(beta)
 opt pose_pca_*         see below             personalised pose blendshapes P_beta = M_P(beta)
 opt larynx_*           see below             larynx basis L (Eq. 4)
@@ -49,7 +51,10 @@ chart (e.g. template x, y in metres, so a v shift is a vertical slide of the sam
 every vertex); without it the atlas ``vertex_uv`` is used. Format 3 adds the optional
 ``pose_gate_deg`` (): the angle c of the pose correctives' gate, degrees (each joint's
 ``R - I`` block scaled by about angle^4 / (angle^4 + c^4)); without it (files of format 1
-and 2, which still load) the features are plain ``R - I``.
+and 2, which still load) the features are plain ``R - I``. Format 4 adds the optional
+``pose_gate_chain`` () = lambda: each joint's gate also counts lambda times the squared
+net rotation of the whole chain (:func:`~hack_render.geometry.lbs.pose_gate`), so a nod
+spread over the joints opens every joint's gate; without it (files of format 1 to 3) 0.
 
 "q" arrays may be stored quantised as ``key__q`` (int16) with ``key__scale`` (f32, one per
 leading index, value = q * scale); the loader restores float32 transparently.
@@ -81,10 +86,10 @@ from hack_render.errors import HackError
 from hack_render.io.array_folder import cache_base, read_array_folder, write_array_folder
 from hack_render.io.npz import write_npz
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 #: the built-in default model's file name in the package data (``hack_render/data``)
 DEFAULT_MODEL_NAME = "hack_default.npz"
-SUPPORTED_VERSIONS = (1, 2, 3)
+SUPPORTED_VERSIONS = (1, 2, 3, 4)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
                "expr_pca_components", "pose_pca_components")
 class CacheWarning(UserWarning):
@@ -146,6 +151,7 @@ OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
     },
     "larynx_chart": {"larynx_vertex_uv": ("Ml,2", "f")},
     "pose_gate": {"pose_gate_deg": ("", "f")},
+    "pose_gate_chain": {"pose_gate_chain": ("", "f")},
 }
 
 
@@ -316,6 +322,14 @@ def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[
     if "pose_gate_deg" in arrays and not 0.0 < float(arrays["pose_gate_deg"]) <= 90.0:
         raise HackError(f"{path}: key 'pose_gate_deg' is {float(arrays['pose_gate_deg'])}, "
                         f"expected an angle in (0, 90] degrees. {_FIX}")
+    if "pose_gate_chain" in arrays:
+        if "pose_gate_deg" not in arrays:
+            raise HackError(f"{path}: key 'pose_gate_chain' needs 'pose_gate_deg' (the gate "
+                            f"it opens). {_FIX}")
+        if not 0.0 <= float(arrays["pose_gate_chain"]) <= 100.0:
+            raise HackError(f"{path}: key 'pose_gate_chain' is "
+                            f"{float(arrays['pose_gate_chain'])}, expected a weight in [0, 100]. "
+                            f"{_FIX}")
     n = sizes["N"]
     for key in ("faces", "landmark_indices"):
         if arrays[key].min() < 0 or arrays[key].max() >= n:

@@ -101,6 +101,11 @@ class PosingModel:
         feat = rot[1:] - np.eye(3, dtype=f32)  # (8, 3, 3) pose feature R - I
         if "pose_gate_deg" in a:  # format 3: gated by each joint's angle (lbs.pose_gate)
             s = 3.0 - np.trace(rot[1:], axis1=1, axis2=2)
+            if "pose_gate_chain" in a:  # format 4: and by the chain's net rotation
+                r = rot[1:]
+                net = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                                      r[:, 1, 0] - r[:, 0, 1]], -1).sum(0)
+                s = s + float(a["pose_gate_chain"]) * float(net @ net)
             feat = feat * (s * s / (s * s + np.deg2rad(float(a["pose_gate_deg"])) ** 4))[:, None, None]
         feat = feat.reshape(-1).astype(f32)  # (72,)
         if "pose_basis" in a:

@@ -29,7 +29,7 @@ def reference_forward(model, beta=None, psi=None, theta=None, global_orient=None
     beta = torch.nn.functional.pad(p["beta"], (0, m.num_shape - p["beta"].shape[1]))
     beta = beta.expand(B, -1)
     rot = local_rotations(p["theta"], p["global_orient"])
-    feat = pose_feature(rot[:, 1:], m.pose_gate_rad)
+    feat = pose_feature(rot[:, 1:], m.pose_gate_rad, m.pose_gate_chain)
     shape_dirs, expr_dirs = m.expr_shape_basis[E:], m.expr_shape_basis[:E]
     rest = m.template + (beta @ shape_dirs + p["psi"] @ expr_dirs).view(B, n, 3)
     if m.has_pose_basis:  # the dense (72, N, 3) pose basis, zeros off the stored columns

@@ -160,6 +160,12 @@ def learn_pose(
                                       "(angle^4 + gate^4); model format 3); 0: no gate. "
                                       "Default: the --model file's gate with --continue, else "
                                       "none."),
+    gate_chain: float | None = typer.Option(None, "--pose-gate-chain", help="With --pose-gate: "
+                                            "the chain's net rotation also opens each joint's "
+                                            "gate, with this weight (a nod spread over the "
+                                            "joints; model format 4); 0: each joint's own angle "
+                                            "alone. Default: the --model file's with --continue, "
+                                            "else 0."),
     single_axis: bool = typer.Option(False, "--single-axis", help="Sample a quarter of the "
                                      "poses as whole-head rotations about one axis alone "
                                      "(flexion, axial or lateral, as the stress test's head_x/y/z "
@@ -186,6 +192,8 @@ def learn_pose(
     boundary.number(mine_poses, "--mine-poses", 1, 10000, integer=True)
     if gate is not None:
         boundary.number(gate, "--pose-gate", 0.0, 90.0)
+    if gate_chain is not None:
+        boundary.number(gate_chain, "--pose-gate-chain", 0.0, 100.0)
 
     overrides = _loss_overrides(loss)
     typer.echo(f"learn pose: {iterations} steps of about 1.5 s on 2 CPU cores (~"
@@ -199,12 +207,18 @@ def learn_pose(
     start = dict(arrays) if continue_ else None
     if gate is None and continue_ and "pose_gate_deg" in arrays:
         gate = float(arrays["pose_gate_deg"])
+    if gate_chain is None:
+        gate_chain = float(arrays.get("pose_gate_chain", 0.0)) if continue_ else 0.0
+    if gate_chain and not gate:
+        raise HackError("--pose-gate-chain needs a gate: give --pose-gate DEGREES (or "
+                        "--continue from a gated model file).")
     arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
     po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
                            start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,
                            expressions=expressions,
-                           loss=overrides, gate_deg=gate or None, single_axis=single_axis)
+                           loss=overrides, gate_deg=gate or None, single_axis=single_axis,
+                           gate_chain=gate_chain if gate else 0.0)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

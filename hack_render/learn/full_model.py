@@ -208,7 +208,8 @@ MP_DEAD = 1e-4
 
 def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                    expressions: bool = True, loss: dict | None = None,
-                   gate_deg: float | None = None, single_axis: bool = False) -> PoseEnergyLearner:
+                   gate_deg: float | None = None, single_axis: bool = False,
+                   gate_chain: float = 0.0) -> PoseEnergyLearner:
     """The :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` of a model's arrays: its
     neck region, the model's rest meshes (``expressions``: with sampled expressions) and
     mirrored expression pairs; :func:`learn_pose_energy` trains it, and
@@ -226,7 +227,7 @@ def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                              jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
                              symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
                                         if n.endswith("_L") and n[:-2] + "_R" in names],
-                             gate_deg=gate_deg, single_axis=single_axis)
+                             gate_deg=gate_deg, single_axis=single_axis, gate_chain=gate_chain)
 
 
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
@@ -234,7 +235,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       learn_weights: bool = True, seed: int = 12, progress: bool = True,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
                       mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
-                      gate_deg: float | None = None, single_axis: bool = False) -> dict:
+                      gate_deg: float | None = None, single_axis: bool = False,
+                      gate_chain: float = 0.0) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -251,13 +253,14 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none); ``mine_poses``:
     the poses per identity screened for them every 10 steps. ``gate_deg``: the
     correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
-    ``R - I`` features. ``single_axis``: a quarter of the poses whole-head rotations about
+    ``R - I`` features; ``gate_chain``: its chain weight (format 4, ``pose_gate_chain``; 0:
+    none). ``single_axis``: a quarter of the poses whole-head rotations about
     one axis alone (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`)."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     learner = energy_learner(arrays, num_components=num_components, seed=seed,
                              expressions=expressions, loss=loss, gate_deg=gate_deg,
-                             single_axis=single_axis)
+                             single_axis=single_axis, gate_chain=gate_chain)
     old_spread = None
     if start is not None:
         learner.start_from(start)
@@ -276,6 +279,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     out.update({f"pose_mlp_{k}": v for k, v in res.mlp.items()})
     if gate_deg:
         out["pose_gate_deg"] = np.asarray(gate_deg, np.float32)
+        if gate_chain:
+            out["pose_gate_chain"] = np.asarray(gate_chain, np.float32)
     if learn_weights:
         w = np.asarray(arrays["skinning_weights"], np.float64).copy()
         w[sub] = res.weights
@@ -287,6 +292,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
               "seed": seed, "hard_examples_per_step": hard,
               "mine_poses": mine_poses, "gate_deg": gate_deg or None,
+              "gate_chain": gate_chain if gate_deg else 0.0,
               "single_axis_head_poses": single_axis,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
                        "identities with a sampled expression" if expressions

@@ -168,6 +168,8 @@ class PoseEnergyLearner:
         _R), given one value on both sides in half of the expressive rows.
         gate_deg: the correctives' gate angle, degrees (each joint's feature times
             :func:`~hack_render.geometry.lbs.pose_gate`; model format 3), or None.
+        gate_chain: the gate's chain weight lambda (the chain's net rotation opens every
+            joint's gate; model format 4), 0: each joint's own angle alone.
         single_axis: sample a quarter of the poses as whole-head rotations about one axis
             alone (x, y or z, a third each, as the stress test's head_x/y/z families)
             instead of combined ones at 60 % of the range.
@@ -178,9 +180,10 @@ class PoseEnergyLearner:
                  loss: dict | None = None, seed: int = 0, dtype=torch.float64,
                  rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
                  symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None,
-                 single_axis: bool = False):
+                 single_axis: bool = False, gate_chain: float = 0.0):
         self.single_axis = single_axis
         self.gate_rad = None if not gate_deg else float(np.deg2rad(gate_deg))
+        self.gate_chain = float(gate_chain)
         t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
         self.region, self.parents = region, tuple(parents)
         self.lam = dict(DEFAULTS, **(loss or {}))
@@ -300,7 +303,7 @@ class PoseEnergyLearner:
         rot, rel = self._transforms(theta, batch.joints)
         v = rest
         if corrective:
-            feat = pose_feature(rot[:, 1:], self.gate_rad)  # as the model file will
+            feat = pose_feature(rot[:, 1:], self.gate_rad, self.gate_chain)  # as the model file will
             delta = torch.einsum("bd,bdmk->bmk", feat, self.blendshapes(batch.beta, batch.fresh))
             v = rest.index_add(1, self.region.subset, delta)
         w = self.weights() if corrective else (self.w_fixed if weights is None else weights)

@@ -81,14 +81,20 @@ function applySliders() {   // sliders -> bones and morph weights
 function correctives() {   // pose-corrective weights from the joints' current rotations
   const s = hack.target_slots;
   if (!s.pose || s.pose[1] <= s.pose[0]) return;
-  const m = new THREE.Matrix4(), feat = [];
-  // a gated model (pose_gate_deg): each joint's block times g = s^2 / (s^2 + c^4),
-  // s = 3 - trace R (geometry.lbs.pose_gate); ungated: g = 1
+  const feat = [];
+  // a gated model (pose_gate_deg): each joint's block times g = u^2 / (u^2 + c^4),
+  // u = s + l |n|^2, s = 3 - trace R, n the sum of the joints' axial vectors (R - R^T) / 2
+  // and l = pose_gate_chain (geometry.lbs.pose_gate); ungated: g = 1
   const c4 = hack.pose_gate_deg == null ? null : Math.pow(THREE.MathUtils.degToRad(hack.pose_gate_deg), 4);
-  hack.joints.forEach((name, j) => {
-    m.makeRotationFromQuaternion(bones[name].quaternion);
-    const e = m.elements;  // column-major
-    const t = 3 - (e[0] + e[5] + e[10]);  // 2 (1 - cos angle)
+  const chain = hack.pose_gate_chain || 0;
+  const mats = hack.joints.map((name) => new THREE.Matrix4().makeRotationFromQuaternion(bones[name].quaternion).elements);
+  const n = [0, 0, 0];
+  for (const e of mats) {  // column-major: R[r][c] = e[4 c + r]
+    n[0] += 0.5 * (e[6] - e[9]); n[1] += 0.5 * (e[8] - e[2]); n[2] += 0.5 * (e[1] - e[4]);
+  }
+  const net = chain * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  mats.forEach((e, j) => {
+    const t = 3 - (e[0] + e[5] + e[10]) + net;  // 2 (1 - cos angle) + l |n|^2
     const g = c4 == null ? 1 : t * t / (t * t + c4);
     for (let r = 0; r < 3; r++) for (let c = 0; c < 3; c++) feat[9 * j + 3 * r + c] = g * (e[c * 4 + r] - (r === c ? 1 : 0));
   });
