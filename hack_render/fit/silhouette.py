@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.geometry.normals import open_boundary
 
 #: regions (HackModel.region_names) whose vertices must project inside the mask
 INSIDE_REGIONS = ("face", "scalp_and_ears", "neck", "chest_and_shoulders")
@@ -326,7 +327,7 @@ class ModelSilhouette:
             brow = t[model.landmark_indices.numpy()[17:27], 1].min()
             cand |= (regions == names.index("scalp_and_ears")) & (t[:, 1] < brow)
         # the bust's cut: leave out vertices within 3 cm of the mesh's lower open edge
-        edge = _boundary_vertices(model.faces.numpy(), model.num_vertices)
+        edge = np.flatnonzero(open_boundary(model.faces.numpy(), model.num_vertices))
         t = model.template.numpy()
         low = edge[np.isin(regions[edge], ids(("neck", "chest_and_shoulders")))]
         if len(low):
@@ -385,10 +386,3 @@ class ModelSilhouette:
         """(E, 3) contour points v_a + t (v_b - v_a) (differentiable in the vertices)."""
         va, vb = verts.index_select(0, pairs[:, 0]), verts.index_select(0, pairs[:, 1])
         return va + t[:, None] * (vb - va)
-
-
-def _boundary_vertices(faces: np.ndarray, n: int) -> np.ndarray:
-    """Vertices on edges used by one face only (the mesh's open borders)."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    uniq, count = np.unique(e, axis=0, return_counts=True)
-    return np.unique(uniq[count == 1])

@@ -1,5 +1,6 @@
 """Vertex normals of a triangle mesh (NumPy), shared by the renderer and the hair layer, and
-the 3-vector products they are made of (:func:`cross3`, :func:`norm3`).
+the 3-vector products they are made of (:func:`cross3`, :func:`norm3`); the mesh's open cuts
+(:func:`open_boundary`: the fit's contour, scan registration, the pose learner).
 
 ``cross3`` and ``norm3`` give the same bits as ``np.cross`` and ``np.linalg.norm(x,
 axis=-1)`` (the same products and sums in the same order: the hair's grooms are compared
@@ -36,3 +37,14 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
                   for c in range(3)], axis=1)
     length = norm3(n, keepdims=True)
     return n / np.where(length > 0, length, 1.0)
+
+
+def open_boundary(faces: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: the vertices on an edge used by one triangle only (a mesh's open cuts:
+    the default model's bust and back, the lips' and eyelids' rims)."""
+    f = np.asarray(faces)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    out = np.zeros(n, bool)
+    out[uniq[count == 1].ravel()] = True
+    return out

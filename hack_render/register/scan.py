@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from hack_render.errors import HackError
+from hack_render.geometry.normals import open_boundary
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 POINT_SUFFIXES = (".xyz", ".npy", ".txt")
@@ -67,7 +68,7 @@ class Scan:
         """A mesh scan already in metres: normals and boundary computed."""
         points, faces = np.asarray(points, np.float64), np.asarray(faces, np.int64)
         return cls(name, points, vertex_normals(points, faces), faces,
-                   boundary=_boundary_vertices(faces, len(points)), **kw)
+                   boundary=open_boundary(faces, len(points)), **kw)
 
     @property
     def is_mesh(self) -> bool:
@@ -252,15 +253,6 @@ def _mesh_colors(mesh) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray
     return None, None, None
 
 
-def _boundary_vertices(faces: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: vertices on an edge used by one triangle only."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    uniq, count = np.unique(e, axis=0, return_counts=True)
-    out = np.zeros(n, bool)
-    out[uniq[count == 1].ravel()] = True
-    return out
-
-
 def estimate_normals(points: np.ndarray, k: int = 16) -> np.ndarray:
     """(N, 3) unit normals of a point cloud: the smallest principal axis of each point's
     ``k`` nearest neighbours, turned away from the cloud's centroid."""
@@ -363,7 +355,7 @@ def load_scan(path: str | Path, units: str | None = None, max_points: int = 5_00
         if faces.min() < 0 or faces.max() >= len(pts):
             raise HackError(f"{path}: faces index vertices outside 0..{len(pts) - 1}.")
         normals = vertex_normals(pts, faces)
-        boundary = _boundary_vertices(faces, len(pts))
+        boundary = open_boundary(faces, len(pts))
     else:
         if normals is None or not np.isfinite(normals).all():
             normals = estimate_normals(pts)
@@ -408,11 +400,10 @@ class SurfaceIndex:
             pts, nrm = np.concatenate([pts, p]), np.concatenate([nrm, n])
             col = None if col is None else np.concatenate([col, c])
         near_boundary = np.zeros(len(pts), bool)
-        if scan.is_mesh:
-            if scan.boundary is not None and scan.boundary.any():
-                bt = cKDTree(scan.points[scan.boundary])
-                d, _ = bt.query(pts, k=1, distance_upper_bound=boundary_margin)
-                near_boundary = np.isfinite(d)
+        if scan.is_mesh and scan.boundary is not None and scan.boundary.any():
+            bt = cKDTree(scan.points[scan.boundary])
+            d, _ = bt.query(pts, k=1, distance_upper_bound=boundary_margin)
+            near_boundary = np.isfinite(d)
         self.points, self.normals, self.colors = pts, nrm, col
         self.near_boundary = near_boundary
         self.tree = cKDTree(pts)
