@@ -166,9 +166,6 @@ def learn_pose(
                                             "joints; model format 4); 0: each joint's own angle "
                                             "alone. Default: the --model file's with --continue, "
                                             "else 0."),
-    hold_rim: bool = typer.Option(False, "--hold-rim", help="Hold the correctives at zero on "
-                                  "the mesh's open cuts (the bust's and back's rim), which a "
-                                  "corrective would lift, showing the mesh's inside."),
     single_axis: bool = typer.Option(False, "--single-axis", help="Sample a quarter of the "
                                      "poses as whole-head rotations about one axis alone "
                                      "(flexion, axial or lateral, as the stress test's head_x/y/z "
@@ -221,7 +218,7 @@ def learn_pose(
                            start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,
                            expressions=expressions,
                            loss=overrides, gate_deg=gate or None, single_axis=single_axis,
-                           gate_chain=gate_chain if gate else 0.0, hold_rim=hold_rim)
+                           gate_chain=gate_chain if gate else 0.0)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

@@ -18,7 +18,6 @@ import torch
 from tqdm import tqdm
 
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.normals import open_boundary
 from hack_render.learn.expression_learn import learn_expressions
 from hack_render.learn.ict_default import build_default_model
 from hack_render.learn.larynx_learn import learn_larynx
@@ -210,11 +209,10 @@ MP_DEAD = 1e-4
 def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                    expressions: bool = True, loss: dict | None = None,
                    gate_deg: float | None = None, single_axis: bool = False,
-                   gate_chain: float = 0.0, hold_rim: bool = False) -> PoseEnergyLearner:
+                   gate_chain: float = 0.0) -> PoseEnergyLearner:
     """The :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` of a model's arrays: its
     neck region, the model's rest meshes (``expressions``: with sampled expressions) and
-    mirrored expression pairs (``hold_rim``: the correctives held at zero on the mesh's open
-    cuts); :func:`learn_pose_energy` trains it, and
+    mirrored expression pairs; :func:`learn_pose_energy` trains it, and
     ``bench/bench_mp_heldout.py`` scores a learned file's M_P with it."""
     sub = pose_subset(arrays)
     std = np.asarray(arrays["shape_std"], np.float64)
@@ -229,9 +227,7 @@ def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                              jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
                              symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
                                         if n.endswith("_L") and n[:-2] + "_R" in names],
-                             gate_deg=gate_deg, single_axis=single_axis, gate_chain=gate_chain,
-                             hold=(open_boundary(arrays["faces"], len(arrays["template_vertices"]))[sub]
-                                   if hold_rim else None))
+                             gate_deg=gate_deg, single_axis=single_axis, gate_chain=gate_chain)
 
 
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
@@ -240,7 +236,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
                       mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
                       gate_deg: float | None = None, single_axis: bool = False,
-                      gate_chain: float = 0.0, hold_rim: bool = False) -> dict:
+                      gate_chain: float = 0.0) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -258,14 +254,13 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     the poses per identity screened for them every 10 steps. ``gate_deg``: the
     correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
     ``R - I`` features; ``gate_chain``: its chain weight (format 4, ``pose_gate_chain``; 0:
-    none). ``hold_rim``: the correctives held at zero on the mesh's open cuts (a corrective
-    there lifts the cut and shows the mesh's inside). ``single_axis``: a quarter of the poses whole-head rotations about
+    none). ``single_axis``: a quarter of the poses whole-head rotations about
     one axis alone (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`)."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     learner = energy_learner(arrays, num_components=num_components, seed=seed,
                              expressions=expressions, loss=loss, gate_deg=gate_deg,
-                             single_axis=single_axis, gate_chain=gate_chain, hold_rim=hold_rim)
+                             single_axis=single_axis, gate_chain=gate_chain)
     old_spread = None
     if start is not None:
         learner.start_from(start)
@@ -298,8 +293,6 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "seed": seed, "hard_examples_per_step": hard,
               "mine_poses": mine_poses, "gate_deg": gate_deg or None,
               "gate_chain": gate_chain if gate_deg else 0.0,
-              "held_rim_vertices": (0 if learner.keep is None
-                                    else int((learner.keep == 0).sum())),
               "single_axis_head_poses": single_axis,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
                        "identities with a sampled expression" if expressions

@@ -170,8 +170,6 @@ class PoseEnergyLearner:
             :func:`~hack_render.geometry.lbs.pose_gate`; model format 3), or None.
         gate_chain: the gate's chain weight lambda (the chain's net rotation opens every
             joint's gate; model format 4), 0: each joint's own angle alone.
-        hold: optional (M,) bool over ``region.subset``: rows whose correctives are held at
-            zero (e.g. the mesh's open rim, which a corrective would lift).
         single_axis: sample a quarter of the poses as whole-head rotations about one axis
             alone (x, y or z, a third each, as the stress test's head_x/y/z families)
             instead of combined ones at 60 % of the range.
@@ -182,8 +180,7 @@ class PoseEnergyLearner:
                  loss: dict | None = None, seed: int = 0, dtype=torch.float64,
                  rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
                  symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None,
-                 single_axis: bool = False, gate_chain: float = 0.0,
-                 hold: np.ndarray | None = None):
+                 single_axis: bool = False, gate_chain: float = 0.0):
         self.single_axis = single_axis
         self.gate_rad = None if not gate_deg else float(np.deg2rad(gate_deg))
         self.gate_chain = float(gate_chain)
@@ -218,8 +215,6 @@ class PoseEnergyLearner:
         torch.nn.init.zeros_(self.mlp[4].bias)
         self.logits = torch.log(self.w0_sub.clamp(min=1e-4)).clone().requires_grad_()
         self.lap = self._laplacian(m)
-        self.keep = (None if hold is None or not np.any(hold)
-                     else torch.as_tensor(~np.asarray(hold, bool), dtype=dtype)[:, None])
         self.rest_fn, self.num_expressions = rest_fn, num_expressions if rest_fn else 0
         self.jaw_open = jaw_open
         self.symmetric = torch.as_tensor(symmetric or [], dtype=torch.long).reshape(-1, 2)
@@ -289,8 +284,7 @@ class PoseEnergyLearner:
         w = self.mlp(beta)
         if fresh is not None:
             w = torch.where(fresh[:, None], w, w.detach())
-        out = (self.p_cm + torch.einsum("bc,cdmk->bdmk", w, self.c_cm)) / 100
-        return out if self.keep is None else out * self.keep
+        return (self.p_cm + torch.einsum("bc,cdmk->bdmk", w, self.c_cm)) / 100
 
     def rest(self, beta: torch.Tensor, psi: torch.Tensor | None = None):
         """Rest region (U, V, 3) and rest joints (U, K, 3) of identities beta (U, S) with
@@ -478,9 +472,8 @@ class PoseEnergyLearner:
         for i, layer in enumerate(lin):
             mlp[f"w{i}"] = layer.weight.detach().numpy().astype(np.float32)
             mlp[f"b{i}"] = layer.bias.detach().numpy().astype(np.float32)
-        keep = 1.0 if self.keep is None else self.keep  # held rows: zero in the file too
         return PoseEnergyResult(
-            pose_basis=(self.p_cm.detach() * keep / 100).numpy().astype(np.float32),
-            components=(self.c_cm.detach() * keep / 100).numpy().astype(np.float32), mlp=mlp,
+            pose_basis=(self.p_cm.detach() / 100).numpy().astype(np.float32),
+            components=(self.c_cm.detach() / 100).numpy().astype(np.float32), mlp=mlp,
             weights=self.weights()[self.region.subset].detach().numpy().astype(np.float32),
             history=hist, seconds=time.time() - t0)
