@@ -136,7 +136,7 @@ def _bare_rgb(r, spec: dict, cfg: dict) -> tuple[float, float]:
     t0 = time.perf_counter()
     p = head.params
     for part in head.parts:
-        p[f"{part.name}.vertex_positions"] = mi.Float(v[part.gather].ravel().astype(np.float32))
+        p[f"{part.name}.vertex_positions"] = mi.Float(part.positions(v).ravel().astype(np.float32))
         p[f"{part.name}.vertex_normals"] = mi.Float(normals[part.gather].ravel().astype(np.float32))
     k = head._skin_key
     p[f"{k}.albedo.data"] = mi.TensorXf(maps.diffuse)

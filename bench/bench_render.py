@@ -665,8 +665,8 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
     for part in head.parts:
         uv = part.texcoords.astype(np.float64).copy()
         uv[:, 1] = 1.0 - uv[:, 1]  # Mitsuba's bitmaps take v down, Blender's up
-        write_mesh(folder / f"{part.name}.obj", v[part.gather], part.faces, uv, part.faces)
-        extra = {"positions": v[part.gather], "normals": normals[part.gather]}
+        write_mesh(folder / f"{part.name}.obj", part.positions(v), part.faces, uv, part.faces)
+        extra = {"positions": part.positions(v), "normals": normals[part.gather]}
         if part.name.startswith("skin"):
             spec = {"kind": "skin"}
         elif part.name == "iris":

@@ -31,6 +31,7 @@ import torch
 from hack_render.errors import HackError
 from hack_render.render.emitters import area_light_transform
 from hack_render.render.engine import is_jit, release_parked, release_when_safe
+from hack_render.render.parts import cap_apex
 
 INTEGRATORS = ("prb", "direct_projective", "prb_projective")
 
@@ -168,6 +169,8 @@ class DiffRenderer:
             pos = v.index_select(0, self._gather).split(self._part_sizes)
             nrm = n.index_select(0, self._gather).split(self._part_sizes)
             for part, p, q in zip(self.head.parts, pos, nrm):
+                if part.apex:  # the bust cap's apex, from its gathered loop
+                    p = torch.cat([p, cap_apex(p, part.apex)[None]])
                 out[f"pos:{part.name}"] = p.reshape(-1)
                 if not part.flat:  # flat-shaded parts (the bust cap) have no normals
                     out[f"nrm:{part.name}"] = q.reshape(-1)

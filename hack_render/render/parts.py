@@ -14,9 +14,14 @@ given to the iris material (see ``materials.py``).
 
 The bust cap (``bust_cap``, region ``bust``): ICT's skin ends in an open cut across the
 chest and shoulders, whose inside (back faces, black) showed from behind and below. The
-cap closes that boundary loop with triangles over the loop's own vertices (ear clipping
-in the loop's best-fit plane), so it follows every pose through the same gather as the
-other parts; it is flat-shaded matte grey (``materials.py``), not anatomy.
+cap closes that boundary loop with a shallow cone: one triangle from each edge of the loop
+to an apex :data:`CAP_APEX` beyond the loop's centroid, along the loop's outward normal
+(:func:`cap_apex`, recomputed from the posed loop on every update, so it follows every
+pose). A flat cap over the loop's own vertices (ear clipping in its best-fit plane, the
+cap before) lay almost in the skin's own surface where the cut runs along it, at the
+shoulders (the skin's last ring within 1 degree of the plane), and poked through the skin
+by about a millimetre when a pose moved the cut; the cone leaves every rim edge pointing
+out of the body. It is flat-shaded matte grey (``materials.py``), not anatomy.
 """
 
 from __future__ import annotations
@@ -52,6 +57,9 @@ HIDDEN_MATERIALS = ("M_EyeBlend", "M_EyeOcclusion")
 #: Radius of the visible iris / cornea (limbus), metres (adult mean 11.7 mm diameter).
 LIMBUS_RADIUS = 0.0058
 PUPIL_RADIUS = 0.0017
+#: How far the bust cap's apex lies beyond the cut's centroid, metres (:func:`cap_apex`):
+#: the cone's rim edges then leave the skin at 17-30 degrees (the cut's radius 70-130 mm).
+CAP_APEX = 0.04
 
 
 @dataclass(frozen=True)
@@ -104,6 +112,8 @@ class Part:
         model_uv: (n, 2) the model's own (UDIM-style, v up) texture coordinates.
         flat: flat-shaded (no vertex normals: the bust cap, whose vertices are the skin's
             boundary, where the skin's normals point sideways).
+        apex: metres: the part has one vertex more than ``gather``, last, at
+            :func:`cap_apex` of the gathered ones (the bust cap's cone); 0: none.
     """
 
     name: str
@@ -113,6 +123,22 @@ class Part:
     texcoords: np.ndarray
     model_uv: np.ndarray
     flat: bool = False
+    apex: float = 0.0
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.gather) + (1 if self.apex else 0)
+
+    def positions(self, vertices):
+        """(num_vertices, 3) positions of the part in the posed mesh ``vertices`` (N, 3):
+        the gathered ones, then the apex (:func:`cap_apex`). NumPy or torch (the
+        differentiable render's bridge), either keeps its type and gradient."""
+        p = vertices[self.gather]
+        if not self.apex:
+            return p
+        out = p[[*range(len(p)), 0]]  # a copy, one row longer (autograd: a new tensor)
+        out[-1] = cap_apex(p, self.apex)
+        return out
 
 
 EYE_SHELLS = ("M_ScleraLeft", "M_ScleraRight")
@@ -191,47 +217,19 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
-def _inside_triangle(p: np.ndarray, a, b, c) -> np.ndarray:
-    """Which 2-D points p (n, 2) lie inside or on the counter-clockwise triangle abc."""
-    def cross(o, q, r):
-        return (q[0] - o[0]) * (r[..., 1] - o[1]) - (q[1] - o[1]) * (r[..., 0] - o[0])
-
-    return (cross(a, b, p) >= 0) & (cross(b, c, p) >= 0) & (cross(c, a, p) >= 0)
-
-
-def triangulate_polygon(points: np.ndarray) -> np.ndarray:
-    """Ear-clipping triangulation of a simple polygon (n, 2) in order (either winding).
-
-    Returns (n - 2, 3) indices, each triangle counter-clockwise in the plane."""
-    pts = np.asarray(points, np.float64)
-    n = len(pts)
-    area2 = np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1])
-    idx = list(range(n)) if area2 > 0 else list(range(n))[::-1]
-    tris = []
-    while len(idx) > 3:
-        m = len(idx)
-        for k in range(m):
-            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % m]
-            a, b, c = pts[i0], pts[i1], pts[i2]
-            if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) <= 0:
-                continue  # reflex (or degenerate) corner: not an ear
-            others = [j for j in idx if j not in (i0, i1, i2)]
-            if others and _inside_triangle(pts[others], a, b, c).any():
-                continue
-            tris.append((i0, i1, i2))
-            del idx[k]
-            break
-        else:  # no ear found (a self-touching loop): close the rest as a fan
-            tris += [(idx[0], idx[j], idx[j + 1]) for j in range(1, len(idx) - 1)]
-            idx = idx[:3]
-            break
-    tris.append(tuple(idx))
-    return np.array(tris, np.int64)
+def cap_apex(loop, depth: float):
+    """The apex of the bust cap's cone over a closed loop (n, 3) in order: its centroid
+    moved ``depth`` metres along the loop's Newell normal (the sum of r_i x r_i+1, whose
+    sign follows the loop's winding; a negative depth goes against it). NumPy or torch."""
+    q = loop[[*range(1, len(loop)), 0]]
+    n = (loop[:, [1, 2, 0]] * q[:, [2, 0, 1]] - loop[:, [2, 0, 1]] * q[:, [1, 2, 0]]).sum(0)
+    return loop.mean(0) + depth * n / (n * n).sum() ** 0.5
 
 
 def bust_cap(topo: Topology, vertices: np.ndarray) -> Part | None:
     """The part closing the skin's lowest boundary loop (the chest/shoulder cut), or None
-    when the skin has no boundary. Faces face away from the head (outwards, down)."""
+    when the skin has no boundary: a fan of one triangle per loop edge to the apex
+    (:func:`cap_apex`, :data:`CAP_APEX` out of the body), facing away from the head."""
     ids = [topo.material_names.index(m) for m in SKIN_MATERIALS if m in topo.material_names]
     faces = topo.faces[np.isin(topo.face_material, ids)]
     loops = boundary_loops(faces)
@@ -239,16 +237,19 @@ def bust_cap(topo: Topology, vertices: np.ndarray) -> Part | None:
         return None
     loop = min(loops, key=lambda lp: vertices[lp, 1].mean())
     p = vertices[loop]
-    centre = p.mean(0)
-    _, _, vt = np.linalg.svd(p - centre)
-    axis_u, axis_v, normal = vt
-    tri = triangulate_polygon(np.stack([(p - centre) @ axis_u, (p - centre) @ axis_v], 1))
-    # counter-clockwise in (u, v) means the face normal is +normal: point it away from the
-    # skin (the cap's outside)
-    if np.dot(normal, centre - vertices[np.unique(faces)].mean(0)) < 0:
-        tri = tri[:, ::-1]
-    zeros = np.zeros((len(loop), 2))
-    return Part("bust_cap", REGIONS.index("bust"), loop, tri, zeros, zeros, flat=True)
+    # out of the body: away from the skin's centroid (the winding fixes the Newell
+    # normal's side of the loop for every pose, so the sign is chosen once)
+    out = np.sign(np.dot(cap_apex(p, 1.0) - p.mean(0), p.mean(0) - vertices[np.unique(faces)].mean(0)))
+    depth = float(out or 1.0) * CAP_APEX
+    n = len(loop)
+    tri = np.stack([np.arange(n), np.roll(np.arange(n), -1), np.full(n, n)], 1)
+    a = cap_apex(p, depth)
+    f = np.concatenate([p, a[None]])[tri]
+    if np.dot(np.cross(f[:, 1] - f[:, 0], f[:, 2] - f[:, 0]).sum(0), a - p.mean(0)) < 0:
+        tri = tri[:, ::-1].copy()
+    zeros = np.zeros((n + 1, 2))
+    return Part("bust_cap", REGIONS.index("bust"), loop, tri, zeros, zeros, flat=True,
+                apex=depth)
 
 
 def split_parts(topo: Topology, vertices: np.ndarray,

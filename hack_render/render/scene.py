@@ -301,14 +301,14 @@ class HeadScene(SceneImages, SceneHair):
         The iris keeps its true normals, so it is shaded as before where it appears."""
         if part.name == "iris" and self.cornea is not None:
             return self.cornea.iris_positions(v, camera.center)
-        return v[part.gather]
+        return part.positions(v)
 
     @staticmethod
     def _mesh(part, positions, normals, bsdf):
         """A Mitsuba mesh of ``part`` at ``positions`` (n, 3) with ``normals`` (n, 3)."""
         import mitsuba as mi
 
-        mesh = mi.Mesh(part.name, len(part.gather), len(part.faces),
+        mesh = mi.Mesh(part.name, part.num_vertices, len(part.faces),
                        has_vertex_normals=not part.flat, has_vertex_texcoords=True)
         p = mi.traverse(mesh)
         p["vertex_positions"] = mi.Float(positions.ravel().astype(np.float32))
