@@ -23,7 +23,7 @@ from hack_render.geometry.deformation import (
     skin_topology,
 )
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import load_model_file
+from hack_render.geometry.model_file import load_model_file, save_model_file
 
 
 @pytest.fixture(scope="module")
@@ -53,9 +53,9 @@ def test_01_correctives_never_fold_what_lbs_does_not(measured):
 
 def test_02_correctives_never_stretch_more_than_lbs(measured):
     """Within 3 points of stretch on every pose, and within 1 point on 99 % of them
-    (measured: 4 of 600 above 1 point, the worst 2.9 points, all but one in pose 88, a
-    per-joint uniform pose); the model shipped before was up to 26 times LBS's stretch.
-    Not yet the issue's "never worse" (0 points)."""
+    (measured: none of 600 above 1 point, the largest excess 0.000; the file shipped before
+    this one: 4, the worst 2.9 points; the one before that was up to 26 times LBS's
+    stretch). test_14 holds it to the issue's stricter rule."""
     m, lbs = measured["model"]["stretch"], measured["lbs"]["stretch"]
     excess = m - lbs
     assert excess.max() <= 0.03, (excess.max(), np.unravel_index(excess.argmax(), excess.shape))
@@ -148,7 +148,9 @@ def test_07_learn_pose_writes_a_model_that_loads(tmp_path):
           "--mine-poses", "5", "--quiet"])
     src, _ = load_model_file(load_default_model().source_path)
     new, meta = load_model_file(out)
-    assert {k for k in src if k.startswith("pose_")} == {k for k in new if k.startswith("pose_")}
+    # without --continue or --pose-gate the correctives are learned ungated
+    assert {k for k in src if k.startswith("pose_") and not k.startswith("pose_gate")} == \
+        {k for k in new if k.startswith("pose_")}
     neck = np.zeros(len(src["skinning_weights"]), bool)
     neck[new["pose_pca_vertices"]] = True
     np.testing.assert_array_equal(new["skinning_weights"][~neck], src["skinning_weights"][~neck])
@@ -260,15 +262,23 @@ def test_10_stretch_bound(measured):
     assert (ends[:, 0].abs() < 0.01).all() and (ends[:, 2] > 0.03).all()  # front midline
 
 
+def _dead_mp(arrays: dict) -> dict:
+    """The model arrays with M_P's last layer zeroed: its output is the constant b2."""
+    out = dict(arrays)
+    out["pose_mlp_w2"] = np.zeros_like(arrays["pose_mlp_w2"])
+    return out
+
+
 def test_11_restart_personalisation_keeps_the_mean_corrective():
-    """Continuing a learner from a model file whose M_P is dead: its constant output is
-    folded into P (the mean corrective is unchanged) and M_P starts again, small and
-    identity-dependent."""
+    """Continuing a learner from a model file whose M_P is dead (the shipped file's M_P with
+    its last layer zeroed: one constant output for every identity, as an M_P whose hidden
+    units died returns): its constant output is folded into P (the mean corrective is
+    unchanged) and M_P starts again, small and identity-dependent."""
     from hack_render.learn.full_model import SKIN_LAST, pose_subset
     from hack_render.learn.neck_region import neck_region
     from hack_render.learn.pose_energy import PoseEnergyLearner
 
-    arrays, _ = load_model_file(load_default_model().source_path)
+    arrays = _dead_mp(load_model_file(load_default_model().source_path)[0])
     std = np.asarray(arrays["shape_std"], np.float64)
     dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
     learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
@@ -279,7 +289,7 @@ def test_11_restart_personalisation_keeps_the_mean_corrective():
     with torch.no_grad():
         before = learner.blendshapes(beta)
     spread = learner.restart_personalisation(seed=4)
-    assert spread < 1e-6  # the shipped M_P returns one constant (its units died)
+    assert spread < 1e-6  # one constant
     with torch.no_grad():
         after = learner.blendshapes(beta)
         out = learner.mlp(beta)
@@ -290,18 +300,27 @@ def test_11_restart_personalisation_keeps_the_mean_corrective():
 
 def test_12_learn_pose_continue(tmp_path):
     """`learn pose --continue` starts from the file's correctives (one tiny step here: P stays
-    within the folded mean of the old M_P, a few per cent of P) and says so in the file."""
+    within a few per cent of the file's) with the file's gate and chain weight, keeps a live
+    M_P and restarts a dead one (its mean folded into P), and says so in the file."""
     from hack_render.cli import main
 
-    out = tmp_path / "m.npz"
-    main(["learn", "pose", "--continue", "-o", str(out), "--iterations", "1", "--identities", "1",
-          "--lr", "1e-6", "--hard-examples", "0", "--quiet"])
-    src, _ = load_model_file(load_default_model().source_path)
-    new, meta = load_model_file(out)
-    p0, p1 = np.asarray(src["pose_basis"]), np.asarray(new["pose_basis"])
-    assert np.abs(p1 - p0).max() < 0.05 * np.abs(p0).max()
-    assert meta["learn"]["pose"]["continued"]["mp_restarted"]
-    assert "continued from the input model" in meta["provenance"]["pose_blendshapes"]
+    src, src_meta = load_model_file(load_default_model().source_path)
+    dead = tmp_path / "dead.npz"
+    save_model_file(dead, _dead_mp(src), src_meta)
+    for model, restarted in ((None, False), (dead, True)):
+        out = tmp_path / f"m{int(restarted)}.npz"
+        main(["learn", "pose", "--continue", "-o", str(out), "--iterations", "1",
+              "--identities", "1", "--lr", "1e-6", "--hard-examples", "0", "--quiet"]
+             + (["--model", str(model)] if model else []))
+        new, meta = load_model_file(out)
+        p0, p1 = np.asarray(src["pose_basis"]), np.asarray(new["pose_basis"])
+        assert np.abs(p1 - p0).max() < 0.05 * np.abs(p0).max()
+        assert meta["learn"]["pose"]["continued"]["mp_restarted"] == restarted
+        assert "continued from the input model" in meta["provenance"]["pose_blendshapes"]
+        for k in ("pose_gate_deg", "pose_gate_chain"):
+            assert float(new[k]) == float(src[k])
+        if not restarted:  # the live M_P goes on: its weights moved by one tiny step only
+            np.testing.assert_allclose(new["pose_mlp_w2"], src["pose_mlp_w2"], atol=1e-3)
 
 
 def test_13_learner_rest_is_the_models_and_screen_finds_folds():
@@ -321,7 +340,9 @@ def test_13_learner_rest_is_the_models_and_screen_finds_folds():
     dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
     learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
                                 arrays["skinning_weights"], arrays["joint_parents"], region,
-                                rest_fn=model_rest_fn(plain, region.vertices), seed=13)
+                                rest_fn=model_rest_fn(plain, region.vertices), seed=13,
+                                gate_deg=float(arrays["pose_gate_deg"]),
+                                gate_chain=float(arrays["pose_gate_chain"]))
     learner.start_from(arrays)
     g = torch.Generator().manual_seed(13)
     theta = sample_head_poses(48, g, "xyz")
@@ -368,24 +389,34 @@ def expression_measured():
     return out
 
 
-@pytest.mark.slow  # the expression's 600 pairs cost ~90 s; opt-in while it is xfail
-@pytest.mark.xfail(strict=True, reason="issue 60: the shipped model (format 2, ungated) folds "
-                   "skin in 6 of these 600 neutral pairs and 11 with the expression, and is "
-                   "worse than LBS by more than a point in 4 of each (docs/model.md, 'Folds "
-                   "and the LBS rule'); strict: a model that passes must drop this mark")
-@pytest.mark.parametrize("conf", ["neutral", "expression"])
-def test_14_no_folds_and_never_meaningfully_worse_than_lbs(measured, expression_measured, conf):
-    """Issue 60's rules on the subset's 600 pose-identity pairs, neutral and with the bench's
-    expression: no folded skin triangle at all, every pair's largest stretch at most 3
-    points above the same identity's plain LBS, and at most 0.5 % of pairs (3) more than 1
-    point above it."""
-    res = measured if conf == "neutral" else expression_measured
+def _issue60_rules(res) -> None:
+    """Issue 60's rules on 600 pose-identity pairs: no folded skin triangle at all, every
+    pair's largest stretch at most 3 points above the same identity's plain LBS, and at
+    most 0.5 % of pairs (3) more than 1 point above it."""
     stretch, folded = res["model"]["stretch"], res["model"]["folded"]
     what = f"{int((folded > 0).sum())} pairs fold {int(folded.sum())} triangles"
     assert folded.sum() == 0, (what, np.argwhere(folded > 0)[:5])
     excess = stretch - res["lbs"]["stretch"]
     assert excess.max() <= 0.03, (excess.max(), np.unravel_index(excess.argmax(), excess.shape))
     assert (excess > 0.01).sum() <= 0.005 * excess.size, int((excess > 0.01).sum())
+
+
+def test_14_no_folds_and_never_meaningfully_worse_than_lbs(measured):
+    """Issue 60's rules (:func:`_issue60_rules`) on the subset's 600 neutral pairs
+    (measured: no fold, none above LBS by more than a point, the largest excess 0.000; the
+    model shipped before folded in 6 pairs, 57 triangles, and was above by more than a
+    point in 4)."""
+    _issue60_rules(measured)
+
+
+@pytest.mark.slow  # the expression's 600 pairs cost ~90 s; opt-in while it is xfail
+@pytest.mark.xfail(strict=True, reason="issue 60: the shipped model folds skin in 2 of these "
+                   "600 pairs with the expression (7 triangles; the model shipped before: 11 "
+                   "pairs, 116 triangles); strict: a model that passes must drop this mark")
+def test_14_with_the_expression(expression_measured):
+    """The same rules with the bench's expression held (measured: 2 folding pairs, 7
+    triangles; 1 pair above LBS by more than a point, 0.018)."""
+    _issue60_rules(expression_measured)
 
 
 def test_15_arap_reference_holds_the_rigid_sets_and_the_bound():
@@ -430,7 +461,9 @@ def test_16_learner_bound_is_the_models():
     learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
                                 arrays["skinning_weights"], arrays["joint_parents"], region,
                                 rest_fn=model_rest_fn(arrays, region.vertices), seed=16,
-                                loss={"bound": 1.0, "near_bound": 0.25})
+                                loss={"bound": 1.0, "near_bound": 0.17},
+                                gate_deg=float(arrays["pose_gate_deg"]),
+                                gate_chain=float(arrays["pose_gate_chain"]))
     learner.start_from(arrays)
     theta = torch.cat(list(sample_pose_space(6, seed=16).values())).double()
     beta = torch.randn(1, 20, generator=torch.Generator().manual_seed(16), dtype=torch.float64)
@@ -450,7 +483,8 @@ def test_16_learner_bound_is_the_models():
         posed, rot = learner.pose(batch)
         r, _, _ = skin_measures(region, batch.rest, posed, rot, learner.weights()[region.faces].mean(1))
     learner.lam.update(near_fold=-2.0, near_worse=-10.0)  # the other criteria off
-    above = r.amax(1) > ours + 0.25
+    # measured excess over the bound of these 6 rows: 0.12-0.24
+    above = r.amax(1) > ours + 0.17
     assert above.any() and not above.all()
     assert torch.equal(learner.screen(batch), above)
     assert len(PoseBatch.cat([batch.rows(above), batch]).bound) == int(above.sum()) + n
