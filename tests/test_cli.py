@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+from hack_render.geometry.model_file import FORMAT_VERSION, default_model_path, file_header
+
 HEAVY = ("torch", "mitsuba", "drjit", "scipy", "dlib", "ray")
 
 
@@ -184,4 +186,6 @@ def test_version_names_the_package_and_the_default_model():
     project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
     assert project["project"]["version"] == __version__  # one version, said twice
     assert lines[1].startswith("default model: hack-default-ict, model version ")
-    assert "file format 2" in lines[1]
+    fmt, meta = file_header(default_model_path())
+    assert f"model version {meta['model_version']}, file format {fmt}" in lines[1]
+    assert fmt <= FORMAT_VERSION

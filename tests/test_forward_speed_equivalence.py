@@ -6,6 +6,7 @@ angles drawn within the limits, eta and tau; and gradients of every input (float
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -13,6 +14,8 @@ from hack_render.errors import HackError
 from hack_render.geometry import load_default_model
 from hack_render.geometry.deformation import sample_joint_poses
 from hack_render.geometry.lbs import chain_parents, rigid_transforms
+from hack_render.geometry.model import HackModel
+from hack_render.geometry.model_file import load_model_file
 from hack_render.geometry.reference import reference_forward
 
 FIELDS = ("vertices", "joints", "rest_joints", "landmarks", "rest_vertices")
@@ -21,6 +24,18 @@ FIELDS = ("vertices", "joints", "rest_joints", "landmarks", "rest_vertices")
 @pytest.fixture(scope="module")
 def model():
     return load_default_model()
+
+
+@pytest.fixture(scope="module")
+def model_dead_mp():
+    """The shipped model with M_P's second hidden layer switched off (w1 = 0, b1 < 0): one
+    constant output for every identity, as a file whose M_P died (the identity-independent
+    path at w = b2)."""
+    arrays, meta = load_model_file(load_default_model().source_path)
+    arrays = dict(arrays)
+    arrays["pose_mlp_w1"] = np.zeros_like(arrays["pose_mlp_w1"])
+    arrays["pose_mlp_b1"] = np.full_like(arrays["pose_mlp_b1"], -1.0)
+    return HackModel(arrays, meta)
 
 
 @pytest.fixture(scope="module")
@@ -121,15 +136,19 @@ def test_04_chain_offsets_and_finiteness_check(model):
 
 
 # ------------------------------------------------------------------ issue 65 §2: the B = 1 path
+@pytest.mark.parametrize("mp", ["live", "dead"])
 @pytest.mark.parametrize("num_shape,b,facs", [(20, 1, False), (20, 1, True), (100, 1, False),
                                               (20, 64, False), (100, 64, True)])
-def test_05_row_major_and_single_row_paths_equal_reference(model, num_shape, b, facs):
+def test_05_row_major_and_single_row_paths_equal_reference(model, model_dead_mp, num_shape, b,
+                                                           facs, mp):
     """The personalised expressions contracted with psi first (M_E row-major, B = 1: the
-    generic rows on the moved vertices and the folded personal mean in one product), the
-    identity-independent M_P at w = b2 and the block rigid posing equal the plain forward
-    to 1e-6 of each output's largest magnitude, at B = 1 and B = 64 distinct identities."""
+    generic rows on the moved vertices and the folded personal mean in one product), M_P
+    live (the shipped file's) and identity-independent (at w = b2) and the block rigid
+    posing equal the plain forward to 1e-6 of each output's largest magnitude, at B = 1 and
+    B = 64 distinct identities."""
+    model = model if mp == "live" else model_dead_mp
     p = _inputs(model, num_shape, facs, seed=11 + num_shape + b + facs, b=b)
-    assert model.pose_personal.mlp.weights(p["beta"])[1]  # the shipped M_P: constant
+    assert model.pose_personal.mlp.weights(p["beta"])[1] == (mp == "dead")
     assert not model.expr_personal.mlp.weights(p["beta"])[1]
     with torch.no_grad():
         fast, ref = model(**p), reference_forward(model, **p)
