@@ -20,8 +20,8 @@ to an apex :data:`CAP_APEX` beyond the loop's centroid, along the loop's outward
 pose). A flat cap over the loop's own vertices (ear clipping in its best-fit plane, the
 cap before) lay almost in the skin's own surface where the cut runs along it, at the
 shoulders (the skin's last ring within 1 degree of the plane), and poked through the skin
-by about a millimetre when a pose moved the cut; the cone leaves every rim edge pointing
-out of the body. It is flat-shaded matte grey (``materials.py``), not anatomy.
+by about a millimetre when a pose moved the cut; the cone slopes out of the body from
+every rim edge. It is flat-shaded matte grey (``materials.py``), not anatomy.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ HIDDEN_MATERIALS = ("M_EyeBlend", "M_EyeOcclusion")
 LIMBUS_RADIUS = 0.0058
 PUPIL_RADIUS = 0.0017
 #: How far the bust cap's apex lies beyond the cut's centroid, metres (:func:`cap_apex`):
-#: the cone's rim edges then leave the skin at 17-30 degrees (the cut's radius 70-130 mm).
+#: the cone's faces slope 17-30 degrees out of the cut's plane (its radius 70-130 mm).
 CAP_APEX = 0.04
 
 
