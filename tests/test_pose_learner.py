@@ -75,3 +75,25 @@ def test_02_learner_samples_single_axis_head_rotations():
         on = (theta.abs() > 1e-12).any(1)  # (B, 3): the axes any joint turns about
         counts = [int((on.sum(1) == 1)[on[:, a]].sum()) for a in range(3)]
         assert counts == ([2, 2, 2] if single else [0, 0, 0]), counts
+
+
+def test_03_mining_screens_its_own_identities():
+    """``fit(mine_identities=k)`` screens k identities x ``mine_poses`` rows, however many
+    identities a training step draws; without it, the step's own count."""
+    arrays, _ = load_model_file(load_default_model().source_path)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    region = neck_region(arrays["faces"], SKIN_LAST, pose_subset(arrays))
+    learner = PoseEnergyLearner(arrays["template_vertices"], dirs, arrays["joint_regressor"],
+                                arrays["skinning_weights"], arrays["joint_parents"], region,
+                                rest_fn=model_rest_fn(arrays, region.vertices), seed=18)
+    screened = []
+    screen = learner.screen
+    learner.screen = lambda batch: screened.append(batch) or screen(batch)
+    for k, want in ((5, 5), (None, 2)):
+        screened.clear()
+        learner.fit(iterations=1, identities=2, poses=4, hard=2, mine_poses=4,
+                    mine_identities=k, progress=False, learn_weights=False)
+        (batch,) = screened
+        assert len(batch.theta) == 4 * want
+        assert len(torch.unique(batch.beta, dim=0)) == want

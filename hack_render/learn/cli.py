@@ -149,6 +149,11 @@ def learn_pose(
     mine_poses: int = typer.Option(48, "--mine-poses", help="Fresh poses per identity "
                                    "screened for hard examples every 10 steps (more finds "
                                    "rarer folds, e.g. an expression's)."),
+    mine_identities: int | None = typer.Option(None, "--mine-identities", help="Identities "
+                                               "(each with its own sampled expression) "
+                                               "screened every 10 steps; default: "
+                                               "--identities. More finds the folds an "
+                                               "expression and a pose make together."),
     expressions: bool = typer.Option(True, "--expressions/--neutral-only", help="Train on the "
                                      "model's own rest meshes with sampled expressions (as the "
                                      "stress test measures), or on neutral T_bar + B_S(beta)."),
@@ -190,6 +195,8 @@ def learn_pose(
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
     boundary.number(mine_poses, "--mine-poses", 1, 10000, integer=True)
+    if mine_identities is not None:
+        boundary.number(mine_identities, "--mine-identities", 1, 1000, integer=True)
     if gate is not None:
         boundary.number(gate, "--pose-gate", 0.0, 90.0)
     if gate_chain is not None:
@@ -218,7 +225,8 @@ def learn_pose(
                            start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,
                            expressions=expressions,
                            loss=overrides, gate_deg=gate or None, single_axis=single_axis,
-                           gate_chain=gate_chain if gate else 0.0)
+                           gate_chain=gate_chain if gate else 0.0,
+                           mine_identities=mine_identities)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

@@ -236,7 +236,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
                       mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
                       gate_deg: float | None = None, single_axis: bool = False,
-                      gate_chain: float = 0.0) -> dict:
+                      gate_chain: float = 0.0, mine_identities: int | None = None) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -251,7 +251,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     ``expressions``: train on the model's own rest meshes (larynx, personalised expressions)
     with sampled expressions, as the stress test measures (:func:`model_rest_fn`); otherwise
     on T_bar + B_S(beta). ``hard``: hard-example rows per step (0: none); ``mine_poses``:
-    the poses per identity screened for them every 10 steps. ``gate_deg``: the
+    the poses per identity screened for them every 10 steps, over ``mine_identities``
+    identities (default: ``identities``). ``gate_deg``: the
     correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
     ``R - I`` features; ``gate_chain``: its chain weight (format 4, ``pose_gate_chain``; 0:
     none). ``single_axis``: a quarter of the poses whole-head rotations about
@@ -270,7 +271,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
             learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
                       learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr,
-                      hard=hard, mine_poses=mine_poses)
+                      hard=hard, mine_poses=mine_poses, mine_identities=mine_identities)
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = res.pose_basis
     out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),
@@ -291,7 +292,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "region_triangles": len(learner.region.faces), "learned_weights": learn_weights,
               "loss_weights": learner.lam, "seconds": res.seconds, "history": res.history,
               "seed": seed, "hard_examples_per_step": hard,
-              "mine_poses": mine_poses, "gate_deg": gate_deg or None,
+              "mine_poses": mine_poses, "mine_identities": mine_identities or identities,
+              "gate_deg": gate_deg or None,
               "gate_chain": gate_chain if gate_deg else 0.0,
               "single_axis_head_poses": single_axis,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "

@@ -428,14 +428,17 @@ class PoseEnergyLearner:
     def fit(self, iterations: int = 600, lr: float = 0.01, identities: int = 4, poses: int = 8,
             learn_weights: bool = True, seed: int = 0, progress: bool = True,
             log_every: int = 50, mlp_lr: float = 1e-4, hard: int = 0, mine_every: int = 10,
-            mine_poses: int = 48, pool_size: int = 512) -> PoseEnergyResult:
+            mine_poses: int = 48, pool_size: int = 512,
+            mine_identities: int | None = None) -> PoseEnergyResult:
         """Adam (``lr`` in centimetres for P and C, and for W's logits; ``mlp_lr`` for M_P,
         the paper's 1e-4: at 1e-2 its hidden units all died within a few hundred steps and
         it returned one constant for every identity), decaying linearly to 10 %.
 
-        ``hard`` > 0: every ``mine_every`` steps screen ``identities`` x ``mine_poses`` fresh
-        rows (:meth:`screen`) and keep the hard ones in a pool of at most ``pool_size``
-        (oldest dropped); each step adds ``hard`` rows drawn from the pool."""
+        ``hard`` > 0: every ``mine_every`` steps screen ``mine_identities`` (default:
+        ``identities``) x ``mine_poses`` fresh rows (:meth:`screen`) and keep the hard ones
+        in a pool of at most ``pool_size`` (oldest dropped); each step adds ``hard`` rows
+        drawn from the pool. More mined identities bring more sampled expressions (one per
+        identity), where a fold that needs an expression and a pose together is found."""
         groups = [{"params": [self.p_cm, self.c_cm] + ([self.logits] if learn_weights else []),
                    "lr": lr, "base": lr},
                   {"params": list(self.mlp.parameters()), "lr": mlp_lr, "base": mlp_lr}]
@@ -446,7 +449,7 @@ class PoseEnergyLearner:
             for grp in opt.param_groups:
                 grp["lr"] = grp["base"] * (1 - 0.9 * it / max(iterations, 1))
             if hard and it % mine_every == 0:
-                cand = self.sample(g, identities, mine_poses)
+                cand = self.sample(g, mine_identities or identities, mine_poses)
                 found = cand.rows(self.screen(cand))
                 # M_P learns from fresh identities only: the pool repeats a few hundred
                 # identities for many steps, and M_P fitted to them did worse on unseen ones
