@@ -107,6 +107,11 @@ def _command_line() -> str | None:
     return None
 
 
+#: the --loss keys that are thresholds on a triangle's normal cosine (posed against carried)
+COSINE_THRESHOLDS = {"near_fold": "a screened row with a triangle below it is a hard example",
+                     "f0": "a triangle below it counts as folding in the loss"}
+
+
 def _loss_overrides(items: list[str]) -> dict:
     """``--loss KEY=VALUE`` items as a dict, keys checked against the learner's DEFAULTS."""
     from hack_render.learn.pose_energy import DEFAULTS
@@ -122,6 +127,12 @@ def _loss_overrides(items: list[str]) -> dict:
         if not sep or key not in DEFAULTS or val is None or not math.isfinite(val) or val < 0:
             raise HackError(f"--loss {item!r}: expected KEY=VALUE with KEY one of "
                             f"{', '.join(DEFAULTS)} and VALUE a number >= 0")
+        if key in COSINE_THRESHOLDS and val >= 1:
+            # every triangle's normal cosine is <= 1: near_fold >= 1 made every screened row
+            # a hard example (the pool a queue of random rows), f0 >= 1 every triangle a fold
+            raise HackError(f"--loss {item!r}: {key} is a threshold on a triangle's normal "
+                            f"cosine ({COSINE_THRESHOLDS[key]}); give a value below 1 "
+                            f"(default {DEFAULTS[key]:g})")
         out[key] = val
     return out
 
