@@ -18,6 +18,7 @@ import torch
 from hack_render.geometry import load_default_model
 from hack_render.geometry.deformation import (
     deformation_stats,
+    fold_mask,
     model_deformation,
     sample_pose_space,
     skin_topology,
@@ -85,6 +86,9 @@ def test_04_measures_golden():
     flipped = rest.clone()
     flipped[0, a] = rest[0, b] + rest[0, c] - rest[0, a]  # reflect a corner across its edge
     assert int(deformation_stats(rest, flipped, eye, topo).folded[0]) >= 1
+    mask = fold_mask(rest, flipped, eye, topo)[0]  # the triangles the count counts
+    assert bool(mask[100]) and int(mask.sum()) == int(deformation_stats(rest, flipped, eye,
+                                                                        topo).folded[0])
 
 
 def test_05_neck_region_and_skin_measures():

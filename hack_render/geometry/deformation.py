@@ -88,6 +88,17 @@ def deformation_stats(rest: torch.Tensor, posed: torch.Tensor, node_rotations: t
     a, b = topo.edges[:, 0], topo.edges[:, 1]
     l0 = (rest[:, a] - rest[:, b]).norm(dim=-1).clamp(min=1e-12)
     ratio = (posed[:, a] - posed[:, b]).norm(dim=-1) / l0
+    folded = fold_mask(rest, posed, node_rotations, topo).sum(1)
+    return DeformationStats(stretch=ratio.max(1).values - 1, compression=1 - ratio.min(1).values,
+                            folded=folded)
+
+
+def fold_mask(rest: torch.Tensor, posed: torch.Tensor, node_rotations: torch.Tensor,
+              topo: SkinTopology) -> torch.Tensor:
+    """(B, T) bool: the skin triangles whose posed normal faces away from their rest normal
+    carried by the skinning's rotation (:func:`deformation_stats`'s folds; arguments as
+    there, ``rest`` expanded to ``posed``)."""
+    rest = rest.expand_as(posed)
     n0 = _normals(rest, topo.faces)  # (B, T, 3)
     w = topo.weights.to(node_rotations.dtype)
     # a triangle skinned to one node turns with it; the others by the polar factor (the
@@ -100,9 +111,7 @@ def deformation_stats(rest: torch.Tensor, posed: torch.Tensor, node_rotations: t
     u = torch.cat([u[..., :2], u[..., 2:] * d[..., None, None]], -1)
     rot[:, ~rigid] = u @ vh
     carried = torch.einsum("btij,btj->bti", rot, n0)
-    folded = ((_normals(posed, topo.faces) * carried).sum(-1) < 0).sum(1)
-    return DeformationStats(stretch=ratio.max(1).values - 1, compression=1 - ratio.min(1).values,
-                            folded=folded)
+    return (_normals(posed, topo.faces) * carried).sum(-1) < 0
 
 
 def model_deformation(model, beta: torch.Tensor, theta: torch.Tensor, psi=None,
