@@ -10,7 +10,7 @@ the pairs' and triangles' counts equal ``pose_space.json``'s ``folded_poses`` an
 ``folded_triangles`` for the same file.
 
     python bench/bench_pose_folds.py --model hack_render/data/hack_default.npz \\
-        [--model CANDIDATE.npz ...] [--families head_xyz] [--threads 2] \\
+        [--model CANDIDATE.npz ...] [--previous REV] [--families head_xyz] [--threads 2] \\
         [--out bench/results/pose_folds.json]
 
 Prints, per model and configuration, the counts, the range of the folding pairs' head
@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pose_space import EXPRESSION
+from bench_pose_space import EXPRESSION, model_from_git
 from provenance import ROOT, write_result
 
 from hack_render.geometry.deformation import fold_mask, sample_pose_space, skin_topology
@@ -62,10 +62,18 @@ def folds(model: HackModel, betas: torch.Tensor, theta: torch.Tensor, psi, topo,
     return per_pair, per_tri
 
 
+def _shown(path) -> str:
+    """A model path as recorded: relative to the checkout when inside it."""
+    p = Path(path).resolve()
+    return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else str(path)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", type=Path, action="append", default=None,
                     help="model file (repeatable; default: the shipped one)")
+    ap.add_argument("--previous", default=None,
+                    help="also the model file of this git revision (e.g. the one shipped before)")
     ap.add_argument("--poses", type=int, default=2000)
     ap.add_argument("--identities", type=int, default=10)
     ap.add_argument("--seed", type=int, default=21)
@@ -93,8 +101,11 @@ def main(argv=None) -> None:
                  "families": {k: len(v) for k, v in fams.items()}, "expression": EXPRESSION,
                  "models": {}}
     t0 = time.time()
-    for path in paths:
-        model = HackModel(*load_model_file(path))
+    runs = [(_shown(p), lambda p=p: HackModel(*load_model_file(p))) for p in paths]
+    if args.previous:
+        runs.append((f"git {args.previous}", lambda: model_from_git(args.previous)))
+    for name_, make in runs:
+        model = make()
         topo = skin_topology(model)
         centres = model.template[topo.faces].mean(1).numpy()
         entry = {}
@@ -123,13 +134,13 @@ def main(argv=None) -> None:
                                         for k, a in enumerate("xyz")}
             name = "expression" if expr else "neutral"
             entry[name] = conf
-            print(f"{Path(path).name} {name:10s} folding pairs {len(pairs)} (triangles "
+            print(f"{Path(name_).name} {name:10s} folding pairs {len(pairs)} (triangles "
                   f"{conf['folded_triangles']}, {len(tri)} distinct)"
                   + (f" | head x {conf['head_deg_range']['x']}, y {conf['head_deg_range']['y']},"
                      f" z {conf['head_deg_range']['z']} deg | triangle centres x "
                      f"{conf['centre_box_m']['x']}, y {conf['centre_box_m']['y']}, z "
                      f"{conf['centre_box_m']['z']} m" if pairs else ""), flush=True)
-        res["models"][str(path)] = entry
+        res["models"][name_] = entry
     res["seconds"] = time.time() - t0
     if args.out:
         print(f"wrote {write_result(args.out, res)}")
