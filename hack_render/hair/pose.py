@@ -26,6 +26,12 @@ from hack_render.hair.strands import open_edge_vertices, root_points, triangle_f
 #: Smallest distance a posed control point keeps outside the skin, metres.
 MARGIN = 0.0002
 
+#: Rounds of :func:`push_out`: a push out of one side of a crease (the nape at a corner of
+#: the range) can land inside the other side; each round pushes what is still inside. With
+#: model version 4, three rounds left a long-hair point 1.0 mm inside the nape with every
+#: joint at its lower limits (tests/test_hair.py); four reach the margin there.
+PUSH_ROUNDS = 6
+
 
 def pose_group(group: StrandGroup, vertices: np.ndarray, faces: np.ndarray,
                body: Body | None = None) -> np.ndarray:
@@ -102,7 +108,7 @@ def push_out(points: np.ndarray, body: Body, margin: float = MARGIN) -> np.ndarr
     out = points.reshape(-1, 3).copy()
     todo = np.arange(len(out))
     normals = body.normals[body.index]
-    for _ in range(3):  # a push out of one side of a concave corner can land in the other
+    for _ in range(PUSH_ROUNDS):
         dist, i = body.tree.query(out[todo], distance_upper_bound=0.08)
         hit = np.isfinite(dist)
         todo, j = todo[hit], i[hit]
