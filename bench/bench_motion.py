@@ -1,6 +1,7 @@
 """Motion synthesis and transfer (issue 26) on synthetic and procedural data.
 
     python bench/bench_motion.py [--threads 2] [--out bench/results/motion.json]
+    python bench/bench_motion.py --only transfer|gltf   # one part, the file's others kept
 
 - head -> neck: the 2-layer, 512-unit MLP trained on 9 synthetic neck sequences (240
   frames each, ``hack_render.motion.synthetic.neck_rule``: NOT captured motion), per-joint
@@ -174,6 +175,26 @@ def swallow() -> dict:
             "provenance": c.provenance.get("kind")}
 
 
+#: --only's parts and their entries in the results file
+ONLY = {"gltf": "transfer_gltf", "transfer": "transfer"}
+PARTS = ("head_to_neck", "larynx_motion", "transfer", "transfer_gltf", "swallow")
+
+
+def entries_from(old: dict) -> dict:
+    """Each entry's commit and date in the results file ``old`` (its JSON): those recorded
+    in ``entries_from`` (or the older ``other_entries_from``, which ``--only gltf`` wrote
+    for every entry but ``transfer_gltf``), and the file's own commit and date for the
+    rest (its last run's)."""
+    if "entries_from" in old:
+        out = dict(old["entries_from"])
+    elif "other_entries_from" in old:
+        out = {k: old["other_entries_from"] for k in PARTS if k != "transfer_gltf"}
+    else:
+        out = {}
+    own = {k: old.get(k) for k in ("commit", "date")}
+    return {k: out.get(k, own) for k in PARTS if k in old}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2)
@@ -181,21 +202,28 @@ def main(argv=None) -> None:
     ap.add_argument("--larynx-steps", type=int, default=600)
     ap.add_argument("--poses", type=int, default=200)
     ap.add_argument("--bake-size", type=int, default=1024)
-    ap.add_argument("--only", choices=["gltf"], help="run one part and update its entry in "
-                    "the existing results file")
+    ap.add_argument("--only", choices=list(ONLY), help="run one part and update its entry in "
+                    "the existing results file (each entry's commit and date in "
+                    "'entries_from')")
     ap.add_argument("--out", type=Path, default=ROOT / "bench/results/motion.json")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
-    if args.only == "gltf":
+    if args.only:
         import json
         import tempfile
 
         old = json.loads(args.out.read_text())
         res = {k: v for k, v in old.items() if k not in ("commit", "date", "machine", "command")}
-        res.setdefault("other_entries_from", {k: old.get(k) for k in ("commit", "date")})
-        with tempfile.TemporaryDirectory() as tmp:
-            res["transfer_gltf"] = transfer_gltf(args.bake_size, Path(tmp))
-        print("transfer_gltf", res["transfer_gltf"])
+        key = ONLY[args.only]
+        res["entries_from"] = entries_from(old)
+        res.pop("other_entries_from", None)
+        if key == "transfer_gltf":
+            with tempfile.TemporaryDirectory() as tmp:
+                res[key] = transfer_gltf(args.bake_size, Path(tmp))
+        else:
+            res[key] = transfer(args.poses)
+        res["entries_from"].pop(key, None)  # this run's: the file's own commit and date
+        print(key, res[key])
         print(f"wrote {write_result(args.out, res)}")
         return
     res = {"threads": args.threads, "data": "synthetic and procedural (no captured motion)"}
