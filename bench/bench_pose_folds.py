@@ -14,7 +14,8 @@ the pairs' and triangles' counts equal ``pose_space.json``'s ``folded_poses`` an
         [--out bench/results/pose_folds.json]
 
 Prints, per model and configuration, the counts, the range of the folding pairs' head
-rotation and the box of the folded triangles' centres; writes them with every pair.
+rotation, how many lie within the neck's active range (``anatomy.ACTIVE_RANGE_DEG``) and
+the box of the folded triangles' centres; writes them with every pair.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pose_space import EXPRESSION, model_from_git
 from provenance import ROOT, write_result
 
+from hack_render.geometry.anatomy import within_active_range
 from hack_render.geometry.deformation import fold_mask, sample_pose_space, skin_topology
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.model import HackModel
@@ -95,6 +97,7 @@ def main(argv=None) -> None:
     fam_of = np.concatenate([[k] * len(v) for k, v in fams.items()])
     first = {k: int(np.argmax(fam_of == k)) for k in fams}
     head = torch.rad2deg(axis_angle_to_euler(theta.double()).sum(1)).numpy()  # (P, 3)
+    active = within_active_range(theta.double())  # (P,) within the neck's active range
     g = torch.Generator().manual_seed(args.seed)
     betas = torch.randn(args.identities, 20, generator=g)
     res: dict = {"poses": args.poses, "identities": args.identities, "seed": args.seed,
@@ -117,8 +120,10 @@ def main(argv=None) -> None:
             pairs = [{"identity": int(i), "family": str(fam_of[p]),
                       "pose": int(p - first[fam_of[p]]),
                       "head_deg": [round(float(x), 1) for x in head[p]],
+                      "active_range": bool(active[p]),
                       "triangles": int(per_pair[i, p])} for i, p in zip(ii, pp)]
             conf = {"folded_poses": len(pairs), "folded_triangles": int(per_pair.sum()),
+                    "folded_poses_active": int(sum(q["active_range"] for q in pairs)),
                     "distinct_triangles": len(tri), "pairs": pairs,
                     "triangles": [{"triangle": int(t), "pairs": int(per_tri[t]),
                                    "centre_m": [round(float(x), 4) for x in centres[t]]}
@@ -135,7 +140,8 @@ def main(argv=None) -> None:
             name = "expression" if expr else "neutral"
             entry[name] = conf
             print(f"{Path(name_).name} {name:10s} folding pairs {len(pairs)} (triangles "
-                  f"{conf['folded_triangles']}, {len(tri)} distinct)"
+                  f"{conf['folded_triangles']}, {len(tri)} distinct; within the active range "
+                  f"{conf['folded_poses_active']} pairs)"
                   + (f" | head x {conf['head_deg_range']['x']}, y {conf['head_deg_range']['y']},"
                      f" z {conf['head_deg_range']['z']} deg | triangle centres x "
                      f"{conf['centre_box_m']['x']}, y {conf['centre_box_m']['y']}, z "

@@ -11,7 +11,10 @@ poses) and the folded skin triangles, for
 * the previous shipped model (a model file from git history, ``--previous REV``),
 * the shipped model (or ``--model``),
 
-and, per pose, the lower bound on the largest stretch that any deformer keeping the face
+on all pairs and on those within the whole neck's active range
+(:data:`hack_render.geometry.anatomy.ACTIVE_RANGE_DEG`, a coupling of the joints: the
+sampled box lets every joint reach its limit at once; ``"active"`` and
+``"<family>_active"`` entries), and, per pose, the lower bound on the largest stretch that any deformer keeping the face
 rigid with the skull and the chest rim with the thorax must reach
 (:func:`hack_render.geometry.deformation.stretch_lower_bound`): how many pose-identity
 pairs no corrective or weighting can bring within the issue's targets (stretch <= 35 % /
@@ -40,6 +43,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import ROOT, write_result
 
+from hack_render.geometry.anatomy import ACTIVE_RANGE_DEG, within_active_range
 from hack_render.geometry.deformation import (
     model_deformation,
     model_stretch_bound,
@@ -107,12 +111,15 @@ def bounds(model: HackModel, betas: torch.Tensor, theta: torch.Tensor, psi) -> n
                      for b in betas])
 
 
-def bound_section(model, betas, theta, psi, fams, fam_of) -> dict:
-    """The results' ``bound`` entry for one configuration, and the raw (I, P) bound."""
+def bound_section(model, betas, theta, psi, fams, fam_of, active=None) -> dict:
+    """The results' ``bound`` entry for one configuration, and the raw (I, P) bound
+    (``active``: (P,) bool, the poses within the neck's active range, also summarised)."""
     b = bounds(model, betas, theta, psi)
     entry = {"all": summarise_bound(b)}
     for k, fam in enumerate(fams):
         entry[fam] = summarise_bound(b[:, fam_of == k])
+    if active is not None:
+        entry["active"] = summarise_bound(b[:, active])
     a = entry["all"]
     print(f"stretch bound: median {a['median']:.3f} p99 {a['p99']:.3f} max {a['max']:.3f} | "
           f"pairs above 0.35: {a['poses_above']['0.35']}, above 0.60: {a['poses_above']['0.60']}",
@@ -172,9 +179,17 @@ def main(argv=None) -> None:
     psi = models["shipped"].expression_vector(EXPRESSION)
     if args.bound_only:
         return merge_bound(args, models, betas, theta, psi, fams, fam_of)
+    # the poses within the whole neck's active range (a joint coupling: anatomy.py's
+    # ACTIVE_RANGE_DEG): every figure is also given on them, "<family>_active" / "active"
+    active = within_active_range(theta.double())
     res: dict = {"poses": args.poses, "identities": args.identities, "seed": args.seed,
                  "families": {k: len(v) for k, v in fams.items()}, "expression": EXPRESSION,
-                 "previous": args.previous, "configurations": {}}
+                 "previous": args.previous,
+                 "active_range": {"deg": [list(r) for r in ACTIVE_RANGE_DEG],
+                                  "poses": int(active.sum()),
+                                  "families": {f: int(active[fam_of == k].sum())
+                                               for k, f in enumerate(fams)}},
+                 "configurations": {}}
     t0 = time.time()
     for expr in (False, True):
         raw = {}
@@ -185,7 +200,7 @@ def main(argv=None) -> None:
                          for k in ("stretch", "compression", "folded")]
         conf = {}
         conf["bound"], bound = bound_section(models["shipped"], betas, theta,
-                                             psi if expr else None, fams, fam_of)
+                                             psi if expr else None, fams, fam_of, active)
         for name, (s, c, f) in raw.items():
             lbs = raw["lbs"][0] if name != "lbs" else None
             entry = {"all": summarise(s, c, f, lbs, bound)}
@@ -193,6 +208,11 @@ def main(argv=None) -> None:
                 sel = fam_of == k
                 entry[fam] = summarise(s[:, sel], c[:, sel], f[:, sel],
                                        None if lbs is None else lbs[:, sel], bound[:, sel])
+                sel = sel & active
+                entry[f"{fam}_active"] = summarise(s[:, sel], c[:, sel], f[:, sel],
+                                                   None if lbs is None else lbs[:, sel], bound[:, sel])
+            entry["active"] = summarise(s[:, active], c[:, active], f[:, active],
+                                        None if lbs is None else lbs[:, active], bound[:, active])
             conf[name] = entry
             a = entry["all"]
             print(f"{'expression' if expr else 'neutral':10s} {name:9s} stretch median "
@@ -200,6 +220,12 @@ def main(argv=None) -> None:
                   f"{a['stretch']['max']:.3f} | folded poses {a['folded_poses']} triangles "
                   f"{a['folded_triangles']}" + (f" | worse than LBS {a['poses_worse_than_lbs']}"
                                                  if lbs is not None else ""), flush=True)
+            a = entry["active"]
+            print(f"{'':10s} {'':9s} within the active range ({a['poses']} pairs): stretch "
+                  f"median {a['stretch']['median']:.3f} p99 {a['stretch']['p99']:.3f} | folded "
+                  f"poses {a['folded_poses']} triangles {a['folded_triangles']}"
+                  + (f" | worse than LBS {a['poses_worse_than_lbs']}" if lbs is not None else ""),
+                  flush=True)
         res["configurations"]["expression" if expr else "neutral"] = conf
     res["seconds"] = time.time() - t0
     write_result(args.out, res)

@@ -108,3 +108,47 @@ def test_head_rotation_shares_match_in_vivo_data(side):
     lat = np.array([LAN_2014_LATERAL[n] for n in names])
     rule = head_share_deg([0.0, 0.0, side * 40.0])[[JOINT_NAMES.index(n) for n in names], 2]
     assert np.abs(rule / rule.sum() - lat / lat.sum()).max() < 0.03
+
+
+def test_active_range_is_a_coupling_inside_the_joints_box():
+    """The whole neck's active range (ANATOMY.md; Niewiadomski et al. 2019) bounds the sum
+    of the joints' angles, not a joint: whole-head rotations shared out by the spine give
+    back their own angles (the sum), the envelope lies inside the joints' summed box except
+    for the axial side (not narrowed), a pose with every joint at its flexion limit lies
+    outside it and one at 50 degrees inside, and per-joint uniform poses stay inside."""
+    import torch
+
+    from hack_render.geometry.anatomy import (
+        ACTIVE_RANGE_DEG,
+        head_rotation_range_deg,
+        whole_neck_angles_deg,
+        within_active_range,
+    )
+    from hack_render.geometry.deformation import sample_head_poses, sample_joint_poses
+    from hack_render.geometry.skeleton import distribute_head_rotation
+
+    g = torch.Generator().manual_seed(5)
+    heads = torch.deg2rad(torch.tensor(head_rotation_range_deg())[:, 0]
+                          + torch.rand(64, 3, generator=g, dtype=torch.float64)
+                          * torch.tensor(np.ptp(head_rotation_range_deg(), 1)))
+    got = whole_neck_angles_deg(distribute_head_rotation(heads))
+    np.testing.assert_allclose(got, np.rad2deg(heads.numpy()), atol=1e-6)
+    rng, act = head_rotation_range_deg(), np.asarray(ACTIVE_RANGE_DEG)
+    # flexion 65.5 and lateral 61 in the box against 50 and 45 active; extension about equal
+    assert act[0, 1] < rng[0, 1] - 10 and act[2, 1] < rng[2, 1] - 10 and act[2, 0] > rng[2, 0] + 10
+    assert act[1, 1] >= rng[1, 1]  # axial: the active range is wider than the joints' sum
+    pose = lambda deg: distribute_head_rotation(torch.deg2rad(torch.tensor([deg], dtype=torch.float64)))
+    assert not within_active_range(pose([rng[0, 1], 0.0, 0.0]))[0]
+    assert within_active_range(pose([50.0, 0.0, 0.0]))[0]
+    assert not within_active_range(pose([50.5, 0.0, 0.0]))[0]
+    assert not within_active_range(pose([0.0, 0.0, -45.5]))[0]
+    assert within_active_range(pose([-70.0, 77.0, 45.0]))[0]
+    # every bench fold of model version 5 (bench/results/pose_folds.json) lies outside
+    folds = [[61.0, 14.2, 57.4], [61.3, 35.2, -55.5], [65.4, 62.7, -42.4], [56.3, 61.3, -51.7]]
+    assert not within_active_range(distribute_head_rotation(torch.deg2rad(
+        torch.tensor(folds, dtype=torch.float64)))).any()
+    # per-joint uniform poses: the independent joints' sums stay inside (0 of 256 outside
+    # for this seed); whole-head rotations over the box: about a third outside
+    assert within_active_range(sample_joint_poses(256, g)).all()
+    inside = within_active_range(sample_head_poses(512, g, "xyz"))
+    assert 0.55 < inside.mean() < 0.8

@@ -68,6 +68,22 @@ HEAD_SHARE_DEG: dict[int, dict[str, float] | None] = {0: None, 1: IN_VIVO_AXIAL_
 HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)",
                                    "lateral bending (z)")
 
+# The whole neck's active range, head relative to thorax, degrees per axis (min, max), for
+# a healthy adult: ANATOMY.md's "whole-neck active range" (flexion about 50, extension about
+# 60-70, lateral bending about 45 per side, rotation about 80 per side), which its per-joint
+# table (White & Panjabi, above) overshoots when every joint is at its limit at once: the
+# joints' sums reach flexion 65.5 and lateral bending 61 (head_rotation_range_deg). In vivo,
+# Niewiadomski C et al., Experimental assessment of cervical ranges of motion and
+# compensatory strategies, Chiropractic & Manual Therapies 2019;27:9 (97 healthy subjects,
+# head relative to thorax, opto-electronic; Results): flexion + extension 127.4 +- 15.1,
+# lateral inclination 89.3 +- 12 (both sides together), axial rotation 146.4 +- 13. The
+# rotation's active range is above the joints' sum (77), so that axis is not narrowed.
+# A joint coupling, not a joint limit: each joint keeps its own range (the checks above and
+# :func:`clamp_theta` use those); this envelope bounds the sum of the joints' angles on
+# each axis (:func:`within_active_range`), for sampling and for the benchmarks' "within
+# the active range" figures (docs/model.md, "Within the neck's active range").
+ACTIVE_RANGE_DEG: tuple[tuple[float, float], ...] = ((-70.0, 50.0), (-80.0, 80.0), (-45.0, 45.0))
+
 #: Vertical slide tau, metres (up positive): (min, max). See :mod:`~hack_render.geometry.larynx`.
 TAU_RANGE_M: tuple[float, float] = (-0.01, 0.02)
 #: Larynx size eta (1 = the identity's own larynx): (min, max).
@@ -98,6 +114,24 @@ def head_rotation_range_deg() -> np.ndarray:
     """The whole neck's range for a head rotation, degrees, (3, 2): the sums of the joints'
     limits per axis."""
     return _limits_deg().sum(0)
+
+
+def whole_neck_angles_deg(theta) -> np.ndarray:
+    """The whole neck's angle per axis of poses (..., 8, 3) (axis-angle, radians): the sum
+    over the joints of each joint's Euler angles, degrees (..., 3). A whole-head rotation
+    shared out by :func:`distribute_head_rotation` gives back its own angles."""
+    theta = _numpy(theta)
+    expect(theta.ndim >= 2 and theta.shape[-2:] == (NUM_JOINTS, 3), "theta",
+           f"shape (..., {NUM_JOINTS}, 3) axis-angle per joint", f"shape {theta.shape}")
+    return np.rad2deg(np_rotations.axis_angle_to_euler(theta)).sum(-2)
+
+
+def within_active_range(theta, tol_deg: float = 1e-6) -> np.ndarray:
+    """(...,) bool: poses (..., 8, 3) whose whole-neck angles (:func:`whole_neck_angles_deg`)
+    lie within :data:`ACTIVE_RANGE_DEG` on every axis."""
+    a = whole_neck_angles_deg(theta)
+    rng = np.asarray(ACTIVE_RANGE_DEG)
+    return ((a >= rng[:, 0] - tol_deg) & (a <= rng[:, 1] + tol_deg)).all(-1)
 
 
 def _numpy(x) -> np.ndarray:
