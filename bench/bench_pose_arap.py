@@ -18,7 +18,9 @@ the bench's expression, per pose-identity pair:
 
 For each deformer and pose family: the largest stretch minus the bound (median, p99), the
 pairs that fold skin, and the issue's targets (stretch above the bound: median <= 0.08,
-p99 <= 0.40; where ARAP itself misses one, ARAP's figure + 0.05).
+p99 <= 0.40; where ARAP itself misses one, ARAP's figure + 0.05); the same for the pairs
+within the neck's active range (``active``, ``<family>_active``:
+:data:`hack_render.geometry.anatomy.ACTIVE_RANGE_DEG`).
 
     PYTHONPATH=$PWD python bench/bench_pose_arap.py [--model M] [--poses 200]
         [--identities 3] [--iterations 30] [--out bench/results/pose_arap.json]
@@ -39,6 +41,7 @@ from bench_pose_gate import add_subset_arguments, subset
 from bench_pose_space import EXPRESSION
 from provenance import write_result
 
+from hack_render.geometry.anatomy import within_active_range
 from hack_render.geometry.deformation import (
     model_deformation,
     model_stretch_bound,
@@ -78,11 +81,12 @@ def main(argv=None) -> None:
     anchors = rigid_anchors(model, topo)
     names, theta, fam_of, betas = subset(args)
     betas = betas.double()
+    active = within_active_range(theta)  # the poses within the neck's active range
     t0 = time.time()
     results = {"model": str(args.model) if args.model else "the shipped model",
                "poses": args.poses, "identities": args.identities, "seed": args.seed,
                "arap_iterations": args.iterations, "expression": EXPRESSION,
-               "families": names, "targets": {**TARGETS, "arap_allowance": ARAP_ALLOWANCE},
+               "families": names, "active_range_poses": int(active.sum()), "targets": {**TARGETS, "arap_allowance": ARAP_ALLOWANCE},
                "configurations": {}}
     for conf, psi in (("neutral", None), ("expression", model.expression_vector(EXPRESSION))):
         raw = {k: [] for k in ("bound", "lbs", "lbs_folded", "arap", "arap_folded", "model",
@@ -100,8 +104,14 @@ def main(argv=None) -> None:
             print(f"{conf}: identity done [{time.time() - t0:.0f} s]", flush=True)
         raw = {k: np.stack(v) for k, v in raw.items()}
         entry = {}
-        for fam in ["all"] + names:
-            sel = np.ones(len(fam_of), bool) if fam == "all" else fam_of == names.index(fam)
+        for fam in ["all"] + names + ["active"] + [f"{n}_active" for n in names]:
+            base = fam.removesuffix("_active")
+            sel = (np.ones(len(fam_of), bool) if base in ("all", "active")
+                   else fam_of == names.index(base))
+            if fam.endswith("active"):
+                sel = sel & active
+            if not sel.any():  # a small subset may have no pose of a family in the range
+                continue
             row = {"bound_median": float(np.median(raw["bound"][:, sel]))}
             for key in ("lbs", "arap", "model"):
                 row[key] = summary(raw[key][:, sel] - raw["bound"][:, sel], raw[f"{key}_folded"][:, sel])

@@ -209,8 +209,10 @@ def main(argv=None) -> None:
                 entry[fam] = summarise(s[:, sel], c[:, sel], f[:, sel],
                                        None if lbs is None else lbs[:, sel], bound[:, sel])
                 sel = sel & active
-                entry[f"{fam}_active"] = summarise(s[:, sel], c[:, sel], f[:, sel],
-                                                   None if lbs is None else lbs[:, sel], bound[:, sel])
+                if sel.any():
+                    entry[f"{fam}_active"] = summarise(s[:, sel], c[:, sel], f[:, sel],
+                                                       None if lbs is None else lbs[:, sel],
+                                                       bound[:, sel])
             entry["active"] = summarise(s[:, active], c[:, active], f[:, active],
                                         None if lbs is None else lbs[:, active], bound[:, active])
             conf[name] = entry
