@@ -96,6 +96,9 @@ def summarise(stretch: np.ndarray, comp: np.ndarray, folded: np.ndarray,
            "folded_poses": int((folded > 0).sum()), "folded_triangles": int(folded.sum())}
     if lbs is not None:
         out["poses_worse_than_lbs"] = int((stretch > lbs + 0.01).sum())
+        # the rule: every pair at most 0.03 above its plain LBS
+        out["poses_worse_than_lbs_by_0.03"] = int((stretch > lbs + 0.03).sum())
+        out["worse_than_lbs_max"] = float((stretch - lbs).max())
     if bound is not None:
         gap = stretch - bound
         out["stretch_above_bound"] = {"median": float(np.median(gap)),
@@ -220,13 +223,15 @@ def main(argv=None) -> None:
             print(f"{'expression' if expr else 'neutral':10s} {name:9s} stretch median "
                   f"{a['stretch']['median']:.3f} p99 {a['stretch']['p99']:.3f} max "
                   f"{a['stretch']['max']:.3f} | folded poses {a['folded_poses']} triangles "
-                  f"{a['folded_triangles']}" + (f" | worse than LBS {a['poses_worse_than_lbs']}"
+                  f"{a['folded_triangles']}" + (f" | worse than LBS {a['poses_worse_than_lbs']} (max "
+                                                 f"{a['worse_than_lbs_max']:.3f})"
                                                  if lbs is not None else ""), flush=True)
             a = entry["active"]
             print(f"{'':10s} {'':9s} within the active range ({a['poses']} pairs): stretch "
                   f"median {a['stretch']['median']:.3f} p99 {a['stretch']['p99']:.3f} | folded "
                   f"poses {a['folded_poses']} triangles {a['folded_triangles']}"
-                  + (f" | worse than LBS {a['poses_worse_than_lbs']}" if lbs is not None else ""),
+                  + (f" | worse than LBS {a['poses_worse_than_lbs']} (max "
+                     f"{a['worse_than_lbs_max']:.3f})" if lbs is not None else ""),
                   flush=True)
         res["configurations"]["expression" if expr else "neutral"] = conf
     res["seconds"] = time.time() - t0
