@@ -74,14 +74,14 @@ HEAD_AXES: tuple[str, str, str] = ("flexion/extension (x)", "axial rotation (y)"
 # table (White & Panjabi, above) overshoots when every joint is at its limit at once: the
 # joints' sums reach flexion 65.5 and lateral bending 61 (head_rotation_range_deg). In vivo,
 # Niewiadomski C et al., Experimental assessment of cervical ranges of motion and
-# compensatory strategies, Chiropractic & Manual Therapies 2019;27:9 (97 healthy subjects,
+# compensatory strategies, Chiropractic & Manual Therapies 27 (2019) (97 healthy subjects,
 # head relative to thorax, opto-electronic; Results): flexion + extension 127.4 +- 15.1,
 # lateral inclination 89.3 +- 12 (both sides together), axial rotation 146.4 +- 13. The
 # rotation's active range is above the joints' sum (77), so that axis is not narrowed.
-# A joint coupling, not a joint limit: each joint keeps its own range (the checks above and
+# A joint coupling, not a joint limit: each joint keeps its own range (the checks below and
 # :func:`clamp_theta` use those); this envelope bounds the sum of the joints' angles on
-# each axis (:func:`within_active_range`), for sampling and for the benchmarks' "within
-# the active range" figures (docs/model.md, "Within the neck's active range").
+# each axis (:func:`within_active_range`), and the pose benchmarks give their figures
+# within it too (docs/model.md, "Within the neck's active range").
 ACTIVE_RANGE_DEG: tuple[tuple[float, float], ...] = ((-70.0, 50.0), (-80.0, 80.0), (-45.0, 45.0))
 
 #: Vertical slide tau, metres (up positive): (min, max). See :mod:`~hack_render.geometry.larynx`.
