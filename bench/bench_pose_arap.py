@@ -86,7 +86,8 @@ def main(argv=None) -> None:
     results = {"model": str(args.model) if args.model else "the shipped model",
                "poses": args.poses, "identities": args.identities, "seed": args.seed,
                "arap_iterations": args.iterations, "expression": EXPRESSION,
-               "families": names, "active_range_poses": int(active.sum()), "targets": {**TARGETS, "arap_allowance": ARAP_ALLOWANCE},
+               "families": names, "active_range_poses": int(active.sum()),
+               "targets": {**TARGETS, "arap_allowance": ARAP_ALLOWANCE},
                "configurations": {}}
     for conf, psi in (("neutral", None), ("expression", model.expression_vector(EXPRESSION))):
         raw = {k: [] for k in ("bound", "lbs", "lbs_folded", "arap", "arap_folded", "model",

@@ -32,12 +32,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pose_space import EXPRESSION, model_from_git
 from provenance import ROOT, write_result
 
-from hack_render.geometry.anatomy import within_active_range
+from hack_render.geometry.anatomy import whole_neck_angles_deg, within_active_range
 from hack_render.geometry.deformation import fold_mask, sample_pose_space, skin_topology
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.model import HackModel
 from hack_render.geometry.model_file import load_model_file
-from hack_render.geometry.rotations import axis_angle_to_euler
 
 
 def folds(model: HackModel, betas: torch.Tensor, theta: torch.Tensor, psi, topo,
@@ -96,7 +95,7 @@ def main(argv=None) -> None:
     theta = torch.cat(list(fams.values())).float()
     fam_of = np.concatenate([[k] * len(v) for k, v in fams.items()])
     first = {k: int(np.argmax(fam_of == k)) for k in fams}
-    head = torch.rad2deg(axis_angle_to_euler(theta.double()).sum(1)).numpy()  # (P, 3)
+    head = whole_neck_angles_deg(theta.double())  # (P, 3): the joints' Euler angles summed
     active = within_active_range(theta.double())  # (P,) within the neck's active range
     g = torch.Generator().manual_seed(args.seed)
     betas = torch.randn(args.identities, 20, generator=g)

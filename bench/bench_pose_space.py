@@ -14,9 +14,9 @@ poses) and the folded skin triangles, for
 on all pairs and on those within the whole neck's active range
 (:data:`hack_render.geometry.anatomy.ACTIVE_RANGE_DEG`, a coupling of the joints: the
 sampled box lets every joint reach its limit at once; ``"active"`` and
-``"<family>_active"`` entries), and, per pose, the lower bound on the largest stretch that any deformer keeping the face
-rigid with the skull and the chest rim with the thorax must reach
-(:func:`hack_render.geometry.deformation.stretch_lower_bound`): how many pose-identity
+``"<family>_active"`` entries), and, per pose, the lower bound on the largest stretch that
+any deformer keeping the face rigid with the skull and the chest rim with the thorax must
+reach (:func:`hack_render.geometry.deformation.stretch_lower_bound`): how many pose-identity
 pairs no corrective or weighting can bring within the issue's targets (stretch <= 35 % /
 60 %), and each model's stretch above the bound.
 

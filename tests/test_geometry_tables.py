@@ -137,7 +137,9 @@ def test_active_range_is_a_coupling_inside_the_joints_box():
     # flexion 65.5 and lateral 61 in the box against 50 and 45 active; extension about equal
     assert act[0, 1] < rng[0, 1] - 10 and act[2, 1] < rng[2, 1] - 10 and act[2, 0] > rng[2, 0] + 10
     assert act[1, 1] >= rng[1, 1]  # axial: the active range is wider than the joints' sum
-    pose = lambda deg: distribute_head_rotation(torch.deg2rad(torch.tensor([deg], dtype=torch.float64)))
+    def pose(deg):
+        return distribute_head_rotation(torch.deg2rad(torch.tensor([deg], dtype=torch.float64)))
+
     assert not within_active_range(pose([rng[0, 1], 0.0, 0.0]))[0]
     assert within_active_range(pose([50.0, 0.0, 0.0]))[0]
     assert not within_active_range(pose([50.5, 0.0, 0.0]))[0]
