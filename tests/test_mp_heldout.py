@@ -93,3 +93,36 @@ def test_04_mp_learns_from_fresh_identities_only(arrays):
     assert grads[False][0] > 0 and grads[False][1] == 0.0
     assert grads[True][0] == pytest.approx(grads[False][0], rel=1e-9)
     assert grads[True][1] > 0
+
+
+def test_05_trained_weights_are_the_files(bench, arrays):
+    """``--weights trained``: the energy takes the loss weights and the head-pose sampler
+    the file's correctives were learned with (its learn.pose metadata), not the learner's
+    defaults."""
+    weights = {"fold_sum": 1234.0, "worse_pose": 567.0, "bound": 5.0}
+    learner, _, _ = bench._learner(arrays, {"loss_weights": weights, "single_axis_head_poses": True})
+    default, _, _ = bench._learner(arrays, None)
+    for k, v in weights.items():
+        assert learner.lam[k] == v
+        assert default.lam[k] != v
+    assert learner.single_axis and not default.single_axis
+
+
+def test_06_oracle_fits_below_the_mean_and_a_constant_mp_is_the_mean(bench, arrays):
+    """The oracle's own constant, fitted from M_P's mean output, never ends above the mean
+    on its own fit poses; with a constant M_P (hidden layers zeroed) M_P's output is its
+    mean, so its test ratio is 1; every ratio is finite and positive."""
+    a = dict(arrays)
+    for k in list(a):
+        if k.startswith("pose_mlp_w"):
+            a[k] = np.zeros_like(a[k])
+    res = bench.oracle(a, identities=2, poses=2, seed=5, steps=2)
+    assert len(res["identities"]) == 2
+    for r in res["identities"]:
+        assert r["fit_poses"] == r["test_poses"] == 2
+        assert r["oracle_fit_ratio"] <= 1 + 1e-9
+        assert r["mp_test_ratio"] == pytest.approx(1.0, abs=1e-9)
+        for k in ("oracle_test_ratio", "pooled_test_ratio", "oracle_over_pooled"):
+            assert np.isfinite(r[k]) and r[k] > 0
+    s = res["summary"]
+    assert s["oracle_fit_ratio_median"] <= 1 + 1e-9
