@@ -75,10 +75,7 @@ def energy(learner, batch) -> tuple[float, float]:
 def held_out(arrays: dict, identities: int = 10, poses: int = 48, seed: int = 9001,
              trained: dict | None = None) -> dict:
     """Per held-out identity, the energy with M_P and with its mean output (module doc)."""
-    learner, gate, comps = _learner(arrays, trained)
-    mlp = learner.mlp
-    mean = mean_output(learner)
-    g = torch.Generator().manual_seed(seed)
+    learner, gate, comps, mlp, mean, g = _setup(arrays, trained, seed)
     rows = []
     for i in range(identities):
         batch = learner.sample(g, 1, poses)
@@ -118,6 +115,13 @@ def _learner(arrays: dict, trained: dict | None = None):
     return learner, gate, comps
 
 
+def _setup(arrays: dict, trained: dict | None, seed: int) -> tuple:
+    """(learner, gate, components, M_P's MLP, its mean output, the held-out generator)."""
+    learner, gate, comps = _learner(arrays, trained)
+    return (learner, gate, comps, learner.mlp, mean_output(learner),
+            torch.Generator().manual_seed(seed))
+
+
 def _energy_of(learner, batch, m: torch.Tensor) -> torch.Tensor:
     """The held-out energy (module doc) of ``batch`` with M_P's output replaced by ``m``
     (C,), differentiable in ``m``."""
@@ -146,10 +150,7 @@ def oracle(arrays: dict, identities: int = 6, poses: int = 256, seed: int = 9001
     """Per held-out identity, the best constant coefficients on its fit poses, scored on
     its test poses, against M_P's mean output and against the best constant for all the
     identities together (module doc, ``--oracle``)."""
-    learner, gate, comps = _learner(arrays, trained)
-    mlp = learner.mlp
-    mean = mean_output(learner)
-    g = torch.Generator().manual_seed(seed)
+    learner, gate, comps, mlp, mean, g = _setup(arrays, trained, seed)
     parts = []
     for _ in range(identities):
         batch = learner.sample(g, 1, 2 * poses)
