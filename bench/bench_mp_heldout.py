@@ -24,7 +24,8 @@ sampler, the same expression); the personalised coefficients are fitted to that 
 alone (a constant (C,) vector, L-BFGS from M_P's mean output, on the fit poses) and scored
 on the test poses against the mean output, beside M_P's own output on the same test poses.
 An oracle test ratio near 1 says the energy's identity dependence that these components
-can express is below what the pose sample shows: no beta -> coefficients map can do better.
+can express is below what the pose sample shows; below 1, it is how much an identity's
+own coefficients gain on poses they were not fitted to (M_P's ceiling, roughly).
 
     PYTHONPATH=$PWD python bench/bench_mp_heldout.py --model g2.npz --out mp.json
     PYTHONPATH=$PWD python bench/bench_mp_heldout.py --oracle --identities 6 --poses 256 --out o.json
@@ -148,15 +149,16 @@ def _fit_constant(learner, batch, start: torch.Tensor, steps: int) -> torch.Tens
 def oracle(arrays: dict, identities: int = 6, poses: int = 256, seed: int = 9001,
            steps: int = 25, trained: dict | None = None) -> dict:
     """Per held-out identity, the best constant coefficients on its fit poses, scored on
-    its test poses, against M_P's mean output and against the best constant for all the
-    identities together (module doc, ``--oracle``)."""
+    its test poses, against M_P's mean output and against one constant fitted to all the
+    identities' fit poses together (module doc, ``--oracle``)."""
     learner, gate, comps, mlp, mean, g = _setup(arrays, trained, seed)
     parts = []
     for _ in range(identities):
         batch = learner.sample(g, 1, 2 * poses)
         split = torch.randperm(len(batch), generator=g)
         parts.append((batch, batch.rows(split[:len(batch) // 2]), batch.rows(split[len(batch) // 2:])))
-    # the generic side at its best: one constant fitted to every identity's fit poses
+    # one constant fitted to every identity's fit poses together (a generic fit: with
+    # hinge terms it follows the few rows that fold or exceed LBS, docs/model.md)
     pooled = _fit_constant(learner, PoseBatch.cat([f for _, f, _ in parts]), mean, steps)
     rows = []
     for i, (batch, fit, test) in enumerate(parts):
