@@ -6,6 +6,13 @@ the template onto the identity's neutral mesh: E_beta_i = DT(E) - x_i. The perso
 E_beta - E_generic is kept on the M skin vertices where it varies most (the model file's
 vertex subset, to fit the size budget), PCA'd, and M_E maps beta to the first 50 weights.
 
+The subset holds 59 % of the personal part's energy: outside it the personal part is cut
+to zero, and across the subset's edge with the rest of the skin that cut was a step (up to
+2 mm across one 3.5 mm edge, shrinking submental edges to a quarter of their length under
+a smile with the jaw open, where the pose correctives then stretched or folded the skin).
+:func:`taper_personal` ramps the personal part down over the subset's outer rings instead
+(:data:`TAPER_RINGS`), the same for every identity and expression.
+
 Data honesty: the per-identity expressions are *derived* by deformation transfer of
 ICT-FaceKit's generic shapes, not captured per person; the personalisation they encode is the
 geometric adaptation of each shape to the identity's face (sizes, proportions, curvature).
@@ -29,6 +36,9 @@ from hack_render.learn.personal import (
 from hack_render.motion.deformation_transfer import TargetSolver, source_gradients
 
 SKIN_LAST = 11247
+#: Rings of the personal subset, counted from the skin outside it, over which M_E's output
+#: ramps from 0 to its full value (ring r of k: r / (k + 1)).
+TAPER_RINGS = 3
 
 
 @dataclass
@@ -63,14 +73,55 @@ class ExpressionTransfer:
         return out
 
 
+def seam_taper(faces: np.ndarray, subset: np.ndarray, num_vertices: int,
+               rings: int = TAPER_RINGS) -> np.ndarray:
+    """(len(subset),) factors in (0, 1]: ``r / (rings + 1)`` on the subset's r-th ring from
+    the skin outside it (graph rings over the skin's faces), 1 from ring ``rings + 1`` on
+    and where no outside skin vertex is reachable."""
+    subset = np.asarray(subset, np.int64)
+    f = np.asarray(faces, np.int64)
+    f = f[(f <= SKIN_LAST).all(1)]
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    dist = np.full(num_vertices, np.inf)
+    front = np.zeros(num_vertices, bool)
+    front[np.unique(f)] = True
+    front[subset] = False
+    dist[front] = 0
+    r = 0
+    while front.any() and r <= rings:
+        r += 1
+        nb = np.zeros(num_vertices, bool)
+        nb[e[front[e[:, 0]], 1]] = True
+        nb &= ~np.isfinite(dist)
+        dist[nb] = r
+        front = nb
+    return np.clip(dist[subset] / (rings + 1), 0.0, 1.0)
+
+
+def taper_personal(arrays: dict[str, np.ndarray], faces: np.ndarray, num_vertices: int,
+                   rings: int = TAPER_RINGS, prefix: str = "expr") -> dict[str, np.ndarray]:
+    """``arrays`` with the personal group's mean and components scaled per vertex by
+    :func:`seam_taper` (M_E's output is linear in both: the output itself tapered)."""
+    t = seam_taper(faces, arrays[f"{prefix}_pca_vertices"], num_vertices, rings)
+    out = dict(arrays)
+    out[f"{prefix}_pca_mean"] = (arrays[f"{prefix}_pca_mean"] * t[None, :, None]).astype(np.float32)
+    out[f"{prefix}_pca_components"] = (
+        arrays[f"{prefix}_pca_components"] * t[None, None, :, None]).astype(np.float32)
+    return out
+
+
 def learn_expressions(arrays: dict[str, np.ndarray], template: np.ndarray, shape_components: np.ndarray,
                       num_identities: int = 300, num_vertices: int = 1500, num_components: int = 50,
-                      epochs: int = 3000, seed: int = 60, progress: bool = True) -> ExpressionResult:
+                      epochs: int = 3000, seed: int = 60, progress: bool = True,
+                      taper_rings: int = TAPER_RINGS) -> ExpressionResult:
     """DT onto ``num_identities`` identities, PCA of {E_beta}, M_E, and the Fig. 12 ablation.
 
     The last 10 % of identities are held out of PCA and M_E; on them the ablation compares the
     DT ground truth with (a) the generic shapes and (b) the generic shapes plus M_E's
     personalisation, as mean per-vertex error in mm over all moving skin vertices.
+    ``taper_rings``: :func:`taper_personal` (0: the subset's edge a step, as before model
+    version 6).
     """
     rng = np.random.default_rng(seed)
     faces = arrays["faces"]
@@ -109,6 +160,8 @@ def learn_expressions(arrays: dict[str, np.ndarray], template: np.ndarray, shape
                                  epochs=epochs, seed=seed, progress=progress, desc="M_E")
     # Ablation (Fig. 12) on the held-out identities.
     pred = space.pca.reconstruct(mlp_forward(space.mlp, betas[-ntest:])).reshape(ntest, e, len(subset), 3)
+    taper = seam_taper(faces, subset, len(template), taper_rings) if taper_rings else 1.0
+    pred = pred * np.reshape(taper, (1, 1, -1, 1))
     moving_idx = np.flatnonzero(dt.moving)
     pos = np.searchsorted(moving_idx, subset)
     generic_err, personal_err = [], []
@@ -123,6 +176,7 @@ def learn_expressions(arrays: dict[str, np.ndarray], template: np.ndarray, shape
     report = {
         "identities": num_identities, "held_out": ntest, "subset_vertices": int(len(subset)),
         "subset_energy_fraction": captured, "components": int(len(space.pca.components)),
+        "taper_rings": int(taper_rings),
         "mlp_train_mse_mm2": space.train_loss * 1e6, "mlp_val_mse_mm2": (space.val_loss or 0) * 1e6,
         "ablation_mm": {
             "generic_all_moving_vertices": float(np.mean(generic_err) * 1e3),
@@ -136,4 +190,6 @@ def learn_expressions(arrays: dict[str, np.ndarray], template: np.ndarray, shape
                                                     [1, 2, 5, 10, 20, 30, 50, 100, 200])},
     }
     out = personal_arrays("expr", space, subset, (e, len(subset)))
+    if taper_rings:
+        out = taper_personal(out, faces, len(template), taper_rings)
     return ExpressionResult(arrays=out, space=space, report=report)
