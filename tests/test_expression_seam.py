@@ -90,3 +90,24 @@ def test_04_seam_follows_deformation_transfer(arrays):
     assert abl["personalised_all_moving_vertices"] < 0.9 * abl["generic_all_moving_vertices"]
     assert abl["personalised_subset"] < 0.5 * abl["generic_subset"]
     assert SKIN_LAST > 0
+
+
+def test_05_the_learner_ramps_what_it_learns(arrays):
+    """``learn_expressions`` (a small run: 6 identities, 4 shapes, 300 vertices) writes its
+    personal arrays ramped at the subset's edge: the same run with ``taper_rings=0`` times
+    the ramp, and the report says so."""
+    from hack_render.learn.expression_learn import learn_expressions
+
+    torch.set_num_threads(1)
+    small = {"faces": arrays["faces"], "expression_basis": arrays["expression_basis"][:4],
+             "shape_std": arrays["shape_std"][:10]}
+    kw = {"num_identities": 6, "num_vertices": 300, "num_components": 3, "epochs": 30,
+          "progress": False}
+    ramped = learn_expressions(small, arrays["template_vertices"], arrays["shape_components"][:10], **kw)
+    step = learn_expressions(small, arrays["template_vertices"], arrays["shape_components"][:10],
+                             taper_rings=0, **kw)
+    t = seam_taper(arrays["faces"], ramped.arrays["expr_pca_vertices"], len(arrays["template_vertices"]))
+    assert (t < 1).sum() > 50
+    for key, shape in (("expr_pca_mean", (1, -1, 1)), ("expr_pca_components", (1, 1, -1, 1))):
+        np.testing.assert_allclose(ramped.arrays[key], step.arrays[key] * t.reshape(shape), atol=1e-9)
+    assert ramped.report["taper_rings"] == 3 and step.report["taper_rings"] == 0
