@@ -111,7 +111,8 @@ def _learner(arrays: dict, trained: dict | None = None):
     learner = energy_learner(arrays, num_components=comps, gate_deg=gate,
                              gate_chain=float(arrays.get("pose_gate_chain", 0.0)),
                              loss=trained.get("loss_weights"),
-                             single_axis=bool(trained.get("single_axis_head_poses", False)))
+                             single_axis=bool(trained.get("single_axis_head_poses", False)),
+                             corner=float(trained.get("corner_poses", 0.0)))
     learner.start_from(arrays)
     return learner, gate, comps
 

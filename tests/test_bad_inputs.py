@@ -220,6 +220,7 @@ CASES: list[tuple[str, str, str]] = [
     ("learn-pose-loss-not-a-number", "learn pose -o {o}/m.npz --loss fold_sum=x", "--loss"),
     ("learn-pose-loss-cosine-above-1", "learn pose -o {o}/m.npz --loss near_fold=2", "near_fold"),
     ("learn-pose-hard-negative", "learn pose -o {o}/m.npz --hard-examples -1", "--hard-examples"),
+    ("learn-pose-corner-above-1", "learn pose -o {o}/m.npz --corner-poses 1.5", "--corner-poses"),
     ("learn-model-ict-missing", "learn model --ict {i}/none -o {o}/m.npz", "--ict"),
     ("learn-base-model-ict-missing", "learn base-model --ict {i}/none -o {o}/m.npz", "--ict"),
     ("learn-embedding-out-suffix", "learn landmark-embedding -o {o}/e.txt", "-o/--output"),

@@ -173,8 +173,12 @@ def test_07_learn_pose_writes_the_chain_and_refuses_it_without_a_gate(tmp_path, 
     out = tmp_path / "m.npz"
     main(["learn", "pose", "-o", str(out), "--iterations", "1", "--identities", "1",
           "--mine-poses", "2", "--hard-examples", "0", "--pose-gate", "12",
-          "--pose-gate-chain", "0.5", "--quiet"])
+          "--pose-gate-chain", "0.5", "--corner-poses", "0.5", "--loss", "anchor=0.05",
+          "--quiet"])
     arrays, meta = load_model_file(out)
+    assert meta["learn"]["pose"]["corner_poses"] == 0.5
+    assert meta["learn"]["pose"]["loss_weights"]["anchor"] == 0.05
+    assert "anchor" in meta["learn"]["pose"]["history"][0]
     model = HackModel(arrays, meta)
     assert model.pose_gate_rad == pytest.approx(math.radians(12.0))
     assert model.pose_gate_chain == 0.5 and meta["learn"]["pose"]["gate_chain"] == 0.5

@@ -1,6 +1,6 @@
 """The pose learner's own machinery (issue 60): its stretch bound is the model's, its hard-
-example screen keeps the rows above their bound, and its sampler's single-axis head
-rotations (moved here from ``test_pose_space.py``, 16 and 17)."""
+example screen keeps the rows above their bound, its sampler's single-axis head rotations
+(moved here from ``test_pose_space.py``, 16 and 17) and corner poses, and the anchor term."""
 
 from __future__ import annotations
 
@@ -97,3 +97,52 @@ def test_03_mining_screens_its_own_identities():
         (batch,) = screened
         assert len(batch.theta) == 4 * want
         assert len(torch.unique(batch.beta, dim=0)) == want
+
+
+def test_04_corner_poses_and_the_anchor_term():
+    """``corner``: that share of the full-range whole-head poses lies near the box's corners
+    (every axis's whole-neck angle in the outer quarter of its range); ``corner=0`` draws
+    what the sampler drew before the option (the same generator calls). The ``anchor`` term
+    is zero where ``start_from`` left P and C, and the squared change (cm^2) after a step."""
+    from hack_render.geometry.anatomy import whole_neck_angles_deg
+    from hack_render.geometry.deformation import (
+        head_rotation_range_deg,
+        sample_corner_head_poses,
+        sample_head_poses,
+        sample_joint_poses,
+    )
+
+    rng = head_rotation_range_deg().numpy()
+    span = rng[:, 1] - rng[:, 0]
+    ang = whole_neck_angles_deg(sample_corner_head_poses(64, torch.Generator().manual_seed(3)))
+    u = (ang - rng[:, 0]) / span
+    assert ((u < 0.25 + 1e-6) | (u > 0.75 - 1e-6)).all()
+    assert (u < 0.25).any() and (u > 0.75).any()
+
+    arrays, _ = load_model_file(load_default_model().source_path)
+    std = np.asarray(arrays["shape_std"], np.float64)
+    dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
+    region = neck_region(arrays["faces"], SKIN_LAST, pose_subset(arrays))
+    make = lambda corner: PoseEnergyLearner(
+        arrays["template_vertices"], dirs, arrays["joint_regressor"], arrays["skinning_weights"],
+        arrays["joint_parents"], region, seed=19, corner=corner, loss={"anchor": 1.0})
+    # corner 0: the old sampler's draws, in its order
+    g = torch.Generator().manual_seed(19)
+    last = 0.6 * sample_head_poses(6, g, "xyz")
+    th = torch.cat([sample_joint_poses(12, g), sample_head_poses(6, g, "xyz"), last])
+    th = th[torch.randperm(len(th), generator=g)]
+    assert torch.equal(make(0.0).sample(torch.Generator().manual_seed(19), 3, 8).theta, th)
+    # corner 1: every full-range whole-head pose at a corner (of this batch's 24 poses,
+    # exactly those 6: the per-joint and the 60 % ones fall short of the outer quarters)
+    theta = make(1.0).sample(torch.Generator().manual_seed(19), 3, 8).theta
+    u = (whole_neck_angles_deg(theta) - rng[:, 0]) / span
+    assert int(((u < 0.25) | (u > 0.75)).all(1).sum()) == 6
+
+    learner = make(0.0)
+    learner.start_from(arrays)
+    batch = learner.sample(torch.Generator().manual_seed(20), 1, 4)
+    assert float(learner.terms(batch)["anchor"].detach()) == 0.0
+    with torch.no_grad():
+        learner.p_cm[3, 5, 1] += 0.2
+        learner.c_cm[0, 3, 5, 1] -= 0.1
+    assert abs(float(learner.terms(batch)["anchor"].detach()) - 0.05) < 1e-12

@@ -168,6 +168,19 @@ def sample_head_poses(n: int, generator: torch.Generator, axes: str = "xyz",
     return distribute_head_rotation(ang * keep)
 
 
+def sample_corner_head_poses(n: int, generator: torch.Generator, dtype=torch.float64,
+                             outer: float = 0.25) -> torch.Tensor:
+    """(n, 8, 3) whole-head rotations near the box's corners: on every axis uniform within
+    the ``outer`` fraction of the range at one of its two ends (a fair coin per axis),
+    shared out by :func:`distribute_head_rotation`: full flexion with a full bend, where the
+    expression's folds were (docs/model.md)."""
+    rng = torch.deg2rad(head_rotation_range_deg()).to(dtype)
+    u = outer * torch.rand(n, 3, generator=generator, dtype=dtype)
+    high = torch.rand(n, 3, generator=generator) < 0.5
+    u = torch.where(high, 1 - u, u)
+    return distribute_head_rotation(rng[:, 0] + u * (rng[:, 1] - rng[:, 0]))
+
+
 def sample_pose_space(n: int, seed: int, dtype=torch.float64) -> dict[str, torch.Tensor]:
     """The stress test's pose families, seeded: per-joint uniform (half), whole-head
     rotations on each axis alone (a twelfth each) and on all three combined (the rest)."""

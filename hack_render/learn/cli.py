@@ -186,6 +186,12 @@ def learn_pose(
                                      "poses as whole-head rotations about one axis alone "
                                      "(flexion, axial or lateral, as the stress test's head_x/y/z "
                                      "families) instead of combined ones at 60 %% of the range."),
+    corner: float = typer.Option(0.0, "--corner-poses", help="The share (0-1) of the "
+                                 "full-range whole-head poses, in batches and mined rows, drawn "
+                                 "near the box's corners (every axis in the outer quarter of its "
+                                 "range: full flexion with a full bend). With --loss anchor=W "
+                                 "(the squared change of P and C from the --continue file, cm^2) "
+                                 "a continuation aimed at the corners' folds."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Re-learn a model's pose correctives (P, the personalised components and M_P) and the
@@ -206,6 +212,7 @@ def learn_pose(
     boundary.number(mlp_lr, "--mlp-lr", 1e-7, 1e-1)
     boundary.number(hard, "--hard-examples", 0, 10000, integer=True)
     boundary.number(mine_poses, "--mine-poses", 1, 10000, integer=True)
+    boundary.number(corner, "--corner-poses", 0.0, 1.0)
     if mine_identities is not None:
         boundary.number(mine_identities, "--mine-identities", 1, 1000, integer=True)
     if gate is not None:
@@ -237,7 +244,7 @@ def learn_pose(
                            expressions=expressions,
                            loss=overrides, gate_deg=gate or None, single_axis=single_axis,
                            gate_chain=gate_chain if gate else 0.0,
-                           mine_identities=mine_identities)
+                           mine_identities=mine_identities, corner=corner)
     arrays.update(po["arrays"])
     meta.setdefault("provenance", {}).update(pose_provenance(po["report"]))
     learn = meta.setdefault("learn", {})

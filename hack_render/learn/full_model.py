@@ -209,7 +209,7 @@ MP_DEAD = 1e-4
 def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                    expressions: bool = True, loss: dict | None = None,
                    gate_deg: float | None = None, single_axis: bool = False,
-                   gate_chain: float = 0.0) -> PoseEnergyLearner:
+                   gate_chain: float = 0.0, corner: float = 0.0) -> PoseEnergyLearner:
     """The :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` of a model's arrays: its
     neck region, the model's rest meshes (``expressions``: with sampled expressions) and
     mirrored expression pairs; :func:`learn_pose_energy` trains it, and
@@ -227,7 +227,8 @@ def energy_learner(arrays: dict, num_components: int = 8, seed: int = 12,
                              jaw_open=names.index("jawOpen") if "jawOpen" in names else None,
                              symmetric=[(i, names.index(n[:-2] + "_R")) for i, n in enumerate(names)
                                         if n.endswith("_L") and n[:-2] + "_R" in names],
-                             gate_deg=gate_deg, single_axis=single_axis, gate_chain=gate_chain)
+                             gate_deg=gate_deg, single_axis=single_axis, gate_chain=gate_chain,
+                             corner=corner)
 
 
 def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
@@ -236,7 +237,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       start: dict | None = None, mlp_lr: float = 1e-4, hard: int = 16,
                       mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
                       gate_deg: float | None = None, single_axis: bool = False,
-                      gate_chain: float = 0.0, mine_identities: int | None = None) -> dict:
+                      gate_chain: float = 0.0, mine_identities: int | None = None,
+                      corner: float = 0.0) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -256,12 +258,13 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     correctives' gate (model format 3, written as ``pose_gate_deg``), or None for plain
     ``R - I`` features; ``gate_chain``: its chain weight (format 4, ``pose_gate_chain``; 0:
     none). ``single_axis``: a quarter of the poses whole-head rotations about
-    one axis alone (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`)."""
+    one axis alone; ``corner``: that share of the full-range whole-head poses near the
+    box's corners (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`)."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     learner = energy_learner(arrays, num_components=num_components, seed=seed,
                              expressions=expressions, loss=loss, gate_deg=gate_deg,
-                             single_axis=single_axis, gate_chain=gate_chain)
+                             single_axis=single_axis, gate_chain=gate_chain, corner=corner)
     old_spread = None
     if start is not None:
         learner.start_from(start)
@@ -295,7 +298,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
               "mine_poses": mine_poses, "mine_identities": mine_identities or identities,
               "gate_deg": gate_deg or None,
               "gate_chain": gate_chain if gate_deg else 0.0,
-              "single_axis_head_poses": single_axis,
+              "single_axis_head_poses": single_axis, "corner_poses": corner,
               "rest": ("the model's rest mesh (larynx, personalised expressions), half the "
                        "identities with a sampled expression" if expressions
                        else "T_bar + B_S(beta), neutral")}

@@ -69,7 +69,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from hack_render.geometry.deformation import sample_head_poses, sample_joint_poses
+from hack_render.geometry.deformation import (
+    sample_corner_head_poses,
+    sample_head_poses,
+    sample_joint_poses,
+)
 from hack_render.geometry.lbs import (
     chain_parents,
     local_rotations,
@@ -92,11 +96,11 @@ DEFAULTS = {"s0": 0.2, "c0": 0.3, "f0": 0.3, "strain": 1.0, "stretch": 30.0, "co
             "fold": 30.0, "bend": 3.0, "worse": 300.0, "smooth": 1e-3, "weights": 1e-2,
             "fold_sum": 1.0, "worse_max": 100.0, "worse_pose": 0.0, "worse_margin": 0.005,
             "near_fold": 0.1, "near_worse": 0.0, "bound": 0.0, "bound_margin": 0.1,
-            "near_bound": 0.0}
+            "near_bound": 0.0, "anchor": 0.0}
 
 #: terms of :meth:`PoseEnergyLearner.terms` (the other DEFAULTS keys are thresholds)
 TERMS = ("strain", "stretch", "compress", "fold", "bend", "worse", "smooth", "weights",
-         "fold_sum", "worse_max", "worse_pose", "bound")
+         "fold_sum", "worse_max", "worse_pose", "bound", "anchor")
 
 
 @dataclass
@@ -173,6 +177,8 @@ class PoseEnergyLearner:
         single_axis: sample a quarter of the poses as whole-head rotations about one axis
             alone (x, y or z, a third each, as the stress test's head_x/y/z families)
             instead of combined ones at 60 % of the range.
+        corner: the share of the full-range whole-head poses (batches and mined rows)
+            drawn near the box's corners (:func:`sample_corner_head_poses`); 0: none.
     """
 
     def __init__(self, template, shape_dirs, joint_regressor, weights, parents, region: NeckRegion,
@@ -180,8 +186,8 @@ class PoseEnergyLearner:
                  loss: dict | None = None, seed: int = 0, dtype=torch.float64,
                  rest_fn=None, num_expressions: int = 0, jaw_open: int | None = None,
                  symmetric: list[tuple[int, int]] | None = None, gate_deg: float | None = None,
-                 single_axis: bool = False, gate_chain: float = 0.0):
-        self.single_axis = single_axis
+                 single_axis: bool = False, gate_chain: float = 0.0, corner: float = 0.0):
+        self.single_axis, self.corner = single_axis, float(corner)
         self.gate_rad = None if not gate_deg else float(np.deg2rad(gate_deg))
         self.gate_chain = float(gate_chain)
         t = lambda x: torch.as_tensor(np.asarray(x), dtype=dtype)
@@ -226,6 +232,7 @@ class PoseEnergyLearner:
         with torch.no_grad():
             self.p_cm.copy_(torch.as_tensor(np.asarray(arrays["pose_basis"])[:, sub_ids]) * 100)
             self.c_cm.copy_(torch.as_tensor(np.asarray(arrays["pose_pca_components"])) * 100)
+            self._start = (self.p_cm.detach().clone(), self.c_cm.detach().clone())
             lin = [m for m in self.mlp if isinstance(m, torch.nn.Linear)]
             for i, layer in enumerate(lin):
                 layer.weight.copy_(torch.as_tensor(np.asarray(arrays[f"pose_mlp_w{i}"])))
@@ -368,6 +375,9 @@ class PoseEnergyLearner:
             "worse_max": torch.relu(r.amax(1) - r_lmax + lam["worse_margin"]).pow(2).mean(),
             "worse_pose": torch.relu(r - r_lmax[:, None] + lam["worse_margin"]).pow(2).sum(1).mean(),
             "bound": above,
+            # (P, C) - their values at :meth:`start_from`, cm^2: a continuation's trust region
+            "anchor": sum(((x - x0) ** 2).sum() for x, x0 in zip((self.p_cm, self.c_cm), self._start))
+            if getattr(self, "_start", None) is not None else r.new_zeros(()),
         }
 
     def screen(self, batch: PoseBatch) -> torch.Tensor:
@@ -406,16 +416,18 @@ class PoseEnergyLearner:
     def sample(self, g: torch.Generator, identities: int, poses: int) -> PoseBatch:
         """A batch: identities beta ~ N(0, I) (each with a sampled expression where
         ``rest_fn`` is given), each in ``poses`` poses (half per-joint uniform, a quarter
-        whole-head at full range, a quarter at 60 % of it or, with ``single_axis``, about
-        one axis alone)."""
+        whole-head at full range, ``corner`` of them near the corners, a quarter at 60 % of
+        it or, with ``single_axis``, about one axis alone)."""
         k = max(poses // 4, 1)
         n = identities * k
         if self.single_axis:
             last = torch.cat([sample_head_poses(n // 3 + (i < n % 3), g, ax) for i, ax in enumerate("xyz")])
         else:
             last = 0.6 * sample_head_poses(n, g, "xyz")
-        th = torch.cat([sample_joint_poses(identities * (poses - 2 * k), g),
-                        sample_head_poses(n, g, "xyz"), last]).to(self.template.dtype)
+        joint = sample_joint_poses(identities * (poses - 2 * k), g)
+        c = round(n * self.corner)
+        full = [sample_corner_head_poses(c, g)] * bool(c) + [sample_head_poses(n - c, g, "xyz")]
+        th = torch.cat([joint, *full, last]).to(self.template.dtype)
         th = th[torch.randperm(len(th), generator=g)]
         beta = torch.randn(identities, self.num_shape, generator=g, dtype=self.template.dtype)
         psi = self._expressions(g, identities)
