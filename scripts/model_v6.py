@@ -26,6 +26,43 @@ SEAM_NOTE = (
     "length, deformation transfer's 69 %; bench/bench_expression_seam.py).")
 
 
+def record_mp(meta: dict, paths: list[str]) -> None:
+    """M_P's held-out figures (bench/bench_mp_heldout.py on the written file: the trained-weights
+    seeds first, then the default-weights run) into ``learn.pose.mp_heldout`` and the
+    pose_blendshapes provenance line (replacing an earlier such sentence)."""
+    prov = meta["provenance"]
+    sets = [json.loads(Path(p).read_text()) for p in paths]
+    first = sets[0]
+    keep = ("summary", "identities", "seed", "poses_per_identity", "command", "commit",
+            "weights", "loss_weights", "single_axis_head_poses")
+    held = {k: first[k] for k in keep if k in first}
+    trained_w = lambda s: "loss_weights" in str(s.get("weights"))
+    held["other_sets"] = {f"{s.get('seed')}" + ("" if trained_w(s) else " (default weights)"):
+                          {k: s[k] for k in ("summary", "seed", "weights", "command", "commit") if k in s}
+                          for s in sets[1:]}
+    meta["learn"]["pose"]["mp_heldout"] = held
+    text = prov["pose_blendshapes"]
+    mark = " M_P on held-out identities (bench/bench_mp_heldout.py"
+    cut = text.index(mark) if mark in text else len(text)
+    trained = [s for s in sets if trained_w(s)]
+    other = [s for s in sets if not trained_w(s)]
+    lower = sum(s["summary"]["lower_with_mp"] for s in trained)
+    text = text[:cut] + (
+        " M_P on held-out identities (bench/bench_mp_heldout.py, on this file; the energy its "
+        "correctives were learned with: learn.pose.loss_weights and its head-pose sampler), the "
+        "energy with M_P over the energy with its mean output, "
+        f"{len(trained)} sets of {first['summary'].get('identities', 10)} identities (seeds "
+        + ", ".join(str(s["seed"]) for s in trained) + "): "
+        + "; ".join(f"median {s['summary']['ratio_median']:.3f} ({s['summary']['ratio_min']:.3f}-"
+                    f"{s['summary']['ratio_max']:.3f}), lower on {s['summary']['lower_with_mp']} of 10"
+                    for s in trained)
+        + f" ({lower} of {10 * len(trained)} lower)"
+        + "".join(f"; with the learner's default weights instead (seed {s['seed']}): median "
+                  f"{s['summary']['ratio_median']:.3f}, lower on {s['summary']['lower_with_mp']} of 10"
+                  for s in other) + ".")
+    prov["pose_blendshapes"] = text
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("source", help="the version 5 model file")
@@ -61,35 +98,7 @@ def main() -> None:
         ex["seam"] = {"edge": mine["edge"], "command": res.get("command"), "commit": res.get("commit"),
                       "bench_expression_min_edge_ratio": mine["bench_expression_min_edge_ratio"]}
     if args.mp:
-        sets = [json.loads(Path(p).read_text()) for p in args.mp]
-        first = sets[0]
-        keep = ("summary", "identities", "seed", "poses_per_identity", "command", "commit",
-                "weights", "loss_weights", "single_axis_head_poses")
-        held = {k: first[k] for k in keep if k in first}
-        trained_w = lambda s: "loss_weights" in str(s.get("weights"))
-        held["other_sets"] = {f"{s.get('seed')}" + ("" if trained_w(s) else " (default weights)"):
-                              {k: s[k] for k in ("summary", "seed", "weights", "command", "commit") if k in s}
-                              for s in sets[1:]}
-        meta["learn"]["pose"]["mp_heldout"] = held
-        text = prov["pose_blendshapes"]
-        cut = text.index(" M_P on held-out identities (bench/bench_mp_heldout.py")
-        trained = [s for s in sets if trained_w(s)]
-        other = [s for s in sets if not trained_w(s)]
-        lower = sum(s["summary"]["lower_with_mp"] for s in trained)
-        text = text[:cut] + (
-            " M_P on held-out identities (bench/bench_mp_heldout.py, on this file; the energy its "
-            "correctives were learned with: learn.pose.loss_weights and its head-pose sampler), the "
-            "energy with M_P over the energy with its mean output, "
-            f"{len(trained)} sets of {first['summary'].get('identities', 10)} identities (seeds "
-            + ", ".join(str(s["seed"]) for s in trained) + "): "
-            + "; ".join(f"median {s['summary']['ratio_median']:.3f} ({s['summary']['ratio_min']:.3f}-"
-                        f"{s['summary']['ratio_max']:.3f}), lower on {s['summary']['lower_with_mp']} of 10"
-                        for s in trained)
-            + f" ({lower} of {10 * len(trained)} lower)"
-            + "".join(f"; with the learner's default weights instead (seed {s['seed']}): median "
-                      f"{s['summary']['ratio_median']:.3f}, lower on {s['summary']['lower_with_mp']} of 10"
-                      for s in other) + ".")
-        prov["pose_blendshapes"] = text
+        record_mp(meta, args.mp)
     save_model_file(args.out, arrays, meta)
     print(f"wrote {args.out}: model version 6, M_E tapered over {args.rings} rings")
 
