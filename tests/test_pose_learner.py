@@ -4,6 +4,8 @@ example screen keeps the rows above their bound, its sampler's single-axis head 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import torch
 
@@ -79,7 +81,8 @@ def test_02_learner_samples_single_axis_head_rotations():
 
 def test_03_mining_screens_its_own_identities():
     """``fit(mine_identities=k)`` screens k identities x ``mine_poses`` rows, however many
-    identities a training step draws; without it, the step's own count."""
+    identities a training step draws; without it, the step's own count. ``report`` gets
+    one line, after the first mining round, with the measured time a step takes."""
     arrays, _ = load_model_file(load_default_model().source_path)
     std = np.asarray(arrays["shape_std"], np.float64)
     dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
@@ -92,8 +95,12 @@ def test_03_mining_screens_its_own_identities():
     learner.screen = lambda batch: screened.append(batch) or screen(batch)
     for k, want in ((5, 5), (None, 2)):
         screened.clear()
+        lines = []
         learner.fit(iterations=1, identities=2, poses=4, hard=2, mine_poses=4,
-                    mine_identities=k, progress=False, learn_weights=False)
+                    mine_identities=k, progress=False, learn_weights=False, report=lines.append)
+        (line,) = lines
+        step = float(re.match(r"about ([0-9.]+) s a step here \(over the first 1\), ~", line)[1])
+        assert 0 < step < 120 and line.endswith(" in all")
         (batch,) = screened
         assert len(batch.theta) == 4 * want
         assert len(torch.unique(batch.beta, dim=0)) == want

@@ -238,7 +238,7 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
                       mine_poses: int = 48, expressions: bool = True, loss: dict | None = None,
                       gate_deg: float | None = None, single_axis: bool = False,
                       gate_chain: float = 0.0, mine_identities: int | None = None,
-                      corner: float = 0.0) -> dict:
+                      corner: float = 0.0, report=None) -> dict:
     """Pose correctives P, the personalised components and M_P, and the neck's skinning
     weights, learned by :class:`~hack_render.learn.pose_energy.PoseEnergyLearner` over the
     whole joint space (see that module for why this replaced :func:`learn_pose`). Returns
@@ -259,7 +259,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
     ``R - I`` features; ``gate_chain``: its chain weight (format 4, ``pose_gate_chain``; 0:
     none). ``single_axis``: a quarter of the poses whole-head rotations about
     one axis alone; ``corner``: that share of the full-range whole-head poses near the
-    box's corners (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`)."""
+    box's corners (:class:`~hack_render.learn.pose_energy.PoseEnergyLearner`); ``report``:
+    called with the measured time a step takes (``PoseEnergyLearner.fit``)."""
     sub = pose_subset(arrays)
     n, m = len(arrays["template_vertices"]), len(sub)
     learner = energy_learner(arrays, num_components=num_components, seed=seed,
@@ -274,7 +275,8 @@ def learn_pose_energy(arrays: dict, iterations: int = 600, lr: float = 0.01,
             learner.restart_personalisation(seed)
     res = learner.fit(iterations=iterations, lr=lr, identities=identities, poses=poses,
                       learn_weights=learn_weights, seed=seed, progress=progress, mlp_lr=mlp_lr,
-                      hard=hard, mine_poses=mine_poses, mine_identities=mine_identities)
+                      hard=hard, mine_poses=mine_poses, mine_identities=mine_identities,
+                      report=report)
     generic = np.zeros((72, n, 3), np.float32)
     generic[:, sub] = res.pose_basis
     out = {"pose_basis": generic, "pose_pca_vertices": sub.astype(np.int32),

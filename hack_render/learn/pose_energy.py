@@ -1,17 +1,12 @@
 """Pose correctives learned by minimising the neck skin's deformation energy over the
 whole joint space (issue 21).
 
-Why not regression onto simulated targets any more: the previous learner fitted P and M_P
-to DQS + ARAP range-of-motion sequences that moved one axis at a time; a corrective linear
-in the pose features extrapolated badly where axes combine (112 of 201 whole-head
-rotations folded skin; the largest stretch reached 1,034 %). Simulating the targets over
-combined poses does not cure it: a surface-only ARAP has no bending stiffness, so under
-the strong compression of combined poses it buckles, and its targets fold skin themselves
-(5 of 12 full-range combined whole-head rotations, measured on the template). This learner
-asks the skinned neck itself to be well behaved, pose by pose, over poses sampled from the
-whole space (every joint uniform within its limits, whole-head rotations up to each axis's
-full range, singly and combined), for identities sampled from the shape space at every
-step, so the personalised part generalises to identities it never saw.
+Why not regression onto simulated targets (docs/learn.md): correctives fitted to DQS + ARAP
+sequences that moved one axis at a time extrapolated badly where axes combine, and ARAP's
+own targets fold skin under combined poses. This learner asks the skinned neck itself to be
+well behaved over poses sampled from the whole space (every joint uniform within its
+limits, whole-head rotations up to each axis's full range, singly and combined), for
+identities sampled afresh at every step, so M_P generalises to identities it never saw.
 
 The model (paper Eq. 2-3, unchanged in form): the posed neck is
 ``LBS(T(beta) + f(theta) (P + sum_c m_c(beta) C_c), J(beta), theta, W)``, f = the 72 pose
@@ -54,10 +49,8 @@ within a margin of folding, or stretch more than plain LBS; each step then train
 of the pool beside the fresh samples (with ``near_bound`` > 0, also the rows whose largest
 stretch exceeds their bound by more than it).
 
-Rest shapes: by default T_bar + B_S(beta) from the arrays given; with ``rest_fn`` (see
-:func:`~hack_render.learn.full_model.learn_pose_energy`) the model's own rest mesh for each
-identity and a sampled expression (larynx and personalised expressions included), as the
-stress test measures it.
+Rest shapes: T_bar + B_S(beta), or with ``rest_fn`` the model's own rest mesh for each
+identity and a sampled expression, as the stress test measures it.
 """
 
 from __future__ import annotations
@@ -101,6 +94,12 @@ DEFAULTS = {"s0": 0.2, "c0": 0.3, "f0": 0.3, "strain": 1.0, "stretch": 30.0, "co
 #: terms of :meth:`PoseEnergyLearner.terms` (the other DEFAULTS keys are thresholds)
 TERMS = ("strain", "stretch", "compress", "fold", "bend", "worse", "smooth", "weights",
          "fold_sum", "worse_max", "worse_pose", "bound", "anchor")
+
+
+def _minutes(seconds: float) -> str:
+    """A duration for a person: "40 s", "12 min", "1.5 h"."""
+    return (f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min" if seconds < 5400
+            else f"{seconds / 3600:.1f} h")
 
 
 @dataclass
@@ -441,7 +440,7 @@ class PoseEnergyLearner:
             learn_weights: bool = True, seed: int = 0, progress: bool = True,
             log_every: int = 50, mlp_lr: float = 1e-4, hard: int = 0, mine_every: int = 10,
             mine_poses: int = 48, pool_size: int = 512,
-            mine_identities: int | None = None) -> PoseEnergyResult:
+            mine_identities: int | None = None, report=None) -> PoseEnergyResult:
         """Adam (``lr`` in centimetres for P and C, and for W's logits; ``mlp_lr`` for M_P,
         the paper's 1e-4: at 1e-2 its hidden units all died within a few hundred steps and
         it returned one constant for every identity), decaying linearly to 10 %.
@@ -450,7 +449,10 @@ class PoseEnergyLearner:
         ``identities``) x ``mine_poses`` fresh rows (:meth:`screen`) and keep the hard ones
         in a pool of at most ``pool_size`` (oldest dropped); each step adds ``hard`` rows
         drawn from the pool. More mined identities bring more sampled expressions (one per
-        identity), where a fold that needs an expression and a pose together is found."""
+        identity), where a fold that needs an expression and a pose together is found.
+
+        ``report``: called once with the time a step takes, measured over the first
+        ``mine_every`` steps (one mining round), and the run's time in all."""
         groups = [{"params": [self.p_cm, self.c_cm] + ([self.logits] if learn_weights else []),
                    "lr": lr, "base": lr},
                   {"params": list(self.mlp.parameters()), "lr": mlp_lr, "base": mlp_lr}]
@@ -478,6 +480,10 @@ class PoseEnergyLearner:
             opt.zero_grad()
             loss.backward()
             opt.step()
+            if report is not None and it == min(mine_every, iterations) - 1:
+                step = (time.time() - t0) / (it + 1)
+                report(f"about {step:.1f} s a step here (over the first {it + 1}), "
+                       f"~{_minutes(step * iterations)} in all")
             if it % log_every == 0 or it == iterations - 1:
                 hist.append({"iteration": it, "loss": float(loss.detach()),
                              **{k: float(v.detach()) for k, v in terms.items()},
