@@ -8,6 +8,9 @@ arrays, the version number and the provenance line of the pose correctives broug
 
 ``--mp`` (run on the written file, then this script again on the same input) puts M_P's
 held-out ratios into the metadata (``bench/bench_mp_heldout.py``), as ``model_v6.py`` does.
+A later continuation of version 7 is labelled the same way with ``--version 8 --note TEXT``
+(TEXT: how it was made; ``{it}``, ``{corner}``, ``{anchor}``, ``{bound}``, ``{margin}``,
+``{ids}``, ``{poses}`` are filled from the file's last run).
 """
 
 from __future__ import annotations
@@ -34,16 +37,20 @@ def main() -> None:
     ap.add_argument("out", help="where to write version 7")
     ap.add_argument("--mp", nargs="*", default=[], help="bench/bench_mp_heldout.py's results "
                     "on the new file: the trained-weights seeds first, then the default-weights run")
+    ap.add_argument("--version", type=int, default=7, help="the model version to write (a "
+                    "later continuation of version 7: 8)")
+    ap.add_argument("--note", help="the provenance sentence on how this file was made "
+                    "(default: version 7's)")
     args = ap.parse_args()
     arrays, meta = load_model_file(args.source)
     pose = meta["learn"]["pose"]
     prev = pose.get("continued", {}).get("previous", {})
-    if meta.get("model_version") not in (6, 7) or "corner_poses" not in pose:
+    if meta.get("model_version") not in (6, 7, args.version) or "corner_poses" not in pose:
         raise SystemExit("expected version 6 continued with --corner-poses, found model version "
                          f"{meta.get('model_version')}")
     text6 = prev.get("provenance_pose_blendshapes") or meta["provenance"]["pose_blendshapes"]
     w = pose["loss_weights"]
-    meta["model_version"] = 7
+    meta["model_version"] = args.version
     head = (
         "optimised (not captured): generic P, 8 personalised components and the M_P MLP minimise "
         "the neck skin's deformation energy under LBS (strain, stretch and compression tails, "
@@ -53,13 +60,13 @@ def main() -> None:
         "0.3; model format 4); hack_render.learn.pose_energy. ")
     if "This file (model version" in text6:
         head = text6[:text6.index("This file (model version")]
-    meta["provenance"]["pose_blendshapes"] = head + V7_NOTE.format(
+    meta["provenance"]["pose_blendshapes"] = head + (args.note or V7_NOTE).format(
         it=pose["iterations"], corner=pose["corner_poses"], anchor=w["anchor"], bound=w["bound"],
         margin=w["bound_margin"], ids=pose.get("mine_identities"), poses=pose.get("mine_poses"))
     if args.mp:
         record_mp(meta, args.mp)
     save_model_file(args.out, arrays, meta)
-    print(f"wrote {args.out}: model version 7")
+    print(f"wrote {args.out}: model version {args.version}")
 
 
 if __name__ == "__main__":
