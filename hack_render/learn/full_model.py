@@ -355,9 +355,10 @@ def pose_provenance(report: dict) -> dict:
 def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
                      num_pose_identities: int = 4, pose_iterations: int = 700,
                      expression_epochs: int = 3000, learn_weights: bool = True,
-                     progress: bool = True) -> tuple[dict, dict]:
+                     progress: bool = True, report=None) -> tuple[dict, dict]:
     """Arrays and metadata of the v2 default model (see module docstring).
-    ``num_pose_identities``: identities per step of the pose learner (new ones each step)."""
+    ``num_pose_identities``: identities per step of the pose learner (new ones each step);
+    ``report``: called with the pose stage's measured time a step (:func:`learn_pose_energy`)."""
     torch.set_num_threads(1)
     timings = {}
     t = time.time()
@@ -378,7 +379,7 @@ def build_full_model(ict_path: str | Path, num_expression_identities: int = 300,
     timings["expressions"] = time.time() - t
     t = time.time()
     po = learn_pose_energy(arrays, iterations=pose_iterations, identities=num_pose_identities,
-                           learn_weights=learn_weights, progress=progress)
+                           learn_weights=learn_weights, progress=progress, report=report)
     arrays.update(po["arrays"])
     timings["pose"] = time.time() - t
     curves["larynx"] = lar.report.pop("curves")
