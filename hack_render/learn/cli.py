@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import typer
+from tqdm import tqdm
 
 from appearance import cli as appearance_cli
 from hack_render import boundary, interrupts
@@ -306,8 +307,6 @@ def learn_joints(
 
 def _say(line: str) -> None:
     """A line on stderr from inside a loop with a progress bar (the bar is redrawn below)."""
-    from tqdm import tqdm
-
     tqdm.write(line, file=sys.stderr)
 
 
