@@ -44,11 +44,10 @@ def main() -> None:
     args = ap.parse_args()
     arrays, meta = load_model_file(args.source)
     pose = meta["learn"]["pose"]
-    prev = pose.get("continued", {}).get("previous", {})
     if meta.get("model_version") not in (6, 7, args.version) or "corner_poses" not in pose:
         raise SystemExit("expected version 6 continued with --corner-poses, found model version "
                          f"{meta.get('model_version')}")
-    text6 = prev.get("provenance_pose_blendshapes") or meta["provenance"]["pose_blendshapes"]
+    text6 = meta["provenance"]["pose_blendshapes"]
     w = pose["loss_weights"]
     meta["model_version"] = args.version
     head = (
