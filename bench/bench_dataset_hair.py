@@ -22,7 +22,9 @@
     ``params.update()`` rebuilds the acceleration structures, the groom's among them), the
     process's CPU seconds per sample and the render kernels compiled anew (Dr.Jit's kernel
     history: cache misses, and their compile seconds); ``--before PATH`` runs the same
-    in another checkout right after, in its own process.
+    in another checkout right after, in its own process. ``--pool-grown``: this checkout
+    once more with the measured samples' grooms grown during the warm-up (``hair.pool``:
+    the first samples of a dataset grow their pooled grooms, a later stretch finds them).
 
 (d) ``--groom``: the groom alone, in a fresh process per checkout: ``grow`` of the hair of
     samples 0..``--n``-1 of ``--seed`` (the default config), then ``pose_groom`` of each on
@@ -197,13 +199,16 @@ while len(presets) < len(cfg["lighting"]["presets"]) or i < {warm}:
     r.render(i)
     i += 1
 first = i
+js = list(range(first, first + {n}))
+if {grown}:  # a later stretch of a long dataset: the measured samples' pooled grooms grown
+    for j in js:
+        r.groom(r.spec(j)["hair"])
 timer = MethodTimer()
 timer.wrap(HeadScene, "render")
 timer.wrap(lab, "label_images")
 timer.wrap(HeadScene, "set_camera")
 dr.set_flag(dr.JitFlag.KernelHistory, True)
 dr.kernel_history_clear()
-js = list(range(first, first + {n}))
 t0, c0 = time.perf_counter(), time.process_time()
 futures = [r.submit(j, then=upcoming) for j, upcoming in with_next(js)]
 for f in futures:
@@ -300,7 +305,7 @@ def groom_cost(n: int, seed: int, before: str | None, out: str | None) -> None:
 
 
 def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None,
-           out: str | None) -> None:
+           out: str | None, grown: bool = False) -> None:
     import subprocess
 
     printed: list[str] = []
@@ -316,9 +321,11 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
           f"{size} px, {spp} spp, as the serial executor runs it, {n} samples of seed {seed} "
           f"after at least {warm} warm-up samples and until every lighting preset has "
           f"rendered once, each checkout in a fresh process:")
-    for name, root in [("this", here)] + ([("before", before)] if before else []):
+    runs = [("this", here, False)] + ([("this, pool grown", here, True)] if grown else []) + \
+        ([("before", before, False)] if before else [])
+    for name, root, pregrown in runs:
         code = STEADY.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
-                             warm=warm, n=n)
+                             warm=warm, n=n, grown=pregrown)
         env = dict(os.environ, PYTHONPATH=root)
         line = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, check=True,
                               capture_output=True, text=True).stdout.strip().splitlines()[-1]
@@ -353,13 +360,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steady", action="store_true")
     ap.add_argument("--groom", action="store_true")
+    ap.add_argument("--pool-grown", action="store_true",
+                    help="(c): also run this checkout with the measured samples' pooled "
+                    "grooms grown in the warm-up (a later stretch of a long dataset)")
     ap.add_argument("--before", default=None, help="(c), (d): another checkout to compare with")
     ap.add_argument("--out", default=None, help="(c), (d): also write what it prints, with commit")
     a = ap.parse_args()
     if a.sheet:
         sheet(Path(a.sheet), a.seed, a.keep, a.size)
     if a.steady:
-        steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out)
+        steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out, a.pool_grown)
     if a.groom:
         groom_cost(a.n, a.seed, a.before, a.out)
     if a.speed:

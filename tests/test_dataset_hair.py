@@ -12,9 +12,9 @@ import pytest
 from hack_render.dataset import labels as lab
 from hack_render.dataset.config import load_config
 from hack_render.dataset.runner import Job, run
-from hack_render.dataset.sampling import sample_spec
+from hack_render.dataset.sampling import pool_entries, sample_spec
 from hack_render.errors import HackError
-from hack_render.hair.style import ARCHETYPES, HairStyle
+from hack_render.hair.style import ARCHETYPES, BEARDS, COLOUR_FIELDS, HairStyle
 
 #: 40 px, few strands: the hair's paths, not its looks; 3 x 3 mask rays (odd: the pixel
 #: centre, where the label is taken, is one of them)
@@ -86,6 +86,31 @@ def test_hair_options(au_names):
     assert len({s["beard"] for s in styles}) == 4
 
 
+def test_pooled_grooms_keep_each_persons_archetype_beard_and_colour(au_names):
+    """``hair.pool``: everyone keeps the archetype, beard and colour of their own draw
+    (``pool: 0``'s); their strands are one of ``pool_entries`` draws for that pair, so a
+    dataset has at most their sum of grooms, shared by people of different colours."""
+    own = load_config(overrides={"hair": {"pool": 0}})
+    pooled = load_config(overrides={"hair": {"pool": 8}})
+    shapes: dict = {}
+    own_shapes = set()
+    for i in range(150):
+        a = HairStyle.from_dict(sample_spec(own, 3, i, au_names)["hair"])
+        b = HairStyle.from_dict(sample_spec(pooled, 3, i, au_names)["hair"])
+        for k in ("archetype", "beard", "lod", *COLOUR_FIELDS):
+            assert getattr(a, k) == getattr(b, k), (i, k)
+        shapes.setdefault((b.archetype, b.beard), {}).setdefault(b.uncoloured(), []).append(b)
+        own_shapes.add(a.uncoloured())
+    assert len(own_shapes) == 150  # pool 0: everyone's own strands
+    assert all(len(v) <= pool_entries(8, *k) for k, v in shapes.items())
+    assert sum(len(v) for v in shapes.values()) <= sum(
+        pool_entries(8, a, b) for a in ARCHETYPES for b in BEARDS) < 60
+    shared = [people for v in shapes.values() for people in v.values() if len(people) > 1]
+    assert len(shared) > 10
+    assert all(len({p.eumelanin for p in people}) == len(people) for people in shared)
+    assert pool_entries(32, "short", "none") == 4 and pool_entries(32, "afro", "goatee") == 1
+
+
 @pytest.mark.parametrize("override,match", [
     ("mohawk", "hair.style"),
     ({"style": {"archetype": "mohawk"}}, "hair.style"),
@@ -94,6 +119,8 @@ def test_hair_options(au_names):
     ({"lod": 0}, "hair.lod"),
     ({"lod": "high"}, "hair.lod"),
     ({"archetype": "long"}, "hair.archetype"),
+    ({"pool": -1}, "hair.pool"),
+    ({"pool": 2.5}, "hair.pool"),
 ])
 def test_bad_hair_config_names_the_key(override, match):
     with pytest.raises(HackError, match=match.replace(".", r"\.")):
@@ -103,9 +130,9 @@ def test_bad_hair_config_names_the_key(override, match):
 def test_hair_shorthand_in_a_config_file(tmp_path):
     f = tmp_path / "d.yaml"
     f.write_text("hair: none\n")
-    assert load_config(f)["hair"] == {"style": "none", "lod": 0.5}
+    assert load_config(f)["hair"] == {"style": "none", "lod": 0.5, "pool": 32}
     f.write_text("hair: {style: crew, lod: 0.3}\n")
-    assert load_config(f)["hair"] == {"style": "crew", "lod": 0.3}
+    assert load_config(f)["hair"] == {"style": "crew", "lod": 0.3, "pool": 32}
 
 
 # --- rendering ------------------------------------------------------------------------
@@ -137,7 +164,7 @@ def test_hair_metadata_is_written(hair_set, au_names):
         assert rec["hair"] == params["hair"] == want
         assert HairStyle.from_dict(params["hair"]).to_dict() == want
     info = json.loads((out / "config.json").read_text())
-    assert info["config"]["hair"] == {"style": "sampled", "lod": 0.05}
+    assert info["config"]["hair"] == {"style": "sampled", "lod": 0.05, "pool": 32}
     assert info["labels"][-1]["name"] == "hair"
 
 

@@ -248,3 +248,36 @@ def test_fast_forms_give_numpys_bits(surface):
     q = surface.vertices[::50] + rng.normal(0, 0.01, (len(surface.vertices[::50]), 3))
     for a, b in zip(cached.nearest(q, index=True), fresh.nearest(q, index=True)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_recoloured_groom_is_the_one_grown_in_that_colour(surface, monkeypatch):
+    """Colour is the last thing a groom's draws make: a groom grown once and recoloured
+    (``GroomCache``, the datasets' pooled grooms) is bit for bit what ``grow`` makes of
+    the recoloured style, with no growing; another shape is refused."""
+    from dataclasses import fields, replace
+
+    from hack_render.hair import groom as gm
+
+    a = _small("long", beard="full", greying=0.0, eumelanin=3.0, seed=7)
+    b = replace(a, eumelanin=0.4, pheomelanin=1.5, greying=0.5, variation=0.3)
+    cache = gm.GroomCache(2)
+    first = cache.get(surface, a)
+    grown, real = [], gm.grow
+    monkeypatch.setattr(gm, "grow", lambda *args: grown.append(1) or real(*args))
+    got = cache.get(surface, b)
+    assert not grown
+    monkeypatch.undo()
+    want = gm.grow(surface, b)
+    assert [g.name for g in got.groups] == ["scalp", "brows", "lashes", "beard"]
+    for g, w, f0 in zip(got.groups, want.groups, first.groups):
+        for f in fields(w):
+            x, y = getattr(g, f.name), getattr(w, f.name)
+            if isinstance(y, np.ndarray):
+                np.testing.assert_array_equal(x, y, err_msg=f"{g.name}.{f.name}")
+            else:
+                assert x == y
+        assert not np.array_equal(g.melanin, f0.melanin)  # recoloured, not reused
+        assert (g.melanin[:, 0] < 0.05 * 0.4 * g.darker).any()  # greying now
+    assert got.style == b
+    with pytest.raises(ValueError, match="colour"):
+        gm.recolour(first, replace(a, length=0.2))

@@ -91,6 +91,11 @@ DEFAULTS: dict[str, Any] = {
         # level of detail of every groom (1: >= 50k scalp strands, 1-15 s to grow);
         # docs/datasets.md has the cost per sample
         "lod": 0.5,
+        # grooms pooled: each person keeps their own archetype, beard and colour, and
+        # their strands are one of about this many grooms (dataset.sampling.pool_entries:
+        # per archetype and beard as often as the sampler draws them, at least one); a
+        # pooled groom is grown once and recoloured after. 0: everyone's own groom
+        "pool": 32,
     },
     "camera": {
         "views": 1,               # cameras per sample (a multi-view group of one scene)
@@ -251,6 +256,7 @@ def _check_hair(cfg: dict) -> None:
     else:
         _fail("hair.style", f"one of {', '.join(names)} or a mapping of hair fields", style)
     _number(cfg, "hair", "lod", 0.01, 4.0)
+    _number(cfg, "hair", "pool", 0, 100_000, integer=True)
 
 
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:

@@ -19,12 +19,22 @@ import torch
 from hack_render.dataset.backgrounds import sample_background
 from hack_render.geometry.rotations import axis_angle_to_euler, euler_to_axis_angle
 from hack_render.geometry.skeleton import clamp_to_limits, distribute_head_rotation, outside_limits
-from hack_render.hair.style import ARCHETYPE_DEFAULTS, HairStyle, sample_style
+from hack_render.hair.style import (
+    ARCHETYPE_DEFAULTS,
+    ARCHETYPES,
+    BEARD_FREQUENCIES,
+    BEARDS,
+    COLOUR_FIELDS,
+    STYLE_FREQUENCIES,
+    HairStyle,
+    sample_style,
+)
 from hack_render.render.turntable import swallow_tau
 
 #: Generator stream per component (never reorder: it would change every dataset).
 STREAMS = {"identity": 1, "expression": 2, "neck": 3, "larynx": 4, "appearance": 5,
-           "lighting": 6, "camera": 7, "render": 8, "background": 9, "hair": 10}
+           "lighting": 6, "camera": 7, "render": 8, "background": 9, "hair": 10,
+           "hair_pool": 11}
 
 
 def _rng(seed: int, index: int, stream: str) -> np.random.Generator:
@@ -112,9 +122,30 @@ def sample_cameras(cfg: dict, rng) -> list[dict]:
              "focal_mm": float(rng.uniform(*c["focal_mm"]))} for _ in range(c["views"])]
 
 
-def sample_hair(cfg: dict, rng) -> dict | None:
+def pool_entries(pool: int, archetype: str, beard: str) -> int:
+    """How many grooms ``hair.pool`` gives the people of one archetype and beard: ``pool``
+    times the pair's frequency in the population sampler, rounded, at least 1."""
+    return max(1, round(pool * STYLE_FREQUENCIES[archetype] * BEARD_FREQUENCIES[beard]))
+
+
+def pool_style(seed: int, drawn: HairStyle, pool: int, rng) -> HairStyle:
+    """The person's hair with a pooled groom (``hair.pool``): their own archetype, beard
+    and colour (:data:`~hack_render.hair.style.COLOUR_FIELDS`), the rest (the groom's seed,
+    length, curl, hairline, brows, lashes, ...) from one of :func:`pool_entries` draws of
+    the sampler for that archetype and beard, picked by ``rng``; each draw its own stream,
+    so a pooled style, like the person's, is a function of (seed, index) alone."""
+    n = pool_entries(pool, drawn.archetype, drawn.beard)
+    j = int(rng.integers(n))
+    kind = ARCHETYPES.index(drawn.archetype) * len(BEARDS) + BEARDS.index(drawn.beard)
+    entry = sample_style(np.random.default_rng([int(seed), j, STREAMS["hair_pool"], kind]),
+                         drawn.lod, archetype=drawn.archetype, beard=drawn.beard)
+    return replace(entry, **{k: getattr(drawn, k) for k in COLOUR_FIELDS})
+
+
+def sample_hair(cfg: dict, rng, seed: int = 0) -> dict | None:
     """The person's hair (the params file's ``hair`` section, ``HairStyle.to_dict()``) or
-    None (``hair.style: none``).
+    None (``hair.style: none``). ``hair.pool`` > 0: the groom's shape is pooled
+    (:func:`pool_style`, ``seed`` the dataset's) before the rules below.
 
     ``sampled``: :func:`hack_render.hair.style.sample_style` at ``hair.lod``. An archetype
     name: the same draw (colour, brows, lashes, beard, hairline, parting, the groom's
@@ -127,6 +158,8 @@ def sample_hair(cfg: dict, rng) -> dict | None:
     if style == "none":
         return None
     drawn = sample_style(rng, float(c["lod"]))
+    if c["pool"]:
+        drawn = pool_style(seed, drawn, int(c["pool"]), rng)
     if style == "sampled":
         return drawn.to_dict()
     if isinstance(style, str):
@@ -157,7 +190,7 @@ def sample_spec(cfg: dict, seed: int, index: int, au_names: tuple[str, ...]) -> 
     spec["render_seed"] = int(_rng(seed, index, "render").integers(0, 2 ** 31 - 1024))
 
     spec["background"] = sample_background(cfg, _rng(seed, index, "background"))
-    spec["hair"] = sample_hair(cfg, _rng(seed, index, "hair"))
+    spec["hair"] = sample_hair(cfg, _rng(seed, index, "hair"), seed)
     return spec
 
 
@@ -192,5 +225,6 @@ def degrees_within_limits(theta) -> bool:
     return not outside_limits(torch.as_tensor(theta, dtype=torch.float64), tol_deg=1e-6)
 
 
-__all__ = ["STREAMS", "degrees_within_limits", "model_kwargs", "params_file", "sample_hair",
+__all__ = ["STREAMS", "degrees_within_limits", "model_kwargs", "params_file", "pool_entries",
+           "pool_style", "sample_hair",
            "sample_spec", "truncated_normal"]

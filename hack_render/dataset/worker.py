@@ -41,12 +41,12 @@ from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
-from hack_render.dataset.sampling import model_kwargs, params_file, sample_spec
+from hack_render.dataset.sampling import model_kwargs, params_file, pool_entries, sample_spec
 from hack_render.geometry import load_default_model
-from hack_render.hair.groom import Groom, grow
+from hack_render.hair.groom import Groom, GroomCache
 from hack_render.hair.pose import pose_groom
 from hack_render.hair.regions import HeadSurface
-from hack_render.hair.style import HairStyle
+from hack_render.hair.style import ARCHETYPES, BEARDS, HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.hair_shapes import slot_bound, slots_take
@@ -95,6 +95,11 @@ class SampleRenderer:
         self.larynx_candidates = lab.larynx_candidates(self.model)
         #: the mean rest mesh grooms are grown on (built at the first groom)
         self._surface: HeadSurface | None = None
+        #: grown grooms by their strands' key, for every pooled groom (``hair.pool``): a
+        #: later person with the same strands gets them recoloured, not grown again
+        pool = int(cfg["hair"]["pool"])
+        self._grooms = GroomCache(sum(pool_entries(pool, a, b) for a in ARCHETYPES
+                                      for b in BEARDS) if pool else 0)
         #: :attr:`scenes` holds one scene built around a groom (one set_hair did not take)
         self._hair_scene = False
         #: the presets' scenes hold hair slots (``HeadScene.set_hair``): hair configured
@@ -191,13 +196,14 @@ class SampleRenderer:
 
     def groom(self, hair: dict | None) -> Groom | None:
         """The strands of a sample's ``hair`` (its spec's ``HairStyle.to_dict()``), grown
-        on the model's mean rest mesh; None for no hair. A pure function of the style."""
+        on the model's mean rest mesh, or a pooled groom grown before and recoloured (the
+        same arrays); None for no hair. A pure function of the style."""
         if hair is None:
             return None
         with self._skin_lock:
             if self._surface is None:
                 self._surface = HeadSurface.from_model(self.model)
-        return grow(self._surface, HairStyle.from_dict(hair))
+        return self._grooms.get(self._surface, HairStyle.from_dict(hair))
 
     def scene_with_hair(self, preset: str, groom: Groom | None, verts: np.ndarray,
                         posed: dict | None = None):

@@ -21,7 +21,8 @@ head-frame angles; they are procedural, not segmented from data.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,7 +41,7 @@ from hack_render.hair.strands import (
     triangle_frames,
     unit,
 )
-from hack_render.hair.style import HairStyle
+from hack_render.hair.style import HairStyle, pigment
 
 #: Scalp strands at ``density`` 1 and ``lod`` 1 over the full scalp (hairline 0).
 SCALP_STRANDS = 60_000
@@ -85,6 +86,12 @@ class StrandGroup:
     #: (:func:`hack_render.hair.pose.pose_group`)
     anchor: np.ndarray | None = None
     anchor_local: np.ndarray | None = None
+    #: the draws its melanin is made of (``style.pigment``: (S, 1) tone, (S,) greying draw,
+    #: the group's factors); :func:`recolour` makes another person's colour from them
+    tone: np.ndarray | None = None
+    white_draw: np.ndarray | None = None
+    darker: float = 1.0
+    grey: float = 1.0
 
     @property
     def num_strands(self) -> int:
@@ -201,12 +208,24 @@ def _to_local(v: np.ndarray, faces: np.ndarray, tri: np.ndarray, bary: np.ndarra
 
 
 def _melanin(style: HairStyle, s: int, rng: np.random.Generator, darker: float = 1.0,
-             grey: float = 1.0) -> np.ndarray:
-    base = np.array([style.eumelanin * darker, style.pheomelanin])
-    m = base[None] * (1.0 + style.variation * rng.uniform(-1, 1, (s, 1)))
-    white = rng.random(s) < style.greying * grey
-    m[white] *= 0.02
-    return np.clip(m, 0.0, 20.0)
+             grey: float = 1.0) -> dict:
+    """``s`` strands' draws and melanin (keywords of :class:`StrandGroup`)."""
+    tone = rng.uniform(-1, 1, (s, 1))
+    white_draw = rng.random(s)
+    return {"melanin": pigment(style, tone, white_draw, darker, grey), "tone": tone,
+            "white_draw": white_draw, "darker": darker, "grey": grey}
+
+
+def recolour(groom: Groom, style: HairStyle) -> Groom:
+    """``groom`` in ``style``'s colour: what :func:`grow` makes of ``style`` (bit for bit)
+    when ``groom`` was grown from a style that differs only in :data:`COLOUR_FIELDS`. The
+    strands' arrays are shared, not copied (nothing changes them in place)."""
+    if groom.style.uncoloured() != style.uncoloured():
+        raise ValueError("recolour: the styles differ in more than their colour.")
+    groups = [g if g.tone is None else
+              replace(g, melanin=pigment(style, g.tone, g.white_draw, g.darker, g.grey))
+              for g in groom.groups]
+    return replace(groom, style=style, groups=groups)
 
 
 def body_vertices(surface: HeadSurface) -> np.ndarray:
@@ -221,7 +240,8 @@ def _group(name, surface, tri, bary, pts, radius, melanin,
     vertex at rest). ``known``: the nearest skin vertices of ``pts[:, 1:]`` as the last
     push out found them (:meth:`BodyProxy.push_out`); only the points it does not hold
     unchanged (the roots, the points it moved, a cut strand's) are searched again, in the
-    proxy's own tree where the body is its vertices (the same answer)."""
+    proxy's own tree where the body is its vertices (the same answer). ``melanin``: (S, 2),
+    or :func:`_melanin`'s pigment with its draws."""
     body = body_vertices(surface)
     flat = pts.reshape(-1, 3)
     near = np.full(len(flat), -1, np.int64)
@@ -242,10 +262,11 @@ def _group(name, surface, tri, bary, pts, radius, melanin,
     # only the skull moves with the strands rooted on it: points over the face, the jaw,
     # the ears, the neck and the shoulders are searched afresh in every pose (-1)
     anchor = np.where(v[anchor, 1] > SKULL_ABOVE, anchor, -1).astype(np.int32)
+    colour = melanin if isinstance(melanin, dict) else {"melanin": melanin}
     return StrandGroup(name, tri, bary, _to_local(v, f, tri, bary, pts),
-                       np.asarray(radius, np.float64), melanin, anchor,
-                       _to_local(v, f, tri, bary, v[np.maximum(anchor, 0)],
-                                 keep_root=True).astype(np.float32))
+                       np.asarray(radius, np.float64), anchor=anchor,
+                       anchor_local=_to_local(v, f, tri, bary, v[np.maximum(anchor, 0)],
+                                              keep_root=True).astype(np.float32), **colour)
 
 
 def _taper(r: float, k: int, tip: float = 0.45) -> np.ndarray:
@@ -434,20 +455,38 @@ def _beard(surface: HeadSurface, style: HairStyle, proxy: BodyProxy,
                   _melanin(style, len(tri), rng, grey=1.3), known)
 
 
-_CACHE: dict = {}
+class GroomCache:
+    """Grooms grown on surfaces, remembered by their strands' key (the surface and the
+    style without its colour, :meth:`HairStyle.uncoloured`) for the last ``size`` keys: a
+    style whose strands were grown is only recoloured (:func:`recolour`). Thread-safe."""
+
+    def __init__(self, size: int):
+        self.size = int(size)
+        self._grooms: dict = {}
+        self._lock = threading.Lock()
+
+    def get(self, surface: HeadSurface, style: HairStyle) -> Groom:
+        key = (hashlib.blake2b(np.ascontiguousarray(surface.vertices).tobytes() +
+                               np.ascontiguousarray(surface.faces).tobytes(),
+                               digest_size=16).hexdigest(), style.uncoloured())
+        with self._lock:
+            known = self._grooms.get(key)
+        if known is not None:
+            return recolour(known, style)
+        groom = grow(surface, style)
+        with self._lock:
+            while self._grooms and len(self._grooms) >= self.size:
+                self._grooms.pop(next(iter(self._grooms)))
+            self._grooms.update({key: groom} if self.size > 0 else {})
+        return groom
+
+
+_CACHE = GroomCache(4)
 
 
 def grow_cached(surface: HeadSurface, style: HairStyle) -> Groom:
-    """:func:`grow`, remembered for the last few (surface, style) pairs of this process (a
-    groom takes 1-10 s to grow; renders, turntables and datasets reuse one)."""
-    key = (hashlib.blake2b(np.ascontiguousarray(surface.vertices).tobytes() +
-                           np.ascontiguousarray(surface.faces).tobytes(),
-                           digest_size=16).hexdigest(), style)
-    if key not in _CACHE:
-        while len(_CACHE) >= 4:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = (surface, grow(surface, style))
-    return _CACHE[key][1]
+    """:func:`grow`, remembered for this process's last few strands' keys (renders reuse)."""
+    return _CACHE.get(surface, style)
 
 
 def grow(surface: HeadSurface, style: HairStyle) -> Groom:

@@ -90,6 +90,11 @@ RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+#: The :class:`HairStyle` fields that only colour a groom (its strands' melanin): grooms of
+#: styles that differ in nothing else have the same strands (``hair.groom.recolour``).
+COLOUR_FIELDS = ("eumelanin", "pheomelanin", "greying", "variation")
+
+
 @dataclass(frozen=True)
 class HairStyle:
     """One person's hair, brows, lashes and beard (the params file's ``hair`` section).
@@ -198,9 +203,26 @@ class HairStyle:
             raise HackError(f"hair.archetype: expected a name, found {archetype!r}.")
         return HairStyle.archetype_style(archetype, **data)
 
+    def uncoloured(self) -> HairStyle:
+        """This style without its colour (:data:`COLOUR_FIELDS` at their defaults): the key
+        of its strands (``hair.groom.recolour``)."""
+        return replace(self, **{k: HairStyle.__dataclass_fields__[k].default
+                                for k in COLOUR_FIELDS})
+
     def with_colour(self, colour) -> HairStyle:
         eu, pheo = parse_colour(colour)
         return replace(self, eumelanin=eu, pheomelanin=pheo)
+
+
+def pigment(style: HairStyle, tone: np.ndarray, white_draw: np.ndarray, darker: float = 1.0,
+            grey: float = 1.0) -> np.ndarray:
+    """(S, 2) melanin of strands with draws ``tone`` (S, 1), ``white_draw`` (S,) in
+    ``style``'s colour (eumelanin darkened by ``darker``; greying scaled by ``grey``)."""
+    base = np.array([style.eumelanin * darker, style.pheomelanin])
+    m = base[None] * (1.0 + style.variation * tone)
+    white = white_draw < style.greying * grey
+    m[white] *= 0.02
+    return np.clip(m, 0.0, 20.0)
 
 
 def parse_colour(value) -> tuple[float, float]:
@@ -230,12 +252,15 @@ def _choice(rng: np.random.Generator, table: dict[str, float]) -> str:
     return names[int(rng.choice(len(names), p=p / p.sum()))]
 
 
-def sample_style(rng: np.random.Generator, lod: float = 1.0) -> HairStyle:
+def sample_style(rng: np.random.Generator, lod: float = 1.0, archetype: str | None = None,
+                 beard: str | None = None) -> HairStyle:
     """One person's hair from the population sampler: colour by
     :data:`COLOUR_FREQUENCIES` (cited), style and beard by :data:`STYLE_FREQUENCIES` and
     :data:`BEARD_FREQUENCIES` (chosen, not measured), continuous fields uniform in ranges
-    around each archetype's defaults, melanin jittered by up to 25 %."""
-    archetype = _choice(rng, STYLE_FREQUENCIES)
+    around each archetype's defaults, melanin jittered by up to 25 %. ``archetype``,
+    ``beard``: given instead of drawn (the draws are made all the same)."""
+    drawn = _choice(rng, STYLE_FREQUENCIES)
+    archetype = drawn if archetype is None else archetype
     base = {"curl": 0.0, "volume": 0.0, "gravity": 0.0, **ARCHETYPE_DEFAULTS[archetype]}
     eu, pheo = NAMED_COLOURS[_choice(rng, COLOUR_FREQUENCIES)]
     jitter = float(rng.uniform(0.75, 1.25))
@@ -261,6 +286,8 @@ def sample_style(rng: np.random.Generator, lod: float = 1.0) -> HairStyle:
         "greying": greying, "variation": float(rng.uniform(0.1, 0.25)), "lod": lod,
         "seed": int(rng.integers(0, 2**31 - 1)),
     }
+    if beard is not None:
+        style["beard"] = beard
     return HairStyle(archetype=archetype, **style)
 
 
