@@ -189,3 +189,32 @@ def test_06_slot_capacity_and_content(grooms):
     np.testing.assert_array_equal(idx, np.arange(5))
     with pytest.raises(ValueError, match="cannot hold"):
         slot_content(cp, 8, [0.0, 0.0, 0.0])
+
+
+def test_07_labels_continue_rays_only_where_the_scene_has_lash_cards(head_model, grooms,
+                                                                      monkeypatch):
+    """A scene with hair strands has no lash cards (the see-through region): its label pass
+    continues no ray past its first hit (one camera_hit where it traced two, the second
+    masked off everywhere) and gives the same labels, coverage and G-buffer, to the bit,
+    as the pass that continues the rays where a card is hit (none here)."""
+    from hack_render.render import aov
+
+    head = _scene(head_model, grooms[1])
+    lashes = REGIONS.index("eyelashes")
+    assert lashes not in {reg for reg, _, _ in head._shape_regions.values()}
+    calls = []
+    real = aov.camera_hit
+    monkeypatch.setattr(aov, "camera_hit", lambda *a, **k: calls.append(1) or real(*a, **k))
+    lean = head.label_pass(3, np.arange(len(REGIONS), dtype=np.uint32),
+                           np.zeros((4, 8), np.uint32), num_labels=len(REGIONS))
+    assert len(calls) == 1
+    # the same pass as if the scene had a lash card (a shape id no ray meets)
+    monkeypatch.setattr(head, "_shape_regions",
+                        {**head._shape_regions, 2 ** 20: (lashes, 0.0, 1.0)})
+    full = head.label_pass(3, np.arange(len(REGIONS), dtype=np.uint32),
+                           np.zeros((4, 8), np.uint32), num_labels=len(REGIONS))
+    assert len(calls) == 3
+    assert lean.keys() == full.keys()
+    for key in lean:
+        np.testing.assert_array_equal(lean[key], full[key], err_msg=key)
+    assert (lean["segmentation"] == REGIONS.index("hair")).sum() > 20

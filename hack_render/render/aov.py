@@ -244,7 +244,11 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     is_uv = mi.Bool(np.isin(np.arange(len(REGIONS)), [REGIONS.index(r) for r in uv_regions]))
     hm = uv_label_map.shape[0]
     texels = mi.UInt32(np.asarray(uv_label_map, np.uint32).ravel())
-    see = [REGIONS.index(name) for name in see_through if name in REGIONS]
+    # the see-through regions this scene has a shape of (a scene with hair strands has no
+    # lash cards): none, and no ray is continued (the same labels and coverage)
+    present = {reg for reg, _, _ in head._shape_regions.values()}
+    see = [REGIONS.index(name) for name in see_through
+           if name in REGIONS and REGIONS.index(name) in present]
 
     def labels_of(si_, active):
         region, u, v = _region_uv_jit(head, si_, active)
@@ -275,8 +279,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
     through = mi.Bool(False)
     for r_ in see:
         through |= region == r_
-    si2 = camera_hit(head, si.spawn_ray(ray.d), through)
-    behind = dr.select(through, labels_of(si2, through)[0], 0)
+    if see:
+        si2 = camera_hit(head, si.spawn_ray(ray.d), through)
+        behind = dr.select(through, labels_of(si2, through)[0], 0)
     valid = si.is_valid()
     albedo = si.bsdf(ray).eval_diffuse_reflectance(si, valid & centre)
 
@@ -295,7 +300,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
             "valid": to_pixels(valid, mi.Bool), "label": to_pixels(label, mi.UInt32)}
     if kk:
         counted = ~centre | odd  # the even-k centre ray is not a sub-pixel point
-        if see_through_opacity is None:
+        if not see:
+            alpha = mi.Float(1.0)
+        elif see_through_opacity is None:
             alpha = dr.select(through, card_opacity(head, si, through), 1.0)
         else:
             alpha = dr.select(through, float(see_through_opacity), 1.0)
@@ -307,8 +314,9 @@ def label_pass(head, k: int, region_labels, uv_label_map: np.ndarray, uv_regions
         q = acc(dr.round(alpha * COVERAGE_ONE))
         cov = dr.zeros(acc, n * L)
         dr.scatter_reduce(dr.ReduceOp.Add, cov, q, pix * L + label, counted)
-        dr.scatter_reduce(dr.ReduceOp.Add, cov, COVERAGE_ONE - q, pix * L + behind,
-                          counted & through)
+        if see:
+            dr.scatter_reduce(dr.ReduceOp.Add, cov, COVERAGE_ONE - q, pix * L + behind,
+                              counted & through)
         outs["coverage"] = cov
     dr.eval(outs)
 
