@@ -1434,6 +1434,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--tt-size", type=int, default=256)
     ap.add_argument("--tt-spp", type=int, default=32)
+    ap.add_argument("--tt-hair", default=None, help="--only turntable: the turntable's "
+                    "--hair (e.g. short, as the README's command; default: none, bald)")
     ap.add_argument("--variant", default=None)
     ap.add_argument("--cold-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--only", choices=("all", "quality", "e2e", "sss", "frames", "cycles",
@@ -1474,8 +1476,9 @@ def main() -> None:
         with recorded(args.out, "Rendering: a later turntable frame against its render call "
                       "(issue 65)"):
             print(f"variant: {variant}; load average (1 min) {os.getloadavg()[0]:.1f} before")
+            hair = ["--hair", args.tt_hair] if args.tt_hair else []
             turntable_ratio_benchmark(args.tt_size, args.tt_spp, args.frames,
-                                      [[], ["--look-around", "--swallow"]])
+                                      [hair, ["--look-around", "--swallow", *hair]])
             print(f"load average (1 min) {os.getloadavg()[0]:.1f} after (2 cores shared with "
                   "other jobs: ratios hold within one run, seconds do not)")
         return
