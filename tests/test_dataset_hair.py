@@ -111,6 +111,17 @@ def test_pooled_grooms_keep_each_persons_archetype_beard_and_colour(au_names):
     assert pool_entries(32, "short", "none") == 4 and pool_entries(32, "afro", "goatee") == 1
 
 
+def test_the_run_says_what_hair_it_draws():
+    """The dataset's first line names the hair and the pool (issue 65: what runs is said)."""
+    from hack_render.dataset.runner import hair_summary
+
+    assert hair_summary(load_config()) == \
+        "; hair sampled at lod 0.5, strands from at most 47 pooled grooms (hair.pool 32)"
+    assert hair_summary(load_config(overrides={"hair": {"pool": 0, "lod": 0.3}})) == \
+        "; hair sampled at lod 0.3, everyone's own strands (hair.pool 0)"
+    assert hair_summary(load_config(overrides={"hair": "none"})) == "; no hair"
+
+
 @pytest.mark.parametrize("override,match", [
     ("mohawk", "hair.style"),
     ({"style": {"archetype": "mohawk"}}, "hair.style"),

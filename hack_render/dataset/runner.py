@@ -38,6 +38,7 @@ from hack_render import boundary, interrupts
 from hack_render.boundary import estimate_line
 from hack_render.dataset.config import render_settings
 from hack_render.dataset.labels import LABEL_DESCRIPTIONS, LABELS
+from hack_render.dataset.sampling import pool_size
 from hack_render.dataset.worker import SAMPLE_RECORD, SampleRenderer, sample_dir
 from hack_render.errors import HackError
 from hack_render.geometry import load_default_model
@@ -399,6 +400,18 @@ class _LazyRayActor:
 _RayRenderer = _LazyRayActor()
 
 
+def hair_summary(cfg: dict) -> str:
+    """The run's hair, for its first line: the style, and how many grooms the pool holds
+    (``hair.pool``) or that everyone grows their own."""
+    c = cfg["hair"]
+    if c["style"] == "none":
+        return "; no hair"
+    style = c["style"] if isinstance(c["style"], str) else "a given style"
+    grooms = (f"strands from at most {pool_size(int(c['pool']))} pooled grooms (hair.pool "
+              f"{c['pool']})" if c["pool"] else "everyone's own strands (hair.pool 0)")
+    return f"; hair {style} at lod {c['lod']:g}, {grooms}"
+
+
 def run(job: Job, executor: str = "serial", address: str | None = None,
         workers: int | None = None, progress: bool = True) -> dict:
     """Prepare, render the pending samples, write the manifest. Returns a summary."""
@@ -423,7 +436,7 @@ def run(job: Job, executor: str = "serial", address: str | None = None,
         print(f"dataset: {n_todo:,} of the {total:,} samples of shard {k}/{m} to render into "
               f"{job.out} ({job.cfg['render']['resolution']} px, "
               f"{render_settings(job.cfg).effective_spp} spp, {job.cfg['camera']['views']} "
-              f"view(s) each)", file=sys.stderr)
+              f"view(s) each{hair_summary(job.cfg)})", file=sys.stderr)
 
         def kept() -> str:
             return (f"kept {tally['complete']:,} complete samples of the {total:,} of shard "

@@ -128,6 +128,12 @@ def pool_entries(pool: int, archetype: str, beard: str) -> int:
     return max(1, round(pool * STYLE_FREQUENCIES[archetype] * BEARD_FREQUENCIES[beard]))
 
 
+def pool_size(pool: int) -> int:
+    """How many grooms ``hair.pool`` gives in all (:func:`pool_entries` over every
+    archetype and beard); 0: no pool."""
+    return 0 if pool <= 0 else sum(pool_entries(pool, a, b) for a in ARCHETYPES for b in BEARDS)
+
+
 def pool_style(seed: int, drawn: HairStyle, pool: int, rng) -> HairStyle:
     """The person's hair with a pooled groom (``hair.pool``): their own archetype, beard
     and colour (:data:`~hack_render.hair.style.COLOUR_FIELDS`), the rest (the groom's seed,
@@ -226,5 +232,5 @@ def degrees_within_limits(theta) -> bool:
 
 
 __all__ = ["STREAMS", "degrees_within_limits", "model_kwargs", "params_file", "pool_entries",
-           "pool_style", "sample_hair",
+           "pool_size", "pool_style", "sample_hair",
            "sample_spec", "truncated_normal"]

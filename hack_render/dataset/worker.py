@@ -41,12 +41,12 @@ from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
-from hack_render.dataset.sampling import model_kwargs, params_file, pool_entries, sample_spec
+from hack_render.dataset.sampling import model_kwargs, params_file, pool_size, sample_spec
 from hack_render.geometry import load_default_model
 from hack_render.hair.groom import Groom, GroomCache
 from hack_render.hair.pose import pose_groom
 from hack_render.hair.regions import HeadSurface
-from hack_render.hair.style import ARCHETYPES, BEARDS, HairStyle
+from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
 from hack_render.render.hair_shapes import slot_bound, slots_take
@@ -97,9 +97,7 @@ class SampleRenderer:
         self._surface: HeadSurface | None = None
         #: grown grooms by their strands' key, for every pooled groom (``hair.pool``): a
         #: later person with the same strands gets them recoloured, not grown again
-        pool = int(cfg["hair"]["pool"])
-        self._grooms = GroomCache(sum(pool_entries(pool, a, b) for a in ARCHETYPES
-                                      for b in BEARDS) if pool else 0)
+        self._grooms = GroomCache(pool_size(int(cfg["hair"]["pool"])))
         #: :attr:`scenes` holds one scene built around a groom (one set_hair did not take)
         self._hair_scene = False
         #: the presets' scenes hold hair slots (``HeadScene.set_hair``): hair configured
