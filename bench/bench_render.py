@@ -1417,7 +1417,7 @@ def hair_quality(size: int = 256, spp: int = 49, ref_spp: int = 512,
             den = head.denoise(raw)[..., :3]
             del head
 
-            def psnr(img):
+            def psnr(img, hair=hair, ref=ref):
                 return 10 * np.log10(1.0 / np.mean((img[hair] - ref[hair]) ** 2))
 
             print(f"  {colour}, {name}: hair PSNR {psnr(raw[..., :3]):.2f} dB noisy, "

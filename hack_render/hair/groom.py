@@ -20,7 +20,6 @@ head-frame angles; they are procedural, not segmented from data.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from dataclasses import dataclass, replace
 
@@ -466,9 +465,7 @@ class GroomCache:
         self._lock = threading.Lock()
 
     def get(self, surface: HeadSurface, style: HairStyle) -> Groom:
-        key = (hashlib.blake2b(np.ascontiguousarray(surface.vertices).tobytes() +
-                               np.ascontiguousarray(surface.faces).tobytes(),
-                               digest_size=16).hexdigest(), style.uncoloured())
+        key = (surface.digest, style.uncoloured())
         with self._lock:
             known = self._grooms.get(key)
         if known is not None:

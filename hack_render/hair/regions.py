@@ -11,6 +11,7 @@ are metres in the model frame (y up, z forward, x the subject's left).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -43,6 +44,14 @@ class HeadSurface:
     faces: np.ndarray
     skin: np.ndarray
     landmarks: np.ndarray
+
+    @cached_property
+    def digest(self) -> str:
+        """A hash of the vertices and faces: the surface's part of a groom's cache key
+        (``groom.GroomCache``)."""
+        return hashlib.blake2b(np.ascontiguousarray(self.vertices).tobytes() +
+                               np.ascontiguousarray(self.faces).tobytes(),
+                               digest_size=16).hexdigest()
 
     @cached_property
     def normals(self) -> np.ndarray:
