@@ -1,0 +1,247 @@
+"""A corrective keyed on the chain's net flexion angle, fitted to ARAP (issue 60 §1: head
+flexion/extension above the bound; a study, not a test; nothing here is shipped).
+
+Version 7's correctives are linear in the gated per-joint ``R - I`` features; along a
+whole-head nod those features are nearly collinear, so copying ARAP's flexion with them
+needs coefficients of norm ~1e9 (docs/model.md, "A corrective keyed on the net flexion").
+This study tries the other form: a block of rest-space offsets weighted by piecewise-linear
+hat functions of the chain's net rotation about x (the head against the thorax; a hat
+every ``--step`` degrees, none at 0, so the block vanishes at rest), times a purity factor
+``exp(-(|net rotation about y, z| / 20 deg)^2)`` that fades it out of combined rotations.
+The offsets are the least-squares fit, on whole-head flexion/extension poses, of ARAP's
+rest-space residual over version 7 (the offsets that version 7's skinning carries onto
+ARAP's posed skin; ARAP with the same rigid sets as ``bench/bench_pose_arap.py``):
+
+* ``template``: the template identity alone, hats every 5 degrees, tested on the subset's
+  flexion poses of the template (ARAP, version 7 and the block, above the bound);
+* ``personal``: offsets linear in beta (hats x [1, beta]), ``--train-identities`` sampled
+  identities (seed 777, none of the subset's), neutral;
+* ``expressions``: hats x [1, beta, psi], each training identity with an expression drawn
+  as the learner draws them (half neutral, jawOpen U(0, 1) half the time, each other
+  weight U(0, 1) with probability 0.15).
+
+The last two are scored on ``bench/bench_pose_arap.py``'s subset (200 poses, the template
+and 2 identities of seed 2101), neutral and with the pose bench's expression: per family,
+the largest stretch above the bound (median / p99), folding pairs, and pairs more than
+0.01 above the same identity's plain LBS, version 7 beside the block.
+
+    PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
+        [--out bench/results/flexion_block.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pose_gate import add_subset_arguments, subset
+from bench_pose_space import EXPRESSION
+from provenance import write_result
+
+from hack_render.geometry.deformation import (
+    deformation_stats,
+    model_stretch_bound,
+    rigid_anchors,
+    skin_topology,
+)
+from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
+from hack_render.geometry.model import HackModel
+from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.learn.pose_data import ArapNeck, pose_sequence
+
+PURITY_DEG = 20.0
+FAMILIES = ("all", "joints_uniform", "head_x", "head_xyz")
+
+
+def net_rotation(rot: torch.Tensor) -> torch.Tensor:
+    """(P, 3) axis-angle of the chain's net rotation from the joints' local rotations
+    (P, K, 3, 3) (the chain is a path: the product in order)."""
+    r = rot[:, 0]
+    for k in range(1, rot.shape[1]):
+        r = r @ rot[:, k]
+    cos = ((r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1.0, 1.0)
+    ang = torch.acos(cos)
+    v = torch.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)
+    return v * (ang / (2 * torch.sin(ang).clamp(min=1e-9)))[:, None]
+
+
+def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
+    """(P, H) the block's weights: hats over the net flexion angle (knots every step from
+    -80 to 80 degrees but 0) times the purity factor."""
+    rot = local_rotations(theta, theta.new_zeros(len(theta), 3))[:, 1:]
+    phi = net_rotation(rot)
+    knots = torch.deg2rad(torch.arange(-80.0, 80.0 + 1e-9, step_deg, dtype=theta.dtype))
+    knots = knots[knots.abs() > 1e-9]
+    step = np.deg2rad(step_deg)
+    h = torch.relu(1 - (phi[:, :1] - knots).abs() / step)
+    return h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / np.deg2rad(PURITY_DEG) ** 2)
+
+
+class Study:
+    def __init__(self):
+        arrays, meta = load_model_file(default_model_path())
+        self.model = HackModel(arrays, meta).double()
+        self.lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")},
+                             meta).double()
+        self.names = [str(x) for x in arrays["expression_names"]]
+        self.topo = skin_topology(self.model)
+        self.anchors = rigid_anchors(self.model, self.topo)
+        self.w = self.model.skinning_weights.double()
+        self.rigid = self.w.max(1).values >= 1 - 1e-6
+        self.skin = torch.unique(self.topo.faces.reshape(-1))  # the block's vertices
+
+    def posed(self, beta: torch.Tensor, psi: torch.Tensor | None, theta: torch.Tensor,
+              arap: bool = False) -> dict:
+        """Rest mesh, version 7's and plain LBS's posed meshes, ARAP's (``arap``), the node
+        rotations and each vertex's blended skinning transform (P, N, 4, 4)."""
+        person = self.model.personalize(beta[None])
+        p1 = None if psi is None else psi.reshape(1, -1)
+        pp = None if p1 is None else p1.expand(len(theta), -1)
+        with torch.no_grad():
+            rest = person(psi=p1).vertices[0]
+            out = {"rest": rest, "v7": person(psi=pp, theta=theta).vertices,
+                   "lbs": self.lbs.personalize(beta[None])(psi=pp, theta=theta).vertices}
+        j = person.joints.double().expand(len(theta), -1, -1)
+        rot = local_rotations(theta, theta.new_zeros(len(theta), 3))
+        _, rel = rigid_transforms(rot, torch.cat([j[:, :1], j], 1), chain_parents(self.model.parents))
+        out["rot"], out["blend"] = rel[..., :3, :3], torch.einsum("vk,pkij->pvij", self.w, rel)
+        if arap:
+            neck = ArapNeck(rest.numpy(), self.topo.faces.numpy(), self.rigid.numpy())
+            out["arap"] = pose_sequence(rest, person.joints.reshape(-1, 3).double(), self.w,
+                                        self.model.parents, theta, "arap", neck, 30)
+        return out
+
+    @staticmethod
+    def to_rest(blend, x, rest):
+        return torch.linalg.solve(blend[..., :3, :3], (x - blend[..., :3, 3])[..., None])[..., 0] - rest
+
+    @staticmethod
+    def from_rest(blend, r, rest):
+        return torch.einsum("pvij,pvj->pvi", blend[..., :3, :3], rest + r) + blend[..., :3, 3]
+
+    def residual(self, p: dict) -> torch.Tensor:
+        """(P, S * 3) ARAP's rest-space offsets over version 7's on the skin."""
+        d = self.to_rest(p["blend"], p["arap"], p["rest"]) - self.to_rest(p["blend"], p["v7"], p["rest"])
+        return d[:, self.skin].reshape(len(d), -1)
+
+    def with_block(self, p: dict, offsets: torch.Tensor) -> torch.Tensor:
+        r = self.to_rest(p["blend"], p["v7"], p["rest"])
+        r[:, self.skin] += offsets.reshape(len(r), -1, 3)
+        return self.from_rest(p["blend"], r, p["rest"])
+
+    def gaps(self, p: dict, posed: torch.Tensor, bound: torch.Tensor) -> tuple:
+        st = deformation_stats(p["rest"], posed, p["rot"], self.topo)
+        return (st.stretch - bound).numpy(), st.folded.numpy(), st.stretch.numpy()
+
+    def sample_psi(self, g: torch.Generator) -> torch.Tensor:
+        e = len(self.names)
+        psi = torch.rand(e, generator=g, dtype=torch.float64)
+        psi = psi * (torch.rand(e, generator=g, dtype=torch.float64) < 0.15)
+        psi[self.names.index("jawOpen")] = float(torch.rand(1, generator=g, dtype=torch.float64)) \
+            * float(torch.rand(1, generator=g) < 0.5)
+        return psi * float(torch.rand(1, generator=g) < 0.5)
+
+
+def ridge(x: torch.Tensor, y: torch.Tensor, lam: float) -> torch.Tensor:
+    return torch.linalg.solve(x.T @ x + lam * torch.eye(x.shape[1], dtype=x.dtype), x.T @ y)
+
+
+def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
+    z = torch.cat([torch.ones(1, dtype=h.dtype), *factors])
+    return (h[:, :, None] * z).reshape(len(h), -1)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_subset_arguments(ap)
+    ap.add_argument("--train-identities", type=int, default=40)
+    ap.add_argument("--step", type=float, default=10.0, help="hat spacing, degrees")
+    ap.add_argument("--ridge", type=float, default=1e-2)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path("bench/results/flexion_block.json"))
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    t0 = time.time()
+    s = Study()
+    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
+    train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
+    names, theta, fam_of, betas = subset(args)
+    theta, betas = theta.double(), betas.double()
+    results = {"purity_deg": PURITY_DEG, "step_deg": args.step, "ridge": args.ridge,
+               "train_identities": args.train_identities, "train_poses": len(train),
+               "subset": {"poses": args.poses, "identities": args.identities, "seed": args.seed},
+               "expression": EXPRESSION}
+
+    # the template alone: can the form copy ARAP on one identity?
+    zero = torch.zeros(20, dtype=torch.float64)
+    p = s.posed(zero, None, train, arap=True)
+    d = ridge(hat_weights(train, 5.0), s.residual(p), args.ridge)
+    flex = torch.as_tensor(fam_of == names.index("head_x"))
+    th = theta[flex]
+    p = s.posed(zero, None, th, arap=True)
+    bound = model_stretch_bound(s.model, zero[None], th, None, s.topo, s.anchors)
+    row = {k: float(np.median(s.gaps(p, x, bound)[0])) for k, x in
+           (("v7", p["v7"]), ("block", s.with_block(p, hat_weights(th, 5.0) @ d)), ("arap", p["arap"]))}
+    results["template"] = dict(row, poses=int(flex.sum()))
+    print(f"template, its {int(flex.sum())} flexion poses of the subset, median above the bound: "
+          + ", ".join(f"{k} {v:.3f}" for k, v in row.items()) + f" [{time.time() - t0:.0f} s]", flush=True)
+
+    g = torch.Generator().manual_seed(777)
+    ids = torch.randn(args.train_identities, 20, generator=g, dtype=torch.float64)
+    h_train = hat_weights(train, args.step)
+    rows = {"personal": ([], []), "expressions": ([], [])}
+    for b in ids:
+        for kind in rows:
+            psi = s.sample_psi(g) if kind == "expressions" else None
+            p = s.posed(b, psi, train, arap=True)
+            x = design(h_train, b) if psi is None else design(h_train, b, psi)
+            rows[kind][0].append(x)
+            rows[kind][1].append(s.residual(p))
+    print(f"ARAP on {args.train_identities} x 2 training identities [{time.time() - t0:.0f} s]", flush=True)
+    fits = {k: ridge(torch.cat(x), torch.cat(y), args.ridge) for k, (x, y) in rows.items()}
+    h_test = hat_weights(theta, args.step)
+    e = len(s.names)
+    for conf, psi in (("neutral", None), ("expression", s.model.expression_vector(EXPRESSION).double())):
+        raw = {k: [] for k in ("v7", "v7_folded", "v7_lbs", *(f"{k}{x}" for k in fits
+                                                              for x in ("", "_folded", "_lbs")))}
+        for b in betas:
+            p = s.posed(b, psi, theta)
+            bound = model_stretch_bound(s.model, b[None], theta, psi, s.topo, s.anchors)
+            lbs = deformation_stats(p["rest"], p["lbs"], p["rot"], s.topo).stretch.numpy()
+            cands = {"v7": p["v7"]}
+            for k, dk in fits.items():
+                pv = torch.zeros(e, dtype=torch.float64) if psi is None else psi.reshape(-1)
+                x = design(h_test, b) if k == "personal" else design(h_test, b, pv)
+                cands[k] = s.with_block(p, x @ dk)
+            for k, x in cands.items():
+                gap, folded, stretch = s.gaps(p, x, bound)
+                raw[k].append(gap)
+                raw[f"{k}_folded"].append(folded)
+                raw[f"{k}_lbs"].append(stretch - lbs)
+        raw = {k: np.stack(v) for k, v in raw.items()}
+        entry = {}
+        for fam in FAMILIES:
+            sel = np.ones(len(fam_of), bool) if fam == "all" else fam_of == names.index(fam)
+            entry[fam] = {k: {"above_bound_median": float(np.median(raw[k][:, sel])),
+                              "above_bound_p99": float(np.quantile(raw[k][:, sel], 0.99)),
+                              "folding_pairs": int((raw[f"{k}_folded"][:, sel] > 0).sum()),
+                              "above_lbs_by_0.01": int((raw[f"{k}_lbs"][:, sel] > 0.01).sum())}
+                          for k in ("v7", *fits)}
+            print(f"{conf:10s} {fam:14s} " + " | ".join(
+                f"{k} {v['above_bound_median']:.3f} / {v['above_bound_p99']:.3f} "
+                f"({v['folding_pairs']} folding, {v['above_lbs_by_0.01']} above LBS)"
+                for k, v in entry[fam].items()), flush=True)
+        results[conf] = entry
+    results["seconds"] = time.time() - t0
+    print(f"wrote {write_result(args.out, results)}")
+
+
+if __name__ == "__main__":
+    main()
