@@ -19,6 +19,10 @@ ARAP's posed skin; ARAP with the same rigid sets as ``bench/bench_pose_arap.py``
 * ``expressions``: hats x [1, beta, psi], each training identity with an expression drawn
   as the learner draws them (half neutral, jawOpen U(0, 1) half the time, each other
   weight U(0, 1) with probability 0.15).
+* ``lower_face``: hats x [1, beta, q, the products q_i q_j (i <= j)] with q the weights of
+  jawOpen, mouthSmile_L and mouthSmile_R (the expression's weights that move the skin
+  under the chin), each training identity with those three drawn (three quarters of the
+  identities; each weight U(0, 1) with probability 0.6) and the others zero.
 
 The last two are scored on ``bench/bench_pose_arap.py``'s subset (200 poses, the template
 and 2 identities of seed 2101), neutral and with the pose bench's expression: per family,
@@ -58,6 +62,8 @@ from hack_render.learn.pose_data import ArapNeck, pose_sequence
 
 PURITY_DEG = 20.0
 FAMILIES = ("all", "joints_uniform", "head_x", "head_xyz")
+#: the expression weights of the ``lower_face`` fit
+LOWER_FACE = ("jawOpen", "mouthSmile_L", "mouthSmile_R")
 
 
 def net_rotation(rot: torch.Tensor) -> torch.Tensor:
@@ -96,6 +102,7 @@ class Study:
         self.w = self.model.skinning_weights.double()
         self.rigid = self.w.max(1).values >= 1 - 1e-6
         self.skin = torch.unique(self.topo.faces.reshape(-1))  # the block's vertices
+        self.lower_face = [self.names.index(n) for n in LOWER_FACE]
 
     def posed(self, beta: torch.Tensor, psi: torch.Tensor | None, theta: torch.Tensor,
               arap: bool = False) -> dict:
@@ -148,6 +155,20 @@ class Study:
             * float(torch.rand(1, generator=g) < 0.5)
         return psi * float(torch.rand(1, generator=g) < 0.5)
 
+    def sample_lower_face(self, g: torch.Generator) -> torch.Tensor:
+        psi = torch.zeros(len(self.names), dtype=torch.float64)
+        if float(torch.rand(1, generator=g)) < 0.75:
+            for j in self.lower_face:
+                psi[j] = float(torch.rand(1, generator=g, dtype=torch.float64)) \
+                    * float(torch.rand(1, generator=g) < 0.6)
+        return psi
+
+    def lower_face_terms(self, psi: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+        q = (torch.zeros(len(LOWER_FACE), dtype=torch.float64) if psi is None
+             else psi.reshape(-1)[self.lower_face])
+        i, j = torch.triu_indices(len(q), len(q))
+        return q, q[i] * q[j]
+
 
 def ridge(x: torch.Tensor, y: torch.Tensor, lam: float) -> torch.Tensor:
     return torch.linalg.solve(x.T @ x + lam * torch.eye(x.shape[1], dtype=x.dtype), x.T @ y)
@@ -174,7 +195,7 @@ def main(argv=None) -> None:
     train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
     names, theta, fam_of, betas = subset(args)
     theta, betas = theta.double(), betas.double()
-    results = {"purity_deg": PURITY_DEG, "step_deg": args.step, "ridge": args.ridge,
+    results = {"purity_deg": PURITY_DEG, "lower_face": list(LOWER_FACE), "step_deg": args.step, "ridge": args.ridge,
                "train_identities": args.train_identities, "train_poses": len(train),
                "subset": {"poses": args.poses, "identities": args.identities, "seed": args.seed},
                "expression": EXPRESSION}
@@ -196,15 +217,18 @@ def main(argv=None) -> None:
     g = torch.Generator().manual_seed(777)
     ids = torch.randn(args.train_identities, 20, generator=g, dtype=torch.float64)
     h_train = hat_weights(train, args.step)
-    rows = {"personal": ([], []), "expressions": ([], [])}
+    rows = {"personal": ([], []), "expressions": ([], []), "lower_face": ([], [])}
     for b in ids:
         for kind in rows:
-            psi = s.sample_psi(g) if kind == "expressions" else None
+            psi = (s.sample_psi(g) if kind == "expressions" else s.sample_lower_face(g)
+                   if kind == "lower_face" else None)
             p = s.posed(b, psi, train, arap=True)
-            x = design(h_train, b) if psi is None else design(h_train, b, psi)
+            x = (design(h_train, b) if kind == "personal" else design(h_train, b, psi)
+                 if kind == "expressions" else design(h_train, b, *s.lower_face_terms(psi)))
             rows[kind][0].append(x)
             rows[kind][1].append(s.residual(p))
-    print(f"ARAP on {args.train_identities} x 2 training identities [{time.time() - t0:.0f} s]", flush=True)
+    print(f"ARAP on {args.train_identities} x {len(rows)} training identities "
+          f"[{time.time() - t0:.0f} s]", flush=True)
     fits = {k: ridge(torch.cat(x), torch.cat(y), args.ridge) for k, (x, y) in rows.items()}
     h_test = hat_weights(theta, args.step)
     e = len(s.names)
@@ -218,7 +242,8 @@ def main(argv=None) -> None:
             cands = {"v7": p["v7"]}
             for k, dk in fits.items():
                 pv = torch.zeros(e, dtype=torch.float64) if psi is None else psi.reshape(-1)
-                x = design(h_test, b) if k == "personal" else design(h_test, b, pv)
+                x = (design(h_test, b) if k == "personal" else design(h_test, b, pv)
+                     if k == "expressions" else design(h_test, b, *s.lower_face_terms(psi)))
                 cands[k] = s.with_block(p, x @ dk)
             for k, x in cands.items():
                 gap, folded, stretch = s.gaps(p, x, bound)
