@@ -410,8 +410,8 @@ def sss_benchmark(size: int = 96, spp: int = 16, max_depth: int = 512) -> None:
         reduced_scattering,
         skin_albedo,
     )
-    from hack_render.render import emitters, materials
     from hack_render.io.image import write_png
+    from hack_render.render import emitters, materials
     from scenes import cameras, lights
 
     wl = np.array([610.0, 550.0, 465.0])
@@ -463,9 +463,9 @@ def sss_screen_benchmark(size: int = 256, spp: int = 32, ref_spp: int = 1024,
     (unscattered, against a plain render, per pixel class: the one-pass skin split and
     the two lobe-weighted passes); a side-by-side still at 768 px."""
     from hack_render.geometry import load_default_model
+    from hack_render.io.image import to_srgb8
     from hack_render.render import sss
     from hack_render.render.footprint import sss_features
-    from hack_render.io.image import to_srgb8
     from hack_render.render.parts import Topology
     from hack_render.render.scene import HeadScene, RenderSettings
     from hack_render.render.skin_maps import skin_maps
@@ -651,8 +651,8 @@ def write_cycles_scene(folder: Path, head, vertices: np.ndarray, maps) -> Path:
 
     from appearance.texture_io import write_texture_set
     from hack_render.geometry.obj_io import write_mesh
-    from hack_render.render import emitters, materials, skin_bsdf
     from hack_render.io.image import rgb_channels, write_exr
+    from hack_render.render import emitters, materials, skin_bsdf
     from hack_render.render.parts import vertex_normals
 
     rig, cam, settings = head.lights, head.camera, head.settings
@@ -1243,18 +1243,16 @@ def turntable_ratio_benchmark(size: int, spp: int, frames: int, modes: list[list
         events: list[tuple[str, float, float]] = []
         saved = {n: getattr(sc.HeadScene, n) for n in names}
 
-        def timed(name):
-            orig = saved[name]
-
-            def run(self, *a, **k):
+        def timed(name, orig, sink):
+            def run(self, *args, **kwargs):
                 t0 = time.perf_counter()
-                out = orig(self, *a, **k)
-                events.append((name, t0, time.perf_counter()))
+                out = orig(self, *args, **kwargs)
+                sink.append((name, t0, time.perf_counter()))
                 return out
             return run
 
         for n in names:
-            setattr(sc.HeadScene, n, timed(n))
+            setattr(sc.HeadScene, n, timed(n, saved[n], events))
         try:
             with tempfile.TemporaryDirectory() as tmp:
                 try:
