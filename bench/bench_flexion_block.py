@@ -57,6 +57,7 @@ from hack_render.geometry.deformation import (
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.model import HackModel
 from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.rotations import matrix_to_axis_angle
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.learn.pose_data import ArapNeck, pose_sequence
 
@@ -72,10 +73,7 @@ def net_rotation(rot: torch.Tensor) -> torch.Tensor:
     r = rot[:, 0]
     for k in range(1, rot.shape[1]):
         r = r @ rot[:, k]
-    cos = ((r.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1.0, 1.0)
-    ang = torch.acos(cos)
-    v = torch.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], -1)
-    return v * (ang / (2 * torch.sin(ang).clamp(min=1e-9)))[:, None]
+    return matrix_to_axis_angle(r)
 
 
 def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
