@@ -1,6 +1,6 @@
-"""bench_render.py's Cycles section: its arithmetic and refusals (fast, no Blender), and,
-where a Python with bpy is set ($HACK_RENDER_BPY_PYTHON, opt-in, slow), the same scene
-rendered by both renderers at equal brightness and framing."""
+"""bench/render_cycles.py, bench_render.py's Cycles section: its arithmetic and refusals
+(fast, no Blender), and, where a Python with bpy is set ($HACK_RENDER_BPY_PYTHON, opt-in,
+slow), the same scene rendered by both renderers at equal brightness and framing."""
 
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(ROOT / "bench"))  # bench_render imports bench/provenance.py
+    sys.path.insert(0, str(ROOT / "bench"))  # render_cycles imports bench/provenance.py
     try:
-        spec = importlib.util.spec_from_file_location("bench_render",
-                                                      ROOT / "bench" / "bench_render.py")
+        spec = importlib.util.spec_from_file_location("render_cycles",
+                                                      ROOT / "bench" / "render_cycles.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
         yield module
