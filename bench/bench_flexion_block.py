@@ -29,8 +29,18 @@ and 2 identities of seed 2101), neutral and with the pose bench's expression: pe
 the largest stretch above the bound (median / p99), folding pairs, and pairs more than
 0.01 above the same identity's plain LBS, version 7 beside the block.
 
+``--scales 0.4,0.5,...`` runs the scale study instead: the ``personal`` block (neutral,
+hats x [1, beta]) applied at a fraction of its least-squares size. The fraction is chosen
+on validation pairs that share nothing with the training or the subset (200 poses of seed
+3100, 6 identities of seed 3101): the scale with the lowest neutral and expression
+flexion/extension medians (the larger of the two) among those with no folding pair, no
+pair more than 0.01 above plain LBS and an expression flexion/extension p99 <= 0.400,
+neutral and with the pose bench's expression; then every scale is scored on the subset.
+
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
         [--out bench/results/flexion_block.json]
+    PYTHONPATH=$PWD python bench/bench_flexion_block.py --scales 0.4,0.5,0.6,0.7,0.8,0.9,1
+        --out bench/results/flexion_block_scale.json
 """
 
 from __future__ import annotations
@@ -177,6 +187,95 @@ def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
     return (h[:, :, None] * z).reshape(len(h), -1)
 
 
+def score(s: Study, betas, theta, fam_of, names, dk, scales, step) -> dict:
+    """Per configuration (neutral, expression), family and block: the largest stretch above
+    the bound (median, p99), folding pairs and pairs more than 0.01 above plain LBS; blocks
+    ``v7`` (none) and ``x<scale>`` (the personal offsets ``dk`` times the scale)."""
+    h = hat_weights(theta, step)
+    out = {}
+    for conf, psi in (("neutral", None), ("expression", s.model.expression_vector(EXPRESSION).double())):
+        raw: dict[str, list] = {}
+        for b in betas:
+            p = s.posed(b, psi, theta)
+            bound = model_stretch_bound(s.model, b[None], theta, psi, s.topo, s.anchors)
+            lbs = deformation_stats(p["rest"], p["lbs"], p["rot"], s.topo).stretch.numpy()
+            off = design(h, b) @ dk
+            cands = {"v7": p["v7"], **{f"x{k:g}": s.with_block(p, k * off) for k in scales}}
+            for k, x in cands.items():
+                gap, folded, stretch = s.gaps(p, x, bound)
+                for key, v in ((k, gap), (f"{k}_folded", folded), (f"{k}_lbs", stretch - lbs)):
+                    raw.setdefault(key, []).append(v)
+        raw = {k: np.stack(v) for k, v in raw.items()}
+        out[conf] = {}
+        for fam in FAMILIES:
+            sel = np.ones(len(fam_of), bool) if fam == "all" else fam_of == names.index(fam)
+            out[conf][fam] = {k: {"above_bound_median": float(np.median(raw[k][:, sel])),
+                                  "above_bound_p99": float(np.quantile(raw[k][:, sel], 0.99)),
+                                  "folding_pairs": int((raw[f"{k}_folded"][:, sel] > 0).sum()),
+                                  "above_lbs_by_0.01": int((raw[f"{k}_lbs"][:, sel] > 0.01).sum())}
+                              for k in ("v7", *(f"x{k:g}" for k in scales))}
+    return out
+
+
+def say_scores(label: str, entry: dict) -> None:
+    for conf, fams in entry.items():
+        for fam, rows in fams.items():
+            print(f"{label} {conf:10s} {fam:14s} " + " | ".join(
+                f"{k} {v['above_bound_median']:.3f} / {v['above_bound_p99']:.3f} "
+                f"({v['folding_pairs']} folding, {v['above_lbs_by_0.01']} above LBS)"
+                for k, v in rows.items()), flush=True)
+
+
+def choose_scale(entry: dict, scales) -> float | None:
+    """The validation rule of the module docstring."""
+    best, key = None, None
+    for k in scales:
+        rows = [entry[c][f][f"x{k:g}"] for c in entry for f in FAMILIES]
+        flex = [entry[c]["head_x"][f"x{k:g}"] for c in entry]
+        ok = all(r["folding_pairs"] == 0 and r["above_lbs_by_0.01"] == 0 for r in rows) \
+            and entry["expression"]["head_x"][f"x{k:g}"]["above_bound_p99"] <= 0.400
+        worst = max(r["above_bound_median"] for r in flex)
+        if ok and (key is None or worst < key):
+            best, key = k, worst
+    return best
+
+
+def scale_study(args, s: Study, t0: float) -> None:
+    """``--scales``: see the module docstring."""
+    scales = [float(x) for x in args.scales.split(",")]
+    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
+    train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
+    g = torch.Generator().manual_seed(777)
+    ids = torch.randn(args.train_identities, 20, generator=g, dtype=torch.float64)
+    h_train = hat_weights(train, args.step)
+    x, y = [], []
+    for b in ids:
+        x.append(design(h_train, b))
+        y.append(s.residual(s.posed(b, None, train, arap=True)))
+    dk = ridge(torch.cat(x), torch.cat(y), args.ridge)
+    print(f"the personal block fitted on {args.train_identities} identities "
+          f"[{time.time() - t0:.0f} s]", flush=True)
+    results = {"scales": scales, "step_deg": args.step, "ridge": args.ridge,
+               "purity_deg": PURITY_DEG, "train_identities": args.train_identities,
+               "train_poses": len(train), "expression": EXPRESSION,
+               "validation": {"poses": 200, "pose_seed": 3100, "identities": 6,
+                              "identity_seed": 3101},
+               "subset": {"poses": args.poses, "identities": args.identities, "seed": args.seed}}
+    val = argparse.Namespace(model=None, poses=200, identities=7, seed=3100)
+    names, theta, fam_of, betas = subset(val)
+    results["validation_scores"] = score(s, betas[1:].double(), theta.double(), fam_of, names,
+                                         dk, scales, args.step)
+    say_scores("validation", results["validation_scores"])
+    results["chosen_scale"] = choose_scale(results["validation_scores"], scales)
+    print(f"chosen on validation: {results['chosen_scale']} [{time.time() - t0:.0f} s]", flush=True)
+    names, theta, fam_of, betas = subset(args)
+    results["subset_scores"] = score(s, betas.double(), theta.double(), fam_of, names, dk,
+                                     scales, args.step)
+    say_scores("subset", results["subset_scores"])
+    results["seconds"] = time.time() - t0
+    print(f"wrote {write_result(args.out, results)}")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_subset_arguments(ap)
@@ -184,11 +283,16 @@ def main(argv=None) -> None:
     ap.add_argument("--step", type=float, default=10.0, help="hat spacing, degrees")
     ap.add_argument("--ridge", type=float, default=1e-2)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--scales", default=None, help="the scale study (module docstring), "
+                    "e.g. 0.4,0.5,0.6,0.7,0.8,0.9,1")
     ap.add_argument("--out", type=Path, default=Path("bench/results/flexion_block.json"))
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     t0 = time.time()
     s = Study()
+    if args.scales:
+        scale_study(args, s, t0)
+        return
     angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
     train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
     names, theta, fam_of, betas = subset(args)
