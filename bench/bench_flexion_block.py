@@ -36,6 +36,9 @@ on validation pairs that share nothing with the training or the subset (200 pose
 flexion/extension medians (the larger of the two) among those with no folding pair, no
 pair more than 0.01 above plain LBS and an expression flexion/extension p99 <= 0.400,
 neutral and with the pose bench's expression; then every scale is scored on the subset.
+``--basis mlp``: the block personalised as the model's own pose correctives are, by the
+8 weights of version 7's M_P network w(beta) instead of beta itself (hats x [1, w(beta)]:
+the block is then 14 more rows of the personalised pose basis).
 
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
         [--out bench/results/flexion_block.json]
@@ -187,7 +190,15 @@ def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
     return (h[:, :, None] * z).reshape(len(h), -1)
 
 
-def score(s: Study, betas, theta, fam_of, names, dk, scales, step) -> dict:
+def identity_factor(s: Study, b: torch.Tensor, basis: str) -> torch.Tensor:
+    """What the personal block is linear in: beta itself, or M_P's weights w(beta)."""
+    if basis == "beta":
+        return b
+    with torch.no_grad():
+        return s.model.pose_personal.mlp(b[None])[0]
+
+
+def score(s: Study, betas, theta, fam_of, names, dk, scales, step, basis="beta") -> dict:
     """Per configuration (neutral, expression), family and block: the largest stretch above
     the bound (median, p99), folding pairs and pairs more than 0.01 above plain LBS; blocks
     ``v7`` (none) and ``x<scale>`` (the personal offsets ``dk`` times the scale)."""
@@ -199,7 +210,7 @@ def score(s: Study, betas, theta, fam_of, names, dk, scales, step) -> dict:
             p = s.posed(b, psi, theta)
             bound = model_stretch_bound(s.model, b[None], theta, psi, s.topo, s.anchors)
             lbs = deformation_stats(p["rest"], p["lbs"], p["rot"], s.topo).stretch.numpy()
-            off = design(h, b) @ dk
+            off = design(h, identity_factor(s, b, basis)) @ dk
             cands = {"v7": p["v7"], **{f"x{k:g}": s.with_block(p, k * off) for k in scales}}
             for k, x in cands.items():
                 gap, folded, stretch = s.gaps(p, x, bound)
@@ -250,12 +261,12 @@ def scale_study(args, s: Study, t0: float) -> None:
     h_train = hat_weights(train, args.step)
     x, y = [], []
     for b in ids:
-        x.append(design(h_train, b))
+        x.append(design(h_train, identity_factor(s, b, args.basis)))
         y.append(s.residual(s.posed(b, None, train, arap=True)))
     dk = ridge(torch.cat(x), torch.cat(y), args.ridge)
     print(f"the personal block fitted on {args.train_identities} identities "
           f"[{time.time() - t0:.0f} s]", flush=True)
-    results = {"scales": scales, "step_deg": args.step, "ridge": args.ridge,
+    results = {"scales": scales, "basis": args.basis, "step_deg": args.step, "ridge": args.ridge,
                "purity_deg": PURITY_DEG, "train_identities": args.train_identities,
                "train_poses": len(train), "expression": EXPRESSION,
                "validation": {"poses": 200, "pose_seed": 3100, "identities": 6,
@@ -264,13 +275,13 @@ def scale_study(args, s: Study, t0: float) -> None:
     val = argparse.Namespace(model=None, poses=200, identities=7, seed=3100)
     names, theta, fam_of, betas = subset(val)
     results["validation_scores"] = score(s, betas[1:].double(), theta.double(), fam_of, names,
-                                         dk, scales, args.step)
+                                         dk, scales, args.step, args.basis)
     say_scores("validation", results["validation_scores"])
     results["chosen_scale"] = choose_scale(results["validation_scores"], scales)
     print(f"chosen on validation: {results['chosen_scale']} [{time.time() - t0:.0f} s]", flush=True)
     names, theta, fam_of, betas = subset(args)
     results["subset_scores"] = score(s, betas.double(), theta.double(), fam_of, names, dk,
-                                     scales, args.step)
+                                     scales, args.step, args.basis)
     say_scores("subset", results["subset_scores"])
     results["seconds"] = time.time() - t0
     print(f"wrote {write_result(args.out, results)}")
@@ -285,6 +296,8 @@ def main(argv=None) -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--scales", default=None, help="the scale study (module docstring), "
                     "e.g. 0.4,0.5,0.6,0.7,0.8,0.9,1")
+    ap.add_argument("--basis", choices=("beta", "mlp"), default="beta",
+                    help="--scales: what the personal block is linear in")
     ap.add_argument("--out", type=Path, default=Path("bench/results/flexion_block.json"))
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
