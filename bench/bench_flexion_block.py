@@ -38,7 +38,8 @@ pair more than 0.01 above plain LBS and an expression flexion/extension p99 <= 0
 neutral and with the pose bench's expression; then every scale is scored on the subset.
 ``--basis mlp``: the block personalised as the model's own pose correctives are, by the
 8 weights of version 7's M_P network w(beta) instead of beta itself (hats x [1, w(beta)]:
-the block is then 14 more rows of the personalised pose basis).
+the block is then 14 more rows of the personalised pose basis); ``--basis none``: one
+block for everyone (hats x [1]).
 
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
         [--out bench/results/flexion_block.json]
@@ -191,9 +192,12 @@ def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
 
 
 def identity_factor(s: Study, b: torch.Tensor, basis: str) -> torch.Tensor:
-    """What the personal block is linear in: beta itself, or M_P's weights w(beta)."""
+    """What the personal block is linear in: beta itself, M_P's weights w(beta), or nothing
+    (``none``: one block for every identity)."""
     if basis == "beta":
         return b
+    if basis == "none":
+        return b[:0]
     with torch.no_grad():
         return s.model.pose_personal.mlp(b[None])[0]
 
@@ -296,7 +300,7 @@ def main(argv=None) -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--scales", default=None, help="the scale study (module docstring), "
                     "e.g. 0.4,0.5,0.6,0.7,0.8,0.9,1")
-    ap.add_argument("--basis", choices=("beta", "mlp"), default="beta",
+    ap.add_argument("--basis", choices=("beta", "mlp", "none"), default="beta",
                     help="--scales: what the personal block is linear in")
     ap.add_argument("--out", type=Path, default=Path("bench/results/flexion_block.json"))
     args = ap.parse_args(argv)
