@@ -41,7 +41,7 @@ rule within the neck's active range (the second view of docs/model.md). Then eve
 is scored on the subset.
 ``--basis mlp``: the block personalised as the model's own pose correctives are, by the
 8 weights of version 7's M_P network w(beta) instead of beta itself (hats x [1, w(beta)]:
-the block is then 14 more rows of the personalised pose basis); ``--basis none``: one
+the block is then 16 more rows of the personalised pose basis); ``--basis none``: one
 block for everyone (hats x [1]).
 
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
@@ -195,6 +195,29 @@ def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
     return (h[:, :, None] * z).reshape(len(h), -1)
 
 
+def train_poses() -> torch.Tensor:
+    """The 35 whole-head flexion/extension poses (-70 to 66 degrees) the blocks are fitted on."""
+    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
+    return distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
+
+
+def pair_stats(raw: dict[str, np.ndarray], keys, sel: np.ndarray) -> dict:
+    """Per block in ``keys``, over the selected poses of ``raw``'s (identities, poses)
+    arrays: the largest stretch above the bound (median, p99), folding pairs and pairs more
+    than 0.01 above plain LBS."""
+    return {k: {"above_bound_median": float(np.median(raw[k][:, sel])),
+                "above_bound_p99": float(np.quantile(raw[k][:, sel], 0.99)),
+                "folding_pairs": int((raw[f"{k}_folded"][:, sel] > 0).sum()),
+                "above_lbs_by_0.01": int((raw[f"{k}_lbs"][:, sel] > 0.01).sum())} for k in keys}
+
+
+def say_row(prefix: str, rows: dict) -> None:
+    print(prefix + " | ".join(
+        f"{k} {v['above_bound_median']:.3f} / {v['above_bound_p99']:.3f} "
+        f"({v['folding_pairs']} folding, {v['above_lbs_by_0.01']} above LBS)"
+        for k, v in rows.items()), flush=True)
+
+
 def identity_factor(s: Study, b: torch.Tensor, basis: str) -> torch.Tensor:
     """What the personal block is linear in: beta itself, M_P's weights w(beta), or nothing
     (``none``: one block for every identity)."""
@@ -232,21 +255,14 @@ def score(s: Study, betas, theta, fam_of, names, dk, scales, step, basis="beta")
             sel = np.ones(len(fam_of), bool) if base == "all" else fam_of == names.index(base)
             if fam.endswith("_active"):
                 sel = sel & active
-            out[conf][fam] = {k: {"above_bound_median": float(np.median(raw[k][:, sel])),
-                                  "above_bound_p99": float(np.quantile(raw[k][:, sel], 0.99)),
-                                  "folding_pairs": int((raw[f"{k}_folded"][:, sel] > 0).sum()),
-                                  "above_lbs_by_0.01": int((raw[f"{k}_lbs"][:, sel] > 0.01).sum())}
-                              for k in ("v7", *(f"x{k:g}" for k in scales))}
+            out[conf][fam] = pair_stats(raw, ("v7", *(f"x{k:g}" for k in scales)), sel)
     return out
 
 
 def say_scores(label: str, entry: dict) -> None:
     for conf, fams in entry.items():
         for fam, rows in fams.items():
-            print(f"{label} {conf:10s} {fam:14s} " + " | ".join(
-                f"{k} {v['above_bound_median']:.3f} / {v['above_bound_p99']:.3f} "
-                f"({v['folding_pairs']} folding, {v['above_lbs_by_0.01']} above LBS)"
-                for k, v in rows.items()), flush=True)
+            say_row(f"{label} {conf:10s} {fam:14s} ", rows)
 
 
 def choose_scale(entry: dict, scales, view: str = "") -> float | None:
@@ -268,8 +284,7 @@ def choose_scale(entry: dict, scales, view: str = "") -> float | None:
 def scale_study(args, s: Study, t0: float) -> None:
     """``--scales``: see the module docstring."""
     scales = [float(x) for x in args.scales.split(",")]
-    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
-    train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
+    train = train_poses()
     g = torch.Generator().manual_seed(777)
     ids = torch.randn(args.train_identities, 20, generator=g, dtype=torch.float64)
     h_train = hat_weights(train, args.step)
@@ -322,8 +337,7 @@ def main(argv=None) -> None:
     if args.scales:
         scale_study(args, s, t0)
         return
-    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
-    train = distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
+    train = train_poses()
     names, theta, fam_of, betas = subset(args)
     theta, betas = theta.double(), betas.double()
     results = {"purity_deg": PURITY_DEG, "lower_face": list(LOWER_FACE), "step_deg": args.step, "ridge": args.ridge,
@@ -385,15 +399,8 @@ def main(argv=None) -> None:
         entry = {}
         for fam in FAMILIES:
             sel = np.ones(len(fam_of), bool) if fam == "all" else fam_of == names.index(fam)
-            entry[fam] = {k: {"above_bound_median": float(np.median(raw[k][:, sel])),
-                              "above_bound_p99": float(np.quantile(raw[k][:, sel], 0.99)),
-                              "folding_pairs": int((raw[f"{k}_folded"][:, sel] > 0).sum()),
-                              "above_lbs_by_0.01": int((raw[f"{k}_lbs"][:, sel] > 0.01).sum())}
-                          for k in ("v7", *fits)}
-            print(f"{conf:10s} {fam:14s} " + " | ".join(
-                f"{k} {v['above_bound_median']:.3f} / {v['above_bound_p99']:.3f} "
-                f"({v['folding_pairs']} folding, {v['above_lbs_by_0.01']} above LBS)"
-                for k, v in entry[fam].items()), flush=True)
+            entry[fam] = pair_stats(raw, ("v7", *fits), sel)
+            say_row(f"{conf:10s} {fam:14s} ", entry[fam])
         results[conf] = entry
     results["seconds"] = time.time() - t0
     print(f"wrote {write_result(args.out, results)}")
