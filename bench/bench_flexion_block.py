@@ -80,6 +80,8 @@ from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.learn.pose_data import ArapNeck, pose_sequence
 
 PURITY_DEG = 20.0
+#: the outermost knots, degrees (``--knots``): past them the block fades out over one step
+KNOTS_DEG = [-80.0, 80.0]
 FAMILIES = ("all", "joints_uniform", "head_x", "head_xyz")
 #: the expression weights of the ``lower_face`` fit
 LOWER_FACE = ("jawOpen", "mouthSmile_L", "mouthSmile_R")
@@ -96,11 +98,14 @@ def net_rotation(rot: torch.Tensor) -> torch.Tensor:
 
 def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
     """(P, H) the block's weights: hats over the net flexion angle (knots every step from
-    -80 to 80 degrees but 0) times the purity factor."""
+    :data:`KNOTS_DEG` [0] to [1], -80 to 80 degrees unless ``--knots``, but 0) times the
+    purity factor."""
     rot = local_rotations(theta, theta.new_zeros(len(theta), 3))[:, 1:]
     phi = net_rotation(rot)
+    lo, hi = KNOTS_DEG
     knots = torch.deg2rad(torch.arange(-80.0, 80.0 + 1e-9, step_deg, dtype=theta.dtype))
-    knots = knots[knots.abs() > 1e-9]
+    knots = knots[(knots.abs() > 1e-9) & (knots >= np.deg2rad(lo) - 1e-9)
+                  & (knots <= np.deg2rad(hi) + 1e-9)]
     step = np.deg2rad(step_deg)
     h = torch.relu(1 - (phi[:, :1] - knots).abs() / step)
     return h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / np.deg2rad(PURITY_DEG) ** 2)
@@ -296,6 +301,7 @@ def scale_study(args, s: Study, t0: float) -> None:
     print(f"the personal block fitted on {args.train_identities} identities "
           f"[{time.time() - t0:.0f} s]", flush=True)
     results = {"scales": scales, "basis": args.basis, "step_deg": args.step, "ridge": args.ridge,
+               "knots_deg": KNOTS_DEG,
                "purity_deg": PURITY_DEG, "train_identities": args.train_identities,
                "train_poses": len(train), "expression": EXPRESSION,
                "validation": {"poses": 200, "pose_seed": 3100, "identities": 6,
@@ -324,6 +330,8 @@ def main(argv=None) -> None:
     ap.add_argument("--train-identities", type=int, default=40)
     ap.add_argument("--step", type=float, default=10.0, help="hat spacing, degrees")
     ap.add_argument("--ridge", type=float, default=1e-2)
+    ap.add_argument("--knots", default="-80,80", help="the outermost hats' knots, degrees "
+                    "(e.g. -60,40: the block vanishes outside the active range's -70 to 50)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--scales", default=None, help="the scale study (module docstring), "
                     "e.g. 0.4,0.5,0.6,0.7,0.8,0.9,1")
@@ -332,6 +340,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=Path("bench/results/flexion_block.json"))
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
+    KNOTS_DEG[:] = [float(x) for x in args.knots.split(",")]
     t0 = time.time()
     s = Study()
     if args.scales:
