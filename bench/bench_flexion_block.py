@@ -74,7 +74,7 @@ from hack_render.geometry.deformation import (
 )
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.model_file import default_model_path, load_model_file, without_correctives
 from hack_render.geometry.rotations import matrix_to_axis_angle
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.learn.pose_data import ArapNeck, pose_sequence
@@ -115,7 +115,7 @@ class Study:
     def __init__(self):
         arrays, meta = load_model_file(default_model_path())
         self.model = HackModel(arrays, meta).double()
-        self.lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")},
+        self.lbs = HackModel(without_correctives(arrays),
                              meta).double()
         self.names = [str(x) for x in arrays["expression_names"]]
         self.topo = skin_topology(self.model)

@@ -24,7 +24,7 @@ from hack_render.geometry.deformation import (
     skin_topology,
 )
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import load_model_file, save_model_file
+from hack_render.geometry.model_file import load_model_file, save_model_file, without_correctives
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def measured():
     model without its pose correctives), for the template and two sampled identities."""
     model = load_default_model()
     arrays, meta = load_model_file(model.source_path)
-    lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+    lbs = HackModel(without_correctives(arrays), meta)
     topo = skin_topology(model)
     theta = torch.cat(list(sample_pose_space(200, seed=2100).values())).float()
     g = torch.Generator().manual_seed(2101)
@@ -343,7 +343,7 @@ def test_13_learner_rest_is_the_models_and_screen_finds_folds():
 
     model = load_default_model().double()
     arrays, meta = load_model_file(model.source_path)
-    plain = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
+    plain = without_correctives(arrays)
     region = neck_region(arrays["faces"], SKIN_LAST, pose_subset(plain))
     std = np.asarray(arrays["shape_std"], np.float64)
     dirs = np.asarray(arrays["shape_components"], np.float64)[:20] * std[:20, None, None]
@@ -385,7 +385,7 @@ def expression_measured():
     bench's expression held: stretch and folds, shipped model and its plain LBS."""
     model = load_default_model()
     arrays, meta = load_model_file(model.source_path)
-    lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+    lbs = HackModel(without_correctives(arrays), meta)
     topo = skin_topology(model)
     theta = torch.cat(list(sample_pose_space(200, seed=2100).values())).float()
     g = torch.Generator().manual_seed(2101)
