@@ -1,5 +1,6 @@
 """A corrective keyed on the chain's net flexion angle, fitted to ARAP (issue 60 §1: head
-flexion/extension above the bound; a study, not a test; nothing here is shipped).
+flexion/extension above the bound; a study, not a test; its windowed form at 0.4 is model
+version 8's flexion block).
 
 Version 7's correctives are linear in the gated per-joint ``R - I`` features; along a
 whole-head nod those features are nearly collinear, so copying ARAP's flexion with them
@@ -43,6 +44,10 @@ is scored on the subset.
 8 weights of version 7's M_P network w(beta) instead of beta itself (hats x [1, w(beta)]:
 the block is then 16 more rows of the personalised pose basis); ``--basis none``: one
 block for everyone (hats x [1]).
+
+``--knots LO,HI``: the outermost knots (default -80,80); ``-60,40`` makes a block that is
+zero past the neck's active range of net flexion (-70 to 50 degrees): model version 8's
+(``hack_render.learn.flex_learn``, which fits the shipped block the same way).
 
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
         [--out bench/results/flexion_block.json]
@@ -114,6 +119,9 @@ def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
 class Study:
     def __init__(self):
         arrays, meta = load_model_file(default_model_path())
+        # the base every block is fitted over: the default model without its own block
+        # (version 8's other arrays are version 7's)
+        arrays = {k: v for k, v in arrays.items() if not k.startswith("flex_")}
         self.model = HackModel(arrays, meta).double()
         self.lbs = HackModel(without_correctives(arrays),
                              meta).double()

@@ -103,7 +103,7 @@ def test_03_fast_forward_reference_and_numpy_path_agree(gated_arrays, chain):
 
 
 def test_04_format_3_round_trip_and_older_files(gated_arrays, tmp_path):
-    assert FORMAT_VERSION == 4
+    assert FORMAT_VERSION == 5
     save_model_file(tmp_path / "g.npz", gated_arrays, {})
     arrays, _ = load_model_file(tmp_path / "g.npz")
     assert float(arrays["pose_gate_deg"]) == GATE
