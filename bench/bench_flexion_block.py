@@ -1,5 +1,6 @@
 """A corrective keyed on the chain's net flexion angle, fitted to ARAP (issue 60 §1: head
-flexion/extension above the bound; a study, not a test; nothing here is shipped).
+flexion/extension above the bound; a study, not a test; its windowed form at 0.4 is model
+version 8's flexion block).
 
 Version 7's correctives are linear in the gated per-joint ``R - I`` features; along a
 whole-head nod those features are nearly collinear, so copying ARAP's flexion with them
@@ -44,6 +45,10 @@ is scored on the subset.
 the block is then 16 more rows of the personalised pose basis); ``--basis none``: one
 block for everyone (hats x [1]).
 
+``--knots LO,HI``: the outermost knots (default -80,80); ``-60,40`` makes a block that is
+zero past the neck's active range of net flexion (-70 to 50 degrees): model version 8's
+(``hack_render.learn.flex_learn``, which fits the shipped block the same way).
+
     PYTHONPATH=$PWD python bench/bench_flexion_block.py [--train-identities 40]
         [--out bench/results/flexion_block.json]
     PYTHONPATH=$PWD python bench/bench_flexion_block.py --scales 0.4,0.5,0.6,0.7,0.8,0.9,1
@@ -74,7 +79,7 @@ from hack_render.geometry.deformation import (
 )
 from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.model_file import default_model_path, load_model_file, without_correctives
 from hack_render.geometry.rotations import matrix_to_axis_angle
 from hack_render.geometry.skeleton import distribute_head_rotation
 from hack_render.learn.pose_data import ArapNeck, pose_sequence
@@ -114,8 +119,11 @@ def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
 class Study:
     def __init__(self):
         arrays, meta = load_model_file(default_model_path())
+        # the base every block is fitted over: the default model without its own block
+        # (version 8's other arrays are version 7's)
+        arrays = {k: v for k, v in arrays.items() if not k.startswith("flex_")}
         self.model = HackModel(arrays, meta).double()
-        self.lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")},
+        self.lbs = HackModel(without_correctives(arrays),
                              meta).double()
         self.names = [str(x) for x in arrays["expression_names"]]
         self.topo = skin_topology(self.model)

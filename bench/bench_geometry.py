@@ -59,6 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from provenance import write_result
 
 from hack_render.geometry import distribute_head_rotation, load_default_model
+from hack_render.geometry.lbs import local_rotations
 
 try:
     from smplx.lbs import lbs as smplx_lbs
@@ -85,7 +86,8 @@ def smplx_arrays(model, num_shape: int | None = None) -> dict[str, torch.Tensor]
             "lbs_weights": model.skinning_weights}
 
 
-def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
+def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor,
+               theta: torch.Tensor | None = None) -> int:
     """Bytes of model buffers the forward reads for these inputs (float32, index arrays
     excluded), as the forward reads them: the template and the given betas' shape rows;
     for the expression rows with a nonzero weight, at B = 1 their rows of
@@ -94,7 +96,8 @@ def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
     components (once for a shared identity or a batch); the pose correctives (M_P's basis
     at w = b2 when its MLP is constant for these betas, else its mean and components, and
     the generic columns when not folded); the larynx maps and the blended vertices'
-    skinning weights."""
+    skinning weights; and the flexion block's rows (format 5) of the hats active in
+    ``theta`` (their first ``1 + beta`` terms)."""
     f = 4
     n3 = model.expr_shape_basis.shape[1]
     used_e = int(psi.ne(0).any(0).sum())
@@ -120,6 +123,11 @@ def bytes_read(model, beta: torch.Tensor, psi: torch.Tensor) -> int:
     if model.has_larynx:
         total += model.larynx_maps.numel() * f
     total += model.blended_weights.numel() * f
+    fb = getattr(model, "flex", None)
+    if fb is not None and theta is not None:
+        rot = local_rotations(theta, theta.new_zeros(theta.shape[0], 3))[:, 1:]
+        hats = int((fb.weights(rot).amax(0) > 0).sum())
+        total += hats * min(1 + beta.shape[1], fb.num_terms) * fb.basis.shape[-1] * f
     return total
 
 
@@ -226,7 +234,7 @@ def run(args) -> None:
             tau = 0.005 * torch.randn(b, generator=gen)
             pose = torch.cat([go[:, None], theta], 1).reshape(b, -1)
             betas_sx = torch.cat([beta.expand(b, -1), psi], 1)
-            nbytes = bytes_read(model, beta, psi)
+            nbytes = bytes_read(model, beta, psi, theta)
             floor = floor_buffer(nbytes, model.expr_shape_basis.shape[1])
             coeffs = torch.randn(b, floor.shape[0], generator=gen)
             sx_floor = floor_buffer(smplx_bytes(sx), model.expr_shape_basis.shape[1])

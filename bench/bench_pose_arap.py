@@ -49,7 +49,7 @@ from hack_render.geometry.deformation import (
     skin_topology,
 )
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.model_file import default_model_path, load_model_file, without_correctives
 from hack_render.learn.pose_data import arap_deformation
 
 #: the issue's targets for the largest stretch above the bound (median, p99), and the
@@ -76,7 +76,7 @@ def main(argv=None) -> None:
     path = args.model or default_model_path()
     arrays, meta = load_model_file(path)
     model = HackModel(arrays, meta).double()
-    lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta).double()
+    lbs = HackModel(without_correctives(arrays), meta).double()
     topo = skin_topology(model)
     anchors = rigid_anchors(model, topo)
     names, theta, fam_of, betas = subset(args)

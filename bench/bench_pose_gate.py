@@ -27,7 +27,7 @@ import torch
 
 from hack_render.geometry.deformation import model_deformation, sample_pose_space, skin_topology
 from hack_render.geometry.model import HackModel
-from hack_render.geometry.model_file import default_model_path, load_model_file
+from hack_render.geometry.model_file import default_model_path, load_model_file, without_correctives
 
 EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
 
@@ -67,7 +67,7 @@ def main(argv=None) -> None:
     torch.set_num_threads(args.threads)
     arrays, meta = load_model_file(args.model or default_model_path())
     model = HackModel(arrays, meta)
-    lbs = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+    lbs = HackModel(without_correctives(arrays), meta)
     topo = skin_topology(model)
     names, theta, fam_of, betas = subset(args)
     theta = theta.float()

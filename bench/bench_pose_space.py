@@ -53,6 +53,7 @@ from hack_render.geometry.deformation import (
 )
 from hack_render.geometry.model import HackModel
 from hack_render.geometry.model_file import load_model_file
+from hack_render.geometry.model_file import without_correctives as lbs_arrays
 
 #: the expression held over the poses in the "with expression" configuration
 EXPRESSION = "mouthSmile_L=0.8, mouthSmile_R=0.8, jawOpen=0.5, browDown_L=0.4, browDown_R=0.4"
@@ -69,9 +70,9 @@ def model_from_git(rev: str, path: str = "hack_render/data/hack_default.npz") ->
 
 
 def without_correctives(model_path) -> HackModel:
-    """The same model with its pose blendshapes (generic and personalised) removed."""
+    """The same model with its pose correctives (generic, personalised, the flexion block) removed."""
     arrays, meta = load_model_file(model_path)
-    return HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}, meta)
+    return HackModel(lbs_arrays(arrays), meta)
 
 
 #: the issue's stretch targets: p99 and max of the largest skin-edge stretch per pose

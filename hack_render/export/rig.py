@@ -21,7 +21,10 @@ with morph targets computes ``sum_k w_k J_k IBM_k (base + sum_t weight_t delta_t
 - skeleton: a root (thorax, at c7-t1, carrying global_orient and transl) and the 8 joints
   with rest-pose inverse bind matrices; 4 weights per vertex (the model's 9, truncated to
   the largest 4: :func:`top_weights`; :attr:`ExportRig.weight_error_m` says what it
-  costs), or 8 (two glTF sets; the model never has more than 8 nonzero, so exact).
+  costs), or 8 (two glTF sets; the model never has more than 8 nonzero, so exact);
+- the flexion block of a format-5 model (:mod:`hack_render.geometry.flex_block`): one
+  target per hat (its offsets for this identity), weighted by the hat times the purity
+  factor of the joints' net rotation (:func:`flex_weights_np`; at most two non-zero).
 
 Pure torch/numpy; no file formats here (see :mod:`.gltf`).
 """
@@ -34,6 +37,7 @@ import numpy as np
 import torch
 
 from hack_render.errors import HackError
+from hack_render.geometry.flex_block import flex_weights_np
 from hack_render.geometry.lbs import (
     chain_parents,
     local_rotations,
@@ -73,6 +77,8 @@ class ExportRig:
             :func:`~hack_render.geometry.lbs.pose_gate`; None: ungated.
         pose_gate_chain: the gate's chain weight (format 4, ``HackModel.pose_gate_chain``;
             0: each joint's own angle alone).
+        flex: the flexion block's hats (format 5): ``knots_deg``, ``width_deg``,
+            ``purity_deg``; None: no block. Its targets are the last ``len(knots_deg)``.
     """
 
     base: np.ndarray
@@ -89,14 +95,18 @@ class ExportRig:
     eta: float
     pose_gate_rad: float | None = None
     pose_gate_chain: float = 0.0
+    flex: dict | None = None
 
     @property
     def slots(self) -> dict[str, slice]:
         """Where each kind of target sits in ``targets``."""
-        e, g = self.num_expressions, len(self.tau_grid)
-        return {"expression": slice(0, e), "larynx_size": slice(e, e + 1),
-                "larynx_slide": slice(e + 1, e + 1 + g),
-                "pose": slice(e + 1 + g, len(self.target_names))}
+        e, g, n = self.num_expressions, len(self.tau_grid), len(self.target_names)
+        f = n - (len(self.flex["knots_deg"]) if self.flex else 0)
+        out = {"expression": slice(0, e), "larynx_size": slice(e, e + 1),
+               "larynx_slide": slice(e + 1, e + 1 + g), "pose": slice(e + 1 + g, f)}
+        if self.flex:
+            out["flex"] = slice(f, n)
+        return out
 
 
 def top_weights(weights: np.ndarray, k: int = INFLUENCES) -> tuple[np.ndarray, np.ndarray]:
@@ -200,11 +210,16 @@ def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = T
         base = neutral + lar[1]  # eta baked in, at tau = 0
         blocks.append(np.concatenate([lar[:1], lar[2:] - lar[1]]).astype(np.float32))
         names += ["larynx_size"] + [f"larynx_slide_{1000 * t:+.0f}mm" for t in grid]
-    pose = _pose_targets(rest, neutral, k, dtype, model.pose_gate_rad, model.pose_gate_chain)
+    flex = _flex_targets(model, beta, neutral.shape[0]) if model.flex is not None else None
+    pose = _pose_targets(rest, neutral, k, dtype, model.pose_gate_rad, model.pose_gate_chain,
+                         None if flex is None else flex[1])
     if pose is not None:
         split = pose_split(k)
         blocks.append(np.stack([sign * pose[f] for f, sign, _ in split]))
         names += [f"pose_{model.joint_names[f // 9]}_{tag}" for f, _, tag in split]
+    if flex is not None:
+        blocks.append(flex[0].astype(np.float32))
+        names += [f"flex_{kd:+.0f}deg" for kd in flex[2]["knots_deg"]]
     joints4, weights4 = top_weights(model.skinning_weights.double().numpy(), influences)
     rig = ExportRig(base=base, target_names=names, targets=np.concatenate(blocks, 0),
                     node_names=[ROOT_NAME, *model.joint_names],
@@ -212,7 +227,8 @@ def build_rig(model, beta: torch.Tensor | None, eta: float, tau_range: float = T
                     rest_nodes=np.concatenate([rest_joints[:1], rest_joints], 0),
                     joints4=joints4, weights4=weights4, weight_error_m=0.0, tau_grid=grid,
                     num_expressions=e, eta=float(eta), pose_gate_rad=model.pose_gate_rad,
-                    pose_gate_chain=model.pose_gate_chain)
+                    pose_gate_chain=model.pose_gate_chain,
+                    flex=None if flex is None else flex[2])
     rig.weight_error_m = weight_truncation_error(model, rig)
     return rig
 
@@ -223,19 +239,43 @@ _PROBE_AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (0, 1, 1), (1, 0, 1),
 _PROBE_ANGLE = 1.0  # radians: far from zero, so the 9 x 9 systems are well conditioned
 
 
+def _flex_targets(model, beta: torch.Tensor, n: int) -> tuple:
+    """The flexion block's targets (H, N, 3) for identity beta (1, s), a function of poses
+    theta (T, K, 3) giving its offsets (T, N, 3), and the rig's ``flex`` entry."""
+    fb = model.flex
+    with torch.no_grad():
+        rows = fb.identity_rows(beta)[0].double().view(fb.num_hats, -1, 3)  # (H, M, 3)
+    dense = torch.zeros(fb.num_hats, n, 3, dtype=torch.float64)
+    dense[:, fb.vertices] = rows
+    entry = {"knots_deg": list(fb.knots_deg), "width_deg": float(np.degrees(fb.width)),
+             "purity_deg": float(np.degrees(fb.purity))}
+
+    def offsets(theta: np.ndarray) -> np.ndarray:
+        w = flex_weights_np(theta, entry["knots_deg"], entry["width_deg"], entry["purity_deg"])
+        return np.einsum("th,hnc->tnc", w, dense.numpy())
+
+    return dense.numpy(), offsets, entry
+
+
 def _pose_targets(rest, neutral: np.ndarray, k: int, dtype,
-                  gate_rad: float | None = None, chain: float = 0.0) -> np.ndarray | None:
+                  gate_rad: float | None = None, chain: float = 0.0,
+                  flex=None) -> np.ndarray | None:
     """(9K, N, 3) pose-corrective targets (feature order: joint, row, column of R - I), or
     None when the model has none (the rest mesh does not depend on the pose). With a gate,
     the probes' features are gated as the model's (one factor per joint: every probe turns
-    its joint by the same angle, and the chain's net rotation is that joint's own)."""
+    its joint by the same angle, and the chain's net rotation is that joint's own).
+    ``flex``: the flexion block's offsets of poses (:func:`_flex_targets`), taken out of
+    the probes (a probe's rotation is also a net rotation; the block has targets of its
+    own)."""
     axes = np.asarray(_PROBE_AXES, np.float64)
     aa = _PROBE_ANGLE * axes / np.linalg.norm(axes, axis=1, keepdims=True)  # (9, 3)
     theta = np.zeros((9 * k, k, 3))
     for j in range(k):
         theta[9 * j:9 * j + 9, j] = aa
     y = rest(9 * k, theta=torch.as_tensor(theta, dtype=dtype))[0] - neutral  # (9K, N, 3)
-    if not np.any(y):
+    if flex is not None:
+        y = y - flex(theta)
+    if not np.any(np.abs(y) > (1e-6 if flex is not None else 0.0)):  # float32 rounding
         return None
     feat = pose_features(torch.as_tensor(theta), gate_rad, chain).numpy()  # (9K, 9K), block diagonal
     out = np.zeros_like(y)
@@ -302,6 +342,9 @@ def frame_weights(rig: ExportRig, psi: np.ndarray | None, theta: np.ndarray,
         idx = np.array([f for f, _, _ in split])
         sign = np.array([sg for _, sg, _ in split])
         out[:, s["pose"]] = np.maximum(feat[:, idx] * sign, 0.0)
+    if rig.flex:
+        f = rig.flex
+        out[:, s["flex"]] = flex_weights_np(theta, f["knots_deg"], f["width_deg"], f["purity_deg"])
     return out
 
 

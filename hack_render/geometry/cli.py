@@ -71,7 +71,9 @@ def info(model_path: Path | None = typer.Argument(None, help="Model file (defaul
     typer.echo("components: pose blendshapes " + ("yes" if m.has_pose_basis else "no")
                + ", personalised expressions " + ("yes" if m.expr_personal is not None else "no")
                + ", personalised pose " + ("yes" if m.pose_personal is not None else "no")
-               + ", larynx " + ("yes" if m.has_larynx else "no"))
+               + ", larynx " + ("yes" if m.has_larynx else "no")
+               + ", flexion block " + (f"yes ({m.flex.num_hats} hats)" if m.flex is not None
+                                       else "no"))
     typer.echo(json.dumps(m.meta.get("provenance", {}), indent=1))
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from hack_render.geometry.rotations import axis_angle_to_matrix
+from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 
 def chain_parents(parents: tuple[int, ...]) -> tuple[int, ...]:
@@ -61,6 +61,26 @@ def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None,
     if gate_rad is not None:
         d = d * pose_gate(rot_mats, gate_rad, chain)[..., None, None]
     return d.flatten(1)
+
+
+def net_rotation(rot_mats: torch.Tensor) -> torch.Tensor:
+    """(B, 3) axis-angle of a path chain's net rotation from its joints' local rotations
+    (B, K, 3, 3): their product in order (the head against the thorax when the root is left
+    out). Exact and differentiable at the rest pose (``rotations.matrix_to_axis_angle``)."""
+    r = rot_mats[:, 0]
+    for k in range(1, rot_mats.shape[1]):
+        r = r @ rot_mats[:, k]
+    return matrix_to_axis_angle(r)
+
+
+def flex_weights(rot_mats: torch.Tensor, knots_rad: torch.Tensor, width_rad: float,
+                 purity_rad: float) -> torch.Tensor:
+    """The flexion block's weights (B, H) (format 5, :mod:`hack_render.geometry.flex_block`):
+    hats over the net flexion angle phi_x, ``max(0, 1 - |phi_x - k_h| / width)``, times
+    ``exp(-(phi_y^2 + phi_z^2) / purity^2)``. rot_mats: the joints' (B, K, 3, 3), no root."""
+    phi = net_rotation(rot_mats)
+    h = torch.relu(1 - (phi[:, :1] - knots_rad).abs() / width_rad)
+    return h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / purity_rad ** 2)
 
 
 def _offset_matrix(parents: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,10 @@
 """G(beta, psi, theta, eta, tau): the HACK geometry model (paper Eq. 2-3) as a torch module.
 
-    T = T_bar + B_S(beta) + B_E(psi; E_beta) + B_P(theta; P_beta) + L(beta, eta, tau)
+    T = T_bar + B_S(beta) + B_E(psi; E_beta) + B_P(theta; P_beta) + F(beta, theta)
+        + L(beta, eta, tau)
     G = LBS(T, J(beta), theta, W)
+
+(F: the flexion block of a format-5 file, :mod:`hack_render.geometry.flex_block`.)
 
 The module is stateless in its inputs (SMPL-X layer style): every parameter is a call
 argument, missing ones are filled on the buffers' device and dtype (zeros, except eta = 1,
@@ -44,6 +47,7 @@ from hack_render.geometry.lbs import (
 from hack_render.geometry.model_file import load_model_file
 from hack_render.geometry.personalized import PersonalizedHack
 from hack_render.geometry.products import (
+    FlexBlock,
     PersonalBasis,
     add_rows_,
     affine_columns,
@@ -140,6 +144,7 @@ class HackModel(nn.Module):
             "kn,snc->skc", reg, shape_dirs.reshape(-1, n, 3)).contiguous())  # rows as views
         self.expr_personal = PersonalBasis(arrays, "expr") if "expr_pca_vertices" in arrays else None
         self.pose_personal = PersonalBasis(arrays, "pose") if "pose_pca_vertices" in arrays else None
+        self.flex = FlexBlock(arrays) if "flex_basis" in arrays else None  # format 5
         # generic pose rows on the same vertices as the personalised ones: one product
         # (the generic rows are added to the personalised mean at run time, in the model's
         # dtype, so a float64 model stays exact)
@@ -296,7 +301,17 @@ class HackModel(nn.Module):
             joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
             posing = self._posing(joints, rot, p["transl"])
             rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
+            if self.flex is not None:
+                self.add_flex_(rest, ident, rot)
             return self._pose(rest, joints, rot, p["transl"], posing)
+
+    def add_flex_(self, rest: torch.Tensor, beta: torch.Tensor, rot: torch.Tensor,
+                  rows: torch.Tensor | None = None) -> torch.Tensor:
+        """Add the flexion block's offsets (format 5) to the rest meshes (B, N, 3) in place:
+        identities beta (B or 1, s), node rotations rot (B, K + 1, 3, 3) (root first);
+        ``rows``: one identity's :meth:`FlexBlock.identity_rows`, precomputed."""
+        d = self.flex.offsets(beta, rot[:, 1:], rows)
+        return rest if d is None else add_rows_(rest, self.flex.vertices, d)
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)

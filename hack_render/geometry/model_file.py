@@ -35,6 +35,7 @@ opt pose_gate_chain    (), f32               format 4: the gate also opened by t
 opt expr_pca_*         see below             personalised expressions E_beta = M_E(beta)
 opt pose_pca_*         see below             personalised pose blendshapes P_beta = M_P(beta)
 opt larynx_*           see below             larynx basis L (Eq. 4)
+opt flex_*             see below             format 5: the flexion block F(beta, theta)
 ====================== ===================== ==========================================
 
 Personalised group ``X`` in {expr, pose} (D = E or 9K deltas): ``X_pca_vertices`` (M,) i32,
@@ -55,6 +56,12 @@ and 2, which still load) the features are plain ``R - I``. Format 4 adds the opt
 ``pose_gate_chain`` () = lambda: each joint's gate also counts lambda times the squared
 net rotation of the whole chain (:func:`~hack_render.geometry.lbs.pose_gate`), so a nod
 spread over the joints opens every joint's gate; without it (files of format 1 to 3) 0.
+Format 5 adds the optional flexion block (:mod:`hack_render.geometry.flex_block`):
+``flex_vertices`` (Mf,) i32, ``flex_basis`` (Hf, Tf, Mf, 3) f32 q (per hat: the offsets
+for every identity, then one per shape weight, Tf = 1 + S_f), ``flex_knots_deg`` (Hf,)
+(sorted, none at 0), ``flex_width_deg`` () and ``flex_purity_deg`` () (both > 0): rest-space
+offsets weighted by hats over the chain's net flexion angle; without it (files of format
+1 to 4, which still load) none.
 
 "q" arrays may be stored quantised as ``key__q`` (int16) with ``key__scale`` (f32, one per
 leading index, value = q * scale); the loader restores float32 transparently.
@@ -86,12 +93,12 @@ from hack_render.errors import HackError
 from hack_render.io.array_folder import cache_base, read_array_folder, write_array_folder
 from hack_render.io.npz import write_npz
 
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 #: the built-in default model's file name in the package data (``hack_render/data``)
 DEFAULT_MODEL_NAME = "hack_default.npz"
-SUPPORTED_VERSIONS = (1, 2, 3, 4)
+SUPPORTED_VERSIONS = (1, 2, 3, 4, 5)
 QUANTISABLE = ("shape_components", "expression_basis", "pose_basis",
-               "expr_pca_components", "pose_pca_components")
+               "expr_pca_components", "pose_pca_components", "flex_basis")
 class CacheWarning(UserWarning):
     """The unpacked model file could not be cached (the load itself went through)."""
 
@@ -152,6 +159,9 @@ OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
     "larynx_chart": {"larynx_vertex_uv": ("Ml,2", "f")},
     "pose_gate": {"pose_gate_deg": ("", "f")},
     "pose_gate_chain": {"pose_gate_chain": ("", "f")},
+    "flex": {"flex_vertices": ("Mf", "i"), "flex_basis": ("Hf,Tf,Mf,3", "f"),
+             "flex_knots_deg": ("Hf", "f"), "flex_width_deg": ("", "f"),
+             "flex_purity_deg": ("", "f")},
 }
 
 
@@ -330,8 +340,11 @@ def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[
             raise HackError(f"{path}: key 'pose_gate_chain' is "
                             f"{float(arrays['pose_gate_chain'])}, expected a weight in [0, 100]. "
                             f"{_FIX}")
+    if "flex_basis" in arrays:
+        _check_flex(arrays, sizes, path)
     n = sizes["N"]
-    for key in ("faces", "landmark_indices"):
+    for key in ("faces", "landmark_indices", *(("flex_vertices",) if "flex_basis" in arrays
+                                               else ())):
         if arrays[key].min() < 0 or arrays[key].max() >= n:
             raise HackError(f"{path}: key '{key}' indexes outside 0..{n - 1}. {_FIX}")
     if arrays["uv_faces"].max() >= sizes["T"]:
@@ -347,6 +360,22 @@ def validate_arrays(arrays: dict[str, np.ndarray], path: str = "model") -> dict[
     return sizes
 
 
+def _check_flex(arrays: dict[str, np.ndarray], sizes: dict[str, int], path: str) -> None:
+    """The flexion block's (format 5) knots, widths and shape terms."""
+    knots = np.asarray(arrays["flex_knots_deg"], np.float64)
+    if np.any(np.diff(knots) <= 0) or np.any(knots == 0) or np.any(np.abs(knots) > 180):
+        raise HackError(f"{path}: key 'flex_knots_deg' must be increasing angles in "
+                        f"[-180, 180] degrees without 0 (the block vanishes at rest); found "
+                        f"{knots.tolist()}. {_FIX}")
+    for key in ("flex_width_deg", "flex_purity_deg"):
+        if not 0.0 < float(arrays[key]) <= 180.0:
+            raise HackError(f"{path}: key '{key}' is {float(arrays[key])}, expected an angle "
+                            f"in (0, 180] degrees. {_FIX}")
+    if not 1 <= sizes["Tf"] <= sizes["S"] + 1:
+        raise HackError(f"{path}: key 'flex_basis' has {sizes['Tf']} terms per hat, expected "
+                        f"1 to 1 + {sizes['S']} (one, then one per shape weight). {_FIX}")
+
+
 def _check(key, arr, spec, kind, sizes, path):
     if kind == "f" and arr.dtype.kind != "f":
         raise HackError(f"{path}: key '{key}' expected a float array, found dtype {arr.dtype}. {_FIX}")
@@ -358,6 +387,12 @@ def _check(key, arr, spec, kind, sizes, path):
     if kind == "f" and not np.isfinite(arr).all():
         bad = int((~np.isfinite(arr)).sum())
         raise HackError(f"{path}: key '{key}' has {bad} non-finite values (NaN or inf). {_FIX}")
+
+
+def without_correctives(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The arrays less every pose corrective (the per-joint and personalised ones, their
+    gate, the flexion block): the model's skin under plain LBS."""
+    return {k: v for k, v in arrays.items() if not k.startswith(("pose_", "flex_"))}
 
 
 def default_model_path() -> Path:

@@ -74,6 +74,24 @@ def quaternion_to_axis_angle(q: np.ndarray) -> np.ndarray:
     return v * factor
 
 
+def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
+    """Rotation matrix (..., 3, 3) -> axis-angle (..., 3), by the unit quaternion of
+    Shepperd's method (the best-conditioned of four formulas per matrix), as the torch
+    ``matrix_to_axis_angle``."""
+    m = np.asarray(m, dtype=np.float64)
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    d, e, f = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1]
+    cands = np.stack([np.stack([1 + m00 + m11 + m22, a, b, c], -1),
+                      np.stack([a, 1 + m00 - m11 - m22, d, e], -1),
+                      np.stack([b, d, 1 - m00 + m11 - m22, f], -1),
+                      np.stack([c, e, f, 1 - m00 - m11 + m22], -1)], -2)
+    diag = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
+                     1 - m00 - m11 + m22], -1)
+    row = np.take_along_axis(cands, diag.argmax(-1)[..., None, None], -2)[..., 0, :]
+    return quaternion_to_axis_angle(row / np.linalg.norm(row, axis=-1, keepdims=True))
+
+
 def euler_to_axis_angle(e: np.ndarray) -> np.ndarray:
     """(flexion X, axial Y, lateral Z) radians (..., 3) -> axis-angle (..., 3)."""
     e = np.asarray(e, dtype=np.float64)

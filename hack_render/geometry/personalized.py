@@ -1,7 +1,7 @@
 """HACK for one fixed identity (:meth:`HackModel.personalize`): "personalise once, animate
 many". Everything that depends on beta alone (the shaped template, the expression basis with
 the personalised correctives folded in, the pose correctives on their columns, the joints,
-the larynx's maps) is built once; the forward then reads one expression basis and poses."""
+the larynx's maps, the flexion block's rows) is built once; the forward then reads one expression basis and poses."""
 
 from __future__ import annotations
 
@@ -52,6 +52,8 @@ class PersonalizedHack(nn.Module):
             self.register_buffer("joints", model.rest_joints(beta_full)[0])
             if model.has_larynx:
                 self.register_buffer("larynx_combined", model._larynx_combined(beta_full))
+            if model.flex is not None:  # format 5: each hat's offsets for this identity
+                self.register_buffer("flex_rows", model.flex.identity_rows(beta_full))
 
     def forward(self, psi=None, theta=None, global_orient=None, transl=None, eta=None,
                 tau=None, clamp_limits: bool = False):
@@ -69,6 +71,8 @@ class PersonalizedHack(nn.Module):
             if self.uses_pose:
                 add_rows_(rest, self.pose_columns,
                            (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
+            if m.flex is not None:
+                m.add_flex_(rest, None, rot, self.flex_rows)
             if m.has_larynx:
                 add_rows_(rest, m.larynx_vertices,
                            m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),

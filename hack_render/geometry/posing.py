@@ -7,7 +7,8 @@ model file's arrays (mapped from the unpacked cache of
 :mod:`hack_render.geometry.model_file`) and evaluates the same model as
 :meth:`hack_render.geometry.model.HackModel.forward`:
 
-    T = T_bar + B_S(beta) + B_E(psi; E_beta) + B_P(theta; P_beta) + eta L(beta, tau)
+    T = T_bar + B_S(beta) + B_E(psi; E_beta) + B_P(theta; P_beta) + F(beta, theta)
+        + eta L(beta, tau)
     G = LBS(T, J(beta), theta, W)
 
 in float32 like the torch model, for one row. It takes the same inputs from a checked
@@ -32,6 +33,7 @@ from hack_render.errors import HackError
 from hack_render.geometry import np_rotations
 from hack_render.geometry.anatomy import ETA_DEFAULT, NUM_JOINTS
 from hack_render.geometry.expressions import expression_weights
+from hack_render.geometry.flex_block import flex_offsets_np
 from hack_render.geometry.limits import apply_limit_policy
 from hack_render.geometry.model_file import default_model_path, load_model_file
 from hack_render.geometry.params import forward_inputs, gather_params
@@ -113,6 +115,10 @@ class PosingModel:
         for prefix, coeffs in (("expr", psi), ("pose", feat)):
             if f"{prefix}_pca_vertices" in a:
                 rest[a[f"{prefix}_pca_vertices"]] += self._personal(prefix, coeffs, beta_full)
+        if "flex_basis" in a:  # format 5: the flexion block
+            d = flex_offsets_np(a, beta_full, theta)
+            if d is not None:
+                rest[a["flex_vertices"]] += d
         if self.has_larynx:
             rest[a["larynx_vertices"]] += self._larynx(beta_full, eta, tau)
         joints = a["joint_regressor"] @ shaped.reshape(n, 3)  # J(beta): (K, 3)

@@ -7,9 +7,13 @@ tests/test_forward_speed_equivalence.py).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import nn
+
+from hack_render.geometry.lbs import flex_weights
 
 
 class MLP(nn.Module):
@@ -259,6 +263,56 @@ class PersonalBasis(nn.Module):
         """The personal deltas themselves for one identity. beta: (1, S) -> (D, M, 3)."""
         return (self.mean + torch.matmul(self.mlp(beta)[0], self.rows)).reshape(
             self.rows.shape[0], -1, 3)
+
+
+class FlexBlock(nn.Module):
+    """The flexion block of a format-5 model file (:mod:`hack_render.geometry.flex_block`)
+    as buffers, and its offsets."""
+
+    def __init__(self, arrays: dict):
+        super().__init__()
+        basis = torch.as_tensor(np.asarray(arrays["flex_basis"], np.float32))
+        self.num_hats, self.num_terms = basis.shape[:2]
+        self.register_buffer("vertices", torch.as_tensor(np.asarray(arrays["flex_vertices"],
+                                                                    np.int64)))
+        # (H, 1 + S_f, 3M): each hat's rows contiguous, so an active hat is one slice
+        self.register_buffer("basis", basis.reshape(self.num_hats, self.num_terms, -1).contiguous())
+        self.register_buffer("knots", torch.deg2rad(torch.as_tensor(
+            np.asarray(arrays["flex_knots_deg"], np.float32))))
+        self.knots_deg = [float(k) for k in np.asarray(arrays["flex_knots_deg"])]
+        self.width = math.radians(float(arrays["flex_width_deg"]))
+        self.purity = math.radians(float(arrays["flex_purity_deg"]))
+
+    def weights(self, rot: torch.Tensor) -> torch.Tensor:
+        """(B, H) from the joints' local rotations (B, K, 3, 3), the root left out."""
+        return flex_weights(rot, self.knots.to(rot.dtype), self.width, self.purity)
+
+    def identity_rows(self, beta: torch.Tensor, hats: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, A, 3M): hats ``hats`` (A,) (default: all) of identities beta (B, s),
+        ``B_h0 + sum_s beta_s B_hs`` (betas past S_f ignored, missing ones zero)."""
+        rows = self.basis if hats is None else self.basis.index_select(0, hats)
+        s = min(beta.shape[1], self.num_terms - 1)
+        coef = torch.cat([beta.new_ones(beta.shape[0], 1), beta[:, :s]], 1)
+        return torch.einsum("bt,atk->bak", coef, rows[:, :1 + s])
+
+    def offsets(self, beta: torch.Tensor, rot: torch.Tensor,
+                rows: torch.Tensor | None = None) -> torch.Tensor | None:
+        """(B, M, 3) rest-space offsets for identities beta (B or 1, s) and the joints'
+        local rotations rot (B, K, 3, 3) (or, ``rows``, one identity's
+        :meth:`identity_rows` (1, H, 3M) for every hat); None when no hat is active (at
+        rest, or outside the knots' reach). Reads only the active hats' rows."""
+        w = self.weights(rot)
+        active = torch.nonzero(w.detach().amax(0) > 0).flatten()
+        if len(active) == 0:
+            return None
+        w = w.index_select(1, active)
+        if rows is not None:
+            return (w @ rows[0].index_select(0, active)).view(w.shape[0], -1, 3)
+        s = min(beta.shape[1], self.num_terms - 1)
+        coef = torch.cat([beta.new_ones(beta.shape[0], 1), beta[:, :s]], 1)  # (B', 1 + s)
+        basis = self.basis.index_select(0, active)[:, :1 + s]  # (A, 1 + s, 3M)
+        x = (w[:, :, None] * coef[:, None, :]).reshape(w.shape[0], -1)
+        return (x @ basis.reshape(-1, basis.shape[-1])).view(w.shape[0], -1, 3)
 
 
 def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:

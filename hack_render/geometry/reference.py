@@ -9,6 +9,7 @@ import torch
 
 from hack_render.geometry.lbs import (
     chain_parents,
+    flex_weights,
     local_rotations,
     pose_feature,
     rigid_transforms,
@@ -45,6 +46,10 @@ def reference_forward(model, beta=None, psi=None, theta=None, global_orient=None
             basis = pb.mean + torch.einsum("c,cdk->dk", w, pb.components)
             rows.append((coeffs[b] @ basis).view(-1, 3))
         rest = rest.index_add(1, pb.vertices, torch.stack(rows))
+    if m.flex is not None:  # format 5: every hat, each row's own identity
+        w = flex_weights(rot[:, 1:], m.flex.knots.to(rest.dtype), m.flex.width, m.flex.purity)
+        rest = rest.index_add(1, m.flex.vertices, torch.einsum(
+            "bh,bhk->bk", w, m.flex.identity_rows(beta)).view(B, -1, 3))
     if m.has_larynx:
         lar = m._larynx_sample(m._larynx_combined(beta), p["eta"], p["tau"])
         rest = rest.index_add(1, m.larynx_vertices, lar)

@@ -77,6 +77,8 @@ class VertexSubset:
             moved.append(model.pose_personal.vertices)
         if getattr(model, "has_larynx", False):
             moved.append(model.larynx_vertices)
+        if getattr(model, "flex", None) is not None:  # format 5: the flexion block
+            moved.append(model.flex.vertices)
         if any(bool(torch.isin(index, m).any()) for m in moved if m is not None and len(m)):
             return None
         return cls(model, index)

@@ -244,7 +244,11 @@ def learn_pose(
     if gate_chain and not gate:
         raise HackError("--pose-gate-chain needs a gate: give --pose-gate DEGREES (or "
                         "--continue from a gated model file).")
-    arrays = {k: v for k, v in arrays.items() if not k.startswith("pose_")}
+    if "flex_basis" in arrays:
+        typer.echo("learn pose: the model file's flexion block (format 5) is left out of the "
+                   "output: it was fitted over that file's correctives (refit it over the new "
+                   "ones with scripts/model_v8.py)", err=True)
+    arrays = {k: v for k, v in arrays.items() if not k.startswith(("pose_", "flex_"))}
     po = learn_pose_energy(arrays, iterations=iterations, lr=lr, identities=identities,
                            learn_weights=not keep_weights, seed=seed, progress=not quiet,
                            start=start, mlp_lr=mlp_lr, hard=hard, mine_poses=mine_poses,

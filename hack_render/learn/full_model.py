@@ -18,6 +18,7 @@ import torch
 from tqdm import tqdm
 
 from hack_render.geometry.model import HackModel
+from hack_render.geometry.model_file import without_correctives
 from hack_render.learn.expression_learn import learn_expressions
 from hack_render.learn.ict_default import build_default_model
 from hack_render.learn.larynx_learn import learn_larynx
@@ -190,7 +191,7 @@ def model_rest_fn(arrays: dict, vertices) -> callable:
     """``(beta (U, S), psi (U, E) or None) -> (rest (U, V, 3), joints (U, K, 3))``: the rest
     mesh of the model the arrays make without pose correctives (template, shape, larynx at
     eta = 1, generic and personalised expressions), on ``vertices``, in float64."""
-    model = HackModel({k: v for k, v in arrays.items() if not k.startswith("pose_")}).double()
+    model = HackModel(without_correctives(arrays)).double()
     idx = torch.as_tensor(np.asarray(vertices), dtype=torch.long)
 
     def rest(beta, psi):

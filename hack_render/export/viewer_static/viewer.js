@@ -80,6 +80,7 @@ function applySliders() {   // sliders -> bones and morph weights
 
 function correctives() {   // pose-corrective weights from the joints' current rotations
   const s = hack.target_slots;
+  flexWeights();
   if (!s.pose || s.pose[1] <= s.pose[0]) return;
   const feat = [];
   // a gated model (pose_gate_deg): each joint's block times g = u^2 / (u^2 + c^4),
@@ -102,6 +103,25 @@ function correctives() {   // pose-corrective weights from the joints' current r
   hack.pose_targets.forEach(([f, sign], i) => {
     const v = Math.max(sign * feat[f], 0);
     for (const mesh of meshes) mesh.morphTargetInfluences[s.pose[0] + i] = v;
+  });
+}
+
+function flexWeights() {   // the flexion block (format 5; geometry.flex_block): its hats
+  const f = hack.flex, s = hack.target_slots;
+  if (!f || !s.flex) return;
+  // phi: axis-angle of the joints' net rotation R_1 R_2 ... R_8 (the head against the thorax)
+  const q = new THREE.Quaternion();
+  for (const name of hack.joints) q.multiply(bones[name].quaternion);
+  const sg = q.w < 0 ? -1 : 1;
+  const x = sg * q.x, y = sg * q.y, z = sg * q.z, w = sg * q.w;
+  const sn = Math.sqrt(x * x + y * y + z * z);
+  const k = sn > 1e-12 ? 2 * Math.atan2(sn, w) / sn : 2 / w;
+  const phi = [k * x, k * y, k * z];
+  const rad = THREE.MathUtils.degToRad;
+  const purity = Math.exp(-(phi[1] * phi[1] + phi[2] * phi[2]) / Math.pow(rad(f.purity_deg), 2));
+  f.knots_deg.forEach((knot, i) => {
+    const v = Math.max(0, 1 - Math.abs(phi[0] - rad(knot)) / rad(f.width_deg)) * purity;
+    for (const mesh of meshes) mesh.morphTargetInfluences[s.flex[0] + i] = v;
   });
 }
 
