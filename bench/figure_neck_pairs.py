@@ -6,8 +6,9 @@ template and ``--identities - 1`` identities), neutral: the ``--count`` pairs of
 flexion/extension family where the ``--before`` model is furthest above the pose's
 physical lower bound (:func:`hack_render.geometry.deformation.model_stretch_bound`), each
 posed by both models, ray cast grey (no Monte Carlo noise) from ``--yaw`` / ``--pitch``
-(the throat seen from in front and below). Rows: before, after; one column per pair, its
-stretch above the bound and folded triangles printed and written beside the image.
+(the throat seen from in front and below); ``--active-only``: among the poses within the
+neck's active range. Rows: before, after; one column per pair, its stretch above the bound
+and folded triangles printed and written beside the image (``.json``).
 
     python bench/figure_neck_pairs.py --before REV_OR_FILE --after hack_render/data/hack_default.npz \\
         --out docs/images/neck_v8_flexion.png
@@ -28,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pose_gate import add_subset_arguments, subset
 from bench_pose_space import model_from_git
 
+from hack_render.geometry.anatomy import within_active_range
 from hack_render.geometry.deformation import (
     deformation_stats,
     model_stretch_bound,
@@ -70,6 +72,8 @@ def main(argv=None) -> None:
     ap.add_argument("--after", required=True, help="model file or git revision")
     ap.add_argument("--family", default="head_x")
     ap.add_argument("--count", type=int, default=5)
+    ap.add_argument("--active-only", action="store_true", help="only poses within the "
+                    "neck's active range (anatomy.within_active_range)")
     ap.add_argument("--yaw", type=float, default=-40.0)
     ap.add_argument("--pitch", type=float, default=-35.0)
     ap.add_argument("--size", type=int, default=320)
@@ -79,7 +83,10 @@ def main(argv=None) -> None:
     topo = skin_topology(models[0])
     anchors = rigid_anchors(models[0], topo)
     names, theta, fam_of, betas = subset(args)
-    sel = np.flatnonzero(fam_of == names.index(args.family))
+    keep = fam_of == names.index(args.family)
+    if args.active_only:
+        keep &= within_active_range(theta.numpy())
+    sel = np.flatnonzero(keep)
     th = theta[sel].double()
     betas = betas.double()
     stats = [pairs(m, betas, th, topo, anchors) for m in models]
@@ -109,7 +116,8 @@ def main(argv=None) -> None:
     Image.fromarray(np.concatenate(rows, 0)).save(args.out)
     args.out.with_suffix(".json").write_text(json.dumps(
         {"before": args.before, "after": args.after, "family": args.family,
-         "camera": {"yaw": args.yaw, "pitch": args.pitch}, "pairs": record}, indent=1))
+         "active_only": args.active_only, "camera": {"yaw": args.yaw, "pitch": args.pitch},
+         "pairs": record}, indent=1))
     for r in record:
         print(r)
     print(f"wrote {args.out}")

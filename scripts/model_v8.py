@@ -19,6 +19,7 @@ import torch
 
 from hack_render.geometry.model_file import load_model_file, save_model_file
 from hack_render.learn.flex_learn import (
+    COHERENCE,
     PURITY_DEG,
     RIDGE,
     STEP_DEG,
@@ -30,24 +31,28 @@ from hack_render.learn.flex_learn import (
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("source", help="model version 7 (no flexion block)")
+    ap.add_argument("source", help="model version 7, or a file of `learn pose` (no flexion "
+                    "block)")
     ap.add_argument("out", help="where to write version 8")
     ap.add_argument("--scale", type=float, default=0.3, help="the fraction of the fit applied")
     ap.add_argument("--knots", default="-80,80", help="the outermost knots, degrees")
     ap.add_argument("--identities", type=int, default=40)
+    ap.add_argument("--coherence", type=float, default=COHERENCE, help="the power of the "
+                    "joints' flexion coherence (0: off)")
     ap.add_argument("--seed", type=int, default=777)
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     arrays, meta = load_model_file(args.source)
-    if meta.get("model_version") != 7 or any(k.startswith("flex_") for k in arrays):
-        raise SystemExit(f"expected model version 7 without a flexion block, found version "
-                         f"{meta.get('model_version')}")
+    if any(k.startswith("flex_") for k in arrays):
+        raise SystemExit(f"{args.source} already has a flexion block: give the file it was "
+                         "fitted over (model version 7), or one `learn pose` wrote")
     lo, hi = (float(x) for x in args.knots.split(","))
     knots = knots_deg(lo, hi)
     t0 = time.time()
     arrays.update(fit_flex_block(arrays, knots, args.scale, identities=args.identities,
-                                 seed=args.seed, report=lambda s: print(s, flush=True)))
+                                 seed=args.seed, coherence=args.coherence,
+                                 report=lambda s: print(s, flush=True)))
     seconds = time.time() - t0
     meta["model_version"] = 8
     meta.setdefault("provenance", {})["flexion_block"] = (
@@ -56,12 +61,14 @@ def main() -> None:
         f"{args.identities} identities beta ~ N(0, I) (20 shape weights, seed {args.seed}) x "
         f"{len(training_poses())} whole-head flexion/extension poses (-70 to 66 degrees), hats "
         f"every {STEP_DEG:g} degrees over the net flexion angle (knots {lo:g} to {hi:g}, none at "
-        f"0) times exp(-(off-axis / {PURITY_DEG:g} deg)^2), linear in beta; applied at "
+        f"0) times exp(-(off-axis / {PURITY_DEG:g} deg)^2) times the joints' flexion "
+        f"coherence to the power {args.coherence:g}, linear in beta; applied at "
         f"{args.scale:g} of the fit (chosen on validation pairs: bench/bench_flexion_block.py "
         "--scales; docs/model.md, 'Model version 8'); hack_render.learn.flex_learn.")
     meta.setdefault("learn", {})["flex"] = {
         "scale": args.scale, "knots_deg": [float(k) for k in knots], "step_deg": STEP_DEG,
-        "purity_deg": PURITY_DEG, "ridge": RIDGE, "identities": args.identities,
+        "purity_deg": PURITY_DEG, "coherence": args.coherence, "ridge": RIDGE,
+        "identities": args.identities,
         "seed": args.seed, "train_poses": len(training_poses()), "seconds": round(seconds, 1),
         "command": " ".join(["python", *sys.argv])}
     errors = save_model_file(args.out, arrays, meta)

@@ -43,7 +43,7 @@ def arrays():
     a.update({"flex_vertices": verts.astype(np.int32),
               "flex_basis": (4e-3 * rng.standard_normal((len(KNOTS), 21, 400, 3))).astype(np.float32),
               "flex_knots_deg": KNOTS.astype(np.float32), "flex_width_deg": np.float32(10.0),
-              "flex_purity_deg": np.float32(20.0)})
+              "flex_purity_deg": np.float32(20.0), "flex_coherence": np.float32(4.0)})
     validate_arrays(a)
     return a
 
@@ -96,10 +96,20 @@ def test_02_weights_hats_purity_and_their_numpy_twin():
     combined rotation, nothing acts past the outer knots' reach, and NumPy equals torch."""
     theta = poses(40).double()
     rot = local_rotations(theta, torch.zeros(len(theta), 3, dtype=torch.float64))[:, 1:]
-    w = flex_weights(rot, torch.deg2rad(torch.as_tensor(KNOTS)), math.radians(10), math.radians(20))
+    w = flex_weights(rot, torch.deg2rad(torch.as_tensor(KNOTS)), math.radians(10), math.radians(20),
+                     4.0)
     assert ((w > 0).sum(1) <= 2).all()
-    w_np = flex_weights_np(theta.numpy(), KNOTS, 10.0, 20.0)
+    w_np = flex_weights_np(theta.numpy(), KNOTS, 10.0, 20.0, 4.0)
     assert np.abs(w_np - w.numpy()).max() < 1e-9
+    # coherence: a nod (every joint the same way) keeps its weights, the same net flexion
+    # with the joints bending against each other loses most of them
+    same = np.zeros((2, 8, 3))
+    same[0, :, 0] = np.deg2rad(30.0) / 8
+    same[1, :, 0] = np.deg2rad([12, -6, 12, -6, 12, -6, 12, 0])  # net 30 degrees too
+    wc = flex_weights_np(same, KNOTS, 10.0, 20.0, 4.0)
+    w0 = flex_weights_np(same, KNOTS, 10.0, 20.0, 0.0)
+    assert np.allclose(wc[0], w0[0], atol=1e-7) and w0[1].sum() == pytest.approx(1.0, abs=1e-6)
+    assert wc[1].sum() < 0.2 * w0[1].sum()
     nod = np.zeros((4, 8, 3))  # pure flexion shared by the 8 joints: the net angle is the sum
     nod[:, :, 0] = np.deg2rad([[-55.0], [33.0], [95.0], [4.0]]) / 8
     wn = flex_weights_np(nod, KNOTS, 10.0, 20.0)
@@ -139,6 +149,7 @@ def test_04_file_format_round_trip_checks_and_format_4(arrays, tmp_path):
     assert np.array_equal(back["flex_vertices"], arrays["flex_vertices"])
     for key, value, words in (("flex_knots_deg", np.r_[KNOTS[:8], 0.0, KNOTS[9:]], "without 0"),
                               ("flex_width_deg", np.float32(0), "flex_width_deg"),
+                              ("flex_coherence", np.float32(-1), "flex_coherence"),
                               ("flex_basis", np.zeros((len(KNOTS), len(arrays["shape_std"]) + 2,
                                                        400, 3)), "terms per hat")):
         with pytest.raises(HackError, match=words):
@@ -160,7 +171,7 @@ def test_05_the_rig_carries_the_block(model, arrays):
     assert s.stop - s.start == len(KNOTS) and rig.target_names[s.start] == "flex_-80deg"
     theta = poses(6, seed=3).double().numpy()
     wts = R.frame_weights(rig, None, theta, None)
-    assert np.abs(wts[:, s] - flex_weights_np(theta, KNOTS, 10.0, 20.0)).max() < 1e-12
+    assert np.abs(wts[:, s] - flex_weights_np(theta, KNOTS, 10.0, 20.0, 4.0)).max() < 1e-12
     assert wts.min() >= 0 and wts.max() <= 1
     with torch.no_grad():
         want = model(beta=beta.expand(len(theta), -1), theta=torch.as_tensor(theta).float(),

@@ -317,8 +317,9 @@ def person_document(model, rig, pose: Pose, maps=None, animation: Animation | No
                           else math.degrees(rig.pose_gate_rad)),
         "pose_gate_chain": rig.pose_gate_chain,
         # format 5: the flexion block's targets (slot "flex"), weights max(0, 1 - |phi_x -
-        # knot| / width) exp(-(phi_y^2 + phi_z^2) / purity^2), phi the axis-angle of the
-        # joints' net rotation (the product of their local rotations); null: none
+        # knot| / width) exp(-(phi_y^2 + phi_z^2) / purity^2) c^coherence, phi the axis-angle
+        # of the joints' net rotation (the product of their local rotations), c = |sum a_k| /
+        # sum |a_k|, a_k the x of joint k's (R - R^T) / 2; null: none
         "flex": rig.flex,
         "joint_limits_deg": model.rotation_limits_deg.tolist(),
         "units": "metres, Y up, face along +Z"}}

@@ -78,7 +78,7 @@ class ExportRig:
         pose_gate_chain: the gate's chain weight (format 4, ``HackModel.pose_gate_chain``;
             0: each joint's own angle alone).
         flex: the flexion block's hats (format 5): ``knots_deg``, ``width_deg``,
-            ``purity_deg``; None: no block. Its targets are the last ``len(knots_deg)``.
+            ``purity_deg``, ``coherence``; None: no block. Its targets are the last ``len(knots_deg)``.
     """
 
     base: np.ndarray
@@ -248,10 +248,11 @@ def _flex_targets(model, beta: torch.Tensor, n: int) -> tuple:
     dense = torch.zeros(fb.num_hats, n, 3, dtype=torch.float64)
     dense[:, fb.vertices] = rows
     entry = {"knots_deg": list(fb.knots_deg), "width_deg": float(np.degrees(fb.width)),
-             "purity_deg": float(np.degrees(fb.purity))}
+             "purity_deg": float(np.degrees(fb.purity)), "coherence": fb.coherence}
 
     def offsets(theta: np.ndarray) -> np.ndarray:
-        w = flex_weights_np(theta, entry["knots_deg"], entry["width_deg"], entry["purity_deg"])
+        w = flex_weights_np(theta, entry["knots_deg"], entry["width_deg"], entry["purity_deg"],
+                            entry["coherence"])
         return np.einsum("th,hnc->tnc", w, dense.numpy())
 
     return dense.numpy(), offsets, entry
@@ -344,7 +345,8 @@ def frame_weights(rig: ExportRig, psi: np.ndarray | None, theta: np.ndarray,
         out[:, s["pose"]] = np.maximum(feat[:, idx] * sign, 0.0)
     if rig.flex:
         f = rig.flex
-        out[:, s["flex"]] = flex_weights_np(theta, f["knots_deg"], f["width_deg"], f["purity_deg"])
+        out[:, s["flex"]] = flex_weights_np(theta, f["knots_deg"], f["width_deg"], f["purity_deg"],
+                                            f["coherence"])
     return out
 
 

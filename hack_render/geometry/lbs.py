@@ -74,13 +74,21 @@ def net_rotation(rot_mats: torch.Tensor) -> torch.Tensor:
 
 
 def flex_weights(rot_mats: torch.Tensor, knots_rad: torch.Tensor, width_rad: float,
-                 purity_rad: float) -> torch.Tensor:
+                 purity_rad: float, coherence: float = 0.0) -> torch.Tensor:
     """The flexion block's weights (B, H) (format 5, :mod:`hack_render.geometry.flex_block`):
     hats over the net flexion angle phi_x, ``max(0, 1 - |phi_x - k_h| / width)``, times
-    ``exp(-(phi_y^2 + phi_z^2) / purity^2)``. rot_mats: the joints' (B, K, 3, 3), no root."""
+    ``exp(-(phi_y^2 + phi_z^2) / purity^2)``, times ``c^coherence`` with c = |sum_k a_k| /
+    sum_k |a_k| the coherence of the joints' flexion (a_k: joint k's axial vector's x,
+    sin angle times the axis; 1 when every joint bends the same way, as in a nod).
+    rot_mats: the joints' (B, K, 3, 3), no root."""
     phi = net_rotation(rot_mats)
     h = torch.relu(1 - (phi[:, :1] - knots_rad).abs() / width_rad)
-    return h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / purity_rad ** 2)
+    h = h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / purity_rad ** 2)
+    if coherence:
+        a = 0.5 * (rot_mats[..., 2, 1] - rot_mats[..., 1, 2])  # (B, K)
+        c = a.sum(-1).abs() / (a.abs().sum(-1) + 1e-9)
+        h = h * (c ** coherence)[:, None]
+    return h
 
 
 def _offset_matrix(parents: tuple[int, ...], like: torch.Tensor) -> torch.Tensor:

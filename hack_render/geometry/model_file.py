@@ -59,7 +59,8 @@ spread over the joints opens every joint's gate; without it (files of format 1 t
 Format 5 adds the optional flexion block (:mod:`hack_render.geometry.flex_block`):
 ``flex_vertices`` (Mf,) i32, ``flex_basis`` (Hf, Tf, Mf, 3) f32 q (per hat: the offsets
 for every identity, then one per shape weight, Tf = 1 + S_f), ``flex_knots_deg`` (Hf,)
-(sorted, none at 0), ``flex_width_deg`` () and ``flex_purity_deg`` () (both > 0): rest-space
+(sorted, none at 0), ``flex_width_deg`` () and ``flex_purity_deg`` () (both > 0) and
+``flex_coherence`` () (the power of the joints' flexion coherence, 0 to 16): rest-space
 offsets weighted by hats over the chain's net flexion angle; without it (files of format
 1 to 4, which still load) none.
 
@@ -161,7 +162,7 @@ OPTIONAL_GROUPS: dict[str, dict[str, tuple[str, str]]] = {
     "pose_gate_chain": {"pose_gate_chain": ("", "f")},
     "flex": {"flex_vertices": ("Mf", "i"), "flex_basis": ("Hf,Tf,Mf,3", "f"),
              "flex_knots_deg": ("Hf", "f"), "flex_width_deg": ("", "f"),
-             "flex_purity_deg": ("", "f")},
+             "flex_purity_deg": ("", "f"), "flex_coherence": ("", "f")},
 }
 
 
@@ -371,6 +372,9 @@ def _check_flex(arrays: dict[str, np.ndarray], sizes: dict[str, int], path: str)
         if not 0.0 < float(arrays[key]) <= 180.0:
             raise HackError(f"{path}: key '{key}' is {float(arrays[key])}, expected an angle "
                             f"in (0, 180] degrees. {_FIX}")
+    if not 0.0 <= float(arrays["flex_coherence"]) <= 16.0:
+        raise HackError(f"{path}: key 'flex_coherence' is {float(arrays['flex_coherence'])}, "
+                        f"expected a power in [0, 16]. {_FIX}")
     if not 1 <= sizes["Tf"] <= sizes["S"] + 1:
         raise HackError(f"{path}: key 'flex_basis' has {sizes['Tf']} terms per hat, expected "
                         f"1 to 1 + {sizes['S']} (one, then one per shape weight). {_FIX}")

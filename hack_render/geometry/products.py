@@ -282,10 +282,12 @@ class FlexBlock(nn.Module):
         self.knots_deg = [float(k) for k in np.asarray(arrays["flex_knots_deg"])]
         self.width = math.radians(float(arrays["flex_width_deg"]))
         self.purity = math.radians(float(arrays["flex_purity_deg"]))
+        self.coherence = float(arrays["flex_coherence"])
 
     def weights(self, rot: torch.Tensor) -> torch.Tensor:
         """(B, H) from the joints' local rotations (B, K, 3, 3), the root left out."""
-        return flex_weights(rot, self.knots.to(rot.dtype), self.width, self.purity)
+        return flex_weights(rot, self.knots.to(rot.dtype), self.width, self.purity,
+                            self.coherence)
 
     def identity_rows(self, beta: torch.Tensor, hats: torch.Tensor | None = None) -> torch.Tensor:
         """(B, A, 3M): hats ``hats`` (A,) (default: all) of identities beta (B, s),

@@ -47,7 +47,8 @@ def reference_forward(model, beta=None, psi=None, theta=None, global_orient=None
             rows.append((coeffs[b] @ basis).view(-1, 3))
         rest = rest.index_add(1, pb.vertices, torch.stack(rows))
     if m.flex is not None:  # format 5: every hat, each row's own identity
-        w = flex_weights(rot[:, 1:], m.flex.knots.to(rest.dtype), m.flex.width, m.flex.purity)
+        w = flex_weights(rot[:, 1:], m.flex.knots.to(rest.dtype), m.flex.width, m.flex.purity,
+                         m.flex.coherence)
         rest = rest.index_add(1, m.flex.vertices, torch.einsum(
             "bh,bhk->bk", w, m.flex.identity_rows(beta)).view(B, -1, 3))
     if m.has_larynx:

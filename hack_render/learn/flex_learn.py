@@ -29,6 +29,8 @@ from hack_render.learn.pose_data import ArapNeck, pose_sequence
 STEP_DEG = 10.0
 PURITY_DEG = 20.0
 RIDGE = 1e-2
+#: the power of the joints' flexion coherence (1 in the training nods: the fit is the same)
+COHERENCE = 4.0
 #: offsets below this (metres, every hat and term) are rounding: their vertices are left out
 KEEP_M = 1e-7
 
@@ -83,6 +85,7 @@ class ArapResidual:
 def fit_flex_block(arrays: dict[str, np.ndarray], knots: np.ndarray, scale: float,
                    identities: int = 40, seed: int = 777, terms: int = 20,
                    step: float = STEP_DEG, purity: float = PURITY_DEG, ridge: float = RIDGE,
+                   coherence: float = COHERENCE,
                    report: Callable[[str], None] | None = None) -> dict[str, np.ndarray]:
     """The format-5 arrays of a block fitted for the model ``arrays`` (which must carry
     none) on ``identities`` identities beta ~ N(0, I) (``terms`` shape weights, seed
@@ -92,7 +95,7 @@ def fit_flex_block(arrays: dict[str, np.ndarray], knots: np.ndarray, scale: floa
     theta = training_poses()
     rot = local_rotations(theta, theta.new_zeros(len(theta), 3))[:, 1:]
     h = flex_weights(rot, torch.deg2rad(torch.as_tensor(knots, dtype=torch.float64)),
-                     math.radians(step), math.radians(purity))  # (P, H)
+                     math.radians(step), math.radians(purity), coherence)  # (P, H)
     g = torch.Generator().manual_seed(seed)
     betas = torch.randn(identities, terms, generator=g, dtype=torch.float64)
     x, y = [], []
@@ -112,4 +115,5 @@ def fit_flex_block(arrays: dict[str, np.ndarray], knots: np.ndarray, scale: floa
             "flex_basis": basis[:, :, keep].numpy().astype(np.float32),
             "flex_knots_deg": np.asarray(knots, np.float32),
             "flex_width_deg": np.asarray(step, np.float32),
-            "flex_purity_deg": np.asarray(purity, np.float32)}
+            "flex_purity_deg": np.asarray(purity, np.float32),
+            "flex_coherence": np.asarray(coherence, np.float32)}

@@ -118,7 +118,15 @@ function flexWeights() {   // the flexion block (format 5; geometry.flex_block):
   const k = sn > 1e-12 ? 2 * Math.atan2(sn, w) / sn : 2 / w;
   const phi = [k * x, k * y, k * z];
   const rad = THREE.MathUtils.degToRad;
-  const purity = Math.exp(-(phi[1] * phi[1] + phi[2] * phi[2]) / Math.pow(rad(f.purity_deg), 2));
+  let purity = Math.exp(-(phi[1] * phi[1] + phi[2] * phi[2]) / Math.pow(rad(f.purity_deg), 2));
+  if (f.coherence) {  // c = |sum a_k| / sum |a_k|, a_k = x of (R_k - R_k^T) / 2 = 2 w x
+    let sum = 0, abs = 0;
+    for (const name of hack.joints) {
+      const b = bones[name].quaternion, a = 2 * b.w * b.x;
+      sum += a; abs += Math.abs(a);
+    }
+    purity *= Math.pow(Math.abs(sum) / (abs + 1e-9), f.coherence);
+  }
   f.knots_deg.forEach((knot, i) => {
     const v = Math.max(0, 1 - Math.abs(phi[0] - rad(knot)) / rad(f.width_deg)) * purity;
     for (const mesh of meshes) mesh.morphTargetInfluences[s.flex[0] + i] = v;
