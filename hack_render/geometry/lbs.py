@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import torch
 
-from hack_render.geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
+from hack_render.geometry.rotations import axis_angle_to_matrix
 
 
 def chain_parents(parents: tuple[int, ...]) -> tuple[int, ...]:
@@ -63,25 +63,37 @@ def pose_feature(rot_mats: torch.Tensor, gate_rad: float | None = None,
     return d.flatten(1)
 
 
-def net_rotation(rot_mats: torch.Tensor) -> torch.Tensor:
-    """(B, 3) axis-angle of a path chain's net rotation from its joints' local rotations
-    (B, K, 3, 3): their product in order (the head against the thorax when the root is left
-    out). Exact and differentiable at the rest pose (``rotations.matrix_to_axis_angle``)."""
-    r = rot_mats[:, 0]
-    for k in range(1, rot_mats.shape[1]):
-        r = r @ rot_mats[:, k]
-    return matrix_to_axis_angle(r)
+def rotation_log(r: torch.Tensor) -> torch.Tensor:
+    """Axis-angle (..., 3) of rotations (..., 3, 3) below 180 degrees: the axial vector
+    (R - R^T) / 2 = sin(angle) axis times angle / sin(angle) (angle = atan2(sin, cos), its
+    series 1 + sin^2 / 6 near 0, so exact and differentiable at the identity). The same
+    values as ``rotations.matrix_to_axis_angle`` in a dozen elementwise operations instead
+    of Shepperd's method: the flexion block's net rotation in every forward (B = 1 runs
+    dozens of small operations, each a fixed cost)."""
+    v = 0.5 * torch.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                           r[..., 1, 0] - r[..., 0, 1]], -1)
+    c = (0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1)).unsqueeze(-1)
+    s2 = (v * v).sum(-1, keepdim=True)
+    small = (s2 < 1e-8) & (c > 0)
+    s = torch.where(small, torch.ones_like(s2), s2).sqrt()
+    return v * torch.where(small, 1 + s2 / 6, torch.atan2(s, c) / s)
 
 
 def flex_weights(rot_mats: torch.Tensor, knots_rad: torch.Tensor, width_rad: float,
-                 purity_rad: float, coherence: float = 0.0) -> torch.Tensor:
+                 purity_rad: float, coherence: float = 0.0,
+                 net: torch.Tensor | None = None) -> torch.Tensor:
     """The flexion block's weights (B, H) (format 5, :mod:`hack_render.geometry.flex_block`):
     hats over the net flexion angle phi_x, ``max(0, 1 - |phi_x - k_h| / width)``, times
     ``exp(-(phi_y^2 + phi_z^2) / purity^2)``, times ``c^coherence`` with c = |sum_k a_k| /
     sum_k |a_k| the coherence of the joints' flexion (a_k: joint k's axial vector's x,
     sin angle times the axis; 1 when every joint bends the same way, as in a nod).
-    rot_mats: the joints' (B, K, 3, 3), no root."""
-    phi = net_rotation(rot_mats)
+    rot_mats: the joints' (B, K, 3, 3), no root; ``net``: their product (B, 3, 3) where
+    the caller has it (the forward's kinematics)."""
+    if net is None:
+        net = rot_mats[:, 0]
+        for k in range(1, rot_mats.shape[1]):
+            net = net @ rot_mats[:, k]
+    phi = rotation_log(net)
     h = torch.relu(1 - (phi[:, :1] - knots_rad).abs() / width_rad)
     h = h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / purity_rad ** 2)
     if coherence:

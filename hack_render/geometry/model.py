@@ -300,18 +300,22 @@ class HackModel(nn.Module):
             # them after a 72 MB read measured 2.6x its warm CPU time)
             joints = self.rest_joints(ident).expand(rot.shape[0], -1, -1)
             posing = self._posing(joints, rot, p["transl"])
-            rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"])
-            if self.flex is not None:
-                self.add_flex_(rest, ident, rot)
+            flex = self.flex_delta(ident, rot, posing[3]) if self.flex is not None else None
+            rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"],
+                              flex)
             return self._pose(rest, joints, rot, p["transl"], posing)
 
-    def add_flex_(self, rest: torch.Tensor, beta: torch.Tensor, rot: torch.Tensor,
-                  rows: torch.Tensor | None = None) -> torch.Tensor:
-        """Add the flexion block's offsets (format 5) to the rest meshes (B, N, 3) in place:
-        identities beta (B or 1, s), node rotations rot (B, K + 1, 3, 3) (root first);
-        ``rows``: one identity's :meth:`FlexBlock.identity_rows`, precomputed."""
-        d = self.flex.offsets(beta, rot[:, 1:], rows)
-        return rest if d is None else add_rows_(rest, self.flex.vertices, d)
+    def flex_delta(self, beta: torch.Tensor | None, rot: torch.Tensor, rel: torch.Tensor,
+                   rows: torch.Tensor | None = None) -> tuple | None:
+        """The flexion block's (format 5) (vertices, offsets (B, M, 3)), or None where no
+        hat acts: identities beta (B or 1, s), node rotations rot (B, K + 1, 3, 3) (root
+        first), the nodes' transforms ``rel`` (their world rotations give the joints' net
+        rotation in one product); ``rows``: one identity's
+        :meth:`FlexBlock.identity_rows`, precomputed."""
+        r = rel[..., :3, :3]
+        net = r[:, 0].transpose(-1, -2) @ r[:, -1]  # the root's undone: R_1 ... R_K
+        d = self.flex.offsets(beta, rot[:, 1:], rows, net)
+        return None if d is None else (self.flex.vertices, d)
 
     def pose_features(self, rot: torch.Tensor) -> torch.Tensor:
         """The pose correctives' weights (B, 72) of node rotations rot (B, K + 1, 3, 3)
@@ -319,14 +323,15 @@ class HackModel(nn.Module):
         also opened by the chain's net rotation; :func:`~hack_render.geometry.lbs.pose_feature`)."""
         return pose_feature(rot[:, 1:], self.pose_gate_rad, self.pose_gate_chain)
 
-    def _rest(self, beta, psi, feat, eta, tau) -> torch.Tensor:
+    def _rest(self, beta, psi, feat, eta, tau, flex=None) -> torch.Tensor:
         """T(beta, psi, theta, eta, tau) (B, N, 3). beta: (B, s) or (1, s) for a batch that
-        shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,)."""
+        shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,); flex:
+        the flexion block's (vertices, offsets) (:meth:`flex_delta`) or None."""
         B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
         template = self.template.view(1, -1)
         # the small terms (MLPs, pose correctives, larynx; they read only the given betas'
         # columns) before the expression and shape products, as in :meth:`forward`
-        deltas = []  # (vertex indices, (B, M, 3) deltas)
+        deltas = [] if flex is None else [flex]  # (vertex indices, (B, M, 3) deltas)
         pp, ep = self.pose_personal, self.expr_personal
         if pp is not None:
             w, constant = pp.mlp.weights(beta)
@@ -442,10 +447,10 @@ class HackModel(nn.Module):
         rigid = rigid_operator(rel[:, self.rigid_node, :3], transl,
                                 rigid_block(self.num_vertices))
         blend = skin_blend(self.blended_weights, rel) if len(self.blended_vertices) else None
-        return posed_nodes, rigid, blend
+        return posed_nodes, rigid, blend, rel
 
     def _pose(self, rest, joints, rot, transl, posing=None) -> HackOutput:
-        posed_nodes, rigid, blend = posing or self._posing(joints, rot, transl)
+        posed_nodes, rigid, blend, _ = posing or self._posing(joints, rot, transl)
         # every vertex as if rigid with the node most vertices follow (one (B, N, 3) x
         # (B, 3, 3) product), then the blended vertices overwritten with their LBS
         verts = rigid_apply(rest, rigid)

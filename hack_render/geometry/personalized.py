@@ -66,15 +66,18 @@ class PersonalizedHack(nn.Module):
         B = p["theta"].shape[0]
         with small_work(B == 1):  # as HackModel.forward
             rot = local_rotations(p["theta"], p["global_orient"])
+            joints = self.joints.expand(B, -1, -1)
+            posing = m._posing(joints, rot, p["transl"])
+            flex = m.flex_delta(None, rot, posing[3], self.flex_rows) if m.flex is not None else None
             with bulk_work():
                 rest = rows_product(p["psi"], self.basis, self.v_shaped).view(B, -1, 3)
             if self.uses_pose:
                 add_rows_(rest, self.pose_columns,
                            (m.pose_features(rot) @ self.pose_basis).view(B, -1, 3))
-            if m.flex is not None:
-                m.add_flex_(rest, None, rot, self.flex_rows)
+            if flex is not None:
+                add_rows_(rest, *flex)
             if m.has_larynx:
                 add_rows_(rest, m.larynx_vertices,
                            m._larynx_sample(self.larynx_combined.expand(B, -1, -1, -1),
                                             p["eta"], p["tau"]))
-            return m._pose(rest, self.joints.expand(B, -1, -1), rot, p["transl"])
+            return m._pose(rest, joints, rot, p["transl"], posing)

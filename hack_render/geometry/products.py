@@ -284,10 +284,11 @@ class FlexBlock(nn.Module):
         self.purity = math.radians(float(arrays["flex_purity_deg"]))
         self.coherence = float(arrays["flex_coherence"])
 
-    def weights(self, rot: torch.Tensor) -> torch.Tensor:
-        """(B, H) from the joints' local rotations (B, K, 3, 3), the root left out."""
+    def weights(self, rot: torch.Tensor, net: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, H) from the joints' local rotations (B, K, 3, 3), the root left out (``net``:
+        their product, where the caller has it)."""
         return flex_weights(rot, self.knots.to(rot.dtype), self.width, self.purity,
-                            self.coherence)
+                            self.coherence, net)
 
     def identity_rows(self, beta: torch.Tensor, hats: torch.Tensor | None = None) -> torch.Tensor:
         """(B, A, 3M): hats ``hats`` (A,) (default: all) of identities beta (B, s),
@@ -298,12 +299,14 @@ class FlexBlock(nn.Module):
         return torch.einsum("bt,atk->bak", coef, rows[:, :1 + s])
 
     def offsets(self, beta: torch.Tensor, rot: torch.Tensor,
-                rows: torch.Tensor | None = None) -> torch.Tensor | None:
+                rows: torch.Tensor | None = None,
+                net: torch.Tensor | None = None) -> torch.Tensor | None:
         """(B, M, 3) rest-space offsets for identities beta (B or 1, s) and the joints'
         local rotations rot (B, K, 3, 3) (or, ``rows``, one identity's
         :meth:`identity_rows` (1, H, 3M) for every hat); None when no hat is active (at
-        rest, or outside the knots' reach). Reads only the active hats' rows."""
-        w = self.weights(rot)
+        rest, or outside the knots' reach). Reads only the active hats' rows. ``net``: the
+        joints' net rotation (B, 3, 3), where the caller has it."""
+        w = self.weights(rot, net)
         active = torch.nonzero(w.detach().amax(0) > 0).flatten()
         if len(active) == 0:
             return None
