@@ -81,6 +81,60 @@ def test_viewer_shows_the_hair_cards(tmp_path):
     assert (hair[changed].mean(-1) < bald[changed].mean(-1)).mean() > 0.5  # dark hair
 
 
+def dumped_weights(url: str) -> np.ndarray:
+    """The page's morph weights after its sliders are applied (``?dump=weights``)."""
+    import json
+    import re
+
+    r = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--use-angle=swiftshader",
+                        "--enable-unsafe-swiftshader", "--disable-gpu-sandbox",
+                        "--virtual-time-budget=8000", "--dump-dom", url],
+                       capture_output=True, text=True, check=False, timeout=180)
+    m = re.search(r'<pre id="dump">(.*?)</pre>', r.stdout, re.DOTALL)
+    assert m, r.stderr[-2000:]
+    return np.asarray(json.loads(m.group(1)))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/setup.sh --test)")
+def test_viewer_correctives_are_the_exporters(tmp_path):
+    """The viewer drives the pose correctives and the flexion block (model version 8) from
+    the joints' sliders: its weights equal the exporter's frame weights of the same joint
+    angles (a nod, where the block acts, and joints bending against each other, where its
+    coherence factor fades it)."""
+    from hack_render.export import rig as R
+    from hack_render.export.person import export_person
+    from hack_render.export.viewer import start
+    from hack_render.geometry.np_rotations import euler_to_axis_angle
+
+    model = load_default_model()
+    assert model.flex is not None
+    glb = tmp_path / "p.glb"
+    export_person(model, {}, glb)
+    rig = R.build_rig(model, None, 1.0)
+    # joint angles within each joint's limits (the sliders' range), on the sliders' 0.1 grid
+    lim = model.rotation_limits_deg.double().numpy()  # (8, 3, (min, max))
+    nod = np.round(np.stack([0.6 * lim[:, 0, 0], 0.3 * lim[:, 1, 1], 0.2 * lim[:, 2, 1]], 1), 1)
+    alt = np.round(np.stack([np.where(np.arange(8) % 2, 0.5 * lim[:, 0, 0], 0.7 * lim[:, 0, 1]),
+                             0 * lim[:, 1, 1], 0.1 * lim[:, 2, 0]], 1), 1)
+    poses = {"nod": nod.tolist(), "alternating": alt.tolist()}
+    server, url = start(glb, 0)
+    try:
+        for name, euler in poses.items():
+            sets = ",".join(f"{j}.{a}:{e[k]}" for j, e in zip(model.joint_names, euler)
+                            for k, a in enumerate("xyz"))
+            got = dumped_weights(url + f"?set={sets}&dump=weights")
+            theta = euler_to_axis_angle(np.deg2rad(np.asarray(euler)))[None]
+            want = R.frame_weights(rig, None, theta, None)[0]
+            for slot in ("pose", "flex"):
+                s = rig.slots[slot]
+                assert np.abs(got[s] - want[s]).max() < 1e-4, (name, slot, got[s], want[s])
+            if name == "nod":
+                assert want[rig.slots["flex"]].sum() > 0.1  # the block acts: the test bites
+    finally:
+        server.shutdown()
+
+
 def test_view_stops_on_ctrl_c_with_exit_130(tmp_path):
     """Ctrl-C stops the viewer like any command: exit 130 and one line, no traceback."""
     import signal

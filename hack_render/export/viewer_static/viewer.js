@@ -3,7 +3,9 @@
 // targets follow the joints as in the model: weight = (R - I) of each joint's rotation
 // (times its gate in a gated model).
 // URL parameters (used by the tests): ?set=NAME:VALUE,... sets sliders (expression names,
-// JOINT.x|y|z in degrees, larynx.size, larynx.slide_mm) and ?frame=K selects a frame.
+// JOINT.x|y|z in degrees, larynx.size, larynx.slide_mm), ?frame=K selects a frame, and
+// ?dump=weights writes the morph weights, once the sliders are applied, as JSON into
+// <pre id="dump"> (tests/test_export_viewer.py compares them with the exporter's).
 import * as THREE from 'three-bundle';
 
 const status = document.getElementById('status');
@@ -222,6 +224,13 @@ new THREE.GLTFLoader().load(config.model, (gltf) => {
   controls.update();
   resize();
   applyUrl();
+  if (new URLSearchParams(location.search).get('dump') === 'weights') {
+    correctives();
+    const pre = document.createElement('pre');
+    pre.id = 'dump';
+    pre.textContent = JSON.stringify(Array.from(meshes[0].morphTargetInfluences));
+    document.body.appendChild(pre);
+  }
   status.textContent = `${names.length} morph targets, ${hack.joints.length} joints` + (clip ? `, animation ${clip.duration.toFixed(2)} s` : '');
   document.title = 'hack-render view: ready';
 }, undefined, (err) => { status.textContent = 'failed to load: ' + err; document.title = 'hack-render view: error'; });
