@@ -162,7 +162,7 @@ def test_export_cli_writes_glb_and_reports(tmp_path, capsys):
     cap = capsys.readouterr()
     assert main_ok is None, cap.err
     assert out.read_bytes()[:4] == b"glTF"
-    assert "214 morph targets, 3 animation frames" in cap.out  # 53 + 1 + 40 + 120
+    assert "224 morph targets, 3 animation frames" in cap.out  # 53 + 1 + 40 + 120 + 10
     assert "4 weights per vertex" in cap.out and " mm" in cap.out
 
 
