@@ -77,11 +77,16 @@ from hack_render.geometry.deformation import (
     rigid_anchors,
     skin_topology,
 )
-from hack_render.geometry.lbs import chain_parents, local_rotations, rigid_transforms
+from hack_render.geometry.lbs import (
+    chain_parents,
+    flex_weights,
+    local_rotations,
+    rigid_transforms,
+)
 from hack_render.geometry.model import HackModel
 from hack_render.geometry.model_file import default_model_path, load_model_file, without_correctives
-from hack_render.geometry.rotations import matrix_to_axis_angle
-from hack_render.geometry.skeleton import distribute_head_rotation
+from hack_render.learn.flex_learn import knots_deg
+from hack_render.learn.flex_learn import training_poses as train_poses
 from hack_render.learn.pose_data import ArapNeck, pose_sequence
 
 PURITY_DEG = 20.0
@@ -92,28 +97,13 @@ FAMILIES = ("all", "joints_uniform", "head_x", "head_xyz")
 LOWER_FACE = ("jawOpen", "mouthSmile_L", "mouthSmile_R")
 
 
-def net_rotation(rot: torch.Tensor) -> torch.Tensor:
-    """(P, 3) axis-angle of the chain's net rotation from the joints' local rotations
-    (P, K, 3, 3) (the chain is a path: the product in order)."""
-    r = rot[:, 0]
-    for k in range(1, rot.shape[1]):
-        r = r @ rot[:, k]
-    return matrix_to_axis_angle(r)
-
-
 def hat_weights(theta: torch.Tensor, step_deg: float) -> torch.Tensor:
     """(P, H) the block's weights: hats over the net flexion angle (knots every step from
     :data:`KNOTS_DEG` [0] to [1], -80 to 80 degrees unless ``--knots``, but 0) times the
     purity factor."""
     rot = local_rotations(theta, theta.new_zeros(len(theta), 3))[:, 1:]
-    phi = net_rotation(rot)
-    lo, hi = KNOTS_DEG
-    knots = torch.deg2rad(torch.arange(-80.0, 80.0 + 1e-9, step_deg, dtype=theta.dtype))
-    knots = knots[(knots.abs() > 1e-9) & (knots >= np.deg2rad(lo) - 1e-9)
-                  & (knots <= np.deg2rad(hi) + 1e-9)]
-    step = np.deg2rad(step_deg)
-    h = torch.relu(1 - (phi[:, :1] - knots).abs() / step)
-    return h * torch.exp(-(phi[:, 1:] ** 2).sum(-1, keepdim=True) / np.deg2rad(PURITY_DEG) ** 2)
+    knots = torch.deg2rad(torch.as_tensor(knots_deg(*KNOTS_DEG, step_deg), dtype=theta.dtype))
+    return flex_weights(rot, knots, np.deg2rad(step_deg), np.deg2rad(PURITY_DEG))
 
 
 class Study:
@@ -206,12 +196,6 @@ def ridge(x: torch.Tensor, y: torch.Tensor, lam: float) -> torch.Tensor:
 def design(h: torch.Tensor, *factors: torch.Tensor) -> torch.Tensor:
     z = torch.cat([torch.ones(1, dtype=h.dtype), *factors])
     return (h[:, :, None] * z).reshape(len(h), -1)
-
-
-def train_poses() -> torch.Tensor:
-    """The 35 whole-head flexion/extension poses (-70 to 66 degrees) the blocks are fitted on."""
-    angles = torch.deg2rad(torch.linspace(-70, 66, 35, dtype=torch.float64))
-    return distribute_head_rotation(torch.stack([angles, 0 * angles, 0 * angles], -1))
 
 
 def pair_stats(raw: dict[str, np.ndarray], keys, sel: np.ndarray) -> dict:

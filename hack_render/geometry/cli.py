@@ -61,7 +61,7 @@ def info(model_path: Path | None = typer.Argument(None, help="Model file (defaul
     if model_path is not None:
         boundary.input_file(model_path, "MODEL", (".npz",), "model file")
     # torch's model (2.2 s to import): `mesh`, in this module too, poses without torch
-    from hack_render.geometry.loading import load_model  # noqa: PLC0415 - listed deferral
+    from hack_render.geometry.loading import load_model  # listed deferral (import_rules)
 
     m = load_model(model_path)
     typer.echo(f"vertices {m.num_vertices}, triangles {len(m.faces)}, shape components {m.num_shape}, "

@@ -313,11 +313,9 @@ class FlexBlock(nn.Module):
         w = w.index_select(1, active)
         if rows is not None:
             return (w @ rows[0].index_select(0, active)).view(w.shape[0], -1, 3)
-        s = min(beta.shape[1], self.num_terms - 1)
-        coef = torch.cat([beta.new_ones(beta.shape[0], 1), beta[:, :s]], 1)  # (B', 1 + s)
-        basis = self.basis.index_select(0, active)[:, :1 + s]  # (A, 1 + s, 3M)
-        x = (w[:, :, None] * coef[:, None, :]).reshape(w.shape[0], -1)
-        return (x @ basis.reshape(-1, basis.shape[-1])).view(w.shape[0], -1, 3)
+        rows = self.identity_rows(beta, active)  # (B or 1, A, 3M)
+        return torch.einsum("ba,bak->bk", w, rows.expand(w.shape[0], -1, -1)).view(
+            w.shape[0], -1, 3)
 
 
 def _skin_rows(v: torch.Tensor, weights: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
