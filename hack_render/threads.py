@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import sys
 import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 
 from hack_render.errors import HackError
@@ -162,3 +163,41 @@ def bulk_work():
         yield
     finally:
         torch.set_num_threads(1)
+
+
+#: The package's helper thread (:func:`beside`): one per process, started at the first use.
+_helper: ThreadPoolExecutor | None = None
+_helper_lock = threading.Lock()
+
+
+def _one_torch_thread() -> None:
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
+def beside(fn, *args) -> Future:
+    """Run ``fn(*args)`` on the package's helper thread (torch on one thread there) and
+    return its future: for one streaming product that a single thread reads at the
+    memory's speed, run while the calling thread does other work (a B = 1 forward's
+    personalised expression components, 48 MB, beside its small operations:
+    :meth:`hack_render.geometry.model.HackModel.forward`). Callers use it only where
+    torch has two or more threads (``--threads 1`` keeps everything on one). Calls from
+    several threads queue on the one helper. A forked child starts its own."""
+    global _helper
+    with _helper_lock:
+        if _helper is None:
+            _helper = ThreadPoolExecutor(1, thread_name_prefix="hack-render-beside",
+                                         initializer=_one_torch_thread)
+        return _helper.submit(fn, *args)
+
+
+def _forget_helper() -> None:
+    """In a forked child: the parent's helper thread does not exist there."""
+    global _helper, _helper_lock
+    _helper = None
+    _helper_lock = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_helper)

@@ -170,3 +170,95 @@ def test_small_work_runs_on_one_thread_and_restores():
         assert torch.allclose(one[0], two[1], atol=1e-6)
     finally:
         torch.set_num_threads(before)
+
+
+def _helper_running() -> bool:
+    import threading
+
+    return any(t.name.startswith("hack-render-beside") for t in threading.enumerate())
+
+
+def test_forward_overlap_is_the_serial_forward():
+    """A one-row forward on two torch threads makes M_E's components product on the
+    helper thread (``threads.beside``) while it runs the rest: the same vertices bit for
+    bit as all on one thread (``overlap_products`` off), for dense and FACS (sparse)
+    expressions, 20 and 100 shape weights and no expression; gradients to beta go
+    through it; it is not used on one torch thread, for two rows or for psi with a
+    gradient."""
+    import torch
+
+    from hack_render.geometry import load_default_model
+
+    before = torch.get_num_threads()
+    model = load_default_model()
+    g = torch.Generator().manual_seed(5)
+    facs = model.expression_vector("mouthSmile_L=0.7, jawOpen=0.3, browDown_R=0.5")[None]
+    try:
+        torch.set_num_threads(2)
+        for s, psi in ((20, torch.rand(1, model.num_expressions, generator=g)), (20, facs),
+                       (model.num_shape, torch.rand(1, model.num_expressions, generator=g)),
+                       (20, torch.zeros(1, model.num_expressions))):
+            kw = {"beta": torch.randn(1, s, generator=g), "psi": psi,
+                  "theta": 0.2 * torch.randn(1, 8, 3, generator=g),
+                  "eta": torch.tensor([1.3]), "tau": torch.tensor([0.004])}
+            assert model._components_beside(psi) is not None
+            with torch.no_grad():
+                model.overlap_products = False
+                serial = model(**kw).vertices
+                model.overlap_products = True
+                beside = model(**kw).vertices
+            assert torch.equal(serial, beside)
+        assert _helper_running()
+        beta = kw["beta"].clone().requires_grad_(True)
+        dense = torch.rand(1, model.num_expressions, generator=g)
+        grads = []
+        for on in (False, True):
+            model.overlap_products = on
+            out = model(**{**kw, "beta": beta, "psi": dense}).vertices
+            grads.append(torch.autograd.grad(out.square().sum(), beta)[0])
+        assert torch.equal(grads[0], grads[1]) and grads[0].abs().sum() > 0
+        assert model._components_beside(dense.expand(2, -1)) is None
+        assert model._components_beside(dense.clone().requires_grad_(True)) is None
+        torch.set_num_threads(1)
+        assert model._components_beside(dense) is None
+    finally:
+        model.overlap_products = True
+        torch.set_num_threads(before)
+
+
+_FORKED = """
+import multiprocessing as mp, torch
+from hack_render import threads
+from hack_render.geometry import load_default_model
+torch.set_num_threads(2)
+model = load_default_model()
+g = torch.Generator().manual_seed(1)
+kw = {"beta": torch.randn(1, 20, generator=g), "psi": torch.rand(1, model.num_expressions,
+      generator=g)}
+
+def child(q):
+    torch.set_num_threads(1)  # as torch's DataLoader workers: OpenMP does not survive fork
+    q.put(threads.beside(sum, [40, 2]).result(timeout=60))
+    with torch.no_grad():
+        q.put(model(**kw).vertices.double().sum().item())
+
+with torch.no_grad():
+    parent = model(**kw).vertices.double().sum().item()
+ctx = mp.get_context("fork")
+q = ctx.Queue()
+p = ctx.Process(target=child, args=(q,))
+p.start()
+got = [q.get(timeout=120), q.get(timeout=120)]
+p.join(60)
+print(got[0], parent == got[1], p.exitcode)
+"""
+
+
+def test_helper_thread_in_a_forked_child():
+    """A process forked after its forwards used the helper thread starts a helper of its
+    own (the parent's thread does not exist in the child: without that, a task given to
+    it would wait forever), and its forward (on one torch thread, as torch's DataLoader
+    workers run) gives the parent's vertices."""
+    res = _python(_FORKED)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["42", "True", "0"], res.stdout + res.stderr[-2000:]

@@ -21,6 +21,7 @@ checks and defaults are ``arguments.py``'s, the one-identity module (:meth:`pers
 from __future__ import annotations
 
 import math
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ from hack_render.geometry.products import (
     add_rows_,
     affine_columns,
     nonzero_columns,
+    personal_components,
     rigid_apply,
     rigid_block,
     rigid_operator,
@@ -60,7 +62,7 @@ from hack_render.geometry.products import (
     skin_blend,
 )
 from hack_render.geometry.skeleton import clamp_to_limits
-from hack_render.threads import bulk_work, small_work
+from hack_render.threads import beside, bulk_work, small_work
 
 
 @dataclass
@@ -84,6 +86,9 @@ class HackOutput:
 
 class HackModel(nn.Module):
     """The HACK geometry model. Build with :meth:`from_file` or :func:`load_default_model`."""
+
+    #: One-row forwards make M_E's components on the helper thread (:meth:`_components_beside`)
+    overlap_products: bool = True
 
     def __init__(self, arrays: dict[str, np.ndarray], meta: dict[str, Any] | None = None):
         super().__init__()
@@ -290,6 +295,8 @@ class HackModel(nn.Module):
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         # one row: torch on one thread but for the basis products (``threads.small_work``;
         # at S = 20, interleaved with smplx on 2 cores, 4.66 -> 4.44 ms: docs/model.md)
+        # B = 1: M_E's components (48 MB) stream on the helper thread meanwhile (docs/model.md)
+        early = self._components_beside(p["psi"])
         with small_work(p["theta"].shape[0] == 1):
             rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
             beta = p["beta"]
@@ -302,8 +309,20 @@ class HackModel(nn.Module):
             posing = self._posing(joints, rot, p["transl"])
             flex = self.flex_delta(ident, rot, posing[3]) if self.flex is not None else None
             rest = self._rest(ident, p["psi"], self.pose_features(rot), p["eta"], p["tau"],
-                              flex)
+                              flex, early)
             return self._pose(rest, joints, rot, p["transl"], posing)
+
+    def _components_beside(self, psi: torch.Tensor) -> tuple | None:
+        """(used rows, future of :meth:`_rest_single`'s P, made on the helper thread:
+        :func:`hack_render.threads.beside`) for one CPU row with no gradient to psi and two
+        or more torch threads, when :attr:`overlap_products`; else None (the same P here)."""
+        if (psi.shape[0] != 1 or self.expr_psi_rows is None or not self.overlap_products
+                or psi.device.type != "cpu" or torch.get_num_threads() < 2
+                or (torch.is_grad_enabled() and psi.requires_grad)):
+            return None
+        psi = psi.detach()
+        nz = nonzero_columns(psi)
+        return nz, beside(personal_components, self.expr_personal.rows, psi, nz)
 
     def flex_delta(self, beta: torch.Tensor | None, rot: torch.Tensor, rel: torch.Tensor,
                    rows: torch.Tensor | None = None) -> tuple | None:
@@ -323,10 +342,11 @@ class HackModel(nn.Module):
         also opened by the chain's net rotation; :func:`~hack_render.geometry.lbs.pose_feature`)."""
         return pose_feature(rot[:, 1:], self.pose_gate_rad, self.pose_gate_chain)
 
-    def _rest(self, beta, psi, feat, eta, tau, flex=None) -> torch.Tensor:
+    def _rest(self, beta, psi, feat, eta, tau, flex=None, early=None) -> torch.Tensor:
         """T(beta, psi, theta, eta, tau) (B, N, 3). beta: (B, s) or (1, s) for a batch that
         shares one identity; psi (B, E); feat (B, 72) pose features; eta, tau (B,); flex:
-        the flexion block's (vertices, offsets) (:meth:`flex_delta`) or None."""
+        the flexion block's (vertices, offsets) (:meth:`flex_delta`) or None; early:
+        :meth:`_components_beside`'s (used rows, future) or None."""
         B, E, nb = psi.shape[0], self.num_expressions, beta.shape[1]
         template = self.template.view(1, -1)
         # the small terms (MLPs, pose correctives, larynx; they read only the given betas'
@@ -348,12 +368,14 @@ class HackModel(nn.Module):
             deltas.append((self.larynx_vertices, self._larynx_sample(combined, eta, tau)))
         w_e, constant_e = ep.mlp.weights(beta) if ep is not None else (None, False)
         single = B == 1 and self.expr_psi_rows is not None
-        if single:
-            nz = nonzero_columns(psi)
+        if early is not None:
+            nz, components = early
+        elif single:
+            nz, components = nonzero_columns(psi), None
             # zero weights with gradients: the general path (its backward reads every row)
             single = nz is None or not (torch.is_grad_enabled() and psi.requires_grad)
         if single:
-            rest = self._rest_single(beta, psi, nz, w_e)
+            rest = self._rest_single(beta, psi, nz, w_e, components)
         else:
             with bulk_work():
                 if beta.shape[0] == 1 and B > 1:  # one identity: its shaped template once
@@ -376,7 +398,7 @@ class HackModel(nn.Module):
             add_rows_(rest, index, d)
         return rest
 
-    def _rest_single(self, beta, psi, nz, w) -> torch.Tensor:
+    def _rest_single(self, beta, psi, nz, w, components=None) -> torch.Tensor:
         """The shape and expression terms of :meth:`_rest` for one row (B = 1): (1, N, 3).
 
         The expression weights multiply three things: the generic expression rows, the
@@ -388,17 +410,16 @@ class HackModel(nn.Module):
         ``mean part + w @ P`` (w: M_E's weights of beta, (1, C)). The generic rows' exact zeros (the vertices no
         expression moves, a quarter of the default model's) are not read. Differentiable
         (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
-        general path)."""
+        general path). ``components``: a future of P (:meth:`_components_beside`); None: here."""
         E, nb = self.num_expressions, beta.shape[1]
         pb = self.expr_personal
-        _, C, K = pb.rows.shape
-        Y = P = None
-        with bulk_work():
+        Y = None
+        with bulk_work() if components is None else nullcontext():  # P beside: Y on one
             for _, first, end in row_runs(nz, E):
-                c = psi[:, first:end]
-                y = c @ self.expr_psi_rows[first:end]
-                p = c @ pb.rows[first:end].view(end - first, C * K)
-                Y, P = (y, p) if Y is None else (Y + y, P + p)
+                y = psi[:, first:end] @ self.expr_psi_rows[first:end]
+                Y = y if Y is None else Y + y
+            if components is None:
+                P = personal_components(pb.rows, psi, nz)
         # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
         # the additions and the posing that follow
         flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
@@ -406,7 +427,9 @@ class HackModel(nn.Module):
             return flat.view(1, -1, 3)
         m = self.expr_col_index.shape[0]
         flat.view(-1).index_add_(0, self.expr_col_index, Y[0, :m])
-        personal = torch.addmm(Y[:, m:], w, P.view(C, K))
+        if components is not None:
+            P = components.result()
+        personal = torch.addmm(Y[:, m:], w, P.view(pb.rows.shape[1:]))
         return add_rows_(flat.view(1, -1, 3), pb.vertices, personal.view(1, -1, 3))
 
     def _larynx_combined(self, beta: torch.Tensor) -> torch.Tensor:

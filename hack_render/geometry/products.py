@@ -129,6 +129,19 @@ def row_runs(nz: torch.Tensor | None, D: int) -> list[tuple[int, int, int]]:
     return [(0, 0, D)] if nz is None else _runs(nz.tolist())
 
 
+def personal_components(rows: torch.Tensor, coeffs: torch.Tensor, nz: torch.Tensor | None
+                        ) -> torch.Tensor:
+    """P = coeffs[:, nz] @ rows[nz] viewed (n, C K): (1, C K), one product per run of used
+    rows (:func:`row_runs`), summed in order, as :meth:`HackModel._rest_single` sums them
+    (the same bits). rows: (D, C, K); coeffs: (1, D); nz: the used rows, None for all."""
+    _, C, K = rows.shape
+    P = None
+    for _, first, end in row_runs(nz, rows.shape[0]):
+        p = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
+        P = p if P is None else P + p
+    return P
+
+
 def _personal_forward(coeffs, mean, w, rows, nz):
     """coeffs[:, nz] @ (mean + w comps)[nz] per batch row, reading only the used rows
     (all rows when nz is None). rows: (D, C, K), each basis row's C components together,
