@@ -21,7 +21,6 @@ checks and defaults are ``arguments.py``'s, the one-identity module (:meth:`pers
 from __future__ import annotations
 
 import math
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,12 +51,11 @@ from hack_render.geometry.products import (
     PersonalBasis,
     add_rows_,
     affine_columns,
+    expression_products,
     nonzero_columns,
-    personal_components,
     rigid_apply,
     rigid_block,
     rigid_operator,
-    row_runs,
     rows_product,
     skin_blend,
 )
@@ -87,7 +85,7 @@ class HackOutput:
 class HackModel(nn.Module):
     """The HACK geometry model. Build with :meth:`from_file` or :func:`load_default_model`."""
 
-    #: One-row forwards make M_E's components on the helper thread (:meth:`_components_beside`)
+    #: One-row forwards make their expression products on the helper thread (_components_beside)
     overlap_products: bool = True
 
     def __init__(self, arrays: dict[str, np.ndarray], meta: dict[str, Any] | None = None):
@@ -295,7 +293,7 @@ class HackModel(nn.Module):
             p["eta"], p["tau"] = _larynx.clamp_larynx(p["eta"], p["tau"])
         # one row: torch on one thread but for the basis products (``threads.small_work``;
         # at S = 20, interleaved with smplx on 2 cores, 4.66 -> 4.44 ms: docs/model.md)
-        # B = 1: M_E's components (48 MB) stream on the helper thread meanwhile (docs/model.md)
+        # B = 1: the expression rows (60 MB) stream on the helper thread meanwhile (docs/model.md)
         early = self._components_beside(p["psi"])
         with small_work(p["theta"].shape[0] == 1):
             rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
@@ -313,16 +311,16 @@ class HackModel(nn.Module):
             return self._pose(rest, joints, rot, p["transl"], posing)
 
     def _components_beside(self, psi: torch.Tensor) -> tuple | None:
-        """(used rows, future of :meth:`_rest_single`'s P, made on the helper thread:
+        """(used rows, future of :meth:`_rest_single`'s (Y, P), made on the helper thread:
         :func:`hack_render.threads.beside`) for one CPU row with no gradient to psi and two
-        or more torch threads, when :attr:`overlap_products`; else None (the same P here)."""
+        or more torch threads, when :attr:`overlap_products`; else None (the same, here)."""
         if (psi.shape[0] != 1 or self.expr_psi_rows is None or not self.overlap_products
                 or psi.device.type != "cpu" or torch.get_num_threads() < 2
                 or (torch.is_grad_enabled() and psi.requires_grad)):
             return None
         psi = psi.detach()
         nz = nonzero_columns(psi)
-        return nz, beside(personal_components, self.expr_personal.rows, psi, nz)
+        return nz, beside(expression_products, self.expr_psi_rows, self.expr_personal.rows, psi, nz)
 
     def flex_delta(self, beta: torch.Tensor | None, rot: torch.Tensor, rel: torch.Tensor,
                    rows: torch.Tensor | None = None) -> tuple | None:
@@ -410,25 +408,21 @@ class HackModel(nn.Module):
         ``mean part + w @ P`` (w: M_E's weights of beta, (1, C)). The generic rows' exact zeros (the vertices no
         expression moves, a quarter of the default model's) are not read. Differentiable
         (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
-        general path). ``components``: a future of P (:meth:`_components_beside`); None: here."""
+        general path). ``components``: a future of (Y, P) (:meth:`_components_beside`)."""
         E, nb = self.num_expressions, beta.shape[1]
         pb = self.expr_personal
-        Y = None
-        with bulk_work() if components is None else nullcontext():  # P beside: Y on one
-            for _, first, end in row_runs(nz, E):
-                y = psi[:, first:end] @ self.expr_psi_rows[first:end]
-                Y = y if Y is None else Y + y
-            if components is None:
-                P = personal_components(pb.rows, psi, nz)
+        if components is None:
+            with bulk_work():
+                Y, P = expression_products(self.expr_psi_rows, pb.rows, psi, nz)
         # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
         # the additions and the posing that follow
         flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
+        if components is not None:
+            Y, P = components.result()
         if Y is None:
             return flat.view(1, -1, 3)
         m = self.expr_col_index.shape[0]
         flat.view(-1).index_add_(0, self.expr_col_index, Y[0, :m])
-        if components is not None:
-            P = components.result()
         personal = torch.addmm(Y[:, m:], w, P.view(pb.rows.shape[1:]))
         return add_rows_(flat.view(1, -1, 3), pb.vertices, personal.view(1, -1, 3))
 

@@ -129,17 +129,23 @@ def row_runs(nz: torch.Tensor | None, D: int) -> list[tuple[int, int, int]]:
     return [(0, 0, D)] if nz is None else _runs(nz.tolist())
 
 
-def personal_components(rows: torch.Tensor, coeffs: torch.Tensor, nz: torch.Tensor | None
-                        ) -> torch.Tensor:
-    """P = coeffs[:, nz] @ rows[nz] viewed (n, C K): (1, C K), one product per run of used
-    rows (:func:`row_runs`), summed in order, as :meth:`HackModel._rest_single` sums them
-    (the same bits). rows: (D, C, K); coeffs: (1, D); nz: the used rows, None for all."""
+def expression_products(psi_rows: torch.Tensor, rows: torch.Tensor, coeffs: torch.Tensor,
+                        nz: torch.Tensor | None) -> tuple:
+    """A one-row forward's expression products (:meth:`HackModel._rest_single`), each one
+    product per run of used rows (:func:`row_runs`), summed in order: Y = coeffs[:, nz] @
+    psi_rows[nz] (1, M) and P = coeffs[:, nz] @ rows[nz] viewed (n, C K), (1, C K).
+    psi_rows: (D, M); rows: (D, C, K); coeffs: (1, D); nz: the used rows (None: all).
+    (None, None) when no row is used."""
     _, C, K = rows.shape
-    P = None
-    for _, first, end in row_runs(nz, rows.shape[0]):
+    Y = P = None
+    runs = row_runs(nz, rows.shape[0])
+    for _, first, end in runs:
+        y = coeffs[:, first:end] @ psi_rows[first:end]
+        Y = y if Y is None else Y + y
+    for _, first, end in runs:
         p = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
         P = p if P is None else P + p
-    return P
+    return Y, P
 
 
 def _personal_forward(coeffs, mean, w, rows, nz):
