@@ -192,6 +192,21 @@ def beside(fn, *args) -> Future:
         return _helper.submit(fn, *args)
 
 
+def spare_core() -> bool:
+    """Whether a core of this process's is idle now: fewer threads runnable on the machine
+    (the kernel's instantaneous count, ``/proc/loadavg``'s fourth field, the caller
+    included) than :func:`available_cores`. False where the count is not known. What
+    :func:`beside`'s callers check first: on cores that other work keeps busy, a second
+    thread of ours only takes turns with ours (a B = 1 forward at S = 20 beside one
+    CPU-bound process: 1.73x smplx with the helper, against 1.21x without)."""
+    try:
+        with open("/proc/loadavg", "rb") as f:
+            running = int(f.read().split()[3].split(b"/")[0])
+    except (OSError, ValueError, IndexError):
+        return False
+    return running < available_cores()
+
+
 def _forget_helper() -> None:
     """In a forked child: the parent's helper thread does not exist there."""
     global _helper, _helper_lock

@@ -60,7 +60,7 @@ from hack_render.geometry.products import (
     skin_blend,
 )
 from hack_render.geometry.skeleton import clamp_to_limits
-from hack_render.threads import beside, bulk_work, small_work
+from hack_render.threads import beside, bulk_work, small_work, spare_core
 
 
 @dataclass
@@ -313,10 +313,11 @@ class HackModel(nn.Module):
     def _components_beside(self, psi: torch.Tensor) -> tuple | None:
         """(used rows, future of :meth:`_rest_single`'s (Y, P), made on the helper thread:
         :func:`hack_render.threads.beside`) for one CPU row with no gradient to psi and two
-        or more torch threads, when :attr:`overlap_products`; else None (the same, here)."""
+        or more torch threads and a core idle (:func:`~hack_render.threads.spare_core`), when
+        :attr:`overlap_products`; else None (the same, here)."""
         if (psi.shape[0] != 1 or self.expr_psi_rows is None or not self.overlap_products
                 or psi.device.type != "cpu" or torch.get_num_threads() < 2
-                or (torch.is_grad_enabled() and psi.requires_grad)):
+                or (torch.is_grad_enabled() and psi.requires_grad) or not spare_core()):
             return None
         psi = psi.detach()
         nz = nonzero_columns(psi)
