@@ -13,6 +13,10 @@ the median with its range (min..max) over the rounds, and ratios of medians:
   (SMPL's layout; the zeros off the neck included), J_regressor = the joint regressor with
   the root row (c7-t1) first, parents = the chain, lbs_weights = the skinning weights. It
   has no personalised or larynx terms: the HACK side does strictly more work.
+* ``hack_one_thread`` (B = 1 only): the same forward with its helper thread off
+  (``HackModel.overlap_products = False``: every product on the calling thread, as before
+  the helper), so that one run shows what the helper gives; ``hack`` takes the helper only
+  where a core is idle (``threads.spare_core``), as a user's forward does.
 * ``floor``: one (B, K) @ (K, 3N) float32 product over a buffer as large as the bytes the
   HACK forward reads for these inputs (:func:`bytes_read`: the basis rows it uses, as the
   forward lays them out, the personalised components of the used rows, the pose
@@ -148,6 +152,15 @@ def smplx_bytes(sx: dict) -> int:
 CLOCK = {"wall": time.perf_counter, "cpu": time.process_time}
 
 
+def one_thread(model, kw: dict):
+    """The forward with its helper thread off (``HackModel.overlap_products``)."""
+    model.overlap_products = False
+    try:
+        return model(**kw)
+    finally:
+        model.overlap_products = True
+
+
 def interleaved(fns: dict, repeats: int, clock: str = "wall") -> dict[str, list[float]]:
     """Per side, the times of ``repeats`` rounds; one call per side per round, the
     order rotating, after one warm-up call each."""
@@ -247,6 +260,8 @@ def run(args) -> None:
                 "floor": lambda c_=coeffs, f_=floor: c_ @ f_,
                 "smplx_floor": lambda c_=sx_coeffs, f_=sx_floor: c_ @ f_,
             }
+            if b == 1:
+                fns["hack_one_thread"] = lambda kw=hack_kw: one_thread(model, kw)
             times = interleaved(fns, args.repeats, args.clock)
             s = {k: summary(v) for k, v in times.items()}
             row = {**s, "bytes_read_mb": nbytes / 1e6, "smplx_bytes_read_mb": smplx_bytes(sx) / 1e6,
@@ -254,6 +269,9 @@ def run(args) -> None:
                    "hack_over_floor": s["hack"]["median_ms"] / s["floor"]["median_ms"],
                    "smplx_over_its_floor": (s["smplx"]["median_ms"]
                                             / s["smplx_floor"]["median_ms"])}
+            if b == 1:
+                row["hack_one_thread_over_smplx"] = (s["hack_one_thread"]["median_ms"]
+                                                     / s["smplx"]["median_ms"])
             results["configs"][name] = row
             say(f"{name:22s} hack {s['hack']['median_ms']:8.2f} ms "
                 f"[{s['hack']['min_ms']:.2f}..{s['hack']['max_ms']:.2f}]  smplx "
@@ -261,7 +279,9 @@ def run(args) -> None:
                 f"{s['smplx']['max_ms']:.2f}] ({smplx_bytes(sx) / 1e6:.1f} MB)  floor "
                 f"({nbytes / 1e6:.1f} MB) {s['floor']['median_ms']:7.2f} ms  hack/smplx "
                 f"{row['hack_over_smplx']:.2f}x  hack/floor {row['hack_over_floor']:.2f}x  "
-                f"smplx/its floor {row['smplx_over_its_floor']:.2f}x")
+                f"smplx/its floor {row['smplx_over_its_floor']:.2f}x"
+                + (f"  helper off: {s['hack_one_thread']['median_ms']:.2f} ms "
+                   f"({row['hack_one_thread_over_smplx']:.2f}x smplx)" if b == 1 else ""))
         beta1 = torch.randn(1, model.num_shape, generator=gen)
         pers = model.personalize(beta1)
         psi = torch.rand(1, model.num_expressions, generator=gen)
