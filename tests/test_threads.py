@@ -205,7 +205,7 @@ def test_forward_overlap_is_the_serial_forward(monkeypatch):
             kw = {"beta": torch.randn(1, s, generator=g), "psi": psi,
                   "theta": 0.2 * torch.randn(1, 8, 3, generator=g),
                   "eta": torch.tensor([1.3]), "tau": torch.tensor([0.004])}
-            assert model._components_beside(psi) is not None
+            assert model._components_beside(psi, kw["beta"]) is not None
             with torch.no_grad():
                 model.overlap_products = False
                 serial = model(**kw).vertices
@@ -221,10 +221,13 @@ def test_forward_overlap_is_the_serial_forward(monkeypatch):
             out = model(**{**kw, "beta": beta, "psi": dense}).vertices
             grads.append(torch.autograd.grad(out.square().sum(), beta)[0])
         assert torch.equal(grads[0], grads[1]) and grads[0].abs().sum() > 0
-        assert model._components_beside(dense.expand(2, -1)) is None
-        assert model._components_beside(dense.clone().requires_grad_(True)) is None
+        # the shaped template beside too, unless beta needs its gradient
+        assert model._components_beside(dense, beta)[1].result()[2] is None
+        assert model._components_beside(dense, beta.detach())[1].result()[2] is not None
+        assert model._components_beside(dense.expand(2, -1), beta) is None
+        assert model._components_beside(dense.clone().requires_grad_(True), beta) is None
         torch.set_num_threads(1)
-        assert model._components_beside(dense) is None
+        assert model._components_beside(dense, beta) is None
     finally:
         model.overlap_products = True
         torch.set_num_threads(before)

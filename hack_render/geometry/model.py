@@ -294,7 +294,7 @@ class HackModel(nn.Module):
         # one row: torch on one thread but for the basis products (``threads.small_work``;
         # at S = 20, interleaved with smplx on 2 cores, 4.66 -> 4.44 ms: docs/model.md)
         # B = 1: the expression rows (60 MB) stream on the helper thread meanwhile (docs/model.md)
-        early = self._components_beside(p["psi"])
+        early = self._components_beside(p["psi"], p["beta"])
         with small_work(p["theta"].shape[0] == 1):
             rot = local_rotations(p["theta"], p["global_orient"])  # (B, 9, 3, 3)
             beta = p["beta"]
@@ -310,8 +310,9 @@ class HackModel(nn.Module):
                               flex, early)
             return self._pose(rest, joints, rot, p["transl"], posing)
 
-    def _components_beside(self, psi: torch.Tensor) -> tuple | None:
-        """(used rows, future of :meth:`_rest_single`'s (Y, P), made on the helper thread:
+    def _components_beside(self, psi: torch.Tensor, beta: torch.Tensor) -> tuple | None:
+        """(used rows, future of :meth:`_rest_single`'s (Y, P, shaped template or None: beta
+        needs a gradient), made on the helper thread:
         :func:`hack_render.threads.beside`) for one CPU row with no gradient to psi and two
         or more torch threads and a core idle (:func:`~hack_render.threads.spare_core`), when
         :attr:`overlap_products`; else None (the same, here)."""
@@ -319,9 +320,12 @@ class HackModel(nn.Module):
                 or psi.device.type != "cpu" or torch.get_num_threads() < 2
                 or (torch.is_grad_enabled() and psi.requires_grad) or not spare_core()):
             return None
-        psi = psi.detach()
+        psi, nb = psi.detach(), beta.shape[1]
+        shaped = None if torch.is_grad_enabled() and beta.requires_grad else (
+            self.template.view(1, -1), beta, self.expr_shape_basis[psi.shape[1]:psi.shape[1] + nb])
         nz = nonzero_columns(psi)
-        return nz, beside(expression_products, self.expr_psi_rows, self.expr_personal.rows, psi, nz)
+        return nz, beside(expression_products, self.expr_psi_rows, self.expr_personal.rows, psi,
+                          nz, shaped)
 
     def flex_delta(self, beta: torch.Tensor | None, rot: torch.Tensor, rel: torch.Tensor,
                    rows: torch.Tensor | None = None) -> tuple | None:
@@ -409,17 +413,18 @@ class HackModel(nn.Module):
         ``mean part + w @ P`` (w: M_E's weights of beta, (1, C)). The generic rows' exact zeros (the vertices no
         expression moves, a quarter of the default model's) are not read. Differentiable
         (plain autograd ops; :meth:`_rest` sends zero weights that need gradients to the
-        general path). ``components``: a future of (Y, P) (:meth:`_components_beside`)."""
+        general path). ``components``: a future of (Y, P, flat) (:meth:`_components_beside`)."""
         E, nb = self.num_expressions, beta.shape[1]
         pb = self.expr_personal
         if components is None:
             with bulk_work():
-                Y, P = expression_products(self.expr_psi_rows, pb.rows, psi, nz)
+                Y, P, flat = expression_products(self.expr_psi_rows, pb.rows, psi, nz)
+        else:
+            Y, P, flat = components.result()
         # the shaped template last: the (1, 3N) rest mesh is then still in the cache for
         # the additions and the posing that follow
-        flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
-        if components is not None:
-            Y, P = components.result()
+        if flat is None:
+            flat = torch.addmm(self.template.view(1, -1), beta, self.expr_shape_basis[E:E + nb])
         if Y is None:
             return flat.view(1, -1, 3)
         m = self.expr_col_index.shape[0]

@@ -130,12 +130,13 @@ def row_runs(nz: torch.Tensor | None, D: int) -> list[tuple[int, int, int]]:
 
 
 def expression_products(psi_rows: torch.Tensor, rows: torch.Tensor, coeffs: torch.Tensor,
-                        nz: torch.Tensor | None) -> tuple:
+                        nz: torch.Tensor | None, shaped: tuple | None = None) -> tuple:
     """A one-row forward's expression products (:meth:`HackModel._rest_single`), each one
     product per run of used rows (:func:`row_runs`), summed in order: Y = coeffs[:, nz] @
-    psi_rows[nz] (1, M) and P = coeffs[:, nz] @ rows[nz] viewed (n, C K), (1, C K).
+    psi_rows[nz] (1, M) and P = coeffs[:, nz] @ rows[nz] viewed (n, C K), (1, C K), and
+    ``torch.addmm(*shaped)`` (the shaped template; None when ``shaped`` is None).
     psi_rows: (D, M); rows: (D, C, K); coeffs: (1, D); nz: the used rows (None: all).
-    (None, None) when no row is used."""
+    Y and P are None when no row is used."""
     _, C, K = rows.shape
     Y = P = None
     runs = row_runs(nz, rows.shape[0])
@@ -145,7 +146,7 @@ def expression_products(psi_rows: torch.Tensor, rows: torch.Tensor, coeffs: torc
     for _, first, end in runs:
         p = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
         P = p if P is None else P + p
-    return Y, P
+    return Y, P, None if shaped is None else torch.addmm(*shaped)
 
 
 def _personal_forward(coeffs, mean, w, rows, nz):
