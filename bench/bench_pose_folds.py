@@ -11,7 +11,11 @@ the pairs' and triangles' counts equal ``pose_space.json``'s ``folded_poses`` an
 
     python bench/bench_pose_folds.py --model hack_render/data/hack_default.npz \\
         [--model CANDIDATE.npz ...] [--previous REV] [--families head_xyz] [--threads 2] \\
-        [--out bench/results/pose_folds.json]
+        [--identity-params A/params.json B/params.json ...] [--out bench/results/pose_folds.json]
+
+``--identity-params``: the identities are the ``beta`` of these parameter files (e.g. the
+identities ``hack-render track`` fitted to real clips) instead of ``--identities`` draws
+(the poses are still those of ``--seed``); each file's beta is used whole.
 
 Prints, per model and configuration, the counts, the range of the folding pairs' head
 rotation, how many lie within the neck's active range (``anatomy.ACTIVE_RANGE_DEG``) and
@@ -21,6 +25,7 @@ the box of the folded triangles' centres; writes them with every pair.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -80,6 +85,8 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--families", default=None,
                     help="comma-separated pose families (default: all)")
+    ap.add_argument("--identity-params", type=Path, nargs="+", default=None,
+                    help="parameter files (JSON with a 'beta' list) whose identities to use")
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     ap.add_argument("--out", type=Path, default=None, help="results file (.json)")
     args = ap.parse_args(argv)
@@ -99,9 +106,19 @@ def main(argv=None) -> None:
     active = within_active_range(theta.double())  # (P,) within the neck's active range
     g = torch.Generator().manual_seed(args.seed)
     betas = torch.randn(args.identities, 20, generator=g)
-    res: dict = {"poses": args.poses, "identities": args.identities, "seed": args.seed,
+    sources = None
+    if args.identity_params:
+        rows = [json.loads(f.read_text())["beta"] for f in args.identity_params]
+        betas = torch.zeros(len(rows), max(len(r) for r in rows))
+        for i, r in enumerate(rows):
+            betas[i, :len(r)] = torch.tensor(r)
+        sources = [str(f) for f in args.identity_params]
+    res: dict = {"poses": args.poses, "identities": len(betas), "seed": args.seed,
                  "families": {k: len(v) for k, v in fams.items()}, "expression": EXPRESSION,
                  "models": {}}
+    if sources:
+        res["identity_params"] = sources
+        res["betas"] = [[round(float(x), 4) for x in b] for b in betas]
     t0 = time.time()
     runs = [(_shown(p), lambda p=p: HackModel(*load_model_file(p))) for p in paths]
     if args.previous:
