@@ -9,10 +9,19 @@ import pytest
 from hack_render.errors import HackError
 from hack_render.geometry.anatomy import distribute_head_rotation
 from hack_render.geometry.model_file import default_model_path
+from hack_render.geometry.nearest import PointTree
 from hack_render.geometry.params import check_params
 from hack_render.geometry.posing import PosingModel
 from hack_render.hair.groom import grow_cached
-from hack_render.hair.pose import pose_groom, pose_group, pose_group_torch, signed_distance
+from hack_render.hair.pose import (
+    MARGIN,
+    Body,
+    pose_groom,
+    pose_group,
+    pose_group_torch,
+    push_out,
+    signed_distance,
+)
 from hack_render.hair.regions import HeadSurface
 from hack_render.hair.strands import root_points
 from hack_render.hair.style import ARCHETYPES, HairStyle, parse_colour, sample_style
@@ -281,3 +290,27 @@ def test_a_recoloured_groom_is_the_one_grown_in_that_colour(surface, monkeypatch
     assert got.style == b
     with pytest.raises(ValueError, match="colour"):
         gm.recolour(first, replace(a, length=0.2))
+
+
+def test_push_out_searches_an_open_edge_point_once():
+    """``pose.push_out``: a point nearest to a vertex without a normal (an open edge's) is
+    beyond the surface and stays where it is, and it is searched once, not in every round;
+    a point inside the surface is moved to the margin along its vertex's normal."""
+    grid = np.stack(np.meshgrid(np.arange(5.0), np.arange(5.0), indexing="ij"), -1).reshape(-1, 2)
+    verts = np.concatenate([grid * 0.01, np.zeros((25, 1))], 1)  # a 4 x 4 cm sheet, z = 0
+    normals = np.tile([0.0, 0.0, 1.0], (25, 1))
+    normals[:5] = 0.0  # the sheet's edge x = 0: open
+    sizes = []
+
+    class Counting(PointTree):
+        def query(self, x, *a, **k):
+            sizes.append(len(x))
+            return super().query(x, *a, **k)
+
+    body = Body(Counting(verts), np.arange(25), verts, normals)
+    pts = np.array([[0.0, 0.02, -0.002],     # nearest to the open edge: beyond, not moved
+                    [0.02, 0.02, -0.003]])   # under the sheet's middle: pushed out
+    out = push_out(pts, body)
+    assert np.array_equal(out[0], pts[0])
+    assert np.allclose(out[1], [0.02, 0.02, MARGIN])
+    assert sizes[0] == 2 and all(n <= 1 for n in sizes[1:]), sizes

@@ -108,12 +108,15 @@ def push_out(points: np.ndarray, body: Body, margin: float = MARGIN) -> np.ndarr
     out = points.reshape(-1, 3).copy()
     todo = np.arange(len(out))
     normals = body.normals[body.index]
+    # a point nearest to an open edge's vertex (zero normal) is beyond the surface: it is
+    # not moved, so it is not searched again in the next round (it was, every round)
+    has_normal = np.any(normals != 0.0, axis=1)
     for _ in range(PUSH_ROUNDS):
         dist, i = body.tree.query(out[todo], distance_upper_bound=0.08)
         hit = np.isfinite(dist)
         todo, j = todo[hit], i[hit]
         lack = margin - np.sum((out[todo] - body.points[j]) * normals[j], -1)
-        inside = lack > 0
+        inside = (lack > 0) & has_normal[j]
         todo, j, lack = todo[inside], j[inside], lack[inside]
         if len(todo) == 0:
             break
