@@ -180,7 +180,7 @@ def beside(fn, *args) -> Future:
     """Run ``fn(*args)`` on the package's helper thread (torch on one thread there) and
     return its future: for one streaming product that a single thread reads at the
     memory's speed, run while the calling thread does other work (a B = 1 forward's
-    personalised expression components, 48 MB, beside its small operations:
+    expression products, 60 MB, beside its small operations:
     :meth:`hack_render.geometry.model.HackModel.forward`). Callers use it only where
     torch has two or more threads (``--threads 1`` keeps everything on one). Calls from
     several threads queue on the one helper. A forked child starts its own."""
@@ -198,7 +198,8 @@ def spare_core() -> bool:
     included) than :func:`available_cores`. False where the count is not known. What
     :func:`beside`'s callers check first: on cores that other work keeps busy, a second
     thread of ours only takes turns with ours (a B = 1 forward at S = 20 beside one
-    CPU-bound process: 1.73x smplx with the helper, against 1.21x without)."""
+    CPU-bound process, interleaved in one process: 1.56x smplx with the helper forced,
+    1.48x without; docs/model.md, "Geometry timings")."""
     try:
         with open("/proc/loadavg", "rb") as f:
             running = int(f.read().split()[3].split(b"/")[0])
