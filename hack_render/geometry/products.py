@@ -137,16 +137,24 @@ def expression_products(psi_rows: torch.Tensor, rows: torch.Tensor, coeffs: torc
     ``torch.addmm(*shaped)`` (the shaped template; None when ``shaped`` is None).
     psi_rows: (D, M); rows: (D, C, K); coeffs: (1, D); nz: the used rows (None: all).
     Y and P are None when no row is used."""
-    _, C, K = rows.shape
-    Y = P = None
+    Y = None
     runs = row_runs(nz, rows.shape[0])
     for _, first, end in runs:
         y = coeffs[:, first:end] @ psi_rows[first:end]
         Y = y if Y is None else Y + y
+    return Y, _components_one_row(coeffs, rows, runs), \
+        None if shaped is None else torch.addmm(*shaped)
+
+
+def _components_one_row(coeffs, rows, runs):
+    """P = coeffs (1, D) @ rows (D, C, K) viewed (D, C K) over the used ``runs``
+    (:func:`row_runs`), one product per run summed in order: (1, C K); None for no run."""
+    _, C, K = rows.shape
+    P = None
     for _, first, end in runs:
         p = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
         P = p if P is None else P + p
-    return Y, P, None if shaped is None else torch.addmm(*shaped)
+    return P
 
 
 def _personal_forward(coeffs, mean, w, rows, nz):
@@ -168,10 +176,7 @@ def _personal_forward(coeffs, mean, w, rows, nz):
     used = coeffs if nz is None else coeffs.index_select(1, nz)
     used_mean = mean if nz is None else mean.index_select(0, nz)
     if B == 1:
-        P = None
-        for _, first, end in runs:
-            part = coeffs[:, first:end] @ rows[first:end].view(end - first, C * K)
-            P = part if P is None else P + part
+        P = _components_one_row(coeffs, rows, runs)
         if P is None:
             return coeffs.new_zeros(B, K)
         return torch.addmm(used @ used_mean, w, P.view(C, K))
