@@ -24,6 +24,14 @@ within the neck's active range (``active``, ``<family>_active``:
 
     PYTHONPATH=$PWD python bench/bench_pose_arap.py [--model M] [--poses 200]
         [--identities 3] [--iterations 30] [--out bench/results/pose_arap.json]
+
+``--pose-bench`` takes the whole pose bench's pairs instead (``bench/bench_pose_space.py``:
+2,000 poses of seed 21 and its ten identities beta ~ N(0, I) of the same seed, no
+template); with ``--families head_x`` (the head's flexion/extension) and ``--views``
+one family and view of it runs in minutes rather than hours (each ARAP solve ~0.3 s)::
+
+    python bench/bench_pose_arap.py --pose-bench --families head_x --views neutral \
+        --out bench/results/pose_arap_bench_head_x_neutral.json
 """
 
 from __future__ import annotations
@@ -46,6 +54,7 @@ from hack_render.geometry.deformation import (
     model_deformation,
     model_stretch_bound,
     rigid_anchors,
+    sample_pose_space,
     skin_topology,
 )
 from hack_render.geometry.model import HackModel
@@ -65,13 +74,52 @@ def summary(gap: np.ndarray, folded: np.ndarray) -> dict:
             "folded_triangles": int(folded.sum())}
 
 
+def pairs(args) -> tuple[list[str], torch.Tensor, np.ndarray, torch.Tensor]:
+    """The family names, poses (P, 8, 3) float64, each pose's family index (P,) and the
+    identities (I, 20) of the options: the subset (:func:`bench_pose_gate.subset`) or, with
+    ``--pose-bench``, ``bench_pose_space.py``'s own pairs (2,000 poses of seed 21, ten
+    identities beta ~ N(0, I) of the same seed); then only ``--families`` (in the bench's
+    order) and every ``--every``-th pose. ValueError for an unknown family."""
+    if args.pose_bench:
+        args.poses, args.identities, args.seed = 2000, 10, 21
+        fams = sample_pose_space(args.poses, args.seed)
+        names, theta = list(fams), torch.cat(list(fams.values()))
+        fam_of = np.concatenate([[k] * len(v) for k, v in enumerate(fams.values())])
+        betas = torch.randn(args.identities, 20, generator=torch.Generator().manual_seed(args.seed))
+    else:
+        names, theta, fam_of, betas = subset(args)
+    if args.families:
+        keep = args.families.split(",")
+        if set(keep) - set(names):
+            raise ValueError(f"--families: unknown {sorted(set(keep) - set(names))}; known {names}")
+        sel = np.isin(fam_of, [names.index(f) for f in keep])
+        theta = theta[torch.from_numpy(sel)]
+        fam_of = np.array([keep.index(names[k]) for k in fam_of[sel]], dtype=int)
+        names = keep
+    if args.every > 1:
+        theta, fam_of = theta[::args.every], fam_of[::args.every]
+    return names, theta, fam_of, betas
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_subset_arguments(ap)
     ap.add_argument("--iterations", type=int, default=30, help="ARAP's local-global rounds")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--pose-bench", action="store_true",
+                    help="the whole pose bench's poses and identities (bench_pose_space.py's "
+                         "2,000 poses and 10 identities of seed 21) instead of the subset")
+    ap.add_argument("--families", default="",
+                    help="comma-separated pose families to keep (e.g. head_x); default all")
+    ap.add_argument("--every", type=int, default=1,
+                    help="keep every K-th pose of the kept families (an even thinning)")
+    ap.add_argument("--views", default="neutral,expression",
+                    help="neutral, expression or both (comma-separated)")
     ap.add_argument("--out", type=Path, default=Path("bench/results/pose_arap.json"))
     args = ap.parse_args(argv)
+    views = [v for v in args.views.split(",") if v]
+    if not views or set(views) - {"neutral", "expression"}:
+        ap.error(f"--views: neutral and/or expression, not {args.views!r}")
     torch.set_num_threads(args.threads)
     path = args.model or default_model_path()
     arrays, meta = load_model_file(path)
@@ -79,17 +127,24 @@ def main(argv=None) -> None:
     lbs = HackModel(without_correctives(arrays), meta).double()
     topo = skin_topology(model)
     anchors = rigid_anchors(model, topo)
-    names, theta, fam_of, betas = subset(args)
+    try:
+        names, theta, fam_of, betas = pairs(args)
+    except ValueError as err:
+        ap.error(str(err))
     betas = betas.double()
     active = within_active_range(theta)  # the poses within the neck's active range
     t0 = time.time()
     results = {"model": str(args.model) if args.model else "the shipped model",
+               "pose_bench": args.pose_bench, "every": args.every, "kept_poses": len(theta),
+               "views": views,
                "poses": args.poses, "identities": args.identities, "seed": args.seed,
                "arap_iterations": args.iterations, "expression": EXPRESSION,
                "families": names, "active_range_poses": int(active.sum()),
                "targets": {**TARGETS, "arap_allowance": ARAP_ALLOWANCE},
                "configurations": {}}
     for conf, psi in (("neutral", None), ("expression", model.expression_vector(EXPRESSION))):
+        if conf not in views:
+            continue
         raw = {k: [] for k in ("bound", "lbs", "lbs_folded", "arap", "arap_folded", "model",
                                "model_folded")}
         for b in betas:
