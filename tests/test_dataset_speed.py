@@ -268,3 +268,67 @@ def test_08_with_hair_the_first_scene_is_built_while_the_groom_grows(tmp_path, m
     plain.render(0)
     plain.close()
     assert tree(tmp_path / "ahead") == tree(tmp_path / "plain")
+
+
+def test_09_labels_beside_the_render_give_the_same_files(tmp_path, monkeypatch):
+    """Each view's label pass and landmark visibility run on a helper thread while the
+    path tracer renders the view (``SampleRenderer.overlap_labels``), with nothing parked
+    freed meanwhile; the files equal those of labels made before the render on the
+    rendering thread, with hair (the samples' grooms swapped into the slots) and bald."""
+    import threading
+
+    from hack_render.render import engine
+
+    where, during = [], []
+    label_images, render = lab.label_images, HeadScene.render
+
+    def labelled(*args, **kwargs):
+        where.append(threading.current_thread().name.split("_")[0])
+        return label_images(*args, **kwargs)
+
+    def rendered(self, *args, **kwargs):
+        during.append(engine._kept)  # parked objects kept while the labels may run
+        return render(self, *args, **kwargs)
+
+    monkeypatch.setattr(lab, "label_images", labelled)
+    monkeypatch.setattr(HeadScene, "render", rendered)
+    for name, hair in (("bald", "none"), ("hair", {"style": "sampled", "lod": 0.05})):
+        cfg = load_config(overrides=dict(TINY, hair=hair))
+        for overlap in (True, False):
+            monkeypatch.setattr(SampleRenderer, "overlap_labels", overlap)
+            where.clear()
+            during.clear()
+            r = SampleRenderer(cfg, tmp_path / f"{name}_{overlap}", 5, background_writes=True)
+            for j in range(2):
+                r.submit(j, then=j + 1 if j == 0 else None).result()
+            r.close()
+            assert where == (["dataset-labels"] * 2 if overlap else ["MainThread"] * 2)
+            assert during == [int(overlap)] * 2
+        assert tree(tmp_path / f"{name}_True") == tree(tmp_path / f"{name}_False")
+    assert engine._kept == 0
+
+
+def test_10_nothing_parked_is_freed_inside_parked_kept():
+    """engine.parked_kept: release_parked frees nothing inside the block (the objects of
+    a scene dropped meanwhile wait), everything after it."""
+    import gc
+
+    from hack_render.render import engine
+
+    class Owner:
+        pass
+
+    engine.release_parked()
+    freed = []
+
+    class Held:
+        def __del__(self):
+            freed.append(True)
+
+    owner = Owner()
+    engine.release_when_safe(owner, Held())
+    del owner
+    gc.collect()
+    with engine.parked_kept():
+        assert engine.release_parked() == 0 and not freed
+    assert engine.release_parked() == 1 and freed == [True]
