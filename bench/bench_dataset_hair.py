@@ -25,13 +25,12 @@
     in another checkout right after, in its own process. ``--pool-grown``: this checkout
     once more with the measured samples' grooms grown during the warm-up (``hair.pool``:
     the first samples of a dataset grow their pooled grooms, a later stretch finds them).
-    ``--serial-labels``: this checkout once more with each view's label pass made before
-    its render on the rendering thread (``SampleRenderer.overlap_labels = False``; by
-    default it runs on a helper thread beside the render). ``--bald``: the config with
-    ``hair: none``. Besides the render call inside the pipeline, the render call alone:
-    after the stream, each preset's scene as its last sample left it rendered 3 more times
-    with nothing beside it (the median over the presets of each scene's median): the
-    denominator the issue's 1.3x means, which other threads' work cannot inflate.
+    ``--bald``: the config with ``hair: none``. Besides the render call inside the
+    pipeline, the render call alone: after the stream, each preset's scene as its last
+    sample left it rendered 3 more times with nothing beside it (the median over the
+    presets of each scene's median), with its CPU seconds: the denominator the issue's
+    1.3x means, which other threads' work cannot inflate (inside the pipeline the render
+    call also waits for the cores the other threads hold).
 
 (d) ``--groom``: the groom alone, in a fresh process per checkout: ``grow`` of the hair of
     samples 0..``--n``-1 of ``--seed`` (the default config), then ``pose_groom`` of each on
@@ -42,7 +41,7 @@
 Usage: python bench/bench_dataset_hair.py --sheet docs/images/dataset_hair_sheet.png
        python bench/bench_dataset_hair.py --speed [--n 6] [--size 256] [--spp 25] [--lod 0.25]
        python bench/bench_dataset_hair.py --steady [--n 6] [--warm 2] [--before PATH]
-           [--bald] [--serial-labels] [--pool-grown]
+           [--bald] [--pool-grown]
        python bench/bench_dataset_hair.py --groom [--n 40] [--before PATH]
 """
 
@@ -202,7 +201,6 @@ over = {{"render": {{"resolution": {size}, "spp": {spp}}}}}
 if {bald}:
     over["hair"] = "none"
 cfg = load_config(overrides=over)
-wk.SampleRenderer.overlap_labels = {overlap}
 r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes=True)
 # warm-up: {warm} samples, and on until every lighting preset has rendered (its kernels)
 presets, i = set(), 0
@@ -232,17 +230,20 @@ parts = timer.take()
 r.close()
 # the render call alone: each preset's scene as its last sample left it (mesh, camera,
 # lights), rendered again with nothing else running, median of 3 a scene
-alone = []
+alone, alone_cpu = [], []
 for head in r.scenes.values():
-    ts = []
+    ts, cs = [], []
     for k in range(3):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         head.render(seed=k, backdrop=False, sss=cfg["render"]["sss"])
         ts.append(time.perf_counter() - t)
+        cs.append(time.process_time() - c)
     alone.append(sorted(ts)[1])
+    alone_cpu.append(sorted(cs)[1])
 print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
                   "render_call": parts.get("render", 0.0) / {n},
                   "render_alone": sorted(alone)[len(alone) // 2],
+                  "render_alone_cpu": sorted(alone_cpu)[len(alone_cpu) // 2],
                   "labels": parts.get("label_images", 0.0) / {n},
                   "scene_update": parts.get("set_camera", 0.0) / {n},
                   "kernels_compiled": len(miss), "first": first,
@@ -328,8 +329,7 @@ def groom_cost(n: int, seed: int, before: str | None, out: str | None) -> None:
 
 
 def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None,
-           out: str | None, grown: bool = False, bald: bool = False,
-           serial_labels: bool = False) -> None:
+           out: str | None, grown: bool = False, bald: bool = False) -> None:
     import subprocess
 
     printed: list[str] = []
@@ -340,7 +340,8 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
 
     here = str(Path(__file__).resolve().parents[1])
     print(f"load average (1 min) before: {os.getloadavg()[0]:.1f}")
-    results: dict = {"title": "Datasets with hair at render speed (issue 65)", "runs": {}}
+    results: dict = {"title": "Datasets at render speed, bald (issue 65)" if bald else
+                     "Datasets with hair at render speed (issue 65)", "runs": {}}
     what = ("the default config but hair: none (bald heads)" if bald else
             f"the default config (hair sampled, lod {load_config()['hair']['lod']:g})")
     print(f"(c) {what} at "
@@ -349,13 +350,11 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
           f"rendered once, each checkout in a fresh process; the render call alone: each "
           f"preset's scene as its last sample left it, rendered again with nothing beside it "
           f"(median):")
-    runs = [("this", here, False, True)] + \
-        ([("this, labels before the render", here, False, False)] if serial_labels else []) + \
-        ([("this, pool grown", here, True, True)] if grown else []) + \
-        ([("before", before, False, True)] if before else [])
-    for name, root, pregrown, overlap in runs:
+    runs = [("this", here, False)] + ([("this, pool grown", here, True)] if grown else []) + \
+        ([("before", before, False)] if before else [])
+    for name, root, pregrown in runs:
         code = STEADY.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
-                             warm=warm, n=n, grown=pregrown, bald=bald, overlap=overlap)
+                             warm=warm, n=n, grown=pregrown, bald=bald)
         env = dict(os.environ, PYTHONPATH=root)
         line = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, check=True,
                               capture_output=True, text=True).stdout.strip().splitlines()[-1]
@@ -367,7 +366,8 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
               f"{d['s_per_sample']:.2f} s/sample; render call "
               f"{d['render_call']:.2f} s (ratio {d['s_per_sample'] / d['render_call']:.2f}x, "
               f"target <= 1.3x); render call alone {d['render_alone']:.2f} s (ratio "
-              f"{d['s_per_sample'] / d['render_alone']:.2f}x); labels {d['labels']:.2f} s; "
+              f"{d['s_per_sample'] / d['render_alone']:.2f}x; its CPU "
+              f"{d['render_alone_cpu']:.2f} s); labels {d['labels']:.2f} s; "
               f"scene update (in set_camera: "
               f"the sample's one acceleration-structure build) {d['scene_update']:.2f} s; "
               f"process CPU "
@@ -396,17 +396,13 @@ def main() -> None:
                     help="(c): also run this checkout with the measured samples' pooled "
                     "grooms grown in the warm-up (a later stretch of a long dataset)")
     ap.add_argument("--bald", action="store_true", help="(c): the config with hair: none")
-    ap.add_argument("--serial-labels", action="store_true",
-                    help="(c): also run this checkout with each view's labels made before its "
-                    "render on the rendering thread (SampleRenderer.overlap_labels = False)")
     ap.add_argument("--before", default=None, help="(c), (d): another checkout to compare with")
     ap.add_argument("--out", default=None, help="(c), (d): also write what it prints, with commit")
     a = ap.parse_args()
     if a.sheet:
         sheet(Path(a.sheet), a.seed, a.keep, a.size)
     if a.steady:
-        steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out, a.pool_grown, a.bald,
-               a.serial_labels)
+        steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out, a.pool_grown, a.bald)
     if a.groom:
         groom_cost(a.n, a.seed, a.before, a.out)
     if a.speed:

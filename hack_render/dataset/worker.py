@@ -28,8 +28,8 @@ from __future__ import annotations
 import json
 import shutil
 import threading
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor, wait
-from functools import partial
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -41,7 +41,6 @@ from appearance.projected import SubjectProjector
 from hack_render.dataset import labels as lab
 from hack_render.dataset.backgrounds import background_image
 from hack_render.dataset.config import render_settings
-from hack_render.dataset.files import FileWriter
 from hack_render.dataset.sampling import model_kwargs, params_file, pool_size, sample_spec
 from hack_render.geometry import load_default_model
 from hack_render.hair.groom import Groom, GroomCache
@@ -50,7 +49,6 @@ from hack_render.hair.regions import HeadSurface
 from hack_render.hair.style import HairStyle
 from hack_render.io import atomic_path, write_json
 from hack_render.io.image import rgb_channels, to_srgb8, write_exr
-from hack_render.render.engine import parked_kept, release_parked
 from hack_render.render.hair_shapes import slot_bound, slots_take
 from hack_render.render.materials import SkinMaps
 from hack_render.render.parts import Topology, vertex_normals
@@ -85,9 +83,6 @@ class SampleRenderer:
 
     #: Samples whose files may still be queued when the next sample starts (memory bound).
     max_pending = 2
-    #: A view's label pass and landmark visibility run on a helper thread while the path
-    #: tracer renders it (False: before the render, on the calling thread; the same files).
-    overlap_labels = True
 
     def __init__(self, cfg: dict, out: str | Path, seed: int, background_writes: bool = False):
         self.cfg, self.out, self.seed = cfg, Path(out), int(seed)
@@ -118,7 +113,6 @@ class SampleRenderer:
         #: index -> future of its :meth:`inputs`, started by :meth:`prefetch`
         self._prefetched: dict[int, Future] = {}
         self._prefetch_pool: ThreadPoolExecutor | None = None
-        self._label_pool: ThreadPoolExecutor | None = None
         # made on the prefetch thread while this one builds the scenes, before the first
         # sample's inputs: the projector (~1 s: the appearance model loaded and pooled) and
         # the skin label atlas (~1 s to rasterise; :attr:`atlas` waits for it)
@@ -135,13 +129,10 @@ class SampleRenderer:
         """(H, 2H) uint8: the skin label atlas (``labels.skin_label_atlas``)."""
         return self._atlas.result()
 
-    def _helper(self, name: str, prefix: str) -> ThreadPoolExecutor:
-        if getattr(self, name) is None:  # one thread each: prefetch, labels
-            setattr(self, name, ThreadPoolExecutor(1, thread_name_prefix=prefix))
-        return getattr(self, name)
-
     def _prefetcher(self) -> ThreadPoolExecutor:
-        return self._helper("_prefetch_pool", "dataset-prefetch")
+        if self._prefetch_pool is None:
+            self._prefetch_pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-prefetch")
+        return self._prefetch_pool
 
     # --- parts ----------------------------------------------------------------------
     def spec(self, index: int) -> dict:
@@ -367,7 +358,7 @@ class SampleRenderer:
                                            inp["background"]))
         spec = dict(spec, larynx_peak_vertex=larynx_vertex, views=views,
                     variant=head.variant)
-        record = self.writer.submit_record(_write_record, self.out, folder, spec, writes)
+        record = self.writer.submit(_write_record, self.out, folder, spec, writes)
         if rest and not self._hair_scene:
             self.build_scenes()
         return record
@@ -383,25 +374,8 @@ class SampleRenderer:
         # directions moved in the last bit): without this a pixel or two of ~1 sample in 8
         # depended on the sample rendered before (found by rendering samples in two orders)
         head.sync_environment()
-        atlas, k = self.atlas, r["soft_mask_samples"]
-        points = out.landmarks[0].numpy(), out.joints[0].numpy(), larynx
-
-        def labels():  # the label pass and the landmarks' visibility: rays, no shading
-            return (*lab.label_images(head, k, atlas), lab.landmark_record(head, cam, *points))
-
-        render = partial(head.render, seed=spec["render_seed"] + v, backdrop=False, sss=r["sss"])
-        if not self.overlap_labels:
-            aov, seg, masks, lm = labels()
-            bare = render()
-        else:  # beside the path tracer (it releases the GIL; both only read the scene)
-            release_parked()  # and nothing parked is freed meanwhile (engine.parked_kept)
-            ahead = self._helper("_label_pool", "dataset-labels").submit(labels)
-            try:
-                with parked_kept():
-                    bare = render()
-            finally:
-                wait([ahead])  # an interrupted render leaves no pass running on the scene
-            aov, seg, masks, lm = ahead.result()
+        # labels first: their files are written while the path tracer runs
+        aov, seg, masks = lab.label_images(head, r["soft_mask_samples"], self.atlas)
         meta = {"hack_camera": json.dumps(cam.to_dict(), sort_keys=True)}
         # the image's own sampling, in its headers (the labels are not path traced)
         rgb_meta = dict(meta, hack_sampler=head.settings.mitsuba_sampler,
@@ -416,9 +390,12 @@ class SampleRenderer:
             put(_write_png, vdir / "segmentation.png", seg.astype(np.uint8)),
             put(write_exr, vdir / "masks.exr",
                 {f"mask.{n}": masks[..., i] for i, n in enumerate(lab.LABELS)})]
+        lm = lab.landmark_record(head, cam, out.landmarks[0].numpy(), out.joints[0].numpy(),
+                                 larynx)
         writes += [put(write_json, vdir / "landmarks.json", lm, indent=1, sort_keys=True),
                    put(write_json, vdir / "camera.json", cam.to_dict(), indent=1,
                        sort_keys=True)]
+        bare = head.render(seed=spec["render_seed"] + v, backdrop=False, sss=r["sss"])
         mode = r["denoise"]
         img = head.denoise(bare, fallback=mode == "auto") if mode != "off" else bare
         gain = np.float32(2.0 ** spec["lighting"]["exposure"])
@@ -442,10 +419,9 @@ class SampleRenderer:
     def close(self) -> None:
         """Wait for every queued write (errors stay with their samples' futures) and stop
         the writer and prefetch threads."""
-        for name in ("_prefetch_pool", "_label_pool"):
-            if getattr(self, name) is not None:
-                getattr(self, name).shutdown(wait=True)
-                setattr(self, name, None)
+        if self._prefetch_pool is not None:
+            self._prefetch_pool.shutdown(wait=True)
+            self._prefetch_pool = None
         self._prefetched.clear()
         self.writer.close()
 
@@ -464,3 +440,44 @@ def _write_record(out: Path, folder: Path, spec: dict, writes: list) -> dict:
     spec["files"] = {str(p.relative_to(out)): p.stat().st_size for p in files}
     write_json(folder / SAMPLE_RECORD, spec, indent=1, sort_keys=True)
     return spec
+
+
+class FileWriter:
+    """Runs file writes in the order they are submitted: on one background thread
+    (``background=True``), or at once in the caller's thread. Returns futures; a failed
+    write's exception is raised by its future."""
+
+    def __init__(self, background: bool = False):
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="dataset-writer") \
+            if background else None
+        self._records: deque[Future] = deque()
+
+    @property
+    def background(self) -> bool:
+        return self._pool is not None
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        if self._pool is not None:
+            fut = self._pool.submit(fn, *args, **kwargs)
+        else:
+            fut = Future()
+            try:
+                fut.set_result(fn(*args, **kwargs))
+            except Exception as err:  # noqa: BLE001 - kept in the future, as a thread would
+                fut.set_exception(err)
+        if fn is _write_record:
+            self._records.append(fut)
+        return fut
+
+    def wait_below(self, n: int) -> None:
+        """Block until fewer than ``n`` samples' records are still pending (memory bound)."""
+        while self._records and (self._records[0].done() or len(self._records) >= n):
+            f = self._records.popleft()
+            if not f.done():
+                wait([f])
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        self._records.clear()

@@ -13,7 +13,6 @@ import os
 import threading
 import warnings
 import weakref
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 from hack_render import threads
@@ -181,8 +180,6 @@ def set_thread_count(n: int) -> None:
 # by the thread that renders, at the start of its next scene or render.
 _parked: list[tuple] = []
 _parked_lock = threading.Lock()
-#: how many :func:`parked_kept` blocks are open: while any is, nothing parked is freed
-_kept = 0
 
 
 def release_when_safe(owner, *objects) -> None:
@@ -203,26 +200,8 @@ def release_parked() -> int:
     :func:`release_when_safe`); call where no render is in progress. Returns how many
     owners' objects were freed."""
     with _parked_lock:
-        if _kept:
-            return 0
         batch = _parked[:]
         _parked.clear()
     n = len(batch)
     del batch  # the objects die here, on this thread
     return n
-
-
-@contextmanager
-def parked_kept():
-    """Keep the parked objects alive inside the block: :func:`release_parked` (which every
-    render calls first) frees nothing there. For a render with another Dr.Jit pass on
-    the same scene beside it on a second thread (the dataset's labels): an object freed
-    by the render's thread would change the registry under that pass."""
-    global _kept
-    with _parked_lock:
-        _kept += 1
-    try:
-        yield
-    finally:
-        with _parked_lock:
-            _kept -= 1
