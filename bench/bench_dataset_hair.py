@@ -38,11 +38,22 @@
     every array grown and posed: two checkouts with the same digest grow and pose the same
     grooms bit for bit; ``--before PATH`` runs the other checkout right after.
 
+(e) ``--cpu-parts``: where a sample's CPU seconds go (the process's, all threads: Dr.Jit's
+    and Embree's included), every part run on the calling thread one at a time (no
+    prefetch, files written in place), ``--n`` samples after the warm-up, in a fresh
+    process (``--bald``: hair none): the render call (and its cores busy), the scene
+    update (the acceleration structure rebuilt), the labels, the inputs (skin maps, groom
+    grown or pooled, groom posed), the hair swap, the files. Since the render call alone
+    keeps the cores busy, a pipeline of these parts cannot take less than their CPU
+    seconds / the cores; printed as a ratio to the render call's wall time, for all the
+    parts and for the render call with the scene update and the labels alone.
+
 Usage: python bench/bench_dataset_hair.py --sheet docs/images/dataset_hair_sheet.png
        python bench/bench_dataset_hair.py --speed [--n 6] [--size 256] [--spp 25] [--lod 0.25]
        python bench/bench_dataset_hair.py --steady [--n 6] [--warm 2] [--before PATH]
            [--bald] [--pool-grown]
        python bench/bench_dataset_hair.py --groom [--n 40] [--before PATH]
+       python bench/bench_dataset_hair.py --cpu-parts [--n 8] [--bald]
 """
 
 from __future__ import annotations
@@ -252,6 +263,92 @@ print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
 """
 
 
+CPU_PARTS = """
+import json, sys, tempfile, time
+sys.path.insert(0, {bench!r})
+from method_timer import MethodTimer
+from hack_render.render.engine import ensure_variant
+ensure_variant()
+from hack_render.dataset import labels as lab
+from hack_render.dataset import worker as wk
+from hack_render.dataset.config import load_config
+from hack_render.render.scene import HeadScene
+over = {{"render": {{"resolution": {size}, "spp": {spp}}}}}
+if {bald}:
+    over["hair"] = "none"
+cfg = load_config(overrides=over)
+# one thread does everything, one part at a time: no prefetch, files written in place
+r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes=False)
+presets, i = set(), 0
+while len(presets) < len(cfg["lighting"]["presets"]) or i < {warm}:
+    presets.add(r.spec(i)["lighting"]["preset"])
+    r.render(i)
+    i += 1
+cpu, wall = MethodTimer(clock=time.process_time), MethodTimer()
+for owner, name in ((HeadScene, "render"), (HeadScene, "set_camera"), (lab, "label_images"),
+                    (wk.SampleRenderer, "inputs"), (wk.SampleRenderer, "skin_maps"),
+                    (wk.SampleRenderer, "groom"), (wk, "pose_groom"),
+                    (wk.SampleRenderer, "scene_with_hair"), (wk, "write_exr"),
+                    (wk, "_write_png"), (wk, "_write_rgb_png"), (wk, "write_json")):
+    cpu.wrap(owner, name)
+    wall.wrap(owner, name)
+t0, c0 = time.perf_counter(), time.process_time()
+for j in range(i, i + {n}):
+    r.render(j)
+t, c = (time.perf_counter() - t0) / {n}, (time.process_time() - c0) / {n}
+r.close()
+print(json.dumps({{"wall": t, "cpu": c, "first": i,
+                  "parts_cpu": {{k: v / {n} for k, v in cpu.take().items()}},
+                  "parts_wall": {{k: v / {n} for k, v in wall.take().items()}}}}))
+"""
+
+
+def cpu_parts(n: int, warm: int, size: int, spp: int, seed: int, bald: bool,
+              out: str | None) -> None:
+    """(e): where a sample's CPU seconds go (see the docstring)."""
+    import subprocess
+
+    here = str(Path(__file__).resolve().parents[1])
+    code = CPU_PARTS.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
+                            warm=warm, n=n, bald=bald)
+    d = json.loads(subprocess.run([sys.executable, "-c", code], cwd=here, check=True,
+                                  capture_output=True, text=True).stdout.strip().splitlines()[-1])
+    pc, pw = d["parts_cpu"], d["parts_wall"]
+    cores = os.cpu_count() or 1
+    files = sum(pc.get(k, 0.0) for k in ("write_exr", "_write_png", "_write_rgb_png", "write_json"))
+    named = sum(pc.get(k, 0.0) for k in ("render", "set_camera", "label_images", "inputs",
+                                         "scene_with_hair")) + files
+    rw, rc = pw["render"], pc["render"]
+    lines = [f"load average (1 min) before: {os.getloadavg()[0]:.1f}",
+             (f"(e) CPU seconds a sample (all threads: Dr.Jit's and Embree's included), "
+             f"{'bald (hair: none)' if bald else 'the default config (hair sampled)'}, {size} "
+             f"px, {spp} spp, every part on the calling thread one at a time (no prefetch, "
+             f"files written in place), samples {d['first']}..{d['first'] + n - 1} of seed "
+             f"{seed}, a fresh process:"),
+             (f"    total {d['cpu']:.3f} CPU s (wall {d['wall']:.3f} s); render call {rc:.3f} "
+             f"(wall {rw:.3f}: {rc / rw:.2f} of {cores} cores busy); scene update (set_camera: "
+             f"the acceleration structure rebuilt) {pc.get('set_camera', 0):.3f}; labels "
+             f"{pc.get('label_images', 0):.3f}; inputs {pc.get('inputs', 0):.3f} (skin maps "
+             f"{pc.get('skin_maps', 0):.3f}, groom grown or pooled {pc.get('groom', 0):.3f}, "
+             f"groom posed {pc.get('pose_groom', 0):.3f}); the scene's hair swap "
+             f"{pc.get('scene_with_hair', 0):.3f}; files {files:.3f} (EXR "
+             f"{pc.get('write_exr', 0):.3f}); the rest {d['cpu'] - named:.3f}"),
+             (f"    the render call keeps the cores busy, so a pipeline of these parts takes at "
+             f"least its CPU seconds / {cores} cores: {d['cpu'] / cores:.3f} s = "
+             f"{d['cpu'] / cores / rw:.2f}x the render call's wall; the render call, the scene "
+             f"update and the labels alone (what every sample needs): "
+             f"{(rc + pc.get('set_camera', 0) + pc.get('label_images', 0)) / cores / rw:.2f}x; "
+             f"the render call and the scene update alone: "
+             f"{(rc + pc.get('set_camera', 0)) / cores / rw:.2f}x (target <= 1.3x)"),
+             f"load average (1 min) after: {os.getloadavg()[0]:.1f}"]
+    for line in lines:
+        print(line, flush=True)
+    if out:
+        res = {"title": "Where a dataset sample's CPU seconds go (issue 65)", **d,
+               "cores": cores, "printed": lines}
+        print(f"wrote {write_result(out, res)}")
+
+
 GROOM = """
 import dataclasses, hashlib, json, time
 import numpy as np
@@ -395,7 +492,8 @@ def main() -> None:
     ap.add_argument("--pool-grown", action="store_true",
                     help="(c): also run this checkout with the measured samples' pooled "
                     "grooms grown in the warm-up (a later stretch of a long dataset)")
-    ap.add_argument("--bald", action="store_true", help="(c): the config with hair: none")
+    ap.add_argument("--bald", action="store_true", help="(c), (e): the config with hair: none")
+    ap.add_argument("--cpu-parts", action="store_true")
     ap.add_argument("--before", default=None, help="(c), (d): another checkout to compare with")
     ap.add_argument("--out", default=None, help="(c), (d): also write what it prints, with commit")
     a = ap.parse_args()
@@ -405,6 +503,8 @@ def main() -> None:
         steady(a.n, a.warm, a.size, a.spp, a.seed, a.before, a.out, a.pool_grown, a.bald)
     if a.groom:
         groom_cost(a.n, a.seed, a.before, a.out)
+    if a.cpu_parts:
+        cpu_parts(a.n, a.warm, a.size, a.spp, a.seed, a.bald, a.out)
     if a.speed:
         speed(a.n, a.warm, a.size, a.spp, a.lod or [load_config()["hair"]["lod"]], a.seed)
 

@@ -45,3 +45,25 @@ def test_wrapped_methods_are_timed_per_name_and_reset_by_take(timer_module):
     assert timer.take() == {}                                 # take resets the totals
     o.slow(0)
     assert set(timer.take()) == {"slow"}
+
+
+def test_a_cpu_clock_counts_work_not_waits(timer_module):
+    """MethodTimer(clock=time.process_time): CPU seconds, so a sleep counts ~0 and a busy
+    loop about its wall time."""
+    class Owner:
+        def sleeps(self):
+            time.sleep(0.1)
+
+        def spins(self):
+            t0 = time.perf_counter()
+            while time.perf_counter() - t0 < 0.1:
+                pass
+
+    timer = timer_module.MethodTimer(clock=time.process_time)
+    timer.wrap(Owner, "sleeps")
+    timer.wrap(Owner, "spins")
+    o = Owner()
+    o.sleeps()
+    o.spins()
+    got = timer.take()
+    assert got["sleeps"] < 0.03 and 0.05 < got["spins"] < 0.5
