@@ -196,7 +196,9 @@ def speed(n: int, warm: int, size: int, spp: int, lods: list[float], seed: int) 
     print(json.dumps({"n": n, "size": size, "spp": spp, "lods": lods}))
 
 
-STEADY = """
+#: (c)'s and (e)'s fresh process: a renderer of the config (``background``: files on the
+#: writer thread), warmed up by ``warm`` samples and until every preset has rendered
+RENDERER = """
 import json, sys, tempfile, time
 sys.path.insert(0, {bench!r})
 from method_timer import MethodTimer
@@ -212,14 +214,15 @@ over = {{"render": {{"resolution": {size}, "spp": {spp}}}}}
 if {bald}:
     over["hair"] = "none"
 cfg = load_config(overrides=over)
-r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes=True)
-# warm-up: {warm} samples, and on until every lighting preset has rendered (its kernels)
+r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes={background})
 presets, i = set(), 0
 while len(presets) < len(cfg["lighting"]["presets"]) or i < {warm}:
     presets.add(r.spec(i)["lighting"]["preset"])
     r.render(i)
     i += 1
-first = i
+"""
+
+STEADY = RENDERER + """first = i
 js = list(range(first, first + {n}))
 if {grown}:  # a later stretch of a long dataset: the measured samples' pooled grooms grown
     for j in js:
@@ -263,28 +266,8 @@ print(json.dumps({{"s_per_sample": wall / {n}, "cpu_per_sample": cpu / {n},
 """
 
 
-CPU_PARTS = """
-import json, sys, tempfile, time
-sys.path.insert(0, {bench!r})
-from method_timer import MethodTimer
-from hack_render.render.engine import ensure_variant
-ensure_variant()
-from hack_render.dataset import labels as lab
-from hack_render.dataset import worker as wk
-from hack_render.dataset.config import load_config
-from hack_render.render.scene import HeadScene
-over = {{"render": {{"resolution": {size}, "spp": {spp}}}}}
-if {bald}:
-    over["hair"] = "none"
-cfg = load_config(overrides=over)
 # one thread does everything, one part at a time: no prefetch, files written in place
-r = wk.SampleRenderer(cfg, tempfile.mkdtemp(), {seed}, background_writes=False)
-presets, i = set(), 0
-while len(presets) < len(cfg["lighting"]["presets"]) or i < {warm}:
-    presets.add(r.spec(i)["lighting"]["preset"])
-    r.render(i)
-    i += 1
-cpu, wall = MethodTimer(clock=time.process_time), MethodTimer()
+CPU_PARTS = RENDERER + """cpu, wall = MethodTimer(clock=time.process_time), MethodTimer()
 for owner, name in ((HeadScene, "render"), (HeadScene, "set_camera"), (lab, "label_images"),
                     (wk.SampleRenderer, "inputs"), (wk.SampleRenderer, "skin_maps"),
                     (wk.SampleRenderer, "groom"), (wk, "pose_groom"),
@@ -310,7 +293,7 @@ def cpu_parts(n: int, warm: int, size: int, spp: int, seed: int, bald: bool,
 
     here = str(Path(__file__).resolve().parents[1])
     code = CPU_PARTS.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
-                            warm=warm, n=n, bald=bald)
+                            warm=warm, n=n, bald=bald, background=False)
     d = json.loads(subprocess.run([sys.executable, "-c", code], cwd=here, check=True,
                                   capture_output=True, text=True).stdout.strip().splitlines()[-1])
     pc, pw = d["parts_cpu"], d["parts_wall"]
@@ -451,7 +434,7 @@ def steady(n: int, warm: int, size: int, spp: int, seed: int, before: str | None
         ([("before", before, False)] if before else [])
     for name, root, pregrown in runs:
         code = STEADY.format(bench=str(Path(here) / "bench"), size=size, spp=spp, seed=seed,
-                             warm=warm, n=n, grown=pregrown, bald=bald)
+                             warm=warm, n=n, grown=pregrown, bald=bald, background=True)
         env = dict(os.environ, PYTHONPATH=root)
         line = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, check=True,
                               capture_output=True, text=True).stdout.strip().splitlines()[-1]
