@@ -54,16 +54,17 @@ def test_a_cpu_clock_counts_work_not_waits(timer_module):
         def sleeps(self):
             time.sleep(0.1)
 
-        def spins(self):
-            t0 = time.perf_counter()
+        def spins(self):  # 0.1 s of arithmetic on this thread
+            t0, n = time.perf_counter(), 0
             while time.perf_counter() - t0 < 0.1:
-                pass
+                n += 1
+            return n
 
     timer = timer_module.MethodTimer(clock=time.process_time)
     timer.wrap(Owner, "sleeps")
     timer.wrap(Owner, "spins")
     o = Owner()
     o.sleeps()
-    o.spins()
+    assert o.spins() > 0
     got = timer.take()
     assert got["sleeps"] < 0.03 and 0.05 < got["spins"] < 0.5
